@@ -1,0 +1,123 @@
+"""Pairwise collision-avoidance barriers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..base import Barrier
+
+__all__ = ["APFBarrier"]
+
+_CONVENTIONS = ("surface", "centre")
+
+
+class APFBarrier(Barrier):
+    """Artificial-potential-field barrier (Singletary et al. 2021), as in the paper.
+
+    With the repulsive potential ``U(rho) = K_rep/2 (1/rho - 1/rho0)^2`` for
+    ``0 < rho <= rho0`` and 0 beyond, the barrier is ``h = 1 / (1 + U(rho)) - delta``.
+
+    Two distance conventions (SPEC section 2):
+
+    * ``"surface"`` (default, what the published code ran): ``rho = d - d_c``, the gap
+      between the two discs; ``delta = 1/2``. Then h is in (-1/2, 1/2] and ``h >= 0``
+      means the gap is at least ``safe_gap`` > 0.
+    * ``"centre"`` (the paper's formula read literally): ``rho = d`` and
+      ``delta = 1/(1 + U(d_c))`` so that h = 0 exactly at the collision distance.
+
+    The value and the exact gradient are computed in the algebraically equivalent form
+    ``h = 2 rho^2 / D - delta``, ``dh/drho = 4 K_rep q rho / D^2`` with
+    ``q = 1 - rho/rho0`` and ``D = 2 rho^2 + K_rep q^2``, which is finite for every
+    ``rho >= 0`` (no 1/rho blow-up). Overlap (``rho <= 0``) gives ``h = -delta`` with a
+    zero gradient, the continuous limit; at zero centre distance the direction is
+    undefined and the gradient is zero as well.
+
+    Parameters
+    ----------
+    K_rep : float
+        Repulsive gain in m^2 (> 0).
+    rho0 : float
+        Influence distance in metres (> 0); beyond it h = 1 - delta.
+    d_c : float
+        Collision distance in metres (robot radius + agent radius), >= 0.
+    convention : {"surface", "centre"}
+        Distance convention.
+    delta : float, optional
+        Offset; defaults to 1/2 ("surface") or 1/(1 + U(d_c)) ("centre").
+    """
+
+    def __init__(
+        self,
+        K_rep: float = 1.0,
+        rho0: float = 10.0,
+        d_c: float = 1.0,
+        convention: str = "surface",
+        delta: float | None = None,
+    ) -> None:
+        self.K_rep = K_rep
+        self.rho0 = rho0
+        self.d_c = d_c
+        self.convention = convention
+        self.delta = delta
+
+    # ------------------------------------------------------------------ helpers
+    def _checked(self) -> tuple[float, float, float, float]:
+        K, rho0, d_c = float(self.K_rep), float(self.rho0), float(self.d_c)
+        if not (math.isfinite(K) and K > 0):
+            raise ValueError(f"K_rep must be a finite number > 0, got {self.K_rep!r}")
+        if not (math.isfinite(rho0) and rho0 > 0):
+            raise ValueError(f"rho0 must be a finite number > 0, got {self.rho0!r}")
+        if not (math.isfinite(d_c) and d_c >= 0):
+            raise ValueError(f"d_c must be a finite number >= 0, got {self.d_c!r}")
+        if self.convention not in _CONVENTIONS:
+            raise ValueError(f"convention must be one of {_CONVENTIONS}, got {self.convention!r}")
+        return K, rho0, d_c, self.effective_delta
+
+    def potential(self, rho: float) -> float:
+        """U(rho) (dimensionless); infinite for rho <= 0."""
+        if rho <= 0:
+            return math.inf
+        if rho >= self.rho0:
+            return 0.0
+        return 0.5 * self.K_rep * (1.0 / rho - 1.0 / self.rho0) ** 2
+
+    @property
+    def effective_delta(self) -> float:
+        """The delta actually used."""
+        if self.delta is not None:
+            return float(self.delta)
+        if self.convention == "surface":
+            return 0.5
+        return 1.0 / (1.0 + self.potential(self.d_c))
+
+    @property
+    def upper_bound(self) -> float:
+        return 1.0 - self.effective_delta
+
+    @property
+    def safe_gap(self) -> float:
+        """Distance variable rho at which h = 0 (for "surface": the disc gap)."""
+        delta = self.effective_delta
+        if not 0 < delta < 1:
+            return math.nan
+        return 1.0 / (math.sqrt(2.0 * (1.0 / delta - 1.0) / self.K_rep) + 1.0 / self.rho0)
+
+    # ------------------------------------------------------------------ API
+    def evaluate(
+        self, x_ego: np.ndarray, x_agent: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        K, rho0, d_c, delta = self._checked()
+        diff = np.asarray(x_ego, dtype=float) - np.asarray(x_agent, dtype=float)
+        d = np.sqrt(np.einsum("...i,...i->...", diff, diff))
+        rho = d - d_c if self.convention == "surface" else d
+        r = np.clip(rho, 0.0, rho0)
+        q = 1.0 - r / rho0
+        D = 2.0 * r * r + K * q * q
+        h = 2.0 * r * r / D - delta
+        dh_drho = 4.0 * K * q * r / (D * D)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(d > 0, dh_drho / d, 0.0)
+        dh_dego = scale[..., None] * diff
+        return h, dh_dego, -dh_dego

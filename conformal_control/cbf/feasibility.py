@@ -1,0 +1,63 @@
+"""The feasibility floor of the conformal CBF controller (SPEC section 2).
+
+lambda is added to the constraint of *every* sensed agent. A far agent has a vanishing
+barrier gradient and h close to its supremum h_max, so its constraint reads
+``a h_max + lambda >= 0``: no velocity satisfies it once ``lambda < -a h_max``. Below that
+floor the QP is infeasible whatever the ego does, the fallback applies at every control
+instant, and - since with a perfect predictor the loss is s(lambda) - a target
+``epsilon <= s(-a h_max)`` cannot be reached: lambda winds down forever. This module
+computes the floor so runs can report an unattainable epsilon up front.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+__all__ = ["FeasibilityFloor", "feasibility_floor"]
+
+
+@dataclass(frozen=True)
+class FeasibilityFloor:
+    """lambda_floor = -a h_max and epsilon_floor = s(lambda_floor)."""
+
+    lambda_floor: float
+    epsilon_floor: float
+    epsilon: float
+    attainable: bool
+
+    def as_dict(self) -> dict[str, float | bool]:
+        return asdict(self)
+
+    def message(self, unit: str = "1/s") -> str:
+        """A one-sentence explanation for logs."""
+        if self.attainable:
+            return (
+                f"target epsilon={self.epsilon:g} is above the feasibility floor "
+                f"s(-a*h_max)={self.epsilon_floor:.4f} (lambda_floor={self.lambda_floor:g} {unit})"
+            )
+        return (
+            f"target epsilon={self.epsilon:g} is at or below the feasibility floor "
+            f"s(-a*h_max)={self.epsilon_floor:.4f}: below lambda={self.lambda_floor:g} {unit} "
+            "every QP with a sensed agent is infeasible, so lambda will wind down and the "
+            "fallback will apply; raise epsilon, raise a, or clip lambda with lambda_min"
+        )
+
+
+def feasibility_floor(a: float, h_max: float, epsilon: float, scale: float) -> FeasibilityFloor:
+    """Floor of lambda and of the attainable target loss.
+
+    Parameters
+    ----------
+    a : float
+        alpha slope (1/s).
+    h_max : float
+        Supremum of the barrier (``barrier.upper_bound``).
+    epsilon : float
+        Target average loss.
+    scale : float
+        Loss scale c (1/s).
+    """
+    lam_floor = -a * h_max
+    eps_floor = math.atan(lam_floor / scale) / math.pi
+    return FeasibilityFloor(lam_floor, eps_floor, float(epsilon), bool(epsilon > eps_floor))

@@ -1,0 +1,117 @@
+"""The paper's loss: the squashed gap between predicted and true CBF constraints."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..base import Barrier, Loss
+from ..interp import interpolate_at_substeps
+from .controller import CBFIntervalRecord
+
+__all__ = ["CBFGapLoss", "CBFTruth"]
+
+
+@dataclass
+class CBFTruth:
+    """The sensor's true trajectories of the agents sensed at the interval's start.
+
+    Attributes
+    ----------
+    samples : ndarray of shape (N, F + 1, 2)
+        True positions at the interval's sample times (its start included), NaN where an
+        agent was not observed (vanished, left the view).
+    dt : float
+        Sample spacing (s).
+    substeps : int
+        Control instants per sample.
+    """
+
+    samples: np.ndarray
+    dt: float
+    substeps: int
+
+
+class CBFGapLoss(Loss):
+    """l_k = max over sensed agents j and control instants t of s(gap_j(t) + lambda_k).
+
+    gap_j(t) = [dh^/dx_i . v_i + dh^/dx_j . v^_j + a h^] - [dh/dx_i . v_i + dh/dx_j . v_j + a h],
+    where hats use the interpolated prediction, the rest the true trajectory interpolated
+    and differentiated the same way, x_i is the ego position and v_i the velocity decision
+    applied at t. With a perfect predictor gap = 0 and l_k = s(lambda_k) exactly.
+    s(r) = arctan(r / c) / pi with the loss scale c (1/s).
+
+    (agent, instant) pairs whose truth is missing (the agent vanished mid-interval) are
+    left out of the max and counted in the diagnostics; an interval with no pair left has
+    no loss (and lambda is not updated).
+
+    Parameters
+    ----------
+    barrier : Barrier
+        The same barrier the controller uses.
+    a : float
+        The same alpha slope (1/s).
+    scale : float
+        Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
+    """
+
+    bounds = (-0.5, 0.5)
+
+    def __init__(self, barrier: Barrier, a: float = 1.0, scale: float = 1.0) -> None:
+        self.barrier = barrier
+        self.a = a
+        self.scale = scale
+
+    def squash(self, r: np.ndarray | float) -> np.ndarray | float:
+        """s(r) = arctan(r / c) / pi, in (-1/2, 1/2)."""
+        return np.arctan(np.asarray(r) / self.scale) / np.pi
+
+    def gaps(self, record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
+        """gap_j(t) without lambda, shape (S, N); NaN where the truth is missing."""
+        cached = getattr(self, "_cache", None)
+        if cached is not None and cached[0] is record and cached[1] is truth:
+            return cached[2]
+        gap = self._gaps(record, truth)
+        self._cache = (record, truth, gap)
+        return gap
+
+    def _gaps(self, record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
+        if not (math.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"loss scale must be a finite number > 0, got {self.scale!r}")
+        s, n = record.n_steps, record.ids.size
+        if s == 0 or n == 0:
+            return np.zeros((s, n))
+        x_true, v_true = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
+        x_ego = record.x_ego[:, None, :]
+        v_ego = record.v_ego[:, None, :]
+        h_p, gi_p, gj_p = self.barrier.evaluate(x_ego, record.x_pred)
+        with np.errstate(invalid="ignore"):
+            h_t, gi_t, gj_t = self.barrier.evaluate(x_ego, x_true)
+            pred = (gi_p * v_ego).sum(-1) + (gj_p * record.v_pred).sum(-1) + self.a * h_p
+            true = (gi_t * v_ego).sum(-1) + (gj_t * v_true).sum(-1) + self.a * h_t
+        gap = pred - true
+        valid = np.isfinite(x_true).all(-1) & np.isfinite(v_true).all(-1)
+        return np.where(valid, gap, np.nan)
+
+    def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
+        gap = self.gaps(record, truth)
+        if gap.size == 0 or not np.isfinite(gap).any():
+            return None
+        return float(self.squash(np.nanmax(gap) + lam))
+
+    def diagnostics(
+        self, record: CBFIntervalRecord, truth: CBFTruth, lam: float
+    ) -> dict[str, float]:
+        gap = self.gaps(record, truth)
+        if gap.size == 0 or not np.isfinite(gap).any():
+            return {}
+        lam_applied = np.where(np.isfinite(record.lam_applied), record.lam_applied, lam)
+        applied = float(self.squash(np.nanmax(gap + lam_applied[:, None])))
+        return {
+            "loss_applied": applied,
+            "max_gap": float(np.nanmax(gap)),
+            "n_pairs": int(np.isfinite(gap).sum()),
+            "n_truth_missing": int((~np.isfinite(gap)).sum()),
+        }

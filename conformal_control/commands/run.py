@@ -1,0 +1,136 @@
+"""``conformal-control run``: one episode of the conformal CBF controller."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import sys
+from pathlib import Path
+
+from . import command, key_values
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two numbers 'fx,fy', got {text!r}") from None
+    return a, b
+
+
+@command("run", "run the conformal CBF controller on a scene and write a run directory")
+def _run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--scene",
+        default="crossing",
+        help="crossing (built-in, default), a paper scene (nexus_4, gates_1, ...), "
+        "or sdd:<scene>/video<N>",
+    )
+    p.add_argument(
+        "--data-root",
+        default=None,
+        help="data folder (or its sdd/ subfolder); default $CONFORMAL_CONTROL_DATA",
+    )
+    p.add_argument("--predictor", default="constant_velocity", help="registered predictor name")
+    p.add_argument(
+        "--predictor-param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="predictor constructor argument (repeatable)",
+    )
+    p.add_argument("--epsilon", type=float, default=None, help="target average loss")
+    p.add_argument(
+        "--eta",
+        type=float,
+        default=None,
+        help="learning rate (SDD scenes: per frame; built-in scene: 1/s)",
+    )
+    p.add_argument(
+        "--tau",
+        type=float,
+        default=None,
+        help="sampling period (SDD scenes: frames; built-in scene: s)",
+    )
+    p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
+    p.add_argument("--frames", type=int, default=None, help="simulate at most N frames")
+    p.add_argument("--seed", type=int, default=0, help="seed (built-in scene, predictors)")
+    p.add_argument("--out", default=None, help="run directory (default runs/<scene>-<time>)")
+    p.add_argument(
+        "--param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="any other parameter, in the scene's units (repeatable); "
+        "see `conformal-control params`",
+    )
+    p.add_argument("--start", type=_pair, default=None, help="start as image fractions fx,fy")
+    p.add_argument(
+        "--goal",
+        type=_pair,
+        action="append",
+        default=None,
+        help="goal as image fractions fx,fy (repeat for waypoints)",
+    )
+    p.add_argument("--start-frame", type=int, default=None, help="video frame the robot starts")
+    p.add_argument("--no-plot", action="store_true", help="skip plot.png")
+
+
+@_run_args.handler
+def _run(args: argparse.Namespace) -> int:
+    from ..data import load_scene
+    from ..sim.episode import run_episode
+    from ..sim.rundir import write_run_dir
+
+    params = key_values(args.param, "--param")
+    for name in ("epsilon", "eta", "tau"):
+        value = getattr(args, name)
+        if value is not None:
+            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+    scene = load_scene(
+        args.scene,
+        args.data_root,
+        start=args.start,
+        goals=args.goal,
+        start_frame=args.start_frame,
+        seed=args.seed,
+    )
+    result = run_episode(
+        scene,
+        args.predictor,
+        params,
+        learn=not args.no_learning,
+        max_frames=args.frames,
+        seed=args.seed,
+        predictor_params=key_values(args.predictor_param, "--predictor-param"),
+        extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
+    )
+    out = args.out or Path("runs") / (
+        f"{scene.name.replace(':', '_')}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
+    )
+    out = write_run_dir(result, out, plot=not args.no_plot)
+    m = result.metrics
+    keys = [
+        "t_goal",
+        "goal_reached",
+        "n_collide",
+        "d_min",
+        "l_avg",
+        "l_avg_applied",
+        "lambda_final",
+        "n_updates",
+        "n_fallback",
+        "fallback_share",
+        "identity_residual",
+        "frames",
+        "wall_s",
+    ]
+    print(json.dumps({k: m[k] for k in keys}, indent=2))
+    if not m["epsilon_attainable"]:
+        print(
+            f"warning: epsilon={m['epsilon']} is not attainable: below the feasibility floor "
+            f"s(-a*h_max)={m['epsilon_floor']:.4f} (lambda_floor={m['lambda_floor']:g} "
+            f"{m['units']['lambda']}); see SPEC 'FEASIBILITY FLOOR'",
+            file=sys.stderr,
+        )
+    print(f"results written to {out}")
+    return 0

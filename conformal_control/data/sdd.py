@@ -1,0 +1,181 @@
+"""Stanford Drone Dataset: raw ``annotations.txt`` files and the pixel-to-metre scales.
+
+Raw format (no header; the first line is an annotation)::
+
+    track_id xmin ymin xmax ymax frame lost occluded generated "label"
+
+Positions are bounding-box centres in pixels of the full-resolution frame (origin at the
+image's top-left corner, x to the right, y down). The loader keeps one label (default
+"Pedestrian"), drops rows with ``lost = 1`` (outside the view), and converts pixels to
+metres with the video's ``scale`` from ``estimated_scales.yaml`` (metres per pixel).
+Frame numbers stay the video's 30 fps frame numbers.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .paths import missing, sdd_root
+from .tracks import Tracks
+
+__all__ = [
+    "SDD_FPS",
+    "SDDVideo",
+    "load_scales",
+    "read_annotations",
+    "sdd_video",
+]
+
+SDD_FPS = 30.0
+_N_FIELDS = 10
+
+
+@dataclass(frozen=True)
+class SDDVideo:
+    """Files and geometry of one SDD video."""
+
+    scene: str
+    video: int
+    root: Path
+    m_per_px: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.scene}_{self.video}"
+
+    @property
+    def folder(self) -> Path:
+        return self.root / "annotations" / self.scene / f"video{self.video}"
+
+    @property
+    def annotations(self) -> Path:
+        return self.folder / "annotations.txt"
+
+    @property
+    def image(self) -> Path:
+        return self.folder / "reference.jpg"
+
+    @property
+    def trajnet(self) -> Path:
+        return self.root / "trajnet_pixels" / f"{self.scene}_{self.video}.txt"
+
+    def image_size_px(self) -> tuple[int, int] | None:
+        """(width, height) of the reference image in pixels, or None if it is missing."""
+        if not self.image.exists():
+            return None
+        from PIL import Image  # matplotlib's own dependency
+
+        with Image.open(self.image) as im:
+            return int(im.size[0]), int(im.size[1])
+
+
+def load_scales(root: Path) -> dict[tuple[str, int], float]:
+    """Metres per pixel for every video listed in ``estimated_scales.yaml``."""
+    path = root / "estimated_scales.yaml"
+    if not path.exists():
+        raise missing(path, "SDD pixel scales (estimated_scales.yaml)")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML ({exc})") from exc
+    scales: dict[tuple[str, int], float] = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping scene -> videoN -> scale")
+    for scene, videos in data.items():
+        for video, entry in (videos or {}).items():
+            try:
+                scales[(str(scene), int(str(video).removeprefix("video")))] = float(entry["scale"])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"{path}: bad entry for {scene}/{video}: {entry!r}") from exc
+    return scales
+
+
+def sdd_video(scene: str, video: int, data_root: str | os.PathLike[str] | None = None) -> SDDVideo:
+    """Locate an SDD video and its scale."""
+    root = sdd_root(data_root)
+    scales = load_scales(root)
+    if (scene, video) not in scales:
+        raise ValueError(
+            f"no pixel scale for SDD {scene}/video{video} in {root / 'estimated_scales.yaml'}"
+        )
+    return SDDVideo(scene, video, root, scales[(scene, video)])
+
+
+def read_annotations(
+    path: str | os.PathLike[str],
+    m_per_px: float,
+    label: str = "Pedestrian",
+) -> Tracks:
+    """Read a raw SDD ``annotations.txt`` into :class:`Tracks` (metres, 30 fps frames).
+
+    Raises
+    ------
+    DataNotFoundError
+        If the file does not exist.
+    ValueError
+        On a malformed or truncated line (the message gives the line number), duplicate
+        (track, frame) rows, or a file without any row of the requested label.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise missing(path, "SDD annotations")
+    if not (np.isfinite(m_per_px) and m_per_px > 0):
+        raise ValueError(f"m_per_px must be a finite number > 0, got {m_per_px!r}")
+    wanted = f'"{label}"'
+    rows: list[tuple[int, int, float, float]] = []
+    n_lost = n_other = 0
+    with path.open() as fh:
+        for lineno, line in enumerate(fh, start=1):
+            parts = line.split()
+            if not parts:
+                continue
+            if len(parts) != _N_FIELDS:
+                raise ValueError(
+                    f"{path}:{lineno}: expected {_N_FIELDS} space-separated fields "
+                    f"(track_id xmin ymin xmax ymax frame lost occluded generated label), got "
+                    f"{len(parts)}; the file is malformed or truncated"
+                )
+            if parts[9] != wanted:
+                n_other += 1
+                continue
+            try:
+                tid, frame, lost = int(parts[0]), int(parts[5]), int(parts[6])
+                x0, y0, x1, y1 = (float(p) for p in parts[1:5])
+            except ValueError as exc:
+                raise ValueError(f"{path}:{lineno}: non-numeric field ({exc})") from exc
+            if lost:
+                n_lost += 1
+                continue
+            rows.append((tid, frame, 0.5 * (x0 + x1), 0.5 * (y0 + y1)))
+    if not rows:
+        raise ValueError(f"{path}: no {label} rows with lost=0; nothing to simulate")
+    arr = np.array(rows, dtype=float)
+    order = np.lexsort((arr[:, 1], arr[:, 0]))
+    arr = arr[order]
+    tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    ids, starts = np.unique(arr[:, 0].astype(np.int64), return_index=True)
+    bounds = [*starts.tolist(), len(arr)]
+    for k, tid in enumerate(ids):
+        block = arr[bounds[k] : bounds[k + 1]]
+        frames = block[:, 1].astype(np.int64)
+        if np.any(np.diff(frames) == 0):
+            dup = int(frames[np.flatnonzero(np.diff(frames) == 0)[0]])
+            raise ValueError(f"{path}: track {tid} has two rows for frame {dup}")
+        tracks[int(tid)] = (frames, block[:, 2:4] * m_per_px)
+    return Tracks(
+        fps=SDD_FPS,
+        tracks=tracks,
+        source=str(path),
+        meta={
+            "m_per_px": m_per_px,
+            "label": label,
+            "n_lost_rows": n_lost,
+            "n_other_label_rows": n_other,
+            "n_rows": len(rows),
+        },
+    )

@@ -1,0 +1,176 @@
+"""The generic conformal-decision loop.
+
+It owns exactly one thing: *decide with the current lambda at the control rate; at each
+sampling time observe the truth, score the interval, update lambda*. It knows nothing
+about barriers, QPs or pedestrians; those live in the environment and decision family
+plugged into it (see :mod:`conformal_control.cbf` for the flagship instantiation, and
+``examples/`` for other decision problems run through the same loop).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .base import DecisionFamily, Environment, Loss, Predictor, UpdateRule
+from .monitor import GuaranteeMonitor
+
+__all__ = ["ConformalLoop", "IntervalLog", "LoopResult"]
+
+
+@dataclass
+class IntervalLog:
+    """What happened during one interval k."""
+
+    k: int
+    lam: float
+    loss: float | None
+    n_steps: int
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class LoopResult:
+    """Outcome of :meth:`ConformalLoop.run`.
+
+    Attributes
+    ----------
+    intervals : list of IntervalLog
+        One entry per interval (including intervals without a loss).
+    lambda_final : float
+        lambda after the last update (lambda_{K+1}).
+    monitor : GuaranteeMonitor
+        Running average loss, Theorem-2 identity residual and bound.
+    """
+
+    intervals: list[IntervalLog]
+    lambda_final: float
+    monitor: GuaranteeMonitor
+
+    @property
+    def updates(self) -> list[IntervalLog]:
+        """The intervals that produced a loss (and hence a lambda update)."""
+        return [iv for iv in self.intervals if iv.loss is not None]
+
+    @property
+    def losses(self) -> np.ndarray:
+        return np.array([iv.loss for iv in self.updates], dtype=float)
+
+    @property
+    def lambdas(self) -> np.ndarray:
+        """lambda_k used during each updating interval."""
+        return np.array([iv.lam for iv in self.updates], dtype=float)
+
+    @property
+    def n_updates(self) -> int:
+        return len(self.updates)
+
+    @property
+    def l_avg(self) -> float:
+        losses = self.losses
+        return float(losses.mean()) if losses.size else math.nan
+
+
+class ConformalLoop:
+    """Run a conformal decision policy in an environment.
+
+    Parameters
+    ----------
+    env : Environment
+        The world: sensor, plant, ground truth.
+    policy : DecisionFamily
+        The decision family D^lambda (e.g. the conformal CBF controller).
+    loss : Loss
+        Scores an interval once its truth is revealed, with the lambda used during it.
+    rule : UpdateRule
+        Turns losses into the next lambda.
+    predictor : Predictor or None
+        Black-box predictor called at each sampling time on the sensor's observation.
+    learn : bool
+        If False, lambda stays at its initial value (losses are still computed).
+    on_interval : callable, optional
+        Called with each :class:`IntervalLog` as soon as the interval is scored.
+    """
+
+    def __init__(
+        self,
+        env: Environment,
+        policy: DecisionFamily,
+        loss: Loss,
+        rule: UpdateRule,
+        predictor: Predictor | None = None,
+        *,
+        learn: bool = True,
+        lambda_safe: float | None = None,
+        on_interval: Callable[[IntervalLog], None] | None = None,
+    ) -> None:
+        self.env = env
+        self.policy = policy
+        self.loss = loss
+        self.rule = rule
+        self.predictor = predictor
+        self.learn = learn
+        self.lambda_safe = lambda_safe
+        self.on_interval = on_interval
+
+    def run(self, max_intervals: int | None = None) -> LoopResult:
+        """Run until the environment is done (or ``max_intervals`` intervals)."""
+        env, policy, loss, rule, predictor = (
+            self.env,
+            self.policy,
+            self.loss,
+            self.rule,
+            self.predictor,
+        )
+        env.reset()
+        policy.reset()
+        if predictor is not None:
+            predictor.reset()
+        lam = rule.reset()
+        monitor = GuaranteeMonitor(
+            epsilon=rule.epsilon,
+            lambda_1=lam,
+            eta=getattr(rule, "eta", None) if self.learn else None,
+            lambda_safe=self.lambda_safe,
+            bounds=loss.bounds,
+        )
+        wants_truth = bool(getattr(predictor, "requires_ground_truth", False))
+        intervals: list[IntervalLog] = []
+        k = 0
+        while not env.done and (max_intervals is None or k < max_intervals):
+            # sampling time k*tau: sense, predict, hand both to the decision family
+            observation = env.sense(with_ground_truth=wants_truth)
+            prediction = predictor.predict(observation) if predictor is not None else None
+            policy.begin_interval(observation, prediction)
+            # control instants of I_k: decide with lambda_k, apply through the plant
+            n_steps = 0
+            for _ in range(env.control_instants()):
+                env.apply(policy.decide(env.state(), lam))
+                n_steps += 1
+                if env.done:
+                    break
+            # sampling time (k+1)*tau: the truth over I_k is revealed; score, update
+            truth = env.reveal()
+            record = policy.interval_record()
+            l_k = loss(record, truth, lam)
+            diagnostics = loss.diagnostics(record, truth, lam) if l_k is not None else {}
+            log = IntervalLog(k=k, lam=lam, loss=l_k, n_steps=n_steps, diagnostics=diagnostics)
+            intervals.append(log)
+            if l_k is not None:
+                monitor.observe(l_k, lam)
+                if self.learn:
+                    lam = rule.update(l_k)
+                monitor.set_lambda_next(lam)
+            if self.on_interval is not None:
+                self.on_interval(log)
+            k += 1
+        return LoopResult(intervals=intervals, lambda_final=lam, monitor=monitor)
+
+
+def run_loop(*args: Any, **kwargs: Any) -> LoopResult:
+    """Functional shortcut: ``ConformalLoop(*args, **kwargs).run()``."""
+    return ConformalLoop(*args, **kwargs).run()

@@ -1,0 +1,57 @@
+"""Constant-velocity extrapolation (Schöller et al. 2020's strong baseline)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..base import Forecast, PredictionQuery, Predictor
+
+__all__ = ["ConstantVelocityPredictor", "trailing_valid"]
+
+
+def trailing_valid(history: np.ndarray) -> np.ndarray:
+    """Number of consecutive finite samples at the end of each history, shape (N,)."""
+    valid = np.isfinite(history).all(axis=-1)  # (N, T)
+    # index of the last invalid sample counted from the end
+    rev = valid[:, ::-1]
+    all_valid = rev.all(axis=1)
+    first_bad = np.argmin(rev, axis=1)
+    return np.where(all_valid, valid.shape[1], first_bad)
+
+
+class ConstantVelocityPredictor(Predictor):
+    """Extrapolate each agent at its recent average velocity.
+
+    The velocity is the displacement over the last ``window`` sample intervals divided by
+    their duration, using only the trailing run of finite samples. An agent observed for
+    a single sample is predicted to stand still; such agents are counted in
+    ``forecast.info["n_short_history"]``.
+
+    Parameters
+    ----------
+    window : int
+        Number of sample intervals the velocity is averaged over (>= 1).
+    """
+
+    def __init__(self, window: int = 5) -> None:
+        self.window = window
+
+    def predict(self, query: PredictionQuery) -> Forecast:
+        if int(self.window) != self.window or self.window < 1:
+            raise ValueError(f"window must be a positive integer, got {self.window!r}")
+        hist = np.asarray(query.history, dtype=float)
+        n, t, _ = hist.shape
+        steps = np.arange(1, query.horizon + 1, dtype=float)
+        if n == 0:
+            return Forecast(np.zeros((0, query.horizon, 2)), info={"n_short_history": 0})
+        run = trailing_valid(hist)
+        k = np.minimum(run - 1, int(self.window))  # sample intervals usable
+        k = np.maximum(k, 0)
+        last = hist[:, -1, :]
+        past = hist[np.arange(n), t - 1 - k, :]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vel = np.where(
+                k[:, None] > 0, (last - past) / (np.maximum(k, 1)[:, None] * query.dt), 0.0
+            )
+        pos = last[:, None, :] + vel[:, None, :] * (steps[None, :, None] * query.dt)
+        return Forecast(pos, info={"n_short_history": int((k == 0).sum())})

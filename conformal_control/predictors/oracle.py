@@ -1,0 +1,33 @@
+"""The perfect predictor: returns the true future (the paper's "gt" baseline)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..base import Forecast, PredictionQuery, Predictor
+
+__all__ = ["OraclePredictor"]
+
+
+class OraclePredictor(Predictor):
+    """Ground-truth future of each sensed agent (the "gt/noLearn" baseline).
+
+    Requires the environment to attach ``query.ground_truth``; it does so for predictors
+    declaring ``requires_ground_truth = True``. Where the true future is unknown (the
+    agent leaves the data) the forecast is NaN and the controller holds the agent at its
+    last known position (a counted fallback).
+    """
+
+    requires_ground_truth = True
+
+    def predict(self, query: PredictionQuery) -> Forecast:
+        if query.ground_truth is None:
+            raise ValueError(
+                "the oracle predictor needs the true future, but the environment did not "
+                "attach query.ground_truth"
+            )
+        gt = np.asarray(query.ground_truth, dtype=float)
+        expected = (query.n_agents, query.horizon, 2)
+        if gt.shape != expected:
+            raise ValueError(f"ground truth has shape {gt.shape}, expected {expected}")
+        return Forecast(gt.copy())

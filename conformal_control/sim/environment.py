@@ -1,0 +1,215 @@
+"""Replay environment: recorded agents, a simulated robot, a periodic sensor."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..base import Dynamics, Environment, PredictionQuery
+from ..cbf.controller import ControlState
+from ..cbf.loss import CBFTruth
+from ..data.scene import Scene
+
+__all__ = ["FrameLog", "ReplayEnvironment"]
+
+
+@dataclass
+class FrameLog:
+    """Per-frame record of the robot (one row per replayed video frame)."""
+
+    frame: list[int]
+    t: list[float]
+    state: list[np.ndarray]
+    d_min: list[float]
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        st = np.array(self.state).reshape(-1, 4)
+        return {
+            "frame": np.array(self.frame, dtype=np.int64),
+            "t": np.array(self.t, dtype=float),
+            "x": st[:, 0],
+            "y": st[:, 1],
+            "vx": st[:, 2],
+            "vy": st[:, 3],
+            "d_min": np.array(self.d_min, dtype=float),
+        }
+
+
+class ReplayEnvironment(Environment):
+    """Pedestrians replayed from a :class:`Scene`; the robot driven through ``dynamics``.
+
+    Timing: the scene's frames are the prediction samples; each frame is split into
+    ``substeps`` control instants. An interval (between two sampling times) spans
+    ``tau_frames`` frames. At a sampling time the sensor returns the agents within
+    ``sensing_radius`` (centre distance) of the robot with their last ``history_frames``
+    positions; agents appearing during the interval are unknown until the next sampling
+    time. At the end of an interval the sensor reveals the true trajectories of the agents
+    sensed at its start (NaN where they vanished).
+
+    The episode ends when the last goal is reached (within the scene's goal radius,
+    checked at every control instant), when the data runs out, or after ``max_frames``
+    frames.
+
+    Parameters
+    ----------
+    scene : Scene
+    dynamics : Dynamics
+        Plant; its command is what the decision family returns (the QP velocity).
+    tau_frames : int
+        Frames per interval (>= 1).
+    substeps : int
+        Control instants per frame (>= 1).
+    sensing_radius : float
+        Sensor range in metres (> 0).
+    history_frames : int
+        Length of the histories handed to the predictor (>= 1).
+    max_frames : int, optional
+        Limit on the number of frames simulated.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        dynamics: Dynamics,
+        *,
+        tau_frames: int,
+        substeps: int = 4,
+        sensing_radius: float = 10.0,
+        history_frames: int = 120,
+        max_frames: int | None = None,
+    ) -> None:
+        self.scene = scene
+        self.dynamics = dynamics
+        self.tau_frames = tau_frames
+        self.substeps = substeps
+        self.sensing_radius = sensing_radius
+        self.history_frames = history_frames
+        self.max_frames = max_frames
+
+    # ------------------------------------------------------------------ episode
+    def reset(self) -> None:
+        for name in ("tau_frames", "substeps", "history_frames"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if not (math.isfinite(self.sensing_radius) and self.sensing_radius > 0):
+            raise ValueError(f"sensing_radius must be > 0, got {self.sensing_radius!r}")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise ValueError(f"max_frames must be >= 1, got {self.max_frames!r}")
+        self.scene.validate()
+        sc = self.scene
+        self._dt_frame = 1.0 / sc.fps
+        self._dt = self._dt_frame / self.substeps
+        self._fi = sc.start_index
+        last = sc.n_frames - 1
+        if self.max_frames is not None:
+            last = min(last, sc.start_index + int(self.max_frames))
+        self._last = last
+        self._x = np.array([*sc.start, 0.0, 0.0], dtype=float)
+        self._t = 0.0
+        self._step = 0
+        self._goal = 0
+        self._done = False
+        self.t_goal_: float | None = None
+        self._sensed = np.zeros(0, dtype=np.int64)
+        self._k_start = self._fi
+        self.n_sensed_: list[int] = []
+        self.log = FrameLog([], [], [], [])
+        self.steps_t: list[float] = []
+        self.steps_x: list[np.ndarray] = []
+        self.steps_cmd: list[np.ndarray] = []
+        self._log_frame()
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    @property
+    def goal_reached(self) -> bool:
+        return self.t_goal_ is not None
+
+    def _log_frame(self) -> None:
+        pos = self.scene.positions[self._fi]
+        present = np.isfinite(pos[:, 0])
+        d = np.hypot(*(pos[present] - self._x[:2]).T) if present.any() else np.zeros(0)
+        self.log.frame.append(self.scene.first_frame + self._fi)
+        self.log.t.append(self._t)
+        self.log.state.append(self._x.copy())
+        self.log.d_min.append(float(d.min()) if d.size else math.nan)
+
+    # ------------------------------------------------------------------ sensor
+    def _window(self, lo: int, hi: int, idx: np.ndarray) -> np.ndarray:
+        """positions[lo:hi, idx] as (N, hi - lo, 2), NaN outside the data."""
+        n = hi - lo
+        out = np.full((idx.size, n, 2), np.nan)
+        a, b = max(lo, 0), min(hi, self.scene.n_frames)
+        if b > a and idx.size:
+            out[:, a - lo : b - lo] = self.scene.positions[a:b, idx].transpose(1, 0, 2)
+        return out
+
+    def sense(self, with_ground_truth: bool = False) -> PredictionQuery:
+        sc, fi = self.scene, self._fi
+        pos = sc.positions[fi]
+        present = np.isfinite(pos[:, 0])
+        d = np.full(pos.shape[0], np.inf)
+        d[present] = np.hypot(*(pos[present] - self._x[:2]).T)
+        idx = np.flatnonzero(d <= self.sensing_radius)
+        self._sensed = idx
+        self._k_start = fi
+        self._step = 0
+        self.n_sensed_.append(int(idx.size))
+        history = self._window(fi - self.history_frames + 1, fi + 1, idx)
+        truth = self._window(fi + 1, fi + 1 + self.tau_frames, idx) if with_ground_truth else None
+        return PredictionQuery(
+            ids=sc.agent_ids[idx],
+            history=history,
+            dt=self._dt_frame,
+            horizon=self.tau_frames,
+            t=self._t,
+            frame=sc.first_frame + fi,
+            scene=sc.name,
+            ground_truth=truth,
+        )
+
+    def control_instants(self) -> int:
+        frames = min(self.tau_frames, self._last - self._fi)
+        return max(frames, 0) * self.substeps
+
+    def state(self) -> ControlState:
+        return ControlState(
+            x=self._x.copy(), t=self._t, step=self._step, goal=self.scene.goals[self._goal]
+        )
+
+    # ------------------------------------------------------------------ plant
+    def apply(self, decision: np.ndarray) -> None:
+        if self._done:
+            raise RuntimeError("apply() called on a finished episode")
+        self._x = self.dynamics.step(self._x, decision, self._dt)
+        self._t += self._dt
+        self._step += 1
+        self.steps_t.append(self._t)
+        self.steps_x.append(self._x.copy())
+        self.steps_cmd.append(np.asarray(decision, dtype=float).copy())
+        sc = self.scene
+        while (
+            self._goal < len(sc.goals)
+            and math.hypot(*(self._x[:2] - sc.goals[self._goal])) <= sc.goal_radius
+        ):
+            self._goal += 1
+        if self._goal >= len(sc.goals):
+            self._goal = len(sc.goals) - 1
+            self.t_goal_ = self._t
+            self._done = True
+        if self._step % self.substeps == 0:
+            self._fi += 1
+            if not self._done:
+                self._log_frame()
+            if self._fi >= self._last:
+                self._done = True
+
+    def reveal(self) -> CBFTruth:
+        n_frames = -(-self._step // self.substeps)  # ceil
+        samples = self._window(self._k_start, self._k_start + n_frames + 1, self._sensed)
+        return CBFTruth(samples=samples, dt=self._dt_frame, substeps=self.substeps)

@@ -1,0 +1,258 @@
+"""One episode of the conformal CBF controller on a scene: build, run, measure.
+
+The data flow of one interval, top to bottom (see :class:`~conformal_control.loop.ConformalLoop`):
+sensor -> predictor -> per control instant: constraints from the barrier + lambda -> QP ->
+double-integrator dynamics; at the next sampling time: truth -> loss -> lambda update.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import __version__, registry
+from ..base import Predictor
+from ..cbf import APFBarrier, CBFGapLoss, ConformalCBFController, QPSafetyFilter
+from ..cbf.feasibility import feasibility_floor
+from ..data.scene import Scene
+from ..dynamics import VelocityTrackingDoubleIntegrator
+from ..loop import ConformalLoop, LoopResult
+from ..reference import AttractiveField
+from ..update_rules import FixedEtaRule
+from .config import ResolvedParams, resolve_params
+from .environment import ReplayEnvironment
+
+__all__ = ["EpisodeResult", "build_components", "run_episode"]
+
+
+@dataclass
+class EpisodeResult:
+    """Everything a run produced (what the run directory is written from)."""
+
+    scene: Scene
+    config: dict[str, Any]
+    metrics: dict[str, Any]
+    intervals: list[dict[str, Any]]
+    trajectory: dict[str, np.ndarray]
+    steps: dict[str, np.ndarray] = field(default_factory=dict)
+    loop: LoopResult | None = None
+
+
+@dataclass
+class Components:
+    env: ReplayEnvironment
+    policy: ConformalCBFController
+    loss: CBFGapLoss
+    rule: FixedEtaRule
+    barrier: APFBarrier
+    safety_filter: QPSafetyFilter
+
+
+def build_components(
+    scene: Scene, params: ResolvedParams, max_frames: int | None = None
+) -> Components:
+    """Wire barrier, QP, reference, controller, loss, rule and environment from SI params."""
+    si = params.si
+    barrier = APFBarrier(
+        K_rep=si["K_rep"],
+        rho0=si["rho0"],
+        d_c=si["robot_radius"] + si["agent_radius"],
+        convention=si["convention"],
+        delta=si["delta"],
+    )
+    safety_filter = QPSafetyFilter(
+        v_max=si["v_max"], fallback=si["fallback"], speed_sides=si["speed_sides"]
+    )
+    reference = AttractiveField(K_att=si["K_att"], v_max=si["v_max"])
+    policy = ConformalCBFController(
+        barrier, safety_filter, reference, a=si["a"], substeps=si["substeps"]
+    )
+    loss = CBFGapLoss(barrier, a=si["a"], scale=si["loss_scale"])
+    rule = FixedEtaRule(
+        epsilon=si["epsilon"],
+        eta=si["eta"],
+        lambda_init=si["lambda_init"],
+        lambda_min=si["lambda_min"],
+        lambda_max=si["lambda_max"],
+    )
+    scene.robot_radius, scene.agent_radius = si["robot_radius"], si["agent_radius"]
+    scene.goal_radius, scene.v_max = si["goal_radius"], si["v_max"]
+    env = ReplayEnvironment(
+        scene,
+        VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),
+        tau_frames=params.tau_frames,
+        substeps=si["substeps"],
+        sensing_radius=si["sensing_radius"],
+        history_frames=params.history_frames,
+        max_frames=max_frames,
+    )
+    return Components(env, policy, loss, rule, barrier, safety_filter)
+
+
+def _nan_to_none(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, np.floating):
+        return _nan_to_none(float(x))
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def run_episode(
+    scene: Scene,
+    predictor: Predictor | str = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    *,
+    learn: bool = True,
+    max_frames: int | None = None,
+    seed: int = 0,
+    predictor_params: dict[str, Any] | None = None,
+    extra_config: dict[str, Any] | None = None,
+) -> EpisodeResult:
+    """Run the conformal CBF controller on ``scene`` and measure it.
+
+    Parameters
+    ----------
+    scene : Scene
+    predictor : Predictor or str
+        A predictor instance or a registered name (built with ``predictor_params``).
+    params : dict
+        Parameter overrides in the scene's units (see ``sim.config.PARAMETERS``).
+    learn : bool
+        False runs the "noLearn" baseline: lambda stays at ``lambda_init`` (eta = 0).
+    max_frames : int, optional
+        Limit on simulated frames.
+    seed : int
+        Recorded in the config; stochastic predictors receive it as ``random_state``.
+    """
+    given = dict(params or {})
+    if not learn:
+        given.setdefault("eta", 0.0)
+    resolved = resolve_params(scene, given)
+    if isinstance(predictor, str):
+        pp = dict(predictor_params or {})
+        cls = registry.get("predictor", predictor)
+        if "random_state" in cls._param_names() and "random_state" not in pp:
+            pp["random_state"] = seed
+        predictor_name, predictor = predictor, registry.create("predictor", predictor, **pp)
+    else:
+        predictor_name = type(predictor).__name__
+    comp = build_components(scene, resolved, max_frames)
+    si = resolved.si
+    floor = feasibility_floor(si["a"], comp.barrier.upper_bound, si["epsilon"], si["loss_scale"])
+
+    t0 = time.perf_counter()
+    loop = ConformalLoop(comp.env, comp.policy, comp.loss, comp.rule, predictor, learn=learn)
+    result = loop.run()
+    wall = time.perf_counter() - t0
+
+    env = comp.env
+    traj = env.log.arrays()
+    d_c = scene.collision_distance
+    units = scene.units
+    lam_unit = units.factor("lambda_init")
+    updates = result.updates
+    n_steps = max(comp.policy.n_steps_, 1)
+    mon = result.monitor
+    losses_applied = [iv.diagnostics.get("loss_applied", math.nan) for iv in updates]
+    d = traj["d_min"]
+    intervals = [
+        {
+            "k": iv.k,
+            "t": iv.k * resolved.tau_frames / scene.fps,
+            "lambda": iv.lam / lam_unit,
+            "loss": iv.loss,
+            "loss_applied": iv.diagnostics.get("loss_applied"),
+            "max_gap": (iv.diagnostics["max_gap"] / lam_unit)
+            if "max_gap" in iv.diagnostics
+            else None,
+            "n_sensed": env.n_sensed_[iv.k] if iv.k < len(env.n_sensed_) else 0,
+            "n_steps": iv.n_steps,
+        }
+        for iv in result.intervals
+    ]
+    metrics = {
+        "t_goal": env.t_goal_,
+        "goal_reached": env.goal_reached,
+        "n_collide": int(np.sum(d < d_c)),
+        "d_min": float(np.nanmin(d)) if np.isfinite(d).any() else None,
+        "l_avg": mon.average if (learn and mon.n) else None,
+        "l_avg_applied": float(np.nanmean(losses_applied)) if (learn and updates) else None,
+        "l_mean": mon.average if mon.n else None,
+        "epsilon": si["epsilon"],
+        "eta": si["eta"] / lam_unit if learn else 0.0,
+        "lambda_final": result.lambda_final / lam_unit,
+        "n_updates": result.n_updates if learn else 0,
+        "n_scored": result.n_updates,
+        "n_intervals": len(result.intervals),
+        "n_unscored": len(result.intervals) - result.n_updates,
+        "n_steps": comp.policy.n_steps_,
+        "n_infeasible": comp.safety_filter.n_infeasible_,
+        "n_fallback": comp.safety_filter.n_fallback_,
+        "fallback_share": comp.safety_filter.n_fallback_ / n_steps,
+        "n_qp_solves": comp.safety_filter.n_solves_,
+        "n_lambda_clipped": getattr(comp.rule, "n_clipped_", 0),
+        "identity_residual": mon.identity_residual if learn else None,
+        "lambda_floor": floor.lambda_floor / lam_unit,
+        "epsilon_floor": floor.epsilon_floor,
+        "epsilon_attainable": floor.attainable,
+        "n_nonfinite_predictions": comp.policy.n_nonfinite_predictions_,
+        "n_truth_missing": int(sum(iv.diagnostics.get("n_truth_missing", 0) for iv in updates)),
+        "predictor_info": dict(comp.policy.forecast_info_),
+        "frames": len(traj["frame"]),
+        "wall_s": wall,
+        "units": {
+            "lambda": f"1/{units.time_name}",
+            "eta": f"1/{units.time_name}",
+            "t": "s",
+            "d": "m",
+        },
+    }
+    metrics = {k: _nan_to_none(v) for k, v in metrics.items()}
+    config = {
+        "version": __version__,
+        "scene": {
+            "name": scene.name,
+            "fps": scene.fps,
+            "start_frame": scene.start_frame,
+            "start_m": scene.start.tolist(),
+            "goals_m": scene.goals.tolist(),
+            "units": units.as_dict(),
+            "n_agents": scene.n_agents,
+            **{k: v for k, v in scene.meta.items() if isinstance(v, (str, int, float, list))},
+        },
+        "predictor": {"name": predictor_name, "params": _jsonable(predictor.get_params())},
+        "learning": learn,
+        "seed": seed,
+        "max_frames": max_frames,
+        "params": _jsonable(resolved.as_dict()),
+        "feasibility": floor.as_dict(),
+        **(extra_config or {}),
+    }
+    steps = {
+        "t": np.array(env.steps_t),
+        "x": np.array(env.steps_x).reshape(-1, 4),
+        "cmd": np.array(env.steps_cmd).reshape(-1, 2),
+    }
+    return EpisodeResult(scene, config, metrics, intervals, traj, steps, result)
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return str(obj)
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if obj is None or isinstance(obj, (str, int, float, bool)):
+        return obj
+    return repr(obj)

@@ -1,0 +1,78 @@
+"""Run directories: config, metrics, trace, intervals, trajectory and plot of a run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from .episode import EpisodeResult
+
+__all__ = ["write_run_dir"]
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _fmt(v: Any) -> Any:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ""
+    return v
+
+
+def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) -> Path:
+    """Write the files of a run into ``out`` (created if needed) and return it.
+
+    * ``config.json`` - every parameter as given, as used (scene units) and in SI, the
+      scene, predictor (with its parameters), seed and version;
+    * ``metrics.json`` - the run's metrics (see the README for each key);
+    * ``trace.csv`` - ``k,t,lambda,loss``: one row per scored interval (lambda_k in the
+      scene's units, t in s since the start);
+    * ``intervals.csv`` - every interval with extra columns (loss with the applied lambda,
+      the largest constraint gap, agents sensed, control steps);
+    * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
+    * ``plot.png`` - the scene with the path, lambda(t) and loss(t).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
+    (out / "metrics.json").write_text(json.dumps(_clean(result.metrics), indent=2) + "\n")
+    with (out / "trace.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["k", "t", "lambda", "loss"])
+        for iv in result.intervals:
+            if iv["loss"] is not None:
+                w.writerow([iv["k"], _fmt(iv["t"]), _fmt(iv["lambda"]), _fmt(iv["loss"])])
+    cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+    with (out / "intervals.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for iv in result.intervals:
+            w.writerow([_fmt(iv.get(c)) for c in cols])
+    tr = result.trajectory
+    with (out / "trajectory.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "t", "x", "y", "vx", "vy", "d_min"])
+        for i in range(len(tr["frame"])):
+            w.writerow(
+                [
+                    int(tr["frame"][i]),
+                    *(_fmt(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
+                ]
+            )
+    if plot:
+        from ..plotting import plot_run
+
+        plot_run(result, out / "plot.png")
+    return out
