@@ -1,0 +1,5 @@
+"""Plotting (matplotlib). One module per kind of figure; all re-exported here."""
+
+from .run import plot_lambda_loss, plot_run, plot_scene
+
+__all__ = ["plot_lambda_loss", "plot_run", "plot_scene"]
