@@ -109,15 +109,15 @@ class APFBarrier(Barrier):
         self, x_ego: np.ndarray, x_agent: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         K, rho0, d_c, delta = self._checked()
-        diff = np.asarray(x_ego, dtype=float) - np.asarray(x_agent, dtype=float)
-        d = np.sqrt(np.einsum("...i,...i->...", diff, diff))
+        diff = np.subtract(x_ego, x_agent, dtype=float)
+        d = np.hypot(diff[..., 0], diff[..., 1])
         rho = d - d_c if self.convention == "surface" else d
-        r = np.clip(rho, 0.0, rho0)
+        r = np.minimum(np.maximum(rho, 0.0), rho0)
         q = 1.0 - r / rho0
-        D = 2.0 * r * r + K * q * q
-        h = 2.0 * r * r / D - delta
-        dh_drho = 4.0 * K * q * r / (D * D)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            scale = np.where(d > 0, dh_drho / d, 0.0)
+        r2 = r * r
+        inv_d = 1.0 / (2.0 * r2 + K * q * q)
+        h = 2.0 * r2 * inv_d - delta
+        # dh/drho / d; where d = 0 the distance variable is <= 0, so dh/drho = 0 too
+        scale = 4.0 * K * q * r * inv_d * inv_d / np.maximum(d, 1e-300)
         dh_dego = scale[..., None] * diff
         return h, dh_dego, -dh_dego

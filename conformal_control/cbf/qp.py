@@ -25,8 +25,11 @@ class QPSafetyFilter(SafetyFilter):
     of radius ``v_max`` (so every admissible v satisfies ||v|| <= v_max exactly), or the
     box ``|v_x|, |v_y| <= v_max`` with ``speed_sides=0``.
 
-    When the nominal decision already satisfies every constraint it is returned without
-    calling the solver (it is then the QP's optimum: all multipliers are zero).
+    When the nominal decision already satisfies every conformal constraint and the speed
+    bound ``||v|| <= v_max`` it is returned without calling the solver (it is then the
+    optimum of the QP with the exact disc: all multipliers are zero). Otherwise the QP
+    uses the polygon, so a filtered decision may be up to ``1 - cos(pi / speed_sides)``
+    (2 % for 16 sides) slower than ``v_max`` in the worst direction.
 
     Parameters
     ----------
@@ -71,8 +74,11 @@ class QPSafetyFilter(SafetyFilter):
             self._s = np.zeros(0)
         self._P = np.asfortranarray(2.0 * np.eye(2))
         self._solver: piqp.DenseSolver | None = None
-        self._shape: tuple[int, int] | None = None
+        self._shape: int | None = None
         self._last = np.zeros(2)
+        self._lp: piqp.DenseSolver | None = None
+        self._lp_shape: int | None = None
+        self._fell_back = False
         self.n_solves_ = 0
         self.n_infeasible_ = 0
         self.n_fallback_ = 0
@@ -84,22 +90,30 @@ class QPSafetyFilter(SafetyFilter):
         return {"x_l": np.full(2, -self.v_max), "x_u": np.full(2, self.v_max)}
 
     def _admissible(self, v: np.ndarray) -> bool:
+        """Whether v meets the speed bound itself (the disc for the polygon: the polygon
+        is only the QP's linear stand-in for it, so a nominal decision inside the disc is
+        returned unchanged)."""
         if self.speed_sides:
-            return bool(np.all(self._S @ v <= self._s))
-        return bool(np.all(np.abs(v) <= self.v_max))
+            return v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12)
+        return abs(v[0]) <= self.v_max and abs(v[1]) <= self.v_max
 
     def _qp(self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
         """Solve min ||v - nominal||^2 s.t. -A v <= rhs and the speed bound."""
-        G = np.asfortranarray(np.vstack([-A, self._S]))
-        h_u = np.concatenate([rhs, self._s])
-        c = -2.0 * nominal
-        if self._solver is None or self._shape != G.shape:
+        m = A.shape[0]
+        if self._solver is None or self._shape != m:
+            # buffers sized for m conformal rows + the constant speed-polygon rows
+            self._G = np.asfortranarray(np.vstack([np.zeros((m, 2)), self._S]))
+            self._h = np.concatenate([np.zeros(m), self._s])
+            np.negative(A, out=self._G[:m])
+            self._h[:m] = rhs
             self._solver = piqp.DenseSolver()
             self._solver.settings.verbose = False
-            self._solver.setup(P=self._P, c=c, G=G, h_u=h_u, **self._box())
-            self._shape = G.shape
+            self._solver.setup(P=self._P, c=-2.0 * nominal, G=self._G, h_u=self._h, **self._box())
+            self._shape = m
         else:
-            self._solver.update(c=c, G=G, h_u=h_u)
+            np.negative(A, out=self._G[:m])
+            self._h[:m] = rhs
+            self._solver.update(c=-2.0 * nominal, G=self._G, h_u=self._h)
         self.n_solves_ += 1
         status = self._solver.solve()
         if status == piqp.PIQP_SOLVED:
@@ -109,68 +123,88 @@ class QPSafetyFilter(SafetyFilter):
     def smallest_feasible_lambda(self, A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
         """min lambda s.t. there is an admissible v with A v + b + lambda >= 0 (one LP).
 
-        Returns the minimal lambda and the velocity attaining it.
+        Solved with piqp in the variables (v, lambda). Returns the minimal lambda and the
+        velocity attaining it.
         """
         m = A.shape[0]
-        G = np.asfortranarray(
-            np.vstack(
-                [
-                    np.hstack([-A, -np.ones((m, 1))]),
-                    np.hstack([self._S, np.zeros((self._S.shape[0], 1))]),
-                ]
+        if self._lp is None or self._lp_shape != m:
+            ns = self._S.shape[0]
+            self._lp_G = np.asfortranarray(np.zeros((m + ns, 3)))
+            self._lp_G[:m, 2] = -1.0
+            self._lp_G[m:, :2] = self._S
+            self._lp_h = np.concatenate([np.zeros(m), self._s])
+            self._lp_G[:m, :2] = -A
+            self._lp_h[:m] = b
+            box = {}
+            if not self.speed_sides:
+                box = {
+                    "x_l": np.array([-self.v_max, -self.v_max, -np.inf]),
+                    "x_u": np.array([self.v_max, self.v_max, np.inf]),
+                }
+            self._lp = piqp.DenseSolver()
+            self._lp.settings.verbose = False
+            self._lp.setup(
+                P=np.asfortranarray(np.diag([1e-9, 1e-9, 0.0])),
+                c=np.array([0.0, 0.0, 1.0]),
+                G=self._lp_G,
+                h_u=self._lp_h,
+                **box,
             )
-        )
-        h_u = np.concatenate([b, self._s])
-        c = np.array([0.0, 0.0, 1.0])
-        P = np.asfortranarray(np.diag([1e-9, 1e-9, 0.0]))
-        solver = piqp.DenseSolver()
-        solver.settings.verbose = False
-        box = {}
-        if not self.speed_sides:
-            box = {
-                "x_l": np.array([-self.v_max, -self.v_max, -np.inf]),
-                "x_u": np.array([self.v_max, self.v_max, np.inf]),
-            }
-        solver.setup(P=P, c=c, G=G, h_u=h_u, **box)
+            self._lp_shape = m
+        else:
+            self._lp_G[:m, :2] = -A
+            self._lp_h[:m] = b
+            self._lp.update(G=self._lp_G, h_u=self._lp_h)
         self.n_solves_ += 1
-        status = solver.solve()
+        status = self._lp.solve()
         if status != piqp.PIQP_SOLVED:  # pragma: no cover - LP is always feasible & bounded
             raise RuntimeError(f"feasibility LP failed with status {status}")
-        x = np.array(solver.result.x, dtype=float)
-        # the LP optimum is attained where the worst row is tight: recompute exactly
-        lam_star = float(np.max(-(A @ x[:2]) - b))
-        return lam_star, x[:2]
+        v = np.array(self._lp.result.x[:2], dtype=float)
+        # the optimum is where the worst row is tight: recompute lambda exactly at v
+        return float(np.max(-(A @ v) - b)), v
 
     # ------------------------------------------------------------------ API
     def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
         nominal = np.asarray(nominal, dtype=float)
-        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b)) and math.isfinite(lam)):
-            raise ValueError(
-                "QPSafetyFilter received non-finite constraints or lambda; predictions must be "
-                "sanitised before building constraints"
-            )
-        if not np.all(np.isfinite(nominal)):
-            raise ValueError(f"QPSafetyFilter received a non-finite nominal decision {nominal}")
         rhs = b + lam
-        if self._admissible(nominal) and (A.shape[0] == 0 or np.all(A @ nominal + rhs >= 0)):
+        slack = A @ nominal + rhs
+        # one finiteness test covers A, b, lam and the nominal decision (NaN/inf propagate)
+        if not (math.isfinite(slack.sum()) and math.isfinite(nominal[0] + nominal[1])):
+            raise ValueError(
+                "QPSafetyFilter received non-finite constraints, lambda or nominal decision; "
+                "predictions must be sanitised before building constraints"
+            )
+        if (slack.size == 0 or slack.min() >= 0) and self._admissible(nominal):
             self._last = nominal
+            self._fell_back = False
             return FilterResult(nominal, "unconstrained", lam)
-        v = self._qp(nominal, A, rhs)
-        if v is not None:
-            self._last = v
-            return FilterResult(v, "optimal", lam)
+        lam_star = v_star = None
+        if self._fell_back and self.fallback == "lambda_search":
+            # infeasibility tends to persist: find the floor first, skip a doomed QP
+            lam_star, v_star = self.smallest_feasible_lambda(A, b)
+        if lam_star is None or lam >= lam_star + self._margin(lam_star):
+            v = self._qp(nominal, A, rhs)
+            if v is not None:
+                self._last = v
+                self._fell_back = False
+                return FilterResult(v, "optimal", lam)
         # infeasible at lambda (or a numerical failure): counted fallback
         self.n_infeasible_ += 1
         self.n_fallback_ += 1
+        self._fell_back = True
         if self.fallback == "brake":
             self._last = np.zeros(2)
             return FilterResult(self._last, "fallback", math.nan, "brake")
         if self.fallback == "hold":
             return FilterResult(self._last.copy(), "fallback", math.nan, "hold")
-        lam_star, v_star = self.smallest_feasible_lambda(A, b)
-        lam_used = max(lam, lam_star) + self.lambda_margin * max(1.0, abs(lam_star))
+        if lam_star is None:
+            lam_star, v_star = self.smallest_feasible_lambda(A, b)
+        lam_used = max(lam, lam_star) + self._margin(lam_star)
         v = self._qp(nominal, A, b + lam_used)
         if v is None:  # pragma: no cover - strictly feasible by construction
             v, lam_used = v_star, lam_star
         self._last = v
         return FilterResult(v, "fallback", lam_used, "lambda_search")
+
+    def _margin(self, lam_star: float) -> float:
+        return self.lambda_margin * max(1.0, abs(lam_star))

@@ -204,10 +204,10 @@ class ReplayEnvironment(Environment):
             self._done = True
         if self._step % self.substeps == 0:
             self._fi += 1
-            if not self._done:
-                self._log_frame()
             if self._fi >= self._last:
                 self._done = True
+            if not self._done:
+                self._log_frame()
 
     def reveal(self) -> CBFTruth:
         n_frames = -(-self._step // self.substeps)  # ceil
