@@ -1,0 +1,41 @@
+"""``conformal-control fetch-data``: download the data with checksums."""
+
+from __future__ import annotations
+
+import argparse
+
+from . import command
+
+
+@command("fetch-data", "download SDD and ETH/UCY files and verify their checksums")
+def _fetch_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dest", required=True, help="data folder to create/complete")
+    p.add_argument(
+        "--only",
+        action="append",
+        metavar="SEL",
+        help="sdd, ethucy, sdd:<scene>_<video> (e.g. sdd:nexus_4) or ethucy:<scene>",
+    )
+    p.add_argument(
+        "--mirror",
+        default=None,
+        help="folder or URL laid out like the data folder, copied verbatim",
+    )
+    p.add_argument("--force", action="store_true", help="download even verified files")
+    p.add_argument("--dry-run", action="store_true", help="list what would be fetched")
+
+
+@_fetch_args.handler
+def _fetch(args: argparse.Namespace) -> int:
+    from ..data.fetch import fetch, plan
+
+    if args.dry_run:
+        for item in plan(args.only, args.mirror):
+            print(f"{item.path}  <- {item.url}" + (" (metres -> pixels)" if item.convert else ""))
+        return 0
+    counts = fetch(args.dest, only=args.only, mirror=args.mirror, force=args.force)
+    print(
+        f"{counts['downloaded']} file(s) downloaded, {counts['verified_existing']} already "
+        f"present and verified, in {args.dest}; use --data-root {args.dest}"
+    )
+    return 0
