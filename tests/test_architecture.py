@@ -70,7 +70,7 @@ def test_no_import_cycles() -> None:
             if d not in g:
                 continue
             if state.get(d) == 1:
-                cycle = stack[stack.index(d):] + [d]
+                cycle = [*stack[stack.index(d) :], d]
                 raise AssertionError("import cycle: " + " -> ".join(cycle))
             if d not in state:
                 visit(d)
@@ -84,10 +84,18 @@ def test_no_import_cycles() -> None:
 
 def test_generic_loop_knows_nothing_about_cbfs_or_data() -> None:
     g = graph()
-    for mod in ("conformal_control.loop", "conformal_control.base", "conformal_control.monitor",
-                "conformal_control.update_rules"):
-        bad = {d for d in g[mod] if d.split(".")[1:2] and d.split(".")[1] in
-               ("cbf", "data", "sim", "plotting", "commands", "predictors")}
+    for mod in (
+        "conformal_control.loop",
+        "conformal_control.base",
+        "conformal_control.monitor",
+        "conformal_control.update_rules",
+    ):
+        bad = {
+            d
+            for d in g[mod]
+            if d.split(".")[1:2]
+            and d.split(".")[1] in ("cbf", "data", "sim", "plotting", "commands", "predictors")
+        }
         assert not bad, f"{mod} imports {bad}"
     names = {
         n.id.lower() if isinstance(n, ast.Name) else n.attr.lower()
