@@ -1,0 +1,134 @@
+"""MkDocs hooks: generated reference sections and the example notebooks.
+
+* ``<!-- generated:parameters -->`` in a page is replaced by the table of every controller
+  parameter, built from :data:`conformal_control.sim.config.PARAMETERS` (with units from
+  :data:`conformal_control.units.PARAM_DIMENSIONS` and the defaults of the built-in and
+  the paper scenes), so the table cannot drift from the code.
+* ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
+  argparse parsers of :mod:`conformal_control.commands`.
+* ``examples/*.ipynb`` are added to the site as ``examples/<name>.ipynb`` (rendered by
+  mkdocs-jupyter from their stored outputs; ``tests/test_notebooks.py`` executes them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from mkdocs.plugins import event_priority
+from mkdocs.structure.files import File, Files
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+
+# ---------------------------------------------------------------------------- notebooks
+@event_priority(100)  # before mkdocs-jupyter wraps the .ipynb files
+def on_files(files: Files, config: Any) -> Files:
+    for nb in sorted(EXAMPLES.glob("*.ipynb")):
+        files.append(
+            File(
+                f"examples/{nb.name}",
+                src_dir=str(ROOT),
+                dest_dir=config["site_dir"],
+                use_directory_urls=config["use_directory_urls"],
+            )
+        )
+    return files
+
+
+# ---------------------------------------------------------------------------- parameters
+def _dimension(name: str) -> tuple[str, str]:
+    """(paper unit on SDD scenes, SI unit) of a parameter."""
+    from conformal_control.units import PARAM_DIMENSIONS
+
+    if name not in PARAM_DIMENSIONS:
+        si = {"v_max": "m/s", "robot_radius": "m", "agent_radius": "m", "goal_radius": "m"}
+        unit = si.get(name, "-")
+        return unit, unit
+    p, q = PARAM_DIMENSIONS[name]
+
+    def fmt(length: str, time: str) -> str:
+        num = [f"{length}^{p}" if p > 1 else length] if p > 0 else []
+        den = [f"{time}^{-q}" if q < -1 else time] if q < 0 else []
+        if q > 0:
+            num.append(time)
+        top = " ".join(num) or "1"
+        return f"{top}/{den[0]}" if den else top
+
+    return fmt("px", "frame"), fmt("m", "s")
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "scene"
+    if isinstance(v, float) and math.isinf(v):
+        return "-inf" if v < 0 else "inf"
+    return f"`{v}`"
+
+
+def parameters_table() -> str:
+    from conformal_control.data.scenes import PAPER_SCENES
+    from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+    from conformal_control.sim.config import PARAMETERS
+
+    nexus = PAPER_SCENES["nexus_4"]
+    gates = PAPER_SCENES["gates_1"]
+    crossing_extra = {"v_max": 2.0, "robot_radius": 0.4, "agent_radius": 0.3, "goal_radius": 0.5}
+    sdd_extra = {"robot_radius": 0.5, "agent_radius": 0.5, "goal_radius": 0.5}
+    rows = [
+        "| parameter | unit on SDD scenes (paper) | SI unit | default | built-in `crossing` "
+        "(SI) | `gates_1` | `nexus_4` | meaning |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, (default, doc) in PARAMETERS.items():
+        paper, si = _dimension(name)
+        cross = SYNTHETIC_DEFAULTS.get(name, crossing_extra.get(name, default))
+        g = gates.defaults.get(name, gates.v_max if name == "v_max" else sdd_extra.get(name))
+        n = nexus.defaults.get(name, nexus.v_max if name == "v_max" else sdd_extra.get(name))
+        g = default if g is None else g
+        n = default if n is None else n
+        doc = doc.replace("|", "\\|")
+        rows.append(
+            f"| `{name}` | {paper} | {si} | {_fmt(default)} | {_fmt(cross)} | {_fmt(g)} | "
+            f"{_fmt(n)} | {doc} |"
+        )
+    return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------------- CLI
+def cli_reference() -> str:
+    import os
+
+    from conformal_control.cli import build_parser
+
+    os.environ["COLUMNS"] = "100"  # argparse wraps help to the terminal width
+    parser = build_parser()
+    out = [
+        "### `conformal-control`",
+        "",
+        "```text",
+        parser.format_help().rstrip(),
+        "```",
+        "",
+    ]
+    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sub in sorted(subs.choices.items()):
+        sub.prog = f"conformal-control {name}"
+        out += [f"### `{name}`", "", "```text", sub.format_help().rstrip(), "```", ""]
+    return "\n".join(out)
+
+
+GENERATORS = {
+    "<!-- generated:parameters -->": parameters_table,
+    "<!-- generated:cli -->": cli_reference,
+}
+
+
+def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str:
+    for marker, make in GENERATORS.items():
+        if marker in markdown:
+            markdown = markdown.replace(marker, make())
+    return markdown
