@@ -1,5 +1,22 @@
-"""Plotting (matplotlib). One module per kind of figure; all re-exported here."""
+"""Plotting (matplotlib). One module per kind of figure; all re-exported here.
 
+* :mod:`.run` - the scene with the robot's path, lambda(t) and loss(t), the run figure;
+* :mod:`.distance` - distance to the nearest pedestrian with the collision threshold;
+* :mod:`.sweep` - sweep summaries (a metric against epsilon, eta, tau, ...);
+* :mod:`.animation` - frames of a run for ``conformal-control animate``.
+"""
+
+from .animation import render_animation
+from .distance import plot_distance
 from .run import plot_lambda_loss, plot_run, plot_scene
+from .sweep import load_results, plot_sweep
 
-__all__ = ["plot_lambda_loss", "plot_run", "plot_scene"]
+__all__ = [
+    "load_results",
+    "plot_distance",
+    "plot_lambda_loss",
+    "plot_run",
+    "plot_scene",
+    "plot_sweep",
+    "render_animation",
+]

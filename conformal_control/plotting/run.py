@@ -1,4 +1,4 @@
-"""Plots of runs: the scene with the robot's path, lambda(t) and loss(t)."""
+"""Plots of runs: the scene with the robot's path, lambda(t), loss(t), distances."""
 
 from __future__ import annotations
 
@@ -99,24 +99,33 @@ def plot_lambda_loss(
 
 
 def plot_run(result: Any, path: str | Path | None = None) -> Figure:
-    """The standard run figure: scene + path (left), lambda(t) and loss(t) (right)."""
+    """The standard run figure.
+
+    Left: the scene with the robot's path; right, top to bottom: lambda(t), loss(t) with
+    epsilon, and the distance to the nearest pedestrian with the collision distance.
+    """
+    from .distance import plot_distance
+
     plt = _mpl()
-    fig = plt.figure(figsize=(12, 6.5), constrained_layout=True)
-    gs = fig.add_gridspec(2, 2, width_ratios=[1.3, 1])
+    fig = plt.figure(figsize=(12, 7.5), constrained_layout=True)
+    gs = fig.add_gridspec(3, 2, width_ratios=[1.3, 1])
     ax_scene = fig.add_subplot(gs[:, 0])
     ax_lam = fig.add_subplot(gs[0, 1])
     ax_loss = fig.add_subplot(gs[1, 1], sharex=ax_lam)
+    ax_dist = fig.add_subplot(gs[2, 1], sharex=ax_lam)
     plot_scene(ax_scene, result.scene, result.trajectory)
     m = result.metrics
     unit = m["units"]["lambda"]
     plot_lambda_loss(ax_lam, ax_loss, result.intervals, m["epsilon"], unit)
+    ax_loss.set_xlabel("")
+    plot_distance(ax_dist, result.trajectory, result.scene.collision_distance, t_goal=m["t_goal"])
     tg = f"{m['t_goal']:.2f} s" if m["t_goal"] is not None else "not reached"
     dmin = f"{m['d_min']:.2f} m" if m["d_min"] is not None else "-"
     lavg = f"{m['l_avg']:.3f}" if m["l_avg"] is not None else "-"
-    ax_lam.set_title(
+    fig.suptitle(
         f"t_goal {tg} | collisions {m['n_collide']} frames | d_min {dmin} | l_avg {lavg} | "
         f"fallback {100 * m['fallback_share']:.1f}%",
-        fontsize=9,
+        fontsize=10,
     )
     if path is not None:
         fig.savefig(path, dpi=110)

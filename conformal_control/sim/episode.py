@@ -40,6 +40,7 @@ class EpisodeResult:
     trajectory: dict[str, np.ndarray]
     steps: dict[str, np.ndarray] = field(default_factory=dict)
     loop: LoopResult | None = None
+    animation: dict[str, Any] | None = None
 
 
 @dataclass
@@ -113,6 +114,7 @@ def run_episode(
     seed: int = 0,
     predictor_params: dict[str, Any] | None = None,
     extra_config: dict[str, Any] | None = None,
+    record_animation: bool = True,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
 
@@ -129,6 +131,9 @@ def run_episode(
         Limit on simulated frames.
     seed : int
         Recorded in the config; stochastic predictors receive it as ``random_state``.
+    record_animation : bool
+        Keep the compact record ``conformal-control animate`` renders (``result.animation``,
+        written as ``animation.npz``; see :mod:`conformal_control.sim.record`).
     """
     given = dict(params or {})
     if not learn:
@@ -146,8 +151,22 @@ def run_episode(
     si = resolved.si
     floor = feasibility_floor(si["a"], comp.barrier.upper_bound, si["epsilon"], si["loss_scale"])
 
+    recorder = None
+    if record_animation:
+        from .record import AnimationRecorder
+
+        recorder = AnimationRecorder(
+            scene,
+            comp.policy,
+            comp.barrier,
+            resolved.tau_frames,
+            si["substeps"],
+            si["sensing_radius"],
+        )
     t0 = time.perf_counter()
-    loop = ConformalLoop(comp.env, comp.policy, comp.loss, comp.rule, predictor, learn=learn)
+    loop = ConformalLoop(
+        comp.env, comp.policy, comp.loss, comp.rule, predictor, learn=learn, on_interval=recorder
+    )
     result = loop.run()
     wall = time.perf_counter() - t0
 
@@ -239,7 +258,12 @@ def run_episode(
         "x": np.array(env.steps_x).reshape(-1, 4),
         "cmd": np.array(env.steps_cmd).reshape(-1, 2),
     }
-    return EpisodeResult(scene, config, metrics, intervals, traj, steps, result)
+    animation = None
+    if recorder is not None:
+        animation = recorder.finish(
+            traj, intervals, {"epsilon": si["epsilon"], "lambda_unit": metrics["units"]["lambda"]}
+        )
+    return EpisodeResult(scene, config, metrics, intervals, traj, steps, result, animation)
 
 
 def _jsonable(obj: Any) -> Any:

@@ -42,7 +42,10 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
     * ``intervals.csv`` - every interval with extra columns (loss with the applied lambda,
       the largest constraint gap, agents sensed, control steps);
     * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
-    * ``plot.png`` - the scene with the path, lambda(t) and loss(t).
+    * ``animation.npz`` - what ``conformal-control animate`` renders (if the episode kept
+      it; see :mod:`conformal_control.sim.record`);
+    * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
+      nearest pedestrian.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -71,6 +74,10 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
                     *(_fmt(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
                 ]
             )
+    if getattr(result, "animation", None) is not None:
+        import numpy as np
+
+        np.savez_compressed(out / "animation.npz", **result.animation)
     if plot:
         from ..plotting import plot_run
 
