@@ -17,9 +17,12 @@ __all__ = ["plot_lambda_loss", "plot_run", "plot_scene"]
 
 
 def _mpl():
+    import sys
+
     import matplotlib
 
-    matplotlib.use("Agg", force=False)
+    if "ipykernel" not in sys.modules:  # keep Jupyter's inline backend in notebooks
+        matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
     return plt
