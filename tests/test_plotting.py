@@ -112,3 +112,17 @@ def test_sweep_plot_bad_input():
         plot_sweep([], "epsilon")
     with pytest.raises(ValueError, match="no result has the key 'eta'"):
         plot_sweep([{"epsilon": 0.0, "t_goal": 1.0}], "eta", ("t_goal",))
+
+
+def test_plot_sweep_command(tmp_path, capsys):
+    from conformal_control.cli import main
+
+    path = tmp_path / "r.csv"
+    path.write_text("eta,seed,d_min,l_avg\n0.1,0,1.0,-0.2\n0.1,1,1.2,-0.22\n1.0,0,0.9,-0.25\n")
+    out = tmp_path / "s.png"
+    argv = ["plot-sweep", str(path), "--x", "eta", "--metric", "d_min", "--out", str(out)]
+    assert main(argv) == 0
+    assert out.stat().st_size > 5_000
+    assert "3 results plotted" in capsys.readouterr().out
+    assert main(["plot-sweep", str(path), "--x", "tau", "--out", str(out)]) == 2
+    assert "no result has the key 'tau'" in capsys.readouterr().err
