@@ -46,7 +46,7 @@ def _dimension(name: str) -> tuple[str, str]:
 
     if name not in PARAM_DIMENSIONS:
         si = {"v_max": "m/s", "robot_radius": "m", "agent_radius": "m", "goal_radius": "m"}
-        unit = si.get(name, "-")
+        unit = si.get(name, "1" if name == "epsilon" else "-")
         return unit, unit
     p, q = PARAM_DIMENSIONS[name]
 
@@ -69,15 +69,34 @@ def _fmt(v: Any) -> str:
     return f"`{v}`"
 
 
+def _derived(name: str, fps: float) -> str | None:
+    """Defaults computed from other parameters (``resolve_params``)."""
+    if name == "sensing_radius":
+        return "= `rho0`"
+    if name == "delta":
+        return "1/2 (`surface`)"
+    if name == "history":
+        return f"`{round(4.0 * fps)}` (4 s)"
+    return None
+
+
 def parameters_table() -> str:
+    import dataclasses
+
+    from conformal_control.data.scene import Scene
     from conformal_control.data.scenes import PAPER_SCENES
-    from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+    from conformal_control.data.sdd import SDD_FPS
+    from conformal_control.data.synthetic import crossing_scene
     from conformal_control.sim.config import PARAMETERS
 
-    nexus = PAPER_SCENES["nexus_4"]
-    gates = PAPER_SCENES["gates_1"]
-    crossing_extra = {"v_max": 2.0, "robot_radius": 0.4, "agent_radius": 0.3, "goal_radius": 0.5}
-    sdd_extra = {"robot_radius": 0.5, "agent_radius": 0.5, "goal_radius": 0.5}
+    crossing = crossing_scene(seed=0)
+    field_defaults = {f.name: f.default for f in dataclasses.fields(Scene)}
+    columns = [  # (defaults, per-scene attributes, fps)
+        (crossing.defaults, {k: getattr(crossing, k) for k in field_defaults}, crossing.fps)
+    ]
+    for name in ("gates_1", "nexus_4"):
+        spec = PAPER_SCENES[name]
+        columns.append((spec.defaults, {**field_defaults, "v_max": spec.v_max}, SDD_FPS))
     rows = [
         "| parameter | unit on SDD scenes (paper) | SI unit | default | built-in `crossing` "
         "(SI) | `gates_1` | `nexus_4` | meaning |",
@@ -85,15 +104,14 @@ def parameters_table() -> str:
     ]
     for name, (default, doc) in PARAMETERS.items():
         paper, si = _dimension(name)
-        cross = SYNTHETIC_DEFAULTS.get(name, crossing_extra.get(name, default))
-        g = gates.defaults.get(name, gates.v_max if name == "v_max" else sdd_extra.get(name))
-        n = nexus.defaults.get(name, nexus.v_max if name == "v_max" else sdd_extra.get(name))
-        g = default if g is None else g
-        n = default if n is None else n
+        cells = []
+        for defaults, attrs, fps in columns:
+            v = defaults.get(name, attrs.get(name, default))
+            cells.append(_derived(name, fps) if v is None else _fmt(v))
         doc = doc.replace("|", "\\|")
+        top = "derived" if _derived(name, 1.0) and default is None else _fmt(default)
         rows.append(
-            f"| `{name}` | {paper} | {si} | {_fmt(default)} | {_fmt(cross)} | {_fmt(g)} | "
-            f"{_fmt(n)} | {doc} |"
+            f"| `{name}` | {paper} | {si} | {top} | {' | '.join(map(str, cells))} | {doc} |"
         )
     return "\n".join(rows)
 
