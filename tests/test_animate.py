@@ -74,3 +74,26 @@ def test_animate_bad_input(tmp_path, capsys):
     assert "no animation record" in capsys.readouterr().err
     with pytest.raises(ValueError, match="fps must be > 0"):
         animation_frames({"t": np.zeros(3), "fps": 10.0}, fps=0)
+
+
+def test_animation_record_content(crossing):
+    from conformal_control.sim.episode import run_episode
+
+    # epsilon below the feasibility floor: the fallback runs, and the record shows it
+    res = run_episode(crossing, "constant_velocity", {"epsilon": -0.3}, max_frames=80)
+    rec = res.animation
+    assert res.metrics["n_fallback"] > 0
+    assert set(np.unique(rec["status"])) <= {0, 1, 2} and (rec["status"] == 2).any()
+    np.testing.assert_allclose(rec["robot"][:, 0], res.trajectory["x"], atol=1e-5)
+    # predictions start at the sensed agent's position at the interval's first frame
+    n_checked = 0
+    for k, start in enumerate(rec["k_start"]):
+        for n, col in enumerate(rec["pred_cols"][k]):
+            if col >= 0:
+                np.testing.assert_allclose(rec["pred"][k, n, 0], rec["peds"][start, col], atol=1e-5)
+                n_checked += 1
+    assert n_checked > 0
+    # the true barrier is evaluated only for agents within the sensing radius
+    assert np.isfinite(rec["h_true_min"]).any()
+    off = run_episode(crossing, "constant_velocity", max_frames=20, record_animation=False)
+    assert off.animation is None
