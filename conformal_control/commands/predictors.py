@@ -31,6 +31,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _defaults(cls: type, params: dict[str, Any], seed: int, obs: int, horizon: int) -> None:
+    names = cls._param_names()
+    for key, value in (("random_state", seed), ("obs", obs), ("horizon", horizon)):
+        if key in names:
+            params.setdefault(key, value)
+
+
 def train(
     name: str,
     dataset: str,
@@ -52,8 +59,7 @@ def train(
     if len(win) == 0:
         raise ValueError(f"no training windows for {dataset}")
     p = {k: v for k, v in params.items() if k != "weights"}
-    if "random_state" in cls._param_names():
-        p.setdefault("random_state", seed)
+    _defaults(cls, p, seed, obs, horizon)
     model = registry.create("predictor", name, **p)
     t0 = time.perf_counter()
     model.fit(win.history, win.future, win.dt)
@@ -116,7 +122,9 @@ def _eval(args: argparse.Namespace) -> int:
 
     params = key_values(args.param, "--param")
     cls = registry.get("predictor", args.predictor)
-    if "random_state" in cls._param_names():
+    if getattr(cls, "trainable", False):
+        _defaults(cls, params, args.seed, args.obs, args.horizon)
+    elif "random_state" in cls._param_names():
         params.setdefault("random_state", args.seed)
     if getattr(cls, "trainable", False) and params.get("weights") is None:
         params["weights"] = str(

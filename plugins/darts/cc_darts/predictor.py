@@ -53,9 +53,9 @@ class ForecastCache:
     def _connect(self) -> sqlite3.Connection:
         return sqlite3.connect(self.path, timeout=60)
 
-    def get_many(self, keys: list[str]) -> dict[str, np.ndarray]:
-        """Cached arrays for the keys present."""
-        out: dict[str, np.ndarray] = {}
+    def get_many(self, keys: list[str]) -> dict[str, np.ndarray | str]:
+        """Cached entries for the keys present: an (H, 2) array, or the reason of a failure."""
+        out: dict[str, np.ndarray | str] = {}
         if not keys:
             return out
         with self._connect() as con:
@@ -63,15 +63,20 @@ class ForecastCache:
                 chunk = keys[s : s + 500]
                 marks = ",".join("?" * len(chunk))
                 for k, h, v in con.execute(f"SELECT k, h, v FROM f WHERE k IN ({marks})", chunk):
-                    out[k] = np.frombuffer(v, dtype=np.float64).reshape(h, 2).copy()
+                    if h < 0:
+                        out[k] = bytes(v).decode()
+                    else:
+                        out[k] = np.frombuffer(v, dtype=np.float64).reshape(h, 2).copy()
         return out
 
-    def put_many(self, items: dict[str, np.ndarray]) -> None:
-        """Store arrays of shape (H, 2)."""
+    def put_many(self, items: dict[str, np.ndarray | str]) -> None:
+        """Store arrays of shape (H, 2), or failure reasons (str)."""
         if not items:
             return
         rows = [
-            (k, int(v.shape[0]), np.ascontiguousarray(v, dtype=np.float64).tobytes())
+            (k, -1, v.encode())
+            if isinstance(v, str)
+            else (k, int(v.shape[0]), np.ascontiguousarray(v, dtype=np.float64).tobytes())
             for k, v in items.items()
         ]
         with self._connect() as con:
@@ -247,28 +252,40 @@ class DartsPredictor(Predictor):
                 info["n_short_history"] += 1
                 continue
             series = hist[i, t - length :]
-            if np.ptp(series, axis=0).max() < 1e-9:
+            if (
+                np.ptp(series, axis=0).min() < 1e-9
+                or np.ptp(np.diff(series, axis=0), axis=0).min() < 1e-9
+            ):
                 info["n_degenerate"] += 1
                 continue
             todo[i] = (self._key(series, params, horizon), series)
         store = self._store() if self.cache else None
         hits = store.get_many([k for k, _ in todo.values()]) if store is not None else {}
         jobs = [(i, k, s) for i, (k, s) in todo.items() if k not in hits]
+        errors: dict[str, int] = {}
+
+        def fail(reason: str) -> None:
+            info["n_fit_failed"] += 1
+            errors[reason] = errors.get(reason, 0) + 1
+
         for i, (k, _) in todo.items():
             if k in hits:
-                positions[i] = hits[k]
                 info["n_cached"] += 1
+                hit = hits[k]
+                if isinstance(hit, str):
+                    fail(hit)  # a cached failure is not retried
+                else:
+                    positions[i] = hit
         results = self._run(jobs, params, horizon)
-        errors: dict[str, int] = {}
-        fresh: dict[str, np.ndarray] = {}
+        fresh: dict[str, np.ndarray | str] = {}
         for (i, k, _), (pred, err) in zip(jobs, results, strict=True):
+            info["n_fitted"] += 1
             if pred is None:
-                info["n_fit_failed"] += 1
-                errors[err or "unknown"] = errors.get(err or "unknown", 0) + 1
+                fail(err or "unknown")
+                fresh[k] = err or "unknown"
                 continue
             positions[i] = pred
             fresh[k] = pred
-            info["n_fitted"] += 1
         if store is not None:
             store.put_many(fresh)
         if errors:

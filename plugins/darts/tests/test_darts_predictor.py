@@ -44,11 +44,23 @@ def test_varima_fits_then_cache_serves(tmp_path):
     assert len(ForecastCache(tmp_path / "c.sqlite")) == 2
 
 
-def test_fit_failures_are_counted_with_reason(tmp_path):
-    p = DartsPredictor(model_params={"p": -3, "d": 1}, min_history=5, cache=False)
-    fc = p.predict(_query([40, 40]))
+def test_fit_failures_are_counted_with_reason_and_cached(tmp_path):
+    kw = {"model_params": {"p": -3, "d": 1}, "min_history": 5}
+    path = str(tmp_path / "c.sqlite")
+    fc = DartsPredictor(cache_path=path, **kw).predict(_query([40, 40]))
     assert fc.info["n_fit_failed"] == 2 and fc.info["fit_errors"]
     assert np.isfinite(fc.positions).all()  # constant-velocity fallback
+    again = DartsPredictor(cache_path=path, **kw).predict(_query([40, 40]))
+    assert again.info["n_fitted"] == 0 and again.info["n_cached"] == 2
+    assert again.info["fit_errors"] == fc.info["fit_errors"]
+
+
+def test_exactly_linear_motion_is_degenerate():
+    q = _query([40])
+    q.history[0] = np.array([1.0, 2.0]) + np.arange(40)[:, None] * np.array([0.03, 0.0])
+    fc = DartsPredictor(cache=False).predict(q)
+    assert fc.info["n_degenerate"] == 1 and fc.info["n_fitted"] == 0
+    np.testing.assert_allclose(fc.positions[0, -1], q.history[0, -1] + [0.15, 0.0])
 
 
 def test_other_model_by_name_and_parallel():
