@@ -95,11 +95,14 @@ def _fit_one(
 
     import darts.models
     from darts import TimeSeries
+    from threadpoolctl import threadpool_limits
 
     logging.getLogger("darts").setLevel(logging.CRITICAL)  # failures are counted instead
     try:
         cls = getattr(darts.models, model)
-        with warnings.catch_warnings():
+        # one BLAS thread per fit: the fits are tiny, and multi-threaded BLAS on a busy
+        # machine made each VARIMA fit 10x slower; parallelism comes from n_jobs instead
+        with warnings.catch_warnings(), threadpool_limits(1):
             warnings.simplefilter("ignore")
             m = cls(**model_params)
             m.fit(TimeSeries.from_values(series.astype(np.float64)))

@@ -3,6 +3,9 @@
 Each agent's history is filtered from its first finite sample (missing samples are
 predict-only steps); the filter is then run ``horizon`` steps ahead without updates, and
 the position block of the state covariance is returned as ``Forecast.covariance``.
+An agent whose current position is not finite (invalid input) gets a NaN forecast,
+counted in ``Forecast.info["n_nonfinite_current"]``; one observed once stands still
+(``n_short_history``).
 
 Process noise is continuous white noise on the highest derivative (acceleration for
 ``"cv"``, jerk for ``"ca"``) with spectral density ``process_noise`` (m^2/s^3 or
@@ -129,9 +132,10 @@ class KalmanPredictor(Predictor):
         cov = np.full((n, h, 2, 2), np.nan)
         filters, _ = self.filter(query)
         n_short = 0
+        bad_current = ~np.isfinite(hist[:, -1]).all(axis=1) if n else np.zeros(0, bool)
         for i, kf in enumerate(filters):
-            if kf is None:
-                continue
+            if kf is None or bad_current[i]:
+                continue  # no forecast (NaN) for an agent without a current position
             n_short += int(np.isfinite(hist[i]).all(axis=1).sum() < 2)
             order = kf.dim_x // 2
             idx = [0, order]
@@ -141,4 +145,5 @@ class KalmanPredictor(Predictor):
                 p = kf.F @ p @ kf.F.T + kf.Q
                 pos[i, k] = x[idx]
                 cov[i, k] = p[np.ix_(idx, idx)]
-        return Forecast(pos, covariance=cov, info={"n_short_history": n_short})
+        info = {"n_short_history": n_short, "n_nonfinite_current": int(bad_current.sum())}
+        return Forecast(pos, covariance=cov, info=info)
