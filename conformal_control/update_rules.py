@@ -59,6 +59,10 @@ class FixedEtaRule(UpdateRule):
         self.lambda_min = lambda_min
         self.lambda_max = lambda_max
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [{}, {"epsilon": 0.1, "eta": 0.5, "lambda_init": 1.0, "lambda_min": -0.5}]
+
     def _validate(self) -> None:
         _check_finite("epsilon", self.epsilon)
         _check_finite("lambda_init", self.lambda_init)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__, registry
-from ..base import Predictor
+from ..base import Barrier, Predictor
 from ..cbf import APFBarrier, CBFGapLoss, ConformalCBFController, QPSafetyFilter
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
@@ -49,22 +49,29 @@ class Components:
     policy: ConformalCBFController
     loss: CBFGapLoss
     rule: FixedEtaRule
-    barrier: APFBarrier
+    barrier: Barrier
     safety_filter: QPSafetyFilter
 
 
 def build_components(
-    scene: Scene, params: ResolvedParams, max_frames: int | None = None
+    scene: Scene,
+    params: ResolvedParams,
+    max_frames: int | None = None,
+    barrier: Barrier | None = None,
 ) -> Components:
-    """Wire barrier, QP, reference, controller, loss, rule and environment from SI params."""
+    """Wire barrier, QP, reference, controller, loss, rule and environment from SI params.
+
+    ``barrier`` replaces the paper's APF barrier (built from the params) when given.
+    """
     si = params.si
-    barrier = APFBarrier(
-        K_rep=si["K_rep"],
-        rho0=si["rho0"],
-        d_c=si["robot_radius"] + si["agent_radius"],
-        convention=si["convention"],
-        delta=si["delta"],
-    )
+    if barrier is None:
+        barrier = APFBarrier(
+            K_rep=si["K_rep"],
+            rho0=si["rho0"],
+            d_c=si["robot_radius"] + si["agent_radius"],
+            convention=si["convention"],
+            delta=si["delta"],
+        )
     safety_filter = QPSafetyFilter(
         v_max=si["v_max"], fallback=si["fallback"], speed_sides=si["speed_sides"]
     )
@@ -114,6 +121,8 @@ def run_episode(
     seed: int = 0,
     predictor_params: dict[str, Any] | None = None,
     extra_config: dict[str, Any] | None = None,
+    barrier: Barrier | str | None = None,
+    barrier_params: dict[str, Any] | None = None,
     record_animation: bool = True,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
@@ -131,6 +140,11 @@ def run_episode(
         Limit on simulated frames.
     seed : int
         Recorded in the config; stochastic predictors receive it as ``random_state``.
+    barrier : Barrier or str, optional
+        A barrier instance or a registered name (built with ``barrier_params``, SI units)
+        replacing the paper's APF barrier. A named barrier whose constructor takes ``d_c``
+        and is not given one receives the scene's collision distance
+        (``robot_radius + agent_radius``, m). Recorded in the config with its parameters.
     record_animation : bool
         Keep the compact record ``conformal-control animate`` renders (``result.animation``,
         written as ``animation.npz``; see :mod:`conformal_control.sim.record`).
@@ -147,9 +161,20 @@ def run_episode(
         predictor_name, predictor = predictor, registry.create("predictor", predictor, **pp)
     else:
         predictor_name = type(predictor).__name__
-    comp = build_components(scene, resolved, max_frames)
+    barrier_name = "apf"
+    if isinstance(barrier, str):
+        bp = dict(barrier_params or {})
+        if "d_c" in registry.get("barrier", barrier)._param_names() and "d_c" not in bp:
+            bp["d_c"] = resolved.si["robot_radius"] + resolved.si["agent_radius"]
+        barrier_name, barrier = barrier, registry.create("barrier", barrier, **bp)
+    elif barrier is not None:
+        barrier_name = type(barrier).__name__
+    comp = build_components(scene, resolved, max_frames, barrier=barrier)
     si = resolved.si
-    floor = feasibility_floor(si["a"], comp.barrier.upper_bound, si["epsilon"], si["loss_scale"])
+    h_max = comp.barrier.upper_bound
+    floor = feasibility_floor(
+        si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
+    )
 
     recorder = None
     if record_animation:
@@ -246,11 +271,12 @@ def run_episode(
             **{k: v for k, v in scene.meta.items() if isinstance(v, (str, int, float, list))},
         },
         "predictor": {"name": predictor_name, "params": _jsonable(predictor.get_params())},
+        "barrier": {"name": barrier_name, "params": _jsonable(comp.barrier.get_params())},
         "learning": learn,
         "seed": seed,
         "max_frames": max_frames,
         "params": _jsonable(resolved.as_dict()),
-        "feasibility": floor.as_dict(),
+        "feasibility": _jsonable(floor.as_dict()),
         **(extra_config or {}),
     }
     steps = {

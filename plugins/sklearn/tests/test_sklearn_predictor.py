@@ -1,0 +1,50 @@
+"""The scikit-learn predictor plugin: fit, save/load by path, any regressor, frame rates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cc_sklearn import SklearnPredictor
+
+from conformal_control import registry
+from conformal_control.base import PredictionQuery
+from conformal_control.predictors import ConstantVelocityPredictor
+from conformal_control.predictors.evaluation import Windows, evaluate_predictor
+from conformal_control.predictors.learned import synthetic_windows
+
+
+def test_registered_and_trainable():
+    cls = registry.get("predictor", "sklearn")
+    assert cls is SklearnPredictor and cls.trainable
+
+
+def test_ridge_learns_walks_and_round_trips(tmp_path):
+    h, f = synthetic_windows(400, seed=0)
+    model = SklearnPredictor().fit(h, f, dt=0.4)
+    th, tf = synthetic_windows(200, seed=1)
+    res = evaluate_predictor(model, Windows(th, tf, 0.4))
+    cv = evaluate_predictor(ConstantVelocityPredictor(window=1), Windows(th, tf, 0.4))
+    assert res["ade"] < 0.75 * cv["ade"]  # smooths the noise and learns the turning
+    loaded = SklearnPredictor(weights=str(model.save(tmp_path / "w")))
+    q = PredictionQuery(np.arange(5), th[:5].copy(), dt=0.4, horizon=12)
+    np.testing.assert_allclose(loaded.predict(q).positions, model.predict(q).positions)
+
+
+def test_other_regressor_and_30fps_query():
+    h, f = synthetic_windows(200, seed=0)
+    model = SklearnPredictor("KNeighborsRegressor", {"n_neighbors": 3}).fit(h, f, dt=0.4)
+    # the same straight walk sampled at 30 fps: 90 frames of history, 20 frames ahead
+    t = np.arange(90) / 30.0
+    hist = np.stack([t, 0.5 * t], axis=-1)[None]
+    fc = model.predict(PredictionQuery(np.arange(1), hist, dt=1 / 30, horizon=20))
+    expect = hist[0, -1] + (np.arange(1, 21) / 30.0)[:, None] * np.array([1.0, 0.5])
+    assert np.abs(fc.positions[0] - expect).max() < 0.1
+    short = PredictionQuery(np.arange(1), hist[:, -30:], dt=1 / 30, horizon=5)
+    assert model.predict(short).info["n_short_history"] == 1
+
+
+def test_clear_errors():
+    with pytest.raises(ValueError, match="no weights"):
+        SklearnPredictor().predict(PredictionQuery(np.arange(1), np.zeros((1, 8, 2)), 0.4, 3))
+    with pytest.raises(ValueError, match="unknown scikit-learn regressor"):
+        SklearnPredictor("Nope").fit(*synthetic_windows(20), dt=0.4)
