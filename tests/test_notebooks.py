@@ -17,7 +17,7 @@ def test_there_are_notebooks():
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_executes(path: Path, data_root: Path, monkeypatch) -> None:
-    nbformat = pytest.importorskip("nbformat", reason="needs the docs extra")
+    import nbformat  # the docs extra: pip install -e ".[docs]"
     from nbclient import NotebookClient
 
     monkeypatch.setenv("CONFORMAL_CONTROL_DATA", str(data_root))
