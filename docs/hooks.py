@@ -139,9 +139,42 @@ def cli_reference() -> str:
     return "\n".join(out)
 
 
+# ---------------------------------------------------------------------------- runs
+def cli_run_output(*args: str) -> str:
+    """What ``conformal-control run ARGS`` prints, run now (so the page shows this version).
+
+    SDD scenes read ``$CONFORMAL_CONTROL_DATA`` (else ``../shared/data`` beside the
+    checkout); without data the block says so instead of failing the build.
+    """
+    import contextlib
+    import io
+    import os
+    import tempfile
+
+    from conformal_control.cli import main
+
+    env_root = os.environ.get("CONFORMAL_CONTROL_DATA")
+    root = Path(env_root) if env_root else ROOT.parent / "shared" / "data"
+    argv = ["run", *args, "--no-plot"]
+    if "--scene" in args:
+        if not (root / "sdd").is_dir():
+            return f"(the SDD data was not found at {root} when this page was built)"
+        argv += ["--data-root", str(root)]
+    with tempfile.TemporaryDirectory() as tmp:
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([*argv, "--out", f"{tmp}/run"])
+        if code != 0:
+            raise RuntimeError(f"conformal-control {' '.join(argv)} failed: {err.getvalue()}")
+        text = out.getvalue().replace(f"{tmp}/run", "runs/<scene>-<time>")
+    return text.rstrip() + (("\n" + err.getvalue().rstrip()) if err.getvalue() else "")
+
+
 GENERATORS = {
     "<!-- generated:parameters -->": parameters_table,
     "<!-- generated:cli -->": cli_reference,
+    "<!-- generated:run-demo -->": lambda: cli_run_output(),
+    "<!-- generated:run-nexus_4 -->": lambda: cli_run_output("--scene", "nexus_4"),
 }
 
 

@@ -52,6 +52,9 @@ def test_mkdocs_build_strict(tmp_path: Path) -> None:
     subs = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
     for name in subs.choices:
         assert f"conformal-control {name}" in cli, name
+    started = (site / "getting-started/index.html").read_text()
+    assert "generated:run" not in started
+    assert started.count("results written to") == 2  # the demo and nexus_4, run at build time
     api = (site / "api/index.html").read_text()
     assert "ConformalLoop" in api and "run_episode" in api
     # math is emitted for MathJax, assets are in place
