@@ -11,11 +11,33 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
 
 from .base import Loss
 
-__all__ = ["FunctionLoss", "LossRangeError", "MiscoverageLoss", "SetRecord", "wrap_loss"]
+__all__ = [
+    "BallRecord",
+    "FunctionLoss",
+    "LossRangeError",
+    "MiscoverageLoss",
+    "SetRecord",
+    "check_lambda",
+    "conformal_radius",
+    "wrap_loss",
+]
+
+PARAMETRISATIONS = ("level", "radius")
+
+
+def check_lambda(lam: float) -> float:
+    """lambda as a float; a clear ValueError for NaN (a loss needs a number)."""
+    lam = float(lam)
+    if math.isnan(lam):
+        raise ValueError("the loss needs a lambda that is a number, got nan")
+    return lam
 
 
 class LossRangeError(ValueError):
@@ -29,6 +51,58 @@ class SetRecord(Protocol):
     def covers(self, truth: Any, lam: float) -> bool:
         """Whether the set the family builds with ``lam`` contains ``truth``."""
         ...
+
+
+def conformal_radius(
+    sorted_scores: np.ndarray, lam: float, parametrisation: str = "level"
+) -> float:
+    """Radius of the conformal ball built with ``lam`` (``inf`` = everything, ``-inf`` = empty).
+
+    ``"level"`` (ACI's convention): lambda is the nominal miscoverage level; the radius is
+    the conformal quantile of the scores at level 1 - lambda, i.e. the
+    ceil((n + 1)(1 - lambda))-th smallest score; everything for lambda <= 0 or too few
+    scores, empty for lambda >= 1. ``"radius"`` (the PID paper's quantile tracking):
+    radius = -lambda, empty for lambda > 0. Both: larger lambda = smaller set.
+    """
+    if parametrisation == "radius":
+        return -math.inf if lam > 0 else -float(lam)
+    if parametrisation != "level":
+        raise ValueError(
+            f"parametrisation must be one of {PARAMETRISATIONS}, got {parametrisation!r}"
+        )
+    if lam >= 1.0:
+        return -math.inf
+    n = sorted_scores.size
+    if lam <= 0.0 or n == 0:
+        return math.inf
+    k = math.ceil((n + 1) * (1.0 - lam))
+    return math.inf if k > n else float(sorted_scores[max(k, 1) - 1])
+
+
+@dataclass
+class BallRecord:
+    """A prediction set {y : |y - center| <= radius(lambda)} (interval, disc, ball).
+
+    Attributes
+    ----------
+    center : ndarray
+        The point forecast (any shape; the distance is the Euclidean norm).
+    sorted_scores : ndarray
+        Calibration scores |y - forecast| of the past, sorted ascending.
+    parametrisation : str
+        How lambda sets the radius, see :func:`conformal_radius`.
+    """
+
+    center: np.ndarray
+    sorted_scores: np.ndarray
+    parametrisation: str = "level"
+
+    def radius(self, lam: float) -> float:
+        return conformal_radius(self.sorted_scores, lam, self.parametrisation)
+
+    def covers(self, truth: Any, lam: float) -> bool:
+        diff = np.asarray(truth, dtype=float) - np.asarray(self.center, dtype=float)
+        return bool(np.linalg.norm(np.atleast_1d(diff)) <= self.radius(lam))
 
 
 class MiscoverageLoss(Loss):
@@ -45,7 +119,18 @@ class MiscoverageLoss(Loss):
     def __init__(self) -> None:
         pass
 
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[Any, Any]]:
+        scores = np.sort(np.random.default_rng(0).exponential(1.0, 50))
+        return [
+            (BallRecord(np.zeros(2), scores), np.array([0.3, -0.2])),
+            (BallRecord(np.zeros(2), scores, "radius"), np.array([2.0, 1.0])),
+            (BallRecord(np.zeros(1), np.zeros(0)), np.array([5.0])),  # no scores yet
+            (BallRecord(np.zeros(2), scores), None),  # nothing observed
+        ]
+
     def __call__(self, record: Any, truth: Any, lam: float) -> float | None:
+        lam = check_lambda(lam)
         if truth is None:
             return None
         if not isinstance(record, SetRecord):
@@ -94,6 +179,11 @@ class FunctionLoss(Loss):
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}]
 
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[Any, Any]]:
+        """Inputs for the default function (``record - truth`` is a number)."""
+        return [(0.0, 0.0), (1.0, -1.0), (-3.0, 2.5)]
+
     def _check_bounds(self) -> tuple[float, float]:
         try:
             lo, hi = (float(b) for b in self.bounds)
@@ -107,6 +197,7 @@ class FunctionLoss(Loss):
 
     def __call__(self, record: Any, truth: Any, lam: float) -> float | None:
         lo, hi = self._check_bounds()
+        lam = check_lambda(lam)
         value = self.fn(record, truth, lam)
         if value is None:
             return None

@@ -13,25 +13,38 @@ Registering at runtime (tests, notebooks) needs no packaging::
 
     @registry.register("predictor", "my_model")
     class MyPredictor(Predictor): ...
+
+    registry.register("barrier", "my_barrier", "my_package.barriers:MyBarrier")  # lazy
+
+Name clashes: the first registration of a name wins (core plugins first, then entry
+points in discovery order); a different target under a taken name is ignored and reported
+by :func:`clashes` and ``conformal-control plugins``. Asking for an unknown name raises
+:class:`UnknownPluginError`, which lists the known names and the closest matches.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+import difflib
+import importlib
+from dataclasses import dataclass, field
 from importlib import import_module
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 __all__ = [
     "ROLES",
+    "Clash",
     "PluginEntry",
     "PluginUnavailableError",
+    "UnknownPluginError",
+    "clashes",
     "create",
     "entries",
     "get",
     "names",
+    "refresh",
     "register",
+    "unregister",
 ]
 
 #: role -> entry-point group
@@ -80,6 +93,33 @@ class PluginUnavailableError(ImportError):
     """A registered plugin cannot be loaded (typically a missing optional dependency)."""
 
 
+class UnknownPluginError(ValueError):
+    """No plugin of that role is registered under that name.
+
+    Attributes
+    ----------
+    role, name : str
+    known : list of str
+        Names registered for the role.
+    suggestions : list of str
+        The closest known names (did you mean ...?).
+    """
+
+    def __init__(self, role: str, name: str, known: list[str]) -> None:
+        self.role, self.name, self.known = role, name, known
+        self.suggestions = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+        hint = (
+            f" did you mean {' or '.join(repr(s) for s in self.suggestions)}?"
+            if (self.suggestions)
+            else ""
+        )
+        listed = ", ".join(known) or "none"
+        super().__init__(
+            f"unknown {role} {name!r};{hint} registered {role} plugins: {listed} "
+            "(see `conformal-control plugins`)"
+        )
+
+
 @dataclass
 class PluginEntry:
     """One registered plugin.
@@ -91,17 +131,20 @@ class PluginEntry:
         ``"module:Class"`` (loaded lazily) or the class itself.
     origin : str
         Where it comes from: the distribution declaring the entry point, or "runtime".
+    version : str or None
+        Version of that distribution.
     """
 
     role: str
     name: str
     target: str | type
     origin: str
-    _loaded: type | None = None
-    _error: str | None = None
+    version: str | None = None
+    _loaded: type | None = field(default=None, repr=False)
+    _error: str | None = field(default=None, repr=False)
 
     def load(self) -> type:
-        """Import and return the plugin class."""
+        """Import and return the plugin class (:class:`PluginUnavailableError` if it cannot)."""
         if self._loaded is not None:
             return self._loaded
         if self._error is not None:
@@ -112,7 +155,7 @@ class PluginEntry:
         module, _, attr = self.target.partition(":")
         try:
             obj: Any = import_module(module)
-            for part in attr.split("."):
+            for part in attr.split(".") if attr else []:
                 obj = getattr(obj, part)
         except ImportError as exc:
             self._error = (
@@ -120,11 +163,24 @@ class PluginEntry:
                 "Install its optional dependencies (see the README's set-up command)."
             )
             raise PluginUnavailableError(self._error) from exc
+        except Exception as exc:  # a broken plugin must not break the others
+            self._error = (
+                f"{self.role} plugin {self.name!r} (from {self.origin}) cannot be loaded from "
+                f"{self.target!r}: {type(exc).__name__}: {exc}"
+            )
+            raise PluginUnavailableError(self._error) from exc
+        if not isinstance(obj, type):
+            self._error = (
+                f"{self.role} plugin {self.name!r} (from {self.origin}): {self.target!r} is a "
+                f"{type(obj).__name__}, not a class"
+            )
+            raise PluginUnavailableError(self._error)
         self._loaded = obj
         return obj
 
     @property
     def available(self) -> bool:
+        """Whether the plugin class can be imported."""
         try:
             self.load()
         except PluginUnavailableError:
@@ -133,17 +189,41 @@ class PluginEntry:
 
     @property
     def error(self) -> str | None:
+        """Why the plugin is unavailable (None if it is available)."""
         return None if self.available else self._error
 
     def summary(self) -> str:
+        """One-line description: first line of the class docstring (or ``description``)."""
         if not self.available:
             return f"(unavailable) {self._error}"
         cls = self.load()
         summary = getattr(cls, "summary", None)
-        return summary() if callable(summary) else (cls.__doc__ or cls.__name__).strip()
+        if callable(summary):
+            return str(summary())
+        doc = (cls.__doc__ or "").strip()
+        return doc.splitlines()[0] if doc else cls.__name__
+
+
+@dataclass(frozen=True)
+class Clash:
+    """Two registrations of one name with different targets; the first one is kept."""
+
+    role: str
+    name: str
+    kept: str
+    kept_origin: str
+    ignored: str
+    ignored_origin: str
+
+    def __str__(self) -> str:
+        return (
+            f"{self.role} {self.name!r}: {self.ignored} (from {self.ignored_origin}) ignored, "
+            f"{self.kept} (from {self.kept_origin}) kept"
+        )
 
 
 _registry: dict[str, dict[str, PluginEntry]] = {role: {} for role in ROLES}
+_clashes: list[Clash] = []
 _discovered = False
 
 
@@ -152,51 +232,112 @@ def _check_role(role: str) -> None:
         raise ValueError(f"unknown plugin role {role!r}; roles: {', '.join(ROLES)}")
 
 
+def _target_text(target: str | type) -> str:
+    if isinstance(target, type):
+        return f"{target.__module__}:{target.__qualname__}"
+    return target
+
+
+def _add(entry: PluginEntry) -> None:
+    """Add a discovered entry; the first registration of a name wins, clashes are recorded."""
+    existing = _registry[entry.role].get(entry.name)
+    if existing is None:
+        _registry[entry.role][entry.name] = entry
+        return
+    if _target_text(existing.target) == _target_text(entry.target):
+        if existing.origin == "conformal-control" or existing.origin == entry.origin:
+            existing.origin, existing.version = entry.origin, entry.version or existing.version
+        return
+    _clashes.append(
+        Clash(
+            entry.role,
+            entry.name,
+            _target_text(existing.target),
+            existing.origin,
+            _target_text(entry.target),
+            entry.origin,
+        )
+    )
+
+
 def _discover() -> None:
     global _discovered
     if _discovered:
         return
     _discovered = True
     for role, group in ROLES.items():
-        for name, target in _CORE[role].items():
-            _registry[role].setdefault(name, PluginEntry(role, name, target, "conformal-control"))
+        for name, target in _CORE.get(role, {}).items():
+            _add(PluginEntry(role, name, target, "conformal-control"))
         ep: EntryPoint
         for ep in entry_points(group=group):
             dist = ep.dist.name if ep.dist is not None else "unknown"
-            existing = _registry[role].get(ep.name)
-            if existing is not None and existing.target == ep.value:
-                existing.origin = dist
-                continue
-            _registry[role][ep.name] = PluginEntry(role, ep.name, ep.value, dist)
+            version = ep.dist.version if ep.dist is not None else None
+            _add(PluginEntry(role, ep.name, ep.value, dist, version))
 
 
-def register(role: str, name: str, *, overwrite: bool = False) -> Callable[[type], type]:
-    """Class decorator registering a plugin at runtime under ``role``/``name``."""
-    _check_role(role)
+def refresh() -> None:
+    """Forget every registration (runtime ones included) and re-read the entry points.
+
+    For tests, and after installing a plugin package into a running interpreter.
+    """
+    global _discovered
+    for role in ROLES:
+        _registry.setdefault(role, {}).clear()
+    _clashes.clear()
+    _discovered = False
+    importlib.invalidate_caches()
     _discover()
 
-    def deco(cls: type) -> type:
-        if name in _registry[role] and not overwrite:
-            current = _registry[role][name]
-            if current.target is not cls:
-                raise ValueError(
-                    f"a {role} plugin named {name!r} is already registered (from "
-                    f"{current.origin}); pass overwrite=True to replace it"
-                )
-        _registry[role][name] = PluginEntry(role, name, cls, "runtime")
-        return cls
 
-    return deco
+def register(
+    role: str, name: str, target: str | type | None = None, *, overwrite: bool = False
+) -> Any:
+    """Register a plugin at runtime under ``role``/``name``.
+
+    Three forms::
+
+        @register("predictor", "mine")              # class decorator
+        class Mine(Predictor): ...
+
+        register("predictor", "mine", Mine)         # a class
+        register("predictor", "mine", "pkg.mod:Mine")  # lazy: imported on first use
+
+    A name that is taken by a different plugin raises ``ValueError`` unless
+    ``overwrite=True``. Returns the class (decorator and class forms) or the target string.
+    """
+    _check_role(role)
+    _discover()
+    if target is not None and not isinstance(target, (str, type)):
+        raise TypeError(f"target must be a class or a 'module:Class' string, got {target!r}")
+    if isinstance(target, str) and ":" not in target:
+        raise ValueError(f"a lazy target must look like 'package.module:Class', got {target!r}")
+
+    def add(obj: str | type) -> str | type:
+        current = _registry[role].get(name)
+        if current is not None and not overwrite:
+            if _target_text(current.target) != _target_text(obj):
+                raise ValueError(
+                    f"a {role} plugin named {name!r} is already registered ("
+                    f"{_target_text(current.target)} from {current.origin}); pass "
+                    "overwrite=True to replace it"
+                )
+        _registry[role][name] = PluginEntry(role, name, obj, "runtime")
+        return obj
+
+    if target is not None:
+        return add(target)
+    return add
 
 
 def unregister(role: str, name: str) -> None:
     """Remove a plugin (mainly for tests)."""
     _check_role(role)
+    _discover()
     _registry[role].pop(name, None)
 
 
 def entries(role: str | None = None) -> list[PluginEntry]:
-    """All registered plugins (of one role), sorted by role then name."""
+    """All registered plugins (of one role), sorted by role then name; unavailable included."""
     _discover()
     roles = [role] if role is not None else list(ROLES)
     out: list[PluginEntry] = []
@@ -206,21 +347,38 @@ def entries(role: str | None = None) -> list[PluginEntry]:
     return out
 
 
+def clashes() -> list[Clash]:
+    """Registrations ignored because their name was taken by a different plugin."""
+    _discover()
+    return list(_clashes)
+
+
 def names(role: str) -> list[str]:
     """Names of the plugins of one role."""
     return [e.name for e in entries(role)]
 
 
-def get(role: str, name: str) -> type:
-    """The plugin class registered as ``role``/``name``."""
+def entry(role: str, name: str) -> PluginEntry:
+    """The registry entry ``role``/``name`` (:class:`UnknownPluginError` if there is none)."""
     _check_role(role)
     _discover()
     try:
-        entry = _registry[role][name]
+        return _registry[role][name]
     except KeyError:
-        known = ", ".join(sorted(_registry[role])) or "none"
-        raise ValueError(f"unknown {role} {name!r}; registered: {known}") from None
-    return entry.load()
+        raise UnknownPluginError(role, name, sorted(_registry[role])) from None
+
+
+def get(role: str, name: str) -> type:
+    """The plugin class registered as ``role``/``name``.
+
+    Raises
+    ------
+    UnknownPluginError
+        No such name (a ``ValueError`` listing the known names and the closest matches).
+    PluginUnavailableError
+        Registered, but its module cannot be imported (missing optional dependency).
+    """
+    return entry(role, name).load()
 
 
 def create(role: str, name: str, **params: Any) -> Any:

@@ -201,7 +201,11 @@ class FixedEtaRule(StepRule):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        return [{}, {"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": 2.0}]
+        return [
+            {},
+            {"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": 2.0},
+            {"epsilon": 0.1, "eta": 0.5, "lambda_init": 1.0, "lambda_min": -0.5},
+        ]
 
     def _reset(self) -> float:
         _check_finite("lambda_init", self.lambda_init)

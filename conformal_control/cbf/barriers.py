@@ -62,6 +62,10 @@ class APFBarrier(Barrier):
         self.convention = convention
         self.delta = delta
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [{}, {"convention": "centre", "K_rep": 2.0, "rho0": 5.0, "d_c": 0.6}]
+
     # ------------------------------------------------------------------ helpers
     def _checked(self) -> tuple[float, float, float, float]:
         K, rho0, d_c = float(self.K_rep), float(self.rho0), float(self.d_c)

@@ -64,6 +64,62 @@ class CBFGapLoss(Loss):
         self.a = a
         self.scale = scale
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        from .barriers import APFBarrier
+
+        return [
+            {"barrier": APFBarrier()},
+            {"barrier": APFBarrier(convention="centre", d_c=0.6), "a": 2.0, "scale": 0.5},
+        ]
+
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
+        """Sample ``(record, truth)`` pairs for the contract kit: a perfect and a noisy
+        prediction, an agent whose truth goes missing mid-interval, nothing sensed."""
+        rng = np.random.default_rng(0)
+        dt, substeps, n_samples, n = 0.4, 4, 3, 3
+        s = n_samples * substeps
+        t = np.arange(n_samples + 1) * dt
+        start = rng.uniform(-3.0, 3.0, size=(n, 2))
+        vel = rng.uniform(-1.0, 1.0, size=(n, 2))
+        true = start[:, None, :] + vel[:, None, :] * t[None, :, None]
+        x_ego = np.column_stack([np.linspace(0.0, 1.0, s), np.zeros(s)])
+        v_ego = np.tile([0.8, 0.1], (s, 1))
+
+        def record(samples: np.ndarray) -> CBFIntervalRecord:
+            xp, vp = interpolate_at_substeps(samples, dt, substeps, s)
+            return CBFIntervalRecord(
+                ids=np.arange(samples.shape[0]),
+                x_ego=x_ego.copy(),
+                v_ego=v_ego.copy(),
+                x_pred=xp,
+                v_pred=vp,
+                lam_applied=np.zeros(s),
+                status=["optimal"] * s,
+            )
+
+        noisy = true + np.concatenate(
+            [np.zeros((n, 1, 2)), rng.normal(0.0, 0.3, size=(n, n_samples, 2))], axis=1
+        )
+        missing = true.copy()
+        missing[1, 2:] = np.nan
+        empty = CBFIntervalRecord(
+            ids=np.zeros(0, dtype=np.int64),
+            x_ego=x_ego.copy(),
+            v_ego=v_ego.copy(),
+            x_pred=np.zeros((s, 0, 2)),
+            v_pred=np.zeros((s, 0, 2)),
+            lam_applied=np.zeros(s),
+            status=["unconstrained"] * s,
+        )
+        return [
+            (record(true), CBFTruth(true, dt, substeps)),
+            (record(noisy), CBFTruth(true, dt, substeps)),
+            (record(noisy), CBFTruth(missing, dt, substeps)),
+            (empty, CBFTruth(np.zeros((0, n_samples + 1, 2)), dt, substeps)),
+        ]
+
     def squash(self, r: np.ndarray | float) -> np.ndarray | float:
         """s(r) = arctan(r / c) / pi, in (-1/2, 1/2)."""
         return np.arctan(np.asarray(r) / self.scale) / np.pi
@@ -96,6 +152,8 @@ class CBFGapLoss(Loss):
         return np.where(valid, gap, np.nan)
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
+        if math.isnan(lam):
+            raise ValueError("the loss needs a lambda that is a number, got nan")
         gap = self.gaps(record, truth)
         if gap.size == 0 or not np.isfinite(gap).any():
             return None

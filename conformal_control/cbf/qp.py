@@ -57,6 +57,10 @@ class QPSafetyFilter(SafetyFilter):
         self.speed_sides = speed_sides
         self.lambda_margin = lambda_margin
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [{}, {"fallback": "brake", "speed_sides": 0}, {"fallback": "hold", "v_max": 1.0}]
+
     def reset(self) -> None:
         if not (math.isfinite(self.v_max) and self.v_max > 0):
             raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")

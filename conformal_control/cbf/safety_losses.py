@@ -22,8 +22,9 @@ import numpy as np
 
 from ..base import Loss
 from ..interp import interpolate_at_substeps
+from ..losses import check_lambda
 from .controller import CBFIntervalRecord
-from .loss import CBFTruth
+from .loss import CBFGapLoss, CBFTruth
 
 __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]
 
@@ -51,7 +52,12 @@ class CollisionLoss(Loss):
     def __init__(self, d_c: float = 1.0) -> None:
         self.d_c = d_c
 
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
+        return CBFGapLoss._unit_test_inputs()
+
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
+        check_lambda(lam)
         if not (math.isfinite(self.d_c) and self.d_c > 0):
             raise ValueError(f"d_c must be a finite distance > 0, got {self.d_c!r}")
         d = min_distances(record, truth)
@@ -90,7 +96,12 @@ class DistanceShortfallLoss(Loss):
         self.d_safe = d_safe
         self.d_c = d_c
 
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
+        return CBFGapLoss._unit_test_inputs()
+
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
+        check_lambda(lam)
         if not (math.isfinite(self.d_safe) and math.isfinite(self.d_c)):
             raise ValueError("d_safe and d_c must be finite")
         if not (0 <= self.d_c < self.d_safe):

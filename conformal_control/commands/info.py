@@ -1,4 +1,4 @@
-"""Informational commands: ``scenes``, ``params``, ``plugins``."""
+"""Informational commands: ``scenes``, ``params`` (``plugins`` lives in ``plugins.py``)."""
 
 from __future__ import annotations
 
@@ -48,21 +48,4 @@ def _params(args: argparse.Namespace) -> int:
     for name, (default, doc) in PARAMETERS.items():
         value = defaults.get(name, default)
         print(f"{name:<15} {value!s:<14} {doc}")
-    return 0
-
-
-# ---------------------------------------------------------------------------- plugins
-@command("plugins", "list the registered plugins by role")
-def _plugins_args(p: argparse.ArgumentParser) -> None:
-    pass
-
-
-@_plugins_args.handler
-def _plugins(args: argparse.Namespace) -> int:
-    from .. import registry
-
-    for role in registry.ROLES:
-        print(f"{role}:")
-        for entry in registry.entries(role):
-            print(f"  {entry.name:<20} {entry.summary()}  [{entry.origin}]")
     return 0

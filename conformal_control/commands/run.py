@@ -39,6 +39,18 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="predictor constructor argument (repeatable)",
     )
+    p.add_argument(
+        "--barrier",
+        default=None,
+        help="registered barrier name replacing the paper's APF barrier (see "
+        "`conformal-control plugins --role barrier`)",
+    )
+    p.add_argument(
+        "--barrier-param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="barrier constructor argument in SI units (repeatable; needs --barrier)",
+    )
     p.add_argument("--epsilon", type=float, default=None, help="target average loss")
     p.add_argument(
         "--eta",
@@ -101,6 +113,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..sim.rundir import write_run_dir
 
     params = key_values(args.param, "--param")
+    if args.barrier_param and not args.barrier:
+        raise ValueError("--barrier-param needs --barrier NAME")
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
@@ -125,6 +139,8 @@ def _run(args: argparse.Namespace) -> int:
         rule=args.rule,
         rule_params=key_values(args.rule_param, "--rule-param"),
         lambda_safe=args.lambda_safe,
+        barrier=args.barrier,
+        barrier_params=key_values(args.barrier_param, "--barrier-param"),
     )
     out = args.out or Path("runs") / (
         f"{scene.name.replace(':', '_')}-{_dt.datetime.now():%Y%m%d-%H%M%S}"

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..base import DecisionFamily, Environment, Loss, UpdateRule
 from ..loop import ConformalLoop, LoopResult
+from ..losses import check_lambda
 
 __all__ = [
     "DefectFractionLoss",
@@ -133,7 +134,17 @@ class DefectFractionLoss(Loss):
     def __init__(self, b: float = 0.75) -> None:
         self.b = b
 
+    @classmethod
+    def _unit_test_inputs(cls) -> list[tuple[FactoryRecord, np.ndarray]]:
+        rng = np.random.default_rng(0)
+        return [
+            (FactoryRecord(0.1), rng.uniform(size=10)),
+            (FactoryRecord(0.0), rng.uniform(size=1)),
+            (FactoryRecord(2.0), np.empty(0)),  # no item made: no loss
+        ]
+
     def __call__(self, record: Any, truth: np.ndarray, lam: float) -> float | None:
+        lam = check_lambda(lam)
         if not (math.isfinite(self.b) and self.b > 0):
             raise ValueError(f"b must be a finite number > 0, got {self.b!r}")
         u = np.asarray(truth, dtype=float)

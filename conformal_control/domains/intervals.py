@@ -19,7 +19,6 @@ less conservative, the toolkit's convention):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,47 +28,9 @@ import numpy as np
 from .. import registry
 from ..base import DecisionFamily, Environment, PredictionQuery, Predictor, UpdateRule
 from ..loop import ConformalLoop, LoopResult
-from ..losses import MiscoverageLoss
+from ..losses import PARAMETRISATIONS, BallRecord, MiscoverageLoss, conformal_radius
 
-__all__ = [
-    "ConformalDisc",
-    "DiscRecord",
-    "PedestrianSeries",
-    "disc_radius",
-    "load_series",
-    "run_intervals",
-]
-
-PARAMETRISATIONS = ("level", "radius")
-
-
-def disc_radius(sorted_scores: np.ndarray, lam: float, parametrisation: str = "level") -> float:
-    """Radius of the disc built with ``lam`` (``inf`` = whole plane, ``-inf`` = empty)."""
-    if parametrisation == "radius":
-        return -math.inf if lam > 0 else -float(lam)
-    if lam >= 1.0:
-        return -math.inf
-    n = sorted_scores.size
-    if lam <= 0.0 or n == 0:
-        return math.inf
-    k = math.ceil((n + 1) * (1.0 - lam))
-    return math.inf if k > n else float(sorted_scores[max(k, 1) - 1])
-
-
-@dataclass
-class DiscRecord:
-    """The disc of one step: its centre and what its radius is made from."""
-
-    center: np.ndarray
-    sorted_scores: np.ndarray
-    parametrisation: str
-
-    def radius(self, lam: float) -> float:
-        return disc_radius(self.sorted_scores, lam, self.parametrisation)
-
-    def covers(self, truth: Any, lam: float) -> bool:
-        d = float(np.linalg.norm(np.asarray(truth, dtype=float) - self.center))
-        return d <= self.radius(lam)
+__all__ = ["ConformalDisc", "PedestrianSeries", "load_series", "run_intervals"]
 
 
 @dataclass
@@ -242,13 +203,13 @@ class ConformalDisc(DecisionFamily):
         self._sorted = np.sort(np.asarray(recent, dtype=float))
 
     def decide(self, state: Any, lam: float) -> float:
-        r = disc_radius(self._sorted, lam, self.parametrisation)
+        r = conformal_radius(self._sorted, lam, self.parametrisation)
         self.radii_.append(r)
         return r
 
-    def interval_record(self) -> DiscRecord:
+    def interval_record(self) -> BallRecord:
         assert self._center is not None
-        return DiscRecord(self._center.copy(), self._sorted, self.parametrisation)
+        return BallRecord(self._center.copy(), self._sorted, self.parametrisation)
 
 
 def run_intervals(

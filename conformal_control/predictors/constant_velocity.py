@@ -36,6 +36,10 @@ class ConstantVelocityPredictor(Predictor):
     def __init__(self, window: int = 5) -> None:
         self.window = window
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [{}, {"window": 1}]
+
     def predict(self, query: PredictionQuery) -> Forecast:
         if int(self.window) != self.window or self.window < 1:
             raise ValueError(f"window must be a positive integer, got {self.window!r}")

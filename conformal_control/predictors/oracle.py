@@ -26,6 +26,10 @@ class OraclePredictor(Predictor):
                 "the oracle predictor needs the true future, but the environment did not "
                 "attach query.ground_truth"
             )
+        if not np.isfinite(query.current).all():
+            raise ValueError(
+                "the current position (history[:, -1]) of every sensed agent must be finite"
+            )
         gt = np.asarray(query.ground_truth, dtype=float)
         expected = (query.n_agents, query.horizon, 2)
         if gt.shape != expected:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__, registry
-from ..base import Predictor, UpdateRule
+from ..base import Barrier, Predictor, UpdateRule
 from ..cbf import APFBarrier, CBFGapLoss, ConformalCBFController, QPSafetyFilter
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
@@ -48,7 +48,7 @@ class Components:
     policy: ConformalCBFController
     loss: CBFGapLoss
     rule: UpdateRule
-    barrier: APFBarrier
+    barrier: Barrier
     safety_filter: QPSafetyFilter
 
 
@@ -92,19 +92,22 @@ def build_components(
     params: ResolvedParams,
     max_frames: int | None = None,
     rule: UpdateRule | None = None,
+    barrier: Barrier | None = None,
 ) -> Components:
     """Wire barrier, QP, reference, controller, loss, rule and environment from SI params.
 
-    ``rule`` defaults to the paper's :class:`FixedEtaRule` built from the parameters.
+    ``rule`` defaults to the paper's :class:`FixedEtaRule` built from the parameters;
+    ``barrier`` replaces the paper's APF barrier (built from the params) when given.
     """
     si = params.si
-    barrier = APFBarrier(
-        K_rep=si["K_rep"],
-        rho0=si["rho0"],
-        d_c=si["robot_radius"] + si["agent_radius"],
-        convention=si["convention"],
-        delta=si["delta"],
-    )
+    if barrier is None:
+        barrier = APFBarrier(
+            K_rep=si["K_rep"],
+            rho0=si["rho0"],
+            d_c=si["robot_radius"] + si["agent_radius"],
+            convention=si["convention"],
+            delta=si["delta"],
+        )
     safety_filter = QPSafetyFilter(
         v_max=si["v_max"], fallback=si["fallback"], speed_sides=si["speed_sides"]
     )
@@ -158,6 +161,8 @@ def run_episode(
     rule: str | UpdateRule = "fixed_eta",
     rule_params: dict[str, Any] | None = None,
     lambda_safe: float | None = None,
+    barrier: Barrier | str | None = None,
+    barrier_params: dict[str, Any] | None = None,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
 
@@ -181,6 +186,11 @@ def run_episode(
     lambda_safe : float, optional
         lambda known or estimated to keep the robot safe (scene units): metrics then hold
         the Theorem-2 bound and whether it holds (fixed-step rules).
+    barrier : Barrier or str, optional
+        A barrier instance or a registered name (built with ``barrier_params``, SI units)
+        replacing the paper's APF barrier. A named barrier whose constructor takes ``d_c``
+        and is not given one receives the scene's collision distance
+        (``robot_radius + agent_radius``, m). Recorded in the config with its parameters.
     """
     given = dict(params or {})
     if not learn:
@@ -194,16 +204,27 @@ def run_episode(
         predictor_name, predictor = predictor, registry.create("predictor", predictor, **pp)
     else:
         predictor_name = type(predictor).__name__
+    barrier_name = "apf"
+    if isinstance(barrier, str):
+        bp = dict(barrier_params or {})
+        if "d_c" in registry.get("barrier", barrier)._param_names() and "d_c" not in bp:
+            bp["d_c"] = resolved.si["robot_radius"] + resolved.si["agent_radius"]
+        barrier_name, barrier = barrier, registry.create("barrier", barrier, **bp)
+    elif barrier is not None:
+        barrier_name = type(barrier).__name__
     lam_unit = scene.units.factor("lambda_init")
     if isinstance(rule, str):
         rule_name = rule
         rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
     else:
         rule_name, rule_obj = type(rule).__name__, rule
-    comp = build_components(scene, resolved, max_frames, rule=rule_obj)
+    comp = build_components(scene, resolved, max_frames, rule=rule_obj, barrier=barrier)
     si = resolved.si
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
-    floor = feasibility_floor(si["a"], comp.barrier.upper_bound, si["epsilon"], si["loss_scale"])
+    h_max = comp.barrier.upper_bound
+    floor = feasibility_floor(
+        si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
+    )
 
     t0 = time.perf_counter()
     loop = ConformalLoop(
@@ -302,6 +323,7 @@ def run_episode(
             **{k: v for k, v in scene.meta.items() if isinstance(v, (str, int, float, list))},
         },
         "predictor": {"name": predictor_name, "params": _jsonable(predictor.get_params())},
+        "barrier": {"name": barrier_name, "params": _jsonable(comp.barrier.get_params())},
         "learning": learn,
         "rule": {
             "name": rule_name,
@@ -312,7 +334,7 @@ def run_episode(
         "seed": seed,
         "max_frames": max_frames,
         "params": _jsonable(resolved.as_dict()),
-        "feasibility": floor.as_dict(),
+        "feasibility": _jsonable(floor.as_dict()),
         **(extra_config or {}),
     }
     steps = {
