@@ -169,7 +169,11 @@ class GuaranteeMonitor:
         return self.epsilon + (self.lambda_1 - self.lambda_safe + self.eta) / (self.eta * k)
 
     def long_run_trace(self) -> np.ndarray | None:
-        """The rule's long-run bound after each update, or None."""
+        """The rule's long-run bound after each update, or None.
+
+        With clipping, the clip term uses the whole run's total (a valid, looser bound at
+        earlier updates).
+        """
         if self.long_run_bound is None:
             return None
         lam = [*self.lambdas, self.lambda_next]

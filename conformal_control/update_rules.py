@@ -108,6 +108,8 @@ class StepRule(UpdateRule):
         if clipped != lam:
             self.n_clipped_ += 1
             self.clip_total_ += clipped - lam
+            if self.exact_step and self.last_eta_ > 0:
+                self.clip_weighted_ += abs(clipped - lam) / self.last_eta_
         return clipped
 
     def _reset(self) -> float:
@@ -120,6 +122,8 @@ class StepRule(UpdateRule):
         self._validate_common()
         self.n_clipped_ = 0
         self.clip_total_ = 0.0
+        #: sum_k |clip displacement_k| / eta_k: what clipping adds to the long-run bounds
+        self.clip_weighted_ = 0.0
         self.n_updates_ = 0
         self.last_eta_ = math.nan
         lam = float(self._reset())
@@ -241,10 +245,11 @@ class DecayingEtaRule(StepRule):
 
     which tends to 0 when lambda stays bounded and K eta_K -> infinity (power < 1). The
     fixed-step Theorem-2 bound is not kept (the step changes); lambda stays bounded, e.g.,
-    when the family is eventually safe and large lambda drives the loss above epsilon, or
-    when lambda is clipped to a finite [lambda_min, lambda_max] (the bound then holds
-    with the clip displacement counted in the monitor's residual). On i.i.d. data
-    lambda_k also converges (the paper's second result), unlike the fixed step.
+    when the family is eventually safe and large lambda drives the loss above epsilon.
+    When clipping binds, each clip displacement c_k adds |c_k| / eta_k to the sum, so the
+    bound reported adds (sum_k |c_k| / eta_k) / K (``clip_weighted_``): a clip that binds
+    for long (e.g. below the feasibility floor) makes it vacuous, as it should. On i.i.d.
+    data lambda_k also converges (the paper's second result), unlike the fixed step.
 
     Parameters
     ----------
@@ -306,7 +311,7 @@ class DecayingEtaRule(StepRule):
         if n == 0:
             return None
         lam = np.asarray(lambdas, dtype=float)
-        return float((lam.max() - lam.min()) / (self.step_size(n) * n))
+        return float((lam.max() - lam.min()) / (self.step_size(n) * n) + self.clip_weighted_ / n)
 
     def guarantee_assumptions(self) -> str:
         return (
@@ -329,7 +334,9 @@ class ACIRule(StepRule):
     for lambda >= 1 (true for sets built from a quantile at level 1 - lambda), then
     lambda_k stays in [-gamma, 1 + gamma] and, for every data sequence,
 
-        |mean(err) - alpha| <= (max(lambda_1, 1 - lambda_1) + gamma) / (gamma K).
+        |mean(err) - alpha| <= (max(lambda_1, 1 - lambda_1) + gamma) / (gamma K)
+
+    (plus (sum_k |c_k|) / (gamma K) for clip displacements c_k when clipping binds).
 
     Parameters
     ----------
@@ -389,7 +396,7 @@ class ACIRule(StepRule):
         if n == 0:
             return None
         lam1 = float(lambdas[0])
-        return (max(lam1, 1.0 - lam1) + self.gamma) / (self.gamma * n)
+        return (max(lam1, 1.0 - lam1) + self.gamma) / (self.gamma * n) + self.clip_weighted_ / n
 
     def guarantee_assumptions(self) -> str:
         return (
@@ -579,7 +586,8 @@ class PIDRule(StepRule):
     |sum_{i<=K}(epsilon - l_i)| <= C_sat h(K) + M with h(K) = (pi/2) (K+1)/log(K+1)
     and M = max |l - epsilon|, i.e. |mean(l) - epsilon| <= C_sat (pi/2)(K+1)/(K log(K+1))
     + M/K, whatever the scorecaster does (the integrator overrides it). With
-    ``K_I = 0`` it is the fixed-step rule (P only) with that rule's guarantees.
+    ``K_I = 0`` it is the fixed-step rule (P only) with that rule's guarantees. With
+    clipping, the saturation assumption must hold at lambda_min / lambda_max.
 
     Parameters
     ----------

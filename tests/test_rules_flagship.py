@@ -81,3 +81,35 @@ def test_cli_rule_and_lambda_safe_reach_metrics_and_plot(tmp_path: Path, capsys)
     assert (out / "guarantee.png").stat().st_size > 10_000
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["rule"]["params_given"] == {"lambda_min": -6}
+
+
+def test_compare_rules_example_small(capsys, data_root) -> None:
+    import runpy
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "compare_rules.py"
+    main_fn = runpy.run_path(str(path), run_name="example")["main"]
+    rows = main_fn(
+        [
+            "--data-root",
+            str(data_root / "sdd"),
+            "--epsilons",
+            "-0.25",
+            "--frames",
+            "90",
+            "--settings",
+            "a = 10 (as the published code ran)",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert "| -0.25 | fixed_eta (paper) |" in out and "| -0.25 | dtaci (gammas 0.1..3) |" in out
+    by = {r["label"]: r for r in rows}
+    assert set(by) == {
+        "noLearn",
+        "fixed_eta (paper)",
+        "decaying_eta (power 1/2)",
+        "pid (K_I 0.5, C_sat 1)",
+        "dtaci (gammas 0.1..3)",
+    }
+    assert by["fixed_eta (paper)"]["identity_residual"] < 1e-9
+    assert by["fixed_eta (paper)"]["theorem2_holds"] is True
+    assert by["noLearn"]["lambda_final"] == 0.0
