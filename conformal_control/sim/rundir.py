@@ -42,7 +42,8 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
     * ``intervals.csv`` - every interval with extra columns (loss with the applied lambda,
       the largest constraint gap, agents sensed, control steps);
     * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
-    * ``plot.png`` - the scene with the path, lambda(t) and loss(t).
+    * ``plot.png`` - the scene with the path, lambda(t) and loss(t);
+    * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -75,4 +76,14 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
         from ..plotting import plot_run
 
         plot_run(result, out / "plot.png")
+        if result.loop is not None and result.loop.monitor.n:
+            from ..plotting import plot_guarantee
+
+            units = result.scene.units
+            plot_guarantee(
+                result.loop.monitor,
+                out / "guarantee.png",
+                lambda_unit=units.factor("lambda_init"),
+                lambda_label=f"lambda (1/{units.time_name})",
+            )
     return out
