@@ -285,6 +285,27 @@ class UpdateRule(Plugin, ABC):
     #: Target average loss of the rule (epsilon).
     epsilon: float
 
+    #: Which guarantee the rule keeps, read by the monitor: ``"identity"`` (fixed step:
+    #: exact identity + Theorem-2 bound), ``"step_identity"`` (variable step: weighted
+    #: identity + long-run bound), ``"long_run"`` (a bound on |mean loss - epsilon|) or
+    #: ``"none"``. See :mod:`conformal_control.update_rules`.
+    guarantee: ClassVar[str] = "none"
+
+    #: Rules that want the interval's loss as a function of lambda (counterfactual losses,
+    #: e.g. DtACI's experts) set this; the loop then calls :meth:`set_loss_function`
+    #: before each :meth:`update`.
+    uses_loss_function: ClassVar[bool] = False
+
+    #: Constructor parameters expressed in the units of lambda (scene-unit conversion).
+    lambda_params: ClassVar[tuple[str, ...]] = ()
+
+    def set_loss_function(self, fn: Any) -> None:
+        """Receive ``fn(lam) -> loss`` for the next update (ignored by default)."""
+
+    def long_run_bound(self, n: int, lambdas: Any) -> float | None:
+        """Bound on |mean loss - epsilon| after ``n`` updates (lambda_1..lambda_{n+1})."""
+        return None
+
     @abstractmethod
     def reset(self) -> float:
         """Reset the rule and return lambda_1."""

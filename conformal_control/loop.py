@@ -31,6 +31,8 @@ class IntervalLog:
     loss: float | None
     n_steps: int
     diagnostics: dict[str, float] = field(default_factory=dict)
+    #: Running average loss after this interval (online monitor), None before any loss.
+    l_avg: float | None = None
 
 
 @dataclass
@@ -74,6 +76,11 @@ class LoopResult:
         losses = self.losses
         return float(losses.mean()) if losses.size else math.nan
 
+    @property
+    def guarantee(self) -> dict[str, Any]:
+        """The monitor's figures: guarantee kind, identity residual, bounds and checks."""
+        return self.monitor.summary()
+
 
 class ConformalLoop:
     """Run a conformal decision policy in an environment.
@@ -92,6 +99,9 @@ class ConformalLoop:
         Black-box predictor called at each sampling time on the sensor's observation.
     learn : bool
         If False, lambda stays at its initial value (losses are still computed).
+    lambda_safe : float, optional
+        A lambda known (or estimated) to make the decisions safe: the monitor then reports
+        the Theorem-2 bound (fixed-step rules) and whether it holds.
     on_interval : callable, optional
         Called with each :class:`IntervalLog` as soon as the interval is scored.
     """
@@ -137,7 +147,10 @@ class ConformalLoop:
             eta=getattr(rule, "eta", None) if self.learn else None,
             lambda_safe=self.lambda_safe,
             bounds=loss.bounds,
+            kind=getattr(rule, "guarantee", "none") if self.learn else "none",
+            rule=rule if self.learn else None,
         )
+        wants_loss_fn = self.learn and bool(getattr(rule, "uses_loss_function", False))
         wants_truth = bool(getattr(predictor, "requires_ground_truth", False))
         intervals: list[IntervalLog] = []
         k = 0
@@ -162,13 +175,28 @@ class ConformalLoop:
             intervals.append(log)
             if l_k is not None:
                 monitor.observe(l_k, lam)
+                step = None
                 if self.learn:
+                    if wants_loss_fn:
+                        rule.set_loss_function(_LossAt(loss, record, truth))
                     lam = rule.update(l_k)
-                monitor.set_lambda_next(lam)
+                    step = getattr(rule, "last_eta_", None)
+                monitor.set_lambda_next(lam, step)
+                log.l_avg = monitor.average
             if self.on_interval is not None:
                 self.on_interval(log)
             k += 1
         return LoopResult(intervals=intervals, lambda_final=lam, monitor=monitor)
+
+
+class _LossAt:
+    """l_k as a function of lambda: the interval's loss re-evaluated at another lambda."""
+
+    def __init__(self, loss: Loss, record: Any, truth: Any) -> None:
+        self.loss, self.record, self.truth = loss, record, truth
+
+    def __call__(self, lam: float) -> float | None:
+        return self.loss(self.record, self.truth, lam)
 
 
 def run_loop(*args: Any, **kwargs: Any) -> LoopResult:

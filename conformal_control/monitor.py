@@ -1,4 +1,4 @@
-"""Online guarantee monitor for the conformal loop.
+"""Online guarantee monitor for the conformal loop (rule-aware).
 
 For the fixed-step rule lambda_{k+1} = lambda_k + eta (epsilon - l_k), unrolling gives
 the exact identity (SPEC section 1)::
@@ -7,15 +7,27 @@ the exact identity (SPEC section 1)::
 
 and, for an eventually-safe controller with lambda_1 >= lambda_safe - eta, the bound
 (1/K) sum_k l_k <= epsilon + (lambda_1 - lambda_safe + eta) / (eta K) (paper Theorem 2).
-The monitor tracks the running average loss, the residual of the identity (a numerical
-check of the implementation: it is ~1e-15 unless lambda was clipped) and, when
-``lambda_safe`` is known, the bound and whether it holds.
+
+For any rule of the form lambda_{k+1} = lambda_k + eta_k (epsilon - l_k) (fixed, decaying,
+ACI) the monitor checks the weighted identity sum_k eta_k (epsilon - l_k) = lambda_{K+1} -
+lambda_1 and reports its residual normalised by sum_k eta_k (for a fixed step this is
+exactly |mean(l) - epsilon - (lambda_1 - lambda_{K+1})/(eta K)|): ~1e-15 unless lambda was
+clipped. Rules that declare a long-run bound (decaying step, ACI, PID) get
+|mean(l) - epsilon| <= bound checked as well. Which figures apply is read from the rule's
+``guarantee`` kind (see :mod:`conformal_control.update_rules`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GuaranteeMonitor"]
+
+_TOL = 1e-12
 
 
 @dataclass
@@ -34,6 +46,11 @@ class GuaranteeMonitor:
         A lambda known (or estimated) to make the controller safe, for the Theorem-2 bound.
     bounds : tuple of float
         The declared range of the loss.
+    kind : str or None
+        The rule's guarantee kind; default: ``"identity"`` when ``eta`` is given, else
+        ``"none"``.
+    rule : UpdateRule or None
+        The rule (for its long-run bound and clipping settings).
     """
 
     epsilon: float
@@ -41,19 +58,31 @@ class GuaranteeMonitor:
     eta: float | None = None
     lambda_safe: float | None = None
     bounds: tuple[float, float] = (-0.5, 0.5)
+    kind: str | None = None
+    rule: Any = None
     losses: list[float] = field(default_factory=list)
     lambdas: list[float] = field(default_factory=list)
+    etas: list[float] = field(default_factory=list)
     lambda_next: float = math.nan
 
+    def __post_init__(self) -> None:
+        if self.kind is None:
+            self.kind = "identity" if self.eta is not None else "none"
+
+    # -- feeding ------------------------------------------------------------------------
     def observe(self, loss: float, lam: float) -> None:
         """Record l_k and the lambda_k it was computed with."""
         self.losses.append(float(loss))
         self.lambdas.append(float(lam))
 
-    def set_lambda_next(self, lam: float) -> None:
-        """Record lambda_{k+1} after the update."""
+    def set_lambda_next(self, lam: float, eta: float | None = None) -> None:
+        """Record lambda_{k+1} after the update (and the step eta_k it used, if any)."""
         self.lambda_next = float(lam)
+        if eta is None or not math.isfinite(eta):
+            eta = self.eta if self.eta is not None else math.nan
+        self.etas.append(float(eta))
 
+    # -- figures ------------------------------------------------------------------------
     @property
     def n(self) -> int:
         return len(self.losses)
@@ -64,31 +93,107 @@ class GuaranteeMonitor:
         return math.fsum(self.losses) / self.n if self.n else math.nan
 
     @property
+    def _has_identity(self) -> bool:
+        return self.kind in ("identity", "step_identity")
+
+    @property
     def identity_residual(self) -> float | None:
-        """|mean loss - epsilon - (lambda_1 - lambda_{K+1})/(eta K)|, or None if undefined."""
-        if self.eta is None or self.eta <= 0 or self.n == 0:
+        """|sum eta_k (eps - l_k) - (lambda_{K+1} - lambda_1)| / sum eta_k, or None.
+
+        For a fixed step: |mean loss - epsilon - (lambda_1 - lambda_{K+1})/(eta K)|.
+        """
+        if not self._has_identity or self.n == 0 or len(self.etas) != self.n:
             return None
-        rhs = self.epsilon + (self.lambda_1 - self.lambda_next) / (self.eta * self.n)
-        return abs(self.average - rhs)
+        etas = np.asarray(self.etas)
+        if not np.all(np.isfinite(etas)) or etas.sum() <= 0:
+            return None
+        if self.kind == "identity" and self.eta is not None and self.eta > 0:
+            rhs = self.epsilon + (self.lambda_1 - self.lambda_next) / (self.eta * self.n)
+            return abs(self.average - rhs)
+        lhs = math.fsum(e * (self.epsilon - x) for e, x in zip(etas, self.losses, strict=True))
+        return abs(lhs - (self.lambda_next - self.lambda_1)) / float(etas.sum())
 
     @property
     def bound(self) -> float | None:
         """Theorem-2 bound epsilon + (lambda_1 - lambda_safe + eta)/(eta K), if defined."""
-        if self.eta is None or self.eta <= 0 or self.lambda_safe is None or self.n == 0:
+        if (
+            self.kind != "identity"
+            or self.eta is None
+            or self.eta <= 0
+            or self.lambda_safe is None
+            or self.n == 0
+        ):
             return None
         return self.epsilon + (self.lambda_1 - self.lambda_safe + self.eta) / (self.eta * self.n)
 
     @property
     def bound_holds(self) -> bool | None:
         b = self.bound
-        return None if b is None else bool(self.average <= b + 1e-12)
+        return None if b is None else bool(self.average <= b + _TOL)
 
-    def summary(self) -> dict[str, float | bool | int | None]:
+    @property
+    def bound_assumption(self) -> bool | None:
+        """Whether Theorem 2's lambda_1 >= lambda_safe - eta (and, with clipping,
+        lambda_min <= lambda_safe - eta) holds; None when no bound applies."""
+        if self.bound is None:
+            return None
+        assert self.eta is not None and self.lambda_safe is not None
+        ok = self.lambda_1 >= self.lambda_safe - self.eta - _TOL
+        lam_min = getattr(self.rule, "lambda_min", -math.inf)
+        return bool(ok and lam_min <= self.lambda_safe - self.eta + _TOL)
+
+    @property
+    def long_run_bound(self) -> float | None:
+        """The rule's bound on |mean loss - epsilon| after n updates, if it declares one."""
+        fn = getattr(self.rule, "long_run_bound", None)
+        if fn is None or self.n == 0 or self.kind == "none":
+            return None
+        return fn(self.n, [*self.lambdas, self.lambda_next])
+
+    @property
+    def long_run_holds(self) -> bool | None:
+        b = self.long_run_bound
+        return None if b is None else bool(abs(self.average - self.epsilon) <= b + _TOL)
+
+    def running_average(self) -> np.ndarray:
+        """Average loss after each update, shape (n,)."""
+        x = np.asarray(self.losses, dtype=float)
+        return np.cumsum(x) / np.arange(1, x.size + 1) if x.size else x
+
+    def bound_trace(self) -> np.ndarray | None:
+        """Theorem-2 bound after each update (nan-free), or None when it does not apply."""
+        if self.bound is None:
+            return None
+        assert self.eta is not None and self.lambda_safe is not None
+        k = np.arange(1, self.n + 1)
+        return self.epsilon + (self.lambda_1 - self.lambda_safe + self.eta) / (self.eta * k)
+
+    def long_run_trace(self) -> np.ndarray | None:
+        """The rule's long-run bound after each update, or None.
+
+        With clipping, the clip term uses the whole run's total (a valid, looser bound at
+        earlier updates).
+        """
+        if self.long_run_bound is None:
+            return None
+        lam = [*self.lambdas, self.lambda_next]
+        fn = self.rule.long_run_bound
+        out = [fn(k, lam[: k + 1]) for k in range(1, self.n + 1)]
+        return np.array([math.nan if b is None else b for b in out], dtype=float)
+
+    def summary(self) -> dict[str, float | bool | int | str | None]:
         """Figures for metrics.json."""
+        lr = self.long_run_bound
         return {
+            "guarantee": self.kind,
             "n_losses": self.n,
             "l_avg": self.average if self.n else None,
             "identity_residual": self.identity_residual,
+            "lambda_safe": self.lambda_safe,
             "theorem2_bound": self.bound,
             "theorem2_holds": self.bound_holds,
+            "theorem2_assumption": self.bound_assumption,
+            "long_run_bound": lr,
+            "long_run_holds": self.long_run_holds,
+            "n_lambda_clipped": int(getattr(self.rule, "n_clipped_", 0) or 0),
         }

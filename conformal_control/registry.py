@@ -68,8 +68,21 @@ _CORE: dict[str, dict[str, str]] = {
     },
     "barrier": {"apf": "conformal_control.cbf.barriers:APFBarrier"},
     "safety_filter": {"qp": "conformal_control.cbf.qp:QPSafetyFilter"},
-    "loss": {"cbf_gap": "conformal_control.cbf.loss:CBFGapLoss"},
-    "update_rule": {"fixed_eta": "conformal_control.update_rules:FixedEtaRule"},
+    "loss": {
+        "cbf_gap": "conformal_control.cbf.loss:CBFGapLoss",
+        "collision": "conformal_control.cbf.safety_losses:CollisionLoss",
+        "distance_shortfall": "conformal_control.cbf.safety_losses:DistanceShortfallLoss",
+        "miscoverage": "conformal_control.losses:MiscoverageLoss",
+        "function": "conformal_control.losses:FunctionLoss",
+        "defect_fraction": "conformal_control.domains.factory:DefectFractionLoss",
+    },
+    "update_rule": {
+        "fixed_eta": "conformal_control.update_rules:FixedEtaRule",
+        "decaying_eta": "conformal_control.update_rules:DecayingEtaRule",
+        "aci": "conformal_control.update_rules:ACIRule",
+        "dtaci": "conformal_control.update_rules:DtACIRule",
+        "pid": "conformal_control.update_rules:PIDRule",
+    },
     "dynamics": {
         "double_integrator": "conformal_control.dynamics:DoubleIntegrator",
         "velocity_tracking": "conformal_control.dynamics:VelocityTrackingDoubleIntegrator",

@@ -65,6 +65,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         help="sampling period (SDD scenes: frames; built-in scene: s)",
     )
     p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
+    p.add_argument(
+        "--rule",
+        default="fixed_eta",
+        help="registered update rule: fixed_eta (the paper's, default), decaying_eta, pid, "
+        "dtaci, aci, ... (see `conformal-control plugins`)",
+    )
+    p.add_argument(
+        "--rule-param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="update-rule constructor argument, in the scene's units (repeatable; lists "
+        "comma-separated, e.g. gammas=0.1,1,10)",
+    )
+    p.add_argument(
+        "--lambda-safe",
+        type=float,
+        default=None,
+        help="lambda known/estimated to be safe (scene units): report the Theorem-2 bound",
+    )
     p.add_argument("--frames", type=int, default=None, help="simulate at most N frames")
     p.add_argument("--seed", type=int, default=0, help="seed (built-in scene, predictors)")
     p.add_argument("--out", default=None, help="run directory (default runs/<scene>-<time>)")
@@ -117,6 +136,9 @@ def _run(args: argparse.Namespace) -> int:
         seed=args.seed,
         predictor_params=key_values(args.predictor_param, "--predictor-param"),
         extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
+        rule=args.rule,
+        rule_params=key_values(args.rule_param, "--rule-param"),
+        lambda_safe=args.lambda_safe,
         barrier=args.barrier,
         barrier_params=key_values(args.barrier_param, "--barrier-param"),
     )
@@ -137,6 +159,12 @@ def _run(args: argparse.Namespace) -> int:
         "n_fallback",
         "fallback_share",
         "identity_residual",
+        "rule",
+        "guarantee",
+        "theorem2_bound",
+        "theorem2_holds",
+        "long_run_bound",
+        "long_run_holds",
         "frames",
         "wall_s",
     ]

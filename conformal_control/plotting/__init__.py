@@ -2,18 +2,21 @@
 
 * :mod:`.run` - the scene with the robot's path, lambda(t) and loss(t), the run figure;
 * :mod:`.distance` - distance to the nearest pedestrian with the collision threshold;
+* :mod:`.guarantee` - running average loss against epsilon and the rule's bounds;
 * :mod:`.sweep` - sweep summaries (a metric against epsilon, eta, tau, ...);
 * :mod:`.animation` - frames of a run for ``conformal-control animate``.
 """
 
 from .animation import render_animation
 from .distance import plot_distance
+from .guarantee import plot_guarantee
 from .run import plot_lambda_loss, plot_run, plot_scene
 from .sweep import load_results, plot_sweep
 
 __all__ = [
     "load_results",
     "plot_distance",
+    "plot_guarantee",
     "plot_lambda_loss",
     "plot_run",
     "plot_scene",

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__, registry
-from ..base import Barrier, Predictor
+from ..base import Barrier, Predictor, UpdateRule
 from ..cbf import APFBarrier, CBFGapLoss, ConformalCBFController, QPSafetyFilter
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
@@ -48,19 +48,56 @@ class Components:
     env: ReplayEnvironment
     policy: ConformalCBFController
     loss: CBFGapLoss
-    rule: FixedEtaRule
+    rule: UpdateRule
     barrier: Barrier
     safety_filter: QPSafetyFilter
+
+
+def build_rule(
+    name: str, rule_params: dict[str, Any] | None, params: ResolvedParams, lam_unit: float
+) -> UpdateRule:
+    """A registered update rule for the flagship, from the scene's parameters.
+
+    The rule receives ``epsilon``, ``eta``, ``lambda_init``, ``lambda_min`` and
+    ``lambda_max`` from the run's parameters (SI) for those of its constructor arguments
+    with these names; ``rule_params`` (in the scene's units) override them and add the
+    rule's own parameters. Parameters the rule declares in ``lambda_params`` (units of
+    lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted with ``lam_unit``.
+    """
+    cls = registry.get("update_rule", name)
+    accepted = set(cls._param_names())
+    kwargs = {
+        k: params.si[k]
+        for k in ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
+        if k in accepted
+    }
+    user = dict(rule_params or {})
+    unknown = sorted(set(user) - accepted)
+    if unknown:
+        raise ValueError(
+            f"update rule {name!r} has no parameter(s) {', '.join(unknown)}; "
+            f"its parameters: {', '.join(sorted(accepted))}"
+        )
+    lam_params = set(getattr(cls, "lambda_params", ()))
+    for k, v in user.items():
+        if isinstance(v, str) and "," in v:  # a list from the command line: "0.1,1,10"
+            v = [float(x) for x in v.split(",") if x.strip()]
+        if k in lam_params and v is not None:
+            v = [x * lam_unit for x in v] if isinstance(v, (list, tuple)) else v * lam_unit
+        kwargs[k] = v
+    return registry.create("update_rule", name, **kwargs)
 
 
 def build_components(
     scene: Scene,
     params: ResolvedParams,
     max_frames: int | None = None,
+    rule: UpdateRule | None = None,
     barrier: Barrier | None = None,
 ) -> Components:
     """Wire barrier, QP, reference, controller, loss, rule and environment from SI params.
 
+    ``rule`` defaults to the paper's :class:`FixedEtaRule` built from the parameters;
     ``barrier`` replaces the paper's APF barrier (built from the params) when given.
     """
     si = params.si
@@ -80,13 +117,14 @@ def build_components(
         barrier, safety_filter, reference, a=si["a"], substeps=si["substeps"]
     )
     loss = CBFGapLoss(barrier, a=si["a"], scale=si["loss_scale"])
-    rule = FixedEtaRule(
-        epsilon=si["epsilon"],
-        eta=si["eta"],
-        lambda_init=si["lambda_init"],
-        lambda_min=si["lambda_min"],
-        lambda_max=si["lambda_max"],
-    )
+    if rule is None:
+        rule = FixedEtaRule(
+            epsilon=si["epsilon"],
+            eta=si["eta"],
+            lambda_init=si["lambda_init"],
+            lambda_min=si["lambda_min"],
+            lambda_max=si["lambda_max"],
+        )
     scene.robot_radius, scene.agent_radius = si["robot_radius"], si["agent_radius"]
     scene.goal_radius, scene.v_max = si["goal_radius"], si["v_max"]
     env = ReplayEnvironment(
@@ -121,6 +159,9 @@ def run_episode(
     seed: int = 0,
     predictor_params: dict[str, Any] | None = None,
     extra_config: dict[str, Any] | None = None,
+    rule: str | UpdateRule = "fixed_eta",
+    rule_params: dict[str, Any] | None = None,
+    lambda_safe: float | None = None,
     barrier: Barrier | str | None = None,
     barrier_params: dict[str, Any] | None = None,
     record_animation: bool = True,
@@ -140,6 +181,13 @@ def run_episode(
         Limit on simulated frames.
     seed : int
         Recorded in the config; stochastic predictors receive it as ``random_state``.
+    rule : str or UpdateRule
+        A registered update rule (``conformal-control plugins``) built from the run's
+        parameters and ``rule_params`` (scene units; see :func:`build_rule`), or an
+        instance (SI units, used as given).
+    lambda_safe : float, optional
+        lambda known or estimated to keep the robot safe (scene units): metrics then hold
+        the Theorem-2 bound and whether it holds (fixed-step rules).
     barrier : Barrier or str, optional
         A barrier instance or a registered name (built with ``barrier_params``, SI units)
         replacing the paper's APF barrier. A named barrier whose constructor takes ``d_c``
@@ -169,8 +217,15 @@ def run_episode(
         barrier_name, barrier = barrier, registry.create("barrier", barrier, **bp)
     elif barrier is not None:
         barrier_name = type(barrier).__name__
-    comp = build_components(scene, resolved, max_frames, barrier=barrier)
+    lam_unit = scene.units.factor("lambda_init")
+    if isinstance(rule, str):
+        rule_name = rule
+        rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
+    else:
+        rule_name, rule_obj = type(rule).__name__, rule
+    comp = build_components(scene, resolved, max_frames, rule=rule_obj, barrier=barrier)
     si = resolved.si
+    lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     h_max = comp.barrier.upper_bound
     floor = feasibility_floor(
         si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
@@ -190,7 +245,14 @@ def run_episode(
         )
     t0 = time.perf_counter()
     loop = ConformalLoop(
-        comp.env, comp.policy, comp.loss, comp.rule, predictor, learn=learn, on_interval=recorder
+        comp.env,
+        comp.policy,
+        comp.loss,
+        comp.rule,
+        predictor,
+        learn=learn,
+        lambda_safe=lam_safe_si,
+        on_interval=recorder,
     )
     result = loop.run()
     wall = time.perf_counter() - t0
@@ -199,10 +261,10 @@ def run_episode(
     traj = env.log.arrays()
     d_c = scene.collision_distance
     units = scene.units
-    lam_unit = units.factor("lambda_init")
     updates = result.updates
     n_steps = max(comp.policy.n_steps_, 1)
     mon = result.monitor
+    guarantee = mon.summary() if learn else {}
     losses_applied = [iv.diagnostics.get("loss_applied", math.nan) for iv in updates]
     d = traj["d_min"]
     intervals = [
@@ -242,6 +304,14 @@ def run_episode(
         "n_qp_solves": comp.safety_filter.n_solves_,
         "n_lambda_clipped": getattr(comp.rule, "n_clipped_", 0),
         "identity_residual": mon.identity_residual if learn else None,
+        "rule": rule_name,
+        "guarantee": guarantee.get("guarantee"),
+        "lambda_safe": lambda_safe,
+        "theorem2_bound": guarantee.get("theorem2_bound"),
+        "theorem2_holds": guarantee.get("theorem2_holds"),
+        "theorem2_assumption": guarantee.get("theorem2_assumption"),
+        "long_run_bound": guarantee.get("long_run_bound"),
+        "long_run_holds": guarantee.get("long_run_holds"),
         "lambda_floor": floor.lambda_floor / lam_unit,
         "epsilon_floor": floor.epsilon_floor,
         "epsilon_attainable": floor.attainable,
@@ -273,6 +343,12 @@ def run_episode(
         "predictor": {"name": predictor_name, "params": _jsonable(predictor.get_params())},
         "barrier": {"name": barrier_name, "params": _jsonable(comp.barrier.get_params())},
         "learning": learn,
+        "rule": {
+            "name": rule_name,
+            "params_given": _jsonable(dict(rule_params or {})),
+            "params_si": _jsonable(comp.rule.get_params()),
+        },
+        "lambda_safe": lambda_safe,
         "seed": seed,
         "max_frames": max_frames,
         "params": _jsonable(resolved.as_dict()),

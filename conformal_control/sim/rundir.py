@@ -45,7 +45,8 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
     * ``animation.npz`` - what ``conformal-control animate`` renders (if the episode kept
       it; see :mod:`conformal_control.sim.record`);
     * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
-      nearest pedestrian.
+      nearest pedestrian;
+    * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -82,4 +83,14 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
         from ..plotting import plot_run
 
         plot_run(result, out / "plot.png")
+        if result.loop is not None and result.loop.monitor.n:
+            from ..plotting import plot_guarantee
+
+            units = result.scene.units
+            plot_guarantee(
+                result.loop.monitor,
+                out / "guarantee.png",
+                lambda_unit=units.factor("lambda_init"),
+                lambda_label=f"lambda (1/{units.time_name})",
+            )
     return out
