@@ -37,11 +37,9 @@ def plot_guarantee(
     path : path, optional
         Where to save the figure (PNG); the figure is returned either way.
     """
-    import matplotlib
+    from .run import _mpl
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = _mpl()  # Agg outside Jupyter; keeps the inline backend in notebooks
     fig, (ax, ax_l) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
     k = np.arange(1, monitor.n + 1)
     if monitor.n:
