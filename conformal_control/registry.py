@@ -40,6 +40,7 @@ __all__ = [
     "clashes",
     "create",
     "entries",
+    "entry",
     "get",
     "names",
     "refresh",

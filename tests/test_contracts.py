@@ -42,32 +42,18 @@ from conformal_control.update_rules import FixedEtaRule
 
 
 # ------------------------------------------------------------------ every registered plugin
-def _registered() -> list:
-    plugins = []
-    for role, name, cls, _reason in registered_plugins():
-        if cls is None:  # installed but broken: fail loudly, never skip
-
-            class Unavailable:
-                pass
-
-            Unavailable.__name__ = f"unavailable_{role}_{name}"
-            plugins.append(Unavailable)
-            continue
-        plugins.append(cls)
-    return plugins
-
-
-@parametrize_with_checks(_registered())
+# every plugin of every role: core, plugins/ distributions, installed third-party packages
+@parametrize_with_checks([cls for _, _, cls, _ in registered_plugins() if cls is not None])
 def test_registered_plugin_contract(plugin, check):
     check(plugin)
 
 
-def test_every_role_with_checks_has_registered_plugins():
+def test_every_registered_plugin_is_available():
+    # an installed plugin that cannot be imported fails here with its reason (never skipped)
+    unavailable = [(r, n, why) for r, n, cls, why in registered_plugins() if cls is None]
+    assert not unavailable, unavailable
     roles = {role for role, *_ in registered_plugins()}
     assert {"predictor", "barrier", "safety_filter", "loss", "update_rule", "dynamics"} <= roles
-    assert all(cls is not None for _, _, cls, _ in registered_plugins()), [
-        (r, n, why) for r, n, cls, why in registered_plugins() if cls is None
-    ]
 
 
 def test_runtime_registered_plugin_is_discovered():
@@ -280,3 +266,26 @@ def test_role_bases_cover_registry_roles():
     assert ROLE_BASES["barrier"] is Barrier and ROLE_BASES["safety_filter"] is SafetyFilter
     assert ROLE_BASES["predictor"] is Predictor and ROLE_BASES["update_rule"] is UpdateRule
     assert math.isfinite(CBFGapLoss.bounds[1])
+
+
+def test_parametrize_with_checks_ids_and_instances():
+    mark = parametrize_with_checks([ConstantVelocityPredictor, APFBarrier(d_c=0.5)])
+    assert mark.args[0] == "plugin, check"
+    params = mark.args[1]
+    ids = [p.id for p in params]
+    n_cv = len(ConstantVelocityPredictor._unit_test_params()) * len(check_predictor)
+    assert len(ids) == n_cv + len(check_barrier)
+    assert "ConstantVelocityPredictor(window=1)-check_predictor_no_mutation" in ids
+    assert any(i.startswith("APFBarrier(K_rep=1.0, rho0=10.0, d_c=0.5,") for i in ids)
+    assert ids[-1].endswith("-check_barrier_safe_far_unsafe_at_contact")
+
+
+def test_parametrize_with_checks_turns_a_broken_class_into_one_failing_test():
+    class NeedsArg(ConstantVelocityPredictor):
+        def __init__(self, required):
+            self.required = required
+
+    (param,) = parametrize_with_checks([NeedsArg]).args[1]
+    plugin, check = param.values
+    with pytest.raises(ContractError, match=r"NeedsArg\(\*\*\{\}\) failed .*missing 1 required"):
+        check(plugin)

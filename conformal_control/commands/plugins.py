@@ -45,7 +45,9 @@ def _plugins(args: argparse.Namespace) -> int:
                 print(f"  {entry.name:<20} UNAVAILABLE [{origin}]")
                 print(f"  {'':<20} {entry.error}")
                 continue
-            print(f"  {entry.name:<20} {_truncate(entry.summary(), 72)}  [{origin}]")
+            print(
+                f"  {entry.name:<20} {_truncate(entry.summary().replace('``', ''), 72)}  [{origin}]"
+            )
             if args.check:
                 n_fail += _check(role, entry.load(), args.verbose)
     clashes = [c for c in registry.clashes() if c.role in roles]

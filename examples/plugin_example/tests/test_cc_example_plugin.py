@@ -5,7 +5,14 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from cc_example_plugin import DampedConstantVelocity, DistanceSquaredBarrier
+
+try:
+    from cc_example_plugin import DampedConstantVelocity, DistanceSquaredBarrier
+except ImportError as exc:  # fail loudly (never skip), saying what to do
+    raise ImportError(
+        "the example plugin is not installed: pip install -e examples/plugin_example"
+    ) from exc
+
 
 from conformal_control import registry
 from conformal_control.base import PredictionQuery
