@@ -23,6 +23,7 @@ import numpy as np
 
 from ..base import PredictionQuery, Predictor
 from ..data.ethucy import ETHUCY_FPS, ETHUCY_SCENES, ethucy_files, read_ethucy
+from ..data.paths import ethucy_root, resolve_data_root
 from ..data.tracks import Tracks
 
 __all__ = [
@@ -167,6 +168,9 @@ def training_windows(
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
         return _ethucy_windows([(name, "train")], data_root, obs, horizon, f"{dataset}/train")
+    root = resolve_data_root(data_root)
+    if not ethucy_root(root).is_dir() and root.name == "sdd":
+        data_root = root.parent  # given the SDD folder: ETH/UCY sits beside it
     return _ethucy_windows(
         [(s, "test") for s in ETHUCY_SCENES], data_root, obs, horizon, "ethucy:all"
     )
