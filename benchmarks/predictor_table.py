@@ -32,7 +32,7 @@ def main() -> None:
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", nargs="*", default=None, help="labels to run (default all)")
-    ap.add_argument("--darts-windows", type=int, default=100)
+    ap.add_argument("--darts-windows", type=int, default=50)
     ap.add_argument("--n-jobs", type=int, default=2)
     args = ap.parse_args()
     root = [] if args.data_root is None else ["--data-root", args.data_root]

@@ -77,7 +77,7 @@ class LSTMPredictor(WindowPredictor):
         self,
         hidden: int = 64,
         layers: int = 1,
-        epochs: int = 20,
+        epochs: int = 10,
         batch_size: int = 256,
         lr: float = 3e-3,
         rotate: bool = True,
