@@ -3,8 +3,8 @@ scenes and on nexus_4 (8 observed, 12 predicted samples at 2.5 fps), via
 ``conformal-control eval-predictor``; rows are appended to ``OUT/results.csv``.
 
 Learned predictors (lstm, sklearn) are trained on first use, leave-one-scene-out (ETH/UCY)
-or on all of ETH/UCY (nexus_4), and cached. darts' VARIMA needs >= 31 samples, so it is
-evaluated with 31 observed samples on a seeded subsample, beside constant velocity on the
+or on all of ETH/UCY (nexus_4), and cached. darts' VARIMA needs >= 33 samples, so it is
+evaluated with 33 observed samples on a seeded subsample, beside constant velocity on the
 same windows. Usage::
 
     python benchmarks/predictor_table.py --data-root ../shared/data --out results/predictors
@@ -38,11 +38,11 @@ def main() -> None:
     root = [] if args.data_root is None else ["--data-root", args.data_root]
     jobs = [(label, name, extra) for label, name, extra in ROWS]
     for obs_label, name, extra in (
-        ("cv_obs31", "constant_velocity", ["--param", "window=1"]),
-        ("darts_varima_obs31", "darts", ["--param", f"n_jobs={args.n_jobs}"]),
+        ("cv_obs33", "constant_velocity", ["--param", "window=1"]),
+        ("darts_varima_obs33", "darts", ["--param", f"n_jobs={args.n_jobs}"]),
     ):
         jobs.append(
-            (obs_label, name, [*extra, "--obs", "31", "--max-windows", str(args.darts_windows)])
+            (obs_label, name, [*extra, "--obs", "33", "--max-windows", str(args.darts_windows)])
         )
     for label, name, extra in jobs:
         if args.only and label not in args.only:
