@@ -20,6 +20,7 @@ from conformal_control.cli import main as cli
 DATASETS = [f"ethucy:{s}" for s in ("eth", "hotel", "univ", "zara1", "zara2")] + ["sdd:nexus_4"]
 ROWS: list[tuple[str, str, list[str]]] = [
     ("cv", "constant_velocity", ["--param", "window=1"]),
+    ("cv_w5", "constant_velocity", []),
     ("kalman_cv", "kalman", ["--param", "model=cv"]),
     ("kalman_ca", "kalman", ["--param", "model=ca"]),
     ("sklearn_ridge", "sklearn", []),
@@ -32,7 +33,7 @@ def main() -> None:
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", nargs="*", default=None, help="labels to run (default all)")
-    ap.add_argument("--darts-windows", type=int, default=50)
+    ap.add_argument("--darts-windows", type=int, default=30)
     ap.add_argument("--n-jobs", type=int, default=2)
     args = ap.parse_args()
     root = [] if args.data_root is None else ["--data-root", args.data_root]

@@ -94,12 +94,16 @@ def cached_weights(
     horizon: int,
 ) -> Path:
     """Weights for a trainable predictor, trained on first use and cached."""
+    from .. import registry
     from ..predictors.cache import cache_dir
 
     if dataset.partition(":")[0] != "ethucy":
         dataset = "sdd:any"  # every SDD scene trains on all of ETH/UCY: one cached model
+    # key on every constructor parameter (defaults included), so changed defaults retrain
+    full = registry.create("predictor", name, **params).get_params()
+    full.pop("weights", None)
     key = json.dumps(
-        {"n": name, "d": dataset, "p": params, "s": seed, "o": obs, "h": horizon},
+        {"n": name, "d": dataset, "p": full, "s": seed, "o": obs, "h": horizon},
         sort_keys=True,
         default=str,
     )
