@@ -206,6 +206,10 @@ def evaluate_predictor(
         for k, v in fc.info.items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 info[k] = info.get(k, 0) + v
+            elif isinstance(v, dict):  # e.g. failure reason -> count
+                merged = info.setdefault(k, {})
+                for reason, c in v.items():
+                    merged[reason] = merged.get(reason, 0) + c
     if not np.isfinite(errs).all():
         raise ValueError("predictor returned non-finite positions for fully observed histories")
     return {
