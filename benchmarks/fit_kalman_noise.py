@@ -19,8 +19,8 @@ from cc_kalman import KalmanPredictor
 from conformal_control.base import PredictionQuery
 from conformal_control.predictors.evaluation import evaluate_predictor, training_windows
 
-Q_GRID = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
-R_GRID = (0.01, 0.02, 0.05, 0.1, 0.2)
+Q_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+R_GRID = (0.001, 0.003, 0.01, 0.03, 0.1)
 
 
 def main() -> None:

@@ -31,7 +31,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _defaults(cls: type, params: dict[str, Any], seed: int, obs: int, horizon: int) -> None:
+def trainable_defaults(
+    cls: type, params: dict[str, Any], seed: int, obs: int, horizon: int
+) -> None:
     names = cls._param_names()
     for key, value in (("random_state", seed), ("obs", obs), ("horizon", horizon)):
         if key in names:
@@ -59,7 +61,7 @@ def train(
     if len(win) == 0:
         raise ValueError(f"no training windows for {dataset}")
     p = {k: v for k, v in params.items() if k != "weights"}
-    _defaults(cls, p, seed, obs, horizon)
+    trainable_defaults(cls, p, seed, obs, horizon)
     model = registry.create("predictor", name, **p)
     t0 = time.perf_counter()
     model.fit(win.history, win.future, win.dt)
@@ -92,10 +94,16 @@ def cached_weights(
     horizon: int,
 ) -> Path:
     """Weights for a trainable predictor, trained on first use and cached."""
+    from .. import registry
     from ..predictors.cache import cache_dir
 
+    if dataset.partition(":")[0] != "ethucy":
+        dataset = "sdd:any"  # every SDD scene trains on all of ETH/UCY: one cached model
+    # key on every constructor parameter (defaults included), so changed defaults retrain
+    full = registry.create("predictor", name, **params).get_params()
+    full.pop("weights", None)
     key = json.dumps(
-        {"n": name, "d": dataset, "p": params, "s": seed, "o": obs, "h": horizon},
+        {"n": name, "d": dataset, "p": full, "s": seed, "o": obs, "h": horizon},
         sort_keys=True,
         default=str,
     )
@@ -112,6 +120,9 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--predictor", required=True, help="registered predictor name")
     _common(p)
     p.add_argument("--max-windows", type=int, default=None, help="seeded subsample of windows")
+    p.add_argument(
+        "--label", default=None, help="name of the row in the CSV (default: the predictor name)"
+    )
     p.add_argument("--out", default=None, help="folder for results.csv and config.json")
 
 
@@ -123,7 +134,7 @@ def _eval(args: argparse.Namespace) -> int:
     params = key_values(args.param, "--param")
     cls = registry.get("predictor", args.predictor)
     if getattr(cls, "trainable", False):
-        _defaults(cls, params, args.seed, args.obs, args.horizon)
+        trainable_defaults(cls, params, args.seed, args.obs, args.horizon)
     elif "random_state" in cls._param_names():
         params.setdefault("random_state", args.seed)
     if getattr(cls, "trainable", False) and params.get("weights") is None:
@@ -146,7 +157,7 @@ def _eval(args: argparse.Namespace) -> int:
     res = evaluate_predictor(predictor, win)
     wall = time.perf_counter() - t0
     row = {
-        "predictor": args.predictor,
+        "predictor": args.label or args.predictor,
         "dataset": args.dataset,
         "ade": round(res["ade"], 4),
         "fde": round(res["fde"], 4),
@@ -179,7 +190,7 @@ def _eval(args: argparse.Namespace) -> int:
             "wall_s": round(wall, 2),
             "command": ["conformal-control", *sys.argv[1:]],
         }
-        tag = f"{args.predictor}-{args.dataset.replace(':', '_')}"
+        tag = f"{row['predictor']}-{args.dataset.replace(':', '_')}"
         (out / f"config-{tag}.json").write_text(json.dumps(cfg, indent=2, default=str))
         print(f"results appended to {path}")
     return 0

@@ -106,6 +106,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plot", action="store_true", help="skip plot.png")
 
 
+def _predictor_params(args: argparse.Namespace) -> dict:
+    """``--predictor-param`` values; a trainable predictor (lstm, sklearn) without
+    ``weights`` gets cached weights trained on all of ETH/UCY (trained on first use)."""
+    from .. import registry
+    from .predictors import cached_weights, trainable_defaults
+
+    pp = key_values(args.predictor_param, "--predictor-param")
+    cls = registry.get("predictor", args.predictor)
+    if getattr(cls, "trainable", False) and pp.get("weights") is None:
+        trainable_defaults(cls, pp, args.seed, 8, 12)
+        train_params = {k: v for k, v in pp.items() if k != "weights"}
+        pp["weights"] = str(
+            cached_weights(
+                args.predictor, "sdd:any", args.data_root, train_params, args.seed, 8, 12
+            )
+        )
+    return pp
+
+
 @_run_args.handler
 def _run(args: argparse.Namespace) -> int:
     from ..data import load_scene
@@ -134,7 +153,7 @@ def _run(args: argparse.Namespace) -> int:
         learn=not args.no_learning,
         max_frames=args.frames,
         seed=args.seed,
-        predictor_params=key_values(args.predictor_param, "--predictor-param"),
+        predictor_params=_predictor_params(args),
         extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
         rule=args.rule,
         rule_params=key_values(args.rule_param, "--rule-param"),

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..base import PredictionQuery, Predictor
 from ..data.ethucy import ETHUCY_FPS, ETHUCY_SCENES, ethucy_files, read_ethucy
+from ..data.paths import ethucy_root, resolve_data_root
 from ..data.tracks import Tracks
 
 __all__ = [
@@ -167,6 +168,9 @@ def training_windows(
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
         return _ethucy_windows([(name, "train")], data_root, obs, horizon, f"{dataset}/train")
+    root = resolve_data_root(data_root)
+    if not ethucy_root(root).is_dir() and root.name == "sdd":
+        data_root = root.parent  # given the SDD folder: ETH/UCY sits beside it
     return _ethucy_windows(
         [(s, "test") for s in ETHUCY_SCENES], data_root, obs, horizon, "ethucy:all"
     )
@@ -202,6 +206,10 @@ def evaluate_predictor(
         for k, v in fc.info.items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 info[k] = info.get(k, 0) + v
+            elif isinstance(v, dict):  # e.g. failure reason -> count
+                merged = info.setdefault(k, {})
+                for reason, c in v.items():
+                    merged[reason] = merged.get(reason, 0) + c
     if not np.isfinite(errs).all():
         raise ValueError("predictor returned non-finite positions for fully observed histories")
     return {

@@ -4,9 +4,11 @@ A :class:`WindowPredictor` sees the last ``obs`` positions of each agent at spac
 ``model_dt`` and predicts ``horizon`` future positions at the same spacing. The base class
 adapts any query to that: it picks every k-th sample of the history (``model_dt`` must be
 a whole multiple of the query's ``dt``), interpolates the prediction back to the query's
-spacing and holds the last predicted velocity beyond the model's horizon. Agents without
-``obs`` finite samples at that spacing fall back to constant velocity, counted in
-``Forecast.info["n_short_history"]``.
+spacing and holds the last predicted velocity beyond the model's horizon. An agent with
+fewer than ``obs`` (but at least ``min_samples``) trailing samples at that spacing has its
+history padded backwards at its first observed velocity (counted in
+``Forecast.info["n_padded_history"]``); one with fewer falls back to constant velocity
+(``n_short_history``).
 
 Subclasses implement ``_fit_arrays`` and ``_predict_offsets`` on displacement arrays and
 ``save`` / ``_load``; training goes through ``conformal-control train-predictor``.
@@ -22,7 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..base import Forecast, PredictionQuery, Predictor
-from .constant_velocity import ConstantVelocityPredictor
+from .constant_velocity import ConstantVelocityPredictor, trailing_valid
 from .evaluation import resample_future, resample_history
 
 __all__ = ["WindowPredictor", "synthetic_windows"]
@@ -49,6 +51,10 @@ class WindowPredictor(Predictor):
 
     #: Trained by ``conformal-control train-predictor`` (see ``commands/predictors``).
     trainable: ClassVar[bool] = True
+
+    #: Fewest samples (at ``model_dt``) for which a short history is padded backwards at
+    #: its first observed velocity instead of falling back to constant velocity.
+    min_samples: ClassVar[int] = 2
 
     obs: int
     horizon: int
@@ -140,12 +146,20 @@ class WindowPredictor(Predictor):
         horizon = int(query.horizon)
         out = np.array(ConstantVelocityPredictor(window=1).predict(query).positions, dtype=float)
         if n == 0:
-            return Forecast(out, info={"n_short_history": 0})
+            return Forecast(out, info={"n_short_history": 0, "n_padded_history": 0})
         win = resample_history(hist, query.dt, self.model_dt, self.obs)
+        run = trailing_valid(win)
+        pad = (run >= self.min_samples) & (run < self.obs)
+        for i in np.flatnonzero(pad):
+            first = self.obs - int(run[i])
+            v = win[i, first + 1] - win[i, first]
+            back = np.arange(first, 0, -1)[:, None]  # samples before the first observed
+            win[i, :first] = win[i, first] - back * v
         ok = np.isfinite(win).all(axis=(1, 2))
         if ok.any():
             w = win[ok]
             offsets = self._predict_offsets(np.diff(w, axis=1))
             pred = w[:, -1:, :] + offsets
             out[ok] = resample_future(pred, w[:, -1], self.model_dt, query.dt, horizon)
-        return Forecast(out, info={"n_short_history": int((~ok).sum())})
+        info = {"n_short_history": int((~ok).sum()), "n_padded_history": int(pad.sum())}
+        return Forecast(out, info=info)

@@ -143,7 +143,8 @@ class DartsPredictor(Predictor):
         Number of most recent samples each model is fitted on (paper: 50).
     min_history : int or None
         Minimum trailing finite samples to fit; None asks the model
-        (``min_train_series_length`` + d: 31 for the default VARIMA in darts 0.48).
+        (``min_train_series_length`` + d, and at least 3p + d + 2 samples for a VAR(p):
+        33 for the default VARIMA; with fewer the fit is singular).
     n_jobs : int
         Parallel fits (joblib/loky); 1 fits in-process.
     cache : bool
@@ -197,7 +198,11 @@ class DartsPredictor(Predictor):
         try:
             m = getattr(darts.models, self.model)(**params)
             # darts checks the length after differencing d times
-            return int(m.min_train_series_length) + int(params.get("d") or 0)
+            d = int(params.get("d") or 0)
+            need = int(m.min_train_series_length) + d
+            if "p" in params:  # VAR(p) on 2 series: >= 2p + 1 regressors per equation
+                need = max(need, 3 * int(params["p"]) + d + 2)
+            return need
         except Exception:  # pragma: no cover - a bad model surfaces at fit time
             return 2
 

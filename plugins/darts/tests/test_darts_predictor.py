@@ -74,3 +74,21 @@ def test_other_model_by_name_and_parallel():
 def test_unknown_model_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown darts model"):
         DartsPredictor("NoSuchModel").predict(_query([40]))
+
+
+def test_missing_darts_reports_unavailable(monkeypatch):
+    import importlib.util
+    import sys
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "darts" else real(name, *a)
+    )
+    for mod in ("cc_darts", "cc_darts.predictor"):
+        monkeypatch.delitem(sys.modules, mod)
+    entry = registry.PluginEntry("predictor", "darts", "cc_darts:DartsPredictor", "test")
+    assert not entry.available
+    assert "needs the 'darts' package" in entry.error
+    import conformal_control  # the core still imports
+
+    assert conformal_control.registry is registry

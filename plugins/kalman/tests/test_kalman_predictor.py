@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from cc_kalman import KalmanPredictor
 
 from conformal_control import registry
 from conformal_control.base import PredictionQuery
+from conformal_control.cli import main
 
 
 def _walk(n=3, t=12, dt=0.4, noise=0.0, seed=0):
@@ -58,3 +61,26 @@ def test_noise_is_configurable_and_validated():
         KalmanPredictor(process_noise=-1.0).predict(q)
     with pytest.raises(ValueError, match="model"):
         KalmanPredictor(model="jerk").predict(q)
+
+
+def test_flagship_runs_with_kalman_and_records_it(tmp_path):
+    rc = main(
+        [
+            "run",
+            "--scene",
+            "crossing",
+            "--predictor",
+            "kalman",
+            "--predictor-param",
+            "model=ca",
+            "--frames",
+            "30",
+            "--no-plot",
+            "--out",
+            str(tmp_path / "run"),
+        ]
+    )
+    assert rc == 0
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["predictor"]["name"] == "kalman"
+    assert cfg["predictor"]["params"]["model"] == "ca"

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
@@ -71,13 +71,11 @@ class LSTMPredictor(WindowPredictor):
         torch CPU threads while training and predicting.
     """
 
-    _tiny: ClassVar[str | None] = None
-
     def __init__(
         self,
         hidden: int = 64,
         layers: int = 1,
-        epochs: int = 20,
+        epochs: int = 10,
         batch_size: int = 256,
         lr: float = 3e-3,
         rotate: bool = True,
@@ -104,7 +102,7 @@ class LSTMPredictor(WindowPredictor):
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         """A tiny LSTM (8 units, 2 epochs on 256 synthetic walks), trained once per cache."""
-        folder = cache_dir("weights") / "lstm-unit-test-tiny"
+        folder = cache_dir("weights") / "lstm-unit-test-tiny-v1"
         if not (folder / "config.json").is_file():
             cls(hidden=8, epochs=2, batch_size=64).fit(*synthetic_windows(), dt=0.4).save(folder)
         return [{"weights": str(folder)}]

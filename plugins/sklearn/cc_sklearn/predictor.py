@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import joblib
 import numpy as np
@@ -62,8 +62,6 @@ class SklearnPredictor(WindowPredictor):
         Seed of stochastic regressors.
     """
 
-    _tiny: ClassVar[str | None] = None
-
     def __init__(
         self,
         estimator: str = "Ridge",
@@ -85,7 +83,7 @@ class SklearnPredictor(WindowPredictor):
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         """A Ridge fitted on 256 synthetic walks (saved once per cache folder)."""
-        folder = cache_dir("weights") / "sklearn-unit-test-ridge"
+        folder = cache_dir("weights") / "sklearn-unit-test-ridge-v1"
         if not (folder / "config.json").is_file():
             cls().fit(*synthetic_windows(), dt=0.4).save(folder)
         return [{"weights": str(folder)}]

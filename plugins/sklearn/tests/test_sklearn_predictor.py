@@ -39,7 +39,11 @@ def test_other_regressor_and_30fps_query():
     fc = model.predict(PredictionQuery(np.arange(1), hist, dt=1 / 30, horizon=20))
     expect = hist[0, -1] + (np.arange(1, 21) / 30.0)[:, None] * np.array([1.0, 0.5])
     assert np.abs(fc.positions[0] - expect).max() < 0.1
-    short = PredictionQuery(np.arange(1), hist[:, -30:], dt=1 / 30, horizon=5)
+    # 30 frames = 3 samples at 0.4 s: padded backwards at the first velocity, still continued
+    padded = model.predict(PredictionQuery(np.arange(1), hist[:, -30:], dt=1 / 30, horizon=20))
+    assert padded.info == {"n_short_history": 0, "n_padded_history": 1}
+    assert np.abs(padded.positions[0] - expect).max() < 0.1
+    short = PredictionQuery(np.arange(1), hist[:, -10:], dt=1 / 30, horizon=5)
     assert model.predict(short).info["n_short_history"] == 1
 
 
