@@ -89,6 +89,9 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
     assert "## printed" in md and "## published" in md and "(0.8881)" in md
     forms = read(out / "forms.csv")
     assert {r["scene"] for r in forms} == {"nexus_4:raw", "nexus_4:trajnet"}
+    stats = json.loads((out / "forms_data.json").read_text())
+    assert stats["raw"]["tracks"] > 0 and stats["trajnet"]["tracks"] > 0
+    assert 0.5 < stats["share_matched_1m"] <= 1 and 0 <= stats["median_match_m"] < 0.5
     summary = json.loads((out / "summary.json").read_text())
     assert summary["identity_ok"] and summary["oracle_ok"] and summary["failed"] == 0
     assert summary["max_abs_lavg_minus_eps_eta100"] is not None
