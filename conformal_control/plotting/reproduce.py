@@ -23,6 +23,20 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
+def _save(fig: Any, path: str | Path, dpi: int) -> None:
+    """Save as a palette PNG (256 colours): a third of the size, for docs and reports."""
+    plt = _mpl()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+        return
+    with Image.open(path) as im:
+        small = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    small.save(path, optimize=True)
+
+
 def plot_paths_grid(
     scene: Scene,
     runs: Sequence[dict[str, Any]],
@@ -87,8 +101,7 @@ def plot_paths_grid(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    _save(fig, path, dpi)
 
 
 def plot_lambda_loss_rows(
@@ -137,8 +150,7 @@ def plot_lambda_loss_rows(
     if title:
         fig.suptitle(title + "  (red dashed: epsilon)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    _save(fig, path, dpi)
 
 
 def plot_lavg_vs_epsilon(
@@ -171,5 +183,4 @@ def plot_lavg_vs_epsilon(
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    _save(fig, path, dpi)
