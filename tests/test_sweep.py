@@ -237,3 +237,15 @@ def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path
     again = run_sweep(spec, tmp_path / "dask", ex, progress=False, retry_failed=False)
     ex.close()
     assert again.ran == [] and len(again.skipped) == 8
+
+
+def test_process_pool_workers_run_single_threaded_blas(monkeypatch) -> None:
+    import os
+
+    from conformal_control.sweep import ProcessExecutor
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    with ProcessExecutor(workers=2) as ex:
+        seen = dict(ex.run(os.getenv, [("OMP_NUM_THREADS",)]))
+    assert seen[0] == "1"
+    assert "OMP_NUM_THREADS" not in os.environ  # the driver's environment is restored

@@ -85,9 +85,9 @@ def plot_paths_grid(
         ax.set_xlim(0, width)
         ax.set_ylim(y_hi, y_lo)
         m = run.get("metrics") or {}
-        tg = _fmt(m.get("t_goal"), ".2f")
+        tg = _fmt(m.get("t_goal"), ".2f") + " s" if m.get("t_goal") is not None else "not reached"
         ax.set_title(
-            f"{run['label']}\nt_goal {tg} s | coll {m.get('n_collide', '-')} | "
+            f"{run['label']}\nt_goal {tg} | coll {m.get('n_collide', '-')} | "
             f"d_min {_fmt(m.get('d_min'), '.2f')} m",
             fontsize=8,
         )

@@ -8,11 +8,13 @@ the same way.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import os
 import time
 import traceback
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +55,23 @@ def run_dir_name(cfg: dict[str, Any], key: str) -> str:
     stem = cfg.get("label") or cfg["scene"]
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in str(stem))[:60]
     return f"{safe}-{key}"
+
+
+@contextlib.contextmanager
+def _single_threaded_blas() -> Iterator[None]:
+    """Limit BLAS/OpenMP pools to one thread for the run (threadpoolctl, if installed).
+
+    One run per core is how sweeps use a machine; a multi-threaded BLAS inside each run
+    oversubscribes it badly (a darts VARIMA fit on a busy 2-core machine: ~30 CPU-s with
+    default threads against ~0.9 CPU-s single-threaded).
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1):
+        yield
 
 
 @functools.lru_cache(maxsize=8)
@@ -102,16 +121,17 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = True) 
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
         scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))
-        result = run_episode(
-            scene,
-            cfg.get("predictor") or "constant_velocity",
-            dict(cfg.get("params") or {}),
-            learn=bool(cfg.get("learn", True)),
-            max_frames=cfg.get("frames"),
-            seed=int(cfg.get("seed", 0)),
-            predictor_params=dict(cfg.get("predictor_params") or {}),
-            extra_config={"sweep": {"key": key, "run": cfg}},
-        )
+        with _single_threaded_blas():
+            result = run_episode(
+                scene,
+                cfg.get("predictor") or "constant_velocity",
+                dict(cfg.get("params") or {}),
+                learn=bool(cfg.get("learn", True)),
+                max_frames=cfg.get("frames"),
+                seed=int(cfg.get("seed", 0)),
+                predictor_params=dict(cfg.get("predictor_params") or {}),
+                extra_config={"sweep": {"key": key, "run": cfg}},
+            )
         run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
         write_run_dir(result, run_dir, plot=plot)
         m = result.metrics

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -21,10 +22,24 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _init_worker() -> None:
-    # one run per process: keep numerical libraries from oversubscribing the cores
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """While the pool starts its workers, have them inherit one-thread BLAS settings.
+
+    The variables must be in the environment before a worker imports numpy; they are set
+    only where the user has not set them, and restored afterwards.
+    """
+    added = [v for v in _THREAD_VARS if v not in os.environ]
+    for v in added:
+        os.environ[v] = "1"
+    try:
+        yield
+    finally:
+        for v in added:
+            os.environ.pop(v, None)
 
 
 class ProcessExecutor(Executor):
@@ -60,13 +75,14 @@ class ProcessExecutor(Executor):
         return ProcessPoolExecutor(
             max_workers=self.n_workers,
             mp_context=multiprocessing.get_context(method),
-            initializer=_init_worker,
         )
 
     def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[Outcome]:
         if self.n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers!r}")
         pending = list(enumerate(tasks))[::-1]  # pop() from the end keeps the order
+        stack = contextlib.ExitStack()
+        stack.enter_context(_single_threaded_children())
         pool = self._pool()
         inflight: dict[Future[Any], int] = {}
         try:
@@ -97,3 +113,4 @@ class ProcessExecutor(Executor):
                     pool = self._pool()
         finally:
             pool.shutdown(cancel_futures=True)
+            stack.close()
