@@ -105,3 +105,23 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
         "table2-lavg-vs-epsilon.png",
     } <= figs
     assert "figures/table2-published-paths.png" in (out / "table2.md").read_text()
+    # one variant only
+    one = tmp_path / "one"
+    assert (
+        main(
+            [
+                "reproduce",
+                "table2",
+                *argv[2:-1],
+                str(one),
+                "--variant",
+                "published",
+                "--executor",
+                "serial",
+                "--no-figures",
+            ]
+        )
+        == 0
+    )
+    assert "7 runs (0 reused, 7 ran, 0 failed)" in capsys.readouterr().out
+    assert {r["variant"] for r in read(one / "table2.csv")} == {"published"}

@@ -36,6 +36,14 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
         "--frames", type=int, default=None, help="simulate at most N frames per run (smoke test)"
     )
     p.add_argument("--seed", type=int, default=0, help="seed handed to stochastic predictors")
+    p.add_argument(
+        "--variant",
+        action="append",
+        choices=("printed", "published"),
+        default=None,
+        help="run only this variant (repeatable; default both): printed = the paper's "
+        "parameters, published = a = 10 as the published code ran",
+    )
     p.add_argument("--no-figures", action="store_true", help="tables only")
     p.add_argument(
         "--progress",
@@ -61,6 +69,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         frames=args.frames,
         seed=args.seed,
         figures=not args.no_figures,
+        variants=args.variant,
         progress={"auto": None, "on": True, "off": False}[args.progress],
     )
     worst = s["max_abs_lavg_minus_eps_eta100"]

@@ -477,8 +477,9 @@ def _figures(
                         "l_avg": m.get("l_avg"),
                     }
                 )
+    first = rows[0].variant if rows else None
     for r in rows:
-        if r.row.learn and r.variant == next(iter(VARIANTS)):
+        if r.row.learn and r.variant == first:
             points.append(
                 {
                     "series": "paper",
@@ -507,6 +508,7 @@ def reproduce(
     seed: int = 0,
     figures: bool = True,
     progress: bool | None = None,
+    variants: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Run the targets (``table1``, ``table2``, ``forms``) and write the reports.
 
@@ -520,6 +522,10 @@ def reproduce(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(dict.fromkeys(TARGETS if "all" in targets else targets))
+    variants = list(variants or VARIANTS)
+    for v in variants:
+        if v not in VARIANTS:
+            raise ValueError(f"unknown variant {v!r}; use {', '.join(VARIANTS)}")
     rows = plan(
         targets,
         predictor=predictor,
@@ -527,6 +533,7 @@ def reproduce(
         data_root=data_root,
         frames=frames,
         seed=seed,
+        variants=variants,
     )
     unique = list({r.key: r.config for r in rows}.values())
     report = run_sweep(
@@ -590,6 +597,7 @@ def reproduce(
         "predictor_params": dict(predictor_params or {}),
         "frames": frames,
         "seed": seed,
+        "variants": variants,
         "executor": report.executor,
         "runs": len(report.keys),
         "ran": len(report.ran),
