@@ -125,3 +125,9 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
     )
     assert "7 runs (0 reused, 7 ran, 0 failed)" in capsys.readouterr().out
     assert {r["variant"] for r in read(one / "table2.csv")} == {"published"}
+
+
+def test_unknown_predictor_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    assert main(["reproduce", "table2", "--predictor", "nosuch", "--out", str(tmp_path)]) == 2
+    assert "unknown predictor 'nosuch'" in capsys.readouterr().err
+    assert not (tmp_path / "sweep").exists()

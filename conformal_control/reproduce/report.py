@@ -522,6 +522,9 @@ def reproduce(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(dict.fromkeys(TARGETS if "all" in targets else targets))
+    from .. import registry
+
+    registry.get("predictor", predictor)  # unknown or unavailable: a clear error up front
     variants = list(variants or VARIANTS)
     for v in variants:
         if v not in VARIANTS:
