@@ -154,7 +154,7 @@ def run_sweep(
             bar.set_postfix(failed=len(report.failed), refresh=False)
             n_since_table += 1
             if n_since_table >= max(1, table_every):
-                store.write_tables(parquet=False)
+                store.write_tables()
                 n_since_table = 0
     finally:
         bar.close()
