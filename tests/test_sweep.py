@@ -249,3 +249,17 @@ def test_process_pool_workers_run_single_threaded_blas(monkeypatch) -> None:
         seen = dict(ex.run(os.getenv, [("OMP_NUM_THREADS",)]))
     assert seen[0] == "1"
     assert "OMP_NUM_THREADS" not in os.environ  # the driver's environment is restored
+
+
+def test_process_pool_survives_a_dying_worker() -> None:
+    """A worker killed mid-run fails its own task; the pool restarts and the rest run."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from conformal_control.sweep import ProcessExecutor
+
+    tasks = [("1 + 1",), ("__import__('os')._exit(3)",), ("2 + 2",), ("3 + 3",)]
+    with ProcessExecutor(workers=1) as ex:
+        out = dict(ex.run(eval, tasks))
+    assert len(out) == 4 and isinstance(out[1], BrokenProcessPool)
+    assert out[0] == 2 and out[3] == 6  # before the crash, and on the restarted pool
+    assert out[2] == 4 or isinstance(out[2], BrokenProcessPool)  # in flight when it died
