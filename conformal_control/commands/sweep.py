@@ -1,0 +1,104 @@
+"""``conformal-control sweep``: run the controller over a parameter grid."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import command, key_values
+
+
+def add_executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor``, ``--workers``, ``--scheduler`` (shared with ``reproduce``)."""
+    p.add_argument(
+        "--executor",
+        choices=("process", "serial", "dask"),
+        default="process",
+        help="process pool on this machine (default), serial (in this process), or dask",
+    )
+    p.add_argument(
+        "-j",
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes (process pool / Dask LocalCluster); default: CPUs available",
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="Dask scheduler address (tcp://host:8786); without it a LocalCluster is started",
+    )
+
+
+@command("sweep", "run the controller over a parameter grid (local processes or Dask)")
+def _sweep_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("spec", nargs="?", default=None, help="sweep spec file (.yaml, .json or .toml)")
+    p.add_argument(
+        "--grid",
+        action="append",
+        metavar="KEY=V1,V2,...",
+        help="grid axis (repeatable), e.g. --grid epsilon=-0.25,0 --grid seed=0,1,2",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="value shared by every run (repeatable), e.g. --set scene=nexus_4",
+    )
+    p.add_argument("--scene", default=None, help="shorthand for --set scene=NAME")
+    p.add_argument("--predictor", default=None, help="shorthand for --set predictor=NAME")
+    p.add_argument("--data-root", default=None, help="data folder (or its sdd/ subfolder)")
+    p.add_argument("--out", required=True, help="sweep folder (created; reused to resume)")
+    add_executor_args(p)
+    p.add_argument("--no-resume", action="store_true", help="rerun runs already finished")
+    p.add_argument(
+        "--no-retry-failed", action="store_true", help="on resume, keep failed runs as failed"
+    )
+    p.add_argument("--no-plot", action="store_true", help="skip plot.png in run directories")
+    p.add_argument("--dry-run", action="store_true", help="list the runs and their keys only")
+    p.add_argument(
+        "--progress",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="progress bar on stderr (auto: when it is a terminal)",
+    )
+
+
+@_sweep_args.handler
+def _sweep(args: argparse.Namespace) -> int:
+    from ..sweep import SweepSpec, load_spec, parse_grid_option, run_sweep
+
+    spec = load_spec(args.spec) if args.spec else SweepSpec()
+    base = key_values(args.set, "--set")
+    for name in ("scene", "predictor", "data_root"):
+        if getattr(args, name) is not None:
+            base[name] = getattr(args, name)
+    spec = spec.merged(SweepSpec(base=base, grid=parse_grid_option(args.grid)))
+    configs = spec.expand()
+    if not configs:
+        raise ValueError("the sweep has no runs")
+    if args.dry_run:
+        for c in configs:
+            print(c.key, c.as_dict())
+        print(f"{len(configs)} runs")
+        return 0
+    report = run_sweep(
+        configs,
+        args.out,
+        args.executor,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        resume=not args.no_resume,
+        retry_failed=not args.no_retry_failed,
+        plot=not args.no_plot,
+        progress={"auto": None, "on": True, "off": False}[args.progress],
+    )
+    print(report.summary())
+    for row in report.rows:
+        if row["status"] != "ok":
+            print(
+                f"failed {row['key']} ({row['label'] or row['scene']}): {row['error']}",
+                file=sys.stderr,
+            )
+    return 1 if report.failed else 0

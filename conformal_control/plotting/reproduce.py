@@ -1,0 +1,186 @@
+"""Figures of the paper reproduction: paths per row, lambda/loss per row, l_avg against epsilon."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .run import _mpl, plot_scene
+
+if TYPE_CHECKING:
+    from ..data.scene import Scene
+
+__all__ = ["plot_lambda_loss_rows", "plot_lavg_vs_epsilon", "plot_paths_grid"]
+
+
+def _fmt(v: Any, spec: str) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return format(v, spec)
+
+
+def _save(fig: Any, path: str | Path, dpi: int) -> None:
+    """Save as a palette PNG (256 colours): a third of the size, for docs and reports."""
+    plt = _mpl()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+        return
+    with Image.open(path) as im:
+        small = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    small.save(path, optimize=True)
+
+
+def plot_paths_grid(
+    scene: Scene,
+    runs: Sequence[dict[str, Any]],
+    path: str | Path,
+    *,
+    title: str = "",
+    dpi: int = 72,
+    margin: float = 10.0,
+) -> None:
+    """One panel per row: the robot's path over the scene's reference image.
+
+    Every panel shows the same band of the scene: the full width, and the height the
+    paths, start and goals span plus ``margin`` metres on each side.
+
+    Parameters
+    ----------
+    scene : Scene
+        Gives the image, the replayed pedestrians and start/goal.
+    runs : list of dict
+        ``label``, ``trajectory`` (dict of arrays: frame, x, y, d_min) and ``metrics``.
+    """
+    plt = _mpl()
+    n = len(runs)
+    ys = [scene.start[1], *scene.goals[:, 1]]
+    for run in runs:
+        tr = run.get("trajectory")
+        if tr is not None and len(tr["y"]):
+            ys += [float(np.nanmin(tr["y"])), float(np.nanmax(tr["y"]))]
+    width = scene.extent[0] if scene.extent else float(np.nanmax(np.abs(ys))) * 2
+    height = scene.extent[1] if scene.extent else max(ys) + margin
+    y_lo, y_hi = max(0.0, min(ys) - margin), min(height, max(ys) + margin)
+    aspect = (y_hi - y_lo) / max(width, 1e-9)
+    cols = min(4, max(1, n))
+    nrows = math.ceil(n / cols)
+    panel_w = 3.6
+    fig, axes = plt.subplots(
+        nrows, cols, figsize=(panel_w * cols, (panel_w * aspect + 0.7) * nrows), squeeze=False
+    )
+    for ax, run in zip(axes.flat, runs, strict=False):
+        tr = run.get("trajectory")
+        if tr is None or len(tr["frame"]) == 0:
+            ax.set_title(f"{run['label']}: failed", fontsize=8)
+            ax.axis("off")
+            continue
+        plot_scene(ax, scene, tr)
+        ax.set_xlim(0, width)
+        ax.set_ylim(y_hi, y_lo)
+        m = run.get("metrics") or {}
+        tg = _fmt(m.get("t_goal"), ".2f") + " s" if m.get("t_goal") is not None else "not reached"
+        ax.set_title(
+            f"{run['label']}\nt_goal {tg} | coll {m.get('n_collide', '-')} | "
+            f"d_min {_fmt(m.get('d_min'), '.2f')} m",
+            fontsize=8,
+        )
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+        ax.tick_params(labelsize=6)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path, dpi)
+
+
+def plot_lambda_loss_rows(
+    runs: Sequence[dict[str, Any]],
+    path: str | Path,
+    *,
+    lam_unit: str = "1/frame",
+    title: str = "",
+    dpi: int = 72,
+) -> None:
+    """One panel per row: lambda_k (left axis) and l_k with its running mean (right axis).
+
+    ``runs``: dicts with ``label``, ``learn``, ``epsilon`` and ``intervals`` (dict of
+    arrays ``t``, ``lambda``, ``loss``).
+    """
+    plt = _mpl()
+    n = len(runs)
+    cols = min(4, max(1, n))
+    nrows = math.ceil(n / cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(3.6 * cols, 2.6 * nrows), squeeze=False)
+    for ax, run in zip(axes.flat, runs, strict=False):
+        iv = run.get("intervals")
+        ax.set_title(run["label"], fontsize=8)
+        ax.tick_params(labelsize=6)
+        if iv is None or len(iv["t"]) == 0:
+            ax.text(0.5, 0.5, "no data", ha="center", transform=ax.transAxes)
+            continue
+        ok = np.isfinite(iv["loss"])
+        t, lam, loss = iv["t"][ok], iv["lambda"][ok], iv["loss"][ok]
+        ax.step(t, lam, where="post", color="tab:purple", lw=1.0)
+        ax.set_ylabel(f"lambda ({lam_unit})", fontsize=7, color="tab:purple")
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("t (s)", fontsize=7)
+        ax2 = ax.twinx()
+        ax2.plot(t, loss, ".", color="tab:gray", ms=2)
+        if loss.size:
+            ax2.plot(t, np.cumsum(loss) / np.arange(1, loss.size + 1), color="black", lw=1.0)
+        eps = run.get("epsilon")
+        if run.get("learn") and eps is not None:
+            ax2.axhline(eps, color="red", ls="--", lw=0.8)
+        ax2.set_ylim(-0.5, 0.5)
+        ax2.tick_params(labelsize=6)
+        ax2.set_ylabel("loss (dots), running mean", fontsize=7)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    if title:
+        fig.suptitle(title + "  (red dashed: epsilon)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path, dpi)
+
+
+def plot_lavg_vs_epsilon(
+    points: Sequence[dict[str, Any]], path: str | Path, *, title: str = "", dpi: int = 72
+) -> None:
+    """l_avg against epsilon: ours per variant, the paper's, and the line l_avg = epsilon.
+
+    ``points``: dicts with ``series`` (legend name), ``epsilon`` and ``l_avg``.
+    """
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    series: dict[str, list[tuple[float, float]]] = {}
+    for p in points:
+        if p.get("l_avg") is None or p.get("epsilon") is None:
+            continue
+        series.setdefault(p["series"], []).append((float(p["epsilon"]), float(p["l_avg"])))
+    markers = ["o", "s", "^", "D", "v", "P"]
+    for i, (name, xy) in enumerate(series.items()):
+        arr = np.array(sorted(xy))
+        ax.plot(
+            arr[:, 0], arr[:, 1], markers[i % len(markers)] + "-", lw=0.8, label=name, alpha=0.8
+        )
+    ax.plot([-0.5, 0.5], [-0.5, 0.5], color="gray", ls="--", lw=0.8, label="l_avg = epsilon")
+    ax.set_xlim(-0.5, 0.5)
+    ax.set_ylim(-0.5, 0.5)
+    ax.set_xlabel("epsilon (target)")
+    ax.set_ylabel("l_avg (achieved)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path, dpi)

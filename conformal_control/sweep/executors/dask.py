@@ -1,0 +1,113 @@
+"""Dask distributed: a running scheduler (``--scheduler ADDRESS``) or a ``LocalCluster``.
+
+Needs the ``sweep`` extra (``pip install "conformal-control[sweep]"``). Workers must be
+able to import ``conformal_control`` (and the plugins the runs use), read the data root
+and write the sweep's output folder (a shared file system on a real cluster).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+from .base import Executor, Outcome
+
+__all__ = ["DaskExecutor"]
+
+
+def _distributed() -> Any:
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover - exercised only without the extra
+        raise ImportError(
+            "the dask executor needs dask.distributed: pip install 'conformal-control[sweep]'"
+        ) from exc
+    return distributed
+
+
+class DaskExecutor(Executor):
+    """Submit every run to a Dask cluster and collect results as they complete.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running scheduler (``tcp://host:8786``). Without it a
+        ``distributed.LocalCluster`` is started (and closed at the end).
+    workers : int, optional
+        Workers of the LocalCluster (default: Dask's choice).
+    processes : bool
+        LocalCluster with worker processes (default) or threads in this process.
+    client : distributed.Client, optional
+        Use this client (not closed here).
+    """
+
+    name = "dask"
+
+    def __init__(
+        self,
+        scheduler: str | None = None,
+        workers: int | None = None,
+        processes: bool = True,
+        client: Any = None,
+    ) -> None:
+        self.scheduler = scheduler
+        self.workers = workers
+        self.processes = processes
+        self._client = client
+        self._own_client = False
+        self._cluster: Any = None
+
+    @property
+    def client(self) -> Any:
+        if self._client is None:
+            d = _distributed()
+            if self.scheduler:
+                self._client = d.Client(self.scheduler)
+            else:
+                self._cluster = d.LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=self.processes,
+                    dashboard_address=None,
+                    protocol="tcp://",
+                    host="127.0.0.1",
+                )
+                self._client = d.Client(self._cluster)
+            self._own_client = True
+        return self._client
+
+    @property
+    def n_workers(self) -> int:
+        try:
+            return max(1, len(self.client.scheduler_info()["workers"]))
+        except Exception:
+            return 1
+
+    def describe(self) -> str:
+        where = self.scheduler or "LocalCluster"
+        return f"dask at {where} ({self.n_workers} workers)"
+
+    def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[Outcome]:
+        d = _distributed()
+        client = self.client
+        futures = {client.submit(fn, *args, pure=False): i for i, args in enumerate(tasks)}
+        try:
+            for fut in d.as_completed(futures):
+                i = futures[fut]
+                try:
+                    yield i, fut.result()
+                except Exception as exc:  # task error or lost worker
+                    yield i, exc
+                fut.release()
+        finally:
+            for fut in futures:
+                if not fut.done():
+                    fut.cancel()
+
+    def close(self) -> None:
+        if self._own_client and self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None

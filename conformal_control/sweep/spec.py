@@ -1,0 +1,293 @@
+"""Sweep specifications: a grid and/or a list of runs, expanded into run configurations.
+
+A specification is a mapping (from a YAML, JSON or TOML file, or built in Python) with up to
+three sections::
+
+    base:                      # every run starts from these values
+      scene: nexus_4
+      predictor: constant_velocity
+      frames: 400
+    grid:                      # Cartesian product of these lists ...
+      epsilon: [-0.25, 0.0]
+      eta: [0.1, 1]
+      seed: [0, 1]
+    runs:                      # ... crossed with this explicit list (default: one empty run)
+      - {label: learn}
+      - {label: noLearn, learn: false}
+
+Every run is ``base`` updated by one entry of ``runs`` updated by one point of ``grid``.
+A run configuration has these keys (all optional except ``scene``):
+
+``scene``, ``predictor`` (registered name, default ``constant_velocity``),
+``predictor_params`` (dict; a key ``predictor_params.NAME`` in a grid sets one entry),
+``learn`` (default true; false = the noLearn baseline), ``seed`` (default 0), ``frames``
+(limit on simulated frames, default none), ``data_root``, ``label`` (free text), and any
+controller parameter of :data:`conformal_control.sim.config.PARAMETERS` (``epsilon``,
+``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
+
+The **key** of a run is a hash of its normalised configuration (everything except
+``label`` and ``data_root``, which name but do not change a run): a sweep resumed with
+the same runs skips every key already finished.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "RESERVED_KEYS",
+    "RunConfig",
+    "SweepSpec",
+    "load_spec",
+    "parse_grid_option",
+    "run_key",
+]
+
+#: Keys of a run configuration that are not controller parameters.
+RESERVED_KEYS = (
+    "scene",
+    "predictor",
+    "predictor_params",
+    "learn",
+    "seed",
+    "frames",
+    "data_root",
+    "label",
+)
+#: Keys that do not enter the run key.
+UNHASHED_KEYS = ("label", "data_root")
+_PP = "predictor_params."
+
+
+def _canonical(value: Any) -> Any:
+    """Numbers that are whole become ints so 4 and 4.0 give the same key."""
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float):
+        if math.isfinite(value) and value.is_integer():
+            return int(value)
+        return value if math.isfinite(value) else repr(value)
+    if isinstance(value, Mapping):
+        return {str(k): _canonical(v) for k, v in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    if hasattr(value, "item"):  # numpy scalar
+        return _canonical(value.item())
+    raise TypeError(f"cannot use {value!r} ({type(value).__name__}) in a run configuration")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One fully specified run of a sweep.
+
+    Attributes
+    ----------
+    scene : str
+    predictor : str
+    predictor_params : dict
+    learn : bool
+    seed : int
+    frames : int or None
+    params : dict
+        Controller parameters in the scene's units.
+    data_root : str or None
+    label : str
+    """
+
+    scene: str
+    predictor: str = "constant_velocity"
+    predictor_params: dict[str, Any] = field(default_factory=dict)
+    learn: bool = True
+    seed: int = 0
+    frames: int | None = None
+    params: dict[str, Any] = field(default_factory=dict)
+    data_root: str | None = None
+    label: str = ""
+
+    def hashed(self) -> dict[str, Any]:
+        """The part of the configuration the key is computed from (canonical form)."""
+        d = self.as_dict()
+        for k in UNHASHED_KEYS:
+            d.pop(k, None)
+        return _canonical(d)
+
+    @property
+    def key(self) -> str:
+        return run_key(self.hashed())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "scene": self.scene,
+            "predictor": self.predictor,
+            "predictor_params": dict(self.predictor_params),
+            "learn": self.learn,
+            "seed": self.seed,
+            "frames": self.frames,
+            "params": dict(self.params),
+            "data_root": self.data_root,
+            "label": self.label,
+        }
+
+    @classmethod
+    def from_flat(cls, flat: Mapping[str, Any]) -> RunConfig:
+        """Build from a flat mapping (reserved keys + controller parameters).
+
+        Raises
+        ------
+        ValueError
+            For a missing scene, an unknown key or a badly typed reserved value.
+        """
+        from ..sim.config import PARAMETERS
+
+        flat = dict(flat)
+        pp = dict(flat.pop("predictor_params", None) or {})
+        params = dict(flat.pop("params", None) or {})
+        for k in [k for k in flat if k.startswith(_PP)]:
+            pp[k[len(_PP) :]] = flat.pop(k)
+        reserved = {k: flat.pop(k) for k in RESERVED_KEYS if k in flat}
+        unknown = sorted(k for k in flat if k not in PARAMETERS)
+        if unknown:
+            raise ValueError(
+                f"unknown sweep key(s) {', '.join(unknown)}; use {', '.join(RESERVED_KEYS)}, "
+                f"'predictor_params.NAME' or a controller parameter ({', '.join(PARAMETERS)})"
+            )
+        params.update(flat)
+        if not reserved.get("scene"):
+            raise ValueError("every run needs a 'scene'")
+        learn = reserved.get("learn", True)
+        if not isinstance(learn, bool):
+            raise ValueError(f"'learn' must be true or false, got {learn!r}")
+        seed = reserved.get("seed", 0)
+        if isinstance(seed, float) and seed.is_integer():
+            seed = int(seed)
+        if not isinstance(seed, int) or isinstance(seed, bool):
+            raise ValueError(f"'seed' must be an integer, got {seed!r}")
+        frames = reserved.get("frames")
+        if frames is not None and (not isinstance(frames, int) or frames < 1):
+            raise ValueError(f"'frames' must be a positive integer or null, got {frames!r}")
+        data_root = reserved.get("data_root")
+        return cls(
+            scene=str(reserved["scene"]),
+            predictor=str(reserved.get("predictor") or "constant_velocity"),
+            predictor_params=pp,
+            learn=learn,
+            seed=seed,
+            frames=frames,
+            params=params,
+            data_root=None if data_root is None else str(data_root),
+            label=str(reserved.get("label") or ""),
+        )
+
+
+def run_key(hashed: Mapping[str, Any]) -> str:
+    """Short SHA-256 of the canonical JSON of a configuration (16 hex digits)."""
+    text = json.dumps(_canonical(dict(hashed)), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass
+class SweepSpec:
+    """A sweep: ``base`` x ``runs`` x product(``grid``).
+
+    Parameters
+    ----------
+    base : dict
+        Values shared by every run.
+    grid : dict of lists
+        Axes of the Cartesian product (a scalar counts as a one-value list).
+    runs : list of dict
+        Explicit runs (crossed with the grid); empty means one run.
+    """
+
+    base: dict[str, Any] = field(default_factory=dict)
+    grid: dict[str, list[Any]] = field(default_factory=dict)
+    runs: list[dict[str, Any]] = field(default_factory=list)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> SweepSpec:
+        unknown = sorted(set(data) - {"base", "grid", "runs"})
+        if unknown:
+            raise ValueError(
+                f"unknown section(s) {', '.join(unknown)} in the sweep spec; "
+                "use base, grid and runs"
+            )
+        base = dict(data.get("base") or {})
+        grid_in = dict(data.get("grid") or {})
+        grid = {k: list(v) if isinstance(v, (list, tuple)) else [v] for k, v in grid_in.items()}
+        for k, v in grid.items():
+            if not v:
+                raise ValueError(f"grid axis {k!r} has no values")
+        runs = list(data.get("runs") or [])
+        if not all(isinstance(r, Mapping) for r in runs):
+            raise ValueError("'runs' must be a list of mappings")
+        return cls(base, grid, [dict(r) for r in runs])
+
+    def expand(self) -> list[RunConfig]:
+        """All runs, in order, without duplicates (same key kept once)."""
+        axes = list(self.grid)
+        points = list(itertools.product(*(self.grid[a] for a in axes))) or [()]
+        out: list[RunConfig] = []
+        seen: set[str] = set()
+        for run in self.runs or [{}]:
+            for point in points:
+                flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
+                cfg = RunConfig.from_flat(flat)
+                if cfg.key not in seen:
+                    seen.add(cfg.key)
+                    out.append(cfg)
+        return out
+
+    def merged(self, other: SweepSpec) -> SweepSpec:
+        """This spec with ``other``'s base and grid entries on top and its runs appended."""
+        return SweepSpec(
+            {**self.base, **other.base}, {**self.grid, **other.grid}, [*self.runs, *other.runs]
+        )
+
+
+def load_spec(path: str | Path) -> SweepSpec:
+    """Read a sweep specification from ``.yaml``/``.yml``, ``.json`` or ``.toml``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"sweep spec {path} not found")
+    suffix = path.suffix.lower()
+    text = path.read_text()
+    if suffix in (".yaml", ".yml"):
+        import yaml
+
+        data = yaml.safe_load(text)
+    elif suffix == ".json":
+        data = json.loads(text)
+    elif suffix == ".toml":
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            import tomli as tomllib  # type: ignore[no-redef]
+        data = tomllib.loads(text)
+    else:
+        raise ValueError(f"sweep spec {path}: use a .yaml, .yml, .json or .toml file")
+    if not isinstance(data, Mapping):
+        raise ValueError(f"sweep spec {path}: expected a mapping with base/grid/runs")
+    return SweepSpec.from_mapping(data)
+
+
+def parse_grid_option(items: Iterable[str] | None) -> dict[str, list[Any]]:
+    """Parse repeated ``--grid KEY=V1,V2,...`` options (values typed like ``--param``)."""
+    from ..sim.config import parse_value
+
+    grid: dict[str, list[Any]] = {}
+    for item in items or []:
+        key, sep, values = item.partition("=")
+        key = key.strip()
+        if not sep or not key or not values.strip():
+            raise ValueError(f"--grid expects KEY=V1,V2,..., got {item!r}")
+        grid[key] = [parse_value(v) for v in values.split(",")]
+    return grid

@@ -1,0 +1,265 @@
+"""Sweeps: spec expansion and keys, resume, failure isolation, executors (incl. real Dask)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from conformal_control.cli import main
+from conformal_control.sweep import (
+    ResultsStore,
+    RunConfig,
+    SerialExecutor,
+    SweepSpec,
+    execute_run,
+    load_spec,
+    parse_grid_option,
+    run_sweep,
+)
+from conformal_control.sweep.worker import _scene
+
+
+def need(module: str):
+    """Import an optional dependency of the `sweep` extra; fail (never skip) without it."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        pytest.fail(f"{module} missing: pip install -e '.[dev,sweep]'", pytrace=False)
+
+
+def rows(path: Path) -> list[dict[str, str]]:
+    with (path / "results.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+# ---------------------------------------------------------------------------- spec
+def test_grid_expansion_and_keys() -> None:
+    spec = SweepSpec(
+        base={"scene": "crossing", "frames": 30},
+        grid={"epsilon": [-0.1, 0.1], "seed": [0, 1], "predictor_params.window": [3]},
+        runs=[{"label": "learn"}, {"label": "nolearn", "learn": False}],
+    )
+    runs = spec.expand()
+    assert len(runs) == 2 * 2 * 2
+    assert len({r.key for r in runs}) == 8
+    r = runs[0]
+    assert r.params == {"epsilon": -0.1} and r.predictor_params == {"window": 3}
+    assert r.frames == 30 and r.learn is True and r.label == "learn"
+    # the key ignores label and data root, and 4 == 4.0
+    a = RunConfig.from_flat({"scene": "nexus_4", "tau": 4, "label": "x", "data_root": "/a"})
+    b = RunConfig.from_flat({"scene": "nexus_4", "tau": 4.0, "label": "y"})
+    c = RunConfig.from_flat({"scene": "nexus_4", "tau": 8})
+    assert a.key == b.key != c.key
+    # duplicates collapse
+    dup = SweepSpec(base={"scene": "crossing"}, runs=[{"label": "a"}, {"label": "b"}])
+    assert len(dup.expand()) == 1
+
+
+def test_spec_errors() -> None:
+    with pytest.raises(ValueError, match="unknown sweep key"):
+        RunConfig.from_flat({"scene": "crossing", "epsilonn": 0.1})
+    with pytest.raises(ValueError, match="needs a 'scene'"):
+        RunConfig.from_flat({"epsilon": 0.1})
+    with pytest.raises(ValueError, match="unknown section"):
+        SweepSpec.from_mapping({"grids": {}})
+    with pytest.raises(ValueError, match="KEY=V1"):
+        parse_grid_option(["epsilon"])
+    assert parse_grid_option(["epsilon=-0.25,0", "fallback=brake"]) == {
+        "epsilon": [-0.25, 0],
+        "fallback": ["brake"],
+    }
+
+
+@pytest.mark.parametrize("suffix", ["yaml", "json", "toml"])
+def test_load_spec_formats(tmp_path: Path, suffix: str) -> None:
+    text = {
+        "yaml": "base:\n  scene: crossing\ngrid:\n  epsilon: [-0.1, 0.1]\n",
+        "json": '{"base": {"scene": "crossing"}, "grid": {"epsilon": [-0.1, 0.1]}}',
+        "toml": '[base]\nscene = "crossing"\n[grid]\nepsilon = [-0.1, 0.1]\n',
+    }[suffix]
+    path = tmp_path / f"spec.{suffix}"
+    path.write_text(text)
+    runs = load_spec(path).expand()
+    assert [r.params["epsilon"] for r in runs] == [-0.1, 0.1]
+
+
+# ---------------------------------------------------------------------------- running
+class InterruptAfter(SerialExecutor):
+    """Serial executor interrupted (like Ctrl-C) after ``n`` completed runs."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+    def run(self, fn, tasks) -> Iterator:
+        for i, out in super().run(fn, tasks):
+            if i >= self.n:
+                raise KeyboardInterrupt
+            yield i, out
+
+
+def test_resume_skips_finished_runs(tmp_path: Path) -> None:
+    spec = SweepSpec(base={"scene": "crossing", "frames": 30}, grid={"epsilon": [-0.2, 0, 0.2]})
+    out = tmp_path / "sw"
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, out, InterruptAfter(2), plot=False, progress=False)
+    store = ResultsStore(out)
+    assert len(store.finished()) == 2  # both runs finished before the interrupt are kept
+    assert len(rows(out)) == 2
+    report = run_sweep(spec, out, "serial", plot=False, progress=False)
+    assert len(report.skipped) == 2 and len(report.ran) == 1 and not report.failed
+    # nothing left to do
+    report = run_sweep(spec, out, "serial", plot=False, progress=False)
+    assert len(report.skipped) == 3 and report.ran == []
+    # a run whose directory was deleted is redone; a widened grid only adds new runs
+    victim = Path(report.rows[0]["run_dir"])
+    for f in victim.iterdir():
+        f.unlink()
+    wider = SweepSpec(base=spec.base, grid={"epsilon": [-0.2, 0, 0.2, 0.3]})
+    report = run_sweep(wider, out, "serial", plot=False, progress=False)
+    assert sorted(report.ran) == sorted([report.keys[0], report.keys[3]])
+    table = rows(out)
+    assert len(table) == 4 and {r["status"] for r in table} == {"ok"}
+    assert len(store.records()) == 5  # the journal keeps every attempt
+    # every run directory holds the run's full config incl. its sweep key
+    cfg = json.loads((Path(report.rows[3]["run_dir"]) / "config.json").read_text())
+    assert cfg["sweep"]["key"] == report.keys[3]
+    assert cfg["params"]["given"]["epsilon"] == 0.3
+
+
+def test_failure_is_recorded_and_others_finish(tmp_path: Path) -> None:
+    out = tmp_path / "sw"
+    spec = SweepSpec(
+        base={"scene": "crossing", "frames": 30},
+        runs=[{"epsilon": 0.1}, {"epsilon": 0.7}, {"tau": -1.0}, {"epsilon": -0.1}],
+    )
+    report = run_sweep(spec, out, "process", workers=2, plot=False, progress=False)
+    assert len(report.failed) == 2 and len(report.ran) == 4
+    by_key = {r["key"]: r for r in rows(out)}
+    assert [by_key[k]["status"] for k in report.keys] == ["ok", "failed", "failed", "ok"]
+    rec = ResultsStore(out).latest()[report.keys[1]]
+    assert "epsilon must lie in" in rec["error"]
+    assert "Traceback" in rec["traceback"] and "resolve_params" in rec["traceback"]
+    assert "tau" in ResultsStore(out).latest()[report.keys[2]]["error"]
+    # a resumed sweep retries failed runs (they fail again) unless told not to
+    again = run_sweep(spec, out, "serial", plot=False, progress=False)
+    assert sorted(again.ran) == sorted(report.failed)
+    kept = run_sweep(spec, out, "serial", plot=False, progress=False, retry_failed=False)
+    assert kept.ran == []
+
+
+def test_runs_sharing_a_scene_do_not_leak_into_each_other(tmp_path: Path) -> None:
+    """Building an episode sets radii/v_max on its scene: runs must not see each other's."""
+    base = {"scene": "crossing", "frames": 40}
+    big = RunConfig.from_flat({**base, "robot_radius": 2.0, "v_max": 1.0})
+    plain = RunConfig.from_flat(base)
+    alone = execute_run(plain.as_dict(), "alone", str(tmp_path / "a"), False)
+    _scene.cache_clear()
+    first = execute_run(big.as_dict(), "big", str(tmp_path / "b"), False)
+    after = execute_run(plain.as_dict(), "after", str(tmp_path / "b"), False)
+    assert first["status"] == after["status"] == alone["status"] == "ok"
+    from conformal_control.data import load_scene
+
+    cached, fresh = _scene("crossing", None, 0), load_scene("crossing")
+    assert (cached.robot_radius, cached.v_max) == (fresh.robot_radius, fresh.v_max)
+    assert fresh.robot_radius != 2.0 and fresh.v_max != 1.0
+    for k in ("t_goal", "n_collide", "d_min", "l_avg"):
+        assert after["metrics"][k] == alone["metrics"][k]
+    assert first["metrics"]["d_min"] != alone["metrics"]["d_min"]
+
+
+def test_cli_sweep_grid_and_dry_run(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "cli"
+    argv = ["sweep", "--scene", "crossing", "--set", "frames=30", "--grid", "epsilon=-0.1,0.1"]
+    assert main([*argv, "--out", str(out), "--dry-run"]) == 0
+    assert "2 runs" in capsys.readouterr().out
+    assert main([*argv, "--out", str(out), "--executor", "serial", "--no-plot"]) == 0
+    assert "2 ran (0 failed)" in capsys.readouterr().out
+    assert {r["param.epsilon"] for r in rows(out)} == {"-0.1", "0.1"}
+    # a failing run makes the exit status 1, the others are still written
+    bad = [*argv[:-1], "epsilon=0.1,0.9"]
+    assert main([*bad, "--out", str(out), "--executor", "serial", "--no-plot"]) == 1
+    assert len(rows(out)) == 3
+
+
+def test_parquet_table(tmp_path: Path) -> None:
+    pq = need("pyarrow.parquet")
+    spec = SweepSpec(base={"scene": "crossing", "frames": 30}, runs=[{"epsilon": 0.1}, {"tau": -1}])
+    run_sweep(spec, tmp_path, "serial", plot=False, progress=False)
+    table = pq.read_table(tmp_path / "results.parquet").to_pylist()
+    assert [r["status"] for r in table] == ["ok", "failed"]
+    assert table[0]["goal_reached"] in (True, False) and table[1]["error"]
+
+
+# ---------------------------------------------------------------------------- Dask
+def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path) -> None:
+    distributed = need("distributed")
+    from conformal_control.sweep.executors.dask import DaskExecutor
+
+    spec = SweepSpec(
+        base={"scene": "nexus_4", "data_root": str(sdd_dir), "frames": 90, "a": 10},
+        grid={"tau": [4, 8], "eta": [0.1, 1]},
+        runs=[{}, {"epsilon": 0.9}],  # two failing runs ride along
+    )
+    serial = run_sweep(spec, tmp_path / "serial", "serial", plot=False, progress=False)
+    with (
+        distributed.LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=False,
+            protocol="tcp://",  # real TCP on loopback, not the in-process transport
+            host="127.0.0.1",
+            dashboard_address=None,
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        ex = DaskExecutor(client=client)
+        assert ex.n_workers == 2
+        report = run_sweep(spec, tmp_path / "dask", ex, plot=False, progress=False)
+        assert client.status == "running"  # a client handed in is not closed
+    assert len(report.ran) == 8 and len(report.failed) == 4
+    assert report.keys == serial.keys
+    for a, b in zip(serial.rows, report.rows, strict=True):
+        assert a["status"] == b["status"]
+        if a["status"] != "ok":
+            assert a["error"] == b["error"]
+            continue
+        for k in ("t_goal", "n_collide", "d_min", "l_avg", "lambda_final", "identity_residual"):
+            assert a[k] == b[k]
+    # resume on the Dask path too
+    ex = DaskExecutor(workers=1, processes=False)  # the executor's own LocalCluster
+    again = run_sweep(spec, tmp_path / "dask", ex, progress=False, retry_failed=False)
+    ex.close()
+    assert again.ran == [] and len(again.skipped) == 8
+
+
+def test_process_pool_workers_run_single_threaded_blas(monkeypatch) -> None:
+    import os
+
+    from conformal_control.sweep import ProcessExecutor
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    with ProcessExecutor(workers=2) as ex:
+        seen = dict(ex.run(os.getenv, [("OMP_NUM_THREADS",)]))
+    assert seen[0] == "1"
+    assert "OMP_NUM_THREADS" not in os.environ  # the driver's environment is restored
+
+
+def test_process_pool_survives_a_dying_worker() -> None:
+    """A worker killed mid-run fails its own task; the pool restarts and the rest run."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from conformal_control.sweep import ProcessExecutor
+
+    tasks = [("1 + 1",), ("__import__('os')._exit(3)",), ("2 + 2",), ("3 + 3",)]
+    with ProcessExecutor(workers=1) as ex:
+        out = dict(ex.run(eval, tasks))
+    assert len(out) == 4 and isinstance(out[1], BrokenProcessPool)
+    assert out[0] == 2 and out[3] == 6  # before the crash, and on the restarted pool
+    assert out[2] == 4 or isinstance(out[2], BrokenProcessPool)  # in flight when it died
