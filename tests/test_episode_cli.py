@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
+from conformal_control.sim import run_episode
 
 METRIC_KEYS = {
     "t_goal",
@@ -171,3 +172,17 @@ def test_nonsensical_input_gives_one_clear_error(argv, message, tmp_path, capsys
     assert main(["run", "--out", str(tmp_path / "x"), *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and message in err
+
+
+def test_run_episode_leaves_the_scene_unchanged(crossing):
+    """Parameter overrides reach the run through a copy; the caller's scene is not mutated."""
+    before = (crossing.robot_radius, crossing.agent_radius, crossing.goal_radius, crossing.v_max)
+    res = run_episode(
+        crossing,
+        "constant_velocity",
+        {"robot_radius": 0.3, "agent_radius": 0.25, "v_max": 1.2},
+        max_frames=60,
+    )
+    after = (crossing.robot_radius, crossing.agent_radius, crossing.goal_radius, crossing.v_max)
+    assert after == before
+    assert res.config["params"]["si"]["robot_radius"] == pytest.approx(0.3)

@@ -7,6 +7,7 @@ double-integrator dynamics; at the next sampling time: truth -> loss -> lambda u
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -101,6 +102,15 @@ def build_components(
     ``barrier`` replaces the paper's APF barrier (built from the params) when given.
     """
     si = params.si
+    # The environment reads radii and v_max from the scene: give it a copy carrying the
+    # resolved values, never mutate the caller's scene (runs may share one in a process).
+    scene = dataclasses.replace(
+        scene,
+        robot_radius=si["robot_radius"],
+        agent_radius=si["agent_radius"],
+        goal_radius=si["goal_radius"],
+        v_max=si["v_max"],
+    )
     if barrier is None:
         barrier = APFBarrier(
             K_rep=si["K_rep"],
@@ -125,8 +135,6 @@ def build_components(
             lambda_min=si["lambda_min"],
             lambda_max=si["lambda_max"],
         )
-    scene.robot_radius, scene.agent_radius = si["robot_radius"], si["agent_radius"]
-    scene.goal_radius, scene.v_max = si["goal_radius"], si["v_max"]
     env = ReplayEnvironment(
         scene,
         VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),
