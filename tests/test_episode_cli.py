@@ -186,3 +186,18 @@ def test_run_episode_leaves_the_scene_unchanged(crossing):
     after = (crossing.robot_radius, crossing.agent_radius, crossing.goal_radius, crossing.v_max)
     assert after == before
     assert res.config["params"]["si"]["robot_radius"] == pytest.approx(0.3)
+
+
+def test_collisions_counted_with_the_resolved_radii(nexus4, tmp_path: Path) -> None:
+    """n_collide, the animation record and the plot use robot_radius + agent_radius as
+    resolved for the run, not the scene's defaults (a radius sweep must count right)."""
+    res = run_episode(nexus4, "constant_velocity", {"robot_radius": 3.0}, max_frames=120)
+    d_c = 3.0 + nexus4.agent_radius
+    d = res.trajectory["d_min"]
+    expected = int((d < d_c).sum())
+    assert expected > 0  # the enlarged robot does come within d_c of someone
+    assert res.metrics["n_collide"] == expected
+    assert res.scene.collision_distance == pytest.approx(d_c)
+    assert res.animation is not None
+    assert float(res.animation["collision_distance"]) == pytest.approx(d_c)
+    assert nexus4.collision_distance == pytest.approx(1.0)  # caller's scene untouched

@@ -232,6 +232,8 @@ def run_episode(
     else:
         rule_name, rule_obj = type(rule).__name__, rule
     comp = build_components(scene, resolved, max_frames, rule=rule_obj, barrier=barrier)
+    # from here on, the copy carrying the resolved radii, v_max and goal radius
+    scene = comp.env.scene
     si = resolved.si
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     h_max = comp.barrier.upper_bound
