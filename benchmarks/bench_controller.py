@@ -29,17 +29,27 @@ from pathlib import Path
 
 import numpy as np
 
-from conformal_control.base import Forecast, PredictionQuery
-from conformal_control.cbf import APFBarrier, ConformalCBFController, ControlState, QPSafetyFilter
-from conformal_control.reference import AttractiveField
+from conformal_control.cbf import (
+    APFBarrier,
+    AttractiveField,
+    ConformalCBFController,
+    ConformalConstraint,
+    ControlState,
+    QPSafetyFilter,
+)
+from conformal_control.predictors import OraclePredictor, PredictionQuery
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def make_controller(v_max: float = 2.0) -> ConformalCBFController:
     barrier = APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7)
+    # the oracle returns the future attached to each query: the forecast is given, not timed
     ctrl = ConformalCBFController(
-        barrier, QPSafetyFilter(v_max=v_max), AttractiveField(K_att=1.0, v_max=v_max), a=2.0
+        OraclePredictor(),
+        ConformalConstraint(barrier, a=2.0),
+        QPSafetyFilter(v_max=v_max),
+        AttractiveField(K_att=1.0, v_max=v_max),
     )
     ctrl.reset()
     return ctrl
@@ -55,9 +65,8 @@ def interval(n: int, regime: str, rng: np.random.Generator):
     cur = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
     vel = -0.8 * cur / np.linalg.norm(cur, axis=1, keepdims=True)
     hist = cur[:, None, :] - vel[:, None, :] * (np.arange(5)[::-1][None, :, None] * 0.1)
-    q = PredictionQuery(ids=np.arange(n), history=hist, dt=0.1, horizon=4)
     fut = cur[:, None, :] + vel[:, None, :] * (np.arange(1, 5)[None, :, None] * 0.1)
-    return q, Forecast(fut)
+    return PredictionQuery(ids=np.arange(n), history=hist, dt=0.1, horizon=4, ground_truth=fut)
 
 
 def bench_steps(n: int, regime: str, repeats: int) -> tuple[float, float, float]:
@@ -69,8 +78,7 @@ def bench_steps(n: int, regime: str, repeats: int) -> tuple[float, float, float]
     solves0 = 0
     for i in range(repeats):
         if i % 16 == 0:
-            q, fc = interval(n, regime, rng)
-            ctrl.begin_interval(q, fc)
+            ctrl.begin_interval(interval(n, regime, rng))
         st = ControlState(x=np.array([0.0, 0.0, 1.0, 0.0]), t=0.0, step=i % 16, goal=goal)
         t0 = time.perf_counter()
         ctrl.decide(st, lam)

@@ -16,7 +16,7 @@ import itertools
 import numpy as np
 from cc_kalman import KalmanPredictor
 
-from conformal_control.base import PredictionQuery
+from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import evaluate_predictor, training_windows
 
 Q_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)

@@ -1,61 +1,81 @@
-"""Abstract base classes: one small ABC per role.
+"""The generic core: one small abstract base class per role of the conformal loop.
 
-Every plugin of the toolkit derives from exactly one of these classes. They follow the
-scikit-learn / river habits: constructor arguments are stored unchanged as attributes of
-the same name (so :meth:`Plugin.get_params` can report them and a run can write its full
-configuration), no work happens in ``__init__``, and state that is learned or accumulated
-while running lives in attributes set by ``reset``.
+Conformal decision theory runs a family of decision functions ``D^lambda``, ordered by
+conservativeness, in an environment; after each interval the truth is revealed, a loss
+scores the interval and an update rule moves lambda. Those four roles are all the loop
+(:mod:`conformal_control.loop`) knows:
 
-Roles and what they compute
----------------------------
-``Predictor``            histories of sensed agents  -> predicted trajectories (batched)
-``Barrier``              ego position, agent positions -> h, dh/dx_ego, dh/dx_agent
-``SafetyFilter``         nominal decision + conformal constraints + lambda -> safe decision
-``Loss``                 interval record + ground truth + lambda -> scalar loss
-``UpdateRule``           loss -> next lambda
-``Dynamics``             state, command, dt -> next state
-``ReferenceController``  state, t -> nominal (reference) decision
-``Environment``          the world the decisions act on (sensor, plant, ground truth)
-``DecisionFamily``       the family D^lambda of decision functions, ordered by conservativeness
+=======================  =============================================================
+``Environment``          the world: observation at a sampling time, the decision input
+                         at each control instant, the plant, the truth of an interval
+``SingleStepEnvironment``  the same with one decision per interval (plain online problems)
+``DecisionFamily``       the family ``D^lambda``; it owns whatever it needs to decide
+                         (a trajectory predictor, a safety filter, ...)
+``Loss``                 interval record + truth + lambda -> scalar loss (or ``None``)
+``UpdateRule``           loss -> next lambda, with the guarantee it keeps
+=======================  =============================================================
+
+They are generic in the types they exchange (``Environment[ObsT, StateT, DecisionT,
+TruthT]``, ``DecisionFamily[ObsT, StateT, DecisionT, RecordT]``, ``Loss[RecordT,
+TruthT]``), as gymnasium's ``Env[ObsType, ActType]`` is, so a type checker can tell that
+an environment, a family and a loss fit together.
+
+The flagship's roles (predictor, barrier, safety filter, fallback, reference controller,
+dynamics) live beside their users: :mod:`conformal_control.predictors.base` and
+:mod:`conformal_control.cbf.roles`.
+
+Every plugin follows the scikit-learn / river habits: constructor arguments are stored
+unchanged as attributes of the same name (so :meth:`Plugin.get_params` can report them
+and a run can write its full configuration), no work happens in ``__init__``, and state
+learned or accumulated while running lives in attributes ending in ``_`` set by
+``reset``.
 
 Sign convention (all of the toolkit): a *smaller* lambda is *more conservative*.
 """
 
 from __future__ import annotations
 
+import importlib
 import inspect
+import math
+import warnings
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
-
-import numpy as np
+from collections.abc import Callable
+from typing import Any, ClassVar, Generic, Literal, TypeVar
 
 __all__ = [
-    "Barrier",
     "DecisionFamily",
-    "Dynamics",
     "Environment",
-    "FilterResult",
-    "Forecast",
+    "GuaranteeKind",
     "Loss",
+    "LossFunction",
     "Plugin",
-    "PredictionQuery",
-    "Predictor",
-    "ReferenceController",
-    "SafetyFilter",
+    "SingleStepEnvironment",
     "UpdateRule",
 ]
 
+ObsT = TypeVar("ObsT")
+StateT = TypeVar("StateT")
+DecisionT = TypeVar("DecisionT")
+TruthT = TypeVar("TruthT")
+RecordT = TypeVar("RecordT")
+
+#: What an update rule guarantees, read by :class:`~conformal_control.monitor.GuaranteeMonitor`:
+#: ``"identity"`` (fixed step: exact identity + Theorem-2 bound), ``"step_identity"``
+#: (variable step: weighted identity + long-run bound), ``"long_run"`` (a bound on
+#: |mean loss - epsilon|) or ``"none"``.
+GuaranteeKind = Literal["identity", "step_identity", "long_run", "none"]
+
+#: An interval's loss as a function of lambda (``None``: no loss for that interval).
+LossFunction = Callable[[float], "float | None"]
+
 
 class Plugin:
-    """Mixin giving every plugin ``get_params`` / ``describe`` like scikit-learn estimators.
+    """Mixin giving every plugin ``get_params`` / ``set_params`` like scikit-learn estimators.
 
-    Subclasses store each ``__init__`` argument under an attribute of the same name.
+    Subclasses store each ``__init__`` argument under an attribute of the same name and do
+    no work in ``__init__`` (validation happens in ``reset``).
     """
-
-    #: One-line description shown by ``conformal-control plugins``. Defaults to the first
-    #: line of the class docstring.
-    description: ClassVar[str | None] = None
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -73,11 +93,22 @@ class Plugin:
         """Return the constructor parameters of this plugin (name -> value)."""
         return {name: getattr(self, name) for name in self._param_names() if hasattr(self, name)}
 
+    def set_params(self, **params: Any) -> Plugin:
+        """Set constructor parameters by name (unknown names raise ``ValueError``)."""
+        known = set(self._param_names())
+        unknown = sorted(set(params) - known)
+        if unknown:
+            raise ValueError(
+                f"{type(self).__name__} has no parameter(s) {', '.join(unknown)}; "
+                f"its parameters: {', '.join(sorted(known)) or 'none'}"
+            )
+        for name, value in params.items():
+            setattr(self, name, value)
+        return self
+
     @classmethod
     def summary(cls) -> str:
-        """One-line description of the plugin."""
-        if cls.description:
-            return cls.description
+        """One-line description of the plugin: the first line of its docstring."""
         doc = inspect.getdoc(cls) or ""
         return doc.strip().splitlines()[0] if doc.strip() else cls.__name__
 
@@ -87,175 +118,97 @@ class Plugin:
 
 
 # --------------------------------------------------------------------------------------
-# Data passed between roles
-# --------------------------------------------------------------------------------------
-@dataclass
-class PredictionQuery:
-    """What the sensor hands the predictor at a sampling time (batched over agents).
+class Environment(ABC, Generic[ObsT, StateT, DecisionT, TruthT]):
+    """The world the conformal loop acts on (episodic, gymnasium-like).
 
-    Attributes
-    ----------
-    ids : ndarray of shape (N,)
-        Identifiers of the sensed agents.
-    history : ndarray of shape (N, T, 2)
-        Past positions in metres, one row per sample at spacing ``dt``; the last sample
-        (``history[:, -1]``) is the position at the sampling time and is always finite.
-        Samples where an agent was not observed are NaN (short histories are NaN-padded
-        at the front; gaps are NaN in the middle).
-    dt : float
-        Sample spacing in seconds (1 / the scene's frame rate).
-    horizon : int
-        Number of future samples requested (positions at ``dt, 2 dt, ..., horizon dt``).
-    t : float
-        Time of the sampling instant in seconds since the episode started.
-    frame : int
-        Video frame number of the sampling instant (used as a cache key by expensive
-        predictors).
-    scene : str
-        Name of the scene (cache key).
-    ground_truth : ndarray of shape (N, horizon, 2) or None
-        The true future. Only filled in for predictors whose class sets
-        ``requires_ground_truth = True`` (the oracle baseline); ``None`` otherwise.
+    One *interval* k spans the control instants between sampling times k and k+1. The
+    loop calls, per interval: :meth:`sense` once, then :meth:`state` and :meth:`apply`
+    at each of the :meth:`control_instants` (stopping early when :attr:`done`), then
+    :meth:`reveal` once.
     """
 
-    ids: np.ndarray
-    history: np.ndarray
-    dt: float
-    horizon: int
-    t: float = 0.0
-    frame: int = 0
-    scene: str = ""
-    ground_truth: np.ndarray | None = None
+    @abstractmethod
+    def reset(self) -> None:
+        """Start a new episode (validate parameters here, not in ``__init__``)."""
 
     @property
-    def n_agents(self) -> int:
-        return int(self.history.shape[0])
+    @abstractmethod
+    def done(self) -> bool:
+        """Whether the episode is over (no further interval will be run)."""
 
-    @property
-    def current(self) -> np.ndarray:
-        """Positions at the sampling time, shape (N, 2)."""
-        return self.history[:, -1, :]
+    @abstractmethod
+    def sense(self) -> ObsT:
+        """Observation at the sampling time (what the decision family plans from)."""
+
+    @abstractmethod
+    def control_instants(self) -> int:
+        """Number of control instants in the interval starting now."""
+
+    @abstractmethod
+    def state(self) -> StateT:
+        """The decision input at the current control instant."""
+
+    @abstractmethod
+    def apply(self, decision: DecisionT) -> None:
+        """Apply a decision for one control step and advance time."""
+
+    @abstractmethod
+    def reveal(self) -> TruthT:
+        """Ground truth over the interval that just finished."""
 
 
-@dataclass
-class Forecast:
-    """Output of a predictor.
+class SingleStepEnvironment(Environment[ObsT, ObsT, DecisionT, TruthT]):
+    """An environment with exactly one decision per interval.
 
-    Attributes
-    ----------
-    positions : ndarray of shape (N, H, 2)
-        Predicted positions in metres at ``dt, ..., H dt`` after the sampling time.
-    covariance : ndarray of shape (N, H, 2, 2) or None
-        Optional predictive covariance (m^2), for predictors that have one.
-    info : dict
-        Free-form counters (e.g. ``{"n_fallback": 2}``) merged into run metrics.
+    For plain online decision problems (a factory's speed, a prediction set per time
+    step): subclasses implement :meth:`observe` instead of ``sense``/``state``/
+    ``control_instants``; the decision input is the interval's observation.
     """
 
-    positions: np.ndarray
-    covariance: np.ndarray | None = None
-    info: dict[str, Any] = field(default_factory=dict)
+    @abstractmethod
+    def observe(self) -> ObsT:
+        """Observation of the step about to be decided."""
+
+    def sense(self) -> ObsT:
+        self._observation_ = self.observe()
+        return self._observation_
+
+    def control_instants(self) -> int:
+        return 1
+
+    def state(self) -> ObsT:
+        return self._observation_
 
 
-@dataclass
-class FilterResult:
-    """Output of a safety filter for one decision.
+class DecisionFamily(Plugin, ABC, Generic[ObsT, StateT, DecisionT, RecordT]):
+    """The family {D^lambda} of decision functions, ordered by conservativeness.
 
-    Attributes
-    ----------
-    decision : ndarray
-        The (safe) decision actually applied.
-    status : str
-        ``"optimal"`` (constraints met at the requested lambda), ``"unconstrained"``
-        (no constraint was active or present), or ``"fallback"``.
-    lambda_applied : float
-        The lambda the returned decision satisfies the constraints with. Equal to the
-        requested lambda unless the fallback raised it; ``nan`` for a fallback that does
-        not satisfy the constraints at any lambda (``"brake"``, ``"hold"``).
-    fallback : str or None
-        Name of the fallback used, if any.
+    A family owns what it needs to decide: the flagship family owns a trajectory
+    predictor, a barrier and a safety filter; the loop only hands it the observation at
+    each sampling time and asks for decisions.
     """
-
-    decision: np.ndarray
-    status: str
-    lambda_applied: float
-    fallback: str | None = None
-
-
-# --------------------------------------------------------------------------------------
-# Roles
-# --------------------------------------------------------------------------------------
-class Predictor(Plugin, ABC):
-    """Black-box trajectory predictor, batched over the sensed agents.
-
-    Subclasses implement :meth:`predict`. A predictor must not modify the query, must
-    return finite positions for every agent whose last history sample is finite (or NaN
-    that the controller then replaces by a documented, counted fallback), and must be
-    deterministic for a given ``random_state`` if it has one.
-    """
-
-    #: Set to True by predictors that cheat by reading ``query.ground_truth``.
-    requires_ground_truth: ClassVar[bool] = False
 
     def reset(self) -> None:
-        """Forget any state accumulated during an episode (optional)."""
+        """Reset between episodes (validate parameters here)."""
 
     @abstractmethod
-    def predict(self, query: PredictionQuery) -> Forecast:
-        """Predict ``query.horizon`` future positions for each of the ``query.n_agents``."""
-
-
-class Barrier(Plugin, ABC):
-    """Pairwise control barrier function h(x_ego, x_agent) on positions (metres).
-
-    ``h >= 0`` is the safe set. Implementations are vectorised: ``x_ego`` and
-    ``x_agent`` broadcast against each other over leading dimensions.
-    """
+    def begin_interval(self, observation: ObsT) -> None:
+        """Receive the sensor's observation at a sampling time (and plan from it)."""
 
     @abstractmethod
-    def evaluate(
-        self, x_ego: np.ndarray, x_agent: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Return ``(h, dh_dego, dh_dagent)``.
-
-        Parameters
-        ----------
-        x_ego : ndarray of shape (..., 2)
-        x_agent : ndarray of shape (..., 2)
-
-        Returns
-        -------
-        h : ndarray of shape (...)
-        dh_dego : ndarray of shape (..., 2)
-            Exact gradient with respect to the ego position.
-        dh_dagent : ndarray of shape (..., 2)
-            Exact gradient with respect to the agent position.
-        """
-
-    def value(self, x_ego: np.ndarray, x_agent: np.ndarray) -> np.ndarray:
-        """Barrier value only."""
-        return self.evaluate(x_ego, x_agent)[0]
-
-    @property
-    def upper_bound(self) -> float | None:
-        """Supremum of h (used to compute the feasibility floor), or None if unbounded."""
-        return None
-
-
-class SafetyFilter(Plugin, ABC):
-    """Minimally modify a nominal decision so that conformal constraints hold.
-
-    The constraints are ``A @ u + b + lam >= 0`` row-wise (one row per sensed agent).
-    """
+    def decide(self, state: StateT, lam: float) -> DecisionT:
+        """Decision D^lam(state) at the current control instant."""
 
     @abstractmethod
-    def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
-        """Return the decision closest to ``nominal`` satisfying the constraints."""
+    def interval_record(self) -> RecordT:
+        """Everything the loss needs about the decisions of the current interval."""
 
-    def reset(self) -> None:
-        """Reset counters (optional)."""
+    def stats(self) -> dict[str, float]:
+        """Counters accumulated since :meth:`reset` (merged into run metrics)."""
+        return {}
 
 
-class Loss(Plugin, ABC):
+class Loss(Plugin, ABC, Generic[RecordT, TruthT]):
     """Loss of the decisions taken over one interval, once the truth is revealed.
 
     ``bounds`` declares the range the loss takes values in (needed by the guarantees).
@@ -266,10 +219,10 @@ class Loss(Plugin, ABC):
     bounds: ClassVar[tuple[float, float]] = (-0.5, 0.5)
 
     @abstractmethod
-    def __call__(self, record: Any, truth: Any, lam: float) -> float | None:
+    def __call__(self, record: RecordT, truth: TruthT, lam: float) -> float | None:
         """Loss l_k of interval k evaluated with the conformal variable ``lam``."""
 
-    def diagnostics(self, record: Any, truth: Any, lam: float) -> dict[str, float]:
+    def diagnostics(self, record: RecordT, truth: TruthT, lam: float) -> dict[str, float]:
         """Extra per-interval figures to log beside the loss (optional)."""
         return {}
 
@@ -277,29 +230,44 @@ class Loss(Plugin, ABC):
 class UpdateRule(Plugin, ABC):
     """Online update of the conformal variable lambda.
 
-    Convention: ``update`` receives the loss l_k of the interval that just ended and
-    returns lambda_{k+1}; a loss above target must not increase lambda (smaller lambda is
-    more conservative).
+    Convention: :meth:`update` receives the loss l_k of the interval that just ended and
+    returns lambda_{k+1}; a loss above target must not increase lambda (smaller lambda
+    is more conservative).
+
+    The protocol the loop and the monitor rely on is declared here, not discovered:
+
+    ``epsilon``            target average loss
+    ``guarantee``          the :data:`GuaranteeKind` the rule keeps
+    ``fixed_step``         True when lambda_{k+1} = lambda_k + eta (eps - l_k) with a
+                           constant ``eta`` (then :attr:`step` is that eta)
+    ``last_step_``         the step eta_k of the last update (NaN if the rule has none)
+    ``n_clipped_``         updates whose lambda was clipped into [lambda_min, lambda_max]
+    ``lambda_min/max``     clipping bounds (-inf, inf: none)
+    ``uses_loss_function`` the rule wants l_k(.) before each update (counterfactuals)
     """
 
     #: Target average loss of the rule (epsilon).
     epsilon: float
+    lambda_min: float = -math.inf
+    lambda_max: float = math.inf
 
-    #: Which guarantee the rule keeps, read by the monitor: ``"identity"`` (fixed step:
-    #: exact identity + Theorem-2 bound), ``"step_identity"`` (variable step: weighted
-    #: identity + long-run bound), ``"long_run"`` (a bound on |mean loss - epsilon|) or
-    #: ``"none"``. See :mod:`conformal_control.update_rules`.
-    guarantee: ClassVar[str] = "none"
-
-    #: Rules that want the interval's loss as a function of lambda (counterfactual losses,
-    #: e.g. DtACI's experts) set this; the loop then calls :meth:`set_loss_function`
-    #: before each :meth:`update`.
+    guarantee: ClassVar[GuaranteeKind] = "none"
+    fixed_step: ClassVar[bool] = False
     uses_loss_function: ClassVar[bool] = False
-
     #: Constructor parameters expressed in the units of lambda (scene-unit conversion).
     lambda_params: ClassVar[tuple[str, ...]] = ()
 
-    def set_loss_function(self, fn: Any) -> None:
+    #: Updates whose output was clipped (set by ``reset``).
+    n_clipped_: int = 0
+    #: Step eta_k of the last update (NaN when the rule has no such step).
+    last_step_: float = math.nan
+
+    @property
+    def step(self) -> float | None:
+        """The constant step eta of a fixed-step rule, else ``None``."""
+        return None
+
+    def set_loss_function(self, fn: LossFunction | None) -> None:
         """Receive ``fn(lam) -> loss`` for the next update (ignored by default)."""
 
     def long_run_bound(self, n: int, lambdas: Any) -> float | None:
@@ -320,89 +288,27 @@ class UpdateRule(Plugin, ABC):
         """Current lambda."""
 
 
-class Dynamics(Plugin, ABC):
-    """Plant of the ego agent: ``state`` is a flat float array."""
-
-    state_dim: ClassVar[int]
-
-    @abstractmethod
-    def step(self, state: np.ndarray, command: np.ndarray, dt: float) -> np.ndarray:
-        """State after holding ``command`` for ``dt`` seconds (returns a new array)."""
-
-    def position(self, state: np.ndarray) -> np.ndarray:
-        """Position part of the state (metres)."""
-        return state[:2]
-
-    def velocity(self, state: np.ndarray) -> np.ndarray:
-        """Velocity part of the state (m/s)."""
-        return state[2:4]
+# --------------------------------------------------------------------------------------
+# Deprecated locations (0.1): the flagship's roles moved beside their users in 0.2.
+_MOVED = {
+    "Predictor": "conformal_control.predictors.base",
+    "PredictionQuery": "conformal_control.predictors.base",
+    "Forecast": "conformal_control.predictors.base",
+    "Barrier": "conformal_control.cbf.roles",
+    "SafetyFilter": "conformal_control.cbf.roles",
+    "FilterResult": "conformal_control.cbf.roles",
+    "ReferenceController": "conformal_control.cbf.roles",
+    "Dynamics": "conformal_control.cbf.roles",
+}
 
 
-class ReferenceController(Plugin, ABC):
-    """Nominal controller the safety filter minimally modifies."""
-
-    @abstractmethod
-    def __call__(self, state: np.ndarray, t: float) -> np.ndarray:
-        """Nominal decision at state ``state`` and time ``t``."""
-
-    def reset(self) -> None:
-        """Reset internal state (e.g. the current waypoint)."""
-
-
-class Environment(ABC):
-    """The world the conformal loop acts on (gymnasium-like, episodic).
-
-    One *interval* k spans the control instants between sampling times k and k+1.
-    """
-
-    @abstractmethod
-    def reset(self) -> None:
-        """Start a new episode."""
-
-    @property
-    @abstractmethod
-    def done(self) -> bool:
-        """Whether the episode is over (no further interval will be run)."""
-
-    @abstractmethod
-    def sense(self, with_ground_truth: bool = False) -> Any:
-        """Observation at the sampling time (the predictor's input).
-
-        ``with_ground_truth`` asks the environment to attach the true future, for
-        predictors that declare ``requires_ground_truth`` (the oracle baseline).
-        """
-
-    @abstractmethod
-    def control_instants(self) -> int:
-        """Number of control instants in the interval starting now."""
-
-    @abstractmethod
-    def state(self) -> Any:
-        """The decision input at the current control instant."""
-
-    @abstractmethod
-    def apply(self, decision: Any) -> None:
-        """Apply a decision for one control step and advance time."""
-
-    @abstractmethod
-    def reveal(self) -> Any:
-        """Ground truth over the interval that just finished."""
-
-
-class DecisionFamily(Plugin, ABC):
-    """The family {D^lambda} of decision functions, ordered by conservativeness."""
-
-    @abstractmethod
-    def begin_interval(self, observation: Any, prediction: Any) -> None:
-        """Receive the sensor's observation and the prediction at a sampling time."""
-
-    @abstractmethod
-    def decide(self, state: Any, lam: float) -> Any:
-        """Decision D^lam(state) at the current control instant."""
-
-    @abstractmethod
-    def interval_record(self) -> Any:
-        """Everything the loss needs about the decisions of the current interval."""
-
-    def reset(self) -> None:
-        """Reset between episodes."""
+def __getattr__(name: str) -> Any:
+    if name in _MOVED:
+        warnings.warn(
+            f"conformal_control.base.{name} moved to {_MOVED[name]}.{name} in 0.2; "
+            "the old location will be removed in 0.3",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,9 +2,18 @@
 
 It owns exactly one thing: *decide with the current lambda at the control rate; at each
 sampling time observe the truth, score the interval, update lambda*. It knows nothing
-about barriers, QPs or pedestrians; those live in the environment and decision family
-plugged into it (see :mod:`conformal_control.cbf` for the flagship instantiation, and
-``examples/`` for other decision problems run through the same loop).
+about predictors, barriers, QPs or pedestrians; those live in the environment and the
+decision family plugged into it (see :mod:`conformal_control.cbf` for the flagship
+instantiation, and :mod:`conformal_control.domains` for other decision problems run
+through the same loop). One interval, top to bottom::
+
+    observation = env.sense()                      # sampling time k tau
+    policy.begin_interval(observation)             # the family plans (e.g. predicts)
+    for each control instant of I_k:
+        env.apply(policy.decide(env.state(), lam)) # decide with lambda_k
+    truth = env.reveal()                           # sampling time (k+1) tau
+    l_k = loss(policy.interval_record(), truth, lam)
+    lam = rule.update(l_k)                         # lambda_{k+1}
 """
 
 from __future__ import annotations
@@ -16,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import DecisionFamily, Environment, Loss, Predictor, UpdateRule
+from .base import DecisionFamily, Environment, Loss, UpdateRule
 from .monitor import GuaranteeMonitor
 
 __all__ = ["ConformalLoop", "IntervalLog", "LoopResult"]
@@ -95,70 +104,64 @@ class ConformalLoop:
         Scores an interval once its truth is revealed, with the lambda used during it.
     rule : UpdateRule
         Turns losses into the next lambda.
-    predictor : Predictor or None
-        Black-box predictor called at each sampling time on the sensor's observation.
     learn : bool
         If False, lambda stays at its initial value (losses are still computed).
     lambda_safe : float, optional
         A lambda known (or estimated) to make the decisions safe: the monitor then reports
-        the Theorem-2 bound (fixed-step rules) and whether it holds.
+        the Theorem-2 bound (fixed-step rules), whether it holds and whether its premise
+        was contradicted.
+    lambda_safe_source : str, optional
+        Where ``lambda_safe`` came from, reported with the verdict.
+    lambda_safe_proven : bool
+        lambda <= lambda_safe provably keeps the loss <= epsilon for this family (see
+        :class:`~conformal_control.monitor.GuaranteeMonitor`).
     on_interval : callable, optional
         Called with each :class:`IntervalLog` as soon as the interval is scored.
     """
 
     def __init__(
         self,
-        env: Environment,
-        policy: DecisionFamily,
-        loss: Loss,
+        env: Environment[Any, Any, Any, Any],
+        policy: DecisionFamily[Any, Any, Any, Any],
+        loss: Loss[Any, Any],
         rule: UpdateRule,
-        predictor: Predictor | None = None,
         *,
         learn: bool = True,
         lambda_safe: float | None = None,
+        lambda_safe_source: str | None = None,
+        lambda_safe_proven: bool = False,
         on_interval: Callable[[IntervalLog], None] | None = None,
     ) -> None:
         self.env = env
         self.policy = policy
         self.loss = loss
         self.rule = rule
-        self.predictor = predictor
         self.learn = learn
         self.lambda_safe = lambda_safe
+        self.lambda_safe_source = lambda_safe_source
+        self.lambda_safe_proven = lambda_safe_proven
         self.on_interval = on_interval
 
     def run(self, max_intervals: int | None = None) -> LoopResult:
         """Run until the environment is done (or ``max_intervals`` intervals)."""
-        env, policy, loss, rule, predictor = (
-            self.env,
-            self.policy,
-            self.loss,
-            self.rule,
-            self.predictor,
-        )
+        env, policy, loss, rule = self.env, self.policy, self.loss, self.rule
         env.reset()
         policy.reset()
-        if predictor is not None:
-            predictor.reset()
-        lam = rule.reset()
-        monitor = GuaranteeMonitor(
-            epsilon=rule.epsilon,
-            lambda_1=lam,
-            eta=getattr(rule, "eta", None) if self.learn else None,
+        monitor = GuaranteeMonitor.for_rule(
+            rule,
             lambda_safe=self.lambda_safe,
+            lambda_safe_source=self.lambda_safe_source,
+            premise_proven=self.lambda_safe_proven,
             bounds=loss.bounds,
-            kind=getattr(rule, "guarantee", "none") if self.learn else "none",
-            rule=rule if self.learn else None,
+            learn=self.learn,
         )
-        wants_loss_fn = self.learn and bool(getattr(rule, "uses_loss_function", False))
-        wants_truth = bool(getattr(predictor, "requires_ground_truth", False))
+        lam = monitor.lambda_1
+        wants_loss_fn = self.learn and rule.uses_loss_function
         intervals: list[IntervalLog] = []
         k = 0
         while not env.done and (max_intervals is None or k < max_intervals):
-            # sampling time k*tau: sense, predict, hand both to the decision family
-            observation = env.sense(with_ground_truth=wants_truth)
-            prediction = predictor.predict(observation) if predictor is not None else None
-            policy.begin_interval(observation, prediction)
+            # sampling time k*tau: the family receives the observation (and plans)
+            policy.begin_interval(env.sense())
             # control instants of I_k: decide with lambda_k, apply through the plant
             n_steps = 0
             for _ in range(env.control_instants()):
@@ -174,14 +177,13 @@ class ConformalLoop:
             log = IntervalLog(k=k, lam=lam, loss=l_k, n_steps=n_steps, diagnostics=diagnostics)
             intervals.append(log)
             if l_k is not None:
-                monitor.observe(l_k, lam)
-                step = None
                 if self.learn:
                     if wants_loss_fn:
                         rule.set_loss_function(_LossAt(loss, record, truth))
-                    lam = rule.update(l_k)
-                    step = getattr(rule, "last_eta_", None)
-                monitor.set_lambda_next(lam, step)
+                    lam = monitor.update(l_k)
+                else:
+                    monitor.observe(l_k, lam)
+                    monitor.set_lambda_next(lam)
                 log.l_avg = monitor.average
             if self.on_interval is not None:
                 self.on_interval(log)
@@ -197,8 +199,3 @@ class _LossAt:
 
     def __call__(self, lam: float) -> float | None:
         return self.loss(self.record, self.truth, lam)
-
-
-def run_loop(*args: Any, **kwargs: Any) -> LoopResult:
-    """Functional shortcut: ``ConformalLoop(*args, **kwargs).run()``."""
-    return ConformalLoop(*args, **kwargs).run()

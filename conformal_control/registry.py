@@ -36,7 +36,9 @@ __all__ = [
     "Clash",
     "PluginEntry",
     "PluginUnavailableError",
+    "UnknownParameterError",
     "UnknownPluginError",
+    "check_params",
     "clashes",
     "create",
     "entries",
@@ -56,37 +58,7 @@ ROLES: dict[str, str] = {
     "loss": "conformal_control.losses",
     "update_rule": "conformal_control.update_rules",
     "dynamics": "conformal_control.dynamics",
-}
-
-#: Core plugins, used when the package runs from a source tree without installed metadata.
-_CORE: dict[str, dict[str, str]] = {
-    "predictor": {
-        "constant_velocity": (
-            "conformal_control.predictors.constant_velocity:ConstantVelocityPredictor"
-        ),
-        "oracle": "conformal_control.predictors.oracle:OraclePredictor",
-    },
-    "barrier": {"apf": "conformal_control.cbf.barriers:APFBarrier"},
-    "safety_filter": {"qp": "conformal_control.cbf.qp:QPSafetyFilter"},
-    "loss": {
-        "cbf_gap": "conformal_control.cbf.loss:CBFGapLoss",
-        "collision": "conformal_control.cbf.safety_losses:CollisionLoss",
-        "distance_shortfall": "conformal_control.cbf.safety_losses:DistanceShortfallLoss",
-        "miscoverage": "conformal_control.losses:MiscoverageLoss",
-        "function": "conformal_control.losses:FunctionLoss",
-        "defect_fraction": "conformal_control.domains.factory:DefectFractionLoss",
-    },
-    "update_rule": {
-        "fixed_eta": "conformal_control.update_rules:FixedEtaRule",
-        "decaying_eta": "conformal_control.update_rules:DecayingEtaRule",
-        "aci": "conformal_control.update_rules:ACIRule",
-        "dtaci": "conformal_control.update_rules:DtACIRule",
-        "pid": "conformal_control.update_rules:PIDRule",
-    },
-    "dynamics": {
-        "double_integrator": "conformal_control.dynamics:DoubleIntegrator",
-        "velocity_tracking": "conformal_control.dynamics:VelocityTrackingDoubleIntegrator",
-    },
+    "reference": "conformal_control.references",
 }
 
 
@@ -267,10 +239,13 @@ def _discover() -> None:
         return
     _discovered = True
     for role, group in ROLES.items():
-        for name, target in _CORE.get(role, {}).items():
-            _add(PluginEntry(role, name, target, "conformal-control"))
         ep: EntryPoint
-        for ep in entry_points(group=group):
+        # our own plugins first: a third party cannot take over a core name
+        eps = sorted(
+            entry_points(group=group),
+            key=lambda e: e.dist is None or e.dist.name != "conformal-control",
+        )
+        for ep in eps:
             dist = ep.dist.name if ep.dist is not None else "unknown"
             version = ep.dist.version if ep.dist is not None else None
             _add(PluginEntry(role, ep.name, ep.value, dist, version))
@@ -382,9 +357,39 @@ def get(role: str, name: str) -> type:
     return entry(role, name).load()
 
 
+class UnknownParameterError(ValueError):
+    """A plugin was given a constructor argument it does not take (with did-you-mean)."""
+
+
+def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> None:
+    """Raise :class:`UnknownParameterError` for arguments ``cls`` does not take."""
+    import inspect
+
+    sig = inspect.signature(cls)
+    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+        return
+    known = [p for p in sig.parameters if p != "self"]
+    for key in params:
+        if key not in known:
+            close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise UnknownParameterError(
+                f"{role} {name!r} has no parameter {key!r}{hint} "
+                f"its parameters: {', '.join(known) or 'none'}"
+            )
+
+
 def create(role: str, name: str, **params: Any) -> Any:
-    """Instantiate ``role``/``name`` with ``params`` (a clear error for unknown params)."""
+    """Instantiate ``role``/``name`` with ``params``.
+
+    Raises
+    ------
+    UnknownParameterError
+        A parameter the plugin does not take (the message lists the valid ones and the
+        closest match).
+    """
     cls = get(role, name)
+    check_params(role, name, cls, params)
     try:
         return cls(**params)
     except TypeError as exc:

@@ -2,7 +2,7 @@
 
 * ``<!-- generated:parameters -->`` in a page is replaced by the table of every controller
   parameter, built from :data:`conformal_control.sim.config.PARAMETERS` (with units from
-  :data:`conformal_control.units.PARAM_DIMENSIONS` and the defaults of the built-in and
+  :data:`conformal_control.data.units.PARAM_DIMENSIONS` and the defaults of the built-in and
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
   argparse parsers of :mod:`conformal_control.commands`.
@@ -42,7 +42,7 @@ def on_files(files: Files, config: Any) -> Files:
 # ---------------------------------------------------------------------------- parameters
 def _dimension(name: str) -> tuple[str, str]:
     """(paper unit on SDD scenes, SI unit) of a parameter."""
-    from conformal_control.units import PARAM_DIMENSIONS
+    from conformal_control.data.units import PARAM_DIMENSIONS
 
     if name not in PARAM_DIMENSIONS:
         si = {"v_max": "m/s", "robot_radius": "m", "agent_radius": "m", "goal_radius": "m"}

@@ -63,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         print(f"\n### {args.scene}, {setting}, eta = {args.eta} per frame, tau = 4 frames\n")
         print(
             "| epsilon | rule | n_collide | d_min (m) | t_goal (s) | l_avg | lambda_final "
-            "| fallback share | guarantee | bound | assumption | holds |"
+            "| fallback share | guarantee | bound | assumption | verdict |"
         )
         print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for eps in args.epsilons:
@@ -82,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                 )
                 m = res.metrics
                 bound = m["theorem2_bound"] if m["theorem2_bound"] is not None else None
-                holds = m["theorem2_holds"]
+                holds = m["theorem2_verdict"]
                 if bound is None and m["long_run_bound"] is not None:
                     bound, holds = m["long_run_bound"], m["long_run_holds"]
                     bound_txt = f"±{bound:.3f}"

@@ -96,7 +96,7 @@ def test_plugins_command_role_and_check(fake_distribution, capsys):
 
 
 def test_plugins_check_reports_failures(capsys):
-    from conformal_control.base import Forecast
+    from conformal_control.predictors.base import Forecast
 
     @registry.register("predictor", "_kit_nan")
     class NaNCV(ConstantVelocityPredictor):

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..base import Barrier
+from .roles import Barrier
 
 __all__ = ["APFBarrier"]
 

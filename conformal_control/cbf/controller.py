@@ -2,22 +2,49 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from ..base import (
-    Barrier,
-    DecisionFamily,
-    Forecast,
-    PredictionQuery,
-    ReferenceController,
-    SafetyFilter,
-)
-from ..interp import forward_fill, interpolate_at_substeps
+from ..base import DecisionFamily
+from ..predictors.base import Forecast, PredictionQuery, Predictor
+from .constraint import ConformalConstraint
+from .interp import forward_fill, interpolate_at_substeps
+from .roles import ReferenceController, SafetyFilter
 
-__all__ = ["CBFIntervalRecord", "ConformalCBFController", "ControlState"]
+__all__ = [
+    "CBFIntervalRecord",
+    "ConformalCBFController",
+    "ControlState",
+    "PredictorError",
+    "merge_forecast_info",
+]
+
+#: Messages kept per key in ``forecast_info_`` (the rest are counted, not stored).
+MAX_MESSAGES = 50
+
+
+class PredictorError(RuntimeError):
+    """The predictor raised; the message names the predictor, scene, frame and agents."""
+
+
+def merge_forecast_info(total: dict[str, Any], info: dict[str, Any]) -> None:
+    """Accumulate a forecast's ``info`` into ``total``: numbers are summed, messages
+    (strings or lists of strings) concatenated (the first :data:`MAX_MESSAGES` kept,
+    the others counted under ``<key>_dropped``)."""
+    for key, value in info.items():
+        if isinstance(value, bool):
+            total[key] = total.get(key, 0) + int(value)
+        elif isinstance(value, (int, float, np.integer, np.floating)):
+            total[key] = total.get(key, 0) + (value.item() if hasattr(value, "item") else value)
+        elif isinstance(value, (str, list, tuple)):
+            items = [value] if isinstance(value, str) else [str(v) for v in value]
+            kept = total.setdefault(key, [])
+            room = max(MAX_MESSAGES - len(kept), 0)
+            kept.extend(items[:room])
+            if len(items) > room:
+                total[f"{key}_dropped"] = total.get(f"{key}_dropped", 0) + len(items) - room
 
 
 @dataclass
@@ -59,61 +86,73 @@ class CBFIntervalRecord:
         return int(self.x_ego.shape[0])
 
 
-class ConformalCBFController(DecisionFamily):
+class ConformalCBFController(
+    DecisionFamily[PredictionQuery, ControlState, np.ndarray, CBFIntervalRecord]
+):
     """Conformal CBF controller (Huriot & Sibai, Algorithm 1).
 
-    At each control instant t of interval I_k it reads the predicted position and velocity
-    of every sensed agent at t, builds one conformal constraint per agent::
+    At each sampling time it asks its predictor for the sensed agents' trajectories over
+    the interval; at each control instant t it reads their predicted position and
+    velocity at t, builds one conformal constraint per agent::
 
         dh/dx_ego . v + dh/dx_agent . v_pred + a h(x_ego, x_pred) + lambda >= 0
 
-    and asks the safety filter for the velocity closest to the reference that satisfies
-    them. Smaller lambda is more conservative.
+    (:class:`~conformal_control.cbf.constraint.ConformalConstraint`) and asks the safety
+    filter for the velocity closest to the reference that satisfies them. Smaller lambda
+    is more conservative.
 
     Predictions are sanitised here, with counters: a forecast of the wrong shape is an
     error; non-finite predicted samples are replaced by the last finite sample before them
     (the agent is held still from there; ``n_nonfinite_predictions_`` counts affected
-    agent-intervals).
+    agent-intervals). A predictor that raises stops the run with a :class:`PredictorError`
+    naming the predictor, the scene, the frame and the number of agents.
 
     Parameters
     ----------
-    barrier : Barrier
-        The pairwise barrier h.
+    predictor : Predictor
+        Black-box trajectory predictor, called at every sampling time.
+    constraint : ConformalConstraint
+        The barrier h and the slope a of alpha(h) = a h (the loss must use the same one).
     safety_filter : SafetyFilter
-        The QP (or another filter) solving for the safe velocity.
+        Solves for the safe velocity.
     reference : ReferenceController
         Nominal controller (called with the environment's current goal).
-    a : float
-        Slope of the linear extended class-K function alpha(h) = a h, in 1/s (> 0).
     substeps : int
         Control instants per prediction sample.
     """
 
     def __init__(
         self,
-        barrier: Barrier,
+        predictor: Predictor,
+        constraint: ConformalConstraint,
         safety_filter: SafetyFilter,
         reference: ReferenceController,
-        a: float = 1.0,
         substeps: int = 4,
     ) -> None:
-        self.barrier = barrier
+        self.predictor = predictor
+        self.constraint = constraint
         self.safety_filter = safety_filter
         self.reference = reference
-        self.a = a
         self.substeps = substeps
 
     def reset(self) -> None:
-        if not (math.isfinite(self.a) and self.a > 0):
-            raise ValueError(f"a must be a finite number > 0, got {self.a!r}")
+        self.constraint.validate()
         if int(self.substeps) != self.substeps or self.substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        self.predictor.reset()
         self.safety_filter.reset()
         self.reference.reset()
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
-        self.forecast_info_: dict[str, float] = {}
+        self.forecast_info_: dict[str, Any] = {}
         self._begin_empty()
+
+    def stats(self) -> dict[str, float]:
+        return {
+            "n_steps": self.n_steps_,
+            "n_nonfinite_predictions": self.n_nonfinite_predictions_,
+            **self.safety_filter.stats(),
+        }
 
     def _begin_empty(self) -> None:
         self._ids = np.zeros(0, dtype=np.int64)
@@ -125,17 +164,25 @@ class ConformalCBFController(DecisionFamily):
         self._rec_status: list[str] = []
 
     # ------------------------------------------------------------------ sampling time
-    def begin_interval(self, observation: PredictionQuery, prediction: Forecast | None) -> None:
+    def _predict(self, observation: PredictionQuery) -> Forecast:
+        try:
+            return self.predictor.predict(observation)
+        except Exception as exc:
+            raise PredictorError(
+                f"predictor {type(self.predictor).__name__} failed on scene "
+                f"{observation.scene or '?'} at frame {observation.frame} "
+                f"(t = {observation.t:.2f} s, {observation.n_agents} sensed agents): "
+                f"{type(exc).__name__}: {exc}"
+            ) from exc
+
+    def begin_interval(self, observation: PredictionQuery) -> None:
         self._begin_empty()
         n = observation.n_agents
         self._ids = np.asarray(observation.ids)
         if n == 0:
             return
-        if prediction is None:
-            raise ValueError("ConformalCBFController needs a prediction for the sensed agents")
-        for key, value in prediction.info.items():  # the predictor's own counters
-            if isinstance(value, (int, float)) and not isinstance(value, bool):
-                self.forecast_info_[key] = self.forecast_info_.get(key, 0) + value
+        prediction = self._predict(observation)
+        merge_forecast_info(self.forecast_info_, prediction.info)
         pos = np.asarray(prediction.positions, dtype=float)
         horizon = observation.horizon
         if pos.ndim != 3 or pos.shape[0] != n or pos.shape[1] < horizon or pos.shape[2] != 2:
@@ -156,10 +203,7 @@ class ConformalCBFController(DecisionFamily):
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         if self._ids.size:
-            x_pred, v_pred = self._xp[state.step], self._vp[state.step]
-            h, dh_dego, dh_dagent = self.barrier.evaluate(x_ego, x_pred)
-            A = dh_dego
-            b = np.einsum("ij,ij->i", dh_dagent, v_pred) + self.a * h
+            A, b = self.constraint.rows(x_ego, self._xp[state.step], self._vp[state.step])
         else:
             A, b = np.zeros((0, 2)), np.zeros(0)
         res = self.safety_filter.solve(v_ref, A, b, lam)

@@ -7,9 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..base import Barrier, Loss
-from ..interp import interpolate_at_substeps
+from ..base import Loss
+from .constraint import ConformalConstraint
 from .controller import CBFIntervalRecord
+from .interp import interpolate_at_substeps
 
 __all__ = ["CBFGapLoss", "CBFTruth"]
 
@@ -34,14 +35,15 @@ class CBFTruth:
     substeps: int
 
 
-class CBFGapLoss(Loss):
+class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
     """l_k = max over sensed agents j and control instants t of s(gap_j(t) + lambda_k).
 
     gap_j(t) = [dh^/dx_i . v_i + dh^/dx_j . v^_j + a h^] - [dh/dx_i . v_i + dh/dx_j . v_j + a h],
-    where hats use the interpolated prediction, the rest the true trajectory interpolated
-    and differentiated the same way, x_i is the ego position and v_i the velocity decision
-    applied at t. With a perfect predictor gap = 0 and l_k = s(lambda_k) exactly.
-    s(r) = arctan(r / c) / pi with the loss scale c (1/s).
+    the conformal constraint (:class:`~conformal_control.cbf.constraint.ConformalConstraint`)
+    evaluated on the interpolated prediction (hats) minus the same constraint on the true
+    trajectory interpolated and differentiated the same way; x_i is the ego position and
+    v_i the velocity decision applied at t. With a perfect predictor gap = 0 and
+    l_k = s(lambda_k) exactly. s(r) = arctan(r / c) / pi with the loss scale c (1/s).
 
     (agent, instant) pairs whose truth is missing (the agent vanished mid-interval) are
     left out of the max and counted in the diagnostics; an interval with no pair left has
@@ -49,19 +51,16 @@ class CBFGapLoss(Loss):
 
     Parameters
     ----------
-    barrier : Barrier
-        The same barrier the controller uses.
-    a : float
-        The same alpha slope (1/s).
+    constraint : ConformalConstraint
+        The constraint the controller uses (the same instance: same barrier, same a).
     scale : float
         Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
     """
 
     bounds = (-0.5, 0.5)
 
-    def __init__(self, barrier: Barrier, a: float = 1.0, scale: float = 1.0) -> None:
-        self.barrier = barrier
-        self.a = a
+    def __init__(self, constraint: ConformalConstraint, scale: float = 1.0) -> None:
+        self.constraint = constraint
         self.scale = scale
 
     @classmethod
@@ -69,8 +68,11 @@ class CBFGapLoss(Loss):
         from .barriers import APFBarrier
 
         return [
-            {"barrier": APFBarrier()},
-            {"barrier": APFBarrier(convention="centre", d_c=0.6), "a": 2.0, "scale": 0.5},
+            {"constraint": ConformalConstraint(APFBarrier())},
+            {
+                "constraint": ConformalConstraint(APFBarrier(convention="centre", d_c=0.6), a=2.0),
+                "scale": 0.5,
+            },
         ]
 
     @classmethod
@@ -142,11 +144,9 @@ class CBFGapLoss(Loss):
         x_true, v_true = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
         x_ego = record.x_ego[:, None, :]
         v_ego = record.v_ego[:, None, :]
-        h_p, gi_p, gj_p = self.barrier.evaluate(x_ego, record.x_pred)
+        pred = self.constraint.value(x_ego, v_ego, record.x_pred, record.v_pred)
         with np.errstate(invalid="ignore"):
-            h_t, gi_t, gj_t = self.barrier.evaluate(x_ego, x_true)
-            pred = (gi_p * v_ego).sum(-1) + (gj_p * record.v_pred).sum(-1) + self.a * h_p
-            true = (gi_t * v_ego).sum(-1) + (gj_t * v_true).sum(-1) + self.a * h_t
+            true = self.constraint.value(x_ego, v_ego, x_true, v_true)
         gap = pred - true
         valid = np.isfinite(x_true).all(-1) & np.isfinite(v_true).all(-1)
         return np.where(valid, gap, np.nan)

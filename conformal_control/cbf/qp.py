@@ -7,7 +7,7 @@ import math
 import numpy as np
 import piqp
 
-from ..base import FilterResult, SafetyFilter
+from .roles import FilterResult, SafetyFilter
 
 __all__ = ["FALLBACKS", "QPSafetyFilter"]
 

@@ -21,9 +21,9 @@ import math
 import numpy as np
 
 from ..base import Loss
-from ..interp import interpolate_at_substeps
 from ..losses import check_lambda
 from .controller import CBFIntervalRecord
+from .interp import interpolate_at_substeps
 from .loss import CBFGapLoss, CBFTruth
 
 __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]

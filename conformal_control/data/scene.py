@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from ..units import SI, UnitSystem
 from .tracks import Tracks
+from .units import SI, UnitSystem
 
 __all__ = ["Scene", "scene_from_tracks"]
 

@@ -13,7 +13,7 @@ Scene names accepted by :func:`load_scene` and ``conformal-control run --scene``
   image fractions.
 
 Parameters of SDD scenes are typed in the paper's units (px, frames; see
-:mod:`conformal_control.units`).
+:mod:`conformal_control.data.units`).
 """
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from ..units import UnitSystem
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
 from .trajnet import read_trajnet
+from .units import UnitSystem
 
 __all__ = ["PAPER_SCENES", "TABLE_I", "TABLE_II", "SceneSpec", "load_scene", "scene_names"]
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..units import SI
 from .scene import Scene, scene_from_tracks
 from .tracks import Tracks
+from .units import SI
 
 __all__ = ["SYNTHETIC_DEFAULTS", "crossing_scene"]
 

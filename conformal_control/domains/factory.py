@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import DecisionFamily, Environment, Loss, UpdateRule
+from ..base import DecisionFamily, Loss, SingleStepEnvironment, UpdateRule
 from ..loop import ConformalLoop, LoopResult
 from ..losses import check_lambda
 
@@ -52,7 +52,7 @@ class FactoryRecord:
     speed: float
 
 
-class FactoryEnvironment(Environment):
+class FactoryEnvironment(SingleStepEnvironment[int, float, np.ndarray]):
     """The factory: one control instant per step, ``p`` uniforms revealed per step.
 
     Parameters
@@ -82,13 +82,7 @@ class FactoryEnvironment(Environment):
     def done(self) -> bool:
         return self.t >= self.T
 
-    def sense(self, with_ground_truth: bool = False) -> None:
-        return None
-
-    def control_instants(self) -> int:
-        return 1
-
-    def state(self) -> int:
+    def observe(self) -> int:
         return self.t
 
     def apply(self, decision: Any) -> None:
@@ -100,13 +94,13 @@ class FactoryEnvironment(Environment):
         return self._u.copy()
 
 
-class MachineSpeed(DecisionFamily):
+class MachineSpeed(DecisionFamily[int, int, float, FactoryRecord]):
     """D^lambda = run the machine at speed max(lambda, 0)."""
 
     def __init__(self) -> None:
         pass
 
-    def begin_interval(self, observation: Any, prediction: Any) -> None:
+    def begin_interval(self, observation: int) -> None:
         self._speed = math.nan
 
     def decide(self, state: Any, lam: float) -> float:
@@ -117,7 +111,7 @@ class MachineSpeed(DecisionFamily):
         return FactoryRecord(self._speed)
 
 
-class DefectFractionLoss(Loss):
+class DefectFractionLoss(Loss[FactoryRecord, np.ndarray]):
     """l = fraction of the step's items that are defective at speed lambda, in [0, 1].
 
     ``truth`` is the step's vector of uniforms (see the module docstring); an item is
@@ -169,7 +163,16 @@ def run_factory(
     """
     env = FactoryEnvironment(T=T, p=p, seed=seed)
     loss = DefectFractionLoss(b=b)
-    loop = ConformalLoop(env, MachineSpeed(), loss, rule, lambda_safe=lambda_safe)
+    # lambda <= 0 stops the machine: no item, no defect -- the premise holds by construction
+    loop = ConformalLoop(
+        env,
+        MachineSpeed(),
+        loss,
+        rule,
+        lambda_safe=lambda_safe,
+        lambda_safe_source="stopped machine (lambda <= 0 makes no defect)",
+        lambda_safe_proven=lambda_safe is not None and lambda_safe <= 0,
+    )
     result = loop.run()
     figures = {
         "l_avg": result.l_avg,

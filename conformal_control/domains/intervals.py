@@ -26,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from .. import registry
-from ..base import DecisionFamily, Environment, PredictionQuery, Predictor, UpdateRule
+from ..base import DecisionFamily, SingleStepEnvironment, UpdateRule
 from ..loop import ConformalLoop, LoopResult
 from ..losses import PARAMETRISATIONS, BallRecord, MiscoverageLoss, conformal_radius
+from ..predictors.base import PredictionQuery, Predictor
 
 __all__ = ["ConformalDisc", "PedestrianSeries", "load_series", "run_intervals"]
 
@@ -96,7 +97,7 @@ def load_series(
     return steps[:max_steps] if max_steps is not None else steps
 
 
-class PedestrianSeries(Environment):
+class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray]):
     """Replays the steps: sense = the pedestrian's history, reveal = its next position.
 
     ``sense`` also hands over the previous step's revealed position (what a sensor sees),
@@ -117,7 +118,7 @@ class PedestrianSeries(Environment):
     def done(self) -> bool:
         return self.i >= len(self.steps)
 
-    def sense(self, with_ground_truth: bool = False) -> dict[str, Any]:
+    def observe(self) -> dict[str, Any]:
         s = self.steps[self.i]
         query = PredictionQuery(
             ids=np.array([s.ped]),
@@ -127,16 +128,10 @@ class PedestrianSeries(Environment):
             t=s.frame * self.dt / 10.0,
             frame=s.frame,
             scene="ethucy",
-            ground_truth=s.target[None, None].copy() if with_ground_truth else None,
+            ground_truth=s.target[None, None].copy(),
         )
         previous = self.steps[self.i - 1].target if self.i > 0 else None
         return {"query": query, "previous_truth": previous}
-
-    def control_instants(self) -> int:
-        return 1
-
-    def state(self) -> int:
-        return self.i
 
     def apply(self, decision: Any) -> None:
         self.i += 1
@@ -145,35 +140,23 @@ class PedestrianSeries(Environment):
         return self.steps[self.i - 1].target.copy()
 
 
-class _SensingPredictor(Predictor):
-    """Adapts a trajectory predictor to the series' observation dict."""
-
-    def __init__(self, predictor: Predictor) -> None:
-        self.predictor = predictor
-
-    @property
-    def requires_ground_truth(self) -> bool:  # type: ignore[override]
-        return bool(getattr(self.predictor, "requires_ground_truth", False))
-
-    def reset(self) -> None:
-        self.predictor.reset()
-
-    def predict(self, query: Any) -> Any:
-        return self.predictor.predict(query["query"])
-
-
-class ConformalDisc(DecisionFamily):
+class ConformalDisc(DecisionFamily[dict[str, Any], dict[str, Any], float, BallRecord]):
     """D^lambda = disc around the forecast; radius from lambda and past scores.
 
     Parameters
     ----------
+    predictor : Predictor
+        Forecasts the next position from the pedestrian's history.
     window : int
         Number of most recent scores used (the calibration window).
     parametrisation : str
         ``"level"`` or ``"radius"`` (see the module docstring).
     """
 
-    def __init__(self, window: int = 200, parametrisation: str = "level") -> None:
+    def __init__(
+        self, predictor: Predictor, window: int = 200, parametrisation: str = "level"
+    ) -> None:
+        self.predictor = predictor
         self.window = window
         self.parametrisation = parametrisation
 
@@ -189,8 +172,10 @@ class ConformalDisc(DecisionFamily):
         self._sorted = np.empty(0)
         self.radii_: list[float] = []
         self.n_nonfinite_forecasts_ = 0
+        self.predictor.reset()
 
-    def begin_interval(self, observation: Any, prediction: Any) -> None:
+    def begin_interval(self, observation: dict[str, Any]) -> None:
+        prediction = self.predictor.predict(observation["query"])
         prev = observation.get("previous_truth")
         if prev is not None and self._center is not None:
             self.scores_.append(float(np.linalg.norm(prev - self._center)))
@@ -202,7 +187,7 @@ class ConformalDisc(DecisionFamily):
         recent = self.scores_[-int(self.window) :]
         self._sorted = np.sort(np.asarray(recent, dtype=float))
 
-    def decide(self, state: Any, lam: float) -> float:
+    def decide(self, state: dict[str, Any], lam: float) -> float:
         r = conformal_radius(self._sorted, lam, self.parametrisation)
         self.radii_.append(r)
         return r
@@ -229,10 +214,8 @@ def run_intervals(
     """
     if isinstance(predictor, str):
         predictor = registry.create("predictor", predictor, **(predictor_params or {}))
-    family = ConformalDisc(window=window, parametrisation=parametrisation)
-    loop = ConformalLoop(
-        PedestrianSeries(steps), family, MiscoverageLoss(), rule, _SensingPredictor(predictor)
-    )
+    family = ConformalDisc(predictor, window=window, parametrisation=parametrisation)
+    loop = ConformalLoop(PedestrianSeries(steps), family, MiscoverageLoss(), rule)
     result = loop.run()
     radii = np.asarray(family.radii_, dtype=float)
     finite = radii[np.isfinite(radii)]

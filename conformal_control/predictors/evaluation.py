@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from ..base import PredictionQuery, Predictor
 from ..data.ethucy import ETHUCY_FPS, ETHUCY_SCENES, ethucy_files, read_ethucy
 from ..data.paths import ethucy_root, resolve_data_root
 from ..data.tracks import Tracks
+from .base import PredictionQuery, Predictor
 
 __all__ = [
     "STANDARD_DT",

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import Forecast, PredictionQuery, Predictor
+from .base import Forecast, PredictionQuery, Predictor
 from .constant_velocity import ConstantVelocityPredictor, trailing_valid
 from .evaluation import resample_future, resample_history
 

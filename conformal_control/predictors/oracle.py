@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..base import Forecast, PredictionQuery, Predictor
+from .base import Forecast, PredictionQuery, Predictor
 
 __all__ = ["OraclePredictor"]
 
@@ -12,25 +12,21 @@ __all__ = ["OraclePredictor"]
 class OraclePredictor(Predictor):
     """Ground-truth future of each sensed agent (the "gt/noLearn" baseline).
 
-    Requires the environment to attach ``query.ground_truth``; it does so for predictors
-    declaring ``requires_ground_truth = True``. Where the true future is unknown (the
-    agent leaves the data) the forecast is NaN and the controller holds the agent at its
-    last known position (a counted fallback).
+    Reads the true future through :meth:`PredictionQuery.future` (replaying
+    environments attach it to every query; a reactive crowd cannot, and the oracle then
+    raises :class:`~conformal_control.predictors.base.TruthUnavailableError`). Where the
+    true future is unknown (the agent leaves the data) the forecast is NaN and the
+    controller holds the agent at its last known position (a counted fallback).
     """
 
     requires_ground_truth = True
 
     def predict(self, query: PredictionQuery) -> Forecast:
-        if query.ground_truth is None:
-            raise ValueError(
-                "the oracle predictor needs the true future, but the environment did not "
-                "attach query.ground_truth"
-            )
         if not np.isfinite(query.current).all():
             raise ValueError(
                 "the current position (history[:, -1]) of every sensed agent must be finite"
             )
-        gt = np.asarray(query.ground_truth, dtype=float)
+        gt = np.asarray(query.future(), dtype=float)
         expected = (query.n_agents, query.horizon, 2)
         if gt.shape != expected:
             raise ValueError(f"ground truth has shape {gt.shape}, expected {expected}")

@@ -7,13 +7,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..data.scene import Scene
-from ..units import PARAM_DIMENSIONS
+from ..data.units import PARAM_DIMENSIONS
 
 __all__ = ["PARAMETERS", "ResolvedParams", "parse_value", "resolve_params"]
 
 #: Every controller parameter: name -> (default, description). ``None`` defaults are
 #: filled from the scene (``scene.defaults`` first, then the scene's own attributes).
-#: Dimensional parameters are typed in the scene's units (see ``conformal_control.units``).
+#: Dimensional parameters are typed in the scene's units (see ``conformal_control.data.units``).
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "a": (None, "slope of alpha(h) = a h (1/time)"),
     "K_acc": (None, "velocity-tracking gain of u = -K_acc (v - v_QP) (1/time)"),

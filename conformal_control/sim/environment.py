@@ -7,10 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..base import Dynamics, Environment, PredictionQuery
+from ..base import Environment
 from ..cbf.controller import ControlState
 from ..cbf.loss import CBFTruth
+from ..cbf.roles import Dynamics
 from ..data.scene import Scene
+from ..predictors.base import PredictionQuery
 
 __all__ = ["FrameLog", "ReplayEnvironment"]
 
@@ -37,7 +39,7 @@ class FrameLog:
         }
 
 
-class ReplayEnvironment(Environment):
+class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, CBFTruth]):
     """Pedestrians replayed from a :class:`Scene`; the robot driven through ``dynamics``.
 
     Timing: the scene's frames are the prediction samples; each frame is split into
@@ -149,7 +151,7 @@ class ReplayEnvironment(Environment):
             out[:, a - lo : b - lo] = self.scene.positions[a:b, idx].transpose(1, 0, 2)
         return out
 
-    def sense(self, with_ground_truth: bool = False) -> PredictionQuery:
+    def sense(self) -> PredictionQuery:
         sc, fi = self.scene, self._fi
         pos = sc.positions[fi]
         present = np.isfinite(pos[:, 0])
@@ -161,7 +163,6 @@ class ReplayEnvironment(Environment):
         self._step = 0
         self.n_sensed_.append(int(idx.size))
         history = self._window(fi - self.history_frames + 1, fi + 1, idx)
-        truth = self._window(fi + 1, fi + 1 + self.tau_frames, idx) if with_ground_truth else None
         return PredictionQuery(
             ids=sc.agent_ids[idx],
             history=history,
@@ -170,7 +171,7 @@ class ReplayEnvironment(Environment):
             t=self._t,
             frame=sc.first_frame + fi,
             scene=sc.name,
-            ground_truth=truth,
+            truth_provider=lambda: self._window(fi + 1, fi + 1 + self.tau_frames, idx),
         )
 
     def control_instants(self) -> int:

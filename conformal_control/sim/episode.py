@@ -16,13 +16,21 @@ from typing import Any
 import numpy as np
 
 from .. import __version__, registry
-from ..base import Barrier, Predictor, UpdateRule
-from ..cbf import APFBarrier, CBFGapLoss, ConformalCBFController, QPSafetyFilter
+from ..base import UpdateRule
+from ..cbf import (
+    APFBarrier,
+    CBFGapLoss,
+    ConformalCBFController,
+    ConformalConstraint,
+    QPSafetyFilter,
+)
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.feasibility import feasibility_floor
+from ..cbf.reference import AttractiveField
+from ..cbf.roles import Barrier
 from ..data.scene import Scene
-from ..dynamics import VelocityTrackingDoubleIntegrator
 from ..loop import ConformalLoop, LoopResult
-from ..reference import AttractiveField
+from ..predictors.base import Predictor
 from ..update_rules import FixedEtaRule
 from .config import ResolvedParams, resolve_params
 from .environment import ReplayEnvironment
@@ -92,6 +100,7 @@ def build_rule(
 def build_components(
     scene: Scene,
     params: ResolvedParams,
+    predictor: Predictor,
     max_frames: int | None = None,
     rule: UpdateRule | None = None,
     barrier: Barrier | None = None,
@@ -123,10 +132,11 @@ def build_components(
         v_max=si["v_max"], fallback=si["fallback"], speed_sides=si["speed_sides"]
     )
     reference = AttractiveField(K_att=si["K_att"], v_max=si["v_max"])
+    constraint = ConformalConstraint(barrier, a=si["a"])
     policy = ConformalCBFController(
-        barrier, safety_filter, reference, a=si["a"], substeps=si["substeps"]
+        predictor, constraint, safety_filter, reference, substeps=si["substeps"]
     )
-    loss = CBFGapLoss(barrier, a=si["a"], scale=si["loss_scale"])
+    loss = CBFGapLoss(constraint, scale=si["loss_scale"])
     if rule is None:
         rule = FixedEtaRule(
             epsilon=si["epsilon"],
@@ -231,7 +241,7 @@ def run_episode(
         rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
     else:
         rule_name, rule_obj = type(rule).__name__, rule
-    comp = build_components(scene, resolved, max_frames, rule=rule_obj, barrier=barrier)
+    comp = build_components(scene, resolved, predictor, max_frames, rule=rule_obj, barrier=barrier)
     # from here on, the copy carrying the resolved radii, v_max and goal radius
     scene = comp.env.scene
     si = resolved.si
@@ -259,7 +269,6 @@ def run_episode(
         comp.policy,
         comp.loss,
         comp.rule,
-        predictor,
         learn=learn,
         lambda_safe=lam_safe_si,
         on_interval=recorder,
@@ -312,13 +321,18 @@ def run_episode(
         "n_fallback": comp.safety_filter.n_fallback_,
         "fallback_share": comp.safety_filter.n_fallback_ / n_steps,
         "n_qp_solves": comp.safety_filter.n_solves_,
-        "n_lambda_clipped": getattr(comp.rule, "n_clipped_", 0),
+        "n_lambda_clipped": comp.rule.n_clipped_,
         "identity_residual": mon.identity_residual if learn else None,
         "rule": rule_name,
         "guarantee": guarantee.get("guarantee"),
         "lambda_safe": lambda_safe,
+        "lambda_safe_source": guarantee.get("lambda_safe_source"),
         "theorem2_bound": guarantee.get("theorem2_bound"),
+        "theorem2_bound_met": guarantee.get("theorem2_bound_met"),
         "theorem2_holds": guarantee.get("theorem2_holds"),
+        "theorem2_verdict": guarantee.get("theorem2_verdict"),
+        "theorem2_premise_tested": guarantee.get("theorem2_premise_tested"),
+        "theorem2_premise_violations": guarantee.get("theorem2_premise_violations"),
         "theorem2_assumption": guarantee.get("theorem2_assumption"),
         "long_run_bound": guarantee.get("long_run_bound"),
         "long_run_holds": guarantee.get("long_run_holds"),

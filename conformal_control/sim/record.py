@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Barrier
+from ..cbf.roles import Barrier
 from ..data.scene import Scene
 from ..loop import IntervalLog
 

@@ -23,7 +23,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from ..base import Barrier, Dynamics, Loss, Predictor, SafetyFilter, UpdateRule
+from ..base import Loss, UpdateRule
+from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..predictors.base import Predictor
 from ._core import (
     CheckList,
     CheckResult,
@@ -38,6 +40,7 @@ from .common import check_get_params_round_trip, check_repr
 from .dynamics import check_dynamics
 from .loss import check_loss
 from .predictor import check_predictor, make_query
+from .reference import check_reference_controller
 from .safety_filter import check_safety_filter
 from .update_rule import check_update_rule
 
@@ -51,6 +54,7 @@ __all__ = [
     "check_loss",
     "check_plugin",
     "check_predictor",
+    "check_reference_controller",
     "check_safety_filter",
     "check_update_rule",
     "checks_for",
@@ -73,6 +77,7 @@ ROLE_BASES: dict[str, type] = {
     "loss": Loss,
     "update_rule": UpdateRule,
     "dynamics": Dynamics,
+    "reference": ReferenceController,
 }
 
 _CHECKS: dict[str, CheckList] = {
@@ -82,6 +87,7 @@ _CHECKS: dict[str, CheckList] = {
     "loss": check_loss,
     "update_rule": check_update_rule,
     "dynamics": check_dynamics,
+    "reference": check_reference_controller,
 }
 
 

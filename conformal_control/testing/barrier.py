@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Barrier
+from ..cbf.roles import Barrier
 from ._core import (
     CheckList,
     ContractError,

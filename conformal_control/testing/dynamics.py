@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..base import Dynamics
+from ..cbf.roles import Dynamics
 from ._core import (
     CheckList,
     ContractError,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..base import Forecast, PredictionQuery, Predictor
+from ..predictors.base import Forecast, PredictionQuery, Predictor
 from ._core import (
     CheckList,
     ContractError,

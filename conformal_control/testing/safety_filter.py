@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import FilterResult, SafetyFilter
+from ..cbf.roles import FilterResult, SafetyFilter
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import check_get_params_round_trip, check_repr
 

@@ -15,8 +15,8 @@ except ImportError as exc:  # fail loudly (never skip), saying what to do
 
 
 from conformal_control import registry
-from conformal_control.base import PredictionQuery
 from conformal_control.cli import main
+from conformal_control.predictors.base import PredictionQuery
 from conformal_control.testing import parametrize_with_checks
 
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.base import Forecast, PredictionQuery, Predictor
+from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.predictors.cache import cache_dir
 from conformal_control.predictors.constant_velocity import (
     ConstantVelocityPredictor,

@@ -7,7 +7,7 @@ import pytest
 from cc_darts import DartsPredictor, ForecastCache
 
 from conformal_control import registry
-from conformal_control.base import PredictionQuery
+from conformal_control.predictors.base import PredictionQuery
 
 
 def _query(lengths, t=40, horizon=5, still=()):

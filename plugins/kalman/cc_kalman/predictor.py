@@ -23,7 +23,7 @@ import numpy as np
 from filterpy.common import Q_continuous_white_noise
 from filterpy.kalman import KalmanFilter
 
-from conformal_control.base import Forecast, PredictionQuery, Predictor
+from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 
 __all__ = ["FITTED_DEFAULTS", "KalmanPredictor", "build_filter"]
 

@@ -9,8 +9,8 @@ import pytest
 from cc_kalman import KalmanPredictor
 
 from conformal_control import registry
-from conformal_control.base import PredictionQuery
 from conformal_control.cli import main
+from conformal_control.predictors.base import PredictionQuery
 
 
 def _walk(n=3, t=12, dt=0.4, noise=0.0, seed=0):

@@ -7,8 +7,8 @@ import pytest
 from cc_sklearn import SklearnPredictor
 
 from conformal_control import registry
-from conformal_control.base import PredictionQuery
 from conformal_control.predictors import ConstantVelocityPredictor
+from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
 from conformal_control.predictors.learned import synthetic_windows
 

@@ -14,7 +14,7 @@ from conformal_control.domains.intervals import load_series, run_intervals
 from conformal_control.losses import BallRecord, conformal_radius
 from conformal_control.update_rules import ACIRule, DtACIRule, FixedEtaRule
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def example(name: str):

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .base import Dynamics
+from .roles import Dynamics
 
 __all__ = ["DoubleIntegrator", "VelocityTrackingDoubleIntegrator"]
 

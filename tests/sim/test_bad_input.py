@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.base import Forecast, PredictionQuery, Predictor
 from conformal_control.data.scene import Scene
 from conformal_control.predictors import ConstantVelocityPredictor
+from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.sim import run_episode
 
 

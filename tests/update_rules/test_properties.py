@@ -48,7 +48,7 @@ def test_fixed_eta_identity_for_any_losses(losses, epsilon, eta, lambda_1) -> No
     for x in losses:
         mon.observe(x, rule.value)
         lam = rule.update(x)
-        mon.set_lambda_next(lam, rule.last_eta_)
+        mon.set_lambda_next(lam, rule.last_step_)
         lam_max = max(lam_max, abs(lam))
     rhs = epsilon + (lambda_1 - lam) / (eta * len(losses))
     tol = 1e-12 * (1.0 + lam_max / eta)
@@ -101,7 +101,7 @@ def test_theorem2_bound_against_eventually_safe_adversary(
         lam = rule.value
         loss = min(x, eps_safe) if lam <= lambda_safe else x
         mon.observe(loss, lam)
-        mon.set_lambda_next(rule.update(loss), rule.last_eta_)
+        mon.set_lambda_next(rule.update(loss), rule.last_step_)
         assert lam >= lambda_safe - eta - 1e-9  # the invariant behind the theorem
         assert mon.bound_assumption is True
         assert mon.average <= mon.bound + 1e-9 * (1 + abs(lambda_1) / eta)

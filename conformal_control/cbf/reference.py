@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
-from .base import ReferenceController
+from .roles import ReferenceController
 
 __all__ = ["AttractiveField"]
 
@@ -15,8 +14,8 @@ __all__ = ["AttractiveField"]
 class AttractiveField(ReferenceController):
     """Attractive potential toward a goal: v_ref = -K_att (X - X_goal), speed-saturated.
 
-    The goal is normally supplied by the environment at each control instant (it owns the
-    task and its waypoints); ``goal`` is the fallback when none is supplied.
+    The goal is supplied by the environment at each control instant (it owns the task and
+    its waypoints).
 
     Parameters
     ----------
@@ -24,16 +23,11 @@ class AttractiveField(ReferenceController):
         Attractive gain in 1/s.
     v_max : float
         Speed saturation in m/s.
-    goal : (2,) array, optional
-        Default goal position in metres.
     """
 
-    def __init__(
-        self, K_att: float = 30.0, v_max: float = 2.0, goal: Sequence[float] | None = None
-    ) -> None:
+    def __init__(self, K_att: float = 30.0, v_max: float = 2.0) -> None:
         self.K_att = K_att
         self.v_max = v_max
-        self.goal = goal
 
     def reset(self) -> None:
         for name in ("K_att", "v_max"):
@@ -41,12 +35,8 @@ class AttractiveField(ReferenceController):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
-    def __call__(self, state: np.ndarray, t: float, goal: np.ndarray | None = None) -> np.ndarray:
-        if goal is None:
-            if self.goal is None:
-                raise ValueError("AttractiveField has no goal: pass goal= or set the goal param")
-            goal = np.asarray(self.goal, dtype=float)
-        v = -self.K_att * (np.asarray(state[:2], dtype=float) - goal)
+    def __call__(self, state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
+        v = -self.K_att * (np.asarray(state[:2], dtype=float) - np.asarray(goal, dtype=float))
         speed = math.hypot(v[0], v[1])
         if speed > self.v_max:
             v *= self.v_max / speed

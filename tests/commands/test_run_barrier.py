@@ -8,7 +8,7 @@ import json
 import numpy as np
 
 from conformal_control import registry
-from conformal_control.base import Barrier
+from conformal_control.cbf.roles import Barrier
 from conformal_control.cli import main
 
 

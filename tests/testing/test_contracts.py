@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from conformal_control import registry
-from conformal_control.base import Barrier, Forecast, Loss, Predictor, SafetyFilter, UpdateRule
-from conformal_control.cbf import APFBarrier, CBFGapLoss, QPSafetyFilter
+from conformal_control.base import Loss, UpdateRule
+from conformal_control.cbf import APFBarrier, CBFGapLoss, ConformalConstraint, QPSafetyFilter
+from conformal_control.cbf.roles import Barrier, SafetyFilter
 from conformal_control.predictors import ConstantVelocityPredictor
+from conformal_control.predictors.base import Forecast, Predictor
 from conformal_control.testing import (
     ContractError,
     check_barrier,
@@ -155,7 +157,7 @@ class LyingFilter(QPSafetyFilter):
     """Returns the nominal decision and claims it is optimal."""
 
     def solve(self, nominal, A, b, lam):
-        from conformal_control.base import FilterResult
+        from conformal_control.cbf.roles import FilterResult
 
         return FilterResult(np.asarray(nominal, float), "optimal", lam)
 
@@ -189,7 +191,11 @@ def _case_id(x: object) -> str:
             "expected dh_dego to match central finite",
         ),
         (NaNSwallowingBarrier(), check_barrier_nan_propagates, "expected h = NaN where"),
-        (OutOfRangeLoss(APFBarrier()), check_loss_within_bounds, "within its declared bounds"),
+        (
+            OutOfRangeLoss(ConformalConstraint(APFBarrier())),
+            check_loss_within_bounds,
+            "within its declared bounds",
+        ),
         (
             NonMonotoneRule(eta=0.5),
             check_update_rule_monotone,

@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import APFBarrier, CBFGapLoss, CBFIntervalRecord, CBFTruth
+from conformal_control.cbf import (
+    APFBarrier,
+    CBFGapLoss,
+    CBFIntervalRecord,
+    CBFTruth,
+    ConformalConstraint,
+)
 from conformal_control.sim import run_episode
 from conformal_control.update_rules import FixedEtaRule
 
@@ -34,7 +40,7 @@ def test_oracle_losses_equal_s_of_lambda(scene_fixture: str, request) -> None:
 def test_gap_formula_on_a_hand_built_interval() -> None:
     barrier = APFBarrier(K_rep=1.0, rho0=5.0, d_c=0.5)
     a, c = 2.0, 1.5
-    loss = CBFGapLoss(barrier, a=a, scale=c)
+    loss = CBFGapLoss(ConformalConstraint(barrier, a=a), scale=c)
     x_ego = np.array([[0.0, 0.0], [0.1, 0.0]])
     v_ego = np.array([[1.0, 0.0], [1.0, 0.2]])
     x_pred = np.array([[[2.0, 0.1]], [[2.0, 0.2]]])
@@ -66,7 +72,7 @@ def test_gap_formula_on_a_hand_built_interval() -> None:
 
 def test_vanished_agent_is_left_out_and_counted() -> None:
     barrier = APFBarrier(K_rep=1.0, rho0=5.0, d_c=0.5)
-    loss = CBFGapLoss(barrier, a=1.0, scale=1.0)
+    loss = CBFGapLoss(ConformalConstraint(barrier, a=1.0), scale=1.0)
     rec = CBFIntervalRecord(
         ids=np.array([1, 2]),
         x_ego=np.zeros((4, 2)),

@@ -100,7 +100,7 @@ def test_decaying_step_identity_and_bound() -> None:
     lams, etas = [lam1], []
     for x in losses:
         lams.append(rule.update(x))
-        etas.append(rule.last_eta_)
+        etas.append(rule.last_step_)
     assert etas[0] == 2.0 and etas[-1] < etas[0]
     lhs = math.fsum(e * (0.1 - x) for e, x in zip(etas, losses, strict=True))
     assert abs(lhs - (lams[-1] - lam1)) < 1e-9

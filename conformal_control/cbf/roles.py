@@ -1,0 +1,155 @@
+"""The flagship's roles: barrier, safety filter, reference controller, robot dynamics.
+
+The conformal CBF controller (:class:`~conformal_control.cbf.controller.ConformalCBFController`)
+is one :class:`~conformal_control.base.DecisionFamily` built from these parts. Each is a
+small abstract base class; implementations are plugins found by name
+(``conformal-control plugins``).
+
+==========================  ============================================================
+``Barrier``                 ego position, agent positions -> h, dh/dx_ego, dh/dx_agent
+``SafetyFilter``            nominal velocity + rows ``A v + b + lambda >= 0`` -> safe velocity
+``ReferenceController``     ego state, time, goal -> nominal velocity
+``Dynamics``                state, command, dt -> next state
+==========================  ============================================================
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+
+from ..base import Plugin
+
+__all__ = [
+    "Barrier",
+    "Dynamics",
+    "FilterResult",
+    "FilterStatus",
+    "ReferenceController",
+    "SafetyFilter",
+]
+
+#: ``"unconstrained"``: the nominal decision met every constraint and was returned as is;
+#: ``"optimal"``: the filter's optimum at the requested lambda; ``"fallback"``: the
+#: constraints could not be met at the requested lambda and the fallback named in
+#: :attr:`FilterResult.fallback` decided.
+FilterStatus = Literal["unconstrained", "optimal", "fallback"]
+
+
+class Barrier(Plugin, ABC):
+    """Pairwise control barrier function h(x_ego, x_agent) on positions (metres).
+
+    ``h >= 0`` is the safe set. Implementations are vectorised: ``x_ego`` and
+    ``x_agent`` broadcast against each other over leading dimensions.
+    """
+
+    @abstractmethod
+    def evaluate(
+        self, x_ego: np.ndarray, x_agent: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return ``(h, dh_dego, dh_dagent)``.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (..., 2)
+        x_agent : ndarray of shape (..., 2)
+
+        Returns
+        -------
+        h : ndarray of shape (...)
+        dh_dego : ndarray of shape (..., 2)
+            Exact gradient with respect to the ego position.
+        dh_dagent : ndarray of shape (..., 2)
+            Exact gradient with respect to the agent position.
+        """
+
+    def value(self, x_ego: np.ndarray, x_agent: np.ndarray) -> np.ndarray:
+        """Barrier value only."""
+        return self.evaluate(x_ego, x_agent)[0]
+
+    @property
+    def upper_bound(self) -> float | None:
+        """Supremum of h (used to compute the feasibility floor), or None if unbounded."""
+        return None
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """Output of a safety filter for one decision.
+
+    Attributes
+    ----------
+    decision : ndarray of shape (2,)
+        The (safe) velocity actually applied (m/s).
+    status : FilterStatus
+    lambda_applied : float
+        The lambda every returned row satisfies: the requested lambda unless a fallback
+        raised it; ``nan`` for a fallback that meets the rows at no lambda (``brake``,
+        ``hold``).
+    fallback : str or None
+        Name of the fallback used, if any.
+    row_lambda : ndarray of shape (N,) or None
+        Per-row lambda the decision satisfies, when it differs between rows (a fallback
+        that relaxes only some constraints); ``None`` when it is ``lambda_applied`` for
+        every row.
+    """
+
+    decision: np.ndarray
+    status: FilterStatus
+    lambda_applied: float
+    fallback: str | None = None
+    row_lambda: np.ndarray | None = None
+
+
+class SafetyFilter(Plugin, ABC):
+    """Minimally modify a nominal velocity so that the conformal constraints hold.
+
+    The constraints are ``A @ v + b + lam >= 0`` row-wise (one row per sensed agent),
+    plus the filter's own admissible set (a speed bound).
+    """
+
+    @abstractmethod
+    def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
+        """Return the decision closest to ``nominal`` satisfying the constraints."""
+
+    def reset(self) -> None:
+        """Reset counters and warm-start state (validate parameters here)."""
+
+    def stats(self) -> dict[str, float]:
+        """Counters since :meth:`reset` (``n_solves``, ``n_infeasible``, ``n_fallback``)."""
+        return {}
+
+
+class ReferenceController(Plugin, ABC):
+    """Nominal controller the safety filter minimally modifies."""
+
+    @abstractmethod
+    def __call__(self, state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
+        """Nominal velocity (m/s) at ego state ``state``, time ``t`` (s), toward ``goal`` (m).
+
+        The environment owns the task and hands over its current goal (waypoint).
+        """
+
+    def reset(self) -> None:
+        """Reset internal state (validate parameters here)."""
+
+
+class Dynamics(Plugin, ABC):
+    """Plant of the ego agent: ``state`` is a flat float array ``(x, y, vx, vy)``."""
+
+    state_dim: ClassVar[int] = 4
+
+    @abstractmethod
+    def step(self, state: np.ndarray, command: np.ndarray, dt: float) -> np.ndarray:
+        """State after holding ``command`` for ``dt`` seconds (returns a new array)."""
+
+    def position(self, state: np.ndarray) -> np.ndarray:
+        """Position part of the state (metres)."""
+        return state[:2]
+
+    def velocity(self, state: np.ndarray) -> np.ndarray:
+        """Velocity part of the state (m/s)."""
+        return state[2:4]

@@ -1,0 +1,132 @@
+"""The predictor role: a black-box trajectory predictor and what it exchanges.
+
+A :class:`Predictor` receives a :class:`PredictionQuery` (the histories of the sensed
+agents at a sampling time, batched) and returns a :class:`Forecast` (their predicted
+positions over the horizon). Every length is in metres and every time in seconds.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..base import Plugin
+
+__all__ = ["Forecast", "PredictionQuery", "Predictor", "TruthUnavailableError"]
+
+
+class TruthUnavailableError(RuntimeError):
+    """The environment cannot tell the future (e.g. a crowd that reacts to the robot)."""
+
+
+@dataclass
+class PredictionQuery:
+    """What the sensor hands the predictor at a sampling time (batched over agents).
+
+    Attributes
+    ----------
+    ids : ndarray of shape (N,)
+        Identifiers of the sensed agents.
+    history : ndarray of shape (N, T, 2)
+        Past positions in metres, one row per sample at spacing ``dt``; the last sample
+        (``history[:, -1]``) is the position at the sampling time and is always finite.
+        Samples where an agent was not observed are NaN (short histories are NaN-padded
+        at the front; gaps are NaN in the middle).
+    dt : float
+        Sample spacing in seconds (1 / the scene's frame rate).
+    horizon : int
+        Number of future samples requested (positions at ``dt, 2 dt, ..., horizon dt``).
+    t : float
+        Time of the sampling instant in seconds since the episode started.
+    frame : int
+        Video frame number of the sampling instant (a cache key for expensive predictors).
+    scene : str
+        Name of the scene (cache key).
+    ground_truth : ndarray of shape (N, horizon, 2) or None
+        The true future, when the caller already has it (tests, replayed series).
+    truth_provider : callable or None
+        ``truth_provider() -> (N, horizon, 2)``: computes the true future on demand. An
+        environment that replays recorded data attaches one to every query; only the
+        oracle baseline calls it (:meth:`future`).
+    """
+
+    ids: np.ndarray
+    history: np.ndarray
+    dt: float
+    horizon: int
+    t: float = 0.0
+    frame: int = 0
+    scene: str = ""
+    ground_truth: np.ndarray | None = None
+    truth_provider: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def n_agents(self) -> int:
+        return int(self.history.shape[0])
+
+    @property
+    def current(self) -> np.ndarray:
+        """Positions at the sampling time, shape (N, 2)."""
+        return self.history[:, -1, :]
+
+    def future(self) -> np.ndarray:
+        """The true future positions, shape (N, horizon, 2) (NaN where unobserved).
+
+        Raises
+        ------
+        TruthUnavailableError
+            If the query carries neither ``ground_truth`` nor a ``truth_provider``.
+        """
+        if self.ground_truth is not None:
+            return self.ground_truth
+        if self.truth_provider is None:
+            raise TruthUnavailableError(
+                "this environment cannot reveal the future of the sensed agents "
+                "(the oracle predictor needs replayed data)"
+            )
+        return self.truth_provider()
+
+
+@dataclass
+class Forecast:
+    """Output of a predictor.
+
+    Attributes
+    ----------
+    positions : ndarray of shape (N, H, 2)
+        Predicted positions in metres at ``dt, ..., H dt`` after the sampling time.
+    covariance : ndarray of shape (N, H, 2, 2) or None
+        Optional predictive covariance (m^2), for predictors that have one.
+    info : dict
+        Counters (e.g. ``{"n_fallback": 2}``, summed over a run) and messages (lists of
+        strings, e.g. ``{"fit_errors": [...]}``, concatenated) reported in run metrics.
+    """
+
+    positions: np.ndarray
+    covariance: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Predictor(Plugin, ABC):
+    """Black-box trajectory predictor, batched over the sensed agents.
+
+    Subclasses implement :meth:`predict`. A predictor must not modify the query, must
+    return finite positions for every agent whose last history sample is finite (or NaN,
+    which the controller replaces by a documented, counted fallback), and must be
+    deterministic for a given ``random_state`` if it has one.
+    """
+
+    #: True for predictors that read the true future (:meth:`PredictionQuery.future`):
+    #: the oracle baseline. Reports mark such runs; the contract kit feeds them a truth.
+    requires_ground_truth: ClassVar[bool] = False
+
+    def reset(self) -> None:
+        """Forget any state accumulated during an episode (optional)."""
+
+    @abstractmethod
+    def predict(self, query: PredictionQuery) -> Forecast:
+        """Predict ``query.horizon`` future positions for each of the ``query.n_agents``."""

@@ -1,0 +1,104 @@
+"""Shared machinery of the update rules: target, initial value, clipping, counters."""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ..base import UpdateRule
+
+__all__ = ["StepRule", "check_finite", "check_loss", "check_positive"]
+
+
+def check_finite(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return value
+
+
+def check_positive(name: str, value: float, allow_zero: bool = False) -> float:
+    value = float(value)
+    ok = math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
+    return value
+
+
+def check_loss(loss: float) -> float:
+    loss = float(loss)
+    if not math.isfinite(loss):
+        raise ValueError(f"update rule received a non-finite loss ({loss!r})")
+    return loss
+
+
+class StepRule(UpdateRule):
+    """Shared machinery: target, initial value, clipping, counters.
+
+    Subclasses implement :meth:`_reset` (returning the unclipped lambda_1) and
+    :meth:`_step` (returning the unclipped lambda_{k+1}).
+    """
+
+    #: True when lambda_{k+1} = lambda_k + eta_k (eps - l_k) exactly (before clipping);
+    #: the step eta_k of the last update is then in ``last_step_``.
+    exact_step: ClassVar[bool] = False
+    #: Constructor parameters in the units of lambda (converted by scene-unit loaders).
+    lambda_params: ClassVar[tuple[str, ...]] = ("lambda_init", "lambda_min", "lambda_max")
+
+    lambda_min: float
+    lambda_max: float
+
+    def _validate_common(self) -> None:
+        check_finite("epsilon", self.epsilon)
+        if math.isnan(self.lambda_min) or math.isnan(self.lambda_max):
+            raise ValueError("lambda_min and lambda_max must not be NaN")
+        if self.lambda_min > self.lambda_max:
+            raise ValueError(
+                f"lambda_min ({self.lambda_min}) must not exceed lambda_max ({self.lambda_max})"
+            )
+
+    def _clip(self, lam: float) -> float:
+        clipped = min(max(lam, self.lambda_min), self.lambda_max)
+        if clipped != lam:
+            self.n_clipped_ += 1
+            if self.exact_step and self.last_step_ > 0:
+                self.clip_weighted_ += abs(clipped - lam) / self.last_step_
+        return clipped
+
+    def _reset(self) -> float:
+        raise NotImplementedError
+
+    def _step(self, loss: float) -> float:
+        raise NotImplementedError
+
+    def reset(self) -> float:
+        self._validate_common()
+        self.n_clipped_ = 0
+        #: sum_k |clip displacement_k| / eta_k: what clipping adds to the long-run bounds
+        self.clip_weighted_ = 0.0
+        self.n_updates_ = 0
+        self.last_step_ = math.nan
+        lam = float(self._reset())
+        self.lambda_ = float(np.clip(lam, self.lambda_min, self.lambda_max))
+        return self.lambda_
+
+    def update(self, loss: float) -> float:
+        loss = check_loss(loss)
+        lam = self._step(loss)
+        if math.isnan(lam):
+            raise ValueError(f"{type(self).__name__} produced lambda = nan")
+        self.n_updates_ += 1
+        self.lambda_ = self._clip(lam)
+        if not math.isfinite(self.lambda_):
+            raise ValueError(
+                f"{type(self).__name__} produced lambda = {self.lambda_}; "
+                "set finite lambda_min / lambda_max"
+            )
+        return self.lambda_
+
+    @property
+    def value(self) -> float:
+        return self.lambda_
