@@ -28,7 +28,7 @@ import numpy as np
 from .base import DecisionFamily, Environment, Loss, UpdateRule
 from .monitor import GuaranteeMonitor
 
-__all__ = ["ConformalLoop", "IntervalLog", "LoopResult"]
+__all__ = ["ConformalLoop", "ConformalStepper", "IntervalLog", "LoopResult"]
 
 
 @dataclass
@@ -91,7 +91,120 @@ class LoopResult:
         return self.monitor.summary()
 
 
-class ConformalLoop:
+class ConformalStepper:
+    """The loop's body, one call at a time: for a world that is not an :class:`Environment`.
+
+    :class:`ConformalLoop` drives a stepper from an environment; a user with their own
+    simulator or robot drives it directly::
+
+        stepper = ConformalStepper(policy, loss, rule)
+        stepper.start()
+        while running:
+            stepper.begin_interval(observation)        # at a sampling time
+            for each control instant:
+                apply(stepper.decide(state))            # decided with stepper.lam
+            stepper.end_interval(truth)                 # at the next sampling time
+        result = stepper.result()
+
+    Parameters are those of :class:`ConformalLoop` without the environment.
+    """
+
+    def __init__(
+        self,
+        policy: DecisionFamily[Any, Any, Any, Any],
+        loss: Loss[Any, Any],
+        rule: UpdateRule,
+        *,
+        learn: bool = True,
+        lambda_safe: float | None = None,
+        lambda_safe_source: str | None = None,
+        lambda_safe_proven: bool = False,
+        on_interval: Callable[[IntervalLog], None] | None = None,
+    ) -> None:
+        self.policy = policy
+        self.loss = loss
+        self.rule = rule
+        self.learn = learn
+        self.lambda_safe = lambda_safe
+        self.lambda_safe_source = lambda_safe_source
+        self.lambda_safe_proven = lambda_safe_proven
+        self.on_interval = on_interval
+
+    def start(self) -> float:
+        """Reset the family and the rule; return lambda_1."""
+        self.policy.reset()
+        self.monitor_ = GuaranteeMonitor.for_rule(
+            self.rule,
+            lambda_safe=self.lambda_safe,
+            lambda_safe_source=self.lambda_safe_source,
+            premise_proven=self.lambda_safe_proven,
+            bounds=self.loss.bounds,
+            learn=self.learn,
+        )
+        self.lam_ = self.monitor_.lambda_1
+        self.intervals_: list[IntervalLog] = []
+        self._n_steps = 0
+        self._open = False
+        return self.lam_
+
+    @property
+    def lam(self) -> float:
+        """The lambda decisions are taken with now (lambda_k)."""
+        return self.lam_
+
+    def begin_interval(self, observation: Any) -> None:
+        """Sampling time k tau: hand the observation to the family."""
+        if self._open:
+            raise RuntimeError("begin_interval() called twice without end_interval()")
+        self.policy.begin_interval(observation)
+        self._n_steps = 0
+        self._open = True
+
+    def decide(self, state: Any) -> Any:
+        """Decision D^{lambda_k}(state) at a control instant of the open interval."""
+        if not self._open:
+            raise RuntimeError("decide() called outside an interval (call begin_interval())")
+        self._n_steps += 1
+        return self.policy.decide(state, self.lam_)
+
+    def end_interval(self, truth: Any) -> IntervalLog:
+        """Sampling time (k+1) tau: score the interval on its truth, update lambda."""
+        if not self._open:
+            raise RuntimeError("end_interval() called without begin_interval()")
+        self._open = False
+        lam, loss, rule, monitor = self.lam_, self.loss, self.rule, self.monitor_
+        record = self.policy.interval_record()
+        l_k = loss(record, truth, lam)
+        diagnostics = loss.diagnostics(record, truth, lam) if l_k is not None else {}
+        log = IntervalLog(
+            k=len(self.intervals_),
+            lam=lam,
+            loss=l_k,
+            n_steps=self._n_steps,
+            diagnostics=diagnostics,
+        )
+        self.intervals_.append(log)
+        if l_k is not None:
+            if self.learn:
+                if rule.uses_loss_function:
+                    rule.set_loss_function(_LossAt(loss, record, truth))
+                self.lam_ = monitor.update(l_k)
+            else:
+                monitor.observe(l_k, lam)
+                monitor.set_lambda_next(lam)
+            log.l_avg = monitor.average
+        if self.on_interval is not None:
+            self.on_interval(log)
+        return log
+
+    def result(self) -> LoopResult:
+        """Everything so far as a :class:`LoopResult`."""
+        return LoopResult(
+            intervals=list(self.intervals_), lambda_final=self.lam_, monitor=self.monitor_
+        )
+
+
+class ConformalLoop(ConformalStepper):
     """Run a conformal decision policy in an environment.
 
     Parameters
@@ -132,63 +245,34 @@ class ConformalLoop:
         lambda_safe_proven: bool = False,
         on_interval: Callable[[IntervalLog], None] | None = None,
     ) -> None:
+        super().__init__(
+            policy,
+            loss,
+            rule,
+            learn=learn,
+            lambda_safe=lambda_safe,
+            lambda_safe_source=lambda_safe_source,
+            lambda_safe_proven=lambda_safe_proven,
+            on_interval=on_interval,
+        )
         self.env = env
-        self.policy = policy
-        self.loss = loss
-        self.rule = rule
-        self.learn = learn
-        self.lambda_safe = lambda_safe
-        self.lambda_safe_source = lambda_safe_source
-        self.lambda_safe_proven = lambda_safe_proven
-        self.on_interval = on_interval
 
     def run(self, max_intervals: int | None = None) -> LoopResult:
         """Run until the environment is done (or ``max_intervals`` intervals)."""
-        env, policy, loss, rule = self.env, self.policy, self.loss, self.rule
+        env = self.env
         env.reset()
-        policy.reset()
-        monitor = GuaranteeMonitor.for_rule(
-            rule,
-            lambda_safe=self.lambda_safe,
-            lambda_safe_source=self.lambda_safe_source,
-            premise_proven=self.lambda_safe_proven,
-            bounds=loss.bounds,
-            learn=self.learn,
-        )
-        lam = monitor.lambda_1
-        wants_loss_fn = self.learn and rule.uses_loss_function
-        intervals: list[IntervalLog] = []
-        k = 0
-        while not env.done and (max_intervals is None or k < max_intervals):
+        self.start()
+        while not env.done and (max_intervals is None or len(self.intervals_) < max_intervals):
             # sampling time k*tau: the family receives the observation (and plans)
-            policy.begin_interval(env.sense())
+            self.begin_interval(env.sense())
             # control instants of I_k: decide with lambda_k, apply through the plant
-            n_steps = 0
             for _ in range(env.control_instants()):
-                env.apply(policy.decide(env.state(), lam))
-                n_steps += 1
+                env.apply(self.decide(env.state()))
                 if env.done:
                     break
             # sampling time (k+1)*tau: the truth over I_k is revealed; score, update
-            truth = env.reveal()
-            record = policy.interval_record()
-            l_k = loss(record, truth, lam)
-            diagnostics = loss.diagnostics(record, truth, lam) if l_k is not None else {}
-            log = IntervalLog(k=k, lam=lam, loss=l_k, n_steps=n_steps, diagnostics=diagnostics)
-            intervals.append(log)
-            if l_k is not None:
-                if self.learn:
-                    if wants_loss_fn:
-                        rule.set_loss_function(_LossAt(loss, record, truth))
-                    lam = monitor.update(l_k)
-                else:
-                    monitor.observe(l_k, lam)
-                    monitor.set_lambda_next(lam)
-                log.l_avg = monitor.average
-            if self.on_interval is not None:
-                self.on_interval(log)
-            k += 1
-        return LoopResult(intervals=intervals, lambda_final=lam, monitor=monitor)
+            self.end_interval(env.reveal())
+        return self.result()
 
 
 class _LossAt:

@@ -1,12 +1,16 @@
-"""The feasibility floor of the conformal CBF controller (SPEC section 2).
+"""The feasibility floor of the conformal CBF controller.
 
 lambda is added to the constraint of *every* sensed agent. A far agent has a vanishing
 barrier gradient and h close to its supremum h_max, so its constraint reads
 ``a h_max + lambda >= 0``: no velocity satisfies it once ``lambda < -a h_max``. Below that
-floor the QP is infeasible whatever the ego does, the fallback applies at every control
-instant, and - since with a perfect predictor the loss is s(lambda) - a target
-``epsilon <= s(-a h_max)`` cannot be reached: lambda winds down forever. This module
-computes the floor so runs can report an unattainable epsilon up front.
+floor the QP is infeasible whatever the ego does and the fallback applies at almost every
+control instant. The loss is scored with lambda_k (the paper's definition), and a far
+agent's gap is about 0, so l_k >= s(lambda_k / c) roughly: a target
+``epsilon <= s(-a h_max)`` cannot be reached. lambda_k does not wind down forever; it
+settles near the level where the far agents' loss equals epsilon, lambda ~ c tan(pi
+epsilon) (about -1 per frame for epsilon = -0.25 with c = 1 per frame), far below the
+floor, with the fallback deciding. This module computes the floor so runs can report an
+unattainable epsilon before they start.
 """
 
 from __future__ import annotations
@@ -39,8 +43,9 @@ class FeasibilityFloor:
         return (
             f"target epsilon={self.epsilon:g} is at or below the feasibility floor "
             f"s(-a*h_max)={self.epsilon_floor:.4f}: below lambda={self.lambda_floor:g} {unit} "
-            "every QP with a sensed agent is infeasible, so lambda will wind down and the "
-            "fallback will apply; raise epsilon, raise a, or clip lambda with lambda_min"
+            "every QP with a sensed agent is infeasible, so lambda will settle below that "
+            "floor and the fallback will decide; raise epsilon, raise a, or clip lambda "
+            "with lambda_min"
         )
 
 

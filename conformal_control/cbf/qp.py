@@ -210,5 +210,12 @@ class QPSafetyFilter(SafetyFilter):
         self._last = v
         return FilterResult(v, "fallback", lam_used, "lambda_search")
 
+    def stats(self) -> dict[str, float]:
+        return {
+            "n_solves": self.n_solves_,
+            "n_infeasible": self.n_infeasible_,
+            "n_fallback": self.n_fallback_,
+        }
+
     def _margin(self, lam_star: float) -> float:
         return self.lambda_margin * max(1.0, abs(lam_star))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import sys
 from pathlib import Path
 
@@ -50,6 +49,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         action="append",
         metavar="KEY=VALUE",
         help="barrier constructor argument in SI units (repeatable; needs --barrier)",
+    )
+    for role, what in (
+        ("safety-filter", "safety filter (default qp)"),
+        ("reference", "reference controller (default attractive_field)"),
+        ("dynamics", "robot dynamics (default velocity_tracking)"),
+        ("loss", "loss (default cbf_gap; e.g. collision, distance_shortfall)"),
+    ):
+        p.add_argument(f"--{role}", default=None, help=f"registered {what}")
+        p.add_argument(
+            f"--{role}-param",
+            action="append",
+            metavar="KEY=VALUE",
+            help=f"{role.replace('-', ' ')} constructor argument in SI units (repeatable)",
+        )
+    p.add_argument(
+        "--fallback",
+        default=None,
+        help="what the safety filter does when the constraints are infeasible at lambda "
+        "(default lambda_search; see `conformal-control plugins`)",
     )
     p.add_argument("--epsilon", type=float, default=None, help="target average loss")
     p.add_argument(
@@ -132,8 +150,15 @@ def _run(args: argparse.Namespace) -> int:
     from ..sim.rundir import write_run_dir
 
     params = key_values(args.param, "--param")
-    if args.barrier_param and not args.barrier:
-        raise ValueError("--barrier-param needs --barrier NAME")
+    roles = {}
+    for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
+        given = key_values(getattr(args, f"{role}_param"), f"--{role.replace('_', '-')}-param")
+        name = getattr(args, role)
+        if given and not name:
+            flag = role.replace("_", "-")
+            raise ValueError(f"--{flag}-param needs --{flag} NAME")
+        roles[role] = name
+        roles[f"{role}_params"] = given
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
@@ -158,41 +183,22 @@ def _run(args: argparse.Namespace) -> int:
         rule=args.rule,
         rule_params=key_values(args.rule_param, "--rule-param"),
         lambda_safe=args.lambda_safe,
-        barrier=args.barrier,
-        barrier_params=key_values(args.barrier_param, "--barrier-param"),
+        fallback=args.fallback,
+        **roles,
     )
     out = args.out or Path("runs") / (
         f"{scene.name.replace(':', '_')}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
     )
     out = write_run_dir(result, out, plot=not args.no_plot)
     m = result.metrics
-    keys = [
-        "t_goal",
-        "goal_reached",
-        "n_collide",
-        "d_min",
-        "l_avg",
-        "l_avg_applied",
-        "lambda_final",
-        "n_updates",
-        "n_fallback",
-        "fallback_share",
-        "identity_residual",
-        "rule",
-        "guarantee",
-        "theorem2_bound",
-        "theorem2_holds",
-        "long_run_bound",
-        "long_run_holds",
-        "frames",
-        "wall_s",
-    ]
-    print(json.dumps({k: m[k] for k in keys}, indent=2))
+    print(m.format())
     if not m["epsilon_attainable"]:
         print(
-            f"warning: epsilon={m['epsilon']} is not attainable: below the feasibility floor "
-            f"s(-a*h_max)={m['epsilon_floor']:.4f} (lambda_floor={m['lambda_floor']:g} "
-            f"{m['units']['lambda']}); see SPEC 'FEASIBILITY FLOOR'",
+            f"warning: epsilon={m['epsilon']} is not attainable: it is at or below the "
+            f"feasibility floor s(-a*h_max)={m['epsilon_floor']:.4f} (lambda_floor="
+            f"{m['lambda_floor']:g} {m.unit('lambda_floor')}): lambda is added to every sensed "
+            "agent's constraint and a far agent's row fails below lambda_floor; raise epsilon "
+            "or a (see the Controller page of the docs, 'Feasibility floor')",
             file=sys.stderr,
         )
     print(f"results written to {out}")

@@ -9,7 +9,7 @@ from typing import Any
 from ..data.scene import Scene
 from ..data.units import PARAM_DIMENSIONS
 
-__all__ = ["PARAMETERS", "ResolvedParams", "parse_value", "resolve_params"]
+__all__ = ["PARAMETERS", "ResolvedParams", "parse_value", "resolve_params", "to_scene_units"]
 
 #: Every controller parameter: name -> (default, description). ``None`` defaults are
 #: filled from the scene (``scene.defaults`` first, then the scene's own attributes).
@@ -39,6 +39,28 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "agent_radius": (None, "pedestrian radius (m)"),
     "goal_radius": (None, "goal radius (m)"),
 }
+
+
+def to_scene_units(scene: Scene, params: dict[str, Any], units: str) -> dict[str, Any]:
+    """Parameters typed in ``units`` ("scene" or "si"), expressed in the scene's units.
+
+    Raises
+    ------
+    ValueError
+        For a unit system other than "scene" or "si".
+    """
+    if units == "scene":
+        return dict(params)
+    if units != "si":
+        raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
+    out = {}
+    for k, v in params.items():
+        if k in PARAM_DIMENSIONS and isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = v / scene.units.factor(k)
+            if k == "tau" and abs(v - round(v)) < 1e-9:
+                v = round(v)
+        out[k] = v
+    return out
 
 
 def parse_value(text: str) -> Any:

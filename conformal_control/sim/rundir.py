@@ -51,7 +51,7 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
-    (out / "metrics.json").write_text(json.dumps(_clean(result.metrics), indent=2) + "\n")
+    (out / "metrics.json").write_text(json.dumps(result.metrics.as_dict(), indent=2) + "\n")
     with (out / "trace.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["k", "t", "lambda", "loss"])

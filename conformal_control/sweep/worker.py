@@ -18,36 +18,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from ..sim.metrics import EpisodeMetrics
+
 __all__ = ["METRIC_COLUMNS", "execute_run", "run_dir_name"]
 
 #: Metrics copied from ``metrics.json`` into the results table (scalars only).
-METRIC_COLUMNS = (
-    "t_goal",
-    "goal_reached",
-    "n_collide",
-    "d_min",
-    "l_avg",
-    "l_avg_applied",
-    "l_mean",
-    "epsilon",
-    "eta",
-    "lambda_final",
-    "n_updates",
-    "n_intervals",
-    "n_steps",
-    "n_infeasible",
-    "n_fallback",
-    "fallback_share",
-    "n_lambda_clipped",
-    "identity_residual",
-    "lambda_floor",
-    "epsilon_floor",
-    "epsilon_attainable",
-    "n_nonfinite_predictions",
-    "n_truth_missing",
-    "frames",
-    "wall_s",
-)
+METRIC_COLUMNS = EpisodeMetrics.columns()
 
 
 def run_dir_name(cfg: dict[str, Any], key: str) -> str:
