@@ -30,6 +30,8 @@ from .monitor import GuaranteeMonitor
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
+    "run": "conformal_control.api",
+    "StepwiseCBF": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
     "Forecast": "conformal_control.predictors.base",
@@ -58,8 +60,10 @@ __all__ = [
     "ReferenceController",
     "SafetyFilter",
     "SingleStepEnvironment",
+    "StepwiseCBF",
     "UpdateRule",
     "__version__",
+    "run",
 ]
 
 

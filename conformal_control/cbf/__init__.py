@@ -16,6 +16,7 @@ from .roles import (
     ReferenceController,
     SafetyFilter,
 )
+from .stepwise import StepwiseCBF
 
 __all__ = [
     "APFBarrier",
@@ -36,6 +37,7 @@ __all__ = [
     "QPSafetyFilter",
     "ReferenceController",
     "SafetyFilter",
+    "StepwiseCBF",
     "VelocityTrackingDoubleIntegrator",
     "feasibility_floor",
 ]

@@ -1,0 +1,115 @@
+"""The front door: run the flagship on a scene in one call.
+
+    >>> import conformal_control as cc
+    >>> res = cc.run("crossing", epsilon=-0.1, eta=0.5, units="si", seed=0)  # doctest: +SKIP
+    >>> print(res.metrics.format())                                      # doctest: +SKIP
+
+Parameters with a unit (``eta``, ``tau``, ``a``, ``rho0``, ...) need an explicit unit
+system when the scene's own is not SI: ``units="si"`` (metres, seconds) or
+``units="scene"`` (the paper's pixels and frames for SDD scenes). On SI scenes (the
+built-in ``crossing``) both mean the same. Everything else is
+:func:`conformal_control.sim.run_episode`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .sim.build import RoleSpec
+from .sim.episode import EpisodeResult
+
+__all__ = ["run"]
+
+
+def run(
+    scene: Any = "crossing",
+    *,
+    predictor: RoleSpec = "constant_velocity",
+    epsilon: float | None = None,
+    eta: float | None = None,
+    tau: float | None = None,
+    params: dict[str, Any] | None = None,
+    units: str | None = None,
+    learn: bool = True,
+    data_root: str | Path | None = None,
+    start: Sequence[float] | None = None,
+    goal: Sequence[float] | None = None,
+    seed: int = 0,
+    max_frames: int | None = None,
+    **kwargs: Any,
+) -> EpisodeResult:
+    """Run the conformal CBF controller on a scene and return the result.
+
+    Parameters
+    ----------
+    scene : str or Scene
+        A registered scene name (``conformal-control scenes``), e.g. ``"crossing"`` (built
+        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``; or a
+        :class:`~conformal_control.data.scene.Scene`.
+    predictor : Predictor or str
+        A predictor instance or a registered name.
+    epsilon, eta, tau : float, optional
+        Target average loss, learning rate, sampling period (shortcuts for ``params``).
+    params : dict, optional
+        Any other parameter (``conformal-control params``).
+    units : {"si", "scene"}, optional
+        Unit system of the dimensional parameters; required when some are given and the
+        scene's unit system is not SI.
+    learn : bool
+        False keeps lambda fixed (the noLearn baseline).
+    data_root : path, optional
+        Data folder for scenes read from data (default ``$CONFORMAL_CONTROL_DATA``).
+    start, goal : (fx, fy), optional
+        For ``sdd:`` scenes: start and goal as image fractions.
+    seed : int
+        Seed of the built-in scene and of named plugins with a ``random_state``.
+    max_frames : int, optional
+        Limit on simulated frames.
+    **kwargs
+        Passed to :func:`~conformal_control.sim.run_episode`: ``barrier``,
+        ``safety_filter``, ``fallback``, ``reference``, ``dynamics``, ``loss``, ``rule``
+        (instances or names) and their ``*_params``, ``lambda_safe``,
+        ``record_animation``, ``on_interval``.
+
+    Returns
+    -------
+    EpisodeResult
+        ``.metrics`` (with units), ``.intervals``, ``.trajectory``, ``.config``,
+        ``.plot()``, ``.save(dir)``.
+    """
+    from .data import load_scene
+    from .data.units import PARAM_DIMENSIONS
+    from .sim.episode import run_episode
+
+    if isinstance(scene, str):
+        goals = None if goal is None else [tuple(goal)]
+        scene = load_scene(scene, data_root, start=start, goals=goals, seed=seed)
+    given = dict(params or {})
+    for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):
+        if value is not None:
+            if name in given and given[name] != value:
+                raise ValueError(f"{name} given twice with different values")
+            given[name] = value
+    dimensional = sorted(k for k in given if k in PARAM_DIMENSIONS)
+    si_scene = scene.units.length == 1.0 and scene.units.time == 1.0
+    if units is None:
+        if dimensional and not si_scene:
+            raise ValueError(
+                f"parameter(s) {', '.join(dimensional)} have units and scene {scene.name} is "
+                f"typed in {scene.units.length_name} and {scene.units.time_name}: pass "
+                f"units='si' (m, s) or units='scene' ({scene.units.length_name}, "
+                f"{scene.units.time_name})"
+            )
+        units = "si"
+    return run_episode(
+        scene,
+        predictor,
+        given,
+        units=units,
+        learn=learn,
+        seed=seed,
+        max_frames=max_frames,
+        **kwargs,
+    )

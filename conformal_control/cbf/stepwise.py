@@ -1,0 +1,264 @@
+"""The conformal CBF controller for your own simulator or robot, one call at a time.
+
+:class:`StepwiseCBF` keeps what the replay environment keeps for a recorded scene -- the
+agents' histories, the sampling times, the truth of each interval -- but from a live
+stream: you hand it every sensor sample with :meth:`StepwiseCBF.observe` and ask it for a
+velocity at every control instant with :meth:`StepwiseCBF.step`::
+
+    ctrl = StepwiseCBF(predictor="constant_velocity", epsilon=0.0, eta=0.5, tau=0.4, dt=0.1)
+    for k in range(n_samples):                    # sensor samples, every dt seconds
+        ctrl.observe(ids, positions, t=k * dt)    # agents seen at this sample (m)
+        for j in range(ctrl.substeps):            # control instants, every dt/substeps
+            v = ctrl.step(ego_state, t=k * dt + j * ctrl.dt_control, goal=goal)
+            ego_state = my_robot.apply(v)
+
+Timing, as in the paper: every ``tau`` seconds (a sampling time) it closes the interval
+that ends there -- the truth of the agents sensed at its start is read from the samples
+observed since, the loss is scored and lambda updated -- then senses the agents within
+``sensing_radius``, predicts them over the next ``tau`` and decides with the new lambda
+until the next sampling time. Call :meth:`observe` with a sample BEFORE :meth:`step` at
+the same time; call :meth:`step` exactly every ``dt / substeps`` seconds. Units are SI.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .. import registry
+from ..base import Loss, UpdateRule
+from ..loop import ConformalStepper, LoopResult
+from ..predictors.base import PredictionQuery, Predictor
+from .barriers import APFBarrier
+from .constraint import ConformalConstraint
+from .controller import ConformalCBFController, ControlState
+from .loss import CBFGapLoss, CBFTruth
+from .reference import AttractiveField
+from .roles import Barrier, ReferenceController, SafetyFilter
+
+__all__ = ["StepwiseCBF"]
+
+
+class StepwiseCBF:
+    """Conformal CBF controller driven by your own loop (SI units throughout).
+
+    Parameters
+    ----------
+    predictor : Predictor or str
+        A predictor instance or a registered name.
+    epsilon : float
+        Target average loss, in (-1/2, 1/2).
+    eta : float
+        Learning rate of lambda (1/s); 0 keeps lambda fixed.
+    tau : float
+        Sampling period of sensor, predictor and lambda update (s); a whole number of
+        sensor samples.
+    dt : float
+        Sensor sample period (s).
+    substeps : int
+        Control instants per sensor sample.
+    a : float
+        Slope of alpha(h) = a h (1/s).
+    barrier : Barrier, optional
+        Default: the APF barrier with ``d_c`` and a 10 m influence distance.
+    d_c : float
+        Collision distance robot-agent, centre to centre (m), for the default barrier.
+    safety_filter : SafetyFilter or str, optional
+        Default: the registered ``qp`` filter with ``v_max``.
+    reference : ReferenceController, optional
+        Default: the attractive field with ``K_att`` and ``v_max``.
+    rule : UpdateRule, optional
+        Default: the fixed-step rule with ``epsilon``, ``eta``, ``lambda_init``.
+    loss : Loss, optional
+        Default: the paper's gap loss on the same constraint with scale ``loss_scale``.
+    v_max, K_att : float
+        Speed bound (m/s) and attractive gain (1/s) of the defaults.
+    sensing_radius : float
+        Agents farther than this (m) at a sampling time are ignored until the next one.
+    history : int
+        Samples of history handed to the predictor.
+    loss_scale : float
+        c in s(r) = arctan(r / c) / pi (1/s).
+    lambda_init : float
+        lambda_1 (1/s).
+    """
+
+    def __init__(
+        self,
+        predictor: Predictor | str = "constant_velocity",
+        *,
+        epsilon: float = 0.0,
+        eta: float = 1.0,
+        tau: float = 0.4,
+        dt: float = 0.1,
+        substeps: int = 4,
+        a: float = 10.0,
+        barrier: Barrier | None = None,
+        d_c: float = 1.0,
+        safety_filter: SafetyFilter | str | None = None,
+        reference: ReferenceController | None = None,
+        rule: UpdateRule | None = None,
+        loss: Loss[Any, Any] | None = None,
+        v_max: float = 2.0,
+        K_att: float = 1.0,
+        sensing_radius: float = 10.0,
+        history: int = 40,
+        loss_scale: float = 1.0,
+        lambda_init: float = 0.0,
+    ) -> None:
+        for name, value in (("tau", tau), ("dt", dt), ("sensing_radius", sensing_radius)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        tau_samples = tau / dt
+        if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
+            raise ValueError(f"tau ({tau} s) must be a whole number of samples of dt ({dt} s)")
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        if int(history) != history or history < 1:
+            raise ValueError(f"history must be a positive integer, got {history!r}")
+        self.dt = float(dt)
+        self.substeps = int(substeps)
+        self.dt_control = self.dt / self.substeps
+        self.tau_samples = round(tau_samples)
+        self.sensing_radius = float(sensing_radius)
+        self.history = int(history)
+        if isinstance(predictor, str):
+            predictor = registry.create("predictor", predictor)
+        barrier = barrier if barrier is not None else APFBarrier(rho0=10.0, d_c=d_c)
+        self.constraint = ConformalConstraint(barrier, a=a)
+        if safety_filter is None or isinstance(safety_filter, str):
+            name = safety_filter or "qp"
+            safety_filter = registry.create("safety_filter", name, v_max=v_max)
+        reference = reference if reference is not None else AttractiveField(K_att, v_max)
+        self.controller = ConformalCBFController(
+            predictor, self.constraint, safety_filter, reference, substeps=self.substeps
+        )
+        if rule is None:
+            from ..update_rules import FixedEtaRule
+
+            rule = FixedEtaRule(epsilon=epsilon, eta=eta, lambda_init=lambda_init)
+        loss = loss if loss is not None else CBFGapLoss(self.constraint, scale=loss_scale)
+        self.stepper = ConformalStepper(self.controller, loss, rule, learn=eta > 0)
+        self.stepper.start()
+        self._samples: dict[int, dict[int, np.ndarray]] = {}  # sample index -> id -> xy
+        self._latest: int | None = None
+        self._start: int | None = None  # sample index of the open interval's start
+        self._sensed = np.zeros(0, dtype=np.int64)
+        self._step = 0
+
+    # ------------------------------------------------------------------ input
+    def _index(self, t: float) -> int:
+        k = t / self.dt
+        if abs(k - round(k)) > 1e-6:
+            raise ValueError(f"observe() at t = {t} s is not a multiple of dt = {self.dt} s")
+        return round(k)
+
+    def observe(self, ids: Sequence[int] | np.ndarray, positions: np.ndarray, t: float) -> None:
+        """One sensor sample: the agents seen at time ``t`` (s) and their positions (m).
+
+        Agents not listed are absent at that sample (they may reappear later).
+        """
+        pos = np.asarray(positions, dtype=float).reshape(-1, 2)
+        idv = np.asarray(ids).reshape(-1)
+        if idv.size != pos.shape[0]:
+            raise ValueError(f"{idv.size} ids for {pos.shape[0]} positions")
+        if not np.isfinite(pos).all():
+            raise ValueError("observed positions must be finite (leave absent agents out)")
+        k = self._index(t)
+        if self._latest is not None and k < self._latest:
+            raise ValueError(f"samples must arrive in time order (t = {t} s after a later one)")
+        self._samples[k] = {int(i): p.copy() for i, p in zip(idv, pos, strict=True)}
+        self._latest = k
+        # keep what a history or an open interval's truth can still need
+        keep_from = k - self.history - self.tau_samples - 1
+        if self._start is not None:
+            keep_from = min(keep_from, self._start)
+        for old in [j for j in self._samples if j < keep_from]:
+            del self._samples[old]
+
+    def _window(self, lo: int, hi: int, ids: np.ndarray) -> np.ndarray:
+        out = np.full((ids.size, hi - lo, 2), np.nan)
+        for c, k in enumerate(range(lo, hi)):
+            sample = self._samples.get(k)
+            if sample:
+                for r, i in enumerate(ids):
+                    p = sample.get(int(i))
+                    if p is not None:
+                        out[r, c] = p
+        return out
+
+    # ------------------------------------------------------------------ control
+    def step(self, ego_state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
+        """The safe velocity (m/s) at control time ``t`` for ego state (x, y, vx, vy)."""
+        x = np.asarray(ego_state, dtype=float)
+        if x.shape != (4,) or not np.isfinite(x).all():
+            raise ValueError(f"ego_state must be 4 finite numbers (x, y, vx, vy), got {x}")
+        at_sampling = self._start is None or self._step >= self.tau_samples * self.substeps
+        if at_sampling:
+            k = round(t / self.dt)
+            if self._latest != k:
+                raise ValueError(
+                    f"t = {t} s is a sampling time: observe() the sample at t = {k * self.dt} s "
+                    "before step()"
+                )
+            if self._start is not None:
+                self._close(k)
+            self._open(k, x[:2])
+        state = ControlState(x=x, t=float(t), step=self._step, goal=np.asarray(goal, float))
+        self._step += 1
+        v: np.ndarray = self.stepper.decide(state)
+        return v
+
+    def _open(self, k: int, ego: np.ndarray) -> None:
+        current = self._samples.get(k, {})
+        ids = np.array(sorted(current), dtype=np.int64)
+        if ids.size:
+            xy = np.array([current[int(i)] for i in ids])
+            near = np.hypot(*(xy - ego).T) <= self.sensing_radius
+            ids = ids[near]
+        self._sensed = ids
+        self._start = k
+        self._step = 0
+        query = PredictionQuery(
+            ids=ids,
+            history=self._window(k - self.history + 1, k + 1, ids),
+            dt=self.dt,
+            horizon=self.tau_samples,
+            t=k * self.dt,
+            frame=k,
+            scene="stepwise",
+        )
+        self.stepper.begin_interval(query)
+
+    def _close(self, k: int) -> None:
+        assert self._start is not None
+        n = -(-self._step // self.substeps)
+        samples = self._window(self._start, self._start + n + 1, self._sensed)
+        self.stepper.end_interval(CBFTruth(samples, self.dt, self.substeps))
+
+    def finish(self) -> LoopResult:
+        """Close the open interval with the samples observed so far; return the result."""
+        if self._start is not None and self._step:
+            n = -(-self._step // self.substeps)
+            last = min(self._start + n, self._latest if self._latest is not None else 0)
+            samples = self._window(self._start, last + 1, self._sensed)
+            self.stepper.end_interval(CBFTruth(samples, self.dt, self.substeps))
+            self._start = None
+        return self.stepper.result()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def lam(self) -> float:
+        """The lambda decisions are taken with now (1/s)."""
+        return self.stepper.lam
+
+    def result(self) -> LoopResult:
+        """Intervals scored so far, lambda and the guarantee monitor."""
+        return self.stepper.result()
+
+    def stats(self) -> dict[str, float]:
+        """Counters of the controller and its safety filter."""
+        return self.controller.stats()
