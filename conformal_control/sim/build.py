@@ -9,7 +9,8 @@ update rule -- is given as
 * ``None``: the flagship's default built from the run's parameters.
 
 A named plugin receives, for each constructor argument it declares and the caller did not
-give, the value the run's parameters fix for it (SI): ``d_c`` (robot + agent radius),
+give, the value the run's parameters fix for it (SI): ``d_c`` (robot + agent radius; for
+barriers plus ``barrier_margin``), ``K_rep``, ``rho0``, ``convention``, ``delta``,
 ``v_max``, ``K_att``, ``K_acc``, ``fallback``, ``speed_sides``, ``scale`` (the loss scale
 c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.ConformalConstraint`),
 ``random_state`` (the seed). Update-rule parameters are typed in the scene's units (see
@@ -247,12 +248,20 @@ def build_flagship(
         pred = _create("predictor", "constant_velocity", None, context)
     names["predictor"] = role_name(predictor, "constant_velocity")
 
-    bar = _resolve("barrier", barrier, barrier_params, context, Barrier)
+    barrier_context = {
+        **context,
+        "d_c": d_c + si["barrier_margin"],
+        "K_rep": si["K_rep"],
+        "rho0": si["rho0"],
+        "convention": si["convention"],
+        "delta": si["delta"],
+    }
+    bar = _resolve("barrier", barrier, barrier_params, barrier_context, Barrier)
     if bar is None:
         bar = APFBarrier(
             K_rep=si["K_rep"],
             rho0=si["rho0"],
-            d_c=d_c,
+            d_c=d_c + si["barrier_margin"],
             convention=si["convention"],
             delta=si["delta"],
         )

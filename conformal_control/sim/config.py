@@ -35,6 +35,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "substeps": (4, "QP solves (control instants) per data frame"),
     "history": (None, "frames of history handed to the predictor; default 4 s of frames"),
     "v_max": (None, "robot speed bound (m/s)"),
+    "barrier_margin": (0.0, "extra distance added to d_c in the barrier only (m): a robust CBF"),
     "robot_radius": (None, "robot radius (m)"),
     "agent_radius": (None, "pedestrian radius (m)"),
     "goal_radius": (None, "goal radius (m)"),
@@ -152,6 +153,7 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     ):
         _positive(si, name)
     _positive(si, "eta", allow_zero=True)
+    _positive(si, "barrier_margin", allow_zero=True)
     eps = si["epsilon"]
     if not (isinstance(eps, (int, float)) and -0.5 < eps < 0.5):
         raise ValueError(f"epsilon must lie in (-1/2, 1/2) (the loss's range), got {eps!r}")
