@@ -184,6 +184,7 @@ def build_flagship(
     dynamics_params: dict[str, Any] | None = None,
     loss_params: dict[str, Any] | None = None,
     rule_params: dict[str, Any] | None = None,
+    units: str = "scene",
     learn: bool = True,
     seed: int = 0,
     max_frames: int | None = None,
@@ -202,6 +203,9 @@ def build_flagship(
         the run's fallback, the attractive-field reference, the velocity-tracking double
         integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule). ``fallback`` is handed
         to the safety filter's ``fallback`` argument.
+    units : {"scene", "si"}
+        Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
+        plugins are always SI).
     learn : bool
         False runs the noLearn baseline: lambda stays at ``lambda_init`` (eta = 0).
     seed : int
@@ -212,7 +216,9 @@ def build_flagship(
     if isinstance(params, ResolvedParams):
         resolved = params
     else:
-        given = dict(params or {})
+        from .config import to_scene_units
+
+        given = to_scene_units(scene, dict(params or {}), units)
         if not learn:
             given.setdefault("eta", 0.0)
         resolved = resolve_params(scene, given)
@@ -291,7 +297,7 @@ def build_flagship(
     names["loss"] = role_name(loss, "cbf_gap")
 
     if isinstance(rule, str):
-        lam_unit = scene.units.factor("lambda_init")
+        lam_unit = 1.0 if units == "si" else scene.units.factor("lambda_init")
         rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
     elif rule is None:
         rule_obj = FixedEtaRule(

@@ -127,7 +127,7 @@ def run_episode(
         Recorded in the config; named plugins with a ``random_state`` receive it.
     rule : str or UpdateRule
         A registered update rule built from the run's parameters and ``rule_params``
-        (scene units; see :func:`~conformal_control.sim.build.build_rule`), or an instance
+        (in ``units``; see :func:`~conformal_control.sim.build.build_rule`), or an instance
         (SI units, used as given).
     lambda_safe : float, optional
         lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
@@ -144,12 +144,10 @@ def run_episode(
     on_interval : callable, optional
         Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
     """
-    from .config import to_scene_units
-
-    given = to_scene_units(scene, dict(params or {}), units)
     fl = build_flagship(
         scene,
-        given,
+        params,
+        units=units,
         predictor=predictor,
         predictor_params=predictor_params,
         barrier=barrier,
