@@ -1,0 +1,73 @@
+"""Reports are built from stored rows: leaderboard, paired comparison, Pareto front."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from conformal_control.bench.report import _pareto, summarise, write_report
+
+
+def rows() -> list[dict]:
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(40):
+        base_coll = int(rng.integers(0, 6))
+        for method, coll, t in (("nolearn", base_coll, 10.0), ("conformal[eps=-0.1]", 0, 12.0)):
+            reached = not (method == "conformal[eps=-0.1]" and i == 0)
+            out.append(
+                {
+                    "scenario": f"s{i}",
+                    "source": f"video{i % 3}",
+                    "method": method,
+                    "family": method.split("[")[0],
+                    "setting": "eps=-0.1" if "eps" in method else "",
+                    "status": "ok",
+                    "success": str(reached and coll == 0).lower(),
+                    "goal_reached": str(reached).lower(),
+                    "any_collision": str(coll > 0).lower(),
+                    "n_collide": coll,
+                    "t_goal": t if reached else "",
+                    "time_limit": 30.0,
+                    "d_min": 1.0,
+                }
+            )
+    out.append({"scenario": "s99", "method": "nolearn", "status": "failed"})
+    return out
+
+
+def test_summaries_and_paired_comparison() -> None:
+    data = rows()
+    by = {s.method: s for s in summarise(data)}
+    base, conf = by["nolearn"], by["conformal[eps=-0.1]"]
+    assert base.n == 40 and base.n_failed == 1 and conf.n == 40
+    base_coll = np.array(
+        [r["n_collide"] for r in data if r.get("method") == "nolearn" and "n_collide" in r]
+    )
+    assert base.estimates["collision frames"].mean == pytest.approx(base_coll.mean())
+    pc = conf.paired["collision frames"]
+    assert pc.n == 40 and pc.wins == int((base_coll > 0).sum()) and pc.losses == 0
+    assert pc.difference.high < 0
+    # the episode that did not reach its goal counts at its time limit in the frontier column
+    t = conf.estimates["time to goal (s, limit if not reached)"].mean
+    assert t == pytest.approx((39 * 12.0 + 30.0) / 40)
+    assert conf.estimates["time to goal (s, reached)"].n == 39
+
+
+def test_pareto_front() -> None:
+    assert _pareto([(1.0, 1.0), (2.0, 0.5), (2.0, 2.0), (0.5, 3.0)]) == [True, True, False, True]
+
+
+def test_write_report_files(tmp_path) -> None:
+    files = write_report(rows(), tmp_path, title="toy")
+    md = files["leaderboard.md"].read_text()
+    assert "| `nolearn` | 40 (1 failed) |" in md and "Paired comparison with `nolearn`" in md
+    with files["leaderboard.csv"].open() as fh:
+        table = list(csv.DictReader(fh))
+    assert [r["method"] for r in table] == ["nolearn", "conformal[eps=-0.1]"]
+    assert files["frontier.png"].stat().st_size > 10_000
+    assert (tmp_path / "success_vs_epsilon.png").exists()
+    with pytest.raises(ValueError, match="no successful episode"):
+        write_report([{"method": "x", "status": "failed"}], tmp_path / "empty")
