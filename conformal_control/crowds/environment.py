@@ -133,8 +133,11 @@ class ReactiveEnvironment(ReplayEnvironment):
 
     # ------------------------------------------------------------------ outputs
     def simulated_scene(self) -> Scene:
-        """The scene with the positions the robot met (recording before the start frame,
-        simulation after it; NaN beyond the last simulated frame). Shares the buffer."""
+        """The scene with the positions the robot met, for plots and animations.
+
+        The recording before the start frame, the simulation after it, NaN beyond the last
+        simulated frame; the positions array is the environment's buffer (not a copy).
+        """
         return dataclasses.replace(self.scene, positions=self._positions)
 
     def crowd_config(self) -> dict[str, Any]:

@@ -267,13 +267,13 @@ def solve_orca_lp(
     alpha = np.where(valid, alpha, 0.0)
     beta = np.stack([direction[..., 1], -direction[..., 0]], axis=-1)
     beta[~valid] = 0.0
-    worst0 = alpha + v[:, 0:1] * beta[..., 0] + v[:, 1:2] * beta[..., 1]
-    need = np.flatnonzero(((worst0 > _TOL) & valid).any(axis=1))
+    violated = (alpha + v[:, 0:1] * beta[..., 0] + v[:, 1:2] * beta[..., 1] > _TOL) & valid
+    need = np.flatnonzero(violated.any(axis=1))
     if need.size == 0:
         return v, feasible
     v_sub, ok_sub = _closest(
         point[need], direction[need], valid[need], alpha[need], beta[need],
-        v_pref[need], vmax[need],
+        v_pref[need], vmax[need], violated[need],
     )  # fmt: skip
     v[need] = v_sub
     feasible[need] = ok_sub
@@ -291,41 +291,52 @@ def _closest(
     beta: np.ndarray,
     v_pref: np.ndarray,
     vmax: np.ndarray,
+    violated: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closest point to v_pref of the lines' half-planes and the disc, by enumeration.
 
-    Called where the clipped preferred velocity violates a line, so the optimum lies on a
-    line: the projection of v_pref on a line (clipped to the disc along it) or the
-    intersection of two lines.
+    Called where the clipped preferred velocity violates the lines ``violated``. The
+    optimum then lies on a line, and (from the optimality conditions) at least one of
+    the lines it lies on is violated: it is the projection of v_pref on a violated line
+    (clipped to the disc along it) or the intersection of a violated line with another.
     """
     n, k = valid.shape
-    pd = np.einsum("nkc,nkc->nk", point, direction)
-    disc = pd * pd + vmax[:, None] ** 2 - np.einsum("nkc,nkc->nk", point, point)
+    # projections on the violated lines
+    r1, k1 = np.nonzero(violated)
+    p1, d1 = point[r1, k1], direction[r1, k1]
+    pd = np.einsum("ij,ij->i", p1, d1)
+    disc = pd * pd + vmax[r1] ** 2 - np.einsum("ij,ij->i", p1, p1)
     root = np.sqrt(np.maximum(disc, 0.0))
-    t = np.einsum("nkc,nkc->nk", v_pref[:, None, :] - point, direction)
-    t = np.clip(t, -pd - root, -pd + root)
-    cands = [point + t[..., None] * direction]
-    oks = [valid & (disc >= 0)]
-    if k > 1:
-        a, b = _pairs(k)
-        da, db = direction[:, a], direction[:, b]
-        den = da[..., 0] * db[..., 1] - da[..., 1] * db[..., 0]
-        diff = point[:, a] - point[:, b]
-        num = db[..., 0] * diff[..., 1] - db[..., 1] * diff[..., 0]
-        ok = valid[:, a] & valid[:, b] & (np.abs(den) > _EPS)
-        tt = np.divide(num, den, out=np.zeros_like(num), where=ok)
-        cands.append(point[:, a] + tt[..., None] * da)
-        oks.append(ok)
-    cand = np.concatenate(cands, axis=1)
-    ok = np.concatenate(oks, axis=1)
-    cand[~ok] = 0.0
-    viol = _violation(alpha, beta, cand)
-    ok &= ((viol <= _TOL) | ~valid[:, None, :]).all(axis=2)
-    ok &= np.einsum("ncx,ncx->nc", cand, cand) <= (vmax[:, None] + _TOL) ** 2
-    cost = np.where(ok, np.sum((cand - v_pref[:, None, :]) ** 2, axis=2), np.inf)
-    best = np.argmin(cost, axis=1)
-    rows = np.arange(n)
-    return cand[rows, best], np.isfinite(cost[rows, best])
+    t = np.clip(np.einsum("ij,ij->i", v_pref[r1] - p1, d1), -pd - root, -pd + root)
+    c1 = p1 + t[:, None] * d1
+    ok1 = disc >= 0
+    # intersections of a violated line with another valid line
+    a, b = _pairs(k)
+    mask = valid[:, a] & valid[:, b] & (violated[:, a] | violated[:, b])
+    r2, q = np.nonzero(mask)
+    a, b = a[q], b[q]
+    pa, da, db = point[r2, a], direction[r2, a], direction[r2, b]
+    den = da[:, 0] * db[:, 1] - da[:, 1] * db[:, 0]
+    diff = pa - point[r2, b]
+    num = db[:, 0] * diff[:, 1] - db[:, 1] * diff[:, 0]
+    ok2 = np.abs(den) > _EPS
+    c2 = pa + np.divide(num, den, out=np.zeros_like(num), where=ok2)[:, None] * da
+    rows = np.concatenate([r1, r2])
+    cand = np.concatenate([c1, c2])
+    ok = np.concatenate([ok1, ok2])
+    viol = alpha[rows] + cand[:, 0:1] * beta[rows, :, 0] + cand[:, 1:2] * beta[rows, :, 1]
+    ok &= ((viol <= _TOL) | ~valid[rows]).all(axis=1)
+    ok &= np.einsum("ij,ij->i", cand, cand) <= (vmax[rows] + _TOL) ** 2
+    cost = np.where(ok, np.sum((cand - v_pref[rows]) ** 2, axis=1), np.inf)
+    order = np.lexsort((cost, rows))
+    ro = rows[order]
+    first = np.concatenate([[True], ro[1:] != ro[:-1]])
+    pick = order[first]
+    v = np.zeros((n, 2))
+    found = np.zeros(n, dtype=bool)
+    v[rows[pick]] = cand[pick]
+    found[rows[pick]] = np.isfinite(cost[pick])
+    return v, found
 
 
 def _safest(alpha: np.ndarray, beta: np.ndarray, valid: np.ndarray, vmax: np.ndarray) -> np.ndarray:

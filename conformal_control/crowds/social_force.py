@@ -125,13 +125,10 @@ class SocialForceModel(CrowdModel):
         self.noise = noise
 
     def _validate(self) -> None:
-        self._check_positive(
-            tau=self.tau,
-            gamma=self.gamma,
-            n=self.n,
-            n_prime=self.n_prime,
-            neighbor_dist=self.neighbor_dist,
-        )
+        self._check_positive(tau=self.tau, gamma=self.gamma, n=self.n, n_prime=self.n_prime)
+        nd = self.neighbor_dist
+        if not (isinstance(nd, (int, float, np.integer, np.floating)) and nd > 0):
+            raise ValueError(f"neighbor_dist must be > 0 (inf: every agent), got {nd!r}")
         for name in ("A", "lambda_importance", "contact_stiffness", "noise"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v)):
