@@ -39,13 +39,15 @@ Body radii and speed bounds come per agent from the caller
 Why not ``pyrvo`` (PyPI 0.4.3, pybind11 bindings to RVO2, Apache-2.0, the package this
 module was evaluated against and is tested against): (i) RVO2 hard-codes the reciprocal
 share 1/2 for every agent, so a pedestrian assumes the robot will do half the avoiding,
-which it does not (the robot neither sees nor obeys the model) - there is no way to add
-an externally driven agent; (ii) the agents are added one by one and synchronised one
-call per agent and per quantity, which costs about 3.7 ms per step for 100 pedestrians
-on this machine (``do_step`` alone about 0.7 ms; ``benchmarks/bench_crowds.py`` prints
-the figures and our ratio to them), above our 1 ms budget; (iii) it computes in single
-precision and cannot remove an agent (pedestrians enter and leave the scene); (iv) it
-pulls in a robot simulator (``ir-sim``, with shapely and loguru) as a dependency.
+which it does not (the robot neither sees nor obeys the model): there is no way to add
+an externally driven agent, and the pedestrians under-react to the robot (a test shows
+the share 1/2 leaves a pedestrian on a collision course with a standing robot); (ii) it
+cannot remove an agent (pedestrians enter and leave the scene) and computes in single
+precision; (iii) it pulls in a robot simulator (``ir-sim``, with shapely and loguru).
+Speed is not a reason: synchronising 101 agents one call at a time plus ``do_step``
+costs about 1.5 ms of CPU per step for 100 pedestrians on this machine, and this module
+about 2-2.7 ms (``do_step`` alone: 0.34 ms); ``benchmarks/bench_crowds.py`` prints the
+figures and the ratios.
 This module solves the same linear programs exactly, vectorised over the pedestrians: a
 2-D program's optimum is one of a few candidate points (the preferred velocity clipped
 to the disc, its projection on each line clipped to the disc, the intersection of each
