@@ -253,27 +253,34 @@ def row(name: str, wall: np.ndarray, cpu: np.ndarray, base: tuple | None = None)
     return s
 
 
+def _wire(scene, params: dict):
+    """The flagship's components (env, policy, loss, rule) with whichever builder exists."""
+    try:  # the builder of later layouts
+        from conformal_control.sim.build import build_flagship
+
+        return build_flagship(scene, params)
+    except ImportError:
+        from conformal_control import registry
+        from conformal_control.sim.config import resolve_params
+        from conformal_control.sim.episode import build_components
+
+        predictor = registry.create("predictor", "constant_velocity")
+        return build_components(scene, resolve_params(scene, params), predictor)
+
+
 def bench_episodes(data_root: Path) -> None:
-    from conformal_control import registry
-    from conformal_control.crowds import make_environment
+    from conformal_control.crowds import make_environment_like
     from conformal_control.data import load_scene
     from conformal_control.loop import ConformalLoop
-    from conformal_control.sim.config import resolve_params
-    from conformal_control.sim.episode import build_components
 
     scene = load_scene("nexus_4", data_root / "sdd")
-    params = resolve_params(scene, {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40})
+    params = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
     print("\nnexus_4 episodes (constant velocity, a=10, tau=4, eta=1, eps=-0.25):")
     base = None
     for crowd, cp in (("replay", None), ("social_force", None), ("orca", None),
                       ("mixed", None), ("mixed", {"model": "orca"})):  # fmt: skip
-        comp = build_components(scene, params, registry.create("predictor", "constant_velocity"))
-        e = comp.env
-        env = make_environment(
-            e.scene, crowd=crowd, crowd_params=cp, dynamics=e.dynamics, tau_frames=e.tau_frames,
-            substeps=e.substeps, sensing_radius=e.sensing_radius,
-            history_frames=e.history_frames,
-        )  # fmt: skip
+        comp = _wire(scene, params)
+        env = make_environment_like(comp.env, crowd, cp)
         t0 = time.perf_counter()
         res = ConformalLoop(env, comp.policy, comp.loss, comp.rule).run()
         wall = time.perf_counter() - t0

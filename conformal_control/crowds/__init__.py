@@ -13,7 +13,13 @@
 
 from .base import CrowdModel
 from .crowd import MODELS, Crowd, build_model
-from .environment import CROWDS, DEFAULT_MIXED_RADIUS, ReactiveEnvironment, make_environment
+from .environment import (
+    CROWDS,
+    DEFAULT_MIXED_RADIUS,
+    ReactiveEnvironment,
+    make_environment,
+    make_environment_like,
+)
 from .orca import ORCAModel
 from .social_force import SocialForceModel
 
@@ -28,4 +34,5 @@ __all__ = [
     "SocialForceModel",
     "build_model",
     "make_environment",
+    "make_environment_like",
 ]

@@ -30,7 +30,13 @@ from ..predictors.base import PredictionQuery, TruthUnavailableError
 from ..sim.environment import ReplayEnvironment
 from .crowd import MODELS, Crowd
 
-__all__ = ["CROWDS", "DEFAULT_MIXED_RADIUS", "ReactiveEnvironment", "make_environment"]
+__all__ = [
+    "CROWDS",
+    "DEFAULT_MIXED_RADIUS",
+    "ReactiveEnvironment",
+    "make_environment",
+    "make_environment_like",
+]
 
 #: Crowd names accepted by :func:`make_environment`.
 CROWDS: tuple[str, ...] = ("replay", "social_force", "orca", "mixed")
@@ -232,3 +238,24 @@ def make_environment(
     c = Crowd(model, params or None, mixed_radius=radius, **crowd_kw)
     c._validate()  # fail at construction on a bad value, not mid-run
     return ReactiveEnvironment(scene, crowd=c, **env_kwargs)
+
+
+def make_environment_like(
+    env: ReplayEnvironment, crowd: str = "replay", crowd_params: dict[str, Any] | None = None
+) -> ReplayEnvironment:
+    """A new environment with ``env``'s scene, dynamics and timing and the given crowd.
+
+    For swapping the replay environment an episode builder made, e.g.
+    ``flagship.env = make_environment_like(flagship.env, crowd="orca")``.
+    """
+    return make_environment(
+        env.scene,
+        crowd=crowd,
+        crowd_params=crowd_params,
+        dynamics=env.dynamics,
+        tau_frames=env.tau_frames,
+        substeps=env.substeps,
+        sensing_radius=env.sensing_radius,
+        history_frames=env.history_frames,
+        max_frames=env.max_frames,
+    )

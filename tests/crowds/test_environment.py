@@ -8,14 +8,22 @@ import numpy as np
 import pytest
 
 from conformal_control import registry
+from conformal_control.cbf import (
+    APFBarrier,
+    AttractiveField,
+    CBFGapLoss,
+    ConformalCBFController,
+    ConformalConstraint,
+    QPSafetyFilter,
+)
 from conformal_control.cbf.controller import PredictorError
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.crowds import ReactiveEnvironment, make_environment
+from conformal_control.crowds import ReactiveEnvironment, make_environment, make_environment_like
 from conformal_control.loop import ConformalLoop
 from conformal_control.predictors.base import TruthUnavailableError
 from conformal_control.sim.config import resolve_params
 from conformal_control.sim.environment import ReplayEnvironment
-from conformal_control.sim.episode import build_components
+from conformal_control.update_rules import FixedEtaRule
 
 
 @pytest.mark.parametrize(
@@ -74,23 +82,44 @@ def test_sensor_history_truth_and_log_come_from_the_simulated_crowd(line_scene, 
 
 
 def _flagship(scene, crowd, crowd_params=None, max_frames=None, predictor="constant_velocity"):
-    """build_components' environment swapped for make_environment's, run by the loop."""
-    comp = build_components(
-        scene, resolve_params(scene, {}), registry.create("predictor", predictor), max_frames
+    """The flagship wired from its parts (as the episode builder does), run by the loop."""
+    resolved = resolve_params(scene, {})
+    si = resolved.si
+    scene = dataclasses.replace(
+        scene,
+        robot_radius=si["robot_radius"],
+        agent_radius=si["agent_radius"],
+        goal_radius=si["goal_radius"],
+        v_max=si["v_max"],
     )
-    old = comp.env
-    env = make_environment(
-        old.scene,
-        crowd=crowd,
-        crowd_params=crowd_params,
-        dynamics=old.dynamics,
-        tau_frames=old.tau_frames,
-        substeps=old.substeps,
-        sensing_radius=old.sensing_radius,
-        history_frames=old.history_frames,
-        max_frames=old.max_frames,
+    barrier = APFBarrier(
+        K_rep=si["K_rep"],
+        rho0=si["rho0"],
+        d_c=si["robot_radius"] + si["agent_radius"],
+        convention=si["convention"],
+        delta=si["delta"],
     )
-    result = ConformalLoop(env, comp.policy, comp.loss, comp.rule).run()
+    constraint = ConformalConstraint(barrier, a=si["a"])
+    policy = ConformalCBFController(
+        registry.create("predictor", predictor),
+        constraint,
+        QPSafetyFilter(v_max=si["v_max"], fallback=si["fallback"]),
+        AttractiveField(K_att=si["K_att"], v_max=si["v_max"]),
+        substeps=si["substeps"],
+    )
+    loss = CBFGapLoss(constraint, scale=si["loss_scale"])
+    rule = FixedEtaRule(epsilon=si["epsilon"], eta=si["eta"], lambda_init=si["lambda_init"])
+    replay = ReplayEnvironment(
+        scene,
+        VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),
+        tau_frames=resolved.tau_frames,
+        substeps=si["substeps"],
+        sensing_radius=si["sensing_radius"],
+        history_frames=resolved.history_frames,
+        max_frames=max_frames,
+    )
+    env = make_environment_like(replay, crowd, crowd_params)
+    result = ConformalLoop(env, policy, loss, rule).run()
     return env, result
 
 
