@@ -122,7 +122,17 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self.steps_t: list[float] = []
         self.steps_x: list[np.ndarray] = []
         self.steps_cmd: list[np.ndarray] = []
+        self._positions = self._init_positions()
         self._log_frame()
+
+    def _init_positions(self) -> np.ndarray:
+        """Agent positions (F, M, 2) the sensor, the frame log and the truth read.
+
+        The recording itself here. A subclass may return a buffer of the same shape that
+        it fills as the episode runs (e.g. a crowd simulated online); called by ``reset``
+        once the episode's timing and the robot's start state are set.
+        """
+        return self.scene.positions
 
     @property
     def done(self) -> bool:
@@ -133,7 +143,7 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         return self.t_goal_ is not None
 
     def _log_frame(self) -> None:
-        pos = self.scene.positions[self._fi]
+        pos = self._positions[self._fi]
         present = np.isfinite(pos[:, 0])
         d = np.hypot(*(pos[present] - self._x[:2]).T) if present.any() else np.zeros(0)
         self.log.frame.append(self.scene.first_frame + self._fi)
@@ -148,12 +158,12 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         out = np.full((idx.size, n, 2), np.nan)
         a, b = max(lo, 0), min(hi, self.scene.n_frames)
         if b > a and idx.size:
-            out[:, a - lo : b - lo] = self.scene.positions[a:b, idx].transpose(1, 0, 2)
+            out[:, a - lo : b - lo] = self._positions[a:b, idx].transpose(1, 0, 2)
         return out
 
     def sense(self) -> PredictionQuery:
         sc, fi = self.scene, self._fi
-        pos = sc.positions[fi]
+        pos = self._positions[fi]
         present = np.isfinite(pos[:, 0])
         d = np.full(pos.shape[0], np.inf)
         d[present] = np.hypot(*(pos[present] - self._x[:2]).T)

@@ -1,0 +1,38 @@
+"""Pedestrians who react to the robot: crowd models seeded from the recorded scene.
+
+* :class:`~conformal_control.crowds.social_force.SocialForceModel` - Helbing & Molnár
+  (1995) with the interaction of Moussaïd et al. (2009), in numpy;
+* :class:`~conformal_control.crowds.orca.ORCAModel` - optimal reciprocal collision
+  avoidance (van den Berg et al. 2011), its linear programs solved exactly in numpy;
+* :class:`~conformal_control.crowds.crowd.Crowd` - seeds a model from the recording
+  (positions, velocities, waypoints) and runs it around the robot, in full or mixed mode;
+* :class:`~conformal_control.crowds.environment.ReactiveEnvironment` and
+  :func:`~conformal_control.crowds.environment.make_environment` - the episode's
+  environment with such a crowd (``crowd="replay" | "social_force" | "orca" | "mixed"``).
+"""
+
+from .base import CrowdModel
+from .crowd import MODELS, Crowd, build_model
+from .environment import (
+    CROWDS,
+    DEFAULT_MIXED_RADIUS,
+    ReactiveEnvironment,
+    make_environment,
+    make_environment_like,
+)
+from .orca import ORCAModel
+from .social_force import SocialForceModel
+
+__all__ = [
+    "CROWDS",
+    "DEFAULT_MIXED_RADIUS",
+    "MODELS",
+    "Crowd",
+    "CrowdModel",
+    "ORCAModel",
+    "ReactiveEnvironment",
+    "SocialForceModel",
+    "build_model",
+    "make_environment",
+    "make_environment_like",
+]
