@@ -269,7 +269,7 @@ def _wire(scene, params: dict):
 
 
 def bench_episodes(data_root: Path) -> None:
-    from conformal_control.crowds import make_environment_like
+    from conformal_control.sim.reactive import make_environment_like
     from conformal_control.data import load_scene
     from conformal_control.loop import ConformalLoop
 

@@ -9,7 +9,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from conformal_control.data.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,3 +56,76 @@ def crossing():
     from conformal_control.data import load_scene
 
     return load_scene("crossing", seed=0)
+
+
+# ---------------------------------------------------------------- constructed scenes
+def _line_scene(
+    tracks: list[np.ndarray],
+    *,
+    fps: float = 10.0,
+    start_index: int = 20,
+    robot: tuple[float, float] = (0.0, 0.0),
+) -> Scene:
+    """A scene from (F, 2) tracks (NaN where absent); the robot's goal is far away."""
+    pos = np.stack(tracks, axis=1)
+    return Scene(
+        name="constructed",
+        fps=fps,
+        first_frame=0,
+        start_index=start_index,
+        positions=pos,
+        agent_ids=np.arange(len(tracks)) + 1,
+        start=np.asarray(robot, dtype=float),
+        goals=np.array([[robot[0], robot[1] + 500.0]]),
+        v_max=1.0,
+        robot_radius=0.5,
+        agent_radius=0.5,
+    )
+
+
+def _straight(
+    p0: tuple[float, float], v: tuple[float, float], n: int = 200, fps: float = 10.0
+) -> np.ndarray:
+    """Positions p0 + v t at t = 0, 1/fps, ... (n frames)."""
+    t = np.arange(n)[:, None] / fps
+    return np.asarray(p0, dtype=float) + t * np.asarray(v, dtype=float)
+
+
+def _run_stopped_robot(scene: Scene, crowd: str, crowd_params: dict | None = None, frames=150):
+    """Run an episode in which the robot is commanded to stand still; return the env."""
+    from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+    from conformal_control.sim.reactive import make_environment
+
+    env = make_environment(
+        scene,
+        crowd=crowd,
+        crowd_params=crowd_params,
+        dynamics=VelocityTrackingDoubleIntegrator(K_acc=2.0),
+        tau_frames=4,
+        substeps=4,
+        max_frames=frames,
+    )
+    env.reset()
+    while not env.done:
+        env.sense()
+        for _ in range(env.control_instants()):
+            env.apply(np.zeros(2))
+            if env.done:
+                break
+        env.reveal()
+    return env
+
+
+@pytest.fixture
+def line_scene():
+    return _line_scene
+
+
+@pytest.fixture
+def straight():
+    return _straight
+
+
+@pytest.fixture
+def run_stopped_robot():
+    return _run_stopped_robot

@@ -122,7 +122,7 @@ LAYERS: dict[str, int] = {
     "cbf": 5,
     "domains": 6,
     "sim": 6,
-    "crowds": 7,
+    "crowds": 5,
     "plotting": 7,
     "testing": 7,
     "sweep": 7,

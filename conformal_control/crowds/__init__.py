@@ -6,33 +6,22 @@
   avoidance (van den Berg et al. 2011), its linear programs solved exactly in numpy;
 * :class:`~conformal_control.crowds.crowd.Crowd` - seeds a model from the recording
   (positions, velocities, waypoints) and runs it around the robot, in full or mixed mode;
-* :class:`~conformal_control.crowds.environment.ReactiveEnvironment` and
-  :func:`~conformal_control.crowds.environment.make_environment` - the episode's
-  environment with such a crowd (``crowd="replay" | "social_force" | "orca" | "mixed"``).
+* the episode's environment with such a crowd is
+  :class:`~conformal_control.sim.reactive.ReactiveEnvironment` (built by
+  :func:`~conformal_control.sim.reactive.make_environment`, ``crowd="replay" |
+  "social_force" | "orca" | "mixed"``).
 """
 
 from .base import CrowdModel
 from .crowd import MODELS, Crowd, build_model
-from .environment import (
-    CROWDS,
-    DEFAULT_MIXED_RADIUS,
-    ReactiveEnvironment,
-    make_environment,
-    make_environment_like,
-)
 from .orca import ORCAModel
 from .social_force import SocialForceModel
 
 __all__ = [
-    "CROWDS",
-    "DEFAULT_MIXED_RADIUS",
     "MODELS",
     "Crowd",
     "CrowdModel",
     "ORCAModel",
-    "ReactiveEnvironment",
     "SocialForceModel",
     "build_model",
-    "make_environment",
-    "make_environment_like",
 ]

@@ -37,6 +37,7 @@ from ..predictors.base import Predictor
 from ..update_rules import FixedEtaRule
 from .config import ResolvedParams, resolve_params
 from .environment import ReplayEnvironment
+from .reactive import make_environment
 
 __all__ = ["Flagship", "RoleSpec", "build_flagship", "build_rule", "role_name"]
 
@@ -61,7 +62,7 @@ class Flagship:
 
     scene: Scene
     params: ResolvedParams
-    env: ReplayEnvironment
+    env: ReplayEnvironment  # a ReactiveEnvironment for a reactive crowd
     policy: ConformalCBFController
     loss: Loss[Any, Any]
     rule: UpdateRule
@@ -185,6 +186,8 @@ def build_flagship(
     loss_params: dict[str, Any] | None = None,
     rule_params: dict[str, Any] | None = None,
     units: str = "scene",
+    crowd: str = "replay",
+    crowd_params: dict[str, Any] | None = None,
     learn: bool = True,
     seed: int = 0,
     max_frames: int | None = None,
@@ -206,6 +209,11 @@ def build_flagship(
     units : {"scene", "si"}
         Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
         plugins are always SI).
+    crowd : str
+        ``"replay"`` (the recording, default), ``"social_force"``, ``"orca"`` or
+        ``"mixed"``: pedestrians who react to the robot (see
+        :func:`~conformal_control.sim.reactive.make_environment`), with ``crowd_params``
+        (SI); a reactive crowd's ``seed`` defaults to ``seed``.
     learn : bool
         False runs the noLearn baseline: lambda stays at ``lambda_init`` (eta = 0).
     seed : int
@@ -314,11 +322,17 @@ def build_flagship(
             raise TypeError(f"rule must be a registered name or an UpdateRule, got {rule!r}")
         rule_obj = rule
     names["rule"] = role_name(rule, "fixed_eta")
+    names["crowd"] = crowd
 
     policy = ConformalCBFController(pred, constraint, filt, ref, substeps=si["substeps"])
-    env = ReplayEnvironment(
+    cp = dict(crowd_params or {})
+    if crowd != "replay":
+        cp.setdefault("seed", seed)
+    env = make_environment(
         scene,
-        dyn,
+        crowd,
+        cp,
+        dynamics=dyn,
         tau_frames=resolved.tau_frames,
         substeps=si["substeps"],
         sensing_radius=si["sensing_radius"],

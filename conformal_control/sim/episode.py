@@ -103,6 +103,8 @@ def run_episode(
     dynamics_params: dict[str, Any] | None = None,
     loss: RoleSpec = None,
     loss_params: dict[str, Any] | None = None,
+    crowd: str = "replay",
+    crowd_params: dict[str, Any] | None = None,
     record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
 ) -> EpisodeResult:
@@ -138,6 +140,10 @@ def run_episode(
         Each an instance, a registered name (built with the matching ``*_params``, SI
         units) or None for the flagship's default; see
         :func:`~conformal_control.sim.build.build_flagship`.
+    crowd : str
+        ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
+        who react to the robot, with ``crowd_params`` (SI; see
+        :func:`~conformal_control.sim.reactive.make_environment`).
     record_animation : bool
         Keep the compact record ``conformal-control animate`` renders (``result.animation``,
         written as ``animation.npz``; see :mod:`conformal_control.sim.record`).
@@ -163,6 +169,8 @@ def run_episode(
         loss_params=loss_params,
         rule=rule,
         rule_params=rule_params,
+        crowd=crowd,
+        crowd_params=crowd_params,
         learn=learn,
         seed=seed,
         max_frames=max_frames,
@@ -222,8 +230,13 @@ def run_episode(
         "x": np.array(env.steps_x).reshape(-1, 4),
         "cmd": np.array(env.steps_cmd).reshape(-1, 2),
     }
+    crowd_config = getattr(env, "crowd_config", None)
+    config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
+    simulated = getattr(env, "simulated_scene", None)
     animation = None
     if recorder is not None:
+        if simulated is not None:  # draw the pedestrians the robot met, not the recording
+            recorder.scene = simulated()
         animation = recorder.finish(
             traj, intervals, {"epsilon": si["epsilon"], "lambda_unit": metrics.unit("lambda_final")}
         )

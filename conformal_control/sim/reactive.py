@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from ..cbf.loss import CBFTruth
+from ..crowds.crowd import MODELS, Crowd
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from ..sim.environment import ReplayEnvironment
-from .crowd import MODELS, Crowd
+from .environment import ReplayEnvironment
 
 __all__ = [
     "CROWDS",
