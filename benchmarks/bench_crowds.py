@@ -269,9 +269,9 @@ def _wire(scene, params: dict):
 
 
 def bench_episodes(data_root: Path) -> None:
-    from conformal_control.sim.reactive import make_environment_like
     from conformal_control.data import load_scene
     from conformal_control.loop import ConformalLoop
+    from conformal_control.sim.reactive import make_environment_like
 
     scene = load_scene("nexus_4", data_root / "sdd")
     params = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
