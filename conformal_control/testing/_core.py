@@ -239,8 +239,9 @@ def instances(cls: type) -> list[Any]:
         try:
             out.append(cls(**params))
         except Exception as exc:
+            shown = "{" + ", ".join(f"{k!r}: {_short(v)}" for k, v in params.items()) + "}"
             raise ContractError(
-                f"{cls.__name__}(**{params!r}) failed ({type(exc).__name__}: {exc}); "
+                f"{cls.__name__}(**{shown}) failed ({type(exc).__name__}: {exc}); "
                 "_unit_test_params() must return kwargs the constructor accepts"
             ) from exc
     return out

@@ -127,7 +127,13 @@ def sample_behaviour(plugin: Any) -> Any:
 
 def _fresh(plugin: Any) -> Any:
     if not hasattr(plugin, "get_params"):  # environments: no constructor round trip
-        return copy.deepcopy(plugin)
+        try:
+            return copy.deepcopy(plugin)
+        except Exception as exc:
+            raise ContractError(
+                f"{plugin_label(plugin)}: expected a deep copy to work (the checks run on "
+                f"copies), got {type(exc).__name__}: {exc}"
+            ) from exc
     fresh = deep_clone(plugin)
     return with_seed(fresh, 0) if "random_state" in _init_names(type(fresh)) else fresh
 
@@ -137,7 +143,8 @@ def _round_trip(plugin: Any, when: str) -> Any:
         return pickle.loads(pickle.dumps(plugin))
     except Exception as exc:
         raise ContractError(
-            f"{plugin_label(plugin)}: expected the plugin to survive pickle.dumps/loads {when} "
+            f"{plugin_label(plugin)}: expected the {type(plugin).__name__} to survive "
+            f"pickle.dumps/loads {when} "
             f"(multiprocessing sweeps and checkpoints pickle it), got {type(exc).__name__}: {exc}"
         ) from exc
 

@@ -60,6 +60,7 @@ __all__ = [
     "check_environment_outputs_not_aliased",
     "check_environment_reset",
     "drive",
+    "env_copy",
     "partner",
     "partner_family",
     "scribble",
@@ -136,6 +137,17 @@ def partner(obj: Any, hook: str, kind: type, what: str) -> Any:
 def partner_family(env: Environment) -> DecisionFamily:
     """A fresh family to drive ``env`` with, from its class's ``_unit_test_family()``."""
     return partner(env, "_unit_test_family", DecisionFamily, "environment")
+
+
+def env_copy(env: Environment) -> Environment:
+    """A deep copy of ``env`` (the checks never touch the instance they are given)."""
+    try:
+        return copy.deepcopy(env)
+    except Exception as exc:
+        raise ContractError(
+            f"{plugin_label(env)}: expected the environment to be deep-copyable (the checks "
+            f"run on copies), got {type(exc).__name__}: {exc}"
+        ) from exc
 
 
 def _call(subject: Any, what: str, fn: Callable[..., Any], *args: Any) -> Any:
@@ -333,7 +345,7 @@ def _differ_or_fail(env: Any, a: EpisodeTrace, b: EpisodeTrace, message: str) ->
 def check_environment_reset(env: Environment) -> None:
     """``reset()`` works, twice in a row too; ``done`` is a bool, False right after it; a
     reset in the middle of an episode restarts it exactly."""
-    e = copy.deepcopy(env)
+    e = env_copy(env)
     for _ in range(2):
         _call(e, "reset()", e.reset)
         expect(
@@ -355,7 +367,7 @@ def check_environment_interval_protocol(env: Environment) -> None:
     an int >= 0, ``sense`` -> ``state``/``apply`` -> ``reveal`` work in that order over
     every interval, ``reveal`` returns a truth, the episode ends within
     :data:`MAX_INTERVALS` intervals and applies at least one decision."""
-    e = copy.deepcopy(env)
+    e = env_copy(env)
     trace = drive(e, partner_family(e), keep=False)
     expect(
         trace.n_decisions > 0,
@@ -374,8 +386,8 @@ def check_environment_interval_protocol(env: Environment) -> None:
 
 def check_environment_deterministic(env: Environment) -> None:
     """Two copies driven by fresh partner families give identical episodes."""
-    a = drive(copy.deepcopy(env), partner_family(env))
-    b = drive(copy.deepcopy(env), partner_family(env))
+    a = drive(env_copy(env), partner_family(env))
+    b = drive(env_copy(env), partner_family(env))
     _differ_or_fail(env, a, b, "expected two copies driven the same way to give the same episode")
 
 
@@ -383,8 +395,8 @@ def check_environment_outputs_not_aliased(env: Environment) -> None:
     """A caller that overwrites what ``sense()``, ``state()`` and ``reveal()`` returned
     changes nothing the environment does next, in this episode or after ``reset()``
     (hand out copies, not views of internal state)."""
-    reference = drive(copy.deepcopy(env), partner_family(env), isolate=True)
-    e = copy.deepcopy(env)
+    reference = drive(env_copy(env), partner_family(env), isolate=True)
+    e = env_copy(env)
     scribbled = drive(e, partner_family(e), isolate=True, scribble_outputs=True)
     hint = (
         "expected the environment's outputs to be copies: after the caller overwrote what "
@@ -399,7 +411,7 @@ def check_environment_apply_after_done(env: Environment) -> None:
     """``apply()`` once the episode is over raises a ``RuntimeError`` (or ``ValueError``)
     saying so, instead of silently moving a finished world (or declare the behaviour in
     ``_xfail_checks``)."""
-    e = copy.deepcopy(env)
+    e = env_copy(env)
     trace = drive(e, partner_family(e))
     decisions = [d for iv in trace.intervals for d in iv.decisions]
     expect(bool(decisions), e, "expected at least one decision over the episode, got none")

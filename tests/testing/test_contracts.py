@@ -461,6 +461,14 @@ class AliasingEnv(FactoryEnvironment):
         return self._u
 
 
+class LambdaEnv(FactoryEnvironment):
+    """Factory keeping a lambda (cannot be pickled)."""
+
+    def reset(self):
+        super().reset()
+        self.draw_ = lambda: self._rng.uniform()
+
+
 class StrictFactory(FactoryEnvironment):
     """Factory refusing apply() after the end."""
 
@@ -509,6 +517,11 @@ class NoPartnerEnv(FactoryEnvironment):
             FactoryEnvironment(T=3),
             check_environment_apply_after_done,
             "expected apply() after the episode ended (done True) to raise a RuntimeError",
+        ),
+        (
+            LambdaEnv(T=3),
+            check_pickle_round_trip,
+            "expected the LambdaEnv to survive pickle.dumps/loads after use",
         ),
         (
             NoPartnerEnv(T=3),
@@ -744,7 +757,7 @@ class ForgetfulPickleCV(ConstantVelocityPredictor):
         (
             LambdaHoldingCV(),
             check_pickle_round_trip,
-            "expected the plugin to survive pickle.dumps/loads after use",
+            "expected the LambdaHoldingCV to survive pickle.dumps/loads after use",
         ),
         (
             ForgetfulPickleCV(),
