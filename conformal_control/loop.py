@@ -40,7 +40,7 @@ class IntervalLog:
     loss: float | None
     n_steps: int
     diagnostics: dict[str, float] = field(default_factory=dict)
-    #: Running average loss after this interval (online monitor), None before any loss.
+    #: Running average loss after this interval's update (online monitor), None without a loss.
     l_avg: float | None = None
 
 

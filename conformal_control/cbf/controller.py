@@ -135,6 +135,30 @@ class ConformalCBFController(
         self.reference = reference
         self.substeps = substeps
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        from ..predictors.constant_velocity import ConstantVelocityPredictor
+        from .barriers import APFBarrier
+        from .qp import QPSafetyFilter
+        from .reference import AttractiveField
+
+        barrier = APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7)
+        return [
+            {
+                "predictor": ConstantVelocityPredictor(),
+                "constraint": ConformalConstraint(barrier, a=2.0),
+                "safety_filter": QPSafetyFilter(),
+                "reference": AttractiveField(K_att=1.0),
+                "substeps": 2,
+            }
+        ]
+
+    @classmethod
+    def _unit_test_environment(cls) -> Any:
+        from ..sim.environment import ReplayEnvironment
+
+        return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
+
     def reset(self) -> None:
         self.constraint.validate()
         if int(self.substeps) != self.substeps or self.substeps < 1:

@@ -70,6 +70,14 @@ class FactoryEnvironment(SingleStepEnvironment[int, float, np.ndarray]):
         self.p = p
         self.seed = seed
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        return [{"T": 30, "p": 5, "seed": 1}]
+
+    @classmethod
+    def _unit_test_family(cls) -> MachineSpeed:
+        return MachineSpeed()
+
     def reset(self) -> None:
         if int(self.T) != self.T or self.T < 1 or int(self.p) != self.p or self.p < 1:
             raise ValueError(f"T and p must be integers >= 1, got T={self.T!r}, p={self.p!r}")
@@ -99,6 +107,10 @@ class MachineSpeed(DecisionFamily[int, int, float, FactoryRecord]):
 
     def __init__(self) -> None:
         pass
+
+    @classmethod
+    def _unit_test_environment(cls) -> FactoryEnvironment:
+        return FactoryEnvironment(T=30, p=5, seed=1)
 
     def begin_interval(self, observation: int) -> None:
         self._speed = math.nan

@@ -108,6 +108,23 @@ class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray])
         self.steps = steps
         self.dt = dt
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        # two pedestrians on wobbly straight lines, 12 steps each, 3 samples of history
+        def at(ped: int, j: int) -> np.ndarray:
+            return np.array([0.5 * j * ped + 0.1 * np.sin(j + ped), 0.3 * j - 0.1 * np.cos(j)])
+
+        steps = [
+            _Step(f, ped, np.array([at(ped, f - 2), at(ped, f - 1), at(ped, f)]), at(ped, f + 1))
+            for f in range(12)
+            for ped in (1, 2)
+        ]
+        return [{"steps": steps}]
+
+    @classmethod
+    def _unit_test_family(cls) -> ConformalDisc:
+        return ConformalDisc(**ConformalDisc._unit_test_params()[0])
+
     def reset(self) -> None:
         if not self.steps:
             raise ValueError("PedestrianSeries needs at least one step")
@@ -159,6 +176,19 @@ class ConformalDisc(DecisionFamily[dict[str, Any], dict[str, Any], float, BallRe
         self.predictor = predictor
         self.window = window
         self.parametrisation = parametrisation
+
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        from ..predictors.constant_velocity import ConstantVelocityPredictor
+
+        return [
+            {"predictor": ConstantVelocityPredictor(), "window": 5},
+            {"predictor": ConstantVelocityPredictor(), "parametrisation": "radius"},
+        ]
+
+    @classmethod
+    def _unit_test_environment(cls) -> PedestrianSeries:
+        return PedestrianSeries(**PedestrianSeries._unit_test_params()[0])
 
     def reset(self) -> None:
         if self.parametrisation not in PARAMETRISATIONS:

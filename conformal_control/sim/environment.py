@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..base import Environment
-from ..cbf.controller import ControlState
+from ..cbf.controller import ConformalCBFController, ControlState
 from ..cbf.loss import CBFTruth
 from ..cbf.roles import Dynamics
 from ..data.scene import Scene
@@ -89,6 +90,26 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self.sensing_radius = sensing_radius
         self.history_frames = history_frames
         self.max_frames = max_frames
+
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+        from ..data.synthetic import crossing_scene
+
+        dynamics = VelocityTrackingDoubleIntegrator(K_acc=10.0)
+        return [
+            {
+                "scene": crossing_scene(duration=4.0),
+                "dynamics": dynamics,
+                "tau_frames": 4,
+                "substeps": 2,
+                "max_frames": 24,
+            }
+        ]
+
+    @classmethod
+    def _unit_test_family(cls) -> ConformalCBFController:
+        return ConformalCBFController(**ConformalCBFController._unit_test_params()[0])
 
     # ------------------------------------------------------------------ episode
     def reset(self) -> None:

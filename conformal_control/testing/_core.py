@@ -1,13 +1,28 @@
-"""Machinery shared by the contract checks: failures, check lists, instances, snapshots."""
+"""Machinery shared by the contract checks: failures, check lists, instances, snapshots.
+
+Expected failures (scikit-learn's ``_xfail_checks`` tag): a class may declare the checks
+it is known to fail, with the reason, as a class attribute::
+
+    class MyEnvironment(Environment):
+        _xfail_checks: ClassVar[dict[str, str]] = {
+            "check_environment_apply_after_done": "apply() after the end is ignored, by design",
+        }
+
+:class:`CheckList` then reports those checks as ``"xfailed"`` when they fail and as
+``"xpassed"`` (a failure: the declaration is stale) when they pass; a test suite can add
+declarations of its own through ``expected_failed_checks`` (a dict ``{check name:
+reason}`` or a callable ``plugin -> dict``).
+"""
 
 from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import inspect
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -15,9 +30,13 @@ __all__ = [
     "CheckList",
     "CheckResult",
     "ContractError",
+    "ExpectedFailures",
     "assert_unchanged",
     "clone",
+    "deep_clone",
+    "differ",
     "expect",
+    "expected_failures",
     "instances",
     "plugin_label",
     "snapshot",
@@ -25,6 +44,9 @@ __all__ = [
 ]
 
 Check = Callable[[Any], None]
+#: ``{check name: reason}``, or a callable giving it for a plugin instance.
+ExpectedFailures = Mapping[str, str] | Callable[[Any], Mapping[str, str]] | None
+CheckStatus = Literal["passed", "failed", "xfailed", "xpassed"]
 
 
 class ContractError(AssertionError):
@@ -38,12 +60,19 @@ def expect(condition: bool, plugin: Any, what: str) -> None:
 
 
 def plugin_label(plugin: Any) -> str:
-    """Readable ``Class(param=value, ...)`` label of a plugin (never raises)."""
+    """Readable ``Class(param=value, ...)`` label of a plugin (never raises).
+
+    Objects without ``get_params`` (environments) are labelled from the attributes named
+    like their ``__init__`` arguments.
+    """
     cls = plugin if isinstance(plugin, type) else type(plugin)
     if isinstance(plugin, type):
         return cls.__name__
     try:
-        params = plugin.get_params()
+        if hasattr(plugin, "get_params"):
+            params = plugin.get_params()
+        else:
+            params = {n: getattr(plugin, n) for n in _init_names(cls) if hasattr(plugin, n)}
     except Exception:  # a broken get_params must not hide the real failure
         return cls.__name__
     args = ", ".join(f"{k}={_short(v)}" for k, v in params.items())
@@ -53,18 +82,89 @@ def plugin_label(plugin: Any) -> str:
 def _short(value: Any) -> str:
     if hasattr(value, "get_params") and not isinstance(value, type):
         return type(value).__name__
+    if isinstance(value, (list, tuple)) and len(value) > 3:
+        return f"<{type(value).__name__} of {len(value)}>"
+    if isinstance(value, np.ndarray):
+        return f"<array {value.shape}>"
     text = repr(value)
+    if "\n" in text or (text.startswith("<") and " at 0x" in text):
+        return f"<{type(value).__name__}>"
     return text if len(text) <= 30 else text[:27] + "..."
 
 
 @dataclass
 class CheckResult:
-    """Outcome of one check on one plugin instance."""
+    """Outcome of one check on one plugin instance.
+
+    ``status`` is ``"passed"``, ``"failed"``, ``"xfailed"`` (failed as the plugin declared
+    it would, ``reason`` says why) or ``"xpassed"`` (declared to fail but passed: the
+    declaration is stale). :attr:`passed` is True for ``"passed"`` and ``"xfailed"``
+    (pytest's ``strict=True`` reading: only a real or an unexpected outcome fails).
+    """
 
     plugin: str
     check: str
-    passed: bool
+    status: CheckStatus
     message: str = ""
+    reason: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.status in ("passed", "xfailed")
+
+
+def expected_failures(
+    obj: Any, checks: Iterable[Check] | None = None, extra: ExpectedFailures = None
+) -> dict[str, str]:
+    """The checks ``obj`` is expected to fail: its class's ``_xfail_checks`` plus ``extra``.
+
+    With ``checks``, every declared name must be one of theirs (a typo would otherwise
+    silently keep a check from ever failing).
+    """
+    cls = obj if isinstance(obj, type) else type(obj)
+    declared = getattr(cls, "_xfail_checks", None) or {}
+    if callable(extra):
+        extra = extra(obj)
+    out: dict[str, str] = {}
+    for source, table in (("_xfail_checks", declared), ("expected_failed_checks", extra or {})):
+        if not isinstance(table, Mapping) or not all(
+            isinstance(k, str) and isinstance(v, str) and v.strip() for k, v in table.items()
+        ):
+            raise ContractError(
+                f"{cls.__name__}: expected {source} to be a dict of check name -> reason "
+                f"(non-empty), got {table!r}"
+            )
+        out.update(table)
+    if checks is not None:
+        names = {c.__name__ for c in checks}
+        unknown = sorted(set(out) - names)
+        if unknown:
+            raise ContractError(
+                f"{cls.__name__}: expected the expected failures to name checks of its role, got "
+                f"unknown {unknown}; its checks: {', '.join(sorted(names))}"
+            )
+    return out
+
+
+def run_one(check: Check, obj: Any, reason: str | None) -> CheckResult:
+    """Run ``check`` on ``obj``; ``reason``: why it is expected to fail (None: it is not)."""
+    label = plugin_label(obj)
+    try:
+        check(obj)
+    except Exception as exc:
+        if reason is not None:
+            return CheckResult(label, check.__name__, "xfailed", _message(exc), reason)
+        return CheckResult(label, check.__name__, "failed", _message(exc))
+    if reason is not None:
+        return CheckResult(
+            label,
+            check.__name__,
+            "xpassed",
+            f"{label}: expected {check.__name__} to fail (declared: {reason}), but it passed; "
+            "remove it from the expected failures",
+            reason,
+        )
+    return CheckResult(label, check.__name__, "passed")
 
 
 class CheckList(list):
@@ -73,33 +173,41 @@ class CheckList(list):
     ``check_predictor(p)`` runs every check on ``p`` (an instance, or a class whose
     ``_unit_test_params()`` instances are all checked) and raises the first
     :class:`ContractError`; :meth:`run` returns one :class:`CheckResult` per check instead.
+    Checks the plugin declares in ``_xfail_checks`` (or listed in
+    ``expected_failed_checks``) may fail; if one passes, that is an error.
     """
 
     def __init__(self, role: str, checks: Iterable[Check] = ()) -> None:
         super().__init__(checks)
         self.role = role
 
-    def __call__(self, plugin: Any) -> None:
+    def __call__(self, plugin: Any, *, expected_failed_checks: ExpectedFailures = None) -> None:
         for obj in _as_instances(plugin):
+            xfail = expected_failures(obj, self, expected_failed_checks)
             for check in self:
-                check(obj)
+                if check.__name__ not in xfail:
+                    check(obj)
+                    continue
+                result = run_one(check, obj, xfail[check.__name__])
+                if result.status == "xpassed":
+                    raise ContractError(result.message)
 
-    def run(self, plugin: Any) -> list[CheckResult]:
+    def run(
+        self, plugin: Any, *, expected_failed_checks: ExpectedFailures = None
+    ) -> list[CheckResult]:
         """Run every check; collect failures instead of raising."""
         out: list[CheckResult] = []
         try:
             objs = _as_instances(plugin)
         except Exception as exc:
-            return [CheckResult(plugin_label(plugin), "instantiate", False, _message(exc))]
+            return [CheckResult(plugin_label(plugin), "instantiate", "failed", _message(exc))]
         for obj in objs:
-            label = plugin_label(obj)
-            for check in self:
-                try:
-                    check(obj)
-                except Exception as exc:
-                    out.append(CheckResult(label, check.__name__, False, _message(exc)))
-                else:
-                    out.append(CheckResult(label, check.__name__, True))
+            try:
+                xfail = expected_failures(obj, self, expected_failed_checks)
+            except ContractError as exc:
+                out.append(CheckResult(plugin_label(obj), "_xfail_checks", "failed", str(exc)))
+                continue
+            out.extend(run_one(check, obj, xfail.get(check.__name__)) for check in self)
         return out
 
     def __repr__(self) -> str:
@@ -131,8 +239,9 @@ def instances(cls: type) -> list[Any]:
         try:
             out.append(cls(**params))
         except Exception as exc:
+            shown = "{" + ", ".join(f"{k!r}: {_short(v)}" for k, v in params.items()) + "}"
             raise ContractError(
-                f"{cls.__name__}(**{params!r}) failed ({type(exc).__name__}: {exc}); "
+                f"{cls.__name__}(**{shown}) failed ({type(exc).__name__}: {exc}); "
                 "_unit_test_params() must return kwargs the constructor accepts"
             ) from exc
     return out
@@ -153,6 +262,24 @@ def clone(plugin: Any) -> Any:
         ) from exc
 
 
+def deep_clone(plugin: Any) -> Any:
+    """:func:`clone`, recursively: plugin-valued parameters are fresh copies too.
+
+    A family owning a predictor and a safety filter is then independent of the original
+    (two shallow clones would share, and reset, the same filter).
+    """
+    if not hasattr(plugin, "get_params") or isinstance(plugin, type):
+        return plugin
+    try:
+        params = {k: deep_clone(v) for k, v in plugin.get_params().items()}
+        return type(plugin)(**params)
+    except Exception as exc:
+        raise ContractError(
+            f"{plugin_label(plugin)}: expected type(plugin)(**plugin.get_params()) to build a "
+            f"fresh copy, got {type(exc).__name__}: {exc}"
+        ) from exc
+
+
 def with_seed(plugin: Any, seed: int) -> Any:
     """A fresh copy, with ``random_state=seed`` if the plugin takes a ``random_state``."""
     params = plugin.get_params()
@@ -165,8 +292,14 @@ def _init_names(cls: type) -> list[str]:
     names = getattr(cls, "_param_names", None)
     if names is not None:
         return list(names())
+    if cls.__init__ is object.__init__:
+        return []
     sig = inspect.signature(cls.__init__)
-    return [p for p in sig.parameters if p != "self"]
+    return [
+        n
+        for n, p in sig.parameters.items()
+        if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    ]
 
 
 # ------------------------------------------------------------------ input snapshots
@@ -175,8 +308,14 @@ def snapshot(obj: Any) -> Any:
     return copy.deepcopy(obj)
 
 
-def _diff(before: Any, after: Any, path: str) -> str | None:
-    """Where ``after`` differs from ``before`` (None if equal, NaN == NaN)."""
+def _diff(before: Any, after: Any, path: str, callables_equal: bool = False) -> str | None:
+    """Where ``after`` differs from ``before`` (None if equal, NaN == NaN).
+
+    With ``callables_equal``, any two functions compare equal (two runs build different
+    closures, e.g. a query's ``truth_provider``).
+    """
+    if callables_equal and _is_function(before) and _is_function(after):
+        return None
     if isinstance(before, np.ndarray) or isinstance(after, np.ndarray):
         a, b = np.asarray(before), np.asarray(after)
         if a.shape != b.shape or a.dtype != b.dtype:
@@ -194,7 +333,12 @@ def _diff(before: Any, after: Any, path: str) -> str | None:
         return None
     if dataclasses.is_dataclass(before) and not isinstance(before, type):
         for f in dataclasses.fields(before):
-            d = _diff(getattr(before, f.name), getattr(after, f.name), f"{path}.{f.name}")
+            d = _diff(
+                getattr(before, f.name),
+                getattr(after, f.name),
+                f"{path}.{f.name}",
+                callables_equal,
+            )
             if d:
                 return d
         return None
@@ -202,7 +346,7 @@ def _diff(before: Any, after: Any, path: str) -> str | None:
         if set(before) != set(after):
             return f"{path}: keys {sorted(before)} became {sorted(after)}"
         for k in before:
-            d = _diff(before[k], after[k], f"{path}[{k!r}]")
+            d = _diff(before[k], after[k], f"{path}[{k!r}]", callables_equal)
             if d:
                 return d
         return None
@@ -210,7 +354,7 @@ def _diff(before: Any, after: Any, path: str) -> str | None:
         if len(before) != len(after):
             return f"{path}: length {len(before)} became {len(after)}"
         for i, (x, y) in enumerate(zip(before, after, strict=True)):
-            d = _diff(x, y, f"{path}[{i}]")
+            d = _diff(x, y, f"{path}[{i}]", callables_equal)
             if d:
                 return d
         return None
@@ -223,8 +367,18 @@ def _diff(before: Any, after: Any, path: str) -> str | None:
             return f"{path}: {before!r} became {after!r}"
     except Exception:  # objects without a usable ==: compare their attributes
         if hasattr(before, "__dict__"):
-            return _diff(vars(before), vars(after), path)
+            return _diff(vars(before), vars(after), path, callables_equal)
     return None
+
+
+def _is_function(obj: Any) -> bool:
+    return inspect.isfunction(obj) or inspect.ismethod(obj) or isinstance(obj, functools.partial)
+
+
+def differ(a: Any, b: Any, name: str) -> str | None:
+    """Where two outcomes of the same computation differ (None: identical; functions
+    compare equal, NaN == NaN)."""
+    return _diff(a, b, name, callables_equal=True)
 
 
 def assert_unchanged(before: Any, after: Any, plugin: Any, name: str, during: str) -> None:

@@ -17,7 +17,14 @@ from ._core import (
     plugin_label,
     snapshot,
 )
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "check_barrier",
@@ -230,6 +237,13 @@ def check_barrier_safe_far_unsafe_at_contact(barrier: Barrier) -> None:
     expect(hf > 0, b, f"expected h > 0 (safe) for positions 100 m apart, got h = {hf:g}")
 
 
+@sample_behaviour.register(Barrier)
+def _behaviour(barrier: Barrier) -> tuple[np.ndarray, ...]:
+    """``evaluate`` at 16 sample pairs (for the pickling check)."""
+    ego, agent = sample_pairs(16, seed=7)
+    return tuple(np.asarray(o) for o in barrier.evaluate(ego, agent))
+
+
 #: Every barrier check, in order.
 check_barrier = CheckList(
     "barrier",
@@ -245,5 +259,8 @@ check_barrier = CheckList(
         check_barrier_nan_propagates,
         check_barrier_upper_bound,
         check_barrier_safe_far_unsafe_at_contact,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

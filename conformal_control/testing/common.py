@@ -1,13 +1,49 @@
-"""Checks every plugin role shares: parameters stored unchanged, ``get_params`` round trip."""
+"""Checks every role shares: parameters stored unchanged, pickling, docstring, defaults.
+
+The pickling check (river's ``check_pickling``) compares what a plugin does on its
+role's sample inputs before and after a pickle round trip. What "does" means is
+role-specific, so each role's checker module registers a *sample behaviour* with
+:func:`sample_behaviour` (a :func:`functools.singledispatch` function on the role's base
+class): a deterministic function ``plugin -> outputs`` that starts from ``reset()``.
+
+The docstring check reads the ``Parameters`` section of a numpy-style class docstring.
+It needs only the parameter names under that one header, so it scans the section itself
+(a dozen lines) instead of adding a docstring-parser dependency to the runtime package.
+"""
 
 from __future__ import annotations
 
+import copy
+import enum
+import functools
 import inspect
+import numbers
+import pickle
+import re
 from typing import Any
 
-from ._core import ContractError, _init_names, expect, plugin_label, unit_test_params
+import numpy as np
 
-__all__ = ["check_get_params_round_trip", "check_repr"]
+from ._core import (
+    ContractError,
+    _init_names,
+    deep_clone,
+    differ,
+    expect,
+    plugin_label,
+    unit_test_params,
+    with_seed,
+)
+
+__all__ = [
+    "check_docstring_parameters",
+    "check_get_params_round_trip",
+    "check_no_mutable_defaults",
+    "check_pickle_round_trip",
+    "check_repr",
+    "docstring_parameters",
+    "sample_behaviour",
+]
 
 
 def check_get_params_round_trip(plugin: Any) -> None:
@@ -75,4 +111,170 @@ def check_repr(plugin: Any) -> None:
         type(plugin).__name__ in text,
         plugin,
         f"expected repr() to contain the class name {type(plugin).__name__!r}, got {text!r}",
+    )
+
+
+# ------------------------------------------------------------------ pickling
+@functools.singledispatch
+def sample_behaviour(plugin: Any) -> Any:
+    """What ``plugin`` does on its role's sample inputs (compared across a pickle round trip).
+
+    Registered per role base class by the checker modules; the fallback compares the
+    instance's attributes.
+    """
+    return {k: v for k, v in vars(plugin).items() if not k.startswith("__")}
+
+
+def _fresh(plugin: Any) -> Any:
+    if not hasattr(plugin, "get_params"):  # environments: no constructor round trip
+        try:
+            return copy.deepcopy(plugin)
+        except Exception as exc:
+            raise ContractError(
+                f"{plugin_label(plugin)}: expected a deep copy to work (the checks run on "
+                f"copies), got {type(exc).__name__}: {exc}"
+            ) from exc
+    fresh = deep_clone(plugin)
+    return with_seed(fresh, 0) if "random_state" in _init_names(type(fresh)) else fresh
+
+
+def _round_trip(plugin: Any, when: str) -> Any:
+    try:
+        return pickle.loads(pickle.dumps(plugin))
+    except Exception as exc:
+        raise ContractError(
+            f"{plugin_label(plugin)}: expected the {type(plugin).__name__} to survive "
+            f"pickle.dumps/loads {when} "
+            f"(multiprocessing sweeps and checkpoints pickle it), got {type(exc).__name__}: {exc}"
+        ) from exc
+
+
+def _behave(plugin: Any, who: str) -> Any:
+    try:
+        return sample_behaviour(plugin)
+    except ContractError:
+        raise
+    except Exception as exc:
+        raise ContractError(
+            f"{plugin_label(plugin)}: expected the {who} to work on the role's sample inputs, got "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
+
+
+def check_pickle_round_trip(plugin: Any) -> None:
+    """A pickled-and-unpickled plugin behaves the same on the role's sample inputs, both
+    fresh and after it has been used (river's ``check_pickling``)."""
+    original = _fresh(plugin)
+    for when in ("before use", "after use"):
+        copied = _round_trip(original, when)
+        expect(
+            type(copied) is type(original),
+            plugin,
+            f"expected pickle to give back a {type(original).__name__}, got "
+            f"{type(copied).__name__}",
+        )
+        mine = _behave(original, "plugin")
+        theirs = _behave(copied, "unpickled copy")
+        d = differ(mine, theirs, "outputs")
+        expect(
+            d is None,
+            plugin,
+            f"expected the copy pickled {when} to behave as the original on the sample inputs, "
+            f"but {d}",
+        )
+
+
+# ------------------------------------------------------------------ docstring
+_SECTION = re.compile(r"^(\w[\w ]*)\n-{3,}\s*$", re.MULTILINE)
+_PARAM_LINE = re.compile(r"^([*\w][\w, *]*?)\s*(?::.*)?$")
+
+
+def docstring_parameters(doc: str) -> list[str] | None:
+    """Names in the ``Parameters`` section of a numpy-style docstring (None: no section).
+
+    A line ``name : type`` (or ``a, b : float``) at the section's indentation names
+    parameters; the indented lines under it describe them.
+    """
+    doc = inspect.cleandoc(doc or "")
+    headers = list(_SECTION.finditer(doc))
+    for i, m in enumerate(headers):
+        if m.group(1).strip() != "Parameters":
+            continue
+        end = headers[i + 1].start() if i + 1 < len(headers) else len(doc)
+        names: list[str] = []
+        for line in doc[m.end() : end].splitlines():
+            if not line.strip() or line[0].isspace():
+                continue
+            pm = _PARAM_LINE.match(line.strip())
+            if pm:
+                names += [n.strip().lstrip("*") for n in pm.group(1).split(",") if n.strip()]
+        return names
+    return None
+
+
+def check_docstring_parameters(plugin: Any) -> None:
+    """The class has a numpy-style docstring whose ``Parameters`` section names every
+    ``__init__`` argument (river's docstring check; runs record parameters by name)."""
+    cls = type(plugin)
+    names = _init_names(cls)
+    doc = cls.__doc__ or ""
+    expect(
+        bool(doc.strip()),
+        plugin,
+        f"expected {cls.__name__} to have a docstring (its first line is the plugin's "
+        "description), got none",
+    )
+    if not names:
+        return
+    # a subclass that keeps its parent's __init__ may keep its parent's Parameters too
+    owner = next(c for c in cls.__mro__ if "__init__" in vars(c))
+    documented: list[str] | None = None
+    for c in cls.__mro__[: cls.__mro__.index(owner) + 1]:
+        found = docstring_parameters(c.__doc__ or "")
+        if found is not None:
+            documented = (documented or []) + found
+    expect(
+        documented is not None,
+        plugin,
+        f"expected a numpy-style 'Parameters' section naming the __init__ arguments "
+        f"{names} in the docstring of {cls.__name__}, got none",
+    )
+    missing = [n for n in names if n not in (documented or [])]
+    expect(
+        not missing,
+        plugin,
+        f"expected the docstring's Parameters section to name every __init__ argument, "
+        f"got no entry for {missing}",
+    )
+
+
+# ------------------------------------------------------------------ mutable defaults
+def _immutable(value: Any) -> bool:
+    if value is None or isinstance(
+        value, (bool, numbers.Number, str, bytes, range, type, enum.Enum, np.generic)
+    ):
+        return True
+    if isinstance(value, (tuple, frozenset)):
+        return all(_immutable(v) for v in value)
+    return inspect.isfunction(value) or inspect.isbuiltin(value)
+
+
+def check_no_mutable_defaults(plugin: Any) -> None:
+    """No ``__init__`` argument defaults to a mutable object (a list, dict, array or a
+    plugin instance would be shared by every instance built without it)."""
+    cls = type(plugin)
+    if cls.__init__ is object.__init__:
+        return
+    sig = inspect.signature(cls.__init__)
+    bad = {
+        n: p.default
+        for n, p in sig.parameters.items()
+        if p.default is not inspect.Parameter.empty and not _immutable(p.default)
+    }
+    expect(
+        not bad,
+        plugin,
+        "expected immutable __init__ defaults (None, numbers, strings, tuples; build "
+        "mutable ones when used), got "
+        + ", ".join(f"{n}={type(v).__name__} {v!r:.40}" for n, v in bad.items()),
     )

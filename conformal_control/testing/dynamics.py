@@ -17,7 +17,14 @@ from ._core import (
     plugin_label,
     snapshot,
 )
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "check_dynamics",
@@ -113,6 +120,16 @@ def check_dynamics_bad_dt(dynamics: Dynamics) -> None:
         )
 
 
+@sample_behaviour.register(Dynamics)
+def _behaviour(dynamics: Dynamics) -> list[np.ndarray]:
+    """Three steps from the sample state (for the pickling check)."""
+    x, out = _state(dynamics), []
+    for _ in range(3):
+        x = np.asarray(dynamics.step(x, COMMAND, 0.1))
+        out.append(x)
+    return out
+
+
 #: Every dynamics check, in order.
 check_dynamics = CheckList(
     "dynamics",
@@ -124,5 +141,8 @@ check_dynamics = CheckList(
         check_dynamics_no_mutation,
         check_dynamics_deterministic,
         check_dynamics_bad_dt,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

@@ -15,7 +15,14 @@ import numpy as np
 
 from ..base import Loss
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "LAMBDAS",
@@ -163,6 +170,12 @@ def check_loss_diagnostics(loss: Loss) -> None:
         expect(not bad, lf, f"expected diagnostics of str -> number, got {bad!r}")
 
 
+@sample_behaviour.register(Loss)
+def _behaviour(loss: Loss) -> list[float | None]:
+    """Values on ``_unit_test_inputs()`` at every lambda of :data:`LAMBDAS` (pickling check)."""
+    return [loss(r, t, lam) for r, t in loss_inputs(loss) for lam in LAMBDAS]
+
+
 #: Every loss check, in order.
 check_loss = CheckList(
     "loss",
@@ -176,5 +189,8 @@ check_loss = CheckList(
         check_loss_deterministic,
         check_loss_nan_lambda,
         check_loss_diagnostics,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

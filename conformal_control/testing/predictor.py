@@ -17,7 +17,14 @@ from ._core import (
     snapshot,
     with_seed,
 )
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "check_predictor",
@@ -322,6 +329,17 @@ def check_predictor_horizon(predictor: Predictor) -> None:
         _check_shape(p, _predict(p, q, f"horizon={horizon}"), q, f"horizon={horizon}")
 
 
+@sample_behaviour.register(Predictor)
+def _behaviour(predictor: Predictor) -> list[tuple[np.ndarray, object]]:
+    """Forecasts of two sample queries after ``reset()`` (for the pickling check)."""
+    predictor.reset()
+    out = []
+    for seed in (0, 1):
+        fc = predictor.predict(_query(predictor, seed=seed))
+        out.append((np.asarray(fc.positions), fc.covariance))
+    return out
+
+
 #: Every predictor check, in order.
 check_predictor = CheckList(
     "predictor",
@@ -337,5 +355,8 @@ check_predictor = CheckList(
         check_predictor_nonfinite_current,
         check_predictor_empty_query,
         check_predictor_horizon,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

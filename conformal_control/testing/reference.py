@@ -6,7 +6,14 @@ import numpy as np
 
 from ..cbf.roles import ReferenceController
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "check_reference_controller",
@@ -69,6 +76,13 @@ def check_reference_deterministic(reference: ReferenceController) -> None:
     expect(same, reference, "expected the same velocities from two fresh copies after reset()")
 
 
+@sample_behaviour.register(ReferenceController)
+def _behaviour(reference: ReferenceController) -> list[np.ndarray]:
+    """Velocities at the sample states after ``reset()`` (for the pickling check)."""
+    reference.reset()
+    return [np.asarray(reference(s, 0.1 * i, GOAL)) for i, s in enumerate(STATES)]
+
+
 check_reference_controller = CheckList(
     "reference",
     [
@@ -77,5 +91,8 @@ check_reference_controller = CheckList(
         check_reference_output,
         check_reference_no_mutation,
         check_reference_deterministic,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

@@ -13,7 +13,14 @@ import numpy as np
 
 from ..cbf.roles import FilterResult, SafetyFilter
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "STATUSES",
@@ -284,6 +291,17 @@ def check_safety_filter_nonfinite_input(safety_filter: SafetyFilter) -> None:
         )
 
 
+@sample_behaviour.register(SafetyFilter)
+def _behaviour(safety_filter: SafetyFilter) -> list[tuple[np.ndarray, str, float]]:
+    """Decisions, statuses and lambdas on 5 feasible problems after ``reset()``."""
+    safety_filter.reset()
+    out = []
+    for nominal, A, b, lam in feasible_problems(5, seed=7):
+        res = safety_filter.solve(nominal, A, b, lam)
+        out.append((np.asarray(res.decision), res.status, res.lambda_applied))
+    return out
+
+
 #: Every safety-filter check, in order.
 check_safety_filter = CheckList(
     "safety_filter",
@@ -298,5 +316,8 @@ check_safety_filter = CheckList(
         check_safety_filter_no_mutation,
         check_safety_filter_deterministic,
         check_safety_filter_nonfinite_input,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )

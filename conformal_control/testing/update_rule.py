@@ -12,7 +12,14 @@ import numpy as np
 
 from ..base import UpdateRule
 from ._core import CheckList, ContractError, clone, expect, plugin_label
-from .common import check_get_params_round_trip, check_repr
+from .common import (
+    check_docstring_parameters,
+    check_get_params_round_trip,
+    check_no_mutable_defaults,
+    check_pickle_round_trip,
+    check_repr,
+    sample_behaviour,
+)
 
 __all__ = [
     "check_update_rule",
@@ -171,6 +178,12 @@ def check_update_rule_nan_loss(rule: UpdateRule) -> None:
     )
 
 
+@sample_behaviour.register(UpdateRule)
+def _behaviour(rule: UpdateRule) -> list[float]:
+    """lambda_1 and the lambdas after 20 sample losses (for the pickling check)."""
+    return _run(rule, loss_sequence(20, seed=7))
+
+
 #: Every update-rule check, in order.
 check_update_rule = CheckList(
     "update_rule",
@@ -184,5 +197,8 @@ check_update_rule = CheckList(
         check_update_rule_reset,
         check_update_rule_params_unchanged,
         check_update_rule_nan_loss,
+        check_pickle_round_trip,
+        check_docstring_parameters,
+        check_no_mutable_defaults,
     ],
 )
