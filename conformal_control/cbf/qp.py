@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import piqp
@@ -209,6 +210,14 @@ class QPSafetyFilter(SafetyFilter):
             v, lam_used = v_star, lam_star
         self._last = v
         return FilterResult(v, "fallback", lam_used, "lambda_search")
+
+    def __getstate__(self) -> dict[str, Any]:
+        # piqp solvers cannot be pickled: drop them, they are rebuilt on the next solve
+        state = self.__dict__.copy()
+        for name in ("_solver", "_lp", "_shape", "_lp_shape"):
+            if name in state:
+                state[name] = None
+        return state
 
     def stats(self) -> dict[str, float]:
         return {

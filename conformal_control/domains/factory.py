@@ -94,6 +94,8 @@ class FactoryEnvironment(SingleStepEnvironment[int, float, np.ndarray]):
         return self.t
 
     def apply(self, decision: Any) -> None:
+        if self.done:
+            raise RuntimeError("apply() called on a finished factory run")
         self.speeds_.append(float(decision))
         self._u = self._rng.uniform(size=int(self.p))
         self.t += 1

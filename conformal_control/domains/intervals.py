@@ -102,6 +102,13 @@ class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray])
 
     ``sense`` also hands over the previous step's revealed position (what a sensor sees),
     so the decision family can score its previous forecast.
+
+    Parameters
+    ----------
+    steps : list
+        The (frame, pedestrian) steps in time order (see :func:`load_series`).
+    dt : float
+        Sample spacing (s).
     """
 
     def __init__(self, steps: list[_Step], dt: float = 0.4) -> None:
@@ -147,10 +154,12 @@ class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray])
             scene="ethucy",
             ground_truth=s.target[None, None].copy(),
         )
-        previous = self.steps[self.i - 1].target if self.i > 0 else None
+        previous = self.steps[self.i - 1].target.copy() if self.i > 0 else None
         return {"query": query, "previous_truth": previous}
 
     def apply(self, decision: Any) -> None:
+        if self.done:
+            raise RuntimeError("apply() called on a finished series")
         self.i += 1
 
     def reveal(self) -> np.ndarray:

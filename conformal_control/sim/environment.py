@@ -211,7 +211,7 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
 
     def state(self) -> ControlState:
         return ControlState(
-            x=self._x.copy(), t=self._t, step=self._step, goal=self.scene.goals[self._goal]
+            x=self._x.copy(), t=self._t, step=self._step, goal=self.scene.goals[self._goal].copy()
         )
 
     # ------------------------------------------------------------------ plant

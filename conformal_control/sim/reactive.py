@@ -93,6 +93,13 @@ class ReactiveEnvironment(ReplayEnvironment):
         )
         self.crowd = crowd
 
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        return [
+            {**p, "crowd": Crowd("social_force"), "max_frames": 12}
+            for p in ReplayEnvironment._unit_test_params()
+        ]
+
     # ------------------------------------------------------------------ episode
     def _init_positions(self) -> np.ndarray:
         if not isinstance(self.crowd, Crowd):
