@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..base import Loss, UpdateRule
-from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
 from ._core import (
     CheckList,
@@ -41,7 +41,7 @@ from .dynamics import check_dynamics
 from .loss import check_loss
 from .predictor import check_predictor, make_query
 from .reference import check_reference_controller
-from .safety_filter import check_safety_filter
+from .safety_filter import check_fallback, check_safety_filter
 from .update_rule import check_update_rule
 
 __all__ = [
@@ -51,6 +51,7 @@ __all__ = [
     "ContractError",
     "check_barrier",
     "check_dynamics",
+    "check_fallback",
     "check_loss",
     "check_plugin",
     "check_predictor",
@@ -74,6 +75,7 @@ ROLE_BASES: dict[str, type] = {
     "predictor": Predictor,
     "barrier": Barrier,
     "safety_filter": SafetyFilter,
+    "fallback": Fallback,
     "loss": Loss,
     "update_rule": UpdateRule,
     "dynamics": Dynamics,
@@ -84,6 +86,7 @@ _CHECKS: dict[str, CheckList] = {
     "predictor": check_predictor,
     "barrier": check_barrier,
     "safety_filter": check_safety_filter,
+    "fallback": check_fallback,
     "loss": check_loss,
     "update_rule": check_update_rule,
     "dynamics": check_dynamics,
