@@ -145,7 +145,7 @@ def assert_kkt(f, nominal, A, rhs, v, tol=1e-6):
     if not active.any():
         np.testing.assert_allclose(grad, 0.0, atol=tol)
         return
-    mu, resid = nnls(G[active].T, -grad)
+    _, resid = nnls(G[active].T, -grad)
     assert resid <= 1e-5 * max(1.0, np.linalg.norm(grad)), resid
 
 
