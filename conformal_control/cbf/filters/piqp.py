@@ -113,18 +113,30 @@ class QPSafetyFilter(VelocityFilter):
         solver.settings.eps_rel = self.eps
         return solver
 
+    @staticmethod
+    def _capacity(m: int) -> int:
+        """Rows the solver is set up for: the next power of two (>= 4), so a changing number
+        of sensed agents rarely needs a new set-up; unused rows read ``0 v <= 1``."""
+        return max(4, 1 << max(m - 1, 0).bit_length())
+
     def _run_qp(self, nominal: np.ndarray, G: np.ndarray, h: np.ndarray, fresh: bool) -> int:
         m = G.shape[0]
+        cap = self._capacity(m)
+        self._qp_m = m
         c = -2.0 * nominal
-        if fresh or self._qp_solver is None or self._qp_shape != m:
-            self._qp_G = np.asfortranarray(np.vstack([G, self._S]))
-            self._qp_h = np.concatenate([h, self._s])
-            self._qp_solver = self._new_solver()
-            self._qp_solver.setup(P=self._P, c=c, G=self._qp_G, h_u=self._qp_h)
-            self._qp_shape = m
-        else:
+        if fresh or self._qp_solver is None or self._qp_shape != cap:
+            self._qp_G = np.asfortranarray(np.vstack([np.zeros((cap, 2)), self._S]))
+            self._qp_h = np.concatenate([np.ones(cap), self._s])
             self._qp_G[:m] = G
             self._qp_h[:m] = h
+            self._qp_solver = self._new_solver()
+            self._qp_solver.setup(P=self._P, c=c, G=self._qp_G, h_u=self._qp_h)
+            self._qp_shape = cap
+        else:
+            self._qp_G[:m] = G
+            self._qp_G[m:cap] = 0.0
+            self._qp_h[:m] = h
+            self._qp_h[m:cap] = 1.0
             self._qp_solver.update(c=c, G=self._qp_G, h_u=self._qp_h)
         self.n_solves_ += 1
         return self._qp_solver.solve()
@@ -151,6 +163,8 @@ class QPSafetyFilter(VelocityFilter):
         are solved as equalities; the result replaces piqp's iterate if it is primal
         feasible to round-off with non-negative multipliers, otherwise piqp's is kept."""
         G, h = self._qp_G, self._qp_h
+        z = z.copy()
+        z[self._qp_m : self._qp_shape] = 0.0  # padding rows 0 v <= 1
         zmax = float(z.max()) if z.size else 0.0
         if zmax <= 0.0:
             return x
@@ -166,12 +180,14 @@ class QPSafetyFilter(VelocityFilter):
                 v = nominal - e * g
                 mu_ok = e >= -tol
             else:
-                det = Ga[0, 0] * Ga[1, 1] - Ga[0, 1] * Ga[1, 0]
+                (a, b), (c, d) = Ga
+                det = a * d - b * c
                 if abs(det) < 1e-9:
                     continue
-                v = np.linalg.solve(Ga, ha)
-                mu = np.linalg.solve(Ga.T, -2.0 * (v - nominal))
-                mu_ok = bool(np.all(mu >= -1e-9 * max(1.0, float(np.abs(mu).max()))))
+                v = np.array([d * ha[0] - b * ha[1], a * ha[1] - c * ha[0]]) / det
+                r0, r1 = -2.0 * (v - nominal)  # G_a^T mu = r
+                mu0, mu1 = (d * r0 - c * r1) / det, (a * r1 - b * r0) / det
+                mu_ok = min(mu0, mu1) >= -1e-9 * max(1.0, abs(mu0), abs(mu1))
             if mu_ok and np.all(G @ v - h <= tol):
                 return v
         self.count("unpolished")
@@ -191,12 +207,13 @@ class QPSafetyFilter(VelocityFilter):
 
     def _run_lp(self, A: np.ndarray, b: np.ndarray, fresh: bool) -> int:
         m = A.shape[0]
-        if fresh or self._lp_solver is None or self._lp_shape != m:
+        cap = self._capacity(m)
+        if fresh or self._lp_solver is None or self._lp_shape != cap:
             ns = self._S.shape[0]
-            self._lp_G = np.asfortranarray(np.zeros((m + ns, 3)))
+            self._lp_G = np.asfortranarray(np.zeros((cap + ns, 3)))
             self._lp_G[:m, 2] = -1.0
-            self._lp_G[m:, :2] = self._S
-            self._lp_h = np.concatenate([np.zeros(m), self._s])
+            self._lp_G[cap:, :2] = self._S
+            self._lp_h = np.concatenate([np.ones(cap), self._s])
             self._lp_G[:m, :2] = -A
             self._lp_h[:m] = b
             self._lp_solver = self._new_solver()
@@ -206,10 +223,13 @@ class QPSafetyFilter(VelocityFilter):
                 G=self._lp_G,
                 h_u=self._lp_h,
             )
-            self._lp_shape = m
+            self._lp_shape = cap
         else:
             self._lp_G[:m, :2] = -A
+            self._lp_G[:m, 2] = -1.0
+            self._lp_G[m:cap] = 0.0
             self._lp_h[:m] = b
+            self._lp_h[m:cap] = 1.0
             self._lp_solver.update(G=self._lp_G, h_u=self._lp_h)
         self.n_solves_ += 1
         return self._lp_solver.solve()
