@@ -156,8 +156,8 @@ class ConformalCBFController(
         self.forecast_info_: dict[str, Any] = {}
         self._begin_empty()
 
-    def _fused_apf(self) -> tuple[tuple[float, float, float, float, bool], float] | None:
-        """Barrier parameters and slope for the compiled APF step, or None (generic path)."""
+    def _fused_apf(self) -> bool:
+        """Whether decide() takes the compiled APF step (configured here) or the generic path."""
         f, c = self.safety_filter, self.constraint
         if not (
             type(c) is ConformalConstraint
@@ -165,9 +165,10 @@ class ConformalCBFController(
             and isinstance(f, Exact2DSafetyFilter)
             and f.fused
         ):
-            return None
+            return False
         K, rho0, d_c, delta = c.barrier._checked()
-        return (K, rho0, d_c, delta, c.barrier.convention == "surface"), float(c.a)
+        f.configure_apf((K, rho0, d_c, delta, c.barrier.convention == "surface"), float(c.a))
+        return True
 
     def stats(self) -> dict[str, float]:
         return {
@@ -224,9 +225,9 @@ class ConformalCBFController(
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
-        if self._ids.size and self._fused is not None:
+        if self._fused and self._ids.size:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
-                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam, *self._fused
+                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
             )
         else:
             if self._ids.size:

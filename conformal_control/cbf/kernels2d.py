@@ -419,40 +419,39 @@ def filter_step(
     return SEARCH_VERTEX, w0, w1, floor, 3
 
 
+#: Layout of the parameter vector of :func:`apf_step`.
+PARAMS = ("K_rep", "rho0", "d_c", "delta", "surface", "a", "radius", "box", "v_max", "search",
+          "margin")  # fmt: skip
+#: Columns of the work array of :func:`apf_step`: A (2), b, rhs, Ak (2), bk, G (2), h.
+WORK_COLUMNS = 10
+
+
 @jit
 def apf_step(
     x0: float,
     x1: float,
     xp: np.ndarray,
     vp: np.ndarray,
-    K: float,
-    rho0: float,
-    d_c: float,
-    delta: float,
-    surface: bool,
-    a: float,
     n0: float,
     n1: float,
     lam: float,
-    S: np.ndarray,
-    s: np.ndarray,
-    verts: np.ndarray,
-    radius: float,
-    box: bool,
-    v_max: float,
-    search: bool,
-    margin_rel: float,
-    A: np.ndarray,
-    b: np.ndarray,
-    G: np.ndarray,
-    h: np.ndarray,
-    rhs: np.ndarray,
-    Ak: np.ndarray,
-    bk: np.ndarray,
+    prm: np.ndarray,
+    poly: np.ndarray,
+    work: np.ndarray,
 ) -> tuple[int, float, float, float, int]:
-    """The fused control step for the APF barrier: rows (written into ``A``, ``b``), then
-    :func:`filter_step`."""
-    apf_rows(x0, x1, xp, vp, K, rho0, d_c, delta, surface, a, A, b)
+    """The fused control step for the APF barrier: rows, then :func:`filter_step`.
+
+    Few arguments (the call overhead grows with them): ``prm`` holds the scalars named in
+    :data:`PARAMS`, ``poly`` the speed polygon (columns ``S`` (2), ``s``, vertices (2)),
+    ``work`` the buffers (:data:`WORK_COLUMNS` columns, ``N + sides`` rows or more); the
+    rows are left in ``work[:N, 0:2]`` (A) and ``work[:N, 2]`` (b).
+    """
+    m = xp.shape[0]
+    A = work[:m, 0:2]
+    b = work[:m, 2]
+    apf_rows(x0, x1, xp, vp, prm[0], prm[1], prm[2], prm[3], prm[4] != 0.0, prm[5], A, b)
     return filter_step(
-        n0, n1, A, b, lam, S, s, verts, radius, box, v_max, search, margin_rel, G, h, rhs, Ak, bk
-    )
+        n0, n1, A, b, lam,
+        poly[:, 0:2], poly[:, 2], poly[:, 3:5], prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0,
+        prm[10], work[:, 7:9], work[:, 9], work[:m, 3], work[:m, 4:6], work[:m, 6],
+    )  # fmt: skip

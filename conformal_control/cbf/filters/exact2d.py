@@ -46,6 +46,9 @@ class Exact2DSafetyFilter(VelocityFilter):
         Margin added to the smallest feasible lambda, relative to the rows' scale
         ``max(1, |lambda*|, |b_j|, ||A_j|| v_max)``: 1000 times the solver's round-off
         tolerance, so the projection there is strictly feasible.
+    compiled_step : bool
+        Let the controller fuse barrier, rows and this filter into one compiled call when
+        the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
     """
 
     def __init__(
@@ -54,9 +57,11 @@ class Exact2DSafetyFilter(VelocityFilter):
         fallback: str | Fallback = "lambda_search",
         speed_sides: int = 16,
         lambda_margin: float = 1e-10,
+        compiled_step: bool = True,
     ) -> None:
         super().__init__(v_max=v_max, fallback=fallback, speed_sides=speed_sides)
         self.lambda_margin = lambda_margin
+        self.compiled_step = compiled_step
 
     def _setup(self) -> None:
         if not (math.isfinite(self.lambda_margin) and 0 < self.lambda_margin < 1e-3):
@@ -70,11 +75,18 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._verts = np.ascontiguousarray(self._verts)
         self._cap = -1
         self._buffers(16)
+        ns = self._S.shape[0]
+        self._poly = np.zeros((ns, 5))
+        self._poly[:, 0:2] = self._S
+        self._poly[:, 2] = self._s
+        self._poly[:, 3:5] = self._verts
+        self._prm = np.zeros(len(self._k.PARAMS))
+        self._prm[6:] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
         # the compiled step handles these fallbacks itself (lambda_search) or reports the
         # infeasibility for the Python side to apply them (brake, hold)
         kind = type(self.fallback_)
-        self._fused = kind in (LambdaSearch, Brake, Hold)
-        self._search = kind is LambdaSearch
+        self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
+        self._prm[9] = kind is LambdaSearch
 
     def _buffers(self, m: int) -> None:
         if m <= self._cap:
@@ -83,11 +95,9 @@ class Exact2DSafetyFilter(VelocityFilter):
         ns = self._S.shape[0]
         self._G = np.zeros((cap + ns, 2))
         self._h = np.zeros(cap + ns)
-        self._rhs = np.zeros(cap)
         self._Ak = np.zeros((cap, 2))
         self._bk = np.zeros(cap)
-        self._A = np.zeros((cap, 2))
-        self._b = np.zeros(cap)
+        self._work = np.zeros((cap + ns, self._k.WORK_COLUMNS))
         self._cap = cap
 
     # ------------------------------------------------------------------ primitives
@@ -136,62 +146,62 @@ class Exact2DSafetyFilter(VelocityFilter):
     # ------------------------------------------------------------------ fused step
     @property
     def fused(self) -> bool:
-        """Whether :meth:`step_apf` may be used (the fallback is one it fuses)."""
+        """Whether :meth:`step_apf` may be used (``compiled_step`` and a fallback it fuses)."""
         return self._fused
 
-    def step_apf(
-        self,
-        x_ego: np.ndarray,
-        x_agents: np.ndarray,
-        v_agents: np.ndarray,
-        nominal: np.ndarray,
-        lam: float,
-        barrier_params: tuple[float, float, float, float, bool],
-        a: float,
-    ) -> FilterResult:
-        """One compiled control step with the APF barrier's rows: the same decision, status,
-        lambda and counters as ``solve(nominal, *constraint.rows(x_ego, x_agents,
-        v_agents), lam)`` (to round-off), without building the rows in Python.
+    def configure_apf(
+        self, barrier_params: tuple[float, float, float, float, bool], a: float
+    ) -> None:
+        """Set the APF barrier ``(K_rep, rho0, d_c, delta, surface)`` and the slope ``a`` that
+        :meth:`step_apf` builds its rows from (the controller does, at ``reset``)."""
+        self._prm[:6] = (*barrier_params, a)
 
-        ``barrier_params`` is ``(K_rep, rho0, d_c, delta, surface)``; the inputs must be
-        finite (the controller sanitises predictions).
+    def step_apf(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray, nominal, lam: float
+    ) -> FilterResult:
+        """One compiled control step with the APF barrier's rows (:meth:`configure_apf`):
+        the same decision, status, lambda and counters as ``solve(nominal,
+        *constraint.rows(x_ego, x_agents, v_agents), lam)`` (to round-off), without
+        building the rows in Python. Predictions must be finite (the controller sanitises
+        them); a non-finite row, lambda or nominal raises ``ValueError`` as ``solve`` does.
         """
         n = x_agents.shape[0]
-        self._buffers(n)
-        K, rho0, d_c, delta, surface = barrier_params
-        n0 = float(nominal[0])
-        n1 = float(nominal[1])
+        if n > self._cap:
+            self._buffers(n)
         k = self._k
         code, v0, v1, lam_used, solves = k.apf_step(
-            float(x_ego[0]), float(x_ego[1]), x_agents, v_agents,
-            K, rho0, d_c, delta, surface, a, n0, n1, lam,
-            self._S, self._s, self._verts, self._radius, self._box, float(self.v_max),
-            self._search, float(self.lambda_margin),
-            self._A[:n], self._b[:n], self._G, self._h, self._rhs, self._Ak, self._bk,
+            x_ego[0], x_ego[1], x_agents, v_agents, nominal[0], nominal[1], lam,
+            self._prm, self._poly, self._work,
         )  # fmt: skip
         self.n_solves_ += solves
+        if code == 0:  # unconstrained
+            self._last = nominal
+            self._fell_back = False
+            return FilterResult(nominal, "unconstrained", lam)
+        if code == 1:  # optimal
+            v = np.array((v0, v1))
+            self._last = v
+            self._fell_back = False
+            return FilterResult(v, "optimal", lam)
+        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
+
+    def _step_apf_fallback(self, code, v0, v1, lam_used, n, nominal, lam) -> FilterResult:
+        k = self._k
         if code == k.NONFINITE:
             raise ValueError(
                 f"{type(self).__name__} received non-finite constraints, lambda or nominal "
                 "decision; predictions must be sanitised before building constraints"
             )
-        if code == k.UNCONSTRAINED:
-            self._last = np.asarray(nominal, dtype=float)
-            self._fell_back = False
-            return FilterResult(self._last, "unconstrained", lam)
-        v = np.array([v0, v1])
-        if code == k.OPTIMAL:
-            self._last = v
-            self._fell_back = False
-            return FilterResult(v, "optimal", lam)
         if code == k.INFEASIBLE:  # brake / hold: the Python fallback decides
-            A, b = self._A[:n].copy(), self._b[:n].copy()
-            return self._fall_back(InfeasibleStep(nominal, A, b, lam, self._last.copy()))
+            A, b = self._work[:n, 0:2].copy(), self._work[:n, 2].copy()
+            step = InfeasibleStep(np.asarray(nominal, dtype=float), A, b, lam, self._last.copy())
+            return self._fall_back(step)
         self.n_infeasible_ += 1
         self.n_fallback_ += 1
         self.fallback_counts_["lambda_search"] = self.fallback_counts_.get("lambda_search", 0) + 1
         if code == k.SEARCH_VERTEX:
             self.count("lambda_search_vertex")
+        v = np.array((v0, v1))
         self._last = v
         self._fell_back = True
         return FilterResult(v, "fallback", lam_used, "lambda_search")
