@@ -95,7 +95,7 @@ def test_other_barriers_and_fallbacks_take_the_generic_path(crossing) -> None:
     class MyAPF(APFBarrier):
         """A subclass may change the barrier: not fused."""
 
-    env, fused, _ = twin_controllers(crossing, {"a": 2.0})
+    _, fused, _ = twin_controllers(crossing, {"a": 2.0})
     fused.constraint.barrier = MyAPF(**fused.constraint.barrier.get_params())
     fused.reset()
     assert not fused._fused
