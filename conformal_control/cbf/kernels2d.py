@@ -421,9 +421,12 @@ def filter_step(
 
 #: Layout of the parameter vector of :func:`apf_step`.
 PARAMS = ("K_rep", "rho0", "d_c", "delta", "surface", "a", "radius", "box", "v_max", "search",
-          "margin")  # fmt: skip
-#: Columns of the work array of :func:`apf_step`: A (2), b, rhs, Ak (2), bk, G (2), h.
-WORK_COLUMNS = 10
+          "margin", "capacity")  # fmt: skip
+
+
+def work_size(capacity: int, sides: int) -> int:
+    """Length of the work vector of :func:`apf_step` for up to ``capacity`` agents."""
+    return 10 * capacity + 3 * sides
 
 
 @jit
@@ -441,17 +444,27 @@ def apf_step(
 ) -> tuple[int, float, float, float, int]:
     """The fused control step for the APF barrier: rows, then :func:`filter_step`.
 
-    Few arguments (the call overhead grows with them): ``prm`` holds the scalars named in
-    :data:`PARAMS`, ``poly`` the speed polygon (columns ``S`` (2), ``s``, vertices (2)),
-    ``work`` the buffers (:data:`WORK_COLUMNS` columns, ``N + sides`` rows or more); the
-    rows are left in ``work[:N, 0:2]`` (A) and ``work[:N, 2]`` (b).
+    Few arguments (the call overhead grows with them) and contiguous views (so the callees
+    are the very functions the generic path compiled): ``prm`` holds the scalars named in
+    :data:`PARAMS`; ``poly`` the speed polygon, flat: ``S`` (sides x 2), ``s``, vertices
+    (sides x 2); ``work`` the buffers, flat (:func:`work_size`): A (capacity x 2), b, rhs,
+    Ak (capacity x 2), bk, G (capacity + sides, 2), h. The rows are left in A and b.
     """
     m = xp.shape[0]
-    A = work[:m, 0:2]
-    b = work[:m, 2]
+    cap = int(prm[11])
+    ns = poly.shape[0] // 5
+    A = work[0 : 2 * m].reshape((m, 2))
+    b = work[2 * cap : 2 * cap + m]
+    rhs = work[3 * cap : 3 * cap + m]
+    Ak = work[4 * cap : 4 * cap + 2 * m].reshape((m, 2))
+    bk = work[6 * cap : 6 * cap + m]
+    G = work[7 * cap : 9 * cap + 2 * ns].reshape((cap + ns, 2))
+    h = work[9 * cap + 2 * ns : 10 * cap + 3 * ns]
+    S = poly[0 : 2 * ns].reshape((ns, 2))
+    s = poly[2 * ns : 3 * ns]
+    verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
     apf_rows(x0, x1, xp, vp, prm[0], prm[1], prm[2], prm[3], prm[4] != 0.0, prm[5], A, b)
     return filter_step(
-        n0, n1, A, b, lam,
-        poly[:, 0:2], poly[:, 2], poly[:, 3:5], prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0,
-        prm[10], work[:, 7:9], work[:, 9], work[:m, 3], work[:m, 4:6], work[:m, 6],
+        n0, n1, A, b, lam, S, s, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0, prm[10],
+        G, h, rhs, Ak, bk,
     )  # fmt: skip

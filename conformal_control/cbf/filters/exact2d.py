@@ -73,15 +73,11 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._k = kernels2d
         self._S = np.ascontiguousarray(self._S)
         self._verts = np.ascontiguousarray(self._verts)
+        self._poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
+        self._prm = np.zeros(len(self._k.PARAMS))
+        self._prm[6:11] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
         self._cap = -1
         self._buffers(16)
-        ns = self._S.shape[0]
-        self._poly = np.zeros((ns, 5))
-        self._poly[:, 0:2] = self._S
-        self._poly[:, 2] = self._s
-        self._poly[:, 3:5] = self._verts
-        self._prm = np.zeros(len(self._k.PARAMS))
-        self._prm[6:] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
         # the compiled step handles these fallbacks itself (lambda_search) or reports the
         # infeasibility for the Python side to apply them (brake, hold)
         kind = type(self.fallback_)
@@ -97,7 +93,8 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._h = np.zeros(cap + ns)
         self._Ak = np.zeros((cap, 2))
         self._bk = np.zeros(cap)
-        self._work = np.zeros((cap + ns, self._k.WORK_COLUMNS))
+        self._work = np.zeros(self._k.work_size(cap, ns))
+        self._prm[11] = cap
         self._cap = cap
 
     # ------------------------------------------------------------------ primitives
@@ -193,7 +190,9 @@ class Exact2DSafetyFilter(VelocityFilter):
                 "decision; predictions must be sanitised before building constraints"
             )
         if code == k.INFEASIBLE:  # brake / hold: the Python fallback decides
-            A, b = self._work[:n, 0:2].copy(), self._work[:n, 2].copy()
+            cap = self._cap
+            A = self._work[: 2 * n].reshape(n, 2).copy()
+            b = self._work[2 * cap : 2 * cap + n].copy()
             step = InfeasibleStep(np.asarray(nominal, dtype=float), A, b, lam, self._last.copy())
             return self._fall_back(step)
         self.n_infeasible_ += 1
