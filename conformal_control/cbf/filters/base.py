@@ -198,9 +198,12 @@ class VelocityFilter(SafetyFilter):
         return v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12)
 
     def _checked(self, nominal, A, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        nominal = np.asarray(nominal, dtype=float)
-        A = np.asarray(A, dtype=float)
-        b = np.asarray(b, dtype=float)
+        if type(nominal) is not np.ndarray or nominal.dtype != np.float64:
+            nominal = np.asarray(nominal, dtype=float)
+        if type(A) is not np.ndarray or A.dtype != np.float64:
+            A = np.asarray(A, dtype=float)
+        if type(b) is not np.ndarray or b.dtype != np.float64:
+            b = np.asarray(b, dtype=float)
         m = b.shape[0] if b.ndim == 1 else -1
         if nominal.shape != (2,) or A.shape != (m, 2):
             raise ValueError(

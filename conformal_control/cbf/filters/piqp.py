@@ -98,11 +98,8 @@ class QPSafetyFilter(VelocityFilter):
     def search_margin(self, lam_star: float, A: np.ndarray, b: np.ndarray) -> float:
         scale = max(1.0, abs(lam_star))
         if A.shape[0]:
-            scale = max(
-                scale,
-                float(np.max(np.abs(b))),
-                float(np.max(np.hypot(A[:, 0], A[:, 1]))) * self._radius,
-            )
+            # sqrt(2) max|A_ij| >= max ||A_j||: the rows' scale without a norm per row
+            scale = max(scale, float(np.abs(b).max()), float(np.abs(A).max()) * 1.5 * self._radius)
         return self.lambda_margin * scale
 
     # ------------------------------------------------------------------ solver plumbing
@@ -165,30 +162,34 @@ class QPSafetyFilter(VelocityFilter):
         G, h = self._qp_G, self._qp_h
         z = z.copy()
         z[self._qp_m : self._qp_shape] = 0.0  # padding rows 0 v <= 1
-        zmax = float(z.max()) if z.size else 0.0
-        if zmax <= 0.0:
+        i = int(z.argmax())
+        zi = float(z[i])
+        if zi <= 0.0:
             return x
-        order = np.argsort(-z)
-        active = [int(i) for i in order[:2] if z[i] > 1e-6 * zmax]
+        z[i] = 0.0
+        j = int(z.argmax())
+        n0, n1 = float(nominal[0]), float(nominal[1])
         tol = 1e-12 * self._radius
-        for k in (len(active), 1) if len(active) == 2 else (len(active),):
-            idx = active[:k]
-            Ga, ha = G[idx], h[idx]
-            if k == 1:
-                g = Ga[0]
-                e = (g @ nominal - ha[0]) / (g @ g)
-                v = nominal - e * g
-                mu_ok = e >= -tol
-            else:
-                (a, b), (c, d) = Ga
+        sets = ((i, j), (i,)) if z[j] > 1e-6 * zi else ((i,),)
+        for act in sets:
+            a, b, hi = float(G[i, 0]), float(G[i, 1]), float(h[i])
+            if len(act) == 1:  # projection onto the line of constraint i
+                e = (a * n0 + b * n1 - hi) / (a * a + b * b)
+                if e < -tol:
+                    continue
+                v0, v1 = n0 - e * a, n1 - e * b
+            else:  # the vertex of constraints i and j, with multipliers >= 0
+                c, d, hj = float(G[j, 0]), float(G[j, 1]), float(h[j])
                 det = a * d - b * c
                 if abs(det) < 1e-9:
                     continue
-                v = np.array([d * ha[0] - b * ha[1], a * ha[1] - c * ha[0]]) / det
-                r0, r1 = -2.0 * (v - nominal)  # G_a^T mu = r
+                v0, v1 = (d * hi - b * hj) / det, (a * hj - c * hi) / det
+                r0, r1 = 2.0 * (n0 - v0), 2.0 * (n1 - v1)  # G_a^T mu = -2 (v - n)
                 mu0, mu1 = (d * r0 - c * r1) / det, (a * r1 - b * r0) / det
-                mu_ok = min(mu0, mu1) >= -1e-9 * max(1.0, abs(mu0), abs(mu1))
-            if mu_ok and np.all(G @ v - h <= tol):
+                if min(mu0, mu1) < -1e-9 * max(1.0, abs(mu0), abs(mu1)):
+                    continue
+            v = np.array((v0, v1))
+            if float((G @ v - h).max()) <= tol:
                 return v
         self.count("unpolished")
         return x
@@ -239,13 +240,19 @@ class QPSafetyFilter(VelocityFilter):
 
         Rows with a zero gradient only bound lambda from below and stay out of the LP.
         """
-        flat = (A[:, 0] == 0.0) & (A[:, 1] == 0.0)
-        floor = float(np.max(-b[flat])) if flat.any() else -math.inf
-        live = ~flat
-        if not live.any():
-            return floor, np.zeros(2)
-        Al, bl = A[live], b[live]
-        sigma = max(1.0, float(np.max(np.abs(bl))), float(np.max(np.hypot(Al[:, 0], Al[:, 1]))))
+        if A.shape[0] == 0:
+            return -math.inf, np.zeros(2)
+        nrm = np.hypot(A[:, 0], A[:, 1])
+        if nrm.min() > 0.0:  # the usual case: every row has a gradient
+            floor, Al, bl = -math.inf, A, b
+        else:
+            flat = nrm == 0.0
+            floor = float(np.max(-b[flat]))
+            live = ~flat
+            if not live.any():
+                return floor, np.zeros(2)
+            Al, bl, nrm = A[live], b[live], nrm[live]
+        sigma = max(1.0, float(np.abs(bl).max()), float(nrm.max()))
         status = self._run_lp(Al / sigma, bl / sigma, fresh=False)
         if status != piqp.PIQP_SOLVED:
             status = self._run_lp(Al / sigma, bl / sigma, fresh=True)
@@ -255,7 +262,7 @@ class QPSafetyFilter(VelocityFilter):
             from .. import kernels2d
 
             self.n_solver_failure_ += 1
-            m = int(live.sum())
+            m = Al.shape[0]
             _, v0, v1 = kernels2d.smallest_lambda(
                 np.ascontiguousarray(Al),
                 bl.copy(),
