@@ -189,3 +189,14 @@ def test_non_finite_input_is_a_value_error(backend) -> None:
         f.solve(np.zeros(2), np.zeros((0, 2)), np.zeros(0), math.nan)
     with pytest.raises(ValueError, match="shape"):
         f.solve(np.zeros(3), np.zeros((1, 2)), np.zeros(1), 0.0)
+
+
+def test_a_reset_exact_filter_pickles() -> None:
+    import pickle
+
+    f = fresh(Exact2DSafetyFilter)
+    A, b = np.array([[1.0, 0.0], [0.3, -1.0]]), np.array([-0.5, 0.2])
+    g = pickle.loads(pickle.dumps(f))
+    np.testing.assert_array_equal(
+        g.solve(np.zeros(2), A, b, 0.0).decision, f.solve(np.zeros(2), A, b, 0.0).decision
+    )

@@ -84,6 +84,18 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
         self._prm[9] = kind is LambdaSearch
 
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state.pop("_k", None)  # a module: re-imported on unpickling
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if "_prm" in state:
+            from .. import kernels2d
+
+            self._k = kernels2d
+
     def _buffers(self, m: int) -> None:
         if m <= self._cap:
             return
