@@ -21,9 +21,10 @@ Usage::
 2. The first-call cost of the compiled kernels (numba, ``cache=True``): a fresh process
    with an empty cache directory (compilation) and one reusing it (loading).
 
-3. The wall time of full nexus_4 episodes (constant-velocity predictions, Table II settings
-   with a = 10) with each filter (the episode builder makes the piqp filter; this script
-   swaps in the exact one for the second row) and the peak memory of one episode.
+3. The wall time of full episodes (nexus_4 with Table II settings and a = 10; the built-in
+   crossing scene, where the filter is active) with each filter (the episode builder makes
+   the piqp filter; this script swaps in the exact one for the second row) and the peak
+   memory of one episode.
 """
 
 from __future__ import annotations
@@ -167,39 +168,43 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
     from conformal_control.data import load_scene
     from conformal_control.sim import episode, run_episode
 
-    scene = load_scene("nexus_4", data_root / "sdd")
-    params = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
-    print(
-        "\nnexus_4 episode (constant velocity, a=10, tau=4, eta=1, eps=-0.25), "
-        f"median of {repeats} runs:"
-    )
-    base = None
-    for name, cls in FILTERS.items():
-        episode.QPSafetyFilter = cls  # the builder's filter class, swapped for this row
-        try:
-            run_episode(scene, "constant_velocity", params)  # warm-up (compiles if needed)
-            walls, loops = [], []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                res = run_episode(scene, "constant_velocity", params)
-                walls.append(time.perf_counter() - t0)
-                loops.append(res.metrics["wall_s"])
-            tracemalloc.start()
-            run_episode(scene, "constant_velocity", params)
-            _, peak = tracemalloc.get_traced_memory()
-            tracemalloc.stop()
-        finally:
-            episode.QPSafetyFilter = QPSafetyFilter
-        m = res.metrics
-        wall, loop = statistics.median(walls), statistics.median(loops)
-        base = base or loop
-        print(
-            f"  {name:>8}: episode {wall * 1e3:6.0f} ms, control loop {loop * 1e3:6.0f} ms "
-            f"(piqp / this {base / loop:4.1f}x), peak memory {peak / 2**20:.1f} MiB; "
-            f"{m['n_steps']} steps, {m['n_qp_solves']} solves, {m['n_fallback']} fallbacks, "
-            f"t_goal {m['t_goal']:.2f} s, n_collide {m['n_collide']}, d_min {m['d_min']:.3f} m, "
-            f"l_avg {m['l_avg']:.4f}"
-        )
+    scenes = [
+        ("nexus_4", load_scene("nexus_4", data_root / "sdd"), PAPER_A10),
+        ("crossing", load_scene("crossing", seed=0), {"a": 2.0, "epsilon": 0.1}),
+    ]
+    for label, scene, params in scenes:
+        print(f"\n{label} episode (constant velocity, {params}), median of {repeats} runs:")
+        base = None
+        for name, cls in FILTERS.items():
+            episode.QPSafetyFilter = cls  # the builder's filter class, swapped for this row
+            try:
+                run_episode(scene, "constant_velocity", params)  # warm-up (compiles if needed)
+                walls, loops = [], []
+                for _ in range(repeats):
+                    t0 = time.perf_counter()
+                    res = run_episode(scene, "constant_velocity", params)
+                    walls.append(time.perf_counter() - t0)
+                    loops.append(res.metrics["wall_s"])
+                tracemalloc.start()
+                run_episode(scene, "constant_velocity", params)
+                _, peak = tracemalloc.get_traced_memory()
+                tracemalloc.stop()
+            finally:
+                episode.QPSafetyFilter = QPSafetyFilter
+            m = res.metrics
+            wall, loop = statistics.median(walls), statistics.median(loops)
+            base = base or loop
+            print(
+                f"  {name:>8}: episode {wall * 1e3:6.0f} ms, control loop {loop * 1e3:6.0f} ms "
+                f"(piqp / this {base / loop:4.1f}x), peak memory {peak / 2**20:.1f} MiB; "
+                f"{m['n_steps']} steps, {m['n_qp_solves']} solves, {m['n_fallback']} fallbacks, "
+                f"t_goal {m['t_goal'] or float('nan'):.2f} s, n_collide {m['n_collide']}, d_min {m['d_min']:.3f} m, "
+                f"l_avg {m['l_avg']:.4f}"
+            )
+
+
+#: Table II settings with the published code's a = 10 (scene units).
+PAPER_A10 = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
 
 
 def main() -> None:
