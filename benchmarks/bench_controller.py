@@ -198,8 +198,8 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
                 f"  {name:>8}: episode {wall * 1e3:6.0f} ms, control loop {loop * 1e3:6.0f} ms "
                 f"(piqp / this {base / loop:4.1f}x), peak memory {peak / 2**20:.1f} MiB; "
                 f"{m['n_steps']} steps, {m['n_qp_solves']} solves, {m['n_fallback']} fallbacks, "
-                f"t_goal {m['t_goal'] or float('nan'):.2f} s, n_collide {m['n_collide']}, d_min {m['d_min']:.3f} m, "
-                f"l_avg {m['l_avg']:.4f}"
+                f"t_goal {m['t_goal'] or float('nan'):.2f} s, n_collide {m['n_collide']}, "
+                f"d_min {m['d_min']:.3f} m, l_avg {m['l_avg']:.4f}"
             )
 
 
