@@ -28,7 +28,6 @@ from abc import abstractmethod
 from typing import ClassVar
 
 import numpy as np
-from scipy.optimize import linprog
 
 from ..fallbacks import CORE_FALLBACKS, resolve_fallback
 from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
@@ -149,6 +148,8 @@ class VelocityFilter(SafetyFilter):
         projection finds them feasible; should it still fail, the LP's own velocity is
         returned (counted as ``n_relax_vertex``). ``v`` meets ``A v + rhs + s >= 0``.
         """
+        from scipy.optimize import linprog  # only the relax fallback needs it
+
         m = A.shape[0]
         s = np.zeros(m)
         nrm = np.hypot(A[:, 0], A[:, 1])
