@@ -50,6 +50,12 @@ class VelocityFilter(SafetyFilter):
         counted (``n_fallback_``, ``n_infeasible_``, per fallback in :meth:`stats`).
     speed_sides : int
         Number of sides of the speed polygon (>= 3), or 0 for a box.
+
+    Notes
+    -----
+    :meth:`solve` never raises on finite input of the right shapes: infeasibility goes to
+    the fallback, a solver failure to a counted last resort. NaN or infinite input (or
+    finite values so large, ~1e308, that the residuals overflow) is a ``ValueError``.
     """
 
     #: Compute lambda* first when the previous decision fell back (skips a solve that
