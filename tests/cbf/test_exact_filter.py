@@ -181,6 +181,7 @@ def test_random_call_sequences(backend, calls) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS, ids=lambda c: c.__name__)
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 def test_non_finite_input_is_a_value_error(backend) -> None:
     f = fresh(backend)
     with pytest.raises(ValueError, match="non-finite"):
