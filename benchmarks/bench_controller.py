@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -141,6 +142,7 @@ def bench_compile() -> None:
         out = []
         for _ in range(2):
             t0 = time.perf_counter()
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             res = subprocess.run(
                 [sys.executable, "-c", COMPILE_SNIPPET],
                 env=env,
@@ -148,18 +150,21 @@ def bench_compile() -> None:
                 text=True,
                 check=True,
             )
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             total = time.perf_counter() - t0
+            cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
             imp, first = (float(x) for x in res.stdout.split())
-            out.append((total, imp, first))
-    (c_tot, c_imp, c_first), (w_tot, w_imp, w_first) = out
+            out.append((total, imp, first, cpu))
+    (c_tot, c_imp, c_first, c_cpu), (w_tot, w_imp, w_first, w_cpu) = out
     print("\ncompiled kernels, first use in a fresh process (numba cache=True):")
     print(
         f"  empty cache (compiles): first reset + 2 steps {c_first:.2f} s "
-        f"(import of conformal_control.cbf {c_imp:.2f} s, process {c_tot:.2f} s)"
+        f"(import of conformal_control.cbf {c_imp:.2f} s, process {c_tot:.2f} s wall, "
+        f"{c_cpu:.2f} s CPU)"
     )
     print(
         f"  warm cache  (loads):    first reset + 2 steps {w_first:.2f} s "
-        f"(import {w_imp:.2f} s, process {w_tot:.2f} s); "
+        f"(import {w_imp:.2f} s, process {w_tot:.2f} s wall, {w_cpu:.2f} s CPU); "
         f"compile / load = {c_first / w_first:.0f}x"
     )
 
