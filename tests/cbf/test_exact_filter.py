@@ -201,3 +201,27 @@ def test_a_reset_exact_filter_pickles() -> None:
     np.testing.assert_array_equal(
         g.solve(np.zeros(2), A, b, 0.0).decision, f.solve(np.zeros(2), A, b, 0.0).decision
     )
+
+
+@pytest.mark.parametrize("sides", [3, 0, 64])
+def test_exact_and_piqp_agree_for_other_speed_sets(sides) -> None:
+    rng = np.random.default_rng(sides)
+    exact = fresh(Exact2DSafetyFilter, speed_sides=sides, v_max=1.3)
+    qp = fresh(QPSafetyFilter, speed_sides=sides, v_max=1.3)
+    n_fb = 0
+    for _ in range(300):
+        m = int(rng.integers(0, 12))
+        A, b = rng.normal(size=(m, 2)), rng.normal(size=m) - rng.uniform(-1.0, 1.5)
+        nominal = rng.uniform(-3, 3, 2)
+        lam_star = exact.min_lambda(A, b)[0] if m else -math.inf
+        if abs(lam_star) < 1e-6 * 10:  # lambda = 0 on the verdict's edge
+            continue
+        re, rq = exact.solve(nominal, A, b, 0.0), qp.solve(nominal, A, b, 0.0)
+        assert re.status == rq.status
+        if re.status == "fallback":
+            n_fb += 1
+            assert re.lambda_applied == pytest.approx(rq.lambda_applied, abs=1e-6)
+        else:
+            np.testing.assert_allclose(re.decision, rq.decision, atol=1e-6)
+            assert np.all(exact._S @ re.decision <= exact._s + 1e-12) or re.status != "optimal"
+    assert 50 < n_fb < 250
