@@ -183,8 +183,8 @@ def min_lambda(
             if g0 * v0 + g1 * v1 - hq <= tol:
                 continue
             nrm = math.hypot(g0, g1)
-            if nrm == 0.0:  # identical gradients: met wherever row i is violated
-                continue
+            if nrm * radius <= tol:  # (nearly) identical gradients: flat over the speed set,
+                continue  # and met where row i is violated (up to round-off)
             u0 = g0 / nrm
             u1 = g1 / nrm
             off = hq / nrm
@@ -203,7 +203,7 @@ def min_lambda(
                 else:
                     w0, w1, wh = _lp_con(k - ns, i, A, b, L)
                     wn = math.hypot(w0, w1)
-                    if wn == 0.0:
+                    if wn * radius <= tol:  # flat over the speed set (see above)
                         continue
                 # a parallel constraint cannot empty the interval: the LP is feasible
                 den = (w0 * d0 + w1 * d1) / wn
