@@ -26,14 +26,16 @@ Usage::
    with an empty cache directory (compilation) and one reusing it (loading).
 
 3. The wall time of full episodes (nexus_4 with Table II settings and a = 10; the built-in
-   crossing scene, where the filter is active) with each filter (the episode builder makes
-   the piqp filter; this script swaps in the exact one for the second row) and the peak
-   memory of one episode.
+   crossing scene, where the filter is active) with each filter (``run_episode(...,
+   safety_filter=name)``; with an episode builder that always makes the piqp filter, this
+   script swaps in the exact one's class for the second row) and the peak memory of one
+   episode.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import resource
 import statistics
@@ -178,6 +180,7 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
     from conformal_control.data import load_scene
     from conformal_control.sim import episode, run_episode
 
+    by_name = "safety_filter" in inspect.signature(run_episode).parameters
     scenes = [
         ("nexus_4", load_scene("nexus_4", data_root / "sdd"), PAPER_A10),
         ("crossing", load_scene("crossing", seed=0), {"a": 2.0, "epsilon": 0.1}),
@@ -186,21 +189,26 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
         print(f"\n{label} episode (constant velocity, {params}), median of {repeats} runs:")
         base = None
         for name, cls in FILTERS.items():
-            episode.QPSafetyFilter = cls  # the builder's filter class, swapped for this row
+            if by_name:
+                kw = {"safety_filter": name}
+            else:  # an episode builder without a safety_filter choice: swap its class
+                kw = {}
+                episode.QPSafetyFilter = cls
             try:
-                run_episode(scene, "constant_velocity", params)  # warm-up (compiles if needed)
+                run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)
                 walls, loops = [], []
                 for _ in range(repeats):
                     t0 = time.perf_counter()
-                    res = run_episode(scene, "constant_velocity", params)
+                    res = run_episode(scene, "constant_velocity", params, **kw)
                     walls.append(time.perf_counter() - t0)
                     loops.append(res.metrics["wall_s"])
                 tracemalloc.start()
-                run_episode(scene, "constant_velocity", params)
+                run_episode(scene, "constant_velocity", params, **kw)
                 _, peak = tracemalloc.get_traced_memory()
                 tracemalloc.stop()
             finally:
-                episode.QPSafetyFilter = QPSafetyFilter
+                if not by_name:
+                    episode.QPSafetyFilter = QPSafetyFilter
             m = res.metrics
             wall, loop = statistics.median(walls), statistics.median(loops)
             base = base or loop

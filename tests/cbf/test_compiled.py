@@ -2,39 +2,71 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from conformal_control import registry
-from conformal_control.cbf import APFBarrier, ConformalCBFController, Exact2DSafetyFilter
+from conformal_control.cbf import (
+    APFBarrier,
+    AttractiveField,
+    ConformalCBFController,
+    ConformalConstraint,
+    Exact2DSafetyFilter,
+    VelocityTrackingDoubleIntegrator,
+)
 from conformal_control.cbf import kernels2d as k
 from conformal_control.sim.config import resolve_params
-from conformal_control.sim.episode import build_components
+from conformal_control.sim.environment import ReplayEnvironment
 
 
 def twin_controllers(scene, params, fallback="lambda_search"):
-    """The environment, and two controllers differing only in the compiled step."""
-    comp = build_components(
-        scene, resolve_params(scene, params), registry.create("predictor", "constant_velocity")
+    """The replay environment, and two controllers differing only in the compiled step
+    (the paper's APF barrier, attractive field and tracking law, from the run parameters)."""
+    resolved = resolve_params(scene, params)
+    si = resolved.si
+    scene = dataclasses.replace(
+        scene,
+        robot_radius=si["robot_radius"],
+        agent_radius=si["agent_radius"],
+        goal_radius=si["goal_radius"],
+        v_max=si["v_max"],
     )
-    base = comp.policy
+    env = ReplayEnvironment(
+        scene,
+        VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),
+        tau_frames=resolved.tau_frames,
+        substeps=si["substeps"],
+        sensing_radius=si["sensing_radius"],
+        history_frames=resolved.history_frames,
+    )
+    barrier = APFBarrier(
+        K_rep=si["K_rep"],
+        rho0=si["rho0"],
+        d_c=si["robot_radius"] + si["agent_radius"],
+        convention=si["convention"],
+        delta=si["delta"],
+    )
+    constraint = ConformalConstraint(barrier, a=si["a"])
+    reference = AttractiveField(K_att=si["K_att"], v_max=si["v_max"])
 
     def controller(compiled: bool) -> ConformalCBFController:
         f = Exact2DSafetyFilter(
-            v_max=comp.safety_filter.v_max,
+            v_max=si["v_max"],
             fallback=fallback,
-            speed_sides=comp.safety_filter.speed_sides,
+            speed_sides=si["speed_sides"],
             compiled_step=compiled,
         )
         return ConformalCBFController(
             registry.create("predictor", "constant_velocity"),
-            base.constraint,
+            constraint,
             f,
-            base.reference,
-            substeps=base.substeps,
+            reference,
+            substeps=si["substeps"],
         )
 
-    return comp.env, controller(True), controller(False)
+    return env, controller(True), controller(False)
 
 
 def run_lockstep(env, fused, generic, schedule) -> dict[str, int]:
