@@ -55,6 +55,7 @@ ROLES: dict[str, str] = {
     "predictor": "conformal_control.predictors",
     "barrier": "conformal_control.barriers",
     "safety_filter": "conformal_control.safety_filters",
+    "fallback": "conformal_control.fallbacks",
     "loss": "conformal_control.losses",
     "update_rule": "conformal_control.update_rules",
     "dynamics": "conformal_control.dynamics",

@@ -11,10 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from conformal_control.data.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Property tests are reproducible by default (the same examples on every run and in CI);
+# `pytest --hypothesis-profile=explore` searches new examples.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.register_profile("explore", max_examples=500)
+settings.load_profile("ci")
 
 
 def _data_root() -> Path:

@@ -4,13 +4,15 @@ from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .controller import CBFIntervalRecord, ConformalCBFController, ControlState, PredictorError
 from .dynamics import DoubleIntegrator, VelocityTrackingDoubleIntegrator
+from .fallbacks import Brake, Hold, LambdaSearch, Relax
 from .feasibility import FeasibilityFloor, feasibility_floor
+from .filters import Exact2DSafetyFilter, QPSafetyFilter, VelocityFilter
 from .loss import CBFGapLoss, CBFTruth
-from .qp import QPSafetyFilter
 from .reference import AttractiveField
 from .roles import (
     Barrier,
     Dynamics,
+    Fallback,
     FilterResult,
     FilterStatus,
     ReferenceController,
@@ -22,6 +24,7 @@ __all__ = [
     "APFBarrier",
     "AttractiveField",
     "Barrier",
+    "Brake",
     "CBFGapLoss",
     "CBFIntervalRecord",
     "CBFTruth",
@@ -30,14 +33,20 @@ __all__ = [
     "ControlState",
     "DoubleIntegrator",
     "Dynamics",
+    "Exact2DSafetyFilter",
+    "Fallback",
     "FeasibilityFloor",
     "FilterResult",
     "FilterStatus",
+    "Hold",
+    "LambdaSearch",
     "PredictorError",
     "QPSafetyFilter",
     "ReferenceController",
+    "Relax",
     "SafetyFilter",
     "StepwiseCBF",
+    "VelocityFilter",
     "VelocityTrackingDoubleIntegrator",
     "feasibility_floor",
 ]

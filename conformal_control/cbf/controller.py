@@ -9,7 +9,9 @@ import numpy as np
 
 from ..base import DecisionFamily
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from .barriers import APFBarrier
 from .constraint import ConformalConstraint
+from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .roles import ReferenceController, SafetyFilter
 
@@ -107,6 +109,12 @@ class ConformalCBFController(
     agent-intervals). A predictor that raises stops the run with a :class:`PredictorError`
     naming the predictor, the scene, the frame and the number of agents.
 
+    With the APF barrier and the exact 2-D filter (fallback ``lambda_search``, ``brake`` or
+    ``hold``) each control step is one compiled call fusing barrier, rows, feasibility check,
+    projection and lambda search (:meth:`Exact2DSafetyFilter.step_apf`); it returns what
+    the generic path (``constraint.rows`` then ``safety_filter.solve``) returns, to
+    round-off. Every other combination takes the generic path.
+
     Parameters
     ----------
     predictor : Predictor
@@ -168,8 +176,23 @@ class ConformalCBFController(
         self.reference.reset()
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
+        self._fused = self._fused_apf()
         self.forecast_info_: dict[str, Any] = {}
         self._begin_empty()
+
+    def _fused_apf(self) -> bool:
+        """Whether decide() takes the compiled APF step (configured here) or the generic path."""
+        f, c = self.safety_filter, self.constraint
+        if not (
+            type(c) is ConformalConstraint
+            and type(c.barrier) is APFBarrier
+            and isinstance(f, Exact2DSafetyFilter)
+            and f.fused
+        ):
+            return False
+        K, rho0, d_c, delta = c.barrier._checked()
+        f.configure_apf((K, rho0, d_c, delta, c.barrier.convention == "surface"), float(c.a))
+        return True
 
     def stats(self) -> dict[str, float]:
         return {
@@ -226,11 +249,16 @@ class ConformalCBFController(
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
-        if self._ids.size:
-            A, b = self.constraint.rows(x_ego, self._xp[state.step], self._vp[state.step])
+        if self._fused and self._ids.size:
+            res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
+                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
+            )
         else:
-            A, b = np.zeros((0, 2)), np.zeros(0)
-        res = self.safety_filter.solve(v_ref, A, b, lam)
+            if self._ids.size:
+                A, b = self.constraint.rows(x_ego, self._xp[state.step], self._vp[state.step])
+            else:
+                A, b = np.zeros((0, 2)), np.zeros(0)
+            res = self.safety_filter.solve(v_ref, A, b, lam)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)

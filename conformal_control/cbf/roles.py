@@ -8,6 +8,7 @@ small abstract base class; implementations are plugins found by name
 ==========================  ============================================================
 ``Barrier``                 ego position, agent positions -> h, dh/dx_ego, dh/dx_agent
 ``SafetyFilter``            nominal velocity + rows ``A v + b + lambda >= 0`` -> safe velocity
+``Fallback``                what a safety filter does when the rows are infeasible at lambda
 ``ReferenceController``     ego state, time, goal -> nominal velocity
 ``Dynamics``                state, command, dt -> next state
 ==========================  ============================================================
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, Protocol
 
 import numpy as np
 
@@ -26,8 +27,11 @@ from ..base import Plugin
 __all__ = [
     "Barrier",
     "Dynamics",
+    "Fallback",
+    "FilterPrimitives",
     "FilterResult",
     "FilterStatus",
+    "InfeasibleStep",
     "ReferenceController",
     "SafetyFilter",
 ]
@@ -119,8 +123,82 @@ class SafetyFilter(Plugin, ABC):
         """Reset counters and warm-start state (validate parameters here)."""
 
     def stats(self) -> dict[str, float]:
-        """Counters since :meth:`reset` (``n_solves``, ``n_infeasible``, ``n_fallback``)."""
+        """Counters since :meth:`reset`: ``n_solves`` (solver calls), ``n_infeasible``
+        (decisions whose rows were infeasible at the requested lambda), ``n_fallback``
+        (fallback uses), ``n_fallback_<name>`` per fallback, and ``n_solver_failure``
+        (numerical failures answered by a documented last resort)."""
         return {}
+
+
+@dataclass(frozen=True)
+class InfeasibleStep:
+    """A decision whose rows ``A v + b + lam >= 0`` admit no velocity (the fallback's input).
+
+    Attributes
+    ----------
+    nominal : ndarray of shape (2,)
+    A : ndarray of shape (N, 2)
+    b : ndarray of shape (N,)
+    lam : float
+        The requested lambda.
+    previous : ndarray of shape (2,)
+        The decision the filter returned last (zero after ``reset``).
+    lam_star, v_star : float and ndarray, or None
+        The smallest feasible lambda and a velocity attaining it, when the filter already
+        computed them to detect the infeasibility.
+    """
+
+    nominal: np.ndarray
+    A: np.ndarray
+    b: np.ndarray
+    lam: float
+    previous: np.ndarray
+    lam_star: float | None = None
+    v_star: np.ndarray | None = None
+
+
+class FilterPrimitives(Protocol):
+    """Solver primitives a safety filter hands to its fallback (all over the filter's own
+    admissible set, e.g. its speed polygon)."""
+
+    def project(self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+        """argmin ||v - nominal||^2 s.t. ``A v + rhs >= 0``, or None if infeasible."""
+
+    def min_lambda(self, A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
+        """Smallest lambda with a v meeting ``A v + b + lambda >= 0``, and that v (which
+        meets every row at the returned lambda)."""
+
+    def search_margin(self, lam_star: float, A: np.ndarray, b: np.ndarray) -> float:
+        """Margin above ``lam_star`` at which :meth:`project` reliably finds the rows
+        ``A v + b + lam_star + margin >= 0`` feasible (the solver's tolerance)."""
+
+    def project_relaxed(
+        self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray, weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest weighted relaxation ``s >= 0`` (min ``weights @ s``) making
+        ``A v + rhs + s >= 0`` feasible, then the v closest to ``nominal`` there: ``(v, s)``."""
+
+    def count(self, event: str) -> None:
+        """Count an event in the filter's stats (``n_<event>``)."""
+
+
+class Fallback(Plugin, ABC):
+    """What a safety filter does when its rows are infeasible at the requested lambda.
+
+    The filter detects the infeasibility, counts it, and calls :meth:`decide` with the
+    problem and its solver primitives; the fallback returns the decision with status
+    ``"fallback"`` and its :attr:`name` in :attr:`FilterResult.fallback`.
+    """
+
+    #: Name reported in :attr:`FilterResult.fallback` and the per-fallback counters.
+    name: ClassVar[str] = "fallback"
+
+    @abstractmethod
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        """The decision for an infeasible step."""
+
+    def reset(self) -> None:
+        """Reset internal state (validate parameters here)."""
 
 
 class ReferenceController(Plugin, ABC):

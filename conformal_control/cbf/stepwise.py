@@ -67,7 +67,7 @@ class StepwiseCBF:
     d_c : float
         Collision distance robot-agent, centre to centre (m), for the default barrier.
     safety_filter : SafetyFilter or str, optional
-        Default: the registered ``qp`` filter with ``v_max``.
+        Default: the registered ``exact2d`` filter (exact 2-D QP, compiled) with ``v_max``.
     reference : ReferenceController, optional
         Default: the attractive field with ``K_att`` and ``v_max``.
     rule : UpdateRule, optional
@@ -130,7 +130,7 @@ class StepwiseCBF:
         barrier = barrier if barrier is not None else APFBarrier(rho0=10.0, d_c=d_c)
         self.constraint = ConformalConstraint(barrier, a=a)
         if safety_filter is None or isinstance(safety_filter, str):
-            name = safety_filter or "qp"
+            name = safety_filter or "exact2d"
             safety_filter = registry.create("safety_filter", name, v_max=v_max)
         reference = reference if reference is not None else AttractiveField(K_att, v_max)
         self.controller = ConformalCBFController(

@@ -51,7 +51,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         help="barrier constructor argument in SI units (repeatable; needs --barrier)",
     )
     for role, what in (
-        ("safety-filter", "safety filter (default qp)"),
+        ("safety-filter", "safety filter (default exact2d; qp = piqp, the general n-D reference)"),
         ("reference", "reference controller (default attractive_field)"),
         ("dynamics", "robot dynamics (default velocity_tracking)"),
         ("loss", "loss (default cbf_gap; e.g. collision, distance_shortfall)"),

@@ -202,7 +202,7 @@ def build_flagship(
         resolved ones.
     predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule
         Each an instance, a registered name (built with the matching ``*_params``), or
-        None for the flagship's default (the paper's APF barrier, the ``qp`` filter with
+        None for the flagship's default (the paper's APF barrier, the exact 2-D filter ``exact2d`` with
         the run's fallback, the attractive-field reference, the velocity-tracking double
         integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule). ``fallback`` is handed
         to the safety filter's ``fallback`` argument.
@@ -286,8 +286,8 @@ def build_flagship(
 
     filt = _resolve("safety_filter", safety_filter, safety_filter_params, context, SafetyFilter)
     if filt is None:
-        filt = _create("safety_filter", "qp", None, context)
-    names["safety_filter"] = role_name(safety_filter, "qp")
+        filt = _create("safety_filter", "exact2d", None, context)
+    names["safety_filter"] = role_name(safety_filter, "exact2d")
 
     ref = _resolve("reference", reference, reference_params, context, ReferenceController)
     if ref is None:

@@ -46,7 +46,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..base import DecisionFamily, Environment, Loss, UpdateRule
-from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
 from ._core import (
     CheckList,
@@ -74,7 +74,7 @@ from .environment import check_environment
 from .loss import check_loss
 from .predictor import check_predictor, make_query
 from .reference import check_reference_controller
-from .safety_filter import check_safety_filter
+from .safety_filter import check_fallback, check_safety_filter
 from .update_rule import check_update_rule
 
 __all__ = [
@@ -87,6 +87,7 @@ __all__ = [
     "check_decision_family",
     "check_dynamics",
     "check_environment",
+    "check_fallback",
     "check_loss",
     "check_plugin",
     "check_predictor",
@@ -114,6 +115,7 @@ ROLE_BASES: dict[str, type] = {
     "predictor": Predictor,
     "barrier": Barrier,
     "safety_filter": SafetyFilter,
+    "fallback": Fallback,
     "loss": Loss,
     "update_rule": UpdateRule,
     "dynamics": Dynamics,
@@ -126,6 +128,7 @@ _CHECKS: dict[str, CheckList] = {
     "predictor": check_predictor,
     "barrier": check_barrier,
     "safety_filter": check_safety_filter,
+    "fallback": check_fallback,
     "loss": check_loss,
     "update_rule": check_update_rule,
     "dynamics": check_dynamics,

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.roles import FilterResult, SafetyFilter
+from ..cbf.roles import Fallback, FilterResult, SafetyFilter
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
     check_docstring_parameters,
@@ -24,6 +24,8 @@ from .common import (
 
 __all__ = [
     "STATUSES",
+    "check_fallback",
+    "check_fallback_decision",
     "check_safety_filter",
     "check_safety_filter_deterministic",
     "check_safety_filter_feasible_satisfied",
@@ -33,6 +35,7 @@ __all__ = [
     "check_safety_filter_no_mutation",
     "check_safety_filter_nonfinite_input",
     "check_safety_filter_output",
+    "check_safety_filter_stats",
     "feasible_problems",
 ]
 
@@ -117,6 +120,21 @@ def _check_satisfied(f: SafetyFilter, res: FilterResult, A, b, lam: float, what:
             f"{np.asarray(res.decision).tolist()}",
         )
         return
+    if res.row_lambda is not None:
+        rl = np.asarray(res.row_lambda, dtype=float)
+        expect(
+            rl.shape == (np.shape(b)[0],) and bool(np.all(rl >= lam)),
+            f,
+            f"expected row_lambda of shape ({np.shape(b)[0]},), never below the requested "
+            f"lambda {lam:g} ({what}), got {rl.tolist()}",
+        )
+        r = np.asarray(A) @ np.asarray(res.decision, dtype=float) + b + rl
+        expect(
+            r.size == 0 or r.min() >= -TOL * max(1.0, float(np.abs(rl).max())),
+            f,
+            f"expected the fallback decision to satisfy each row at its row_lambda ({what}); "
+            f"recomputed residuals {np.round(r, 9).tolist()}",
+        )
     lam_used = res.lambda_applied
     if lam_used is None or not math.isfinite(lam_used):
         expect(
@@ -302,6 +320,32 @@ def _behaviour(safety_filter: SafetyFilter) -> list[tuple[np.ndarray, str, float
     return out
 
 
+def check_safety_filter_stats(safety_filter: SafetyFilter) -> None:
+    """stats() reports n_solves, n_infeasible and n_fallback; an infeasible problem adds one
+    to n_infeasible and to n_fallback (and to the fallback's own n_fallback_<name>)."""
+    f = _fresh(safety_filter)
+    before = f.stats()
+    for key in ("n_solves", "n_infeasible", "n_fallback"):
+        expect(key in before, f, f"expected stats() to report {key!r}, got {sorted(before)}")
+    A = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    b = np.array([-5.0, -5.0])
+    res = _solve(f, np.array([0.3, 0.1]), A, b, 0.0, "infeasible constraints")
+    after = f.stats()
+    for key in ("n_infeasible", "n_fallback"):
+        expect(
+            after[key] == before[key] + 1,
+            f,
+            f"expected one infeasible decision to add 1 to {key}, got {before[key]} -> "
+            f"{after[key]}",
+        )
+    key = f"n_fallback_{res.fallback}"
+    expect(
+        after.get(key) == before.get(key, 0) + 1,
+        f,
+        f"expected the fallback {res.fallback!r} to be counted in {key}, got {after.get(key)!r}",
+    )
+
+
 #: Every safety-filter check, in order.
 check_safety_filter = CheckList(
     "safety_filter",
@@ -316,8 +360,47 @@ check_safety_filter = CheckList(
         check_safety_filter_no_mutation,
         check_safety_filter_deterministic,
         check_safety_filter_nonfinite_input,
+        check_safety_filter_stats,
         check_pickle_round_trip,
         check_docstring_parameters,
         check_no_mutable_defaults,
     ],
+)
+
+
+# ---------------------------------------------------------------------------- fallbacks
+def check_fallback_decision(fallback: Fallback) -> None:
+    """Run by a safety filter on infeasible problems, the fallback returns status
+    'fallback' under its own name, a finite decision, and (when it claims a lambda or
+    per-row lambdas) a decision that meets the rows there."""
+    from ..cbf.filters import Exact2DSafetyFilter, QPSafetyFilter
+
+    problems = [
+        (np.array([0.3, 0.1]), np.array([[1.0, 0.0], [-1.0, 0.0]]), np.array([-5.0, -5.0])),
+        (  # a far agent below the feasibility floor beside a near one
+            np.array([1.5, 0.0]),
+            np.array([[0.0, 0.0], [-0.8, 0.1]]),
+            np.array([0.5, 0.2]),
+        ),
+    ]
+    for backend in (QPSafetyFilter, Exact2DSafetyFilter):
+        f = backend(fallback=clone(fallback))
+        f.reset()
+        for i, (nominal, A, b) in enumerate(problems):
+            lam = -1.0
+            what = f"infeasible problem #{i} through {backend.__name__}"
+            res = _solve(f, nominal, A, b, lam, what)
+            expect(
+                res.status == "fallback" and res.fallback == fallback.name,
+                fallback,
+                f"expected status 'fallback' named {fallback.name!r} ({what}), got "
+                f"{res.status!r} named {res.fallback!r}",
+            )
+            _check_satisfied(f, res, A, b, lam, what)
+
+
+#: Every fallback check, in order.
+check_fallback = CheckList(
+    "fallback",
+    [check_get_params_round_trip, check_repr, check_fallback_decision],
 )

@@ -1,0 +1,158 @@
+"""Fallbacks: what a safety filter does when its rows are infeasible at the requested lambda.
+
+Each is a :class:`~conformal_control.cbf.roles.Fallback` plugin (role ``fallback``, entry
+points ``conformal_control.fallbacks``); a safety filter takes one as an instance or by
+registered name (``fallback="relax"``).
+
+================  =====================================================================
+``lambda_search``  the smallest lambda at which the rows are feasible (one LP with lambda
+                   as a variable), then the projection there: the ONE shared lambda is
+                   raised for every row (default, the paper's suggestion)
+``relax``          one slack per row: the minimal weighted relaxation, then the projection
+                   there; only the rows that must be relaxed are (per-row lambda)
+``brake``          zero velocity (meets the rows at no particular lambda)
+``hold``           the previous decision again
+================  =====================================================================
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
+
+__all__ = ["Brake", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
+
+
+class LambdaSearch(Fallback):
+    """Raise lambda to the smallest feasible value (plus the solver's margin) and project.
+
+    ``lambda_applied`` is the lambda actually used, ``lambda* + margin`` with the margin the
+    filter's solver needs to find the rows feasible (:meth:`FilterPrimitives.search_margin`);
+    every row holds there. Should the projection fail there (a solver stopping a tolerance
+    inside a thin feasible set), it is retried at 10 and 100 times the margin (counted as
+    ``n_lambda_search_retry``); should it still fail, the LP's own velocity, which meets
+    every row at ``lambda*``, is returned (counted as ``n_lambda_search_vertex``).
+    """
+
+    name = "lambda_search"
+
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        lam_star, v_star = step.lam_star, step.v_star
+        if lam_star is None or v_star is None:
+            lam_star, v_star = solver.min_lambda(step.A, step.b)
+        lam_floor = max(step.lam, lam_star)
+        margin = solver.search_margin(lam_floor, step.A, step.b)
+        for attempt in range(3):
+            lam_used = lam_floor + margin * 10.0**attempt
+            v = solver.project(step.nominal, step.A, step.b + lam_used)
+            if v is not None:
+                if attempt:
+                    solver.count("lambda_search_retry")
+                return FilterResult(v, "fallback", lam_used, self.name)
+        solver.count("lambda_search_vertex")
+        return FilterResult(np.array(v_star, dtype=float), "fallback", lam_floor, self.name)
+
+
+class Relax(Fallback):
+    """Relax only the rows that must be relaxed: one slack per row, minimal weighted sum.
+
+    Lexicographic: first the minimal weighted relaxation (an LP)::
+
+        s* = argmin  sum_j w_j s_j   s.t.  A v + b + lam + s >= 0,  s >= 0,  v admissible
+
+    then the velocity closest to the nominal at that relaxation (the filter's QP with the
+    rows ``A v + b + lam + s* >= 0``). When the minimal relaxation is not unique the
+    decision is the projection at the LP's own optimum ``s*``: every row is then relaxed by
+    no more than ``s*_j``, so the decision still has the minimal weighted relaxation.
+
+    A row in no infeasible subsystem (one that can be met together with the others) keeps
+    ``s_j = 0``: at any optimum of the weighted relaxation a positive slack forces the row's
+    dual multiplier to its weight, which only an infeasible subsystem's certificate can
+    carry. :attr:`FilterResult.row_lambda` is ``lam + s``; ``lambda_applied`` its maximum.
+
+    Parameters
+    ----------
+    weights : {"uniform", "inverse_gradient"}
+        ``w_j = 1``, or ``w_j = 1 / max(||A_j||, gradient_floor)`` (relaxing a row with a
+        steep barrier gradient costs less: its slack is a smaller change of velocity).
+    gradient_floor : float
+        Floor of ``||A_j||`` for ``"inverse_gradient"`` (> 0).
+    """
+
+    name = "relax"
+
+    def __init__(self, weights: str = "uniform", gradient_floor: float = 1e-3) -> None:
+        self.weights = weights
+        self.gradient_floor = gradient_floor
+
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [{}, {"weights": "inverse_gradient"}]
+
+    def reset(self) -> None:
+        if self.weights not in ("uniform", "inverse_gradient"):
+            raise ValueError(
+                f"weights must be 'uniform' or 'inverse_gradient', got {self.weights!r}"
+            )
+        if not (math.isfinite(self.gradient_floor) and self.gradient_floor > 0):
+            raise ValueError(
+                f"gradient_floor must be a finite number > 0, got {self.gradient_floor!r}"
+            )
+
+    def row_weights(self, A: np.ndarray) -> np.ndarray:
+        """The weight of each row."""
+        if self.weights == "uniform":
+            return np.ones(A.shape[0])
+        return 1.0 / np.maximum(np.hypot(A[:, 0], A[:, 1]), self.gradient_floor)
+
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        rhs = step.b + step.lam
+        v, s = solver.project_relaxed(step.nominal, step.A, rhs, self.row_weights(step.A))
+        row_lambda = step.lam + s
+        lam_max = float(row_lambda.max()) if row_lambda.size else step.lam
+        return FilterResult(v, "fallback", lam_max, self.name, row_lambda)
+
+
+class Brake(Fallback):
+    """Command zero velocity (``lambda_applied`` is ``nan``: no lambda is guaranteed)."""
+
+    name = "brake"
+
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        return FilterResult(np.zeros(2), "fallback", math.nan, self.name)
+
+
+class Hold(Fallback):
+    """Repeat the previous decision (``lambda_applied`` is ``nan``)."""
+
+    name = "hold"
+
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        return FilterResult(np.array(step.previous, dtype=float), "fallback", math.nan, self.name)
+
+
+#: The core fallbacks by name (the registry lists them and any third-party one).
+CORE_FALLBACKS: dict[str, type[Fallback]] = {
+    "lambda_search": LambdaSearch,
+    "relax": Relax,
+    "brake": Brake,
+    "hold": Hold,
+}
+
+
+def resolve_fallback(fallback: str | Fallback) -> Fallback:
+    """A fresh :class:`Fallback` from a registered name, or the instance itself."""
+    if isinstance(fallback, Fallback):
+        return fallback
+    if not isinstance(fallback, str):
+        raise TypeError(
+            f"fallback must be a Fallback instance or a registered name, got {fallback!r}"
+        )
+    if fallback in CORE_FALLBACKS:
+        return CORE_FALLBACKS[fallback]()
+    from .. import registry
+
+    return registry.create("fallback", fallback)

@@ -1,0 +1,260 @@
+"""What every velocity safety-filter backend shares: the problem, the checks, the fallback.
+
+A backend (one module per solver, qpsolvers style) provides the solver primitives of
+:class:`~conformal_control.cbf.roles.FilterPrimitives` (``project``, ``min_lambda``,
+``search_margin``); :class:`VelocityFilter` turns them into a
+:class:`~conformal_control.cbf.roles.SafetyFilter`: input checks, the unconstrained fast
+path, infeasibility detection, the fallback (a
+:class:`~conformal_control.cbf.roles.Fallback` instance or a registered name) and the
+counters of :meth:`VelocityFilter.stats`, identical for every backend.
+
+The problem, for every backend::
+
+    min ||v - v_ref||^2  s.t.  A v + b + lambda >= 0 (one row per sensed agent),  v in P
+
+with ``P`` the regular polygon with ``speed_sides`` sides inscribed in the disc of radius
+``v_max`` (so every admissible v has ``||v|| <= v_max``), or the box ``|v_x|, |v_y| <=
+v_max`` for ``speed_sides=0``. A nominal decision meeting every row and the speed bound
+itself (the disc for the polygon) is returned unchanged: it is then the optimum with the
+exact disc. Otherwise the polygon applies, so a filtered decision may be up to
+``1 - cos(pi / speed_sides)`` (2 % for 16 sides) slower than ``v_max`` in the worst
+direction.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import abstractmethod
+from typing import ClassVar
+
+import numpy as np
+
+from ..fallbacks import CORE_FALLBACKS, resolve_fallback
+from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
+from ..speed import speed_polygon
+
+__all__ = ["VelocityFilter"]
+
+
+class VelocityFilter(SafetyFilter):
+    """Base of the velocity safety filters (see the module docstring for the problem).
+
+    Parameters
+    ----------
+    v_max : float
+        Speed bound (m/s).
+    fallback : str or Fallback
+        What to do when the rows are infeasible at the requested lambda: a registered
+        fallback name (``"lambda_search"``, ``"relax"``, ``"brake"``, ``"hold"``, or a
+        plugin's) or a :class:`~conformal_control.cbf.roles.Fallback` instance. Every use is
+        counted (``n_fallback_``, ``n_infeasible_``, per fallback in :meth:`stats`).
+    speed_sides : int
+        Number of sides of the speed polygon (>= 3), or 0 for a box.
+
+    Notes
+    -----
+    :meth:`solve` never raises on finite input of the right shapes: infeasibility goes to
+    the fallback, a solver failure to a counted last resort. NaN or infinite input (or
+    finite values so large, ~1e308, that the residuals overflow) is a ``ValueError``.
+    """
+
+    #: Compute lambda* first when the previous decision fell back (skips a solve that
+    #: would report infeasibility slowly; worth it for iterative solvers).
+    probe_floor_first: ClassVar[bool] = False
+
+    def __init__(
+        self, v_max: float = 2.0, fallback: str | Fallback = "lambda_search", speed_sides: int = 16
+    ) -> None:
+        self.v_max = v_max
+        self.fallback = fallback
+        self.speed_sides = speed_sides
+
+    @classmethod
+    def _unit_test_params(cls) -> list[dict]:
+        return [
+            {},
+            {"fallback": "brake", "speed_sides": 0},
+            {"fallback": "hold", "v_max": 1.0},
+            {"fallback": "relax"},
+        ]
+
+    # ------------------------------------------------------------------ set-up
+    def reset(self) -> None:
+        if not (isinstance(self.v_max, (int, float)) and math.isfinite(self.v_max)):
+            raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
+        if self.v_max <= 0:
+            raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
+        if self.speed_sides != 0 and not (
+            int(self.speed_sides) == self.speed_sides and self.speed_sides >= 3
+        ):
+            raise ValueError(f"speed_sides must be 0 (box) or >= 3, got {self.speed_sides!r}")
+        try:
+            self.fallback_ = resolve_fallback(self.fallback)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"fallback: {exc}") from exc
+        self.fallback_.reset()
+        self._S, self._s, self._verts, self._radius = speed_polygon(
+            int(self.speed_sides), float(self.v_max)
+        )
+        self._box = not self.speed_sides
+        self._last = np.zeros(2)
+        self._fell_back = False
+        self.n_solves_ = 0
+        self.n_infeasible_ = 0
+        self.n_fallback_ = 0
+        self.n_solver_failure_ = 0
+        self.fallback_counts_: dict[str, int] = {}
+        self.events_: dict[str, int] = {}
+        self._setup()
+
+    def _setup(self) -> None:
+        """Backend set-up (solver objects, buffers), called at the end of :meth:`reset`."""
+
+    def stats(self) -> dict[str, float]:
+        out: dict[str, float] = {
+            "n_solves": self.n_solves_,
+            "n_infeasible": self.n_infeasible_,
+            "n_fallback": self.n_fallback_,
+            "n_solver_failure": self.n_solver_failure_,
+        }
+        for name in (*CORE_FALLBACKS, self.fallback_.name):
+            out[f"n_fallback_{name}"] = self.fallback_counts_.get(name, 0)
+        for event, n in self.events_.items():
+            out[f"n_{event}"] = n
+        return out
+
+    # ------------------------------------------------------------------ primitives
+    @abstractmethod
+    def project(self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+        """argmin ||v - nominal||^2 s.t. ``A v + rhs >= 0`` and v in the speed set, or
+        None if no v meets them."""
+
+    @abstractmethod
+    def min_lambda(self, A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
+        """min lambda s.t. some admissible v meets ``A v + b + lambda >= 0``: ``(lambda*, v*)``
+        with lambda* recomputed at v* (so v* meets every row there); ``-inf`` without rows."""
+
+    @abstractmethod
+    def search_margin(self, lam_star: float, A: np.ndarray, b: np.ndarray) -> float:
+        """Margin above lambda* at which :meth:`project` reliably finds the rows feasible."""
+
+    def count(self, event: str) -> None:
+        """Count an event (reported as ``n_<event>`` by :meth:`stats`)."""
+        self.events_[event] = self.events_.get(event, 0) + 1
+
+    def project_relaxed(
+        self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray, weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Minimal weighted relaxation, then the projection there: ``(v, s)``.
+
+        The LP ``min weights @ s s.t. A v + rhs + s >= 0, s >= 0, v in P`` is solved by
+        HiGHS' dual simplex (a vertex: rows that need no slack get exactly 0), on rows
+        normalised to unit gradient (rows with a zero gradient have a fixed slack
+        ``max(0, -rhs_j)``). Relaxed rows get the backend's margin on top, so the
+        projection finds them feasible; should it still fail, the LP's own velocity is
+        returned (counted as ``n_relax_vertex``). ``v`` meets ``A v + rhs + s >= 0``.
+        """
+        from scipy.optimize import linprog  # only the relax fallback needs it
+
+        m = A.shape[0]
+        s = np.zeros(m)
+        nrm = np.hypot(A[:, 0], A[:, 1])
+        flat = nrm == 0.0
+        s[flat] = np.maximum(0.0, -rhs[flat])
+        # rows met everywhere in the disc around the speed set never need a slack
+        live = np.flatnonzero(~flat & (rhs < nrm * self._radius))
+        v_lp = np.zeros(2)
+        if live.size:
+            An = A[live] / nrm[live, None]
+            rn = rhs[live] / nrm[live]
+            k = live.size
+            ns = self._S.shape[0]
+            A_ub = np.zeros((k + ns, 2 + k))
+            A_ub[:k, :2] = -An
+            A_ub[:k, 2:] = -np.eye(k)
+            A_ub[k:, :2] = self._S
+            b_ub = np.concatenate([rn, self._s])
+            cost = np.concatenate([[0.0, 0.0], weights[live] * nrm[live]])
+            bounds = [(None, None), (None, None)] + [(0.0, None)] * k
+            self.n_solves_ += 1
+            lp = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs-ds")
+            if lp.status != 0:  # pragma: no cover - bounded and feasible by construction
+                self.n_solver_failure_ += 1
+                x = np.zeros(2 + k)
+                x[2:] = np.maximum(0.0, -rn)  # v = 0 with the slack it needs
+            else:
+                x = lp.x
+            v_lp = np.asarray(x[:2], dtype=float)
+            s[live] = np.maximum(x[2:], 0.0) * nrm[live]
+        relaxed = s > 0
+        if relaxed.any():
+            pad = self.search_margin(float(np.max(s)), A, rhs)
+            s = np.where(relaxed, s + pad, 0.0)
+        v = self.project(nominal, A, rhs + s)
+        if v is None:
+            self.count("relax_vertex")
+            v = v_lp
+            s = np.maximum(s, -(A @ v + rhs))
+        return v, s
+
+    # ------------------------------------------------------------------ API
+    def _admissible(self, v: np.ndarray) -> bool:
+        """Whether v meets the speed bound itself (the disc for the polygon)."""
+        if self._box:
+            return abs(v[0]) <= self.v_max and abs(v[1]) <= self.v_max
+        return v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12)
+
+    def _checked(self, nominal, A, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if type(nominal) is not np.ndarray or nominal.dtype != np.float64:
+            nominal = np.asarray(nominal, dtype=float)
+        if type(A) is not np.ndarray or A.dtype != np.float64:
+            A = np.asarray(A, dtype=float)
+        if type(b) is not np.ndarray or b.dtype != np.float64:
+            b = np.asarray(b, dtype=float)
+        m = b.shape[0] if b.ndim == 1 else -1
+        if nominal.shape != (2,) or A.shape != (m, 2):
+            raise ValueError(
+                f"{type(self).__name__} expects a nominal velocity of shape (2,), A of shape "
+                f"(N, 2) and b of shape (N,); got {nominal.shape}, {A.shape} and {b.shape}"
+            )
+        return nominal, A, b
+
+    def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
+        nominal, A, b = self._checked(nominal, A, b)
+        rhs = b + lam
+        slack = A @ nominal + rhs
+        # one finiteness test covers A, b, lam and the nominal decision (NaN/inf propagate)
+        if not (math.isfinite(slack.sum() + lam) and math.isfinite(nominal[0] + nominal[1])):
+            raise ValueError(
+                f"{type(self).__name__} received non-finite constraints, lambda or nominal "
+                "decision; predictions must be sanitised before building constraints"
+            )
+        if (slack.size == 0 or slack.min() >= 0) and self._admissible(nominal):
+            self._last = nominal
+            self._fell_back = False
+            return FilterResult(nominal, "unconstrained", lam)
+        lam_star = v_star = None
+        feasible = True
+        if self.probe_floor_first and self._fell_back and A.shape[0]:
+            # infeasibility tends to persist: find the floor first, skip a doomed solve
+            lam_star, v_star = self.min_lambda(A, b)
+            feasible = lam >= lam_star + self.search_margin(lam_star, A, b)
+        if feasible:
+            v = self.project(nominal, A, rhs)
+            if v is not None:
+                self._last = v
+                self._fell_back = False
+                return FilterResult(v, "optimal", lam)
+        step = InfeasibleStep(nominal, A, b, lam, self._last.copy(), lam_star, v_star)
+        return self._fall_back(step)
+
+    def _fall_back(self, step: InfeasibleStep) -> FilterResult:
+        """Count the infeasible decision and let the fallback decide."""
+        self.n_infeasible_ += 1
+        self.n_fallback_ += 1
+        name = self.fallback_.name
+        self.fallback_counts_[name] = self.fallback_counts_.get(name, 0) + 1
+        res = self.fallback_.decide(step, self)
+        self._last = np.asarray(res.decision, dtype=float)
+        self._fell_back = True
+        return res

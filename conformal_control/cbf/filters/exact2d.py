@@ -1,0 +1,218 @@
+"""The exact 2-D backend: incremental (Seidel-style) projection and lambda LP.
+
+The decision is a velocity in the plane, so the filter's QP is the projection of the
+nominal velocity onto an intersection of half-planes and the speed polygon, and the
+lambda-search LP has three variables. :mod:`conformal_control.cbf.kernels2d` solves both
+exactly up to floating point (no interior-point margin: the optimum lies on its active
+constraints, no row is violated by more than 1e-13 times the problem's scale) in
+microseconds, compiled with numba. Same problem, same fast path, same fallbacks and
+counters as the piqp backend (:class:`~conformal_control.cbf.filters.piqp.QPSafetyFilter`).
+
+With the APF barrier the controller fuses barrier, rows and this filter into one compiled
+call (:meth:`Exact2DSafetyFilter.step_apf`), for the ``lambda_search``, ``brake`` and
+``hold`` fallbacks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..fallbacks import Brake, Hold, LambdaSearch
+from ..roles import Fallback, FilterResult, InfeasibleStep
+from .base import VelocityFilter
+
+__all__ = ["Exact2DSafetyFilter"]
+
+
+class Exact2DSafetyFilter(VelocityFilter):
+    """min ||v - v_ref||^2  s.t.  A v + b + lambda >= 0,  v in the speed polygon  (exact 2-D).
+
+    The problem, the fast path, the fallbacks and the counters are those of
+    :class:`~conformal_control.cbf.filters.base.VelocityFilter`; each call of the
+    projection or the lambda LP counts as one solve.
+
+    Parameters
+    ----------
+    v_max : float
+        Speed bound (m/s).
+    fallback : str or Fallback
+        Fallback when the rows are infeasible at the requested lambda (default
+        ``"lambda_search"``).
+    speed_sides : int
+        Number of sides of the speed polygon (>= 3), or 0 for a box.
+    lambda_margin : float
+        Margin added to the smallest feasible lambda, relative to the rows' scale
+        ``max(1, |lambda*|, |b_j|, ||A_j|| v_max)``: 1000 times the solver's round-off
+        tolerance, so the projection there is strictly feasible.
+    compiled_step : bool
+        Let the controller fuse barrier, rows and this filter into one compiled call when
+        the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
+    """
+
+    def __init__(
+        self,
+        v_max: float = 2.0,
+        fallback: str | Fallback = "lambda_search",
+        speed_sides: int = 16,
+        lambda_margin: float = 1e-10,
+        compiled_step: bool = True,
+    ) -> None:
+        super().__init__(v_max=v_max, fallback=fallback, speed_sides=speed_sides)
+        self.lambda_margin = lambda_margin
+        self.compiled_step = compiled_step
+
+    def _setup(self) -> None:
+        if not (math.isfinite(self.lambda_margin) and 0 < self.lambda_margin < 1e-3):
+            raise ValueError(
+                f"lambda_margin must be a number in (0, 1e-3), got {self.lambda_margin!r}"
+            )
+        from .. import kernels2d
+
+        self._k = kernels2d
+        self._S = np.ascontiguousarray(self._S)
+        self._verts = np.ascontiguousarray(self._verts)
+        self._poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
+        self._prm = np.zeros(len(self._k.PARAMS))
+        self._prm[6:11] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
+        self._cap = -1
+        self._buffers(16)
+        # the compiled step handles these fallbacks itself (lambda_search) or reports the
+        # infeasibility for the Python side to apply them (brake, hold)
+        kind = type(self.fallback_)
+        self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
+        self._prm[9] = kind is LambdaSearch
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state.pop("_k", None)  # a module: re-imported on unpickling
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if "_prm" in state:
+            from .. import kernels2d
+
+            self._k = kernels2d
+
+    def _buffers(self, m: int) -> None:
+        if m <= self._cap:
+            return
+        cap = max(m, 2 * self._cap, 16)
+        ns = self._S.shape[0]
+        self._G = np.zeros((cap + ns, 2))
+        self._h = np.zeros(cap + ns)
+        self._Ak = np.zeros((cap, 2))
+        self._bk = np.zeros(cap)
+        self._work = np.zeros(self._k.work_size(cap, ns))
+        self._prm[11] = cap
+        self._cap = cap
+
+    # ------------------------------------------------------------------ primitives
+    def project(self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+        self._buffers(A.shape[0])
+        self.n_solves_ += 1
+        ok, v0, v1 = self._k.solve_rows(
+            float(nominal[0]),
+            float(nominal[1]),
+            np.ascontiguousarray(A, dtype=float),
+            np.ascontiguousarray(rhs, dtype=float),
+            self._S,
+            self._s,
+            self._radius,
+            self._G,
+            self._h,
+        )
+        return np.array([v0, v1]) if ok else None
+
+    def min_lambda(self, A: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
+        self._buffers(A.shape[0])
+        self.n_solves_ += 1
+        lam, v0, v1 = self._k.smallest_lambda(
+            np.ascontiguousarray(A, dtype=float),
+            np.ascontiguousarray(b, dtype=float),
+            self._S,
+            self._s,
+            self._verts,
+            self._radius,
+            self._Ak,
+            self._bk,
+        )
+        return float(lam), np.array([v0, v1])
+
+    def search_margin(self, lam_star: float, A: np.ndarray, b: np.ndarray) -> float:
+        return float(
+            self._k.lambda_margin(
+                lam_star,
+                np.ascontiguousarray(A, dtype=float),
+                np.ascontiguousarray(b, dtype=float),
+                self._radius,
+                self.lambda_margin,
+            )
+        )
+
+    # ------------------------------------------------------------------ fused step
+    @property
+    def fused(self) -> bool:
+        """Whether :meth:`step_apf` may be used (``compiled_step`` and a fallback it fuses)."""
+        return self._fused
+
+    def configure_apf(
+        self, barrier_params: tuple[float, float, float, float, bool], a: float
+    ) -> None:
+        """Set the APF barrier ``(K_rep, rho0, d_c, delta, surface)`` and the slope ``a`` that
+        :meth:`step_apf` builds its rows from (the controller does, at ``reset``)."""
+        self._prm[:6] = (*barrier_params, a)
+
+    def step_apf(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray, nominal, lam: float
+    ) -> FilterResult:
+        """One compiled control step with the APF barrier's rows (:meth:`configure_apf`):
+        the same decision, status, lambda and counters as ``solve(nominal,
+        *constraint.rows(x_ego, x_agents, v_agents), lam)`` (to round-off), without
+        building the rows in Python. Predictions must be finite (the controller sanitises
+        them); a non-finite row, lambda or nominal raises ``ValueError`` as ``solve`` does.
+        """
+        n = x_agents.shape[0]
+        if n > self._cap:
+            self._buffers(n)
+        k = self._k
+        code, v0, v1, lam_used, solves = k.apf_step(
+            x_ego[0], x_ego[1], x_agents, v_agents, nominal[0], nominal[1], lam,
+            self._prm, self._poly, self._work,
+        )  # fmt: skip
+        self.n_solves_ += solves
+        if code == 0:  # unconstrained
+            self._last = nominal
+            self._fell_back = False
+            return FilterResult(nominal, "unconstrained", lam)
+        if code == 1:  # optimal
+            v = np.array((v0, v1))
+            self._last = v
+            self._fell_back = False
+            return FilterResult(v, "optimal", lam)
+        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
+
+    def _step_apf_fallback(self, code, v0, v1, lam_used, n, nominal, lam) -> FilterResult:
+        k = self._k
+        if code == k.NONFINITE:
+            raise ValueError(
+                f"{type(self).__name__} received non-finite constraints, lambda or nominal "
+                "decision; predictions must be sanitised before building constraints"
+            )
+        if code == k.INFEASIBLE:  # brake / hold: the Python fallback decides
+            cap = self._cap
+            A = self._work[: 2 * n].reshape(n, 2).copy()
+            b = self._work[2 * cap : 2 * cap + n].copy()
+            step = InfeasibleStep(np.asarray(nominal, dtype=float), A, b, lam, self._last.copy())
+            return self._fall_back(step)
+        self.n_infeasible_ += 1
+        self.n_fallback_ += 1
+        self.fallback_counts_["lambda_search"] = self.fallback_counts_.get("lambda_search", 0) + 1
+        if code == k.SEARCH_VERTEX:
+            self.count("lambda_search_vertex")
+        v = np.array((v0, v1))
+        self._last = v
+        self._fell_back = True
+        return FilterResult(v, "fallback", lam_used, "lambda_search")

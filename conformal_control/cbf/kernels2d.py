@@ -1,0 +1,470 @@
+"""Exact solvers for the flagship's 2-D problems, written once for Python and numba.
+
+The safety filter's decision is a velocity in the plane, so its QP (the projection of the
+nominal velocity onto an intersection of half-planes and the speed polygon) and its
+feasibility LP (2-D velocity + lambda) are low-dimensional problems. General solvers
+(piqp is an interior-point method) stop a tolerance inside the constraints; the
+incremental algorithms below (Seidel's for LP and its QP analogue, the one RVO2 uses for
+ORCA) are exact up to floating point and take microseconds. No maintained library ships
+them for this shape (qpsolvers' backends are general n-D solvers), hence this module.
+
+Every function is plain Python on float64 arrays with scalar loops, compiled with numba
+(``cache=True``: the first use on a machine compiles for a few seconds and writes the
+machine code next to this file; later processes load it in milliseconds). The interpreted
+original of each is its ``.py_func``. Constraints are ``G v <= h`` with unit-norm rows
+``G`` (conformal rows are normalised by :func:`presolve`; the speed polygon's sides are
+unit normals).
+
+Tolerances: a constraint counts as met when violated by at most ``tol`` (in its own
+units), a 1-D interval counts as empty when its bounds cross by more than ``tol``; both are
+``1e-13`` times the problem's scale, i.e. floating-point round-off.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = [
+    "PARALLEL",
+    "apf_rows",
+    "apf_step",
+    "filter_step",
+    "min_lambda",
+    "presolve",
+    "project",
+]
+
+#: Two unit normals whose cross product is below this are parallel.
+PARALLEL = 1e-13
+#: Relative tolerance (times the problem's scale) of every feasibility comparison.
+REL_TOL = 1e-13
+
+#: Result codes of :func:`filter_step`.
+NONFINITE, UNCONSTRAINED, OPTIMAL, INFEASIBLE, SEARCHED, SEARCH_VERTEX = -1, 0, 1, 2, 3, 4
+
+jit = numba.njit(cache=True, nogil=True)
+
+
+@jit
+def presolve(A: np.ndarray, rhs: np.ndarray, radius: float, G: np.ndarray, h: np.ndarray) -> int:
+    """Write the rows ``A v + rhs >= 0`` as unit-norm ``G v <= h`` into ``G``, ``h``.
+
+    Rows met by every v with ``||v|| <= radius`` (a disc containing the speed set) are
+    dropped; returns the number of rows written, or ``-1`` when a row is met by no such v
+    (infeasible whatever the other rows). Kept rows have ``|h| < radius``, so the
+    projection is well scaled whatever the magnitude of ``A`` and ``rhs``.
+    """
+    k = 0
+    for j in range(A.shape[0]):
+        a0 = A[j, 0]
+        a1 = A[j, 1]
+        r = rhs[j]
+        nrm = math.hypot(a0, a1)
+        reach = nrm * radius
+        if r >= reach:
+            continue
+        if r + reach < 0.0:
+            return -1
+        G[k, 0] = -a0 / nrm
+        G[k, 1] = -a1 / nrm
+        h[k] = r / nrm
+        k += 1
+    return k
+
+
+@jit
+def project(
+    n0: float, n1: float, G: np.ndarray, h: np.ndarray, k: int, tol: float
+) -> tuple[bool, float, float]:
+    """argmin ||v - n||^2 s.t. ``G[:k] v <= h[:k]`` (unit rows, bounded feasible set).
+
+    Incremental: the optimum of the first i constraints either meets constraint i, or the
+    optimum of the first i + 1 lies on its line, where it is the projection of n clipped
+    to the interval the previous constraints leave (a 1-D problem). Returns
+    ``(feasible, v_x, v_y)``.
+    """
+    v0 = n0
+    v1 = n1
+    for i in range(k):
+        g0 = G[i, 0]
+        g1 = G[i, 1]
+        if g0 * v0 + g1 * v1 - h[i] <= tol:
+            continue
+        e = g0 * n0 + g1 * n1 - h[i]
+        p0 = n0 - e * g0
+        p1 = n1 - e * g1
+        d0 = -g1
+        d1 = g0
+        lo = -math.inf
+        hi = math.inf
+        for j in range(i):
+            den = G[j, 0] * d0 + G[j, 1] * d1
+            num = h[j] - (G[j, 0] * p0 + G[j, 1] * p1)
+            if abs(den) <= PARALLEL:
+                if num < -tol:
+                    return False, v0, v1
+                continue
+            t = num / den
+            if den > 0.0:
+                if t < hi:
+                    hi = t
+            elif t > lo:
+                lo = t
+        if lo > hi:
+            if lo - hi > tol:
+                return False, v0, v1
+            t = 0.5 * (lo + hi)
+        else:
+            t = min(max(0.0, lo), hi)
+        v0 = p0 + t * d0
+        v1 = p1 + t * d1
+    return True, v0, v1
+
+
+@jit
+def _lp_con(
+    q: int, i: int, A: np.ndarray, b: np.ndarray, bound: float
+) -> tuple[float, float, float]:
+    """Constraint q of the 2-D LP solved when row i becomes tight (see :func:`min_lambda`)."""
+    if q == 0:  # lambda = -A_i v - b_i >= L
+        return A[i, 0], A[i, 1], -b[i] - bound
+    j = q - 1  # row j stays below row i: (A_i - A_j) v <= b_j - b_i
+    return A[i, 0] - A[j, 0], A[i, 1] - A[j, 1], b[j] - b[i]
+
+
+@jit
+def min_lambda(
+    A: np.ndarray,
+    b: np.ndarray,
+    m: int,
+    S: np.ndarray,
+    s: np.ndarray,
+    verts: np.ndarray,
+    radius: float,
+    tol: float,
+) -> tuple[float, float, float]:
+    """min lambda s.t. ``A[:m] v + b[:m] + lambda >= 0`` and ``S v <= s`` (rows with
+    ``||A_j|| > 0``; ``m >= 1``), by Seidel's incremental LP in (v, lambda).
+
+    The current optimum (v, lambda) is kept for the rows seen so far (with the valid lower
+    bound ``lambda >= L = max_j(-b_j - ||A_j|| radius)``, which never binds at the end).
+    When row i is violated, the new optimum has row i tight, lambda = -A_i v - b_i: a 2-D LP
+    maximising A_i v over the polygon, the bound, and ``(A_i - A_j) v <= b_j - b_i`` for
+    the earlier rows j, itself solved incrementally with 1-D problems on lines. Returns
+    ``(lambda, v_x, v_y)`` with lambda recomputed at v, so v meets every row there.
+    """
+    ns = S.shape[0]
+    L = -math.inf
+    for j in range(m):
+        lb = -b[j] - math.hypot(A[j, 0], A[j, 1]) * radius
+        if lb > L:
+            L = lb
+    v0 = 0.0
+    v1 = 0.0
+    lam = L
+    for i in range(m):
+        if -A[i, 0] * v0 - A[i, 1] * v1 - b[i] <= lam + tol:
+            continue
+        c0 = A[i, 0]
+        c1 = A[i, 1]
+        # start: the polygon's vertex maximising c
+        best = -math.inf
+        for k in range(verts.shape[0]):
+            val = c0 * verts[k, 0] + c1 * verts[k, 1]
+            if val > best:
+                best = val
+                v0 = verts[k, 0]
+                v1 = verts[k, 1]
+        for q in range(i + 1):
+            g0, g1, hq = _lp_con(q, i, A, b, L)
+            if g0 * v0 + g1 * v1 - hq <= tol:
+                continue
+            nrm = math.hypot(g0, g1)
+            if nrm * radius <= tol:  # (nearly) identical gradients: flat over the speed set,
+                continue  # and met where row i is violated (up to round-off)
+            u0 = g0 / nrm
+            u1 = g1 / nrm
+            off = hq / nrm
+            p0 = off * u0
+            p1 = off * u1
+            d0 = -u1
+            d1 = u0
+            lo = -math.inf
+            hi = math.inf
+            for k in range(ns + q):
+                if k < ns:
+                    w0 = S[k, 0]
+                    w1 = S[k, 1]
+                    wh = s[k]
+                    wn = 1.0
+                else:
+                    w0, w1, wh = _lp_con(k - ns, i, A, b, L)
+                    wn = math.hypot(w0, w1)
+                    if wn * radius <= tol:  # flat over the speed set (see above)
+                        continue
+                # a parallel constraint cannot empty the interval: the LP is feasible
+                den = (w0 * d0 + w1 * d1) / wn
+                num = wh - (w0 * p0 + w1 * p1)
+                if abs(den) <= PARALLEL:
+                    continue
+                t = num / (den * wn)
+                if den > 0.0:
+                    if t < hi:
+                        hi = t
+                elif t > lo:
+                    lo = t
+            if lo > hi:  # empty only by round-off: the LP is feasible
+                t = 0.5 * (lo + hi)
+            else:
+                cd = c0 * d0 + c1 * d1
+                if cd > 0.0:
+                    t = hi
+                elif cd < 0.0:
+                    t = lo
+                else:  # objective flat along the line: stay closest to the current point
+                    t = min(max(d0 * v0 + d1 * v1, lo), hi)
+            v0 = p0 + t * d0
+            v1 = p1 + t * d1
+        lam = -A[i, 0] * v0 - A[i, 1] * v1 - b[i]
+        if lam < L:
+            lam = L
+    worst = -math.inf
+    for j in range(m):
+        r = -A[j, 0] * v0 - A[j, 1] * v1 - b[j]
+        if r > worst:
+            worst = r
+    return worst, v0, v1
+
+
+@jit
+def apf_rows(
+    x0: float,
+    x1: float,
+    xp: np.ndarray,
+    vp: np.ndarray,
+    K: float,
+    rho0: float,
+    d_c: float,
+    delta: float,
+    surface: bool,
+    a: float,
+    A: np.ndarray,
+    b: np.ndarray,
+) -> None:
+    """The APF barrier's conformal rows for the agents at ``xp`` moving with ``vp``, written
+    into ``A``, ``b`` (the arithmetic of :class:`~conformal_control.cbf.barriers.APFBarrier`
+    and :meth:`~conformal_control.cbf.constraint.ConformalConstraint.rows`)."""
+    for j in range(xp.shape[0]):
+        dx0 = x0 - xp[j, 0]
+        dx1 = x1 - xp[j, 1]
+        d = math.hypot(dx0, dx1)
+        rho = d - d_c if surface else d
+        r = min(max(rho, 0.0), rho0)
+        q = 1.0 - r / rho0
+        r2 = r * r
+        inv_d = 1.0 / (2.0 * r2 + K * q * q)
+        hval = 2.0 * r2 * inv_d - delta
+        scale = 4.0 * K * q * r * inv_d * inv_d / max(d, 1e-300)
+        a0 = scale * dx0
+        a1 = scale * dx1
+        A[j, 0] = a0
+        A[j, 1] = a1
+        b[j] = (-a0) * vp[j, 0] + (-a1) * vp[j, 1] + a * hval
+
+
+@jit
+def problem_scale(A: np.ndarray, b: np.ndarray, m: int, radius: float) -> float:
+    """``max(1, |b_j|, ||A_j|| radius)``: the size of the rows, in lambda units."""
+    scale = 1.0
+    for j in range(m):
+        x = max(abs(b[j]), math.hypot(A[j, 0], A[j, 1]) * radius)
+        if x > scale:
+            scale = x
+    return scale
+
+
+@jit
+def floor_rows(A: np.ndarray, b: np.ndarray, Ak: np.ndarray, bk: np.ndarray) -> tuple[int, float]:
+    """Split the rows for the lambda LP: rows with a zero gradient only bound lambda from
+    below (``lambda >= -b_j``, returned); the others are copied into ``Ak``, ``bk``."""
+    m = 0
+    L0 = -math.inf
+    for j in range(A.shape[0]):
+        if A[j, 0] == 0.0 and A[j, 1] == 0.0:
+            if -b[j] > L0:
+                L0 = -b[j]
+            continue
+        Ak[m, 0] = A[j, 0]
+        Ak[m, 1] = A[j, 1]
+        bk[m] = b[j]
+        m += 1
+    return m, L0
+
+
+@jit
+def smallest_lambda(
+    A: np.ndarray,
+    b: np.ndarray,
+    S: np.ndarray,
+    s: np.ndarray,
+    verts: np.ndarray,
+    radius: float,
+    Ak: np.ndarray,
+    bk: np.ndarray,
+) -> tuple[float, float, float]:
+    """min lambda over the speed set for every row (``-inf`` and v = 0 without rows)."""
+    m, L0 = floor_rows(A, b, Ak, bk)
+    if m == 0:
+        return L0, 0.0, 0.0
+    scale = problem_scale(Ak, bk, m, radius)
+    lam, v0, v1 = min_lambda(Ak, bk, m, S, s, verts, radius, REL_TOL * scale)
+    return max(lam, L0), v0, v1
+
+
+@jit
+def solve_rows(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    rhs: np.ndarray,
+    S: np.ndarray,
+    s: np.ndarray,
+    radius: float,
+    G: np.ndarray,
+    h: np.ndarray,
+) -> tuple[bool, float, float]:
+    """The projection of n onto ``A v + rhs >= 0`` and the speed set (presolve + project)."""
+    k = presolve(A, rhs, radius, G, h)
+    if k < 0:
+        return False, n0, n1
+    ns = S.shape[0]
+    for i in range(ns):
+        G[k + i, 0] = S[i, 0]
+        G[k + i, 1] = S[i, 1]
+        h[k + i] = s[i]
+    return project(n0, n1, G, h, k + ns, REL_TOL * radius)
+
+
+@jit
+def lambda_margin(
+    lam_star: float, A: np.ndarray, b: np.ndarray, radius: float, rel: float
+) -> float:
+    """Margin above lambda* at which the exact projection finds the rows feasible:
+    ``rel`` times the rows' scale (1e3 times the feasibility tolerance for ``rel=1e-10``)."""
+    return rel * max(problem_scale(A, b, A.shape[0], radius), abs(lam_star))
+
+
+@jit
+def filter_step(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    b: np.ndarray,
+    lam: float,
+    S: np.ndarray,
+    s: np.ndarray,
+    verts: np.ndarray,
+    radius: float,
+    box: bool,
+    v_max: float,
+    search: bool,
+    margin_rel: float,
+    G: np.ndarray,
+    h: np.ndarray,
+    rhs: np.ndarray,
+    Ak: np.ndarray,
+    bk: np.ndarray,
+) -> tuple[int, float, float, float, int]:
+    """One decision of the exact filter: ``(code, v_x, v_y, lambda_applied, n_solves)``.
+
+    The same steps, in the same order, as the generic path of
+    :class:`~conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter` with the
+    ``lambda_search`` fallback (``search=True``); with ``search=False`` an infeasible step
+    returns :data:`INFEASIBLE` for the caller's fallback.
+    """
+    m = A.shape[0]
+    ok = True
+    total = n0 + n1 + lam
+    for j in range(m):
+        rhs[j] = b[j] + lam
+        r = A[j, 0] * n0 + A[j, 1] * n1 + rhs[j]
+        total += r
+        if r < 0.0:
+            ok = False
+    if not math.isfinite(total):
+        return NONFINITE, n0, n1, lam, 0
+    if ok:
+        if box:
+            ok = abs(n0) <= v_max and abs(n1) <= v_max
+        else:
+            ok = n0 * n0 + n1 * n1 <= v_max * v_max * (1.0 + 1e-12)
+        if ok:
+            return UNCONSTRAINED, n0, n1, lam, 0
+    feasible, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+    if feasible:
+        return OPTIMAL, v0, v1, lam, 1
+    if not search:
+        return INFEASIBLE, n0, n1, lam, 1
+    lam_star, w0, w1 = smallest_lambda(A, b, S, s, verts, radius, Ak, bk)
+    floor = max(lam, lam_star)
+    used = floor + lambda_margin(floor, A, b, radius, margin_rel)
+    for j in range(m):
+        rhs[j] = b[j] + used
+    feasible, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+    if feasible:
+        return SEARCHED, v0, v1, used, 3
+    return SEARCH_VERTEX, w0, w1, floor, 3
+
+
+#: Layout of the parameter vector of :func:`apf_step`.
+PARAMS = ("K_rep", "rho0", "d_c", "delta", "surface", "a", "radius", "box", "v_max", "search",
+          "margin", "capacity")  # fmt: skip
+
+
+def work_size(capacity: int, sides: int) -> int:
+    """Length of the work vector of :func:`apf_step` for up to ``capacity`` agents."""
+    return 10 * capacity + 3 * sides
+
+
+@jit
+def apf_step(
+    x0: float,
+    x1: float,
+    xp: np.ndarray,
+    vp: np.ndarray,
+    n0: float,
+    n1: float,
+    lam: float,
+    prm: np.ndarray,
+    poly: np.ndarray,
+    work: np.ndarray,
+) -> tuple[int, float, float, float, int]:
+    """The fused control step for the APF barrier: rows, then :func:`filter_step`.
+
+    Few arguments (the call overhead grows with them) and contiguous views (so the callees
+    are the very functions the generic path compiled): ``prm`` holds the scalars named in
+    :data:`PARAMS`; ``poly`` the speed polygon, flat: ``S`` (sides x 2), ``s``, vertices
+    (sides x 2); ``work`` the buffers, flat (:func:`work_size`): A (capacity x 2), b, rhs,
+    Ak (capacity x 2), bk, G (capacity + sides, 2), h. The rows are left in A and b.
+    """
+    m = xp.shape[0]
+    cap = int(prm[11])
+    ns = poly.shape[0] // 5
+    A = work[0 : 2 * m].reshape((m, 2))
+    b = work[2 * cap : 2 * cap + m]
+    rhs = work[3 * cap : 3 * cap + m]
+    Ak = work[4 * cap : 4 * cap + 2 * m].reshape((m, 2))
+    bk = work[6 * cap : 6 * cap + m]
+    G = work[7 * cap : 9 * cap + 2 * ns].reshape((cap + ns, 2))
+    h = work[9 * cap + 2 * ns : 10 * cap + 3 * ns]
+    S = poly[0 : 2 * ns].reshape((ns, 2))
+    s = poly[2 * ns : 3 * ns]
+    verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
+    apf_rows(x0, x1, xp, vp, prm[0], prm[1], prm[2], prm[3], prm[4] != 0.0, prm[5], A, b)
+    return filter_step(
+        n0, n1, A, b, lam, S, s, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0, prm[10],
+        G, h, rhs, Ak, bk,
+    )  # fmt: skip
