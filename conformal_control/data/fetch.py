@@ -22,6 +22,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import urllib.error
+import urllib.parse
 import urllib.request
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -29,10 +31,12 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ..exceptions import ConformalControlError, DataFetchError
+
 __all__ = ["ChecksumError", "FetchPlan", "fetch", "load_manifest", "trajnet_metres_to_pixels"]
 
 
-class ChecksumError(RuntimeError):
+class ChecksumError(ConformalControlError, RuntimeError):
     """A downloaded file does not match the manifest."""
 
 
@@ -124,11 +128,24 @@ def _download(url: str, dest: Path) -> None:
     )
     if local is not None:
         if not local.exists():
-            raise FileNotFoundError(f"{local} not found in the mirror")
+            raise DataFetchError(f"{local} not found in the mirror")
         shutil.copyfile(local, dest)
         return
-    with urllib.request.urlopen(url, timeout=60) as resp, dest.open("wb") as fh:
-        shutil.copyfileobj(resp, fh)
+    try:
+        with urllib.request.urlopen(url, timeout=60) as resp, dest.open("wb") as fh:
+            shutil.copyfileobj(resp, fh)
+    except urllib.error.HTTPError as exc:
+        raise DataFetchError(
+            f"cannot download {url}: the server answered HTTP {exc.code} ({exc.reason}); "
+            "retry later or copy the data from a colleague with --mirror DIR"
+        ) from None
+    except (urllib.error.URLError, TimeoutError, ConnectionError) as exc:
+        reason = getattr(exc, "reason", exc)
+        host = urllib.parse.urlsplit(url).netloc
+        raise DataFetchError(
+            f"cannot download {url}: {host} is unreachable ({reason}); check the network "
+            "connection, or copy the data from a colleague with --mirror DIR"
+        ) from None
 
 
 def trajnet_metres_to_pixels(text: str, m_per_px: float) -> str:

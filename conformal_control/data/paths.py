@@ -16,6 +16,24 @@ class DataNotFoundError(FileNotFoundError):
 
 
 def missing(path: Path, what: str) -> DataNotFoundError:
+    """The error for data that is not where it should be (says what stands there instead)."""
+    path = Path(path)
+    if path.is_dir() and (path.suffix or "file" in what):
+        return DataNotFoundError(
+            f"{what} expected at {path}, but that is a folder, not a file; point --data-root "
+            f"at the data folder that holds sdd/ and ethucy/ (or set {ENV_VAR}=DIR)."
+        )
+    if path.is_dir():
+        return DataNotFoundError(
+            f"{what} not found: the folder {path} exists but holds none of its files; "
+            f"download the data with `{FETCH_HINT}` and pass --data-root DIR (or set "
+            f"{ENV_VAR}=DIR)."
+        )
+    if path.exists():
+        return DataNotFoundError(
+            f"{what} expected at {path}, but that is not a regular file; download the data "
+            f"with `{FETCH_HINT}`."
+        )
     return DataNotFoundError(
         f"{what} not found at {path}: download the data with `{FETCH_HINT}` and pass "
         f"--data-root DIR (or set {ENV_VAR}=DIR)."

@@ -13,6 +13,7 @@ Frame numbers stay the video's 30 fps frame numbers.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..exceptions import DataFormatError, InputError
 from .paths import missing, sdd_root
 from .tracks import Tracks
 
@@ -68,21 +70,28 @@ class SDDVideo:
         """(width, height) of the reference image in pixels, or None if it is missing."""
         if not self.image.exists():
             return None
-        from PIL import Image  # matplotlib's own dependency
+        from PIL import Image, UnidentifiedImageError  # matplotlib's own dependency
 
-        with Image.open(self.image) as im:
-            return int(im.size[0]), int(im.size[1])
+        try:
+            with Image.open(self.image) as im:
+                return int(im.size[0]), int(im.size[1])
+        except (UnidentifiedImageError, OSError) as exc:
+            reason = "not a readable image" if isinstance(exc, UnidentifiedImageError) else exc
+            raise DataFormatError(
+                f"{self.image}: the scene's reference image cannot be read ({reason}); "
+                "fetch it again with `conformal-control fetch-data`"
+            ) from None
 
 
 def load_scales(root: Path) -> dict[tuple[str, int], float]:
     """Metres per pixel for every video listed in ``estimated_scales.yaml``."""
     path = root / "estimated_scales.yaml"
-    if not path.exists():
+    if not path.is_file():
         raise missing(path, "SDD pixel scales (estimated_scales.yaml)")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML ({exc})") from exc
+        raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
     scales: dict[tuple[str, int], float] = {}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping scene -> videoN -> scale")
@@ -100,8 +109,19 @@ def sdd_video(scene: str, video: int, data_root: str | os.PathLike[str] | None =
     root = sdd_root(data_root)
     scales = load_scales(root)
     if (scene, video) not in scales:
-        raise ValueError(
-            f"no pixel scale for SDD {scene}/video{video} in {root / 'estimated_scales.yaml'}"
+        videos = sorted(v for s, v in scales if s == scene)
+        if videos:
+            hint = f"{scene} has videos {', '.join(str(v) for v in videos)}"
+        else:
+            import difflib
+
+            names = sorted({s for s, _ in scales})
+            close = difflib.get_close_matches(scene, names, n=1, cutoff=0.6)
+            hint = (f"did you mean {close[0]!r}? " if close else "") + (
+                f"SDD scenes: {', '.join(names)}"
+            )
+        raise InputError(
+            f"no SDD video {scene}/video{video} in {root / 'estimated_scales.yaml'}; {hint}"
         )
     return SDDVideo(scene, video, root, scales[(scene, video)])
 
@@ -122,7 +142,7 @@ def read_annotations(
         (track, frame) rows, or a file without any row of the requested label.
     """
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise missing(path, "SDD annotations")
     if not (np.isfinite(m_per_px) and m_per_px > 0):
         raise ValueError(f"m_per_px must be a finite number > 0, got {m_per_px!r}")
@@ -135,19 +155,30 @@ def read_annotations(
             if not parts:
                 continue
             if len(parts) != _N_FIELDS:
-                raise ValueError(
+                raise DataFormatError(
                     f"{path}:{lineno}: expected {_N_FIELDS} space-separated fields "
                     f"(track_id xmin ymin xmax ymax frame lost occluded generated label), got "
                     f"{len(parts)}; the file is malformed or truncated"
                 )
-            if parts[9] != wanted:
-                n_other += 1
-                continue
+            tag = parts[9]
+            if len(tag) < 3 or not (tag.startswith('"') and tag.endswith('"')):
+                raise DataFormatError(
+                    f"{path}:{lineno}: the label {tag} is not a quoted name such as "
+                    '"Pedestrian"; the file is malformed or truncated'
+                )
             try:
                 tid, frame, lost = int(parts[0]), int(parts[5]), int(parts[6])
                 x0, y0, x1, y1 = (float(p) for p in parts[1:5])
             except ValueError as exc:
-                raise ValueError(f"{path}:{lineno}: non-numeric field ({exc})") from exc
+                raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+            if not all(math.isfinite(v) for v in (x0, y0, x1, y1)):
+                raise DataFormatError(
+                    f"{path}:{lineno}: non-finite box coordinate ({' '.join(parts[1:5])}); "
+                    "SDD boxes are finite pixel coordinates (an absent agent is marked lost=1)"
+                )
+            if tag != wanted:
+                n_other += 1
+                continue
             if lost:
                 n_lost += 1
                 continue
@@ -165,7 +196,7 @@ def read_annotations(
         frames = block[:, 1].astype(np.int64)
         if np.any(np.diff(frames) == 0):
             dup = int(frames[np.flatnonzero(np.diff(frames) == 0)[0]])
-            raise ValueError(f"{path}: track {tid} has two rows for frame {dup}")
+            raise DataFormatError(f"{path}: track {tid} has two rows for frame {dup}")
         tracks[int(tid)] = (frames, block[:, 2:4] * m_per_px)
     return Tracks(
         fps=SDD_FPS,
