@@ -55,13 +55,14 @@ class NoUpdatesWarning(ConformalControlWarning):
 
 
 class GoalNotReachedWarning(ConformalControlWarning):
-    """The episode ended before the last goal was reached.
+    """The episode ended before the last goal was reached because the recorded data ran
+    out (a run stopped by the ``max_frames`` / ``--frames`` limit the caller set is only
+    logged).
 
     Attributes
     ----------
     reason : str
-        ``"data_ended"`` (the recorded data ran out) or ``"frame_limit"`` (the
-        ``max_frames`` / ``--frames`` limit was hit).
+        ``"data_ended"``.
     """
 
     def __init__(self, message: str, reason: str = "data_ended") -> None:

@@ -27,6 +27,9 @@ __all__ = ["Progress", "is_quiet", "note", "progress", "set_quiet"]
 logger = logging.getLogger("conformal_control")
 
 _quiet: bool | None = None
+#: seconds before a report shows, and between two plain lines (tests set them to 0)
+DELAY = 1.0
+EVERY = 10.0
 
 
 def set_quiet(flag: bool | None) -> None:
@@ -74,18 +77,18 @@ class Progress:
         self,
         total: float | None,
         desc: str,
-        unit: str = "it",
+        unit: str = "items",
         *,
-        delay: float = 1.0,
-        every: float = 10.0,
+        delay: float | None = None,
+        every: float | None = None,
         leave: bool = True,
         stream: TextIO | None = None,
     ) -> None:
         self.total = total
         self.desc = desc
         self.unit = unit
-        self.delay = delay
-        self.every = every
+        self.delay = DELAY if delay is None else delay
+        self.every = EVERY if every is None else every
         self.n = 0.0
         self.postfix = ""
         self._stream = stream if stream is not None else sys.stderr
@@ -101,7 +104,7 @@ class Progress:
                 total=total,
                 desc=desc,
                 unit=unit,
-                delay=delay,
+                delay=self.delay,
                 leave=leave,
                 file=self._stream,
                 dynamic_ncols=True,
@@ -113,11 +116,12 @@ class Progress:
         return time.monotonic() - self._t0
 
     def _line(self, final: bool = False) -> str:
-        count = f"{self.n:g}" if self.total is None else f"{self.n:g}/{self.total:g}"
-        pct = f" ({100.0 * self.n / self.total:.0f}%)" if self.total else ""
         tail = f", {self.postfix}" if self.postfix else ""
-        done = " done" if final else ""
-        return f"{self.desc}:{done} {count} {self.unit}{pct}, {self.elapsed:.1f} s{tail}"
+        if final:  # the work may end early (a goal reached before the data ran out)
+            return f"{self.desc}: done, {self.n:.0f} {self.unit} in {self.elapsed:.1f} s{tail}"
+        count = f"{self.n:.0f}" if self.total is None else f"{self.n:.0f}/{self.total:.0f}"
+        pct = f" ({100.0 * self.n / self.total:.0f}%)" if self.total else ""
+        return f"{self.desc}: {count} {self.unit}{pct}, {self.elapsed:.1f} s{tail}"
 
     def _maybe_print(self) -> None:
         now = time.monotonic()
@@ -167,10 +171,10 @@ class Progress:
 def progress(
     total: float | None,
     desc: str,
-    unit: str = "it",
+    unit: str = "items",
     *,
-    delay: float = 1.0,
-    every: float = 10.0,
+    delay: float | None = None,
+    every: float | None = None,
     leave: bool = True,
 ) -> Progress:
     """A progress report over ``total`` units (None if unknown).
@@ -181,11 +185,12 @@ def progress(
     desc : str
         What is progressing (``"run nexus_4"``, ``"darts fits"``, ...).
     unit : str
-        Name of one unit (``"frame"``, ``"fit"``, ``"epoch"``).
-    delay : float
-        Seconds before anything is shown (short work stays silent).
-    every : float
-        Seconds between two plain lines when stderr is not a terminal.
+        What is counted, plural (``"frames"``, ``"fits"``, ``"epochs"``).
+    delay : float, optional
+        Seconds before anything is shown (short work stays silent); default :data:`DELAY`.
+    every : float, optional
+        Seconds between two plain lines when stderr is not a terminal; default
+        :data:`EVERY`.
     leave : bool
         Keep the finished bar on screen (terminal mode).
     """

@@ -268,7 +268,7 @@ def _evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 25
         return evaluate_predictor(predictor, win)
     ade = fde = 0.0
     info: dict[str, Any] = {}
-    with progress(n, desc, "window") as bar:
+    with progress(n, desc, "windows") as bar:
         for s in range(0, n, chunk):
             e = min(n, s + chunk)
             part = Windows(win.history[s:e], win.future[s:e], win.dt, win.source, win.meta)

@@ -392,7 +392,7 @@ def _run(args: argparse.Namespace) -> int:
     total = scene.n_frames - 1 - scene.start_index
     if args.frames is not None:
         total = min(total, args.frames)
-    bar = progress(total, f"run {scene.name} [{args.predictor}]", "frame")
+    bar = progress(total, f"run {scene.name} [{args.predictor}]", "frames")
 
     def on_interval(iv: Any) -> None:
         bar.update(iv.n_steps / substeps)

@@ -13,7 +13,6 @@ Frame numbers stay the video's 30 fps frame numbers.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,8 +146,9 @@ def read_annotations(
     if not (np.isfinite(m_per_px) and m_per_px > 0):
         raise ValueError(f"m_per_px must be a finite number > 0, got {m_per_px!r}")
     wanted = f'"{label}"'
-    rows: list[tuple[int, int, float, float]] = []
-    n_lost = n_other = 0
+    numbers: list[list[str]] = []
+    tags: list[str] = []
+    linenos: list[int] = []
     with path.open() as fh:
         for lineno, line in enumerate(fh, start=1):
             parts = line.split()
@@ -161,31 +161,57 @@ def read_annotations(
                     f"{len(parts)}; the file is malformed or truncated"
                 )
             tag = parts[9]
-            if len(tag) < 3 or not (tag.startswith('"') and tag.endswith('"')):
+            if len(tag) < 3 or tag[0] != '"' or tag[-1] != '"':
                 raise DataFormatError(
                     f"{path}:{lineno}: the label {tag} is not a quoted name such as "
                     '"Pedestrian"; the file is malformed or truncated'
                 )
+            numbers.append(parts[:9])
+            tags.append(tag)
+            linenos.append(lineno)
+    if not numbers:
+        raise DataFormatError(f"{path}: no annotation rows; the file is empty")
+    try:
+        num = np.array(numbers, dtype=float)
+    except ValueError:
+        for parts, lineno in zip(numbers, linenos, strict=True):
             try:
-                tid, frame, lost = int(parts[0]), int(parts[5]), int(parts[6])
-                x0, y0, x1, y1 = (float(p) for p in parts[1:5])
+                [float(v) for v in parts]
             except ValueError as exc:
                 raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
-            if not all(math.isfinite(v) for v in (x0, y0, x1, y1)):
-                raise DataFormatError(
-                    f"{path}:{lineno}: non-finite box coordinate ({' '.join(parts[1:5])}); "
-                    "SDD boxes are finite pixel coordinates (an absent agent is marked lost=1)"
-                )
-            if tag != wanted:
-                n_other += 1
-                continue
-            if lost:
-                n_lost += 1
-                continue
-            rows.append((tid, frame, 0.5 * (x0 + x1), 0.5 * (y0 + y1)))
-    if not rows:
+        raise  # pragma: no cover - some row failed above
+    ints = num[:, [0, 5, 6]]
+    bad_int = ~(np.isfinite(ints) & (ints == np.rint(ints))).all(axis=1)
+    if bad_int.any():
+        k = int(np.argmax(bad_int))
+        raise DataFormatError(
+            f"{path}:{linenos[k]}: track_id, frame and lost must be whole numbers, got "
+            f"{' '.join(numbers[k][i] for i in (0, 5, 6))}"
+        )
+    bad_box = ~np.isfinite(num[:, 1:5]).all(axis=1)
+    if bad_box.any():
+        k = int(np.argmax(bad_box))
+        raise DataFormatError(
+            f"{path}:{linenos[k]}: non-finite box coordinate ({' '.join(numbers[k][1:5])}); "
+            "SDD boxes are finite pixel coordinates (an absent agent is marked lost=1)"
+        )
+    is_label = np.array(tags) == wanted
+    lost = num[:, 6] != 0
+    n_other = int((~is_label).sum())
+    n_lost = int((is_label & lost).sum())
+    sel = is_label & ~lost
+    if not sel.any():
         raise ValueError(f"{path}: no {label} rows with lost=0; nothing to simulate")
-    arr = np.array(rows, dtype=float)
+    block = num[sel]
+    rows = block  # counted below as n_rows
+    arr = np.column_stack(
+        [
+            block[:, 0],
+            block[:, 5],
+            0.5 * (block[:, 1] + block[:, 3]),
+            0.5 * (block[:, 2] + block[:, 4]),
+        ]
+    )
     order = np.lexsort((arr[:, 1], arr[:, 0]))
     arr = arr[order]
     tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}

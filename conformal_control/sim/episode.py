@@ -9,6 +9,7 @@ Building is :func:`~conformal_control.sim.build.build_flagship`; measuring is
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 import warnings
@@ -287,7 +288,8 @@ def _check_lambda(loop: ConformalLoop, fl: Flagship, log: IntervalLog) -> None:
 def _warn_after_run(
     fl: Flagship, metrics: EpisodeMetrics, learn: bool, max_frames: int | None
 ) -> None:
-    """No lambda update at all; the goal not reached (data ended vs frame limit)."""
+    """No lambda update at all (warning); the goal not reached because the data ended
+    (warning) or because of the ``max_frames`` limit the caller set (logged)."""
     scene, si = fl.scene, fl.params.si
     if learn and metrics["n_updates"] == 0:
         warnings.warn(
@@ -306,19 +308,24 @@ def _warn_after_run(
     x = fl.env.log.state[-1][:2] if fl.env.log.state else scene.start
     gap = float(np.hypot(*(np.asarray(scene.goals[-1]) - np.asarray(x))))
     if max_frames is not None and frames >= max_frames and end < last_data:
-        message = (
-            f"the goal was not reached within the frame limit of {max_frames} frames "
-            f"({max_frames / scene.fps:.1f} s); the robot stopped {gap:.1f} m from it"
+        # the caller asked for the limit: a diagnostic, not a warning
+        logging.getLogger("conformal_control.run").info(
+            "the goal was not reached within the frame limit of %d frames (%.1f s); the "
+            "robot stopped %.1f m from it",
+            max_frames,
+            max_frames / scene.fps,
+            gap,
         )
-        reason = "frame_limit"
-    else:
-        message = (
+        return
+    warnings.warn(
+        GoalNotReachedWarning(
             f"the goal was not reached: the scene's data ended at frame {last_data} "
             f"({frames / scene.fps:.1f} s after the start) with the robot {gap:.1f} m "
-            "from it; choose an earlier start frame or a closer goal"
-        )
-        reason = "data_ended"
-    warnings.warn(GoalNotReachedWarning(message, reason), stacklevel=3)
+            "from it; choose an earlier start frame or a closer goal",
+            "data_ended",
+        ),
+        stacklevel=3,
+    )
 
 
 def _measure(

@@ -121,7 +121,7 @@ class LSTMPredictor(WindowPredictor):
         n = len(x_all)
         losses = []
         net.train()
-        bar = progress(int(self.epochs), f"training lstm on {n} windows", "epoch")
+        bar = progress(int(self.epochs), f"training lstm on {n} windows", "epochs")
         for _ in range(int(self.epochs)):
             order = rng.permutation(n)
             total = 0.0
