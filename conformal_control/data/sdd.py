@@ -170,7 +170,7 @@ def read_annotations(
             tags.append(tag)
             linenos.append(lineno)
     if not numbers:
-        raise DataFormatError(f"{path}: no annotation rows; the file is empty")
+        raise DataFormatError(f"{path}: no {label} rows (the file is empty); nothing to simulate")
     try:
         num = np.array(numbers, dtype=float)
     except ValueError:
