@@ -143,6 +143,13 @@ def test_fetch_data_offline_is_one_line(tmp_path: Path, capsys) -> None:
     assert "cannot download" in line and "--mirror" in line
 
 
+def test_data_root_that_is_a_file(tmp_path: Path, capsys) -> None:
+    (tmp_path / "data").write_text("not a folder")
+    argv = ["run", "--scene", "nexus_4", "--data-root", str(tmp_path / "data")]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == EXIT_ERROR
+    assert "is a file; pass the data folder" in one_error(capsys)
+
+
 def test_fetch_data_unknown_selection(tmp_path: Path, capsys) -> None:
     assert main(["fetch-data", "--dest", str(tmp_path), "--only", "sdd:nexsu_4"]) == EXIT_ERROR
     assert "matches no file" in one_error(capsys)
@@ -288,12 +295,3 @@ def test_ethucy_file_that_is_a_folder(ethucy_dir: Path, tmp_path: Path, capsys) 
     assert main([*argv, "--data-root", str(root)]) == EXIT_ERROR
     line = one_error(capsys)
     assert "extra.txt" in line and "is a folder, not a file" in line
-
-
-def test_corrupt_forecast_cache_is_one_line(tmp_path: Path, capsys) -> None:
-    bad = tmp_path / "cache.sqlite"
-    bad.write_bytes(b"this is not an SQLite database, just some bytes" * 100)
-    argv = ["run", "--predictor", "darts", "--predictor-param", f"cache_path={bad}"]
-    assert main([*argv, "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]) == EXIT_ERROR
-    line = one_error(capsys)
-    assert "cache" in line and "not a database" in line

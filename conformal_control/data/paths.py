@@ -44,7 +44,13 @@ def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
     """The data root: the argument, else ``$CONFORMAL_CONTROL_DATA``, else ``./data``."""
     if data_root is None:
         data_root = os.environ.get(ENV_VAR) or "data"
-    return Path(data_root).expanduser()
+    root = Path(data_root).expanduser()
+    if root.exists() and not root.is_dir():
+        raise DataNotFoundError(
+            f"the data root {root} is a file; pass the data folder (the one holding sdd/ and "
+            f"ethucy/) with --data-root DIR or {ENV_VAR}=DIR"
+        )
+    return root
 
 
 def _subdir(root: Path, name: str, markers: tuple[str, ...]) -> Path:
