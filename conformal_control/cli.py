@@ -156,11 +156,12 @@ def _show_warning(
 ) -> None:
     """warnings.showwarning for the CLI: one line, ``warning: <message>``."""
     from .exceptions import ConformalControlWarning
+    from .progress import write
 
     text = " ".join(str(message).split())
     if not issubclass(category, ConformalControlWarning):
         text = f"{category.__name__}: {text}"
-    print(f"warning: {text}", file=file if file is not None else sys.stderr, flush=True)
+    write(f"warning: {text}", file)
 
 
 def _configure_logging(verbose: int) -> None:

@@ -22,7 +22,7 @@ import time
 from types import TracebackType
 from typing import Any, TextIO
 
-__all__ = ["Progress", "is_quiet", "note", "progress", "set_quiet"]
+__all__ = ["Progress", "is_quiet", "note", "progress", "set_quiet", "write"]
 
 logger = logging.getLogger("conformal_control")
 
@@ -59,11 +59,26 @@ def _mode(stream: TextIO) -> str:
     return "bar" if tty else "lines"
 
 
+_bars: list[Any] = []  # tqdm bars on screen (a line written meanwhile goes above them)
+
+
+def write(line: str, file: TextIO | None = None) -> None:
+    """Print one line to stderr without breaking a progress bar that is on screen."""
+    stream = file if file is not None else sys.stderr
+    # bars still within their delay are not on screen: refreshing them would show them
+    shown = [b for b in _bars if getattr(b, "last_print_t", 0.0) >= b.start_t + b.delay]
+    for b in shown:
+        b.clear()
+    print(line, file=stream, flush=True)
+    for b in shown:
+        b.refresh()
+
+
 def note(message: str) -> None:
     """One line on stderr about what is happening (silenced by quiet; always logged)."""
     logger.info(message)
     if not is_quiet():
-        print(message, file=sys.stderr, flush=True)
+        write(message)
 
 
 class Progress:
@@ -81,7 +96,7 @@ class Progress:
         *,
         delay: float | None = None,
         every: float | None = None,
-        leave: bool = True,
+        leave: bool = False,
         stream: TextIO | None = None,
     ) -> None:
         self.total = total
@@ -109,6 +124,7 @@ class Progress:
                 file=self._stream,
                 dynamic_ncols=True,
             )
+            _bars.append(self._bar)
 
     # ---------------------------------------------------------------- reporting
     @property
@@ -153,6 +169,8 @@ class Progress:
         self._closed = True
         if self._bar is not None:
             self._bar.close()
+            if self._bar in _bars:
+                _bars.remove(self._bar)
         elif self._mode == "lines" and self._last_line is not None:
             print(self._line(final=True), file=self._stream, flush=True)
 
@@ -175,7 +193,7 @@ def progress(
     *,
     delay: float | None = None,
     every: float | None = None,
-    leave: bool = True,
+    leave: bool = False,
 ) -> Progress:
     """A progress report over ``total`` units (None if unknown).
 

@@ -63,13 +63,13 @@ def _params(args: argparse.Namespace) -> int:
             "the paper's; the built-in scene: m and s) or with a unit suffix; "
             "`conformal-control params --scene NAME` shows a scene's units and defaults."
         )
-        print(f"{'name':<15} {'dimension':<10} {'suffixes':<26} {'default':<14} meaning")
+        print(f"{'name':<15} {'dimension':<10} {'suffixes':<29} {'default':<14} meaning")
         for name, (default, doc) in PARAMETERS.items():
             dim = PARAM_DIMENSIONS.get(name)
             word = _DIMENSION_WORDS.get(dim, "-") if dim else "-"
             suffixes = ", ".join(UNIT_SUFFIXES.get(dim, ())) if dim else ""
             shown = "scene" if default is None else _fmt(default)
-            print(f"{name:<15} {word:<10} {suffixes:<26} {shown:<14} {doc}")
+            print(f"{name:<15} {word:<10} {suffixes:<29} {shown:<14} {doc}")
         return 0
 
     from ..data import load_scene

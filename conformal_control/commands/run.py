@@ -383,7 +383,9 @@ def _run(args: argparse.Namespace) -> int:
     resolved = resolve_params(scene, check)
     for text in resolved.notes:
         log.info("unit conversion: %s", text)
+    log.debug("parameters in SI: %s", resolved.si)
     predictor_params = _predictor_params(args, scene)
+    log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
 
     data_root = None
     if args.scene != "crossing":
@@ -394,10 +396,14 @@ def _run(args: argparse.Namespace) -> int:
         total = min(total, args.frames)
     bar = progress(total, f"run {scene.name} [{args.predictor}]", "frames")
 
+    steps = [0]  # control steps so far; the bar advances in whole frames
+
     def on_interval(iv: Any) -> None:
-        bar.update(iv.n_steps / substeps)
+        before = -(-steps[0] // substeps)
+        steps[0] += iv.n_steps
         if iv.l_avg is not None:
             bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
+        bar.update(-(-steps[0] // substeps) - before)
 
     with bar:
         result = run_episode(
@@ -420,6 +426,7 @@ def _run(args: argparse.Namespace) -> int:
             on_interval=on_interval,
             **roles,
         )
+    log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)
     print(result.metrics.format())
     print(f"results written to {out}")

@@ -74,6 +74,7 @@ def relink(
 ) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], int]:
     """Join segments that continue each other; returns the tracks and the number of links."""
     from scipy.optimize import linear_sum_assignment  # imported on use: the CLI starts faster
+
     by_start: dict[int, list[int]] = {}
     by_end: dict[int, list[int]] = {}
     for i, (f, _) in segs.items():
@@ -112,6 +113,7 @@ def relink(
 def upsample(frames: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Interpolate a track to every integer frame between its first and last sample."""
     from scipy.interpolate import CubicSpline
+
     full = np.arange(frames[0], frames[-1] + 1)
     if len(frames) >= 4:
         return full, CubicSpline(frames, xy, axis=0)(full)

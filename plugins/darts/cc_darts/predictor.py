@@ -308,7 +308,7 @@ class DartsPredictor(Predictor):
             return []
         # progress only shows when the fits of one call take more than a few seconds
         # (evaluation batches); within an episode the frames' progress covers them
-        with progress(len(jobs), f"darts {self.model}", "fits", delay=3.0, leave=False) as bar:
+        with progress(len(jobs), f"darts {self.model}", "fits", delay=3.0) as bar:
             if self.n_jobs == 1 or len(jobs) == 1:
                 out = []
                 for _, _, s in jobs:
