@@ -234,7 +234,16 @@ def weights_for_scene(
     from ..progress import note
 
     if "sdd_scene" in scene.meta:
-        return cached_weights(name, "sdd:any", data_root, params, seed, obs, horizon)
+        from ..data.paths import DataNotFoundError
+
+        try:
+            return cached_weights(name, "sdd:any", data_root, params, seed, obs, horizon)
+        except DataNotFoundError as exc:
+            raise DataNotFoundError(
+                f"{name} without weights is trained on all of ETH/UCY for SDD scenes, but "
+                f"{str(exc).rstrip('.')}; or pass --predictor-param weights=DIR from "
+                "`conformal-control train-predictor`"
+            ) from None
     win = scene_windows(scene, obs, horizon)
     if len(win) < MIN_SCENE_WINDOWS:
         raise InputError(
