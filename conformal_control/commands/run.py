@@ -321,7 +321,8 @@ def _predictor_params(args: argparse.Namespace, scene: Any) -> dict[str, Any]:
 
 
 def _default_out(scene_name: str) -> Path:
-    return Path("runs") / f"{scene_name.replace(':', '_')}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in scene_name)
+    return Path("runs") / f"{safe}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
 
 
 # ------------------------------------------------------------------------------ command

@@ -177,36 +177,39 @@ def fetch(
     Returns counts ``{"downloaded": n, "verified_existing": m}``. Raises
     :class:`ChecksumError` on a mismatch (the bad file is removed).
     """
-    from tqdm import tqdm
+    from ..progress import progress as report
 
     dest = Path(dest)
     items = plan(only, mirror)
     counts = {"downloaded": 0, "verified_existing": 0}
     # scales are needed to convert TrajNet files: fetch them first
     items.sort(key=lambda it: (it.convert is not None, it.path))
-    for item in tqdm(items, desc="fetch-data", unit="file", disable=not progress):
-        target = dest / item.path
-        if target.exists() and not force and _sha256(target) == item.sha256:
-            counts["verified_existing"] += 1
-            continue
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_suffix(target.suffix + ".part")
-        try:
-            _download(item.url, tmp)
-            if item.convert == "trajnet_pixels":
-                from .sdd import load_scales
+    bar = report(len(items), "fetch-data", "files", delay=None if progress else float("inf"))
+    with bar:
+        for item in items:
+            bar.update()
+            target = dest / item.path
+            if target.exists() and not force and _sha256(target) == item.sha256:
+                counts["verified_existing"] += 1
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.with_suffix(target.suffix + ".part")
+            try:
+                _download(item.url, tmp)
+                if item.convert == "trajnet_pixels":
+                    from .sdd import load_scales
 
-                scene, _, video = Path(item.path).stem.rpartition("_")
-                scale = load_scales(dest / "sdd")[(scene, int(video))]
-                tmp.write_text(trajnet_metres_to_pixels(tmp.read_text(), scale))
-            got = _sha256(tmp)
-            if got != item.sha256:
-                raise ChecksumError(
-                    f"{item.path}: SHA-256 {got} does not match the manifest's {item.sha256} "
-                    f"(source {item.url}); the file was not kept"
-                )
-            tmp.replace(target)
-        finally:
-            tmp.unlink(missing_ok=True)
-        counts["downloaded"] += 1
+                    scene, _, video = Path(item.path).stem.rpartition("_")
+                    scale = load_scales(dest / "sdd")[(scene, int(video))]
+                    tmp.write_text(trajnet_metres_to_pixels(tmp.read_text(), scale))
+                got = _sha256(tmp)
+                if got != item.sha256:
+                    raise ChecksumError(
+                        f"{item.path}: SHA-256 {got} does not match the manifest's {item.sha256} "
+                        f"(source {item.url}); the file was not kept"
+                    )
+                tmp.replace(target)
+            finally:
+                tmp.unlink(missing_ok=True)
+            counts["downloaded"] += 1
     return counts
