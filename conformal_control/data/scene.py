@@ -132,10 +132,14 @@ def scene_from_tracks(
             f"scene {name}: start frame {start_frame} is at or after the last data frame {hi} "
             f"(the data covers frames {lo}..{hi})"
         )
-    if start_frame < lo:
+    # a start a little before the first sample is fine (the history window is empty at
+    # first, e.g. TrajNet samples from frame 60 and the paper's start frame 50); a start
+    # further back would replay frames that are not in the data at all
+    if start_frame < min(lo, 0) or start_frame < lo - int(history_frames):
         raise InputError(
-            f"scene {name}: start frame {start_frame} is before the first data frame {lo} "
-            f"(the data covers frames {lo}..{hi})"
+            f"scene {name}: start frame {start_frame} is before the data (it covers frames "
+            f"{lo}..{hi}; the start may precede frame {lo} by at most the "
+            f"{int(history_frames)}-frame history window)"
         )
     first = int(start_frame) - int(history_frames)
     ids, pos = tracks.dense(first, hi)

@@ -61,9 +61,12 @@ def test_trajnet_non_finite_row_gives_its_line(tmp_path: Path) -> None:
 
 
 def test_start_frame_before_the_data_is_refused(sdd_dir: Path) -> None:
-    with pytest.raises(InputError, match=r"start frame -500 is before the first data frame 20"):
+    with pytest.raises(InputError, match=r"start frame -500 is before the data \(it covers"):
         load_scene("nexus_4", sdd_dir, start_frame=-500)
-    assert load_scene("nexus_4", sdd_dir, start_frame=20).start_frame == 20
+    with pytest.raises(InputError, match=r"frames 60\.\.1056; the start may precede"):
+        load_scene("nexus_4:trajnet", sdd_dir, start_frame=60 - 121)
+    assert load_scene("nexus_4", sdd_dir, start_frame=0).start_frame == 0  # 20 frames early
+    assert load_scene("nexus_4:trajnet", sdd_dir).start_frame == 50  # the paper's, 10 early
 
 
 def test_scene_and_video_names_suggest(sdd_dir: Path) -> None:
