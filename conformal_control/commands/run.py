@@ -301,16 +301,25 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
         )
 
 
-def _predictor_params(args: argparse.Namespace, scene: Any) -> dict[str, Any]:
-    """``--predictor-param`` values, checked against the predictor's constructor; a
-    trainable predictor (lstm, sklearn) without ``weights`` gets cached weights (see
+def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
+    """``--predictor-param`` values, checked against the predictor's constructor."""
+    from .. import registry
+
+    pp = key_values(args.predictor_param, "--predictor-param")
+    registry.check_params(
+        "predictor", args.predictor, registry.get("predictor", args.predictor), pp
+    )
+    return pp
+
+
+def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) -> dict[str, Any]:
+    """The predictor's arguments: a trainable predictor (lstm, sklearn) without ``weights``
+    gets cached weights (see
     :func:`~conformal_control.commands.predictors.weights_for_scene`)."""
     from .. import registry
     from .predictors import trainable_defaults, weights_for_scene
 
-    pp = key_values(args.predictor_param, "--predictor-param")
     cls = registry.get("predictor", args.predictor)
-    registry.check_params("predictor", args.predictor, cls, pp)
     if getattr(cls, "trainable", False) and pp.get("weights") is None:
         trainable_defaults(cls, pp, args.seed, 8, 12)
         train_params = {k: v for k, v in pp.items() if k != "weights"}
@@ -362,6 +371,12 @@ def _run(args: argparse.Namespace) -> int:
         if value is not None:
             params[name] = int(value) if name == "tau" and float(value).is_integer() else value
     rule_params = key_values(args.rule_param, "--rule-param")
+    from .. import registry
+
+    registry.check_params(
+        "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
+    )
+    given_predictor_params = _checked_predictor_params(args)
 
     scene = load_scene(
         args.scene,
@@ -385,7 +400,7 @@ def _run(args: argparse.Namespace) -> int:
     for text in resolved.notes:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)
-    predictor_params = _predictor_params(args, scene)
+    predictor_params = _predictor_params(args, scene, given_predictor_params)
     log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
 
     data_root = None
