@@ -1,48 +1,231 @@
 """Command-line interface: ``conformal-control <command>``.
 
-The subcommands live in :mod:`conformal_control.commands`, one module per feature.
+The subcommands live in :mod:`conformal_control.commands`, one module per feature. This
+module owns what every command shares:
+
+* global options, accepted before or after the command name: ``--quiet`` (no progress
+  bars or notes), ``-v`` / ``-vv`` (diagnostics of the ``conformal_control`` logger);
+* warnings (:class:`~conformal_control.exceptions.ConformalControlWarning` and any other)
+  printed as one line each, ``warning: <message>``;
+* errors: an expected failure (bad input or data, a missing or unreadable file, an
+  unwritable output, a failed download) prints one line, ``error: <message>``, and exits
+  with status 2; an interrupted command exits with 130; anything else is a bug and says
+  so in one line (``-v`` shows the traceback), exit status 70;
+* ``--help`` of every command shows the defaults.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
+import sqlite3
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import Any
 
 from . import __version__
 
-__all__ = ["build_parser", "main"]
+__all__ = ["EXIT_BUG", "EXIT_ERROR", "build_parser", "describe_error", "main"]
+
+EXIT_ERROR = 2
+EXIT_BUG = 70
+EXIT_INTERRUPTED = 130
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Shows each option's default (``[default: X]``) unless it is None, False or the
+    help already states it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            "%(default)" in text
+            or "default" in text.lower()
+            or default is None
+            or default is False
+            or default is argparse.SUPPRESS
+            or not action.option_strings
+            or action.nargs == 0
+        ):
+            return text
+        return f"{text} [default: %(default)s]"
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with one-line errors (``error: ...``, with a did-you-mean for commands)."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        import difflib
+        import re
+
+        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if m:
+            choices = re.findall(r"'([^']*)'", m[2])
+            close = difflib.get_close_matches(m[1], choices, n=1, cutoff=0.6)
+            hint = (
+                f"; did you mean {close[0]!r}?" if close else f"; choose from {', '.join(choices)}"
+            )
+            message = f"unknown command {m[1]!r}{hint}"
+        self.exit(EXIT_ERROR, f"error: {message} (see `{self.prog} --help`)\n")
+
+
+def _global_options(parser: argparse.ArgumentParser, *, top: bool) -> None:
+    """--quiet and -v; on subcommands they default to SUPPRESS so that a value given
+    before the command name is not overwritten."""
+    kw: dict[str, Any] = {} if top else {"default": argparse.SUPPRESS}
+    parser.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bars or notes (warnings and errors are still printed)",
+        **({"default": False} if top else kw),
+    )
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        help="show diagnostics (-v: what is done, and every contract check of plugins "
+        "--check; -vv: details and tracebacks)",
+        **({"default": 0} if top else kw),
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every registered subcommand."""
     from .commands import load_all
 
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="conformal-control",
         description="Conformal decision theory + CBF safety filters on real pedestrian data.",
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _global_options(parser, top=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
     for name, (help_text, add_args, _) in sorted(load_all().items()):
-        add_args(sub.add_parser(name, help=help_text, description=help_text))
+        p = sub.add_parser(
+            name, help=help_text, description=help_text, formatter_class=HelpFormatter
+        )
+        add_args(p)
+        _global_options(p, top=False)
     return parser
+
+
+def describe_error(exc: BaseException) -> str | None:
+    """The one-line message for an expected failure, or None for a bug."""
+    from .exceptions import ConformalControlError
+
+    if isinstance(exc, ConformalControlError):
+        return str(exc)
+    if isinstance(exc, sqlite3.DatabaseError):
+        from .predictors.cache import cache_dir
+
+        return (
+            f"a cache database cannot be read ({exc}); delete the cache folder "
+            f"{cache_dir()} (or set CONFORMAL_CONTROL_CACHE) and run again"
+        )
+    if type(exc).__name__ == "UnidentifiedImageError":  # PIL, an OSError subclass
+        return f"an image cannot be read ({exc})"
+    if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError) and exc.filename:
+        reason = {
+            IsADirectoryError: "is a folder, expected a file",
+            NotADirectoryError: "is not a folder (a file stands where a folder is needed)",
+            PermissionError: "permission denied",
+        }.get(type(exc), exc.strerror or str(exc))
+        return f"{exc.filename}: {reason}"
+    if isinstance(exc, (ValueError, OSError, ImportError)):
+        return str(exc) or type(exc).__name__
+    cause = exc.__cause__
+    if cause is not None and type(exc).__name__ == "PredictorError":
+        # a predictor failed for an expected reason: its context, then the reason
+        reason = describe_error(cause)
+        if reason is not None:
+            return f"{str(exc).partition(': ')[0]}: {reason}"
+    return None
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
+    """warnings.showwarning for the CLI: one line, ``warning: <message>``."""
+    from .exceptions import ConformalControlWarning
+    from .progress import write
+
+    text = " ".join(str(message).split())
+    if not issubclass(category, ConformalControlWarning):
+        text = f"{category.__name__}: {text}"
+    write(f"warning: {text}", file)
+
+
+def _configure_logging(verbose: int) -> None:
+    logger = logging.getLogger("conformal_control")
+    for h in list(logger.handlers):
+        if getattr(h, "_cc_cli", False):
+            logger.removeHandler(h)
+    if verbose <= 0:
+        logger.setLevel(logging.WARNING)
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler._cc_cli = True  # type: ignore[attr-defined]
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO if verbose == 1 else logging.DEBUG)
+    logger.propagate = False
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``conformal-control`` script."""
+    from . import progress
     from .commands import COMMANDS
+    from .exceptions import ConformalControlWarning
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors (already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_ERROR
+    args.argv = argv
     if args.command is None:
         parser.print_help()
         return 0
+    verbose = int(getattr(args, "verbose", 0) or 0)
+    _configure_logging(verbose)
+    progress.set_quiet(bool(args.quiet))
+    old_show = warnings.showwarning
     try:
-        return COMMANDS[args.command][2](args)
-    except (ValueError, FileNotFoundError, ImportError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", ConformalControlWarning)
+            warnings.showwarning = _show_warning
+            return COMMANDS[args.command][2](args)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        message = describe_error(exc)
+        if verbose >= 2 or (message is None and verbose >= 1):
+            import traceback
+
+            traceback.print_exc()
+        if message is None:
+            print(
+                f"error: internal error ({type(exc).__name__}: {exc}); this is a bug, please "
+                "report it with the command line (rerun with -v to see the traceback)",
+                file=sys.stderr,
+            )
+            return EXIT_BUG
+        print(f"error: {' '.join(message.split())}", file=sys.stderr)
+        return EXIT_ERROR
+    finally:
+        warnings.showwarning = old_show
+        progress.set_quiet(None)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -155,7 +155,7 @@ def cli_run_output(*args: str) -> str:
 
     env_root = os.environ.get("CONFORMAL_CONTROL_DATA")
     root = Path(env_root) if env_root else ROOT.parent / "shared" / "data"
-    argv = ["run", *args, "--no-plot"]
+    argv = ["run", *args, "--no-plot", "--quiet"]
     if "--scene" in args:
         if not (root / "sdd").is_dir():
             return f"(the SDD data was not found at {root} when this page was built)"

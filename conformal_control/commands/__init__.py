@@ -19,9 +19,20 @@ import argparse
 import importlib
 import pkgutil
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
-__all__ = ["COMMANDS", "command", "key_values", "load_all"]
+__all__ = [
+    "COMMANDS",
+    "check_writable",
+    "command",
+    "command_line",
+    "finite_float",
+    "key_values",
+    "load_all",
+    "non_negative_int",
+    "positive_int",
+]
 
 Handler = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Handler]] = {}
@@ -42,16 +53,112 @@ def command(name: str, help: str) -> Callable[[Callable[[argparse.ArgumentParser
 
 
 def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
-    """Parse repeated ``KEY=VALUE`` options into a dict of typed values."""
+    """Parse repeated ``KEY=VALUE`` options into a dict of typed values.
+
+    A key given twice with different values keeps the last one, with an
+    :class:`~conformal_control.exceptions.OptionConflictWarning`.
+    """
+    import warnings
+
+    from ..exceptions import InputError, OptionConflictWarning
     from ..sim.config import parse_value
 
     out: dict[str, Any] = {}
+    raw: dict[str, str] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
+        key = key.strip()
         if not sep or not key:
-            raise ValueError(f"{flag} expects KEY=VALUE, got {item!r}")
-        out[key.strip()] = parse_value(value)
+            raise InputError(f"{flag} expects KEY=VALUE, got {item!r}")
+        if key in raw and raw[key] != value.strip():
+            warnings.warn(
+                OptionConflictWarning(
+                    f"{flag} {key} given twice ({key}={raw[key]} and {key}={value.strip()}); "
+                    f"using the last, {key}={value.strip()}"
+                ),
+                stacklevel=2,
+            )
+        raw[key] = value.strip()
+        out[key] = parse_value(value)
     return out
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (no nan, no inf)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
+def command_line(args: argparse.Namespace) -> list[str]:
+    """The command line of this invocation (for config files), as typed."""
+    return ["conformal-control", *getattr(args, "argv", [])]
+
+
+def check_writable(path: str | Path, what: str = "output folder") -> Path:
+    """Check, before any work is done, that folder ``path`` can be created and written.
+
+    Creates nothing: a probe file is written into the nearest existing ancestor and
+    removed at once.
+
+    Raises
+    ------
+    OutputNotWritableError
+        If ``path`` is a file, lies below a file, or its nearest existing folder cannot
+        be written.
+    """
+    import tempfile
+
+    from ..exceptions import OutputNotWritableError
+
+    path = Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise OutputNotWritableError(f"cannot write the {what} {path}: it is a file")
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputNotWritableError(
+            f"cannot create the {what} {path}: {probe} is a file, not a folder"
+        )
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as exc:
+        raise OutputNotWritableError(
+            f"cannot write the {what} {path}: {probe} is not writable ({exc.strerror or exc})"
+        ) from None
+    return path
 
 
 def load_all() -> dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Handler]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import command
+from . import check_writable, command
 
 
 @command("fetch-data", "download SDD and ETH/UCY files and verify their checksums")
@@ -28,12 +28,16 @@ def _fetch_args(p: argparse.ArgumentParser) -> None:
 @_fetch_args.handler
 def _fetch(args: argparse.Namespace) -> int:
     from ..data.fetch import fetch, plan
+    from ..progress import is_quiet
 
     if args.dry_run:
         for item in plan(args.only, args.mirror):
             print(f"{item.path}  <- {item.url}" + (" (metres -> pixels)" if item.convert else ""))
         return 0
-    counts = fetch(args.dest, only=args.only, mirror=args.mirror, force=args.force)
+    check_writable(args.dest, "data folder")
+    counts = fetch(
+        args.dest, only=args.only, mirror=args.mirror, force=args.force, progress=not is_quiet()
+    )
     print(
         f"{counts['downloaded']} file(s) downloaded, {counts['verified_existing']} already "
         f"present and verified, in {args.dest}; use --data-root {args.dest}"

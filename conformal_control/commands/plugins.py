@@ -19,7 +19,6 @@ def _plugins_args(p: argparse.ArgumentParser) -> None:
         help="run the contract checks (conformal_control.testing) on every plugin and print "
         "pass/fail per plugin; exit status 1 if any check fails",
     )
-    p.add_argument("--verbose", "-v", action="store_true", help="with --check: every check")
 
 
 def _truncate(text: str, width: int) -> str:
@@ -49,7 +48,7 @@ def _plugins(args: argparse.Namespace) -> int:
                 f"  {entry.name:<20} {_truncate(entry.summary().replace('``', ''), 72)}  [{origin}]"
             )
             if args.check:
-                n_fail += _check(role, entry.load(), args.verbose)
+                n_fail += _check(role, entry.load(), bool(getattr(args, "verbose", 0)))
     clashes = [c for c in registry.clashes() if c.role in roles]
     if clashes:
         print("name clashes (first registration kept):")

@@ -12,12 +12,11 @@ import argparse
 import csv
 import hashlib
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from . import command, key_values
+from . import check_writable, command, command_line, key_values
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -40,28 +39,22 @@ def trainable_defaults(
             params.setdefault(key, value)
 
 
-def train(
+def _fit_and_save(
     name: str,
-    dataset: str,
-    data_root: str | None,
+    win: Any,
     out: str | Path,
     params: dict[str, Any],
-    seed: int = 0,
-    obs: int = 8,
-    horizon: int = 12,
+    seed: int,
+    obs: int,
+    horizon: int,
+    dataset: str,
+    command: list[str] | None = None,
 ) -> Path:
-    """Train predictor ``name`` on the training windows of ``dataset`` and save it to ``out``."""
+    """Fit predictor ``name`` on windows ``win`` and save it (with ``training.json``)."""
     from .. import registry
-    from ..predictors.evaluation import training_windows
 
-    cls = registry.get("predictor", name)
-    if not getattr(cls, "trainable", False):
-        raise ValueError(f"predictor {name!r} is not trainable")
-    win = training_windows(dataset, data_root, obs, horizon)
-    if len(win) == 0:
-        raise ValueError(f"no training windows for {dataset}")
     p = {k: v for k, v in params.items() if k != "weights"}
-    trainable_defaults(cls, p, seed, obs, horizon)
+    trainable_defaults(registry.get("predictor", name), p, seed, obs, horizon)
     model = registry.create("predictor", name, **p)
     t0 = time.perf_counter()
     model.fit(win.history, win.future, win.dt)
@@ -78,10 +71,63 @@ def train(
         "horizon": horizon,
         "seed": seed,
         "fit_s": round(time.perf_counter() - t0, 2),
-        "command": ["conformal-control", *sys.argv[1:]],
+        "command": command,
     }
     (out / "training.json").write_text(json.dumps(info, indent=2, default=str))
     return out
+
+
+def train(
+    name: str,
+    dataset: str,
+    data_root: str | None,
+    out: str | Path,
+    params: dict[str, Any],
+    seed: int = 0,
+    obs: int = 8,
+    horizon: int = 12,
+    command: list[str] | None = None,
+) -> Path:
+    """Train predictor ``name`` on the training windows of ``dataset`` and save it to ``out``."""
+    from .. import registry
+    from ..exceptions import InputError
+    from ..predictors.evaluation import training_windows
+    from ..progress import note
+
+    cls = registry.get("predictor", name)
+    if not getattr(cls, "trainable", False):
+        trainable = [n for n in registry.names("predictor") if _is_trainable(n)]
+        raise InputError(
+            f"predictor {name!r} is not trainable; the trainable ones are "
+            f"{', '.join(trainable) or 'none'}"
+        )
+    registry.check_params("predictor", name, cls, {k: v for k, v in params.items()})
+    win = training_windows(dataset, data_root, obs, horizon)
+    if len(win) == 0:
+        raise InputError(f"no training windows of {obs + horizon} samples in {dataset}")
+    note(f"training {name} on {len(win)} windows of {win.source} -> {out}")
+    return _fit_and_save(name, win, out, params, seed, obs, horizon, dataset, command)
+
+
+def _is_trainable(name: str) -> bool:
+    from .. import registry
+
+    try:
+        return bool(getattr(registry.get("predictor", name), "trainable", False))
+    except ImportError:
+        return False
+
+
+def _weights_folder(name: str, tag: str, params: dict[str, Any], extra: dict[str, Any]) -> Path:
+    from .. import registry
+    from ..predictors.cache import cache_dir
+
+    # key on every constructor parameter (defaults included), so changed defaults retrain
+    full = registry.create("predictor", name, **params).get_params()
+    full.pop("weights", None)
+    key = json.dumps({"n": name, "d": tag, "p": full, **extra}, sort_keys=True, default=str)
+    digest = hashlib.sha256(key.encode()).hexdigest()[:12]
+    return cache_dir("weights") / f"{name}-{tag.replace(':', '_')}-{digest}"
 
 
 def cached_weights(
@@ -93,26 +139,160 @@ def cached_weights(
     obs: int,
     horizon: int,
 ) -> Path:
-    """Weights for a trainable predictor, trained on first use and cached."""
-    from .. import registry
-    from ..predictors.cache import cache_dir
+    """Weights for a trainable predictor, trained on first use and cached.
 
+    ``ethucy:<scene>`` trains on ``<scene>/train`` (leave one scene out); any SDD dataset
+    trains on all of ETH/UCY (one cached model for every SDD scene).
+    """
     if dataset.partition(":")[0] != "ethucy":
         dataset = "sdd:any"  # every SDD scene trains on all of ETH/UCY: one cached model
-    # key on every constructor parameter (defaults included), so changed defaults retrain
-    full = registry.create("predictor", name, **params).get_params()
-    full.pop("weights", None)
-    key = json.dumps(
-        {"n": name, "d": dataset, "p": full, "s": seed, "o": obs, "h": horizon},
-        sort_keys=True,
-        default=str,
-    )
-    digest = hashlib.sha256(key.encode()).hexdigest()[:12]
-    folder = cache_dir("weights") / f"{name}-{dataset.replace(':', '_')}-{digest}"
+    folder = _weights_folder(name, dataset, params, {"s": seed, "o": obs, "h": horizon})
     if not (folder / "training.json").is_file():
-        print(f"training {name} for {dataset} (first use) -> {folder}", file=sys.stderr)
-        train(name, dataset, data_root, folder, params, seed, obs, horizon)
+        from ..predictors.evaluation import training_windows
+        from ..progress import note
+
+        win = training_windows(dataset, data_root, obs, horizon)
+        if len(win) == 0:
+            from ..exceptions import InputError
+
+            raise InputError(f"no training windows of {obs + horizon} samples for {dataset}")
+        what = "all of ETH/UCY" if dataset == "sdd:any" else win.source
+        note(
+            f"training {name} on {len(win)} windows of {what} for {dataset} (first use, "
+            f"cached) -> {folder}"
+        )
+        _fit_and_save(name, win, folder, params, seed, obs, horizon, dataset)
     return folder
+
+
+#: fewest windows of a scene's own tracks a learned predictor is trained on
+MIN_SCENE_WINDOWS = 64
+
+
+def scene_windows(scene: Any, obs: int = 8, horizon: int = 12) -> Any:
+    """Training windows from a scene's own pedestrians *before* the robot's start frame.
+
+    Every run of ``obs + horizon`` samples 0.4 s apart (each phase of the frame grid) of
+    the positions up to the start frame; nothing after the start is used, so the run
+    never trains on what it will be scored on.
+    """
+    import numpy as np
+
+    from ..data.tracks import Tracks
+    from ..exceptions import InputError
+    from ..predictors.evaluation import STANDARD_DT, Windows, windows_from_tracks
+
+    step_f = scene.fps * STANDARD_DT
+    step = round(step_f)
+    if step < 1 or abs(step - step_f) > 1e-6:
+        raise InputError(
+            f"scene {scene.name} at {scene.fps:g} fps has no whole number of frames per "
+            f"{STANDARD_DT} s, so learned predictors cannot be trained on it; pass "
+            "--predictor-param weights=FOLDER from `conformal-control train-predictor`"
+        )
+    pos = scene.positions[: scene.start_index + 1]
+    hists, futs = [], []
+    for phase in range(step):
+        sub = pos[phase::step]
+        tracks = {}
+        for j in range(sub.shape[1]):
+            ok = np.isfinite(sub[:, j]).all(axis=1)
+            if ok.any():
+                tracks[j] = (np.flatnonzero(ok), sub[ok, j])
+        h, f = windows_from_tracks(Tracks(1.0 / STANDARD_DT, tracks), obs, horizon)
+        hists.append(h)
+        futs.append(f)
+    history = np.concatenate(hists) if hists else np.zeros((0, obs, 2))
+    future = np.concatenate(futs) if futs else np.zeros((0, horizon, 2))
+    seconds = scene.start_index / scene.fps
+    return Windows(
+        history,
+        future,
+        STANDARD_DT,
+        f"{scene.name}'s own pedestrian tracks in the {seconds:g} s before the start frame",
+        {"scene": scene.name, "start_frame": scene.start_frame, "seconds": seconds},
+    )
+
+
+def weights_for_scene(
+    name: str,
+    scene: Any,
+    data_root: str | None,
+    params: dict[str, Any],
+    seed: int,
+    obs: int = 8,
+    horizon: int = 12,
+) -> Path:
+    """Weights a learned predictor uses on ``scene`` when none are given.
+
+    SDD scenes: trained on all of ETH/UCY (:func:`cached_weights`). Any other scene (the
+    built-in one, your own): trained on that scene's own pedestrian tracks before the
+    start frame (:func:`scene_windows`), so no downloaded data is needed; too few
+    windows is an error asking for ``weights=FOLDER``. Both are cached.
+    """
+    from ..exceptions import InputError
+    from ..progress import note
+
+    if "sdd_scene" in scene.meta:
+        from ..data.paths import DataNotFoundError
+
+        try:
+            return cached_weights(name, "sdd:any", data_root, params, seed, obs, horizon)
+        except DataNotFoundError as exc:
+            raise DataNotFoundError(
+                f"{name} without weights is trained on all of ETH/UCY for SDD scenes, but "
+                f"{str(exc).rstrip('.')}; or pass --predictor-param weights=DIR from "
+                "`conformal-control train-predictor`"
+            ) from None
+    win = scene_windows(scene, obs, horizon)
+    if len(win) < MIN_SCENE_WINDOWS:
+        raise InputError(
+            f"scene {scene.name} has only {len(win)} windows of {obs + horizon} samples of its "
+            f"own pedestrians before the start frame (at least {MIN_SCENE_WINDOWS} are needed "
+            f"to train {name}); train it with `conformal-control train-predictor {name} "
+            "--dataset ethucy:zara1 --out DIR` and pass --predictor-param weights=DIR"
+        )
+    tag = f"scene-{scene.name}-{win.fingerprint()}"
+    folder = _weights_folder(name, tag, params, {"s": seed, "o": obs, "h": horizon})
+    if not (folder / "training.json").is_file():
+        note(
+            f"training {name} on {len(win)} windows of {win.source} (no ETH/UCY data needed; "
+            f"first use, cached) -> {folder}"
+        )
+        _fit_and_save(name, win, folder, params, seed, obs, horizon, f"scene:{scene.name}")
+    return folder
+
+
+def _evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 256) -> dict:
+    """:func:`~conformal_control.predictors.evaluation.evaluate_predictor` in chunks of
+    windows with a progress report; ADE/FDE weighted by chunk size, counters summed
+    (predictions are per window, so the figures equal one call on all windows)."""
+    import numpy as np
+
+    from ..predictors.evaluation import Windows, evaluate_predictor
+    from ..progress import progress
+
+    n = len(win)
+    if n <= chunk:
+        return evaluate_predictor(predictor, win)
+    ade = fde = 0.0
+    info: dict[str, Any] = {}
+    with progress(n, desc, "windows") as bar:
+        for s in range(0, n, chunk):
+            e = min(n, s + chunk)
+            part = Windows(win.history[s:e], win.future[s:e], win.dt, win.source, win.meta)
+            r = evaluate_predictor(predictor, part)
+            ade += r["ade"] * r["n"]
+            fde += r["fde"] * r["n"]
+            for k, v in (r["info"] or {}).items():
+                if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+                    info[k] = info.get(k, 0) + v
+                elif isinstance(v, dict):
+                    merged = info.setdefault(k, {})
+                    for reason, c in v.items():
+                        merged[reason] = merged.get(reason, 0) + c
+            bar.update(e - s)
+    return {"ade": ade / n, "fde": fde / n, "n": n, "info": info}
 
 
 @command("eval-predictor", "ADE/FDE of a predictor on ETH/UCY or an SDD scene (CSV in --out)")
@@ -129,10 +309,13 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
 @_eval_args.handler
 def _eval(args: argparse.Namespace) -> int:
     from .. import registry
-    from ..predictors.evaluation import dataset_windows, evaluate_predictor
+    from ..predictors.evaluation import dataset_windows
 
+    if args.out:
+        check_writable(args.out, "results folder")
     params = key_values(args.param, "--param")
     cls = registry.get("predictor", args.predictor)
+    registry.check_params("predictor", args.predictor, cls, params)
     if getattr(cls, "trainable", False):
         trainable_defaults(cls, params, args.seed, args.obs, args.horizon)
     elif "random_state" in cls._param_names():
@@ -154,7 +337,7 @@ def _eval(args: argparse.Namespace) -> int:
     if args.max_windows is not None:
         win = win.subsample(args.max_windows, seed=args.seed)
     t0 = time.perf_counter()
-    res = evaluate_predictor(predictor, win)
+    res = _evaluate_with_progress(predictor, win, f"eval {args.predictor} on {args.dataset}")
     wall = time.perf_counter() - t0
     row = {
         "predictor": args.label or args.predictor,
@@ -188,7 +371,7 @@ def _eval(args: argparse.Namespace) -> int:
             "data_meta": win.meta,
             "info": res["info"],
             "wall_s": round(wall, 2),
-            "command": ["conformal-control", *sys.argv[1:]],
+            "command": command_line(args),
         }
         tag = f"{row['predictor']}-{args.dataset.replace(':', '_')}"
         (out / f"config-{tag}.json").write_text(json.dumps(cfg, indent=2, default=str))
@@ -205,6 +388,7 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 
 @_train_args.handler
 def _train(args: argparse.Namespace) -> int:
+    check_writable(args.out, "weights folder")
     params = key_values(args.param, "--param")
     out = train(
         args.predictor,
@@ -215,6 +399,7 @@ def _train(args: argparse.Namespace) -> int:
         args.seed,
         args.obs,
         args.horizon,
+        command=command_line(args),
     )
     info = json.loads((out / "training.json").read_text())
     print(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import command, key_values
+from . import check_writable, command, key_values
 from .sweep import add_executor_args
 
 
@@ -55,8 +55,11 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
 
 @_reproduce_args.handler
 def _reproduce(args: argparse.Namespace) -> int:
+    from ..progress import is_quiet
     from ..reproduce import reproduce
 
+    check_writable(args.out, "output folder")
+    shown = {"auto": None, "on": True, "off": False}[args.progress]
     s = reproduce(
         args.targets,
         args.out,
@@ -70,7 +73,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         seed=args.seed,
         figures=not args.no_figures,
         variants=args.variant,
-        progress={"auto": None, "on": True, "off": False}[args.progress],
+        progress=False if is_quiet() else shown,
     )
     worst = s["max_abs_lavg_minus_eps_eta100"]
     print(

@@ -1,13 +1,37 @@
-"""``conformal-control run``: one episode of the conformal CBF controller."""
+"""``conformal-control run``: one episode of the conformal CBF controller.
+
+Before anything is computed the command checks what it can: the output folder is
+writable, ``sdd:`` scenes have a start and a goal, options that conflict or have no
+effect are reported (warnings), parameters are resolved in the scene's units (unit
+suffixes converted, implausible values reported). The episode then shows its progress in
+frames. Every run directory's ``config.json`` holds the options as given (``cli``), so
+``run --config RUN/config.json`` replays it exactly (options given beside ``--config``
+override the stored ones).
+"""
 
 from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import sys
+import json
+import math
+import warnings
 from pathlib import Path
+from typing import Any
 
-from . import command, key_values
+from . import (
+    check_writable,
+    command,
+    command_line,
+    finite_float,
+    key_values,
+    non_negative_int,
+    positive_int,
+)
+
+_ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss")
+#: options that are not part of a run's identity (not stored for --config)
+_NOT_STORED = ("out", "config", "argv", "command", "quiet", "verbose", "no_plot")
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -15,6 +39,8 @@ def _pair(text: str) -> tuple[float, float]:
         a, b = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected two numbers 'fx,fy', got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise argparse.ArgumentTypeError(f"expected two finite numbers 'fx,fy', got {text!r}")
     return a, b
 
 
@@ -23,20 +49,27 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--scene",
         default="crossing",
-        help="crossing (built-in, default), a paper scene (nexus_4, gates_1, ...), "
-        "or sdd:<scene>/video<N>",
+        help="crossing (built-in, no data needed), a paper scene (nexus_4, gates_1, ...), "
+        "or sdd:<scene>/video<N> (needs --start and --goal)",
     )
     p.add_argument(
         "--data-root",
         default=None,
-        help="data folder (or its sdd/ subfolder); default $CONFORMAL_CONTROL_DATA",
+        help="data folder (or its sdd/ subfolder); unset: $CONFORMAL_CONTROL_DATA",
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        metavar="RUN/config.json",
+        help="replay the run that wrote this config.json (options given beside it override)",
     )
     p.add_argument("--predictor", default="constant_velocity", help="registered predictor name")
     p.add_argument(
         "--predictor-param",
         action="append",
         metavar="KEY=VALUE",
-        help="predictor constructor argument (repeatable)",
+        help="predictor constructor argument (repeatable); learned predictors (lstm, "
+        "sklearn) take weights=FOLDER from `conformal-control train-predictor`",
     )
     p.add_argument(
         "--barrier",
@@ -51,10 +84,10 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         help="barrier constructor argument in SI units (repeatable; needs --barrier)",
     )
     for role, what in (
-        ("safety-filter", "safety filter (default exact2d; qp = piqp, the general n-D reference)"),
-        ("reference", "reference controller (default attractive_field)"),
-        ("dynamics", "robot dynamics (default velocity_tracking)"),
-        ("loss", "loss (default cbf_gap; e.g. collision, distance_shortfall)"),
+        ("safety-filter", "safety filter (unset: exact2d; qp = piqp, the general n-D reference)"),
+        ("reference", "reference controller (unset: attractive_field)"),
+        ("dynamics", "robot dynamics (unset: velocity_tracking)"),
+        ("loss", "loss (unset: cbf_gap; e.g. collision, distance_shortfall)"),
     ):
         p.add_argument(f"--{role}", default=None, help=f"registered {what}")
         p.add_argument(
@@ -67,26 +100,28 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         "--fallback",
         default=None,
         help="what the safety filter does when the constraints are infeasible at lambda "
-        "(default lambda_search; see `conformal-control plugins`)",
+        "(unset: lambda_search; see `conformal-control plugins`)",
     )
-    p.add_argument("--epsilon", type=float, default=None, help="target average loss")
+    p.add_argument(
+        "--epsilon", type=finite_float, default=None, help="target average loss (unset: scene's)"
+    )
     p.add_argument(
         "--eta",
-        type=float,
+        type=finite_float,
         default=None,
-        help="learning rate (SDD scenes: per frame; built-in scene: 1/s)",
+        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; unset: scene's)",
     )
     p.add_argument(
         "--tau",
-        type=float,
+        type=finite_float,
         default=None,
-        help="sampling period (SDD scenes: frames; built-in scene: s)",
+        help="sampling period (SDD scenes: frames; built-in scene: s; unset: scene's)",
     )
     p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
     p.add_argument(
         "--rule",
         default="fixed_eta",
-        help="registered update rule: fixed_eta (the paper's, default), decaying_eta, pid, "
+        help="registered update rule: fixed_eta (the paper's), decaying_eta, pid, "
         "dtaci, aci, ... (see `conformal-control plugins`)",
     )
     p.add_argument(
@@ -98,21 +133,28 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--lambda-safe",
-        type=float,
+        type=finite_float,
         default=None,
-        help="lambda known/estimated to be safe (scene units): report the Theorem-2 bound",
+        help="lambda known/estimated to be safe (scene units): report the Theorem-2 bound "
+        "(rules with a fixed step: fixed_eta, aci)",
     )
-    p.add_argument("--frames", type=int, default=None, help="simulate at most N frames")
+    p.add_argument("--frames", type=positive_int, default=None, help="simulate at most N frames")
     p.add_argument("--seed", type=int, default=0, help="seed (built-in scene, predictors)")
-    p.add_argument("--out", default=None, help="run directory (default runs/<scene>-<time>)")
+    p.add_argument("--out", default=None, help="run directory (unset: runs/<scene>-<time>)")
     p.add_argument(
         "--param",
         action="append",
         metavar="KEY=VALUE",
-        help="any other parameter, in the scene's units (repeatable); "
-        "see `conformal-control params`",
+        help="any other parameter, in the scene's units or with a unit suffix (rho0=18m, "
+        "rho0=400px, tau=0.4s, tau=12frames, eta=30/s, eta=1/frame); repeatable; "
+        "see `conformal-control params --scene NAME`",
     )
-    p.add_argument("--start", type=_pair, default=None, help="start as image fractions fx,fy")
+    p.add_argument(
+        "--start",
+        type=_pair,
+        default=None,
+        help="start as image fractions fx,fy (sdd: scenes; paper scenes: their own)",
+    )
     p.add_argument(
         "--goal",
         type=_pair,
@@ -120,49 +162,222 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="goal as image fractions fx,fy (repeat for waypoints)",
     )
-    p.add_argument("--start-frame", type=int, default=None, help="video frame the robot starts")
+    p.add_argument(
+        "--start-frame",
+        type=non_negative_int,
+        default=None,
+        help="video frame the robot starts at (unset: the scene's)",
+    )
     p.add_argument("--no-plot", action="store_true", help="skip plot.png")
 
 
-def _predictor_params(args: argparse.Namespace) -> dict:
-    """``--predictor-param`` values; a trainable predictor (lstm, sklearn) without
-    ``weights`` gets cached weights trained on all of ETH/UCY (trained on first use)."""
+# ------------------------------------------------------------------------------ replay
+def _explicit_options(argv: list[str]) -> dict[str, Any]:
+    """The ``run`` options given on this command line (defaults left out)."""
+    from ..cli import build_parser
+
+    parser = build_parser()
+    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for action in subs.choices["run"]._actions:
+        action.default = argparse.SUPPRESS
+    ns = vars(parser.parse_args(argv))
+    return {k: v for k, v in ns.items() if k not in ("command", "quiet", "verbose")}
+
+
+def _stored_options(args: argparse.Namespace, data_root: str | None) -> dict[str, Any]:
+    """The run's options as a JSON-ready dict (what ``--config`` replays)."""
+    out: dict[str, Any] = {}
+    for key, value in vars(args).items():
+        if key in _NOT_STORED or key.startswith("_"):
+            continue
+        if isinstance(value, tuple):
+            value = list(value)
+        elif isinstance(value, list):
+            value = [list(v) if isinstance(v, tuple) else v for v in value]
+        out[key] = value
+    out["data_root"] = data_root
+    return out
+
+
+def _apply_config(args: argparse.Namespace) -> None:
+    """Fill ``args`` from a run's config.json; options given explicitly win."""
+    from ..exceptions import InputError
+
+    path = Path(args.config).expanduser()
+    if path.is_dir():
+        path = path / "config.json"
+    try:
+        cfg = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"--config {args.config}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})"
+        ) from None
+    stored = cfg.get("cli") if isinstance(cfg, dict) else None
+    if not isinstance(stored, dict):
+        raise InputError(
+            f"--config {path} was not written by `conformal-control run` (it has no 'cli' "
+            "entry), so it cannot be replayed from the command line"
+        )
+    explicit = _explicit_options(getattr(args, "argv", []))
+    for key, value in stored.items():
+        if not hasattr(args, key) or key in explicit:
+            continue
+        if key == "start" and value is not None:
+            value = tuple(value)
+        elif key == "goal" and value is not None:
+            value = [tuple(g) for g in value]
+        setattr(args, key, value)
+    for key in ("param", "predictor_param", "rule_param", *(f"{r}_param" for r in _ROLES)):
+        if key in explicit and stored.get(key):
+            merged = {i.partition("=")[0].strip(): i for i in stored[key]}
+            merged.update({i.partition("=")[0].strip(): i for i in explicit[key]})
+            setattr(args, key, list(merged.values()))
+
+
+# ------------------------------------------------------------------------------ checks
+def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
+    """Conflicting, ignored and incomplete options (before anything is loaded)."""
     from .. import registry
-    from .predictors import cached_weights, trainable_defaults
+    from ..exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
+
+    registry.entry("predictor", args.predictor)  # unknown names fail here, with a suggestion
+    registry.entry("update_rule", args.rule)
+    for role in _ROLES:
+        if getattr(args, role):
+            registry.entry(role, getattr(args, role))
+    if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
+        raise InputError(
+            f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
+            "width and height), e.g. --start 0.05,0.5 --goal 0.95,0.5"
+        )
+    for name in ("epsilon", "eta", "tau"):
+        flag = getattr(args, name)
+        if flag is not None and name in params and params[name] != flag:
+            warnings.warn(
+                OptionConflictWarning(
+                    f"--{name} {flag:g} and --param {name}={params[name]} disagree; using "
+                    f"--{name} {flag:g}"
+                ),
+                stacklevel=2,
+            )
+    if args.no_learning:
+        ignored = [
+            f"--{n.replace('_', '-')}"
+            for n in ("eta", "rule_param", "lambda_safe")
+            if getattr(args, n) is not None
+        ]
+        if "eta" in params:
+            ignored.append("--param eta")
+        if args.rule != "fixed_eta":
+            ignored.append("--rule")
+        if ignored:
+            warnings.warn(
+                IgnoredOptionWarning(
+                    f"--no-learning keeps lambda fixed, so {', '.join(ignored)} "
+                    "has no effect on this run"
+                ),
+                stacklevel=2,
+            )
+    if args.lambda_safe is not None and not args.no_learning:
+        cls = registry.get("update_rule", args.rule)
+        kind = getattr(cls, "guarantee", "none")
+        if kind != "identity":
+            warnings.warn(
+                IgnoredOptionWarning(
+                    f"rule {args.rule} has no Theorem-2 bound (its guarantee is {kind!r}; only "
+                    "fixed-step rules such as fixed_eta and aci have one), so --lambda-safe "
+                    "only counts the updates at or below it"
+                ),
+                stacklevel=2,
+            )
+    if args.scene == "crossing" and args.data_root is not None:
+        warnings.warn(
+            IgnoredOptionWarning(
+                "the built-in crossing scene reads no data files, so --data-root is ignored"
+            ),
+            stacklevel=2,
+        )
+
+
+def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
+    """``--predictor-param`` values, checked against the predictor's constructor."""
+    from .. import registry
 
     pp = key_values(args.predictor_param, "--predictor-param")
+    registry.check_params(
+        "predictor", args.predictor, registry.get("predictor", args.predictor), pp
+    )
+    return pp
+
+
+def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) -> dict[str, Any]:
+    """The predictor's arguments: a trainable predictor (lstm, sklearn) without ``weights``
+    gets cached weights (see
+    :func:`~conformal_control.commands.predictors.weights_for_scene`)."""
+    from .. import registry
+    from .predictors import trainable_defaults, weights_for_scene
+
     cls = registry.get("predictor", args.predictor)
     if getattr(cls, "trainable", False) and pp.get("weights") is None:
         trainable_defaults(cls, pp, args.seed, 8, 12)
         train_params = {k: v for k, v in pp.items() if k != "weights"}
         pp["weights"] = str(
-            cached_weights(
-                args.predictor, "sdd:any", args.data_root, train_params, args.seed, 8, 12
-            )
+            weights_for_scene(args.predictor, scene, args.data_root, train_params, args.seed)
         )
     return pp
 
 
+def _default_out(scene_name: str) -> Path:
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in scene_name)
+    return Path("runs") / f"{safe}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
+
+
+# ------------------------------------------------------------------------------ command
 @_run_args.handler
 def _run(args: argparse.Namespace) -> int:
+    import logging
+
     from ..data import load_scene
+    from ..data.paths import resolve_data_root
+    from ..progress import progress
+    from ..sim.config import check_names, resolve_params
     from ..sim.episode import run_episode
     from ..sim.rundir import write_run_dir
 
+    log = logging.getLogger("conformal_control.run")
+    if args.config:
+        _apply_config(args)
+    out = Path(args.out) if args.out else _default_out(args.scene)
+    check_writable(out, "run directory")
+
     params = key_values(args.param, "--param")
-    roles = {}
-    for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
-        given = key_values(getattr(args, f"{role}_param"), f"--{role.replace('_', '-')}-param")
+    check_names(params)
+    _check_options(args, params)
+    roles: dict[str, Any] = {}
+    for role in _ROLES:
+        flag = role.replace("_", "-")
+        given = key_values(getattr(args, f"{role}_param"), f"--{flag}-param")
         name = getattr(args, role)
         if given and not name:
-            flag = role.replace("_", "-")
-            raise ValueError(f"--{flag}-param needs --{flag} NAME")
+            from ..exceptions import InputError
+
+            raise InputError(f"--{flag}-param needs --{flag} NAME")
         roles[role] = name
         roles[f"{role}_params"] = given
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
             params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+    rule_params = key_values(args.rule_param, "--rule-param")
+    from .. import registry
+
+    registry.check_params(
+        "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
+    )
+    given_predictor_params = _checked_predictor_params(args)
+
     scene = load_scene(
         args.scene,
         args.data_root,
@@ -171,35 +386,64 @@ def _run(args: argparse.Namespace) -> int:
         start_frame=args.start_frame,
         seed=args.seed,
     )
-    result = run_episode(
-        scene,
-        args.predictor,
-        params,
-        learn=not args.no_learning,
-        max_frames=args.frames,
-        seed=args.seed,
-        predictor_params=_predictor_params(args),
-        extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
-        rule=args.rule,
-        rule_params=key_values(args.rule_param, "--rule-param"),
-        lambda_safe=args.lambda_safe,
-        fallback=args.fallback,
-        **roles,
+    log.info(
+        "scene %s: %d agents, %d frames at %g fps",
+        scene.name,
+        scene.n_agents,
+        scene.n_frames,
+        scene.fps,
     )
-    out = args.out or Path("runs") / (
-        f"{scene.name.replace(':', '_')}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
-    )
-    out = write_run_dir(result, out, plot=not args.no_plot)
-    m = result.metrics
-    print(m.format())
-    if not m["epsilon_attainable"]:
-        print(
-            f"warning: epsilon={m['epsilon']} is not attainable: it is at or below the "
-            f"feasibility floor s(-a*h_max)={m['epsilon_floor']:.4f} (lambda_floor="
-            f"{m['lambda_floor']:g} {m.unit('lambda_floor')}): lambda is added to every sensed "
-            "agent's constraint and a far agent's row fails below lambda_floor; raise epsilon "
-            "or a (see the Controller page of the docs, 'Feasibility floor')",
-            file=sys.stderr,
+    check = dict(params)
+    if args.no_learning:
+        check.setdefault("eta", 0.0)
+    resolved = resolve_params(scene, check)
+    for text in resolved.notes:
+        log.info("unit conversion: %s", text)
+    log.debug("parameters in SI: %s", resolved.si)
+    predictor_params = _predictor_params(args, scene, given_predictor_params)
+    log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
+
+    data_root = None
+    if args.scene != "crossing":
+        data_root = str(resolve_data_root(args.data_root).resolve())
+    substeps = int(resolved.si["substeps"])
+    total = scene.n_frames - 1 - scene.start_index
+    if args.frames is not None:
+        total = min(total, args.frames)
+    bar = progress(total, f"run {scene.name} [{args.predictor}]", "frames")
+
+    steps = [0]  # control steps so far; the bar advances in whole frames
+
+    def on_interval(iv: Any) -> None:
+        before = -(-steps[0] // substeps)
+        steps[0] += iv.n_steps
+        if iv.l_avg is not None:
+            bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
+        bar.update(-(-steps[0] // substeps) - before)
+
+    with bar:
+        result = run_episode(
+            scene,
+            args.predictor,
+            params,
+            learn=not args.no_learning,
+            max_frames=args.frames,
+            seed=args.seed,
+            predictor_params=predictor_params,
+            extra_config={
+                "command": command_line(args),
+                "data_root": data_root,
+                "cli": _stored_options(args, data_root),
+            },
+            rule=args.rule,
+            rule_params=rule_params,
+            lambda_safe=args.lambda_safe,
+            fallback=args.fallback,
+            on_interval=on_interval,
+            **roles,
         )
+    log.info("writing the run directory %s", out)
+    out = write_run_dir(result, out, plot=not args.no_plot)
+    print(result.metrics.format())
     print(f"results written to {out}")
     return 0

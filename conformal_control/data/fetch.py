@@ -22,6 +22,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import urllib.error
+import urllib.parse
 import urllib.request
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -29,10 +31,12 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ..exceptions import ConformalControlError, DataFetchError
+
 __all__ = ["ChecksumError", "FetchPlan", "fetch", "load_manifest", "trajnet_metres_to_pixels"]
 
 
-class ChecksumError(RuntimeError):
+class ChecksumError(ConformalControlError, RuntimeError):
     """A downloaded file does not match the manifest."""
 
 
@@ -124,11 +128,24 @@ def _download(url: str, dest: Path) -> None:
     )
     if local is not None:
         if not local.exists():
-            raise FileNotFoundError(f"{local} not found in the mirror")
+            raise DataFetchError(f"{local} not found in the mirror")
         shutil.copyfile(local, dest)
         return
-    with urllib.request.urlopen(url, timeout=60) as resp, dest.open("wb") as fh:
-        shutil.copyfileobj(resp, fh)
+    try:
+        with urllib.request.urlopen(url, timeout=60) as resp, dest.open("wb") as fh:
+            shutil.copyfileobj(resp, fh)
+    except urllib.error.HTTPError as exc:
+        raise DataFetchError(
+            f"cannot download {url}: the server answered HTTP {exc.code} ({exc.reason}); "
+            "retry later or copy the data from a colleague with --mirror DIR"
+        ) from None
+    except (urllib.error.URLError, TimeoutError, ConnectionError) as exc:
+        reason = getattr(exc, "reason", exc)
+        host = urllib.parse.urlsplit(url).netloc
+        raise DataFetchError(
+            f"cannot download {url}: {host} is unreachable ({reason}); check the network "
+            "connection, or copy the data from a colleague with --mirror DIR"
+        ) from None
 
 
 def trajnet_metres_to_pixels(text: str, m_per_px: float) -> str:
@@ -160,36 +177,39 @@ def fetch(
     Returns counts ``{"downloaded": n, "verified_existing": m}``. Raises
     :class:`ChecksumError` on a mismatch (the bad file is removed).
     """
-    from tqdm import tqdm
+    from ..progress import progress as report
 
     dest = Path(dest)
     items = plan(only, mirror)
     counts = {"downloaded": 0, "verified_existing": 0}
     # scales are needed to convert TrajNet files: fetch them first
     items.sort(key=lambda it: (it.convert is not None, it.path))
-    for item in tqdm(items, desc="fetch-data", unit="file", disable=not progress):
-        target = dest / item.path
-        if target.exists() and not force and _sha256(target) == item.sha256:
-            counts["verified_existing"] += 1
-            continue
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_suffix(target.suffix + ".part")
-        try:
-            _download(item.url, tmp)
-            if item.convert == "trajnet_pixels":
-                from .sdd import load_scales
+    bar = report(len(items), "fetch-data", "files", delay=None if progress else float("inf"))
+    with bar:
+        for item in items:
+            bar.update()
+            target = dest / item.path
+            if target.exists() and not force and _sha256(target) == item.sha256:
+                counts["verified_existing"] += 1
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.with_suffix(target.suffix + ".part")
+            try:
+                _download(item.url, tmp)
+                if item.convert == "trajnet_pixels":
+                    from .sdd import load_scales
 
-                scene, _, video = Path(item.path).stem.rpartition("_")
-                scale = load_scales(dest / "sdd")[(scene, int(video))]
-                tmp.write_text(trajnet_metres_to_pixels(tmp.read_text(), scale))
-            got = _sha256(tmp)
-            if got != item.sha256:
-                raise ChecksumError(
-                    f"{item.path}: SHA-256 {got} does not match the manifest's {item.sha256} "
-                    f"(source {item.url}); the file was not kept"
-                )
-            tmp.replace(target)
-        finally:
-            tmp.unlink(missing_ok=True)
-        counts["downloaded"] += 1
+                    scene, _, video = Path(item.path).stem.rpartition("_")
+                    scale = load_scales(dest / "sdd")[(scene, int(video))]
+                    tmp.write_text(trajnet_metres_to_pixels(tmp.read_text(), scale))
+                got = _sha256(tmp)
+                if got != item.sha256:
+                    raise ChecksumError(
+                        f"{item.path}: SHA-256 {got} does not match the manifest's {item.sha256} "
+                        f"(source {item.url}); the file was not kept"
+                    )
+                tmp.replace(target)
+            finally:
+                tmp.unlink(missing_ok=True)
+            counts["downloaded"] += 1
     return counts

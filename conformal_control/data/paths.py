@@ -16,6 +16,24 @@ class DataNotFoundError(FileNotFoundError):
 
 
 def missing(path: Path, what: str) -> DataNotFoundError:
+    """The error for data that is not where it should be (says what stands there instead)."""
+    path = Path(path)
+    if path.is_dir() and (path.suffix or "file" in what):
+        return DataNotFoundError(
+            f"{what} expected at {path}, but that is a folder, not a file; point --data-root "
+            f"at the data folder that holds sdd/ and ethucy/ (or set {ENV_VAR}=DIR)."
+        )
+    if path.is_dir():
+        return DataNotFoundError(
+            f"{what} not found: the folder {path} exists but holds none of its files; "
+            f"download the data with `{FETCH_HINT}` and pass --data-root DIR (or set "
+            f"{ENV_VAR}=DIR)."
+        )
+    if path.exists():
+        return DataNotFoundError(
+            f"{what} expected at {path}, but that is not a regular file; download the data "
+            f"with `{FETCH_HINT}`."
+        )
     return DataNotFoundError(
         f"{what} not found at {path}: download the data with `{FETCH_HINT}` and pass "
         f"--data-root DIR (or set {ENV_VAR}=DIR)."
@@ -26,7 +44,13 @@ def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
     """The data root: the argument, else ``$CONFORMAL_CONTROL_DATA``, else ``./data``."""
     if data_root is None:
         data_root = os.environ.get(ENV_VAR) or "data"
-    return Path(data_root).expanduser()
+    root = Path(data_root).expanduser()
+    if root.exists() and not root.is_dir():
+        raise DataNotFoundError(
+            f"the data root {root} is a file; pass the data folder (the one holding sdd/ and "
+            f"ethucy/) with --data-root DIR or {ENV_VAR}=DIR"
+        )
+    return root
 
 
 def _subdir(root: Path, name: str, markers: tuple[str, ...]) -> Path:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..exceptions import InputError
 from .tracks import Tracks
 from .units import SI, UnitSystem
 
@@ -123,12 +124,22 @@ def scene_from_tracks(
     """Build a :class:`Scene` from tracks, keeping ``history_frames`` before the start."""
     if len(tracks) == 0:
         raise ValueError(f"{tracks.source or name}: no agent tracks; nothing to replay")
-    _lo, hi = tracks.frame_range()
+    lo, hi = tracks.frame_range()
     if last_frame is not None:
         hi = min(hi, int(last_frame))
     if start_frame >= hi:
-        raise ValueError(
-            f"scene {name}: start frame {start_frame} is at or after the last data frame {hi}"
+        raise InputError(
+            f"scene {name}: start frame {start_frame} is at or after the last data frame {hi} "
+            f"(the data covers frames {lo}..{hi})"
+        )
+    # a start a little before the first sample is fine (the history window is empty at
+    # first, e.g. TrajNet samples from frame 60 and the paper's start frame 50); a start
+    # further back would replay frames that are not in the data at all
+    if start_frame < min(lo, 0) or start_frame < lo - int(history_frames):
+        raise InputError(
+            f"scene {name}: start frame {start_frame} is before the data (it covers frames "
+            f"{lo}..{hi}; the start may precede frame {lo} by at most the "
+            f"{int(history_frames)}-frame history window)"
         )
     first = int(start_frame) - int(history_frames)
     ids, pos = tracks.dense(first, hi)

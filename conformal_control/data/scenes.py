@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..exceptions import InputError
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
@@ -214,8 +215,13 @@ def load_scene(
         )
         scene_name = base if not form else f"{base}:{form}"
     else:
-        raise ValueError(
-            f"unknown scene {name!r}; known: {', '.join(scene_names())}, or sdd:<scene>/video<N>"
+        import difflib
+
+        close = difflib.get_close_matches(base, scene_names(), n=1, cutoff=0.6)
+        hint = f" did you mean {close[0]!r}?" if close else ""
+        raise InputError(
+            f"unknown scene {name!r};{hint} known: {', '.join(scene_names())}, or "
+            "sdd:<scene>/video<N> (see `conformal-control scenes`)"
         )
     vid = sdd_video(sdd_scene, video, data_root)
     if source == "raw":

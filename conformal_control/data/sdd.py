@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..exceptions import DataFormatError, InputError
 from .paths import missing, sdd_root
 from .tracks import Tracks
 
@@ -68,21 +69,28 @@ class SDDVideo:
         """(width, height) of the reference image in pixels, or None if it is missing."""
         if not self.image.exists():
             return None
-        from PIL import Image  # matplotlib's own dependency
+        from PIL import Image, UnidentifiedImageError  # matplotlib's own dependency
 
-        with Image.open(self.image) as im:
-            return int(im.size[0]), int(im.size[1])
+        try:
+            with Image.open(self.image) as im:
+                return int(im.size[0]), int(im.size[1])
+        except (UnidentifiedImageError, OSError) as exc:
+            reason = "not a readable image" if isinstance(exc, UnidentifiedImageError) else exc
+            raise DataFormatError(
+                f"{self.image}: the scene's reference image cannot be read ({reason}); "
+                "fetch it again with `conformal-control fetch-data`"
+            ) from None
 
 
 def load_scales(root: Path) -> dict[tuple[str, int], float]:
     """Metres per pixel for every video listed in ``estimated_scales.yaml``."""
     path = root / "estimated_scales.yaml"
-    if not path.exists():
+    if not path.is_file():
         raise missing(path, "SDD pixel scales (estimated_scales.yaml)")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML ({exc})") from exc
+        raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
     scales: dict[tuple[str, int], float] = {}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping scene -> videoN -> scale")
@@ -100,8 +108,19 @@ def sdd_video(scene: str, video: int, data_root: str | os.PathLike[str] | None =
     root = sdd_root(data_root)
     scales = load_scales(root)
     if (scene, video) not in scales:
-        raise ValueError(
-            f"no pixel scale for SDD {scene}/video{video} in {root / 'estimated_scales.yaml'}"
+        videos = sorted(v for s, v in scales if s == scene)
+        if videos:
+            hint = f"{scene} has videos {', '.join(str(v) for v in videos)}"
+        else:
+            import difflib
+
+            names = sorted({s for s, _ in scales})
+            close = difflib.get_close_matches(scene, names, n=1, cutoff=0.6)
+            hint = (f"did you mean {close[0]!r}? " if close else "") + (
+                f"SDD scenes: {', '.join(names)}"
+            )
+        raise InputError(
+            f"no SDD video {scene}/video{video} in {root / 'estimated_scales.yaml'}; {hint}"
         )
     return SDDVideo(scene, video, root, scales[(scene, video)])
 
@@ -122,39 +141,77 @@ def read_annotations(
         (track, frame) rows, or a file without any row of the requested label.
     """
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise missing(path, "SDD annotations")
     if not (np.isfinite(m_per_px) and m_per_px > 0):
         raise ValueError(f"m_per_px must be a finite number > 0, got {m_per_px!r}")
     wanted = f'"{label}"'
-    rows: list[tuple[int, int, float, float]] = []
-    n_lost = n_other = 0
+    numbers: list[list[str]] = []
+    tags: list[str] = []
+    linenos: list[int] = []
     with path.open() as fh:
         for lineno, line in enumerate(fh, start=1):
             parts = line.split()
             if not parts:
                 continue
             if len(parts) != _N_FIELDS:
-                raise ValueError(
+                raise DataFormatError(
                     f"{path}:{lineno}: expected {_N_FIELDS} space-separated fields "
                     f"(track_id xmin ymin xmax ymax frame lost occluded generated label), got "
                     f"{len(parts)}; the file is malformed or truncated"
                 )
-            if parts[9] != wanted:
-                n_other += 1
-                continue
+            tag = parts[9]
+            if len(tag) < 3 or tag[0] != '"' or tag[-1] != '"':
+                raise DataFormatError(
+                    f"{path}:{lineno}: the label {tag} is not a quoted name such as "
+                    '"Pedestrian"; the file is malformed or truncated'
+                )
+            numbers.append(parts[:9])
+            tags.append(tag)
+            linenos.append(lineno)
+    if not numbers:
+        raise DataFormatError(f"{path}: no {label} rows (the file is empty); nothing to simulate")
+    try:
+        num = np.array(numbers, dtype=float)
+    except ValueError:
+        for parts, lineno in zip(numbers, linenos, strict=True):
             try:
-                tid, frame, lost = int(parts[0]), int(parts[5]), int(parts[6])
-                x0, y0, x1, y1 = (float(p) for p in parts[1:5])
+                [float(v) for v in parts]
             except ValueError as exc:
-                raise ValueError(f"{path}:{lineno}: non-numeric field ({exc})") from exc
-            if lost:
-                n_lost += 1
-                continue
-            rows.append((tid, frame, 0.5 * (x0 + x1), 0.5 * (y0 + y1)))
-    if not rows:
+                raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+        raise  # pragma: no cover - some row failed above
+    ints = num[:, [0, 5, 6]]
+    bad_int = ~(np.isfinite(ints) & (ints == np.rint(ints))).all(axis=1)
+    if bad_int.any():
+        k = int(np.argmax(bad_int))
+        raise DataFormatError(
+            f"{path}:{linenos[k]}: track_id, frame and lost must be whole numbers, got "
+            f"{' '.join(numbers[k][i] for i in (0, 5, 6))}"
+        )
+    bad_box = ~np.isfinite(num[:, 1:5]).all(axis=1)
+    if bad_box.any():
+        k = int(np.argmax(bad_box))
+        raise DataFormatError(
+            f"{path}:{linenos[k]}: non-finite box coordinate ({' '.join(numbers[k][1:5])}); "
+            "SDD boxes are finite pixel coordinates (an absent agent is marked lost=1)"
+        )
+    is_label = np.array(tags) == wanted
+    lost = num[:, 6] != 0
+    n_other = int((~is_label).sum())
+    n_lost = int((is_label & lost).sum())
+    sel = is_label & ~lost
+    if not sel.any():
         raise ValueError(f"{path}: no {label} rows with lost=0; nothing to simulate")
-    arr = np.array(rows, dtype=float)
+    block = num[sel]
+    rows = block  # counted below as n_rows
+    arr = np.column_stack(
+        [
+            block[:, 0],
+            block[:, 5],
+            0.5 * (block[:, 1] + block[:, 3]),
+            0.5 * (block[:, 2] + block[:, 4]),
+        ]
+    )
     order = np.lexsort((arr[:, 1], arr[:, 0]))
     arr = arr[order]
     tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -165,7 +222,7 @@ def read_annotations(
         frames = block[:, 1].astype(np.int64)
         if np.any(np.diff(frames) == 0):
             dup = int(frames[np.flatnonzero(np.diff(frames) == 0)[0]])
-            raise ValueError(f"{path}: track {tid} has two rows for frame {dup}")
+            raise DataFormatError(f"{path}: track {tid} has two rows for frame {dup}")
         tracks[int(tid)] = (frames, block[:, 2:4] * m_per_px)
     return Tracks(
         fps=SDD_FPS,

@@ -18,9 +18,8 @@ import os
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.optimize import linear_sum_assignment
 
+from ..exceptions import DataFormatError
 from .paths import missing
 from .sdd import SDD_FPS
 from .tracks import Tracks
@@ -32,29 +31,40 @@ TRAJNET_STEP = 12  # frames between TrajNet samples (2.5 fps at 30 fps)
 
 def _parse(path: Path, m_per_px: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     rows = []
+    lines: list[int] = []
     with path.open() as fh:
         for lineno, line in enumerate(fh, start=1):
             parts = line.split()
             if not parts:
                 continue
             if len(parts) != 4:
-                raise ValueError(
+                raise DataFormatError(
                     f"{path}:{lineno}: expected 4 fields (frame track_id x_px y_px), got "
                     f"{len(parts)}; the file is malformed or truncated"
                 )
             try:
                 rows.append([float(p) for p in parts])
             except ValueError as exc:
-                raise ValueError(f"{path}:{lineno}: non-numeric field ({exc})") from exc
+                raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+            lines.append(lineno)
     if not rows:
-        raise ValueError(f"{path}: no rows")
+        raise DataFormatError(f"{path}: no rows")
     arr = np.array(rows)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{path}: non-finite values")
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
     segs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for tid in np.unique(arr[:, 1]).astype(int):
-        block = arr[arr[:, 1] == tid]
-        block = block[np.argsort(block[:, 0])]
+        sel = np.flatnonzero(arr[:, 1] == tid)
+        order = sel[np.argsort(arr[sel, 0], kind="stable")]
+        block = arr[order]
+        same = np.flatnonzero(np.diff(block[:, 0]) == 0)
+        if same.size:
+            i = int(same[0])
+            raise DataFormatError(
+                f"{path}:{lines[int(order[i + 1])]}: track {tid} has a second row for frame "
+                f"{int(block[i, 0])} (first at line {lines[int(order[i])]})"
+            )
         segs[int(tid)] = (block[:, 0].astype(np.int64), block[:, 2:4] * m_per_px)
     return segs
 
@@ -63,6 +73,8 @@ def relink(
     segs: dict[int, tuple[np.ndarray, np.ndarray]], step: int, max_link_distance: float
 ) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], int]:
     """Join segments that continue each other; returns the tracks and the number of links."""
+    from scipy.optimize import linear_sum_assignment  # imported on use: the CLI starts faster
+
     by_start: dict[int, list[int]] = {}
     by_end: dict[int, list[int]] = {}
     for i, (f, _) in segs.items():
@@ -100,6 +112,8 @@ def relink(
 
 def upsample(frames: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Interpolate a track to every integer frame between its first and last sample."""
+    from scipy.interpolate import CubicSpline
+
     full = np.arange(frames[0], frames[-1] + 1)
     if len(frames) >= 4:
         return full, CubicSpline(frames, xy, axis=0)(full)
@@ -132,7 +146,7 @@ def read_trajnet(
         Largest distance (m) between a segment's extrapolated end and the next one's start.
     """
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise missing(path, "TrajNet SDD tracks")
     segs = _parse(path, m_per_px)
     n_links = 0

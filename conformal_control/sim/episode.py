@@ -9,8 +9,10 @@ Building is :func:`~conformal_control.sim.build.build_flagship`; measuring is
 
 from __future__ import annotations
 
+import logging
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +23,12 @@ import numpy as np
 from .. import __version__
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
+from ..exceptions import (
+    FeasibilityWarning,
+    GoalNotReachedWarning,
+    LambdaOverflowError,
+    NoUpdatesWarning,
+)
 from ..loop import ConformalLoop, IntervalLog, LoopResult
 from .build import Flagship, RoleSpec, build_flagship
 from .metrics import EpisodeMetrics, episode_metrics
@@ -185,6 +193,7 @@ def run_episode(
     floor = feasibility_floor(
         si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
     )
+    _warn_before_run(fl, floor, learn)
 
     recorder = None
     if record_animation:
@@ -200,6 +209,7 @@ def run_episode(
         )
 
     def hooks(log: IntervalLog) -> None:
+        _check_lambda(loop, fl, log)
         if recorder is not None:
             recorder(log)
         if on_interval is not None:
@@ -220,6 +230,7 @@ def run_episode(
     wall = time.perf_counter() - t0
 
     metrics, intervals, traj = _measure(fl, result, learn, lambda_safe, floor, wall)
+    _warn_after_run(fl, metrics, learn, max_frames)
     config = _config(fl, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
     config["max_frames"] = max_frames
     config["feasibility"] = _jsonable(floor.as_dict())
@@ -241,6 +252,91 @@ def run_episode(
             traj, intervals, {"epsilon": si["epsilon"], "lambda_unit": metrics.unit("lambda_final")}
         )
     return EpisodeResult(scene, config, metrics, intervals, traj, steps, result, animation)
+
+
+# ---------------------------------------------------------------------- warnings
+# What makes a run probably not the one that was meant is reported with warnings.warn
+# (conformal_control.exceptions); the CLI prints each as one line.
+def _warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
+    """epsilon at or below the feasibility floor (known before the first step)."""
+    if floor.attainable or not learn:
+        return
+    unit = f"1/{fl.scene.units.time_name}"
+    lam_unit = fl.scene.units.factor("lambda_init")
+    warnings.warn(
+        FeasibilityWarning(
+            f"epsilon={floor.epsilon:g} is not attainable: it is at or below the feasibility "
+            f"floor s(-a*h_max)={floor.epsilon_floor:.4f} (lambda_floor="
+            f"{floor.lambda_floor / lam_unit:g} {unit}), below which a far agent's constraint "
+            "fails and the fallback decides; raise epsilon or a, or clip lambda with lambda_min"
+        ),
+        stacklevel=3,
+    )
+
+
+#: |lambda| (1/s) beyond which the constraint arithmetic (a h + lambda, summed over rows)
+#: is no longer meaningful and soon overflows; no sensible run gets anywhere near it
+LAMBDA_LIMIT = 1e150
+
+
+def _check_lambda(loop: ConformalLoop, fl: Flagship, log: IntervalLog) -> None:
+    """Stop with a clear error as soon as lambda leaves any meaningful range."""
+    lam = loop.lam
+    if math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT:
+        return
+    units = fl.scene.units
+    lam_unit = units.factor("lambda_init")
+    eta = fl.params.si["eta"] / lam_unit
+    raise LambdaOverflowError(
+        f"lambda overflowed: it reached {lam / lam_unit:.3g} 1/{units.time_name} after "
+        f"update {log.k + 1}, beyond +-{LAMBDA_LIMIT / lam_unit:.0e} where the constraint "
+        f"arithmetic overflows, because each update moves it by eta = {eta:g} "
+        f"1/{units.time_name} times (epsilon - loss); use a far smaller eta or bound lambda "
+        "with lambda_min / lambda_max"
+    )
+
+
+def _warn_after_run(
+    fl: Flagship, metrics: EpisodeMetrics, learn: bool, max_frames: int | None
+) -> None:
+    """No lambda update at all (warning); the goal not reached because the data ended
+    (warning) or because of the ``max_frames`` limit the caller set (logged)."""
+    scene, si = fl.scene, fl.params.si
+    if learn and metrics["n_updates"] == 0:
+        warnings.warn(
+            NoUpdatesWarning(
+                f"lambda was never updated: no pedestrian came within the sensing radius "
+                f"({si['sensing_radius']:.3g} m) at a sampling time, so the run did not "
+                "learn (l_avg is undefined); check sensing_radius / rho0 and their unit"
+            ),
+            stacklevel=3,
+        )
+    if metrics["goal_reached"]:
+        return
+    frames = int(metrics["frames"])
+    end = scene.start_frame + frames
+    last_data = scene.first_frame + scene.n_frames - 1
+    x = fl.env.log.state[-1][:2] if fl.env.log.state else scene.start
+    gap = float(np.hypot(*(np.asarray(scene.goals[-1]) - np.asarray(x))))
+    if max_frames is not None and frames >= max_frames and end < last_data:
+        # the caller asked for the limit: a diagnostic, not a warning
+        logging.getLogger("conformal_control.run").info(
+            "the goal was not reached within the frame limit of %d frames (%.1f s); the "
+            "robot stopped %.1f m from it",
+            max_frames,
+            max_frames / scene.fps,
+            gap,
+        )
+        return
+    warnings.warn(
+        GoalNotReachedWarning(
+            f"the goal was not reached: the scene's data ended at frame {last_data} "
+            f"({frames / scene.fps:.1f} s after the start) with the robot {gap:.1f} m "
+            "from it; choose an earlier start frame or a closer goal",
+            "data_ended",
+        ),
+        stacklevel=3,
+    )
 
 
 def _measure(

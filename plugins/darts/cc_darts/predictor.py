@@ -26,6 +26,7 @@ from conformal_control.predictors.constant_velocity import (
     ConstantVelocityPredictor,
     trailing_valid,
 )
+from conformal_control.progress import progress
 
 if importlib.util.find_spec("darts") is None:  # report "unavailable" without importing darts
     raise ImportError("the darts predictor needs the 'darts' package (pip install darts)")
@@ -305,10 +306,21 @@ class DartsPredictor(Predictor):
     ) -> list[tuple[np.ndarray | None, str | None]]:
         if not jobs:
             return []
-        if self.n_jobs == 1 or len(jobs) == 1:
-            return [_fit_one(self.model, params, s, horizon) for _, _, s in jobs]
-        from joblib import Parallel, delayed
+        # progress only shows when the fits of one call take more than a few seconds
+        # (evaluation batches); within an episode the frames' progress covers them
+        with progress(len(jobs), f"darts {self.model}", "fits", delay=3.0) as bar:
+            if self.n_jobs == 1 or len(jobs) == 1:
+                out = []
+                for _, _, s in jobs:
+                    out.append(_fit_one(self.model, params, s, horizon))
+                    bar.update()
+                return out
+            from joblib import Parallel, delayed
 
-        return Parallel(n_jobs=self.n_jobs, backend="loky")(
-            delayed(_fit_one)(self.model, params, s, horizon) for _, _, s in jobs
-        )
+            out = []
+            for res in Parallel(n_jobs=self.n_jobs, backend="loky", return_as="generator")(
+                delayed(_fit_one)(self.model, params, s, horizon) for _, _, s in jobs
+            ):
+                out.append(res)
+                bar.update()
+            return out

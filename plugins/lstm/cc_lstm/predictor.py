@@ -21,6 +21,7 @@ from torch import nn
 
 from conformal_control.predictors.cache import cache_dir
 from conformal_control.predictors.learned import WindowPredictor, synthetic_windows
+from conformal_control.progress import progress
 
 __all__ = ["LSTMPredictor", "Seq2Seq"]
 
@@ -120,6 +121,7 @@ class LSTMPredictor(WindowPredictor):
         n = len(x_all)
         losses = []
         net.train()
+        bar = progress(int(self.epochs), f"training lstm on {n} windows", "epochs")
         for _ in range(int(self.epochs)):
             order = rng.permutation(n)
             total = 0.0
@@ -140,6 +142,9 @@ class LSTMPredictor(WindowPredictor):
                 opt.step()
                 total += float(loss.detach()) * len(idx)
             losses.append(total / n)
+            bar.set_postfix(f"loss {losses[-1]:.4g}")
+            bar.update()
+        bar.close()
         net.eval()
         self.net_ = net
         self.scale_ = scale

@@ -1,0 +1,44 @@
+"""Expected failures deep inside a run still end as one line (exit status 2)."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+from conformal_control.cli import EXIT_BUG, EXIT_ERROR, describe_error, main
+
+
+def test_corrupt_forecast_cache_is_one_line(tmp_path: Path, capsys) -> None:
+    bad = tmp_path / "cache.sqlite"
+    bad.write_bytes(b"this is not an SQLite database, just some bytes" * 100)
+    argv = ["run", "--predictor", "darts", "--predictor-param", f"cache_path={bad}"]
+    assert main([*argv, "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]) == EXIT_ERROR
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith("error: predictor DartsPredictor failed on scene crossing")
+    assert "a cache database cannot be read (file is not a database)" in err
+
+
+def test_os_errors_name_the_file() -> None:
+    assert describe_error(IsADirectoryError(21, "Is a directory", "/x/y")) == (
+        "/x/y: is a folder, expected a file"
+    )
+    assert describe_error(PermissionError(13, "Permission denied", "/x")) == (
+        "/x: permission denied"
+    )
+    assert "cache database" in describe_error(sqlite3.DatabaseError("file is not a database"))
+
+
+def test_a_bug_is_reported_as_a_bug(monkeypatch, tmp_path: Path, capsys) -> None:
+    import conformal_control.sim.episode as episode
+
+    def broken(*a: object, **k: object) -> None:
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr(episode, "run_episode", broken)
+    assert main(["run", "--out", str(tmp_path / "r"), "-q"]) == EXIT_BUG
+    err = capsys.readouterr().err
+    assert err.startswith("error: internal error (TypeError: unsupported operand)")
+    assert "Traceback" not in err
+    assert main(["-vv", "run", "--out", str(tmp_path / "r"), "-q"]) == EXIT_BUG
+    assert "Traceback" in capsys.readouterr().err  # -vv shows it
