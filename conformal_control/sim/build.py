@@ -204,8 +204,8 @@ def build_flagship(
         Each an instance, a registered name (built with the matching ``*_params``), or
         None for the flagship's default (the paper's APF barrier, the exact 2-D filter
         ``exact2d`` with the run's fallback, the attractive-field reference, the
-        velocity-tracking double integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule). ``fallback`` is handed
-        to the safety filter's ``fallback`` argument.
+        velocity-tracking double integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule).
+        ``fallback`` is handed to the safety filter's ``fallback`` argument.
     units : {"scene", "si"}
         Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
         plugins are always SI).
