@@ -103,6 +103,20 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         "(unset: lambda_search; see `conformal-control plugins`)",
     )
     p.add_argument(
+        "--crowd",
+        default="replay",
+        choices=("replay", "social_force", "orca", "mixed"),
+        help="pedestrians replayed from the data, or reacting to the robot (social force, "
+        "ORCA, or replayed until the robot comes near: mixed)",
+    )
+    p.add_argument(
+        "--crowd-param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="crowd model parameter in SI units, e.g. radius=3 or model=orca for mixed "
+        "(repeatable; see the Reactive crowds page)",
+    )
+    p.add_argument(
         "--epsilon", type=finite_float, default=None, help="target average loss (unset: scene's)"
     )
     p.add_argument(
@@ -439,6 +453,8 @@ def _run(args: argparse.Namespace) -> int:
             rule_params=rule_params,
             lambda_safe=args.lambda_safe,
             fallback=args.fallback,
+            crowd=args.crowd,
+            crowd_params=key_values(args.crowd_param, "--crowd-param"),
             on_interval=on_interval,
             **roles,
         )
