@@ -227,7 +227,9 @@ def render_animation(
         # imageio's streaming GIF writer (Pillow underneath): each frame is quantised and
         # written to the file as it comes, so memory stays flat in the number of frames.
         # The default GIF writer keeps every frame until it closes (388 MB at 201 frames,
-        # 5.1 GB at 3,824). It encodes "loop forever" as 65,535 loops.
+        # 5.1 GB at 3,824). It encodes "loop forever" as 65,535 loops, and writes whole
+        # frames (the same pixels as before, about twice the file size: its sub-rectangle
+        # option fails on numpy 2); prefer .mp4 for long runs.
         writer = imageio.get_writer(out, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
     else:
         try:
