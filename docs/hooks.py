@@ -1,11 +1,24 @@
-"""MkDocs hooks: generated reference sections and the example notebooks.
+"""MkDocs hooks: generated reference pages, offline math and the example notebooks.
 
 * ``<!-- generated:parameters -->`` in a page is replaced by the table of every controller
-  parameter, built from :data:`conformal_control.sim.config.PARAMETERS` (with units from
-  :data:`conformal_control.data.units.PARAM_DIMENSIONS` and the defaults of the built-in and
+  parameter, built from ``conformal_control.sim.config.PARAMETERS`` (with units from
+  ``conformal_control.data.units.PARAM_DIMENSIONS`` and the defaults of the built-in and
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
-  argparse parsers of :mod:`conformal_control.commands`.
+  argparse parsers of ``conformal_control.commands``.
+* **API reference**: one page per public module of the package (``api/<dotted/path>.md``,
+  packages at ``api/<dotted/path>/index.md``), found by walking the source tree at build time
+  so that new modules appear on their own; the navigation and the module index
+  (``<!-- generated:api-index -->`` in ``api.md``) are generated with them. Each object is
+  documented once, on the page of the module that defines it (re-exports are listed as
+  links). ``SphinxRoles`` (a griffe extension loaded by mkdocstrings, see ``mkdocs.yml``)
+  turns the Sphinx roles of the docstrings (``:class:`~a.b.C```, ``:meth:``, ``:func:``,
+  ``:mod:``, ``:data:``, ``:attr:``, ...) into cross-reference links.
+* **Math offline**: MathJax 3 is served from the ``django-static-mathjax`` package (the
+  ``docs`` extra; Apache-2.0, its licence is copied beside it) under ``assets/mathjax/``; no
+  page loads a script from a CDN. Notebook pages get their ``$...$`` / ``$$...$$`` math
+  wrapped in the same ``arithmatex`` markup as the Markdown pages, and the MathJax-2 and
+  Mermaid loaders that nbconvert's template injects (both from CDNs) are removed.
 * ``examples/*.ipynb`` are added to the site as ``examples/<name>.ipynb`` (rendered by
   mkdocs-jupyter from their stored outputs; ``tests/test_notebooks.py`` executes them).
 """
@@ -13,18 +26,32 @@
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib.util
+import logging
 import math
+import re
 from pathlib import Path
 from typing import Any
 
+import griffe
+from mkdocs.exceptions import PluginError
 from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
+PACKAGE = "conformal_control"
+API_DIR = "api"
+MATHJAX_DEST = "assets/mathjax"
+#: What the site needs of MathJax's es5 build: the combined TeX/MathML -> CommonHTML
+#: component, its fonts, the TeX extensions it autoloads and the menu's lazy parts.
+MATHJAX_PARTS = ("tex-mml-chtml.js", "output/chtml", "input/tex/extensions", "input/mml", "ui")
+
+log = logging.getLogger("mkdocs.hooks.conformal_control")
 
 
-# ---------------------------------------------------------------------------- notebooks
+# ---------------------------------------------------------------------------- files
 @event_priority(100)  # before mkdocs-jupyter wraps the .ipynb files
 def on_files(files: Files, config: Any) -> Files:
     for nb in sorted(EXAMPLES.glob("*.ipynb")):
@@ -36,7 +63,316 @@ def on_files(files: Files, config: Any) -> Files:
                 use_directory_urls=config["use_directory_urls"],
             )
         )
+    root = mathjax_root()
+    for part in MATHJAX_PARTS:
+        path = root / "es5" / part
+        for src in [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file()):
+            rel = src.relative_to(root).as_posix()
+            files.append(File.generated(config, f"{MATHJAX_DEST}/{rel}", abs_src_path=str(src)))
+    licence = root / "LICENSE"
+    files.append(File.generated(config, f"{MATHJAX_DEST}/LICENSE", abs_src_path=str(licence)))
+    for module in public_modules():
+        files.append(File.generated(config, api_page(module), content=api_markdown(module)))
     return files
+
+
+def on_config(config: Any) -> Any:
+    """Replace the ``API reference: api.md`` entry of the navigation by the module tree."""
+    nav = config.get("nav") or []
+    for i, item in enumerate(nav):
+        if isinstance(item, dict) and item.get("API reference") == "api.md":
+            nav[i] = {"API reference": [{"Overview": "api.md"}, *api_nav(PACKAGE)]}
+    return config
+
+
+# ---------------------------------------------------------------------------- MathJax
+def mathjax_root() -> Path:
+    """The MathJax distribution shipped by ``django-static-mathjax`` (import name ``mathjax``)."""
+    spec = importlib.util.find_spec("mathjax")
+    root = Path(spec.origin).parent / "static" / "mathjax" if spec and spec.origin else None
+    if root is None or not (root / "es5" / "tex-mml-chtml.js").is_file():
+        raise PluginError(
+            "the docs serve MathJax from the django-static-mathjax package, which is not "
+            "installed: pip install -e '.[docs]'"
+        )
+    return root
+
+
+_NB_MATHJAX2 = re.compile(r"<!-- Load mathjax -->.*?<!-- End of mathjax configuration -->", re.S)
+_NB_MERMAID = re.compile(
+    r"<script type=\"module\">(?:(?!</script>).)*?mermaid.*?<!-- End of mermaid configuration -->",
+    re.S,
+)
+_NB_MARKDOWN = re.compile(
+    r"(<div class=\"jp-RenderedHTMLCommon jp-RenderedMarkdown[^>]*>)(.*?)(</div>)", re.S
+)
+_NB_VERBATIM = re.compile(r"(<pre\b.*?</pre>|<code\b.*?</code>)", re.S)
+_DISPLAY_MATH = re.compile(r"\$\$(.+?)\$\$", re.S)
+_INLINE_MATH = re.compile(r"(?<![\\$])\$(?![\s$])((?:[^$\\]|\\.)+?)(?<!\s)\$(?!\$)", re.S)
+
+
+def _wrap_math(text: str) -> str:
+    text = _DISPLAY_MATH.sub(r'<span class="arithmatex">\\[\1\\]</span>', text)
+    return _INLINE_MATH.sub(r'<span class="arithmatex">\\(\1\\)</span>', text)
+
+
+def notebook_html(html: str, name: str) -> str:
+    """Offline notebook page: no CDN loaders, math in the site's ``arithmatex`` markup."""
+    html = _NB_MATHJAX2.sub("", html)
+    html = _NB_MERMAID.sub("", html)
+    if "jp-Mermaid" in html:
+        log.warning("%s has Mermaid diagrams, which need a CDN script: they will not render", name)
+
+    def cell(m: re.Match[str]) -> str:
+        parts = _NB_VERBATIM.split(m.group(2))
+        body = "".join(p if i % 2 else _wrap_math(p) for i, p in enumerate(parts))
+        return m.group(1) + body + m.group(3)
+
+    return _NB_MARKDOWN.sub(cell, html)
+
+
+def on_post_page(output: str, page: Any, config: Any) -> str:
+    if page.file.src_uri.endswith(".ipynb"):
+        return notebook_html(output, page.file.src_uri)
+    return output
+
+
+# ---------------------------------------------------------------------------- API pages
+def public_modules() -> list[str]:
+    """Every public module of the package: no part of its dotted path starts with ``_``."""
+    out = []
+    for path in sorted((ROOT / PACKAGE).rglob("*.py")):
+        parts = list(path.relative_to(ROOT).with_suffix("").parts)
+        if not all(
+            (ROOT.joinpath(*parts[:i]) / "__init__.py").is_file() for i in range(1, len(parts))
+        ):
+            continue  # not inside a regular package
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        if any(p.startswith("_") for p in parts):
+            continue
+        out.append(".".join(parts))
+    return sorted(out)
+
+
+def _is_package(module: str) -> bool:
+    return (ROOT / module.replace(".", "/") / "__init__.py").is_file()
+
+
+def api_page(module: str) -> str:
+    """Docs path of a module's page: packages get ``index.md`` in their folder."""
+    path = module.replace(".", "/")
+    return f"{API_DIR}/{path}/index.md" if _is_package(module) else f"{API_DIR}/{path}.md"
+
+
+def api_nav(package: str) -> list[dict[str, Any]]:
+    """Navigation of a package: its page, its modules, its subpackages as sections."""
+    modules = public_modules()
+    depth = package.count(".") + 1
+    items: list[dict[str, Any]] = [{package: api_page(package)}]
+    for m in modules:
+        if m.startswith(package + ".") and m.count(".") == depth:
+            if _is_package(m):
+                items.append({m: api_nav(m)})
+            else:
+                items.append({m.rsplit(".", 1)[1]: api_page(m)})
+    return items
+
+
+@functools.cache
+def _griffe_package() -> Any:
+    return griffe.load(
+        PACKAGE,
+        search_paths=[str(ROOT)],
+        extensions=griffe.load_extensions(SphinxRoles()),
+        resolve_aliases=True,
+        resolve_external=False,
+    )
+
+
+def _private(path: str) -> bool:
+    return any(p.startswith("_") for p in path.split("."))
+
+
+def _final(obj: Any) -> Any | None:
+    if not obj.is_alias:
+        return obj
+    try:
+        return obj.final_target
+    except Exception:  # external or unresolvable import
+        return None
+
+
+def module_members(module: str) -> tuple[list[str], list[tuple[str, str]]]:
+    """(members documented on the module's page, re-exports as (name, target path)).
+
+    A module's page documents what it defines, plus what it re-exports from a private
+    module (which has no page). Other imports listed in ``__all__`` are re-exports: links
+    to the page of the module that defines them.
+    """
+    mod = (
+        _griffe_package().get_member(module.split(".", 1)[1])
+        if "." in module
+        else _griffe_package()
+    )
+    exported = {str(name) for name in mod.exports or ()}
+    own, reexports = [], []
+    for name, member in mod.members.items():
+        if name.startswith("_"):
+            continue
+        if not member.is_alias:
+            if not member.is_module:
+                own.append(name)
+            continue
+        target = _final(member)
+        if target is None or name not in exported or not target.path.startswith(PACKAGE + "."):
+            continue
+        if target.is_module:
+            continue
+        if _private(target.path):
+            own.append(name)
+        else:
+            reexports.append((name, target.path))
+    return own, reexports
+
+
+def api_markdown(module: str) -> str:
+    own, reexports = module_members(module)
+    members = "[" + ", ".join(own) + "]" if own else "false"
+    text = [
+        f"::: {module}",
+        "    options:",
+        "      heading_level: 1",
+        "      show_root_full_path: true",
+        f"      members: {members}",
+        "",
+    ]
+    if reexports:
+        links = ", ".join(f"[`{name}`][{target}]" for name, target in reexports)
+        text += ["", f"**Re-exported here:** {links}.", ""]
+    return "\n".join(text)
+
+
+def api_index() -> str:
+    """Table of every public module with the first line of its docstring."""
+    pkg = _griffe_package()
+    rows = ["| module | what it holds |", "|---|---|"]
+    for module in public_modules():
+        obj = pkg.get_member(module.split(".", 1)[1]) if "." in module else pkg
+        doc = obj.docstring.value.strip().splitlines()[0] if obj.docstring else ""
+        doc = _SPEC_PAREN.sub("", doc).replace("|", "\\|")
+        rows.append(f"| [`{module}`][{module}] | {doc} |")
+    return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------------- Sphinx roles
+_ROLE = re.compile(
+    r":(?:py:)?(mod|meth|class|func|data|attr|obj|exc|const|type):"
+    r"`(!?)(~?)([^`<]+?)(?:\s*<([^>`]+)>)?`"
+)
+_SPEC_PAREN = re.compile(r"\s*\((?:see )?SPEC\b[^()]*\)")
+_SPEC_AS = re.compile(r",?\s*as SPEC states (?:them|it)")
+
+
+class SphinxRoles(griffe.Extension):
+    """Docstring roles as links: ``:class:`~a.b.C``` becomes ``[`C`][a.b.C]``.
+
+    Targets are resolved as Sphinx does: relative to the object, then its parents, then as
+    an absolute path; failing that, by a unique object of that name in the package. An
+    object defined in a private module links to its public re-export. A role whose target
+    is not found becomes plain code (logged). Parenthesised references to documents that
+    are not part of the site (``(SPEC ...)``) are dropped from the rendered text.
+    """
+
+    def on_package(self, *, pkg: Any, loader: Any = None, **kwargs: Any) -> None:
+        objects = list(_walk(pkg))
+        by_name: dict[str, list[Any]] = {}
+        public: dict[str, str] = {}
+        for obj in objects:
+            by_name.setdefault(obj.name, []).append(obj)
+            if obj.is_module and not _private(obj.path):
+                for name, member in obj.members.items():
+                    target = _final(member) if member.is_alias else None
+                    if target is not None and _private(target.path) and not name.startswith("_"):
+                        public.setdefault(target.path, f"{obj.path}.{name}")
+        for obj in objects:
+            if obj.docstring is None:
+                continue
+            text = obj.docstring.value
+            new = _SPEC_AS.sub("", _SPEC_PAREN.sub("", text))
+            if new != text:
+                log.info("%s: reference to a document outside the site dropped", obj.path)
+            obj.docstring.value = _ROLE.sub(
+                lambda m, o=obj: _role_link(m, o, pkg, by_name, public), new
+            )
+
+
+def _walk(obj: Any) -> Any:
+    yield obj
+    for member in obj.members.values():
+        if not member.is_alias and (
+            member.is_module or member.is_class or member.is_function or member.is_attribute
+        ):
+            yield from _walk(member) if (member.is_module or member.is_class) else [member]
+
+
+def _lookup(pkg: Any, path: str) -> Any | None:
+    parts = path.split(".")
+    if parts[0] != pkg.name:
+        return None
+    obj = pkg
+    for part in parts[1:]:
+        members = obj.all_members if obj.is_class else obj.members  # with inherited ones
+        member = members.get(part)
+        if member is None:
+            return None
+        obj = _final(member)
+        if obj is None:
+            return None
+    return obj
+
+
+def resolve_role(target: str, obj: Any, pkg: Any, by_name: dict[str, list[Any]]) -> Any | None:
+    """The object a role's target names, seen from ``obj`` (None if not found)."""
+    target = target.strip().lstrip(".")
+    scopes, scope = [], obj
+    while scope is not None:
+        scopes.append(scope.path)
+        scope = scope.parent
+    for candidate in [*(f"{s}.{target}" for s in scopes), target]:
+        found = _lookup(pkg, candidate)
+        if found is not None:
+            return found
+    last = target.rsplit(".", 1)[-1]
+    matches = [o for o in by_name.get(last, []) if o.path.endswith("." + target)]
+    if not matches and "." in target:  # a stale module path: the name alone, if unique
+        matches = by_name.get(last, [])
+        if len(matches) == 1:
+            log.info("%s: %r resolved by name to %s", obj.path, target, matches[0].path)
+    return matches[0] if len(matches) == 1 else None
+
+
+def _role_link(m: re.Match[str], obj: Any, pkg: Any, by_name: Any, public: dict[str, str]) -> str:
+    role, no_link, tilde, text, explicit = m.groups()
+    target = (explicit or text).strip()
+    if explicit:
+        display = text.strip()
+    else:
+        display = target.lstrip(".").rsplit(".", 1)[-1] if tilde else target.lstrip(".")
+        if role in ("meth", "func") and not display.endswith(")"):
+            display += "()"
+    if no_link:
+        return f"`{display}`"
+    found = resolve_role(target, obj, pkg, by_name)
+    path = found.path if found is not None else ""
+    for private_path, public_path in public.items():  # defined privately, documented publicly
+        if path == private_path or path.startswith(private_path + "."):
+            path = public_path + path[len(private_path) :]
+            break
+    if not path or _private(path) or not found.has_docstrings:  # not rendered: no anchor
+        log.info("%s: %s target %r not documented; rendered as code", obj.path, role, target)
+        return f"`{display}`"
+    return f"[`{display}`][{path}]"
 
 
 # ---------------------------------------------------------------------------- parameters
@@ -171,6 +507,7 @@ def cli_run_output(*args: str) -> str:
 
 
 GENERATORS = {
+    "<!-- generated:api-index -->": api_index,
     "<!-- generated:parameters -->": parameters_table,
     "<!-- generated:cli -->": cli_reference,
     "<!-- generated:run-demo -->": lambda: cli_run_output(),

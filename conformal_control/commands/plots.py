@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from . import command
 
@@ -17,8 +18,16 @@ def _plot_sweep_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="metric column, one panel each (repeatable; default t_goal, n_collide, d_min, l_avg)",
     )
-    p.add_argument("--group", default=None, help="column whose values get separate lines")
-    p.add_argument("--out", default="sweep.png", help="output image (default sweep.png)")
+    p.add_argument(
+        "--group",
+        action="append",
+        default=None,
+        help="column whose values get separate lines (repeatable; default: every parameter "
+        "that varies, besides --x; the others are averaged and the legend says so)",
+    )
+    p.add_argument(
+        "--out", default=None, help="output image (default: sweep-<x>.png beside RESULTS_CSV)"
+    )
 
 
 @_plot_sweep_args.handler
@@ -27,6 +36,7 @@ def _plot_sweep(args: argparse.Namespace) -> int:
 
     rows = load_results(args.results)
     metrics = args.metric or ["t_goal", "n_collide", "d_min", "l_avg"]
-    plot_sweep(rows, args.x, metrics, group=args.group, path=args.out)
-    print(f"{len(rows)} results plotted to {args.out}")
+    out = Path(args.out) if args.out else Path(args.results).parent / f"sweep-{args.x}.png"
+    plot_sweep(rows, args.x, metrics, group=args.group, path=out)
+    print(f"{len(rows)} results plotted to {out}")
     return 0

@@ -4,8 +4,9 @@ Each frame shows the reference image of the scene, the robot with its trail and 
 sensing radius, the pedestrians (those sensed at the last sampling time highlighted, with
 their predicted trajectories over the interval), the constraint status of the frame, and a
 side panel with lambda_k and l_k (with epsilon) and a time cursor. Frames are drawn with
-matplotlib and written with imageio: GIF through Pillow, MP4 through imageio-ffmpeg (which
-ships its own ffmpeg binary), so no system binary is needed.
+matplotlib and written with imageio as they are drawn: GIF through Pillow (imageio's
+streaming ``GIF-PIL`` writer, so memory does not grow with the number of frames), MP4 through
+imageio-ffmpeg (which ships its own ffmpeg binary), so no system binary is needed.
 """
 
 from __future__ import annotations
@@ -223,7 +224,13 @@ def render_animation(
     lam_txt = ax_lam.text(0.01, 0.95, "", transform=ax_lam.transAxes, va="top", fontsize=8)
 
     if suffix == ".gif":
-        writer = imageio.get_writer(out, mode="I", duration=1000.0 / fps, loop=0)
+        # imageio's streaming GIF writer (Pillow underneath): each frame is quantised and
+        # written to the file as it comes, so memory stays flat in the number of frames.
+        # The default GIF writer keeps every frame until it closes (388 MB at 201 frames,
+        # 5.1 GB at 3,824). It encodes "loop forever" as 65,535 loops, and writes whole
+        # frames (the same pixels as before, about twice the file size: its sub-rectangle
+        # option fails on numpy 2); prefer .mp4 for long runs.
+        writer = imageio.get_writer(out, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
     else:
         try:
             import imageio_ffmpeg  # noqa: F401

@@ -9,7 +9,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-__all__ = ["plot_distance"]
+__all__ = ["distance_window", "plot_distance"]
 
 
 def plot_distance(
@@ -20,6 +20,10 @@ def plot_distance(
     t_goal: float | None = None,
 ) -> None:
     """``d_min(t)`` (m) per frame, the collision distance ``d_c`` and the frames below it.
+
+    The vertical axis starts at 0 and ends at :func:`distance_window`: isolated spikes (no
+    pedestrian near, the nearest one tens of metres away) are clipped so that d_c stays
+    readable; the axis label and the legend then say so and give the largest value.
 
     Parameters
     ----------
@@ -45,8 +49,32 @@ def plot_distance(
         )
     if t_goal is not None:
         ax.axvline(t_goal, color="green", ls=":", lw=1.0, label="goal reached")
+    top = distance_window(d, collision_distance)
+    finite = d[np.isfinite(d)]
+    n_above = int((finite > top).sum())
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("distance (m)")
-    ax.set_ylim(bottom=0)
+    if n_above:
+        ax.set_ylabel(f"distance (m), clipped at {top:.3g}")
+        ax.plot([], [], " ", label=f"{n_above} frames above {top:.3g} m (max {finite.max():.3g} m)")
+    else:
+        ax.set_ylabel("distance (m)")
+    ax.set_ylim(0, top)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
+
+
+def distance_window(d: np.ndarray, collision_distance: float) -> float:
+    """Top of the distance axis (m): the data, or a window around d_c if a few spikes dwarf it.
+
+    The window is ``max(4 d_c, 1.5 x the 75th percentile)``: tall enough for the typical
+    distances, short enough that d_c and near misses stay visible when the nearest sensed
+    pedestrian is occasionally tens of metres away. When the data fit in it the axis ends
+    just above the largest value instead.
+    """
+    finite = np.asarray(d, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return 4.0 * collision_distance
+    window = max(4.0 * collision_distance, 1.5 * float(np.percentile(finite, 75)))
+    largest = float(finite.max())
+    return 1.05 * largest if largest <= window else window

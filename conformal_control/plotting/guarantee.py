@@ -27,8 +27,11 @@ def plot_guarantee(
 
     Top: running average loss after each update, the target epsilon, the Theorem-2 bound
     epsilon + (lambda_1 - lambda_safe + eta)/(eta k) when it applies (fixed-step rules with
-    lambda_safe), and the band epsilon +- b_k for rules with a long-run bound b_k
-    (decaying step, ACI, PID). Bottom: lambda_k (divided by ``lambda_unit``).
+    lambda_safe; labelled with the monitor's verdict), and the band epsilon +- b_k for rules
+    with a long-run bound b_k (decaying step, ACI, PID). The vertical axis stays within the
+    loss range ``monitor.bounds``: the band is clipped to it, and a bound that never enters
+    it (e.g. PID's b_k = 1.93 for losses in (-1/2, 1/2)) is written on the panel instead
+    of drawn. Bottom: lambda_k (divided by ``lambda_unit``).
 
     Parameters
     ----------
@@ -46,32 +49,66 @@ def plot_guarantee(
         ax.plot(k, monitor.running_average(), color="C0", lw=1.5, label="running average loss")
         ax.plot(k, monitor.losses, color="C0", lw=0.5, alpha=0.3, label="loss $l_k$")
     ax.axhline(monitor.epsilon, color="k", ls="--", lw=1, label=r"target $\varepsilon$")
+    lo, hi = monitor.bounds
+    eps = monitor.epsilon
+    # the y range: the losses, epsilon and the bounds where they say something, within the
+    # loss range; a bound that leaves the loss range is annotated instead of drawn
+    ys = [eps]
+    if monitor.n:
+        ys += [float(np.min(monitor.losses)), float(np.max(monitor.losses))]
+    notes = []
     bound = monitor.bound_trace()
     if bound is not None:
-        held = "holds" if monitor.bound_holds else "VIOLATED"
-        ax.plot(k, bound, color="C3", lw=1.2, label=f"Theorem-2 bound ({held})")
-    band = monitor.long_run_trace()
-    if band is not None:
-        held = "holds" if monitor.long_run_holds else "VIOLATED"
-        ax.fill_between(
-            k,
-            monitor.epsilon - band,
-            monitor.epsilon + band,
-            color="C2",
-            alpha=0.15,
-            label=f"long-run bound ({held})",
+        verdict = getattr(monitor, "verdict", None)
+        held = (
+            f"verdict: {verdict}" if verdict else ("holds" if monitor.bound_holds else "VIOLATED")
         )
-    lo, hi = monitor.bounds
-    if monitor.n:
-        losses = np.asarray(monitor.losses)
-        pad = 0.1 * (losses.max() - losses.min() + 1e-9)
-        ax.set_ylim(max(lo, losses.min() - pad), min(hi, losses.max() + pad))
+        if bound[-1] < hi:
+            shown = np.where(bound <= hi, bound, np.nan)  # enters from above the loss range
+            ax.plot(k, shown, color="C3", lw=1.2, label=f"Theorem-2 bound ({held})")
+            ys.append(float(bound[-1]))
+        else:
+            notes.append(
+                f"Theorem-2 bound {bound[-1]:.3g} at k = {monitor.n} is above the largest "
+                f"possible loss {hi:g}: vacuous ({held})"
+            )
+    band = monitor.long_run_trace()
+    if band is not None and np.isfinite(band).any():
+        held = "holds" if monitor.long_run_holds else "VIOLATED"
+        last = float(band[np.isfinite(band)][-1])
+        if eps - last <= lo and eps + last >= hi:
+            notes.append(
+                f"long-run bound |mean loss - eps| <= {last:.3g} covers the whole loss range "
+                f"({lo:g}, {hi:g}): vacuous ({held})"
+            )
+        else:
+            ax.fill_between(
+                k,
+                np.clip(eps - band, lo, hi),
+                np.clip(eps + band, lo, hi),
+                color="C2",
+                alpha=0.15,
+                label=f"long-run bound, clipped to the loss range ({held})",
+            )
+            ys += [max(lo, eps - last), min(hi, eps + last)]
+    pad = 0.1 * (max(ys) - min(ys) + 1e-9)
+    ax.set_ylim(max(lo, min(ys) - pad), min(hi, max(ys) + pad))
+    for i, note in enumerate(notes):
+        ax.text(
+            0.01,
+            0.03 + 0.09 * i,
+            note,
+            transform=ax.transAxes,
+            fontsize=7,
+            color="0.25",
+            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        )
     res = monitor.identity_residual
     note = f"guarantee: {monitor.kind}" + (
         f", identity residual {res:.1e}" if res is not None else ""
     )
     ax.set_title(title or note, fontsize=9)
-    ax.set_ylabel("loss")
+    ax.set_ylabel("loss (dimensionless)")
     ax.legend(fontsize=7, loc="upper right")
     if monitor.n:
         lams = np.asarray([*monitor.lambdas, monitor.lambda_next]) / lambda_unit

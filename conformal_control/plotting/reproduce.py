@@ -12,6 +12,8 @@ import numpy as np
 from .run import _mpl, plot_scene
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from ..data.scene import Scene
 
 __all__ = ["plot_lambda_loss_rows", "plot_lavg_vs_epsilon", "plot_paths_grid"]
@@ -43,13 +45,16 @@ def plot_paths_grid(
     path: str | Path,
     *,
     title: str = "",
-    dpi: int = 72,
+    dpi: int = 100,
     margin: float = 10.0,
-) -> None:
+    panel_width: float = 4.2,
+) -> Figure:
     """One panel per row: the robot's path over the scene's reference image.
 
     Every panel shows the same band of the scene: the full width, and the height the
-    paths, start and goals span plus ``margin`` metres on each side.
+    paths, start and goals span plus ``margin`` metres on each side. Panels are laid out
+    three per line, each ``panel_width`` inches (420 px at the default dpi) wide, with
+    both axes labelled in metres. Returns the (saved and closed) figure.
 
     Parameters
     ----------
@@ -69,11 +74,11 @@ def plot_paths_grid(
     height = scene.extent[1] if scene.extent else max(ys) + margin
     y_lo, y_hi = max(0.0, min(ys) - margin), min(height, max(ys) + margin)
     aspect = (y_hi - y_lo) / max(width, 1e-9)
-    cols = min(4, max(1, n))
+    cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
-    panel_w = 3.6
+    panel_w = panel_width
     fig, axes = plt.subplots(
-        nrows, cols, figsize=(panel_w * cols, (panel_w * aspect + 0.7) * nrows), squeeze=False
+        nrows, cols, figsize=(panel_w * cols, (panel_w * aspect + 1.2) * nrows), squeeze=False
     )
     for ax, run in zip(axes.flat, runs, strict=False):
         tr = run.get("trajectory")
@@ -93,15 +98,16 @@ def plot_paths_grid(
         )
         if ax.get_legend() is not None:
             ax.get_legend().remove()
-        ax.tick_params(labelsize=6)
-        ax.set_xlabel("")
-        ax.set_ylabel("")
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("x (m)", fontsize=8)
+        ax.set_ylabel("y (m)", fontsize=8)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     _save(fig, path, dpi)
+    return fig
 
 
 def plot_lambda_loss_rows(
@@ -110,31 +116,34 @@ def plot_lambda_loss_rows(
     *,
     lam_unit: str = "1/frame",
     title: str = "",
-    dpi: int = 72,
-) -> None:
+    dpi: int = 100,
+    panel_size: tuple[float, float] = (4.4, 3.2),
+) -> Figure:
     """One panel per row: lambda_k (left axis) and l_k with its running mean (right axis).
 
     ``runs``: dicts with ``label``, ``learn``, ``epsilon`` and ``intervals`` (dict of
-    arrays ``t``, ``lambda``, ``loss``).
+    arrays ``t``, ``lambda``, ``loss``). Three panels per line, each ``panel_size``
+    inches; every axis is labelled with its unit. Returns the (saved and closed) figure.
     """
     plt = _mpl()
     n = len(runs)
-    cols = min(4, max(1, n))
+    cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(3.6 * cols, 2.6 * nrows), squeeze=False)
+    w, h = panel_size
+    fig, axes = plt.subplots(nrows, cols, figsize=(w * cols, h * nrows), squeeze=False)
     for ax, run in zip(axes.flat, runs, strict=False):
         iv = run.get("intervals")
         ax.set_title(run["label"], fontsize=8)
-        ax.tick_params(labelsize=6)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("t (s)", fontsize=8)
+        ax.set_ylabel(f"lambda ({lam_unit})", fontsize=8, color="tab:purple")
         if iv is None or len(iv["t"]) == 0:
             ax.text(0.5, 0.5, "no data", ha="center", transform=ax.transAxes)
             continue
         ok = np.isfinite(iv["loss"])
         t, lam, loss = iv["t"][ok], iv["lambda"][ok], iv["loss"][ok]
         ax.step(t, lam, where="post", color="tab:purple", lw=1.0)
-        ax.set_ylabel(f"lambda ({lam_unit})", fontsize=7, color="tab:purple")
         ax.grid(alpha=0.3)
-        ax.set_xlabel("t (s)", fontsize=7)
         ax2 = ax.twinx()
         ax2.plot(t, loss, ".", color="tab:gray", ms=2)
         if loss.size:
@@ -143,22 +152,24 @@ def plot_lambda_loss_rows(
         if run.get("learn") and eps is not None:
             ax2.axhline(eps, color="red", ls="--", lw=0.8)
         ax2.set_ylim(-0.5, 0.5)
-        ax2.tick_params(labelsize=6)
-        ax2.set_ylabel("loss (dots), running mean", fontsize=7)
+        ax2.tick_params(labelsize=7)
+        ax2.set_ylabel("loss l_k (dots), running mean (dimensionless)", fontsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if title:
         fig.suptitle(title + "  (red dashed: epsilon)", fontsize=10)
     fig.tight_layout()
     _save(fig, path, dpi)
+    return fig
 
 
 def plot_lavg_vs_epsilon(
-    points: Sequence[dict[str, Any]], path: str | Path, *, title: str = "", dpi: int = 72
-) -> None:
+    points: Sequence[dict[str, Any]], path: str | Path, *, title: str = "", dpi: int = 100
+) -> Figure:
     """l_avg against epsilon: ours per variant, the paper's, and the line l_avg = epsilon.
 
-    ``points``: dicts with ``series`` (legend name), ``epsilon`` and ``l_avg``.
+    ``points``: dicts with ``series`` (legend name), ``epsilon`` and ``l_avg``. Returns
+    the (saved and closed) figure.
     """
     plt = _mpl()
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
@@ -176,11 +187,12 @@ def plot_lavg_vs_epsilon(
     ax.plot([-0.5, 0.5], [-0.5, 0.5], color="gray", ls="--", lw=0.8, label="l_avg = epsilon")
     ax.set_xlim(-0.5, 0.5)
     ax.set_ylim(-0.5, 0.5)
-    ax.set_xlabel("epsilon (target)")
-    ax.set_ylabel("l_avg (achieved)")
+    ax.set_xlabel("epsilon (target average loss, dimensionless)")
+    ax.set_ylabel("l_avg (achieved average loss, dimensionless)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
     _save(fig, path, dpi)
+    return fig

@@ -17,11 +17,11 @@ __all__ = ["load_results", "plot_sweep"]
 
 _LABELS = {
     "t_goal": "t_goal (s)",
-    "n_collide": "collision frames",
+    "n_collide": "collision frames (count)",
     "d_min": "d_min (m)",
-    "l_avg": "average loss",
-    "fallback_share": "fallback share",
-    "lambda_final": "final lambda",
+    "l_avg": "average loss (dimensionless)",
+    "fallback_share": "fallback share (fraction of control steps)",
+    "lambda_final": "final lambda (scene units)",
 }
 
 
@@ -42,19 +42,83 @@ def load_results(source: str | Path | Iterable[Mapping[str, Any]]) -> list[dict[
     return [dict(r) for r in source]
 
 
+#: Columns naming what a run is, besides its parameters (sweep ``results.csv``).
+_IDENTITY = ("scene", "predictor", "learn", "max_frames", "rule")
+#: Columns of repeated runs of the same configuration: averaged, and the legend says so.
+_REPLICATES = ("seed",)
+_PREFIXES = ("param.", "predictor_params.", "rule_params.")
+
+
+def _column(rows: Sequence[Mapping[str, Any]], name: str) -> str:
+    """The column holding ``name``: itself, or ``param.<name>`` in a sweep's results.csv."""
+    for cand in (name, *(p + name for p in _PREFIXES)):
+        if any(cand in r for r in rows):
+            return cand
+    raise ValueError(f"no result has the key {name!r}; keys: {sorted(rows[0])}")
+
+
+def _short(col: str) -> str:
+    for p in _PREFIXES:
+        if col.startswith(p):
+            return col[len(p) :]
+    return col
+
+
+def _value_key(v: Any) -> Any:
+    f = _num(v)
+    return f if math.isfinite(f) else ("" if v is None else str(v))
+
+
+def _fmt_value(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _parameter_columns(rows: Sequence[Mapping[str, Any]], exclude: set[str]) -> list[str]:
+    """Columns that are parameters of the runs (not metrics, not bookkeeping)."""
+    from ..sim.config import PARAMETERS
+
+    out = []
+    for col in dict.fromkeys(k for r in rows for k in r):
+        if col in exclude or col in _REPLICATES:
+            continue
+        if col.startswith(_PREFIXES) or col in _IDENTITY or col in PARAMETERS:
+            out.append(col)
+    return out
+
+
+def _x_label(x: str) -> str:
+    name = _short(x)
+    if name == "epsilon":
+        return "epsilon (target average loss, dimensionless)"
+    if name in ("v_max",):
+        return f"{name} (m/s)"
+    if name in ("robot_radius", "agent_radius", "goal_radius"):
+        return f"{name} (m)"
+    return f"{name} (scene units: px, frames on SDD; SI otherwise)"
+
+
 def plot_sweep(
     results: str | Path | Iterable[Mapping[str, Any]],
     x: str = "epsilon",
     metrics: Sequence[str] = ("t_goal", "n_collide", "d_min", "l_avg"),
     *,
-    group: str | None = None,
+    group: str | Sequence[str] | None = None,
     path: str | Path | None = None,
+    title: str | None = None,
 ) -> Figure:
-    """One panel per metric, the metric against ``x``; one line per value of ``group``.
+    """One panel per metric, the metric against ``x``; nothing is averaged silently.
 
-    Rows with the same ``x`` (and group) are averaged, with their min-max range shaded
-    (e.g. several seeds). When ``x`` is ``epsilon`` and ``l_avg`` is plotted, the line
-    ``l_avg = epsilon`` that the CDT guarantee aims at is drawn dashed.
+    Lines: one per combination of the values of every parameter that varies across the
+    results and is not on the x axis (``group`` restricts the lines to those columns; the
+    other varying parameters are then averaged and the legend names them with their
+    values). Repeated runs of one configuration (``seed``) are averaged with their min-max
+    range shaded, and the legend says over how many. Parameters are the sweep's
+    ``param.*`` / ``predictor_params.*`` columns, ``scene``, ``predictor``, ``learn``,
+    ``max_frames``, ``rule``, and any column named after a controller parameter (so in
+    plain rows ``eta`` or ``tau`` count, metrics do not). ``x`` and ``group`` may name a
+    parameter without its ``param.`` prefix. When ``x`` is ``epsilon`` and ``l_avg`` is
+    plotted, the line ``l_avg = epsilon`` that the CDT guarantee aims at is drawn dashed;
+    collision frames get an integer axis from 0.
 
     Parameters
     ----------
@@ -64,31 +128,55 @@ def plot_sweep(
         The swept parameter on the horizontal axis.
     metrics : sequence of str
         Metric keys, one panel each.
-    group : str, optional
-        Column whose values get separate lines (e.g. ``"predictor"`` or ``"eta"``).
+    group : str or list of str, optional
+        The columns whose values get separate lines (default: every varying parameter).
     path : path, optional
         Save the figure there (and close it).
+    title : str, optional
+        Figure title (default: the scene(s), what is plotted and the number of runs).
 
     Raises
     ------
     ValueError
-        If there are no rows, or ``x`` or a metric is missing from every row.
+        If there are no rows, or ``x``, a metric or a group column is missing from every row.
     """
+    from matplotlib.ticker import MaxNLocator
+
     from .run import _mpl
 
     rows = load_results(results)
     if not rows:
         raise ValueError("plot_sweep needs at least one result")
-    for key in (x, *metrics):
-        if not any(key in r for r in rows):
-            raise ValueError(f"no result has the key {key!r}; keys: {sorted(rows[0])}")
+    x = _column(rows, x)
+    metrics = [_column(rows, m) for m in metrics]
+    params = _parameter_columns(rows, {x, *metrics})
+    varying = [c for c in params if len({_value_key(r.get(c)) for r in rows}) > 1]
+    if group is None:
+        lines = varying
+    else:
+        lines = [_column(rows, g) for g in ([group] if isinstance(group, str) else group)]
+    averaged = [c for c in varying if c not in lines]
+    replicates = [
+        c for c in _REPLICATES if c not in lines and len({_value_key(r.get(c)) for r in rows}) > 1
+    ]
+
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(_value_key(r.get(c)) for c in lines), []).append(r)
+    notes = []
+    for c in replicates:
+        n = len({_value_key(r.get(c)) for r in rows})
+        notes.append(f"mean over {n} {c}s (min-max shaded)")
+    for c in averaged:
+        vals = sorted({_value_key(r.get(c)) for r in rows}, key=str)
+        notes.append(f"averaged over {_short(c)} in {{{', '.join(map(_fmt_value, vals))}}}")
+    if not notes:
+        notes.append("one run per point")
+
     plt = _mpl()
     fig, axes = plt.subplots(
-        1, len(metrics), figsize=(3.6 * len(metrics), 3.2), constrained_layout=True, squeeze=False
+        1, len(metrics), figsize=(3.8 * len(metrics), 3.6), constrained_layout=True, squeeze=False
     )
-    groups: dict[Any, list[dict[str, Any]]] = {}
-    for r in rows:
-        groups.setdefault(r.get(group) if group else None, []).append(r)
     for ax, metric in zip(axes[0], metrics, strict=True):
         for gval, grows in groups.items():
             xs = np.array([_num(r.get(x)) for r in grows])
@@ -100,11 +188,13 @@ def plot_sweep(
                 mean.append(v.mean() if v.size else np.nan)
                 lo.append(v.min() if v.size else np.nan)
                 hi.append(v.max() if v.size else np.nan)
-            label = f"{group} = {gval}" if group else None
-            ax.plot(ux, mean, "o-", ms=4, label=label)
+            label = ", ".join(
+                f"{_short(c)} = {_fmt_value(v)}" for c, v in zip(lines, gval, strict=True)
+            )
+            (line,) = ax.plot(ux, mean, "o-", ms=4, label=label or "all runs")
             if any(a != b for a, b in zip(lo, hi, strict=True)):
-                ax.fill_between(ux, lo, hi, alpha=0.2)
-        if metric == "l_avg" and x == "epsilon":
+                ax.fill_between(ux, lo, hi, alpha=0.2, color=line.get_color())
+        if _short(metric) == "l_avg" and _short(x) == "epsilon":
             xx = np.array([_num(r.get(x)) for r in rows])
             xx = xx[np.isfinite(xx)]
             if xx.size:
@@ -115,11 +205,20 @@ def plot_sweep(
                     lw=0.8,
                     label="l_avg = epsilon",
                 )
-        ax.set_xlabel(x)
-        ax.set_ylabel(_LABELS.get(metric, metric))
+        if _short(metric) == "n_collide":
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+            top = np.nanmax([_num(r.get(metric)) for r in rows] + [0.0])
+            ax.set_ylim(0, max(1.0, 1.1 * top))
+        ax.set_xlabel(_x_label(x))
+        ax.set_ylabel(_LABELS.get(_short(metric), _short(metric)))
         ax.grid(alpha=0.3)
-        if group or (metric == "l_avg" and x == "epsilon"):
-            ax.legend(fontsize=7)
+    axes[0][-1].legend(fontsize=7, title="; ".join(notes), title_fontsize=7)
+    if title is None:
+        scenes = sorted({str(r["scene"]) for r in rows if r.get("scene") not in (None, "")})
+        what = ", ".join(_short(m) for m in metrics)
+        title = f"{' / '.join(scenes) + ': ' if scenes else ''}{what} against {_short(x)}"
+        title += f" ({len(rows)} runs)"
+    fig.suptitle(title, fontsize=10)
     if path is not None:
         fig.savefig(path, dpi=110)
         plt.close(fig)

@@ -25,6 +25,11 @@ def test_animate_crossing_gif_and_mp4(tmp_path, capsys):
     assert main([*argv, "--out", str(gif), "--no-progress"]) == 0
     frames = iio.imread(gif, index=None)
     assert frames.shape[0] == expected and frames.shape[-1] in (3, 4)
+    # streamed frame by frame: real-time playback (1/5 s per frame), looping, distinct frames
+    meta = iio.immeta(gif, index=0)
+    assert meta["duration"] == 200 and "loop" in meta
+    assert len({f.tobytes() for f in frames}) == expected  # the time cursor moves every frame
+    assert frames.std() > 10  # an image, not a blank canvas
     assert f"{expected} frames written" in capsys.readouterr().out
     mp4 = tmp_path / "a.mp4"
     assert main([*argv, "--out", str(mp4), "--no-progress"]) == 0
