@@ -141,9 +141,7 @@ class ACPController(ConformalCBFController):
         self.max_inflation = max_inflation
 
     @classmethod
-    def from_controller(
-        cls, controller: ConformalCBFController, **params: Any
-    ) -> ACPController:
+    def from_controller(cls, controller: ConformalCBFController, **params: Any) -> ACPController:
         """The ``acp`` family built from the parts of an existing conformal CBF controller
         (same predictor, constraint, safety filter, reference and substeps)."""
         return cls(
@@ -166,7 +164,9 @@ class ACPController(ConformalCBFController):
         if int(self.window) != self.window or self.window < 1:
             raise ValueError(f"window must be a positive integer, got {self.window!r}")
         if not (math.isfinite(self.max_inflation) and self.max_inflation >= 0):
-            raise ValueError(f"max_inflation must be a finite number >= 0, got {self.max_inflation!r}")
+            raise ValueError(
+                f"max_inflation must be a finite number >= 0, got {self.max_inflation!r}"
+            )
         self.scores_: list[deque[float]] = []
         self.n_scored_ = 0
         self.n_unscored_ = 0

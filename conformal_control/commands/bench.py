@@ -37,6 +37,13 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help="with --regenerate: only this recording (repeatable), e.g. sdd:nexus/video3",
     )
     sc.add_argument("--output", default=None, help="with --regenerate: write the manifest here")
+    sc.add_argument(
+        "-j",
+        "--workers",
+        type=int,
+        default=1,
+        help="with --regenerate: processes for the nolearn episodes (default 1)",
+    )
 
 
 @_bench_args.handler
@@ -50,9 +57,9 @@ def _bench(args: argparse.Namespace) -> int:
 def _scenarios(args: argparse.Namespace) -> int:
     from ..bench.suites import load_suite
 
-    suite = load_suite(args.suite)
     if args.regenerate:
-        return _regenerate(args, suite)
+        return _regenerate(args)
+    suite = load_suite(args.suite)
     if args.recording or args.output:
         raise ValueError("--recording and --output go with --regenerate")
     rows = suite.scenarios_for(args.split)
@@ -76,17 +83,20 @@ def _scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
-def _regenerate(args: argparse.Namespace, suite) -> int:
+def _regenerate(args: argparse.Namespace) -> int:
     from ..bench.generator import SUITES, generate_suite
-    from ..bench.suites import dump_manifest
+    from ..bench.suites import dump_manifest, load_suite, suite_names
 
-    if suite.name not in SUITES:
-        raise ValueError(f"no generator is registered for suite {suite.name}")
+    if args.suite not in SUITES:
+        raise ValueError(
+            f"no generator for suite {args.suite!r}; suites with one: {', '.join(SUITES)}"
+        )
     t0 = time.perf_counter()
     manifest = generate_suite(
-        SUITES[suite.name],
+        SUITES[args.suite],
         args.data_root,
         recordings=args.recording,
+        workers=args.workers,
         progress=lambda line: print(line, flush=True),
     )
     wall = time.perf_counter() - t0
@@ -95,22 +105,34 @@ def _regenerate(args: argparse.Namespace, suite) -> int:
         with open(args.output, "w") as fh:
             fh.write(text)
         print(f"wrote {args.output}")
-    shipped = suite.manifest
+    n = len(manifest["scenarios"])
+    n_col = sum(int(s["nolearn"]["n_collide"] > 0) for s in manifest["scenarios"])
+    print(
+        f"regenerated {n} scenario(s) ({n_col} with a nolearn collision) from "
+        f"{len(manifest['recordings'])} recording(s) in {wall:.1f} s"
+    )
+    if args.suite not in suite_names():
+        print(f"no shipped manifest of {args.suite} to compare with")
+        return 0
+    shipped = load_suite(args.suite).manifest
     if args.recording:
         wanted = set(args.recording)
-        same = [r for r in shipped["recordings"] if r["id"] in wanted] == manifest[
-            "recordings"
-        ] and [s for s in shipped["scenarios"] if s["recording"] in wanted] == manifest[
-            "scenarios"
-        ]
+        same = _entries(shipped, wanted) == _entries(manifest, wanted)
         what = f"the shipped entries of {len(wanted)} recording(s)"
     else:
         same = text == dump_manifest(shipped)
         what = "the shipped manifest"
-    n = len(manifest["scenarios"])
-    print(f"regenerated {n} scenario(s) in {wall:.1f} s")
     if same:
-        print(f"identical to {what}")
+        print(f"byte-identical to {what}")
         return 0
     print(f"DIFFERS from {what}", file=sys.stderr)
     return 1
+
+
+def _entries(manifest: dict, wanted: set[str]) -> list[str]:
+    """The serialised recording entries and scenarios of some recordings."""
+    import json
+
+    recs = [r for r in manifest["recordings"] if r["id"] in wanted]
+    scs = [s for s in manifest["scenarios"] if s["recording"] in wanted]
+    return [json.dumps(x, indent=1) for x in (*recs, *scs)]

@@ -16,6 +16,7 @@ Frame numbers then count frames at ``fps`` from sample 0 (sample index x fps / 2
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 
@@ -51,7 +52,7 @@ def _runs(frames: np.ndarray) -> list[slice]:
     """Slices of consecutive frame numbers (step 1) in an increasing array."""
     breaks = np.flatnonzero(np.diff(frames) != 1) + 1
     bounds = [0, *breaks.tolist(), len(frames)]
-    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
 
 
 def _interpolate(
@@ -96,9 +97,7 @@ def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Track
         ratio = float(fps) / ETHUCY_FPS
         factor = round(ratio)
         if not (np.isfinite(ratio) and factor >= 1 and abs(ratio - factor) < 1e-9):
-            raise ValueError(
-                f"fps must be a whole multiple of {ETHUCY_FPS} (e.g. 30), got {fps!r}"
-            )
+            raise ValueError(f"fps must be a whole multiple of {ETHUCY_FPS} (e.g. 30), got {fps!r}")
     path = Path(path)
     if not path.is_file():
         raise missing(path, "ETH/UCY file")

@@ -192,9 +192,7 @@ ETHUCY_DEFAULTS: dict[str, Any] = {
 #: Frame rate ETH/UCY recordings are interpolated to (the SDD frame rate).
 ETHUCY_SCENE_FPS = SDD_FPS
 
-_SDD_RE = re.compile(
-    r"^sdd:(?P<scene>[A-Za-z]+)/video(?P<video>\d+)(?::(?P<form>raw|trajnet))?$"
-)
+_SDD_RE = re.compile(r"^sdd:(?P<scene>[A-Za-z]+)/video(?P<video>\d+)(?::(?P<form>raw|trajnet))?$")
 _ETHUCY_RE = re.compile(r"^ethucy:(?P<stem>\w+)$")
 
 
@@ -283,9 +281,7 @@ def _ethucy_scene(
         units=UnitSystem(1.0, 1.0 / ETHUCY_SCENE_FPS, "m", "frame"),
         defaults=dict(ETHUCY_DEFAULTS),
     )
-    scene.meta.update(
-        {"ethucy_recording": m["stem"], "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]]}
-    )
+    scene.meta.update({"ethucy_recording": m["stem"], "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]]})
     return scene
 
 

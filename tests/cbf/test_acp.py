@@ -90,7 +90,7 @@ def test_inflation_enters_the_barrier_as_collision_distance_and_slack_is_zero() 
     np.testing.assert_allclose(b, b2)
     assert fam.slack(0.1) == 0.0
     # lambda <= 0: infinite region, capped at max_inflation (and counted)
-    A0, b0 = fam.constraint_rows(state, -0.2)
+    _, b0 = fam.constraint_rows(state, -0.2)
     capped = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=5.0, d_c=1.5), a=2.0)
     np.testing.assert_allclose(b0, capped.rows(np.zeros(2), fam._xp[2], fam._vp[2])[1])
     assert fam.n_capped_ == 1
@@ -176,7 +176,11 @@ def test_long_run_miscoverage_is_within_acis_bound_of_alpha() -> None:
     assert abs(losses[:half].mean() - alpha) < 0.05
     assert abs(losses[half:].mean() - alpha) < 0.05
     # the regions followed the shift: larger radii in the noisier half
-    infl = [iv.diagnostics["mean_finite_radius"] for iv in res.updates if "mean_finite_radius" in iv.diagnostics]
+    infl = [
+        d["mean_finite_radius"]
+        for d in (iv.diagnostics for iv in res.updates)
+        if "mean_finite_radius" in d
+    ]
     assert np.mean(infl[-50:]) > 1.3 * np.mean(infl[20:70])
 
 
@@ -191,7 +195,7 @@ def test_without_learning_the_level_stays_and_coverage_drifts() -> None:
 
 
 def test_end_to_end_on_crossing_larger_regions_keep_the_robot_further(crossing) -> None:
-    res, fam, env, traj, n_collide = _acp_run(crossing, alpha=0.1, gamma=0.05)
+    res, fam, env, _, _ = _acp_run(crossing, alpha=0.1, gamma=0.05)
     assert env.goal_reached and res.n_updates > 20
     assert fam.n_scored_ > 100
     assert abs(res.monitor.identity_residual) < 1e-9
@@ -208,9 +212,7 @@ def test_end_to_end_on_an_sdd_scenario_of_the_suite(data_root) -> None:
     suite = load_suite("crossings-v1")
     sc = next(s for s in suite.scenarios if s.source == "sdd" and s.collided_nolearn)
     scene = load_scenario(sc, data_root)
-    res, fam, env, traj, n_collide = _acp_run(
-        scene, alpha=0.1, gamma=0.05, max_frames=sc.max_frames
-    )
+    res, fam, _, traj, _ = _acp_run(scene, alpha=0.1, gamma=0.05, max_frames=sc.max_frames)
     assert len(traj["frame"]) <= sc.max_frames + 1
     assert traj["frame"][0] == sc.start_frame
     assert res.n_updates > 10 and fam.n_scored_ > 0
