@@ -299,7 +299,7 @@ def _load_source(rec: Recording, data_root: Path, crit: Criterion) -> _Source:
     pts = pos[finite]
     if image_px is not None:
         lo = np.zeros(2)
-        hi = np.array(image_px, dtype=float) * float(m_per_px)
+        hi = np.array(image_px, dtype=float) * float(m_per_px or 1.0)
     else:
         lo, hi = pts.min(axis=0), pts.max(axis=0)
     origin = np.floor(lo / crit.cell) * crit.cell
@@ -498,7 +498,7 @@ def recording_scenarios(
             start_frame = int(src.frames[i0])
             frac = None
             if src.image_px is not None:
-                wh = np.array(src.image_px, dtype=float) * float(src.m_per_px)
+                wh = np.array(src.image_px, dtype=float) * float(src.m_per_px or 1.0)
                 frac = (cand["start"] / wh, cand["goal"] / wh)
             scenarios.append(
                 {

@@ -53,7 +53,7 @@ SOURCES = ("sdd", "trajnet", "ethucy")
 #: interval's truth and an oracle's look-ahead need a few frames past the end).
 TAIL_S = 4.0
 
-_SCENARIO_KEYS = {
+_SCENARIO_KEYS: dict[str, type | tuple[type, ...]] = {
     "id": str,
     "recording": str,
     "source": str,

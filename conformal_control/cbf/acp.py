@@ -156,11 +156,13 @@ class ACPController(ConformalCBFController):
     # ------------------------------------------------------------------ episode
     def reset(self) -> None:
         super().reset()
-        if "d_c" not in self.constraint.barrier.get_params():
+        barrier_params = self.constraint.barrier.get_params()
+        if "d_c" not in barrier_params:
             raise ValueError(
                 f"the acp family inflates the barrier's collision distance d_c; "
                 f"{type(self.constraint.barrier).__name__} has no d_c parameter"
             )
+        self._d_c = float(barrier_params["d_c"])
         if int(self.window) != self.window or self.window < 1:
             raise ValueError(f"window must be a positive integer, got {self.window!r}")
         if not (math.isfinite(self.max_inflation) and self.max_inflation >= 0):
@@ -254,7 +256,7 @@ class ACPController(ConformalCBFController):
         con = self._constraints.get(c)
         if con is None:
             barrier = copy.copy(self.constraint.barrier)
-            barrier.d_c = float(self.constraint.barrier.d_c) + c  # validated in reset
+            barrier.d_c = self._d_c + c  # type: ignore[attr-defined]
             con = ConformalConstraint(barrier, self.constraint.a)
             self._constraints[c] = con
         return con
@@ -346,7 +348,7 @@ class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
         if n == 0 or steps <= 0:
             return np.zeros((n, 0))
         diff = samples[:n, 1 : steps + 1] - pred[:n, :steps]
-        return np.hypot(diff[..., 0], diff[..., 1])
+        return np.asarray(np.hypot(diff[..., 0], diff[..., 1]), dtype=float)
 
     def _misses(
         self, record: ACPIntervalRecord, truth: CBFTruth, lam: float

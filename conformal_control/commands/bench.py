@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Any
 
 from . import command
 
@@ -129,7 +130,7 @@ def _regenerate(args: argparse.Namespace) -> int:
     return 1
 
 
-def _entries(manifest: dict, wanted: set[str]) -> list[str]:
+def _entries(manifest: dict[str, Any], wanted: set[str]) -> list[str]:
     """The serialised recording entries and scenarios of some recordings."""
     import json
 

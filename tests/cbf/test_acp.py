@@ -2,35 +2,64 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from conformal_control import registry
-from conformal_control.cbf import APFBarrier, ConformalConstraint
+from conformal_control.cbf import (
+    APFBarrier,
+    AttractiveField,
+    ConformalCBFController,
+    ConformalConstraint,
+    QPSafetyFilter,
+)
 from conformal_control.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
 from conformal_control.cbf.controller import ControlState
+from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.data.scene import scene_from_tracks
 from conformal_control.data.tracks import Tracks
 from conformal_control.data.units import SI
 from conformal_control.loop import ConformalLoop
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.sim.config import resolve_params
-from conformal_control.sim.episode import build_components
+from conformal_control.sim.environment import ReplayEnvironment
 from conformal_control.update_rules import ACIRule
 
 
 def _acp_run(
     scene, *, alpha=0.1, gamma=0.05, learn=True, lam0=None, max_frames=None, params=None, **kw
 ):
-    """Wire the acp family from the flagship's parts (build_components) and run it."""
-    params = resolve_params(scene, dict(params or {}))
-    comp = build_components(scene, params, ConstantVelocityPredictor(), max_frames)
-    family = ACPController.from_controller(comp.policy, **kw)
+    """Wire the acp family from the flagship's parts (the scene's parameters) and run it."""
+    p = resolve_params(scene, dict(params or {}))
+    si = p.si
+    scene = dataclasses.replace(scene, v_max=si["v_max"])
+    controller = ConformalCBFController(
+        ConstantVelocityPredictor(),
+        ConformalConstraint(
+            APFBarrier(K_rep=si["K_rep"], rho0=si["rho0"], d_c=scene.collision_distance),
+            a=si["a"],
+        ),
+        QPSafetyFilter(v_max=si["v_max"]),
+        AttractiveField(K_att=si["K_att"], v_max=si["v_max"]),
+        substeps=si["substeps"],
+    )
+    family = ACPController.from_controller(controller, **kw)
+    env = ReplayEnvironment(
+        scene,
+        VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),
+        tau_frames=p.tau_frames,
+        substeps=si["substeps"],
+        sensing_radius=si["sensing_radius"],
+        history_frames=p.history_frames,
+        max_frames=max_frames,
+    )
     rule = ACIRule(alpha=alpha, gamma=gamma, lambda_init=lam0)
-    result = ConformalLoop(comp.env, family, ACPMiscoverageLoss(), rule, learn=learn).run()
-    traj = comp.env.log.arrays()
-    n_collide = int(np.sum(traj["d_min"] < comp.env.scene.collision_distance))
-    return result, family, comp.env, traj, n_collide
+    result = ConformalLoop(env, family, ACPMiscoverageLoss(), rule, learn=learn).run()
+    traj = env.log.arrays()
+    n_collide = int(np.sum(traj["d_min"] < scene.collision_distance))
+    return result, family, env, traj, n_collide
 
 
 def test_loss_is_registered_and_monotone_in_lambda() -> None:
