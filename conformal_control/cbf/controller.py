@@ -183,8 +183,11 @@ class ConformalCBFController(
     def _fused_apf(self) -> bool:
         """Whether decide() takes the compiled APF step (configured here) or the generic path."""
         f, c = self.safety_filter, self.constraint
+        me = type(self)
         if not (
-            type(c) is ConformalConstraint
+            me.constraint_rows is ConformalCBFController.constraint_rows
+            and me.slack is ConformalCBFController.slack
+            and type(c) is ConformalConstraint
             and type(c.barrier) is APFBarrier
             and isinstance(f, Exact2DSafetyFilter)
             and f.fused
@@ -246,6 +249,21 @@ class ConformalCBFController(
         )
 
     # ------------------------------------------------------------------ control instant
+    def constraint_rows(self, state: ControlState, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """The safety filter's rows ``A v + b + slack >= 0`` at this control instant.
+
+        The family's hook for families built from the same parts that move the knob
+        elsewhere (e.g. :class:`~conformal_control.cbf.acp.ACPController` inflates the
+        agents with ``lam``); here ``lam`` does not enter the rows.
+        """
+        if not self._ids.size:
+            return np.zeros((0, 2)), np.zeros(0)
+        return self.constraint.rows(state.x[:2], self._xp[state.step], self._vp[state.step])
+
+    def slack(self, lam: float) -> float:
+        """The slack handed to the safety filter for ``lam``: ``lam`` itself (Algorithm 1)."""
+        return lam
+
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
@@ -254,11 +272,8 @@ class ConformalCBFController(
                 x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
             )
         else:
-            if self._ids.size:
-                A, b = self.constraint.rows(x_ego, self._xp[state.step], self._vp[state.step])
-            else:
-                A, b = np.zeros((0, 2)), np.zeros(0)
-            res = self.safety_filter.solve(v_ref, A, b, lam)
+            A, b = self.constraint_rows(state, lam)
+            res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)

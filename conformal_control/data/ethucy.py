@@ -4,10 +4,19 @@ The data folder holds one sub-folder per *test scene* (``eth``, ``hotel``, ``uni
 ``zara1``, ``zara2``), each with ``train/``, ``val/`` and ``test/`` folders: the standard
 leave-one-scene-out split (``<scene>/test`` is that scene, ``<scene>/train`` the other
 four). Samples are 0.4 s apart (2.5 fps); the frame numbers step by 10 (6 for ETH).
+
+To replay a scene at a control rate, :func:`read_ethucy` can interpolate every track to
+``fps`` frames per second the way the TrajNet loader does
+(:func:`conformal_control.data.trajnet.upsample`: a cubic spline through the samples,
+linear for runs of fewer than 4 samples), separately on each run of consecutive samples
+so that a track's gaps stay gaps (NaN in a scene) instead of being bridged by the spline.
+Frame numbers then count frames at ``fps`` from sample 0 (sample index x fps / 2.5).
+:func:`ethucy_recording` finds the full recording of one scene (its ``test/`` files).
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 
@@ -16,21 +25,79 @@ import numpy as np
 from .paths import ethucy_root, missing
 from .tracks import Tracks
 
-__all__ = ["ETHUCY_FPS", "ETHUCY_SCENES", "ethucy_files", "read_ethucy"]
+__all__ = [
+    "ETHUCY_FPS",
+    "ETHUCY_RECORDINGS",
+    "ETHUCY_SCENES",
+    "ethucy_files",
+    "ethucy_recording",
+    "read_ethucy",
+]
 
 ETHUCY_FPS = 2.5
 ETHUCY_SCENES = ("eth", "hotel", "univ", "zara1", "zara2")
 SPLITS = ("train", "val", "test")
+#: The full recordings: ``<scene>/test/<stem>.txt`` (univ has two).
+ETHUCY_RECORDINGS: dict[str, str] = {
+    "biwi_eth": "eth",
+    "biwi_hotel": "hotel",
+    "students001": "univ",
+    "students003": "univ",
+    "crowds_zara01": "zara1",
+    "crowds_zara02": "zara2",
+}
 
 
-def read_ethucy(path: str | os.PathLike[str]) -> Tracks:
+def _runs(frames: np.ndarray) -> list[slice]:
+    """Slices of consecutive frame numbers (step 1) in an increasing array."""
+    breaks = np.flatnonzero(np.diff(frames) != 1) + 1
+    bounds = [0, *breaks.tolist(), len(frames)]
+    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
+
+
+def _interpolate(
+    tracks: dict[int, tuple[np.ndarray, np.ndarray]], factor: int
+) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], int]:
+    from .trajnet import upsample
+
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    n_gaps = 0
+    for pid, (f, xy) in tracks.items():
+        fs, xys = [], []
+        runs = _runs(f)
+        n_gaps += len(runs) - 1
+        for run in runs:
+            full, pos = upsample(f[run] * factor, xy[run])
+            fs.append(full)
+            xys.append(pos)
+        out[pid] = (np.concatenate(fs), np.concatenate(xys))
+    return out, n_gaps
+
+
+def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Tracks:
     """Read one file; frames are renumbered to sample indices (frame / frame step).
+
+    Parameters
+    ----------
+    path : path
+        A ``frame ped_id x y`` file (metres).
+    fps : float, optional
+        Interpolate every track to this frame rate (a whole multiple of 2.5, e.g. 30; see
+        the module docstring); frame numbers are then frames at ``fps``. Default: keep the
+        2.5 fps samples (frame numbers are sample indices).
 
     Raises
     ------
     ValueError
-        For a malformed row or a file without rows.
+        For a malformed row, a file without rows, or an ``fps`` that is not a whole
+        multiple of 2.5.
     """
+    factor = 1
+    if fps is not None:
+        ratio = float(fps) / ETHUCY_FPS
+        factor = round(ratio)
+        if not (np.isfinite(ratio) and factor >= 1 and abs(ratio - factor) < 1e-9):
+            raise ValueError(f"fps must be a whole multiple of {ETHUCY_FPS} (e.g. 30), got {fps!r}")
     path = Path(path)
     if not path.is_file():
         raise missing(path, "ETH/UCY file")
@@ -56,7 +123,18 @@ def read_ethucy(path: str | os.PathLike[str]) -> Tracks:
         xy = arr[sel][order, 2:4]
         keep = np.concatenate([[True], np.diff(f) > 0])  # drop duplicated frames
         tracks[int(pid)] = (f[keep], xy[keep])
-    return Tracks(ETHUCY_FPS, tracks, source=str(path), meta={"frame_step": step})
+    meta: dict[str, object] = {"frame_step": step, "format": "ethucy"}
+    if fps is None:
+        return Tracks(ETHUCY_FPS, tracks, source=str(path), meta=meta)
+    tracks, n_gaps = _interpolate(tracks, factor)
+    meta.update(
+        {
+            "interpolation": "cubic spline per run of consecutive samples",
+            "samples_per_frame": 1.0 / factor,
+            "n_track_gaps": n_gaps,
+        }
+    )
+    return Tracks(float(fps), tracks, source=str(path), meta=meta)
 
 
 def ethucy_files(
@@ -72,3 +150,15 @@ def ethucy_files(
     if not files:
         raise missing(folder, f"ETH/UCY {scene}/{split} data")
     return files
+
+
+def ethucy_recording(stem: str, data_root: str | os.PathLike[str] | None = None) -> Path:
+    """Path of a full recording (``biwi_eth``, ``students001``, ...; see ETHUCY_RECORDINGS)."""
+    if stem not in ETHUCY_RECORDINGS:
+        raise ValueError(
+            f"unknown ETH/UCY recording {stem!r}; one of {', '.join(ETHUCY_RECORDINGS)}"
+        )
+    path = ethucy_root(data_root) / ETHUCY_RECORDINGS[stem] / "test" / f"{stem}.txt"
+    if not path.is_file():
+        raise missing(path, f"ETH/UCY recording {stem}")
+    return path

@@ -10,29 +10,51 @@ Scene names accepted by :func:`load_scene` and ``conformal-control run --scene``
   :mod:`conformal_control.data.trajnet`). Append ``:trajnet`` or ``:raw`` to force a form
   (e.g. ``nexus_4:trajnet``);
 * ``sdd:<scene>/video<N>`` - any SDD video with raw annotations, start and goal given as
-  image fractions.
+  image fractions; ``sdd:<scene>/video<N>:trajnet`` reads the video's TrajNet file instead
+  (re-linked and interpolated to 30 fps);
+* ``ethucy:<recording>`` - a full ETH/UCY recording (``biwi_eth``, ``biwi_hotel``,
+  ``students001``, ``students003``, ``crowds_zara01``, ``crowds_zara02``), interpolated
+  from 2.5 to 30 fps (:func:`conformal_control.data.ethucy.read_ethucy`). These
+  recordings are in world metres without an image: ``start_m`` and ``goals_m`` give start
+  and goals in metres (required).
 
 Parameters of SDD scenes are typed in the paper's units (px, frames; see
-:mod:`conformal_control.data.units`).
+:mod:`conformal_control.data.units`). ETH/UCY scenes are typed in metres and frames of
+1/30 s, with the SDD defaults' lengths converted at :data:`REFERENCE_M_PER_PX` (see
+:data:`ETHUCY_DEFAULTS`), so that one set of numbers means the same robot on both.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..exceptions import InputError
+from .ethucy import ETHUCY_RECORDINGS, ethucy_recording, read_ethucy
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
+from .tracks import Tracks
 from .trajnet import read_trajnet
 from .units import UnitSystem
 
-__all__ = ["PAPER_SCENES", "TABLE_I", "TABLE_II", "SceneSpec", "load_scene", "scene_names"]
+__all__ = [
+    "ETHUCY_DEFAULTS",
+    "PAPER_SCENES",
+    "REFERENCE_M_PER_PX",
+    "TABLE_I",
+    "TABLE_II",
+    "SceneSpec",
+    "load_scene",
+    "read_tracks",
+    "scene_names",
+]
 
 #: Parameters printed in the paper's Table I (gates_1), paper units.
 TABLE_I: dict[str, float] = {
@@ -156,12 +178,112 @@ PAPER_SCENES: dict[str, SceneSpec] = {
     ]
 }
 
-_SDD_RE = re.compile(r"^sdd:(?P<scene>[A-Za-z]+)/video(?P<video>\d+)$")
+#: Metres per "pixel" used to carry the SDD defaults' lengths to scenes without pixels: a
+#: typical SDD scale (the median over the 60 videos of ``estimated_scales.yaml`` is
+#: 0.0397 m/px), rounded.
+REFERENCE_M_PER_PX = 0.04
+#: Default parameters of ETH/UCY scenes (lengths in m, times in frames of 1/30 s): the SDD
+#: defaults (Table II, a = 10 per frame) with rho0 and K_rep converted at
+#: :data:`REFERENCE_M_PER_PX`.
+ETHUCY_DEFAULTS: dict[str, Any] = {
+    **_defaults(TABLE_II),
+    "rho0": TABLE_II["rho0"] * REFERENCE_M_PER_PX,
+    "K_rep": TABLE_II["K_rep"] * REFERENCE_M_PER_PX**2,
+}
+#: Frame rate ETH/UCY recordings are interpolated to (the SDD frame rate).
+ETHUCY_SCENE_FPS = SDD_FPS
+
+_SDD_RE = re.compile(r"^sdd:(?P<scene>[A-Za-z]+)/video(?P<video>\d+)(?::(?P<form>raw|trajnet))?$")
+_ETHUCY_RE = re.compile(r"^ethucy:(?P<stem>\w+)$")
 
 
 def scene_names() -> list[str]:
-    """Names of the registered scenes (``sdd:<scene>/video<N>`` works too)."""
+    """Names of the registered scenes (``sdd:<scene>/video<N>`` and ``ethucy:<recording>``
+    work too)."""
     return ["crossing", *PAPER_SCENES]
+
+
+@functools.lru_cache(maxsize=8)
+def _read_tracks_cached(
+    kind: str, path: str, m_per_px: float, fps: float | None, _stamp: tuple[int, int]
+) -> Tracks:
+    if kind == "raw":
+        return read_annotations(path, m_per_px)
+    if kind == "trajnet":
+        return read_trajnet(path, m_per_px)
+    return read_ethucy(path, fps=fps)
+
+
+def read_tracks(
+    kind: str,
+    path: str | os.PathLike[str],
+    m_per_px: float = 1.0,
+    fps: float | None = None,
+) -> Tracks:
+    """Tracks of a recording (``kind``: ``raw`` SDD, ``trajnet`` or ``ethucy``), read once.
+
+    The last few files read are kept in memory (keyed by path, size and modification
+    time), so that many short episodes on one recording parse it once. Treat the result
+    as read-only: it is shared.
+    """
+    if kind not in ("raw", "trajnet", "ethucy"):
+        raise ValueError(f"kind must be raw, trajnet or ethucy, got {kind!r}")
+    p = Path(path)
+    try:
+        st = p.stat()
+        stamp = (st.st_size, st.st_mtime_ns)
+    except OSError:
+        stamp = (-1, -1)  # the reader raises the clear missing-file error
+    return _read_tracks_cached(kind, str(p), float(m_per_px), fps, stamp)
+
+
+def _metres(value: Any, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(-1, 2)
+    if arr.shape[0] == 0 or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be finite (x, y) positions in metres, got {value!r}")
+    return arr
+
+
+def _ethucy_scene(
+    name: str,
+    data_root: str | os.PathLike[str] | None,
+    *,
+    start_m: Any,
+    goals_m: Any,
+    start_frame: int | None,
+    v_max: float | None,
+    history_frames: int,
+    last_frame: int | None,
+    fractions_given: bool,
+) -> Scene:
+    m = _ETHUCY_RE.match(name)
+    if not m or m["stem"] not in ETHUCY_RECORDINGS:
+        raise ValueError(
+            f"bad ETH/UCY scene name {name!r}; expected ethucy:<recording> with a recording "
+            f"among {', '.join(ETHUCY_RECORDINGS)}"
+        )
+    if fractions_given:
+        raise ValueError(
+            f"{name} has no image: give start_m and goals_m in metres, not image fractions"
+        )
+    if start_m is None or goals_m is None:
+        raise ValueError(f"{name} needs start_m and goals_m (metres): it has no default task")
+    path = ethucy_recording(m["stem"], data_root)
+    tracks = read_tracks("ethucy", path, fps=ETHUCY_SCENE_FPS)
+    scene = scene_from_tracks(
+        tracks,
+        name=m["stem"],
+        start=_metres(start_m, "start_m")[0],
+        goals=_metres(goals_m, "goals_m"),
+        start_frame=int(start_frame if start_frame is not None else history_frames),
+        v_max=float(v_max if v_max is not None else 4.0),
+        history_frames=history_frames,
+        last_frame=last_frame,
+        units=UnitSystem(1.0, 1.0 / ETHUCY_SCENE_FPS, "m", "frame"),
+        defaults=dict(ETHUCY_DEFAULTS),
+    )
+    scene.meta.update({"ethucy_recording": m["stem"], "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]]})
+    return scene
 
 
 def _fractions(value: Any, what: str) -> np.ndarray:
@@ -181,26 +303,46 @@ def load_scene(
     v_max: float | None = None,
     history_frames: int = 120,
     seed: int = 0,
+    last_frame: int | None = None,
+    start_m: tuple[float, float] | None = None,
+    goals_m: list[tuple[float, float]] | None = None,
 ) -> Scene:
     """Build a scene by name (see the module docstring for the accepted names).
 
     ``start`` and ``goals`` are fractions of the image's width and height (SDD scenes);
-    they override the registry's values. ``seed`` only matters for ``crossing``.
+    they override the registry's values. ``start_m`` and ``goals_m`` give them in metres
+    instead (ETH/UCY scenes need them; on SDD scenes they replace the fractions).
+    ``last_frame`` ends the replayed data early (a smaller scene for a short episode).
+    ``seed`` only matters for ``crossing``.
     """
     if name == "crossing":
-        if any(v is not None for v in (start, goals, start_frame)):
+        if any(v is not None for v in (start, goals, start_frame, start_m, goals_m)):
             raise ValueError("the built-in crossing scene has a fixed start, goal and frame")
         return crossing_scene(seed=seed)
+    if name.startswith("ethucy:"):
+        return _ethucy_scene(
+            name,
+            data_root,
+            start_m=start_m,
+            goals_m=goals_m,
+            start_frame=start_frame,
+            v_max=v_max,
+            history_frames=history_frames,
+            last_frame=last_frame,
+            fractions_given=start is not None or goals is not None,
+        )
     base, _, form = name.partition(":")
     spec: SceneSpec | None = None
     if name.startswith("sdd:"):
         m = _SDD_RE.match(name)
         if not m:
-            raise ValueError(f"bad SDD scene name {name!r}; expected sdd:<scene>/video<N>")
-        sdd_scene, video, source = m["scene"], int(m["video"]), "raw"
+            raise ValueError(
+                f"bad SDD scene name {name!r}; expected sdd:<scene>/video<N>[:trajnet]"
+            )
+        sdd_scene, video, source = m["scene"], int(m["video"]), m["form"] or "raw"
         defaults = _defaults(TABLE_II)
         spec_start, spec_goals, spec_frame, spec_vmax = (0.05, 0.5), ((0.95, 0.5),), 0, 4.0
-        scene_name = f"{sdd_scene}_{video}"
+        scene_name = f"{sdd_scene}_{video}" + (":trajnet" if m["form"] == "trajnet" else "")
     elif base in PAPER_SCENES:
         spec = PAPER_SCENES[base]
         if form not in ("", "raw", "trajnet"):
@@ -221,13 +363,13 @@ def load_scene(
         hint = f" did you mean {close[0]!r}?" if close else ""
         raise InputError(
             f"unknown scene {name!r};{hint} known: {', '.join(scene_names())}, or "
-            "sdd:<scene>/video<N> (see `conformal-control scenes`)"
+            "sdd:<scene>/video<N>[:trajnet] or ethucy:<recording> (see `conformal-control scenes`)"
         )
     vid = sdd_video(sdd_scene, video, data_root)
     if source == "raw":
-        tracks = read_annotations(vid.annotations, vid.m_per_px)
+        tracks = read_tracks("raw", vid.annotations, vid.m_per_px)
     else:
-        tracks = read_trajnet(vid.trajnet, vid.m_per_px)
+        tracks = read_tracks("trajnet", vid.trajnet, vid.m_per_px)
     size_px = vid.image_size_px()
     if size_px is None:
         raise ValueError(
@@ -236,16 +378,23 @@ def load_scene(
         )
     extent = (size_px[0] * vid.m_per_px, size_px[1] * vid.m_per_px)
     wh = np.array(extent)
-    start_frac = _fractions(start if start is not None else spec_start, "start")[0]
-    goal_frac = _fractions(goals if goals is not None else spec_goals, "goals")
+    if start_m is not None:
+        start_frac = _metres(start_m, "start_m")[0] / wh
+    else:
+        start_frac = _fractions(start if start is not None else spec_start, "start")[0]
+    if goals_m is not None:
+        goal_frac = _metres(goals_m, "goals_m") / wh
+    else:
+        goal_frac = _fractions(goals if goals is not None else spec_goals, "goals")
     scene = scene_from_tracks(
         tracks,
         name=scene_name,
-        start=start_frac * wh,
-        goals=goal_frac * wh,
+        start=_metres(start_m, "start_m")[0] if start_m is not None else start_frac * wh,
+        goals=_metres(goals_m, "goals_m") if goals_m is not None else goal_frac * wh,
         start_frame=int(start_frame if start_frame is not None else spec_frame),
         v_max=float(v_max if v_max is not None else spec_vmax),
         history_frames=history_frames,
+        last_frame=last_frame,
         units=UnitSystem(vid.m_per_px, 1.0 / SDD_FPS, "px", "frame"),
         defaults=defaults,
         extent=extent,

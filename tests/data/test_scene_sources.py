@@ -1,0 +1,98 @@
+"""Scenes on ETH/UCY recordings and on the TrajNet form of any SDD video."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conformal_control.data import load_scene
+from conformal_control.data.ethucy import ethucy_recording, read_ethucy
+from conformal_control.data.scenes import ETHUCY_DEFAULTS, read_tracks
+from conformal_control.sim.config import resolve_params
+
+
+def test_ethucy_interpolated_to_30_fps_keeps_the_samples(ethucy_dir: Path) -> None:
+    path = ethucy_dir / "univ" / "test" / "students001.txt"
+    raw = np.loadtxt(path)  # independent read: frame ped_id x y, frames step 10
+    tracks = read_ethucy(path, fps=30)
+    assert tracks.fps == 30 and len(tracks) == len(np.unique(raw[:, 1]))
+    pid = int(raw[0, 1])
+    rows = raw[raw[:, 1] == pid]
+    frames, xy = tracks.tracks[pid]
+    assert np.all(np.diff(frames) == 1)
+    # sample k (frame 10 k of the file) is frame 12 k at 30 fps, exactly on the data
+    for fr, x, y in rows[:, [0, 2, 3]]:
+        i = int(np.flatnonzero(frames == round(fr / 10) * 12)[0])
+        np.testing.assert_allclose(xy[i], [x, y], atol=1e-9)
+    assert frames[0] == rows[0, 0] / 10 * 12 and frames[-1] == rows[-1, 0] / 10 * 12
+
+
+def test_ethucy_gaps_stay_gaps_and_bad_rates_are_refused(tmp_path: Path) -> None:
+    p = tmp_path / "gap.txt"
+    rows = [(f, 1, 0.1 * f, 1.0) for f in (0, 10, 20, 30, 60, 70, 80, 90)]
+    p.write_text("".join(f"{f}\t{i}\t{x}\t{y}\n" for f, i, x, y in rows))
+    t = read_ethucy(p, fps=30)
+    frames, xy = t.tracks[1]
+    assert t.meta["n_track_gaps"] == 1
+    # samples 0..3 -> frames 0..36, samples 6..9 -> frames 72..108, nothing in between
+    assert frames[0] == 0 and frames[-1] == 108
+    assert not np.any((frames > 36) & (frames < 72))
+    np.testing.assert_allclose(xy[frames == 72][0], [6.0, 1.0])
+    with pytest.raises(ValueError, match=r"whole multiple of 2\.5"):
+        read_ethucy(p, fps=24)
+
+
+def test_ethucy_scene_in_metres_and_frames(data_root: Path) -> None:
+    scene = load_scene(
+        "ethucy:crowds_zara01",
+        data_root,
+        start_m=(2.0, 6.0),
+        goals_m=[(12.0, 6.0)],
+        start_frame=600,
+        last_frame=900,
+    )
+    assert scene.fps == 30 and scene.start_frame == 600
+    assert scene.first_frame + scene.n_frames - 1 == 900
+    assert scene.units.length == 1.0 and scene.units.time == pytest.approx(1 / 30)
+    np.testing.assert_allclose(scene.start, [2.0, 6.0])
+    assert scene.defaults["rho0"] == pytest.approx(16.0)
+    assert scene.defaults["K_rep"] == pytest.approx(0.064)
+    si = resolve_params(scene, {}).si
+    assert si["a"] == pytest.approx(300.0) and si["tau"] == pytest.approx(4 / 30)
+    assert ETHUCY_DEFAULTS["a"] == 10.0
+    with pytest.raises(ValueError, match="needs start_m and goals_m"):
+        load_scene("ethucy:crowds_zara01", data_root)
+    with pytest.raises(ValueError, match="no image"):
+        load_scene("ethucy:crowds_zara01", data_root, start=(0.1, 0.1), goals=[(0.9, 0.9)])
+    with pytest.raises(ValueError, match="bad ETH/UCY scene name"):
+        load_scene("ethucy:atlantis", data_root, start_m=(0, 0), goals_m=[(1, 1)])
+    with pytest.raises(ValueError, match="unknown ETH/UCY recording"):
+        ethucy_recording("atlantis", data_root)
+
+
+def test_trajnet_form_of_any_video_and_metre_positions(sdd_dir: Path) -> None:
+    scene = load_scene(
+        "sdd:hyang/video5:trajnet", sdd_dir, start_m=(5.0, 20.0), goals_m=[(15.0, 20.0)]
+    )
+    assert scene.meta["form"] == "trajnet" and scene.name == "hyang_5:trajnet"
+    wh = np.array(scene.extent)
+    np.testing.assert_allclose(scene.meta["start_fraction"], np.array([5.0, 20.0]) / wh)
+    np.testing.assert_allclose(scene.goals, [[15.0, 20.0]])
+    raw = load_scene("sdd:nexus/video4:raw", sdd_dir)
+    assert raw.meta["form"] == "raw"
+    with pytest.raises(ValueError, match="bad SDD scene name"):
+        load_scene("sdd:nexus/video4:lidar", sdd_dir)
+
+
+def test_read_tracks_reads_a_file_once_and_again_when_it_changes(tmp_path: Path) -> None:
+    p = tmp_path / "a.txt"
+    p.write_text("0\t1\t0.0\t0.0\n10\t1\t1.0\t0.0\n")
+    first = read_tracks("ethucy", p)
+    assert read_tracks("ethucy", p) is first
+    p.write_text("0\t1\t0.0\t0.0\n10\t1\t2.0\t0.0\n20\t1\t3.0\t0.0\n")
+    again = read_tracks("ethucy", p)
+    assert again is not first and len(again.tracks[1][0]) == 3
+    with pytest.raises(ValueError, match="kind must be"):
+        read_tracks("lidar", p)
