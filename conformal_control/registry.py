@@ -60,6 +60,7 @@ ROLES: dict[str, str] = {
     "update_rule": "conformal_control.update_rules",
     "dynamics": "conformal_control.dynamics",
     "reference": "conformal_control.references",
+    "decision_family": "conformal_control.families",
 }
 
 

@@ -197,6 +197,8 @@ class SuiteSpec:
     criterion: Criterion = field(default_factory=Criterion)
     nolearn_predictor: str = "constant_velocity"
     nolearn_params: dict[str, Any] = field(default_factory=dict)
+    #: pinned so that a change of the flagship's default filter does not change the record
+    nolearn_safety_filter: str = "exact2d"
 
     @property
     def full_name(self) -> str:
@@ -556,7 +558,11 @@ def _map(fn: Callable[[Any], Any], items: list[Any], workers: int) -> list[Any]:
 
 
 def nolearn_outcome(
-    scenario: dict[str, Any], data_root: Path, predictor: str, params: dict[str, Any]
+    scenario: dict[str, Any],
+    data_root: Path,
+    predictor: str,
+    params: dict[str, Any],
+    safety_filter: str = "exact2d",
 ) -> dict[str, Any]:
     """Run the suite's nolearn baseline on one scenario; the rounded outcome."""
     from ..sim.episode import run_episode
@@ -570,6 +576,7 @@ def nolearn_outcome(
         learn=False,
         max_frames=sc.max_frames,
         record_animation=False,
+        safety_filter=safety_filter,
     )
     m = res.metrics
     return {
@@ -639,6 +646,7 @@ def generate_suite(
                 data_root=root,
                 predictor=spec.nolearn_predictor,
                 params=spec.nolearn_params,
+                safety_filter=spec.nolearn_safety_filter,
             ),
             scenarios,
             workers,
@@ -672,6 +680,7 @@ def generate_suite(
             "predictor": spec.nolearn_predictor,
             "learn": False,
             "params": dict(spec.nolearn_params),
+            "safety_filter": spec.nolearn_safety_filter,
             "note": (
                 "run_episode(load_scenario(s), predictor, params, learn=False, "
                 "max_frames=s.max_frames): lambda fixed at lambda_init = 0, every other "

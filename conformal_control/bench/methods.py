@@ -115,9 +115,10 @@ class Method:
             "rule_params": dict(self.rule_params),
         }
         for role, name in self.roles.items():
-            kw[role] = name
+            key = "family" if role == "decision_family" else role
+            kw[key] = name
             if role != "fallback" and self.role_params.get(role):
-                kw[f"{role}_params"] = dict(self.role_params[role])
+                kw[f"{key}_params"] = dict(self.role_params[role])
         return kw
 
     def as_dict(self) -> dict[str, Any]:
@@ -232,7 +233,7 @@ def _acp(alpha: float) -> Method:
         "adaptive conformal prediction regions inflating each agent's radius (ACI)",
         rule="aci",
         rule_params={"alpha": alpha, "gamma": 0.005},
-        roles={"family": "acp", "loss": "acp_miscoverage"},
+        roles={"decision_family": "acp", "loss": "acp_miscoverage"},
     )
 
 
@@ -297,13 +298,8 @@ def available(method: Method) -> str | None:
     from .. import registry
 
     for role, name in method.requirements().items():
-        reg_role = "fallback" if role == "fallback" else role
-        if role == "family":
-            reg_role = "decision_family"
-        if reg_role not in registry.ROLES:
-            return f"role {reg_role!r} is not registered in this version"
         try:
-            registry.get(reg_role, name)
+            registry.get(role, name)
         except (registry.UnknownPluginError, registry.PluginUnavailableError) as exc:
             return str(exc)
     return None

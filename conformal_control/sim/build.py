@@ -178,6 +178,8 @@ def build_flagship(
     dynamics: RoleSpec = None,
     loss: RoleSpec = None,
     rule: RoleSpec = "fixed_eta",
+    family: str | None = None,
+    family_params: dict[str, Any] | None = None,
     predictor_params: dict[str, Any] | None = None,
     barrier_params: dict[str, Any] | None = None,
     safety_filter_params: dict[str, Any] | None = None,
@@ -206,6 +208,11 @@ def build_flagship(
         ``exact2d`` with the run's fallback, the attractive-field reference, the
         velocity-tracking double integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule).
         ``fallback`` is handed to the safety filter's ``fallback`` argument.
+    family : str, optional
+        A registered decision family built from the same parts (predictor, constraint,
+        safety filter, reference, substeps) and ``family_params``; default ``"cbf"``, the
+        conformal CBF controller (Algorithm 1). ``"acp"``: adaptive conformal prediction
+        regions (:class:`~conformal_control.cbf.acp.ACPController`).
     units : {"scene", "si"}
         Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
         plugins are always SI).
@@ -324,7 +331,16 @@ def build_flagship(
     names["rule"] = role_name(rule, "fixed_eta")
     names["crowd"] = crowd
 
-    policy = ConformalCBFController(pred, constraint, filt, ref, substeps=si["substeps"])
+    fam_name = family or "cbf"
+    fam_cls = registry.get("decision_family", fam_name)
+    if not issubclass(fam_cls, ConformalCBFController):
+        raise TypeError(
+            f"decision family {fam_name!r} is not built from the flagship's parts "
+            "(a ConformalCBFController subclass)"
+        )
+    registry.check_params("decision_family", fam_name, fam_cls, dict(family_params or {}))
+    policy = fam_cls(pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {}))
+    names["family"] = fam_name
     cp = dict(crowd_params or {})
     if crowd != "replay":
         cp.setdefault("seed", seed)

@@ -113,6 +113,8 @@ def run_episode(
     loss_params: dict[str, Any] | None = None,
     crowd: str = "replay",
     crowd_params: dict[str, Any] | None = None,
+    family: str | None = None,
+    family_params: dict[str, Any] | None = None,
     record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
 ) -> EpisodeResult:
@@ -152,6 +154,9 @@ def run_episode(
         ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
         who react to the robot, with ``crowd_params`` (SI; see
         :func:`~conformal_control.sim.reactive.make_environment`).
+    family : str, optional
+        A registered decision family built from the flagship's parts (default ``"cbf"``;
+        ``"acp"``), with ``family_params``.
     record_animation : bool
         Keep the compact record ``conformal-control animate`` renders (``result.animation``,
         written as ``animation.npz``; see :mod:`conformal_control.sim.record`).
@@ -179,6 +184,8 @@ def run_episode(
         rule_params=rule_params,
         crowd=crowd,
         crowd_params=crowd_params,
+        family=family,
+        family_params=family_params,
         learn=learn,
         seed=seed,
         max_frames=max_frames,
@@ -398,7 +405,7 @@ def _measure(
         lam_unit=lam_unit,
         lam_unit_name=f"1/{units.time_name}",
         l_avg=mon.average if (learn and mon.n) else None,
-        l_avg_applied=float(np.nanmean(losses_applied)) if (learn and updates) else None,
+        l_avg_applied=_nanmean(losses_applied) if learn else None,
         l_mean=mon.average if mon.n else None,
         epsilon=si["epsilon"],
         eta=si["eta"] / lam_unit if learn else 0.0,
@@ -426,6 +433,13 @@ def _measure(
         wall_s=wall,
     )
     return metrics, intervals, traj
+
+
+def _nanmean(values: list[float]) -> float | None:
+    """Mean of the finite values, None when there is none (a loss without diagnostics)."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if x.size else None
 
 
 def _config(
