@@ -5,31 +5,48 @@ loss), over a family of decision policies ordered by conservativeness. The flags
 instantiation adds lambda as slack to control-barrier-function constraints built from
 predicted pedestrian trajectories (Huriot & Sibai).
 
-The generic core (:mod:`conformal_control.base`, :mod:`conformal_control.loop`,
-:mod:`conformal_control.monitor`) is imported eagerly; everything else is imported on
-first use, so ``import conformal_control`` stays cheap.
+Every public name, the generic core (:mod:`conformal_control.base`,
+:mod:`conformal_control.loop`, :mod:`conformal_control.monitor`) included, is imported on
+first use (``from conformal_control import ConformalLoop`` works as usual), so
+``import conformal_control`` costs next to nothing: not even numpy is imported until a
+name that needs it is used (the command line's ``--help`` and ``--version`` stay instant).
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.2.0.dev0"
 
-from .base import (
-    DecisionFamily,
-    Environment,
-    Loss,
-    Plugin,
-    SingleStepEnvironment,
-    UpdateRule,
-)
-from .loop import ConformalLoop, IntervalLog, LoopResult
-from .monitor import GuaranteeMonitor
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
+    from .api import run
+    from .base import (
+        DecisionFamily,
+        Environment,
+        Loss,
+        Plugin,
+        SingleStepEnvironment,
+        UpdateRule,
+    )
+    from .cbf.roles import Barrier, Dynamics, FilterResult, ReferenceController, SafetyFilter
+    from .cbf.stepwise import StepwiseCBF
+    from .loop import ConformalLoop, IntervalLog, LoopResult
+    from .monitor import GuaranteeMonitor
+    from .predictors.base import Forecast, PredictionQuery, Predictor
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
+    "DecisionFamily": "conformal_control.base",
+    "Environment": "conformal_control.base",
+    "Loss": "conformal_control.base",
+    "Plugin": "conformal_control.base",
+    "SingleStepEnvironment": "conformal_control.base",
+    "UpdateRule": "conformal_control.base",
+    "ConformalLoop": "conformal_control.loop",
+    "IntervalLog": "conformal_control.loop",
+    "LoopResult": "conformal_control.loop",
+    "GuaranteeMonitor": "conformal_control.monitor",
     "run": "conformal_control.api",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sqlite3
 import sys
 import warnings
 from collections.abc import Sequence
@@ -119,7 +118,8 @@ def describe_error(exc: BaseException) -> str | None:
 
     if isinstance(exc, ConformalControlError):
         return str(exc)
-    if isinstance(exc, sqlite3.DatabaseError):
+    sqlite3 = sys.modules.get("sqlite3")  # not imported: no cache database was opened
+    if sqlite3 is not None and isinstance(exc, sqlite3.DatabaseError):
         from .predictors.cache import cache_dir
 
         return (

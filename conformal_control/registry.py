@@ -240,16 +240,27 @@ def _discover() -> None:
     if _discovered:
         return
     _discovered = True
+    # one scan of the installed distributions for every group, and each distribution's
+    # metadata parsed once (not once per entry point and role: a large environment has
+    # hundreds of distributions, and this runs at the start of every command)
+    every = entry_points()
+    origin: dict[int, tuple[str, str | None]] = {}
+
+    def dist_of(ep: EntryPoint) -> tuple[str, str | None]:
+        if ep.dist is None:
+            return "unknown", None
+        key = id(ep.dist)
+        if key not in origin:
+            meta = ep.dist.metadata
+            origin[key] = (meta["Name"], meta["Version"])
+        return origin[key]
+
     for role, group in ROLES.items():
         ep: EntryPoint
         # our own plugins first: a third party cannot take over a core name
-        eps = sorted(
-            entry_points(group=group),
-            key=lambda e: e.dist is None or e.dist.name != "conformal-control",
-        )
+        eps = sorted(every.select(group=group), key=lambda e: dist_of(e)[0] != "conformal-control")
         for ep in eps:
-            dist = ep.dist.name if ep.dist is not None else "unknown"
-            version = ep.dist.version if ep.dist is not None else None
+            dist, version = dist_of(ep)
             _add(PluginEntry(role, ep.name, ep.value, dist, version))
 
 
