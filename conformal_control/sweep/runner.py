@@ -225,8 +225,9 @@ def run_sweep(
     with SweepLock(out), _SignalGuard() as guard:
         store = ResultsStore(out)
         store.remove_stale_temp_files()
-        done = store.finished(include_failed=not retry_failed) if resume else set()
+        store.records()  # reads the journal now: unreadable lines are reported up front
         report.journal_skipped = list(store.bad_lines_)  # also warned (JournalWarning)
+        done = store.finished(include_failed=not retry_failed) if resume else set()
         todo = [(c, k) for c, k in zip(configs, keys, strict=True) if k not in done]
         report.skipped = [k for k in keys if k in done]
         runs = [dict(c.as_dict(), key=k) for c, k in zip(configs, keys, strict=True)]

@@ -50,7 +50,7 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
     """
     from .. import registry
     from ..sim.config import resolve_params
-    from .worker import load_run_scene
+    from .worker import _scene
 
     scenes = {} if scenes is None else scenes
     # Parameters resolve against the scene's units, frame rate, defaults, radii and speed
@@ -58,7 +58,7 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
     skey = (cfg.scene, cfg.data_root)
     if skey not in scenes:
         try:
-            scenes[skey] = load_run_scene({"scene": cfg.scene, "data_root": cfg.data_root})
+            scenes[skey] = _scene(cfg.scene, cfg.data_root, 0)  # a serial sweep reuses it
         except Exception as exc:
             scenes[skey] = exc
     scene = scenes[skey]
@@ -75,7 +75,8 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
 def validate_runs(configs: Sequence[RunConfig]) -> None:
     """Check every configuration; raise one :class:`SweepValidationError` for all problems.
 
-    Scenes are loaded once per (scene, data root) and dropped afterwards.
+    Scenes are loaded once per (scene, data root), through the worker's small scene cache
+    (so a serial sweep, whose runs execute in this process, does not load them twice).
     """
     problems: dict[str, list[str]] = {}
     scenes: dict[tuple[Any, ...], Any] = {}

@@ -26,15 +26,15 @@ from conformal_control.sweep import SweepSpec
 TOKEN = "CONFORMAL_CONTROL_TEST_SWEEP_TOKEN"
 CLI = [sys.executable, "-c", "import sys; from conformal_control.cli import main; sys.exit(main())"]
 BASE = {"scene": "crossing", "frames": 10}
-GRID = {"epsilon": [-0.1, 0, 0.1], "seed": [0, 1, 2, 3]}
+# 12 runs on one seed: each worker generates the built-in scene once
+EPSILONS = [-0.3, -0.25, -0.2, -0.15, -0.1, -0.05, 0, 0.05, 0.1, 0.15, 0.2, 0.25]
+GRID = {"epsilon": EPSILONS}
 ARGS = [
     "sweep",
     "--scene",
     "crossing",
     "--grid",
-    "epsilon=-0.1,0,0.1",
-    "--grid",
-    "seed=0,1,2,3",
+    "epsilon=" + ",".join(map(str, EPSILONS)),
     "-j",
     "2",
     "--progress",

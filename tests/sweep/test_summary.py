@@ -42,7 +42,7 @@ def test_cli_sweep_writes_a_summary_not_per_run_plots(tmp_path: Path, capsys) ->
         "--scene",
         "crossing",
         "--set",
-        "frames=20",
+        "frames=10",
         "--executor",
         "serial",
         "--progress",
