@@ -148,7 +148,11 @@ def check_complete(out: Path, keys: set[str] = KEYS) -> None:
 
 
 def test_random_kills_lose_and_duplicate_nothing(tmp_path: Path) -> None:
-    """SIGKILL (and a few SIGTERM) at random points of a 12-run sweep, resumed each time."""
+    """SIGKILL at 20 random points of a 12-run sweep (and SIGTERM twice), resumed each time.
+
+    Three in five kills land in the first 1.5 s (imports, validation, locking, reading the
+    journal, starting the pool), the others just after one or two more runs were recorded.
+    """
     rng = random.Random(20251123)
     token = uuid.uuid4().hex
     kills, terms, rounds, folders = 0, [], 0, 0
@@ -156,10 +160,10 @@ def test_random_kills_lose_and_duplicate_nothing(tmp_path: Path) -> None:
     try:
         while kills < 20:
             rounds += 1
-            sig = signal.SIGTERM if rounds % 6 == 0 else signal.SIGKILL
+            sig = signal.SIGTERM if rounds in (5, 12) else signal.SIGKILL
             before = n_lines(out)
             p = start(out, token, tmp_path / f"round{rounds}.log")
-            if sig == signal.SIGKILL and rng.random() < 0.5:  # during start-up
+            if sig == signal.SIGKILL and rng.random() < 0.6:  # during start-up
                 deadline = time.monotonic() + rng.uniform(0.0, 1.5)
                 while p.poll() is None and time.monotonic() < deadline:
                     time.sleep(0.01)

@@ -29,6 +29,8 @@ __all__ = ["ProcessExecutor", "default_workers", "process_alive", "watch_driver"
 
 #: Seconds between two checks of the driver by a worker's watchdog.
 WATCHDOG_PERIOD_S = 0.25
+#: Modules the fork server imports before it forks workers (``forkserver`` only).
+PRELOAD = ("conformal_control.sweep.worker", "conformal_control.sim.episode")
 
 
 def default_workers() -> int:
@@ -157,9 +159,14 @@ class ProcessExecutor(Executor):
         method = self.start_method or (
             "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
         )
+        ctx = multiprocessing.get_context(method)
+        if method == "forkserver" and PRELOAD:
+            # import the simulation once in the fork server (if it is not running yet)
+            # instead of once in every worker it forks
+            ctx.set_forkserver_preload(["__main__", *PRELOAD])
         return ProcessPoolExecutor(
             max_workers=self.n_workers,
-            mp_context=multiprocessing.get_context(method),
+            mp_context=ctx,
             initializer=watch_driver,
             initargs=(os.getpid(),),
         )
