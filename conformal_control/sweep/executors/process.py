@@ -9,6 +9,10 @@ and exits the worker when the driver is gone. Polling is used rather than Linux'
 not the driver) and does not exist off Linux. When the driver stops on an exception
 (SIGTERM, Ctrl-C), :meth:`ProcessExecutor.run` terminates the workers instead of waiting
 for their runs.
+
+With ``forkserver`` the fork server imports the simulation (:data:`PRELOAD`) once, with the
+one-thread BLAS settings in its environment, and every worker starts from that copy instead
+of importing it again.
 """
 
 from __future__ import annotations
