@@ -69,7 +69,9 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-summary-plot", action="store_true", help="do not write the sweep's summary.png"
     )
-    p.add_argument("--dry-run", action="store_true", help="list the runs and their keys only")
+    p.add_argument(
+        "--dry-run", action="store_true", help="check the runs and list them with their keys only"
+    )
     p.add_argument(
         "--progress",
         choices=("auto", "on", "off"),
@@ -88,6 +90,7 @@ def _sweep(args: argparse.Namespace) -> int:
         load_spec,
         parse_grid_option,
         run_sweep,
+        validate_runs,
     )
 
     if args.plots and args.no_plot:
@@ -102,6 +105,7 @@ def _sweep(args: argparse.Namespace) -> int:
     if not configs:
         raise ValueError("the sweep has no runs")
     if args.dry_run:
+        validate_runs(configs)  # the same check a real sweep makes before it starts
         for c in configs:
             print(c.key, c.as_dict())
         print(f"{len(configs)} runs")

@@ -36,6 +36,8 @@ def test_cli_rejects_a_bad_value_before_any_run(
     for text in expected:
         assert text in err
     assert not (out / "runs").exists() and not (out / "results.jsonl").exists()
+    assert main([*BASE, "--grid", "seed=0,1", *options, "--out", str(out), "--dry-run"]) == 2
+    assert capsys.readouterr().err.strip() == err  # a dry run makes the same check
 
 
 def test_validation_lists_each_problem_once_with_its_runs() -> None:
