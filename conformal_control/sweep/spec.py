@@ -45,6 +45,7 @@ __all__ = [
     "RESERVED_KEYS",
     "RunConfig",
     "SweepSpec",
+    "invalid_runs_message",
     "load_spec",
     "parse_grid_option",
     "run_key",
@@ -188,6 +189,19 @@ class RunConfig:
         )
 
 
+def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
+    """One sentence: how many of ``total`` runs are invalid, and each distinct reason."""
+    n_bad = sum(errors.values())
+    parts = []
+    for msg, count in errors.items():
+        text = " ".join(msg.split()).rstrip(".")
+        parts.append(text if total == 1 else f"{text} ({count} run{'s' if count != 1 else ''})")
+    return (
+        f"{n_bad} of {total} run{'s' if total != 1 else ''} of the sweep "
+        f"{'is' if n_bad == 1 else 'are'} invalid, so none was started: " + "; ".join(parts)
+    )
+
+
 def run_key(hashed: Mapping[str, Any]) -> str:
     """Short SHA-256 of the canonical JSON of a configuration (16 hex digits)."""
     text = json.dumps(_canonical(dict(hashed)), sort_keys=True, separators=(",", ":"))
@@ -237,13 +251,24 @@ class SweepSpec:
         points = list(itertools.product(*(self.grid[a] for a in axes))) or [()]
         out: list[RunConfig] = []
         seen: set[str] = set()
+        errors: dict[str, int] = {}
+        n = 0
         for run in self.runs or [{}]:
             for point in points:
+                n += 1
                 flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
-                cfg = RunConfig.from_flat(flat)
-                if cfg.key not in seen:
-                    seen.add(cfg.key)
+                try:
+                    cfg = RunConfig.from_flat(flat)
+                    key = cfg.key
+                except (ValueError, TypeError) as exc:
+                    msg = str(exc)
+                    errors[msg] = errors.get(msg, 0) + 1
+                    continue
+                if key not in seen:
+                    seen.add(key)
                     out.append(cfg)
+        if errors:
+            raise ValueError(invalid_runs_message(errors, n))
         return out
 
     def merged(self, other: SweepSpec) -> SweepSpec:
