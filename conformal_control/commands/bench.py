@@ -56,7 +56,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _scenarios(args: argparse.Namespace) -> int:
-    from ..bench.suites import load_suite
+    from ..data.suites import load_suite
 
     if args.regenerate:
         return _regenerate(args)
@@ -86,7 +86,7 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 def _regenerate(args: argparse.Namespace) -> int:
     from ..bench.generator import SUITES, generate_suite
-    from ..bench.suites import dump_manifest, load_suite, suite_names
+    from ..data.suites import dump_manifest, load_suite, suite_names
 
     if args.suite not in SUITES:
         raise ValueError(

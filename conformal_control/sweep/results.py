@@ -65,6 +65,10 @@ def flatten_record(rec: dict[str, Any]) -> dict[str, Any]:
         "seed": cfg.get("seed"),
         "max_frames": cfg.get("frames"),
     }
+    for k, v in (cfg.get("meta") or {}).items():
+        row[str(k)] = _scalar(v)
+    for k, v in sorted((cfg.get("episode") or {}).items()):
+        row[f"episode.{k}"] = _scalar(v)
     for k, v in sorted((cfg.get("predictor_params") or {}).items()):
         row[f"predictor_params.{k}"] = _scalar(v)
     for k, v in sorted((cfg.get("params") or {}).items()):

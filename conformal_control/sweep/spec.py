@@ -61,9 +61,35 @@ RESERVED_KEYS = (
     "frames",
     "data_root",
     "label",
+    "meta",
+)
+#: Keys passed to :func:`~conformal_control.sim.run_episode` as they are (roles by name,
+#: the rule, the unit system, the crowd, the family, lambda_safe); they enter the run key.
+EPISODE_KEYS = (
+    "units",
+    "rule",
+    "rule_params",
+    "barrier",
+    "barrier_params",
+    "safety_filter",
+    "safety_filter_params",
+    "fallback",
+    "reference",
+    "reference_params",
+    "dynamics",
+    "dynamics_params",
+    "loss",
+    "loss_params",
+    "family",
+    "family_params",
+    "crowd",
+    "crowd_params",
+    "lambda_safe",
+    "lambda_safe_source",
+    "record_animation",
 )
 #: Keys that do not enter the run key.
-UNHASHED_KEYS = ("label", "data_root")
+UNHASHED_KEYS = ("label", "data_root", "meta")
 _PP = "predictor_params."
 
 
@@ -102,6 +128,11 @@ class RunConfig:
         Controller parameters in the scene's units.
     data_root : str or None
     label : str
+    episode : dict
+        Other arguments of :func:`~conformal_control.sim.run_episode` (:data:`EPISODE_KEYS`).
+    meta : dict
+        Free description copied into the results table (not part of the key), e.g. the
+        benchmark's method, scenario, split.
     """
 
     scene: str
@@ -113,6 +144,8 @@ class RunConfig:
     params: dict[str, Any] = field(default_factory=dict)
     data_root: str | None = None
     label: str = ""
+    episode: dict[str, Any] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
         """The part of the configuration the key is computed from (canonical form)."""
@@ -136,6 +169,8 @@ class RunConfig:
             "params": dict(self.params),
             "data_root": self.data_root,
             "label": self.label,
+            "episode": dict(self.episode),
+            "meta": dict(self.meta),
         }
 
     @classmethod
@@ -155,6 +190,8 @@ class RunConfig:
         for k in [k for k in flat if k.startswith(_PP)]:
             pp[k[len(_PP) :]] = flat.pop(k)
         reserved = {k: flat.pop(k) for k in RESERVED_KEYS if k in flat}
+        episode = dict(flat.pop("episode", None) or {})
+        episode.update({k: flat.pop(k) for k in EPISODE_KEYS if k in flat})
         unknown = sorted(k for k in flat if k not in PARAMETERS)
         if unknown:
             raise ValueError(
@@ -186,6 +223,8 @@ class RunConfig:
             params=params,
             data_root=None if data_root is None else str(data_root),
             label=str(reserved.get("label") or ""),
+            episode=episode,
+            meta=dict(reserved.get("meta") or {}),
         )
 
 

@@ -64,12 +64,24 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
     scene = scenes[skey]
     if isinstance(scene, BaseException):
         raise scene
-    given = dict(cfg.params)
+    from ..sim.config import to_scene_units
+
+    given = to_scene_units(scene, dict(cfg.params), str(cfg.episode.get("units", "scene")))
     if not cfg.learn:  # as run_episode does: the noLearn baseline keeps lambda fixed
         given.setdefault("eta", 0.0)
     resolve_params(scene, given)
     cls = registry.get("predictor", cfg.predictor)
     registry.check_params("predictor", cfg.predictor, cls, dict(cfg.predictor_params))
+    ep = cfg.episode
+    for role in ("barrier", "safety_filter", "fallback", "reference", "dynamics", "loss"):
+        name = ep.get(role)
+        if isinstance(name, str):
+            cls = registry.get(role, name)
+            registry.check_params(role, name, cls, dict(ep.get(f"{role}_params") or {}))
+    if isinstance(ep.get("family"), str):
+        registry.get("decision_family", ep["family"])
+    if isinstance(ep.get("rule"), str):
+        registry.get("update_rule", ep["rule"])
 
 
 def validate_runs(configs: Sequence[RunConfig]) -> None:

@@ -111,10 +111,12 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = False)
                 cfg.get("predictor") or "constant_velocity",
                 dict(cfg.get("params") or {}),
                 learn=bool(cfg.get("learn", True)),
-                max_frames=cfg.get("frames"),
+                # a benchmark scenario carries its time limit
+                max_frames=cfg.get("frames") or scene.meta.get("max_frames"),
                 seed=int(cfg.get("seed", 0)),
                 predictor_params=dict(cfg.get("predictor_params") or {}),
                 extra_config={"sweep": {"key": key, "run": cfg}},
+                **dict(cfg.get("episode") or {}),
             )
         run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
         write_run_dir(result, run_dir, plot=plot)

@@ -21,7 +21,7 @@ BASE = ["sweep", "--scene", "crossing", "--set", "frames=10", "--progress", "off
         (["--grid", "epsilon=0.1,0.9,-0.7"], ["got 0.9", "got -0.7", "4 of 6 runs"]),
         (["--grid", "tau=0.25"], ["tau must be a positive whole number of frames"]),
         (["--grid", "etaa=1,2"], ["unknown sweep key(s) etaa"]),
-        (["--set", "frames=abc"], ["'frames' must be a positive integer"]),
+        (["--set", "learn=maybe"], ["'learn' must be true or false"]),
         (["--predictor", "constant_velocty"], ["constant_velocity"]),
         (["--grid", "predictor_params.windw=1,2"], ["windw"]),
     ],
