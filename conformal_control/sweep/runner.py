@@ -163,7 +163,7 @@ def run_sweep(
     scheduler: str | None = None,
     resume: bool = True,
     retry_failed: bool = True,
-    plot: bool = False,
+    plot: bool | str = False,
     summary_plot: bool = True,
     validate: bool = True,
     progress: bool | None = None,
@@ -187,9 +187,11 @@ def run_sweep(
         Skip keys that already finished in ``out_dir`` (default). False reruns all.
     retry_failed : bool
         On resume, rerun keys whose last attempt failed (default).
-    plot : bool
+    plot : bool or str
         Write ``plot.png`` and ``guarantee.png`` in every run directory (default off:
-        plotting takes most of a short run's time).
+        plotting takes most of a short run's time); ``"metrics"`` writes only each run's
+        ``config.json`` and ``metrics.json``, ``"none"`` no run directory (the journal
+        holds the metrics): see :func:`~conformal_control.sweep.worker.execute_run`.
     summary_plot : bool
         Write ``summary.png``, the metrics against the swept parameter (default on).
     validate : bool
@@ -260,7 +262,7 @@ def _run(
     store: ResultsStore,
     report: SweepReport,
     guard: _SignalGuard,
-    plot: bool,
+    plot: bool | str,
     progress: bool | None,
     table_every: int,
 ) -> None:

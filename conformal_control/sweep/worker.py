@@ -63,7 +63,9 @@ def _scene(name: str, data_root: str | None, seed: int):
     return load_run_scene({"scene": name, "data_root": data_root, "seed": seed})
 
 
-def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = False) -> dict[str, Any]:
+def execute_run(
+    cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str = False
+) -> dict[str, Any]:
     """Run one configuration (see :class:`~conformal_control.sweep.spec.RunConfig`).
 
     Parameters
@@ -75,9 +77,12 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = False)
     out_dir : str
         The sweep's output folder; the run directory is ``out_dir/runs/<name>``. With a
         remote Dask cluster it must be a path the workers can write (a shared file system).
-    plot : bool
-        Write each run's ``plot.png`` and ``guarantee.png`` (off by default: plotting
-        takes most of a short run's time).
+    plot : bool or str
+        What each run writes: True or ``"plots"`` (the whole run directory with
+        ``plot.png`` and ``guarantee.png``), False or ``"full"`` (the run directory without
+        plots; default: plotting takes most of a short run's time), ``"metrics"``
+        (``config.json`` and ``metrics.json`` only: large benchmarks) or ``"none"`` (the
+        journal record only).
 
     Returns
     -------
@@ -118,12 +123,21 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = False)
                 extra_config={"sweep": {"key": key, "run": cfg}},
                 **dict(cfg.get("episode") or {}),
             )
-        run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
-        write_run_dir(result, run_dir, plot=plot)
+        files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+        assert run_dir is not None
+        if files in ("plots", "full"):
+            write_run_dir(result, run_dir, plot=files == "plots")
+        elif files == "metrics":
+            write_run_dir(result, run_dir, plot=False, only=("config.json", "metrics.json"))
+        elif files == "none":
+            run_dir = None
+        else:
+            raise ValueError(f"unknown run files option {files!r}")
         m = result.metrics
         rec.update(
             status="ok",
-            run_dir=str(run_dir),
+            run_dir=None if run_dir is None else str(run_dir),
             metrics={k: m.get(k) for k in METRIC_COLUMNS},
         )
     except Exception as exc:  # a failed run is data, not a crash
