@@ -56,6 +56,7 @@ def bench_configs(
     seed: int = 0,
     scenarios: Iterable[str] | None = None,
     limit: int | None = None,
+    base_params: Mapping[str, Any] | None = None,
 ) -> list[Any]:
     """The sweep's run configurations: one per (scenario, method), scenarios outermost.
 
@@ -74,6 +75,8 @@ def bench_configs(
         Only these scenario ids.
     limit : int, optional
         Only the first ``limit`` scenarios of the split (quick looks, tests).
+    base_params : mapping, optional
+        Run parameters (SI) applied to every method; a method's own parameters win.
     """
     from ..sweep.spec import RunConfig
 
@@ -110,7 +113,7 @@ def bench_configs(
                     predictor=kw["predictor"],
                     learn=kw["learn"],
                     seed=seed,
-                    params=dict(kw["params"]),
+                    params={**dict(base_params or {}), **dict(kw["params"])},
                     data_root=data_root,
                     label=f"{sc.id}-{m.name}",
                     episode=episode,
@@ -159,6 +162,7 @@ def run_bench(
     progress: bool | None = None,
     limit: int | None = None,
     seed: int = 0,
+    base_params: Mapping[str, Any] | None = None,
 ) -> BenchRun:
     """Run the benchmark into ``out`` (resumable: finished episodes are skipped).
 
@@ -183,6 +187,7 @@ def run_bench(
         data_root=data_root,
         seed=seed,
         limit=limit,
+        base_params=base_params,
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(
@@ -197,6 +202,7 @@ def run_bench(
                 "unavailable": unavailable,
                 "limit": limit,
                 "seed": seed,
+                "base_params": dict(base_params or {}),
             },
             indent=2,
             default=str,

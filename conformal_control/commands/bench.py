@@ -12,7 +12,7 @@ import sys
 import time
 from typing import Any
 
-from . import command
+from . import command, key_values
 
 
 @command("bench", "closed-loop safety benchmark on real crowds (scenario suites)")
@@ -82,6 +82,12 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help="override a family's settings, e.g. conformal=-0.2,-0.1 (repeatable)",
     )
     ru.add_argument("--predictor", default="constant_velocity", help="registered predictor")
+    ru.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="run parameter in SI applied to every method, e.g. K_rep=0.3 (repeatable)",
+    )
     ru.add_argument(
         "--crowd",
         default="replay",
@@ -200,6 +206,7 @@ def _run(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         progress=progress,
         limit=args.limit,
+        base_params=key_values(args.set, "--set"),
     )
     print(res.summary())
     return 0 if res.failed == 0 else 1
