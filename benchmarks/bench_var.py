@@ -9,7 +9,8 @@ VARIMA(10, 1, 'c') would be fitted on them (33+ finite samples, not degenerate).
 * darts' time per window on the first ``--darts-windows`` windows, fitted in a
   subprocess (``cc_darts``' own worker, one BLAS thread), and the ratio, same run;
 * the distance between the two forecasts over the first tau steps and over 80 steps
-  (median and max over windows);
+  (median and max over windows), and each one's ADE against the true future beside
+  constant velocity's (window 5);
 * how many windows conditional least squares (OLS, statsmodels ``VAR``'s estimator) fits
   with an explosive companion matrix (spectral radius >= 1), against Yule–Walker.
 
@@ -53,26 +54,30 @@ print(json.dumps({"wall": wall, "cpu": cpu, "errors": errors}))
 """
 
 
-def windows_from_scene(scene, n: int, length: int, seed: int) -> np.ndarray:
-    """Seeded (n, length, 2) windows that VARIMA(10, 1) would be fitted on."""
+def windows_from_scene(
+    scene, n: int, length: int, ahead: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded (n, length, 2) windows VARIMA(10, 1) would be fitted on, and the (n, ahead, 2)
+    true futures (windows whose pedestrian is observed for ``ahead`` more frames)."""
     pos = scene.positions  # (F, M, 2)
     ok = np.isfinite(pos).all(axis=-1)
-    # a window ending at frame f is usable when frames f-length+1..f are all finite
+    # a window ending at frame f is usable when frames f-length+1..f+ahead are all finite
     run = np.zeros_like(ok, dtype=int)
     for f in range(pos.shape[0]):
         run[f] = np.where(ok[f], (run[f - 1] if f else 0) + 1, 0)
-    ends = np.argwhere(run >= length)
+    ends = np.argwhere(run >= length + ahead) - [ahead, 0]
     rng = np.random.default_rng(seed)
-    out = []
+    hist, fut = [], []
     for f, m in ends[rng.permutation(len(ends))]:
         w = pos[f - length + 1 : f + 1, m]
         d = np.diff(w, axis=0)
         if np.ptp(w, axis=0).min() < 1e-9 or np.ptp(d, axis=0).min() < 1e-9:
             continue  # degenerate: both predictors fall back to constant velocity
-        out.append(w)
-        if len(out) == n:
+        hist.append(w)
+        fut.append(pos[f + 1 : f + 1 + ahead, m])
+        if len(hist) == n:
             break
-    return np.stack(out)
+    return np.stack(hist), np.stack(fut)
 
 
 def var_forecast(windows: np.ndarray, horizon: int, dt: float) -> np.ndarray:
@@ -95,6 +100,15 @@ def ols_radius(windows: np.ndarray, p: int = 10) -> np.ndarray:
     return np.array(radii)
 
 
+def constant_velocity(windows: np.ndarray, horizon: int, window: int = 5) -> np.ndarray:
+    v = (windows[:, -1] - windows[:, -1 - window]) / window
+    return windows[:, -1][:, None] + np.arange(1, horizon + 1)[None, :, None] * v[:, None]
+
+
+def ade(pred: np.ndarray, truth: np.ndarray, steps: int) -> float:
+    return float(np.linalg.norm(pred[:, :steps] - truth[:, :steps], axis=-1).mean())
+
+
 def spread(a: np.ndarray, b: np.ndarray, steps: int) -> tuple[float, float]:
     """Median and max over windows of the largest distance over the first ``steps``."""
     dist = np.linalg.norm(a[:, :steps] - b[:, :steps], axis=-1).max(axis=1)
@@ -115,22 +129,35 @@ def main() -> None:
     sdd = None if args.data_root is None else str(Path(args.data_root) / "sdd")
     scene = load_scene(args.scene, sdd)
     dt = 1.0 / scene.fps
-    win = windows_from_scene(scene, args.windows, 50, args.seed)
-    print(f"{len(win)} windows of 50 samples, {args.scene} at {scene.fps:g} fps, seed {args.seed}")
+    win, truth = windows_from_scene(scene, args.windows, 50, args.horizon, args.seed)
+    print(
+        f"{len(win)} windows of 50 samples with {args.horizon} true future samples, "
+        f"{args.scene} at {scene.fps:g} fps, seed {args.seed}"
+    )
 
     var_forecast(win[:2], args.horizon, dt)  # warm-up
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     var_all = var_forecast(win, args.horizon, dt)
     batched = (time.perf_counter() - t0) / len(win)
+    batched_cpu = (time.process_time() - c0) / len(win)
     k = min(len(win), 100)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for i in range(k):
         var_forecast(win[i : i + 1], args.horizon, dt)
     single = (time.perf_counter() - t0) / k
+    single_cpu = (time.process_time() - c0) / k
     print(
-        f"var:   {1e6 * batched:8.1f} us/window batched ({len(win)} in one call), "
-        f"{1e6 * single:8.1f} us/window one per call"
+        f"var:   {1e6 * batched:8.1f} us/window batched ({len(win)} in one call; "
+        f"{1e6 * batched_cpu:.1f} CPU-us), {1e6 * single:8.1f} us/window one per call "
+        f"({1e6 * single_cpu:.1f} CPU-us)"
     )
+    cv = constant_velocity(win, args.horizon)
+    for steps in [*args.taus, args.horizon]:
+        print(
+            f"ADE vs truth over {steps:3d} steps, all {len(win)} windows: "
+            f"var {100 * ade(var_all, truth, steps):6.2f} cm, "
+            f"constant velocity {100 * ade(cv, truth, steps):6.2f} cm"
+        )
 
     r_ols = ols_radius(win)
     yw = np.abs(np.linalg.eigvals(companion(_yw_coefs(win)))).max(axis=1)
@@ -161,23 +188,26 @@ def main() -> None:
     fit_cpu = float(np.mean(stats["cpu"]))
     failed = [e for e in stats["errors"] if e]
     print(
-        f"darts: {1e6 * fit_wall:8.0f} us/window wall ({fit_cpu:.2f} CPU-s) on {nd} windows "
-        f"(subprocess {total:.1f} s with imports; {len(failed)} failed fits)"
+        f"darts: {1e6 * fit_wall:8.0f} us/window wall ({1e6 * fit_cpu:.0f} CPU-us) on {nd} "
+        f"windows (subprocess {total:.1f} s with imports; {len(failed)} failed fits)"
     )
     print(
-        f"ratio darts / var: x{fit_wall / batched:,.0f} batched, x{fit_wall / single:,.0f} "
-        "one window per call"
+        f"ratio darts / var: x{fit_wall / batched:,.0f} wall (x{fit_cpu / batched_cpu:,.0f} CPU) "
+        f"batched, x{fit_wall / single:,.0f} wall (x{fit_cpu / single_cpu:,.0f} CPU) one "
+        "window per call"
     )
     good = np.isfinite(darts).all(axis=(1, 2))
-    a, b = var_all[:nd][good], darts[good]
+    a, b, c, tr = var_all[:nd][good], darts[good], cv[:nd][good], truth[:nd][good]
     for steps in [*args.taus, args.horizon]:
         med, mx = spread(a, b, steps)
         print(
             f"|var - darts| over {steps:3d} steps: median {100 * med:6.2f} cm, "
-            f"max {100 * mx:6.2f} cm ({int(good.sum())} windows)"
+            f"max {100 * mx:6.2f} cm; ADE vs truth: var {100 * ade(a, tr, steps):6.2f}, "
+            f"darts {100 * ade(b, tr, steps):6.2f}, constant velocity "
+            f"{100 * ade(c, tr, steps):6.2f} cm ({int(good.sum())} windows)"
         )
     if args.save:
-        np.savez(args.save, windows=win[:nd], var=var_all[:nd], darts=darts)
+        np.savez(args.save, windows=win[:nd], truth=truth[:nd], var=var_all[:nd], darts=darts)
 
 
 def _yw_coefs(win: np.ndarray, p: int = 10) -> np.ndarray:

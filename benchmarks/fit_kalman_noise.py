@@ -91,7 +91,8 @@ def main() -> None:
         for ratio in RATIOS[model]:
             pred = KalmanPredictor(model, ratio * r0 * r0, r0, anchor=anchor)
             rel = np.array([evaluate_predictor(pred, w)["ade"] for w in parts.values()]) / base
-            print(f"  q/r^2 = {ratio:7g}: {' '.join(f'{x:.3f}' for x in rel)}  worst {rel.max():.3f}")
+            cells = " ".join(f"{x:.3f}" for x in rel)
+            print(f"  q/r^2 = {ratio:7g}: {cells}  worst {rel.max():.3f}")
             if best is None or rel.max() < best[0]:
                 best = (rel.max(), ratio)
         worst, ratio = best

@@ -12,9 +12,10 @@ same model structure with a different estimator, for every sensed agent at once:
    the (2p × 2p) symmetric block-Toeplitz matrix of Γ; they are solved for every agent in
    one batched ``numpy.linalg.solve`` (short histories are zero-padded, which leaves the
    sums of the biased estimator unchanged, so a batched fit equals a fit alone);
-3. the spectral radius of each agent's companion matrix is checked; one at or above
-   ``max_radius`` (possible only through round-off, the biased Yule–Walker estimate being
-   stable in exact arithmetic) is shrunk to ``max_radius`` by scaling ``A_k`` by ``s^k``
+3. the spectral radius of each agent's companion matrix is checked (a cheap Gelfand
+   bound first, the eigenvalues only when the bound does not settle it); one at or above
+   ``max_radius`` (the biased Yule–Walker estimate is stable in exact arithmetic, but can
+   come arbitrarily close to 1) is shrunk to ``max_radius`` by scaling ``A_k`` by ``s^k``
    (which scales every eigenvalue by ``s``), counted in ``n_shrunk``;
 4. the differences are forecast recursively and integrated from the current position.
 
@@ -46,7 +47,14 @@ import numpy as np
 from .base import Forecast, PredictionQuery, Predictor
 from .constant_velocity import ConstantVelocityPredictor, trailing_valid
 
-__all__ = ["VARPredictor", "companion", "fit_var_yule_walker", "forecast_var", "stabilise"]
+__all__ = [
+    "VARPredictor",
+    "companion",
+    "fit_var_yule_walker",
+    "forecast_var",
+    "radius_bound",
+    "stabilise",
+]
 
 
 def _block_toeplitz(gamma: np.ndarray) -> np.ndarray:
@@ -69,11 +77,37 @@ def companion(coefs: np.ndarray) -> np.ndarray:
     return c
 
 
+def radius_bound(c: np.ndarray, squarings: int = 10) -> np.ndarray:
+    """Upper bounds on the spectral radii of square matrices, (M, n, n) -> (M,).
+
+    Gelfand: ρ(C) <= ||C^j||^(1/j) for every j, and the bound tends to ρ(C); here the
+    smallest over j = 2, 4, ..., 2^squarings (repeated squaring, rescaled to stay finite).
+    A handful of small matrix products, much cheaper than an eigendecomposition.
+    """
+    b = np.array(c, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        big = np.abs(b).max(axis=(1, 2))  # scale first: the squares must not overflow
+        b /= np.where(big > 0, big, 1.0)[:, None, None]
+        s = np.sqrt((b * b).sum(axis=(1, 2)))  # Frobenius norm >= spectral norm
+        log_norm = np.log(big) + np.log(s)  # C^(2^i) = exp(log_norm) * b with ||b|| = 1
+        best = np.exp(log_norm)
+        b /= np.where(s > 0, s, 1.0)[:, None, None]
+        for i in range(1, squarings + 1):
+            b = b @ b
+            s = np.sqrt((b * b).sum(axis=(1, 2)))
+            log_norm = 2 * log_norm + np.log(s)
+            best = np.fmin(best, np.exp(log_norm / 2**i))
+            b /= np.where(s > 0, s, 1.0)[:, None, None]
+    return np.where(np.isnan(best), np.inf, best)
+
+
 def stabilise(coefs: np.ndarray, max_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Shrink VAR fits whose companion spectral radius is at or above ``max_radius``.
 
     Scaling ``A_k`` by ``s^k`` scales every eigenvalue of the companion matrix by ``s``,
-    so ``s = max_radius / radius`` puts the largest one exactly on ``max_radius``.
+    so ``s = max_radius / radius`` puts the largest one exactly on ``max_radius``. Fits
+    that :func:`radius_bound` already certifies below ``max_radius`` skip the
+    eigendecomposition.
 
     Parameters
     ----------
@@ -87,14 +121,19 @@ def stabilise(coefs: np.ndarray, max_radius: float) -> tuple[np.ndarray, np.ndar
     coefs : ndarray of shape (M, p, k, k)
         The (shrunk where needed) coefficients, a new array.
     radius : ndarray of shape (M,)
-        Spectral radius before shrinking.
+        Spectral radius before shrinking, or an upper bound below ``max_radius`` where
+        that bound settles it.
     shrunk : ndarray of bool, shape (M,)
     """
     coefs = np.array(coefs, dtype=float)
     p = coefs.shape[1]
     if coefs.shape[0] == 0:
         return coefs, np.zeros(0), np.zeros(0, dtype=bool)
-    radius = np.abs(np.linalg.eigvals(companion(coefs))).max(axis=1)
+    comp = companion(coefs)
+    radius = radius_bound(comp)
+    unsure = radius >= max_radius
+    if unsure.any():
+        radius[unsure] = np.abs(np.linalg.eigvals(comp[unsure])).max(axis=1)
     shrunk = radius >= max_radius
     if shrunk.any():
         s = max_radius / radius[shrunk]
@@ -132,8 +171,10 @@ def fit_var_yule_walker(
     y = np.where(valid[..., None], x - mean[:, None, :], 0.0)
     # Γ(h) = Σ_t y_t y_{t-h}^T / n, all lags in one product over a lagged view of y
     padded = np.concatenate([np.zeros((m, p, k)), y], axis=1)
-    lagged = np.lib.stride_tricks.sliding_window_view(padded, p + 1, axis=1)[..., ::-1]
-    gamma = np.einsum("mti,mtjh->mhij", y, lagged) / n[:, None, None, None]
+    lagged = np.lib.stride_tricks.sliding_window_view(padded, p + 1, axis=1)  # (M, L, k, p+1)
+    lagged = lagged[..., ::-1].transpose(0, 1, 3, 2).reshape(m, -1, (p + 1) * k)  # y_{t-h}
+    gamma = (np.swapaxes(y, 1, 2) @ lagged).reshape(m, k, p + 1, k).transpose(0, 2, 1, 3)
+    gamma /= n[:, None, None, None]
     r = _block_toeplitz(gamma)
     g = gamma[:, 1:].transpose(0, 2, 1, 3).reshape(m, k, p * k)  # [Γ(1) ... Γ(p)]
     coefs = np.full((m, p, k, k), np.nan)

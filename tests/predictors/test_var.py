@@ -12,6 +12,7 @@ from conformal_control.predictors.var import (
     companion,
     fit_var_yule_walker,
     forecast_var,
+    radius_bound,
     stabilise,
 )
 from conformal_control.testing import check_predictor
@@ -106,6 +107,20 @@ def test_stabilise_puts_the_spectral_radius_on_the_bound():
     after = np.abs(np.linalg.eigvals(companion(out))).max(axis=1)
     np.testing.assert_allclose(after[shrunk], 0.95, rtol=1e-9)
     np.testing.assert_array_equal(out[~shrunk], coefs[~shrunk])
+
+
+def test_radius_bound_is_a_tight_upper_bound():
+    rng = np.random.default_rng(7)
+    c = rng.normal(0, 0.3, size=(500, 6, 6))
+    exact = np.abs(np.linalg.eigvals(c)).max(axis=1)
+    bound = radius_bound(c)
+    assert (bound >= exact * (1 - 1e-12)).all()
+    assert np.median(bound / exact) < 1.01
+    nilpotent = np.zeros((1, 4, 4))
+    nilpotent[0, 0, 1] = 1.0
+    assert radius_bound(nilpotent)[0] == 0.0
+    huge = np.eye(3)[None] * 1e200  # no overflow: still a finite bound
+    np.testing.assert_allclose(radius_bound(huge), 1e200, rtol=1e-3)
 
 
 def test_forecast_follows_the_recursion():
