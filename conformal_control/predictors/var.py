@@ -77,12 +77,13 @@ def companion(coefs: np.ndarray) -> np.ndarray:
     return c
 
 
-def radius_bound(c: np.ndarray, squarings: int = 10) -> np.ndarray:
+def radius_bound(c: np.ndarray, squarings: int = 10, below: float = 0.0) -> np.ndarray:
     """Upper bounds on the spectral radii of square matrices, (M, n, n) -> (M,).
 
     Gelfand: ρ(C) <= ||C^j||^(1/j) for every j, and the bound tends to ρ(C); here the
-    smallest over j = 2, 4, ..., 2^squarings (repeated squaring, rescaled to stay finite).
-    A handful of small matrix products, much cheaper than an eigendecomposition.
+    smallest over j = 1, 2, 4, ..., 2^squarings (repeated squaring, rescaled to stay
+    finite), stopping early once every bound is below ``below``. A handful of small matrix
+    products, much cheaper than an eigendecomposition.
     """
     b = np.array(c, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -97,6 +98,8 @@ def radius_bound(c: np.ndarray, squarings: int = 10) -> np.ndarray:
             s = np.sqrt((b * b).sum(axis=(1, 2)))
             log_norm = 2 * log_norm + np.log(s)
             best = np.fmin(best, np.exp(log_norm / 2**i))
+            if (best < below).all():
+                break
             b /= np.where(s > 0, s, 1.0)[:, None, None]
     return np.where(np.isnan(best), np.inf, best)
 
@@ -130,7 +133,7 @@ def stabilise(coefs: np.ndarray, max_radius: float) -> tuple[np.ndarray, np.ndar
     if coefs.shape[0] == 0:
         return coefs, np.zeros(0), np.zeros(0, dtype=bool)
     comp = companion(coefs)
-    radius = radius_bound(comp)
+    radius = radius_bound(comp, below=max_radius)
     unsure = radius >= max_radius
     if unsure.any():
         radius[unsure] = np.abs(np.linalg.eigvals(comp[unsure])).max(axis=1)
