@@ -122,6 +122,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--start-frame", type=int, default=None, help="video frame the robot starts")
     p.add_argument("--no-plot", action="store_true", help="skip plot.png")
+    _multi_args(p)
 
 
 def _predictor_params(args: argparse.Namespace) -> dict:
@@ -149,6 +150,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..sim.episode import run_episode
     from ..sim.rundir import write_run_dir
 
+    if args.robots is not None or args.robots_file is not None:
+        return _run_multi(args)
     params = key_values(args.param, "--param")
     roles = {}
     for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
@@ -201,5 +204,109 @@ def _run(args: argparse.Namespace) -> int:
             "or a (see the Controller page of the docs, 'Feasibility floor')",
             file=sys.stderr,
         )
+    print(f"results written to {out}")
+    return 0
+
+
+# ------------------------------------------------------------------ several robots (--robots)
+def _multi_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group(
+        "several robots",
+        "M robots, each its own conformal CBF controller, no communication (see the "
+        "Multi-robot page of the docs); the scene's own start and goal define the default "
+        "layout",
+    )
+    g.add_argument("--robots", type=int, default=None, metavar="M", help="number of robots (1-20)")
+    g.add_argument(
+        "--robot-layout",
+        choices=("scene", "antipodal"),
+        default="scene",
+        help="scene: robot 0 does the scene's task, robot i the same task rotated by 2 pi i/M "
+        "about its midpoint; antipodal: on a circle (--radius, --center), each to the "
+        "opposite point",
+    )
+    g.add_argument("--radius", type=float, default=None, help="antipodal circle radius (m)")
+    g.add_argument(
+        "--center", type=_pair, default=None, help="antipodal circle centre, image fractions fx,fy"
+    )
+    g.add_argument(
+        "--robots-file",
+        default=None,
+        metavar="FILE.json",
+        help='explicit tasks: {"units": "m" or "fraction", "robots": [{"start": [x, y], '
+        '"goals": [[x, y], ...]}, ...]}',
+    )
+    g.add_argument(
+        "--sensor-history",
+        choices=("tracked", "observed"),
+        default="tracked",
+        help="histories handed to each robot's predictor: as tracked (the single-robot "
+        "sensor) or only where the robot itself had the agent in range",
+    )
+
+
+def _run_multi(args: argparse.Namespace) -> int:
+    from ..data import load_scene
+    from ..sim.multi import load_robots_file, run_multi
+
+    params = key_values(args.param, "--param")
+    for name in ("epsilon", "eta", "tau"):
+        value = getattr(args, name)
+        if value is not None:
+            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+    roles = {}
+    for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
+        roles[role] = getattr(args, role)
+        roles[f"{role}_params"] = key_values(
+            getattr(args, f"{role}_param"), f"--{role.replace('_', '-')}-param"
+        )
+    scene = load_scene(
+        args.scene,
+        args.data_root,
+        start=args.start,
+        goals=args.goal,
+        start_frame=args.start_frame,
+        seed=args.seed,
+    )
+    tasks: dict = {}
+    if args.robots_file is not None:
+        starts, goals = load_robots_file(args.robots_file, scene)
+        tasks = {"starts": starts, "goals": goals, "robots": args.robots}
+    else:
+        center = None
+        if args.center is not None:
+            if scene.extent is None:
+                raise ValueError(f"scene {scene.name} has no extent: --center needs one")
+            center = (args.center[0] * scene.extent[0], args.center[1] * scene.extent[1])
+        tasks = {
+            "robots": args.robots,
+            "layout": args.robot_layout,
+            "radius": args.radius,
+            "center": center,
+        }
+    result = run_multi(
+        scene,
+        **tasks,
+        predictor=args.predictor,
+        params=params,
+        learn=not args.no_learning,
+        max_frames=args.frames,
+        seed=args.seed,
+        predictor_params=_predictor_params(args),
+        rule=args.rule,
+        rule_params=key_values(args.rule_param, "--rule-param"),
+        lambda_safe=args.lambda_safe,
+        fallback=args.fallback,
+        sensor_history=args.sensor_history,
+        extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
+        **roles,
+    )
+    out = args.out or Path("runs") / (
+        f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
+        f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
+    )
+    out = result.save(out)
+    print(result.summary_table())
+    print(result.metrics.format())
     print(f"results written to {out}")
     return 0
