@@ -140,7 +140,9 @@ def render_multi_animation(
     px_w = 2 * round(width * dpi / 2)
     px_h = 2 * round(width * dpi * 0.45 / 2)
     fig = plt.figure(figsize=(px_w / dpi, px_h / dpi), dpi=dpi)
-    gs = fig.add_gridspec(1, 2, width_ratios=[1.8, 1], left=0.06, right=0.98, top=0.9, bottom=0.12)
+    gs = fig.add_gridspec(
+        1, 2, width_ratios=[1.8, 1], left=0.07, right=0.98, top=0.86, bottom=0.13, wspace=0.25
+    )
     ax = fig.add_subplot(gs[0, 0])
     ax_lam = fig.add_subplot(gs[0, 1])
 
@@ -226,8 +228,8 @@ def render_multi_animation(
                     disc.set_edgecolor("none")
             cursor.set_xdata([t[f], t[f]])
             ax.set_title(
-                f"{rec.get('scene', '')}: {n} robots   t = {t[f]:5.1f} s   under way "
-                f"{int(active[f].sum())}   collision frames so far: robot-pedestrian "
+                f"{rec.get('scene', '')}: {n} robots, t = {t[f]:4.1f} s, "
+                f"{int(active[f].sum())} under way\ncollision frames so far: robot-pedestrian "
                 f"{int(ped_so_far[f])}, robot-robot {int(rob_so_far[f])}",
                 fontsize=8,
             )

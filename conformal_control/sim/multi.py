@@ -33,7 +33,7 @@ import json
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -256,7 +256,6 @@ class MultiResult:
     robots: list[RobotResult]
     track: dict[str, np.ndarray]
     animation: dict[str, Any] | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def summary_table(self) -> str:
         """One line per robot: goal, time, collisions (pedestrians, robots), d_min, lambda."""
@@ -427,9 +426,9 @@ def run_multi(
         for fl in fleet
     ]
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     own = drive(world, steppers)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 
     h_max = fl0.barrier.upper_bound
     floor = feasibility_floor(
@@ -473,6 +472,7 @@ def run_multi(
         frames=track["frame"].size,
         wall_s=wall,
         lam_unit_name=results[0].metrics.unit("lambda_final"),
+        cpu_s=cpu,
     )
     config = _config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
     config["kind"] = "multi"

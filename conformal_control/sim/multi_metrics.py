@@ -85,6 +85,7 @@ class FleetMetrics(Mapping[str, Any]):
     frames: int = _m("-", "video frames simulated", 0)
     wall_s: float = _m("s", "wall time of the whole run's loop", 0.0)
     wall_s_per_robot: float = _m("s", "wall_s / n_robots", 0.0)
+    cpu_s: float = _m("s", "process CPU time of the loop", 0.0)
     units: dict[str, str] | None = _m("-", "unit of each metric")
 
     SUMMARY: ClassVar[tuple[str, ...]] = (
@@ -156,6 +157,7 @@ def fleet_metrics(
     frames: int,
     wall_s: float,
     lam_unit_name: str,
+    cpu_s: float = 0.0,
 ) -> FleetMetrics:
     """Aggregate the robots' metrics.
 
@@ -172,6 +174,7 @@ def fleet_metrics(
         Video frames simulated.
     wall_s : float
     lam_unit_name : str
+    cpu_s : float
         Unit of lambda (scene units) for the report.
     """
     n = len(robots)
@@ -223,5 +226,6 @@ def fleet_metrics(
         frames=int(frames),
         wall_s=float(wall_s),
         wall_s_per_robot=float(wall_s) / n if n else 0.0,
+        cpu_s=float(cpu_s),
         units=units,
     )

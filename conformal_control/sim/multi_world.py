@@ -23,10 +23,10 @@ own sensing radius are kept (NaN elsewhere).
 the scene's robot radius) at every control instant.
 
 **A robot that reaches its last goal** stops deciding; its plant is then commanded to
-zero velocity (it brakes and stays near its goal), and it remains an agent the others and
-the pedestrians see. Its metrics (frame log, collisions) end at its goal time, as for one
-robot. The world ends when every robot has reached its goal, when the data runs out, or
-after ``max_frames`` frames.
+zero velocity (it brakes, and is held still once slower than :data:`PARKED_SPEED`), and
+it remains an agent the others and the pedestrians see. Its metrics (frame log,
+collisions) end at its goal time, as for one robot. The world ends when every robot has
+reached its goal, when the data runs out, or after ``max_frames`` frames.
 
 **Collisions.** Each frame (while a robot is under way) the log holds its smallest centre
 distance to a pedestrian (``d_min``; a collision below robot radius + pedestrian radius)
@@ -57,10 +57,13 @@ from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
 from .environment import FrameLog
 
-__all__ = ["SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]
+__all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]
 
 #: Values of ``sensor_history``.
 SENSOR_HISTORIES = ("tracked", "observed")
+
+#: Speed (m/s) under which a robot braking at its goal is taken to have stopped.
+PARKED_SPEED = 1e-3
 
 
 @dataclass
@@ -229,6 +232,7 @@ class MultiRobotWorld:
         self._n_instants = 0  # control instants since the start (all robots)
         self._goal = np.zeros(r, dtype=np.int64)
         self._done = np.zeros(r, dtype=bool)
+        self._parked = np.zeros(r, dtype=bool)
         self._world_done = False
         self._step = np.zeros(r, dtype=np.int64)  # instants decided in the open interval
         self._k_start = np.full(r, self._fi, dtype=np.int64)
@@ -527,7 +531,12 @@ class MultiRobotWorld:
         stop = np.zeros(2)
         for i in range(r):
             if self._done[i]:
-                self._x[i] = self._plants[i].step(self._x[i], stop, self._dt)
+                if not self._parked[i]:
+                    x = self._plants[i].step(self._x[i], stop, self._dt)
+                    if math.hypot(x[2], x[3]) < PARKED_SPEED:
+                        x[2:] = 0.0  # stopped: no more plant steps
+                        self._parked[i] = True
+                    self._x[i] = x
                 continue
             c = cmd[i]
             self._x[i] = self._plants[i].step(self._x[i], c, self._dt)
