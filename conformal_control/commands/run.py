@@ -246,6 +246,8 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_multi(args: argparse.Namespace) -> int:
+    from typing import Any
+
     from ..data import load_scene
     from ..sim.multi import load_robots_file, run_multi
 
@@ -268,7 +270,7 @@ def _run_multi(args: argparse.Namespace) -> int:
         start_frame=args.start_frame,
         seed=args.seed,
     )
-    tasks: dict = {}
+    tasks: dict[str, Any] = {}
     if args.robots_file is not None:
         starts, goals = load_robots_file(args.robots_file, scene)
         tasks = {"starts": starts, "goals": goals, "robots": args.robots}

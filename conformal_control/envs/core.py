@@ -267,10 +267,10 @@ class CrowdCore:
         closed = w.done or self._count >= self._length
         losses: dict[int, float | None] = {}
         if closed:
-            for i in np.flatnonzero(self._open):
-                truth = w.reveal(int(i))
+            for i in map(int, np.flatnonzero(self._open)):
+                truth = w.reveal(i)
                 self.truth_[i] = truth
-                losses[int(i)] = self.monitors[i].end_interval(truth).loss
+                losses[i] = self.monitors[i].end_interval(truth).loss
                 self._open[i] = False
             if not w.done:
                 self._open_interval()

@@ -13,7 +13,7 @@ Make it with ``gymnasium.make("ConformalCrowd-v0", scene="crossing", crowd="orca
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -38,7 +38,7 @@ def observation_space(max_agents: int) -> spaces.Dict:
     )
 
 
-class ConformalCrowdEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
+class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
     """One robot among pedestrians; the action is its velocity command (m/s).
 
     Parameters
@@ -68,7 +68,8 @@ class ConformalCrowdEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     render_mode : {"rgb_array"}, optional
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    # gymnasium's attribute (an instance's copy carries the scene's frame rate)
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,
@@ -133,22 +134,20 @@ class ConformalCrowdEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
         super().reset(seed=seed)
         (first,) = self.core.reset(seed)
         self._over = False
         return first.observation, first.info
 
-    def step(
-        self, action: np.ndarray
-    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         if self._over:
             raise RuntimeError("the episode is over (or never started): call reset()")
         out = self.core.step({0: action})[0]
         self._over = out.terminated or out.truncated
         return out.observation, out.reward, out.terminated, out.truncated, out.info
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
             return None
         from .render import render_world

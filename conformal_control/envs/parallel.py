@@ -16,7 +16,7 @@ the scene's task rotated about its midpoint, or ``"antipodal"`` on a circle), or
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -31,7 +31,7 @@ from .crowd import observation_space
 __all__ = ["ConformalCrowdParallel", "parallel_env"]
 
 
-class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]):
+class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]):  # type: ignore[misc]
     """M robots with velocity commands among pedestrians (see the module docstring).
 
     Parameters
@@ -47,7 +47,7 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
         As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {
+    metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance
         "render_modes": ["rgb_array"],
         "name": "conformal_crowd_parallel_v0",
         "is_parallelizable": True,

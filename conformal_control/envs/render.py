@@ -44,5 +44,6 @@ def render_world(world: MultiRobotWorld, width: float = 4.8, dpi: int = 80) -> n
         ax.set_ylim(hi[1], lo[1])
     ax.set_aspect("equal")
     ax.set_title(f"t = {world.t:.2f} s", fontsize=8)
-    canvas.draw()
-    return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3])
+    canvas.draw()  # type: ignore[no-untyped-call]
+    rgba = np.asarray(canvas.buffer_rgba())  # type: ignore[no-untyped-call]
+    return np.ascontiguousarray(rgba[..., :3])

@@ -213,4 +213,4 @@ class ConformalShield(
             "shield_loss": shield_loss,
             "shield_interventions": int(self.n_interventions_),
         }
-        return obs, reward, terminated, truncated, info
+        return obs, float(reward), terminated, truncated, info

@@ -71,7 +71,10 @@ MAX_ROBOTS = 20
 def _rotate(p: np.ndarray, c: np.ndarray, angle: float) -> np.ndarray:
     cs, sn = math.cos(angle), math.sin(angle)
     d = np.asarray(p, dtype=float) - c
-    return c + np.stack([cs * d[..., 0] - sn * d[..., 1], sn * d[..., 0] + cs * d[..., 1]], -1)
+    out: np.ndarray = c + np.stack(
+        [cs * d[..., 0] - sn * d[..., 1], sn * d[..., 0] + cs * d[..., 1]], -1
+    )
+    return out
 
 
 def robot_tasks(
@@ -437,7 +440,8 @@ def run_multi(
     results: list[RobotResult] = []
     for i, (fl, st) in enumerate(zip(fleet, steppers, strict=True)):
         rec = world.robots[i]
-        view = dataclasses.replace(fl, env=rec)
+        # the robot's record is what the single-robot measurement reads of an environment
+        view = dataclasses.replace(fl, env=rec)  # type: ignore[arg-type]
         m, intervals, traj = _measure(view, st.result(), learn, lambda_safe, floor, own[i])
         contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
         m = dataclasses.replace(

@@ -289,14 +289,16 @@ class MultiRobotWorld:
     @property
     def positions(self) -> np.ndarray:
         """Robot states now, shape (R, 4): x, y, vx, vy (a copy)."""
-        return self._x.copy()
+        out: np.ndarray = self._x.copy()
+        return out
 
     def goal_reached(self, i: int) -> bool:
         return self.robots[i].t_goal_ is not None
 
     def current_goal(self, i: int) -> np.ndarray:
         """Robot ``i``'s current goal (waypoint), m."""
-        return self._goals[i][self._goal[i]]
+        goal: np.ndarray = self._goals[i][self._goal[i]]
+        return goal
 
     def remaining_path(self, i: int) -> float:
         """Distance (m) from robot ``i`` to its current goal plus the legs after it."""
@@ -364,7 +366,8 @@ class MultiRobotWorld:
             return np.full(x.shape[0], math.nan)
         d = np.hypot(x[:, None, 0] - x[None, :, 0], x[:, None, 1] - x[None, :, 1])
         np.fill_diagonal(d, np.inf)
-        return d.min(axis=1)
+        out: np.ndarray = d.min(axis=1)
+        return out
 
     # ------------------------------------------------------------------ sensor
     def _ped_window(self, lo: int, hi: int, idx: np.ndarray) -> np.ndarray:
@@ -394,7 +397,7 @@ class MultiRobotWorld:
         me[a - lo : b - lo] = self._robot_pos[a:b, i]
         with np.errstate(invalid="ignore"):
             far = ~(np.hypot(*(hist - me[None]).transpose(2, 0, 1)) <= self.sensing_radius)
-        out = hist.copy()
+        out: np.ndarray = hist.copy()
         out[far] = np.nan
         return out
 

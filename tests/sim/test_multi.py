@@ -144,6 +144,28 @@ def test_no_communication_other_robots_internal_state_does_not_matter(crossing):
     assert sum(rid in ids for i, ids in sensed[4 * 4 :] if i != j) >= 10
 
 
+def test_to_a_robot_another_robot_is_an_agent_replaying_its_track(crossing):
+    # robot 1's track, appended to the recording as one more pedestrian, drives robot 0
+    # alone (run_episode) exactly as robot 1 itself did: robot 0 reads nothing else of it
+    res = run_multi(crossing, robots=2, max_frames=150, record_animation=False)
+    track = res.track["robots"][:, 1]
+    k0 = crossing.start_index
+    col = np.full((crossing.n_frames, 1, 2), np.nan)
+    col[: k0 + 1, 0] = res.robots[1].start
+    col[k0 : k0 + track.shape[0], 0] = track
+    scene = dataclasses.replace(
+        crossing,
+        positions=np.concatenate([crossing.positions, col], axis=1),
+        agent_ids=np.append(crossing.agent_ids, res.robots[1].id),
+    )
+    alone = run_episode(scene, max_frames=150, record_animation=False)
+    r0 = res.robots[0]
+    assert r0.contacts.d_min_robot < 4.0  # they did meet
+    for key in ("x", "y", "vx", "vy"):
+        np.testing.assert_array_equal(alone.trajectory[key], r0.trajectory[key])
+    assert [iv["lambda"] for iv in alone.intervals] == [iv["lambda"] for iv in r0.intervals]
+
+
 def test_robots_see_each_other_only_within_the_sensing_radius(line_scene, straight):
     scene = line_scene([straight((100.0, 100.0), (0.0, 0.0))])
     scene = dataclasses.replace(scene, defaults=dict(SYNTHETIC_DEFAULTS))
