@@ -272,6 +272,10 @@ def _run_multi(args: argparse.Namespace) -> int:
     )
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:
+        if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
+            raise ValueError(
+                "--robots-file gives the tasks: drop --robot-layout, --radius, --center"
+            )
         starts, goals = load_robots_file(args.robots_file, scene)
         tasks = {"starts": starts, "goals": goals, "robots": args.robots}
     else:
