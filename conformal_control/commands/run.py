@@ -6,6 +6,7 @@ import argparse
 import datetime as _dt
 import sys
 from pathlib import Path
+from typing import Any
 
 from . import command, key_values
 
@@ -150,8 +151,6 @@ def _run(args: argparse.Namespace) -> int:
     from ..sim.episode import run_episode
     from ..sim.rundir import write_run_dir
 
-    if args.robots is not None or args.robots_file is not None:
-        return _run_multi(args)
     params = key_values(args.param, "--param")
     roles = {}
     for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
@@ -174,6 +173,9 @@ def _run(args: argparse.Namespace) -> int:
         start_frame=args.start_frame,
         seed=args.seed,
     )
+    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
+        rule_params = key_values(args.rule_param, "--rule-param")
+        return _run_multi(args, scene, params, roles, rule_params, _predictor_params(args))
     result = run_episode(
         scene,
         args.predictor,
@@ -245,31 +247,18 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _run_multi(args: argparse.Namespace) -> int:
-    from typing import Any
-
-    from ..data import load_scene
+def _run_multi(
+    args: argparse.Namespace,
+    scene: Any,
+    params: dict[str, Any],
+    roles: dict[str, Any],
+    rule_params: dict[str, Any],
+    predictor_params: dict[str, Any],
+    out: Path | None = None,
+) -> int:
+    """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
     from ..sim.multi import load_robots_file, run_multi
 
-    params = key_values(args.param, "--param")
-    for name in ("epsilon", "eta", "tau"):
-        value = getattr(args, name)
-        if value is not None:
-            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
-    roles = {}
-    for role in ("barrier", "safety_filter", "reference", "dynamics", "loss"):
-        roles[role] = getattr(args, role)
-        roles[f"{role}_params"] = key_values(
-            getattr(args, f"{role}_param"), f"--{role.replace('_', '-')}-param"
-        )
-    scene = load_scene(
-        args.scene,
-        args.data_root,
-        start=args.start,
-        goals=args.goal,
-        start_frame=args.start_frame,
-        seed=args.seed,
-    )
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:
         if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
@@ -298,19 +287,25 @@ def _run_multi(args: argparse.Namespace) -> int:
         learn=not args.no_learning,
         max_frames=args.frames,
         seed=args.seed,
-        predictor_params=_predictor_params(args),
+        predictor_params=predictor_params,
         rule=args.rule,
-        rule_params=key_values(args.rule_param, "--rule-param"),
+        rule_params=rule_params,
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         sensor_history=args.sensor_history,
         extra_config={"command": ["conformal-control", *sys.argv[1:]], "data_root": args.data_root},
         **roles,
     )
-    out = args.out or Path("runs") / (
-        f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
-        f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
-    )
+    if out is None:
+        out = (
+            Path(args.out)
+            if args.out
+            else Path("runs")
+            / (
+                f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
+                f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
+            )
+        )
     out = result.save(out)
     print(result.summary_table())
     print(result.metrics.format())
