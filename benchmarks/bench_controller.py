@@ -27,15 +27,14 @@ Usage::
 
 3. The wall time of full episodes (nexus_4 with Table II settings and a = 10; the built-in
    crossing scene, where the filter is active) with each filter (``run_episode(...,
-   safety_filter=name)``; with an episode builder that always makes the piqp filter, this
-   script swaps in the exact one's class for the second row) and the peak memory of one
-   episode.
+   safety_filter=name)``) and the peak memory of one episode.
+
+``benchmarks/run_all.py`` reuses :func:`bench_steps` and :func:`measure_episode`.
 """
 
 from __future__ import annotations
 
 import argparse
-import inspect
 import os
 import resource
 import statistics
@@ -176,11 +175,38 @@ def bench_compile() -> None:
     )
 
 
+def measure_episode(scene, params: dict, safety_filter: str, repeats: int = 3) -> dict:
+    """Median wall time of ``run_episode`` (and of its control loop alone) with one filter.
+
+    A warm-up run first (it compiles or loads the kernels); then ``repeats`` timed runs and
+    one more under tracemalloc for the peak Python memory. Returns ``wall_s``, ``loop_s``
+    (medians), ``peak_bytes`` and the ``metrics`` of the last timed run.
+    """
+    from conformal_control.sim import run_episode
+
+    kw = {"safety_filter": safety_filter}
+    run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)
+    walls, loops = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = run_episode(scene, "constant_velocity", params, **kw)
+        walls.append(time.perf_counter() - t0)
+        loops.append(res.metrics["wall_s"])
+    tracemalloc.start()
+    run_episode(scene, "constant_velocity", params, **kw)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return {
+        "wall_s": statistics.median(walls),
+        "loop_s": statistics.median(loops),
+        "peak_bytes": peak,
+        "metrics": res.metrics,
+    }
+
+
 def bench_episode(data_root: Path, repeats: int = 3) -> None:
     from conformal_control.data import load_scene
-    from conformal_control.sim import episode, run_episode
 
-    by_name = "safety_filter" in inspect.signature(run_episode).parameters
     scenes = [
         ("nexus_4", load_scene("nexus_4", data_root / "sdd"), PAPER_A10),
         ("crossing", load_scene("crossing", seed=0), {"a": 2.0, "epsilon": 0.1}),
@@ -188,29 +214,9 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
     for label, scene, params in scenes:
         print(f"\n{label} episode (constant velocity, {params}), median of {repeats} runs:")
         base = None
-        for name, cls in FILTERS.items():
-            if by_name:
-                kw = {"safety_filter": name}
-            else:  # an episode builder without a safety_filter choice: swap its class
-                kw = {}
-                episode.QPSafetyFilter = cls
-            try:
-                run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)
-                walls, loops = [], []
-                for _ in range(repeats):
-                    t0 = time.perf_counter()
-                    res = run_episode(scene, "constant_velocity", params, **kw)
-                    walls.append(time.perf_counter() - t0)
-                    loops.append(res.metrics["wall_s"])
-                tracemalloc.start()
-                run_episode(scene, "constant_velocity", params, **kw)
-                _, peak = tracemalloc.get_traced_memory()
-                tracemalloc.stop()
-            finally:
-                if not by_name:
-                    episode.QPSafetyFilter = QPSafetyFilter
-            m = res.metrics
-            wall, loop = statistics.median(walls), statistics.median(loops)
+        for name in FILTERS:
+            r = measure_episode(scene, params, name, repeats)
+            m, wall, loop, peak = r["metrics"], r["wall_s"], r["loop_s"], r["peak_bytes"]
             base = base or loop
             print(
                 f"  {name:>8}: episode {wall * 1e3:6.0f} ms, control loop {loop * 1e3:6.0f} ms "

@@ -19,6 +19,35 @@ from pathlib import Path
 
 from conformal_control.sweep import SweepSpec, run_sweep
 
+#: the three ways the grid is run: run_sweep's plot keywords
+WAYS = {
+    "per-run plots (old default)": {"plot": True, "summary_plot": False},
+    "no plots": {"plot": False, "summary_plot": False},
+    "summary plot only (new default)": {"plot": False, "summary_plot": True},
+}
+
+
+def measure(runs: int, frames: int, repeat: int) -> tuple[int, dict[str, float]]:
+    """The number of runs and the best wall time (s) of the grid for each of :data:`WAYS`."""
+    eps = [-0.2, -0.1, 0.0, 0.1]
+    seeds = list(range(max(1, runs // len(eps))))
+    spec = SweepSpec(
+        base={"scene": "crossing", "frames": frames}, grid={"epsilon": eps, "seed": seeds}
+    )
+    n = len(spec.expand())
+    with tempfile.TemporaryDirectory() as tmp:
+        # warm-up: imports, matplotlib, scene generation caches
+        run_sweep(spec, Path(tmp) / "warm", "serial", plot=True, progress=False)
+        best: dict[str, float] = {}
+        for r in range(repeat):
+            for i, (name, kw) in enumerate(WAYS.items()):
+                out = Path(tmp) / f"{r}-{i}"
+                t0 = time.perf_counter()
+                run_sweep(spec, out, "serial", progress=False, **kw)
+                wall = time.perf_counter() - t0
+                best[name] = min(best.get(name, wall), wall)
+    return n, best
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
@@ -26,28 +55,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=100, help="frames simulated per run")
     ap.add_argument("--repeat", type=int, default=2, help="best of N")
     args = ap.parse_args()
-    eps = [-0.2, -0.1, 0.0, 0.1]
-    seeds = list(range(max(1, args.runs // len(eps))))
-    spec = SweepSpec(
-        base={"scene": "crossing", "frames": args.frames}, grid={"epsilon": eps, "seed": seeds}
-    )
-    n = len(spec.expand())
-    ways = {
-        "per-run plots (old default)": {"plot": True, "summary_plot": False},
-        "no plots": {"plot": False, "summary_plot": False},
-        "summary plot only (new default)": {"plot": False, "summary_plot": True},
-    }
-    with tempfile.TemporaryDirectory() as tmp:
-        # warm-up: imports, matplotlib, scene generation caches
-        run_sweep(spec, Path(tmp) / "warm", "serial", plot=True, progress=False)
-        best: dict[str, float] = {}
-        for r in range(args.repeat):
-            for name, kw in ways.items():
-                out = Path(tmp) / f"{r}-{len(best)}-{name.split()[0]}"
-                t0 = time.perf_counter()
-                run_sweep(spec, out, "serial", progress=False, **kw)
-                wall = time.perf_counter() - t0
-                best[name] = min(best.get(name, wall), wall)
+    n, best = measure(args.runs, args.frames, args.repeat)
     base = best["no plots"]
     print(f"{n} runs of {args.frames} frames on crossing, serial executor, best of {args.repeat}")
     for name, wall in best.items():

@@ -14,7 +14,8 @@ VARIMA(10, 1, 'c') would be fitted on them (33+ finite samples, not degenerate).
 * how many windows conditional least squares (OLS, statsmodels ``VAR``'s estimator) fits
   with an explosive companion matrix (spectral radius >= 1), against Yule–Walker.
 
-Usage::
+``benchmarks/run_all.py`` reuses :func:`windows_from_scene`, :func:`time_var` and
+:func:`time_darts`. Usage::
 
     python benchmarks/bench_var.py --data-root ../shared/data --darts-windows 5
 """
@@ -115,6 +116,62 @@ def spread(a: np.ndarray, b: np.ndarray, steps: int) -> tuple[float, float]:
     return float(np.median(dist)), float(dist.max())
 
 
+def time_var(windows: np.ndarray, horizon: int, dt: float) -> dict:
+    """``var``'s fit + forecast time per window: all windows in one call, and one per call.
+
+    Returns ``batched_s``, ``batched_cpu_s``, ``single_s``, ``single_cpu_s`` (seconds per
+    window, wall and process CPU time) and the batched ``forecasts``.
+    """
+    var_forecast(windows[:2], horizon, dt)  # warm-up
+    t0, c0 = time.perf_counter(), time.process_time()
+    forecasts = var_forecast(windows, horizon, dt)
+    batched = (time.perf_counter() - t0) / len(windows)
+    batched_cpu = (time.process_time() - c0) / len(windows)
+    k = min(len(windows), 100)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for i in range(k):
+        var_forecast(windows[i : i + 1], horizon, dt)
+    single = (time.perf_counter() - t0) / k
+    single_cpu = (time.process_time() - c0) / k
+    return {
+        "batched_s": batched,
+        "batched_cpu_s": batched_cpu,
+        "single_s": single,
+        "single_cpu_s": single_cpu,
+        "forecasts": forecasts,
+    }
+
+
+def time_darts(windows: np.ndarray, horizon: int) -> dict:
+    """darts' VARIMA(10, 1, 'c') fit + forecast per window, in a subprocess (``cc_darts``).
+
+    Returns ``wall_s`` and ``cpu_s`` (mean per window, imports excluded), ``process_s``
+    (the whole subprocess), ``failed`` (fits that failed) and the ``forecasts`` (NaN rows
+    for failed fits).
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / "in.npz"
+        dst = Path(tmp) / "out.npy"
+        np.savez(src, windows=windows, horizon=horizon)
+        t0 = time.perf_counter()
+        res = subprocess.run(
+            [sys.executable, "-c", DARTS_WORKER, str(src), str(dst)],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+        total = time.perf_counter() - t0
+        stats = json.loads(res.stdout.strip().splitlines()[-1])
+        forecasts = np.load(dst)
+    return {
+        "wall_s": float(np.mean(stats["wall"])),
+        "cpu_s": float(np.mean(stats["cpu"])),
+        "process_s": total,
+        "failed": sum(1 for e in stats["errors"] if e),
+        "forecasts": forecasts,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data-root", default=None, help="folder holding sdd/ (default: ours)")
@@ -135,17 +192,9 @@ def main() -> None:
         f"{args.scene} at {scene.fps:g} fps, seed {args.seed}"
     )
 
-    var_forecast(win[:2], args.horizon, dt)  # warm-up
-    t0, c0 = time.perf_counter(), time.process_time()
-    var_all = var_forecast(win, args.horizon, dt)
-    batched = (time.perf_counter() - t0) / len(win)
-    batched_cpu = (time.process_time() - c0) / len(win)
-    k = min(len(win), 100)
-    t0, c0 = time.perf_counter(), time.process_time()
-    for i in range(k):
-        var_forecast(win[i : i + 1], args.horizon, dt)
-    single = (time.perf_counter() - t0) / k
-    single_cpu = (time.process_time() - c0) / k
+    t = time_var(win, args.horizon, dt)
+    var_all, batched, batched_cpu = t["forecasts"], t["batched_s"], t["batched_cpu_s"]
+    single, single_cpu = t["single_s"], t["single_cpu_s"]
     print(
         f"var:   {1e6 * batched:8.1f} us/window batched ({len(win)} in one call; "
         f"{1e6 * batched_cpu:.1f} CPU-us), {1e6 * single:8.1f} us/window one per call "
@@ -170,26 +219,12 @@ def main() -> None:
     nd = min(args.darts_windows, len(win))
     if nd == 0:
         return
-    with tempfile.TemporaryDirectory() as tmp:
-        src = Path(tmp) / "in.npz"
-        dst = Path(tmp) / "out.npy"
-        np.savez(src, windows=win[:nd], horizon=args.horizon)
-        t0 = time.perf_counter()
-        res = subprocess.run(
-            [sys.executable, "-c", DARTS_WORKER, str(src), str(dst)],
-            check=True,
-            capture_output=True,
-            text=True,
-        )
-        total = time.perf_counter() - t0
-        stats = json.loads(res.stdout.strip().splitlines()[-1])
-        darts = np.load(dst)
-    fit_wall = float(np.mean(stats["wall"]))
-    fit_cpu = float(np.mean(stats["cpu"]))
-    failed = [e for e in stats["errors"] if e]
+    d = time_darts(win[:nd], args.horizon)
+    darts, total, fit_wall, fit_cpu = d["forecasts"], d["process_s"], d["wall_s"], d["cpu_s"]
+    failed = d["failed"]
     print(
         f"darts: {1e6 * fit_wall:8.0f} us/window wall ({1e6 * fit_cpu:.0f} CPU-us) on {nd} "
-        f"windows (subprocess {total:.1f} s with imports; {len(failed)} failed fits)"
+        f"windows (subprocess {total:.1f} s with imports; {failed} failed fits)"
     )
     print(
         f"ratio darts / var: x{fit_wall / batched:,.0f} wall (x{fit_cpu / batched_cpu:,.0f} CPU) "
