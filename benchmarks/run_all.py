@@ -1,0 +1,524 @@
+"""Every headline benchmark figure in one run, each with its ratio to a baseline timed in
+the same run.
+
+Usage::
+
+    python benchmarks/run_all.py [--quick] [--data-root ../shared/data] [--only SECTION ...]
+    python benchmarks/run_all.py --write-docs docs/benchmarks.md    # also write the page
+
+The machine is often shared and busy, so absolute times move from run to run; the ratio
+of each figure to its baseline (timed in the same run, on the same machine, under the
+same load) is the figure to compare across runs. Targets are printed beside the figures
+as goals, never asserted. Sections (``--only`` picks some):
+
+* ``controller`` -- one control step with the compiled exact 2-D filter against the piqp
+  filter (``bench_controller.bench_steps``): 20 agents with the filter active, 20 agents
+  falling back, 200 agents;
+* ``episode``    -- a full nexus_4 episode in this process with each filter
+  (``bench_controller.measure_episode``);
+* ``startup``    -- the command line as a subprocess: ``import conformal_control.cli``,
+  ``--help``, ``run --scene nexus_4`` with and without its plots, against ``python -c
+  pass`` and ``python -c "import numpy"``;
+* ``reproduce``  -- ``reproduce table2 --predictor var`` from a cold forecast cache, against
+  the same command with constant-velocity predictions (no predictor cost);
+* ``predictors`` -- ``var``'s fit + forecast per window against darts' VARIMA on the same
+  windows (``bench_var.time_var`` / ``time_darts``);
+* ``synthetic``  -- the vectorised crossing-scene generator against the loop generator it
+  replaced (``bench_synthetic.measure``);
+* ``sweep``      -- a sweep with one summary plot against per-run plots
+  (``bench_sweep_plots.measure``);
+* ``batch``      -- 1,000 crossing seeds on the batch engine against the per-episode loop,
+  from ``bench_batch.measure(quick=..., data_root=...)`` when that function exists (it
+  returns a list of figure dicts as below), else a line saying it is not available.
+
+A figure is a dict: ``section``, ``name``, ``value`` (seconds), ``unit`` (display unit:
+``us``, ``ms`` or ``s``), optional ``target`` (seconds; the goal is value <= target),
+``ratios`` (a list of ``(baseline name, baseline seconds, kind)``: kind ``faster`` prints
+baseline / value, "x faster than"; kind ``times`` prints value / baseline, "x the
+baseline") and ``note``.
+
+``--write-docs PATH`` writes the figures as tables, with the machine and the date, into
+PATH between the markers ``<!-- run_all:begin -->`` and ``<!-- run_all:end -->`` (the rest
+of the page is kept; without the markers the section is inserted after the title).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import importlib.metadata
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+if str(HERE) not in sys.path:  # the bench_* modules sit beside this script
+    sys.path.insert(0, str(HERE))
+
+Figure = dict[str, Any]
+SCALE = {"us": 1e6, "ms": 1e3, "s": 1.0}
+BEGIN, END = "<!-- run_all:begin -->", "<!-- run_all:end -->"
+
+
+def figure(
+    section: str,
+    name: str,
+    value: float,
+    unit: str,
+    *,
+    target: float | None = None,
+    ratios: list[tuple[str, float, str]] | None = None,
+    note: str = "",
+) -> Figure:
+    return {
+        "section": section,
+        "name": name,
+        "value": float(value),
+        "unit": unit,
+        "target": target,
+        "ratios": list(ratios or []),
+        "note": note,
+    }
+
+
+def fmt_time(seconds: float, unit: str) -> str:
+    v = seconds * SCALE[unit]
+    return f"{v:.1f} {unit}" if v < 100 else f"{v:.0f} {unit}"
+
+
+def fmt_ratio(value: float, base_name: str, base: float, kind: str, unit: str) -> str:
+    if kind == "faster":
+        return f"{base / value:.1f}x faster than {base_name} ({fmt_time(base, unit)})"
+    return f"{value / base:.1f}x {base_name} ({fmt_time(base, unit)})"
+
+
+def fmt_target(f: Figure) -> str:
+    if f["target"] is None:
+        return ""
+    met = "met" if f["value"] <= f["target"] else "not met"
+    return f"<= {fmt_time(f['target'], f['unit'])} ({met})"
+
+
+def print_figures(figs: list[Figure]) -> None:
+    for f in figs:
+        line = f"  {f['name']:<46} {fmt_time(f['value'], f['unit']):>10}"
+        if f["target"] is not None:
+            line += f"  target {fmt_target(f)}"
+        print(line)
+        for base_name, base, kind in f["ratios"]:
+            print(f"  {'':<46} {'':>10}  {fmt_ratio(f['value'], base_name, base, kind, f['unit'])}")
+        if f["note"]:
+            print(f"  {'':<46} {'':>10}  ({f['note']})")
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def sec_controller(args: argparse.Namespace) -> list[Figure]:
+    import bench_controller as bc
+
+    repeats = 600 if args.quick else 3000
+    for cls in bc.FILTERS.values():  # compile / load the kernels before timing
+        bc.bench_steps(cls, 5, "fallback", 200)
+    out = []
+    cases = (
+        (20, "active", 10e-6, "control step, 20 agents (filter active)"),
+        (20, "fallback", 15e-6, "fallback step, 20 agents (lambda search)"),
+        (200, "active", 30e-6, "control step, 200 agents (filter active)"),
+    )
+    for n, regime, target, name in cases:
+        exact = bc.bench_steps(bc.FILTERS["exact2d"], n, regime, repeats)
+        qp = bc.bench_steps(bc.FILTERS["qp"], n, regime, repeats)
+        out.append(
+            figure(
+                "controller",
+                name,
+                exact[0] * 1e-6,
+                "us",
+                target=target,
+                ratios=[("the piqp filter", qp[0] * 1e-6, "faster")],
+                note=f"median of {repeats - 100} steps; p95 {exact[1]:.1f} us, piqp p95 "
+                f"{qp[1]:.1f} us; solver called on {exact[2]:.0%} of steps",
+            )
+        )
+    return out
+
+
+def sec_episode(args: argparse.Namespace) -> list[Figure]:
+    import bench_controller as bc
+
+    from conformal_control.data import load_scene
+
+    repeats = 2 if args.quick else 5
+    scene = load_scene("nexus_4", args.data_root / "sdd")
+    exact = bc.measure_episode(scene, bc.PAPER_A10, "exact2d", repeats)
+    qp = bc.measure_episode(scene, bc.PAPER_A10, "qp", repeats)
+    m = exact["metrics"]
+    return [
+        figure(
+            "episode",
+            "nexus_4 episode in process (exact2d filter)",
+            exact["wall_s"],
+            "ms",
+            target=20e-3,
+            ratios=[("the piqp filter", qp["wall_s"], "faster")],
+            note=f"median of {repeats}; control loop {exact['loop_s'] * 1e3:.1f} ms; "
+            f"{m['n_steps']} control steps, t_goal {m['t_goal']:.2f} s, "
+            f"peak Python memory {exact['peak_bytes'] / 2**20:.1f} MiB",
+        )
+    ]
+
+
+def _cli() -> list[str]:
+    script = Path(sys.executable).parent / "conformal-control"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "conformal_control.cli"]
+
+
+def time_command(cmd: list[str], repeats: int, env: dict | None = None) -> tuple[float, float]:
+    """Median wall time and median CPU time (user + system, children) of a command."""
+    walls, cpus = [], []
+    for _ in range(repeats):
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+        wall = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if proc.returncode != 0:
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+            raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}: {tail}")
+        walls.append(wall)
+        cpus.append((r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime))
+    return statistics.median(walls), statistics.median(cpus)
+
+
+def sec_startup(args: argparse.Namespace) -> list[Figure]:
+    n = 3 if args.quick else 7
+    py = sys.executable
+    p_pass, _ = time_command([py, "-c", "pass"], n)
+    p_np, _ = time_command([py, "-c", "import numpy"], n)
+    base = [("python -c pass", p_pass, "times"), ("python -c 'import numpy'", p_np, "times")]
+    out = [
+        figure("startup", "python -c pass", p_pass, "ms", note=f"median of {n}"),
+        figure("startup", "python -c 'import numpy'", p_np, "ms", note=f"median of {n}"),
+    ]
+    imp, imp_cpu = time_command([py, "-c", "import conformal_control.cli"], n)
+    out.append(
+        figure(
+            "startup",
+            "python -c 'import conformal_control.cli'",
+            imp,
+            "ms",
+            ratios=base,
+            note=f"CPU {imp_cpu * 1e3:.0f} ms",
+        )
+    )
+    hlp, _ = time_command([*_cli(), "--help"], n)
+    out.append(figure("startup", "conformal-control --help", hlp, "ms", ratios=base))
+    k = 2 if args.quick else 3
+    with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
+        run = [*_cli(), "run", "--scene", "nexus_4", "--data-root", str(args.data_root), "-q"]
+        for plot in (True, False):
+            cmd = [*run, "--out", str(Path(tmp) / f"run-{plot}")]
+            cmd += [] if plot else ["--no-plot"]
+            time_command(cmd, 1)  # warm-up: file system caches, compiled-kernel cache
+            wall, cpu = time_command(cmd, k)
+            name = "conformal-control run --scene nexus_4" + ("" if plot else " --no-plot")
+            out.append(
+                figure(
+                    "startup",
+                    name,
+                    wall,
+                    "s",
+                    target=0.5 if plot else None,
+                    ratios=base,
+                    note=f"median of {k} after a warm-up; CPU {cpu:.2f} s; "
+                    + ("episode, run directory, plot.png and guarantee.png" if plot else
+                       "episode and run directory, no figures"),
+                )
+            )  # fmt: skip
+    return out
+
+
+def sec_reproduce(args: argparse.Namespace) -> list[Figure]:
+    times = {}
+    with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
+        for pred in ("constant_velocity", "var"):
+            cache = Path(tmp) / f"cache-{pred}"
+            cache.mkdir()
+            env = {**os.environ, "CONFORMAL_CONTROL_CACHE": str(cache)}
+            cmd = [*_cli(), "reproduce", "table2", "--predictor", pred, "-q"]
+            cmd += ["--data-root", str(args.data_root), "--out", str(Path(tmp) / pred)]
+            times[pred] = time_command(cmd, 1, env)
+    (cv, cv_cpu), (var, var_cpu) = times["constant_velocity"], times["var"]
+    return [
+        figure(
+            "reproduce",
+            "reproduce table2 --predictor var (cold cache)",
+            var,
+            "s",
+            target=10.0,
+            ratios=[("the same with constant_velocity", cv, "times")],
+            note=f"one run each, subprocess, fresh forecast cache and output folder; "
+            f"CPU {var_cpu:.1f} s (constant_velocity {cv_cpu:.1f} s), workers not counted "
+            "until they exit",
+        )
+    ]
+
+
+def sec_predictors(args: argparse.Namespace) -> list[Figure]:
+    import bench_var as bv
+
+    from conformal_control.data.scenes import load_scene
+
+    scene = load_scene("nexus_4", str(args.data_root / "sdd"))
+    n_win, n_darts = (100, 2) if args.quick else (500, 5)
+    win, _ = bv.windows_from_scene(scene, n_win, 50, 80, 0)
+    v = bv.time_var(win, 80, 1.0 / scene.fps)
+    d = bv.time_darts(win[:n_darts], 80)
+    darts = [("darts VARIMA(10, 1, 'c')", d["wall_s"], "faster")]
+    note = (
+        f"darts on {n_darts} windows in a subprocess ({d['process_s']:.1f} s with its "
+        f"imports, {d['failed']} failed fits); 80-step forecasts from 50 samples"
+    )
+    return [
+        figure(
+            "predictors",
+            f"var fit + forecast per window ({len(win)} in one call)",
+            v["batched_s"],
+            "us",
+            ratios=darts,
+            note=note,
+        ),
+        figure(
+            "predictors",
+            "var fit + forecast, one window per call",
+            v["single_s"],
+            "us",
+            ratios=darts,
+        ),
+    ]
+
+
+def sec_synthetic(args: argparse.Namespace) -> list[Figure]:
+    import bench_synthetic as bs
+
+    seeds, repeat = (list(range(3)), 1) if args.quick else (list(range(10)), 3)
+    r = bs.measure(seeds, repeat)
+    return [
+        figure(
+            "synthetic",
+            "crossing scene generation (vectorised), per seed",
+            r["vectorised_s"],
+            "ms",
+            ratios=[("the loop generator", r["loop_s"], "faster")],
+            note=f"best of {repeat} over {len(seeds)} seeds; outputs bit-identical; "
+            f"{r['n_tracks']} tracks for seed {seeds[0]}",
+        )
+    ]
+
+
+def sec_sweep(args: argparse.Namespace) -> list[Figure]:
+    import bench_sweep_plots as bsp
+
+    runs, frames, repeat = (4, 50, 1) if args.quick else (12, 100, 2)
+    n, best = bsp.measure(runs, frames, repeat)
+    new = best["summary plot only (new default)"]
+    return [
+        figure(
+            "sweep",
+            f"sweep of {n} crossing runs, summary plot (default)",
+            new,
+            "s",
+            ratios=[
+                ("per-run plots", best["per-run plots (old default)"], "faster"),
+                ("no plots at all", best["no plots"], "times"),
+            ],
+            note=f"{frames} frames per run, serial executor, best of {repeat}",
+        )
+    ]
+
+
+def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
+    try:
+        import bench_batch
+    except ImportError:
+        return "batch engine: not available on this branch"
+    measure = getattr(bench_batch, "measure", None)
+    if measure is None:
+        return "batch engine: benchmarks/bench_batch.py has no measure() function to call"
+    return list(measure(quick=args.quick, data_root=args.data_root))
+
+
+#: key -> (title, function); a function returns its figures, or a sentence saying why
+#: there are none
+SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str]]] = {
+    "controller": ("Control step: compiled exact 2-D filter vs piqp", sec_controller),
+    "episode": ("Full episode in process", sec_episode),
+    "startup": ("Command line, end to end (subprocess)", sec_startup),
+    "reproduce": ("Reproducing Table II with the var predictor", sec_reproduce),
+    "predictors": ("The var predictor vs darts", sec_predictors),
+    "synthetic": ("Synthetic crossing scenes", sec_synthetic),
+    "sweep": ("Sweeps: summary plot vs per-run plots", sec_sweep),
+    "batch": ("Many episodes: batch engine vs per-episode loop", sec_batch),
+}
+
+
+# --------------------------------------------------------------------------- machine
+
+
+def _version(dist: str) -> str:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return "absent"
+
+
+def machine() -> dict[str, str]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = ""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                mem = f"{int(line.split()[1]) / 2**20:.0f} GB RAM"
+                break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    libs = ", ".join(
+        f"{d} {_version(d)}" for d in ("numpy", "numba", "piqp", "matplotlib", "darts")
+    )
+    return {
+        "cpu": f"{cores} cores available, {cpu}" + (f", {mem}" if mem else ""),
+        "python": f"Python {platform.python_version()} on {platform.system()}; {libs}",
+        "commit": commit,
+        "load": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+    }
+
+
+# --------------------------------------------------------------------------- docs
+
+
+def markdown(results: list[tuple[str, list[Figure], str]], info: dict, quick: bool) -> str:
+    lines = [
+        BEGIN,
+        "## All figures, one run",
+        "",
+        "Generated by `python benchmarks/run_all.py"
+        + (" --quick" if quick else "")
+        + " --write-docs docs/benchmarks.md`; do not edit by hand between the markers.",
+        "",
+        f"Measured {info['date']} on {info['cpu']}; {info['python']}; commit "
+        f"`{info['commit']}`. Load average {info['load']} at the start, {info['load_end']} at "
+        "the end: the machine was shared, so compare the ratios (each baseline is timed in the "
+        "same run) rather than the absolute times. Targets are goals, not guarantees.",
+        "",
+    ]
+    for title, figs, message in results:
+        lines += [f"### {title}", ""]
+        if message:
+            lines += [message[0].upper() + message[1:] + ".", ""]
+        if not figs:
+            continue
+        lines += ["| figure | value | target | against a baseline timed in the same run |"]
+        lines += ["|---|---:|---|---|"]
+        for f in figs:
+            ratios = "; ".join(fmt_ratio(f["value"], n, b, k, f["unit"]) for n, b, k in f["ratios"])
+            lines.append(
+                f"| {f['name']} | {fmt_time(f['value'], f['unit'])} | {fmt_target(f)} | {ratios} |"
+            )
+        notes = [f"*{f['name']}*: {f['note']}." for f in figs if f["note"]]
+        if notes:
+            lines += [""] + [f"* {n}" for n in notes]
+        lines.append("")
+    lines.append(END)
+    return "\n".join(lines).replace("|  |", "| |")
+
+
+def write_docs(path: Path, block: str) -> None:
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        tail = rest.split(END, 1)[1]
+        text = head + block + tail
+    else:  # after the title (and the paragraph under it)
+        parts = text.split("\n\n", 2)
+        if len(parts) == 3 and parts[0].startswith("# "):
+            text = f"{parts[0]}\n\n{parts[1]}\n\n{block}\n\n{parts[2]}"
+        else:
+            text = f"{text.rstrip()}\n\n{block}\n"
+    path.write_text(text)
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions (noisier)")
+    ap.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--only", nargs="+", choices=list(SECTIONS), default=None)
+    ap.add_argument("--write-docs", type=Path, default=None, metavar="PATH")
+    args = ap.parse_args(argv)
+    if not (args.data_root / "sdd").is_dir():
+        ap.error(f"no sdd/ folder under --data-root {args.data_root}")
+    args.data_root = args.data_root.resolve()
+    info = machine()
+    info["date"] = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    print(f"run_all {'--quick ' if args.quick else ''}{info['date']}")
+    print(f"machine: {info['cpu']}\n         {info['python']}")
+    print(f"commit {info['commit']}, load average {info['load']}")
+    results: list[tuple[str, list[Figure], str]] = []
+    t_all = time.perf_counter()
+    for key in args.only or list(SECTIONS):
+        title, fn = SECTIONS[key]
+        print(f"\n== {title}", flush=True)
+        t0 = time.perf_counter()
+        message = ""
+        try:
+            got = fn(args)
+        except Exception as exc:  # one broken section must not hide the others
+            traceback.print_exc()
+            got = f"failed: {type(exc).__name__}: {exc}"
+        figs = [] if isinstance(got, str) else got
+        if isinstance(got, str):
+            message = got
+            print(f"  {message}")
+        print_figures(figs)
+        print(f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
+        results.append((title, figs, message))
+    info["load_end"] = " ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"\nall sections in {time.perf_counter() - t_all:.0f} s; load average {info['load_end']}")
+    if args.write_docs is not None:
+        write_docs(args.write_docs, markdown(results, info, args.quick))
+        print(f"wrote {args.write_docs}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
