@@ -20,7 +20,7 @@ HEAVY = ("torch", "darts", "matplotlib", "pandas", "scipy", "numba", "sklearn", 
 def _loaded_after(code: str) -> list[str]:
     probe = (
         f"{code}\nimport json, sys\n"
-        f"print(json.dumps(sorted(m for m in {HEAVY + ('numpy',)!r} if m in sys.modules)))"
+        f"print(json.dumps(sorted(m for m in {(*HEAVY, 'numpy')!r} if m in sys.modules)))"
     )
     proc = subprocess.run(
         [sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120
