@@ -92,14 +92,20 @@ def figure(
 
 
 def fmt_time(seconds: float, unit: str) -> str:
+    """``seconds`` in ``unit``, or in a larger unit when that would need 5+ digits."""
+    units = list(SCALE)
+    while seconds * SCALE[unit] >= 1e4 and unit != units[-1]:
+        unit = units[units.index(unit) + 1]
     v = seconds * SCALE[unit]
-    return f"{v:.1f} {unit}" if v < 100 else f"{v:.0f} {unit}"
+    return f"{v:.1f} {unit}" if v < 100 else f"{v:,.0f} {unit}"
 
 
 def fmt_ratio(value: float, base_name: str, base: float, kind: str, unit: str) -> str:
+    r = base / value if kind == "faster" else value / base
+    r_text = f"{r:.1f}" if r < 100 else f"{r:,.0f}"
     if kind == "faster":
-        return f"{base / value:.1f}x faster than {base_name} ({fmt_time(base, unit)})"
-    return f"{value / base:.1f}x {base_name} ({fmt_time(base, unit)})"
+        return f"{r_text}x faster than {base_name} ({fmt_time(base, unit)})"
+    return f"{r_text}x {base_name} ({fmt_time(base, unit)})"
 
 
 def fmt_target(f: Figure) -> str:
@@ -204,12 +210,18 @@ def time_command(cmd: list[str], repeats: int, env: dict | None = None) -> tuple
 def sec_startup(args: argparse.Namespace) -> list[Figure]:
     n = 3 if args.quick else 7
     py = sys.executable
-    p_pass, _ = time_command([py, "-c", "pass"], n)
-    p_np, _ = time_command([py, "-c", "import numpy"], n)
+    p_pass, c_pass = time_command([py, "-c", "pass"], n)
+    p_np, c_np = time_command([py, "-c", "import numpy"], n)
     base = [("python -c pass", p_pass, "times"), ("python -c 'import numpy'", p_np, "times")]
     out = [
-        figure("startup", "python -c pass", p_pass, "ms", note=f"median of {n}"),
-        figure("startup", "python -c 'import numpy'", p_np, "ms", note=f"median of {n}"),
+        figure(
+            "startup",
+            "python -c pass",
+            p_pass,
+            "ms",
+            note=f"median of {n}; CPU {c_pass * 1e3:.0f} ms",
+        ),
+        figure("startup", "python -c 'import numpy'", p_np, "ms", note=f"CPU {c_np * 1e3:.0f} ms"),
     ]
     imp, imp_cpu = time_command([py, "-c", "import conformal_control.cli"], n)
     out.append(
@@ -222,8 +234,17 @@ def sec_startup(args: argparse.Namespace) -> list[Figure]:
             note=f"CPU {imp_cpu * 1e3:.0f} ms",
         )
     )
-    hlp, _ = time_command([*_cli(), "--help"], n)
-    out.append(figure("startup", "conformal-control --help", hlp, "ms", ratios=base))
+    hlp, hlp_cpu = time_command([*_cli(), "--help"], n)
+    out.append(
+        figure(
+            "startup",
+            "conformal-control --help",
+            hlp,
+            "ms",
+            ratios=base,
+            note=f"CPU {hlp_cpu * 1e3:.0f} ms",
+        )
+    )
     k = 2 if args.quick else 3
     with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
         run = [*_cli(), "run", "--scene", "nexus_4", "--data-root", str(args.data_root), "-q"]
