@@ -1,0 +1,106 @@
+"""``benchmarks/run_all.py``: the figures' text, the docs section it writes, the batch hook.
+
+Nothing here times anything: the script's timings are measured when it runs, never
+asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def run_all():
+    spec = importlib.util.spec_from_file_location("_run_all", ROOT / "benchmarks" / "run_all.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_ratios_read_the_right_way_round(run_all):
+    f = run_all.figure(
+        "s", "step", 5e-6, "us", target=10e-6,
+        ratios=[("piqp", 50e-6, "faster"), ("python -c pass", 1e-6, "times")],
+    )  # fmt: skip
+    assert run_all.fmt_ratio(f["value"], "piqp", 50e-6, "faster", "us").startswith(
+        "10.0x faster than piqp (50.0 us)"
+    )
+    assert run_all.fmt_ratio(f["value"], "p", 1e-6, "times", "us").startswith("5.0x p")
+    assert run_all.fmt_target(f) == "<= 10.0 us (met)"
+    assert run_all.fmt_target({**f, "value": 11e-6}) == "<= 10.0 us (not met)"
+    assert run_all.fmt_time(12.5, "us") == "12.5 s"  # 12.5e6 us: shown in a larger unit
+
+
+def _results(run_all):
+    figs = [run_all.figure("c", "control step", 5e-6, "us", target=10e-6, note="median")]
+    return [("Controller", figs, ""), ("Batch", [], "batch engine: not available")]
+
+
+def test_docs_section_replaces_only_its_own_block(run_all, tmp_path):
+    info = {"date": "D", "cpu": "C", "python": "P", "commit": "abc", "load": "1", "load_end": "2"}
+    page = tmp_path / "benchmarks.md"
+    page.write_text("# Benchmarks\n\nIntro.\n\n## Hand-written section\n\nKeep me.\n")
+    run_all.write_docs(page, run_all.markdown(_results(run_all), info, quick=False))
+    first = page.read_text()
+    assert first.index("Intro.") < first.index(run_all.BEGIN) < first.index("Keep me.")
+    assert "| control step | 5.0 us | <= 10.0 us (met) |" in first
+    assert "Batch engine: not available." in first
+    assert "Measured D on C" in first
+    # a second run replaces the block and leaves the rest as it was
+    info["date"] = "E"
+    run_all.write_docs(page, run_all.markdown(_results(run_all), info, quick=True))
+    second = page.read_text()
+    assert (
+        second.count(run_all.BEGIN) == 1 and "Measured E" in second and "Measured D" not in second
+    )
+    assert second.split(run_all.END)[1] == first.split(run_all.END)[1]
+    assert second.split(run_all.BEGIN)[0] == first.split(run_all.BEGIN)[0]
+
+
+def test_batch_section_uses_bench_batch_measure_when_it_exists(run_all, monkeypatch):
+    args = argparse.Namespace(quick=True, data_root=Path("/data"))
+    monkeypatch.setitem(sys.modules, "bench_batch", None)  # import fails
+    assert run_all.sec_batch(args) == "batch engine: not available on this branch"
+    monkeypatch.setitem(sys.modules, "bench_batch", types.ModuleType("bench_batch"))
+    assert "no measure()" in run_all.sec_batch(args)
+    fake = types.ModuleType("bench_batch")
+    seen = {}
+
+    def measure(quick, data_root):
+        seen.update(quick=quick, data_root=data_root)
+        return [run_all.figure("batch", "1,000 crossing seeds", 12.0, "s", target=15.0)]
+
+    fake.measure = measure
+    monkeypatch.setitem(sys.modules, "bench_batch", fake)
+    (fig,) = run_all.sec_batch(args)
+    assert fig["name"] == "1,000 crossing seeds" and seen == {
+        "quick": True,
+        "data_root": args.data_root,
+    }
+
+
+def test_a_failing_section_is_reported_and_the_others_still_run(
+    run_all, monkeypatch, capsys, data_root
+):
+    def boom(args):
+        raise ValueError("broken")
+
+    def ok(args):
+        return [run_all.figure("x", "fine figure", 1e-3, "ms")]
+
+    monkeypatch.setattr(run_all, "SECTIONS", {"a": ("A", boom), "b": ("B", ok)})
+    monkeypatch.setattr(
+        run_all, "machine", lambda: {"cpu": "c", "python": "p", "commit": "x", "load": "0"}
+    )
+    assert run_all.main(["--data-root", str(data_root), "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "failed: ValueError: broken" in out
+    assert "fine figure" in out
