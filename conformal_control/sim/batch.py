@@ -47,7 +47,6 @@ from dataclasses import dataclass, field
 from itertools import repeat
 from typing import Any
 
-import numba
 import numpy as np
 
 from ..cbf import kernels2d
@@ -236,10 +235,6 @@ class _Episode:
     n_sensed: list[int] = field(default_factory=list)
 
 
-def _empty_positions() -> np.ndarray:
-    return np.full((1, 1, 2), np.nan)
-
-
 class _Pool:
     """The state of ``size`` episode slots, one row per slot (grown on demand)."""
 
@@ -279,7 +274,9 @@ class _Pool:
         self.cap = 0  # agents per slot that xp / vp and the work buffer hold
         self.sides = 0
         self.work = np.zeros(0)
-        self.positions = numba.typed.List([_empty_positions() for _ in range(b)])
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
+        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.used = 0
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -290,6 +287,34 @@ class _Pool:
         out = np.zeros(shape, dtype=arr.dtype)
         out[tuple(slice(0, k) for k in arr.shape)] = arr
         return out
+
+    def load(self, b: int, positions: np.ndarray) -> None:
+        """Copy slot ``b``'s recording into the store (compacting or growing it)."""
+        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+        n = data.size
+        if self.used + n > self.store.size:
+            self._compact()
+            if self.used + n > self.store.size:
+                free = int(self.size - self.active.sum())  # room for the free slots too
+                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+                grown[: self.used] = self.store[: self.used]
+                self.store = grown
+        self.store[self.used : self.used + n] = data
+        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.used += n
+
+    def _compact(self) -> None:
+        """Move the live slots' recordings to the front of the store, in place."""
+        live = np.flatnonzero(self.active)
+        end = 0
+        for b in live[np.argsort(self.where[live, 0])].tolist():
+            o, f, m = self.where[b].tolist()
+            n = f * m * 2
+            if o != end:
+                self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
+                self.where[b, 0] = end
+            end += n
+        self.used = end
 
     def ensure(
         self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
@@ -400,7 +425,7 @@ class _Engine:
         )
         dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
-        p.positions[b] = np.ascontiguousarray(sc.positions, dtype=np.float64)
+        p.load(b, sc.positions)
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]
@@ -454,13 +479,13 @@ class _Engine:
             p.cap,
         )
         self.eps[b] = ep
-        bk.log_frames(np.array([b]), p.positions, p.fi, p.x, p.t, p.log, p.n_log)
+        bk.log_frames(np.array([b]), p.store, p.where, p.fi, p.x, p.t, p.log, p.n_log)
 
     # ------------------------------------------------------------------ sampling time
     def begin(self, slots: np.ndarray) -> None:
         """Sampling time of ``slots``: sense, predict, interpolate."""
         p = self.pool
-        bk.count_sensed(slots, p.positions, p.fi, p.x, p.radius, p.sensed, p.n_agents)
+        bk.count_sensed(slots, p.store, p.where, p.fi, p.x, p.radius, p.sensed, p.n_agents)
         n = p.n_agents[slots]
         p.ensure(agents=int(n.max(initial=0)))
         p.k_start[slots] = p.fi[slots]
@@ -471,7 +496,7 @@ class _Engine:
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
         if predicted.size:
             bk.predict_interpolate(
-                predicted, p.positions, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
+                predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
                 p.history, p.tau, p.substeps, p.dt_frame, p.samples, p.xp, p.vp, p.n_short,
                 p.n_bad,
             )  # fmt: skip
@@ -505,7 +530,7 @@ class _Engine:
         for b in slots[dist <= p.goal_radius[slots]].tolist():
             self._reach(b)
         bk.advance_frames(
-            slots, p.positions, p.step, p.substeps, p.fi, p.last_frame, p.done, p.x, p.t,
+            slots, p.store, p.where, p.step, p.substeps, p.fi, p.last_frame, p.done, p.x, p.t,
             p.log, p.n_log,
         )  # fmt: skip
 
@@ -541,7 +566,9 @@ class _Engine:
             np.cumsum(counts[:-1], out=offsets[1:])
             frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
             truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
-            bk.gather_windows(scored, p.positions, p.k_start, p.sensed, p.n_agents, offsets, truth)
+            bk.gather_windows(
+                scored, p.store, p.where, p.k_start, p.sensed, p.n_agents, offsets, truth
+            )
             gap_maxima(
                 scored, offsets, p.n_agents, p.step, truth, p.dt_frame, p.substeps, p.rec_x,
                 p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
@@ -629,7 +656,6 @@ class _Engine:
         )
         _warn_after_run(fl, metrics, ep.learn, ep.max_frames)
         p.active[b] = False
-        p.positions[b] = _empty_positions()
         self.eps[b] = None
         if self.output == "metrics":
             return ep.index, metrics

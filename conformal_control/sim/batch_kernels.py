@@ -5,8 +5,10 @@ Python -- the sensor's range test, the history / truth windows it cuts from the
 recording, the frame clock and the per-frame log -- written as loops over the episodes of
 a batch (:mod:`conformal_control.sim.batch`), with the same floating-point operations
 (numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls). Each episode
-reads its own recording: ``positions`` is a typed list holding one ``(F, M, 2)`` array per
-slot of the batch.
+reads its own recording: the recordings of the live episodes lie in one flat buffer
+``store``; slot ``b``'s is ``store[o : o + F * M * 2]`` seen as ``(F, M, 2)`` with
+``(o, F, M) = where[b]`` (plain arrays compile once and are cached, a typed list of
+arrays would be compiled anew in every process).
 """
 
 from __future__ import annotations
@@ -16,15 +18,32 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["advance_frames", "count_sensed", "gather_windows", "log_frames", "scatter_rows"]
+__all__ = [
+    "CONSTANT_VELOCITY",
+    "ORACLE",
+    "advance_frames",
+    "count_sensed",
+    "gather_windows",
+    "log_frames",
+    "predict_interpolate",
+    "recording",
+]
 
 jit = numba.njit(cache=True, nogil=True)
 
 
 @jit
+def recording(store: np.ndarray, where: np.ndarray, b: int) -> np.ndarray:
+    """Slot ``b``'s recording, ``(F, M, 2)`` (a view of ``store``)."""
+    o = where[b, 0]
+    return store[o : o + where[b, 1] * where[b, 2] * 2].reshape((where[b, 1], where[b, 2], 2))
+
+
+@jit
 def count_sensed(
     slots: np.ndarray,
-    positions: numba.typed.List,
+    store: np.ndarray,
+    where: np.ndarray,
     fi: np.ndarray,
     x: np.ndarray,
     radius: np.ndarray,
@@ -36,7 +55,7 @@ def count_sensed(
     to ``sensed[b]``; their number to ``counts[b]``."""
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = positions[b]
+        pos = recording(store, where, b)
         f = fi[b]
         x0 = x[b, 0]
         x1 = x[b, 1]
@@ -55,20 +74,21 @@ def count_sensed(
 @jit
 def gather_windows(
     slots: np.ndarray,
-    positions: numba.typed.List,
+    store: np.ndarray,
+    where: np.ndarray,
     lo: np.ndarray,
     sensed: np.ndarray,
     counts: np.ndarray,
     offsets: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """``positions[b][lo[b] : lo[b] + L, sensed[b, :counts[b]]]`` as rows
+    """``recording[lo[b] : lo[b] + L, sensed[b, :counts[b]]]`` of each slot as rows
     ``out[offsets[i] : offsets[i] + counts[b]]`` of shape ``(L, 2)`` (``L = out.shape[1]``),
     NaN outside the recording (the environment's ``_window``)."""
     length = out.shape[1]
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = positions[b]
+        pos = recording(store, where, b)
         n_frames = pos.shape[0]
         o = offsets[i]
         for a in range(counts[b]):
@@ -105,7 +125,8 @@ def _d_min(pos: np.ndarray, f: int, x0: float, x1: float) -> float:
 @jit
 def log_frames(
     slots: np.ndarray,
-    positions: numba.typed.List,
+    store: np.ndarray,
+    where: np.ndarray,
     fi: np.ndarray,
     x: np.ndarray,
     t: np.ndarray,
@@ -120,14 +141,15 @@ def log_frames(
         log[b, k, 0] = t[b]
         for c in range(4):
             log[b, k, 1 + c] = x[b, c]
-        log[b, k, 5] = _d_min(positions[b], fi[b], x[b, 0], x[b, 1])
+        log[b, k, 5] = _d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
         n_log[b] = k + 1
 
 
 @jit
 def advance_frames(
     slots: np.ndarray,
-    positions: numba.typed.List,
+    store: np.ndarray,
+    where: np.ndarray,
     step: np.ndarray,
     substeps: np.ndarray,
     fi: np.ndarray,
@@ -153,28 +175,8 @@ def advance_frames(
         log[b, k, 0] = t[b]
         for c in range(4):
             log[b, k, 1 + c] = x[b, c]
-        log[b, k, 5] = _d_min(positions[b], fi[b], x[b, 0], x[b, 1])
+        log[b, k, 5] = _d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
         n_log[b] = k + 1
-
-
-@jit
-def scatter_rows(
-    slots: np.ndarray,
-    counts: np.ndarray,
-    offsets: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-) -> None:
-    """``dst[b, :S, :counts[b]] = src[:, offsets[i] : offsets[i] + counts[b]]`` for each
-    slot (``src`` of shape ``(S, total, 2)``: the agents of several slots side by side)."""
-    n_steps = src.shape[0]
-    for i in range(slots.shape[0]):
-        b = slots[i]
-        o = offsets[i]
-        for s in range(n_steps):
-            for a in range(counts[b]):
-                dst[b, s, a, 0] = src[s, o + a, 0]
-                dst[b, s, a, 1] = src[s, o + a, 1]
 
 
 #: Predictor codes of :func:`predict_interpolate`.
@@ -184,7 +186,8 @@ CONSTANT_VELOCITY, ORACLE = 0, 1
 @jit
 def predict_interpolate(
     slots: np.ndarray,
-    positions: numba.typed.List,
+    store: np.ndarray,
+    where: np.ndarray,
     fi: np.ndarray,
     sensed: np.ndarray,
     n_agents: np.ndarray,
@@ -217,7 +220,7 @@ def predict_interpolate(
     """
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = positions[b]
+        pos = recording(store, where, b)
         n_frames = pos.shape[0]
         f = fi[b]
         dt = dt_frame[b]
@@ -232,9 +235,10 @@ def predict_interpolate(
             samples[0, 0] = cx
             samples[0, 1] = cy
             if predictor[b] == CONSTANT_VELOCITY:
-                # trailing run of finite samples in the history window (frames f-H+1 .. f)
+                # trailing run of finite samples in the history window (frames f-H+1 .. f),
+                # counted up to window + 1 (longer runs give the same k)
                 run = 0
-                for back in range(history[b]):
+                for back in range(min(history[b], window[b] + 1)):
                     g = f - back
                     if g < 0 or g >= n_frames:
                         break
