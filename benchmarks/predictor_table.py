@@ -3,9 +3,9 @@ scenes and on nexus_4 (8 observed, 12 predicted samples at 2.5 fps), via
 ``conformal-control eval-predictor``; rows are appended to ``OUT/results.csv``.
 
 Learned predictors (lstm, sklearn) are trained on first use, leave-one-scene-out (ETH/UCY)
-or on all of ETH/UCY (nexus_4), and cached. darts' VARIMA needs >= 33 samples, so it is
-evaluated with 33 observed samples on a seeded subsample, beside constant velocity on the
-same windows. Usage::
+or on all of ETH/UCY (nexus_4), and cached. darts' VARIMA (and the core ``var``, the same
+model structure) needs >= 33 samples, so it is evaluated with 33 observed samples on a
+seeded subsample, beside constant velocity and ``var`` on the same windows. Usage::
 
     python benchmarks/predictor_table.py --data-root ../shared/data --out results/predictors
 """
@@ -40,6 +40,7 @@ def main() -> None:
     jobs = [(label, name, extra) for label, name, extra in ROWS]
     for obs_label, name, extra in (
         ("cv_obs33", "constant_velocity", ["--param", "window=1"]),
+        ("var_obs33", "var", []),
         ("darts_varima_obs33", "darts", ["--param", f"n_jobs={args.n_jobs}"]),
     ):
         jobs.append(

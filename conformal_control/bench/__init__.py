@@ -1,10 +1,13 @@
-"""Closed-loop safety benchmark on real crowds: scenario suites (and, later, methods).
+"""Closed-loop safety benchmark on real crowds.
 
-:mod:`~conformal_control.bench.suites` loads the shipped suites and builds a scenario's
-scene; :mod:`~conformal_control.bench.generator` regenerates them from the data.
+Scenario suites (:mod:`conformal_control.data.suites`: the shipped manifests and a
+scenario's scene; :mod:`~conformal_control.bench.generator` regenerates them from the
+data), methods (:mod:`~conformal_control.bench.methods`), the runner
+(:mod:`~conformal_control.bench.runner`), statistics (:mod:`~conformal_control.bench.stats`)
+and reports (:mod:`~conformal_control.bench.report`).
 """
 
-from .suites import (
+from ..data.suites import (
     SPLITS,
     Scenario,
     Suite,

@@ -83,8 +83,8 @@ from ..data.ethucy import ETHUCY_RECORDINGS, ethucy_recording
 from ..data.paths import resolve_data_root
 from ..data.scenes import read_tracks
 from ..data.sdd import SDD_FPS, sdd_video
+from ..data.suites import SCHEMA, SCHEMA_VERSION, Scenario, load_scenario
 from ..data.tracks import Tracks
-from .suites import SCHEMA, SCHEMA_VERSION, Scenario, load_scenario
 
 __all__ = [
     "CROSSINGS_V1",

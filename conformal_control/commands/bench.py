@@ -1,4 +1,9 @@
-"""``conformal-control bench``: the closed-loop safety benchmark (scenario suites)."""
+"""``conformal-control bench``: the closed-loop safety benchmark on real crowds.
+
+``bench scenarios`` lists (or regenerates) a suite, ``bench methods`` lists the methods,
+``bench run`` runs scenarios x methods on the sweep runner (resumable), ``bench report``
+writes the leaderboard and figures from the stored rows.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +12,7 @@ import sys
 import time
 from typing import Any
 
-from . import command
+from . import command, key_values
 
 
 @command("bench", "closed-loop safety benchmark on real crowds (scenario suites)")
@@ -46,17 +51,185 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help="with --regenerate: processes for the nolearn episodes (default 1)",
     )
 
+    me = sub.add_parser(
+        "methods",
+        help="list the benchmark's methods with their plugins and parameters",
+        description="Every method family and its settings (SI units), with the plugins it uses.",
+    )
+    me.add_argument("--json", action="store_true", help="machine-readable output")
+
+    ru = sub.add_parser(
+        "run",
+        help="run scenarios x methods (resumable; failures isolated)",
+        description=(
+            "Run every scenario of a suite split with every method on the sweep runner. "
+            "Finished episodes are skipped on a rerun into the same --out."
+        ),
+    )
+    ru.add_argument("--suite", default="crossings-v1", help="suite name (default crossings-v1)")
+    ru.add_argument(
+        "--split", default="test", choices=("dev", "test", "all"), help="split (default test)"
+    )
+    ru.add_argument(
+        "--methods",
+        default=None,
+        help="comma-separated method families (default: every family, see `bench methods`)",
+    )
+    ru.add_argument(
+        "--grid",
+        action="append",
+        metavar="FAMILY=V1,V2",
+        help="override a family's settings, e.g. conformal=-0.2,-0.1 (repeatable)",
+    )
+    ru.add_argument("--predictor", default="constant_velocity", help="registered predictor")
+    ru.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="run parameter in SI applied to every method, e.g. K_rep=0.3 (repeatable)",
+    )
+    ru.add_argument(
+        "--crowd",
+        default="replay",
+        choices=("replay", "social_force", "orca", "mixed"),
+        help="pedestrians replayed, or reacting to the robot (default replay)",
+    )
+    ru.add_argument(
+        "--data-root", default=None, help="data folder (default $CONFORMAL_CONTROL_DATA)"
+    )
+    ru.add_argument(
+        "--executor", default="process", choices=("process", "serial", "dask"), help="executor"
+    )
+    ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
+    ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")
+    ru.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    ru.add_argument("--out", required=True, help="benchmark folder")
+    ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+
+    re_ = sub.add_parser(
+        "report",
+        help="leaderboard, paired comparison and figures from a benchmark folder",
+        description=(
+            "Build leaderboard.md/.csv, per_scene.md/.csv, frontier.png and "
+            "success_vs_epsilon.png from the stored per-episode rows of a benchmark folder."
+        ),
+    )
+    re_.add_argument("folder", help="a `bench run` folder")
+    re_.add_argument("--out", default=None, help="report folder (default FOLDER/report)")
+    re_.add_argument("--baseline", default="nolearn", help="method compared against")
+    re_.add_argument("--title", default=None, help="title of the leaderboard and figures")
+
 
 @_bench_args.handler
 def _bench(args: argparse.Namespace) -> int:
     if args.bench_command == "scenarios":
         return _scenarios(args)
-    print("usage: conformal-control bench scenarios --suite NAME [...]", file=sys.stderr)
+    if args.bench_command == "methods":
+        return _methods(args)
+    if args.bench_command == "run":
+        return _run(args)
+    if args.bench_command == "report":
+        return _report(args)
+    print(
+        "usage: conformal-control bench {scenarios,methods,run,report} ... "
+        "(see `conformal-control bench --help`)",
+        file=sys.stderr,
+    )
     return 2
 
 
+def _methods(args: argparse.Namespace) -> int:
+    import json
+
+    from ..bench.methods import METHOD_FAMILIES, available, expand_methods
+
+    methods = expand_methods(METHOD_FAMILIES)
+    if args.json:
+        rows = [{**m.as_dict(), "unavailable": available(m)} for m in methods]
+        print(json.dumps(rows, indent=2, default=str))
+        return 0
+    for fam, (_, _, meaning) in METHOD_FAMILIES.items():
+        members = [m for m in methods if m.family == fam]
+        first = members[0]
+        print(f"{fam}: {first.description}")
+        if meaning != "-":
+            print(f"  settings ({meaning}): {', '.join(m.setting for m in members)}")
+        plugins = {"rule": first.rule, **dict(first.roles)}
+        if first.predictor:
+            plugins["predictor"] = first.predictor
+        print(f"  plugins: {', '.join(f'{k}={v}' for k, v in plugins.items())}")
+        params = {**dict(first.params), **{f"rule.{k}": v for k, v in first.rule_params.items()}}
+        if params:
+            shown = ", ".join(
+                f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items()
+            )
+            print(f"  parameters (SI): {shown}; learning: {first.learn}")
+        why = available(first)
+        if why:
+            print(f"  UNAVAILABLE: {why}")
+    return 0
+
+
+def _grids(items: list[str] | None) -> dict[str, list[Any]]:
+    from ..sim.config import parse_value
+
+    out: dict[str, list[Any]] = {}
+    for item in items or []:
+        fam, eq, values = item.partition("=")
+        if not eq or not values:
+            raise ValueError(f"--grid expects FAMILY=V1,V2, got {item!r}")
+        out[fam.strip()] = [parse_value(v) for v in values.split(",") if v.strip()]
+    return out
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..bench.methods import DEFAULT_METHODS
+    from ..bench.runner import run_bench
+
+    methods = (
+        [m.strip() for m in args.methods.split(",") if m.strip()]
+        if args.methods
+        else list(DEFAULT_METHODS)
+    )
+    progress = None if args.progress is None else args.progress == "on"
+    res = run_bench(
+        args.out,
+        suite=args.suite,
+        split=None if args.split == "all" else args.split,
+        methods=methods,
+        grids=_grids(args.grid),
+        predictor=args.predictor,
+        crowd=args.crowd,
+        data_root=args.data_root,
+        executor=args.executor,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=progress,
+        limit=args.limit,
+        base_params=key_values(args.set, "--set"),
+    )
+    print(res.summary())
+    return 0 if res.failed == 0 else 1
+
+
+def _report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..bench.report import write_report
+    from ..bench.runner import read_rows
+
+    folder = Path(args.folder)
+    rows = read_rows(folder)
+    out = Path(args.out) if args.out else folder / "report"
+    title = args.title or f"Benchmark: {folder.name}"
+    files = write_report(rows, out, baseline=args.baseline, title=title)
+    print((out / "leaderboard.md").read_text())
+    print("wrote " + ", ".join(str(f) for f in files.values()))
+    return 0
+
+
 def _scenarios(args: argparse.Namespace) -> int:
-    from ..bench.suites import load_suite
+    from ..data.suites import load_suite
 
     if args.regenerate:
         return _regenerate(args)
@@ -86,7 +259,7 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 def _regenerate(args: argparse.Namespace) -> int:
     from ..bench.generator import SUITES, generate_suite
-    from ..bench.suites import dump_manifest, load_suite, suite_names
+    from ..data.suites import dump_manifest, load_suite, suite_names
 
     if args.suite not in SUITES:
         raise ValueError(

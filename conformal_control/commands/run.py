@@ -183,6 +183,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         help="video frame the robot starts at (unset: the scene's)",
     )
     p.add_argument("--no-plot", action="store_true", help="skip plot.png")
+    _multi_args(p)
 
 
 # ------------------------------------------------------------------------------ replay
@@ -415,6 +416,8 @@ def _run(args: argparse.Namespace) -> int:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)
     predictor_params = _predictor_params(args, scene, given_predictor_params)
+    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
+        return _run_multi(args, scene, params, roles, rule_params, predictor_params, out)
     log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
 
     data_root = None
@@ -460,6 +463,111 @@ def _run(args: argparse.Namespace) -> int:
         )
     log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)
+    print(result.metrics.format())
+    print(f"results written to {out}")
+    return 0
+
+
+# ------------------------------------------------------------------ several robots (--robots)
+def _multi_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group(
+        "several robots",
+        "M robots, each its own conformal CBF controller, no communication (see the "
+        "Multi-robot page of the docs); the scene's own start and goal define the default "
+        "layout",
+    )
+    g.add_argument("--robots", type=int, default=None, metavar="M", help="number of robots (1-20)")
+    g.add_argument(
+        "--robot-layout",
+        choices=("scene", "antipodal"),
+        default="scene",
+        help="scene: robot 0 does the scene's task, robot i the same task rotated by 2 pi i/M "
+        "about its midpoint; antipodal: on a circle (--radius, --center), each to the "
+        "opposite point",
+    )
+    g.add_argument("--radius", type=float, default=None, help="antipodal circle radius (m)")
+    g.add_argument(
+        "--center", type=_pair, default=None, help="antipodal circle centre, image fractions fx,fy"
+    )
+    g.add_argument(
+        "--robots-file",
+        default=None,
+        metavar="FILE.json",
+        help='explicit tasks: {"units": "m" or "fraction", "robots": [{"start": [x, y], '
+        '"goals": [[x, y], ...]}, ...]}',
+    )
+    g.add_argument(
+        "--sensor-history",
+        choices=("tracked", "observed"),
+        default="tracked",
+        help="histories handed to each robot's predictor: as tracked (the single-robot "
+        "sensor) or only where the robot itself had the agent in range",
+    )
+
+
+def _run_multi(
+    args: argparse.Namespace,
+    scene: Any,
+    params: dict[str, Any],
+    roles: dict[str, Any],
+    rule_params: dict[str, Any],
+    predictor_params: dict[str, Any],
+    out: Path | None = None,
+) -> int:
+    """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
+    from ..sim.multi import load_robots_file, run_multi
+
+    tasks: dict[str, Any] = {}
+    if args.robots_file is not None:
+        if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
+            raise ValueError(
+                "--robots-file gives the tasks: drop --robot-layout, --radius, --center"
+            )
+        starts, goals = load_robots_file(args.robots_file, scene)
+        tasks = {"starts": starts, "goals": goals, "robots": args.robots}
+    else:
+        center = None
+        if args.center is not None:
+            if scene.extent is None:
+                raise ValueError(f"scene {scene.name} has no extent: --center needs one")
+            center = (args.center[0] * scene.extent[0], args.center[1] * scene.extent[1])
+        tasks = {
+            "robots": args.robots,
+            "layout": args.robot_layout,
+            "radius": args.radius,
+            "center": center,
+        }
+    result = run_multi(
+        scene,
+        **tasks,
+        predictor=args.predictor,
+        params=params,
+        learn=not args.no_learning,
+        max_frames=args.frames,
+        seed=args.seed,
+        predictor_params=predictor_params,
+        rule=args.rule,
+        rule_params=rule_params,
+        lambda_safe=args.lambda_safe,
+        fallback=args.fallback,
+        sensor_history=args.sensor_history,
+        crowd=args.crowd,
+        crowd_params=key_values(args.crowd_param, "--crowd-param"),
+        extra_config={"command": command_line(args), "data_root": args.data_root},
+        **roles,
+    )
+    if out is None:
+        out = (
+            Path(args.out)
+            if args.out
+            else Path("runs")
+            / (
+                f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
+                f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
+            )
+        )
+    out = result.save(out)
+    print(result.summary_table())
     print(result.metrics.format())
     print(f"results written to {out}")
     return 0

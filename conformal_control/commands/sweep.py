@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from . import command, key_values
 
@@ -55,8 +56,22 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-retry-failed", action="store_true", help="on resume, keep failed runs as failed"
     )
-    p.add_argument("--no-plot", action="store_true", help="skip plot.png in run directories")
-    p.add_argument("--dry-run", action="store_true", help="list the runs and their keys only")
+    p.add_argument(
+        "--plots",
+        action="store_true",
+        help="write plot.png and guarantee.png in every run directory (slow; off by default)",
+    )
+    p.add_argument(
+        "--no-plot",
+        action="store_true",
+        help="no per-run plots (the default; kept for old scripts)",
+    )
+    p.add_argument(
+        "--no-summary-plot", action="store_true", help="do not write the sweep's summary.png"
+    )
+    p.add_argument(
+        "--dry-run", action="store_true", help="check the runs and list them with their keys only"
+    )
     p.add_argument(
         "--progress",
         choices=("auto", "on", "off"),
@@ -67,8 +82,19 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
 
 @_sweep_args.handler
 def _sweep(args: argparse.Namespace) -> int:
-    from ..sweep import SweepSpec, load_spec, parse_grid_option, run_sweep
+    from ..sweep import (
+        JournalWarning,
+        SweepInterrupted,
+        SweepLockedError,
+        SweepSpec,
+        load_spec,
+        parse_grid_option,
+        run_sweep,
+        validate_runs,
+    )
 
+    if args.plots and args.no_plot:
+        raise ValueError("--plots and --no-plot contradict each other; give one")
     spec = load_spec(args.spec) if args.spec else SweepSpec()
     base = key_values(args.set, "--set")
     for name in ("scene", "predictor", "data_root"):
@@ -79,22 +105,42 @@ def _sweep(args: argparse.Namespace) -> int:
     if not configs:
         raise ValueError("the sweep has no runs")
     if args.dry_run:
+        validate_runs(configs)  # the same check a real sweep makes before it starts
         for c in configs:
             print(c.key, c.as_dict())
         print(f"{len(configs)} runs")
         return 0
-    report = run_sweep(
-        configs,
-        args.out,
-        args.executor,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        resume=not args.no_resume,
-        retry_failed=not args.no_retry_failed,
-        plot=not args.no_plot,
-        progress={"auto": None, "on": True, "off": False}[args.progress],
-    )
+    with warnings.catch_warnings():  # unreadable journal lines: one plain line on stderr
+        warnings.simplefilter("always", JournalWarning)
+        warnings.showwarning = _show_warning
+        try:
+            report = run_sweep(
+                configs,
+                args.out,
+                args.executor,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                resume=not args.no_resume,
+                retry_failed=not args.no_retry_failed,
+                plot=args.plots,
+                summary_plot=not args.no_summary_plot,
+                progress={"auto": None, "on": True, "off": False}[args.progress],
+            )
+        except SweepLockedError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except SweepInterrupted as exc:
+            print(
+                f"sweep {exc}: finished runs are recorded in {args.out}; "
+                "run the same command again to resume",
+                file=sys.stderr,
+            )
+            return 128 + exc.signum
     print(report.summary())
+    if report.summary_plot is not None:
+        print(f"summary plot: {report.summary_plot}")
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
     for row in report.rows:
         if row["status"] != "ok":
             print(
@@ -102,3 +148,9 @@ def _sweep(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     return 1 if report.failed else 0
+
+
+def _show_warning(
+    message: Warning | str, category: type[Warning], *args: object, **kw: object
+) -> None:
+    print(f"warning: {message}", file=sys.stderr)

@@ -315,14 +315,18 @@ class Crowd(Plugin):
         ----------
         frame, sub : int
             The instant: ``sub`` control instants after the recording's frame ``frame``.
-        robot_pos, robot_vel : ndarray of shape (2,)
-            The robot's position (m) and velocity (m/s) at that instant.
+        robot_pos, robot_vel : ndarray of shape (2,) or (R, 2)
+            The robot's (or the R robots') position (m) and velocity (m/s) at that instant.
         """
+        robot_pos = np.asarray(robot_pos, dtype=float).reshape(-1, 2)
+        robot_vel = np.asarray(robot_vel, dtype=float).reshape(-1, 2)
         if not self.mixed and sub == 0:
             self._enter(frame)
         rep_cols, rep_pos = self._replayed(frame, sub)
         if self.mixed and rep_cols.size:
-            near = np.hypot(*(rep_pos - robot_pos).T) <= self.mixed_radius
+            dx = rep_pos[:, None, 0] - robot_pos[None, :, 0]
+            dy = rep_pos[:, None, 1] - robot_pos[None, :, 1]
+            near = np.hypot(dx, dy).min(axis=1) <= self.mixed_radius
             if near.any():
                 self._activate(rep_cols[near], rep_pos[near], frame)
                 rep_cols, rep_pos = rep_cols[~near], rep_pos[~near]
@@ -331,11 +335,12 @@ class Crowd(Plugin):
             return
         t = frame + sub / self.substeps_
         v_pref = self._preferred(act, t)
-        other_pos = np.vstack([np.asarray(robot_pos, dtype=float).reshape(1, 2), rep_pos])
-        other_vel = np.vstack(
-            [np.asarray(robot_vel, dtype=float).reshape(1, 2), self.rec_vel_[frame, rep_cols]]
-        )
-        other_rad = np.r_[self.robot_radius_, np.full(rep_cols.size, self.body_radius)]
+        other_pos = np.vstack([robot_pos, rep_pos])
+        other_vel = np.vstack([robot_vel, self.rec_vel_[frame, rep_cols]])
+        other_rad = np.r_[
+            np.full(robot_pos.shape[0], self.robot_radius_),
+            np.full(rep_cols.size, self.body_radius),
+        ]
         pos, vel = self.model_.step(
             self.pos_[act],
             self.vel_[act],

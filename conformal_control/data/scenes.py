@@ -313,8 +313,14 @@ def load_scene(
     they override the registry's values. ``start_m`` and ``goals_m`` give them in metres
     instead (ETH/UCY scenes need them; on SDD scenes they replace the fractions).
     ``last_frame`` ends the replayed data early (a smaller scene for a short episode).
-    ``seed`` only matters for ``crossing``.
+    ``seed`` only matters for ``crossing``. ``scenario:<suite>/<id>`` is a scenario of a
+    shipped benchmark suite (its time limit in ``scene.meta["max_frames"]``).
     """
+    if name.startswith("scenario:"):
+        from .suites import load_scenario, load_suite  # suites reads scenes through here
+
+        suite, _, sid = name[len("scenario:") :].partition("/")
+        return load_scenario(load_suite(suite).scenario(sid), data_root)
     if name == "crossing":
         if any(v is not None for v in (start, goals, start_frame, start_m, goals_m)):
             raise ValueError("the built-in crossing scene has a fixed start, goal and frame")

@@ -3,6 +3,7 @@
 from .base import Forecast, PredictionQuery, Predictor, TruthUnavailableError
 from .constant_velocity import ConstantVelocityPredictor
 from .oracle import OraclePredictor
+from .var import VARPredictor
 
 __all__ = [
     "ConstantVelocityPredictor",
@@ -11,4 +12,5 @@ __all__ = [
     "PredictionQuery",
     "Predictor",
     "TruthUnavailableError",
+    "VARPredictor",
 ]

@@ -210,6 +210,9 @@ def evaluate_predictor(
                 merged = info.setdefault(k, {})
                 for reason, c in v.items():
                     merged[reason] = merged.get(reason, 0) + c
+            elif isinstance(v, (str, list, tuple)):  # messages, e.g. darts' fit_errors
+                kept = info.setdefault(k, [])
+                kept.extend([v] if isinstance(v, str) else [str(m) for m in v])
     if not np.isfinite(errs).all():
         raise ValueError("predictor returned non-finite positions for fully observed histories")
     return {

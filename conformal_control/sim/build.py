@@ -85,10 +85,16 @@ class Flagship:
             "loss": self.loss,
             "rule": self.rule,
         }
-        return {
+        out = {
             role: {"name": self.names.get(role, type(obj).__name__), "params": obj.get_params()}
             for role, obj in roles.items()
         }
+        parts = ("predictor", "constraint", "safety_filter", "reference")
+        out["decision_family"] = {
+            "name": self.names.get("family", type(self.policy).__name__),
+            "params": {k: v for k, v in self.policy.get_params().items() if k not in parts},
+        }
+        return out
 
 
 def role_name(spec: RoleSpec, default: str) -> str:

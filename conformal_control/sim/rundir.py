@@ -31,7 +31,13 @@ def _fmt(v: Any) -> Any:
     return v
 
 
-def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) -> Path:
+def write_run_dir(
+    result: EpisodeResult,
+    out: str | Path,
+    *,
+    plot: bool = True,
+    only: tuple[str, ...] | None = None,
+) -> Path:
     """Write the files of a run into ``out`` (created if needed) and return it.
 
     * ``config.json`` - every parameter as given, as used (scene units) and in SI, the
@@ -47,11 +53,21 @@ def write_run_dir(result: EpisodeResult, out: str | Path, *, plot: bool = True) 
     * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
       nearest pedestrian;
     * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
+
+    ``only`` restricts the files to ``("config.json", "metrics.json")`` (what large
+    benchmarks keep).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
     (out / "metrics.json").write_text(json.dumps(result.metrics.as_dict(), indent=2) + "\n")
+    if only is not None:
+        unknown = set(only) - {"config.json", "metrics.json"}
+        if unknown:
+            raise ValueError(
+                f"write_run_dir(only=...) takes config.json and metrics.json, got {unknown}"
+            )
+        return out
     with (out / "trace.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["k", "t", "lambda", "loss"])

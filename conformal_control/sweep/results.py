@@ -1,24 +1,47 @@
 """The results of a sweep: an append-only journal and the tables made from it.
 
 ``results.jsonl`` is the source of truth: one JSON line per finished run (ok or failed),
-appended and flushed the moment the run completes, so an interrupted sweep loses nothing
+appended and fsync'ed the moment the run completes, so an interrupted sweep loses nothing
 it finished. ``results.csv`` (and ``results.parquet`` when pyarrow is installed) are one
-flat row per run key (the latest record of each key), rewritten from the journal.
+flat row per run key (the latest record of each key), rewritten from the journal through
+a uniquely named temporary file and an atomic rename.
+
+A journal line that cannot be read (torn by a crash or a full disk, not UTF-8, not a run
+record) is skipped, counted and reported once with its line number; it is never rewritten
+or deleted. Before appending, the store makes sure the journal ends with a newline, so a
+torn tail stays a line of its own instead of swallowing the next record.
+
+Run directories are recorded relative to the sweep folder (``runs/<name>``), so a sweep
+folder can be moved or copied. Journals written with absolute paths are read too: such a
+path is trusted only if it exists inside the folder, otherwise ``<folder>/runs/<name>``
+is used.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import math
 import os
-from collections.abc import Iterable
+import tempfile
+import warnings
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ResultsStore", "flatten_record"]
+__all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record"]
 
 _FIRST = ["key", "status", "label", "scene", "predictor", "learn", "seed", "max_frames"]
+_TMP_PREFIX = "."
+_TMP_SUFFIX = ".tmp"
+#: Names temporary files had before they were unique (removed when the folder is locked).
+_OLD_TMP = ("results.csv.tmp", "results.parquet.tmp")
+
+
+class JournalWarning(UserWarning):
+    """Some lines of ``results.jsonl`` could not be read and were skipped."""
 
 
 def _scalar(v: Any) -> Any:
@@ -42,6 +65,10 @@ def flatten_record(rec: dict[str, Any]) -> dict[str, Any]:
         "seed": cfg.get("seed"),
         "max_frames": cfg.get("frames"),
     }
+    for k, v in (cfg.get("meta") or {}).items():
+        row[str(k)] = _scalar(v)
+    for k, v in sorted((cfg.get("episode") or {}).items()):
+        row[f"episode.{k}"] = _scalar(v)
     for k, v in sorted((cfg.get("predictor_params") or {}).items()):
         row[f"predictor_params.{k}"] = _scalar(v)
     for k, v in sorted((cfg.get("params") or {}).items()):
@@ -62,6 +89,11 @@ class ResultsStore:
     ----------
     out_dir : path
         The sweep's folder (created if needed).
+
+    Attributes
+    ----------
+    bad_lines_ : list of (int, str)
+        Line numbers (1-based) of the journal lines the last read skipped, with the reason.
     """
 
     def __init__(self, out_dir: str | os.PathLike[str]) -> None:
@@ -70,27 +102,98 @@ class ResultsStore:
         self.journal = self.out_dir / "results.jsonl"
         self.csv_path = self.out_dir / "results.csv"
         self.parquet_path = self.out_dir / "results.parquet"
+        self.bad_lines_: list[tuple[int, str]] = []
+        self._warned: set[tuple[int, str]] = set()
+        self._cache: tuple[tuple[int, int], list[dict[str, Any]]] | None = None
 
     # ------------------------------------------------------------------ journal
     def records(self) -> list[dict[str, Any]]:
-        """Every record in the journal (a torn last line from a crash is ignored)."""
-        if not self.journal.exists():
+        """Every readable record of the journal, in order.
+
+        Unreadable lines (torn, not UTF-8, not a JSON run record) are skipped and listed
+        in :attr:`bad_lines_`; the first time a line is skipped a :class:`JournalWarning`
+        names it. The file is never modified here.
+        """
+        try:
+            st = self.journal.stat()
+        except FileNotFoundError:
+            self.bad_lines_ = []
             return []
-        out = []
-        with self.journal.open() as fh:
-            for line in fh:
-                line = line.strip()
-                if not line:
-                    continue
-                try:
-                    out.append(json.loads(line))
-                except json.JSONDecodeError:
-                    continue
-        return out
+        stamp = (st.st_size, st.st_mtime_ns)
+        if self._cache is not None and self._cache[0] == stamp:
+            return list(self._cache[1])
+        data = self.journal.read_bytes()
+        out: list[dict[str, Any]] = []
+        bad: list[tuple[int, str]] = []
+        for n, raw in enumerate(data.split(b"\n"), start=1):
+            if not raw.strip():
+                continue
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                bad.append((n, "not UTF-8"))
+                continue
+            try:
+                rec = json.loads(text)
+            except json.JSONDecodeError:
+                bad.append((n, "torn or not JSON"))
+                continue
+            if not isinstance(rec, dict) or not isinstance(rec.get("key"), str):
+                bad.append((n, "not a run record"))
+                continue
+            out.append(rec)
+        self.bad_lines_ = bad
+        new = [b for b in bad if b not in self._warned]
+        if new:
+            self._warned.update(new)
+            warnings.warn(JournalWarning(self.describe_bad_lines(new)), stacklevel=2)
+        self._cache = (stamp, out)
+        return list(out)
+
+    def describe_bad_lines(self, bad: list[tuple[int, str]] | None = None) -> str:
+        """One sentence naming the skipped journal lines (all, or ``bad``)."""
+        bad = self.bad_lines_ if bad is None else bad
+        if not bad:
+            return f"{self.journal}: every line is readable"
+        shown = ", ".join(f"{n} ({why})" for n, why in bad[:5])
+        more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+        s = "" if len(bad) == 1 else "s"
+        return (
+            f"{self.journal}: skipped {len(bad)} unreadable line{s}: line{s} {shown}{more}; "
+            "the file is left as it is and the runs of those lines, if any, are redone"
+        )
 
     def latest(self) -> dict[str, dict[str, Any]]:
         """The last record of every key."""
-        return {r["key"]: r for r in self.records() if "key" in r}
+        return {r["key"]: r for r in self.records()}
+
+    def run_path(self, run_dir: str | os.PathLike[str] | None) -> Path | None:
+        """Where a recorded run directory is now, inside this sweep folder.
+
+        A relative path is taken relative to the folder. An absolute path (journals of
+        earlier versions) is used only if it exists inside the folder; otherwise (a copied
+        or moved folder) the directory of the same name under ``<folder>/runs`` is used.
+        """
+        if not run_dir:
+            return None
+        p = Path(run_dir)
+        if not p.is_absolute():
+            return self.out_dir / p
+        with contextlib.suppress(ValueError, OSError):
+            p.resolve().relative_to(self.out_dir.resolve())
+            if p.exists():
+                return p
+        return self.out_dir / "runs" / p.name
+
+    def relative_run_dir(self, run_dir: str | os.PathLike[str] | None) -> str | None:
+        """A run directory as recorded: relative to the folder, with ``/`` separators."""
+        p = self.run_path(run_dir)
+        if p is None:
+            return None
+        try:
+            return p.resolve().relative_to(self.out_dir.resolve()).as_posix()
+        except (ValueError, OSError):
+            return f"runs/{p.name}"
 
     def finished(self, *, include_failed: bool = False) -> set[str]:
         """Keys whose run finished (ok, or also failed with ``include_failed``).
@@ -101,26 +204,50 @@ class ResultsStore:
         keys = set()
         for key, r in self.latest().items():
             if r.get("status") == "ok":
-                rd = r.get("run_dir")
-                if rd and (Path(rd) / "metrics.json").exists():
+                rd = self.run_path(r.get("run_dir"))
+                if rd is not None and (rd / "metrics.json").exists():
                     keys.add(key)
             elif include_failed:
                 keys.add(key)
         return keys
 
     def append(self, record: dict[str, Any]) -> None:
-        """Append one record and flush it to disk."""
-        with self.journal.open("a") as fh:
-            fh.write(json.dumps(record, default=_json_default) + "\n")
+        """Append one record and fsync it.
+
+        If the journal does not end with a newline (a line torn by a crash), one is
+        written first, so the torn fragment stays a (skipped) line of its own.
+        """
+        line = (json.dumps(record, default=_json_default) + "\n").encode()
+        with self.journal.open("ab+") as fh:
+            end = fh.seek(0, os.SEEK_END)
+            if end > 0:
+                fh.seek(end - 1)
+                if fh.read(1) != b"\n":
+                    line = b"\n" + line
+            fh.write(line)
             fh.flush()
             os.fsync(fh.fileno())
 
     # ------------------------------------------------------------------ tables
-    def rows(self, keys: Iterable[str] | None = None) -> list[dict[str, Any]]:
-        """Flat rows of the latest record of each key (all keys, or ``keys`` in order)."""
+    def rows(self, keys: Iterable[str] | None = None, *, absolute: bool = False) -> list[dict]:
+        """Flat rows of the latest record of each key (all keys, or ``keys`` in order).
+
+        ``run_dir`` is relative to the sweep folder, or absolute with ``absolute=True``.
+        """
         latest = self.latest()
         order = list(keys) if keys is not None else list(latest)
-        return [flatten_record(latest[k]) for k in order if k in latest]
+        out = []
+        for k in order:
+            if k not in latest:
+                continue
+            row = flatten_record(latest[k])
+            if row["run_dir"]:
+                path = self.run_path(row["run_dir"])
+                row["run_dir"] = (
+                    str(path.resolve()) if absolute else self.relative_run_dir(row["run_dir"])
+                )
+            out.append(row)
+        return out
 
     def write_tables(self, *, parquet: bool = True) -> list[Path]:
         """Rewrite ``results.csv`` (and ``results.parquet`` if pyarrow is available)."""
@@ -132,13 +259,12 @@ class ResultsStore:
             for c in r:
                 if c not in cols:
                     cols.append(c)
-        tmp = self.csv_path.with_suffix(".csv.tmp")
-        with tmp.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=cols)
-            w.writeheader()
-            for r in rows:
-                w.writerow({c: "" if r.get(c) is None else r.get(c) for c in cols})
-        tmp.replace(self.csv_path)
+        buf = io.StringIO(newline="")
+        w = csv.DictWriter(buf, fieldnames=cols)
+        w.writeheader()
+        for r in rows:
+            w.writerow({c: "" if r.get(c) is None else r.get(c) for c in cols})
+        atomic_write(self.csv_path, lambda tmp: tmp.write_text(buf.getvalue(), newline=""))
         written = [self.csv_path]
         if parquet and rows:
             try:
@@ -154,11 +280,45 @@ class ResultsStore:
                 except (pa.ArrowInvalid, pa.ArrowTypeError):  # mixed types: keep as text
                     arrays.append(pa.array([None if v is None else str(v) for v in values]))
             table = pa.Table.from_arrays(arrays, names=cols)
-            tmp = self.parquet_path.with_suffix(".parquet.tmp")
-            pq.write_table(table, tmp)
-            tmp.replace(self.parquet_path)
+            atomic_write(self.parquet_path, lambda tmp: pq.write_table(table, tmp))
             written.append(self.parquet_path)
         return written
+
+    def remove_stale_temp_files(self) -> list[Path]:
+        """Delete temporary files a killed writer left (call only while holding the lock)."""
+        gone = []
+        for p in self.out_dir.iterdir():
+            name = p.name
+            stale = name in _OLD_TMP or (
+                name.startswith(_TMP_PREFIX)
+                and name.endswith(_TMP_SUFFIX)
+                and name[1:].split(".", 1)[0] in ("results", "sweep", "summary")
+            )
+            if stale and p.is_file():
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+                    gone.append(p)
+        return gone
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any]) -> None:
+    """Write ``path`` through ``write(tmp)`` on a unique temporary file, then rename it.
+
+    The temporary file is in the same folder (``.<name>.<random>.tmp``), so the rename is
+    atomic and two writers never share one; it is removed if ``write`` fails.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(
+        dir=path.parent, prefix=f"{_TMP_PREFIX}{path.name}.", suffix=_TMP_SUFFIX
+    )
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
 
 
 def _json_default(obj: Any) -> Any:

@@ -1,21 +1,49 @@
-"""Run a sweep: skip finished keys, dispatch the rest, record each run as it completes."""
+"""Run a sweep: validate, lock the folder, skip finished keys, record each run as it completes.
+
+Order of a call to :func:`run_sweep`: every configuration is checked (nothing runs if one
+is invalid); the folder's lock is taken (a second sweep on the same folder stops at once);
+the journal is read and finished keys are skipped; the rest go to the executor and every
+outcome is appended to the journal the moment it arrives; the tables and the summary plot
+are written at the end. SIGTERM and Ctrl-C stop the sweep cleanly: the run in flight is
+abandoned, workers are terminated, the tables are rewritten and the lock is released.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import sys
+import threading
 import time
+import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from .executors import Executor, make_executor
-from .results import ResultsStore
+from .lock import SweepLock
+from .results import ResultsStore, atomic_write
 from .spec import RunConfig, SweepSpec
 from .worker import execute_run
 
-__all__ = ["SweepReport", "run_sweep"]
+__all__ = ["SweepInterrupted", "SweepReport", "run_sweep"]
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """The sweep was stopped by a signal (SIGTERM, SIGINT); what finished is recorded.
+
+    Attributes
+    ----------
+    signum : int
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
 
 
 @dataclass
@@ -30,9 +58,17 @@ class SweepReport:
     skipped, ran, failed : list of str
         Keys already finished before this call, run now, and failed now.
     rows : list of dict
-        Flat result rows of every run of the spec (spec order; see ``results.csv``).
+        Flat result rows of every run of the spec (spec order; see ``results.csv``), with
+        ``run_dir`` as an absolute path.
     wall_s : float
     executor : str
+    journal_skipped : list of (int, str)
+        Journal lines that could not be read (line number, reason); a
+        :class:`~conformal_control.sweep.results.JournalWarning` names them too.
+    summary_plot : Path or None
+        The summary plot written (``summary.png``), if any.
+    notes : list of str
+        Other things the caller should be told (why there is no summary plot).
     """
 
     out_dir: Path
@@ -43,6 +79,9 @@ class SweepReport:
     rows: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
     executor: str = ""
+    journal_skipped: list[tuple[int, str]] = field(default_factory=list)
+    summary_plot: Path | None = None
+    notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         return (
@@ -50,6 +89,56 @@ class SweepReport:
             f"({len(self.failed)} failed) in {self.wall_s:.1f} s on {self.executor}; "
             f"results in {self.out_dir}"
         )
+
+
+class _SignalGuard:
+    """Turn SIGTERM/SIGINT into :class:`SweepInterrupted`, deferred inside critical parts.
+
+    Handlers are installed only in the main thread (Python allows no other). The first
+    signal raises; later ones are ignored while the sweep cleans up.
+    """
+
+    SIGNALS = ("SIGTERM", "SIGINT")
+
+    def __init__(self) -> None:
+        self._old: dict[int, Any] = {}
+        self._critical = 0
+        self._pending: int | None = None
+        self._fired = False
+
+    def _handler(self, signum: int, frame: FrameType | None) -> None:
+        if self._fired:
+            return
+        if self._critical:
+            self._pending = signum
+            return
+        self._fired = True
+        raise SweepInterrupted(signum)
+
+    def __enter__(self) -> _SignalGuard:
+        if threading.current_thread() is threading.main_thread():
+            for name in self.SIGNALS:
+                sig = getattr(signal, name, None)
+                if sig is not None:
+                    self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    @contextlib.contextmanager
+    def critical(self) -> Iterator[None]:
+        """Delay a signal until the block (a journal append) is done."""
+        self._critical += 1
+        try:
+            yield
+        finally:
+            self._critical -= 1
+            if not self._critical and self._pending is not None and not self._fired:
+                signum, self._pending = self._pending, None
+                self._fired = True
+                raise SweepInterrupted(signum)
 
 
 def _progress(total: int, initial: int, enabled: bool | None) -> Any:
@@ -74,7 +163,9 @@ def run_sweep(
     scheduler: str | None = None,
     resume: bool = True,
     retry_failed: bool = True,
-    plot: bool = True,
+    plot: bool | str = False,
+    summary_plot: bool = True,
+    validate: bool = True,
     progress: bool | None = None,
     table_every: int = 1,
 ) -> SweepReport:
@@ -85,7 +176,8 @@ def run_sweep(
     spec : SweepSpec or list of RunConfig
     out_dir : path
         Folder of the sweep: ``runs/<name>-<key>/`` (one run directory each),
-        ``results.jsonl`` (journal), ``results.csv`` / ``results.parquet``, ``sweep.json``.
+        ``results.jsonl`` (journal), ``results.csv`` / ``results.parquet``, ``sweep.json``,
+        ``summary.png``, ``.lock``.
     executor : Executor or str
         ``"process"`` (default), ``"serial"``, ``"dask"``, or an executor instance (not
         closed here).
@@ -95,8 +187,16 @@ def run_sweep(
         Skip keys that already finished in ``out_dir`` (default). False reruns all.
     retry_failed : bool
         On resume, rerun keys whose last attempt failed (default).
-    plot : bool
-        Write ``plot.png`` in every run directory.
+    plot : bool or str
+        Write ``plot.png`` and ``guarantee.png`` in every run directory (default off:
+        plotting takes most of a short run's time); ``"metrics"`` writes only each run's
+        ``config.json`` and ``metrics.json``, ``"none"`` no run directory (the journal
+        holds the metrics): see :func:`~conformal_control.sweep.worker.execute_run`.
+    summary_plot : bool
+        Write ``summary.png``, the metrics against the swept parameter (default on).
+    validate : bool
+        Check every configuration before any run starts (default). False lets invalid
+        runs start and be recorded as failed.
     progress : bool, optional
         Show a tqdm bar (runs done / total, ETA); default: when stderr is a terminal.
     table_every : int
@@ -105,35 +205,78 @@ def run_sweep(
     Returns
     -------
     SweepReport
+
+    Raises
+    ------
+    SweepValidationError
+        If a configuration is invalid (nothing was run; a ``ValueError``).
+    SweepLockedError
+        If another process is running a sweep in ``out_dir``.
+    SweepInterrupted
+        On SIGTERM or Ctrl-C, after recording what finished.
     """
     t0 = time.perf_counter()
     configs = spec.expand() if isinstance(spec, SweepSpec) else list(spec)
     keys = [c.key for c in configs]
-    store = ResultsStore(out_dir)
-    done = store.finished(include_failed=not retry_failed) if resume else set()
-    todo = [(c, k) for c, k in zip(configs, keys, strict=True) if k not in done]
-    report = SweepReport(Path(out_dir), keys, skipped=[k for k in keys if k in done])
-    (Path(out_dir) / "sweep.json").write_text(
-        json.dumps(
-            {"runs": [dict(c.as_dict(), key=k) for c, k in zip(configs, keys, strict=True)]},
-            indent=1,
-            default=str,
-        )
-        + "\n"
-    )
-    own = isinstance(executor, str)
-    ex = make_executor(executor, workers=workers, scheduler=scheduler) if own else executor
+    if validate:
+        from .validate import validate_runs
+
+        validate_runs(configs)
+    out = Path(out_dir)
+    report = SweepReport(out, keys)
+    with SweepLock(out), _SignalGuard() as guard:
+        store = ResultsStore(out)
+        store.remove_stale_temp_files()
+        store.records()  # reads the journal now: unreadable lines are reported up front
+        report.journal_skipped = list(store.bad_lines_)  # also warned (JournalWarning)
+        done = store.finished(include_failed=not retry_failed) if resume else set()
+        todo = [(c, k) for c, k in zip(configs, keys, strict=True) if k not in done]
+        report.skipped = [k for k in keys if k in done]
+        runs = [dict(c.as_dict(), key=k) for c, k in zip(configs, keys, strict=True)]
+        text = json.dumps({"runs": runs}, indent=1, default=str) + "\n"
+        atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
+        own = isinstance(executor, str)
+        ex = make_executor(executor, workers=workers, scheduler=scheduler) if own else executor
+        try:
+            _run(ex, todo, store, report, guard, plot, progress, table_every)
+        finally:
+            if own:
+                ex.close()
+        report.rows = store.rows(keys, absolute=True)
+        if summary_plot:
+            from .summary import write_summary_plot
+
+            try:
+                report.summary_plot, note = write_summary_plot(report.rows, out / "summary.png")
+            except Exception as exc:  # the results are written; a plot must not undo that
+                note = f"no summary plot: {type(exc).__name__}: {exc}"
+            if report.summary_plot is None:
+                report.notes.append(note)
+    report.wall_s = time.perf_counter() - t0
+    return report
+
+
+def _run(
+    ex: Executor,
+    todo: list[tuple[RunConfig, str]],
+    store: ResultsStore,
+    report: SweepReport,
+    guard: _SignalGuard,
+    plot: bool | str,
+    progress: bool | None,
+    table_every: int,
+) -> None:
+    """Dispatch ``todo`` and journal every outcome as it arrives."""
     report.executor = ex.describe() if todo else ex.name
-    out_str = str(Path(out_dir).resolve())
+    out_str = str(store.out_dir.resolve())
     tasks = [(c.as_dict(), k, out_str, plot) for c, k in todo]
-    bar = _progress(len(keys), len(report.skipped), progress)
+    bar = _progress(len(report.keys), len(report.skipped), progress)
     n_since_table = 0
+    outcomes = ex.run(execute_run, tasks)
     try:
-        for i, outcome in ex.run(execute_run, tasks):
+        for i, outcome in outcomes:
             cfg, key = todo[i]
             if isinstance(outcome, BaseException):  # the machinery failed, not the run
-                import traceback
-
                 rec = {
                     "key": key,
                     "status": "failed",
@@ -144,12 +287,14 @@ def run_sweep(
                 }
             else:
                 rec = dict(outcome)
+            rec["run_dir"] = store.relative_run_dir(rec.get("run_dir"))
             rec["config"] = cfg.as_dict()
             rec["finished_at"] = time.time()
-            store.append(rec)
-            report.ran.append(key)
-            if rec["status"] != "ok":
-                report.failed.append(key)
+            with guard.critical():
+                store.append(rec)
+                report.ran.append(key)
+                if rec["status"] != "ok":
+                    report.failed.append(key)
             bar.update(1)
             bar.set_postfix(failed=len(report.failed), refresh=False)
             n_since_table += 1
@@ -157,10 +302,8 @@ def run_sweep(
                 store.write_tables()
                 n_since_table = 0
     finally:
+        close = getattr(outcomes, "close", None)
+        if close is not None:  # stop the executor now, not when the generator is collected
+            close()
         bar.close()
-        if own:
-            ex.close()
         store.write_tables()
-    report.rows = store.rows(keys)
-    report.wall_s = time.perf_counter() - t0
-    return report

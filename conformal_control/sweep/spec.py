@@ -45,6 +45,7 @@ __all__ = [
     "RESERVED_KEYS",
     "RunConfig",
     "SweepSpec",
+    "invalid_runs_message",
     "load_spec",
     "parse_grid_option",
     "run_key",
@@ -60,9 +61,35 @@ RESERVED_KEYS = (
     "frames",
     "data_root",
     "label",
+    "meta",
+)
+#: Keys passed to :func:`~conformal_control.sim.run_episode` as they are (roles by name,
+#: the rule, the unit system, the crowd, the family, lambda_safe); they enter the run key.
+EPISODE_KEYS = (
+    "units",
+    "rule",
+    "rule_params",
+    "barrier",
+    "barrier_params",
+    "safety_filter",
+    "safety_filter_params",
+    "fallback",
+    "reference",
+    "reference_params",
+    "dynamics",
+    "dynamics_params",
+    "loss",
+    "loss_params",
+    "family",
+    "family_params",
+    "crowd",
+    "crowd_params",
+    "lambda_safe",
+    "lambda_safe_source",
+    "record_animation",
 )
 #: Keys that do not enter the run key.
-UNHASHED_KEYS = ("label", "data_root")
+UNHASHED_KEYS = ("label", "data_root", "meta")
 _PP = "predictor_params."
 
 
@@ -101,6 +128,11 @@ class RunConfig:
         Controller parameters in the scene's units.
     data_root : str or None
     label : str
+    episode : dict
+        Other arguments of :func:`~conformal_control.sim.run_episode` (:data:`EPISODE_KEYS`).
+    meta : dict
+        Free description copied into the results table (not part of the key), e.g. the
+        benchmark's method, scenario, split.
     """
 
     scene: str
@@ -112,6 +144,8 @@ class RunConfig:
     params: dict[str, Any] = field(default_factory=dict)
     data_root: str | None = None
     label: str = ""
+    episode: dict[str, Any] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def hashed(self) -> dict[str, Any]:
         """The part of the configuration the key is computed from (canonical form)."""
@@ -135,6 +169,8 @@ class RunConfig:
             "params": dict(self.params),
             "data_root": self.data_root,
             "label": self.label,
+            "episode": dict(self.episode),
+            "meta": dict(self.meta),
         }
 
     @classmethod
@@ -154,6 +190,8 @@ class RunConfig:
         for k in [k for k in flat if k.startswith(_PP)]:
             pp[k[len(_PP) :]] = flat.pop(k)
         reserved = {k: flat.pop(k) for k in RESERVED_KEYS if k in flat}
+        episode = dict(flat.pop("episode", None) or {})
+        episode.update({k: flat.pop(k) for k in EPISODE_KEYS if k in flat})
         unknown = sorted(k for k in flat if k not in PARAMETERS)
         if unknown:
             raise ValueError(
@@ -185,7 +223,22 @@ class RunConfig:
             params=params,
             data_root=None if data_root is None else str(data_root),
             label=str(reserved.get("label") or ""),
+            episode=episode,
+            meta=dict(reserved.get("meta") or {}),
         )
+
+
+def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
+    """One sentence: how many of ``total`` runs are invalid, and each distinct reason."""
+    n_bad = sum(errors.values())
+    parts = []
+    for msg, count in errors.items():
+        text = " ".join(msg.split()).rstrip(".")
+        parts.append(text if total == 1 else f"{text} ({count} run{'s' if count != 1 else ''})")
+    return (
+        f"{n_bad} of {total} run{'s' if total != 1 else ''} of the sweep "
+        f"{'is' if n_bad == 1 else 'are'} invalid, so none was started: " + "; ".join(parts)
+    )
 
 
 def run_key(hashed: Mapping[str, Any]) -> str:
@@ -237,13 +290,24 @@ class SweepSpec:
         points = list(itertools.product(*(self.grid[a] for a in axes))) or [()]
         out: list[RunConfig] = []
         seen: set[str] = set()
+        errors: dict[str, int] = {}
+        n = 0
         for run in self.runs or [{}]:
             for point in points:
+                n += 1
                 flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
-                cfg = RunConfig.from_flat(flat)
-                if cfg.key not in seen:
-                    seen.add(cfg.key)
+                try:
+                    cfg = RunConfig.from_flat(flat)
+                    key = cfg.key
+                except (ValueError, TypeError) as exc:
+                    msg = str(exc)
+                    errors[msg] = errors.get(msg, 0) + 1
+                    continue
+                if key not in seen:
+                    seen.add(key)
                     out.append(cfg)
+        if errors:
+            raise ValueError(invalid_runs_message(errors, n))
         return out
 
     def merged(self, other: SweepSpec) -> SweepSpec:

@@ -20,7 +20,7 @@ from typing import Any
 
 from ..sim.metrics import EpisodeMetrics
 
-__all__ = ["METRIC_COLUMNS", "execute_run", "run_dir_name"]
+__all__ = ["METRIC_COLUMNS", "execute_run", "load_run_scene", "run_dir_name"]
 
 #: Metrics copied from ``metrics.json`` into the results table (scalars only).
 METRIC_COLUMNS = EpisodeMetrics.columns()
@@ -50,14 +50,22 @@ def _single_threaded_blas() -> Iterator[None]:
         yield
 
 
-@functools.lru_cache(maxsize=8)
-def _scene(name: str, data_root: str | None, seed: int):
+def load_run_scene(cfg: dict[str, Any]) -> Any:
+    """The scene of a run configuration (uncached; the built-in scene depends on the seed)."""
     from ..data import load_scene
 
-    return load_scene(name, data_root, seed=seed if name == "crossing" else 0)
+    name, seed = cfg["scene"], int(cfg.get("seed", 0))
+    return load_scene(name, cfg.get("data_root"), seed=seed if name == "crossing" else 0)
 
 
-def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = True) -> dict[str, Any]:
+@functools.lru_cache(maxsize=8)
+def _scene(name: str, data_root: str | None, seed: int):
+    return load_run_scene({"scene": name, "data_root": data_root, "seed": seed})
+
+
+def execute_run(
+    cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str = False
+) -> dict[str, Any]:
     """Run one configuration (see :class:`~conformal_control.sweep.spec.RunConfig`).
 
     Parameters
@@ -69,8 +77,12 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = True) 
     out_dir : str
         The sweep's output folder; the run directory is ``out_dir/runs/<name>``. With a
         remote Dask cluster it must be a path the workers can write (a shared file system).
-    plot : bool
-        Write each run's ``plot.png``.
+    plot : bool or str
+        What each run writes: True or ``"plots"`` (the whole run directory with
+        ``plot.png`` and ``guarantee.png``), False or ``"full"`` (the run directory without
+        plots; default: plotting takes most of a short run's time), ``"metrics"``
+        (``config.json`` and ``metrics.json`` only: large benchmarks) or ``"none"`` (the
+        journal record only).
 
     Returns
     -------
@@ -93,7 +105,8 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = True) 
         from ..sim.episode import run_episode
         from ..sim.rundir import write_run_dir
 
-        cached = _scene(cfg["scene"], cfg.get("data_root"), int(cfg.get("seed", 0)))
+        seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
+        cached = _scene(cfg["scene"], cfg.get("data_root"), seed)
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
         scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))
@@ -103,17 +116,28 @@ def execute_run(cfg: dict[str, Any], key: str, out_dir: str, plot: bool = True) 
                 cfg.get("predictor") or "constant_velocity",
                 dict(cfg.get("params") or {}),
                 learn=bool(cfg.get("learn", True)),
-                max_frames=cfg.get("frames"),
+                # a benchmark scenario carries its time limit
+                max_frames=cfg.get("frames") or scene.meta.get("max_frames"),
                 seed=int(cfg.get("seed", 0)),
                 predictor_params=dict(cfg.get("predictor_params") or {}),
                 extra_config={"sweep": {"key": key, "run": cfg}},
+                **dict(cfg.get("episode") or {}),
             )
-        run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
-        write_run_dir(result, run_dir, plot=plot)
+        files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+        assert run_dir is not None
+        if files in ("plots", "full"):
+            write_run_dir(result, run_dir, plot=files == "plots")
+        elif files == "metrics":
+            write_run_dir(result, run_dir, plot=False, only=("config.json", "metrics.json"))
+        elif files == "none":
+            run_dir = None
+        else:
+            raise ValueError(f"unknown run files option {files!r}")
         m = result.metrics
         rec.update(
             status="ok",
-            run_dir=str(run_dir),
+            run_dir=None if run_dir is None else str(run_dir),
             metrics={k: m.get(k) for k in METRIC_COLUMNS},
         )
     except Exception as exc:  # a failed run is data, not a crash

@@ -12,8 +12,8 @@ import yaml
 
 from conformal_control.bench import dump_manifest, load_scenario, load_suite, validate_manifest
 from conformal_control.bench.generator import CROSSINGS_V1, assign_splits, generate_suite
-from conformal_control.bench.suites import suite_names
 from conformal_control.cli import main
+from conformal_control.data.suites import suite_names
 from conformal_control.sim import run_episode
 
 SDD_RAW_VIDEOS = {

@@ -8,14 +8,20 @@ from pathlib import Path
 from conformal_control.cli import EXIT_BUG, EXIT_ERROR, describe_error, main
 
 
-def test_corrupt_forecast_cache_is_one_line(tmp_path: Path, capsys) -> None:
-    bad = tmp_path / "cache.sqlite"
-    bad.write_bytes(b"this is not an SQLite database, just some bytes" * 100)
-    argv = ["run", "--predictor", "darts", "--predictor-param", f"cache_path={bad}"]
-    assert main([*argv, "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]) == EXIT_ERROR
+def test_predictor_database_error_is_one_line(monkeypatch, tmp_path: Path, capsys) -> None:
+    # a predictor whose storage fails mid-run (an unreadable cache the plugin could not
+    # set aside) ends the run with one line naming the predictor, the scene and the cause
+    from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
+
+    def broken(self, *a: object, **k: object) -> None:
+        raise sqlite3.DatabaseError("file is not a database")
+
+    monkeypatch.setattr(ConstantVelocityPredictor, "predict", broken)
+    argv = ["run", "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]
+    assert main(argv) == EXIT_ERROR
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert err.startswith("error: predictor DartsPredictor failed on scene crossing")
+    assert err.startswith("error: predictor ConstantVelocityPredictor failed on scene crossing")
     assert "a cache database cannot be read (file is not a database)" in err
 
 

@@ -11,6 +11,7 @@ from conformal_control.cli import main
 from conformal_control.data.ethucy import read_ethucy
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.evaluation import (
+    Windows,
     dataset_windows,
     evaluate_predictor,
     resample_future,
@@ -83,3 +84,19 @@ def test_eval_predictor_cli_writes_csv(tmp_path, data_root, capsys):
 def test_unknown_dataset_is_clear():
     with pytest.raises(ValueError, match="unknown ETH/UCY scene"):
         dataset_windows("ethucy:nowhere")
+
+
+def test_forecast_info_is_merged_over_batches():
+    class Talky(ConstantVelocityPredictor):
+        """Constant velocity reporting a counter and a message per call."""
+
+        def predict(self, query):
+            fc = super().predict(query)
+            fc.info = {"n_calls": 1, "fit_errors": ["LinAlgError: singular (2 fits)"]}
+            return fc
+
+    h = np.cumsum(np.ones((5, 8, 2)), axis=1)
+    f = h[:, -1:] + np.cumsum(np.ones((5, 12, 2)), axis=1)
+    res = evaluate_predictor(Talky(), Windows(h, f, 0.4), batch=2)
+    assert res["info"]["n_calls"] == 3
+    assert res["info"]["fit_errors"] == ["LinAlgError: singular (2 fits)"] * 3

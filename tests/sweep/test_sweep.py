@@ -134,23 +134,43 @@ def test_resume_skips_finished_runs(tmp_path: Path) -> None:
 
 def test_failure_is_recorded_and_others_finish(tmp_path: Path) -> None:
     out = tmp_path / "sw"
+    # a window of 0 or -1 passes validation (a known parameter name) and fails inside the
+    # run, when the predictor first predicts: a genuine run-time failure
     spec = SweepSpec(
         base={"scene": "crossing", "frames": 30},
-        runs=[{"epsilon": 0.1}, {"epsilon": 0.7}, {"tau": -1.0}, {"epsilon": -0.1}],
+        runs=[
+            {"epsilon": 0.1},
+            {"predictor_params.window": 0},
+            {"predictor_params.window": -1},
+            {"epsilon": -0.1},
+        ],
     )
-    report = run_sweep(spec, out, "process", workers=2, plot=False, progress=False)
+    report = run_sweep(spec, out, "process", workers=2, progress=False, summary_plot=False)
     assert len(report.failed) == 2 and len(report.ran) == 4
     by_key = {r["key"]: r for r in rows(out)}
     assert [by_key[k]["status"] for k in report.keys] == ["ok", "failed", "failed", "ok"]
     rec = ResultsStore(out).latest()[report.keys[1]]
-    assert "epsilon must lie in" in rec["error"]
-    assert "Traceback" in rec["traceback"] and "resolve_params" in rec["traceback"]
-    assert "tau" in ResultsStore(out).latest()[report.keys[2]]["error"]
+    assert "window must be a positive integer, got 0" in rec["error"]
+    assert "Traceback" in rec["traceback"] and "predict" in rec["traceback"]
+    assert "got -1" in ResultsStore(out).latest()[report.keys[2]]["error"]
     # a resumed sweep retries failed runs (they fail again) unless told not to
-    again = run_sweep(spec, out, "serial", plot=False, progress=False)
+    again = run_sweep(spec, out, "serial", progress=False, summary_plot=False)
     assert sorted(again.ran) == sorted(report.failed)
-    kept = run_sweep(spec, out, "serial", plot=False, progress=False, retry_failed=False)
+    kept = run_sweep(spec, out, "serial", progress=False, retry_failed=False)
     assert kept.ran == []
+
+
+def test_unvalidated_bad_parameters_fail_as_runs(tmp_path: Path) -> None:
+    """``validate=False`` lets invalid runs start; they are recorded, the others finish."""
+    spec = SweepSpec(
+        base={"scene": "crossing", "frames": 30},
+        runs=[{"epsilon": 0.7}, {"tau": -1.0}, {"epsilon": -0.1}],
+    )
+    report = run_sweep(spec, tmp_path, "serial", validate=False, progress=False)
+    assert [r["status"] for r in report.rows] == ["failed", "failed", "ok"]
+    rec = ResultsStore(tmp_path).latest()[report.keys[0]]
+    assert "epsilon must lie in" in rec["error"] and "resolve_params" in rec["traceback"]
+    assert "tau" in report.rows[1]["error"]
 
 
 def test_runs_sharing_a_scene_do_not_leak_into_each_other(tmp_path: Path) -> None:
@@ -178,19 +198,22 @@ def test_cli_sweep_grid_and_dry_run(tmp_path: Path, capsys) -> None:
     argv = ["sweep", "--scene", "crossing", "--set", "frames=30", "--grid", "epsilon=-0.1,0.1"]
     assert main([*argv, "--out", str(out), "--dry-run"]) == 0
     assert "2 runs" in capsys.readouterr().out
-    assert main([*argv, "--out", str(out), "--executor", "serial", "--no-plot"]) == 0
+    assert main([*argv, "--out", str(out), "--executor", "serial"]) == 0
     assert "2 ran (0 failed)" in capsys.readouterr().out
     assert {r["param.epsilon"] for r in rows(out)} == {"-0.1", "0.1"}
     # a failing run makes the exit status 1, the others are still written
-    bad = [*argv[:-1], "epsilon=0.1,0.9"]
-    assert main([*bad, "--out", str(out), "--executor", "serial", "--no-plot"]) == 1
+    bad = [*argv[:-1], "epsilon=-0.1", "--grid", "predictor_params.window=0"]
+    assert main([*bad, "--out", str(out), "--executor", "serial"]) == 1
     assert len(rows(out)) == 3
 
 
 def test_parquet_table(tmp_path: Path) -> None:
     pq = need("pyarrow.parquet")
-    spec = SweepSpec(base={"scene": "crossing", "frames": 30}, runs=[{"epsilon": 0.1}, {"tau": -1}])
-    run_sweep(spec, tmp_path, "serial", plot=False, progress=False)
+    spec = SweepSpec(
+        base={"scene": "crossing", "frames": 30},
+        runs=[{"epsilon": 0.1}, {"predictor_params.window": 0}],
+    )
+    run_sweep(spec, tmp_path, "serial", progress=False)
     table = pq.read_table(tmp_path / "results.parquet").to_pylist()
     assert [r["status"] for r in table] == ["ok", "failed"]
     assert table[0]["goal_reached"] in (True, False) and table[1]["error"]
@@ -204,7 +227,7 @@ def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path
     spec = SweepSpec(
         base={"scene": "nexus_4", "data_root": str(sdd_dir), "frames": 90, "a": 10},
         grid={"tau": [4, 8], "eta": [0.1, 1]},
-        runs=[{}, {"epsilon": 0.9}],  # two failing runs ride along
+        runs=[{}, {"predictor_params.window": 0}],  # four failing runs ride along
     )
     serial = run_sweep(spec, tmp_path / "serial", "serial", plot=False, progress=False)
     with (

@@ -13,10 +13,14 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import json
+import os
 import sqlite3
+import time
 import warnings
+from collections.abc import Callable
+from contextlib import closing
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -31,13 +35,25 @@ from conformal_control.progress import progress
 if importlib.util.find_spec("darts") is None:  # report "unavailable" without importing darts
     raise ImportError("the darts predictor needs the 'darts' package (pip install darts)")
 
-__all__ = ["DEFAULT_MODEL_PARAMS", "DartsPredictor", "ForecastCache"]
+__all__ = ["DEFAULT_MODEL_PARAMS", "CacheCorruptWarning", "DartsPredictor", "ForecastCache"]
 
 DEFAULT_MODEL_PARAMS: dict[str, Any] = {"p": 10, "d": 1, "trend": "c"}
+
+_T = TypeVar("_T")
+
+
+class CacheCorruptWarning(RuntimeWarning):
+    """The forecast cache file was unreadable; it was moved aside and replaced."""
 
 
 class ForecastCache:
     """A persistent key -> (H, 2) float array store (one SQLite file, safe across processes).
+
+    A file SQLite cannot read ("file is not a database", "database disk image is
+    malformed": a crash or a full disk mid-write, or a copy gone wrong) is never fatal:
+    it is moved aside to ``<name>.corrupt-<time>-<pid>`` with a :class:`CacheCorruptWarning`
+    naming both files, counted in :attr:`n_reset_`, and a fresh cache takes its place
+    (the forecasts are recomputed).
 
     Parameters
     ----------
@@ -48,18 +64,53 @@ class ForecastCache:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with self._connect() as con:
-            con.execute("CREATE TABLE IF NOT EXISTS f (k TEXT PRIMARY KEY, h INT, v BLOB)")
+        self.n_reset_ = 0
+        self._guard(self._create)
 
     def _connect(self) -> sqlite3.Connection:
         return sqlite3.connect(self.path, timeout=60)
 
+    def _create(self) -> None:
+        with closing(self._connect()) as con, con:
+            con.execute("CREATE TABLE IF NOT EXISTS f (k TEXT PRIMARY KEY, h INT, v BLOB)")
+
+    def _guard(self, fn: Callable[[], _T]) -> _T:
+        """Run ``fn``; if the file is corrupt, move it aside, start afresh, run it again."""
+        try:
+            return fn()
+        except sqlite3.DatabaseError as exc:
+            if isinstance(exc, sqlite3.OperationalError):  # locked, read-only, ...: not ours
+                raise
+            self._move_aside(exc)
+        self._create()
+        return fn()
+
+    def _move_aside(self, exc: Exception) -> None:
+        dest = self.path.with_name(
+            f"{self.path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"
+        )
+        try:
+            os.replace(self.path, dest)
+            where = f"moved it to {dest}"
+        except FileNotFoundError:  # another process moved it first
+            where = "another process already moved it aside"
+        self.n_reset_ += 1
+        warnings.warn(
+            f"darts forecast cache {self.path} is unreadable ({exc}); {where} and continue "
+            "with a fresh cache (its forecasts will be recomputed)",
+            CacheCorruptWarning,
+            stacklevel=4,
+        )
+
     def get_many(self, keys: list[str]) -> dict[str, np.ndarray | str]:
         """Cached entries for the keys present: an (H, 2) array, or the reason of a failure."""
-        out: dict[str, np.ndarray | str] = {}
         if not keys:
-            return out
-        with self._connect() as con:
+            return {}
+        return self._guard(lambda: self._get_many(keys))
+
+    def _get_many(self, keys: list[str]) -> dict[str, np.ndarray | str]:
+        out: dict[str, np.ndarray | str] = {}
+        with closing(self._connect()) as con:
             for s in range(0, len(keys), 500):
                 chunk = keys[s : s + 500]
                 marks = ",".join("?" * len(chunk))
@@ -80,12 +131,19 @@ class ForecastCache:
             else (k, int(v.shape[0]), np.ascontiguousarray(v, dtype=np.float64).tobytes())
             for k, v in items.items()
         ]
-        with self._connect() as con:
-            con.executemany("INSERT OR REPLACE INTO f VALUES (?, ?, ?)", rows)
+
+        def put() -> None:
+            with closing(self._connect()) as con, con:
+                con.executemany("INSERT OR REPLACE INTO f VALUES (?, ?, ?)", rows)
+
+        self._guard(put)
 
     def __len__(self) -> int:
-        with self._connect() as con:
-            return int(con.execute("SELECT COUNT(*) FROM f").fetchone()[0])
+        def count() -> int:
+            with closing(self._connect()) as con:
+                return int(con.execute("SELECT COUNT(*) FROM f").fetchone()[0])
+
+        return self._guard(count)
 
 
 def _fit_one(
@@ -113,7 +171,9 @@ def _fit_one(
             return None, "non-finite forecast"
         return pred, None
     except Exception as exc:  # counted fallback, with its reason
-        return None, f"{type(exc).__name__}: {str(exc).splitlines()[0][:120]}"
+        first = (str(exc).splitlines() or [""])[0]  # an empty message has no line
+        name = type(exc).__name__
+        return None, f"{name}: {first[:100]}" if first else name
 
 
 class DartsPredictor(Predictor):
@@ -128,8 +188,10 @@ class DartsPredictor(Predictor):
     ``Forecast.info``: ``n_short_history`` (fewer than ``min_history`` samples, or fewer
     than the model needs), ``n_degenerate`` (the series does not move: the VARIMA
     regression is singular), ``n_fit_failed`` (the fit raised or returned non-finite
-    values; ``fit_errors`` holds the distinct reasons). ``n_cached`` / ``n_fitted``
-    count cache hits and fits.
+    values; ``fit_errors`` is a list of short messages, one per distinct reason, with
+    its count when above one). ``n_cached`` / ``n_fitted`` count cache hits and fits;
+    ``n_cache_reset`` counts unreadable cache files moved aside (see
+    :class:`ForecastCache`).
 
     Parameters
     ----------
@@ -297,8 +359,11 @@ class DartsPredictor(Predictor):
             fresh[k] = pred
         if store is not None:
             store.put_many(fresh)
-        if errors:
-            info["fit_errors"] = errors
+            info["n_cache_reset"] = store.n_reset_
+        if errors:  # short messages, one per distinct reason (the controller keeps lists)
+            info["fit_errors"] = [
+                reason if c == 1 else f"{reason} ({c} fits)" for reason, c in errors.items()
+            ]
         return Forecast(positions, info=info)
 
     def _run(

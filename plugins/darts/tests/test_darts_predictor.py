@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import sqlite3
+import warnings
+
 import numpy as np
 import pytest
 from cc_darts import DartsPredictor, ForecastCache
+from cc_darts.predictor import CacheCorruptWarning
 
 from conformal_control import registry
+from conformal_control.cbf.controller import merge_forecast_info
 from conformal_control.predictors.base import PredictionQuery
+from conformal_control.predictors.var import VARPredictor
+from conformal_control.testing import parametrize_with_checks
 
 
 def _query(lengths, t=40, horizon=5, still=()):
@@ -20,6 +27,11 @@ def _query(lengths, t=40, horizon=5, still=()):
         xy = np.array([1.0, 2.0]) + steps * v + rng.normal(0, 0.005, (length, 2))
         hist[i, t - length :] = np.array([1.0, 2.0]) if i in still else xy
     return PredictionQuery(np.arange(n), hist, dt=1 / 30, horizon=horizon, scene="test")
+
+
+@parametrize_with_checks([DartsPredictor])
+def test_contract(plugin, check):
+    check(plugin)
 
 
 def test_registered_through_entry_point():
@@ -42,13 +54,25 @@ def test_varima_fits_then_cache_serves(tmp_path):
     assert again.info["n_cached"] == 2 and again.info["n_fitted"] == 0
     np.testing.assert_array_equal(again.positions, fc.positions)
     assert len(ForecastCache(tmp_path / "c.sqlite")) == 2
+    # the core Yule-Walker VAR fits the same model structure by another estimator: close
+    var = VARPredictor(fit_window=35).predict(q)
+    assert var.info["n_fitted"] == 2
+    assert np.abs(var.positions[:2] - fc.positions[:2]).max() < 0.02
 
 
 def test_fit_failures_are_counted_with_reason_and_cached(tmp_path):
     kw = {"model_params": {"p": -3, "d": 1}, "min_history": 5}
     path = str(tmp_path / "c.sqlite")
     fc = DartsPredictor(cache_path=path, **kw).predict(_query([40, 40]))
-    assert fc.info["n_fit_failed"] == 2 and fc.info["fit_errors"]
+    assert fc.info["n_fit_failed"] == 2
+    # a list of short messages (one per distinct reason) that the controller keeps
+    errors = fc.info["fit_errors"]
+    assert isinstance(errors, list) and len(errors) == 1 and errors[0].endswith("(2 fits)")
+    assert all(isinstance(e, str) and len(e) <= 120 for e in errors)
+    total: dict = {}
+    merge_forecast_info(total, fc.info)
+    merge_forecast_info(total, fc.info)
+    assert total["fit_errors"] == errors * 2 and total["n_fit_failed"] == 4
     assert np.isfinite(fc.positions).all()  # constant-velocity fallback
     again = DartsPredictor(cache_path=path, **kw).predict(_query([40, 40]))
     assert again.info["n_fitted"] == 0 and again.info["n_cached"] == 2
@@ -92,3 +116,37 @@ def test_missing_darts_reports_unavailable(monkeypatch):
     import conformal_control  # the core still imports
 
     assert conformal_control.registry is registry
+
+
+def _corrupt(path, how):
+    if how == "garbage":
+        path.write_bytes(b"this is not an sqlite file" * 100)
+        return
+    # a real cache whose pages are then overwritten: "database disk image is malformed"
+    cache = ForecastCache(path)
+    cache.put_many({f"k{i}": np.full((5, 2), float(i)) for i in range(2000)})
+    raw = bytearray(path.read_bytes())
+    raw[4096:] = b"\xff" * (len(raw) - 4096)
+    path.write_bytes(bytes(raw))
+    with pytest.raises(sqlite3.DatabaseError, match="malformed"):
+        with sqlite3.connect(path) as con:
+            con.execute("SELECT COUNT(*) FROM f").fetchone()
+
+
+@pytest.mark.parametrize("how", ["garbage", "malformed"])
+def test_corrupt_cache_is_moved_aside_and_replaced(tmp_path, how):
+    path = tmp_path / "darts.sqlite"
+    _corrupt(path, how)
+    q = _query([12, 12])
+    p = DartsPredictor("NaiveDrift", {}, min_history=2, cache_path=str(path))
+    with pytest.warns(CacheCorruptWarning, match=str(path)) as rec:
+        fc = p.predict(q)
+    assert fc.info["n_fitted"] == 2 and fc.info["n_cache_reset"] == 1
+    assert np.isfinite(fc.positions).all()
+    moved = list(tmp_path.glob("darts.sqlite.corrupt-*"))
+    assert len(moved) == 1 and str(moved[0]) in str(rec[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CacheCorruptWarning)
+        again = p.predict(q)  # the fresh cache works: served from it, no further warning
+    assert again.info["n_cached"] == 2 and again.info["n_cache_reset"] == 0
+    np.testing.assert_array_equal(again.positions, fc.positions)

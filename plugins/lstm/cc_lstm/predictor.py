@@ -19,11 +19,21 @@ import numpy as np
 import torch
 from torch import nn
 
-from conformal_control.predictors.cache import cache_dir
 from conformal_control.predictors.learned import WindowPredictor, synthetic_windows
 from conformal_control.progress import progress
 
-__all__ = ["LSTMPredictor", "Seq2Seq"]
+__all__ = [
+    "UNIT_TEST_PARAMS",
+    "UNIT_TEST_WEIGHTS",
+    "LSTMPredictor",
+    "Seq2Seq",
+    "make_unit_test_weights",
+]
+
+#: Tiny weights shipped with the package for the contract kit (8 units, 2 epochs on 256
+#: seeded synthetic walks), so that ``_unit_test_params`` never trains anything.
+UNIT_TEST_WEIGHTS = Path(__file__).resolve().parent / "unit_test_weights"
+UNIT_TEST_PARAMS: dict[str, Any] = {"hidden": 8, "epochs": 2, "batch_size": 64}
 
 
 class Seq2Seq(nn.Module):
@@ -102,11 +112,8 @@ class LSTMPredictor(WindowPredictor):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        """A tiny LSTM (8 units, 2 epochs on 256 synthetic walks), trained once per cache."""
-        folder = cache_dir("weights") / "lstm-unit-test-tiny-v1"
-        if not (folder / "config.json").is_file():
-            cls(hidden=8, epochs=2, batch_size=64).fit(*synthetic_windows(), dt=0.4).save(folder)
-        return [{"weights": str(folder)}]
+        """The tiny weights shipped in the package (see :func:`make_unit_test_weights`)."""
+        return [{**UNIT_TEST_PARAMS, "weights": str(UNIT_TEST_WEIGHTS)}]
 
     # ------------------------------------------------------------------ training
     def _fit_arrays(self, disp: np.ndarray, target: np.ndarray) -> None:
@@ -169,3 +176,13 @@ class LSTMPredictor(WindowPredictor):
         net.eval()
         self.net_ = net
         self.scale_ = float(json.loads((folder / "normalisation.json").read_text())["scale"])
+
+
+def make_unit_test_weights(folder: str | Path = UNIT_TEST_WEIGHTS) -> Path:
+    """Train the tiny seeded model of ``_unit_test_params`` and save it to ``folder``.
+
+    The package ships its output; the plugin's tests re-create it in a temporary folder
+    and check that it still predicts the same (re-run this after changing the model).
+    """
+    model = LSTMPredictor(**UNIT_TEST_PARAMS).fit(*synthetic_windows(), dt=0.4)
+    return model.save(folder)

@@ -7,12 +7,14 @@ import json
 import numpy as np
 import pytest
 from cc_lstm import LSTMPredictor
+from cc_lstm.predictor import UNIT_TEST_PARAMS, UNIT_TEST_WEIGHTS, make_unit_test_weights
 
 from conformal_control import registry
 from conformal_control.cli import main
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
 from conformal_control.predictors.learned import synthetic_windows
+from conformal_control.testing import parametrize_with_checks
 
 TINY = {"hidden": 16, "epochs": 15, "batch_size": 64}
 
@@ -20,6 +22,33 @@ TINY = {"hidden": 16, "epochs": 15, "batch_size": 64}
 @pytest.fixture(scope="module")
 def tiny():
     return LSTMPredictor(**TINY).fit(*synthetic_windows(512, seed=0), dt=0.4)
+
+
+@parametrize_with_checks([LSTMPredictor])
+def test_contract(plugin, check):
+    check(plugin)
+
+
+def test_unit_test_params_load_the_shipped_weights_without_training(monkeypatch):
+    def no_training(*args, **kwargs):
+        raise AssertionError("_unit_test_params must not train")
+
+    monkeypatch.setattr(LSTMPredictor, "_fit_arrays", no_training)
+    (params,) = LSTMPredictor._unit_test_params()
+    assert params["weights"] == str(UNIT_TEST_WEIGHTS)
+    h, _ = synthetic_windows(3, seed=5)
+    fc = LSTMPredictor(**params).predict(PredictionQuery(np.arange(3), h, dt=0.4, horizon=12))
+    assert np.isfinite(fc.positions).all()
+
+
+def test_shipped_weights_are_reproducible(tmp_path):
+    # re-create the tiny model the package ships; it must still predict the same
+    fresh = make_unit_test_weights(tmp_path / "w")
+    h, _ = synthetic_windows(16, seed=7)
+    q = PredictionQuery(np.arange(16), h, dt=0.4, horizon=12)
+    shipped = LSTMPredictor(**UNIT_TEST_PARAMS, weights=str(UNIT_TEST_WEIGHTS)).predict(q)
+    again = LSTMPredictor(**UNIT_TEST_PARAMS, weights=str(fresh)).predict(q)
+    np.testing.assert_allclose(again.positions, shipped.positions, atol=1e-4)
 
 
 def test_registered_and_trainable():

@@ -21,10 +21,13 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.utils import all_estimators
 
-from conformal_control.predictors.cache import cache_dir
 from conformal_control.predictors.learned import WindowPredictor, synthetic_windows
 
-__all__ = ["SklearnPredictor", "regressor_class"]
+__all__ = ["UNIT_TEST_WEIGHTS", "SklearnPredictor", "make_unit_test_weights", "regressor_class"]
+
+#: A Ridge fitted on 256 seeded synthetic walks, shipped with the package for the contract
+#: kit, so that ``_unit_test_params`` never fits anything.
+UNIT_TEST_WEIGHTS = Path(__file__).resolve().parent / "unit_test_weights"
 
 
 @functools.cache
@@ -82,11 +85,8 @@ class SklearnPredictor(WindowPredictor):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        """A Ridge fitted on 256 synthetic walks (saved once per cache folder)."""
-        folder = cache_dir("weights") / "sklearn-unit-test-ridge-v1"
-        if not (folder / "config.json").is_file():
-            cls().fit(*synthetic_windows(), dt=0.4).save(folder)
-        return [{"weights": str(folder)}]
+        """The Ridge shipped in the package (see :func:`make_unit_test_weights`)."""
+        return [{"weights": str(UNIT_TEST_WEIGHTS)}]
 
     def _make(self) -> Any:
         cls = regressor_class(self.estimator)
@@ -120,3 +120,12 @@ class SklearnPredictor(WindowPredictor):
 
     def _load_model(self, folder: Path, config: dict[str, Any]) -> None:
         self.model_ = joblib.load(folder / "model.joblib")
+
+
+def make_unit_test_weights(folder: str | Path = UNIT_TEST_WEIGHTS) -> Path:
+    """Fit the Ridge of ``_unit_test_params`` on seeded synthetic walks; save to ``folder``.
+
+    The package ships its output; the plugin's tests re-create it in a temporary folder
+    and check that it still predicts the same (re-run this after changing the model).
+    """
+    return SklearnPredictor().fit(*synthetic_windows(), dt=0.4).save(folder)

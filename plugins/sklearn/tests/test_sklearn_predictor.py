@@ -5,12 +5,40 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cc_sklearn import SklearnPredictor
+from cc_sklearn.predictor import UNIT_TEST_WEIGHTS, make_unit_test_weights
 
 from conformal_control import registry
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
 from conformal_control.predictors.learned import synthetic_windows
+from conformal_control.testing import parametrize_with_checks
+
+
+@parametrize_with_checks([SklearnPredictor])
+def test_contract(plugin, check):
+    check(plugin)
+
+
+def test_unit_test_params_load_the_shipped_weights_without_fitting(monkeypatch):
+    def no_fitting(*args, **kwargs):
+        raise AssertionError("_unit_test_params must not fit")
+
+    monkeypatch.setattr(SklearnPredictor, "_fit_arrays", no_fitting)
+    (params,) = SklearnPredictor._unit_test_params()
+    assert params == {"weights": str(UNIT_TEST_WEIGHTS)}
+    h, _ = synthetic_windows(3, seed=5)
+    fc = SklearnPredictor(**params).predict(PredictionQuery(np.arange(3), h, dt=0.4, horizon=12))
+    assert np.isfinite(fc.positions).all()
+
+
+def test_shipped_weights_are_reproducible(tmp_path):
+    fresh = make_unit_test_weights(tmp_path / "w")
+    h, _ = synthetic_windows(16, seed=7)
+    q = PredictionQuery(np.arange(16), h, dt=0.4, horizon=12)
+    shipped = SklearnPredictor(weights=str(UNIT_TEST_WEIGHTS)).predict(q)
+    again = SklearnPredictor(weights=str(fresh)).predict(q)
+    np.testing.assert_allclose(again.positions, shipped.positions, atol=1e-9)
 
 
 def test_registered_and_trainable():

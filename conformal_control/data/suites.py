@@ -4,7 +4,7 @@ A *scenario* is one episode to run: a recording (an SDD video in raw or TrajNet 
 an ETH/UCY recording), the frame the robot starts at, its start and goal (metres, and
 image fractions where the recording has an image), and a time limit (mapped to the
 episode's ``max_frames``). A *suite* is a manifest of scenarios shipped with the package
-(``conformal_control/bench/manifests/<suite>.json``) together with the parameters of the
+(``conformal_control/data/suite_manifests/<suite>.json``) together with the parameters of the
 generator that produced it (:mod:`conformal_control.bench.generator`), what the generator
 measured for every scenario (crossing pedestrians, density, the ``nolearn`` baseline's
 outcome) and a ``dev`` / ``test`` split by recording.
@@ -29,8 +29,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..data.scene import Scene
-from ..data.scenes import load_scene
+from .scene import Scene
+from .scenes import load_scene
 
 __all__ = [
     "SCHEMA",
@@ -209,7 +209,7 @@ class Suite:
 
 
 def _manifest_dir() -> Path:
-    return Path(str(resources.files("conformal_control.bench") / "manifests"))
+    return Path(str(resources.files("conformal_control.data") / "suite_manifests"))
 
 
 def suite_names() -> list[str]:

@@ -1,0 +1,68 @@
+"""Speed of the vectorised crossing-scene generator against the per-step loop it replaced.
+
+The baseline is the loop generator kept as the bit-identity reference in
+``tests/data/test_synthetic.py`` (loaded from there, not copied); both are timed in the
+same run on the same seeds, and their outputs are compared byte for byte. Usage::
+
+    python benchmarks/bench_synthetic.py --seeds 10 --repeat 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import time
+from pathlib import Path
+
+from conformal_control.data.synthetic import crossing_tracks
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _reference():
+    spec = importlib.util.spec_from_file_location(
+        "_synthetic_reference", ROOT / "tests" / "data" / "test_synthetic.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod._reference_tracks
+
+
+def _best(fn, seeds, repeat, **kw) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for s in seeds:
+            fn(seed=s, **kw)
+        best = min(best, time.perf_counter() - t0)
+    return best / len(seeds)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    reference = _reference()
+    seeds = list(range(args.seeds))
+    for label, kw in (("default (10 fps, 72 s)", {}), ("30 fps", {"fps": 30.0})):
+        for s in seeds[:3]:
+            ref, new = reference(seed=s, **kw), crossing_tracks(seed=s, **kw).tracks
+            same = list(ref) == list(new) and all(
+                ref[k][0].tobytes() == new[k][0].tobytes()
+                and ref[k][1].tobytes() == new[k][1].tobytes()
+                for k in ref
+            )
+            if not same:
+                raise SystemExit(f"outputs differ for seed {s} ({label})")
+        old = _best(reference, seeds, args.repeat, **kw)
+        vec = _best(lambda **k: crossing_tracks(**k), seeds, args.repeat, **kw)
+        n = len(crossing_tracks(seed=0, **kw).tracks)
+        print(
+            f"{label:24s} loop {1e3 * old:7.1f} ms/scene  vectorised {1e3 * vec:6.1f} ms/scene  "
+            f"speed-up x{old / vec:.1f}  ({n} tracks for seed 0; bit-identical)"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,216 @@
+"""``ConformalShield``: filter any policy's actions through the conformal CBF.
+
+The wrapper is the flagship controller with the policy in place of the reference
+controller: at each step the policy's action is the nominal velocity, and the shield's
+own safety filter returns the velocity closest to it that meets the conformal
+constraints ``dh/dx . v + dh/dx_j . v_j + a h + lambda >= 0`` of the agents the robot
+sensed at the last sampling time, with their positions and velocities predicted by the
+shield's own predictor. The shield learns its own lambda online from its own losses
+(the paper's rule by default), exactly as the flagship does: lambda grows (less
+conservative) while predictions are good and shrinks when they fail.
+
+Added to ``info`` at every step:
+
+* ``shield_modified`` -- whether the action was changed; ``shield_delta`` -- by how much
+  (m/s, the norm of the change); ``shield_action`` -- the velocity sent to the robot;
+* ``shield_status`` -- ``"unconstrained"`` (the action met every constraint), ``"optimal"``
+  (filtered) or the fallback used when the constraints were infeasible at lambda_k
+  (``"lambda_search"``: lambda raised to the smallest feasible value, every row still
+  met; ``"brake"`` / ``"hold"``: no row guaranteed);
+* ``shield_active`` -- ids of the agents whose constraints bind at the returned velocity
+  (slack within ``active_tol``); ``shield_n_constraints``; ``shield_min_slack``;
+* ``shield_lambda`` -- lambda_k (1/s) the step was filtered with; ``shield_lambda_applied``
+  -- the lambda every constraint holds at (lambda_k unless a fallback raised it; NaN
+  for brake/hold); ``shield_loss`` -- the shield's loss when an interval closed;
+* ``shield_interventions`` -- steps modified so far.
+
+The base environment must be a ``ConformalCrowd-v0`` (:class:`ConformalCrowdEnv`): the
+shield reads the robot's sensor from it (the agents sensed at each sampling time and
+their true trajectories at the next), as the flagship reads its environment.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from ..loop import ConformalStepper
+from ..sim.build import RoleSpec, build_flagship
+from .crowd import ConformalCrowdEnv
+from .roles import GivenVelocity, LastSolve, RecordingFilter
+
+__all__ = ["ConformalShield"]
+
+
+class ConformalShield(
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]
+):
+    """Filter a policy's velocity commands through the conformal CBF (see module docs).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A ``ConformalCrowd-v0`` environment (possibly wrapped).
+    params : dict, optional
+        Parameters of the shield, in the environment's units, over the environment's own
+        (e.g. ``{"epsilon": -0.1, "eta": 2, "a": 2}``); timing (``tau``, ``substeps``)
+        must stay the environment's.
+    predictor, predictor_params, barrier, barrier_params, safety_filter,
+    safety_filter_params, fallback, loss, loss_params, rule, rule_params
+        The shield's roles (names or instances), as for
+        :func:`~conformal_control.sim.build.build_flagship`; the default is the flagship's
+        (constant velocity, APF barrier, the piqp QP with the lambda-search fallback, the
+        gap loss, the fixed-step rule).
+    learn : bool
+        False keeps lambda at ``lambda_init``.
+    seed : int
+        ``random_state`` of named plugins that take one.
+    active_tol : float
+        A constraint is reported active when its slack is within this (1/s).
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[dict[str, np.ndarray], np.ndarray],
+        params: dict[str, Any] | None = None,
+        *,
+        predictor: RoleSpec = "constant_velocity",
+        predictor_params: dict[str, Any] | None = None,
+        barrier: RoleSpec = None,
+        barrier_params: dict[str, Any] | None = None,
+        safety_filter: RoleSpec = None,
+        safety_filter_params: dict[str, Any] | None = None,
+        fallback: RoleSpec = None,
+        loss: RoleSpec = None,
+        loss_params: dict[str, Any] | None = None,
+        rule: RoleSpec = "fixed_eta",
+        rule_params: dict[str, Any] | None = None,
+        learn: bool = True,
+        seed: int = 0,
+        active_tol: float = 1e-6,
+    ) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        if not isinstance(base, ConformalCrowdEnv):
+            raise TypeError(
+                "ConformalShield wraps a ConformalCrowd-v0 environment (it reads the robot's "
+                f"sensor from it), got {type(base).__name__}"
+            )
+        core = base.core
+        merged = {**core.params_given, **(params or {})}
+        fl = build_flagship(
+            base.scene,
+            merged,
+            units="scene" if core.units == "scene" else "si",
+            predictor=predictor,
+            predictor_params=predictor_params,
+            barrier=barrier,
+            barrier_params=barrier_params,
+            safety_filter=safety_filter,
+            safety_filter_params=safety_filter_params,
+            fallback=fallback,
+            reference=GivenVelocity(),
+            loss=loss,
+            loss_params=loss_params,
+            rule=rule,
+            rule_params=rule_params,
+            learn=learn,
+            seed=seed,
+        )
+        w = core.world
+        if fl.env.tau_frames != w.tau_frames or fl.env.substeps != w.substeps:
+            raise ValueError(
+                "the shield must run at the environment's rate: its tau and substeps "
+                f"({fl.env.tau_frames} frames, {fl.env.substeps}) differ from the "
+                f"environment's ({w.tau_frames} frames, {w.substeps})"
+            )
+        self.filter = RecordingFilter(fl.safety_filter)
+        fl.policy.safety_filter = self.filter
+        self.flagship = fl
+        self.controller = fl.policy
+        self.constraint = fl.constraint
+        self.active_tol = float(active_tol)
+        self.stepper = ConformalStepper(fl.policy, fl.loss, fl.rule, learn=learn)
+        #: the last filtering problem (rows, lambda, result), the robot's state and the
+        #: sensed agents' predicted positions and velocities at that instant
+        self.last_: LastSolve | None = None
+        self.last_state_: np.ndarray | None = None
+        self.last_prediction_: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_ids_: np.ndarray | None = None  # the agents of the rows, in order
+
+    def _begin(self, query: Any) -> None:
+        self._ids = np.asarray(query.ids)
+        self.stepper.begin_interval(query)
+
+    @property
+    def lam(self) -> float:
+        """The shield's lambda now (1/s)."""
+        return self.stepper.lam
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.stepper.start()
+        self.n_interventions_ = 0
+        self.last_ = None
+        core = self.env.unwrapped.core  # type: ignore[attr-defined]
+        self._begin(core.query_[0])
+        info = {**info, "shield_lambda": self.stepper.lam, "shield_interventions": 0}
+        return obs, info
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        core = self.env.unwrapped.core  # type: ignore[attr-defined]
+        a = np.asarray(action, dtype=float).reshape(-1)
+        if a.shape != (2,) or not np.isfinite(a).all():
+            raise ValueError(f"an action is a finite velocity (vx, vy) in m/s, got {action!r}")
+        state = core.world.state(0)
+        self.last_state_ = state.x.copy()
+        ref = self.controller.reference
+        assert isinstance(ref, GivenVelocity)
+        ref.velocity = a
+        lam = self.stepper.lam
+        v = np.asarray(self.stepper.decide(state), dtype=float)
+        last = self.filter.last_
+        assert last is not None
+        self.last_ = last
+        rec = self.controller.interval_record()
+        self.last_prediction_ = (rec.x_pred[-1].copy(), rec.v_pred[-1].copy())
+        delta = float(np.hypot(*(v - a)))
+        modified = delta > 1e-9
+        self.n_interventions_ += modified
+        res = last.result
+        ids = self._ids
+        self.last_ids_ = ids
+        if last.A.shape[0]:
+            slack = last.slack()
+            active = ids[np.abs(slack) <= self.active_tol * max(1.0, abs(lam))]
+            min_slack = float(slack.min())
+        else:
+            active, min_slack = ids[:0], math.nan
+        obs, reward, terminated, truncated, info = self.env.step(v)
+        shield_loss = None
+        if info.get("interval_closed"):
+            shield_loss = self.stepper.end_interval(core.truth_[0]).loss
+            if not (terminated or truncated) and not core.world.done:
+                self._begin(core.query_[0])
+        info = {
+            **info,
+            "shield_modified": modified,
+            "shield_delta": delta,
+            "shield_action": v,
+            "shield_status": res.fallback or res.status,
+            "shield_active": active.tolist(),
+            "shield_n_constraints": int(last.A.shape[0]),
+            "shield_min_slack": min_slack,
+            "shield_lambda": lam,
+            "shield_lambda_applied": res.lambda_applied,
+            "shield_loss": shield_loss,
+            "shield_interventions": int(self.n_interventions_),
+        }
+        return obs, float(reward), terminated, truncated, info

@@ -1,0 +1,243 @@
+"""Animation of a multi-robot run: every robot, the pedestrians, each robot's lambda.
+
+Each frame shows the scene (its reference image if there is one), the pedestrians, every
+robot as a disc of its radius in its own colour with its trail and its goal (a star), a
+red rim while it is closer than d_c to a pedestrian and a black rim while it touches
+another robot, a robot that reached its goal drawn faded; a side panel shows lambda_k of
+every robot with a time cursor, and the title counts the collision frames so far. Frames
+are drawn with matplotlib and written as they are drawn (imageio: GIF through Pillow's
+streaming ``GIF-PIL`` writer, so memory stays flat in the number of frames; MP4 through
+imageio-ffmpeg), like :mod:`conformal_control.plotting.animation`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["is_multi_record", "render_multi_animation"]
+
+
+def is_multi_record(source: str | Path | Mapping[str, Any]) -> bool:
+    """Whether ``source`` (a run directory, an ``animation.npz`` or a record) is a
+    multi-robot record."""
+    if isinstance(source, Mapping):
+        return str(source.get("kind", "")) == "multi"
+    path = Path(source)
+    if path.is_dir():
+        path = path / "animation.npz"
+    if not path.is_file():
+        return False
+    with np.load(path, allow_pickle=False) as data:
+        return "kind" in data.files and str(data["kind"]) == "multi"
+
+
+def _load(source: str | Path | Mapping[str, Any]) -> dict[str, Any]:
+    from .animation import load_record
+
+    rec = load_record(source)
+    if str(rec.get("kind", "")) != "multi":
+        raise ValueError("not a multi-robot animation record (no kind='multi')")
+    return rec
+
+
+def _view(rec: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, float]]:
+    goals = np.asarray(rec["goals"], dtype=float).reshape(-1, 2)
+    pts = np.vstack([np.asarray(rec["robots"], dtype=float).reshape(-1, 2), goals])
+    pad = 3.0
+    x0, y0 = np.nanmin(pts, axis=0) - pad
+    x1, y1 = np.nanmax(pts, axis=0) + pad
+    ext = np.asarray(rec["extent"], dtype=float)
+    if np.isfinite(ext).all():
+        x0, y0 = max(x0, 0.0), max(y0, 0.0)
+        x1, y1 = min(x1, ext[0]), min(y1, ext[1])
+    return (x0, x1), (y1, y0)  # image convention: y down
+
+
+def render_multi_animation(
+    source: str | Path | Mapping[str, Any],
+    out: str | Path,
+    *,
+    start: float | None = None,
+    end: float | None = None,
+    fps: float = 10.0,
+    width: float = 9.6,
+    dpi: int = 80,
+    trail: float = 3.0,
+    progress: bool = True,
+) -> int:
+    """Render a multi-robot run to ``out`` (``.gif`` or ``.mp4``); returns the frame count.
+
+    Parameters
+    ----------
+    source : path or dict
+        Run directory, its ``animation.npz``, or ``MultiResult.animation``.
+    out : path
+        Output file; its suffix picks the format.
+    start, end : float, optional
+        Time window (s since the start of the run).
+    fps : float
+        Output frame rate; the animation plays in real time.
+    width : float
+        Figure width in inches (height = 0.45 width).
+    dpi : int
+        Pixels per inch.
+    trail : float
+        Length (s) of the trail drawn behind each robot.
+    progress : bool
+        Show a tqdm progress bar.
+    """
+    import imageio.v2 as imageio
+    from matplotlib.patches import Circle
+    from tqdm import tqdm
+
+    from .animation import animation_frames
+    from .run import _mpl
+
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
+    rec = _load(source)
+    frames = animation_frames(rec, start, end, fps)
+    plt = _mpl()
+
+    t = np.asarray(rec["t"], dtype=float)
+    robots = np.asarray(rec["robots"], dtype=float)
+    active = np.asarray(rec["active"], dtype=bool)
+    c_ped = np.asarray(rec["contact_ped"], dtype=bool)
+    c_rob = np.asarray(rec["contact_robot"], dtype=bool)
+    peds = np.asarray(rec["peds"], dtype=float)
+    goals = np.asarray(rec["goals"], dtype=float)
+    lam = np.asarray(rec["lam"], dtype=float)
+    k_start = np.asarray(rec["k_start"])
+    t_k = t[np.minimum(k_start, t.size - 1)] if k_start.size else np.zeros(0)
+    n = robots.shape[1]
+    r_robot = float(rec["robot_radius"])
+    r_ped = float(rec["agent_radius"])
+    fps_run = float(rec["fps"])
+    n_trail = max(1, round(trail * fps_run))
+    colours = plt.get_cmap("tab10" if n <= 10 else "tab20")(np.arange(n) % (10 if n <= 10 else 20))
+    # collision frames so far, counted while under way (each robot-robot pair once)
+    ped_so_far = np.cumsum((c_ped & active).sum(axis=1))
+    rob_pairs = np.zeros(t.size, dtype=int)
+    if n > 1:
+        with np.errstate(invalid="ignore"):
+            d = np.hypot(
+                robots[:, :, None, 0] - robots[:, None, :, 0],
+                robots[:, :, None, 1] - robots[:, None, :, 1],
+            )
+        either = active[:, :, None] | active[:, None, :]
+        upper = np.triu(np.ones((n, n), dtype=bool), k=1)
+        with np.errstate(invalid="ignore"):
+            rob_pairs = ((d < 2 * r_robot) & either & upper).sum(axis=(1, 2))
+    rob_so_far = np.cumsum(rob_pairs)
+
+    px_w = 2 * round(width * dpi / 2)
+    px_h = 2 * round(width * dpi * 0.45 / 2)
+    fig = plt.figure(figsize=(px_w / dpi, px_h / dpi), dpi=dpi)
+    gs = fig.add_gridspec(
+        1, 2, width_ratios=[1.8, 1], left=0.07, right=0.98, top=0.86, bottom=0.13, wspace=0.25
+    )
+    ax = fig.add_subplot(gs[0, 0])
+    ax_lam = fig.add_subplot(gs[0, 1])
+
+    image = str(rec.get("image") or "")
+    ext = np.asarray(rec["extent"], dtype=float)
+    xlim, ylim = _view(rec)
+    if image and Path(image).is_file() and np.isfinite(ext).all():
+        img = plt.imread(image)
+        sx, sy = img.shape[1] / ext[0], img.shape[0] / ext[1]
+        c0, c1 = max(int(xlim[0] * sx), 0), min(math.ceil(xlim[1] * sx), img.shape[1])
+        r0, r1 = max(int(ylim[1] * sy), 0), min(math.ceil(ylim[0] * sy), img.shape[0])
+        step = max(1, int((c1 - c0) / (0.6 * px_w)))
+        crop = img[r0:r1:step, c0:c1:step]
+        ax.imshow(crop, extent=(c0 / sx, c1 / sx, r1 / sy, r0 / sy), alpha=0.6)
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)", fontsize=8)
+    ax.set_ylabel("y (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    for i in range(n):
+        g = goals[i][np.isfinite(goals[i, :, 0])]
+        ax.plot(g[:, 0], g[:, 1], "*", color=colours[i], ms=9, mec="black", mew=0.4)
+    others = ax.scatter([], [], s=14, c="0.35", zorder=3, label="pedestrians")
+    ped_discs: list[Circle] = []
+    trails = [ax.plot([], [], color=colours[i], lw=1.2, alpha=0.8)[0] for i in range(n)]
+    discs = []
+    for i in range(n):
+        c = Circle((np.nan, np.nan), r_robot, facecolor=colours[i], edgecolor="none", zorder=5)
+        ax.add_patch(c)
+        discs.append(c)
+
+    for i in range(n):
+        ax_lam.step(t_k, lam[:, i], where="post", color=colours[i], lw=1.0)
+    ax_lam.set_xlabel("t (s)", fontsize=8)
+    ax_lam.set_ylabel(f"lambda_k ({rec.get('lambda_unit', '')})", fontsize=8)
+    ax_lam.tick_params(labelsize=7)
+    ax_lam.grid(alpha=0.3)
+    ax_lam.set_xlim(t[frames[0]], max(t[frames[-1]], t[frames[0]] + 1e-6))
+    cursor = ax_lam.axvline(t[frames[0]], color="black", lw=0.8)
+
+    if suffix == ".gif":
+        writer = imageio.get_writer(out, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
+    else:
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            plt.close(fig)
+            raise ImportError(
+                "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg "
+                "(or the 'docs' extra), or write a .gif"
+            ) from None
+        writer = imageio.get_writer(
+            out, fps=fps, codec="libx264", macro_block_size=1, pixelformat="yuv420p"
+        )
+    n_written = 0
+    try:
+        for f in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+            p = peds[f]
+            ok = np.isfinite(p[:, 0])
+            others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))
+            for c in ped_discs:
+                c.remove()
+            ped_discs = []
+            for i in range(n):
+                lo = max(0, f - n_trail)
+                trails[i].set_data(robots[lo : f + 1, i, 0], robots[lo : f + 1, i, 1])
+                disc = discs[i]
+                disc.center = (robots[f, i, 0], robots[f, i, 1])
+                disc.set_alpha(1.0 if active[f, i] else 0.35)
+                if c_rob[f, i] and active[f, i]:
+                    disc.set_edgecolor("black")
+                    disc.set_linewidth(2.0)
+                elif c_ped[f, i] and active[f, i]:
+                    disc.set_edgecolor("red")
+                    disc.set_linewidth(2.0)
+                    near = np.hypot(*(p[ok] - robots[f, i]).T) < r_robot + r_ped
+                    for q in p[ok][near]:
+                        pc = Circle(q, r_ped, fill=False, ec="red", lw=1.0, zorder=4)
+                        ax.add_patch(pc)
+                        ped_discs.append(pc)
+                else:
+                    disc.set_edgecolor("none")
+            cursor.set_xdata([t[f], t[f]])
+            ax.set_title(
+                f"{rec.get('scene', '')}: {n} robots, t = {t[f]:4.1f} s, "
+                f"{int(active[f].sum())} under way\ncollision frames so far: robot-pedestrian "
+                f"{int(ped_so_far[f])}, robot-robot {int(rob_so_far[f])}",
+                fontsize=8,
+            )
+            fig.canvas.draw()
+            rgba = np.asarray(fig.canvas.buffer_rgba())
+            writer.append_data(np.ascontiguousarray(rgba[..., :3]))
+            n_written += 1
+    finally:
+        writer.close()
+        plt.close(fig)
+    return n_written

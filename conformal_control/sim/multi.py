@@ -1,0 +1,652 @@
+"""Decentralized multi-robot runs: M robots, each its own conformal CBF controller.
+
+Every robot is the flagship of :func:`~conformal_control.sim.build.build_flagship` -- its
+own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
+-- built from the same parameters (role instances are deep-copied per robot, so no state
+is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. The
+robots share nothing but the world (:class:`~conformal_control.sim.multi_world.MultiRobotWorld`):
+each senses the pedestrians and the other robots through its own sensor, treats a robot
+like any other agent, and learns its own lambda from its own losses. There is no
+communication.
+
+Starts and goals (:func:`robot_tasks`):
+
+* ``layout="scene"`` (default): robot 0 does the scene's own task (its start and goals);
+  robot ``i`` does the same task rotated by ``2 pi i / M`` about the midpoint of the start
+  and the last goal. With two robots they swap ends; with one, it is the single-robot
+  episode exactly (:func:`run_multi` then reproduces
+  :func:`~conformal_control.sim.episode.run_episode`, metric for metric);
+* ``layout="antipodal"``: the robots evenly spaced on a circle of ``radius`` (m) about
+  ``center`` (m), each going to the opposite point (robot 0 starts left of the centre);
+* ``starts=`` and ``goals=``: an explicit list (goals ``(M, 2)``, or one list of waypoints
+  per robot).
+
+Robot ``i``'s named plugins receive ``random_state = seed + i``; a reactive crowd's seed
+is ``seed`` (unless ``crowd_params`` sets one).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cbf.feasibility import feasibility_floor
+from ..data.scene import Scene
+from ..loop import ConformalStepper, LoopResult
+from .build import Flagship, RoleSpec, build_flagship
+from .episode import _config, _jsonable, _measure
+from .metrics import EpisodeMetrics
+from .multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
+from .multi_world import MultiRobotWorld
+
+__all__ = [
+    "LAYOUTS",
+    "MAX_ROBOTS",
+    "MultiResult",
+    "RobotResult",
+    "drive",
+    "load_robots_file",
+    "robot_tasks",
+    "run_multi",
+    "write_multi_run_dir",
+]
+
+#: Built-in layouts of :func:`robot_tasks`.
+LAYOUTS = ("scene", "antipodal")
+
+#: Most robots in one run (the sensor and the metrics are quadratic in the robots).
+MAX_ROBOTS = 20
+
+
+# ---------------------------------------------------------------------------- tasks
+def _rotate(p: np.ndarray, c: np.ndarray, angle: float) -> np.ndarray:
+    cs, sn = math.cos(angle), math.sin(angle)
+    d = np.asarray(p, dtype=float) - c
+    out: np.ndarray = c + np.stack(
+        [cs * d[..., 0] - sn * d[..., 1], sn * d[..., 0] + cs * d[..., 1]], -1
+    )
+    return out
+
+
+def robot_tasks(
+    scene: Scene,
+    n: int,
+    layout: str = "scene",
+    *,
+    radius: float | None = None,
+    center: Sequence[float] | None = None,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Starts ``(n, 2)`` and goals (one ``(G, 2)`` array per robot), in metres.
+
+    Parameters
+    ----------
+    scene : Scene
+    n : int
+        Number of robots (1 to :data:`MAX_ROBOTS`).
+    layout : {"scene", "antipodal"}
+        See the module docstring.
+    radius : float, optional
+        ``antipodal``: radius of the circle (m); default half the distance from the
+        scene's start to its last goal.
+    center : (x, y), optional
+        ``antipodal``: centre of the circle (m); default the midpoint of the scene's start
+        and last goal.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_ROBOTS:
+        raise ValueError(
+            f"the number of robots must be an integer from 1 to {MAX_ROBOTS}, got {n!r}"
+        )
+    start = np.asarray(scene.start, dtype=float)
+    goals = np.asarray(scene.goals, dtype=float).reshape(-1, 2)
+    mid = 0.5 * (start + goals[-1])
+    if layout == "scene":
+        if radius is not None or center is not None:
+            raise ValueError("radius and center apply to layout='antipodal'")
+        starts = [start] + [_rotate(start, mid, 2 * math.pi * i / n) for i in range(1, n)]
+        tasks = [goals] + [_rotate(goals, mid, 2 * math.pi * i / n) for i in range(1, n)]
+        return np.array(starts), tasks
+    if layout != "antipodal":
+        raise ValueError(f"unknown layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    c = mid if center is None else np.asarray(center, dtype=float).reshape(2)
+    r = 0.5 * float(np.hypot(*(goals[-1] - start))) if radius is None else float(radius)
+    if not (math.isfinite(r) and r > 0) or not np.isfinite(c).all():
+        raise ValueError(f"antipodal layout needs a finite radius > 0 and centre, got {r!r}, {c}")
+    ang = math.pi + 2 * math.pi * np.arange(n) / n
+    unit = np.column_stack([np.cos(ang), np.sin(ang)])
+    return c + r * unit, [(c - r * u).reshape(1, 2) for u in unit]
+
+
+def _as_tasks(starts: Any, goals: Any) -> tuple[np.ndarray, list[np.ndarray]]:
+    s = np.asarray(starts, dtype=float)
+    if s.ndim != 2 or s.shape[1] != 2 or not 1 <= s.shape[0] <= MAX_ROBOTS:
+        raise ValueError(
+            f"starts must have shape (M, 2) with 1 <= M <= {MAX_ROBOTS}, got {s.shape}"
+        )
+    if goals is None or len(goals) != s.shape[0]:
+        raise ValueError(f"{s.shape[0]} starts need {s.shape[0]} goals (or lists of waypoints)")
+    tasks = []
+    for i, g in enumerate(goals):
+        g = np.asarray(g, dtype=float)
+        if g.size == 0 or g.size % 2 or not np.isfinite(g).all():
+            raise ValueError(f"robot {i}: goals must be finite (x, y) pairs, got {g.tolist()}")
+        tasks.append(g.reshape(-1, 2))
+    if not np.isfinite(s).all():
+        raise ValueError("robot starts must be finite")
+    return s, tasks
+
+
+def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Starts and goals (m) from a JSON file.
+
+    The file holds ``{"units": "m", "robots": [{"start": [x, y], "goals": [[x, y], ...]},
+    ...]}``; with ``"units": "fraction"`` the coordinates are fractions of the scene's
+    width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
+    stand for a single goal.
+    """
+    p = Path(path)
+    try:
+        spec = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"robots file {p} does not exist") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(
+            f"robots file {p} is not valid JSON ({exc.msg}, line {exc.lineno})"
+        ) from None
+    robots = spec.get("robots") if isinstance(spec, dict) else None
+    if not isinstance(robots, list) or not robots:
+        raise ValueError(f'robots file {p} needs a non-empty list "robots"')
+    units = spec.get("units", "m")
+    if units not in ("m", "fraction"):
+        raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
+    scale = np.ones(2)
+    if units == "fraction":
+        if scene.extent is None:
+            raise ValueError(f"scene {scene.name} has no extent: use units 'm'")
+        scale = np.asarray(scene.extent, dtype=float)
+    starts, goals = [], []
+    for i, r in enumerate(robots):
+        if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
+            raise ValueError(f'robots file {p}: robot {i} needs "start" and "goals" (or "goal")')
+        try:
+            st = np.asarray(r["start"], dtype=float).reshape(2)
+            g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"robots file {p}: robot {i} has a start or goal that is not (x, y)"
+            ) from None
+        starts.append(st * scale)
+        goals.append(g * scale)
+    return _as_tasks(np.array(starts), goals)
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass
+class RobotResult:
+    """One robot of a multi-robot run.
+
+    Attributes
+    ----------
+    index, id : int
+        Its index and the id under which the other robots sense it.
+    start, goals : ndarray
+        Its task (m).
+    metrics : EpisodeMetrics
+        As for one robot (``d_min``, ``n_collide``: pedestrians); ``success`` also
+        requires no robot-robot collision.
+    contacts : RobotContacts
+        Its encounters with the other robots.
+    intervals : list of dict
+    trajectory : dict of arrays
+        Per frame while under way: ``frame, t, x, y, vx, vy, d_min, d_min_robot``.
+    steps : dict of arrays
+    loop : LoopResult
+    """
+
+    index: int
+    id: int
+    start: np.ndarray
+    goals: np.ndarray
+    metrics: EpisodeMetrics
+    contacts: RobotContacts
+    intervals: list[dict[str, Any]]
+    trajectory: dict[str, np.ndarray]
+    steps: dict[str, np.ndarray]
+    loop: LoopResult
+
+    def summary(self) -> dict[str, Any]:
+        """Its metrics and contacts in one JSON-ready dict."""
+        return {
+            "robot": self.index,
+            "id": self.id,
+            **self.metrics.as_dict(),
+            **self.contacts.as_dict(),
+        }
+
+
+@dataclass
+class MultiResult:
+    """Everything a multi-robot run produced (what its run directory is written from).
+
+    Attributes
+    ----------
+    scene : Scene
+        The scene as run (resolved radii and v_max).
+    config : dict
+        The full configuration (``config.json``).
+    metrics : FleetMetrics
+        The aggregate; per robot see ``robots[i].metrics``.
+    robots : list of RobotResult
+    track : dict of arrays
+        The world per frame: ``frame (F,)``, ``t (F,)``, ``robots (F, M, 2)`` positions
+        (robots that reached their goal included), ``active (F, M)``.
+    animation : dict or None
+        The record :func:`~conformal_control.plotting.multi_animation.render_multi_animation`
+        renders.
+    """
+
+    scene: Scene
+    config: dict[str, Any]
+    metrics: FleetMetrics
+    robots: list[RobotResult]
+    track: dict[str, np.ndarray]
+    animation: dict[str, Any] | None = None
+
+    def summary_table(self) -> str:
+        """One line per robot: goal, time, collisions (pedestrians, robots), d_min, lambda."""
+        head = f"{'robot':>5} {'goal':>5} {'t_goal':>7} {'n_ped':>5} {'n_rob':>5} "
+        head += f"{'d_min':>6} {'d_rob':>6} {'lambda':>8}"
+        lines = [head]
+        for r in self.robots:
+            m, c = r.metrics, r.contacts
+
+            def f(v: float | None, spec: str) -> str:
+                return "-" if v is None else format(v, spec)
+
+            lines.append(
+                f"{r.index:>5} {('yes' if m.goal_reached else 'no'):>5} {f(m.t_goal, '7.2f')} "
+                f"{m.n_collide:>5} {c.n_collide_robot:>5} {f(m.d_min, '6.2f')} "
+                f"{f(c.d_min_robot, '6.2f')} {f(m.lambda_final, '8.3g')}"
+            )
+        return "\n".join(lines)
+
+    def save(self, out: str | Path) -> Path:
+        """Write the run directory (see :func:`write_multi_run_dir`)."""
+        return write_multi_run_dir(self, out)
+
+
+# ---------------------------------------------------------------------------- running
+def _copy_role(spec: RoleSpec) -> RoleSpec:
+    """A name or None as is; an instance deep-copied (no state shared between robots)."""
+    if spec is None or isinstance(spec, str):
+        return spec
+    return copy.deepcopy(spec)
+
+
+def run_multi(
+    scene: Scene,
+    robots: int | None = None,
+    *,
+    starts: Any = None,
+    goals: Any = None,
+    layout: str = "scene",
+    radius: float | None = None,
+    center: Sequence[float] | None = None,
+    predictor: RoleSpec = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    units: str = "scene",
+    learn: bool = True,
+    max_frames: int | None = None,
+    seed: int = 0,
+    predictor_params: dict[str, Any] | None = None,
+    rule: RoleSpec = "fixed_eta",
+    rule_params: dict[str, Any] | None = None,
+    lambda_safe: float | None = None,
+    lambda_safe_source: str | None = None,
+    barrier: RoleSpec = None,
+    barrier_params: dict[str, Any] | None = None,
+    safety_filter: RoleSpec = None,
+    safety_filter_params: dict[str, Any] | None = None,
+    fallback: RoleSpec = None,
+    reference: RoleSpec = None,
+    reference_params: dict[str, Any] | None = None,
+    dynamics: RoleSpec = None,
+    dynamics_params: dict[str, Any] | None = None,
+    loss: RoleSpec = None,
+    loss_params: dict[str, Any] | None = None,
+    crowd: str = "replay",
+    crowd_params: dict[str, Any] | None = None,
+    sensor_history: str = "tracked",
+    record_animation: bool = True,
+    extra_config: dict[str, Any] | None = None,
+) -> MultiResult:
+    """Run M robots, each with its own conformal CBF controller, in one scene.
+
+    Parameters
+    ----------
+    scene : Scene
+    robots : int, optional
+        Number of robots (1 to :data:`MAX_ROBOTS`), placed by ``layout``; or give
+        ``starts`` and ``goals``.
+    starts, goals : array-like, optional
+        Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
+        waypoints per robot.
+    layout, radius, center
+        See :func:`robot_tasks`.
+    sensor_history : {"tracked", "observed"}
+        Histories handed to each robot's predictor (see
+        :class:`~conformal_control.sim.multi_world.MultiRobotWorld`).
+    Others
+        As for :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
+
+    Returns
+    -------
+    MultiResult
+    """
+    if starts is not None or goals is not None:
+        if robots is not None and np.asarray(starts).reshape(-1, 2).shape[0] != robots:
+            raise ValueError(f"robots={robots} but {len(starts)} starts were given")
+        if layout != "scene" or radius is not None or center is not None:
+            raise ValueError("give either explicit starts and goals or a layout, not both")
+        s, tasks = _as_tasks(starts, goals)
+    else:
+        s, tasks = robot_tasks(
+            scene, 1 if robots is None else robots, layout, radius=radius, center=center
+        )
+    n = s.shape[0]
+    roles: dict[str, Any] = {
+        "predictor": predictor,
+        "barrier": barrier,
+        "safety_filter": safety_filter,
+        "fallback": fallback,
+        "reference": reference,
+        "dynamics": dynamics,
+        "loss": loss,
+        "rule": rule,
+    }
+    fleet: list[Flagship] = []
+    for i in range(n):
+        scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
+        fleet.append(
+            build_flagship(
+                scene_i,
+                params,
+                units=units,
+                **{k: _copy_role(v) for k, v in roles.items()},
+                predictor_params=predictor_params,
+                barrier_params=barrier_params,
+                safety_filter_params=safety_filter_params,
+                reference_params=reference_params,
+                dynamics_params=dynamics_params,
+                loss_params=loss_params,
+                rule_params=rule_params,
+                # the world's crowd is robot 0's (the others' environments are not used)
+                crowd=crowd if i == 0 else "replay",
+                crowd_params=crowd_params if i == 0 else None,
+                learn=learn,
+                seed=seed + i,
+                max_frames=max_frames,
+            )
+        )
+    fl0 = fleet[0]
+    env0 = fl0.env
+    world = MultiRobotWorld(
+        fl0.scene,
+        s,
+        tasks,
+        [fl.dynamics for fl in fleet],
+        tau_frames=env0.tau_frames,
+        substeps=env0.substeps,
+        sensing_radius=env0.sensing_radius,
+        history_frames=env0.history_frames,
+        max_frames=max_frames,
+        crowd=getattr(env0, "crowd", None),
+        sensor_history=sensor_history,
+    )
+    run_scene = fl0.scene
+    si = fl0.params.si
+    lam_unit = run_scene.units.factor("lambda_init")
+    if lambda_safe is not None and units == "si":
+        lambda_safe = lambda_safe / lam_unit
+    lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
+    steppers = [
+        ConformalStepper(
+            fl.policy,
+            fl.loss,
+            fl.rule,
+            learn=learn,
+            lambda_safe=lam_safe_si,
+            lambda_safe_source=lambda_safe_source,
+        )
+        for fl in fleet
+    ]
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    own = drive(world, steppers)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+
+    h_max = fl0.barrier.upper_bound
+    floor = feasibility_floor(
+        si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
+    )
+    results: list[RobotResult] = []
+    for i, (fl, st) in enumerate(zip(fleet, steppers, strict=True)):
+        rec = world.robots[i]
+        # the robot's record is what the single-robot measurement reads of an environment
+        view = dataclasses.replace(fl, env=rec)  # type: ignore[arg-type]
+        m, intervals, traj = _measure(view, st.result(), learn, lambda_safe, floor, own[i])
+        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
+        m = dataclasses.replace(
+            m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
+        )
+        traj["d_min_robot"] = np.array(rec.d_min_robot, dtype=float)
+        results.append(
+            RobotResult(
+                index=i,
+                id=int(world.robot_ids[i]),
+                start=s[i],
+                goals=tasks[i],
+                metrics=m,
+                contacts=contacts,
+                intervals=intervals,
+                trajectory=traj,
+                steps={
+                    "t": np.array(rec.steps_t),
+                    "x": np.array(rec.steps_x).reshape(-1, 4),
+                    "cmd": np.array(rec.steps_cmd).reshape(-1, 2),
+                },
+                loop=st.result(),
+            )
+        )
+    track = _track(world, results)
+    metrics = fleet_metrics(
+        [r.metrics for r in results],
+        [r.contacts for r in results],
+        robot_track=track["robots"],
+        active=track["active"],
+        robot_radius=run_scene.robot_radius,
+        frames=track["frame"].size,
+        wall_s=wall,
+        lam_unit_name=results[0].metrics.unit("lambda_final"),
+        cpu_s=cpu,
+    )
+    config = _config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
+    config["kind"] = "multi"
+    config["n_robots"] = n
+    for key in ("start_m", "goals_m"):
+        config["scene"].pop(key, None)
+    config["robots"] = [
+        {
+            "robot": i,
+            "id": int(world.robot_ids[i]),
+            "start_m": s[i].tolist(),
+            "goals_m": tasks[i].tolist(),
+            "seed": seed + i,
+        }
+        for i in range(n)
+    ]
+    config["layout"] = (
+        {"layout": "explicit"}
+        if starts is not None
+        else {
+            "layout": layout,
+            "radius": radius,
+            "center": None if center is None else list(center),
+        }
+    )
+    config["sensor_history"] = sensor_history
+    config["max_frames"] = max_frames
+    config["feasibility"] = _jsonable(floor.as_dict())
+    crowd_config = getattr(env0, "crowd_config", None)
+    config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
+    config.update(extra_config or {})
+    animation = None
+    if record_animation:
+        from .multi_record import multi_record
+
+        animation = multi_record(world, results, track, epsilon=si["epsilon"])
+    return MultiResult(run_scene, _jsonable(config), metrics, results, track, animation)
+
+
+def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[float]:
+    """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
+    wall time (s) spent in its own sensing, deciding and learning.
+
+    The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
+    stepping together: at a sampling time each robot under way senses and begins an
+    interval; at each control instant each decides with its own lambda and the world
+    applies all the decisions at once; at the next sampling time each scores its interval
+    on the truth its own sensor reveals and updates its own lambda.
+    """
+    n = len(steppers)
+    clock = time.perf_counter
+    own = [0.0] * n
+    world.reset()
+    for st in steppers:
+        st.start()
+    cmds = np.zeros((n, 2))
+    while not world.done:
+        active = [int(i) for i in world.active()]
+        for i in active:
+            t0 = clock()
+            steppers[i].begin_interval(world.sense(i))
+            own[i] += clock() - t0
+        for _ in range(world.control_instants()):
+            for i in active:
+                if world.robot_done(i):
+                    continue
+                t0 = clock()
+                cmds[i] = steppers[i].decide(world.state(i))
+                own[i] += clock() - t0
+            world.apply(cmds)
+            if world.done:
+                break
+        for i in active:
+            t0 = clock()
+            steppers[i].end_interval(world.reveal(i))
+            own[i] += clock() - t0
+    return own
+
+
+def _track(world: MultiRobotWorld, results: list[RobotResult]) -> dict[str, np.ndarray]:
+    sc = world.scene
+    lo = sc.start_index
+    hi = world.frame_index
+    pos = world.robot_track()[lo : hi + 1]
+    frames = np.arange(lo, hi + 1)
+    active = np.zeros((frames.size, len(results)), dtype=bool)
+    for r in results:
+        logged = np.asarray(r.trajectory["frame"]) - sc.first_frame - lo
+        active[logged, r.index] = True
+    return {
+        "frame": sc.first_frame + frames,
+        "t": (frames - lo) / sc.fps,
+        "robots": pos,
+        "active": active,
+    }
+
+
+# ---------------------------------------------------------------------------- run directory
+def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
+    """Write a multi-robot run directory and return it.
+
+    * ``config.json`` -- the full configuration (every robot's task and seed);
+    * ``metrics.json`` -- ``{"fleet": aggregate, "robots": [per robot]}``;
+    * ``robots/robot_<i>/metrics.json``, ``intervals.csv``, ``trajectory.csv`` -- each
+      robot as a single-robot run writes them (plus ``d_min_robot``);
+    * ``trajectories.csv`` -- ``frame,t,robot,x,y,active``: every robot at every frame;
+    * ``animation.npz`` -- what ``conformal-control animate`` renders (if recorded).
+    """
+    import csv
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
+    summary = {
+        "fleet": result.metrics.as_dict(),
+        "robots": [r.summary() for r in result.robots],
+    }
+    (out / "metrics.json").write_text(json.dumps(_clean(summary), indent=2) + "\n")
+    for r in result.robots:
+        d = out / "robots" / f"robot_{r.index:02d}"
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "metrics.json").write_text(json.dumps(_clean(r.summary()), indent=2) + "\n")
+        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+        with (d / "intervals.csv").open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(cols)
+            for iv in r.intervals:
+                w.writerow([_fmt(iv.get(c)) for c in cols])
+        tr = r.trajectory
+        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
+        with (d / "trajectory.csv").open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["frame", *keys])
+            for j in range(len(tr["frame"])):
+                w.writerow([int(tr["frame"][j]), *(_fmt(float(tr[c][j])) for c in keys)])
+    tk = result.track
+    with (out / "trajectories.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "t", "robot", "x", "y", "active"])
+        for j in range(tk["frame"].size):
+            for i in range(tk["robots"].shape[1]):
+                x, y = tk["robots"][j, i]
+                w.writerow(
+                    [
+                        int(tk["frame"][j]),
+                        _fmt(float(tk["t"][j])),
+                        i,
+                        _fmt(float(x)),
+                        _fmt(float(y)),
+                        int(tk["active"][j, i]),
+                    ]
+                )
+    if result.animation is not None:
+        np.savez_compressed(out / "animation.npz", **result.animation)
+    return out
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _fmt(v: Any) -> Any:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ""
+    return v

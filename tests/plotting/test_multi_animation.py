@@ -1,0 +1,74 @@
+"""The multi-robot animation: every frame of the window, from the CLI run directory."""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from conformal_control.cli import main
+from conformal_control.plotting.animation import animation_frames, load_record
+from conformal_control.plotting.multi_animation import is_multi_record, render_multi_animation
+
+
+def test_cli_robots_run_and_animate(tmp_path, capsys):
+    run = tmp_path / "run"
+    argv = [
+        "run",
+        "--robots",
+        "3",
+        "--robot-layout",
+        "antipodal",
+        "--radius",
+        "5",
+        "--center",
+        "0.5,0.5",
+        "--frames",
+        "40",
+        "--seed",
+        "2",
+        "--out",
+        str(run),
+    ]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "n_collide_robot_pairs" in out and out.count("\n    ") >= 3  # one line per robot
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["n_robots"] == 3 and cfg["layout"]["layout"] == "antipodal"
+    np.testing.assert_allclose(
+        [np.hypot(r["start_m"][0] - 15.0, r["start_m"][1] - 8.0) for r in cfg["robots"]], 5.0
+    )
+    assert is_multi_record(run) and not is_multi_record(tmp_path)
+    rec = load_record(run)
+    expected = len(animation_frames(rec, None, None, 5.0))
+    gif = tmp_path / "multi.gif"
+    argv = ["animate", str(run), "--fps", "5", "--dpi", "30", "--width", "6", "--no-progress"]
+    assert main([*argv, "--out", str(gif)]) == 0
+    frames = iio.imread(gif, index=None)
+    assert frames.shape[0] == expected
+    assert frames.shape[1:3] == (2 * round(6 * 30 * 0.45 / 2), 2 * round(6 * 30 / 2))
+    # the robots move: consecutive frames differ
+    assert not np.array_equal(frames[0], frames[-1])
+
+
+def test_robots_file_from_the_cli(tmp_path):
+    f = tmp_path / "robots.json"
+    f.write_text(
+        json.dumps(
+            {"robots": [{"start": [3, 8], "goal": [27, 8]}, {"start": [27, 8.5], "goal": [3, 8.5]}]}
+        )
+    )
+    run = tmp_path / "run"
+    assert main(["run", "--robots-file", str(f), "--frames", "20", "--out", str(run)]) == 0
+    cfg = json.loads((run / "config.json").read_text())
+    assert [r["start_m"] for r in cfg["robots"]] == [[3.0, 8.0], [27.0, 8.5]]
+    assert cfg["layout"] == {"layout": "explicit"}
+
+
+def test_not_a_multi_record(tmp_path):
+    with pytest.raises(ValueError, match="multi-robot"):
+        render_multi_animation({"t": np.zeros(3)}, tmp_path / "x.gif")
+    with pytest.raises(ValueError, match=r"\.gif or \.mp4"):
+        render_multi_animation({"kind": "multi"}, tmp_path / "x.png")
