@@ -5,6 +5,10 @@ gain K_rep (m^2), class-K slope a (1/s) and infeasibility fallback. Stage 2
 (``--stage learning``): for the best barrier settings, the conformal controller over
 epsilon, eta and tau against noLearn and fixed lambdas.
 
+Stage ``grid`` crosses both at once on a subset: noLearn, a fixed lambda and the conformal
+controller at two epsilons, each over K_rep x a (the lambda-search fallback), on every
+``--every``-th dev scenario.
+
 Every configuration runs every dev scenario of ``crossings-v1`` through the public
 benchmark runner (resumable: rerun the same command to finish an interrupted study), and
 the leaderboard of each stage is written next to the results. The test split is never
@@ -71,32 +75,78 @@ def learning_methods(base: dict, fallback: str, epsilons, etas, taus, lambdas) -
     return out
 
 
+def grid_methods(k_reps, slopes, epsilons, lambdas) -> list[Method]:
+    out = []
+    for k, a in itertools.product(k_reps, slopes):
+        base = {"K_rep": k, "a": a}
+        tag = f"K_rep={k:g},a={a:g}"
+        out.append(Method("nolearn", tag, "lambda = 0", learn=False, params=base))
+        for lam in lambdas:
+            out.append(
+                Method(
+                    "fixed",
+                    f"{tag},lambda={lam:g}",
+                    "fixed lambda",
+                    learn=False,
+                    params={**base, "lambda_init": lam},
+                )
+            )
+        for eps in epsilons:
+            out.append(
+                Method(
+                    "conformal",
+                    f"{tag},eps={eps:g}",
+                    "fixed-eta rule on the gap loss",
+                    params={**base, "epsilon": eps, "eta": 1 / FRAME},
+                )
+            )
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--stage", choices=("barrier", "learning"), required=True)
+    p.add_argument("--stage", choices=("barrier", "learning", "grid"), required=True)
     p.add_argument("--out", required=True)
     p.add_argument("--data-root", default=None)
     p.add_argument("-j", "--workers", type=int, default=2)
     p.add_argument("--limit", type=int, default=None, help="first N dev scenarios only")
+    p.add_argument("--every", type=int, default=1, help="every N-th dev scenario only")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--fallback", default="lambda_search")
+    p.add_argument("--eps", type=float, nargs="+", default=[-0.2, -0.1, -0.05, 0.0])
+    p.add_argument("--eta-per-frame", type=float, nargs="+", default=[0.1, 1.0])
+    p.add_argument("--tau-frames", type=float, nargs="+", default=[4, 12])
+    p.add_argument("--lambdas", type=float, nargs="*", default=[-3.0, -10.0, -30.0])
     args = p.parse_args()
     base = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
     if args.stage == "barrier":
         methods = barrier_methods(
             (0.05, 0.2, 0.5), (1 / FRAME, 100.0, 10 / FRAME), ("lambda_search", "relax", "brake")
         )
+    elif args.stage == "grid":
+        methods = grid_methods((0.05, 0.2), (100.0, 10 / FRAME), (-0.1, 0.0), (-30.0,))
     else:
         methods = learning_methods(
             base,
             args.fallback,
-            epsilons=(-0.2, -0.1, -0.05, 0.0),
-            etas=(0.1 / FRAME, 1 / FRAME),
-            taus=(4 * FRAME, 12 * FRAME),
-            lambdas=(-3.0, -10.0, -30.0),
+            epsilons=tuple(args.eps),
+            etas=tuple(e / FRAME for e in args.eta_per_frame),
+            taus=tuple(t * FRAME for t in args.tau_frames),
+            lambdas=tuple(args.lambdas),
         )
+    scenarios = None
+    if args.every > 1:
+        from conformal_control.data.suites import load_suite
+
+        dev = load_suite("crossings-v1").scenarios_for("dev")
+        scenarios = [sc.id for sc in dev[:: args.every]]
     configs = bench_configs(
-        "crossings-v1", "dev", methods, data_root=args.data_root, limit=args.limit
+        "crossings-v1",
+        "dev",
+        methods,
+        data_root=args.data_root,
+        limit=args.limit,
+        scenarios=scenarios,
     )
     t0 = time.perf_counter()
     rep = run_sweep(

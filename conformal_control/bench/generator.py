@@ -569,10 +569,12 @@ def nolearn_outcome(
 
     sc = Scenario.from_dict(scenario)
     scene = load_scenario(sc, data_root)
+    # the record was made with the paper's parameters, whatever the scene's defaults are now
     res = run_episode(
         scene,
         predictor,
-        dict(params),
+        {**dict(scene.meta.get("published_params") or {}), **dict(params)},
+        units="scene",
         learn=False,
         max_frames=sc.max_frames,
         record_animation=False,
@@ -684,7 +686,8 @@ def generate_suite(
             "note": (
                 "run_episode(load_scenario(s), predictor, params, learn=False, "
                 "max_frames=s.max_frames): lambda fixed at lambda_init = 0, every other "
-                "parameter the scene's default - SDD/TrajNet: Table II in px and frames "
+                "parameter the paper's (scene.meta['published_params'], units='scene') - "
+                "SDD/TrajNet: Table II in px and frames "
                 "with a = 10 per frame (the published code's alpha(h) = 10 h), "
                 "radii 0.5 m; ETH/UCY: the same in m and frames at 30 fps, lengths "
                 "converted at 0.04 m per px; v_max = the scenario's v_ref"

@@ -241,7 +241,7 @@ def _acp(alpha: float) -> Method:
 METHOD_FAMILIES: dict[str, tuple[tuple[Any, ...], Any, str]] = {
     "nolearn": ((None,), _nolearn, "-"),
     "fixed": ((-15.0, -30.0, -60.0), _fixed, "lambda (1/s)"),
-    "conformal": ((-0.25, -0.1, 0.0), _conformal, "epsilon"),
+    "conformal": ((-0.1, -0.05, 0.0), _conformal, "epsilon"),
     "conformal_pid": ((-0.1,), _pid, "epsilon"),
     "conformal_dtaci": ((-0.1,), _dtaci, "epsilon"),
     "conformal_aci": ((0.05,), _aci, "alpha (collision rate per interval)"),

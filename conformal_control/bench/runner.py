@@ -156,7 +156,7 @@ def run_bench(
     crowd: str = "replay",
     crowd_params: Mapping[str, Any] | None = None,
     data_root: str | None = None,
-    executor: str = "process",
+    executor: str = "batch",
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool | None = None,
@@ -167,6 +167,10 @@ def run_bench(
     """Run the benchmark into ``out`` (resumable: finished episodes are skipped).
 
     Methods whose plugins are not installed are left out and reported (never silently).
+    ``executor="batch"`` (default) runs the (scenario, method) pairs the lockstep engine
+    supports many at once in this process, with the metrics of the per-episode loop, and
+    the others on a process pool of ``workers`` (see :mod:`conformal_control.sweep.batch`);
+    ``"process"``, ``"serial"`` and ``"dask"`` run one episode per task.
     ``bench.json`` in ``out`` records the benchmark's configuration.
     """
     from ..sweep.runner import run_sweep

@@ -98,7 +98,17 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         "--data-root", default=None, help="data folder (default $CONFORMAL_CONTROL_DATA)"
     )
     ru.add_argument(
-        "--executor", default="process", choices=("process", "serial", "dask"), help="executor"
+        "--executor",
+        default="batch",
+        choices=("batch", "process", "serial", "dask"),
+        help=(
+            "batch (default): the runs the lockstep engine supports (replayed crowd, "
+            "constant-velocity or oracle predictor, fixed-eta rule, exact 2-D filter with "
+            "lambda_search/brake/hold; e.g. nolearn, fixed, conformal, oracle, inflated, "
+            "fallback:brake) many at once in this process, with the same metrics, the "
+            "others on a process pool; process: one episode per task on a process pool; "
+            "serial: one by one in this process; dask: a Dask cluster"
+        ),
     )
     ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")

@@ -13,9 +13,13 @@ def add_executor_args(p: argparse.ArgumentParser) -> None:
     """``--executor``, ``--workers``, ``--scheduler`` (shared with ``reproduce``)."""
     p.add_argument(
         "--executor",
-        choices=("process", "serial", "dask"),
+        choices=("process", "serial", "dask", "batch"),
         default="process",
-        help="process pool on this machine (default), serial (in this process), or dask",
+        help=(
+            "process pool on this machine (default), serial (in this process), dask, or "
+            "batch (the runs the lockstep engine supports many at once in this process, "
+            "same metrics; the others on a process pool)"
+        ),
     )
     p.add_argument(
         "-j",

@@ -179,8 +179,10 @@ def run_sweep(
         ``results.jsonl`` (journal), ``results.csv`` / ``results.parquet``, ``sweep.json``,
         ``summary.png``, ``.lock``.
     executor : Executor or str
-        ``"process"`` (default), ``"serial"``, ``"dask"``, or an executor instance (not
-        closed here).
+        ``"process"`` (default), ``"serial"``, ``"dask"``, ``"batch"``, or an executor
+        instance (not closed here). ``"batch"`` runs every run the lockstep engine supports
+        many at once in this process (same metrics; see :mod:`conformal_control.sweep.batch`)
+        and the others on a process pool.
     workers, scheduler :
         For executors built by name.
     resume : bool
@@ -236,9 +238,11 @@ def run_sweep(
         text = json.dumps({"runs": runs}, indent=1, default=str) + "\n"
         atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
         own = isinstance(executor, str)
-        ex = make_executor(executor, workers=workers, scheduler=scheduler) if own else executor
+        batch = executor == "batch"  # the lockstep engine, the other runs on a process pool
+        name = "process" if batch else executor
+        ex = make_executor(name, workers=workers, scheduler=scheduler) if own else executor
         try:
-            _run(ex, todo, store, report, guard, plot, progress, table_every)
+            _run(ex, todo, store, report, guard, plot, progress, table_every, batch)
         finally:
             if own:
                 ex.close()
@@ -265,6 +269,7 @@ def _run(
     plot: bool | str,
     progress: bool | None,
     table_every: int,
+    batch: bool = False,
 ) -> None:
     """Dispatch ``todo`` and journal every outcome as it arrives."""
     report.executor = ex.describe() if todo else ex.name
@@ -272,7 +277,13 @@ def _run(
     tasks = [(c.as_dict(), k, out_str, plot) for c, k in todo]
     bar = _progress(len(report.keys), len(report.skipped), progress)
     n_since_table = 0
-    outcomes = ex.run(execute_run, tasks)
+    if batch:
+        from .batch import run_batched
+
+        report.executor = f"batch + {report.executor}"
+        outcomes = run_batched(ex, tasks)
+    else:
+        outcomes = ex.run(execute_run, tasks)
     try:
         for i, outcome in outcomes:
             cfg, key = todo[i]

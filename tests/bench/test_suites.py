@@ -159,7 +159,13 @@ def test_scenario_runs_and_its_collisions_match_the_raw_annotations(suite, sdd_d
     assert scene.start_frame == sc.start_frame and scene.meta["max_frames"] == sc.max_frames
     np.testing.assert_allclose(scene.start, sc.start_m)
     res = run_episode(
-        scene, "constant_velocity", learn=False, max_frames=sc.max_frames, record_animation=False
+        scene,
+        "constant_velocity",
+        scene.meta["published_params"],  # the parameters the suite's record was made with
+        units="scene",
+        learn=False,
+        max_frames=sc.max_frames,
+        record_animation=False,
     )
     assert res.metrics["n_collide"] == sc.nolearn["n_collide"] > 0
     assert res.metrics["frames"] <= sc.max_frames + 1

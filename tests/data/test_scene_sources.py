@@ -9,7 +9,14 @@ import pytest
 
 from conformal_control.data import load_scene
 from conformal_control.data.ethucy import ethucy_recording, read_ethucy
-from conformal_control.data.scenes import ETHUCY_DEFAULTS, read_tracks
+from conformal_control.data.scenes import (
+    CROWD_A_SI,
+    CROWD_EPSILON,
+    CROWD_K_REP_SI,
+    ETHUCY_DEFAULTS,
+    ETHUCY_PUBLISHED,
+    read_tracks,
+)
 from conformal_control.sim.config import resolve_params
 
 
@@ -58,10 +65,14 @@ def test_ethucy_scene_in_metres_and_frames(data_root: Path) -> None:
     assert scene.units.length == 1.0 and scene.units.time == pytest.approx(1 / 30)
     np.testing.assert_allclose(scene.start, [2.0, 6.0])
     assert scene.defaults["rho0"] == pytest.approx(16.0)
-    assert scene.defaults["K_rep"] == pytest.approx(0.064)
+    # the crowd barrier defaults (SI) in the scene's units; the paper's kept beside them
+    assert scene.defaults["K_rep"] == pytest.approx(CROWD_K_REP_SI)
     si = resolve_params(scene, {}).si
-    assert si["a"] == pytest.approx(300.0) and si["tau"] == pytest.approx(4 / 30)
-    assert ETHUCY_DEFAULTS["a"] == 10.0
+    assert si["a"] == pytest.approx(CROWD_A_SI) and si["tau"] == pytest.approx(4 / 30)
+    assert si["K_rep"] == pytest.approx(CROWD_K_REP_SI)
+    assert ETHUCY_DEFAULTS["a"] == pytest.approx(CROWD_A_SI / 30)
+    assert scene.meta["published_params"] == ETHUCY_PUBLISHED
+    assert ETHUCY_PUBLISHED["a"] == 10.0 and ETHUCY_PUBLISHED["K_rep"] == pytest.approx(0.064)
     with pytest.raises(ValueError, match="needs start_m and goals_m"):
         load_scene("ethucy:crowds_zara01", data_root)
     with pytest.raises(ValueError, match="no image"):
@@ -96,3 +107,23 @@ def test_read_tracks_reads_a_file_once_and_again_when_it_changes(tmp_path: Path)
     assert again is not first and len(again.tracks[1][0]) == 3
     with pytest.raises(ValueError, match="kind must be"):
         read_tracks("lidar", p)
+
+
+def test_sdd_video_defaults_are_the_crowd_barrier_in_si_and_paper_scenes_keep_the_paper(
+    data_root: Path,
+) -> None:
+    scene = load_scene("sdd:little/video0", data_root)
+    si = resolve_params(scene, {}).si
+    assert si["a"] == pytest.approx(CROWD_A_SI) and si["K_rep"] == pytest.approx(CROWD_K_REP_SI)
+    m_per_px = scene.meta["m_per_px"]
+    assert scene.defaults["K_rep"] == pytest.approx(CROWD_K_REP_SI / m_per_px**2)
+    # everything else is the paper's Table II, which the scene keeps for comparison
+    published = scene.meta["published_params"]
+    assert published["a"] == 10.0 and published["K_rep"] == 40.0
+    assert scene.defaults["epsilon"] == CROWD_EPSILON and published["epsilon"] == -0.25
+    tuned = ("a", "K_rep", "epsilon")
+    assert {k: v for k, v in scene.defaults.items() if k not in tuned} == {
+        k: v for k, v in published.items() if k not in tuned
+    }
+    nexus = load_scene("nexus_4", data_root)
+    assert nexus.defaults["a"] == 10.0 and nexus.defaults["K_rep"] == 40.0

@@ -1,0 +1,859 @@
+"""Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
+
+:func:`run_episode` runs one episode as a chain of Python calls per control instant
+(environment, controller, filter, plant). :func:`run_batch` runs many: every episode of a
+batch advances by one control instant per iteration, and the work of an iteration is done
+for all of them together -- one compiled call for the control step
+(:func:`~conformal_control.cbf.kernels_batch.control_step`, which calls the exact 2-D
+filter's fused APF step), compiled loops for the replay bookkeeping
+(:mod:`~conformal_control.sim.batch_kernels`), and, at sampling times, ONE call of the
+predictor, the interpolation, the constraint and the loss on the agents of every episode
+at that sampling time laid side by side (these are computed agent by agent, so one call on
+the concatenation is the same arithmetic as one call per episode).
+
+The metrics are those of :func:`run_episode`, exactly: every episode is built by
+:func:`~conformal_control.sim.build.build_flagship` (same parameter resolution, same
+validation, same errors), its lambda is updated by its own update rule through its own
+:class:`~conformal_control.monitor.GuaranteeMonitor`, its counters are written into the
+same learned attributes the per-episode loop fills, and it is measured by the same code.
+The per-instant arithmetic is written to round the same way (``tests/sim/test_batch.py``
+checks every metric against :func:`run_episode`). The wall time of the control loop
+(``wall_s``) is the episode's share of the batch's: each iteration's time divided among
+the episodes it advanced.
+
+Supported (:func:`supports` says why not otherwise, so a caller can fall back to
+:func:`run_episode`): replayed crowds; the constant-velocity or oracle predictor; the APF
+barrier; the exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
+the attractive-field reference; the velocity-tracking plant; the ``cbf_gap`` loss; the
+``fixed_eta`` rule, learning or not. Roles are given by name (an instance would be shared
+by every episode).
+
+Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
+refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
+memory) at the next common sampling time. With ``output="metrics"`` (default) only the
+:class:`~conformal_control.sim.metrics.EpisodeMetrics` are kept; ``output="results"``
+keeps an :class:`~conformal_control.sim.episode.EpisodeResult` per episode (scene, config,
+intervals, per-frame trajectory, the loop's result; no per-instant ``steps`` and no
+animation record).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import types
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from itertools import repeat
+from typing import Any
+
+import numpy as np
+
+from ..cbf import kernels2d
+from ..cbf.barriers import APFBarrier
+from ..cbf.constraint import ConformalConstraint
+from ..cbf.controller import ConformalCBFController, PredictorError
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+from ..cbf.fallbacks import Brake, Hold, LambdaSearch
+from ..cbf.feasibility import feasibility_floor
+from ..cbf.filters.exact2d import Exact2DSafetyFilter
+from ..cbf.kernels_batch import (
+    BRAKE,
+    HOLD,
+    SEARCH,
+    control_step,
+    gap_maxima,
+    reference_velocities,
+)
+from ..cbf.loss import CBFGapLoss
+from ..cbf.reference import AttractiveField
+from ..cbf.speed import speed_polygon
+from ..data.scene import Scene
+from ..loop import IntervalLog, LoopResult
+from ..monitor import GuaranteeMonitor
+from ..predictors.constant_velocity import ConstantVelocityPredictor
+from ..predictors.oracle import OraclePredictor
+from ..update_rules import FixedEtaRule
+from . import batch_kernels as bk
+from .build import Flagship, build_flagship
+from .environment import FrameLog, ReplayEnvironment
+from .episode import (
+    LAMBDA_LIMIT,
+    EpisodeResult,
+    _check_lambda,
+    _config,
+    _jsonable,
+    _measure,
+    _warn_after_run,
+    _warn_before_run,
+)
+from .metrics import EpisodeMetrics
+
+__all__ = ["iter_batch", "run_batch", "supports"]
+
+#: Roles the engine runs, by the names they are registered under (None: the default).
+SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
+    "predictor": ("constant_velocity", "oracle"),
+    "barrier": (None, "apf"),
+    "safety_filter": (None, "exact2d"),
+    "fallback": (None, "lambda_search", "brake", "hold"),
+    "reference": (None, "attractive_field"),
+    "dynamics": (None, "velocity_tracking"),
+    "loss": (None, "cbf_gap"),
+    "rule": (None, "fixed_eta"),
+    "family": (None, "cbf"),
+}
+_FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
+#: Keyword arguments of :func:`run_episode` the engine accepts (besides the scene).
+_RUN_KEYS = frozenset(
+    {
+        "predictor",
+        "params",
+        "units",
+        "learn",
+        "max_frames",
+        "seed",
+        "seeds",
+        "predictor_params",
+        "extra_config",
+        "rule",
+        "rule_params",
+        "lambda_safe",
+        "lambda_safe_source",
+        "barrier",
+        "barrier_params",
+        "safety_filter",
+        "safety_filter_params",
+        "fallback",
+        "reference",
+        "reference_params",
+        "dynamics",
+        "dynamics_params",
+        "loss",
+        "loss_params",
+        "crowd",
+        "crowd_params",
+        "family",
+        "family_params",
+        "record_animation",
+        "on_interval",
+    }
+)
+
+
+def supports(**run_kwargs: Any) -> str | None:
+    """Whether :func:`run_batch` runs episodes configured by these :func:`run_episode`
+    keyword arguments: None if it does, else the reason (one sentence).
+
+    Examples
+    --------
+    >>> supports(predictor="constant_velocity", learn=False) is None
+    True
+    >>> supports(crowd="orca")
+    "crowd 'orca': the batch engine replays recorded crowds only"
+    """
+    unknown = sorted(set(run_kwargs) - _RUN_KEYS)
+    if unknown:
+        return f"{unknown[0]!r} is not a keyword argument of run_episode"
+    kw = {"predictor": "constant_velocity", **run_kwargs}
+    for role, names in SUPPORTED_ROLES.items():
+        spec = kw.get(role)
+        if spec is not None and not isinstance(spec, str):
+            return (
+                f"{role} given as a {type(spec).__name__} instance: the batch engine builds "
+                "one per episode, give it by registered name"
+            )
+        if spec not in names:
+            shown = ", ".join(n for n in names if n is not None)
+            return f"{role} {spec!r}: the batch engine runs {shown}"
+    fallback = (kw.get("params") or {}).get("fallback")
+    if fallback is not None and fallback not in SUPPORTED_ROLES["fallback"]:
+        return f"fallback {fallback!r}: the batch engine runs lambda_search, brake and hold"
+    filter_params = kw.get("safety_filter_params") or {}
+    if filter_params.get("compiled_step", True) is not True:
+        return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
+    if isinstance(filter_params.get("fallback"), str):
+        if filter_params["fallback"] not in SUPPORTED_ROLES["fallback"]:
+            return f"fallback {filter_params['fallback']!r}: the batch engine runs lambda_search, brake and hold"  # noqa: E501
+    elif filter_params.get("fallback") is not None:
+        return "a fallback instance: the batch engine builds one per episode, give it by name"
+    crowd = kw.get("crowd", "replay")
+    if crowd != "replay":
+        return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
+    if kw.get("record_animation"):
+        return "record_animation: the batch engine keeps no animation record"
+    if kw.get("on_interval") is not None:
+        return "on_interval: the batch engine takes no per-interval callback"
+    return None
+
+
+def _unsupported_built(fl: Flagship) -> str | None:
+    """Why an episode as built is not one the engine runs (a name resolved to a plugin
+    of another class), or None."""
+    exact = (
+        ("decision family", fl.policy, ConformalCBFController),
+        ("environment", fl.env, ReplayEnvironment),
+        ("constraint", fl.constraint, ConformalConstraint),
+        ("barrier", fl.barrier, APFBarrier),
+        ("safety filter", fl.safety_filter, Exact2DSafetyFilter),
+        ("reference", fl.reference, AttractiveField),
+        ("dynamics", fl.dynamics, VelocityTrackingDoubleIntegrator),
+        ("loss", fl.loss, CBFGapLoss),
+        ("update rule", fl.rule, FixedEtaRule),
+    )
+    for role, obj, cls in exact:
+        if type(obj) is not cls:
+            return f"the {role} is a {type(obj).__name__}, not a {cls.__name__}"
+    if type(fl.predictor) not in (ConstantVelocityPredictor, OraclePredictor):
+        return f"the predictor is a {type(fl.predictor).__name__}"
+    if fl.loss.constraint is not fl.constraint or fl.policy.constraint is not fl.constraint:
+        return "the loss and the controller do not share the run's constraint"
+    filt = fl.safety_filter
+    if filt.compiled_step is not True:
+        return "the safety filter's compiled step is off"
+    fallback = filt.fallback
+    if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
+        return f"the fallback {fallback!r} is not one the compiled step decides"
+    return None
+
+
+# ------------------------------------------------------------------------------ episodes
+@dataclass
+class _Episode:
+    """One live episode: its built flagship and what the loop accumulates in Python."""
+
+    index: int
+    fl: Flagship
+    monitor: GuaranteeMonitor
+    learn: bool
+    seed: int
+    max_frames: int | None
+    lambda_safe: float | None  # in the scene's units, as run_episode reports it
+    floor: Any
+    goals: np.ndarray
+    intervals: list[IntervalLog] = field(default_factory=list)
+    n_sensed: list[int] = field(default_factory=list)
+
+
+class _Pool:
+    """The state of ``size`` episode slots, one row per slot (grown on demand)."""
+
+    _F8 = (
+        "t", "lam", "dt", "dt_frame", "decay", "gain", "k_acc", "neg_k_att", "v_ref_max",
+        "goal_radius", "radius", "t_goal", "scale", "wall",
+    )  # fmt: skip
+    _I8 = (
+        "step", "n_ctrl", "n_agents", "fi", "last_frame", "k_start", "substeps", "tau",
+        "history", "goal_idx", "n_log", "poly_len", "fallback", "predictor", "window",
+        "n_short", "n_short_total", "n_predicted", "n_bad", "n_bad_total",
+    )  # fmt: skip
+
+    def __init__(self, size: int) -> None:
+        b = self.size = size
+        for name in self._F8:
+            setattr(self, name, np.zeros(b))
+        for name in self._I8:
+            setattr(self, name, np.zeros(b, dtype=np.int64))
+        self.x = np.zeros((b, 4))
+        self.goal = np.zeros((b, 2))
+        self.last = np.zeros((b, 2))
+        self.active = np.zeros(b, dtype=bool)
+        self.done = np.zeros(b, dtype=bool)
+        self.need_begin = np.zeros(b, dtype=bool)
+        self.prm = np.zeros((b, len(kernels2d.PARAMS)))
+        self.poly = np.zeros((b, 0))
+        self.counts = np.zeros((b, 5), dtype=np.int64)
+        self.sensed = np.zeros((b, 0), dtype=np.int64)
+        self.xp = np.zeros((b, 0, 0, 2))
+        self.vp = np.zeros((b, 0, 0, 2))
+        self.rec_x = np.zeros((b, 0, 2))
+        self.rec_v = np.zeros((b, 0, 2))
+        self.rec_lam = np.zeros((b, 0))
+        self.log = np.zeros((b, 0, 6))
+        self.samples = np.zeros((1, 2))
+        self.cap = 0  # agents per slot that xp / vp and the work buffer hold
+        self.sides = 0
+        self.work = np.zeros(0)
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
+        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.used = 0
+
+    @staticmethod
+    def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
+        if arr.shape[axis] >= n:
+            return arr
+        shape = list(arr.shape)
+        shape[axis] = n
+        out = np.zeros(shape, dtype=arr.dtype)
+        out[tuple(slice(0, k) for k in arr.shape)] = arr
+        return out
+
+    def load(self, b: int, positions: np.ndarray) -> None:
+        """Copy slot ``b``'s recording into the store (compacting or growing it)."""
+        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+        n = data.size
+        if self.used + n > self.store.size:
+            self._compact()
+            if self.used + n > self.store.size:
+                free = int(self.size - self.active.sum())  # room for the free slots too
+                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+                grown[: self.used] = self.store[: self.used]
+                self.store = grown
+        self.store[self.used : self.used + n] = data
+        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.used += n
+
+    def _compact(self) -> None:
+        """Move the live slots' recordings to the front of the store, in place."""
+        live = np.flatnonzero(self.active)
+        end = 0
+        for b in live[np.argsort(self.where[live, 0])].tolist():
+            o, f, m = self.where[b].tolist()
+            n = f * m * 2
+            if o != end:
+                self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
+                self.where[b, 0] = end
+            end += n
+        self.used = end
+
+    def ensure(
+        self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
+    ) -> None:
+        """Room for ``steps`` control instants per interval, ``agents`` sensed agents,
+        ``columns`` agents in a recording, ``frames`` logged frames, ``sides`` polygon sides."""
+        g = self._grown
+        if steps > self.xp.shape[1]:
+            self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
+            self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
+            self.rec_lam = g(self.rec_lam, 1, steps)
+            self.samples = g(self.samples, 0, steps + 1)  # >= tau + 1 rows
+        if agents > self.cap or sides > self.sides:
+            if agents > self.cap:
+                self.cap = max(agents, 2 * self.cap, 16)
+                self.xp, self.vp = g(self.xp, 2, self.cap), g(self.vp, 2, self.cap)
+                self.prm[:, 11] = self.cap
+            if sides > self.sides:
+                self.sides = sides
+                self.poly = g(self.poly, 1, 5 * sides)
+            self.work = np.zeros(kernels2d.work_size(self.cap, self.sides))
+        if columns > self.sensed.shape[1]:
+            self.sensed = g(self.sensed, 1, columns)
+        if frames > self.log.shape[1]:
+            self.log = g(self.log, 1, frames)
+
+
+# ------------------------------------------------------------------------------ engine
+class _Engine:
+    """The lockstep loop over a :class:`_Pool` (see the module docstring)."""
+
+    def __init__(
+        self, size: int, output: str, build: dict[str, Any], episode_kw: dict[str, Any]
+    ) -> None:
+        self.pool = _Pool(size)
+        self.eps: list[_Episode | None] = [None] * size
+        self.output = output
+        self.build = build
+        self.episode_kw = episode_kw
+        self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
+
+    # ------------------------------------------------------------------ start
+    def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
+        """Build episode ``index`` as run_episode does and load it into slot ``b``."""
+        kw = self.episode_kw
+        learn = kw["learn"]
+        fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
+        why = _unsupported_built(fl)
+        if why is not None:
+            raise ValueError(f"run_batch cannot run this episode: {why}; use run_episode")
+        sc, si = fl.scene, fl.params.si
+        lam_unit = sc.units.factor("lambda_init")
+        lambda_safe = kw["lambda_safe"]
+        if lambda_safe is not None and kw["units"] == "si":
+            lambda_safe = lambda_safe / lam_unit
+        lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
+        h_max = fl.barrier.upper_bound
+        floor = feasibility_floor(
+            si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
+        )
+        _warn_before_run(fl, floor, learn)
+        # what ConformalLoop.run does first: reset the environment (validates the scene and
+        # the timing), the family (validates; resets predictor, filter, reference), the rule
+        env, filt, ref, dyn, bar = fl.env, fl.safety_filter, fl.reference, fl.dynamics, fl.barrier
+        env.reset()
+        fl.policy.reset()
+        monitor = GuaranteeMonitor.for_rule(
+            fl.rule,
+            lambda_safe=lam_safe_si,
+            lambda_safe_source=kw["lambda_safe_source"],
+            premise_proven=False,
+            bounds=fl.loss.bounds,
+            learn=learn,
+        )
+        k = float(dyn.K_acc)
+        if not (math.isfinite(k) and k > 0):
+            raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
+        pred = fl.predictor
+        window = getattr(pred, "window", 1)
+        if int(window) != window or window < 1:
+            raise PredictorError(
+                f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
+                f"window must be a positive integer, got {window!r}"
+            )
+        ep = _Episode(
+            index=index,
+            fl=fl,
+            monitor=monitor,
+            learn=learn,
+            seed=seed,
+            max_frames=max_frames,
+            lambda_safe=lambda_safe,
+            floor=floor,
+            goals=np.asarray(sc.goals, dtype=float),
+        )
+        p = self.pool
+        substeps, tau = int(env.substeps), int(env.tau_frames)
+        last = sc.n_frames - 1
+        if max_frames is not None:
+            last = min(last, sc.start_index + int(max_frames))
+        S, s, verts, radius = speed_polygon(int(filt.speed_sides), float(filt.v_max))
+        p.ensure(
+            steps=tau * substeps,
+            agents=1,
+            columns=sc.n_agents,
+            frames=last - sc.start_index + 1,
+            sides=S.shape[0],
+        )
+        dt_frame = 1.0 / sc.fps
+        dt = dt_frame / substeps
+        p.load(b, sc.positions)
+        p.x[b] = (*sc.start, 0.0, 0.0)
+        p.t[b] = 0.0
+        p.goal[b] = ep.goals[0]
+        p.goal_idx[b] = 0
+        p.goal_radius[b] = sc.goal_radius
+        p.t_goal[b] = math.nan
+        p.neg_k_att[b] = -ref.K_att
+        p.v_ref_max[b] = ref.v_max
+        p.dt[b] = dt
+        p.dt_frame[b] = dt_frame
+        p.decay[b] = math.exp(-k * dt)
+        p.gain[b] = -math.expm1(-k * dt)
+        p.k_acc[b] = k
+        p.radius[b] = env.sensing_radius
+        p.lam[b] = monitor.lambda_1
+        p.scale[b] = fl.loss.scale
+        self._squash.setdefault(float(fl.loss.scale), fl.loss.squash)
+        p.last[b] = 0.0
+        p.step[b] = 0
+        p.fi[b] = sc.start_index
+        p.last_frame[b] = last
+        p.substeps[b] = substeps
+        p.tau[b] = tau
+        p.history[b] = int(env.history_frames)
+        p.predictor[b] = bk.ORACLE if isinstance(pred, OraclePredictor) else bk.CONSTANT_VELOCITY
+        p.window[b] = int(window)
+        p.n_log[b] = 0
+        p.wall[b] = 0.0
+        for name in ("n_predicted", "n_short_total", "n_bad_total"):
+            getattr(p, name)[b] = 0
+        p.counts[b] = 0
+        p.done[b] = False
+        p.need_begin[b] = True
+        p.active[b] = True
+        poly = np.concatenate([S.ravel(), s, verts.ravel()])
+        p.poly[b, : poly.size] = poly
+        p.poly_len[b] = poly.size
+        p.fallback[b] = _FALLBACKS[type(filt.fallback_)]
+        p.prm[b] = (
+            float(bar.K_rep),
+            float(bar.rho0),
+            float(bar.d_c),
+            bar.effective_delta,
+            bar.convention == "surface",
+            float(fl.constraint.a),
+            radius,
+            not filt.speed_sides,
+            filt.v_max,
+            type(filt.fallback_) is LambdaSearch,
+            filt.lambda_margin,
+            p.cap,
+        )
+        self.eps[b] = ep
+        bk.log_frames(np.array([b]), p.store, p.where, p.fi, p.x, p.t, p.log, p.n_log)
+
+    # ------------------------------------------------------------------ sampling time
+    def begin(self, slots: np.ndarray) -> None:
+        """Sampling time of ``slots``: sense, predict, interpolate."""
+        p = self.pool
+        bk.count_sensed(slots, p.store, p.where, p.fi, p.x, p.radius, p.sensed, p.n_agents)
+        n = p.n_agents[slots]
+        p.ensure(agents=int(n.max(initial=0)))
+        p.k_start[slots] = p.fi[slots]
+        p.step[slots] = 0
+        p.need_begin[slots] = False
+        for b, m in zip(slots.tolist(), n.tolist(), strict=True):
+            self.eps[b].n_sensed.append(m)  # type: ignore[union-attr]
+        predicted = slots[n > 0]  # the controller asks its predictor only about agents
+        if predicted.size:
+            bk.predict_interpolate(
+                predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
+                p.history, p.tau, p.substeps, p.dt_frame, p.samples, p.xp, p.vp, p.n_short,
+                p.n_bad,
+            )  # fmt: skip
+            p.n_predicted[predicted] += 1
+            p.n_bad_total[predicted] += p.n_bad[predicted]
+            p.n_short_total[predicted] += p.n_short[predicted]
+        frames = np.minimum(p.tau[slots], p.last_frame[slots] - p.fi[slots])
+        p.n_ctrl[slots] = np.maximum(frames, 0) * p.substeps[slots]
+
+    # ------------------------------------------------------------------ control instant
+    def control(self, slots: np.ndarray) -> None:
+        """One control instant of ``slots``: reference, filter, plant, goal, frame clock."""
+        p = self.pool
+        ref = np.empty((2, slots.size))
+        reference_velocities(slots, p.x, p.goal, p.neg_k_att, ref)
+        # the speeds with Python's hypot, as AttractiveField takes them
+        speed = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
+        bad = control_step(
+            slots, p.x, ref, speed, p.v_ref_max, p.goal, p.lam, p.step, p.n_agents, p.xp, p.vp,
+            p.prm, p.poly, p.poly_len, p.fallback, p.work, p.last, p.dt, p.decay, p.gain,
+            p.k_acc, p.t, p.rec_x, p.rec_v, p.rec_lam, p.counts,
+        )  # fmt: skip
+        if bad >= 0:
+            raise ValueError(
+                "Exact2DSafetyFilter received non-finite constraints, lambda or nominal "
+                f"decision in episode {self.eps[bad].index} of the batch; predictions must "  # type: ignore[union-attr]
+                "be sanitised before building constraints"
+            )
+        # the goal check at every control instant, with Python's hypot as the environment's
+        dist = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
+        for b in slots[dist <= p.goal_radius[slots]].tolist():
+            self._reach(b)
+        bk.advance_frames(
+            slots, p.store, p.where, p.step, p.substeps, p.fi, p.last_frame, p.done, p.x, p.t,
+            p.log, p.n_log,
+        )  # fmt: skip
+
+    def _reach(self, b: int) -> None:
+        """Slot ``b`` is within its goal's radius: the next goal(s), or the episode's end."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        goals, radius = ep.goals, p.goal_radius[b]
+        g = int(p.goal_idx[b]) + 1
+        while g < len(goals) and math.hypot(*(p.x[b, :2] - goals[g])) <= radius:
+            g += 1
+        if g >= len(goals):
+            g = len(goals) - 1
+            p.t_goal[b] = p.t[b]
+            p.done[b] = True
+        p.goal_idx[b] = g
+        p.goal[b] = goals[g]
+
+    # ------------------------------------------------------------------ interval end
+    def end(self, slots: np.ndarray) -> list[int]:
+        """Score the intervals of ``slots`` (they end now), update lambda; returns the
+        slots whose episode is over."""
+        p = self.pool
+        scored = slots[(p.n_agents[slots] > 0) & (p.step[slots] > 0)]
+        top = np.full(p.size, -np.inf)
+        top_applied = np.full(p.size, -np.inf)
+        n_pairs = np.zeros(p.size, dtype=np.int64)
+        loss = np.full(p.size, np.nan)
+        applied = np.full(p.size, np.nan)
+        if scored.size:
+            counts = p.n_agents[scored]
+            offsets = np.zeros(scored.size, dtype=np.int64)
+            np.cumsum(counts[:-1], out=offsets[1:])
+            frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
+            truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
+            bk.gather_windows(
+                scored, p.store, p.where, p.k_start, p.sensed, p.n_agents, offsets, truth
+            )
+            gap_maxima(
+                scored, offsets, p.n_agents, p.step, truth, p.dt_frame, p.substeps, p.rec_x,
+                p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
+            )  # fmt: skip
+            for scale, squash in self._squash.items():
+                sel = scored[p.scale[scored] == scale]
+                if sel.size:  # the loss's own squashing, s(r) = arctan(r / c) / pi
+                    loss[sel] = squash(top[sel] + p.lam[sel])
+                    applied[sel] = squash(top_applied[sel])
+        finished = []
+        for b in slots.tolist():
+            ep = self.eps[b]
+            assert ep is not None
+            lam = float(p.lam[b])
+            s = int(p.step[b])
+            pairs = int(n_pairs[b])
+            if pairs:
+                l_k: float | None = float(loss[b])
+                diagnostics = {
+                    "loss_applied": float(applied[b]),
+                    "max_gap": float(top[b]),
+                    "n_pairs": pairs,
+                    "n_truth_missing": s * int(p.n_agents[b]) - pairs,
+                }
+            else:
+                l_k, diagnostics = None, {}
+            log = IntervalLog(
+                k=len(ep.intervals), lam=lam, loss=l_k, n_steps=s, diagnostics=diagnostics
+            )
+            ep.intervals.append(log)
+            if l_k is not None:  # as ConformalStepper.end_interval
+                mon = ep.monitor
+                if ep.learn:
+                    lam = mon.update(l_k)
+                else:
+                    mon.observe(l_k, lam)
+                    mon.set_lambda_next(lam)
+                log.l_avg = mon.average
+                p.lam[b] = lam
+            if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
+                _check_lambda(types.SimpleNamespace(lam=lam), ep.fl, log)  # raises
+            if p.done[b]:
+                finished.append(b)
+            else:
+                p.need_begin[b] = True
+        return finished
+
+    # ------------------------------------------------------------------ episode end
+    def finish(self, b: int) -> tuple[int, EpisodeResult | EpisodeMetrics]:
+        """Measure the episode of slot ``b`` with run_episode's code; free the slot.
+
+        The counters go where the per-episode loop keeps them (the environment's frame log,
+        ``t_goal_`` and ``n_sensed_``; the controller's and the filter's learned attributes),
+        then :func:`run_episode`'s own measuring code runs on them.
+        """
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        fl, kw = ep.fl, self.episode_kw
+        sc, env, policy, filt = fl.scene, fl.env, fl.policy, fl.safety_filter
+        n = int(p.n_log[b])
+        rows = p.log[b, :n]
+        env.log = FrameLog(
+            frame=(sc.first_frame + sc.start_index + np.arange(n)).tolist(),
+            t=rows[:, 0].tolist(),
+            state=list(rows[:, 1:5].copy()),
+            d_min=rows[:, 5].tolist(),
+        )
+        env.t_goal_ = None if math.isnan(p.t_goal[b]) else float(p.t_goal[b])
+        env.n_sensed_ = ep.n_sensed
+        c = p.counts[b].tolist()
+        policy.n_steps_ = c[4]
+        policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
+        if p.n_predicted[b] and p.predictor[b] == bk.CONSTANT_VELOCITY:
+            policy.forecast_info_ = {"n_short_history": int(p.n_short_total[b])}
+        filt.n_solves_, filt.n_infeasible_, filt.n_fallback_ = c[0], c[1], c[2]
+        if c[2]:
+            filt.fallback_counts_[filt.fallback_.name] = c[2]
+        if c[3]:
+            filt.events_["lambda_search_vertex"] = c[3]
+        result = LoopResult(
+            intervals=ep.intervals, lambda_final=float(p.lam[b]), monitor=ep.monitor
+        )
+        metrics, intervals, traj = _measure(
+            fl, result, ep.learn, ep.lambda_safe, ep.floor, float(p.wall[b])
+        )
+        _warn_after_run(fl, metrics, ep.learn, ep.max_frames)
+        p.active[b] = False
+        self.eps[b] = None
+        if self.output == "metrics":
+            return ep.index, metrics
+        config = _config(
+            fl,
+            kw["rule_params"],
+            kw["units"],
+            ep.learn,
+            ep.lambda_safe,
+            kw["lambda_safe_source"],
+            ep.seed,
+        )
+        config["max_frames"] = ep.max_frames
+        config["feasibility"] = _jsonable(ep.floor.as_dict())
+        config.update(kw["extra_config"] or {})
+        config["crowd"] = {"crowd": "replay"}
+        config["engine"] = "batch"
+        return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
+
+    # ------------------------------------------------------------------ the loop
+    def run(
+        self, source: Iterator[tuple[int, Scene, int, int | None]]
+    ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
+        """Advance every live episode one control instant per iteration; refill free
+        slots at the batch's sampling times (so the live episodes stay in step)."""
+        p = self.pool
+        exhausted = False
+        period = 0  # control instants per interval of the first episode
+        it = 0
+        while True:
+            free = np.flatnonzero(~p.active)
+            idle = free.size == p.size
+            if free.size and not exhausted and (idle or it % period == 0):
+                for b in free.tolist():
+                    nxt = next(source, None)
+                    if nxt is None:
+                        exhausted = True
+                        break
+                    self.start(b, *nxt)
+                    period = period or int(p.tau[b] * p.substeps[b])
+            slots = np.flatnonzero(p.active)
+            if not slots.size:
+                return
+            t0 = time.perf_counter()
+            begin = slots[p.need_begin[slots]]
+            if begin.size:
+                self.begin(begin)
+            self.control(slots)
+            ending = slots[p.done[slots] | (p.step[slots] >= p.n_ctrl[slots])]
+            finished = self.end(ending) if ending.size else []
+            p.wall[slots] += (time.perf_counter() - t0) / slots.size
+            for b in finished:
+                yield self.finish(b)
+            it += 1
+
+
+def _per_episode(value: Any, name: str) -> Iterator[Any]:
+    """A value for every episode: a scalar repeated, or one per episode from a sequence."""
+    if value is None or isinstance(value, (int, np.integer)):
+        return repeat(None if value is None else int(value))
+    if isinstance(value, Iterable) and not isinstance(value, (str, bytes)):
+        return iter(value)
+    raise TypeError(f"{name} must be an int, None or one value per scene, got {value!r}")
+
+
+def iter_batch(
+    scenes: Iterable[Scene],
+    predictor: str = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    *,
+    units: str = "scene",
+    learn: bool = True,
+    max_frames: int | Sequence[int | None] | None = None,
+    seeds: int | Sequence[int] | None = None,
+    batch_size: int = 256,
+    output: str = "metrics",
+    **run_kwargs: Any,
+) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
+    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
+    order; ``index`` is the scene's position in ``scenes``)."""
+    reason = supports(predictor=predictor, **run_kwargs)
+    if reason is not None:
+        raise ValueError(f"run_batch does not support this configuration: {reason}")
+    if output not in ("metrics", "results"):
+        raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
+    if int(batch_size) != batch_size or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    if units not in ("scene", "si"):
+        raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
+    kw = dict(run_kwargs)
+    build = {
+        "predictor": predictor,
+        "units": units,
+        "params": params,
+        **{
+            k: kw.get(k)
+            for k in (
+                "predictor_params",
+                "rule_params",
+                "barrier",
+                "barrier_params",
+                "safety_filter",
+                "safety_filter_params",
+                "fallback",
+                "reference",
+                "reference_params",
+                "dynamics",
+                "dynamics_params",
+                "loss",
+                "loss_params",
+                "family",
+                "family_params",
+            )
+        },
+        "rule": kw.get("rule") or "fixed_eta",
+    }
+    episode_kw = {
+        "learn": bool(learn),
+        "units": units,
+        "lambda_safe": kw.get("lambda_safe"),
+        "lambda_safe_source": kw.get("lambda_safe_source"),
+        "rule_params": kw.get("rule_params"),
+        "extra_config": kw.get("extra_config"),
+    }
+    frames = _per_episode(max_frames, "max_frames")
+    seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
+
+    def source() -> Iterator[tuple[int, Scene, int, int | None]]:
+        for i, scene in enumerate(scenes):
+            try:
+                mf, seed = next(frames), next(seed_values)
+            except StopIteration:
+                raise ValueError("max_frames / seeds have fewer values than scenes") from None
+            yield i, scene, int(seed), None if mf is None else int(mf)
+
+    engine = _Engine(int(batch_size), output, build, episode_kw)
+    yield from engine.run(source())
+
+
+def run_batch(
+    scenes: Iterable[Scene],
+    predictor: str = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    *,
+    units: str = "scene",
+    learn: bool = True,
+    max_frames: int | Sequence[int | None] | None = None,
+    seeds: int | Sequence[int] | None = None,
+    batch_size: int = 256,
+    output: str = "metrics",
+    **run_kwargs: Any,
+) -> list[EpisodeMetrics] | list[EpisodeResult]:
+    """Run one episode per scene, many at once, with the metrics of :func:`run_episode`.
+
+    Parameters
+    ----------
+    scenes : iterable of Scene
+        Consumed lazily (a generator keeps only the live episodes' scenes in memory).
+    predictor, params, units, learn
+        As in :func:`~conformal_control.sim.run_episode`, for every episode.
+    max_frames : int, sequence or None
+        The frame limit of every episode, or one per scene (e.g. each benchmark
+        scenario's ``max_frames``).
+    seeds : int, sequence or None
+        The seed recorded for every episode (default 0, as ``run_episode``), or one per
+        scene.
+    batch_size : int
+        Episodes alive at a time (memory grows with it; 256 keeps the per-iteration
+        overhead well below the compiled work).
+    output : {"metrics", "results"}
+        Return :class:`EpisodeMetrics` (default) or :class:`EpisodeResult` objects.
+    **run_kwargs
+        Any other keyword argument of ``run_episode`` that :func:`supports` accepts
+        (``rule_params``, ``fallback``, ``lambda_safe``, ``extra_config``, ...).
+
+    Returns
+    -------
+    list
+        One item per scene, in the order of ``scenes``.
+
+    Raises
+    ------
+    ValueError
+        For a configuration :func:`supports` rejects (the message gives the reason), and
+        for anything ``run_episode`` rejects.
+    """
+    out: dict[int, Any] = {}
+    for index, item in iter_batch(
+        scenes,
+        predictor,
+        params,
+        units=units,
+        learn=learn,
+        max_frames=max_frames,
+        seeds=seeds,
+        batch_size=batch_size,
+        output=output,
+        **run_kwargs,
+    ):
+        out[index] = item
+    return [out[i] for i in range(len(out))]

@@ -1,0 +1,199 @@
+"""The ``batch`` executor of a sweep: runs the lockstep engine can run, batched.
+
+With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the runs of a
+sweep are split in two:
+
+* a run is **batched** when :func:`~conformal_control.sim.batch.supports` accepts its
+  ``run_episode`` arguments (replayed crowd; constant-velocity or oracle predictor; APF
+  barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
+  attractive field; velocity-tracking plant; ``cbf_gap`` loss; ``fixed_eta`` rule, learning
+  or not) and it writes no animation or plots (``plot="metrics"`` or ``"none"``, or
+  ``record_animation: false``): the lockstep engine keeps neither. Batched runs are grouped
+  by everything but their scene, seed and frame limit, and each group runs in this process
+  through :func:`~conformal_control.sim.batch.iter_batch` (one core);
+* every other run goes to a process pool (``workers``), one episode per task, as with
+  ``executor="process"``.
+
+A batched run's record, ``metrics.json`` and ``config.json`` are those of the per-episode
+run (the engine gives ``run_episode``'s metrics exactly), except ``wall_s`` (the run's share
+of the batch's wall time), ``elapsed_s``, ``worker`` and the extra ``"engine": "batch"`` of
+``config.json``. If a batch raises (an invalid scene, a failing episode), its runs not yet
+recorded are run one by one through :func:`~conformal_control.sweep.worker.execute_run`, so a
+bad run fails alone, as in any sweep.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import traceback
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from .executors.base import Executor, Outcome
+from .worker import METRIC_COLUMNS, execute_run, run_dir_name
+
+__all__ = ["batch_reason", "run_batched"]
+
+#: Run-configuration keys that may differ inside one batch.
+_PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
+
+
+def batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | None:
+    """Why the run ``cfg`` (``RunConfig.as_dict()``) is not batched, or None if it is."""
+    from ..sim.batch import supports
+
+    files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+    episode = dict(cfg.get("episode") or {})
+    if files in ("metrics", "none"):
+        episode.pop("record_animation", None)  # not written: the episode may skip it
+    elif files == "plots":
+        return "the batch engine keeps no per-instant steps to plot"
+    elif episode.get("record_animation", True):
+        return "the run directory gets an animation, which the batch engine does not record"
+    return supports(
+        predictor=cfg.get("predictor") or "constant_velocity",
+        predictor_params=cfg.get("predictor_params"),
+        **episode,
+    )
+
+
+def _group_key(cfg: dict[str, Any]) -> str:
+    return json.dumps({k: v for k, v in cfg.items() if k not in _PER_EPISODE}, sort_keys=True)
+
+
+def _record(
+    cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str, result: Any, t0: float
+) -> dict[str, Any]:
+    """The sweep record of a batched run (as :func:`execute_run` writes it)."""
+    import os
+
+    from ..sim.rundir import write_run_dir
+
+    rec: dict[str, Any] = {
+        "key": key,
+        "status": "failed",
+        "run_dir": None,
+        "metrics": {},
+        "error": None,
+        "traceback": None,
+        "worker": f"{os.uname().nodename}:{os.getpid()} (batch)",
+    }
+    try:
+        result.config.update({"sweep": {"key": key, "run": cfg}})
+        files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+        if files == "metrics":
+            write_run_dir(result, run_dir, plot=False, only=("config.json", "metrics.json"))
+        elif files == "full":
+            write_run_dir(result, run_dir, plot=False)
+        else:
+            run_dir = None
+        m = result.metrics
+        rec.update(
+            status="ok",
+            run_dir=None if run_dir is None else str(run_dir),
+            metrics={k: m.get(k) for k in METRIC_COLUMNS},
+        )
+    except Exception as exc:
+        rec["error"] = f"{type(exc).__name__}: {exc}"
+        rec["traceback"] = traceback.format_exc()
+    rec["elapsed_s"] = time.perf_counter() - t0
+    return rec
+
+
+def run_batched(
+    ex: Executor,
+    tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]],
+    *,
+    batch_size: int = 256,
+) -> Iterator[Outcome]:
+    """Yield ``(index, record)`` for every task (``(cfg, key, out_dir, plot)``, the
+    arguments of :func:`execute_run`): batched groups first, in this process, then the
+    other runs on ``ex``."""
+    import dataclasses
+
+    from ..sim.batch import iter_batch
+    from .worker import load_run_scene
+
+    groups: dict[str, list[int]] = {}
+    rest: list[int] = []
+    for i, (cfg, _key, _out, plot) in enumerate(tasks):
+        if batch_reason(cfg, plot) is None:
+            groups.setdefault(_group_key(cfg), []).append(i)
+        else:
+            rest.append(i)
+
+    def scene_id(cfg: dict[str, Any]) -> tuple[Any, ...]:
+        seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0
+        return cfg["scene"], cfg.get("data_root"), seed
+
+    # a scene used by several batched runs (one per method of a benchmark) is loaded once
+    # and kept until its last use; the others are loaded when their slot opens
+    uses = Counter(scene_id(tasks[i][0]) for idx in groups.values() for i in idx)
+    kept: dict[tuple[Any, ...], Any] = {}
+
+    def scene_of(cfg: dict[str, Any]) -> Any:
+        sid = scene_id(cfg)
+        scene = kept.get(sid)
+        if scene is None:
+            scene = load_run_scene(cfg)
+        uses[sid] -= 1
+        if uses[sid] > 0:
+            kept[sid] = scene
+        else:
+            kept.pop(sid, None)
+        # a shallow copy per run: building an episode sets radii and v_max on its scene
+        return dataclasses.replace(scene, meta=dict(scene.meta), defaults=dict(scene.defaults))
+
+    for idx in groups.values():
+        cfg0 = tasks[idx[0]][0]
+        frames: list[int | None] = []
+
+        def scenes(idx: list[int] = idx, frames: list[int | None] = frames) -> Iterator[Any]:
+            for i in idx:
+                cfg = tasks[i][0]
+                scene = scene_of(cfg)
+                frames.append(cfg.get("frames") or scene.meta.get("max_frames"))
+                yield scene
+
+        def limits(frames: list[int | None] = frames) -> Iterator[int | None]:
+            k = 0  # max_frames of the k-th scene, known once scenes() has loaded it
+            while True:
+                yield frames[k]
+                k += 1
+
+        done: set[int] = set()
+        t0 = time.perf_counter()
+        try:
+            for j, result in iter_batch(
+                scenes(),
+                cfg0.get("predictor") or "constant_velocity",
+                dict(cfg0.get("params") or {}),
+                learn=bool(cfg0.get("learn", True)),
+                max_frames=limits(),
+                seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
+                predictor_params=dict(cfg0.get("predictor_params") or {}),
+                batch_size=batch_size,
+                output="results",
+                **{k: v for k, v in (cfg0.get("episode") or {}).items() if k != "record_animation"},
+            ):
+                i = idx[j]
+                cfg, key, out_dir, plot = tasks[i]
+                done.add(i)
+                yield i, _record(cfg, key, out_dir, plot, result, t0)
+        except Exception:  # the batch stopped: its other runs fail (or not) one by one
+            for i in idx:
+                if i not in done:
+                    yield i, execute_run(*tasks[i])
+    if rest:
+        outcomes = ex.run(execute_run, [tasks[i] for i in rest])
+        try:
+            for k, outcome in outcomes:
+                yield rest[k], outcome
+        finally:
+            close = getattr(outcomes, "close", None)
+            if close is not None:
+                close()

@@ -1,0 +1,199 @@
+"""The lockstep batch engine gives run_episode's metrics, field by field (wall time aside)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from conformal_control.data import load_scene
+from conformal_control.exceptions import NoUpdatesWarning
+from conformal_control.sim import run_episode
+from conformal_control.sim.batch import iter_batch, run_batch, supports
+
+#: Metrics that measure the machine, not the episode.
+WALL = {"wall_s"}
+
+
+def _same(a, b) -> bool:
+    """Equal, NaN equal to NaN, floats compared exactly (bit for bit)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or a == b
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return type(a) is type(b) and a == b
+
+
+def _differences(batch, single) -> list[str]:
+    da, db = dataclasses.asdict(batch), dataclasses.asdict(single)
+    assert da.keys() == db.keys()
+    return [
+        f"{k}: batch {da[k]!r} != run_episode {db[k]!r}"
+        for k in da
+        if k not in WALL and not _same(da[k], db[k])
+    ]
+
+
+def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, **kw):
+    """Run the scenes batched and one by one; assert every metric is identical."""
+    frames = max_frames if isinstance(max_frames, list) else [max_frames] * len(scenes)
+    seed_list = seeds if isinstance(seeds, list) else [seeds or 0] * len(scenes)
+    batched = run_batch(scenes, max_frames=max_frames, seeds=seeds, batch_size=batch_size, **kw)
+    assert len(batched) == len(scenes)
+    singles = []
+    for sc, mf, seed in zip(scenes, frames, seed_list, strict=True):
+        res = run_episode(sc, max_frames=mf, seed=seed, record_animation=False, **kw)
+        singles.append(res.metrics)
+    problems = {
+        i: d
+        for i, (b, s) in enumerate(zip(batched, singles, strict=True))
+        if (d := _differences(b, s))
+    }
+    assert not problems, problems
+    return batched, singles
+
+
+@pytest.fixture(scope="module")
+def crossings():
+    """The built-in crossing scene with four seeds."""
+    return [load_scene("crossing", seed=s) for s in range(4)]
+
+
+@pytest.mark.parametrize("learn", [True, False])
+def test_crossing_seeds_match_run_episode(crossings, learn):
+    # batch_size 3 < 4 scenes: a freed slot is refilled mid-run
+    batched, singles = _compare(crossings, seeds=[0, 1, 2, 3], learn=learn)
+    assert all(m.wall_s > 0 for m in batched)
+    # the seeds give different episodes (the comparison is not trivially of equal runs)
+    assert len({m.path_length for m in singles}) == len(singles)
+    if learn:
+        assert all(m.n_updates > 0 for m in batched)
+
+
+def test_crossing_oracle_and_brake_with_si_parameters(crossings):
+    _compare(
+        crossings[:2],
+        predictor="oracle",
+        units="si",
+        params={"epsilon": -0.1, "eta": 10.0},
+        fallback="brake",
+        max_frames=120,
+    )
+
+
+# ------------------------------------------------------------------ crossings-v1 scenarios
+DEV_SCENARIOS = 4
+
+
+@pytest.fixture(scope="module")
+def suite_scenes(data_root):
+    from conformal_control.data.suites import load_suite
+
+    ids = [sc.id for sc in load_suite("crossings-v1").scenarios_for("dev")][:DEV_SCENARIOS]
+    return [load_scene(f"scenario:crossings-v1/{i}", str(data_root)) for i in ids]
+
+
+@pytest.mark.parametrize(
+    "method", ["nolearn", "conformal", "inflated"], ids=["nolearn", "conformal", "inflated"]
+)
+def test_suite_scenarios_match_run_episode(suite_scenes, method):
+    from conformal_control.bench.methods import expand_methods
+
+    m = expand_methods([method], {"conformal": [-0.1], "inflated": [0.25]})[0]
+    kw = m.run_kwargs()
+    frames = [sc.meta["max_frames"] for sc in suite_scenes]
+    assert len(set(frames)) > 1 or len({sc.n_frames for sc in suite_scenes}) > 1
+    _compare(suite_scenes, max_frames=frames, batch_size=2, **kw)
+
+
+# ------------------------------------------------------------------ edge cases
+def _with_tracks(scene, tracks):
+    """``scene`` (its parameters, start and goal) with these (F, 2) tracks as its crowd."""
+    pos = np.stack(tracks, axis=1) if tracks else np.full((scene.n_frames, 0, 2), np.nan)
+    return dataclasses.replace(scene, positions=pos, agent_ids=np.arange(pos.shape[1]) + 1)
+
+
+def _track(scene, p0, v, gaps=()):
+    """p0 + v (t - t_start) at every frame of ``scene``, NaN on the frame ranges ``gaps``."""
+    t = (np.arange(scene.n_frames) - scene.start_index)[:, None] / scene.fps
+    out = np.asarray(p0, dtype=float) + t * np.asarray(v, dtype=float)
+    for lo, hi in gaps:
+        out[scene.start_index + lo : scene.start_index + hi] = np.nan
+    return out
+
+
+def test_empty_scene_and_episodes_of_different_lengths(crossings):
+    """A scene without agents beside crossing scenes stopped after different frame counts."""
+    empty = _with_tracks(crossings[0], [])
+    assert empty.n_agents == 0
+    with pytest.warns(NoUpdatesWarning):  # both engines warn about the empty scene
+        batched, _ = _compare(
+            [empty, crossings[0], crossings[1], empty], max_frames=[40, 7, 150, 1], batch_size=4
+        )
+    assert batched[0].n_scored == 0 and batched[0].n_updates == 0
+    assert len({m.frames for m in batched}) == 4
+
+
+def test_agents_appearing_and_disappearing(crossings):
+    """Agents enter after the start, leave and come back, or vanish, near the robot."""
+    base = crossings[0]
+    tracks = [
+        _track(base, (6.0, 2.0), (0.0, 1.2), gaps=[(0, 25)]),  # appears late
+        _track(base, (9.0, 14.0), (-0.2, -1.0), gaps=[(30, 60)]),  # leaves, comes back
+        _track(base, (4.0, 9.0), (0.8, -0.1), gaps=[(45, 10_000)]),  # vanishes for good
+    ]
+    scenes = [_with_tracks(base, tracks), _with_tracks(base, tracks[::-1][:2])]
+    for learn in (True, False):
+        _, singles = _compare(scenes, max_frames=150, learn=learn, batch_size=2)
+        assert all(m.n_scored > 0 for m in singles)
+        assert any(m.n_truth_missing > 0 for m in singles)  # a gap fell inside an interval
+
+
+def test_results_output_keeps_config_intervals_and_trajectory(crossings):
+    [res] = run_batch(crossings[:1], output="results", max_frames=60, extra_config={"x": 1})
+    ref = run_episode(crossings[0], max_frames=60, record_animation=False, extra_config={"x": 1})
+    assert res.config.pop("engine") == "batch"
+    assert res.config == ref.config
+    assert res.intervals == ref.intervals
+    assert res.trajectory.keys() == ref.trajectory.keys()
+    for k, v in ref.trajectory.items():
+        np.testing.assert_array_equal(res.trajectory[k], v)
+    assert res.animation is None and res.steps == {}
+
+
+def test_iter_batch_yields_indices_in_completion_order(crossings):
+    out = dict(iter_batch(crossings[:3], max_frames=[200, 10, 60], batch_size=3))
+    assert sorted(out) == [0, 1, 2]
+    order = [i for i, _ in iter_batch(crossings[:3], max_frames=[200, 10, 60], batch_size=3)]
+    assert order == [1, 2, 0]
+
+
+# ------------------------------------------------------------------ what it accepts
+@pytest.mark.parametrize(
+    ("kwargs", "words"),
+    [
+        ({"crowd": "orca"}, "replays recorded crowds"),
+        ({"rule": "pid"}, "rule 'pid'"),
+        ({"predictor": "lstm"}, "predictor 'lstm'"),
+        ({"fallback": "relax"}, "fallback 'relax'"),
+        ({"family": "acp"}, "family 'acp'"),
+        ({"record_animation": True}, "animation"),
+        ({"on_interval": print}, "callback"),
+        ({"robots": 2}, "not a keyword argument"),
+    ],
+)
+def test_supports_names_the_reason(kwargs, words):
+    why = supports(**kwargs)
+    assert why is not None and words in why
+
+
+def test_supported_configuration_and_clear_error(crossings):
+    assert supports(predictor="oracle", learn=False, fallback="hold") is None
+    with pytest.raises(ValueError, match="does not support this configuration: rule 'pid'"):
+        run_batch(crossings[:1], rule="pid")
+    with pytest.raises(ValueError, match="batch_size must be a positive integer"):
+        run_batch(crossings[:1], batch_size=0)

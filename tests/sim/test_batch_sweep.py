@@ -1,0 +1,102 @@
+"""The ``batch`` executor of sweeps and benchmarks records what the per-episode runs record."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conformal_control.bench.runner import read_rows, run_bench
+from conformal_control.sweep import run_sweep
+from conformal_control.sweep.batch import batch_reason
+from conformal_control.sweep.spec import RunConfig
+
+#: Columns that measure the machine or the process, not the episode.
+MACHINE = {"wall_s", "elapsed_s", "worker", "finished_at", "run_dir"}
+
+
+def _by_key(rows):
+    return {r["key"]: {k: v for k, v in r.items() if k not in MACHINE} for r in rows}
+
+
+def _same_rows(a, b):
+    assert a.keys() == b.keys()
+    for key in a:
+        ra, rb = a[key], b[key]
+        assert ra.keys() == rb.keys()
+        for col in ra:
+            same = ra[col] == rb[col] or (ra[col] != ra[col] and rb[col] != rb[col])  # NaN
+            assert same, (key, col, ra[col], rb[col])
+
+
+def test_bench_run_batched_equals_serial(tmp_path, data_root):
+    kw = {
+        "suite": "crossings-v1",
+        "split": "dev",
+        "methods": ["nolearn", "conformal", "conformal_pid"],
+        "grids": {"conformal": [-0.1]},
+        "data_root": str(data_root),
+        "limit": 2,
+        "progress": False,
+    }
+    batched = run_bench(tmp_path / "batch", executor="batch", workers=1, **kw)
+    serial = run_bench(tmp_path / "serial", executor="serial", **kw)
+    assert batched.failed == serial.failed == 0 and batched.ran == serial.ran == 6
+    rows_b, rows_s = read_rows(tmp_path / "batch"), read_rows(tmp_path / "serial")
+    _same_rows(_by_key(rows_b), _by_key(rows_s))
+    # the supported methods ran batched, conformal_pid on the process pool
+    batched_runs = {r["label"] for r in rows_b if r["worker"].endswith("(batch)")}
+    assert batched_runs == {r["label"] for r in rows_b if "conformal_pid" not in r["label"]}
+    assert len(batched_runs) == 4
+    # config.json is the per-episode run's, plus the engine
+    for r in rows_b:
+        cb = json.loads((tmp_path / "batch" / r["run_dir"] / "config.json").read_text())
+        cs = json.loads((tmp_path / "serial" / r["run_dir"] / "config.json").read_text())
+        if r["worker"].endswith("(batch)"):
+            assert cb.pop("engine") == "batch"
+        assert cb == cs
+
+
+def _crossing_runs(n=3):
+    return [
+        RunConfig(scene="crossing", seed=s, frames=60, episode={"record_animation": False})
+        for s in range(n)
+    ]
+
+
+def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypatch):
+    import conformal_control.sim.batch as engine
+
+    real = engine.iter_batch
+
+    def failing(*args, **kwargs):  # the batch dies after its first episode
+        it = real(*args, **kwargs)
+        yield next(it)
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(engine, "iter_batch", failing)
+    rep = run_sweep(_crossing_runs(), tmp_path / "a", "batch", workers=1, summary_plot=False)
+    assert not rep.failed and len(rep.ran) == 3
+    ref = run_sweep(_crossing_runs(), tmp_path / "b", "serial", summary_plot=False)
+    _same_rows(_by_key(rep.rows), _by_key(ref.rows))
+    assert sum(r["worker"].endswith("(batch)") for r in rep.rows) == 1
+
+
+@pytest.mark.parametrize(
+    ("cfg", "plot", "words"),
+    [
+        ({"scene": "crossing"}, False, "animation"),
+        ({"scene": "crossing"}, True, "plot"),
+        ({"scene": "crossing", "episode": {"rule": "pid"}}, "metrics", "rule 'pid'"),
+        ({"scene": "crossing", "predictor": "lstm"}, "none", "predictor 'lstm'"),
+    ],
+)
+def test_batch_reason(cfg, plot, words):
+    assert words in batch_reason(cfg, plot)
+
+
+def test_batch_reason_accepts_metrics_only_runs():
+    assert batch_reason({"scene": "crossing"}, "metrics") is None
+    assert (
+        batch_reason({"scene": "crossing", "episode": {"record_animation": False}}, False) is None
+    )
