@@ -29,7 +29,8 @@ as goals, never asserted. Sections (``--only`` picks some):
   (``bench_sweep_plots.measure``);
 * ``batch``      -- 1,000 crossing seeds on the batch engine against the per-episode loop,
   from ``bench_batch.measure(quick=..., data_root=...)`` when that function exists (it
-  returns a list of figure dicts as below), else a line saying it is not available.
+  returns figure dicts as below or ``(name, value, unit, baseline, ratio)`` rows), else a
+  line saying it is not available.
 
 A figure is a dict: ``section``, ``name``, ``value`` (seconds), ``unit`` (display unit:
 ``us``, ``ms`` or ``s``), optional ``target`` (seconds; the goal is value <= target),
@@ -92,7 +93,10 @@ def figure(
 
 
 def fmt_time(seconds: float, unit: str) -> str:
-    """``seconds`` in ``unit``, or in a larger unit when that would need 5+ digits."""
+    """``seconds`` in ``unit``, or in a larger unit when that would need 5+ digits (a unit
+    that is not a time, e.g. ``MB``: the value as it is)."""
+    if unit not in SCALE:
+        return f"{seconds:,.0f} {unit}" if seconds >= 100 else f"{seconds:g} {unit}"
     units = list(SCALE)
     while seconds * SCALE[unit] >= 1e4 and unit != units[-1]:
         unit = units[units.index(unit) + 1]
@@ -371,6 +375,21 @@ def sec_sweep(args: argparse.Namespace) -> list[Figure]:
     ]
 
 
+def _from_row(row: Any) -> Figure:
+    """A figure from a ``(name, value, unit, baseline, ratio)`` row (``bench_batch``'s form):
+    times get the baseline as "faster", 1,000-seed wall times the 15 s target; other rows
+    (memory, counts) are shown as they are, with their baseline as a note."""
+    if isinstance(row, dict):
+        return row
+    name, value, unit, base, ratio = row
+    if unit in SCALE:
+        target = 15.0 if name.endswith("1000 seeds wall") else None
+        ratios = [("the per-episode loop", float(base), "faster")] if ratio is not None else []
+        return figure("batch", name, value, unit, target=target, ratios=ratios)
+    note = f"of {base:g}" if base is not None else ""
+    return figure("batch", name, value, unit, note=note)
+
+
 def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
     try:
         import bench_batch
@@ -379,7 +398,7 @@ def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
     measure = getattr(bench_batch, "measure", None)
     if measure is None:
         return "batch engine: benchmarks/bench_batch.py has no measure() function to call"
-    return list(measure(quick=args.quick, data_root=args.data_root))
+    return [_from_row(r) for r in measure(quick=args.quick, data_root=args.data_root)]
 
 
 #: key -> (title, function); a function returns its figures, or a sentence saying why
