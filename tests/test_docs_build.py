@@ -209,7 +209,6 @@ def test_api_reference_one_page_per_module(site: Path) -> None:
     assert 'href="roles/#conformal_control.cbf.roles.SafetyFilter"' in cbf  # a re-export link
 
 
-
 # ---------------------------------------------------------------------------- the sources
 #: Pages whose Python blocks are executed; each block is followed by the output it prints.
 EXECUTED = ("README.md", "docs/getting-started.md")
@@ -254,9 +253,7 @@ def _section_block(page: str, words: str) -> str:
     return found[0]
 
 
-@pytest.mark.parametrize(
-    "code", list(PYTHON_BLOCKS), ids=[v[0][0] for v in PYTHON_BLOCKS.values()]
-)
+@pytest.mark.parametrize("code", list(PYTHON_BLOCKS), ids=[v[0][0] for v in PYTHON_BLOCKS.values()])
 def test_python_blocks_run_and_print_what_the_page_shows(
     code: str, tmp_path: Path, data_root: Path
 ) -> None:
