@@ -1,6 +1,12 @@
-"""The documentation site builds with ``mkdocs build --strict`` (broken links fail) and stands
+"""The documentation builds with ``mkdocs build --strict`` (broken links fail) and stands
 alone: offline math, one API page per module with its cross-references rendered, no reference
-to files outside the repository or to the machine it was built on."""
+to files outside the repository or to the machine it was built on.
+
+The sources are checked too: every Python block of the pages in :data:`EXECUTED` runs (in a
+fresh interpreter, in a temporary folder) and prints exactly the output shown after it; every
+install line is the README's set-up command, which installs every extra and plugin; no page,
+notebook or example mentions SPEC or an absolute path of the machine.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +19,11 @@ import sys
 from pathlib import Path
 
 import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 MATHJAX = "assets/mathjax/es5/tex-mml-chtml.js"
@@ -196,3 +207,160 @@ def test_api_reference_one_page_per_module(site: Path) -> None:
     assert 'id="conformal_control.cbf.roles.SafetyFilter"' in roles
     assert 'id="conformal_control.cbf.SafetyFilter"' not in cbf
     assert 'href="roles/#conformal_control.cbf.roles.SafetyFilter"' in cbf  # a re-export link
+
+
+# ---------------------------------------------------------------------------- the sources
+#: Pages whose Python blocks are executed; each block is followed by the output it prints.
+EXECUTED = ("README.md", "docs/getting-started.md")
+_FENCE = re.compile(r"^```(\w*)[^\n]*\n(.*?)^```[ \t]*$", re.S | re.M)
+
+
+def code_blocks(path: Path) -> list[tuple[str, str, str, str | None]]:
+    """``(section heading, language, code, output shown right after it or None)`` per block."""
+    text = path.read_text()
+    matches = list(_FENCE.finditer(text))
+    out = []
+    for i, m in enumerate(matches):
+        headings = re.findall(r"^#+ (.+)$", text[: m.start()], re.M)
+        nxt = matches[i + 1] if i + 1 < len(matches) else None
+        shown = None
+        if nxt is not None and nxt.group(1) == "text" and not text[m.end() : nxt.start()].strip():
+            shown = nxt.group(2)
+        out.append((headings[-1] if headings else "", m.group(1), m.group(2), shown))
+    return out
+
+
+def _python_blocks() -> dict[str, list[tuple[str, str | None]]]:
+    """Each distinct executed block -> where it is shown and the output shown there."""
+    blocks: dict[str, list[tuple[str, str | None]]] = {}
+    for page in EXECUTED:
+        for heading, lang, code, shown in code_blocks(ROOT / page):
+            if lang == "python":
+                blocks.setdefault(code, []).append((f"{page}: {heading}", shown))
+    return blocks
+
+
+PYTHON_BLOCKS = _python_blocks()
+
+
+def _section_block(page: str, words: str) -> str:
+    found = [
+        c
+        for h, lang, c, _ in code_blocks(ROOT / page)
+        if lang == "python" and words.lower() in h.lower()
+    ]
+    assert len(found) == 1, (page, words, len(found))
+    return found[0]
+
+
+@pytest.mark.parametrize("code", list(PYTHON_BLOCKS), ids=[v[0][0] for v in PYTHON_BLOCKS.values()])
+def test_python_blocks_run_and_print_what_the_page_shows(
+    code: str, tmp_path: Path, data_root: Path
+) -> None:
+    env = {**os.environ, "CONFORMAL_CONTROL_DATA": str(data_root), "MPLBACKEND": "Agg"}
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    for where, shown in PYTHON_BLOCKS[code]:
+        assert shown is not None, f"{where}: show the block's output in a text block after it"
+        assert proc.stdout.rstrip() == shown.rstrip(), where
+
+
+def test_getting_started_shows_the_front_door_stepwise_api_and_a_plugin() -> None:
+    page = "docs/getting-started.md"
+    front = _section_block(page, "front door")
+    assert "cc.run(" in front and len(front.splitlines()) <= 15
+    step = _section_block(page, "step-wise API")
+    assert "StepwiseCBF(" in step and ".step(" in step and ".observe(" in step
+    assert len(step.splitlines()) <= 15
+    plugin = _section_block(page, "contract kit")
+    assert re.search(r"^class \w+\(Predictor\):", plugin, re.M)
+    assert "from conformal_control.testing import" in plugin
+    assert "registry.register(" in plugin
+    # the README shows the same two blocks (run above as one)
+    assert _section_block("README.md", "front door") == front
+    assert _section_block("README.md", "step-wise API") == step
+
+
+def _setup_command() -> str:
+    """The README's set-up command, which must come first and install everything."""
+    _, lang, code, _ = code_blocks(ROOT / "README.md")[0]
+    assert lang == "bash"
+    lines = code.strip().splitlines()
+    assert len(lines) == 2 and lines[1] == ".venv/bin/python -m pytest", lines
+    setup = lines[0]
+    assert setup.startswith("python3 -m venv .venv && .venv/bin/pip install -q torch==2.13.0 ")
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    extras = sorted(pyproject["project"]["optional-dependencies"])
+    installed = re.search(r'-e "\.\[([\w,]+)\]"', setup)
+    assert installed is not None and sorted(installed.group(1).split(",")) == extras, extras
+    plugins = sorted(p.parent.name for p in (ROOT / "plugins").glob("*/pyproject.toml"))
+    assert plugins
+    for name in plugins:
+        assert f" -e plugins/{name}" in setup, name
+    assert setup.endswith(" -e examples/plugin_example")
+    return setup
+
+
+def test_install_lines_are_the_readme_set_up_command() -> None:
+    setup = _setup_command()
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    n = 0
+    for page in pages:
+        for i, line in enumerate(page.read_text().splitlines(), 1):
+            if "pip install" in line or "python3 -m venv" in line:
+                where = f"{page.relative_to(ROOT)}:{i}"
+                assert line.count("pip install") == 1 and setup in line, where
+                n += 1
+    assert n >= 3  # README, index, getting started
+
+
+def _text_files() -> list[Path]:
+    """Documentation and examples as a user reads them (the docs build hook is code)."""
+    files = [ROOT / "README.md", ROOT / "CONTRIBUTING.md"]
+    files += [p for p in (ROOT / "docs").rglob("*") if p.suffix in {".md", ".yml", ".js", ".css"}]
+    files += [
+        p
+        for p in (ROOT / "examples").rglob("*")
+        if p.suffix in {".md", ".py", ".ipynb", ".toml", ".txt", ".json", ".yaml"}
+        and ".egg-info" not in str(p)
+    ]
+    return sorted(p for p in files if p.is_file() and "assets/mathjax" not in p.as_posix())
+
+
+def _readable_text(path: Path) -> str:
+    """The file's text; for a notebook its sources and text outputs (not image data)."""
+    text = path.read_text(errors="replace")
+    if path.suffix != ".ipynb":
+        return text
+    parts = []
+    for cell in json.loads(text)["cells"]:
+        parts.append("".join(cell["source"]))
+        for output in cell.get("outputs", []):
+            parts.append("".join(output.get("text", [])))
+            for kind, data in output.get("data", {}).items():
+                if not kind.startswith("image/"):
+                    parts.append(data if isinstance(data, str) else "".join(data))
+    return "\n".join(parts)
+
+
+#: An absolute path of a machine (a URL's path is preceded by a word character or a dot).
+MACHINE_PATH = re.compile(r"(?<![\w.~])/(work|root|home|Users|tmp|opt|mnt|var|private)/")
+
+
+def test_sources_mention_no_spec_or_machine_path() -> None:
+    files = _text_files()
+    assert ROOT / "README.md" in files and ROOT / "docs/getting-started.md" in files
+    assert any(p.suffix == ".ipynb" for p in files)
+    for path in files:
+        text = _readable_text(path)
+        rel = path.relative_to(ROOT)
+        assert not re.search(r"\bSPEC\b", text), rel
+        found = MACHINE_PATH.search(text)
+        assert found is None, (rel, text[max(found.start() - 40, 0) : found.end() + 40])
