@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ class APFBarrier(Barrier):
         self.delta = delta
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"convention": "centre", "K_rep": 2.0, "rho0": 5.0, "d_c": 0.6}]
 
     # ------------------------------------------------------------------ helpers

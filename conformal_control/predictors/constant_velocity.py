@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .base import Forecast, PredictionQuery, Predictor
@@ -37,7 +39,7 @@ class ConstantVelocityPredictor(Predictor):
         self.window = window
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"window": 1}]
 
     def predict(self, query: PredictionQuery) -> Forecast:
