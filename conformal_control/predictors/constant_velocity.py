@@ -18,7 +18,8 @@ def trailing_valid(history: np.ndarray) -> np.ndarray:
     rev = valid[:, ::-1]
     all_valid = rev.all(axis=1)
     first_bad = np.argmin(rev, axis=1)
-    return np.where(all_valid, valid.shape[1], first_bad)
+    n: np.ndarray = np.where(all_valid, valid.shape[1], first_bad)
+    return n
 
 
 class ConstantVelocityPredictor(Predictor):
