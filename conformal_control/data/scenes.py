@@ -29,6 +29,7 @@ from __future__ import annotations
 import functools
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -297,15 +298,15 @@ def load_scene(
     name: str,
     data_root: str | os.PathLike[str] | None = None,
     *,
-    start: tuple[float, float] | None = None,
-    goals: list[tuple[float, float]] | None = None,
+    start: Sequence[float] | None = None,
+    goals: Sequence[Sequence[float]] | None = None,
     start_frame: int | None = None,
     v_max: float | None = None,
     history_frames: int = 120,
     seed: int = 0,
     last_frame: int | None = None,
-    start_m: tuple[float, float] | None = None,
-    goals_m: list[tuple[float, float]] | None = None,
+    start_m: Sequence[float] | None = None,
+    goals_m: Sequence[Sequence[float]] | None = None,
 ) -> Scene:
     """Build a scene by name (see the module docstring for the accepted names).
 
@@ -339,6 +340,7 @@ def load_scene(
         )
     base, _, form = name.partition(":")
     spec: SceneSpec | None = None
+    spec_goals: tuple[tuple[float, float], ...]
     if name.startswith("sdd:"):
         m = _SDD_RE.match(name)
         if not m:
