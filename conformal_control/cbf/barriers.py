@@ -20,7 +20,7 @@ class APFBarrier(Barrier):
     With the repulsive potential ``U(rho) = K_rep/2 (1/rho - 1/rho0)^2`` for
     ``0 < rho <= rho0`` and 0 beyond, the barrier is ``h = 1 / (1 + U(rho)) - delta``.
 
-    Two distance conventions (SPEC section 2):
+    Two distance conventions, chosen by ``convention``:
 
     * ``"surface"`` (default, what the published code ran): ``rho = d - d_c``, the gap
       between the two discs; ``delta = 1/2``. Then h is in (-1/2, 1/2] and ``h >= 0``
