@@ -278,7 +278,7 @@ class ConformalLoop(ConformalStepper):
 class _LossAt:
     """l_k as a function of lambda: the interval's loss re-evaluated at another lambda."""
 
-    def __init__(self, loss: Loss, record: Any, truth: Any) -> None:
+    def __init__(self, loss: Loss[Any, Any], record: Any, truth: Any) -> None:
         self.loss, self.record, self.truth = loss, record, truth
 
     def __call__(self, lam: float) -> float | None:

@@ -105,7 +105,7 @@ class BallRecord:
         return bool(np.linalg.norm(np.atleast_1d(diff)) <= self.radius(lam))
 
 
-class MiscoverageLoss(Loss):
+class MiscoverageLoss(Loss[SetRecord, Any]):
     """l = 1 - covered: 1 if the prediction set built with lambda misses the truth, else 0.
 
     The record must implement :class:`SetRecord` (``record.covers(truth, lam)``). With
@@ -146,7 +146,7 @@ def _example_loss(record: Any, truth: Any, lam: float) -> float:
     return math.atan(float(record) - float(truth) + lam) / math.pi
 
 
-class FunctionLoss(Loss):
+class FunctionLoss(Loss[Any, Any]):
     """Wrap any function ``fn(record, truth, lam) -> float | None`` as a loss with a range.
 
     Every value is checked at run time: a non-finite value or one outside

@@ -1,7 +1,7 @@
 """Online guarantee monitor for the conformal loop (rule-aware).
 
 For the fixed-step rule lambda_{k+1} = lambda_k + eta (epsilon - l_k), unrolling gives
-the exact identity (SPEC section 1)::
+the exact identity (sum the K updates: the lambdas telescope)::
 
     (1/K) sum_k l_k = epsilon + (lambda_1 - lambda_{K+1}) / (eta K)
 

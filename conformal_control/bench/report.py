@@ -222,7 +222,7 @@ def _per_scene(rows: list[dict[str, Any]], out: Path, seed: int) -> None:
         "collision frames",
         "time to goal (s)",
     ]
-    table = []
+    table: list[list[Any]] = []
     for (src, method), g in sorted(groups.items()):
         table.append(
             [

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -19,7 +20,7 @@ class APFBarrier(Barrier):
     With the repulsive potential ``U(rho) = K_rep/2 (1/rho - 1/rho0)^2`` for
     ``0 < rho <= rho0`` and 0 beyond, the barrier is ``h = 1 / (1 + U(rho)) - delta``.
 
-    Two distance conventions (SPEC section 2):
+    Two distance conventions, chosen by ``convention``:
 
     * ``"surface"`` (default, what the published code ran): ``rho = d - d_c``, the gap
       between the two discs; ``delta = 1/2``. Then h is in (-1/2, 1/2] and ``h >= 0``
@@ -63,7 +64,7 @@ class APFBarrier(Barrier):
         self.delta = delta
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"convention": "centre", "K_rep": 2.0, "rho0": 5.0, "d_c": 0.6}]
 
     # ------------------------------------------------------------------ helpers

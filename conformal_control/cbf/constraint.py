@@ -84,7 +84,8 @@ class ConformalConstraint(Plugin):
         ndarray of shape (...)
         """
         h, dh_dego, dh_dagent = self.barrier.evaluate(x_ego, x_agents)
-        return (dh_dego * v_ego).sum(-1) + (dh_dagent * v_agents).sum(-1) + self.a * h
+        out: np.ndarray = (dh_dego * v_ego).sum(-1) + (dh_dagent * v_agents).sum(-1) + self.a * h
+        return out
 
     def lambda_floor(self) -> float:
         """Smallest lambda at which a far agent's row (h = h_max, no gradient) holds.

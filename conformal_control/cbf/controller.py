@@ -13,7 +13,7 @@ from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
-from .roles import ReferenceController, SafetyFilter
+from .roles import FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
     "CBFIntervalRecord",
@@ -267,6 +267,7 @@ class ConformalCBFController(
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
+        res: FilterResult
         if self._fused and self._ids.size:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
                 x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam

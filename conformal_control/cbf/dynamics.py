@@ -79,4 +79,7 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
 
     def acceleration(self, state: np.ndarray, command: np.ndarray) -> np.ndarray:
         """The tracking law's acceleration at ``state`` (m/s^2)."""
-        return -self.K_acc * (np.asarray(state, dtype=float)[2:] - np.asarray(command, float))
+        acc: np.ndarray = -self.K_acc * (
+            np.asarray(state, dtype=float)[2:] - np.asarray(command, float)
+        )
+        return acc

@@ -18,6 +18,7 @@ registered name (``fallback="relax"``).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class Relax(Fallback):
         self.gradient_floor = gradient_floor
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"weights": "inverse_gradient"}]
 
     def reset(self) -> None:
@@ -106,7 +107,8 @@ class Relax(Fallback):
         """The weight of each row."""
         if self.weights == "uniform":
             return np.ones(A.shape[0])
-        return 1.0 / np.maximum(np.hypot(A[:, 0], A[:, 1]), self.gradient_floor)
+        w: np.ndarray = 1.0 / np.maximum(np.hypot(A[:, 0], A[:, 1]), self.gradient_floor)
+        return w
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
         rhs = step.b + step.lam
@@ -155,4 +157,5 @@ def resolve_fallback(fallback: str | Fallback) -> Fallback:
         return CORE_FALLBACKS[fallback]()
     from .. import registry
 
-    return registry.create("fallback", fallback)
+    created: Fallback = registry.create("fallback", fallback)
+    return created

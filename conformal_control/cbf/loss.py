@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -64,7 +65,7 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
         self.scale = scale
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         from .barriers import APFBarrier
 
         return [
@@ -128,7 +129,9 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     def gaps(self, record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
         """gap_j(t) without lambda, shape (S, N); NaN where the truth is missing."""
-        cached = getattr(self, "_cache", None)
+        cached: tuple[CBFIntervalRecord, CBFTruth, np.ndarray] | None = getattr(
+            self, "_cache", None
+        )
         if cached is not None and cached[0] is record and cached[1] is truth:
             return cached[2]
         gap = self._gaps(record, truth)

@@ -36,7 +36,9 @@ class AttractiveField(ReferenceController):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
     def __call__(self, state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
-        v = -self.K_att * (np.asarray(state[:2], dtype=float) - np.asarray(goal, dtype=float))
+        v: np.ndarray = -self.K_att * (
+            np.asarray(state[:2], dtype=float) - np.asarray(goal, dtype=float)
+        )
         speed = math.hypot(v[0], v[1])
         if speed > self.v_max:
             v *= self.v_max / speed

@@ -35,10 +35,11 @@ def min_distances(record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
     if s == 0 or n == 0:
         return np.zeros((s, n))
     x_true, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
-    return np.linalg.norm(x_true - record.x_ego[:, None, :], axis=-1)
+    d: np.ndarray = np.linalg.norm(x_true - record.x_ego[:, None, :], axis=-1)
+    return d
 
 
-class CollisionLoss(Loss):
+class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
     """l_k = 1 if the ego came closer than ``d_c`` to a sensed agent during I_k, else 0.
 
     Parameters
@@ -74,7 +75,7 @@ class CollisionLoss(Loss):
         return {"d_min": float(np.nanmin(d)), "n_truth_missing": int((~np.isfinite(d)).sum())}
 
 
-class DistanceShortfallLoss(Loss):
+class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
     """l_k = clip((d_safe - d_min,k) / (d_safe - d_c), 0, 1): how far inside the margin.
 
     0 when the ego kept at least ``d_safe`` from every sensed agent during I_k, 1 at or

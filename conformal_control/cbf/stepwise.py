@@ -125,16 +125,20 @@ class StepwiseCBF:
         self.tau_samples = round(tau_samples)
         self.sensing_radius = float(sensing_radius)
         self.history = int(history)
-        if isinstance(predictor, str):
-            predictor = registry.create("predictor", predictor)
+        pred: Predictor = (
+            registry.create("predictor", predictor) if isinstance(predictor, str) else predictor
+        )
         barrier = barrier if barrier is not None else APFBarrier(rho0=10.0, d_c=d_c)
         self.constraint = ConformalConstraint(barrier, a=a)
+        filt: SafetyFilter
         if safety_filter is None or isinstance(safety_filter, str):
             name = safety_filter or "exact2d"
-            safety_filter = registry.create("safety_filter", name, v_max=v_max)
+            filt = registry.create("safety_filter", name, v_max=v_max)
+        else:
+            filt = safety_filter
         reference = reference if reference is not None else AttractiveField(K_att, v_max)
         self.controller = ConformalCBFController(
-            predictor, self.constraint, safety_filter, reference, substeps=self.substeps
+            pred, self.constraint, filt, reference, substeps=self.substeps
         )
         if rule is None:
             from ..update_rules import FixedEtaRule

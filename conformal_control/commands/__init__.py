@@ -20,7 +20,7 @@ import importlib
 import pkgutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, cast
 
 __all__ = [
     "COMMANDS",
@@ -38,16 +38,29 @@ Handler = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Handler]] = {}
 
 
-def command(name: str, help: str) -> Callable[[Callable[[argparse.ArgumentParser], None]], Any]:
+class ArgsAdder(Protocol):
+    """An argument-adder decorated by :func:`command`: it also has ``handler``."""
+
+    #: Decorator registering the command's handler.
+    handler: Callable[[Handler], Handler]
+
+    def __call__(self, parser: argparse.ArgumentParser, /) -> None: ...
+
+
+def command(
+    name: str, help: str
+) -> Callable[[Callable[[argparse.ArgumentParser], None]], ArgsAdder]:
     """Decorate an argument-adder; then decorate the handler with ``adder.handler``."""
 
-    def deco(add_args: Callable[[argparse.ArgumentParser], None]) -> Any:
+    def deco(add_args: Callable[[argparse.ArgumentParser], None]) -> ArgsAdder:
         def register(handler: Handler) -> Handler:
             COMMANDS[name] = (help, add_args, handler)
             return handler
 
-        add_args.handler = register  # type: ignore[attr-defined]
-        return add_args
+        # the function itself gets the attribute ArgsAdder declares (no wrapper object)
+        adder = cast(ArgsAdder, add_args)
+        adder.handler = register
+        return adder
 
     return deco
 

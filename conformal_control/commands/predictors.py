@@ -263,7 +263,9 @@ def weights_for_scene(
     return folder
 
 
-def _evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 256) -> dict:
+def _evaluate_with_progress(
+    predictor: Any, win: Any, desc: str, chunk: int = 256
+) -> dict[str, Any]:
     """:func:`~conformal_control.predictors.evaluation.evaluate_predictor` in chunks of
     windows with a progress report; ADE/FDE weighted by chunk size, counters summed
     (predictions are per window, so the figures equal one call on all windows)."""

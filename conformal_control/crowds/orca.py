@@ -223,11 +223,12 @@ def _triples(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _violation(alpha: np.ndarray, beta: np.ndarray, cand: np.ndarray) -> np.ndarray:
     """det(d_k, p_k - c) = alpha_k + beta_k . c for candidates (N, C, 2): (N, C, K)."""
-    return (
+    det: np.ndarray = (
         alpha[:, None, :]
         + cand[..., 0:1] * beta[:, None, :, 0]
         + cand[..., 1:2] * beta[:, None, :, 1]
     )
+    return det
 
 
 def solve_orca_lp(
@@ -388,7 +389,7 @@ def _safest(alpha: np.ndarray, beta: np.ndarray, valid: np.ndarray, vmax: np.nda
     worst = np.where(valid[:, None, :], viol, -np.inf).max(axis=2)
     worst = np.where(ok, worst, np.inf)
     best = np.argmin(worst, axis=1)
-    v = cand[np.arange(n), best]
+    v: np.ndarray = cand[np.arange(n), best]
     none = ~np.isfinite(worst[np.arange(n), best])
     v[none] = 0.0  # no valid line at all cannot be infeasible; kept for safety
     return v

@@ -42,7 +42,10 @@ class ChecksumError(ConformalControlError, RuntimeError):
 
 def load_manifest() -> dict[str, Any]:
     """The packaged manifest of data files."""
-    return json.loads(resources.files(__package__).joinpath("manifest.json").read_text())
+    manifest: dict[str, Any] = json.loads(
+        resources.files(__package__).joinpath("manifest.json").read_text()
+    )
+    return manifest
 
 
 @dataclass(frozen=True)

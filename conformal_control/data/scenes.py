@@ -4,8 +4,8 @@ Scene names accepted by :func:`load_scene` and ``conformal-control run --scene``
 
 * ``crossing`` - the built-in synthetic scene (no data needed; SI units);
 * ``gates_1``, ``nexus_4``, ``bookstore_0``, ``coupa_0``, ``hyang_1``, ``hyang_5`` - the
-  paper's scenes with the reference code's start, goals, start frame and speed bound
-  (SPEC section 2). nexus_4 is read from the raw annotations; the others exist here only
+  paper's scenes with the start, goals, start frame and speed bound of the published code's
+  per-scene files. nexus_4 is read from the raw annotations; the others exist here only
   in TrajNet form (re-linked and interpolated to 30 fps, see
   :mod:`conformal_control.data.trajnet`). Append ``:trajnet`` or ``:raw`` to force a form
   (e.g. ``nexus_4:trajnet``);
@@ -35,6 +35,7 @@ from __future__ import annotations
 import functools
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -89,7 +90,9 @@ TABLE_II: dict[str, float] = {
     "epsilon": -0.25,
 }
 #: The published code hard-coded alpha(h) = 10 h whatever ``a`` said; our SDD defaults use
-#: a = 10 so the defaults run as the published code did (SPEC "FEASIBILITY FLOOR").
+#: a = 10 so the defaults run as the published code did. With the printed a = 1 lambda
+#: cannot go below -a h_max = -1/2 per frame (a far agent's row), which leaves epsilon =
+#: -0.25 out of reach (see :mod:`conformal_control.reproduce.paper`).
 PUBLISHED_A = 10.0
 
 
@@ -343,15 +346,15 @@ def load_scene(
     name: str,
     data_root: str | os.PathLike[str] | None = None,
     *,
-    start: tuple[float, float] | None = None,
-    goals: list[tuple[float, float]] | None = None,
+    start: Sequence[float] | None = None,
+    goals: Sequence[Sequence[float]] | None = None,
     start_frame: int | None = None,
     v_max: float | None = None,
     history_frames: int = 120,
     seed: int = 0,
     last_frame: int | None = None,
-    start_m: tuple[float, float] | None = None,
-    goals_m: list[tuple[float, float]] | None = None,
+    start_m: Sequence[float] | None = None,
+    goals_m: Sequence[Sequence[float]] | None = None,
 ) -> Scene:
     """Build a scene by name (see the module docstring for the accepted names).
 
@@ -385,6 +388,7 @@ def load_scene(
         )
     base, _, form = name.partition(":")
     spec: SceneSpec | None = None
+    spec_goals: tuple[tuple[float, float], ...]
     if name.startswith("sdd:"):
         m = _SDD_RE.match(name)
         if not m:

@@ -16,6 +16,8 @@ times both).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .scene import Scene, scene_from_tracks
@@ -98,7 +100,7 @@ def crossing_tracks(
     dt = 1.0 / fps
     n_total = round((duration + history) * fps)
     n = int(_WALK_SECONDS * fps)
-    flows = [
+    flows: list[tuple[Callable[[], np.ndarray], float]] = [
         # (spawn position sampler, heading)
         (lambda: np.array([rng.uniform(8.0, 22.0), -0.5]), np.pi / 2),
         (lambda: np.array([rng.uniform(8.0, 22.0), _H + 0.5]), -np.pi / 2),

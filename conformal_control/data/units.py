@@ -20,7 +20,7 @@ tau                T          frames -> s    (/ fps)
 =================  =========  ====================================
 
 epsilon is dimensionless; speeds (v_max), radii and the goal radius are always given in
-SI (m/s, m), as SPEC states them.
+SI (m/s, m), as the published code's scene files give them.
 """
 
 from __future__ import annotations

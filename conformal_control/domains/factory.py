@@ -101,7 +101,8 @@ class FactoryEnvironment(SingleStepEnvironment[int, float, np.ndarray]):
         self.t += 1
 
     def reveal(self) -> np.ndarray:
-        return self._u.copy()
+        u: np.ndarray = self._u.copy()
+        return u
 
 
 class MachineSpeed(DecisionFamily[int, int, float, FactoryRecord]):

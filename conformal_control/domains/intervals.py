@@ -163,7 +163,8 @@ class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray])
         self.i += 1
 
     def reveal(self) -> np.ndarray:
-        return self.steps[self.i - 1].target.copy()
+        target: np.ndarray = self.steps[self.i - 1].target.copy()
+        return target
 
 
 class ConformalDisc(DecisionFamily[dict[str, Any], dict[str, Any], float, BallRecord]):
@@ -251,9 +252,12 @@ def run_intervals(
     and ``radius_mean`` over finite radii (m), ``share_infinite`` (whole-plane sets),
     ``share_empty``, and the monitor's guarantee figures.
     """
-    if isinstance(predictor, str):
-        predictor = registry.create("predictor", predictor, **(predictor_params or {}))
-    family = ConformalDisc(predictor, window=window, parametrisation=parametrisation)
+    pred: Predictor = (
+        registry.create("predictor", predictor, **(predictor_params or {}))
+        if isinstance(predictor, str)
+        else predictor
+    )
+    family = ConformalDisc(pred, window=window, parametrisation=parametrisation)
     loop = ConformalLoop(PedestrianSeries(steps), family, MiscoverageLoss(), rule)
     result = loop.run()
     radii = np.asarray(family.radii_, dtype=float)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .base import Forecast, PredictionQuery, Predictor
@@ -16,7 +18,8 @@ def trailing_valid(history: np.ndarray) -> np.ndarray:
     rev = valid[:, ::-1]
     all_valid = rev.all(axis=1)
     first_bad = np.argmin(rev, axis=1)
-    return np.where(all_valid, valid.shape[1], first_bad)
+    n: np.ndarray = np.where(all_valid, valid.shape[1], first_bad)
+    return n
 
 
 class ConstantVelocityPredictor(Predictor):
@@ -37,7 +40,7 @@ class ConstantVelocityPredictor(Predictor):
         self.window = window
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"window": 1}]
 
     def predict(self, query: PredictionQuery) -> Forecast:

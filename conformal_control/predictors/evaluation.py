@@ -95,7 +95,9 @@ def windows_from_tracks(
     return np.asarray(hist, dtype=float), np.asarray(fut, dtype=float)
 
 
-def _concat(parts: list[tuple[np.ndarray, np.ndarray]], obs: int, horizon: int):
+def _concat(
+    parts: list[tuple[np.ndarray, np.ndarray]], obs: int, horizon: int
+) -> tuple[np.ndarray, np.ndarray]:
     hs = [h for h, _ in parts if len(h)]
     fs = [f for _, f in parts if len(f)]
     if not hs:
@@ -112,7 +114,13 @@ def _parse_dataset(dataset: str) -> tuple[str, str]:
     return kind, name
 
 
-def _ethucy_windows(scenes: list[tuple[str, str]], data_root, obs, horizon, source) -> Windows:
+def _ethucy_windows(
+    scenes: list[tuple[str, str]],
+    data_root: str | os.PathLike[str] | None,
+    obs: int,
+    horizon: int,
+    source: str,
+) -> Windows:
     parts = []
     files = []
     for scene, split in scenes:
@@ -123,7 +131,9 @@ def _ethucy_windows(scenes: list[tuple[str, str]], data_root, obs, horizon, sour
     return Windows(h, f, STANDARD_DT, source, {"files": files})
 
 
-def _sdd_windows(name: str, data_root, obs: int, horizon: int) -> Windows:
+def _sdd_windows(
+    name: str, data_root: str | os.PathLike[str] | None, obs: int, horizon: int
+) -> Windows:
     from ..data.scenes import load_scene
     from ..data.trajnet import TRAJNET_STEP
 

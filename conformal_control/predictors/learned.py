@@ -108,7 +108,7 @@ class WindowPredictor(Predictor):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         self._save_model(folder)
-        cfg = {"class": type(self).__name__, "params": self.get_params()}
+        cfg: dict[str, Any] = {"class": type(self).__name__, "params": self.get_params()}
         cfg["params"]["weights"] = None
         (folder / "config.json").write_text(json.dumps(cfg, indent=2, default=str))
         return folder

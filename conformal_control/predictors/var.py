@@ -64,7 +64,8 @@ def _block_toeplitz(gamma: np.ndarray) -> np.ndarray:
     # lags -p..p, with Γ(-h) = Γ(h)^T
     full = np.concatenate([np.swapaxes(gamma[:, :0:-1], -1, -2), gamma], axis=1)
     lag = np.arange(p)[None, :] - np.arange(p)[:, None] + p  # (i, j) -> j - i + p
-    return full[:, lag].transpose(0, 1, 3, 2, 4).reshape(m, p * k, p * k)
+    blocks: np.ndarray = full[:, lag].transpose(0, 1, 3, 2, 4).reshape(m, p * k, p * k)
+    return blocks
 
 
 def companion(coefs: np.ndarray) -> np.ndarray:

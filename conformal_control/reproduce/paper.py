@@ -1,6 +1,11 @@
 """The configurations of the paper's Tables I and II and the numbers it printed.
 
-Every row is run in two variants (SPEC section 2, "FEASIBILITY FLOOR"):
+Every row is run in two variants, because ``a`` sets a floor under lambda. Lambda is
+added to the constraint of every sensed agent, and a far agent (no gradient, h = h_max =
+1/2) leaves the row ``a h_max + lambda >= 0``, which no velocity can meet once lambda <
+-a h_max (:meth:`~conformal_control.cbf.constraint.ConformalConstraint.lambda_floor`).
+With Table II's a = 1 and epsilon = -0.25 the target is then out of reach: the fallback
+acts at almost every step and the robot never reaches its goal. So:
 
 * ``printed`` - the parameters as the paper prints them (Table I: a = 0.1, Table II: a = 1);
 * ``published`` - as the published code effectively ran them: it hard-coded

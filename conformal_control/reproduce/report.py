@@ -104,7 +104,7 @@ def plan(
 ) -> list[ReproRow]:
     """Every run the targets need (``forms``: Table II, published variant, both forms)."""
     out: list[ReproRow] = []
-    kw = {
+    kw: dict[str, Any] = {
         "predictor": predictor,
         "predictor_params": dict(predictor_params or {}),
         "data_root": data_root,

@@ -375,12 +375,13 @@ def run_multi(
     fleet: list[Flagship] = []
     for i in range(n):
         scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
+        role_kw: dict[str, Any] = {k: _copy_role(v) for k, v in roles.items()}
         fleet.append(
             build_flagship(
                 scene_i,
                 params,
                 units=units,
-                **{k: _copy_role(v) for k, v in roles.items()},
+                **role_kw,
                 predictor_params=predictor_params,
                 barrier_params=barrier_params,
                 safety_filter_params=safety_filter_params,

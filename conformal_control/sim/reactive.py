@@ -111,7 +111,8 @@ class ReactiveEnvironment(ReplayEnvironment):
         buf[sc.start_index] = self.crowd.frame_positions(sc.start_index)
         self._crowd_frame = sc.start_index
         self._crowd_sub = 0
-        return buf
+        out: np.ndarray = buf
+        return out
 
     def _advance_crowd(self) -> None:
         """One crowd step with the robot's current state; store a frame when complete."""

@@ -91,10 +91,11 @@ def write_run_dir(
                     *(_fmt(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
                 ]
             )
-    if getattr(result, "animation", None) is not None:
+    animation = getattr(result, "animation", None)
+    if animation is not None:
         import numpy as np
 
-        np.savez_compressed(out / "animation.npz", **result.animation)
+        np.savez_compressed(out / "animation.npz", **animation)
     if plot:
         from ..plotting import plot_run
 

@@ -229,20 +229,23 @@ class ResultsStore:
             os.fsync(fh.fileno())
 
     # ------------------------------------------------------------------ tables
-    def rows(self, keys: Iterable[str] | None = None, *, absolute: bool = False) -> list[dict]:
+    def rows(
+        self, keys: Iterable[str] | None = None, *, absolute: bool = False
+    ) -> list[dict[str, Any]]:
         """Flat rows of the latest record of each key (all keys, or ``keys`` in order).
 
         ``run_dir`` is relative to the sweep folder, or absolute with ``absolute=True``.
         """
         latest = self.latest()
         order = list(keys) if keys is not None else list(latest)
-        out = []
+        out: list[dict[str, Any]] = []
         for k in order:
             if k not in latest:
                 continue
             row = flatten_record(latest[k])
             if row["run_dir"]:
                 path = self.run_path(row["run_dir"])
+                assert path is not None  # run_path only gives None for an empty run_dir
                 row["run_dir"] = (
                     str(path.resolve()) if absolute else self.relative_run_dir(row["run_dir"])
                 )

@@ -36,6 +36,7 @@ import hashlib
 import itertools
 import json
 import math
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,7 +153,8 @@ class RunConfig:
         d = self.as_dict()
         for k in UNHASHED_KEYS:
             d.pop(k, None)
-        return _canonical(d)
+        canonical: dict[str, Any] = _canonical(d)
+        return canonical
 
     @property
     def key(self) -> str:
@@ -331,10 +333,10 @@ def load_spec(path: str | Path) -> SweepSpec:
     elif suffix == ".json":
         data = json.loads(text)
     elif suffix == ".toml":
-        try:
+        if sys.version_info >= (3, 11):
             import tomllib
-        except ModuleNotFoundError:  # Python 3.10
-            import tomli as tomllib  # type: ignore[no-redef]
+        else:  # Python 3.10
+            import tomli as tomllib
         data = tomllib.loads(text)
     else:
         raise ValueError(f"sweep spec {path}: use a .yaml, .yml, .json or .toml file")

@@ -16,9 +16,12 @@ import time
 import traceback
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..sim.metrics import EpisodeMetrics
+
+if TYPE_CHECKING:
+    from ..data.scene import Scene
 
 __all__ = ["METRIC_COLUMNS", "execute_run", "load_run_scene", "run_dir_name"]
 
@@ -50,7 +53,7 @@ def _single_threaded_blas() -> Iterator[None]:
         yield
 
 
-def load_run_scene(cfg: dict[str, Any]) -> Any:
+def load_run_scene(cfg: dict[str, Any]) -> Scene:
     """The scene of a run configuration (uncached; the built-in scene depends on the seed)."""
     from ..data import load_scene
 
@@ -59,7 +62,7 @@ def load_run_scene(cfg: dict[str, Any]) -> Any:
 
 
 @functools.lru_cache(maxsize=8)
-def _scene(name: str, data_root: str | None, seed: int):
+def _scene(name: str, data_root: str | None, seed: int) -> Scene:
     return load_run_scene({"scene": name, "data_root": data_root, "seed": seed})
 
 

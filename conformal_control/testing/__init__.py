@@ -272,7 +272,7 @@ def discover(base: type, package: str = "conformal_control") -> list[type]:
                 f"discover() could not import {info.name}: {type(exc).__name__}: {exc}"
             ) from exc
     found: list[type] = []
-    todo = list(base.__subclasses__())
+    todo: list[type] = list(base.__subclasses__())
     while todo:
         cls = todo.pop(0)
         todo.extend(cls.__subclasses__())
@@ -290,7 +290,7 @@ def registered_plugins(role: str | None = None) -> list[tuple[str, str, type | N
     """Every registered plugin as ``(role, name, class or None, unavailability reason)``."""
     from .. import registry
 
-    out = []
+    out: list[tuple[str, str, type | None, str | None]] = []
     for entry in registry.entries(role):
         try:
             cls = entry.load()

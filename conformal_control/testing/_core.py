@@ -53,7 +53,7 @@ class ContractError(AssertionError):
     """A plugin broke its role's contract. The message says what was expected and what came."""
 
 
-def expect(condition: bool, plugin: Any, what: str) -> None:
+def expect(condition: bool | np.bool_, plugin: Any, what: str) -> None:
     """Raise :class:`ContractError` with ``what`` (expected ..., got ...) unless ``condition``."""
     if not condition:
         raise ContractError(f"{plugin_label(plugin)}: {what}")
@@ -167,7 +167,7 @@ def run_one(check: Check, obj: Any, reason: str | None) -> CheckResult:
     return CheckResult(label, check.__name__, "passed")
 
 
-class CheckList(list):
+class CheckList(list[Check]):
     """A plain list of check functions ``check(plugin) -> None`` that can also be called.
 
     ``check_predictor(p)`` runs every check on ``p`` (an instance, or a class whose
@@ -288,7 +288,7 @@ def with_seed(plugin: Any, seed: int) -> Any:
     return type(plugin)(**params)
 
 
-def _init_names(cls: type) -> list[str]:
+def _init_names(cls: type[Any]) -> list[str]:
     names = getattr(cls, "_param_names", None)
     if names is not None:
         return list(names())

@@ -37,7 +37,7 @@ from .common import (
     check_repr,
     sample_behaviour,
 )
-from .environment import EpisodeTrace, _differ_or_fail, drive, partner
+from .environment import AnyEnvironment, AnyFamily, EpisodeTrace, _differ_or_fail, drive, partner
 
 __all__ = [
     "ORDER_LAMBDAS",
@@ -59,18 +59,19 @@ ORDER_LAMBDAS = (-10.0, -1.0, -0.1, 0.0, 0.1, 0.5, 1.0, 10.0)
 ORDER_INTERVALS = 3
 
 
-def partner_environment(family: DecisionFamily) -> Environment:
+def partner_environment(family: AnyFamily) -> AnyEnvironment:
     """A fresh environment to drive ``family`` in, from ``_unit_test_environment()``."""
-    return partner(family, "_unit_test_environment", Environment, "decision family")
+    env: AnyEnvironment = partner(family, "_unit_test_environment", Environment, "decision family")
+    return env
 
 
-def _episode(family: DecisionFamily, **kw: Any) -> EpisodeTrace:
+def _episode(family: AnyFamily, **kw: Any) -> EpisodeTrace:
     """One episode of a fresh copy of ``family`` in a fresh partner environment."""
     return drive(partner_environment(family), deep_clone(family), subject=family, **kw)
 
 
 # ---------------------------------------------------------------------------- checks
-def check_decision_family_decisions(family: DecisionFamily) -> None:
+def check_decision_family_decisions(family: AnyFamily) -> None:
     """Over a whole episode at each of several lambdas: ``begin_interval``, ``decide`` and
     ``interval_record`` work, every decision and record is not None, and ``stats()`` is a
     dict of str -> numbers."""
@@ -94,13 +95,13 @@ def check_decision_family_decisions(family: DecisionFamily) -> None:
         expect(not bad, family, f"expected stats() of str -> number, got {bad!r:.200}")
 
 
-def check_decision_family_no_mutation(family: DecisionFamily) -> None:
+def check_decision_family_no_mutation(family: AnyFamily) -> None:
     """``begin_interval`` and ``decide`` leave the observation and state they are handed
     unchanged (the environment may still use them)."""
     _episode(family, watch_family=True)
 
 
-def check_decision_family_deterministic(family: DecisionFamily) -> None:
+def check_decision_family_deterministic(family: AnyFamily) -> None:
     """Two fresh copies in two fresh environments decide and record identically."""
     a, b = _episode(family), _episode(family)
     _differ_or_fail(
@@ -108,7 +109,7 @@ def check_decision_family_deterministic(family: DecisionFamily) -> None:
     )
 
 
-def check_decision_family_reset(family: DecisionFamily) -> None:
+def check_decision_family_reset(family: AnyFamily) -> None:
     """``reset()`` restarts the family: a second episode of the same instance (reset in
     the middle of the first) repeats a fresh copy's."""
     fam = deep_clone(family)
@@ -120,7 +121,7 @@ def check_decision_family_reset(family: DecisionFamily) -> None:
     )
 
 
-def check_decision_family_ordering(family: DecisionFamily) -> None:
+def check_decision_family_ordering(family: AnyFamily) -> None:
     """Where the class declares ``_unit_test_conservativeness(decision) -> float``: from
     the same state, a smaller lambda never gives a less conservative decision (the
     toolkit's convention: smaller lambda = more conservative). Without it, nothing to
@@ -129,7 +130,7 @@ def check_decision_family_ordering(family: DecisionFamily) -> None:
     if score is None:
         return
 
-    def probe(fam: DecisionFamily, state: Any, k: int, i: int) -> None:
+    def probe(fam: AnyFamily, state: Any, k: int, i: int) -> None:
         if k >= ORDER_INTERVALS:
             return
         values = []
@@ -162,7 +163,7 @@ def check_decision_family_ordering(family: DecisionFamily) -> None:
 
 
 @sample_behaviour.register(DecisionFamily)
-def _behaviour(family: DecisionFamily) -> EpisodeTrace:
+def _behaviour(family: AnyFamily) -> EpisodeTrace:
     """One episode in a fresh partner environment (for the pickling check)."""
     return drive(partner_environment(family), family, subject=family)
 

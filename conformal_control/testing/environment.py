@@ -34,7 +34,7 @@ import numbers
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -98,7 +98,11 @@ class EpisodeTrace:
         return sum(len(iv.decisions) for iv in self.intervals)
 
 
-Probe = Callable[[DecisionFamily, Any, int, int], None]
+#: Any environment / decision family (the kit checks them whatever they exchange).
+AnyEnvironment: TypeAlias = Environment[Any, Any, Any, Any]
+AnyFamily: TypeAlias = DecisionFamily[Any, Any, Any, Any]
+
+Probe = Callable[[AnyFamily, Any, int, int], None]
 
 
 #: Pristine partner of each class, built once by its hook (partners may be costly to build:
@@ -134,12 +138,13 @@ def partner(obj: Any, hook: str, kind: type, what: str) -> Any:
         return fn()
 
 
-def partner_family(env: Environment) -> DecisionFamily:
+def partner_family(env: AnyEnvironment) -> AnyFamily:
     """A fresh family to drive ``env`` with, from its class's ``_unit_test_family()``."""
-    return partner(env, "_unit_test_family", DecisionFamily, "environment")
+    family: AnyFamily = partner(env, "_unit_test_family", DecisionFamily, "environment")
+    return family
 
 
-def env_copy(env: Environment) -> Environment:
+def env_copy(env: AnyEnvironment) -> AnyEnvironment:
     """A deep copy of ``env`` (the checks never touch the instance they are given)."""
     try:
         return copy.deepcopy(env)
@@ -161,7 +166,7 @@ def _call(subject: Any, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         ) from exc
 
 
-def _done(env: Environment, subject: Any, when: str) -> bool:
+def _done(env: AnyEnvironment, subject: Any, when: str) -> bool:
     value = _call(subject, f"env.done ({when})", lambda: env.done)
     expect(
         isinstance(value, (bool, np.bool_)),
@@ -172,8 +177,8 @@ def _done(env: Environment, subject: Any, when: str) -> bool:
 
 
 def drive(
-    env: Environment,
-    family: DecisionFamily,
+    env: AnyEnvironment,
+    family: AnyFamily,
     *,
     subject: Any = None,
     lambdas: tuple[float, ...] = DRIVE_LAMBDAS,
@@ -323,7 +328,13 @@ def scribble(obj: Any, _depth: int = 0, _seen: set[int] | None = None) -> None:
         for key in keys:
             value = obj[key]
             if isinstance(value, numbers.Number) and not isinstance(value, bool):
-                obj[key] = type(value)(77) if isinstance(value, numbers.Integral) else SCRIBBLE
+                # numbers.Integral declares no constructor in the stubs; every concrete
+                # integral type (int, np.int64, ...) takes an int
+                obj[key] = (
+                    type(value)(77)  # type: ignore[call-arg]
+                    if isinstance(value, numbers.Integral)
+                    else SCRIBBLE
+                )
             else:
                 scribble(value, _depth + 1, seen)
         return
@@ -342,7 +353,7 @@ def _differ_or_fail(env: Any, a: EpisodeTrace, b: EpisodeTrace, message: str) ->
 
 
 # ---------------------------------------------------------------------------- checks
-def check_environment_reset(env: Environment) -> None:
+def check_environment_reset(env: AnyEnvironment) -> None:
     """``reset()`` works, twice in a row too; ``done`` is a bool, False right after it; a
     reset in the middle of an episode restarts it exactly."""
     e = env_copy(env)
@@ -362,7 +373,7 @@ def check_environment_reset(env: Environment) -> None:
     )
 
 
-def check_environment_interval_protocol(env: Environment) -> None:
+def check_environment_interval_protocol(env: AnyEnvironment) -> None:
     """Driven by its partner family: ``done`` is a bool at every step, ``control_instants``
     an int >= 0, ``sense`` -> ``state``/``apply`` -> ``reveal`` work in that order over
     every interval, ``reveal`` returns a truth, the episode ends within
@@ -384,14 +395,14 @@ def check_environment_interval_protocol(env: Environment) -> None:
     )
 
 
-def check_environment_deterministic(env: Environment) -> None:
+def check_environment_deterministic(env: AnyEnvironment) -> None:
     """Two copies driven by fresh partner families give identical episodes."""
     a = drive(env_copy(env), partner_family(env))
     b = drive(env_copy(env), partner_family(env))
     _differ_or_fail(env, a, b, "expected two copies driven the same way to give the same episode")
 
 
-def check_environment_outputs_not_aliased(env: Environment) -> None:
+def check_environment_outputs_not_aliased(env: AnyEnvironment) -> None:
     """A caller that overwrites what ``sense()``, ``state()`` and ``reveal()`` returned
     changes nothing the environment does next, in this episode or after ``reset()``
     (hand out copies, not views of internal state)."""
@@ -407,7 +418,7 @@ def check_environment_outputs_not_aliased(env: Environment) -> None:
     _differ_or_fail(e, reference, after, f"{hint}, the next episode after reset() changed")
 
 
-def check_environment_apply_after_done(env: Environment) -> None:
+def check_environment_apply_after_done(env: AnyEnvironment) -> None:
     """``apply()`` once the episode is over raises a ``RuntimeError`` (or ``ValueError``)
     saying so, instead of silently moving a finished world (or declare the behaviour in
     ``_xfail_checks``)."""
@@ -436,7 +447,7 @@ def check_environment_apply_after_done(env: Environment) -> None:
 
 
 @sample_behaviour.register(Environment)
-def _behaviour(env: Environment) -> EpisodeTrace:
+def _behaviour(env: AnyEnvironment) -> EpisodeTrace:
     """One episode driven by a fresh partner family (for the pickling check)."""
     return drive(env, partner_family(env))
 

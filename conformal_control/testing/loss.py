@@ -41,7 +41,7 @@ __all__ = [
 LAMBDAS = (-1e3, -10.0, -1.0, -0.1, 0.0, 0.1, 1.0, 10.0, 1e3)
 
 
-def loss_inputs(loss: Loss) -> list[tuple[Any, Any]]:
+def loss_inputs(loss: Loss[Any, Any]) -> list[tuple[Any, Any]]:
     """The ``(record, truth)`` pairs from the loss's ``_unit_test_inputs()``."""
     fn = getattr(loss, "_unit_test_inputs", None)
     if fn is None:
@@ -59,7 +59,7 @@ def loss_inputs(loss: Loss) -> list[tuple[Any, Any]]:
     return inputs
 
 
-def _call(loss: Loss, record: Any, truth: Any, lam: float, i: int) -> float | None:
+def _call(loss: Loss[Any, Any], record: Any, truth: Any, lam: float, i: int) -> float | None:
     try:
         return loss(record, truth, lam)
     except Exception as exc:
@@ -70,7 +70,7 @@ def _call(loss: Loss, record: Any, truth: Any, lam: float, i: int) -> float | No
 
 
 # ---------------------------------------------------------------------------- checks
-def check_loss_bounds_declared(loss: Loss) -> None:
+def check_loss_bounds_declared(loss: Loss[Any, Any]) -> None:
     """``bounds`` is a pair of finite numbers ``lo < hi`` (the guarantees need a bounded loss)."""
     bounds = getattr(loss, "bounds", None)
     ok = (
@@ -82,12 +82,12 @@ def check_loss_bounds_declared(loss: Loss) -> None:
     expect(ok, loss, f"expected bounds = (lo, hi) with finite lo < hi, got {bounds!r}")
 
 
-def check_loss_unit_test_inputs(loss: Loss) -> None:
+def check_loss_unit_test_inputs(loss: Loss[Any, Any]) -> None:
     """``_unit_test_inputs()`` provides sample ``(record, truth)`` pairs."""
     loss_inputs(loss)
 
 
-def check_loss_within_bounds(loss: Loss) -> None:
+def check_loss_within_bounds(loss: Loss[Any, Any]) -> None:
     """Every value is None (no loss) or a finite float within ``bounds``, for lambdas from
     -1000 to 1000."""
     lf = clone(loss)
@@ -110,7 +110,7 @@ def check_loss_within_bounds(loss: Loss) -> None:
             )
 
 
-def check_loss_no_mutation(loss: Loss) -> None:
+def check_loss_no_mutation(loss: Loss[Any, Any]) -> None:
     """Evaluating the loss (and its diagnostics) leaves record and truth untouched."""
     lf = clone(loss)
     for i, (record, truth) in enumerate(loss_inputs(lf)):
@@ -121,7 +121,7 @@ def check_loss_no_mutation(loss: Loss) -> None:
         assert_unchanged(before[1], truth, lf, f"truth #{i}", "the loss")
 
 
-def check_loss_deterministic(loss: Loss) -> None:
+def check_loss_deterministic(loss: Loss[Any, Any]) -> None:
     """Same inputs, same loss: across fresh copies, repeated calls and call order."""
     a, b = clone(loss), clone(loss)
     inputs = loss_inputs(a)
@@ -139,7 +139,7 @@ def check_loss_deterministic(loss: Loss) -> None:
     )
 
 
-def check_loss_nan_lambda(loss: Loss) -> None:
+def check_loss_nan_lambda(loss: Loss[Any, Any]) -> None:
     """A NaN lambda gives a clear ValueError (or None), never a NaN loss."""
     lf = clone(loss)
     record, truth = loss_inputs(lf)[0]
@@ -156,7 +156,7 @@ def check_loss_nan_lambda(loss: Loss) -> None:
     expect(v is None, lf, f"expected a ValueError (or None) for lambda=nan, got {v!r}")
 
 
-def check_loss_diagnostics(loss: Loss) -> None:
+def check_loss_diagnostics(loss: Loss[Any, Any]) -> None:
     """``diagnostics()`` returns a dict of str -> numbers (logged beside the loss)."""
     lf = clone(loss)
     for record, truth in loss_inputs(lf):
@@ -171,7 +171,7 @@ def check_loss_diagnostics(loss: Loss) -> None:
 
 
 @sample_behaviour.register(Loss)
-def _behaviour(loss: Loss) -> list[float | None]:
+def _behaviour(loss: Loss[Any, Any]) -> list[float | None]:
     """Values on ``_unit_test_inputs()`` at every lambda of :data:`LAMBDAS` (pickling check)."""
     return [loss(r, t, lam) for r, t in loss_inputs(loss) for lam in LAMBDAS]
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..predictors.base import Forecast, PredictionQuery, Predictor
@@ -78,7 +80,7 @@ def make_query(
     )
 
 
-def _query(plugin: Predictor, **kw: object) -> PredictionQuery:
+def _query(plugin: Predictor, **kw: Any) -> PredictionQuery:
     return make_query(ground_truth=bool(getattr(plugin, "requires_ground_truth", False)), **kw)
 
 
@@ -333,7 +335,7 @@ def check_predictor_horizon(predictor: Predictor) -> None:
 def _behaviour(predictor: Predictor) -> list[tuple[np.ndarray, object]]:
     """Forecasts of two sample queries after ``reset()`` (for the pickling check)."""
     predictor.reset()
-    out = []
+    out: list[tuple[np.ndarray, object]] = []
     for seed in (0, 1):
         fc = predictor.predict(_query(predictor, seed=seed))
         out.append((np.asarray(fc.positions), fc.covariance))

@@ -43,7 +43,9 @@ STATUSES = ("optimal", "unconstrained", "fallback")
 TOL = 1e-6
 
 
-def feasible_problems(n: int = 20, seed: int = 0) -> list[tuple[np.ndarray, ...]]:
+def feasible_problems(
+    n: int = 20, seed: int = 0
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """``(nominal, A, b, lam)`` problems where u = 0 meets every row with margin >= 0.05.
 
     Zero velocity is admissible for any speed-bounded filter, so each problem is feasible;
@@ -93,16 +95,19 @@ def _solve(f: SafetyFilter, nominal: Any, A: Any, b: Any, lam: float, what: str)
 
 
 def _fresh(f: SafetyFilter) -> SafetyFilter:
-    g = clone(f)
+    g: SafetyFilter = clone(f)
     g.reset()
     return g
 
 
 def _residual(u: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> np.ndarray:
-    return np.asarray(A) @ np.asarray(u, dtype=float) + b + lam
+    r: np.ndarray = np.asarray(A) @ np.asarray(u, dtype=float) + b + lam
+    return r
 
 
-def _check_satisfied(f: SafetyFilter, res: FilterResult, A, b, lam: float, what: str) -> None:
+def _check_satisfied(
+    f: SafetyFilter, res: FilterResult, A: np.ndarray, b: np.ndarray, lam: float, what: str
+) -> None:
     """The returned decision satisfies the constraints at the lambda the result claims."""
     if res.status in ("optimal", "unconstrained"):
         expect(
@@ -313,7 +318,7 @@ def check_safety_filter_nonfinite_input(safety_filter: SafetyFilter) -> None:
 def _behaviour(safety_filter: SafetyFilter) -> list[tuple[np.ndarray, str, float]]:
     """Decisions, statuses and lambdas on 5 feasible problems after ``reset()``."""
     safety_filter.reset()
-    out = []
+    out: list[tuple[np.ndarray, str, float]] = []
     for nominal, A, b, lam in feasible_problems(5, seed=7):
         res = safety_filter.solve(nominal, A, b, lam)
         out.append((np.asarray(res.decision), res.status, res.lambda_applied))

@@ -40,15 +40,16 @@ def loss_sequence(
     """Losses drawn uniformly inside ``bounds`` (1 % margin)."""
     lo, hi = bounds
     pad = 0.01 * (hi - lo)
-    return np.random.default_rng(seed).uniform(lo + pad, hi - pad, size=n).tolist()
+    losses: list[float] = np.random.default_rng(seed).uniform(lo + pad, hi - pad, size=n).tolist()
+    return losses
 
 
 def _float(rule: UpdateRule, value: object, what: str) -> float:
-    expect(
-        isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool),
-        rule,
-        f"expected {what} to return a float lambda, got {type(value).__name__}",
-    )
+    if isinstance(value, bool) or not isinstance(value, (float, int, np.floating, np.integer)):
+        raise ContractError(
+            f"{plugin_label(rule)}: expected {what} to return a float lambda, "
+            f"got {type(value).__name__}"
+        )
     expect(math.isfinite(value), rule, f"expected {what} to return a finite lambda, got {value!r}")
     return float(value)
 

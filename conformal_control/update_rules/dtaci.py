@@ -132,7 +132,7 @@ class DtACIRule(StepRule):
         vals = np.array([self._eval(fn, x, fallback) for x in g]) - self.epsilon
         cum = np.concatenate([[0.0], np.cumsum(0.5 * (vals[1:] + vals[:-1]) * np.diff(g))])
         out = np.interp(xs, g, cum)
-        res = np.empty_like(out)
+        res: np.ndarray = np.empty_like(out)
         res[order] = out
         return res
 

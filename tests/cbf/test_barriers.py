@@ -72,7 +72,7 @@ def test_gradients_match_central_differences(barrier: APFBarrier) -> None:
 def test_safe_gap_is_the_zero_level() -> None:
     b = APFBarrier(K_rep=40 * 0.045883871**2, rho0=400 * 0.045883871, d_c=1.0)
     gap = b.safe_gap
-    # SPEC: ~4.4 px ~ 0.2 m for K_rep = 40 px^2
+    # h >= 0 iff gap >= 1/(sqrt(2 (1/delta - 1)/K_rep) + 1/rho0): ~4.4 px ~ 0.2 m here
     assert 0.15 < gap < 0.25
     h = b.value(np.array([0.0, 0.0]), np.array([b.d_c + gap, 0.0]))
     assert abs(h) < 1e-12
@@ -81,7 +81,7 @@ def test_safe_gap_is_the_zero_level() -> None:
 def test_centre_convention_is_zero_at_collision_distance() -> None:
     b = APFBarrier(K_rep=0.0842, rho0=18.35, d_c=1.0, convention="centre")
     assert abs(b.value(np.zeros(2), np.array([0.0, 1.0]))) < 1e-12
-    # the paper's barrier read literally is almost flat (SPEC: h in [-0.96, 0.036])
+    # the paper's barrier read literally is almost flat: h in [-0.96, 0.036]
     assert b.upper_bound < 0.05
 
 

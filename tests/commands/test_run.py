@@ -77,7 +77,7 @@ def test_nexus4_done_when_command(tmp_path: Path, sdd_dir: Path) -> None:
     assert main(argv) == 0
     m = json.loads((out / "metrics.json").read_text())
     cfg = json.loads((out / "config.json").read_text())
-    # SPEC prototype figures for this configuration: t_goal 8.3 s, no collision,
+    # figures of the prototype for this configuration: t_goal 8.3 s, no collision,
     # d_min 1.25 m, l_avg -0.234, no fallback
     assert m["goal_reached"] and 7.5 < m["t_goal"] < 9.5
     assert m["n_collide"] == 0 and m["d_min"] > 1.0

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
+import numpy.typing as npt
 
 from ..fallbacks import CORE_FALLBACKS, resolve_fallback
 from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
@@ -70,7 +71,7 @@ class VelocityFilter(SafetyFilter):
         self.speed_sides = speed_sides
 
     @classmethod
-    def _unit_test_params(cls) -> list[dict]:
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [
             {},
             {"fallback": "brake", "speed_sides": 0},
@@ -201,10 +202,12 @@ class VelocityFilter(SafetyFilter):
     def _admissible(self, v: np.ndarray) -> bool:
         """Whether v meets the speed bound itself (the disc for the polygon)."""
         if self._box:
-            return abs(v[0]) <= self.v_max and abs(v[1]) <= self.v_max
-        return v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12)
+            return bool(abs(v[0]) <= self.v_max and abs(v[1]) <= self.v_max)
+        return bool(v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12))
 
-    def _checked(self, nominal, A, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _checked(
+        self, nominal: npt.ArrayLike, A: npt.ArrayLike, b: npt.ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if type(nominal) is not np.ndarray or nominal.dtype != np.float64:
             nominal = np.asarray(nominal, dtype=float)
         if type(A) is not np.ndarray or A.dtype != np.float64:

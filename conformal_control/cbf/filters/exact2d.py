@@ -16,6 +16,7 @@ call (:meth:`Exact2DSafetyFilter.step_apf`), for the ``lambda_search``, ``brake`
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -84,12 +85,12 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
         self._prm[9] = kind is LambdaSearch
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state.pop("_k", None)  # a module: re-imported on unpickling
         return state
 
-    def __setstate__(self, state: dict) -> None:
+    def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         if "_prm" in state:
             from .. import kernels2d
@@ -166,7 +167,12 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._prm[:6] = (*barrier_params, a)
 
     def step_apf(
-        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray, nominal, lam: float
+        self,
+        x_ego: np.ndarray,
+        x_agents: np.ndarray,
+        v_agents: np.ndarray,
+        nominal: np.ndarray,
+        lam: float,
     ) -> FilterResult:
         """One compiled control step with the APF barrier's rows (:meth:`configure_apf`):
         the same decision, status, lambda and counters as ``solve(nominal,
@@ -194,7 +200,16 @@ class Exact2DSafetyFilter(VelocityFilter):
             return FilterResult(v, "optimal", lam)
         return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
 
-    def _step_apf_fallback(self, code, v0, v1, lam_used, n, nominal, lam) -> FilterResult:
+    def _step_apf_fallback(
+        self,
+        code: int,
+        v0: float,
+        v1: float,
+        lam_used: float,
+        n: int,
+        nominal: np.ndarray,
+        lam: float,
+    ) -> FilterResult:
         k = self._k
         if code == k.NONFINITE:
             raise ValueError(

@@ -125,7 +125,9 @@ class QPSafetyFilter(VelocityFilter):
         of sensed agents rarely needs a new set-up; unused rows read ``0 v <= 1``."""
         return max(4, 1 << max(m - 1, 0).bit_length())
 
-    def _run_qp(self, nominal: np.ndarray, G: np.ndarray, h: np.ndarray, fresh: bool) -> int:
+    def _run_qp(
+        self, nominal: np.ndarray, G: np.ndarray, h: np.ndarray, fresh: bool
+    ) -> piqp.Status:
         m = G.shape[0]
         cap = self._capacity(m)
         self._qp_m = m
@@ -156,6 +158,7 @@ class QPSafetyFilter(VelocityFilter):
         if status not in (piqp.PIQP_SOLVED, piqp.PIQP_PRIMAL_INFEASIBLE):
             status = self._run_qp(nominal, G, h, fresh=True)  # stale warm start
         if status == piqp.PIQP_SOLVED:
+            assert self._qp_solver is not None  # _run_qp has set it up
             x = np.array(self._qp_solver.result.x, dtype=float)
             if self.polish:
                 x = self._polish(nominal, x, np.asarray(self._qp_solver.result.z_u))
@@ -203,7 +206,9 @@ class QPSafetyFilter(VelocityFilter):
         self.count("unpolished")
         return x
 
-    def _exact_project(self, nominal: np.ndarray, G: np.ndarray, h: np.ndarray):
+    def _exact_project(
+        self, nominal: np.ndarray, G: np.ndarray, h: np.ndarray
+    ) -> np.ndarray | None:
         """Last resort after two solver failures: the exact 2-D projection (counted)."""
         from .. import kernels2d
 
@@ -215,7 +220,7 @@ class QPSafetyFilter(VelocityFilter):
         )
         return np.array([v0, v1]) if ok else None
 
-    def _run_lp(self, A: np.ndarray, b: np.ndarray, fresh: bool) -> int:
+    def _run_lp(self, A: np.ndarray, b: np.ndarray, fresh: bool) -> piqp.Status:
         m = A.shape[0]
         cap = self._capacity(m)
         if fresh or self._lp_solver is None or self._lp_shape != cap:
@@ -266,6 +271,7 @@ class QPSafetyFilter(VelocityFilter):
         if status != piqp.PIQP_SOLVED:
             status = self._run_lp(Al / sigma, bl / sigma, fresh=True)
         if status == piqp.PIQP_SOLVED:
+            assert self._lp_solver is not None  # _run_lp has set it up
             v = np.array(self._lp_solver.result.x[:2], dtype=float)
         else:  # last resort: the exact LP (counted)
             from .. import kernels2d

@@ -1,11 +1,12 @@
 """darts forecasting models per pedestrian, refit at every prediction time.
 
-The default is the paper's predictor (SPEC §2): VARIMA(p=10, d=1, trend='c') on each
-pedestrian's (x, y) series, refit on its last 50 samples at every prediction time.
-Fits are independent per pedestrian and run in parallel (joblib, loky backend), and every
-forecast is stored in a persistent on-disk cache keyed by the exact input series (which
-fingerprints the scene, the track and the prediction time), the model, its parameters and
-the horizon: a sweep over epsilon, eta or tau, or a rerun, computes each forecast once.
+The default is the predictor of the paper's experiments, as the published code set it up:
+VARIMA(p=10, d=1, trend='c') on each pedestrian's (x, y) series, refit on its last 50
+samples at every prediction time. Fits are independent per pedestrian and run in parallel
+(joblib, loky backend), and every forecast is stored in a persistent on-disk cache keyed
+by the exact input series (which fingerprints the scene, the track and the prediction
+time), the model, its parameters and the horizon: a sweep over epsilon, eta or tau, or a
+rerun, computes each forecast once.
 """
 
 from __future__ import annotations
