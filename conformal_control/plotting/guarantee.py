@@ -43,6 +43,7 @@ def plot_guarantee(
     from .run import _mpl
 
     plt = _mpl()  # Agg outside Jupyter; keeps the inline backend in notebooks
+    fig: Figure
     fig, (ax, ax_l) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
     k = np.arange(1, monitor.n + 1)
     if monitor.n:

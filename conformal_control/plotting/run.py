@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -16,7 +17,8 @@ if TYPE_CHECKING:
 __all__ = ["plot_lambda_loss", "plot_run", "plot_scene"]
 
 
-def _mpl():
+def _mpl() -> ModuleType:
+    """``matplotlib.pyplot``, on the Agg backend outside Jupyter."""
     import sys
 
     import matplotlib
@@ -110,7 +112,7 @@ def plot_run(result: Any, path: str | Path | None = None) -> Figure:
     from .distance import plot_distance
 
     plt = _mpl()
-    fig = plt.figure(figsize=(12, 7.5), constrained_layout=True)
+    fig: Figure = plt.figure(figsize=(12, 7.5), constrained_layout=True)
     gs = fig.add_gridspec(3, 2, width_ratios=[1.3, 1])
     ax_scene = fig.add_subplot(gs[:, 0])
     ax_lam = fig.add_subplot(gs[0, 1])
