@@ -236,7 +236,11 @@ def run_sweep(
         text = json.dumps({"runs": runs}, indent=1, default=str) + "\n"
         atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
         own = isinstance(executor, str)
-        ex = make_executor(executor, workers=workers, scheduler=scheduler) if own else executor
+        ex = (
+            make_executor(executor, workers=workers, scheduler=scheduler)
+            if isinstance(executor, str)
+            else executor
+        )
         try:
             _run(ex, todo, store, report, guard, plot, progress, table_every)
         finally:
@@ -276,6 +280,7 @@ def _run(
     try:
         for i, outcome in outcomes:
             cfg, key = todo[i]
+            rec: dict[str, Any]
             if isinstance(outcome, BaseException):  # the machinery failed, not the run
                 rec = {
                     "key": key,
