@@ -21,7 +21,7 @@ import logging
 import sys
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 from . import __version__
 
@@ -55,7 +55,7 @@ class HelpFormatter(argparse.HelpFormatter):
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with one-line errors (``error: ...``, with a did-you-mean for commands)."""
 
-    def error(self, message: str) -> Any:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         import difflib
         import re
 
@@ -140,9 +140,9 @@ def describe_error(exc: BaseException) -> str | None:
     cause = exc.__cause__
     if cause is not None and type(exc).__name__ == "PredictorError":
         # a predictor failed for an expected reason: its context, then the reason
-        reason = describe_error(cause)
-        if reason is not None:
-            return f"{str(exc).partition(': ')[0]}: {reason}"
+        cause_reason = describe_error(cause)
+        if cause_reason is not None:
+            return f"{str(exc).partition(': ')[0]}: {cause_reason}"
     return None
 
 

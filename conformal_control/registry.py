@@ -115,10 +115,10 @@ class PluginEntry:
     target: str | type
     origin: str
     version: str | None = None
-    _loaded: type | None = field(default=None, repr=False)
+    _loaded: type[Any] | None = field(default=None, repr=False)
     _error: str | None = field(default=None, repr=False)
 
-    def load(self) -> type:
+    def load(self) -> type[Any]:
         """Import and return the plugin class (:class:`PluginUnavailableError` if it cannot)."""
         if self._loaded is not None:
             return self._loaded
@@ -357,7 +357,7 @@ def entry(role: str, name: str) -> PluginEntry:
         raise UnknownPluginError(role, name, sorted(_registry[role])) from None
 
 
-def get(role: str, name: str) -> type:
+def get(role: str, name: str) -> type[Any]:
     """The plugin class registered as ``role``/``name``.
 
     Raises

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..base import Plugin
 from . import check_writable, command, command_line, key_values
 
 
@@ -31,7 +32,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def trainable_defaults(
-    cls: type, params: dict[str, Any], seed: int, obs: int, horizon: int
+    cls: type[Plugin], params: dict[str, Any], seed: int, obs: int, horizon: int
 ) -> None:
     names = cls._param_names()
     for key, value in (("random_state", seed), ("obs", obs), ("horizon", horizon)):

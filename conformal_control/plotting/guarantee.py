@@ -45,6 +45,7 @@ def plot_guarantee(
     plt = _mpl()  # Agg outside Jupyter; keeps the inline backend in notebooks
     # a fixed layout (a layout engine would cost a second drawing pass): room on the left
     # for the tick labels and axis labels, below for the x label, above for the title
+    fig: Figure
     fig, (ax, ax_l) = plt.subplots(
         2,
         1,

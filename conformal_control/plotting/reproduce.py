@@ -77,6 +77,7 @@ def plot_paths_grid(
     cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
     panel_w = panel_width
+    fig: Figure
     fig, axes = plt.subplots(
         nrows, cols, figsize=(panel_w * cols, (panel_w * aspect + 1.2) * nrows), squeeze=False
     )
@@ -130,6 +131,7 @@ def plot_lambda_loss_rows(
     cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
     w, h = panel_size
+    fig: Figure
     fig, axes = plt.subplots(nrows, cols, figsize=(w * cols, h * nrows), squeeze=False)
     for ax, run in zip(axes.flat, runs, strict=False):
         iv = run.get("intervals")
@@ -172,6 +174,7 @@ def plot_lavg_vs_epsilon(
     the (saved and closed) figure.
     """
     plt = _mpl()
+    fig: Figure
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
     series: dict[str, list[tuple[float, float]]] = {}
     for p in points:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -31,7 +32,8 @@ SAVE_DPI = 110
 PNG_OPTIONS = {"compress_level": 1}
 
 
-def _mpl():
+def _mpl() -> ModuleType:
+    """``matplotlib.pyplot``, on the Agg backend outside Jupyter."""
     import sys
 
     import matplotlib
@@ -187,7 +189,7 @@ def plot_run(result: Any, path: str | Path | None = None) -> Figure:
     # a fixed layout (inches on a 12 x 7.5 in figure): the scene on the left, three
     # stacked panels on the right with room for their tick labels and axis labels
     W, H = 12.0, 7.5
-    fig = plt.figure(figsize=(W, H))
+    fig: Figure = plt.figure(figsize=(W, H))
     gs_scene = fig.add_gridspec(1, 1, left=0.8 / W, right=6.4 / W, bottom=0.49 / H, top=6.95 / H)
     gs = fig.add_gridspec(
         3, 1, left=7.3 / W, right=11.94 / W, bottom=0.49 / H, top=6.95 / H, hspace=0.17

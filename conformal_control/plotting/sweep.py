@@ -174,6 +174,7 @@ def plot_sweep(
         notes.append("one run per point")
 
     plt = _mpl()
+    fig: Figure
     fig, axes = plt.subplots(
         1, len(metrics), figsize=(3.8 * len(metrics), 3.6), constrained_layout=True, squeeze=False
     )

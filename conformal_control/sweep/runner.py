@@ -239,8 +239,11 @@ def run_sweep(
         atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
         own = isinstance(executor, str)
         batch = executor == "batch"  # the lockstep engine, the other runs on a process pool
-        name = "process" if batch else executor
-        ex = make_executor(name, workers=workers, scheduler=scheduler) if own else executor
+        if isinstance(executor, str):
+            name = "process" if batch else executor
+            ex = make_executor(name, workers=workers, scheduler=scheduler)
+        else:
+            ex = executor
         try:
             _run(ex, todo, store, report, guard, plot, progress, table_every, batch)
         finally:
@@ -287,6 +290,7 @@ def _run(
     try:
         for i, outcome in outcomes:
             cfg, key = todo[i]
+            rec: dict[str, Any]
             if isinstance(outcome, BaseException):  # the machinery failed, not the run
                 rec = {
                     "key": key,
