@@ -244,11 +244,16 @@ class StepwiseCBF:
         self.stepper.end_interval(CBFTruth(samples, self.dt, self.substeps))
 
     def finish(self) -> LoopResult:
-        """Close the open interval with the samples observed so far; return the result."""
+        """Close the open interval with the samples observed so far; return the result.
+
+        Sample times of the interval that were never observed count as missing truth (NaN,
+        reported as ``n_truth_missing`` in the interval's diagnostics): the loss is taken
+        over the control instants the observed samples cover, and the interval is left
+        unscored if they cover none.
+        """
         if self._start is not None and self._step:
             n = -(-self._step // self.substeps)
-            last = min(self._start + n, self._latest if self._latest is not None else 0)
-            samples = self._window(self._start, last + 1, self._sensed)
+            samples = self._window(self._start, self._start + n + 1, self._sensed)
             self.stepper.end_interval(CBFTruth(samples, self.dt, self.substeps))
             self._start = None
         return self.stepper.result()

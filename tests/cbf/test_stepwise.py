@@ -112,3 +112,28 @@ def test_stepwise_refuses_a_step_before_the_sample() -> None:
 def test_stepwise_rejects_nonsense(kwargs, message) -> None:
     with pytest.raises(ValueError, match=message):
         StepwiseCBF(**kwargs)
+
+
+def test_finish_without_the_closing_sample_scores_what_was_observed() -> None:
+    def drive(close: bool):
+        ctrl = StepwiseCBF("constant_velocity", epsilon=-0.1, eta=0.5, tau=0.4, dt=0.1)
+        robot, goal, k = np.zeros(4), np.array([20.0, 0.0]), 0
+        peds, ped_v = np.array([[10.0, -5.0], [14.0, 6.0]]), np.array([[0.0, 1.0], [0.0, -1.0]])
+        while np.hypot(*(robot[:2] - goal)) > 0.5:
+            ctrl.observe([0, 1], peds, t=k * ctrl.dt)
+            for j in range(ctrl.substeps):
+                v = ctrl.step(robot, t=k * ctrl.dt + j * ctrl.dt_control, goal=goal)
+                robot = np.r_[robot[:2] + v * ctrl.dt_control, v]
+            peds, k = peds + ped_v * ctrl.dt, k + 1
+        if close:
+            ctrl.observe([0, 1], peds, t=k * ctrl.dt)
+        return ctrl.finish()
+
+    closed, open_ = drive(True), drive(False)
+    assert len(open_.intervals) == len(closed.intervals)
+    last = open_.intervals[-1]
+    # the unobserved closing sample is missing truth, counted; the interval is still scored
+    assert last.diagnostics["n_truth_missing"] > 0 == closed.intervals[-1].diagnostics[
+        "n_truth_missing"
+    ]
+    assert last.loss is not None and np.isfinite(last.loss)
