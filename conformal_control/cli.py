@@ -208,6 +208,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # the reader went away (``conformal-control scenes | head``): what it read is all
+        # it wanted; silence the flush at exit instead of printing an error
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except Exception as exc:
         message = describe_error(exc)
         if verbose >= 2 or (message is None and verbose >= 1):

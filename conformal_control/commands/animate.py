@@ -44,7 +44,7 @@ def _animate(args: argparse.Namespace) -> int:
         fps=args.fps,
         width=args.width,
         dpi=args.dpi,
-        progress=not args.no_progress,
+        progress=not (args.no_progress or getattr(args, "quiet", False)),
     )
     size = out.stat().st_size
     print(f"{n} frames written to {out} ({size / 1e6:.2f} MB)")

@@ -145,6 +145,9 @@ def test_goal_not_reached_says_why(sdd_dir: Path) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error", GoalNotReachedWarning)  # a frame limit is not warned
         run_episode(late, max_frames=30)
+        # nor a limit that ends where the data ends (a benchmark scenario's time limit)
+        res = run_episode(late, max_frames=last - late.start_frame)
+    assert not res.metrics["goal_reached"]
 
 
 @pytest.mark.parametrize(
