@@ -133,7 +133,9 @@ def test_finish_without_the_closing_sample_scores_what_was_observed() -> None:
     assert len(open_.intervals) == len(closed.intervals)
     last = open_.intervals[-1]
     # the unobserved closing sample is missing truth, counted; the interval is still scored
-    assert last.diagnostics["n_truth_missing"] > 0 == closed.intervals[-1].diagnostics[
-        "n_truth_missing"
-    ]
+    assert (
+        last.diagnostics["n_truth_missing"]
+        > 0
+        == closed.intervals[-1].diagnostics["n_truth_missing"]
+    )
     assert last.loss is not None and np.isfinite(last.loss)
