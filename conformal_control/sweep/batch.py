@@ -111,8 +111,9 @@ def run_batched(
     batch_size: int = 256,
 ) -> Iterator[Outcome]:
     """Yield ``(index, record)`` for every task (``(cfg, key, out_dir, plot)``, the
-    arguments of :func:`execute_run`): batched groups first, in this process, then the
-    other runs on ``ex``."""
+    arguments of :func:`execute_run`): the batched groups in this process while the other
+    runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
+    pool's workers and this process share the machine instead of taking turns."""
     import dataclasses
 
     from ..sim.batch import iter_batch
@@ -148,52 +149,124 @@ def run_batched(
         # a shallow copy per run: building an episode sets radii and v_max on its scene
         return dataclasses.replace(scene, meta=dict(scene.meta), defaults=dict(scene.defaults))
 
-    for idx in groups.values():
-        cfg0 = tasks[idx[0]][0]
-        frames: list[int | None] = []
+    def batched() -> Iterator[Outcome]:
+        for idx in groups.values():
+            cfg0 = tasks[idx[0]][0]
+            frames: list[int | None] = []
 
-        def scenes(idx: list[int] = idx, frames: list[int | None] = frames) -> Iterator[Any]:
-            for i in idx:
-                cfg = tasks[i][0]
-                scene = scene_of(cfg)
-                frames.append(cfg.get("frames") or scene.meta.get("max_frames"))
-                yield scene
+            def scenes(idx: list[int] = idx, frames: list[int | None] = frames) -> Iterator[Any]:
+                for i in idx:
+                    cfg = tasks[i][0]
+                    scene = scene_of(cfg)
+                    frames.append(cfg.get("frames") or scene.meta.get("max_frames"))
+                    yield scene
 
-        def limits(frames: list[int | None] = frames) -> Iterator[int | None]:
-            k = 0  # max_frames of the k-th scene, known once scenes() has loaded it
-            while True:
-                yield frames[k]
-                k += 1
+            def limits(frames: list[int | None] = frames) -> Iterator[int | None]:
+                k = 0  # max_frames of the k-th scene, known once scenes() has loaded it
+                while True:
+                    yield frames[k]
+                    k += 1
 
-        done: set[int] = set()
-        t0 = time.perf_counter()
+            done: set[int] = set()
+            t0 = time.perf_counter()
+            try:
+                for j, result in iter_batch(
+                    scenes(),
+                    cfg0.get("predictor") or "constant_velocity",
+                    dict(cfg0.get("params") or {}),
+                    learn=bool(cfg0.get("learn", True)),
+                    max_frames=limits(),
+                    seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
+                    predictor_params=dict(cfg0.get("predictor_params") or {}),
+                    batch_size=batch_size,
+                    output="results",
+                    **{
+                        k: v
+                        for k, v in (cfg0.get("episode") or {}).items()
+                        if k != "record_animation"
+                    },
+                ):
+                    i = idx[j]
+                    cfg, key, out_dir, plot = tasks[i]
+                    done.add(i)
+                    yield i, _record(cfg, key, out_dir, plot, result, t0)
+            except Exception:  # the batch stopped: its other runs fail (or not) one by one
+                for i in idx:
+                    if i not in done:
+                        yield i, execute_run(*tasks[i])
+
+    pool = _PoolDrain(ex, rest, [tasks[i] for i in rest]) if rest else None
+    try:
+        for item in batched():
+            yield item
+            if pool is not None:
+                yield from pool.ready()
+        if pool is not None:
+            yield from pool.remaining()
+    finally:
+        if pool is not None:
+            pool.stop()
+
+
+_DONE = object()
+
+
+class _PoolDrain:
+    """The pool's outcomes, collected by a thread into a queue while this process runs the
+    batched groups (the pool's generator submits new runs only while it is iterated)."""
+
+    def __init__(self, ex: Executor, index: list[int], tasks: list[Any]) -> None:
+        import queue
+        import threading
+
+        self._queue: queue.Queue[Any] = queue.Queue()
+        self._index = index
+        self._stopping = threading.Event()
+        self._outcomes = ex.run(execute_run, tasks)
+        self._thread = threading.Thread(target=self._drain, name="sweep-pool", daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
         try:
-            for j, result in iter_batch(
-                scenes(),
-                cfg0.get("predictor") or "constant_velocity",
-                dict(cfg0.get("params") or {}),
-                learn=bool(cfg0.get("learn", True)),
-                max_frames=limits(),
-                seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
-                predictor_params=dict(cfg0.get("predictor_params") or {}),
-                batch_size=batch_size,
-                output="results",
-                **{k: v for k, v in (cfg0.get("episode") or {}).items() if k != "record_animation"},
-            ):
-                i = idx[j]
-                cfg, key, out_dir, plot = tasks[i]
-                done.add(i)
-                yield i, _record(cfg, key, out_dir, plot, result, t0)
-        except Exception:  # the batch stopped: its other runs fail (or not) one by one
-            for i in idx:
-                if i not in done:
-                    yield i, execute_run(*tasks[i])
-    if rest:
-        outcomes = ex.run(execute_run, [tasks[i] for i in rest])
-        try:
-            for k, outcome in outcomes:
-                yield rest[k], outcome
+            for k, outcome in self._outcomes:
+                self._queue.put((self._index[k], outcome))
+                if self._stopping.is_set():
+                    break
+        except BaseException as exc:  # the machinery failed: re-raised in the consumer
+            self._queue.put(exc)
         finally:
-            close = getattr(outcomes, "close", None)
+            close = getattr(self._outcomes, "close", None)
             if close is not None:
                 close()
+            self._queue.put(_DONE)
+
+    def _take(self, item: Any) -> Outcome:
+        if isinstance(item, BaseException):
+            raise item
+        return item  # type: ignore[no-any-return]
+
+    def ready(self) -> Iterator[Outcome]:
+        """The outcomes that have arrived, without waiting."""
+        import queue
+
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if item is _DONE:
+                self._queue.put(_DONE)  # keep the end marker for remaining()
+                return
+            yield self._take(item)
+
+    def remaining(self) -> Iterator[Outcome]:
+        """Every outcome still to come, waiting for them."""
+        while True:
+            item = self._queue.get()
+            if item is _DONE:
+                return
+            yield self._take(item)
+
+    def stop(self) -> None:
+        """Ask the thread to stop after its current outcome (an interrupted sweep)."""
+        self._stopping.set()

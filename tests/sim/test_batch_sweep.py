@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -100,3 +101,47 @@ def test_batch_reason_accepts_metrics_only_runs():
     assert (
         batch_reason({"scene": "crossing", "episode": {"record_animation": False}}, False) is None
     )
+
+
+def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
+    # the pool's runs must not wait for the batched groups: here the batch itself waits
+    # (up to 20 s) until the pool has delivered a result; run one after the other, the
+    # batch would time out and the order below would differ
+    import threading
+
+    import conformal_control.sim.batch as sim_batch
+    import conformal_control.sweep.batch as sweep_batch
+
+    pool_delivered = threading.Event()
+
+    class FakePool:
+        def run(self, fn, tasks):
+            for k, _ in enumerate(tasks):
+                yield k, {"key": f"pool{k}", "status": "ok"}
+                pool_delivered.set()
+
+    waited: list[bool] = []
+
+    def fake_iter_batch(scenes, *a, **k):
+        for j, _ in enumerate(scenes):
+            waited.append(pool_delivered.wait(20))
+            yield j, object()
+
+    monkeypatch.setattr(sim_batch, "iter_batch", fake_iter_batch)
+    monkeypatch.setattr(
+        sweep_batch, "_record", lambda cfg, key, out, plot, result, t0: {"key": key}
+    )
+    monkeypatch.setattr("conformal_control.sweep.worker.load_run_scene", lambda cfg: _Scene())
+    batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
+    pooled = {"scene": "crossing", "seed": 1, "episode": {"rule": "pid"}}
+    tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]
+    assert batch_reason(batched, "none") is None and batch_reason(pooled, "none") is not None
+    records = dict(sweep_batch.run_batched(FakePool(), tasks))
+    assert waited == [True], "the pool did not run while the batch ran"
+    assert records == {0: {"key": "b0"}, 1: {"key": "pool0", "status": "ok"}}
+
+
+@dataclasses.dataclass
+class _Scene:
+    meta: dict = dataclasses.field(default_factory=dict)
+    defaults: dict = dataclasses.field(default_factory=dict)
