@@ -91,7 +91,7 @@ def control_step(
     agents (the same for every slot).
     """
     for i in range(slots.shape[0]):
-        b = slots[i]
+        b: int = slots[i]  # an annotation only: no bytecode, numba types it from slots
         s = step[b]
         n = n_agents[b]
         x0 = x[b, 0]
@@ -197,7 +197,8 @@ def _apf_value(
     scale = 4.0 * K * q * r * inv_d * inv_d / max(d, 1e-300)
     g0 = scale * d0
     g1 = scale * d1
-    return (g0 * evx + g1 * evy) + ((-g0) * avx + (-g1) * avy) + prm[5] * h
+    value: float = (g0 * evx + g1 * evy) + ((-g0) * avx + (-g1) * avy) + prm[5] * h
+    return value
 
 
 @jit

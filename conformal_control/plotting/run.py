@@ -90,8 +90,15 @@ def _axes_pixels(ax: Axes, dpi: float | None) -> tuple[float, float]:
     """The size of ``ax`` in pixels at ``dpi`` (default: the larger of the figure's dpi
     and ``savefig.dpi``)."""
     import matplotlib
+    from matplotlib.figure import Figure
 
     fig = ax.get_figure()
+    if not isinstance(fig, Figure):  # None (a detached axes) or a SubFigure
+        where = "no figure" if fig is None else f"a {type(fig).__name__}"
+        raise ValueError(
+            "the reference image is sized to its axes, which must be placed directly on a "
+            f"Figure, not on {where}"
+        )
     if dpi is None:
         saved = matplotlib.rcParams["savefig.dpi"]
         dpi = max(float(fig.dpi), float(saved) if saved != "figure" else 0.0)

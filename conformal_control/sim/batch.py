@@ -45,7 +45,7 @@ import types
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -69,7 +69,7 @@ from ..cbf.loss import CBFGapLoss
 from ..cbf.reference import AttractiveField
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene
-from ..loop import IntervalLog, LoopResult
+from ..loop import ConformalLoop, IntervalLog, LoopResult
 from ..monitor import GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityPredictor
 from ..predictors.oracle import OraclePredictor
@@ -90,6 +90,8 @@ from .episode import (
 from .metrics import EpisodeMetrics
 
 __all__ = ["iter_batch", "run_batch", "supports"]
+
+_T = TypeVar("_T")
 
 #: Roles the engine runs, by the names they are registered under (None: the default).
 SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
@@ -187,34 +189,56 @@ def supports(**run_kwargs: Any) -> str | None:
     return None
 
 
-def _unsupported_built(fl: Flagship) -> str | None:
-    """Why an episode as built is not one the engine runs (a name resolved to a plugin
-    of another class), or None."""
-    exact = (
-        ("decision family", fl.policy, ConformalCBFController),
-        ("environment", fl.env, ReplayEnvironment),
-        ("constraint", fl.constraint, ConformalConstraint),
-        ("barrier", fl.barrier, APFBarrier),
-        ("safety filter", fl.safety_filter, Exact2DSafetyFilter),
-        ("reference", fl.reference, AttractiveField),
-        ("dynamics", fl.dynamics, VelocityTrackingDoubleIntegrator),
-        ("loss", fl.loss, CBFGapLoss),
-        ("update rule", fl.rule, FixedEtaRule),
-    )
-    for role, obj, cls in exact:
-        if type(obj) is not cls:
-            return f"the {role} is a {type(obj).__name__}, not a {cls.__name__}"
+class _NotRun(ValueError):
+    """An episode as built is not one the engine runs (a name resolved to a plugin of
+    another class); the message says why."""
+
+    def __init__(self, why: str) -> None:
+        super().__init__(f"run_batch cannot run this episode: {why}; use run_episode")
+
+
+def _exact(obj: object, cls: type[_T], role: str) -> _T:
+    """``obj`` if its class is exactly ``cls`` (a subclass may compute something else
+    than the compiled step does), else :class:`_NotRun`."""
+    if type(obj) is not cls:
+        raise _NotRun(f"the {role} is a {type(obj).__name__}, not a {cls.__name__}")
+    return obj
+
+
+@dataclass(frozen=True)
+class _Parts:
+    """The roles of a built episode the engine reads, as the classes it runs."""
+
+    env: ReplayEnvironment
+    barrier: APFBarrier
+    safety_filter: Exact2DSafetyFilter
+    reference: AttractiveField
+    dynamics: VelocityTrackingDoubleIntegrator
+    loss: CBFGapLoss
+
+
+def _parts(fl: Flagship) -> _Parts:
+    """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
+    ValueError) if the episode as built is not one it runs."""
+    policy = _exact(fl.policy, ConformalCBFController, "decision family")
+    env = _exact(fl.env, ReplayEnvironment, "environment")
+    constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
+    barrier = _exact(fl.barrier, APFBarrier, "barrier")
+    filt = _exact(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
+    reference = _exact(fl.reference, AttractiveField, "reference")
+    dynamics = _exact(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
+    loss = _exact(fl.loss, CBFGapLoss, "loss")
+    _exact(fl.rule, FixedEtaRule, "update rule")
     if type(fl.predictor) not in (ConstantVelocityPredictor, OraclePredictor):
-        return f"the predictor is a {type(fl.predictor).__name__}"
-    if fl.loss.constraint is not fl.constraint or fl.policy.constraint is not fl.constraint:
-        return "the loss and the controller do not share the run's constraint"
-    filt = fl.safety_filter
+        raise _NotRun(f"the predictor is a {type(fl.predictor).__name__}")
+    if loss.constraint is not constraint or policy.constraint is not constraint:
+        raise _NotRun("the loss and the controller do not share the run's constraint")
     if filt.compiled_step is not True:
-        return "the safety filter's compiled step is off"
+        raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
     if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
-        return f"the fallback {fallback!r} is not one the compiled step decides"
-    return None
+        raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
+    return _Parts(env, barrier, filt, reference, dynamics, loss)
 
 
 # ------------------------------------------------------------------------------ episodes
@@ -224,6 +248,7 @@ class _Episode:
 
     index: int
     fl: Flagship
+    parts: _Parts  # fl's roles as the classes the engine runs
     monitor: GuaranteeMonitor
     learn: bool
     seed: int
@@ -236,24 +261,108 @@ class _Episode:
 
 
 class _Pool:
-    """The state of ``size`` episode slots, one row per slot (grown on demand)."""
+    """The state of ``size`` episode slots, one row per slot (grown on demand).
 
-    _F8 = (
-        "t", "lam", "dt", "dt_frame", "decay", "gain", "k_acc", "neg_k_att", "v_ref_max",
-        "goal_radius", "radius", "t_goal", "scale", "wall",
-    )  # fmt: skip
-    _I8 = (
-        "step", "n_ctrl", "n_agents", "fi", "last_frame", "k_start", "substeps", "tau",
-        "history", "goal_idx", "n_log", "poly_len", "fallback", "predictor", "window",
-        "n_short", "n_short_total", "n_predicted", "n_bad", "n_bad_total",
-    )  # fmt: skip
+    Every array's first axis is the slot. The per-slot scalars are float64 (times, lambda,
+    the plant's and the reference's constants, the loss scale, the wall time) or int64
+    (step and frame counters, sizes, codes of the fallback and the predictor).
+    """
+
+    size: int
+    t: np.ndarray  # float64 (size,)
+    lam: np.ndarray  # float64 (size,)
+    dt: np.ndarray  # float64 (size,)
+    dt_frame: np.ndarray  # float64 (size,)
+    decay: np.ndarray  # float64 (size,)
+    gain: np.ndarray  # float64 (size,)
+    k_acc: np.ndarray  # float64 (size,)
+    neg_k_att: np.ndarray  # float64 (size,)
+    v_ref_max: np.ndarray  # float64 (size,)
+    goal_radius: np.ndarray  # float64 (size,)
+    radius: np.ndarray  # float64 (size,)
+    t_goal: np.ndarray  # float64 (size,)
+    scale: np.ndarray  # float64 (size,)
+    wall: np.ndarray  # float64 (size,)
+    step: np.ndarray  # int64 (size,)
+    n_ctrl: np.ndarray  # int64 (size,)
+    n_agents: np.ndarray  # int64 (size,)
+    fi: np.ndarray  # int64 (size,)
+    last_frame: np.ndarray  # int64 (size,)
+    k_start: np.ndarray  # int64 (size,)
+    substeps: np.ndarray  # int64 (size,)
+    tau: np.ndarray  # int64 (size,)
+    history: np.ndarray  # int64 (size,)
+    goal_idx: np.ndarray  # int64 (size,)
+    n_log: np.ndarray  # int64 (size,)
+    poly_len: np.ndarray  # int64 (size,)
+    fallback: np.ndarray  # int64 (size,)
+    predictor: np.ndarray  # int64 (size,)
+    window: np.ndarray  # int64 (size,)
+    n_short: np.ndarray  # int64 (size,)
+    n_short_total: np.ndarray  # int64 (size,)
+    n_predicted: np.ndarray  # int64 (size,)
+    n_bad: np.ndarray  # int64 (size,)
+    n_bad_total: np.ndarray  # int64 (size,)
+    x: np.ndarray  # (size, 4): position, velocity
+    goal: np.ndarray  # (size, 2)
+    last: np.ndarray  # (size, 2): the previous decision (the filter's output)
+    active: np.ndarray  # bool (size,)
+    done: np.ndarray  # bool (size,)
+    need_begin: np.ndarray  # bool (size,)
+    prm: np.ndarray  # (size, len(kernels2d.PARAMS))
+    poly: np.ndarray  # (size, 5 * sides): the speed polygon
+    counts: np.ndarray  # int64 (size, 5): solves, infeasible, fallback, vertex, steps
+    sensed: np.ndarray  # int64 (size, columns)
+    xp: np.ndarray  # (size, steps, cap, 2): predicted positions
+    vp: np.ndarray  # (size, steps, cap, 2): predicted velocities
+    rec_x: np.ndarray  # (size, steps, 2)
+    rec_v: np.ndarray  # (size, steps, 2)
+    rec_lam: np.ndarray  # (size, steps)
+    log: np.ndarray  # (size, frames, 6)
+    samples: np.ndarray  # (>= tau + 1, 2): one agent's predicted samples, scratch
+    cap: int  # agents per slot that xp / vp and the work buffer hold
+    sides: int  # sides of the largest speed polygon
+    work: np.ndarray  # the compiled filter's work buffer
+    store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
+    where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    used: int  # floats of store in use
 
     def __init__(self, size: int) -> None:
         b = self.size = size
-        for name in self._F8:
-            setattr(self, name, np.zeros(b))
-        for name in self._I8:
-            setattr(self, name, np.zeros(b, dtype=np.int64))
+        self.t = np.zeros(b)
+        self.lam = np.zeros(b)
+        self.dt = np.zeros(b)
+        self.dt_frame = np.zeros(b)
+        self.decay = np.zeros(b)
+        self.gain = np.zeros(b)
+        self.k_acc = np.zeros(b)
+        self.neg_k_att = np.zeros(b)
+        self.v_ref_max = np.zeros(b)
+        self.goal_radius = np.zeros(b)
+        self.radius = np.zeros(b)
+        self.t_goal = np.zeros(b)
+        self.scale = np.zeros(b)
+        self.wall = np.zeros(b)
+        self.step = np.zeros(b, dtype=np.int64)
+        self.n_ctrl = np.zeros(b, dtype=np.int64)
+        self.n_agents = np.zeros(b, dtype=np.int64)
+        self.fi = np.zeros(b, dtype=np.int64)
+        self.last_frame = np.zeros(b, dtype=np.int64)
+        self.k_start = np.zeros(b, dtype=np.int64)
+        self.substeps = np.zeros(b, dtype=np.int64)
+        self.tau = np.zeros(b, dtype=np.int64)
+        self.history = np.zeros(b, dtype=np.int64)
+        self.goal_idx = np.zeros(b, dtype=np.int64)
+        self.n_log = np.zeros(b, dtype=np.int64)
+        self.poly_len = np.zeros(b, dtype=np.int64)
+        self.fallback = np.zeros(b, dtype=np.int64)
+        self.predictor = np.zeros(b, dtype=np.int64)
+        self.window = np.zeros(b, dtype=np.int64)
+        self.n_short = np.zeros(b, dtype=np.int64)
+        self.n_short_total = np.zeros(b, dtype=np.int64)
+        self.n_predicted = np.zeros(b, dtype=np.int64)
+        self.n_bad = np.zeros(b, dtype=np.int64)
+        self.n_bad_total = np.zeros(b, dtype=np.int64)
         self.x = np.zeros((b, 4))
         self.goal = np.zeros((b, 2))
         self.last = np.zeros((b, 2))
@@ -362,23 +471,22 @@ class _Engine:
         kw = self.episode_kw
         learn = kw["learn"]
         fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
-        why = _unsupported_built(fl)
-        if why is not None:
-            raise ValueError(f"run_batch cannot run this episode: {why}; use run_episode")
+        parts = _parts(fl)
         sc, si = fl.scene, fl.params.si
         lam_unit = sc.units.factor("lambda_init")
         lambda_safe = kw["lambda_safe"]
         if lambda_safe is not None and kw["units"] == "si":
             lambda_safe = lambda_safe / lam_unit
         lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
-        h_max = fl.barrier.upper_bound
+        h_max = parts.barrier.upper_bound
         floor = feasibility_floor(
             si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
         )
         _warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
         # the timing), the family (validates; resets predictor, filter, reference), the rule
-        env, filt, ref, dyn, bar = fl.env, fl.safety_filter, fl.reference, fl.dynamics, fl.barrier
+        env, filt, ref = parts.env, parts.safety_filter, parts.reference
+        dyn, bar = parts.dynamics, parts.barrier
         env.reset()
         fl.policy.reset()
         monitor = GuaranteeMonitor.for_rule(
@@ -386,7 +494,7 @@ class _Engine:
             lambda_safe=lam_safe_si,
             lambda_safe_source=kw["lambda_safe_source"],
             premise_proven=False,
-            bounds=fl.loss.bounds,
+            bounds=parts.loss.bounds,
             learn=learn,
         )
         k = float(dyn.K_acc)
@@ -402,6 +510,7 @@ class _Engine:
         ep = _Episode(
             index=index,
             fl=fl,
+            parts=parts,
             monitor=monitor,
             learn=learn,
             seed=seed,
@@ -441,8 +550,8 @@ class _Engine:
         p.k_acc[b] = k
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
-        p.scale[b] = fl.loss.scale
-        self._squash.setdefault(float(fl.loss.scale), fl.loss.squash)
+        p.scale[b] = parts.loss.scale
+        self._squash.setdefault(float(parts.loss.scale), parts.loss.squash)
         p.last[b] = 0.0
         p.step[b] = 0
         p.fi[b] = sc.start_index
@@ -454,8 +563,7 @@ class _Engine:
         p.window[b] = int(window)
         p.n_log[b] = 0
         p.wall[b] = 0.0
-        for name in ("n_predicted", "n_short_total", "n_bad_total"):
-            getattr(p, name)[b] = 0
+        p.n_predicted[b] = p.n_short_total[b] = p.n_bad_total[b] = 0
         p.counts[b] = 0
         p.done[b] = False
         p.need_begin[b] = True
@@ -492,7 +600,9 @@ class _Engine:
         p.step[slots] = 0
         p.need_begin[slots] = False
         for b, m in zip(slots.tolist(), n.tolist(), strict=True):
-            self.eps[b].n_sensed.append(m)  # type: ignore[union-attr]
+            ep = self.eps[b]
+            assert ep is not None  # slots are live
+            ep.n_sensed.append(m)
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
         if predicted.size:
             bk.predict_interpolate(
@@ -520,9 +630,11 @@ class _Engine:
             p.k_acc, p.t, p.rec_x, p.rec_v, p.rec_lam, p.counts,
         )  # fmt: skip
         if bad >= 0:
+            ep = self.eps[bad]
+            assert ep is not None  # bad is one of slots, which are live
             raise ValueError(
                 "Exact2DSafetyFilter received non-finite constraints, lambda or nominal "
-                f"decision in episode {self.eps[bad].index} of the batch; predictions must "  # type: ignore[union-attr]
+                f"decision in episode {ep.index} of the batch; predictions must "
                 "be sanitised before building constraints"
             )
         # the goal check at every control instant, with Python's hypot as the environment's
@@ -609,7 +721,9 @@ class _Engine:
                 log.l_avg = mon.average
                 p.lam[b] = lam
             if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
-                _check_lambda(types.SimpleNamespace(lam=lam), ep.fl, log)  # raises
+                # _check_lambda reads only the loop's lambda: a namespace holding it stands in
+                stand_in = cast(ConformalLoop, types.SimpleNamespace(lam=lam))
+                _check_lambda(stand_in, ep.fl, log)  # raises
             if p.done[b]:
                 finished.append(b)
             else:
@@ -627,7 +741,7 @@ class _Engine:
         p, ep = self.pool, self.eps[b]
         assert ep is not None
         fl, kw = ep.fl, self.episode_kw
-        sc, env, policy, filt = fl.scene, fl.env, fl.policy, fl.safety_filter
+        sc, env, policy, filt = fl.scene, ep.parts.env, fl.policy, ep.parts.safety_filter
         n = int(p.n_log[b])
         rows = p.log[b, :n]
         env.log = FrameLog(
@@ -728,14 +842,15 @@ def iter_batch(
     *,
     units: str = "scene",
     learn: bool = True,
-    max_frames: int | Sequence[int | None] | None = None,
+    max_frames: int | Iterable[int | None] | None = None,
     seeds: int | Sequence[int] | None = None,
     batch_size: int = 256,
     output: str = "metrics",
     **run_kwargs: Any,
 ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
     """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
-    order; ``index`` is the scene's position in ``scenes``)."""
+    order; ``index`` is the scene's position in ``scenes``). ``max_frames`` may also be
+    an iterator, consumed one value per scene as the scene is started."""
     reason = supports(predictor=predictor, **run_kwargs)
     if reason is not None:
         raise ValueError(f"run_batch does not support this configuration: {reason}")

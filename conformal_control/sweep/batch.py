@@ -84,13 +84,14 @@ def _record(
     try:
         result.config.update({"sweep": {"key": key, "run": cfg}})
         files = plot if isinstance(plot, str) else ("plots" if plot else "full")
-        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
-        if files == "metrics":
-            write_run_dir(result, run_dir, plot=False, only=("config.json", "metrics.json"))
-        elif files == "full":
-            write_run_dir(result, run_dir, plot=False)
-        else:
-            run_dir = None
+        run_dir: Path | None = None
+        if files in ("metrics", "full"):
+            run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+            if files == "metrics":
+                only = ("config.json", "metrics.json")
+                write_run_dir(result, run_dir, plot=False, only=only)
+            else:
+                write_run_dir(result, run_dir, plot=False)
         m = result.metrics
         rec.update(
             status="ok",
