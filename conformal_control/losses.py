@@ -141,8 +141,9 @@ class MiscoverageLoss(Loss[SetRecord, Any]):
         return 0.0 if record.covers(truth, lam) else 1.0
 
 
-def _example_loss(record: Any, truth: Any, lam: float) -> float:
-    """Squashed lambda + record - truth (used by the contract tests)."""
+def _squashed_difference(record: Any, truth: Any, lam: float) -> float:
+    """s(lambda + record - truth) for numbers: the function the contract kit checks
+    :class:`FunctionLoss` with (``_unit_test_params``); not a default."""
     return math.atan(float(record) - float(truth) + lam) / math.pi
 
 
@@ -158,7 +159,7 @@ class FunctionLoss(Loss[Any, Any]):
     Parameters
     ----------
     fn : callable
-        ``fn(record, truth, lam)``.
+        ``fn(record, truth, lam)`` (required; None is refused when the loss is used).
     bounds : tuple of float
         Declared range (lo, hi), lo < hi, both finite.
     name : str or None
@@ -167,7 +168,7 @@ class FunctionLoss(Loss[Any, Any]):
 
     def __init__(
         self,
-        fn: Callable[[Any, Any, float], float | None] = _example_loss,
+        fn: Callable[[Any, Any, float], float | None] | None = None,
         bounds: tuple[float, float] = (-0.5, 0.5),
         name: str | None = None,
     ) -> None:
@@ -177,11 +178,11 @@ class FunctionLoss(Loss[Any, Any]):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        return [{}]
+        return [{"fn": _squashed_difference}]
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[Any, Any]]:
-        """Inputs for the default function (``record - truth`` is a number)."""
+        """Inputs for the checked function (``record - truth`` is a number)."""
         return [(0.0, 0.0), (1.0, -1.0), (-3.0, 2.5)]
 
     def _check_bounds(self) -> tuple[float, float]:
@@ -191,6 +192,8 @@ class FunctionLoss(Loss[Any, Any]):
             raise ValueError(f"bounds must be a pair (lo, hi), got {self.bounds!r}") from None
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise ValueError(f"bounds must be finite with lo < hi, got {self.bounds!r}")
+        if self.fn is None:
+            raise ValueError("FunctionLoss needs fn=, a function fn(record, truth, lam)")
         if not callable(self.fn):
             raise ValueError(f"fn must be callable, got {self.fn!r}")
         return lo, hi
@@ -198,7 +201,10 @@ class FunctionLoss(Loss[Any, Any]):
     def __call__(self, record: Any, truth: Any, lam: float) -> float | None:
         lo, hi = self._check_bounds()
         lam = check_lambda(lam)
-        value = self.fn(record, truth, lam)
+        fn = self.fn
+        if fn is None:  # refused by _check_bounds; narrows the type
+            raise ValueError("FunctionLoss needs fn=, a function fn(record, truth, lam)")
+        value = fn(record, truth, lam)
         if value is None:
             return None
         try:

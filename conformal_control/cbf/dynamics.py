@@ -76,10 +76,3 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
         out[:2] = s[:2] + v_cmd * dt + dv * (-math.expm1(-k * dt)) / k
         out[2:] = v_cmd + dv * decay
         return out
-
-    def acceleration(self, state: np.ndarray, command: np.ndarray) -> np.ndarray:
-        """The tracking law's acceleration at ``state`` (m/s^2)."""
-        acc: np.ndarray = -self.K_acc * (
-            np.asarray(state, dtype=float)[2:] - np.asarray(command, float)
-        )
-        return acc

@@ -81,10 +81,6 @@ class UnitSystem:
                 out[k] = v
         return out
 
-    def from_si(self, name: str, value: float) -> float:
-        """Express an SI value of parameter ``name`` in these units."""
-        return value / self.factor(name)
-
     def unit_of(self, name: str) -> str:
         """Human-readable unit of a parameter in this system."""
         p, q = PARAM_DIMENSIONS.get(name, (0, 0))

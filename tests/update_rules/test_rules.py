@@ -191,7 +191,9 @@ def test_wrap_loss_checks_range() -> None:
     with pytest.raises(ValueError, match="lo < hi"):
         wrap_loss(lambda *a: 0.0, bounds=(1, 0))
     assert wrap_loss(lambda *a: None, bounds=(0, 1))(0, 0, 0) is None
-    assert FunctionLoss()(0.0, 0.0, 0.0) == 0.0
+    assert FunctionLoss(lambda r, t, lam: 0.0)(0.0, 0.0, 0.0) == 0.0
+    with pytest.raises(ValueError, match="needs fn="):
+        FunctionLoss()(0.0, 0.0, 0.0)
 
 
 def test_miscoverage_loss() -> None:
