@@ -260,7 +260,7 @@ def api_index() -> str:
     for module in public_modules():
         obj = pkg.get_member(module.split(".", 1)[1]) if "." in module else pkg
         doc = obj.docstring.value.strip().splitlines()[0] if obj.docstring else ""
-        doc = _SPEC_PAREN.sub("", doc).replace("|", "\\|")
+        doc = doc.replace("|", "\\|")
         rows.append(f"| [`{module}`][{module}] | {doc} |")
     return "\n".join(rows)
 
@@ -270,8 +270,6 @@ _ROLE = re.compile(
     r":(?:py:)?(mod|meth|class|func|data|attr|obj|exc|const|type):"
     r"`(!?)(~?)([^`<]+?)(?:\s*<([^>`]+)>)?`"
 )
-_SPEC_PAREN = re.compile(r"\s*\((?:see )?SPEC\b[^()]*\)")
-_SPEC_AS = re.compile(r",?\s*as SPEC states (?:them|it)")
 
 
 class SphinxRoles(griffe.Extension):
@@ -280,8 +278,7 @@ class SphinxRoles(griffe.Extension):
     Targets are resolved as Sphinx does: relative to the object, then its parents, then as
     an absolute path; failing that, by a unique object of that name in the package. An
     object defined in a private module links to its public re-export. A role whose target
-    is not found becomes plain code (logged). Parenthesised references to documents that
-    are not part of the site (``(SPEC ...)``) are dropped from the rendered text.
+    is not found becomes plain code (logged).
     """
 
     def on_package(self, *, pkg: Any, loader: Any = None, **kwargs: Any) -> None:
@@ -298,12 +295,8 @@ class SphinxRoles(griffe.Extension):
         for obj in objects:
             if obj.docstring is None:
                 continue
-            text = obj.docstring.value
-            new = _SPEC_AS.sub("", _SPEC_PAREN.sub("", text))
-            if new != text:
-                log.info("%s: reference to a document outside the site dropped", obj.path)
             obj.docstring.value = _ROLE.sub(
-                lambda m, o=obj: _role_link(m, o, pkg, by_name, public), new
+                lambda m, o=obj: _role_link(m, o, pkg, by_name, public), obj.docstring.value
             )
 
 

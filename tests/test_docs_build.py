@@ -322,9 +322,17 @@ def test_install_lines_are_the_readme_set_up_command() -> None:
 
 
 def _text_files() -> list[Path]:
-    """Documentation and examples as a user reads them (the docs build hook is code)."""
+    """Documentation, examples and the sources users read (package, plugins, docs hooks)."""
     files = [ROOT / "README.md", ROOT / "CONTRIBUTING.md"]
-    files += [p for p in (ROOT / "docs").rglob("*") if p.suffix in {".md", ".yml", ".js", ".css"}]
+    files += [
+        p for p in (ROOT / "docs").rglob("*") if p.suffix in {".md", ".yml", ".js", ".css", ".py"}
+    ]
+    files += [
+        p
+        for d in ("conformal_control", "plugins")
+        for p in (ROOT / d).rglob("*.py")
+        if ".egg-info" not in str(p)
+    ]
     files += [
         p
         for p in (ROOT / "examples").rglob("*")
