@@ -106,6 +106,22 @@ SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
     "family": (None, "cbf"),
 }
 _FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
+#: The role keywords of :func:`run_episode` (a name or instance, and its parameters).
+_ROLE_KEYS = (
+    "barrier",
+    "barrier_params",
+    "safety_filter",
+    "safety_filter_params",
+    "fallback",
+    "reference",
+    "reference_params",
+    "dynamics",
+    "dynamics_params",
+    "loss",
+    "loss_params",
+    "family",
+    "family_params",
+)
 #: Keyword arguments of :func:`run_episode` the engine accepts (besides the scene).
 _RUN_KEYS = frozenset(
     {
@@ -122,21 +138,9 @@ _RUN_KEYS = frozenset(
         "rule_params",
         "lambda_safe",
         "lambda_safe_source",
-        "barrier",
-        "barrier_params",
-        "safety_filter",
-        "safety_filter_params",
-        "fallback",
-        "reference",
-        "reference_params",
-        "dynamics",
-        "dynamics_params",
-        "loss",
-        "loss_params",
+        *_ROLE_KEYS,
         "crowd",
         "crowd_params",
-        "family",
-        "family_params",
         "record_animation",
         "on_interval",
     }
@@ -865,26 +869,7 @@ def iter_batch(
         "predictor": predictor,
         "units": units,
         "params": params,
-        **{
-            k: kw.get(k)
-            for k in (
-                "predictor_params",
-                "rule_params",
-                "barrier",
-                "barrier_params",
-                "safety_filter",
-                "safety_filter_params",
-                "fallback",
-                "reference",
-                "reference_params",
-                "dynamics",
-                "dynamics_params",
-                "loss",
-                "loss_params",
-                "family",
-                "family_params",
-            )
-        },
+        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
         "rule": kw.get("rule") or "fixed_eta",
     }
     episode_kw = {
