@@ -31,7 +31,11 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
         "--predictor-param", action="append", metavar="KEY=VALUE", help="predictor argument"
     )
     p.add_argument("--out", default="reproduce", help="output folder (reused to resume)")
-    add_executor_args(p)
+    add_executor_args(
+        p,
+        auto="serial when the predictor is a fast one (constant_velocity, oracle, var), "
+        "else process",
+    )
     p.add_argument(
         "--frames", type=int, default=None, help="simulate at most N frames per run (smoke test)"
     )

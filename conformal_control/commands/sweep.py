@@ -9,17 +9,21 @@ import warnings
 from . import command, key_values
 
 
-def add_executor_args(p: argparse.ArgumentParser) -> None:
-    """``--executor``, ``--workers``, ``--scheduler`` (shared with ``reproduce``)."""
+def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> None:
+    """``--executor``, ``--workers``, ``--scheduler`` (shared with ``reproduce``).
+
+    ``auto``: the help of an ``auto`` choice, which is then the default.
+    """
+    help = (
+        "process pool on this machine, serial (in this process), dask, or batch (the "
+        "runs the lockstep engine supports many at once in this process, same metrics; "
+        "the others on a process pool)"
+    )
     p.add_argument(
         "--executor",
-        choices=("process", "serial", "dask", "batch"),
-        default="process",
-        help=(
-            "process pool on this machine (default), serial (in this process), dask, or "
-            "batch (the runs the lockstep engine supports many at once in this process, "
-            "same metrics; the others on a process pool)"
-        ),
+        choices=("process", "serial", "dask", "batch", *(("auto",) if auto else ())),
+        default="auto" if auto else "process",
+        help=help + (f"; auto (default): {auto}" if auto else "; default: process"),
     )
     p.add_argument(
         "-j",

@@ -26,17 +26,59 @@ def _fmt(v: Any, spec: str) -> str:
 
 
 def _save(fig: Any, path: str | Path, dpi: int) -> None:
-    """Save as a palette PNG (256 colours): a third of the size, for docs and reports."""
+    """Save as a palette PNG (256 colours): a third of the size, for docs and reports.
+
+    The figure is rendered once and its pixels are quantised in memory (no full-colour
+    PNG encoded, read back and encoded again).
+    """
     plt = _mpl()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
     try:
         from PIL import Image
     except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+        fig.savefig(path, dpi=dpi)
+        plt.close(fig)
         return
-    with Image.open(path) as im:
-        small = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-    small.save(path, optimize=True)
+    fig.set_dpi(dpi)
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())
+    plt.close(fig)
+    im = Image.fromarray(rgba[..., :3])
+    im.quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
+
+
+def _grid(
+    plt: Any,
+    nrows: int,
+    cols: int,
+    panel: tuple[float, float],
+    margins: tuple[float, float, float, float],
+    gaps: tuple[float, float],
+) -> tuple[Figure, np.ndarray]:
+    """A figure of ``nrows`` x ``cols`` panels of ``panel`` inches, laid out in inches.
+
+    ``margins`` (left, right, top, bottom) and ``gaps`` (between columns, between rows)
+    leave room for the tick labels, axis labels and titles; a fixed layout instead of
+    ``tight_layout``, which measures every text of every panel (most of a grid's drawing
+    time).
+    """
+    (w, h), (left, right, top, bottom), (wgap, hgap) = panel, margins, gaps
+    fig_w = left + right + cols * w + (cols - 1) * wgap
+    fig_h = top + bottom + nrows * h + (nrows - 1) * hgap
+    fig, axes = plt.subplots(
+        nrows,
+        cols,
+        figsize=(fig_w, fig_h),
+        squeeze=False,
+        gridspec_kw={
+            "left": left / fig_w,
+            "right": 1 - right / fig_w,
+            "top": 1 - top / fig_h,
+            "bottom": bottom / fig_h,
+            "wspace": wgap / w,
+            "hspace": hgap / h,
+        },
+    )
+    return fig, axes
 
 
 def plot_paths_grid(
@@ -76,10 +118,16 @@ def plot_paths_grid(
     aspect = (y_hi - y_lo) / max(width, 1e-9)
     cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
-    panel_w = panel_width
     fig: Figure
-    fig, axes = plt.subplots(
-        nrows, cols, figsize=(panel_w * cols, (panel_w * aspect + 1.2) * nrows), squeeze=False
+    # room for: the y tick and axis labels (left), two title lines (above each panel) and
+    # the x tick and axis labels (below); the suptitle on top
+    fig, axes = _grid(
+        plt,
+        nrows,
+        cols,
+        (panel_width, panel_width * aspect),
+        (0.6, 0.15, 0.45 + (0.35 if title else 0.0), 0.5),
+        (0.6, 0.9),
     )
     for ax, run in zip(axes.flat, runs, strict=False):
         tr = run.get("trajectory")
@@ -87,7 +135,7 @@ def plot_paths_grid(
             ax.set_title(f"{run['label']}: failed", fontsize=8)
             ax.axis("off")
             continue
-        plot_scene(ax, scene, tr)
+        plot_scene(ax, scene, tr, legend=False)
         ax.set_xlim(0, width)
         ax.set_ylim(y_hi, y_lo)
         m = run.get("metrics") or {}
@@ -97,16 +145,13 @@ def plot_paths_grid(
             f"d_min {_fmt(m.get('d_min'), '.2f')} m",
             fontsize=8,
         )
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
         ax.tick_params(labelsize=7)
         ax.set_xlabel("x (m)", fontsize=8)
         ax.set_ylabel("y (m)", fontsize=8)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=10, y=1 - 0.12 / fig.get_figheight())
     _save(fig, path, dpi)
     return fig
 
@@ -130,9 +175,17 @@ def plot_lambda_loss_rows(
     n = len(runs)
     cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
-    w, h = panel_size
     fig: Figure
-    fig, axes = plt.subplots(nrows, cols, figsize=(w * cols, h * nrows), squeeze=False)
+    # room for: the left axis's tick and axis labels, the right (twin) axis's on the
+    # other side, a title line above each panel and the x labels below; the suptitle
+    fig, axes = _grid(
+        plt,
+        nrows,
+        cols,
+        (panel_size[0] - 1.35, panel_size[1] - 0.75),
+        (0.7, 0.65, 0.3 + (0.35 if title else 0.0), 0.45),
+        (1.35, 0.75),
+    )
     for ax, run in zip(axes.flat, runs, strict=False):
         iv = run.get("intervals")
         ax.set_title(run["label"], fontsize=8)
@@ -159,8 +212,9 @@ def plot_lambda_loss_rows(
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if title:
-        fig.suptitle(title + "  (red dashed: epsilon)", fontsize=10)
-    fig.tight_layout()
+        fig.suptitle(
+            title + "  (red dashed: epsilon)", fontsize=10, y=1 - 0.12 / fig.get_figheight()
+        )
     _save(fig, path, dpi)
     return fig
 

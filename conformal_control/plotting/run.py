@@ -115,13 +115,15 @@ def plot_scene(
     show_image: bool = True,
     collision_distance: float | None = None,
     image_dpi: float | None = None,
+    legend: bool = True,
 ) -> None:
     """Scene (reference image if any), pedestrian tracks during the run, robot path.
 
     Frames in which the robot is in collision are marked with red crosses. The reference
     image is drawn at about the resolution of the axes (see :func:`reference_image`):
     ``image_dpi`` is the resolution the figure will be saved at (default: the larger of
-    the figure's dpi and ``savefig.dpi``).
+    the figure's dpi and ``savefig.dpi``). ``legend=False`` leaves the legend out (a
+    grid of panels that share one).
     """
     if show_image and scene.image is not None and Path(scene.image).exists():
         img, (w_px, h_px) = reference_image(scene.image, _axes_pixels(ax, image_dpi))
@@ -132,13 +134,19 @@ def plot_scene(
         ax.set_ylim(scene.extent[1], 0)
     frames = trajectory["frame"] - scene.first_frame
     if frames.size:
+        # every track in one line, NaN-separated (one artist instead of one per
+        # pedestrian: the drawing and the legend's placement scale with the artists)
         win = scene.positions[frames[0] : frames[-1] + 1]
-        for j in range(win.shape[1]):
-            xy = win[:, j]
-            if np.isfinite(xy[:, 0]).any():
-                ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", lw=0.7, alpha=0.6)
-                last = np.flatnonzero(np.isfinite(xy[:, 0]))[-1]
-                ax.plot(*xy[last], "o", color="tab:blue", ms=2.5, alpha=0.7)
+        seen = np.isfinite(win[:, :, 0])
+        cols = np.flatnonzero(seen.any(axis=0))
+        if cols.size:
+            tracks = win[:, cols].transpose(1, 0, 2)  # (tracks, frames, 2)
+            gap = np.full((cols.size, 1, 2), np.nan)
+            path = np.concatenate([tracks, gap], axis=1).reshape(-1, 2)
+            ax.plot(path[:, 0], path[:, 1], color="tab:blue", lw=0.7, alpha=0.6)
+            last = seen.shape[0] - 1 - np.argmax(seen[::-1][:, cols], axis=0)
+            ends = win[last, cols]
+            ax.plot(ends[:, 0], ends[:, 1], "o", color="tab:blue", ms=2.5, alpha=0.7, ls="")
     ax.plot(trajectory["x"], trajectory["y"], color="tab:orange", lw=2.0, label="robot")
     ax.plot(*scene.start, "s", color="green", ms=8, label="start")
     ax.plot(scene.goals[:, 0], scene.goals[:, 1], "*", color="red", ms=12, label="goal")
@@ -157,7 +165,8 @@ def plot_scene(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(scene.name)
-    ax.legend(loc="best", fontsize=7)
+    if legend:
+        ax.legend(loc="best", fontsize=7)
 
 
 def plot_lambda_loss(

@@ -123,6 +123,11 @@ class Predictor(Plugin, ABC):
     #: True for predictors that read the true future (:meth:`PredictionQuery.future`):
     #: the oracle baseline. Reports mark such runs; the contract kit feeds them a truth.
     requires_ground_truth: ClassVar[bool] = False
+    #: True for predictors whose forecasts cost a few milliseconds at most per sampling
+    #: time (nothing fitted by an iterative optimiser): a command with a handful of runs
+    #: of such predictors (``reproduce --executor auto``, its default) runs them in its own
+    #: process rather than paying for worker processes to start.
+    fast: ClassVar[bool] = False
 
     def reset(self) -> None:
         """Forget any state accumulated during an episode (optional)."""

@@ -36,6 +36,8 @@ class ConstantVelocityPredictor(Predictor):
         Number of sample intervals the velocity is averaged over (>= 1).
     """
 
+    fast = True
+
     def __init__(self, window: int = 5) -> None:
         self.window = window
 

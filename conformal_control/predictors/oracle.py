@@ -19,6 +19,8 @@ class OraclePredictor(Predictor):
     controller holds the agent at its last known position (a counted fallback).
     """
 
+    fast = True
+
     requires_ground_truth = True
 
     def predict(self, query: PredictionQuery) -> Forecast:

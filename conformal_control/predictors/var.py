@@ -231,6 +231,8 @@ class VARPredictor(Predictor):
         above it is shrunk to it (counted in ``n_shrunk``).
     """
 
+    fast = True
+
     def __init__(
         self,
         p: int = 10,

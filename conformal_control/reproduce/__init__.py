@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .paper import PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
-from .report import IDENTITY_TOL, TARGETS, ReproRow, plan, reproduce
+from .report import IDENTITY_TOL, TARGETS, ReproRow, auto_executor, plan, reproduce
 
 __all__ = [
     "IDENTITY_TOL",
@@ -13,6 +13,7 @@ __all__ = [
     "PaperRow",
     "PaperTable",
     "ReproRow",
+    "auto_executor",
     "plan",
     "reproduce",
     "variant_a",

@@ -34,6 +34,7 @@ __all__ = [
     "IDENTITY_TOL",
     "TARGETS",
     "ReproRow",
+    "auto_executor",
     "plan",
     "reproduce",
 ]
@@ -494,6 +495,16 @@ def _figures(
 
 
 # ---------------------------------------------------------------------------- driver
+def auto_executor(configs: Sequence[RunConfig]) -> str:
+    """``"serial"`` when every run's predictor is a fast one (a dozen episodes then take
+    about a second in this process, less than starting worker processes), else
+    ``"process"``."""
+    from .. import registry
+
+    fast = all(getattr(registry.get("predictor", c.predictor), "fast", False) for c in configs)
+    return "serial" if fast else "process"
+
+
 def reproduce(
     targets: Sequence[str],
     out: str | Path,
@@ -501,7 +512,7 @@ def reproduce(
     data_root: str | None = None,
     predictor: str = "constant_velocity",
     predictor_params: dict[str, Any] | None = None,
-    executor: Executor | str = "process",
+    executor: Executor | str = "auto",
     workers: int | None = None,
     scheduler: str | None = None,
     frames: int | None = None,
@@ -511,6 +522,14 @@ def reproduce(
     variants: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Run the targets (``table1``, ``table2``, ``forms``) and write the reports.
+
+    Parameters
+    ----------
+    executor : Executor or str
+        Where the runs go (see :func:`~conformal_control.sweep.run_sweep`); ``"auto"``
+        (default) runs them in this process when every run's predictor is a fast one
+        (:attr:`~conformal_control.predictors.Predictor.fast`: a dozen episodes take about
+        a second, less than starting worker processes), else on a process pool.
 
     Returns
     -------
@@ -539,6 +558,8 @@ def reproduce(
         variants=variants,
     )
     unique = list({r.key: r.config for r in rows}.values())
+    if executor == "auto":
+        executor = auto_executor(unique)
     report = run_sweep(
         unique,
         out / "sweep",
@@ -546,6 +567,7 @@ def reproduce(
         workers=workers,
         scheduler=scheduler,
         plot=False,
+        summary_plot=False,  # the report draws its own figures (below)
         progress=progress,
     )
     by_key = {row["key"]: row for row in report.rows}

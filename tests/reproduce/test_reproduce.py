@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.reproduce import PAPER_TABLES, plan
+from conformal_control.reproduce import PAPER_TABLES, auto_executor, plan
 
 
 def read(path: Path) -> list[dict[str, str]]:
@@ -125,6 +125,17 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
     )
     assert "7 runs (0 reused, 7 ran, 0 failed)" in capsys.readouterr().out
     assert {r["variant"] for r in read(one / "table2.csv")} == {"published"}
+
+
+def test_auto_executor_runs_fast_predictors_in_process() -> None:
+    """reproduce's default executor: serial for fast predictors, a process pool else."""
+    from conformal_control import registry
+
+    assert all(registry.get("predictor", n).fast for n in ("constant_velocity", "oracle", "var"))
+    assert auto_executor([r.config for r in plan(["table2"])]) == "serial"
+    assert auto_executor([r.config for r in plan(["table2"], predictor="var")]) == "serial"
+    # the oracle rows stay, but one slow predictor sends the whole plan to the pool
+    assert auto_executor([r.config for r in plan(["table2"], predictor="kalman")]) == "process"
 
 
 def test_unknown_predictor_is_a_clear_error(tmp_path: Path, capsys) -> None:
