@@ -253,6 +253,28 @@ def sec_startup(args: argparse.Namespace) -> list[Figure]:
     )
     k = 2 if args.quick else 3
     with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
+        # the floor of any command that runs a compiled step and saves a figure: the
+        # interpreter, numpy, numba's first compiled call (it initialises LLVM, as loading
+        # a cached kernel does) and matplotlib saving an empty figure
+        png = str(Path(tmp) / "floor.png")
+        floor_code = (
+            "import numpy, numba, matplotlib; matplotlib.use('Agg'); "
+            "import matplotlib.pyplot as plt; numba.njit(lambda x: x + 1.0)(1.0); "
+            f"plt.figure().savefig({png!r})"
+        )
+        floor, floor_cpu = time_command([py, "-c", floor_code], n)
+        out.append(
+            figure(
+                "startup",
+                "floor: numpy + numba's first call + matplotlib saving a figure",
+                floor,
+                "s",
+                ratios=base,
+                note=f"median of {n}; CPU {floor_cpu:.2f} s; `python -c` with no project "
+                "code: what any command with a compiled step and a plot pays first",
+            )
+        )
+        base = [*base, ("the floor", floor, "times")]
         run = [*_cli(), "run", "--scene", "nexus_4", "--data-root", str(args.data_root), "-q"]
         for plot in (True, False):
             cmd = [*run, "--out", str(Path(tmp) / f"run-{plot}")]
