@@ -18,7 +18,8 @@ as goals, never asserted. Sections (``--only`` picks some):
   (``bench_controller.measure_episode``);
 * ``startup``    -- the command line as a subprocess: ``import conformal_control.cli``,
   ``--help``, ``run --scene nexus_4`` with and without its plots, against ``python -c
-  pass`` and ``python -c "import numpy"``;
+  pass``, ``python -c "import numpy"`` and the floor of any such command (numpy, numba's
+  first compiled call, matplotlib saving a figure, no project code);
 * ``reproduce``  -- ``reproduce table2 --predictor var`` from a cold forecast cache, against
   the same command with constant-velocity predictions (no predictor cost);
 * ``predictors`` -- ``var``'s fit + forecast per window against darts' VARIMA on the same
@@ -30,7 +31,11 @@ as goals, never asserted. Sections (``--only`` picks some):
 * ``batch``      -- 1,000 crossing seeds on the batch engine against the per-episode loop,
   from ``bench_batch.measure(quick=..., data_root=...)`` when that function exists (it
   returns figure dicts as below or ``(name, value, unit, baseline, ratio)`` rows), else a
-  line saying it is not available.
+  line saying it is not available;
+* ``suite``      -- the benchmark's default suite, ``conformal-control bench run --split
+  test -j 2`` (every method, 4,368 episodes; ``--quick``: the first 40 scenarios), against
+  one episode per task on a 2-worker process pool for the first scenarios. The longest
+  section (minutes).
 
 A figure is a dict: ``section``, ``name``, ``value`` (seconds), ``unit`` (display unit:
 ``us``, ``ms`` or ``s``), optional ``target`` (seconds; the goal is value <= target),
@@ -423,6 +428,64 @@ def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
     return [_from_row(r) for r in measure(quick=args.quick, data_root=args.data_root)]
 
 
+def _bench_run(args: argparse.Namespace, out: Path, extra: list[str]) -> tuple[float, int, str]:
+    """``conformal-control bench run --split test -j 2 EXTRA`` into ``out``: wall time,
+    episodes run and the summary line."""
+    import re
+
+    cmd = [*_cli(), "bench", "run", "--split", "test", "-j", "2", "--progress", "off"]
+    cmd += ["--data-root", str(args.data_root), "--out", str(out), *extra]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}: {tail}")
+    line = next(
+        (x for x in proc.stdout.splitlines() if re.search(r"\d+ episodes: ", x)), proc.stdout
+    )
+    m = re.search(r"(\d+) ran \((\d+) failed\)", line)
+    if m is None or int(m.group(2)):
+        raise RuntimeError(f"unexpected bench run output: {line.strip()}")
+    return wall, int(m.group(1)), line.strip()
+
+
+def sec_suite(args: argparse.Namespace) -> list[Figure]:
+    """The benchmark's default suite (every method on the test split), against one
+    episode per task on a process pool for its first scenarios, timed in the same run."""
+    base_limit = 4 if args.quick else 8
+    with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
+        b_wall, b_n, _ = _bench_run(
+            args, Path(tmp) / "pool", ["--executor", "process", "--limit", str(base_limit)]
+        )
+        extra = ["--limit", "40"] if args.quick else []
+        wall, n, line = _bench_run(args, Path(tmp) / "suite", extra)
+    per_base = b_wall / b_n
+    name = (
+        "bench run, first 40 test scenarios (quick)"
+        if args.quick
+        else "bench run --split test (the default suite)"
+    )
+    return [
+        figure(
+            "suite",
+            name,
+            wall,
+            "s",
+            target=None if args.quick else 300.0,
+            note=f"{line}; -j 2; the process pool ran the first {base_limit} scenarios "
+            f"({b_n} episodes) in {b_wall:.0f} s, {per_base * 1e3:.0f} ms per episode",
+        ),
+        figure(
+            "suite",
+            "time per episode in the suite",
+            wall / n,
+            "ms",
+            ratios=[("one episode per task on a 2-worker pool", per_base, "faster")],
+        ),
+    ]
+
+
 #: key -> (title, function); a function returns its figures, or a sentence saying why
 #: there are none
 SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str]]] = {
@@ -434,6 +497,7 @@ SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str
     "synthetic": ("Synthetic crossing scenes", sec_synthetic),
     "sweep": ("Sweeps: summary plot vs per-run plots", sec_sweep),
     "batch": ("Many episodes: batch engine vs per-episode loop", sec_batch),
+    "suite": ("The benchmark's default suite", sec_suite),
 }
 
 
