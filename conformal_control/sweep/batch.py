@@ -4,13 +4,13 @@ With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the
 sweep are split in two:
 
 * a run is **batched** when :func:`~conformal_control.sim.batch.supports` accepts its
-  ``run_episode`` arguments (replayed crowd; constant-velocity or oracle predictor; APF
-  barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
-  attractive field; velocity-tracking plant; ``cbf_gap`` loss; ``fixed_eta`` rule, learning
-  or not) and it writes no animation or plots (``plot="metrics"`` or ``"none"``, or
-  ``record_animation: false``): the lockstep engine keeps neither. Batched runs are grouped
-  by everything but their scene, seed and frame limit, and each group runs in this process
-  through :func:`~conformal_control.sim.batch.iter_batch` (one core);
+  ``run_episode`` arguments (replayed crowd; any predictor and any update rule given by
+  name; APF barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold``
+  fallback; attractive field; velocity-tracking plant; ``cbf_gap``, ``collision`` or
+  ``distance_shortfall`` loss; learning or not) and it writes no animation or plots
+  (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
+  keeps neither. Batched runs are grouped by everything but their scene, seed and frame
+  limit, and each group runs in this process through :func:`~conformal_control.sim.batch.iter_batch` (one core);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
