@@ -10,7 +10,8 @@ sweep are split in two:
   ``distance_shortfall`` loss; learning or not) and it writes no animation or plots
   (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
-  limit, and each group runs in this process through :func:`~conformal_control.sim.batch.iter_batch` (one core);
+  limit, and each group runs in this process through
+  :func:`~conformal_control.sim.batch.iter_batch` (one core);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
