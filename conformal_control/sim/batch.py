@@ -836,7 +836,7 @@ class _Engine:
         assert ep is not None
         s, n = int(p.step[b]), int(p.n_agents[b])
         return CBFIntervalRecord(
-            ids=np.asarray(ep.fl.scene.agent_ids[p.sensed[b, :n]]),
+            ids=np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :n]]),
             x_ego=p.rec_x[b, :s].copy(),
             v_ego=p.rec_v[b, :s].copy(),
             x_pred=p.xp[b, :s, :n].copy(),
