@@ -102,6 +102,33 @@ def test_batch_reason(cfg, plot, words):
     assert words in batch_reason(cfg, plot)
 
 
+def test_batch_reason_batches_compiled_and_fast_predictors_only():
+    from conformal_control import registry
+    from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
+
+    class Slow(ConstantVelocityPredictor):
+        fast = False
+
+    class Fast(ConstantVelocityPredictor):
+        fast = True
+
+    registry.register("predictor", "slow_sweep_test", Slow)
+    registry.register("predictor", "fast_sweep_test", Fast)
+    try:
+        reasons = {
+            name: batch_reason({"scene": "crossing", "predictor": name}, "none")
+            for name in ("oracle", "constant_velocity", "fast_sweep_test", "slow_sweep_test")
+        }
+    finally:
+        registry.unregister("predictor", "slow_sweep_test")
+        registry.unregister("predictor", "fast_sweep_test")
+    assert reasons.pop("slow_sweep_test") == (
+        "predictor 'slow_sweep_test' is not marked fast: its runs predict in parallel on the pool"
+    )
+    assert reasons == dict.fromkeys(reasons)
+    assert "unknown" in batch_reason({"scene": "crossing", "predictor": "nope"}, "none").lower()
+
+
 def test_batch_reason_accepts_metrics_only_runs():
     assert batch_reason({"scene": "crossing"}, "metrics") is None
     assert (
