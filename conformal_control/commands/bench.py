@@ -103,10 +103,11 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         choices=("batch", "process", "serial", "dask"),
         help=(
             "batch (default): the runs the lockstep engine supports (replayed crowd, "
-            "constant-velocity or oracle predictor, fixed-eta rule, exact 2-D filter with "
-            "lambda_search/brake/hold; e.g. nolearn, fixed, conformal, oracle, inflated, "
-            "fallback:brake) many at once in this process, with the same metrics, the "
-            "others on a process pool; process: one episode per task on a process pool; "
+            "constant-velocity, oracle or another fast predictor, any update rule, gap or "
+            "collision loss, exact 2-D filter with lambda_search/brake/hold: every method "
+            "but fallback:relax and acp) many at once in this process, with the same "
+            "metrics, the others on a process pool; "
+            "process: one episode per task on a process pool; "
             "serial: one by one in this process; dask: a Dask cluster"
         ),
     )

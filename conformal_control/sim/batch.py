@@ -22,11 +22,26 @@ checks every metric against :func:`run_episode`). The wall time of the control l
 the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
-:func:`run_episode`): replayed crowds; the constant-velocity or oracle predictor; the APF
-barrier; the exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
-the attractive-field reference; the velocity-tracking plant; the ``cbf_gap`` loss; the
-``fixed_eta`` rule, learning or not. Roles are given by name (an instance would be shared
-by every episode).
+:func:`run_episode`): replayed crowds; any registered predictor; the APF barrier; the exact
+2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback; the attractive-field
+reference; the velocity-tracking plant; the ``cbf_gap``, ``collision`` or
+``distance_shortfall`` loss; any registered update rule, learning or not. Roles are given by
+name (an instance would be shared by every episode).
+
+What runs compiled and what runs through the episode's own objects: the constant-velocity
+and the oracle predictor are compiled (above); any other predictor is called at each
+sampling time on the query the episode's environment builds
+(:meth:`~conformal_control.sim.environment.ReplayEnvironment.sense`), through the
+controller's own ``begin_interval`` (sanitising, counters, interpolation, the same
+:class:`~conformal_control.cbf.controller.PredictorError`), and its interpolated
+predictions are copied into the batch. The gap loss is compiled; the ``collision`` and
+``distance_shortfall`` losses are the loss objects themselves, called on the interval's
+record and on the truth the environment reveals. The rule is the episode's own; a rule that
+evaluates the interval's loss at other lambdas (``uses_loss_function``, e.g. ``dtaci``)
+receives the loss as a function of lambda, as
+:class:`~conformal_control.loop.ConformalStepper` hands it (for the gap loss
+``s(max_gap + lambda)``: the gaps do not depend on lambda, and
+:class:`~conformal_control.cbf.loss.CBFGapLoss` adds lambda to their maximum).
 
 Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
 refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
@@ -49,10 +64,11 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
+from ..base import Loss
 from ..cbf import kernels2d
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
-from ..cbf.controller import ConformalCBFController, PredictorError
+from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.feasibility import feasibility_floor
@@ -65,15 +81,15 @@ from ..cbf.kernels_batch import (
     gap_maxima,
     reference_velocities,
 )
-from ..cbf.loss import CBFGapLoss
+from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.reference import AttractiveField
+from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene
-from ..loop import ConformalLoop, IntervalLog, LoopResult
+from ..loop import ConformalLoop, IntervalLog, LoopResult, _LossAt
 from ..monitor import GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityPredictor
 from ..predictors.oracle import OraclePredictor
-from ..update_rules import FixedEtaRule
 from . import batch_kernels as bk
 from .build import Flagship, build_flagship
 from .environment import FrameLog, ReplayEnvironment
@@ -95,16 +111,21 @@ _T = TypeVar("_T")
 
 #: Roles the engine runs, by the names they are registered under (None: the default).
 SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
-    "predictor": ("constant_velocity", "oracle"),
     "barrier": (None, "apf"),
     "safety_filter": (None, "exact2d"),
     "fallback": (None, "lambda_search", "brake", "hold"),
     "reference": (None, "attractive_field"),
     "dynamics": (None, "velocity_tracking"),
-    "loss": (None, "cbf_gap"),
-    "rule": (None, "fixed_eta"),
+    "loss": (None, "cbf_gap", "collision", "distance_shortfall"),
     "family": (None, "cbf"),
 }
+#: Roles the engine runs under any registered name (each episode builds and runs its own).
+ANY_NAME_ROLES = ("predictor", "rule")
+#: Losses the engine scores with their own code on the interval's record and truth (they
+#: read the ego's positions and the truth, not the filter's status strings).
+_RECORD_LOSSES = (CollisionLoss, DistanceShortfallLoss)
+#: Predictor code of an episode whose predictor is called in Python (not compiled).
+_OWN = -1
 _FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
 #: The role keywords of :func:`run_episode` (a name or instance, and its parameters).
 _ROLE_KEYS = (
@@ -162,14 +183,15 @@ def supports(**run_kwargs: Any) -> str | None:
     if unknown:
         return f"{unknown[0]!r} is not a keyword argument of run_episode"
     kw = {"predictor": "constant_velocity", **run_kwargs}
-    for role, names in SUPPORTED_ROLES.items():
+    for role in (*ANY_NAME_ROLES, *SUPPORTED_ROLES):
         spec = kw.get(role)
         if spec is not None and not isinstance(spec, str):
             return (
                 f"{role} given as a {type(spec).__name__} instance: the batch engine builds "
                 "one per episode, give it by registered name"
             )
-        if spec not in names:
+        names = SUPPORTED_ROLES.get(role)
+        if names is not None and spec not in names:
             shown = ", ".join(n for n in names if n is not None)
             return f"{role} {spec!r}: the batch engine runs {shown}"
     fallback = (kw.get("params") or {}).get("fallback")
@@ -218,7 +240,8 @@ class _Parts:
     safety_filter: Exact2DSafetyFilter
     reference: AttractiveField
     dynamics: VelocityTrackingDoubleIntegrator
-    loss: CBFGapLoss
+    loss: Loss[Any, Any]  # a CBFGapLoss (compiled) or one of _RECORD_LOSSES
+    gap: CBFGapLoss | None  # the loss if it is the gap loss
 
 
 def _parts(fl: Flagship) -> _Parts:
@@ -231,18 +254,47 @@ def _parts(fl: Flagship) -> _Parts:
     filt = _exact(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
     reference = _exact(fl.reference, AttractiveField, "reference")
     dynamics = _exact(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
-    loss = _exact(fl.loss, CBFGapLoss, "loss")
-    _exact(fl.rule, FixedEtaRule, "update rule")
-    if type(fl.predictor) not in (ConstantVelocityPredictor, OraclePredictor):
-        raise _NotRun(f"the predictor is a {type(fl.predictor).__name__}")
-    if loss.constraint is not constraint or policy.constraint is not constraint:
+    loss = fl.loss
+    gap = loss if type(loss) is CBFGapLoss else None
+    if gap is None and type(loss) not in _RECORD_LOSSES:
+        shown = ", ".join(c.__name__ for c in (CBFGapLoss, *_RECORD_LOSSES))
+        raise _NotRun(f"the loss is a {type(loss).__name__}, not one of {shown}")
+    if (gap is not None and gap.constraint is not constraint) or (
+        policy.constraint is not constraint
+    ):
         raise _NotRun("the loss and the controller do not share the run's constraint")
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
     if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
         raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
-    return _Parts(env, barrier, filt, reference, dynamics, loss)
+    return _Parts(env, barrier, filt, reference, dynamics, loss, gap)
+
+
+def _predictor_code(pred: object) -> int:
+    """The compiled predictor of :func:`~conformal_control.sim.batch_kernels.predict_interpolate`
+    that ``pred`` is (its class exactly: a subclass may predict otherwise), else ``_OWN``."""
+    if type(pred) is ConstantVelocityPredictor:
+        return bk.CONSTANT_VELOCITY
+    if type(pred) is OraclePredictor:
+        return bk.ORACLE
+    return _OWN
+
+
+class _GapLossAt:
+    """The gap loss of an interval as a function of lambda: ``s(max_gap + lambda)``, as
+    :meth:`CBFGapLoss.__call__ <conformal_control.cbf.loss.CBFGapLoss.__call__>` computes it
+    (the gaps do not depend on lambda; lambda is added to their maximum), from the maximum
+    the engine computed (what ``ConformalStepper.end_interval`` hands a rule with
+    ``uses_loss_function``, without rebuilding the interval's record)."""
+
+    def __init__(self, loss: CBFGapLoss, max_gap: np.float64) -> None:
+        self.loss, self.max_gap = loss, max_gap
+
+    def __call__(self, lam: float) -> float:
+        if math.isnan(lam):
+            raise ValueError("the loss needs a lambda that is a number, got nan")
+        return float(self.loss.squash(self.max_gap + lam))
 
 
 # ------------------------------------------------------------------------------ episodes
@@ -505,7 +557,8 @@ class _Engine:
         if not (math.isfinite(k) and k > 0):
             raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
         pred = fl.predictor
-        window = getattr(pred, "window", 1)
+        code = _predictor_code(pred)
+        window = getattr(pred, "window", 1) if code == bk.CONSTANT_VELOCITY else 1
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -554,8 +607,11 @@ class _Engine:
         p.k_acc[b] = k
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
-        p.scale[b] = parts.loss.scale
-        self._squash.setdefault(float(parts.loss.scale), parts.loss.squash)
+        if parts.gap is not None:
+            p.scale[b] = parts.gap.scale
+            self._squash.setdefault(float(parts.gap.scale), parts.gap.squash)
+        else:  # scored by the loss object (see end)
+            p.scale[b] = math.nan
         p.last[b] = 0.0
         p.step[b] = 0
         p.fi[b] = sc.start_index
@@ -563,7 +619,7 @@ class _Engine:
         p.substeps[b] = substeps
         p.tau[b] = tau
         p.history[b] = int(env.history_frames)
-        p.predictor[b] = bk.ORACLE if isinstance(pred, OraclePredictor) else bk.CONSTANT_VELOCITY
+        p.predictor[b] = code
         p.window[b] = int(window)
         p.n_log[b] = 0
         p.wall[b] = 0.0
@@ -608,6 +664,10 @@ class _Engine:
             assert ep is not None  # slots are live
             ep.n_sensed.append(m)
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
+        own = p.predictor[predicted] == _OWN
+        for b in predicted[own].tolist():
+            self._predict_own(b)
+        predicted = predicted[~own]
         if predicted.size:
             bk.predict_interpolate(
                 predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
@@ -619,6 +679,29 @@ class _Engine:
             p.n_short_total[predicted] += p.n_short[predicted]
         frames = np.minimum(p.tau[slots], p.last_frame[slots] - p.fi[slots])
         p.n_ctrl[slots] = np.maximum(frames, 0) * p.substeps[slots]
+
+    def _predict_own(self, b: int) -> None:
+        """Slot ``b``'s predictions from its own predictor: the environment's query (its
+        sensor on the engine's state), the controller's ``begin_interval`` (prediction,
+        counters, sanitising, interpolation), copied into ``xp`` / ``vp``."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None  # b is live
+        env, policy = ep.parts.env, ep.fl.policy
+        n = int(p.n_agents[b])
+        # the environment senses where the engine's robot is, at the engine's frame and time
+        env._x = p.x[b].copy()
+        env._fi = int(p.fi[b])
+        env._t = float(p.t[b])
+        query = env.sense()
+        if not np.array_equal(env._sensed, p.sensed[b, :n]):  # both are the same range test
+            raise RuntimeError(
+                f"run_batch: the sensor and the engine disagree on the agents sensed in "
+                f"episode {ep.index} at frame {query.frame}; use run_episode"
+            )
+        policy.begin_interval(query)
+        s = int(policy._xp.shape[0])
+        p.xp[b, :s, :n] = policy._xp
+        p.vp[b, :s, :n] = policy._vp
 
     # ------------------------------------------------------------------ control instant
     def control(self, slots: np.ndarray) -> None:
@@ -670,7 +753,8 @@ class _Engine:
         """Score the intervals of ``slots`` (they end now), update lambda; returns the
         slots whose episode is over."""
         p = self.pool
-        scored = slots[(p.n_agents[slots] > 0) & (p.step[slots] > 0)]
+        # the gap loss's intervals with pairs to score (other losses: their objects, below)
+        scored = slots[(p.n_agents[slots] > 0) & (p.step[slots] > 0) & ~np.isnan(p.scale[slots])]
         top = np.full(p.size, -np.inf)
         top_applied = np.full(p.size, -np.inf)
         n_pairs = np.zeros(p.size, dtype=np.int64)
@@ -701,14 +785,22 @@ class _Engine:
             lam = float(p.lam[b])
             s = int(p.step[b])
             pairs = int(n_pairs[b])
-            if pairs:
-                l_k: float | None = float(loss[b])
+            loss_at: Any = None  # l_k as a function of lambda, for a rule that asks for it
+            gap = ep.parts.gap
+            if gap is None:  # the loss object on the interval's record and truth
+                rec, revealed, own_loss = self._record(b), self._truth(b), ep.parts.loss
+                l_k = own_loss(rec, revealed, lam)
+                diagnostics = own_loss.diagnostics(rec, revealed, lam) if l_k is not None else {}
+                loss_at = _LossAt(own_loss, rec, revealed)
+            elif pairs:
+                l_k = float(loss[b])
                 diagnostics = {
                     "loss_applied": float(applied[b]),
                     "max_gap": float(top[b]),
                     "n_pairs": pairs,
                     "n_truth_missing": s * int(p.n_agents[b]) - pairs,
                 }
+                loss_at = _GapLossAt(gap, top[b])
             else:
                 l_k, diagnostics = None, {}
             log = IntervalLog(
@@ -718,6 +810,9 @@ class _Engine:
             if l_k is not None:  # as ConformalStepper.end_interval
                 mon = ep.monitor
                 if ep.learn:
+                    rule = ep.fl.rule
+                    if rule.uses_loss_function:
+                        rule.set_loss_function(loss_at)
                     lam = mon.update(l_k)
                 else:
                     mon.observe(l_k, lam)
@@ -733,6 +828,32 @@ class _Engine:
             else:
                 p.need_begin[b] = True
         return finished
+
+    def _record(self, b: int) -> CBFIntervalRecord:
+        """Slot ``b``'s interval as the controller's ``interval_record`` gives it (without
+        the filter's status strings, which the engine does not keep)."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        s, n = int(p.step[b]), int(p.n_agents[b])
+        return CBFIntervalRecord(
+            ids=np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :n]]),
+            x_ego=p.rec_x[b, :s].copy(),
+            v_ego=p.rec_v[b, :s].copy(),
+            x_pred=p.xp[b, :s, :n].copy(),
+            v_pred=p.vp[b, :s, :n].copy(),
+            lam_applied=p.rec_lam[b, :s].copy(),
+        )
+
+    def _truth(self, b: int) -> CBFTruth:
+        """Slot ``b``'s truth, revealed by its environment (its own code) on the engine's
+        state of the interval: its start frame, the agents sensed then, its steps."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        env = ep.parts.env
+        env._k_start = int(p.k_start[b])
+        env._sensed = p.sensed[b, : int(p.n_agents[b])].copy()
+        env._step = int(p.step[b])
+        return env.reveal()
 
     # ------------------------------------------------------------------ episode end
     def finish(self, b: int) -> tuple[int, EpisodeResult | EpisodeMetrics]:
@@ -758,7 +879,8 @@ class _Engine:
         env.n_sensed_ = ep.n_sensed
         c = p.counts[b].tolist()
         policy.n_steps_ = c[4]
-        policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
+        if p.predictor[b] != _OWN:  # (an own predictor's are the controller's already)
+            policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
         if p.n_predicted[b] and p.predictor[b] == bk.CONSTANT_VELOCITY:
             policy.forecast_info_ = {"n_short_history": int(p.n_short_total[b])}
         filt.n_solves_, filt.n_infeasible_, filt.n_fallback_ = c[0], c[1], c[2]

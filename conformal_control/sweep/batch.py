@@ -4,13 +4,16 @@ With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the
 sweep are split in two:
 
 * a run is **batched** when :func:`~conformal_control.sim.batch.supports` accepts its
-  ``run_episode`` arguments (replayed crowd; constant-velocity or oracle predictor; APF
+  ``run_episode`` arguments (replayed crowd; the constant-velocity or oracle predictor, or
+  any predictor marked ``fast`` -- the engine calls the others in this process, one episode
+  after another, while the pool predicts in parallel; any update rule given by name; APF
   barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
-  attractive field; velocity-tracking plant; ``cbf_gap`` loss; ``fixed_eta`` rule, learning
-  or not) and it writes no animation or plots (``plot="metrics"`` or ``"none"``, or
-  ``record_animation: false``): the lockstep engine keeps neither. Batched runs are grouped
-  by everything but their scene, seed and frame limit, and each group runs in this process
-  through :func:`~conformal_control.sim.batch.iter_batch` (one core);
+  attractive field; velocity-tracking plant; ``cbf_gap``, ``collision`` or
+  ``distance_shortfall`` loss; learning or not) and it writes no animation or plots
+  (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
+  keeps neither. Batched runs are grouped by everything but their scene, seed and frame
+  limit, and each group runs in this process through
+  :func:`~conformal_control.sim.batch.iter_batch` (one core);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
@@ -53,11 +56,29 @@ def batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | Non
         return "the batch engine keeps no per-instant steps to plot"
     elif episode.get("record_animation", True):
         return "the run directory gets an animation, which the batch engine does not record"
-    return supports(
-        predictor=cfg.get("predictor") or "constant_velocity",
-        predictor_params=cfg.get("predictor_params"),
-        **episode,
-    )
+    predictor = cfg.get("predictor") or "constant_velocity"
+    slow = _slow_predictor(predictor)
+    if slow is not None:
+        return slow
+    return supports(predictor=predictor, predictor_params=cfg.get("predictor_params"), **episode)
+
+
+def _slow_predictor(name: Any) -> str | None:
+    """Why runs with the predictor ``name`` go to the pool: the engine calls a predictor it
+    does not compile (any but constant_velocity and oracle) in this process, one episode
+    after another, so only predictors marked ``fast`` are batched; a slow one predicts in
+    parallel on the pool's workers."""
+    from .. import registry
+
+    if not isinstance(name, str) or name in ("constant_velocity", "oracle"):
+        return None  # an instance: supports() says why not
+    try:
+        fast = bool(getattr(registry.get("predictor", name), "fast", False))
+    except (registry.UnknownPluginError, registry.PluginUnavailableError) as exc:
+        return f"predictor {name!r}: {exc}"
+    if fast:
+        return None
+    return f"predictor {name!r} is not marked fast: its runs predict in parallel on the pool"
 
 
 def _group_key(cfg: dict[str, Any]) -> str:

@@ -177,8 +177,8 @@ def test_iter_batch_yields_indices_in_completion_order(crossings):
     ("kwargs", "words"),
     [
         ({"crowd": "orca"}, "replays recorded crowds"),
-        ({"rule": "pid"}, "rule 'pid'"),
-        ({"predictor": "lstm"}, "predictor 'lstm'"),
+        ({"loss": "acp_miscoverage"}, "loss 'acp_miscoverage'"),
+        ({"predictor": object()}, "predictor given as a object instance"),
         ({"fallback": "relax"}, "fallback 'relax'"),
         ({"family": "acp"}, "family 'acp'"),
         ({"record_animation": True}, "animation"),
@@ -193,7 +193,7 @@ def test_supports_names_the_reason(kwargs, words):
 
 def test_supported_configuration_and_clear_error(crossings):
     assert supports(predictor="oracle", learn=False, fallback="hold") is None
-    with pytest.raises(ValueError, match="does not support this configuration: rule 'pid'"):
-        run_batch(crossings[:1], rule="pid")
+    with pytest.raises(ValueError, match="does not support this configuration: fallback 'relax'"):
+        run_batch(crossings[:1], fallback="relax")
     with pytest.raises(ValueError, match="batch_size must be a positive integer"):
         run_batch(crossings[:1], batch_size=0)

@@ -34,7 +34,13 @@ def test_bench_run_batched_equals_serial(tmp_path, data_root):
     kw = {
         "suite": "crossings-v1",
         "split": "dev",
-        "methods": ["nolearn", "conformal", "conformal_pid"],
+        "methods": [
+            "conformal",
+            "conformal_pid",
+            "conformal_dtaci",
+            "conformal_aci",
+            "fallback:relax",
+        ],
         "grids": {"conformal": [-0.1]},
         "data_root": str(data_root),
         "limit": 2,
@@ -42,13 +48,13 @@ def test_bench_run_batched_equals_serial(tmp_path, data_root):
     }
     batched = run_bench(tmp_path / "batch", executor="batch", workers=1, **kw)
     serial = run_bench(tmp_path / "serial", executor="serial", **kw)
-    assert batched.failed == serial.failed == 0 and batched.ran == serial.ran == 6
+    assert batched.failed == serial.failed == 0 and batched.ran == serial.ran == 10
     rows_b, rows_s = read_rows(tmp_path / "batch"), read_rows(tmp_path / "serial")
     _same_rows(_by_key(rows_b), _by_key(rows_s))
-    # the supported methods ran batched, conformal_pid on the process pool
+    # the supported methods (any rule, the collision loss) ran batched, relax on the pool
     batched_runs = {r["label"] for r in rows_b if r["worker"].endswith("(batch)")}
-    assert batched_runs == {r["label"] for r in rows_b if "conformal_pid" not in r["label"]}
-    assert len(batched_runs) == 4
+    assert batched_runs == {r["label"] for r in rows_b if "relax" not in r["label"]}
+    assert len(batched_runs) == 8
     # config.json is the per-episode run's, plus the engine
     for r in rows_b:
         cb = json.loads((tmp_path / "batch" / r["run_dir"] / "config.json").read_text())
@@ -88,12 +94,39 @@ def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypa
     [
         ({"scene": "crossing"}, False, "animation"),
         ({"scene": "crossing"}, True, "plot"),
-        ({"scene": "crossing", "episode": {"rule": "pid"}}, "metrics", "rule 'pid'"),
-        ({"scene": "crossing", "predictor": "lstm"}, "none", "predictor 'lstm'"),
+        ({"scene": "crossing", "episode": {"fallback": "relax"}}, "metrics", "fallback 'relax'"),
+        ({"scene": "crossing", "episode": {"family": "acp"}}, "none", "family 'acp'"),
     ],
 )
 def test_batch_reason(cfg, plot, words):
     assert words in batch_reason(cfg, plot)
+
+
+def test_batch_reason_batches_compiled_and_fast_predictors_only():
+    from conformal_control import registry
+    from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
+
+    class Slow(ConstantVelocityPredictor):
+        fast = False
+
+    class Fast(ConstantVelocityPredictor):
+        fast = True
+
+    registry.register("predictor", "slow_sweep_test", Slow)
+    registry.register("predictor", "fast_sweep_test", Fast)
+    try:
+        reasons = {
+            name: batch_reason({"scene": "crossing", "predictor": name}, "none")
+            for name in ("oracle", "constant_velocity", "fast_sweep_test", "slow_sweep_test")
+        }
+    finally:
+        registry.unregister("predictor", "slow_sweep_test")
+        registry.unregister("predictor", "fast_sweep_test")
+    assert reasons.pop("slow_sweep_test") == (
+        "predictor 'slow_sweep_test' is not marked fast: its runs predict in parallel on the pool"
+    )
+    assert reasons == dict.fromkeys(reasons)
+    assert "unknown" in batch_reason({"scene": "crossing", "predictor": "nope"}, "none").lower()
 
 
 def test_batch_reason_accepts_metrics_only_runs():
@@ -133,7 +166,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     )
     monkeypatch.setattr("conformal_control.sweep.worker.load_run_scene", lambda cfg: _Scene())
     batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
-    pooled = {"scene": "crossing", "seed": 1, "episode": {"rule": "pid"}}
+    pooled = {"scene": "crossing", "seed": 1, "episode": {"fallback": "relax"}}
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]
     assert batch_reason(batched, "none") is None and batch_reason(pooled, "none") is not None
     records = dict(sweep_batch.run_batched(FakePool(), tasks))
