@@ -13,6 +13,8 @@ from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
+from .kernels2d import RECORD_FIELDS
+from .reference import AttractiveField
 from .roles import FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
@@ -25,6 +27,10 @@ __all__ = [
 
 #: Messages kept per key in ``forecast_info_`` (the rest are counted, not stored).
 MAX_MESSAGES = 50
+
+#: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
+#: infeasible step the Python fallback decided) records the fallback's own name.
+_CODE_STATUS = ("unconstrained", "optimal", "", "lambda_search", "lambda_search")
 
 
 class PredictorError(RuntimeError):
@@ -177,6 +183,7 @@ class ConformalCBFController(
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
         self._fused = self._fused_apf()
+        self._pv = np.zeros((2, 0, 0, 2))
         self.forecast_info_: dict[str, Any] = {}
         self._begin_empty()
 
@@ -212,6 +219,38 @@ class ConformalCBFController(
         self._rec_v: list[np.ndarray] = []
         self._rec_lam: list[float] = []
         self._rec_status: list[str] = []
+        # the compiled step's interval: it records into _rec itself (see _record)
+        self._fast = False
+        self._n = 0
+
+    def _record(self, rows: int) -> None:
+        """A fresh record for the compiled step (``kernels2d.apf_control``'s layout) of
+        ``rows`` control instants, keeping the first ``_n`` rows of the current one.
+
+        Fresh at every interval: decisions are returned as views of it, so one returned
+        earlier is never overwritten.
+        """
+        rec = np.zeros(RECORD_FIELDS * rows)
+        x, v, lam, code = (
+            rec[: 2 * rows],
+            rec[2 * rows : 4 * rows],
+            rec[4 * rows : 5 * rows],
+            rec[5 * rows :],
+        )
+        n = self._n
+        if n:
+            x[: 2 * n] = self._rx[:n].ravel()
+            v[: 2 * n] = self._rv[:n].ravel()
+            lam[:n] = self._rl[:n]
+            code[:n] = self._rc[:n]
+        else:
+            self._names: dict[int, str] = {}
+        self._rec = rec
+        self._rows = rows
+        self._rx = x.reshape(rows, 2)
+        self._rv = v.reshape(rows, 2)
+        self._rl = lam
+        self._rc = code
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -244,9 +283,22 @@ class ConformalCBFController(
         samples, had_bad = forward_fill(samples)
         self.n_nonfinite_predictions_ += int(had_bad.sum())
         n_steps = horizon * int(self.substeps)
-        self._xp, self._vp = interpolate_at_substeps(
-            samples, observation.dt, int(self.substeps), n_steps
+        xp, vp = interpolate_at_substeps(samples, observation.dt, int(self.substeps), n_steps)
+        if not self._fused:
+            self._xp, self._vp = xp, vp
+            return
+        # positions and velocities in one C-ordered array for the compiled step
+        self._pv = pv = np.empty((2, *xp.shape))
+        pv[0] = xp
+        pv[1] = vp
+        self._xp, self._vp = pv[0], pv[1]
+        self._fast = True
+        self._attract = (
+            type(self.reference) is AttractiveField
+            and type(self.reference.K_att) in (float, int)
+            and type(self.reference.v_max) in (float, int)
         )
+        self._record(max(n_steps, 1))
 
     # ------------------------------------------------------------------ control instant
     def constraint_rows(self, state: ControlState, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +317,8 @@ class ConformalCBFController(
         return lam
 
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        if self._fast:
+            return self._decide_compiled(state, lam)
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         res: FilterResult
@@ -282,7 +336,50 @@ class ConformalCBFController(
         self.n_steps_ += 1
         return res.decision
 
+    def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
+        """:meth:`decide` through the compiled step, which writes the record itself."""
+        i = self._n
+        if i == self._rows:
+            self._record(2 * i)
+        x = state.x.tolist()
+        x0 = x[0]
+        x1 = x[1]
+        if self._attract:
+            g = state.goal.tolist()
+            n0, n1 = self.reference.velocity(x0, x1, g[0], g[1])  # type: ignore[attr-defined]
+        else:
+            v_ref = self.reference(state.x, state.t, state.goal)
+            n0 = float(v_ref[0])
+            n1 = float(v_ref[1])
+        res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
+            x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
+        )
+        self._n = i + 1
+        self.n_steps_ += 1
+        if res is None:
+            return self._rv[i]  # type: ignore[no-any-return]
+        # a fallback decided in Python (brake, hold)
+        self._rv[i] = res.decision
+        self._rl[i] = res.lambda_applied
+        self._names[i] = res.status if res.fallback is None else res.fallback
+        return res.decision
+
     def interval_record(self) -> CBFIntervalRecord:
+        if self._fast:
+            s = self._n
+            names = self._names
+            return CBFIntervalRecord(
+                ids=self._ids,
+                x_ego=self._rx[:s].copy(),
+                v_ego=self._rv[:s].copy(),
+                x_pred=self._xp[:s],
+                v_pred=self._vp[:s],
+                lam_applied=self._rl[:s].copy(),
+                status=[
+                    names[j] if c == 2 else _CODE_STATUS[c]
+                    for j, c in enumerate(self._rc[:s].astype(int).tolist())
+                ],
+            )
         s = len(self._rec_x)
         return CBFIntervalRecord(
             ids=self._ids,
