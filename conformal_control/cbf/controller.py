@@ -230,27 +230,40 @@ class ConformalCBFController(
         Fresh at every interval: decisions are returned as views of it, so one returned
         earlier is never overwritten.
         """
-        rec = np.zeros(RECORD_FIELDS * rows)
-        x, v, lam, code = (
-            rec[: 2 * rows],
-            rec[2 * rows : 4 * rows],
-            rec[4 * rows : 5 * rows],
-            rec[5 * rows :],
-        )
         n = self._n
-        if n:
-            x[: 2 * n] = self._rx[:n].ravel()
-            v[: 2 * n] = self._rv[:n].ravel()
-            lam[:n] = self._rl[:n]
-            code[:n] = self._rc[:n]
-        else:
+        old = (self._rx[:n], self._rv[:n], self._rl[:n], self._rc[:n]) if n else ()
+        if not n:
             self._names: dict[int, str] = {}
-        self._rec = rec
+        self._rec = np.zeros(RECORD_FIELDS * rows)
         self._rows = rows
-        self._rx = x.reshape(rows, 2)
-        self._rv = v.reshape(rows, 2)
-        self._rl = lam
-        self._rc = code
+        self._views()
+        for dst, src in zip((self._rx, self._rv, self._rl, self._rc), old, strict=False):
+            dst[:n] = src
+
+    def _views(self) -> None:
+        """The record's blocks as views of ``_rec``: ego positions, decisions, lambda
+        applied, result codes."""
+        rec, rows = self._rec, self._rows
+        self._rx: np.ndarray = rec[: 2 * rows].reshape(rows, 2)
+        self._rv: np.ndarray = rec[2 * rows : 4 * rows].reshape(rows, 2)
+        self._rl: np.ndarray = rec[4 * rows : 5 * rows]
+        self._rc: np.ndarray = rec[5 * rows :]
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        for name in ("_rx", "_rv", "_rl", "_rc"):  # views of _rec, rebuilt
+            state.pop(name, None)
+        if state.get("_fast"):  # views of _pv
+            state.pop("_xp", None)
+            state.pop("_vp", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if "_rec" in state:
+            self._views()
+        if state.get("_fast"):
+            self._xp, self._vp = self._pv[0], self._pv[1]
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -351,7 +364,7 @@ class ConformalCBFController(
             v_ref = self.reference(state.x, state.t, state.goal)
             n0 = float(v_ref[0])
             n1 = float(v_ref[1])
-        res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
+        res: FilterResult | None = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
             x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
         )
         self._n = i + 1

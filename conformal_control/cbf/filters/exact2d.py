@@ -88,13 +88,12 @@ class Exact2DSafetyFilter(VelocityFilter):
         kind = type(self.fallback_)
         self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
         self._prm[9] = kind is LambdaSearch
-        self._search = kind is LambdaSearch
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state.pop("_k", None)  # a module: re-imported on unpickling
         if "_lastv" in state and state.get("_last") is state["_lastv"]:
-            state["_last"] = state["_lastv"].copy()
+            state["_last"] = np.array(state["_lastv"])  # a copy, not a view of _buf
         for name in ("_prm", "_poly", "_work", "_lastv"):  # views of _buf, rebuilt
             state.pop(name, None)
         return state
@@ -276,6 +275,8 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._buffers(pv.shape[2])
             return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i)
         if code == k.OUT_OF_RANGE:
+            if -pv.shape[1] <= s < 0:  # counted from the end, as numpy indexing does
+                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i)
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
@@ -284,7 +285,8 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._count_search(code)
             self._last = self._lastv
             return None
-        self.n_solves_ += code == k.INFEASIBLE
+        if code == k.INFEASIBLE:
+            self.n_solves_ += 1
         return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
 
     def _step_apf_fallback(
