@@ -117,9 +117,13 @@ class ConformalCBFController(
 
     With the APF barrier and the exact 2-D filter (fallback ``lambda_search``, ``brake`` or
     ``hold``) each control step is one compiled call fusing barrier, rows, feasibility check,
-    projection and lambda search (:meth:`Exact2DSafetyFilter.step_apf`); it returns what
-    the generic path (``constraint.rows`` then ``safety_filter.solve``) returns, to
-    round-off. Every other combination takes the generic path.
+    projection, lambda search and the interval's record
+    (:meth:`Exact2DSafetyFilter.step_apf_record`); it returns what the generic path
+    (``constraint.rows`` then ``safety_filter.solve``) returns, to round-off. The
+    :class:`~conformal_control.cbf.reference.AttractiveField` reference is then evaluated
+    on Python floats (:meth:`~conformal_control.cbf.reference.AttractiveField.velocity`, the
+    same bits), and the decision is a row of the interval's record (a fresh array every
+    interval; ``interval_record`` returns copies). Every other combination takes the generic path.
 
     Parameters
     ----------

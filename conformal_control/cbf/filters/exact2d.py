@@ -9,8 +9,11 @@ microseconds, compiled with numba. Same problem, same fast path, same fallbacks 
 counters as the piqp backend (:class:`~conformal_control.cbf.filters.piqp.QPSafetyFilter`).
 
 With the APF barrier the controller fuses barrier, rows and this filter into one compiled
-call (:meth:`Exact2DSafetyFilter.step_apf`), for the ``lambda_search``, ``brake`` and
-``hold`` fallbacks.
+call (:meth:`Exact2DSafetyFilter.step_apf`, or :meth:`Exact2DSafetyFilter.step_apf_record`
+which also writes the controller's record), for the ``lambda_search``, ``brake`` and
+``hold`` fallbacks. Parameters, speed polygon, work vector and last decision live in one
+flat buffer, so that compiled call takes few arguments (numba's dispatch cost grows with
+them).
 """
 
 from __future__ import annotations
