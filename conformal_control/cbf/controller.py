@@ -13,6 +13,8 @@ from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
+from .kernels2d import RECORD_FIELDS
+from .reference import AttractiveField
 from .roles import FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
@@ -25,6 +27,10 @@ __all__ = [
 
 #: Messages kept per key in ``forecast_info_`` (the rest are counted, not stored).
 MAX_MESSAGES = 50
+
+#: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
+#: infeasible step the Python fallback decided) records the fallback's own name.
+_CODE_STATUS = ("unconstrained", "optimal", "", "lambda_search", "lambda_search")
 
 
 class PredictorError(RuntimeError):
@@ -111,9 +117,13 @@ class ConformalCBFController(
 
     With the APF barrier and the exact 2-D filter (fallback ``lambda_search``, ``brake`` or
     ``hold``) each control step is one compiled call fusing barrier, rows, feasibility check,
-    projection and lambda search (:meth:`Exact2DSafetyFilter.step_apf`); it returns what
-    the generic path (``constraint.rows`` then ``safety_filter.solve``) returns, to
-    round-off. Every other combination takes the generic path.
+    projection, lambda search and the interval's record
+    (:meth:`Exact2DSafetyFilter.step_apf_record`); it returns what the generic path
+    (``constraint.rows`` then ``safety_filter.solve``) returns, to round-off. The
+    :class:`~conformal_control.cbf.reference.AttractiveField` reference is then evaluated
+    on Python floats (:meth:`~conformal_control.cbf.reference.AttractiveField.velocity`, the
+    same bits), and the decision is a row of the interval's record (a fresh array every
+    interval; ``interval_record`` returns copies). Every other combination takes the generic path.
 
     Parameters
     ----------
@@ -177,6 +187,7 @@ class ConformalCBFController(
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
         self._fused = self._fused_apf()
+        self._pv = np.zeros((2, 0, 0, 2))
         self.forecast_info_: dict[str, Any] = {}
         self._begin_empty()
 
@@ -212,6 +223,51 @@ class ConformalCBFController(
         self._rec_v: list[np.ndarray] = []
         self._rec_lam: list[float] = []
         self._rec_status: list[str] = []
+        # the compiled step's interval: it records into _rec itself (see _record)
+        self._fast = False
+        self._n = 0
+
+    def _record(self, rows: int) -> None:
+        """A fresh record for the compiled step (``kernels2d.apf_control``'s layout) of
+        ``rows`` control instants, keeping the first ``_n`` rows of the current one.
+
+        Fresh at every interval: decisions are returned as views of it, so one returned
+        earlier is never overwritten.
+        """
+        n = self._n
+        old = (self._rx[:n], self._rv[:n], self._rl[:n], self._rc[:n]) if n else ()
+        if not n:
+            self._names: dict[int, str] = {}
+        self._rec = np.zeros(RECORD_FIELDS * rows)
+        self._rows = rows
+        self._views()
+        for dst, src in zip((self._rx, self._rv, self._rl, self._rc), old, strict=False):
+            dst[:n] = src
+
+    def _views(self) -> None:
+        """The record's blocks as views of ``_rec``: ego positions, decisions, lambda
+        applied, result codes."""
+        rec, rows = self._rec, self._rows
+        self._rx: np.ndarray = rec[: 2 * rows].reshape(rows, 2)
+        self._rv: np.ndarray = rec[2 * rows : 4 * rows].reshape(rows, 2)
+        self._rl: np.ndarray = rec[4 * rows : 5 * rows]
+        self._rc: np.ndarray = rec[5 * rows :]
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        for name in ("_rx", "_rv", "_rl", "_rc"):  # views of _rec, rebuilt
+            state.pop(name, None)
+        if state.get("_fast"):  # views of _pv
+            state.pop("_xp", None)
+            state.pop("_vp", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if "_rec" in state:
+            self._views()
+        if state.get("_fast"):
+            self._xp, self._vp = self._pv[0], self._pv[1]
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -244,9 +300,22 @@ class ConformalCBFController(
         samples, had_bad = forward_fill(samples)
         self.n_nonfinite_predictions_ += int(had_bad.sum())
         n_steps = horizon * int(self.substeps)
-        self._xp, self._vp = interpolate_at_substeps(
-            samples, observation.dt, int(self.substeps), n_steps
+        xp, vp = interpolate_at_substeps(samples, observation.dt, int(self.substeps), n_steps)
+        if not self._fused:
+            self._xp, self._vp = xp, vp
+            return
+        # positions and velocities in one C-ordered array for the compiled step
+        self._pv = pv = np.empty((2, *xp.shape))
+        pv[0] = xp
+        pv[1] = vp
+        self._xp, self._vp = pv[0], pv[1]
+        self._fast = True
+        self._attract = (
+            type(self.reference) is AttractiveField
+            and type(self.reference.K_att) in (float, int)
+            and type(self.reference.v_max) in (float, int)
         )
+        self._record(max(n_steps, 1))
 
     # ------------------------------------------------------------------ control instant
     def constraint_rows(self, state: ControlState, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +334,8 @@ class ConformalCBFController(
         return lam
 
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        if self._fast:
+            return self._decide_compiled(state, lam)
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         res: FilterResult
@@ -282,7 +353,50 @@ class ConformalCBFController(
         self.n_steps_ += 1
         return res.decision
 
+    def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
+        """:meth:`decide` through the compiled step, which writes the record itself."""
+        i = self._n
+        if i == self._rows:
+            self._record(2 * i)
+        x = state.x.tolist()
+        x0 = x[0]
+        x1 = x[1]
+        if self._attract:
+            g = state.goal.tolist()
+            n0, n1 = self.reference.velocity(x0, x1, g[0], g[1])  # type: ignore[attr-defined]
+        else:
+            v_ref = self.reference(state.x, state.t, state.goal)
+            n0 = float(v_ref[0])
+            n1 = float(v_ref[1])
+        res: FilterResult | None = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
+            x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
+        )
+        self._n = i + 1
+        self.n_steps_ += 1
+        if res is None:
+            return self._rv[i]  # type: ignore[no-any-return]
+        # a fallback decided in Python (brake, hold)
+        self._rv[i] = res.decision
+        self._rl[i] = res.lambda_applied
+        self._names[i] = res.status if res.fallback is None else res.fallback
+        return res.decision
+
     def interval_record(self) -> CBFIntervalRecord:
+        if self._fast:
+            s = self._n
+            names = self._names
+            return CBFIntervalRecord(
+                ids=self._ids,
+                x_ego=self._rx[:s].copy(),
+                v_ego=self._rv[:s].copy(),
+                x_pred=self._xp[:s],
+                v_pred=self._vp[:s],
+                lam_applied=self._rl[:s].copy(),
+                status=[
+                    names[j] if c == 2 else _CODE_STATUS[c]
+                    for j, c in enumerate(self._rc[:s].astype(int).tolist())
+                ],
+            )
         s = len(self._rec_x)
         return CBFIntervalRecord(
             ids=self._ids,

@@ -29,6 +29,7 @@ import numpy as np
 
 __all__ = [
     "PARALLEL",
+    "apf_control",
     "apf_rows",
     "apf_step",
     "filter_step",
@@ -44,6 +45,9 @@ REL_TOL = 1e-13
 
 #: Result codes of :func:`filter_step`.
 NONFINITE, UNCONSTRAINED, OPTIMAL, INFEASIBLE, SEARCHED, SEARCH_VERTEX = -1, 0, 1, 2, 3, 4
+#: More result codes of :func:`apf_control`: the work vector is too small for the agents;
+#: the step is outside the predictions.
+TOO_MANY, OUT_OF_RANGE = 5, 6
 
 jit = numba.njit(cache=True, nogil=True)
 
@@ -468,3 +472,64 @@ def apf_step(
         n0, n1, A, b, lam, S, s, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0, prm[10],
         G, h, rhs, Ak, bk,
     )  # fmt: skip
+
+
+#: Length of the header of :func:`apf_control`'s buffer: the parameters (:data:`PARAMS`),
+#: the number of sides of the speed polygon and the last decision applied (x, y).
+HEADER = 15
+#: Fields of the record :func:`apf_control` writes per control instant: ego position (2),
+#: decision (2), lambda applied, result code.
+RECORD_FIELDS = 6
+
+
+@jit
+def apf_control(
+    x0: float,
+    x1: float,
+    n0: float,
+    n1: float,
+    lam: float,
+    s: int,
+    i: int,
+    pv: np.ndarray,
+    buf: np.ndarray,
+    rec: np.ndarray,
+) -> int:
+    """:func:`apf_step` on step ``s`` of an interval's predictions, recorded: returns its code.
+
+    ``pv`` (2, steps, agents, 2) holds the predicted positions ``pv[0]`` and velocities
+    ``pv[1]``; ``buf`` the parameters, the speed polygon and the work vector, flat:
+    :data:`HEADER` entries (:data:`PARAMS`, the number of sides, the last decision), then
+    ``poly`` and ``work`` as :func:`apf_step` lays them out. ``rec`` is the interval's
+    record, flat, in blocks of ``rows = rec.size // RECORD_FIELDS``: ego positions (rows x
+    2), decisions (rows x 2), lambda applied, code. Row ``i`` gets the ego position and
+    code, and, unless the step is infeasible for a Python fallback (:data:`INFEASIBLE`),
+    the decision (copied to the last decision too) and the lambda applied. Nothing is
+    written for :data:`NONFINITE`, :data:`TOO_MANY` (more agents than ``buf`` was laid out
+    for) or :data:`OUT_OF_RANGE` (``s`` is not a step of ``pv``); the caller makes sure
+    that ``i < rows``.
+    """
+    cap = int(buf[11])
+    if pv.shape[2] > cap:
+        return TOO_MANY
+    if s < 0 or s >= pv.shape[1]:
+        return OUT_OF_RANGE
+    ns = int(buf[HEADER - 3])
+    o = HEADER + 5 * ns
+    code, v0, v1, lam_used, _ = apf_step(
+        x0, x1, pv[0, s], pv[1, s], n0, n1, lam, buf[: HEADER - 3], buf[HEADER:o],
+        buf[o : o + 10 * cap + 3 * ns],
+    )  # fmt: skip
+    if code == NONFINITE:
+        return code
+    rows = rec.shape[0] // RECORD_FIELDS
+    rec[2 * i] = x0
+    rec[2 * i + 1] = x1
+    rec[5 * rows + i] = code
+    if code != INFEASIBLE:
+        rec[2 * rows + 2 * i] = v0
+        rec[2 * rows + 2 * i + 1] = v1
+        rec[4 * rows + i] = lam_used
+        buf[HEADER - 2] = v0
+        buf[HEADER - 1] = v1
+    return code

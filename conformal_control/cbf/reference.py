@@ -43,3 +43,17 @@ class AttractiveField(ReferenceController):
         if speed > self.v_max:
             v *= self.v_max / speed
         return v
+
+    def velocity(self, x0: float, x1: float, g0: float, g1: float) -> tuple[float, float]:
+        """:meth:`__call__` on Python floats, for a position ``(x0, x1)`` and a goal ``(g0,
+        g1)``: the same IEEE operations in the same order, so the same bits (the compiled
+        control step takes this path; ``K_att`` and ``v_max`` must be Python numbers)."""
+        k = -self.K_att
+        v0 = k * (x0 - g0)
+        v1 = k * (x1 - g1)
+        speed = math.hypot(v0, v1)
+        if speed > self.v_max:
+            f = self.v_max / speed
+            v0 *= f
+            v1 *= f
+        return v0, v1

@@ -9,8 +9,11 @@ microseconds, compiled with numba. Same problem, same fast path, same fallbacks 
 counters as the piqp backend (:class:`~conformal_control.cbf.filters.piqp.QPSafetyFilter`).
 
 With the APF barrier the controller fuses barrier, rows and this filter into one compiled
-call (:meth:`Exact2DSafetyFilter.step_apf`), for the ``lambda_search``, ``brake`` and
-``hold`` fallbacks.
+call (:meth:`Exact2DSafetyFilter.step_apf`, or :meth:`Exact2DSafetyFilter.step_apf_record`
+which also writes the controller's record), for the ``lambda_search``, ``brake`` and
+``hold`` fallbacks. Parameters, speed polygon, work vector and last decision live in one
+flat buffer, so that compiled call takes few arguments (numba's dispatch cost grows with
+them).
 """
 
 from __future__ import annotations
@@ -74,9 +77,13 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._k = kernels2d
         self._S = np.ascontiguousarray(self._S)
         self._verts = np.ascontiguousarray(self._verts)
-        self._poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
-        self._prm = np.zeros(len(self._k.PARAMS))
-        self._prm[6:11] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
+        poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
+        head = np.zeros(self._k.HEADER)
+        head[6:11] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
+        head[self._k.HEADER - 3] = self._S.shape[0]
+        # one flat buffer (parameters, polygon, work vector: kernels2d.apf_control's
+        # layout) with views for apf_step and the fallbacks
+        self._buf = np.concatenate([head, poly])
         self._cap = -1
         self._buffers(16)
         # the compiled step handles these fallbacks itself (lambda_search) or reports the
@@ -88,14 +95,27 @@ class Exact2DSafetyFilter(VelocityFilter):
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state.pop("_k", None)  # a module: re-imported on unpickling
+        if "_lastv" in state and state.get("_last") is state["_lastv"]:
+            state["_last"] = np.array(state["_lastv"])  # a copy, not a view of _buf
+        for name in ("_prm", "_poly", "_work", "_lastv"):  # views of _buf, rebuilt
+            state.pop(name, None)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        if "_prm" in state:
+        if "_buf" in state:
             from .. import kernels2d
 
             self._k = kernels2d
+            self._views()
+
+    def _views(self) -> None:
+        """The parameters, polygon, work vector and last decision as views of ``_buf``."""
+        k, ns, buf = self._k, self._S.shape[0], self._buf
+        self._prm = buf[: len(k.PARAMS)]
+        self._lastv = buf[k.HEADER - 2 : k.HEADER]
+        self._poly = buf[k.HEADER : k.HEADER + 5 * ns]
+        self._work = buf[k.HEADER + 5 * ns :]
 
     def _buffers(self, m: int) -> None:
         if m <= self._cap:
@@ -106,8 +126,16 @@ class Exact2DSafetyFilter(VelocityFilter):
         self._h = np.zeros(cap + ns)
         self._Ak = np.zeros((cap, 2))
         self._bk = np.zeros(cap)
-        self._work = np.zeros(self._k.work_size(cap, ns))
-        self._prm[11] = cap
+        fixed = self._k.HEADER + 5 * ns
+        buf = np.zeros(fixed + self._k.work_size(cap, ns))
+        buf[:fixed] = self._buf[:fixed]
+        buf[11] = cap
+        last = getattr(self, "_lastv", None)
+        self._buf = buf
+        self._views()
+        if last is not None and self._last is last:  # keep the last decision in the new buffer
+            self._lastv[:] = last
+            self._last = self._lastv
         self._cap = cap
 
     # ------------------------------------------------------------------ primitives
@@ -200,6 +228,70 @@ class Exact2DSafetyFilter(VelocityFilter):
             return FilterResult(v, "optimal", lam)
         return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
 
+    def step_apf_record(
+        self,
+        x0: float,
+        x1: float,
+        n0: float,
+        n1: float,
+        lam: float,
+        pv: np.ndarray,
+        s: int,
+        rec: np.ndarray,
+        i: int,
+    ) -> FilterResult | None:
+        """:meth:`step_apf` for the controller, recorded by the compiled step itself.
+
+        The same step (decision, status, lambda, counters, last decision) on the ego
+        position ``(x0, x1)``, the nominal velocity ``(n0, n1)`` and step ``s`` of an
+        interval's predictions ``pv`` (positions ``pv[0]``, velocities ``pv[1]``, C-ordered
+        float64); row ``i`` of the record ``rec`` receives the result (the layout of
+        :func:`~conformal_control.cbf.kernels2d.apf_control`; ``i`` must be a row of it).
+        Returns None when the compiled step decided (the decision, lambda applied and
+        result code are in ``rec``), or the result of the ``brake`` / ``hold`` fallback
+        (only the ego position and the code are then recorded). A step outside ``pv``
+        raises ``IndexError``; non-finite input raises ``ValueError`` as :meth:`solve` does.
+        """
+        code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec)
+        if code == 0 or code == 1:  # unconstrained / optimal: one solve for optimal
+            self.n_solves_ += code
+            self._last = self._lastv
+            self._fell_back = False
+            return None
+        return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i)
+
+    def _step_record_rest(
+        self,
+        code: int,
+        x0: float,
+        x1: float,
+        n0: float,
+        n1: float,
+        lam: float,
+        pv: np.ndarray,
+        s: int,
+        rec: np.ndarray,
+        i: int,
+    ) -> FilterResult | None:
+        k = self._k
+        if code == k.TOO_MANY:
+            self._buffers(pv.shape[2])
+            return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i)
+        if code == k.OUT_OF_RANGE:
+            if -pv.shape[1] <= s < 0:  # counted from the end, as numpy indexing does
+                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i)
+            raise IndexError(
+                f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
+            )
+        if code == k.SEARCHED or code == k.SEARCH_VERTEX:
+            self.n_solves_ += 3
+            self._count_search(code)
+            self._last = self._lastv
+            return None
+        if code == k.INFEASIBLE:
+            self.n_solves_ += 1
+        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+
     def _step_apf_fallback(
         self,
         code: int,
@@ -222,12 +314,16 @@ class Exact2DSafetyFilter(VelocityFilter):
             b = self._work[2 * cap : 2 * cap + n].copy()
             step = InfeasibleStep(np.asarray(nominal, dtype=float), A, b, lam, self._last.copy())
             return self._fall_back(step)
+        self._count_search(code)
+        v = np.array((v0, v1))
+        self._last = v
+        return FilterResult(v, "fallback", lam_used, "lambda_search")
+
+    def _count_search(self, code: int) -> None:
+        """Count a step the compiled lambda search decided (it fell back)."""
         self.n_infeasible_ += 1
         self.n_fallback_ += 1
         self.fallback_counts_["lambda_search"] = self.fallback_counts_.get("lambda_search", 0) + 1
-        if code == k.SEARCH_VERTEX:
+        if code == self._k.SEARCH_VERTEX:
             self.count("lambda_search_vertex")
-        v = np.array((v0, v1))
-        self._last = v
         self._fell_back = True
-        return FilterResult(v, "fallback", lam_used, "lambda_search")
