@@ -24,10 +24,11 @@ numba, so it is written here, following that algorithm step by step;
 from __future__ import annotations
 
 import math
+import sys
 
 import numba
 
-__all__ = ["py_hypot"]
+__all__ = ["EXACT_FOR_THIS_PYTHON", "py_hypot"]
 
 jit = numba.njit(cache=True, nogil=True, inline="always")
 
@@ -109,3 +110,8 @@ def py_hypot(x: float, y: float) -> float:
     if m == 0.0:
         return m
     return _norm(a, b, m)
+
+
+#: Whether :func:`py_hypot` is this interpreter's ``math.hypot`` (the algorithm above is
+#: CPython 3.11's; other versions round some inputs differently).
+EXACT_FOR_THIS_PYTHON = sys.version_info[:2] == (3, 11)

@@ -57,14 +57,7 @@ from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.feasibility import feasibility_floor
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.kernels_batch import (
-    BRAKE,
-    HOLD,
-    SEARCH,
-    control_step,
-    gap_maxima,
-    reference_velocities,
-)
+from ..cbf.kernels_batch import BRAKE, HOLD, SEARCH, gap_maxima
 from ..cbf.loss import CBFGapLoss
 from ..cbf.reference import AttractiveField
 from ..cbf.speed import speed_polygon
@@ -75,6 +68,7 @@ from ..predictors.constant_velocity import ConstantVelocityPredictor
 from ..predictors.oracle import OraclePredictor
 from ..update_rules import FixedEtaRule
 from . import batch_kernels as bk
+from .batch_interval import run_interval
 from .build import Flagship, build_flagship
 from .environment import FrameLog, ReplayEnvironment
 from .episode import (
@@ -329,6 +323,14 @@ class _Pool:
     work: np.ndarray  # the compiled filter's work buffer
     store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
     where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    goals: np.ndarray  # (size, waypoints, 2): each slot's goals
+    n_goals: np.ndarray  # int64 (size,)
+    rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
+    keep: bool  # whether st_* keep every control instant of the episodes
+    st_t: np.ndarray  # (size, instants): time after each control instant
+    st_x: np.ndarray  # (size, instants, 4): state after it
+    st_cmd: np.ndarray  # (size, instants, 2): the command applied
+    n_st: np.ndarray  # int64 (size,)
     used: int  # floats of store in use
 
     def __init__(self, size: int) -> None:
@@ -390,6 +392,15 @@ class _Pool:
         self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
         self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
         self.used = 0
+        self.borrowed = False  # store is a live episode's own recording (see load)
+        self.goals = np.zeros((b, 1, 2))
+        self.n_goals = np.zeros(b, dtype=np.int64)
+        self.rec_code = np.zeros((b, 0), dtype=np.int8)
+        self.keep = False
+        self.st_t = np.zeros((b, 0))
+        self.st_x = np.zeros((b, 0, 4))
+        self.st_cmd = np.zeros((b, 0, 2))
+        self.n_st = np.zeros(b, dtype=np.int64)
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -402,9 +413,19 @@ class _Pool:
         return out
 
     def load(self, b: int, positions: np.ndarray) -> None:
-        """Copy slot ``b``'s recording into the store (compacting or growing it)."""
+        """Copy slot ``b``'s recording into the store (compacting or growing it).
+
+        With no other slot live, the store is the recording itself (read in place, not
+        copied: a single episode's case); it is copied out as soon as another one joins.
+        """
         data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
         n = data.size
+        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
+            self.store, self.borrowed, self.used = data, True, n
+            self.where[b] = (0, positions.shape[0], positions.shape[1])
+            return
+        if self.borrowed:  # never write into an episode's recording
+            self.store, self.borrowed = self.store[: self.used].copy(), False
         if self.used + n > self.store.size:
             self._compact()
             if self.used + n > self.store.size:
@@ -429,6 +450,18 @@ class _Pool:
             end += n
         self.used = end
 
+    def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
+        """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
+        if goals.shape[0] > self.goals.shape[1]:
+            self.goals = self._grown(self.goals, 1, goals.shape[0])
+        self.goals[b, : goals.shape[0]] = goals
+        self.n_goals[b] = goals.shape[0]
+        self.n_st[b] = 0
+        if self.keep and instants > self.st_t.shape[1]:
+            g = self._grown
+            self.st_t = g(self.st_t, 1, instants)
+            self.st_x, self.st_cmd = g(self.st_x, 1, instants), g(self.st_cmd, 1, instants)
+
     def ensure(
         self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
     ) -> None:
@@ -439,6 +472,7 @@ class _Pool:
             self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
             self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
             self.rec_lam = g(self.rec_lam, 1, steps)
+            self.rec_code = g(self.rec_code, 1, steps)
             self.samples = g(self.samples, 0, steps + 1)  # >= tau + 1 rows
         if agents > self.cap or sides > self.sides:
             if agents > self.cap:
@@ -468,6 +502,9 @@ class _Engine:
         self.build = build
         self.episode_kw = episode_kw
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
+        #: called with the slots after their interval's control instants, before it is
+        #: scored (the single-episode run keeps its animation record with it)
+        self.on_control: Any = None
 
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
@@ -620,18 +657,23 @@ class _Engine:
         frames = np.minimum(p.tau[slots], p.last_frame[slots] - p.fi[slots])
         p.n_ctrl[slots] = np.maximum(frames, 0) * p.substeps[slots]
 
-    # ------------------------------------------------------------------ control instant
+    # ------------------------------------------------------------------ control instants
     def control(self, slots: np.ndarray) -> None:
-        """One control instant of ``slots``: reference, filter, plant, goal, frame clock."""
+        """The control instants of the current interval of ``slots``, each slot up to its
+        interval's end or its episode's end, in one compiled call
+        (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, filter,
+        plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
-        ref = np.empty((2, slots.size))
-        reference_velocities(slots, p.x, p.goal, p.neg_k_att, ref)
-        # the speeds with Python's hypot, as AttractiveField takes them
-        speed = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
-        bad = control_step(
-            slots, p.x, ref, speed, p.v_ref_max, p.goal, p.lam, p.step, p.n_agents, p.xp, p.vp,
-            p.prm, p.poly, p.poly_len, p.fallback, p.work, p.last, p.dt, p.decay, p.gain,
-            p.k_acc, p.t, p.rec_x, p.rec_v, p.rec_lam, p.counts,
+        bad = run_interval(
+            slots, p.x, p.t, p.step, p.n_ctrl, p.done,
+            p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
+            p.v_ref_max,
+            p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
+            p.last, p.counts,
+            p.dt, p.decay, p.gain, p.k_acc,
+            p.rec_x, p.rec_v, p.rec_lam, p.rec_code,
+            p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
+            p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
         )  # fmt: skip
         if bad >= 0:
             ep = self.eps[bad]
@@ -641,29 +683,6 @@ class _Engine:
                 f"decision in episode {ep.index} of the batch; predictions must "
                 "be sanitised before building constraints"
             )
-        # the goal check at every control instant, with Python's hypot as the environment's
-        dist = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
-        for b in slots[dist <= p.goal_radius[slots]].tolist():
-            self._reach(b)
-        bk.advance_frames(
-            slots, p.store, p.where, p.step, p.substeps, p.fi, p.last_frame, p.done, p.x, p.t,
-            p.log, p.n_log,
-        )  # fmt: skip
-
-    def _reach(self, b: int) -> None:
-        """Slot ``b`` is within its goal's radius: the next goal(s), or the episode's end."""
-        p, ep = self.pool, self.eps[b]
-        assert ep is not None
-        goals, radius = ep.goals, p.goal_radius[b]
-        g = int(p.goal_idx[b]) + 1
-        while g < len(goals) and math.hypot(*(p.x[b, :2] - goals[g])) <= radius:
-            g += 1
-        if g >= len(goals):
-            g = len(goals) - 1
-            p.t_goal[b] = p.t[b]
-            p.done[b] = True
-        p.goal_idx[b] = g
-        p.goal[b] = goals[g]
 
     # ------------------------------------------------------------------ interval end
     def end(self, slots: np.ndarray) -> list[int]:
@@ -797,23 +816,22 @@ class _Engine:
     def run(
         self, source: Iterator[tuple[int, Scene, int, int | None]]
     ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
-        """Advance every live episode one control instant per iteration; refill free
-        slots at the batch's sampling times (so the live episodes stay in step)."""
+        """Advance every live episode one interval per iteration (every slot is then at a
+        sampling time, so free slots are refilled at every iteration)."""
         p = self.pool
         exhausted = False
-        period = 0  # control instants per interval of the first episode
-        it = 0
         while True:
-            free = np.flatnonzero(~p.active)
-            idle = free.size == p.size
-            if free.size and not exhausted and (idle or it % period == 0):
-                for b in free.tolist():
+            if not exhausted:
+                for b in np.flatnonzero(~p.active).tolist():
                     nxt = next(source, None)
                     if nxt is None:
                         exhausted = True
                         break
                     self.start(b, *nxt)
-                    period = period or int(p.tau[b] * p.substeps[b])
+                    ep = self.eps[b]
+                    assert ep is not None
+                    frames = int(p.last_frame[b] - p.fi[b]) + 1
+                    p.prepare(b, ep.goals, frames * int(p.substeps[b]))
             slots = np.flatnonzero(p.active)
             if not slots.size:
                 return
@@ -822,12 +840,12 @@ class _Engine:
             if begin.size:
                 self.begin(begin)
             self.control(slots)
-            ending = slots[p.done[slots] | (p.step[slots] >= p.n_ctrl[slots])]
-            finished = self.end(ending) if ending.size else []
+            if self.on_control is not None:
+                self.on_control(slots)
+            finished = self.end(slots)
             p.wall[slots] += (time.perf_counter() - t0) / slots.size
             for b in finished:
                 yield self.finish(b)
-            it += 1
 
 
 def _per_episode(value: Any, name: str) -> Iterator[Any]:
