@@ -40,6 +40,7 @@ animation record).
 from __future__ import annotations
 
 import math
+import sys
 import time
 import types
 from collections.abc import Iterable, Iterator, Sequence
@@ -58,6 +59,7 @@ from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.feasibility import feasibility_floor
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.kernels_batch import BRAKE, HOLD, SEARCH, gap_maxima
+from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.loss import CBFGapLoss
 from ..cbf.reference import AttractiveField
 from ..cbf.speed import speed_polygon
@@ -83,7 +85,7 @@ from .episode import (
 )
 from .metrics import EpisodeMetrics
 
-__all__ = ["iter_batch", "run_batch", "supports"]
+__all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
 _T = TypeVar("_T")
 
@@ -975,3 +977,122 @@ def run_batch(
     ):
         out[index] = item
     return [out[i] for i in range(len(out))]
+
+
+# ------------------------------------------------------------------------------ one episode
+#: The filter's status of a control instant by code (batch_interval.FREE, ACTIVE, FALLBACK),
+#: as the animation record reads it.
+_STATUS_NAMES = ("unconstrained", "optimal", "fallback")
+
+
+class _IntervalView:
+    """Stands for the decision family the animation recorder reads: ``interval_record()``
+    returns what the engine's slot did in the interval just run (sensed ids, predicted
+    positions at the control instants, the filter's status per instant)."""
+
+    def __init__(self) -> None:
+        self.record: Any = None
+
+    def interval_record(self) -> Any:
+        return self.record
+
+
+def run_single(
+    scene: Scene, engine: str = "auto", **run_kwargs: Any
+) -> EpisodeResult | None:
+    """One episode on the compiled engine, as :func:`run_episode` returns it.
+
+    ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
+    per-episode loop gives (metrics but the wall time, intervals, trajectory, per-instant
+    ``steps`` and, with ``record_animation``, the animation record), with
+    ``config["engine"] = "batch"``. With ``engine="auto"`` returns None if the engine does
+    not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
+    ``ValueError`` saying why.
+    """
+    from .record import AnimationRecorder
+
+    kw = dict(run_kwargs)
+    record_animation = bool(kw.pop("record_animation", True))
+    reason = supports(**kw)
+    if reason is None and not EXACT_FOR_THIS_PYTHON:
+        reason = (
+            "the engine's distances reproduce CPython 3.11's math.hypot, not this "
+            f"Python's ({sys.version_info[0]}.{sys.version_info[1]})"
+        )
+    if reason is not None:
+        if engine == "auto":
+            return None
+        raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
+    learn = bool(kw.get("learn", True))
+    units = kw.get("units", "scene")
+    build = {
+        "predictor": kw.get("predictor", "constant_velocity"),
+        "units": units,
+        "params": kw.get("params"),
+        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
+        "rule": kw.get("rule") or "fixed_eta",
+        "crowd": kw.get("crowd", "replay"),
+        "crowd_params": kw.get("crowd_params"),
+    }
+    episode_kw = {
+        "learn": learn,
+        "units": units,
+        "lambda_safe": kw.get("lambda_safe"),
+        "lambda_safe_source": kw.get("lambda_safe_source"),
+        "rule_params": kw.get("rule_params"),
+        "extra_config": kw.get("extra_config"),
+    }
+    eng = _Engine(1, "results", build, episode_kw)
+    p = eng.pool
+    p.keep = True
+    view = _IntervalView()
+    recorder: list[AnimationRecorder] = []
+    built: list[Flagship] = []
+
+    def on_control(slots: np.ndarray) -> None:
+        ep = eng.eps[0]
+        assert ep is not None
+        if not built:
+            fl = ep.fl
+            built.append(fl)
+            if record_animation:
+                si = fl.params.si
+                recorder.append(
+                    AnimationRecorder(
+                        fl.scene, view, fl.barrier, fl.params.tau_frames, si["substeps"],
+                        si["sensing_radius"],
+                    )  # fmt: skip
+                )
+        if recorder:
+            s, n = int(p.step[0]), int(p.n_agents[0])
+            view.record = types.SimpleNamespace(
+                ids=ep.fl.scene.agent_ids[p.sensed[0, :n]],
+                x_pred=p.xp[0, :s, :n],
+                status=[_STATUS_NAMES[c] for c in p.rec_code[0, :s].tolist()],
+            )
+            recorder[0](None)
+
+    eng.on_control = on_control
+    seed = int(kw.get("seed", 0))
+    max_frames = kw.get("max_frames")
+    try:
+        [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+    except _NotRun:
+        if engine == "auto":
+            return None
+        raise
+    assert isinstance(result, EpisodeResult)
+    n = int(p.n_st[0])
+    result.steps = {
+        "t": p.st_t[0, :n].copy(),
+        "x": p.st_x[0, :n].copy(),
+        "cmd": p.st_cmd[0, :n].copy(),
+    }
+    if recorder:
+        si = built[0].params.si
+        result.animation = recorder[0].finish(
+            result.trajectory,
+            result.intervals,
+            {"epsilon": si["epsilon"], "lambda_unit": result.metrics.unit("lambda_final")},
+        )
+    return result
