@@ -114,16 +114,20 @@ class AnimationRecorder:
         if self._status:
             st = np.concatenate(self._status)[:n]
             status[: st.size] = st
+        # the barrier with the true positions of the agents present and within the sensing
+        # radius, every frame at once (element-wise, so the values of a per-frame call)
+        p = win[:, cols]
+        ok = np.isfinite(p[..., 0])
+        near = ok & (
+            np.hypot(p[..., 0] - robot[:, :1], p[..., 1] - robot[:, 1:]) <= self.sensing_radius
+        )
         h_min = np.full(n, np.nan)
-        for i in range(n):
-            p = win[i, cols]
-            ok = np.isfinite(p[:, 0])
-            p = p[ok]
-            if p.size:
-                near = np.hypot(*(p - robot[i]).T) <= self.sensing_radius
-                if near.any():
-                    h = self.barrier.evaluate(robot[i], p[near])[0]
-                    h_min[i] = float(np.min(h))
+        rows = np.flatnonzero(near.any(axis=1))
+        if rows.size:
+            h = self.barrier.evaluate(
+                robot[rows, None, :], np.where(ok[rows, :, None], p[rows], 0.0)
+            )[0]
+            h_min[rows] = np.where(near[rows], h, np.inf).min(axis=1)
         k = len(self._preds)
         n_max = max((ids.size for ids, _ in self._preds), default=0)
         pred = np.full((k, n_max, self.tau_frames + 1, 2), np.nan, dtype=np.float32)

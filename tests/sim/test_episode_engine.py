@@ -110,3 +110,23 @@ def test_without_animation_and_forced_engines(crossing):
         run_episode(crossing, max_frames=40, safety_filter="qp", engine="batch")
     with pytest.raises(ValueError, match="engine must be"):
         run_episode(crossing, max_frames=40, engine="fast")
+
+
+def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
+    # the record's h_true_min (computed for all frames at once) against the barrier
+    # evaluated frame by frame on the agents present within the sensing radius
+    res = run_episode(nexus4, "constant_velocity", PAPER_A10, max_frames=200)
+    anim, sc = res.animation, res.scene
+    from conformal_control.cbf.barriers import APFBarrier
+
+    barrier = APFBarrier(**res.config["barrier"]["params"])
+    robot = np.column_stack([res.trajectory["x"], res.trajectory["y"]])
+    want = np.full(len(robot), np.nan)
+    for i, frame in enumerate(res.trajectory["frame"] - sc.first_frame):
+        p = sc.positions[frame]
+        p = p[np.isfinite(p[:, 0])]
+        near = p[np.hypot(*(p - robot[i]).T) <= anim["sensing_radius"]]
+        if near.size:
+            want[i] = np.min(barrier.evaluate(robot[i], near)[0])
+    assert np.isfinite(want).sum() > 50
+    assert np.array_equal(anim["h_true_min"], want.astype(np.float32), equal_nan=True)
