@@ -980,23 +980,6 @@ def run_batch(
 
 
 # ------------------------------------------------------------------------------ one episode
-#: The filter's status of a control instant by code (batch_interval.FREE, ACTIVE, FALLBACK),
-#: as the animation record reads it.
-_STATUS_NAMES = ("unconstrained", "optimal", "fallback")
-
-
-class _IntervalView:
-    """Stands for the decision family the animation recorder reads: ``interval_record()``
-    returns what the engine's slot did in the interval just run (sensed ids, predicted
-    positions at the control instants, the filter's status per instant)."""
-
-    def __init__(self) -> None:
-        self.record: Any = None
-
-    def interval_record(self) -> Any:
-        return self.record
-
-
 def run_single(
     scene: Scene, engine: str = "auto", **run_kwargs: Any
 ) -> EpisodeResult | None:
@@ -1045,7 +1028,6 @@ def run_single(
     eng = _Engine(1, "results", build, episode_kw)
     p = eng.pool
     p.keep = True
-    view = _IntervalView()
     recorder: list[AnimationRecorder] = []
     built: list[Flagship] = []
 
@@ -1059,18 +1041,15 @@ def run_single(
                 si = fl.params.si
                 recorder.append(
                     AnimationRecorder(
-                        fl.scene, view, fl.barrier, fl.params.tau_frames, si["substeps"],
+                        fl.scene, fl.policy, fl.barrier, fl.params.tau_frames, si["substeps"],
                         si["sensing_radius"],
                     )  # fmt: skip
                 )
-        if recorder:
+        if recorder:  # what the recorder reads of the controller after an interval
             s, n = int(p.step[0]), int(p.n_agents[0])
-            view.record = types.SimpleNamespace(
-                ids=ep.fl.scene.agent_ids[p.sensed[0, :n]],
-                x_pred=p.xp[0, :s, :n],
-                status=[_STATUS_NAMES[c] for c in p.rec_code[0, :s].tolist()],
+            recorder[0].add_interval(
+                ep.fl.scene.agent_ids[p.sensed[0, :n]], p.xp[0, :s, :n], p.rec_code[0, :s]
             )
-            recorder[0](None)
 
     eng.on_control = on_control
     seed = int(kw.get("seed", 0))
