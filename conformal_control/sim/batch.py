@@ -1,15 +1,17 @@
 """Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
 
-:func:`run_episode` runs one episode as a chain of Python calls per control instant
-(environment, controller, filter, plant). :func:`run_batch` runs many: every episode of a
-batch advances by one control instant per iteration, and the work of an iteration is done
-for all of them together -- one compiled call for the control step
-(:func:`~conformal_control.cbf.kernels_batch.control_step`, which calls the exact 2-D
-filter's fused APF step), compiled loops for the replay bookkeeping
-(:mod:`~conformal_control.sim.batch_kernels`), and, at sampling times, ONE call of the
-predictor, the interpolation, the constraint and the loss on the agents of every episode
-at that sampling time laid side by side (these are computed agent by agent, so one call on
-the concatenation is the same arithmetic as one call per episode).
+:func:`run_episode`'s generic loop runs one episode as a chain of Python calls per control
+instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
+episode of a batch advances by one interval per iteration, and the work of an iteration is
+done for all of them together -- ONE compiled call for every control instant of the
+interval (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, the exact
+2-D filter's fused APF step, plant, goal check, frame clock and log), compiled loops for
+the replay bookkeeping (:mod:`~conformal_control.sim.batch_kernels`), and, at sampling
+times, ONE call of the predictor, the interpolation, the constraint and the loss on the
+agents of every episode at that sampling time laid side by side (these are computed agent
+by agent, so one call on the concatenation is the same arithmetic as one call per
+episode). :func:`run_episode` itself runs a single episode on this engine when it can
+(:func:`run_single`, keeping the per-instant steps and the animation record too).
 
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
 :func:`~conformal_control.sim.build.build_flagship` (same parameter resolution, same
@@ -43,6 +45,7 @@ import math
 import sys
 import time
 import types
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
@@ -59,8 +62,8 @@ from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.feasibility import feasibility_floor
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.kernels_batch import BRAKE, HOLD, SEARCH, gap_maxima
-from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.loss import CBFGapLoss
+from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene
@@ -656,8 +659,6 @@ class _Engine:
             p.n_predicted[predicted] += 1
             p.n_bad_total[predicted] += p.n_bad[predicted]
             p.n_short_total[predicted] += p.n_short[predicted]
-        frames = np.minimum(p.tau[slots], p.last_frame[slots] - p.fi[slots])
-        p.n_ctrl[slots] = np.maximum(frames, 0) * p.substeps[slots]
 
     # ------------------------------------------------------------------ control instants
     def control(self, slots: np.ndarray) -> None:
@@ -667,7 +668,7 @@ class _Engine:
         plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
         bad = run_interval(
-            slots, p.x, p.t, p.step, p.n_ctrl, p.done,
+            slots, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
             p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
             p.v_ref_max,
             p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
@@ -821,33 +822,38 @@ class _Engine:
         """Advance every live episode one interval per iteration (every slot is then at a
         sampling time, so free slots are refilled at every iteration)."""
         p = self.pool
-        exhausted = False
+        free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
+        slots = np.zeros(0, dtype=np.int64)
         while True:
-            if not exhausted:
-                for b in np.flatnonzero(~p.active).tolist():
+            if free:
+                started = False
+                while free:
                     nxt = next(source, None)
                     if nxt is None:
-                        exhausted = True
                         break
+                    b = free.pop()
                     self.start(b, *nxt)
                     ep = self.eps[b]
                     assert ep is not None
                     frames = int(p.last_frame[b] - p.fi[b]) + 1
                     p.prepare(b, ep.goals, frames * int(p.substeps[b]))
-            slots = np.flatnonzero(p.active)
+                    started = True
+                if started:
+                    slots = np.flatnonzero(p.active)
             if not slots.size:
                 return
             t0 = time.perf_counter()
-            begin = slots[p.need_begin[slots]]
-            if begin.size:
-                self.begin(begin)
+            self.begin(slots[p.need_begin[slots]])
             self.control(slots)
             if self.on_control is not None:
                 self.on_control(slots)
             finished = self.end(slots)
             p.wall[slots] += (time.perf_counter() - t0) / slots.size
-            for b in finished:
-                yield self.finish(b)
+            if finished:
+                for b in finished:
+                    yield self.finish(b)
+                free += reversed(finished)
+                slots = np.flatnonzero(p.active)
 
 
 def _per_episode(value: Any, name: str) -> Iterator[Any]:
@@ -980,9 +986,7 @@ def run_batch(
 
 
 # ------------------------------------------------------------------------------ one episode
-def run_single(
-    scene: Scene, engine: str = "auto", **run_kwargs: Any
-) -> EpisodeResult | None:
+def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> EpisodeResult | None:
     """One episode on the compiled engine, as :func:`run_episode` returns it.
 
     ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
@@ -1041,9 +1045,13 @@ def run_single(
                 si = fl.params.si
                 recorder.append(
                     AnimationRecorder(
-                        fl.scene, fl.policy, fl.barrier, fl.params.tau_frames, si["substeps"],
+                        fl.scene,
+                        fl.policy,
+                        fl.barrier,
+                        fl.params.tau_frames,
+                        si["substeps"],
                         si["sensing_radius"],
-                    )  # fmt: skip
+                    )
                 )
         if recorder:  # what the recorder reads of the controller after an interval
             s, n = int(p.step[0]), int(p.n_agents[0])
@@ -1054,12 +1062,21 @@ def run_single(
     eng.on_control = on_control
     seed = int(kw.get("seed", 0))
     max_frames = kw.get("max_frames")
+    # the engine's warnings are those of run_episode: re-issued for run_episode's caller
+    # (also when the episode stops with an error), unless the loop runs it instead
+    caught: list[warnings.WarningMessage] = []
     try:
-        [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
     except _NotRun:
         if engine == "auto":
+            caught.clear()  # the loop builds the episode again and warns itself
             return None
         raise
+    finally:
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=3)
     assert isinstance(result, EpisodeResult)
     n = int(p.n_st[0])
     result.steps = {

@@ -28,7 +28,7 @@ from ..cbf.kernels_batch import HOLD
 from ..cbf.pyhypot import py_hypot
 from .batch_kernels import _d_min, recording
 
-__all__ = ["FREE", "ACTIVE", "FALLBACK", "run_interval"]
+__all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
 
 #: Status codes written to ``rec_code`` (those of the animation record): the reference
 #: was safe, the filter changed it, the fallback decided.
@@ -44,6 +44,7 @@ def run_interval(
     t: np.ndarray,
     step: np.ndarray,
     n_ctrl: np.ndarray,
+    tau: np.ndarray,
     done: np.ndarray,
     # reference and goals
     goal: np.ndarray,
@@ -94,7 +95,9 @@ def run_interval(
     """Run the control instants of the current interval of each slot ``b`` in ``slots``
     (at least one, then until ``step[b] >= n_ctrl[b]`` or ``done[b]``); returns -1, or the
     first slot whose rows, lambda or nominal velocity were not finite (that slot stops
-    there, nothing applied).
+    there, nothing applied). An interval that starts here (``step[b] == 0``) has
+    ``n_ctrl[b]`` set to its control instants: ``tau[b]`` frames or those left before
+    ``last_frame[b]``, times ``substeps[b]`` (the environment's ``control_instants``).
 
     Per slot (arrays indexed by slot): state ``x[b]`` = (x, y, vx, vy), time ``t[b]``,
     control instant ``step[b]`` of the interval. The reference is ``-K_att (X - goal)``
@@ -128,6 +131,8 @@ def run_interval(
         vmax = v_ref_max[b]
         radius = goal_radius[b]
         sub = substeps[b]
+        if step[b] == 0:  # the interval's control instants, as ReplayEnvironment says
+            n_ctrl[b] = max(min(tau[b], last_frame[b] - fi[b]), 0) * sub
         while True:
             s = step[b]
             x0 = x[b, 0]
@@ -202,7 +207,9 @@ def run_interval(
             # the goal check at every control instant (Python's hypot, as the environment)
             if py_hypot(x0 - goal[b, 0], x1 - goal[b, 1]) <= radius:
                 q = goal_idx[b] + 1
-                while q < n_goals[b] and py_hypot(x0 - goals[b, q, 0], x1 - goals[b, q, 1]) <= radius:
+                while (
+                    q < n_goals[b] and py_hypot(x0 - goals[b, q, 0], x1 - goals[b, q, 1]) <= radius
+                ):
                     q += 1
                 if q >= n_goals[b]:
                     q = n_goals[b] - 1

@@ -40,7 +40,9 @@ def test_random_pairs_across_magnitudes() -> None:
     # the second coordinate mostly within a few binades of the first (where the last bit
     # is decided), sometimes anywhere
     near = rng.integers(-60, 61, n)
-    ey = np.where(rng.random(n) < 0.8, np.clip(ex + near, -1074, 1023), rng.integers(-1074, 1024, n))
+    ey = np.where(
+        rng.random(n) < 0.8, np.clip(ex + near, -1074, 1023), rng.integers(-1074, 1024, n)
+    )
     x = np.ldexp(rng.uniform(-1.0, 1.0, n), ex)
     y = np.ldexp(rng.uniform(-1.0, 1.0, n), ey)
     _assert_same_bits(x, y)

@@ -130,3 +130,15 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
             want[i] = np.min(barrier.evaluate(robot[i], near)[0])
     assert np.isfinite(want).sum() > 50
     assert np.array_equal(anim["h_true_min"], want.astype(np.float32), equal_nan=True)
+
+
+def test_warnings_point_at_the_caller(crossing):
+    from conformal_control.exceptions import FeasibilityWarning
+
+    for engine in ("auto", "loop"):
+        with pytest.warns(FeasibilityWarning) as caught:
+            res = run_episode(
+                crossing, params={"epsilon": -0.3, "a": 0.5}, max_frames=30, engine=engine
+            )
+        assert res.config["engine"] == ("batch" if engine == "auto" else "loop")
+        assert [w.filename for w in caught] == [__file__]
