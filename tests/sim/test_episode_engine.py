@@ -45,6 +45,12 @@ def _differences(fast: EpisodeResult, loop: EpisodeResult) -> list[str]:
             out += [f"{name}.{k} (extra)" for k in a if k not in b]
         elif not _same(a, b):
             out.append(name)
+    assert fast.loop is not None and loop.loop is not None
+    if not _same(
+        [dataclasses.asdict(iv) for iv in fast.loop.intervals],
+        [dataclasses.asdict(iv) for iv in loop.loop.intervals],
+    ) or not _same(fast.loop.lambda_final, loop.loop.lambda_final):
+        out.append("loop")
     c_fast = {k: v for k, v in fast.config.items() if k != "engine"}
     c_loop = {k: v for k, v in loop.config.items() if k != "engine"}
     if not _same(c_fast, c_loop):
@@ -142,3 +148,17 @@ def test_warnings_point_at_the_caller(crossing):
             )
         assert res.config["engine"] == ("batch" if engine == "auto" else "loop")
         assert [w.filename for w in caught] == [__file__]
+
+
+def test_a_lone_episode_reads_its_recording_in_place_and_never_writes_it():
+    # the engine reads a lone episode's recording without copying it; a batch copies it out
+    # before a second episode joins: the scenes' data stay as they were
+    from conformal_control.sim.batch import run_batch
+
+    scenes = [load_scene("crossing", seed=s) for s in range(3)]
+    before = [sc.positions.copy() for sc in scenes]
+    frozen = dataclasses.replace(scenes[2], positions=scenes[2].positions.copy())
+    frozen.positions.flags.writeable = False  # read-only data are copied, not borrowed
+    run_batch([*scenes, frozen], max_frames=80, batch_size=2)
+    run_episode(scenes[0], max_frames=80)
+    assert all(np.array_equal(sc.positions, b, equal_nan=True) for sc, b in zip(scenes, before))
