@@ -96,9 +96,12 @@ class AnimationRecorder:
         s = self.substeps
         self._preds.append((np.asarray(ids), np.asarray(x_pred[::s], dtype=np.float32)))
         n_frames = -(-codes.size // s)
-        padded = np.zeros(n_frames * s, dtype=np.int8)
-        padded[: codes.size] = codes
-        self._status.append(padded.reshape(n_frames, s).max(axis=1) if n_frames else padded)
+        if n_frames * s != codes.size:  # a last, partial frame: padded with "free"
+            padded = np.zeros(n_frames * s, dtype=np.int8)
+            padded[: codes.size] = codes
+            codes = padded
+        codes = np.asarray(codes, dtype=np.int8)
+        self._status.append(codes.reshape(n_frames, s).max(axis=1) if n_frames else codes)
 
     def finish(
         self,

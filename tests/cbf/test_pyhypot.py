@@ -9,7 +9,7 @@ import numba
 import numpy as np
 import pytest
 
-from conformal_control.cbf.pyhypot import py_hypot
+from conformal_control.cbf.pyhypot import EXACT_FOR_THIS_PYTHON, hypot_fma, hypot_split, py_hypot
 
 
 @numba.njit(cache=False)
@@ -101,3 +101,43 @@ def test_differs_from_the_c_library_somewhere() -> None:
     rng = np.random.default_rng(1)
     x, y = rng.normal(0, 5, 200_000), rng.normal(0, 5, 200_000)
     assert (np.hypot(x, y) != _reference(x, y)).any()
+
+
+#: math.hypot of CPython 3.10 / 3.11 and of 3.12 / 3.13 where they differ (float.hex of each
+#: interpreter's result): the variant this interpreter does not run is checked against them.
+OTHER_VERSIONS = [
+    ((-2.88, -1.2), "0x1.8f5c28f5c28f6p+1", "0x1.8f5c28f5c28f5p+1"),
+    ((-4.92, -3.69), "0x1.8999999999999p+2", "0x1.899999999999ap+2"),
+    ((-0.6, 1.44), "0x1.8f5c28f5c28f6p+0", "0x1.8f5c28f5c28f5p+0"),
+    ((0.15, 0.36), "0x1.8f5c28f5c28f6p-2", "0x1.8f5c28f5c28f5p-2"),
+]
+
+
+@pytest.mark.parametrize(("args", "split", "fma"), OTHER_VERSIONS)
+def test_both_cpython_variants(args, split, fma) -> None:
+    assert hypot_split(*args) == float.fromhex(split)
+    assert hypot_fma(*args) == float.fromhex(fma)
+    assert EXACT_FOR_THIS_PYTHON
+    assert math.hypot(*args) == py_hypot(*args)  # one of the two, this interpreter's
+
+
+@numba.njit(cache=False)
+def _many_fma(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = hypot_fma(x[i], y[i])
+    return out
+
+
+def test_the_two_variants_agree_nearly_everywhere() -> None:
+    # the variants differ on few inputs (each is CPython's on its versions): across
+    # magnitudes, including subnormals (the rescaled path), at most a handful of ulps apart
+    rng = np.random.default_rng(3)
+    ex = rng.integers(-1074, 1024, 200_000)
+    x = np.ldexp(rng.uniform(-1, 1, ex.size), ex)
+    y = np.ldexp(
+        rng.uniform(-1, 1, ex.size), np.clip(ex + rng.integers(-30, 31, ex.size), -1074, 1023)
+    )
+    a, b = _many(x, y), _many_fma(x, y)
+    assert (a != b).mean() < 1e-3
+    assert np.all(np.abs(a - b) <= np.spacing(np.maximum(a, b)))
