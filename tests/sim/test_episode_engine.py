@@ -161,4 +161,7 @@ def test_a_lone_episode_reads_its_recording_in_place_and_never_writes_it():
     frozen.positions.flags.writeable = False  # read-only data are copied, not borrowed
     run_batch([*scenes, frozen], max_frames=80, batch_size=2)
     run_episode(scenes[0], max_frames=80)
-    assert all(np.array_equal(sc.positions, b, equal_nan=True) for sc, b in zip(scenes, before))
+    assert all(
+        np.array_equal(sc.positions, b, equal_nan=True)
+        for sc, b in zip(scenes, before, strict=True)
+    )
