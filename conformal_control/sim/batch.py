@@ -824,6 +824,7 @@ class _Engine:
         p = self.pool
         free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
         slots = np.zeros(0, dtype=np.int64)
+        elapsed = 0.0  # time of the iterations since the live slots last changed
         while True:
             if free:
                 started = False
@@ -843,13 +844,16 @@ class _Engine:
             if not slots.size:
                 return
             t0 = time.perf_counter()
-            self.begin(slots[p.need_begin[slots]])
+            # every live slot is at a sampling time: a new one, or its interval was scored
+            self.begin(slots)
             self.control(slots)
             if self.on_control is not None:
                 self.on_control(slots)
             finished = self.end(slots)
-            p.wall[slots] += (time.perf_counter() - t0) / slots.size
-            if finished:
+            elapsed += time.perf_counter() - t0
+            if finished:  # each slot's share of the iterations it took part in
+                p.wall[slots] += elapsed / slots.size
+                elapsed = 0.0
                 for b in finished:
                     yield self.finish(b)
                 free += reversed(finished)
