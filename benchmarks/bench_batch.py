@@ -10,8 +10,9 @@ Usage::
    defaults). The batch engine runs all of them in a fresh child process, the scenes
    streamed to it from a disk cache (generating one scene takes ~0.5 s of Python, so
    they are generated once, in parallel, into ``--cache``; the time spent loading them
-   is measured inside the stream and subtracted). The per-episode loop (``run_episode``,
-   no animation record) runs on the first ``--baseline`` seeds in this process; its time
+   is measured inside the stream and subtracted). The per-episode loop
+   (``run_episode(engine="loop")``, no animation record) runs on the first ``--baseline``
+   seeds in this process; its time
    per episode is extrapolated to all the seeds (printed as such). Both report wall time
    and CPU time (``time.process_time``: the machine is shared). The child's peak memory
    is its peak resident set size (``ru_maxrss``) minus its size before the run. The
@@ -150,13 +151,15 @@ def bench_crossing(args: argparse.Namespace) -> dict[str, float]:
     child = json.loads(res.stdout.strip().splitlines()[-1])
     n_base = min(args.baseline, args.seeds)
     warnings.simplefilter("ignore")
-    run_episode(load_cached(cache, 0), record_animation=False)  # warm: compiled kernels
+    run_episode(
+        load_cached(cache, 0), record_animation=False, engine="loop"
+    )  # warm: compiled kernels
     wall = cpu = 0.0
     differing = 0
     for seed in range(n_base):
         scene = load_cached(cache, seed)
         w, c = time.perf_counter(), time.process_time()
-        m = run_episode(scene, record_animation=False).metrics
+        m = run_episode(scene, record_animation=False, engine="loop").metrics
         wall += time.perf_counter() - w
         cpu += time.process_time() - c
         differing += bool(same_metrics(m.as_dict(), child["metrics"][seed]))
@@ -217,7 +220,7 @@ def bench_suite(args: argparse.Namespace) -> dict[str, float]:
     run_batch(scenes[:1], max_frames=frames[:1], **kw)  # warm
     w, c = time.perf_counter(), time.process_time()
     ref = [
-        run_episode(s, max_frames=f, record_animation=False, **kw).metrics
+        run_episode(s, max_frames=f, record_animation=False, engine="loop", **kw).metrics
         for s, f in zip(scenes, frames, strict=True)
     ]
     ew, ec = time.perf_counter() - w, time.process_time() - c

@@ -175,16 +175,20 @@ def bench_compile() -> None:
     )
 
 
-def measure_episode(scene, params: dict, safety_filter: str, repeats: int = 3) -> dict:
+def measure_episode(
+    scene, params: dict, safety_filter: str, repeats: int = 3, engine: str = "auto"
+) -> dict:
     """Median wall time of ``run_episode`` (and of its control loop alone) with one filter.
 
     A warm-up run first (it compiles or loads the kernels); then ``repeats`` timed runs and
-    one more under tracemalloc for the peak Python memory. Returns ``wall_s``, ``loop_s``
-    (medians), ``peak_bytes`` and the ``metrics`` of the last timed run.
+    one more under tracemalloc for the peak Python memory. ``engine`` is run_episode's
+    (``"loop"``: the per-episode loop; ``"auto"``: the compiled engine where it applies).
+    Returns ``wall_s``, ``loop_s`` (medians), ``peak_bytes``, the ``metrics`` of the last
+    timed run and the ``engine`` that ran.
     """
     from conformal_control.sim import run_episode
 
-    kw = {"safety_filter": safety_filter}
+    kw = {"safety_filter": safety_filter, "engine": engine}
     run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)
     walls, loops = [], []
     for _ in range(repeats):
@@ -201,6 +205,7 @@ def measure_episode(scene, params: dict, safety_filter: str, repeats: int = 3) -
         "loop_s": statistics.median(loops),
         "peak_bytes": peak,
         "metrics": res.metrics,
+        "engine": res.config["engine"],
     }
 
 
@@ -214,12 +219,14 @@ def bench_episode(data_root: Path, repeats: int = 3) -> None:
     for label, scene, params in scenes:
         print(f"\n{label} episode (constant velocity, {params}), median of {repeats} runs:")
         base = None
-        for name in FILTERS:
-            r = measure_episode(scene, params, name, repeats)
+        runs = [(name, "loop") for name in FILTERS] + [("exact2d", "auto")]
+        for name, engine in runs:
+            r = measure_episode(scene, params, name, repeats, engine)
             m, wall, loop, peak = r["metrics"], r["wall_s"], r["loop_s"], r["peak_bytes"]
             base = base or loop
+            label = f"{name} ({r['engine']})"
             print(
-                f"  {name:>8}: episode {wall * 1e3:6.0f} ms, control loop {loop * 1e3:6.0f} ms "
+                f"  {label:>16}: episode {wall * 1e3:6.1f} ms, control loop {loop * 1e3:6.1f} ms "
                 f"(piqp / this {base / loop:4.1f}x), peak memory {peak / 2**20:.1f} MiB; "
                 f"{m['n_steps']} steps, {m['n_qp_solves']} solves, {m['n_fallback']} fallbacks, "
                 f"t_goal {m['t_goal'] or float('nan'):.2f} s, n_collide {m['n_collide']}, "

@@ -71,7 +71,8 @@ def run(
         Passed to :func:`~conformal_control.sim.run_episode`: ``barrier``,
         ``safety_filter``, ``fallback``, ``reference``, ``dynamics``, ``loss``, ``rule``
         (instances or names) and their ``*_params``, ``lambda_safe``,
-        ``record_animation``, ``on_interval``.
+        ``record_animation``, ``on_interval``, ``engine`` (``"auto"``: the compiled engine
+        where it applies, ``"loop"``: the generic per-instant loop).
 
     Returns
     -------

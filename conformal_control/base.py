@@ -35,6 +35,7 @@ Sign convention (all of the toolkit): a *smaller* lambda is *more conservative*.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import math
@@ -70,6 +71,20 @@ GuaranteeKind = Literal["identity", "step_identity", "long_run", "none"]
 LossFunction = Callable[[float], "float | None"]
 
 
+@functools.lru_cache(maxsize=1024)
+def _init_param_names(init: Callable[..., None]) -> tuple[str, ...]:
+    """The named parameters of an ``__init__`` (cached: a signature costs tens of
+    microseconds and ``get_params`` is called for every plugin of every episode)."""
+    if init is object.__init__:
+        return ()
+    sig = inspect.signature(init)
+    return tuple(
+        p.name
+        for p in sig.parameters.values()
+        if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    )
+
+
 class Plugin:
     """Mixin giving every plugin ``get_params`` / ``set_params`` like scikit-learn estimators.
 
@@ -79,15 +94,7 @@ class Plugin:
 
     @classmethod
     def _param_names(cls) -> list[str]:
-        init = cls.__init__
-        if init is object.__init__:
-            return []
-        sig = inspect.signature(init)
-        return [
-            p.name
-            for p in sig.parameters.values()
-            if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-        ]
+        return list(_init_param_names(cls.__init__))
 
     def get_params(self) -> dict[str, Any]:
         """Return the constructor parameters of this plugin (name -> value)."""

@@ -376,6 +376,8 @@ class UnknownParameterError(ValueError):
 
 def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> None:
     """Raise :class:`UnknownParameterError` for arguments ``cls`` does not take."""
+    if not params:  # nothing to check (and a signature costs tens of microseconds)
+        return
     import inspect
 
     sig = inspect.signature(cls)

@@ -1,15 +1,17 @@
 """Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
 
-:func:`run_episode` runs one episode as a chain of Python calls per control instant
-(environment, controller, filter, plant). :func:`run_batch` runs many: every episode of a
-batch advances by one control instant per iteration, and the work of an iteration is done
-for all of them together -- one compiled call for the control step
-(:func:`~conformal_control.cbf.kernels_batch.control_step`, which calls the exact 2-D
-filter's fused APF step), compiled loops for the replay bookkeeping
-(:mod:`~conformal_control.sim.batch_kernels`), and, at sampling times, ONE call of the
-predictor, the interpolation, the constraint and the loss on the agents of every episode
-at that sampling time laid side by side (these are computed agent by agent, so one call on
-the concatenation is the same arithmetic as one call per episode).
+:func:`run_episode`'s generic loop runs one episode as a chain of Python calls per control
+instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
+episode of a batch advances by one interval per iteration, and the work of an iteration is
+done for all of them together -- ONE compiled call for every control instant of the
+interval (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, the exact
+2-D filter's fused APF step, plant, goal check, frame clock and log), compiled loops for
+the replay bookkeeping (:mod:`~conformal_control.sim.batch_kernels`), and, at sampling
+times, ONE call of the predictor, the interpolation, the constraint and the loss on the
+agents of every episode at that sampling time laid side by side (these are computed agent
+by agent, so one call on the concatenation is the same arithmetic as one call per
+episode). :func:`run_episode` itself runs a single episode on this engine when it can
+(:func:`run_single`, keeping the per-instant steps and the animation record too).
 
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
 :func:`~conformal_control.sim.build.build_flagship` (same parameter resolution, same
@@ -55,8 +57,10 @@ animation record).
 from __future__ import annotations
 
 import math
+import sys
 import time
 import types
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
@@ -73,15 +77,9 @@ from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.feasibility import feasibility_floor
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.kernels_batch import (
-    BRAKE,
-    HOLD,
-    SEARCH,
-    control_step,
-    gap_maxima,
-    reference_velocities,
-)
+from ..cbf.kernels_batch import BRAKE, HOLD, SEARCH, gap_maxima
 from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
@@ -91,6 +89,7 @@ from ..monitor import GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityPredictor
 from ..predictors.oracle import OraclePredictor
 from . import batch_kernels as bk
+from .batch_interval import run_interval
 from .build import Flagship, build_flagship
 from .environment import FrameLog, ReplayEnvironment
 from .episode import (
@@ -105,7 +104,7 @@ from .episode import (
 )
 from .metrics import EpisodeMetrics
 
-__all__ = ["iter_batch", "run_batch", "supports"]
+__all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
 _T = TypeVar("_T")
 
@@ -381,6 +380,14 @@ class _Pool:
     work: np.ndarray  # the compiled filter's work buffer
     store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
     where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    goals: np.ndarray  # (size, waypoints, 2): each slot's goals
+    n_goals: np.ndarray  # int64 (size,)
+    rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
+    keep: bool  # whether st_* keep every control instant of the episodes
+    st_t: np.ndarray  # (size, instants): time after each control instant
+    st_x: np.ndarray  # (size, instants, 4): state after it
+    st_cmd: np.ndarray  # (size, instants, 2): the command applied
+    n_st: np.ndarray  # int64 (size,)
     used: int  # floats of store in use
 
     def __init__(self, size: int) -> None:
@@ -442,6 +449,15 @@ class _Pool:
         self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
         self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
         self.used = 0
+        self.borrowed = False  # store is a live episode's own recording (see load)
+        self.goals = np.zeros((b, 1, 2))
+        self.n_goals = np.zeros(b, dtype=np.int64)
+        self.rec_code = np.zeros((b, 0), dtype=np.int8)
+        self.keep = False
+        self.st_t = np.zeros((b, 0))
+        self.st_x = np.zeros((b, 0, 4))
+        self.st_cmd = np.zeros((b, 0, 2))
+        self.n_st = np.zeros(b, dtype=np.int64)
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -454,9 +470,19 @@ class _Pool:
         return out
 
     def load(self, b: int, positions: np.ndarray) -> None:
-        """Copy slot ``b``'s recording into the store (compacting or growing it)."""
+        """Copy slot ``b``'s recording into the store (compacting or growing it).
+
+        With no other slot live, the store is the recording itself (read in place, not
+        copied: a single episode's case); it is copied out as soon as another one joins.
+        """
         data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
         n = data.size
+        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
+            self.store, self.borrowed, self.used = data, True, n
+            self.where[b] = (0, positions.shape[0], positions.shape[1])
+            return
+        if self.borrowed:  # never write into an episode's recording
+            self.store, self.borrowed = self.store[: self.used].copy(), False
         if self.used + n > self.store.size:
             self._compact()
             if self.used + n > self.store.size:
@@ -481,6 +507,18 @@ class _Pool:
             end += n
         self.used = end
 
+    def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
+        """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
+        if goals.shape[0] > self.goals.shape[1]:
+            self.goals = self._grown(self.goals, 1, goals.shape[0])
+        self.goals[b, : goals.shape[0]] = goals
+        self.n_goals[b] = goals.shape[0]
+        self.n_st[b] = 0
+        if self.keep and instants > self.st_t.shape[1]:
+            g = self._grown
+            self.st_t = g(self.st_t, 1, instants)
+            self.st_x, self.st_cmd = g(self.st_x, 1, instants), g(self.st_cmd, 1, instants)
+
     def ensure(
         self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
     ) -> None:
@@ -491,6 +529,7 @@ class _Pool:
             self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
             self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
             self.rec_lam = g(self.rec_lam, 1, steps)
+            self.rec_code = g(self.rec_code, 1, steps)
             self.samples = g(self.samples, 0, steps + 1)  # >= tau + 1 rows
         if agents > self.cap or sides > self.sides:
             if agents > self.cap:
@@ -520,6 +559,9 @@ class _Engine:
         self.build = build
         self.episode_kw = episode_kw
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
+        #: called with the slots after their interval's control instants, before it is
+        #: scored (the single-episode run keeps its animation record with it)
+        self.on_control: Any = None
 
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
@@ -677,8 +719,6 @@ class _Engine:
             p.n_predicted[predicted] += 1
             p.n_bad_total[predicted] += p.n_bad[predicted]
             p.n_short_total[predicted] += p.n_short[predicted]
-        frames = np.minimum(p.tau[slots], p.last_frame[slots] - p.fi[slots])
-        p.n_ctrl[slots] = np.maximum(frames, 0) * p.substeps[slots]
 
     def _predict_own(self, b: int) -> None:
         """Slot ``b``'s predictions from its own predictor: the environment's query (its
@@ -703,18 +743,23 @@ class _Engine:
         p.xp[b, :s, :n] = policy._xp
         p.vp[b, :s, :n] = policy._vp
 
-    # ------------------------------------------------------------------ control instant
+    # ------------------------------------------------------------------ control instants
     def control(self, slots: np.ndarray) -> None:
-        """One control instant of ``slots``: reference, filter, plant, goal, frame clock."""
+        """The control instants of the current interval of ``slots``, each slot up to its
+        interval's end or its episode's end, in one compiled call
+        (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, filter,
+        plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
-        ref = np.empty((2, slots.size))
-        reference_velocities(slots, p.x, p.goal, p.neg_k_att, ref)
-        # the speeds with Python's hypot, as AttractiveField takes them
-        speed = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
-        bad = control_step(
-            slots, p.x, ref, speed, p.v_ref_max, p.goal, p.lam, p.step, p.n_agents, p.xp, p.vp,
-            p.prm, p.poly, p.poly_len, p.fallback, p.work, p.last, p.dt, p.decay, p.gain,
-            p.k_acc, p.t, p.rec_x, p.rec_v, p.rec_lam, p.counts,
+        bad = run_interval(
+            slots, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
+            p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
+            p.v_ref_max,
+            p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
+            p.last, p.counts,
+            p.dt, p.decay, p.gain, p.k_acc,
+            p.rec_x, p.rec_v, p.rec_lam, p.rec_code,
+            p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
+            p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
         )  # fmt: skip
         if bad >= 0:
             ep = self.eps[bad]
@@ -724,29 +769,6 @@ class _Engine:
                 f"decision in episode {ep.index} of the batch; predictions must "
                 "be sanitised before building constraints"
             )
-        # the goal check at every control instant, with Python's hypot as the environment's
-        dist = np.fromiter(map(math.hypot, ref[0].tolist(), ref[1].tolist()), float, slots.size)
-        for b in slots[dist <= p.goal_radius[slots]].tolist():
-            self._reach(b)
-        bk.advance_frames(
-            slots, p.store, p.where, p.step, p.substeps, p.fi, p.last_frame, p.done, p.x, p.t,
-            p.log, p.n_log,
-        )  # fmt: skip
-
-    def _reach(self, b: int) -> None:
-        """Slot ``b`` is within its goal's radius: the next goal(s), or the episode's end."""
-        p, ep = self.pool, self.eps[b]
-        assert ep is not None
-        goals, radius = ep.goals, p.goal_radius[b]
-        g = int(p.goal_idx[b]) + 1
-        while g < len(goals) and math.hypot(*(p.x[b, :2] - goals[g])) <= radius:
-            g += 1
-        if g >= len(goals):
-            g = len(goals) - 1
-            p.t_goal[b] = p.t[b]
-            p.done[b] = True
-        p.goal_idx[b] = g
-        p.goal[b] = goals[g]
 
     # ------------------------------------------------------------------ interval end
     def end(self, slots: np.ndarray) -> list[int]:
@@ -919,37 +941,45 @@ class _Engine:
     def run(
         self, source: Iterator[tuple[int, Scene, int, int | None]]
     ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
-        """Advance every live episode one control instant per iteration; refill free
-        slots at the batch's sampling times (so the live episodes stay in step)."""
+        """Advance every live episode one interval per iteration (every slot is then at a
+        sampling time, so free slots are refilled at every iteration)."""
         p = self.pool
-        exhausted = False
-        period = 0  # control instants per interval of the first episode
-        it = 0
+        free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
+        slots = np.zeros(0, dtype=np.int64)
+        elapsed = 0.0  # time of the iterations since the live slots last changed
         while True:
-            free = np.flatnonzero(~p.active)
-            idle = free.size == p.size
-            if free.size and not exhausted and (idle or it % period == 0):
-                for b in free.tolist():
+            if free:
+                started = False
+                while free:
                     nxt = next(source, None)
                     if nxt is None:
-                        exhausted = True
                         break
+                    b = free.pop()
                     self.start(b, *nxt)
-                    period = period or int(p.tau[b] * p.substeps[b])
-            slots = np.flatnonzero(p.active)
+                    ep = self.eps[b]
+                    assert ep is not None
+                    frames = int(p.last_frame[b] - p.fi[b]) + 1
+                    p.prepare(b, ep.goals, frames * int(p.substeps[b]))
+                    started = True
+                if started:
+                    slots = np.flatnonzero(p.active)
             if not slots.size:
                 return
             t0 = time.perf_counter()
-            begin = slots[p.need_begin[slots]]
-            if begin.size:
-                self.begin(begin)
+            # every live slot is at a sampling time: a new one, or its interval was scored
+            self.begin(slots)
             self.control(slots)
-            ending = slots[p.done[slots] | (p.step[slots] >= p.n_ctrl[slots])]
-            finished = self.end(ending) if ending.size else []
-            p.wall[slots] += (time.perf_counter() - t0) / slots.size
-            for b in finished:
-                yield self.finish(b)
-            it += 1
+            if self.on_control is not None:
+                self.on_control(slots)
+            finished = self.end(slots)
+            elapsed += time.perf_counter() - t0
+            if finished:  # each slot's share of the iterations it took part in
+                p.wall[slots] += elapsed / slots.size
+                elapsed = 0.0
+                for b in finished:
+                    yield self.finish(b)
+                free += reversed(finished)
+                slots = np.flatnonzero(p.active)
 
 
 def _per_episode(value: Any, name: str) -> Iterator[Any]:
@@ -1079,3 +1109,112 @@ def run_batch(
     ):
         out[index] = item
     return [out[i] for i in range(len(out))]
+
+
+# ------------------------------------------------------------------------------ one episode
+def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> EpisodeResult | None:
+    """One episode on the compiled engine, as :func:`run_episode` returns it.
+
+    ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
+    per-episode loop gives (metrics but the wall time, intervals, trajectory, per-instant
+    ``steps`` and, with ``record_animation``, the animation record), with
+    ``config["engine"] = "batch"``. With ``engine="auto"`` returns None if the engine does
+    not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
+    ``ValueError`` saying why.
+    """
+    from .record import AnimationRecorder
+
+    kw = dict(run_kwargs)
+    record_animation = bool(kw.pop("record_animation", True))
+    reason = supports(**kw)
+    if reason is None and not EXACT_FOR_THIS_PYTHON:
+        reason = (
+            "the engine's distances reproduce CPython 3.11's math.hypot, not this "
+            f"Python's ({sys.version_info[0]}.{sys.version_info[1]})"
+        )
+    if reason is not None:
+        if engine == "auto":
+            return None
+        raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
+    learn = bool(kw.get("learn", True))
+    units = kw.get("units", "scene")
+    build = {
+        "predictor": kw.get("predictor", "constant_velocity"),
+        "units": units,
+        "params": kw.get("params"),
+        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
+        "rule": kw.get("rule") or "fixed_eta",
+        "crowd": kw.get("crowd", "replay"),
+        "crowd_params": kw.get("crowd_params"),
+    }
+    episode_kw = {
+        "learn": learn,
+        "units": units,
+        "lambda_safe": kw.get("lambda_safe"),
+        "lambda_safe_source": kw.get("lambda_safe_source"),
+        "rule_params": kw.get("rule_params"),
+        "extra_config": kw.get("extra_config"),
+    }
+    eng = _Engine(1, "results", build, episode_kw)
+    p = eng.pool
+    p.keep = True
+    recorder: list[AnimationRecorder] = []
+    built: list[Flagship] = []
+
+    def on_control(slots: np.ndarray) -> None:
+        ep = eng.eps[0]
+        assert ep is not None
+        if not built:
+            fl = ep.fl
+            built.append(fl)
+            if record_animation:
+                si = fl.params.si
+                recorder.append(
+                    AnimationRecorder(
+                        fl.scene,
+                        fl.policy,
+                        fl.barrier,
+                        fl.params.tau_frames,
+                        si["substeps"],
+                        si["sensing_radius"],
+                    )
+                )
+        if recorder:  # what the recorder reads of the controller after an interval
+            s, n = int(p.step[0]), int(p.n_agents[0])
+            recorder[0].add_interval(
+                ep.fl.scene.agent_ids[p.sensed[0, :n]], p.xp[0, :s, :n], p.rec_code[0, :s]
+            )
+
+    eng.on_control = on_control
+    seed = int(kw.get("seed", 0))
+    max_frames = kw.get("max_frames")
+    # the engine's warnings are those of run_episode: re-issued for run_episode's caller
+    # (also when the episode stops with an error), unless the loop runs it instead
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+    except _NotRun:
+        if engine == "auto":
+            caught.clear()  # the loop builds the episode again and warns itself
+            return None
+        raise
+    finally:
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=3)
+    assert isinstance(result, EpisodeResult)
+    n = int(p.n_st[0])
+    result.steps = {
+        "t": p.st_t[0, :n].copy(),
+        "x": p.st_x[0, :n].copy(),
+        "cmd": p.st_cmd[0, :n].copy(),
+    }
+    if recorder:
+        si = built[0].params.si
+        result.animation = recorder[0].finish(
+            result.trajectory,
+            result.intervals,
+            {"epsilon": si["epsilon"], "lambda_unit": result.metrics.unit("lambda_final")},
+        )
+    return result

@@ -2,8 +2,9 @@
 
 What :class:`~conformal_control.sim.environment.ReplayEnvironment` does per episode in
 Python -- the sensor's range test, the history / truth windows it cuts from the
-recording, the frame clock and the per-frame log -- written as loops over the episodes of
-a batch (:mod:`conformal_control.sim.batch`), with the same floating-point operations
+recording, the per-frame log (the frame clock itself runs in
+:func:`~conformal_control.sim.batch_interval.run_interval`) -- written as loops over the
+episodes of a batch (:mod:`conformal_control.sim.batch`), with the same floating-point operations
 (numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls). Each episode
 reads its own recording: the recordings of the live episodes lie in one flat buffer
 ``store``; slot ``b``'s is ``store[o : o + F * M * 2]`` seen as ``(F, M, 2)`` with
@@ -21,7 +22,6 @@ import numpy as np
 __all__ = [
     "CONSTANT_VELOCITY",
     "ORACLE",
-    "advance_frames",
     "count_sensed",
     "gather_windows",
     "log_frames",
@@ -137,40 +137,6 @@ def log_frames(
     ``log[b, n_log[b]]``."""
     for i in range(slots.shape[0]):
         b = slots[i]
-        k = n_log[b]
-        log[b, k, 0] = t[b]
-        for c in range(4):
-            log[b, k, 1 + c] = x[b, c]
-        log[b, k, 5] = _d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
-        n_log[b] = k + 1
-
-
-@jit
-def advance_frames(
-    slots: np.ndarray,
-    store: np.ndarray,
-    where: np.ndarray,
-    step: np.ndarray,
-    substeps: np.ndarray,
-    fi: np.ndarray,
-    last: np.ndarray,
-    done: np.ndarray,
-    x: np.ndarray,
-    t: np.ndarray,
-    log: np.ndarray,
-    n_log: np.ndarray,
-) -> None:
-    """The frame clock after a control instant: where it closes a frame, the next frame
-    begins (the episode ends at frame ``last[b]``) and, if the episode goes on, is logged."""
-    for i in range(slots.shape[0]):
-        b = slots[i]
-        if step[b] % substeps[b] != 0:
-            continue
-        fi[b] += 1
-        if fi[b] >= last[b]:
-            done[b] = True
-        if done[b]:
-            continue
         k = n_log[b]
         log[b, k, 0] = t[b]
         for c in range(4):

@@ -117,6 +117,7 @@ def run_episode(
     family_params: dict[str, Any] | None = None,
     record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
+    engine: str = "auto",
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
 
@@ -162,7 +163,58 @@ def run_episode(
         written as ``animation.npz``; see :mod:`conformal_control.sim.record`).
     on_interval : callable, optional
         Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
+    engine : {"auto", "loop", "batch"}
+        How the episode is run. ``"loop"``: the generic
+        :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
+        control instant, for any configuration. ``"batch"``: the compiled engine of
+        :mod:`~conformal_control.sim.batch` (one compiled call per interval), for the
+        configurations :func:`~conformal_control.sim.batch.supports` accepts (the
+        flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
+        ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
+        runs the configuration, else the loop. Both give the same result (metrics but
+        ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
+        ``config["engine"]`` says which ran.
     """
+    if engine not in ("auto", "loop", "batch"):
+        raise ValueError(f"engine must be 'auto', 'loop' or 'batch', got {engine!r}")
+    if engine != "loop":
+        from .batch import run_single  # imported here: the engine imports this module
+
+        compiled = run_single(
+            scene,
+            engine,
+            predictor=predictor,
+            params=params,
+            units=units,
+            learn=learn,
+            max_frames=max_frames,
+            seed=seed,
+            predictor_params=predictor_params,
+            extra_config=extra_config,
+            rule=rule,
+            rule_params=rule_params,
+            lambda_safe=lambda_safe,
+            lambda_safe_source=lambda_safe_source,
+            barrier=barrier,
+            barrier_params=barrier_params,
+            safety_filter=safety_filter,
+            safety_filter_params=safety_filter_params,
+            fallback=fallback,
+            reference=reference,
+            reference_params=reference_params,
+            dynamics=dynamics,
+            dynamics_params=dynamics_params,
+            loss=loss,
+            loss_params=loss_params,
+            crowd=crowd,
+            crowd_params=crowd_params,
+            family=family,
+            family_params=family_params,
+            record_animation=record_animation,
+            on_interval=on_interval,
+        )
+        if compiled is not None:
+            return compiled
     fl = build_flagship(
         scene,
         params,
@@ -250,6 +302,7 @@ def run_episode(
     }
     crowd_config = getattr(env, "crowd_config", None)
     config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
+    config["engine"] = "loop"
     simulated = getattr(env, "simulated_scene", None)
     animation = None
     if recorder is not None:

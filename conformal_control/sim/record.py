@@ -86,13 +86,22 @@ class AnimationRecorder:
     def __call__(self, log: IntervalLog) -> None:
         """The loop's ``on_interval`` hook: keep the interval's predictions and status."""
         rec = self.policy.interval_record()
-        s = self.substeps
-        self._preds.append((np.asarray(rec.ids), np.asarray(rec.x_pred[::s], dtype=np.float32)))
         codes = np.array([_STATUS.get(st, 2) for st in rec.status], dtype=np.int8)
+        self.add_interval(rec.ids, rec.x_pred, codes)
+
+    def add_interval(self, ids: np.ndarray, x_pred: np.ndarray, codes: np.ndarray) -> None:
+        """Keep an interval: the sensed agents' ``ids``, their predicted positions at the
+        interval's control instants ``x_pred`` (S, N, 2) and the filter's status code of
+        each instant ``codes`` (S,): 0 free, 1 constraint active, 2 fallback."""
+        s = self.substeps
+        self._preds.append((np.asarray(ids), np.asarray(x_pred[::s], dtype=np.float32)))
         n_frames = -(-codes.size // s)
-        padded = np.zeros(n_frames * s, dtype=np.int8)
-        padded[: codes.size] = codes
-        self._status.append(padded.reshape(n_frames, s).max(axis=1) if n_frames else padded)
+        if n_frames * s != codes.size:  # a last, partial frame: padded with "free"
+            padded = np.zeros(n_frames * s, dtype=np.int8)
+            padded[: codes.size] = codes
+            codes = padded
+        codes = np.asarray(codes, dtype=np.int8)
+        self._status.append(codes.reshape(n_frames, s).max(axis=1) if n_frames else codes)
 
     def finish(
         self,
@@ -114,25 +123,34 @@ class AnimationRecorder:
         if self._status:
             st = np.concatenate(self._status)[:n]
             status[: st.size] = st
+        # the barrier with the true positions of the agents present and within the sensing
+        # radius, every frame at once (element-wise, so the values of a per-frame call)
+        p = win[:, cols]
+        ok = np.isfinite(p[..., 0])
+        near = ok & (
+            np.hypot(p[..., 0] - robot[:, :1], p[..., 1] - robot[:, 1:]) <= self.sensing_radius
+        )
         h_min = np.full(n, np.nan)
-        for i in range(n):
-            p = win[i, cols]
-            ok = np.isfinite(p[:, 0])
-            p = p[ok]
-            if p.size:
-                near = np.hypot(*(p - robot[i]).T) <= self.sensing_radius
-                if near.any():
-                    h = self.barrier.evaluate(robot[i], p[near])[0]
-                    h_min[i] = float(np.min(h))
+        rows, agents = np.nonzero(near)  # row-major: the pairs of a frame are consecutive
+        if rows.size:
+            h = self.barrier.evaluate(robot[rows], p[rows, agents])[0]
+            first = np.flatnonzero(np.diff(rows, prepend=-1))
+            h_min[rows[first]] = np.minimum.reduceat(h, first)
         k = len(self._preds)
         n_max = max((ids.size for ids, _ in self._preds), default=0)
         pred = np.full((k, n_max, self.tau_frames + 1, 2), np.nan, dtype=np.float32)
         pred_cols = np.full((k, n_max), -1, dtype=np.int32)
-        for j, (ids, xp) in enumerate(self._preds):
-            if ids.size and xp.size:
-                m = min(xp.shape[0], self.tau_frames + 1)
-                pred[j, : ids.size, :m] = xp[:m].transpose(1, 0, 2)
-                pred_cols[j, : ids.size] = [col_of.get(int(a), -1) for a in ids]
+        kept = [j for j, (ids, xp) in enumerate(self._preds) if ids.size and xp.size]
+        for j in kept:
+            ids, xp = self._preds[j]
+            m = min(xp.shape[0], self.tau_frames + 1)
+            pred[j, : ids.size, :m] = xp[:m].transpose(1, 0, 2)
+        if kept:  # every interval's columns in one pass
+            sizes = [self._preds[j][0].size for j in kept]
+            all_ids = np.concatenate([self._preds[j][0] for j in kept]).tolist()
+            pred_cols[np.repeat(kept, sizes), np.concatenate([np.arange(z) for z in sizes])] = [
+                col_of.get(int(a), -1) for a in all_ids
+            ]
         k_start = np.minimum(np.arange(k) * self.tau_frames, max(n - 1, 0))
         lam = np.array([iv["lambda"] for iv in intervals], dtype=float)
         loss = np.array(

@@ -46,7 +46,7 @@ def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, **kw):
     assert len(batched) == len(scenes)
     singles = []
     for sc, mf, seed in zip(scenes, frames, seed_list, strict=True):
-        res = run_episode(sc, max_frames=mf, seed=seed, record_animation=False, **kw)
+        res = run_episode(sc, max_frames=mf, seed=seed, record_animation=False, engine="loop", **kw)
         singles.append(res.metrics)
     problems = {
         i: d
@@ -155,8 +155,11 @@ def test_agents_appearing_and_disappearing(crossings):
 
 def test_results_output_keeps_config_intervals_and_trajectory(crossings):
     [res] = run_batch(crossings[:1], output="results", max_frames=60, extra_config={"x": 1})
-    ref = run_episode(crossings[0], max_frames=60, record_animation=False, extra_config={"x": 1})
+    ref = run_episode(
+        crossings[0], max_frames=60, record_animation=False, extra_config={"x": 1}, engine="loop"
+    )
     assert res.config.pop("engine") == "batch"
+    assert ref.config.pop("engine") == "loop"
     assert res.config == ref.config
     assert res.intervals == ref.intervals
     assert res.trajectory.keys() == ref.trajectory.keys()
