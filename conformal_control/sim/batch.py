@@ -852,8 +852,9 @@ class _Engine:
         return finished
 
     def _record(self, b: int) -> CBFIntervalRecord:
-        """Slot ``b``'s interval as the controller's ``interval_record`` gives it (without
-        the filter's status strings, which the engine does not keep)."""
+        """Slot ``b``'s interval as the controller's ``interval_record`` gives it, without
+        the filter's status strings (the engine keeps them as codes, ``rec_code``, for the
+        animation record; the losses that read a record do not use them)."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None
         s, n = int(p.step[b]), int(p.n_agents[b])

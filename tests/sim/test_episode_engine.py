@@ -98,6 +98,25 @@ def test_fallback_heavy(crossing, fallback):
     assert (fast.animation["status"] == 2).any()
 
 
+@pytest.mark.parametrize(
+    ("predictor", "kw"),
+    [
+        ("constant_velocity", {"rule": "pid"}),
+        ("constant_velocity", {"rule": "dtaci"}),
+        ("constant_velocity", {"rule": "decaying_eta"}),
+        ("constant_velocity", {"rule": "aci", "loss": "collision"}),
+        ("constant_velocity", {"loss": "distance_shortfall"}),
+        ("var", {}),
+    ],
+    ids=["pid", "dtaci", "decaying_eta", "aci-collision", "distance_shortfall", "var"],
+)
+def test_rules_losses_and_predictors(crossing, predictor, kw):
+    # what the engine runs besides the fixed-eta rule, the gap loss and its compiled
+    # predictors, through run_episode with the animation record: the loop's result exactly
+    fast, loop = _both(crossing, predictor, {"a": 2.0, "epsilon": 0.1}, max_frames=150, **kw)
+    assert loop.metrics["n_updates"] > 0
+
+
 def test_multiple_goals(crossing):
     # waypoints, two of them within the goal radius of each other (reached at one instant)
     goals = np.array([[10.0, 6.0], [10.2, 6.1], [18.0, 9.0], [28.0, 8.0]])
