@@ -568,6 +568,7 @@ def reproduce(
         scheduler=scheduler,
         plot=False,
         summary_plot=False,  # the report draws its own figures (below)
+        table_every=len(unique),  # the journal has every run; the tables once, at the end
         progress=progress,
     )
     by_key = {row["key"]: row for row in report.rows}
