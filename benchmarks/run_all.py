@@ -453,6 +453,7 @@ def _bench_run(args: argparse.Namespace, out: Path, extra: list[str]) -> tuple[f
     m = re.search(r"(\d+) ran \((\d+) failed\)", line)
     if m is None or int(m.group(2)):
         raise RuntimeError(f"unexpected bench run output: {line.strip()}")
+    line = line.split("; results in")[0]  # not the temporary folder's path
     return wall, int(m.group(1)), line.strip()
 
 
