@@ -113,7 +113,7 @@ def test_fallback_heavy(crossing, fallback):
 def test_rules_losses_and_predictors(crossing, predictor, kw):
     # what the engine runs besides the fixed-eta rule, the gap loss and its compiled
     # predictors, through run_episode with the animation record: the loop's result exactly
-    fast, loop = _both(crossing, predictor, {"a": 2.0, "epsilon": 0.1}, max_frames=150, **kw)
+    _, loop = _both(crossing, predictor, {"a": 2.0, "epsilon": 0.1}, max_frames=150, **kw)
     assert loop.metrics["n_updates"] > 0
 
 
