@@ -559,6 +559,16 @@ class _Engine:
         self.build = build
         self.episode_kw = episode_kw
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
+        self._own = False  # whether an episode predicts with its own predictor object
+        # the scores of an interval end, per slot (reset for the slots that end; reused
+        # rather than allocated at every interval end)
+        self._scores = (
+            np.empty(size),  # top gap
+            np.empty(size),  # top gap at the lambda applied
+            np.empty(size, dtype=np.int64),  # pairs scored
+            np.empty(size),  # loss
+            np.empty(size),  # loss at the lambda applied
+        )
         #: called with the slots after their interval's control instants, before it is
         #: scored (the single-episode run keeps its animation record with it)
         self.on_control: Any = None
@@ -662,6 +672,7 @@ class _Engine:
         p.tau[b] = tau
         p.history[b] = int(env.history_frames)
         p.predictor[b] = code
+        self._own = self._own or code == _OWN
         p.window[b] = int(window)
         p.n_log[b] = 0
         p.wall[b] = 0.0
@@ -697,7 +708,9 @@ class _Engine:
         p = self.pool
         bk.count_sensed(slots, p.store, p.where, p.fi, p.x, p.radius, p.sensed, p.n_agents)
         n = p.n_agents[slots]
-        p.ensure(agents=int(n.max(initial=0)))
+        most = int(n.max(initial=0))
+        if most > p.cap:
+            p.ensure(agents=most)
         p.k_start[slots] = p.fi[slots]
         p.step[slots] = 0
         p.need_begin[slots] = False
@@ -706,10 +719,11 @@ class _Engine:
             assert ep is not None  # slots are live
             ep.n_sensed.append(m)
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
-        own = p.predictor[predicted] == _OWN
-        for b in predicted[own].tolist():
-            self._predict_own(b)
-        predicted = predicted[~own]
+        if self._own:
+            own = p.predictor[predicted] == _OWN
+            for b in predicted[own].tolist():
+                self._predict_own(b)
+            predicted = predicted[~own]
         if predicted.size:
             bk.predict_interpolate(
                 predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
@@ -776,16 +790,25 @@ class _Engine:
         slots whose episode is over."""
         p = self.pool
         # the gap loss's intervals with pairs to score (other losses: their objects, below)
-        scored = slots[(p.n_agents[slots] > 0) & (p.step[slots] > 0) & ~np.isnan(p.scale[slots])]
-        top = np.full(p.size, -np.inf)
-        top_applied = np.full(p.size, -np.inf)
-        n_pairs = np.zeros(p.size, dtype=np.int64)
-        loss = np.full(p.size, np.nan)
-        applied = np.full(p.size, np.nan)
+        if slots.size == 1:  # one episode (run_episode's): the same test on scalars
+            b = int(slots[0])
+            one = p.n_agents[b] > 0 and p.step[b] > 0 and not math.isnan(p.scale[b])
+            scored = slots if one else slots[:0]
+        else:
+            scored = slots[
+                (p.n_agents[slots] > 0) & (p.step[slots] > 0) & ~np.isnan(p.scale[slots])
+            ]
+        top, top_applied, n_pairs, loss, applied = self._scores
+        top[slots] = -np.inf
+        top_applied[slots] = -np.inf
+        n_pairs[slots] = 0
+        loss[slots] = np.nan
+        applied[slots] = np.nan
         if scored.size:
             counts = p.n_agents[scored]
             offsets = np.zeros(scored.size, dtype=np.int64)
-            np.cumsum(counts[:-1], out=offsets[1:])
+            if scored.size > 1:
+                np.cumsum(counts[:-1], out=offsets[1:])
             frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
             truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
             bk.gather_windows(
@@ -796,7 +819,8 @@ class _Engine:
                 p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
             )  # fmt: skip
             for scale, squash in self._squash.items():
-                sel = scored[p.scale[scored] == scale]
+                # one loss scale in the engine: every scored slot has it
+                sel = scored if len(self._squash) == 1 else scored[p.scale[scored] == scale]
                 if sel.size:  # the loss's own squashing, s(r) = arctan(r / c) / pi
                     loss[sel] = squash(top[sel] + p.lam[sel])
                     applied[sel] = squash(top_applied[sel])
