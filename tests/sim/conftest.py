@@ -35,7 +35,8 @@ def _differences(batch: Any, single: Any) -> list[str]:
 
 
 def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, output="metrics", **kw):
-    """Run the scenes batched and one by one; assert every metric is identical (and, with
+    """Run the scenes batched and one by one (the per-episode loop, `engine="loop"`: the
+    default would take the engine too); assert every metric is identical (and, with
     ``output="results"``, every interval's row). Returns (batched, run_episode results)."""
     from conformal_control.sim import run_episode
     from conformal_control.sim.batch import run_batch
@@ -47,7 +48,7 @@ def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, output="metri
     )
     assert len(batched) == len(scenes)
     singles = [
-        run_episode(sc, max_frames=mf, seed=seed, record_animation=False, **kw)
+        run_episode(sc, max_frames=mf, seed=seed, record_animation=False, engine="loop", **kw)
         for sc, mf, seed in zip(scenes, frames, seed_list, strict=True)
     ]
     problems = {}

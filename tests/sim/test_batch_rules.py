@@ -164,7 +164,7 @@ def test_any_registered_predictor_with_counters_and_info(crossings, compare_batc
 def test_a_failing_predictor_raises_the_same_error(crossings, patchy):
     kw = {"predictor": patchy, "predictor_params": {"fail_on": 3}, "max_frames": FRAMES}
     with pytest.raises(PredictorError) as single:
-        run_episode(crossings[0], record_animation=False, **kw)
+        run_episode(crossings[0], record_animation=False, engine="loop", **kw)
     with pytest.raises(PredictorError) as batched:
         run_batch(crossings[:1], **kw)
     assert str(batched.value) == str(single.value)

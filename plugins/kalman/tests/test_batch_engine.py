@@ -21,7 +21,8 @@ def test_kalman_batched_equals_run_episode():
     kw = {"predictor": "kalman", "max_frames": 120}
     batched = run_batch(scenes, seeds=[0, 1, 2], batch_size=2, **kw)
     singles = [
-        run_episode(sc, seed=s, record_animation=False, **kw).metrics for s, sc in enumerate(scenes)
+        run_episode(sc, seed=s, record_animation=False, engine="loop", **kw).metrics
+        for s, sc in enumerate(scenes)
     ]
     assert [_metrics(m) for m in batched] == [_metrics(m) for m in singles]
     assert all(m.n_updates > 0 for m in singles)
