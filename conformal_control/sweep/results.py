@@ -253,7 +253,11 @@ class ResultsStore:
         return out
 
     def write_tables(self, *, parquet: bool = True) -> list[Path]:
-        """Rewrite ``results.csv`` (and ``results.parquet`` if pyarrow is available)."""
+        """Rewrite ``results.csv`` (and ``results.parquet`` if pyarrow is available).
+
+        ``parquet=False`` writes the CSV only and deletes a ``results.parquet`` an earlier
+        sweep left here, which would otherwise no longer match the journal.
+        """
         rows = self.rows()
         cols: list[str] = []
         for c in _FIRST:
@@ -269,6 +273,8 @@ class ResultsStore:
             w.writerow({c: "" if r.get(c) is None else r.get(c) for c in cols})
         atomic_write(self.csv_path, lambda tmp: tmp.write_text(buf.getvalue(), newline=""))
         written = [self.csv_path]
+        if not parquet:
+            self.parquet_path.unlink(missing_ok=True)
         if parquet and rows:
             try:
                 import pyarrow as pa

@@ -219,6 +219,37 @@ def test_parquet_table(tmp_path: Path) -> None:
     assert table[0]["goal_reached"] in (True, False) and table[1]["error"]
 
 
+def test_parquet_off_writes_the_csv_only_and_removes_a_stale_table(tmp_path: Path) -> None:
+    need("pyarrow.parquet")
+    spec = SweepSpec(base={"scene": "crossing", "frames": 30}, runs=[{"epsilon": 0.1}])
+    run_sweep(spec, tmp_path, "serial", progress=False)
+    assert (tmp_path / "results.parquet").is_file()
+    more = SweepSpec(base={"scene": "crossing", "frames": 30}, grid={"epsilon": [0.1, 0.2]})
+    run_sweep(more, tmp_path, "serial", progress=False, parquet=False)
+    # the old table had one run; it would no longer match the journal, so it is gone
+    assert not (tmp_path / "results.parquet").exists()
+    assert {r["param.epsilon"] for r in rows(tmp_path)} == {"0.1", "0.2"}
+
+
+def test_progress_off_starts_no_thread(tmp_path: Path) -> None:
+    """A sweep without a progress bar leaves the process single-threaded (tqdm's first
+    bar, even disabled, starts a monitor thread), so the report's figures may fork."""
+    import subprocess
+    import sys
+
+    code = (
+        "import threading\n"
+        "from conformal_control.sweep import SweepSpec, run_sweep\n"
+        "spec = SweepSpec(base={'scene': 'crossing', 'frames': 20}, runs=[{}])\n"
+        f"run_sweep(spec, {str(tmp_path)!r}, 'serial', progress=False, summary_plot=False)\n"
+        "print(sorted(t.name for t in threading.enumerate()))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.strip().splitlines()[-1] == "['MainThread']"
+
+
 # ---------------------------------------------------------------------------- Dask
 def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path) -> None:
     distributed = need("distributed")

@@ -1,0 +1,101 @@
+"""Figures drawn on two cores: same files as drawn one after the other, errors surface."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conformal_control.plotting import jobs
+from conformal_control.plotting.jobs import can_fork, draw_all
+
+PARENT = os.getpid()
+
+
+def _figure(path: Path, seed: int) -> None:
+    from conformal_control.plotting.run import _mpl
+
+    plt = _mpl()
+    rng = np.random.default_rng(seed)
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.plot(rng.normal(size=50).cumsum())
+    ax.set_title(f"seed {seed}, pid-independent")
+    fig.savefig(path, dpi=60)
+    plt.close(fig)
+    (path.parent / f"{path.stem}.pid").write_text(str(os.getpid()))
+
+
+def _raise(path: Path) -> None:
+    raise ValueError(f"cannot draw {path.name}")
+
+
+def _die_in_child(path: Path) -> None:
+    if os.getpid() != PARENT:
+        os._exit(3)  # the figure process dies without a word
+    _figure(path, 7)
+
+
+@pytest.fixture
+def forkable(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fork even if an earlier test left a thread running (the test suite's process is
+    not the command's, which checks for a single thread)."""
+    monkeypatch.setattr(jobs, "can_fork", lambda: True)
+
+
+def _jobs(folder: Path, n: int = 4) -> list[jobs.FigureJob]:
+    folder.mkdir()
+    return [(_figure, (folder / f"f{i}.png", i), {}) for i in range(n)]
+
+
+def test_forked_drawing_writes_the_same_files_as_serial(tmp_path: Path, forkable: None) -> None:
+    assert draw_all(_jobs(tmp_path / "serial"), workers=1) == "serial"
+    assert draw_all(_jobs(tmp_path / "forked")) == "forked"
+    for i in range(4):
+        a = (tmp_path / "serial" / f"f{i}.png").read_bytes()
+        b = (tmp_path / "forked" / f"f{i}.png").read_bytes()
+        assert a == b
+    pids = {int((tmp_path / "forked" / f"f{i}.pid").read_text()) for i in range(4)}
+    assert len(pids) == 2 and os.getpid() in pids  # half here, half in the child
+    assert jobs._JOBS == ()  # nothing held after the call
+
+
+def test_an_error_in_the_child_is_raised_here(tmp_path: Path, forkable: None) -> None:
+    todo = _jobs(tmp_path / "f", 1)
+    todo.append((_raise, (tmp_path / "bad.png",), {}))  # odd position: the child's
+    with pytest.raises(ValueError, match=r"cannot draw bad\.png"):
+        draw_all(todo)
+    assert (tmp_path / "f" / "f0.png").is_file()  # this process's share was drawn
+
+
+def test_a_dead_child_is_reported_and_its_figures_drawn_here(
+    tmp_path: Path, forkable: None
+) -> None:
+    todo = _jobs(tmp_path / "f", 1)
+    todo.append((_die_in_child, (tmp_path / "f" / "late.png",), {}))
+    with pytest.warns(RuntimeWarning, match="figure process died.*drawing its 1 figures here"):
+        assert draw_all(todo) == "forked"
+    assert int((tmp_path / "f" / "late.pid").read_text()) == os.getpid()
+
+
+def test_serial_when_a_second_thread_runs(tmp_path: Path) -> None:
+    import threading
+
+    stop = threading.Event()
+    t = threading.Thread(target=stop.wait)
+    t.start()
+    try:
+        assert not can_fork()
+        assert draw_all(_jobs(tmp_path / "f", 2)) == "serial"
+    finally:
+        stop.set()
+        t.join()
+    pids = {int((tmp_path / "f" / f"f{i}.pid").read_text()) for i in range(2)}
+    assert pids == {os.getpid()}
+
+
+@pytest.mark.parametrize("workers", [0, -1, True])
+def test_bad_workers(workers: object) -> None:
+    with pytest.raises(ValueError, match="workers must be a positive integer"):
+        draw_all([], workers=workers)  # type: ignore[arg-type]
