@@ -223,7 +223,10 @@ def run_bench(
         plot=RUN_FILES,
         summary_plot=False,
         progress=progress,
-        table_every=50,
+        # the journal has every episode as it finishes; the tables (rewritten whole) about
+        # ten times over the run: after every 50 episodes made a suite of thousands
+        # quadratic in its size
+        table_every=max(50, len(configs) // 10),
     )
     return BenchRun(
         out_dir=out,

@@ -366,10 +366,10 @@ def load_scene(
     shipped benchmark suite (its time limit in ``scene.meta["max_frames"]``).
     """
     if name.startswith("scenario:"):
-        from .suites import load_scenario, load_suite  # suites reads scenes through here
+        from .suites import load_scenario, shipped_scenario  # suites reads scenes here
 
         suite, _, sid = name[len("scenario:") :].partition("/")
-        return load_scenario(load_suite(suite).scenario(sid), data_root)
+        return load_scenario(shipped_scenario(suite, sid), data_root)
     if name == "crossing":
         if any(v is not None for v in (start, goals, start_frame, start_m, goals_m)):
             raise ValueError("the built-in crossing scene has a fixed start, goal and frame")

@@ -41,6 +41,7 @@ __all__ = [
     "dump_manifest",
     "load_scenario",
     "load_suite",
+    "shipped_scenario",
     "suite_names",
     "validate_manifest",
 ]
@@ -276,6 +277,36 @@ def load_suite(name: str, path: str | os.PathLike[str] | None = None) -> Suite:
         manifest=manifest,
         scenarios=[Scenario.from_dict(d) for d in manifest["scenarios"]],
     )
+
+
+#: (manifest path, size, mtime) -> {scenario id: Scenario} of the last shipped suite read
+_SCENARIOS: dict[tuple[str, int, int], dict[str, Scenario]] = {}
+
+
+def shipped_scenario(suite: str, scenario_id: str) -> Scenario:
+    """One scenario of a shipped suite, read once per process (``scenario:<suite>/<id>``
+    scene names come here: a benchmark loads one scene per scenario and method, and
+    parsing and checking the manifest each time took longer than building the scene).
+
+    The index is rebuilt when the manifest file changes (size or modification time).
+    :class:`Scenario` is frozen, so the shared instances cannot be changed by a caller.
+    """
+    known = suite_names()
+    if suite not in known:
+        raise ValueError(f"unknown suite {suite!r}; shipped suites: {', '.join(known)}")
+    path = _manifest_dir() / f"{suite}.json"
+    st = path.stat()
+    stamp = (str(path), st.st_size, st.st_mtime_ns)
+    index = _SCENARIOS.get(stamp)
+    if index is None:
+        loaded = load_suite(suite)
+        index = {sc.id: sc for sc in loaded.scenarios}
+        _SCENARIOS.clear()  # one suite at a time: a benchmark runs one
+        _SCENARIOS[stamp] = index
+    sc = index.get(scenario_id)
+    if sc is None:
+        return load_suite(suite).scenario(scenario_id)  # raises, naming the suite
+    return sc
 
 
 def dump_manifest(manifest: dict[str, Any]) -> str:

@@ -97,17 +97,18 @@ def write_run_dir(
 
         np.savez_compressed(out / "animation.npz", **animation)
     if plot:
-        from ..plotting import plot_run
+        from ..plotting.jobs import FigureJob, draw_all
+        from ..plotting.run import plot_run
 
-        plot_run(result, out / "plot.png")
+        jobs: list[FigureJob] = [(plot_run, (result, out / "plot.png"), {})]
         if result.loop is not None and result.loop.monitor.n:
-            from ..plotting import plot_guarantee
+            from ..plotting.guarantee import plot_guarantee
 
             units = result.scene.units
-            plot_guarantee(
-                result.loop.monitor,
-                out / "guarantee.png",
-                lambda_unit=units.factor("lambda_init"),
-                lambda_label=f"lambda (1/{units.time_name})",
-            )
+            kwargs = {
+                "lambda_unit": units.factor("lambda_init"),
+                "lambda_label": f"lambda (1/{units.time_name})",
+            }
+            jobs.append((plot_guarantee, (result.loop.monitor, out / "guarantee.png"), kwargs))
+        draw_all(jobs)  # the two figures on two cores where possible
     return out

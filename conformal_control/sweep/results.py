@@ -25,6 +25,7 @@ import io
 import json
 import math
 import os
+import re
 import tempfile
 import warnings
 from collections.abc import Callable, Iterable
@@ -38,6 +39,10 @@ _TMP_PREFIX = "."
 _TMP_SUFFIX = ".tmp"
 #: Names temporary files had before they were unique (removed when the folder is locked).
 _OLD_TMP = ("results.csv.tmp", "results.parquet.tmp")
+
+
+#: a run directory as a sweep records it: ``runs/<name>`` (no ``..``, no separator)
+_PLAIN_RUN_DIR = re.compile(r"runs/(?!\.\.?$)[^/\\]+")
 
 
 class JournalWarning(UserWarning):
@@ -105,6 +110,8 @@ class ResultsStore:
         self.bad_lines_: list[tuple[int, str]] = []
         self._warned: set[tuple[int, str]] = set()
         self._cache: tuple[tuple[int, int], list[dict[str, Any]]] | None = None
+        # flat row of a cached record, by id() (the cache holds the records alive)
+        self._flat: dict[int, dict[str, Any]] = {}
 
     # ------------------------------------------------------------------ journal
     def records(self) -> list[dict[str, Any]]:
@@ -148,6 +155,7 @@ class ResultsStore:
             self._warned.update(new)
             warnings.warn(JournalWarning(self.describe_bad_lines(new)), stacklevel=2)
         self._cache = (stamp, out)
+        self._flat = {}
         return list(out)
 
     def describe_bad_lines(self, bad: list[tuple[int, str]] | None = None) -> str:
@@ -187,6 +195,8 @@ class ResultsStore:
 
     def relative_run_dir(self, run_dir: str | os.PathLike[str] | None) -> str | None:
         """A run directory as recorded: relative to the folder, with ``/`` separators."""
+        if isinstance(run_dir, str) and _PLAIN_RUN_DIR.fullmatch(run_dir):
+            return run_dir  # "runs/<name>", what every sweep records: nothing to resolve
         p = self.run_path(run_dir)
         if p is None:
             return None
@@ -219,14 +229,32 @@ class ResultsStore:
         """
         line = (json.dumps(record, default=_json_default) + "\n").encode()
         with self.journal.open("ab+") as fh:
+            before = os.fstat(fh.fileno())
             end = fh.seek(0, os.SEEK_END)
+            torn = False
             if end > 0:
                 fh.seek(end - 1)
                 if fh.read(1) != b"\n":
                     line = b"\n" + line
+                    torn = True
             fh.write(line)
             fh.flush()
             os.fsync(fh.fileno())
+            after = os.fstat(fh.fileno())
+        # keep the parsed journal current without reading it again (a sweep of thousands
+        # of runs would otherwise re-parse it after every run): only if the cache held
+        # the file exactly as it was before this line
+        cache = self._cache
+        if (
+            cache is not None
+            and not torn
+            and cache[0] == (before.st_size, before.st_mtime_ns)
+            and after.st_size == before.st_size + len(line)
+        ):
+            cache[1].append(json.loads(line))  # as read back: JSON types, not the caller's
+            self._cache = ((after.st_size, after.st_mtime_ns), cache[1])
+        else:
+            self._cache = None
 
     # ------------------------------------------------------------------ tables
     def rows(
@@ -239,16 +267,25 @@ class ResultsStore:
         latest = self.latest()
         order = list(keys) if keys is not None else list(latest)
         out: list[dict[str, Any]] = []
+        root = self.out_dir.resolve() if absolute else None
         for k in order:
-            if k not in latest:
+            rec = latest.get(k)
+            if rec is None:
                 continue
-            row = flatten_record(latest[k])
-            if row["run_dir"]:
-                path = self.run_path(row["run_dir"])
-                assert path is not None  # run_path only gives None for an empty run_dir
-                row["run_dir"] = (
-                    str(path.resolve()) if absolute else self.relative_run_dir(row["run_dir"])
-                )
+            flat = self._flat.get(id(rec))
+            if flat is None:
+                flat = self._flat[id(rec)] = flatten_record(rec)
+            row = dict(flat)
+            rd = row["run_dir"]
+            if rd:
+                if root is not None and isinstance(rd, str) and _PLAIN_RUN_DIR.fullmatch(rd):
+                    row["run_dir"] = str((root / rd).resolve())
+                elif root is not None:
+                    path = self.run_path(rd)
+                    assert path is not None  # run_path only gives None for an empty run_dir
+                    row["run_dir"] = str(path.resolve())
+                else:
+                    row["run_dir"] = self.relative_run_dir(rd)
             out.append(row)
         return out
 

@@ -13,7 +13,8 @@ import yaml
 from conformal_control.bench import dump_manifest, load_scenario, load_suite, validate_manifest
 from conformal_control.bench.generator import CROSSINGS_V1, assign_splits, generate_suite
 from conformal_control.cli import main
-from conformal_control.data.suites import suite_names
+from conformal_control.data import suites as suites_module
+from conformal_control.data.suites import shipped_scenario, suite_names
 from conformal_control.sim import run_episode
 
 SDD_RAW_VIDEOS = {
@@ -210,3 +211,25 @@ def test_cli_regenerates_one_recording(capsys, data_root) -> None:
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "byte-identical to the shipped entries of 1 recording(s)" in out
+
+
+def test_shipped_scenarios_are_read_once_and_again_when_the_file_changes(
+    suite, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    src = suites_module._manifest_dir() / "crossings-v1.json"
+    (tmp_path / "crossings-v1.json").write_bytes(src.read_bytes())
+    monkeypatch.setattr(suites_module, "_manifest_dir", lambda: tmp_path)
+    monkeypatch.setattr(suites_module, "_SCENARIOS", {})
+    first = suite.scenarios[0]
+    a = shipped_scenario("crossings-v1", first.id)
+    assert a == first
+    assert shipped_scenario("crossings-v1", first.id) is a  # the same (frozen) instance
+    manifest = json.loads((tmp_path / "crossings-v1.json").read_text())
+    manifest["scenarios"][0]["max_frames"] += 1
+    (tmp_path / "crossings-v1.json").write_text(dump_manifest(manifest))
+    b = shipped_scenario("crossings-v1", first.id)
+    assert b.max_frames == first.max_frames + 1  # the edited file was read again
+    with pytest.raises(ValueError, match="has no scenario 'nope'"):
+        shipped_scenario("crossings-v1", "nope")
+    with pytest.raises(ValueError, match="unknown suite 'crossings-v9'"):
+        shipped_scenario("crossings-v9", first.id)

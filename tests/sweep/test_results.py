@@ -147,6 +147,48 @@ def test_run_path_resolution(tmp_path: Path) -> None:
     assert store.run_path(None) is None
 
 
+def test_appends_keep_the_parsed_journal_current_without_rereading(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A sweep of thousands of runs used to re-parse the whole journal after every run."""
+    import numpy as np
+
+    store = ResultsStore(tmp_path)
+    store.append(rec("a"))
+    assert [r["key"] for r in store.records()] == ["a"]  # read once: now cached
+    reads = []
+    real = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: reads.append(self) or real(self))
+    for i in range(20):  # JSON types come back: a tuple as a list, numpy as plain numbers
+        store.append(rec(f"k{i}", metrics={"x": np.float64(i / 3), "t": (i, "s")}))
+    cached = store.records()
+    assert reads == []  # no re-read
+    monkeypatch.undo()
+    fresh = ResultsStore(tmp_path).records()  # a new store reads the file
+    assert cached == fresh and json.dumps(cached) == json.dumps(fresh)
+    assert cached[-1]["metrics"] == {"x": 19 / 3, "t": [19, "s"]}
+    assert store.rows() == ResultsStore(tmp_path).rows()
+
+
+def test_an_append_by_another_writer_is_seen(tmp_path: Path) -> None:
+    store = ResultsStore(tmp_path)
+    store.append(rec("a"))
+    assert len(store.records()) == 1
+    ResultsStore(tmp_path).append(rec("b"))  # the file changed behind this store's back
+    store.append(rec("c"))  # its cache no longer matches: dropped, not extended
+    assert [r["key"] for r in store.records()] == ["a", "b", "c"]
+
+
+def test_plain_run_dirs_are_kept_as_recorded(tmp_path: Path) -> None:
+    store = ResultsStore(tmp_path / "sw")
+    assert store.relative_run_dir("runs/x-1") == "runs/x-1"
+    assert store.relative_run_dir("runs/../x-1") == "x-1"  # not plain: resolved
+    store.append({**rec("a", status="ok"), "run_dir": "runs/a-1"})
+    row = store.rows(absolute=True)[0]
+    assert row["run_dir"] == str((tmp_path / "sw").resolve() / "runs" / "a-1")
+    assert store.rows()[0]["run_dir"] == "runs/a-1"
+
+
 # ------------------------------------------------------------------ tables
 def test_concurrent_table_writes_use_unique_temp_files(tmp_path: Path) -> None:
     """Two writers rewriting the tables at once never collide on a temporary name."""
