@@ -285,6 +285,22 @@ def sec_startup(args: argparse.Namespace) -> list[Figure]:
                 "code: what any command with a compiled step and a plot pays first",
             )
         )
+        mpl_code = (
+            "import numpy, matplotlib; matplotlib.use('Agg'); "
+            f"import matplotlib.pyplot as plt; plt.figure().savefig({png!r})"
+        )
+        mpl, mpl_cpu = time_command([py, "-c", mpl_code], n)
+        out.append(
+            figure(
+                "startup",
+                "floor of the plot alone: numpy + matplotlib saving an empty figure",
+                mpl,
+                "s",
+                ratios=base,
+                note=f"median of {n}; CPU {mpl_cpu:.2f} s; what any command that saves a "
+                "matplotlib figure pays, before drawing anything",
+            )
+        )
         base = [*base, ("the floor", floor, "times")]
         run = [*_cli(), "run", "--scene", "nexus_4", "--data-root", str(args.data_root), "-q"]
         for plot in (True, False):
