@@ -778,10 +778,11 @@ class _Engine:
         if bad >= 0:
             ep = self.eps[bad]
             assert ep is not None  # bad is one of slots, which are live
+            which = f"episode {ep.index} of the batch, " if len(self.eps) > 1 else ""
             raise ValueError(
                 "Exact2DSafetyFilter received non-finite constraints, lambda or nominal "
-                f"decision in episode {ep.index} of the batch; predictions must "
-                "be sanitised before building constraints"
+                f"decision ({which}scene {ep.fl.scene.name}, t = {p.t[bad]:.3f} s); "
+                "predictions must be sanitised before building constraints"
             )
 
     # ------------------------------------------------------------------ interval end
