@@ -47,6 +47,7 @@ from .episode import _config, _jsonable, _measure
 from .metrics import EpisodeMetrics
 from .multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
 from .multi_world import MultiRobotWorld
+from .rundir import _clean, _fmt
 
 __all__ = [
     "LAYOUTS",
@@ -633,21 +634,3 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
     if result.animation is not None:
         np.savez_compressed(out / "animation.npz", **result.animation)
     return out
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def _fmt(v: Any) -> Any:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ""
-    return v

@@ -14,6 +14,7 @@ __all__ = ["write_run_dir"]
 
 
 def _clean(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (JSON has no NaN or inf)."""
     if isinstance(obj, dict):
         return {k: _clean(v) for k, v in obj.items()}
     if isinstance(obj, list):
@@ -24,6 +25,7 @@ def _clean(obj: Any) -> Any:
 
 
 def _fmt(v: Any) -> Any:
+    """A CSV cell: floats in full precision (``repr``), None and non-finite as empty."""
     if v is None:
         return ""
     if isinstance(v, float):
