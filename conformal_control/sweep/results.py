@@ -267,7 +267,6 @@ class ResultsStore:
         latest = self.latest()
         order = list(keys) if keys is not None else list(latest)
         out: list[dict[str, Any]] = []
-        root = self.out_dir.resolve() if absolute else None
         for k in order:
             rec = latest.get(k)
             if rec is None:
@@ -277,15 +276,12 @@ class ResultsStore:
                 flat = self._flat[id(rec)] = flatten_record(rec)
             row = dict(flat)
             rd = row["run_dir"]
-            if rd:
-                if root is not None and isinstance(rd, str) and _PLAIN_RUN_DIR.fullmatch(rd):
-                    row["run_dir"] = str((root / rd).resolve())
-                elif root is not None:
-                    path = self.run_path(rd)
-                    assert path is not None  # run_path only gives None for an empty run_dir
-                    row["run_dir"] = str(path.resolve())
-                else:
-                    row["run_dir"] = self.relative_run_dir(rd)
+            if rd and absolute:
+                path = self.run_path(rd)
+                assert path is not None  # run_path only gives None for an empty run_dir
+                row["run_dir"] = str(path.resolve())
+            elif rd:
+                row["run_dir"] = self.relative_run_dir(rd)
             out.append(row)
         return out
 

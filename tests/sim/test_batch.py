@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
@@ -13,49 +12,6 @@ from conformal_control.exceptions import NoUpdatesWarning
 from conformal_control.sim import run_episode
 from conformal_control.sim.batch import iter_batch, run_batch, supports
 
-#: Metrics that measure the machine, not the episode.
-WALL = {"wall_s"}
-
-
-def _same(a, b) -> bool:
-    """Equal, NaN equal to NaN, floats compared exactly (bit for bit)."""
-    if isinstance(a, float) and isinstance(b, float):
-        return (math.isnan(a) and math.isnan(b)) or a == b
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
-    return type(a) is type(b) and a == b
-
-
-def _differences(batch, single) -> list[str]:
-    da, db = dataclasses.asdict(batch), dataclasses.asdict(single)
-    assert da.keys() == db.keys()
-    return [
-        f"{k}: batch {da[k]!r} != run_episode {db[k]!r}"
-        for k in da
-        if k not in WALL and not _same(da[k], db[k])
-    ]
-
-
-def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, **kw):
-    """Run the scenes batched and one by one; assert every metric is identical."""
-    frames = max_frames if isinstance(max_frames, list) else [max_frames] * len(scenes)
-    seed_list = seeds if isinstance(seeds, list) else [seeds or 0] * len(scenes)
-    batched = run_batch(scenes, max_frames=max_frames, seeds=seeds, batch_size=batch_size, **kw)
-    assert len(batched) == len(scenes)
-    singles = []
-    for sc, mf, seed in zip(scenes, frames, seed_list, strict=True):
-        res = run_episode(sc, max_frames=mf, seed=seed, record_animation=False, engine="loop", **kw)
-        singles.append(res.metrics)
-    problems = {
-        i: d
-        for i, (b, s) in enumerate(zip(batched, singles, strict=True))
-        if (d := _differences(b, s))
-    }
-    assert not problems, problems
-    return batched, singles
-
 
 @pytest.fixture(scope="module")
 def crossings():
@@ -64,18 +20,18 @@ def crossings():
 
 
 @pytest.mark.parametrize("learn", [True, False])
-def test_crossing_seeds_match_run_episode(crossings, learn):
+def test_crossing_seeds_match_run_episode(crossings, compare_batch, learn):
     # batch_size 3 < 4 scenes: a freed slot is refilled mid-run
-    batched, singles = _compare(crossings, seeds=[0, 1, 2, 3], learn=learn)
+    batched, singles = compare_batch(crossings, seeds=[0, 1, 2, 3], learn=learn)
     assert all(m.wall_s > 0 for m in batched)
     # the seeds give different episodes (the comparison is not trivially of equal runs)
-    assert len({m.path_length for m in singles}) == len(singles)
+    assert len({s.metrics.path_length for s in singles}) == len(singles)
     if learn:
         assert all(m.n_updates > 0 for m in batched)
 
 
-def test_crossing_oracle_and_brake_with_si_parameters(crossings):
-    _compare(
+def test_crossing_oracle_and_brake_with_si_parameters(crossings, compare_batch):
+    compare_batch(
         crossings[:2],
         predictor="oracle",
         units="si",
@@ -100,14 +56,14 @@ def suite_scenes(data_root):
 @pytest.mark.parametrize(
     "method", ["nolearn", "conformal", "inflated"], ids=["nolearn", "conformal", "inflated"]
 )
-def test_suite_scenarios_match_run_episode(suite_scenes, method):
+def test_suite_scenarios_match_run_episode(suite_scenes, compare_batch, method):
     from conformal_control.bench.methods import expand_methods
 
     m = expand_methods([method], {"conformal": [-0.1], "inflated": [0.25]})[0]
     kw = m.run_kwargs()
     frames = [sc.meta["max_frames"] for sc in suite_scenes]
     assert len(set(frames)) > 1 or len({sc.n_frames for sc in suite_scenes}) > 1
-    _compare(suite_scenes, max_frames=frames, batch_size=2, **kw)
+    compare_batch(suite_scenes, max_frames=frames, batch_size=2, **kw)
 
 
 # ------------------------------------------------------------------ edge cases
@@ -126,19 +82,19 @@ def _track(scene, p0, v, gaps=()):
     return out
 
 
-def test_empty_scene_and_episodes_of_different_lengths(crossings):
+def test_empty_scene_and_episodes_of_different_lengths(crossings, compare_batch):
     """A scene without agents beside crossing scenes stopped after different frame counts."""
     empty = _with_tracks(crossings[0], [])
     assert empty.n_agents == 0
     with pytest.warns(NoUpdatesWarning):  # both engines warn about the empty scene
-        batched, _ = _compare(
+        batched, _ = compare_batch(
             [empty, crossings[0], crossings[1], empty], max_frames=[40, 7, 150, 1], batch_size=4
         )
     assert batched[0].n_scored == 0 and batched[0].n_updates == 0
     assert len({m.frames for m in batched}) == 4
 
 
-def test_agents_appearing_and_disappearing(crossings):
+def test_agents_appearing_and_disappearing(crossings, compare_batch):
     """Agents enter after the start, leave and come back, or vanish, near the robot."""
     base = crossings[0]
     tracks = [
@@ -148,9 +104,9 @@ def test_agents_appearing_and_disappearing(crossings):
     ]
     scenes = [_with_tracks(base, tracks), _with_tracks(base, tracks[::-1][:2])]
     for learn in (True, False):
-        _, singles = _compare(scenes, max_frames=150, learn=learn, batch_size=2)
-        assert all(m.n_scored > 0 for m in singles)
-        assert any(m.n_truth_missing > 0 for m in singles)  # a gap fell inside an interval
+        _, singles = compare_batch(scenes, max_frames=150, learn=learn, batch_size=2)
+        assert all(s.metrics.n_scored > 0 for s in singles)
+        assert any(s.metrics.n_truth_missing > 0 for s in singles)  # a gap fell inside an interval
 
 
 def test_results_output_keeps_config_intervals_and_trajectory(crossings):
