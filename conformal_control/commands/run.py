@@ -188,14 +188,20 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 # ------------------------------------------------------------------------------ replay
 def _explicit_options(argv: list[str]) -> dict[str, Any]:
-    """The ``run`` options given on this command line (defaults left out)."""
-    from ..cli import build_parser
+    """The ``run`` options given on this command line (defaults left out).
 
-    parser = build_parser()
-    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    for action in subs.choices["run"]._actions:
+    ``argv`` is the whole command line: global flags (``-q``, ``-v``: no values), the
+    command name, then the command's own options, parsed here by the command's own parser
+    (the arguments :func:`_run_args` declares, every default suppressed).
+    """
+    parser = argparse.ArgumentParser(prog="conformal-control run", add_help=False)
+    _run_args(parser)
+    parser.add_argument("-q", "--quiet", action="store_true")
+    parser.add_argument("-v", "--verbose", action="count")
+    for action in parser._actions:
         action.default = argparse.SUPPRESS
-    ns = vars(parser.parse_args(argv))
+    name = next((i for i, a in enumerate(argv) if not a.startswith("-")), None)
+    ns = vars(parser.parse_args(argv[name + 1 :] if name is not None else argv))
     return {k: v for k, v in ns.items() if k not in ("command", "quiet", "verbose")}
 
 
@@ -356,10 +362,10 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..data import load_scene
     from ..data.paths import resolve_data_root
+    from ..flagship.params import check_names, resolve_params
     from ..progress import progress
-    from ..sim.config import check_names, resolve_params
+    from ..results.rundir import write_run_dir
     from ..sim.episode import run_episode
-    from ..sim.rundir import write_run_dir
 
     log = logging.getLogger("conformal_control.run")
     if args.config:
