@@ -288,6 +288,66 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
     return value, {}  # an instance: checked against the role's base class when built
 
 
+#: The settings of a run's robots section (:class:`Robots`).
+ROBOT_FIELDS: tuple[str, ...] = (
+    "robots",
+    "starts",
+    "goals",
+    "layout",
+    "radius",
+    "center",
+    "sensor_history",
+)
+
+
+@dataclass(frozen=True)
+class Robots:
+    """Several robots in one crowd (each its own controller, no communication).
+
+    Parameters
+    ----------
+    robots : int, optional
+        Number of robots, placed by ``layout``; or give ``starts`` and ``goals``.
+    starts, goals : lists, optional
+        Explicit tasks (m): one start ``[x, y]`` and one list of goals per robot.
+    layout : {"scene", "antipodal"}
+        ``scene``: robot 0 does the scene's task, robot i the same task rotated by
+        2 pi i / M; ``antipodal``: on a circle of ``radius`` about ``center``.
+    radius : float, optional
+    center : [x, y], optional
+    sensor_history : {"tracked", "observed"}
+        Histories handed to each robot's predictor.
+    """
+
+    robots: int | None = None
+    starts: Any = None
+    goals: Any = None
+    layout: str = "scene"
+    radius: float | None = None
+    center: Any = None
+    sensor_history: str = "tracked"
+
+    def __post_init__(self) -> None:
+        if self.robots is not None and (
+            isinstance(self.robots, bool) or not isinstance(self.robots, int)
+        ):
+            raise _spec_error(f"robots must be an integer, got {self.robots!r}")
+        if self.layout not in ("scene", "antipodal"):
+            raise _spec_error(f"layout must be 'scene' or 'antipodal', got {self.layout!r}")
+        if self.sensor_history not in ("tracked", "observed"):
+            raise _spec_error(
+                f"sensor_history must be 'tracked' or 'observed', got {self.sensor_history!r}"
+            )
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (arrays as lists)."""
+        out = {}
+        for name in ROBOT_FIELDS:
+            v = getattr(self, name)
+            out[name] = v.tolist() if hasattr(v, "tolist") else v
+        return out
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of the flagship, fully specified: parameters, roles, crowd, robots, options.
@@ -324,6 +384,8 @@ class RunSpec:
         Keep the compact record ``conformal-control animate`` renders.
     engine : {"auto", "loop", "batch"}
         The backend (:mod:`conformal_control.engines`).
+    robots : Robots, optional
+        Several robots in the crowd (:func:`conformal_control.sim.multi.run_multi`).
 
     Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
     ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
@@ -350,6 +412,7 @@ class RunSpec:
     lambda_safe_source: str | None = None
     record_animation: bool = True
     engine: str = "auto"
+    robots: Robots | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.params, dict):
@@ -377,6 +440,8 @@ class RunSpec:
             raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))
+        if self.robots is not None and not isinstance(self.robots, Robots):
+            raise _spec_error(f"robots must be a Robots section, got {self.robots!r}")
 
     # ------------------------------------------------------------------ roles
     def role(self, name: str) -> tuple[Any, dict[str, Any]]:
@@ -437,6 +502,61 @@ class RunSpec:
             new[role] = (spec, rp) if rp else spec
         return dataclasses.replace(self, params=params, **new)
 
+    # ------------------------------------------------------------------ keyword settings
+    @classmethod
+    def from_settings(
+        cls, params: dict[str, Any] | None = None, base: RunSpec | None = None, **settings: Any
+    ) -> RunSpec:
+        """A :class:`RunSpec` from keyword settings, as the functions that run episodes
+        take them: fields by name (``predictor=``, ``learn=``, ...), ``params``, and a
+        role's parameters as ``<role>_params`` (``predictor_params={"window": 3}``, the
+        role given by name); applied on ``base`` (default: the default specification).
+
+        Raises
+        ------
+        TypeError
+            For a keyword that is no setting of a run (with a did-you-mean).
+        ValueError
+            For ``<role>_params`` without a role given by name.
+        """
+        spec = cls() if base is None else base
+        fields = set(ROLE_FIELDS) | set(OPTION_FIELDS)
+        kw: dict[str, Any] = {}
+        role_params: dict[str, Any] = {}
+        robots: dict[str, Any] = {}
+        for key, value in settings.items():
+            if key in ROBOT_FIELDS:
+                robots[key] = value
+            elif key.endswith("_params") and key[: -len("_params")] in ROLE_FIELDS:
+                role_params[key[: -len("_params")]] = value
+            elif key in fields:
+                kw[key] = value
+            else:
+                import difflib
+
+                known = sorted(
+                    fields | set(ROBOT_FIELDS) | {"params"} | {f"{r}_params" for r in ROLE_FIELDS}
+                )
+                close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                raise TypeError(f"unexpected keyword argument {key!r}{hint}")
+        for role, given in role_params.items():
+            if not given:
+                continue
+            name, existing = _role_parts(role, kw.get(role, getattr(spec, role)))
+            if name is None:
+                raise ValueError(f"{role}_params given without a {role} name")
+            if not isinstance(name, str):
+                raise ValueError(
+                    f"{role}_params apply to a {role} given by name, not to an instance"
+                )
+            kw[role] = (name, {**existing, **dict(given)})
+        if params is not None:
+            kw["params"] = dict(params)
+        if robots:
+            kw["robots"] = dataclasses.replace(spec.robots or Robots(), **robots)
+        return dataclasses.replace(spec, **kw)
+
     # ------------------------------------------------------------------ serialisation
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (``config.json``'s ``spec``); :meth:`from_dict` inverts it.
@@ -457,6 +577,8 @@ class RunSpec:
                 }
         for name in OPTION_FIELDS:
             out[name] = getattr(self, name)
+        if self.robots is not None:
+            out["robots"] = self.robots.as_dict()
         return out
 
     @classmethod
@@ -471,12 +593,19 @@ class RunSpec:
         """
         if not isinstance(data, dict):
             raise _spec_error(f"{where} must be a mapping, got {type(data).__name__}")
-        known = {"params", *ROLE_FIELDS, *OPTION_FIELDS}
+        known = {"params", "robots", *ROLE_FIELDS, *OPTION_FIELDS}
         unknown = sorted(set(data) - known)
         if unknown:
             raise _spec_error(f"{where}: unknown key {unknown[0]!r}")
         kw: dict[str, Any] = {}
         for key, value in data.items():
+            if key == "robots" and value is not None:
+                if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
+                    raise _spec_error(
+                        f"{where}: robots must be a mapping of {', '.join(ROBOT_FIELDS)}"
+                    )
+                kw[key] = Robots(**value)
+                continue
             if key in ROLE_FIELDS and isinstance(value, dict) and "instance" in value:
                 raise _spec_error(
                     f"{where}: the {key} was an instance of {value['instance']}, which a "

@@ -442,6 +442,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..progress import progress
     from ..results.rundir import write_run_dir
     from ..sim.episode import run_episode
+    from ..spec import RunSpec
 
     log = logging.getLogger("conformal_control.run")
     if args.config:
@@ -498,6 +499,7 @@ def _run(args: argparse.Namespace) -> int:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)
     predictor_params = _predictor_params(args, scene, given_predictor_params)
+    crowd_params = key_values(args.crowd_param, "--crowd-param")
     if args.robots is not None or args.robots_file is not None:  # several robots: --robots
         return _run_multi(args, scene, params, roles, rule_params, predictor_params, out)
     log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
@@ -520,28 +522,31 @@ def _run(args: argparse.Namespace) -> int:
             bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
         bar.update(-(-steps[0] // substeps) - before)
 
+    spec = RunSpec.from_settings(
+        params,
+        predictor=args.predictor,
+        predictor_params=predictor_params,
+        learn=not args.no_learning,
+        max_frames=args.frames,
+        seed=args.seed,
+        rule=args.rule,
+        rule_params=rule_params,
+        lambda_safe=args.lambda_safe,
+        fallback=args.fallback,
+        crowd=args.crowd,
+        crowd_params=crowd_params,
+        **roles,
+    )
     with bar:
         result = run_episode(
             scene,
-            args.predictor,
-            params,
-            learn=not args.no_learning,
-            max_frames=args.frames,
-            seed=args.seed,
-            predictor_params=predictor_params,
+            spec,
             extra_config={
                 "command": command_line(args),
                 "data_root": data_root,
                 "cli": _stored_options(args, data_root),
             },
-            rule=args.rule,
-            rule_params=rule_params,
-            lambda_safe=args.lambda_safe,
-            fallback=args.fallback,
-            crowd=args.crowd,
-            crowd_params=key_values(args.crowd_param, "--crowd-param"),
             on_interval=on_interval,
-            **roles,
         )
     log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)

@@ -56,6 +56,7 @@ animation record).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -100,6 +101,7 @@ from ..results.measure import (
 )
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
+from ..spec import RunSpec
 from ..world.replay import FrameLog, ReplayEnvironment
 from . import kernels as bk
 from .gap_kernels import BRAKE, HOLD, SEARCH, gap_maxima
@@ -127,50 +129,25 @@ _RECORD_LOSSES = (CollisionLoss, DistanceShortfallLoss)
 #: Predictor code of an episode whose predictor is called in Python (not compiled).
 _OWN = -1
 _FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
-#: The role keywords of :func:`run_episode` (a name or instance, and its parameters).
-_ROLE_KEYS = (
-    "barrier",
-    "barrier_params",
-    "safety_filter",
-    "safety_filter_params",
-    "fallback",
-    "reference",
-    "reference_params",
-    "dynamics",
-    "dynamics_params",
-    "loss",
-    "loss_params",
-    "family",
-    "family_params",
-)
-#: Keyword arguments of :func:`run_episode` the engine accepts (besides the scene).
-_RUN_KEYS = frozenset(
-    {
-        "predictor",
-        "params",
-        "units",
-        "learn",
-        "max_frames",
-        "seed",
-        "seeds",
-        "predictor_params",
-        "extra_config",
-        "rule",
-        "rule_params",
-        "lambda_safe",
-        "lambda_safe_source",
-        *_ROLE_KEYS,
-        "crowd",
-        "crowd_params",
-        "record_animation",
-        "on_interval",
-    }
-)
 
 
-def supports(**run_kwargs: Any) -> str | None:
-    """Whether :func:`run_batch` runs episodes configured by these :func:`run_episode`
-    keyword arguments: None if it does, else the reason (one sentence).
+def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settings: Any) -> RunSpec:
+    """The :class:`~conformal_control.spec.RunSpec` of the arguments the functions that
+    run episodes take: a RunSpec (with ``settings`` applied), or the predictor (a name or
+    an instance; the positional argument of before) and ``settings``."""
+    if isinstance(spec, RunSpec):
+        if params is not None:
+            settings["params"] = params
+        return RunSpec.from_settings(None, base=spec, **settings) if settings else spec
+    if spec is not None:
+        settings["predictor"] = spec
+    return RunSpec.from_settings(params, **settings)
+
+
+def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
+    """Whether the compiled engine runs episodes of ``spec`` (or of the settings of a run,
+    as :func:`~conformal_control.sim.run_episode` takes them): None if it does, else the
+    reason (one sentence).
 
     Examples
     --------
@@ -179,25 +156,30 @@ def supports(**run_kwargs: Any) -> str | None:
     >>> supports(crowd="orca")
     "crowd 'orca': the batch engine replays recorded crowds only"
     """
-    unknown = sorted(set(run_kwargs) - _RUN_KEYS)
-    if unknown:
-        return f"{unknown[0]!r} is not a keyword argument of run_episode"
-    kw = {"predictor": "constant_velocity", **run_kwargs}
+    settings.pop("seeds", None)  # one per episode: not a setting of the run
+    settings.pop("extra_config", None)
+    on_interval = settings.pop("on_interval", None)
+    try:
+        run = as_run_spec(spec, **settings)
+    except TypeError as exc:
+        return str(exc)
     for role in (*ANY_NAME_ROLES, *SUPPORTED_ROLES):
-        spec = kw.get(role)
-        if spec is not None and not isinstance(spec, str):
+        name, params = run.role(role)
+        if name is not None and not isinstance(name, str):
             return (
-                f"{role} given as a {type(spec).__name__} instance: the batch engine builds "
+                f"{role} given as a {type(name).__name__} instance: the batch engine builds "
                 "one per episode, give it by registered name"
             )
         names = SUPPORTED_ROLES.get(role)
-        if names is not None and spec not in names:
+        if names is not None and name not in names:
             shown = ", ".join(n for n in names if n is not None)
-            return f"{role} {spec!r}: the batch engine runs {shown}"
-    fallback = (kw.get("params") or {}).get("fallback")
+            return f"{role} {name!r}: the batch engine runs {shown}"
+        if role == "fallback" and params:
+            return "fallback parameters: the batch engine runs the fallbacks as registered"
+    fallback = run.params.get("fallback")
     if fallback is not None and fallback not in SUPPORTED_ROLES["fallback"]:
         return f"fallback {fallback!r}: the batch engine runs lambda_search, brake and hold"
-    filter_params = kw.get("safety_filter_params") or {}
+    filter_params = run.role("safety_filter")[1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
     if isinstance(filter_params.get("fallback"), str):
@@ -205,12 +187,14 @@ def supports(**run_kwargs: Any) -> str | None:
             return f"fallback {filter_params['fallback']!r}: the batch engine runs lambda_search, brake and hold"  # noqa: E501
     elif filter_params.get("fallback") is not None:
         return "a fallback instance: the batch engine builds one per episode, give it by name"
-    crowd = kw.get("crowd", "replay")
+    if run.robots is not None:
+        return "robots: the batch engine runs one robot per episode"
+    crowd = run.role_name("crowd")
     if crowd != "replay":
         return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
-    if kw.get("record_animation"):
+    if settings.get("record_animation"):
         return "record_animation: the batch engine keeps no animation record"
-    if kw.get("on_interval") is not None:
+    if on_interval is not None:
         return "on_interval: the batch engine takes no per-interval callback"
     return None
 
@@ -303,6 +287,7 @@ class _Episode:
     """One live episode: its built flagship and what the loop accumulates in Python."""
 
     index: int
+    run: RunSpec  # the episode's own: its seed and time limit
     fl: Flagship
     parts: _Parts  # fl's roles as the classes the engine runs
     monitor: GuaranteeMonitor
@@ -552,13 +537,13 @@ class _Engine:
     """The lockstep loop over a :class:`_Pool` (see the module docstring)."""
 
     def __init__(
-        self, size: int, output: str, build: dict[str, Any], episode_kw: dict[str, Any]
+        self, size: int, output: str, run: RunSpec, extra_config: dict[str, Any] | None
     ) -> None:
         self.pool = _Pool(size)
         self.eps: list[_Episode | None] = [None] * size
         self.output = output
-        self.build = build
-        self.episode_kw = episode_kw
+        self.run_spec = run
+        self.extra_config = extra_config
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
         self._own = False  # whether an episode predicts with its own predictor object
         # the scores of an interval end, per slot (reset for the slots that end; reused
@@ -577,12 +562,12 @@ class _Engine:
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
         """Build episode ``index`` as run_episode does and load it into slot ``b``."""
-        kw = self.episode_kw
-        learn = kw["learn"]
-        fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
+        run = dataclasses.replace(self.run_spec, seed=seed, max_frames=max_frames)
+        learn = run.learn
+        fl = build_flagship(scene, run)
         parts = _parts(fl)
         sc = fl.scene
-        lambda_safe, lam_safe_si = lambda_safe_values(fl, kw["lambda_safe"], kw["units"])
+        lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
         floor = feasibility(fl)
         warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
@@ -594,7 +579,7 @@ class _Engine:
         monitor = GuaranteeMonitor.for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
-            lambda_safe_source=kw["lambda_safe_source"],
+            lambda_safe_source=run.lambda_safe_source,
             premise_proven=False,
             bounds=parts.loss.bounds,
             learn=learn,
@@ -612,6 +597,7 @@ class _Engine:
             )
         ep = _Episode(
             index=index,
+            run=run,
             fl=fl,
             parts=parts,
             monitor=monitor,
@@ -905,7 +891,7 @@ class _Engine:
         """
         p, ep = self.pool, self.eps[b]
         assert ep is not None
-        fl, kw = ep.fl, self.episode_kw
+        fl = ep.fl
         sc, env, policy, filt = fl.scene, ep.parts.env, fl.policy, ep.parts.safety_filter
         n = int(p.n_log[b])
         rows = p.log[b, :n]
@@ -939,18 +925,9 @@ class _Engine:
         self.eps[b] = None
         if self.output == "metrics":
             return ep.index, metrics
-        config = episode_config(
-            fl,
-            kw["rule_params"],
-            kw["units"],
-            ep.learn,
-            ep.lambda_safe,
-            kw["lambda_safe_source"],
-            ep.seed,
-        )
-        config["max_frames"] = ep.max_frames
+        config = episode_config(fl, ep.run, ep.lambda_safe)
         config["feasibility"] = jsonable(ep.floor.as_dict())
-        config.update(kw["extra_config"] or {})
+        config.update(self.extra_config or {})
         config["crowd"] = {"crowd": "replay"}
         config["engine"] = "batch"
         return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
@@ -1011,45 +988,29 @@ def _per_episode(value: Any, name: str) -> Iterator[Any]:
 
 def iter_batch(
     scenes: Iterable[Scene],
-    predictor: str = "constant_velocity",
+    spec: Any = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
     max_frames: int | Iterable[int | None] | None = None,
     seeds: int | Sequence[int] | None = None,
     batch_size: int = 256,
     output: str = "metrics",
-    **run_kwargs: Any,
+    extra_config: dict[str, Any] | None = None,
+    **settings: Any,
 ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
     """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
     order; ``index`` is the scene's position in ``scenes``). ``max_frames`` may also be
     an iterator, consumed one value per scene as the scene is started."""
-    reason = supports(predictor=predictor, **run_kwargs)
+    settings.pop("max_frames", None)
+    settings.pop("seed", None)
+    run = as_run_spec(spec or settings.pop("predictor", None), params, **settings)
+    reason = supports(run)
     if reason is not None:
         raise ValueError(f"run_batch does not support this configuration: {reason}")
     if output not in ("metrics", "results"):
         raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
     if int(batch_size) != batch_size or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    if units not in ("scene", "si"):
-        raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
-    kw = dict(run_kwargs)
-    build = {
-        "predictor": predictor,
-        "units": units,
-        "params": params,
-        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
-        "rule": kw.get("rule") or "fixed_eta",
-    }
-    episode_kw = {
-        "learn": bool(learn),
-        "units": units,
-        "lambda_safe": kw.get("lambda_safe"),
-        "lambda_safe_source": kw.get("lambda_safe_source"),
-        "rule_params": kw.get("rule_params"),
-        "extra_config": kw.get("extra_config"),
-    }
     frames = _per_episode(max_frames, "max_frames")
     seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
 
@@ -1061,22 +1022,22 @@ def iter_batch(
                 raise ValueError("max_frames / seeds have fewer values than scenes") from None
             yield i, scene, int(seed), None if mf is None else int(mf)
 
-    engine = _Engine(int(batch_size), output, build, episode_kw)
+    # the engine keeps no animation record of a batch: the specification says so
+    run = dataclasses.replace(run, record_animation=False)
+    engine = _Engine(int(batch_size), output, run, extra_config)
     yield from engine.run(source())
 
 
 def run_batch(
     scenes: Iterable[Scene],
-    predictor: str = "constant_velocity",
+    spec: Any = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
     max_frames: int | Sequence[int | None] | None = None,
     seeds: int | Sequence[int] | None = None,
     batch_size: int = 256,
     output: str = "metrics",
-    **run_kwargs: Any,
+    **settings: Any,
 ) -> list[EpisodeMetrics] | list[EpisodeResult]:
     """Run one episode per scene, many at once, with the metrics of :func:`run_episode`.
 
@@ -1084,8 +1045,11 @@ def run_batch(
     ----------
     scenes : iterable of Scene
         Consumed lazily (a generator keeps only the live episodes' scenes in memory).
-    predictor, params, units, learn
-        As in :func:`~conformal_control.sim.run_episode`, for every episode.
+    spec : RunSpec or str, optional
+        The run of every episode (:class:`~conformal_control.spec.RunSpec`), or its
+        predictor (a registered name).
+    params : dict, optional
+        Parameter overrides (the run's ``params``).
     max_frames : int, sequence or None
         The frame limit of every episode, or one per scene (e.g. each benchmark
         scenario's ``max_frames``).
@@ -1097,9 +1061,10 @@ def run_batch(
         overhead well below the compiled work).
     output : {"metrics", "results"}
         Return :class:`EpisodeMetrics` (default) or :class:`EpisodeResult` objects.
-    **run_kwargs
-        Any other keyword argument of ``run_episode`` that :func:`supports` accepts
-        (``rule_params``, ``fallback``, ``lambda_safe``, ``extra_config``, ...).
+    **settings
+        Any other setting of the run that :func:`supports` accepts (``units``,
+        ``learn``, ``rule_params``, ``fallback``, ``lambda_safe``, ...), and
+        ``extra_config`` (merged into each episode's config).
 
     Returns
     -------
@@ -1115,34 +1080,36 @@ def run_batch(
     out: dict[int, Any] = {}
     for index, item in iter_batch(
         scenes,
-        predictor,
+        spec,
         params,
-        units=units,
-        learn=learn,
         max_frames=max_frames,
         seeds=seeds,
         batch_size=batch_size,
         output=output,
-        **run_kwargs,
+        **settings,
     ):
         out[index] = item
     return [out[i] for i in range(len(out))]
 
 
 # ------------------------------------------------------------------------------ one episode
-def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> EpisodeResult | None:
-    """One episode on the compiled engine, as :func:`run_episode` returns it.
+def run_single(
+    scene: Scene,
+    run: RunSpec,
+    *,
+    on_interval: Any = None,
+    extra_config: dict[str, Any] | None = None,
+) -> EpisodeResult | None:
+    """One episode of ``run`` on the compiled engine, as :func:`run_episode` returns it.
 
-    ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
-    per-episode loop gives (metrics but the wall time, intervals, trajectory, per-instant
-    ``steps`` and, with ``record_animation``, the animation record), with
-    ``config["engine"] = "batch"``. With ``engine="auto"`` returns None if the engine does
-    not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
-    ``ValueError`` saying why.
+    The result is the one the per-episode loop gives (metrics but the wall time,
+    intervals, trajectory, per-instant ``steps`` and, with ``record_animation``, the
+    animation record), with ``config["engine"] = "batch"``. With ``run.engine == "auto"``
+    returns None if the engine does not run this configuration (the caller runs the
+    loop); with ``"batch"`` raises ``ValueError`` saying why.
     """
-    kw = dict(run_kwargs)
-    record_animation = bool(kw.pop("record_animation", True))
-    reason = supports(**kw)
+    engine = run.engine
+    reason = supports(run, on_interval=on_interval)
     if reason is None and not EXACT_FOR_THIS_PYTHON:
         reason = (
             "the engine's distances reproduce CPython 3.11's math.hypot, not this "
@@ -1152,26 +1119,8 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
         if engine == "auto":
             return None
         raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
-    learn = bool(kw.get("learn", True))
-    units = kw.get("units", "scene")
-    build = {
-        "predictor": kw.get("predictor", "constant_velocity"),
-        "units": units,
-        "params": kw.get("params"),
-        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
-        "rule": kw.get("rule") or "fixed_eta",
-        "crowd": kw.get("crowd", "replay"),
-        "crowd_params": kw.get("crowd_params"),
-    }
-    episode_kw = {
-        "learn": learn,
-        "units": units,
-        "lambda_safe": kw.get("lambda_safe"),
-        "lambda_safe_source": kw.get("lambda_safe_source"),
-        "rule_params": kw.get("rule_params"),
-        "extra_config": kw.get("extra_config"),
-    }
-    eng = _Engine(1, "results", build, episode_kw)
+    record_animation = run.record_animation
+    eng = _Engine(1, "results", run, extra_config)
     p = eng.pool
     p.keep = True
     recorder: list[AnimationRecorder] = []
@@ -1202,8 +1151,7 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
             )
 
     eng.on_control = on_control
-    seed = int(kw.get("seed", 0))
-    max_frames = kw.get("max_frames")
+    seed, max_frames = run.seed, run.max_frames
     # the engine's warnings are those of run_episode: re-issued for run_episode's caller
     # (also when the episode stops with an error), unless the loop runs it instead
     caught: list[warnings.WarningMessage] = []

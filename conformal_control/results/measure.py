@@ -27,6 +27,7 @@ from .metrics import EpisodeMetrics, episode_metrics
 
 if TYPE_CHECKING:
     from ..flagship.build import Flagship
+    from ..spec import RunSpec
 
 __all__ = [
     "LAMBDA_LIMIT",
@@ -242,16 +243,13 @@ def _nanmean(values: list[float]) -> float | None:
     return float(x.mean()) if x.size else None
 
 
-def episode_config(
-    fl: Flagship,
-    rule_params: dict[str, Any] | None,
-    units: str,
-    learn: bool,
-    lambda_safe: float | None,
-    lambda_safe_source: str | None,
-    seed: int,
-) -> dict[str, Any]:
+def episode_config(fl: Flagship, run: RunSpec, lambda_safe: float | None) -> dict[str, Any]:
+    """``config.json`` of an episode of ``run`` built as ``fl`` (``lambda_safe`` in the
+    scene's units): the scene, every role with its parameters, the parameters as given,
+    as used and in SI, and the run specification itself (``spec``, what
+    :meth:`RunSpec.from_dict <conformal_control.spec.RunSpec.from_dict>` reads back)."""
     scene = fl.scene
+    rule_params = run.role("rule")[1]
     roles = jsonable(fl.role_params())
     rule = roles.pop("rule")
     return {
@@ -268,17 +266,19 @@ def episode_config(
         },
         **roles,
         "fallback": fl.names.get("fallback"),
-        "learning": learn,
+        "learning": run.learn,
         "rule": {
             "name": rule["name"],
             "params_given": jsonable(dict(rule_params or {})),
             "params_si": rule["params"],
         },
-        "units_given": units,
+        "units_given": run.units,
         "lambda_safe": lambda_safe,
-        "lambda_safe_source": lambda_safe_source,
-        "seed": seed,
+        "lambda_safe_source": run.lambda_safe_source,
+        "seed": run.seed,
         "params": jsonable(fl.params.as_dict()),
+        "max_frames": run.max_frames,
+        "spec": jsonable(run.as_dict()),
     }
 
 

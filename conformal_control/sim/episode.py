@@ -13,59 +13,44 @@ from collections.abc import Callable
 from typing import Any
 
 from ..data.scene import Scene
-from ..engines.batch import run_single
+from ..engines.batch import as_run_spec, run_single
 from ..engines.loop import run_loop
 from ..flagship.build import RoleSpec, build_flagship
 from ..loop import IntervalLog
 from ..results.episode import EpisodeResult
+from ..spec import RunSpec
 
 __all__ = ["EpisodeResult", "run_episode"]
 
 
 def run_episode(
     scene: Scene,
-    predictor: RoleSpec = "constant_velocity",
+    spec: RunSpec | RoleSpec = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
-    max_frames: int | None = None,
-    seed: int = 0,
-    predictor_params: dict[str, Any] | None = None,
-    extra_config: dict[str, Any] | None = None,
-    rule: RoleSpec = "fixed_eta",
-    rule_params: dict[str, Any] | None = None,
-    lambda_safe: float | None = None,
-    lambda_safe_source: str | None = None,
-    barrier: RoleSpec = None,
-    barrier_params: dict[str, Any] | None = None,
-    safety_filter: RoleSpec = None,
-    safety_filter_params: dict[str, Any] | None = None,
-    fallback: RoleSpec = None,
-    reference: RoleSpec = None,
-    reference_params: dict[str, Any] | None = None,
-    dynamics: RoleSpec = None,
-    dynamics_params: dict[str, Any] | None = None,
-    loss: RoleSpec = None,
-    loss_params: dict[str, Any] | None = None,
-    crowd: str = "replay",
-    crowd_params: dict[str, Any] | None = None,
-    family: str | None = None,
-    family_params: dict[str, Any] | None = None,
-    record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
-    engine: str = "auto",
+    extra_config: dict[str, Any] | None = None,
+    **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
 
     Parameters
     ----------
     scene : Scene
-    predictor : Predictor or str
-        A predictor instance or a registered name (built with ``predictor_params``).
+    spec : RunSpec, Predictor or str
+        The run (:class:`~conformal_control.spec.RunSpec`; the keyword settings below are
+        applied on it), or its predictor: an instance or a registered name (built with
+        ``predictor_params``).
     params : dict
         Parameter overrides (see ``conformal-control params``), in the unit system
         ``units`` says.
+    on_interval : callable, optional
+        Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
+    extra_config : dict, optional
+        Merged into the result's configuration (``config.json``).
+    **settings
+        Settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`), as follows.
     units : {"scene", "si"}
         ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
         frames, the paper's); ``"si"``: in metres and seconds.
@@ -98,8 +83,6 @@ def run_episode(
     record_animation : bool
         Keep the compact record ``conformal-control animate`` renders (``result.animation``,
         written as ``animation.npz``; see :mod:`conformal_control.results.record`).
-    on_interval : callable, optional
-        Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
     engine : {"auto", "loop", "batch"}
         How the episode is run. ``"loop"``: the generic
         :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
@@ -112,81 +95,11 @@ def run_episode(
         ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
         ``config["engine"]`` says which ran.
     """
-    if engine not in ("auto", "loop", "batch"):
-        raise ValueError(f"engine must be 'auto', 'loop' or 'batch', got {engine!r}")
-    if engine != "loop":
-        compiled = run_single(
-            scene,
-            engine,
-            predictor=predictor,
-            params=params,
-            units=units,
-            learn=learn,
-            max_frames=max_frames,
-            seed=seed,
-            predictor_params=predictor_params,
-            extra_config=extra_config,
-            rule=rule,
-            rule_params=rule_params,
-            lambda_safe=lambda_safe,
-            lambda_safe_source=lambda_safe_source,
-            barrier=barrier,
-            barrier_params=barrier_params,
-            safety_filter=safety_filter,
-            safety_filter_params=safety_filter_params,
-            fallback=fallback,
-            reference=reference,
-            reference_params=reference_params,
-            dynamics=dynamics,
-            dynamics_params=dynamics_params,
-            loss=loss,
-            loss_params=loss_params,
-            crowd=crowd,
-            crowd_params=crowd_params,
-            family=family,
-            family_params=family_params,
-            record_animation=record_animation,
-            on_interval=on_interval,
-        )
+    run = as_run_spec(spec, params, **settings)
+    if run.engine != "loop":
+        compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:
             return compiled
-    fl = build_flagship(
-        scene,
-        params,
-        units=units,
-        predictor=predictor,
-        predictor_params=predictor_params,
-        barrier=barrier,
-        barrier_params=barrier_params,
-        safety_filter=safety_filter,
-        safety_filter_params=safety_filter_params,
-        fallback=fallback,
-        reference=reference,
-        reference_params=reference_params,
-        dynamics=dynamics,
-        dynamics_params=dynamics_params,
-        loss=loss,
-        loss_params=loss_params,
-        rule=rule,
-        rule_params=rule_params,
-        crowd=crowd,
-        crowd_params=crowd_params,
-        family=family,
-        family_params=family_params,
-        learn=learn,
-        seed=seed,
-        max_frames=max_frames,
-    )
     return run_loop(
-        fl,
-        learn=learn,
-        units=units,
-        seed=seed,
-        max_frames=max_frames,
-        lambda_safe=lambda_safe,
-        lambda_safe_source=lambda_safe_source,
-        rule_params=rule_params,
-        extra_config=extra_config,
-        record_animation=record_animation,
-        on_interval=on_interval,
+        build_flagship(scene, run), run, on_interval=on_interval, extra_config=extra_config
     )

@@ -41,13 +41,14 @@ import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
-from ..flagship.build import Flagship, RoleSpec, build_flagship
+from ..flagship.build import Flagship, build_flagship
 from ..loop import ConformalStepper, LoopResult
 from ..results.measure import episode_config, jsonable, measure
 from ..results.metrics import EpisodeMetrics
 from ..results.multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
+from ..spec import Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -287,58 +288,35 @@ class MultiResult:
 
 
 # ---------------------------------------------------------------------------- running
-def _copy_role(spec: RoleSpec) -> RoleSpec:
-    """A name or None as is; an instance deep-copied (no state shared between robots)."""
-    if spec is None or isinstance(spec, str):
+def _copy_role(spec: Any) -> Any:
+    """A name, ``(name, params)`` or None as is; an instance deep-copied (no state shared
+    between robots)."""
+    if spec is None or isinstance(spec, (str, tuple)):
         return spec
     return copy.deepcopy(spec)
 
 
 def run_multi(
     scene: Scene,
-    robots: int | None = None,
+    robots: int | RunSpec | None = None,
     *,
-    starts: Any = None,
-    goals: Any = None,
-    layout: str = "scene",
-    radius: float | None = None,
-    center: Sequence[float] | None = None,
-    predictor: RoleSpec = "constant_velocity",
-    params: dict[str, Any] | None = None,
-    units: str = "scene",
-    learn: bool = True,
-    max_frames: int | None = None,
-    seed: int = 0,
-    predictor_params: dict[str, Any] | None = None,
-    rule: RoleSpec = "fixed_eta",
-    rule_params: dict[str, Any] | None = None,
-    lambda_safe: float | None = None,
-    lambda_safe_source: str | None = None,
-    barrier: RoleSpec = None,
-    barrier_params: dict[str, Any] | None = None,
-    safety_filter: RoleSpec = None,
-    safety_filter_params: dict[str, Any] | None = None,
-    fallback: RoleSpec = None,
-    reference: RoleSpec = None,
-    reference_params: dict[str, Any] | None = None,
-    dynamics: RoleSpec = None,
-    dynamics_params: dict[str, Any] | None = None,
-    loss: RoleSpec = None,
-    loss_params: dict[str, Any] | None = None,
-    crowd: str = "replay",
-    crowd_params: dict[str, Any] | None = None,
-    sensor_history: str = "tracked",
-    record_animation: bool = True,
     extra_config: dict[str, Any] | None = None,
+    **settings: Any,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
 
     Parameters
     ----------
     scene : Scene
-    robots : int, optional
+    robots : int or RunSpec, optional
         Number of robots (1 to :data:`MAX_ROBOTS`), placed by ``layout``; or give
-        ``starts`` and ``goals``.
+        ``starts`` and ``goals``. Or the run (:class:`~conformal_control.spec.RunSpec`,
+        its ``robots`` section saying where they go; the settings below apply on it).
+    extra_config : dict, optional
+        Merged into the configuration (``config.json``).
+    **settings
+        Settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`), the robots section's included:
     starts, goals : array-like, optional
         Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
         waypoints per robot.
@@ -354,6 +332,17 @@ def run_multi(
     -------
     MultiResult
     """
+    if isinstance(robots, RunSpec):
+        run = RunSpec.from_settings(None, base=robots, **settings) if settings else robots
+    else:
+        if robots is not None:
+            settings["robots"] = robots
+        run = RunSpec.from_settings(settings.pop("params", None), **settings)
+    section = run.robots or Robots()
+    robots, starts, goals = section.robots, section.starts, section.goals
+    layout, radius, center = section.layout, section.radius, section.center
+    sensor_history = section.sensor_history
+    learn, seed, max_frames = run.learn, run.seed, run.max_frames
     if starts is not None or goals is not None:
         if robots is not None and np.asarray(starts).reshape(-1, 2).shape[0] != robots:
             raise ValueError(f"robots={robots} but {len(starts)} starts were given")
@@ -365,41 +354,20 @@ def run_multi(
             scene, 1 if robots is None else robots, layout, radius=radius, center=center
         )
     n = s.shape[0]
-    roles: dict[str, Any] = {
-        "predictor": predictor,
-        "barrier": barrier,
-        "safety_filter": safety_filter,
-        "fallback": fallback,
-        "reference": reference,
-        "dynamics": dynamics,
-        "loss": loss,
-        "rule": rule,
-    }
+    roles = ("predictor", "barrier", "safety_filter", "fallback", "reference", "dynamics")
     fleet: list[Flagship] = []
     for i in range(n):
         scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
-        role_kw: dict[str, Any] = {k: _copy_role(v) for k, v in roles.items()}
-        fleet.append(
-            build_flagship(
-                scene_i,
-                params,
-                units=units,
-                **role_kw,
-                predictor_params=predictor_params,
-                barrier_params=barrier_params,
-                safety_filter_params=safety_filter_params,
-                reference_params=reference_params,
-                dynamics_params=dynamics_params,
-                loss_params=loss_params,
-                rule_params=rule_params,
-                # the world's crowd is robot 0's (the others' environments are not used)
-                crowd=crowd if i == 0 else "replay",
-                crowd_params=crowd_params if i == 0 else None,
-                learn=learn,
-                seed=seed + i,
-                max_frames=max_frames,
-            )
+        copies: dict[str, Any] = {r: _copy_role(getattr(run, r)) for r in (*roles, "loss", "rule")}
+        robot_run = dataclasses.replace(
+            run,
+            seed=seed + i,
+            # the world's crowd is robot 0's (the others' environments are not used)
+            crowd=run.crowd if i == 0 else "replay",
+            robots=None,
+            **copies,
         )
+        fleet.append(build_flagship(scene_i, robot_run))
     fl0 = fleet[0]
     env0 = fl0.env
     world = MultiRobotWorld(
@@ -418,7 +386,8 @@ def run_multi(
     run_scene = fl0.scene
     si = fl0.params.si
     lam_unit = run_scene.units.factor("lambda_init")
-    if lambda_safe is not None and units == "si":
+    lambda_safe = run.lambda_safe
+    if lambda_safe is not None and run.units == "si":
         lambda_safe = lambda_safe / lam_unit
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     steppers = [
@@ -428,7 +397,7 @@ def run_multi(
             fl.rule,
             learn=learn,
             lambda_safe=lam_safe_si,
-            lambda_safe_source=lambda_safe_source,
+            lambda_safe_source=run.lambda_safe_source,
         )
         for fl in fleet
     ]
@@ -482,7 +451,7 @@ def run_multi(
         lam_unit_name=results[0].metrics.unit("lambda_final"),
         cpu_s=cpu,
     )
-    config = episode_config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
+    config = episode_config(fl0, run, lambda_safe)
     config["kind"] = "multi"
     config["n_robots"] = n
     for key in ("start_m", "goals_m"):
@@ -507,13 +476,12 @@ def run_multi(
         }
     )
     config["sensor_history"] = sensor_history
-    config["max_frames"] = max_frames
     config["feasibility"] = jsonable(floor.as_dict())
     crowd_config = getattr(env0, "crowd_config", None)
     config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
     config.update(extra_config or {})
     animation = None
-    if record_animation:
+    if run.record_animation:
         animation = multi_record(world, results, track, epsilon=si["epsilon"])
     return MultiResult(run_scene, jsonable(config), metrics, results, track, animation)
 

@@ -116,6 +116,8 @@ def test_results_output_keeps_config_intervals_and_trajectory(crossings):
     )
     assert res.config.pop("engine") == "batch"
     assert ref.config.pop("engine") == "loop"
+    assert res.config["spec"].pop("engine") == "auto"  # asked for, in the specification
+    assert ref.config["spec"].pop("engine") == "loop"
     assert res.config == ref.config
     assert res.intervals == ref.intervals
     assert res.trajectory.keys() == ref.trajectory.keys()
@@ -142,7 +144,8 @@ def test_iter_batch_yields_indices_in_completion_order(crossings):
         ({"family": "acp"}, "family 'acp'"),
         ({"record_animation": True}, "animation"),
         ({"on_interval": print}, "callback"),
-        ({"robots": 2}, "not a keyword argument"),
+        ({"robots": 2}, "one robot"),
+        ({"robotz": 2}, "unexpected keyword argument 'robotz'"),
     ],
 )
 def test_supports_names_the_reason(kwargs, words):

@@ -51,8 +51,11 @@ def _differences(fast: EpisodeResult, loop: EpisodeResult) -> list[str]:
         [dataclasses.asdict(iv) for iv in loop.loop.intervals],
     ) or not _same(fast.loop.lambda_final, loop.loop.lambda_final):
         out.append("loop")
+    # the engine that ran, and the one asked for (in the run specification), differ
     c_fast = {k: v for k, v in fast.config.items() if k != "engine"}
     c_loop = {k: v for k, v in loop.config.items() if k != "engine"}
+    for c in (c_fast, c_loop):
+        c["spec"] = {k: v for k, v in c["spec"].items() if k != "engine"}
     if not _same(c_fast, c_loop):
         out.append("config")
     return out
