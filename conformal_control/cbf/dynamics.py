@@ -18,6 +18,7 @@ from typing import ClassVar
 import numpy as np
 
 from .roles import CommandKind, Dynamics
+from .rollouts import tracking_rollout, unicycle_rollout
 
 __all__ = [
     "DoubleIntegrator",
@@ -118,16 +119,7 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
         if not (math.isfinite(k) and k > 0):
             raise ValueError(f"K_acc must be a finite number > 0, got {self.K_acc!r}")
         decay, gain = math.exp(-k * dt), (-math.expm1(-k * dt)) / k
-        n, h = cmd.shape[:2]
-        out = np.empty((n, h, 4))
-        x = np.broadcast_to(s[:2], (n, 2))
-        v = np.broadcast_to(s[2:], (n, 2))
-        for j in range(h):  # H is short (a planning horizon); each step is vectorised over N
-            dv = v - cmd[:, j]
-            x = x + cmd[:, j] * dt + dv * gain
-            v = cmd[:, j] + dv * decay
-            out[:, j, :2] = x
-            out[:, j, 2:] = v
+        out: np.ndarray = tracking_rollout(s, np.ascontiguousarray(cmd), dt, decay, gain)
         return out
 
 
@@ -254,11 +246,10 @@ class Unicycle(Dynamics):
         s = self._state(state)
         dt = _check_dt(dt)
         cmd = _commands(commands)
-        n, h = cmd.shape[:2]
-        out = np.empty((n, h, 5))
-        cur = np.broadcast_to(s, (n, 5))
-        for j in range(h):  # H is short; each step is vectorised over the N sequences
-            cur = out[:, j] = _shift(cur, cmd[:, j], dt, self)
+        lo, hi, wmax, exact = self._checked()
+        v = np.clip(cmd[..., 0], lo, hi)
+        w = np.clip(cmd[..., 1], -wmax, wmax)
+        out: np.ndarray = unicycle_rollout(s, v, w, dt, exact)
         return out
 
 
