@@ -155,22 +155,24 @@ LAYERS: dict[str, int] = {
     "world": 6,
     "domains": 6,
     "plotting": 6,
-    # wiring one episode; measuring and writing what it produced
-    "flagship": 7,
-    "results": 7,
-    "testing": 7,
+    # decision families driven in the replay world by their contract checks
+    "mpc": 7,
+    # wiring one episode; measuring and writing what it produced; the contract kit
+    "flagship": 8,
+    "results": 8,
+    "testing": 8,
     # the backends of the loop, then running episodes
-    "engines": 8,
-    "sim": 9,
+    "engines": 9,
+    "sim": 10,
     # many episodes, environments for RL, the paper's tables
-    "sweep": 10,
-    "envs": 10,
-    "bench": 11,
-    "reproduce": 11,
+    "sweep": 11,
+    "envs": 11,
+    "bench": 12,
+    "reproduce": 12,
     # the front door and the command line
-    "api": 12,
-    "commands": 13,
-    "cli": 14,
+    "api": 13,
+    "commands": 14,
+    "cli": 15,
 }
 
 #: Imports allowed to break the layering: (importer, imported) -> why. Only for a lazy
