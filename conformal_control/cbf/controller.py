@@ -104,6 +104,9 @@ class ConformalCBFController(
         Control instants per prediction sample.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "cbf"
+
     def __init__(
         self,
         predictor: Predictor,

@@ -38,6 +38,9 @@ class LambdaSearch(Fallback):
     every row at ``lambda*``, is returned (counted as ``n_lambda_search_vertex``).
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "lambda_search"
+
     name = "lambda_search"
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
@@ -121,6 +124,9 @@ class Relax(Fallback):
 class Brake(Fallback):
     """Command zero velocity (``lambda_applied`` is ``nan``: no lambda is guaranteed)."""
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "brake"
+
     name = "brake"
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
@@ -129,6 +135,9 @@ class Brake(Fallback):
 
 class Hold(Fallback):
     """Repeat the previous decision (``lambda_applied`` is ``nan``)."""
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "hold"
 
     name = "hold"
 

@@ -37,6 +37,9 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
         Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "cbf_gap"
+
     bounds = (-0.5, 0.5)
 
     def __init__(self, constraint: ConformalConstraint, scale: float = 1.0) -> None:

@@ -25,6 +25,9 @@ class AttractiveField(ReferenceController):
         Speed saturation in m/s.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "attractive_field"
+
     def __init__(self, K_att: float = 30.0, v_max: float = 2.0) -> None:
         self.K_att = K_att
         self.v_max = v_max

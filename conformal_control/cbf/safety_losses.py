@@ -48,6 +48,9 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
         Collision distance between centres (m); the paper's 0.5 m + 0.5 m.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "collision"
+
     bounds = (0.0, 1.0)
 
     def __init__(self, d_c: float = 1.0) -> None:
@@ -90,6 +93,9 @@ class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
     d_c : float
         Collision distance (m), >= 0.
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "distance_shortfall"
 
     bounds = (0.0, 1.0)
 

@@ -61,32 +61,29 @@ import math
 import sys
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from ..base import Loss
+from .. import registry
+from ..base import Loss, compiled_as
 from ..cbf import kernels2d
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
-from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
-from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene
 from ..flagship.build import Flagship, build_flagship
-from ..loop import IntervalLog, LoopResult, LossAt
+from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
 from ..monitor import GuaranteeMonitor
-from ..predictors.constant_velocity import ConstantVelocityPredictor
-from ..predictors.oracle import OraclePredictor
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -111,24 +108,39 @@ __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
 _T = TypeVar("_T")
 
-#: Roles the engine runs, by the names they are registered under (None: the default).
-SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
-    "barrier": (None, "apf"),
-    "safety_filter": (None, "exact2d"),
-    "fallback": (None, "lambda_search", "brake", "hold"),
-    "reference": (None, "attractive_field"),
-    "dynamics": (None, "velocity_tracking"),
-    "loss": (None, "cbf_gap", "collision", "distance_shortfall"),
-    "family": (None, "cbf"),
+#: What the engine compiles, per role of a run: the compiled counterparts it has kernels
+#: for. A plugin runs compiled when its class declares one of them (``compiled_as``, see
+#: :func:`~conformal_control.base.compiled_as`); the role's default (None) always does.
+KERNELS: dict[str, frozenset[str]] = {
+    "barrier": frozenset({"apf"}),
+    "safety_filter": frozenset({"exact2d"}),
+    "fallback": frozenset({"lambda_search", "brake", "hold"}),
+    "reference": frozenset({"attractive_field"}),
+    "dynamics": frozenset({"velocity_tracking"}),
+    "loss": frozenset({"cbf_gap", "collision", "distance_shortfall"}),
+    "family": frozenset({"cbf"}),
 }
-#: Roles the engine runs under any registered name (each episode builds and runs its own).
+#: Roles the engine runs under any registered name (each episode builds and runs its own;
+#: a predictor declaring ``constant_velocity`` or ``oracle`` is compiled).
 ANY_NAME_ROLES = ("predictor", "rule")
+#: The registry's name of a run's role.
+_REGISTRY_ROLE = {"family": "decision_family", "rule": "update_rule"}
 #: Losses the engine scores with their own code on the interval's record and truth (they
 #: read the ego's positions and the truth, not the filter's status strings).
-_RECORD_LOSSES = (CollisionLoss, DistanceShortfallLoss)
+_RECORD_LOSSES = frozenset({"collision", "distance_shortfall"})
 #: Predictor code of an episode whose predictor is called in Python (not compiled).
 _OWN = -1
-_FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
+_FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}
+_PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
+
+
+def _kernel_of(role: str, name: str) -> str | None:
+    """The compiled counterpart the plugin registered as ``name`` declares (None: none,
+    or no such plugin: the loop then says so)."""
+    try:
+        return compiled_as(registry.get(_REGISTRY_ROLE.get(role, role), name))
+    except (ValueError, ImportError):
+        return None
 
 
 def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settings: Any) -> RunSpec:
@@ -158,33 +170,36 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
     """
     settings.pop("seeds", None)  # one per episode: not a setting of the run
     settings.pop("extra_config", None)
-    on_interval = settings.pop("on_interval", None)
+    settings.pop("on_interval", None)  # called as the loop calls it
     try:
         run = as_run_spec(spec, **settings)
     except TypeError as exc:
         return str(exc)
-    for role in (*ANY_NAME_ROLES, *SUPPORTED_ROLES):
+    for role in (*ANY_NAME_ROLES, *KERNELS):
         name, params = run.role(role)
         if name is not None and not isinstance(name, str):
             return (
                 f"{role} given as a {type(name).__name__} instance: the batch engine builds "
                 "one per episode, give it by registered name"
             )
-        names = SUPPORTED_ROLES.get(role)
-        if names is not None and name not in names:
-            shown = ", ".join(n for n in names if n is not None)
-            return f"{role} {name!r}: the batch engine runs {shown}"
+        kernels = KERNELS.get(role)
+        if kernels is not None and name is not None and _kernel_of(role, name) not in kernels:
+            return f"{role} {name!r}: the batch engine compiles {', '.join(sorted(kernels))}"
         if role == "fallback" and params:
             return "fallback parameters: the batch engine runs the fallbacks as registered"
+    fallbacks = KERNELS["fallback"]
     fallback = run.params.get("fallback")
-    if fallback is not None and fallback not in SUPPORTED_ROLES["fallback"]:
-        return f"fallback {fallback!r}: the batch engine runs lambda_search, brake and hold"
+    if fallback is not None and _kernel_of("fallback", str(fallback)) not in fallbacks:
+        return f"fallback {fallback!r}: the batch engine compiles {', '.join(sorted(fallbacks))}"
     filter_params = run.role("safety_filter")[1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
     if isinstance(filter_params.get("fallback"), str):
-        if filter_params["fallback"] not in SUPPORTED_ROLES["fallback"]:
-            return f"fallback {filter_params['fallback']!r}: the batch engine runs lambda_search, brake and hold"  # noqa: E501
+        if _kernel_of("fallback", filter_params["fallback"]) not in fallbacks:
+            return (
+                f"fallback {filter_params['fallback']!r}: the batch engine compiles "
+                f"{', '.join(sorted(fallbacks))}"
+            )
     elif filter_params.get("fallback") is not None:
         return "a fallback instance: the batch engine builds one per episode, give it by name"
     if run.robots is not None:
@@ -194,8 +209,6 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
     if settings.get("record_animation"):
         return "record_animation: the batch engine keeps no animation record"
-    if on_interval is not None:
-        return "on_interval: the batch engine takes no per-interval callback"
     return None
 
 
@@ -215,6 +228,19 @@ def _exact(obj: object, cls: type[_T], role: str) -> _T:
     return obj
 
 
+def _compiled(obj: object, cls: type[_T], role: str) -> _T:
+    """``obj`` if its class declares the compiled counterpart ``cls`` declares (its own
+    ``compiled_as``, see :func:`~conformal_control.base.compiled_as`), else
+    :class:`_NotRun`."""
+    kernel = compiled_as(cls)
+    if kernel is None or compiled_as(type(obj)) != kernel:
+        raise _NotRun(
+            f"the {role} is a {type(obj).__name__}, which does not declare the compiled "
+            f"counterpart {kernel!r}"
+        )
+    return cast(_T, obj)
+
+
 @dataclass(frozen=True)
 class _Parts:
     """The roles of a built episode the engine reads, as the classes it runs."""
@@ -231,18 +257,19 @@ class _Parts:
 def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
-    policy = _exact(fl.policy, ConformalCBFController, "decision family")
+    policy = _compiled(fl.policy, ConformalCBFController, "decision family")
     env = _exact(fl.env, ReplayEnvironment, "environment")
     constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
-    barrier = _exact(fl.barrier, APFBarrier, "barrier")
-    filt = _exact(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
-    reference = _exact(fl.reference, AttractiveField, "reference")
-    dynamics = _exact(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
+    barrier = _compiled(fl.barrier, APFBarrier, "barrier")
+    filt = _compiled(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
+    reference = _compiled(fl.reference, AttractiveField, "reference")
+    dynamics = _compiled(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
     loss = fl.loss
-    gap = loss if type(loss) is CBFGapLoss else None
-    if gap is None and type(loss) not in _RECORD_LOSSES:
-        shown = ", ".join(c.__name__ for c in (CBFGapLoss, *_RECORD_LOSSES))
-        raise _NotRun(f"the loss is a {type(loss).__name__}, not one of {shown}")
+    kernel = compiled_as(type(loss))
+    gap = cast(CBFGapLoss, loss) if kernel == "cbf_gap" else None
+    if gap is None and kernel not in _RECORD_LOSSES:
+        shown = ", ".join(sorted(KERNELS["loss"]))
+        raise _NotRun(f"the loss is a {type(loss).__name__}, which declares none of {shown}")
     if (gap is not None and gap.constraint is not constraint) or (
         policy.constraint is not constraint
     ):
@@ -250,19 +277,15 @@ def _parts(fl: Flagship) -> _Parts:
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
-    if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
+    if not (isinstance(fallback, str) and _kernel_of("fallback", fallback) in KERNELS["fallback"]):
         raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
     return _Parts(env, barrier, filt, reference, dynamics, loss, gap)
 
 
 def _predictor_code(pred: object) -> int:
     """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
-    that ``pred`` is (its class exactly: a subclass may predict otherwise), else ``_OWN``."""
-    if type(pred) is ConstantVelocityPredictor:
-        return bk.CONSTANT_VELOCITY
-    if type(pred) is OraclePredictor:
-        return bk.ORACLE
-    return _OWN
+    that ``pred``'s class declares (``compiled_as``), else ``_OWN``."""
+    return _PREDICTORS.get(compiled_as(type(pred)) or "", _OWN)
 
 
 class _GapLossAt:
@@ -558,6 +581,8 @@ class _Engine:
         #: called with the slots after their interval's control instants, before it is
         #: scored (the single-episode run keeps its animation record with it)
         self.on_control: Any = None
+        #: called with each scored interval's log, as the loop's ``on_interval``
+        self.on_interval: Callable[[IntervalLog], None] | None = None
 
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
@@ -664,7 +689,9 @@ class _Engine:
         poly = np.concatenate([S.ravel(), s, verts.ravel()])
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
-        p.fallback[b] = _FALLBACKS[type(filt.fallback_)]
+        fallback_kernel = compiled_as(type(filt.fallback_))
+        assert fallback_kernel is not None  # checked by _parts
+        p.fallback[b] = _FALLBACKS[fallback_kernel]
         p.prm[b] = (
             float(bar.K_rep),
             float(bar.rho0),
@@ -675,7 +702,7 @@ class _Engine:
             radius,
             not filt.speed_sides,
             filt.v_max,
-            type(filt.fallback_) is LambdaSearch,
+            fallback_kernel == "lambda_search",
             filt.lambda_margin,
             p.cap,
         )
@@ -812,42 +839,42 @@ class _Engine:
             lam = float(p.lam[b])
             s = int(p.step[b])
             pairs = int(n_pairs[b])
-            loss_at: Any = None  # l_k as a function of lambda, for a rule that asks for it
             gap = ep.parts.gap
+            score: IntervalScore | None = None
+            record = revealed = None
             if gap is None:  # the loss object on the interval's record and truth
-                rec, revealed, own_loss = self._record(b), self._truth(b), ep.parts.loss
-                l_k = own_loss(rec, revealed, lam)
-                diagnostics = own_loss.diagnostics(rec, revealed, lam) if l_k is not None else {}
-                loss_at = LossAt(own_loss, rec, revealed)
-            elif pairs:
-                l_k = float(loss[b])
-                diagnostics = {
-                    "loss_applied": float(applied[b]),
-                    "max_gap": float(top[b]),
-                    "n_pairs": pairs,
-                    "n_truth_missing": s * int(p.n_agents[b]) - pairs,
-                }
-                loss_at = _GapLossAt(gap, top[b])
+                record, revealed = self._record(b), self._truth(b)
+            elif pairs:  # the compiled gap loss: the same arithmetic as CBFGapLoss
+                score = IntervalScore(
+                    float(loss[b]),
+                    {
+                        "loss_applied": float(applied[b]),
+                        "max_gap": float(top[b]),
+                        "n_pairs": pairs,
+                        "n_truth_missing": s * int(p.n_agents[b]) - pairs,
+                    },
+                    _GapLossAt(gap, top[b]),
+                )
             else:
-                l_k, diagnostics = None, {}
-            log = IntervalLog(
-                k=len(ep.intervals), lam=lam, loss=l_k, n_steps=s, diagnostics=diagnostics
+                score = IntervalScore(None)
+            log, lam = close_interval(
+                len(ep.intervals),
+                lam,
+                s,
+                rule=ep.fl.rule,
+                monitor=ep.monitor,
+                learn=ep.learn,
+                loss=ep.parts.loss,
+                record=record,
+                truth=revealed,
+                score=score,
             )
             ep.intervals.append(log)
-            if l_k is not None:  # as ConformalStepper.end_interval
-                mon = ep.monitor
-                if ep.learn:
-                    rule = ep.fl.rule
-                    if rule.uses_loss_function:
-                        rule.set_loss_function(loss_at)
-                    lam = mon.update(l_k)
-                else:
-                    mon.observe(l_k, lam)
-                    mon.set_lambda_next(lam)
-                log.l_avg = mon.average
-                p.lam[b] = lam
+            p.lam[b] = lam
             if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
                 check_lambda(lam, ep.fl, log.k)  # raises
+            if self.on_interval is not None:
+                self.on_interval(log)
             if p.done[b]:
                 finished.append(b)
             else:
@@ -1097,7 +1124,7 @@ def run_single(
     scene: Scene,
     run: RunSpec,
     *,
-    on_interval: Any = None,
+    on_interval: Callable[[IntervalLog], None] | None = None,
     extra_config: dict[str, Any] | None = None,
 ) -> EpisodeResult | None:
     """One episode of ``run`` on the compiled engine, as :func:`run_episode` returns it.
@@ -1109,7 +1136,7 @@ def run_single(
     loop); with ``"batch"`` raises ``ValueError`` saying why.
     """
     engine = run.engine
-    reason = supports(run, on_interval=on_interval)
+    reason = supports(run)
     if reason is None and not EXACT_FOR_THIS_PYTHON:
         reason = (
             "the engine's distances reproduce CPython 3.11's math.hypot, not this "
@@ -1151,6 +1178,7 @@ def run_single(
             )
 
     eng.on_control = on_control
+    eng.on_interval = on_interval
     seed, max_frames = run.seed, run.max_frames
     # the engine's warnings are those of run_episode: re-issued for run_episode's caller
     # (also when the episode stops with an error), unless the loop runs it instead

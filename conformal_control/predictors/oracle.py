@@ -19,6 +19,9 @@ class OraclePredictor(Predictor):
     controller holds the agent at its last known position (a counted fallback).
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "oracle"
+
     fast = True
 
     requires_ground_truth = True

@@ -187,3 +187,20 @@ def test_a_lone_episode_reads_its_recording_in_place_and_never_writes_it():
         np.array_equal(sc.positions, b, equal_nan=True)
         for sc, b in zip(scenes, before, strict=True)
     )
+
+
+def test_on_interval_is_called_alike_by_both_engines(crossing):
+    """The compiled engine is a backend of the loop: it calls on_interval with the same
+    logs, in the same order, as the generic loop."""
+    logs: dict[str, list] = {"auto": [], "loop": []}
+    params = {"a": 2.0, "epsilon": 0.1}
+    for engine, seen in logs.items():
+        res = run_episode(
+            crossing, "constant_velocity", params, engine=engine, on_interval=seen.append,
+            max_frames=150,
+        )  # fmt: skip
+        assert res.config["engine"] == ("batch" if engine == "auto" else "loop")
+    assert len(logs["loop"]) == len(res.intervals) > 5
+    assert [dataclasses.asdict(iv) for iv in logs["auto"]] == [
+        dataclasses.asdict(iv) for iv in logs["loop"]
+    ]

@@ -55,6 +55,9 @@ class Exact2DSafetyFilter(VelocityFilter):
         the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "exact2d"
+
     def __init__(
         self,
         v_max: float = 2.0,
