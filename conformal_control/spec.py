@@ -258,6 +258,10 @@ _OPTION_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
+#: How config.json writes infinite parameter values (JSON has no infinity).
+_INFINITE_TEXT = frozenset({"inf", "-inf", "Infinity", "-Infinity"})
+
+
 def _spec_error(message: str) -> Exception:
     return InputError(message)
 
@@ -599,6 +603,12 @@ class RunSpec:
             raise _spec_error(f"{where}: unknown key {unknown[0]!r}")
         kw: dict[str, Any] = {}
         for key, value in data.items():
+            if key == "params" and isinstance(value, dict):
+                # JSON has no infinity: config.json writes it as text
+                value = {
+                    k: float(v) if isinstance(v, str) and v in _INFINITE_TEXT else v
+                    for k, v in value.items()
+                }
             if key == "robots" and value is not None:
                 if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
                     raise _spec_error(

@@ -15,7 +15,6 @@ the scene's task rotated about its midpoint, or ``"antipodal"`` on a circle), or
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -23,8 +22,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from ..data.scene import Scene
-from ..flagship.build import RoleSpec
 from ..sim.multi import as_tasks, robot_tasks
+from ..spec import Robots, RunSpec
 from .core import CrowdCore, load
 from .crowd import observation_space
 
@@ -39,12 +38,14 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
     scene : Scene or str
     robots : int
         Number of robots (with ``layout``); ignored when ``starts`` is given.
-    starts, goals : array-like, optional
-        Explicit tasks (m).
-    layout, radius, center
-        See :func:`~conformal_control.sim.multi.robot_tasks`.
-    Others
+    params, spec, max_agents, progress_weight, collision_penalty, goal_bonus
         As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+    terminate_on_collision, data_root, render_mode
+        As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+    **settings
+        Settings of the run, as for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`,
+        and of its robots section: ``starts``, ``goals`` (explicit tasks, m), ``layout``,
+        ``radius``, ``center`` (see :func:`~conformal_control.sim.multi.robot_tasks`).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance
@@ -59,54 +60,40 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
         scene: Scene | str = "crossing",
         robots: int = 2,
         *,
-        starts: Any = None,
-        goals: Any = None,
-        layout: str = "scene",
-        radius: float | None = None,
-        center: Sequence[float] | None = None,
         params: dict[str, Any] | None = None,
-        units: str = "scene",
-        crowd: str = "replay",
-        crowd_params: dict[str, Any] | None = None,
+        spec: RunSpec | None = None,
         max_agents: int = 8,
-        predictor: RoleSpec = "constant_velocity",
-        predictor_params: dict[str, Any] | None = None,
-        rule: RoleSpec = "fixed_eta",
-        rule_params: dict[str, Any] | None = None,
         progress_weight: float = 1.0,
         collision_penalty: float = 1.0,
         goal_bonus: float = 10.0,
         terminate_on_collision: bool = False,
-        max_frames: int | None = None,
         data_root: str | None = None,
         render_mode: str | None = None,
+        **settings: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         sc = load(scene, data_root)
-        if starts is not None or goals is not None:
-            s, tasks = as_tasks(starts, goals)
+        run = RunSpec.from_settings(params, base=spec, **settings)
+        section = run.robots or Robots()
+        if section.starts is not None or section.goals is not None:
+            s, tasks = as_tasks(section.starts, section.goals)
         else:
-            s, tasks = robot_tasks(sc, robots, layout, radius=radius, center=center)
+            n = robots if section.robots is None else section.robots
+            s, tasks = robot_tasks(
+                sc, n, section.layout, radius=section.radius, center=section.center
+            )
         self.core = CrowdCore(
             sc,
             s,
             tasks,
-            params=params,
-            units=units,
-            crowd=crowd,
-            crowd_params=crowd_params,
+            run,
             max_agents=max_agents,
-            predictor=predictor,
-            predictor_params=predictor_params,
-            rule=rule,
-            rule_params=rule_params,
             progress_weight=progress_weight,
             collision_penalty=collision_penalty,
             goal_bonus=goal_bonus,
             terminate_on_collision=terminate_on_collision,
-            max_frames=max_frames,
         )
         self.possible_agents = [f"robot_{i}" for i in range(s.shape[0])]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from .executors.base import Executor, Outcome
+from .spec import run_spec
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
 __all__ = ["batch_reason", "run_batched"]
@@ -192,21 +193,14 @@ def run_batched(
             done: set[int] = set()
             t0 = time.perf_counter()
             try:
+                run = run_spec({**cfg0, "frames": None})  # the limits are per scene
                 for j, result in iter_batch(
                     scenes(),
-                    cfg0.get("predictor") or "constant_velocity",
-                    dict(cfg0.get("params") or {}),
-                    learn=bool(cfg0.get("learn", True)),
+                    dataclasses.replace(run, record_animation=False),
                     max_frames=limits(),
                     seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
-                    predictor_params=dict(cfg0.get("predictor_params") or {}),
                     batch_size=batch_size,
                     output="results",
-                    **{
-                        k: v
-                        for k, v in (cfg0.get("episode") or {}).items()
-                        if k != "record_animation"
-                    },
                 ):
                     i = idx[j]
                     cfg, key, out_dir, plot = tasks[i]

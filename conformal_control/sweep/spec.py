@@ -42,6 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..spec import OPTION_FIELDS, ROLE_FIELDS, RunSpec
+
 __all__ = [
     "RESERVED_KEYS",
     "RunConfig",
@@ -50,6 +52,7 @@ __all__ = [
     "load_spec",
     "parse_grid_option",
     "run_key",
+    "run_spec",
 ]
 
 #: Keys of a run configuration that are not controller parameters.
@@ -64,30 +67,15 @@ RESERVED_KEYS = (
     "label",
     "meta",
 )
-#: Keys passed to :func:`~conformal_control.sim.run_episode` as they are (roles by name,
-#: the rule, the unit system, the crowd, the family, lambda_safe); they enter the run key.
-EPISODE_KEYS = (
-    "units",
-    "rule",
-    "rule_params",
-    "barrier",
-    "barrier_params",
-    "safety_filter",
-    "safety_filter_params",
-    "fallback",
-    "reference",
-    "reference_params",
-    "dynamics",
-    "dynamics_params",
-    "loss",
-    "loss_params",
-    "family",
-    "family_params",
-    "crowd",
-    "crowd_params",
-    "lambda_safe",
-    "lambda_safe_source",
-    "record_animation",
+#: Keys of the run specification (:class:`~conformal_control.spec.RunSpec`) a run
+#: configuration holds as they are, under ``episode`` (roles by name and their parameters,
+#: the rule, the unit system, the crowd, the family, lambda_safe, the engine); they enter
+#: the run key. Derived from the specification's fields: the predictor, ``learn``,
+#: ``seed`` and ``frames`` (``max_frames``) are reserved keys of their own.
+EPISODE_KEYS: tuple[str, ...] = (
+    *(o for o in OPTION_FIELDS if o not in ("learn", "seed", "max_frames")),
+    *(r for r in ROLE_FIELDS if r != "predictor"),
+    *(f"{r}_params" for r in ROLE_FIELDS if r != "predictor"),
 )
 #: Keys that do not enter the run key.
 UNHASHED_KEYS = ("label", "data_root", "meta")
@@ -240,6 +228,21 @@ def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
     return (
         f"{n_bad} of {total} run{'s' if total != 1 else ''} of the sweep "
         f"{'is' if n_bad == 1 else 'are'} invalid, so none was started: " + "; ".join(parts)
+    )
+
+
+def run_spec(cfg: Mapping[str, Any], max_frames: int | None = None) -> RunSpec:
+    """The :class:`~conformal_control.spec.RunSpec` of a run configuration
+    (:meth:`RunConfig.as_dict`); ``max_frames`` is the limit when the configuration sets
+    none (a benchmark scenario's time limit)."""
+    return RunSpec.from_settings(
+        dict(cfg.get("params") or {}),
+        predictor=cfg.get("predictor") or "constant_velocity",
+        predictor_params=dict(cfg.get("predictor_params") or {}),
+        learn=bool(cfg.get("learn", True)),
+        seed=int(cfg.get("seed", 0)),
+        max_frames=cfg.get("frames") or max_frames,
+        **dict(cfg.get("episode") or {}),
     )
 
 

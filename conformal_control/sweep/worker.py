@@ -108,6 +108,7 @@ def execute_run(
     try:
         from ..results.rundir import write_run_dir
         from ..sim.episode import run_episode
+        from .spec import run_spec
 
         seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
         cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)
@@ -116,16 +117,10 @@ def execute_run(
         scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))
         with _single_threaded_blas():
             result = run_episode(
-                scene,
-                cfg.get("predictor") or "constant_velocity",
-                dict(cfg.get("params") or {}),
-                learn=bool(cfg.get("learn", True)),
                 # a benchmark scenario carries its time limit
-                max_frames=cfg.get("frames") or scene.meta.get("max_frames"),
-                seed=int(cfg.get("seed", 0)),
-                predictor_params=dict(cfg.get("predictor_params") or {}),
+                scene,
+                run_spec(cfg, scene.meta.get("max_frames")),
                 extra_config={"sweep": {"key": key, "run": cfg}},
-                **dict(cfg.get("episode") or {}),
             )
         files = plot if isinstance(plot, str) else ("plots" if plot else "full")
         run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
