@@ -148,9 +148,9 @@ def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settin
     run episodes take: a RunSpec (with ``settings`` applied), or the predictor (a name or
     an instance; the positional argument of before) and ``settings``."""
     if isinstance(spec, RunSpec):
-        if params is not None:
-            settings["params"] = params
-        return RunSpec.from_settings(None, base=spec, **settings) if settings else spec
+        if params is None and not settings:
+            return spec
+        return RunSpec.from_settings(params, base=spec, **settings)
     if spec is not None:
         settings["predictor"] = spec
     return RunSpec.from_settings(params, **settings)
