@@ -125,7 +125,7 @@ class ConformalCBFController(
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         from ..predictors.constant_velocity import ConstantVelocityPredictor
         from .barriers import APFBarrier
-        from .qp import QPSafetyFilter
+        from .filters.piqp import QPSafetyFilter
         from .reference import AttractiveField
 
         barrier = APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7)

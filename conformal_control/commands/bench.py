@@ -12,6 +12,7 @@ import sys
 import time
 from typing import Any
 
+from .. import registry
 from . import command, key_values
 
 
@@ -91,7 +92,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     ru.add_argument(
         "--crowd",
         default="replay",
-        choices=("replay", "social_force", "orca", "mixed"),
+        choices=registry.crowd_names(),
         help="pedestrians replayed, or reacting to the robot (default replay)",
     )
     ru.add_argument(

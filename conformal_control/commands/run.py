@@ -19,6 +19,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from .. import registry
 from . import (
     check_writable,
     command,
@@ -105,7 +106,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--crowd",
         default="replay",
-        choices=("replay", "social_force", "orca", "mixed"),
+        choices=registry.crowd_names(),
         help="pedestrians replayed from the data, or reacting to the robot (social force, "
         "ORCA, or replayed until the robot comes near: mixed)",
     )
@@ -438,6 +439,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..data import load_scene
     from ..data.paths import resolve_data_root
+    from ..exceptions import SuspiciousValueWarning
     from ..flagship.params import check_names, resolve_params
     from ..progress import progress
     from ..results.rundir import write_run_dir
@@ -494,7 +496,9 @@ def _run(args: argparse.Namespace) -> int:
     check = dict(params)
     if args.no_learning:
         check.setdefault("eta", 0.0)
-    resolved = resolve_params(scene, check)
+    with warnings.catch_warnings():  # checked here; the run reports them (once)
+        warnings.simplefilter("ignore", SuspiciousValueWarning)
+        resolved = resolve_params(scene, check)
     for text in resolved.notes:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)

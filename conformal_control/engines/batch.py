@@ -583,6 +583,8 @@ class _Engine:
         self.on_control: Any = None
         #: called with each scored interval's log, as the loop's ``on_interval``
         self.on_interval: Callable[[IntervalLog], None] | None = None
+        #: stack level of the warnings of an episode's end (who they point at)
+        self.warn_stacklevel = 4
 
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
@@ -947,7 +949,7 @@ class _Engine:
         metrics, intervals, traj = measure(
             fl, result, ep.learn, ep.lambda_safe, ep.floor, float(p.wall[b])
         )
-        warn_after_run(fl, metrics, ep.learn, ep.max_frames)
+        warn_after_run(fl, metrics, ep.learn, ep.max_frames, stacklevel=self.warn_stacklevel)
         p.active[b] = False
         self.eps[b] = None
         if self.output == "metrics":
@@ -960,30 +962,35 @@ class _Engine:
         return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
 
     # ------------------------------------------------------------------ the loop
+    def load(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
+        """Start episode ``index`` in slot ``b`` and lay out its interval's buffers."""
+        p = self.pool
+        self.start(b, index, scene, seed, max_frames)
+        ep = self.eps[b]
+        assert ep is not None
+        frames = int(p.last_frame[b] - p.fi[b]) + 1
+        p.prepare(b, ep.goals, frames * int(p.substeps[b]))
+
     def run(
-        self, source: Iterator[tuple[int, Scene, int, int | None]]
+        self, source: Iterator[tuple[int, Scene, int, int | None]], started: int = 0
     ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
         """Advance every live episode one interval per iteration (every slot is then at a
-        sampling time, so free slots are refilled at every iteration)."""
+        sampling time, so free slots are refilled at every iteration). Slots below
+        ``started`` hold episodes loaded already (:meth:`load`)."""
         p = self.pool
-        free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
-        slots = np.zeros(0, dtype=np.int64)
+        free = list(range(p.size - 1, started - 1, -1))  # slots to fill (popped from the end)
+        slots = np.flatnonzero(p.active) if started else np.zeros(0, dtype=np.int64)
         elapsed = 0.0  # time of the iterations since the live slots last changed
         while True:
             if free:
-                started = False
+                loaded = False
                 while free:
                     nxt = next(source, None)
                     if nxt is None:
                         break
-                    b = free.pop()
-                    self.start(b, *nxt)
-                    ep = self.eps[b]
-                    assert ep is not None
-                    frames = int(p.last_frame[b] - p.fi[b]) + 1
-                    p.prepare(b, ep.goals, frames * int(p.substeps[b]))
-                    started = True
-                if started:
+                    self.load(free.pop(), *nxt)
+                    loaded = True
+                if loaded:
                     slots = np.flatnonzero(p.active)
             if not slots.size:
                 return
@@ -1025,9 +1032,36 @@ def iter_batch(
     extra_config: dict[str, Any] | None = None,
     **settings: Any,
 ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
-    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
-    order; ``index`` is the scene's position in ``scenes``). ``max_frames`` may also be
-    an iterator, consumed one value per scene as the scene is started."""
+    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish.
+
+    Parameters
+    ----------
+    scenes : iterable of Scene
+        Consumed lazily, one scene as a slot opens.
+    spec : RunSpec or str, optional
+        The run of every episode, or its predictor's registered name.
+    params : dict, optional
+        Parameter overrides (the run's ``params``).
+    max_frames : int, iterable or None
+        The frame limit of every episode, or one per scene (an iterator is consumed one
+        value per scene as the scene is started).
+    seeds : int, sequence or None
+        The seed of every episode, or one per scene.
+    batch_size : int
+        Episodes alive at a time.
+    output : {"metrics", "results"}
+        What is yielded per episode.
+    extra_config : dict, optional
+        Merged into each episode's configuration.
+    **settings
+        Other settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`).
+
+    Yields
+    ------
+    (int, EpisodeMetrics or EpisodeResult)
+        In completion order; the int is the scene's position in ``scenes``.
+    """
     settings.pop("max_frames", None)
     settings.pop("seed", None)
     run = as_run_spec(spec or settings.pop("predictor", None), params, **settings)
@@ -1134,6 +1168,16 @@ def run_single(
     animation record), with ``config["engine"] = "batch"``. With ``run.engine == "auto"``
     returns None if the engine does not run this configuration (the caller runs the
     loop); with ``"batch"`` raises ``ValueError`` saying why.
+
+    Parameters
+    ----------
+    scene : Scene
+    run : RunSpec
+        The episode's specification.
+    on_interval : callable, optional
+        Called with each scored interval's log, as the loop calls it.
+    extra_config : dict, optional
+        Merged into the configuration.
     """
     engine = run.engine
     reason = supports(run)
@@ -1180,13 +1224,14 @@ def run_single(
     eng.on_control = on_control
     eng.on_interval = on_interval
     seed, max_frames = run.seed, run.max_frames
-    # the engine's warnings are those of run_episode: re-issued for run_episode's caller
-    # (also when the episode stops with an error), unless the loop runs it instead
+    # the warnings of building the episode (before the engine knows whether it runs it)
+    # are re-issued for run_episode's caller, unless the loop runs it instead; the
+    # warnings of the run point at the caller by themselves
     caught: list[warnings.WarningMessage] = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+            eng.load(0, 0, scene, seed, max_frames)
     except _NotRun:
         if engine == "auto":
             caught.clear()  # the loop builds the episode again and warns itself
@@ -1195,6 +1240,9 @@ def run_single(
     finally:
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=3)
+    # warn_after_run < finish < run < run_single < run_episode < its caller
+    eng.warn_stacklevel = 6
+    [(_, result)] = list(eng.run(iter(()), started=1))
     assert isinstance(result, EpisodeResult)
     n = int(p.n_st[0])
     result.steps = {

@@ -152,6 +152,17 @@ def build_rule(
     with these names; ``rule_params`` (in the scene's units) override them and add the
     rule's own parameters. Parameters the rule declares in ``lambda_params`` (units of
     lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted with ``lam_unit``.
+
+    Parameters
+    ----------
+    name : str
+        The rule's registered name.
+    rule_params : dict, optional
+        Its parameters, in the scene's units.
+    params : ResolvedParams
+        The run's parameters.
+    lam_unit : float
+        SI value of one unit of lambda as ``rule_params`` are typed (1 for SI).
     """
     cls = registry.get("update_rule", name)
     accepted = set(cls._param_names())

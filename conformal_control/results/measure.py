@@ -106,10 +106,29 @@ def check_lambda(lam: float, fl: Flagship, k: int) -> None:
 
 
 def warn_after_run(
-    fl: Flagship, metrics: EpisodeMetrics, learn: bool, max_frames: int | None
+    fl: Flagship,
+    metrics: EpisodeMetrics,
+    learn: bool,
+    max_frames: int | None,
+    stacklevel: int = 4,
 ) -> None:
     """No lambda update at all (warning); the goal not reached because the data ended
-    (warning) or because of the ``max_frames`` limit the caller set (logged)."""
+    (warning) or because of the ``max_frames`` limit the caller set (logged).
+
+    Parameters
+    ----------
+    fl : Flagship
+        The episode as built.
+    metrics : EpisodeMetrics
+        What it measured.
+    learn : bool
+        Whether lambda was learned.
+    max_frames : int, optional
+        The caller's frame limit.
+    stacklevel : int
+        Whom the warnings point at (default: the caller of ``run_episode`` through the
+        loop backend).
+    """
     scene, si = fl.scene, fl.params.si
     if learn and metrics["n_updates"] == 0:
         warnings.warn(
@@ -118,7 +137,7 @@ def warn_after_run(
                 f"({si['sensing_radius']:.3g} m) at a sampling time, so the run did not "
                 "learn (l_avg is undefined); check sensing_radius / rho0 and their unit"
             ),
-            stacklevel=4,  # the caller of run_episode (through run_loop)
+            stacklevel=stacklevel,
         )
     if metrics["goal_reached"]:
         return
@@ -144,7 +163,7 @@ def warn_after_run(
             "from it; choose an earlier start frame or a closer goal",
             "data_ended",
         ),
-        stacklevel=4,  # the caller of run_episode (through run_loop)
+        stacklevel=stacklevel,
     )
 
 
@@ -157,9 +176,31 @@ def measure(
     wall: float,
     positions: np.ndarray | None = None,
 ) -> tuple[EpisodeMetrics, list[dict[str, Any]], dict[str, np.ndarray]]:
-    """The episode's metrics, interval rows and trajectory. ``positions``: the pedestrians
-    the robot met (F, M, 2), when they are not the environment's (default: its simulated
-    crowd, else the recording)."""
+    """The episode's metrics, interval rows and trajectory.
+
+    Parameters
+    ----------
+    fl : Flagship
+        The episode as built (its environment holds the frame log and the counters).
+    result : LoopResult
+        The loop's intervals, final lambda and monitor.
+    learn : bool
+        Whether lambda was learned.
+    lambda_safe : float, optional
+        The safe lambda given, in the scene's units.
+    floor : FeasibilityFloor
+        The run's feasibility floor (:func:`feasibility`).
+    wall : float
+        Wall time of the control loop (s).
+    positions : ndarray of shape (F, M, 2), optional
+        The pedestrians the robot met, when they are not the environment's (default: its
+        simulated crowd, else the recording).
+
+    Returns
+    -------
+    (EpisodeMetrics, list of dict, dict of arrays)
+        Metrics, one row per interval, the per-frame trajectory.
+    """
     env, scene, si = fl.env, fl.scene, fl.params.si
     units = scene.units
     lam_unit = units.factor("lambda_init")

@@ -57,8 +57,22 @@ def write_run_dir(
       nearest pedestrian;
     * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
 
-    ``only`` restricts the files to ``("config.json", "metrics.json")`` (what large
-    benchmarks keep).
+    Parameters
+    ----------
+    result : EpisodeResult
+        The episode.
+    out : path
+        The run directory.
+    plot : bool
+        Draw ``plot.png`` and ``guarantee.png``.
+    only : tuple of str, optional
+        Restrict the files to these, e.g. ``("config.json", "metrics.json")`` (what large
+        benchmarks keep).
+
+    Returns
+    -------
+    Path
+        ``out``.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -24,22 +24,23 @@ from typing import Any
 
 import numpy as np
 
+from .. import registry
 from ..cbf.loss import CBFTruth
-from ..crowds.crowd import MODELS, Crowd
+from ..crowds.crowd import Crowd, model_names
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
 from .replay import ReplayEnvironment
 
 __all__ = [
-    "CROWDS",
     "DEFAULT_MIXED_RADIUS",
     "ReactiveEnvironment",
     "make_environment",
     "make_environment_like",
 ]
 
+
 #: Crowd names accepted by :func:`make_environment`.
-CROWDS: tuple[str, ...] = ("replay", "social_force", "orca", "mixed")
+
 
 #: Default switching radius (m) of the mixed crowd.
 DEFAULT_MIXED_RADIUS = 5.0
@@ -209,15 +210,17 @@ def make_environment(
                 f"crowd 'replay' takes no crowd_params, got {', '.join(sorted(params))}"
             )
         return ReplayEnvironment(scene, **env_kwargs)
-    if crowd not in CROWDS:
-        raise ValueError(f"unknown crowd {crowd!r}; choose one of {', '.join(CROWDS)}")
+    if crowd != "mixed" and crowd not in model_names():
+        raise ValueError(
+            f"unknown crowd {crowd!r}; choose one of {', '.join(registry.crowd_names())}"
+        )
     if crowd == "mixed":
         model = params.pop("model", "social_force")
         radius = params.pop("radius", DEFAULT_MIXED_RADIUS)
-        if model not in MODELS:
+        if model not in model_names():
             raise ValueError(
                 f"unknown model {model!r} for the mixed crowd; choose one of "
-                f"{', '.join(sorted(MODELS))}"
+                f"{', '.join(model_names())}"
             )
         if (
             radius is None
@@ -235,7 +238,7 @@ def make_environment(
         model, radius = crowd, None
     own = set(Crowd._param_names()) - {"model", "model_params", "mixed_radius"}
     crowd_kw = {k: params.pop(k) for k in list(params) if k in own}
-    known_model = set(MODELS[model]._param_names())
+    known_model = set(registry.get("crowd_model", model)._param_names())
     unknown = sorted(set(params) - known_model)
     if unknown:
         raise ValueError(

@@ -30,7 +30,8 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from ..fallbacks import CORE_FALLBACKS, resolve_fallback
+from ... import registry
+from ..fallbacks import resolve_fallback
 from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
 from ..speed import speed_polygon
 
@@ -118,7 +119,7 @@ class VelocityFilter(SafetyFilter):
             "n_fallback": self.n_fallback_,
             "n_solver_failure": self.n_solver_failure_,
         }
-        for name in (*CORE_FALLBACKS, self.fallback_.name):
+        for name in dict.fromkeys((*registry.names("fallback"), self.fallback_.name)):
             out[f"n_fallback_{name}"] = self.fallback_counts_.get(name, 0)
         for event, n in self.events_.items():
             out[f"n_{event}"] = n
