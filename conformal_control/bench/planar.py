@@ -284,7 +284,7 @@ class PlanarMethod:
     Attributes
     ----------
     name : str
-    family : {"cbf", "mpc", "acp_mpc"}
+    family : {"cbf", "mpc", "acp_mpc", "ecp_mpc"}
     description : str
     learn : bool
     family_params : mapping
@@ -374,6 +374,16 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             loss="plan_miscoverage",
             rule="aci",
             rule_params={"alpha": 0.2, "gamma": 0.05},
+        ),
+        PlanarMethod(
+            "ecp_mpc",
+            "ecp_mpc",
+            "egocentric conformal regions (ACI, alpha = 0.1, gamma = 0.02, 15 calibration "
+            "times, as published)",
+            family_params={"calibration_size": 15},
+            loss="ego_miscoverage",
+            rule="aci",
+            rule_params={"alpha": 0.1, "gamma": 0.02},
         ),
     )
 }

@@ -438,6 +438,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         cmds = self.sample_commands(state, t_off)
         states = self.dynamics.rollout(state.x, cmds, float(self.dt_plan))
         pos = np.ascontiguousarray(states[..., :2])
+        self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
         h = int(self.horizon)
         if self._ids.size:
             pred = self.predicted_at(t_off + self.dt_plan * np.arange(0, h + 1))
