@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from .metrics import EpisodeMetrics, format_value, plain
+from .metrics import EpisodeMetrics, MetricsTable, plain
 from .metrics import metric as _m
 
 __all__ = ["FleetMetrics", "RobotContacts", "fleet_metrics", "robot_contacts"]
@@ -56,7 +56,7 @@ def robot_contacts(d_min_robot: Sequence[float], robot_radius: float) -> RobotCo
 
 
 @dataclass
-class FleetMetrics(Mapping[str, Any]):
+class FleetMetrics(MetricsTable):
     """What a multi-robot run measured over all its robots (see each field's metadata)."""
 
     n_robots: int = _m("-", "robots", 0)
@@ -108,39 +108,6 @@ class FleetMetrics(Mapping[str, Any]):
         "wall_s",
         "wall_s_per_robot",
     )
-
-    def __getitem__(self, key: str) -> Any:
-        if key not in _FIELDS:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(_FIELDS)
-
-    def __len__(self) -> int:
-        return len(_FIELDS)
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (non-finite floats become None)."""
-        return {name: plain(getattr(self, name)) for name in _FIELDS}
-
-    def unit(self, name: str) -> str:
-        return (self.units or {}).get(name, "-")
-
-    def format(self, keys: tuple[str, ...] | None = None) -> str:
-        """Aligned ``name  value unit`` lines."""
-        keys = keys or self.SUMMARY
-        width = max(len(k) for k in keys)
-        lines = []
-        for k in keys:
-            unit = self.unit(k)
-            text = format_value(getattr(self, k))
-            suffix = f" {unit}" if unit != "-" and text not in ("-", "none") else ""
-            lines.append(f"{k:<{width}}  {text}{suffix}")
-        return "\n".join(lines)
-
-
-_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FleetMetrics))
 
 
 def _mean(values: list[float | None]) -> float | None:
