@@ -158,9 +158,6 @@ class Parameters:
         high=1.0,
         closed=(False, False),
     )
-    fallback: str = _p(
-        "lambda_search", "on an infeasible QP: lambda_search | brake | hold", kind="text"
-    )
     speed_sides: int = _p(
         16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
     )
@@ -421,6 +418,7 @@ class RunSpec:
     def __post_init__(self) -> None:
         if not isinstance(self.params, dict):
             raise _spec_error(f"params must be a mapping, got {self.params!r}")
+        self._fallback_one_way()
         unknown = sorted(set(self.params) - set(PARAMETERS))
         if unknown:
             import difflib
@@ -446,6 +444,45 @@ class RunSpec:
             _role_parts(role, getattr(self, role))
         if self.robots is not None and not isinstance(self.robots, Robots):
             raise _spec_error(f"robots must be a Robots section, got {self.robots!r}")
+
+    def _fallback_one_way(self) -> None:
+        """The fallback is a role (``fallback=``): a ``fallback`` among the parameters or
+        the safety filter's parameters (the ways of 0.2) moves there, with a
+        :class:`DeprecationWarning`; two different fallbacks are an error."""
+        filter_name, filter_params = _role_parts("safety_filter", self.safety_filter)
+        given = {
+            where: value
+            for where, value in (
+                ("params", self.params.get("fallback")),
+                ("safety_filter parameters", filter_params.get("fallback")),
+            )
+            if value is not None
+        }
+        if not given:
+            return
+        import warnings
+
+        names = {repr(v) for v in given.values()}
+        if self.fallback is not None:
+            names.add(repr(self.fallback))
+        if len(names) > 1:
+            raise _spec_error(
+                f"the fallback is given twice with different values ({', '.join(sorted(names))});"
+                " give it once, as the run's fallback"
+            )
+        warnings.warn(
+            f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
+            "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+        object.__setattr__(self, "fallback", next(iter(given.values())))
+        object.__setattr__(
+            self, "params", {k: v for k, v in self.params.items() if k != "fallback"}
+        )
+        if "fallback" in filter_params:
+            rest = {k: v for k, v in filter_params.items() if k != "fallback"}
+            object.__setattr__(self, "safety_filter", (filter_name, rest) if rest else filter_name)
 
     # ------------------------------------------------------------------ roles
     def role(self, name: str) -> tuple[Any, dict[str, Any]]:

@@ -453,6 +453,21 @@ def _run(args: argparse.Namespace) -> int:
     check_writable(out, "run directory")
 
     params = key_values(args.param, "--param")
+    if "fallback" in params:  # the way of 0.2: the fallback is a role, --fallback NAME
+        old_way = str(params.pop("fallback"))
+        if args.fallback is not None and args.fallback != old_way:
+            from ..exceptions import InputError
+
+            raise InputError(
+                f"--fallback {args.fallback} and --param fallback={old_way} disagree; give "
+                "--fallback NAME only"
+            )
+        warnings.warn(
+            f"--param fallback={old_way} is --fallback {old_way} since 0.3",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        args.fallback = old_way
     check_names(params)
     _check_options(args, params)
     roles: dict[str, Any] = {}

@@ -188,9 +188,6 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         if role == "fallback" and params:
             return "fallback parameters: the batch engine runs the fallbacks as registered"
     fallbacks = KERNELS["fallback"]
-    fallback = run.params.get("fallback")
-    if fallback is not None and _kernel_of("fallback", str(fallback)) not in fallbacks:
-        return f"fallback {fallback!r}: the batch engine compiles {', '.join(sorted(fallbacks))}"
     filter_params = run.role("safety_filter")[1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"

@@ -268,7 +268,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         "speed_sides": si["speed_sides"],
         "random_state": seed,
     }
-    fallback_value: Any = si["fallback"] if fallback is None else fallback
+    fallback_value: Any = "lambda_search" if fallback is None else fallback
     if fallback is not None and not isinstance(fallback, str):
         names["fallback"] = type(fallback).__name__
     else:

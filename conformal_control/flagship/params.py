@@ -240,7 +240,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention", "fallback")
+_TEXT_PARAMS = ("convention",)
 
 
 def check_names(given: dict[str, Any]) -> None:
