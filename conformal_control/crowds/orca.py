@@ -63,7 +63,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .base import CrowdModel, neighbor_pairs
+from .base import CrowdModel
+from .neighbors import neighbor_pairs
 
 __all__ = ["ORCAModel", "solve_orca_lp"]
 
