@@ -121,6 +121,7 @@ LAYERS: dict[str, int] = {
     "predictors": 4,
     "cbf": 5,
     "domains": 6,
+    "mpc": 6,
     "sim": 6,
     "crowds": 5,
     "plotting": 7,
