@@ -27,13 +27,14 @@ skipped with a message.
 Scale (``measure_scale``, also run by ``run_all.py``): the same crowd at the same density
 (100 pedestrians per 40 m x 40 m, so each has about 20 others within the 10 m cut-off) for
 100, 1,000, 5,000 and 10,000 pedestrians, on a jittered lattice (at least 1 m apart), each
-model stepped with the cell neighbour search (the models as shipped) and with the dense
-``N x M`` search (:func:`~conformal_control.crowds.neighbors.dense_neighbor_pairs`, what
-the models did before; not at 10,000: about 5 GB). Each figure comes from its own
+model stepped as shipped (the cell neighbour search; ORCA's half-planes and programs
+compiled) and as before (the dense ``N x M`` search,
+:func:`~conformal_control.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
+``orca_lines`` and ``solve_orca_lp``; not at 10,000: about 5 GB). Each figure comes from its own
 subprocess: after warm-up steps (with the cell search, whose steps are identical), the
 median wall and CPU time of a step and the peak memory of the steps (the process's peak
 resident set size minus its resident set before them). The dense process also checks that
-one step from the same state gives identical positions and velocities with both searches.
+one step from the same state gives identical positions and velocities both ways.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -374,6 +376,16 @@ def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, f
         fast = step()
         for mod in (sf_module, orca_module):
             mod.neighbor_pairs = neighbors.dense_neighbor_pairs  # type: ignore[attr-defined]
+        if isinstance(model, ORCAModel):  # ORCA's step before: numpy lines and programs
+            orca = model
+
+            def numpy_step(*args: Any) -> tuple[np.ndarray, np.ndarray]:
+                pos_, vel_, rad_, pref_, vmax_, o_pos, o_vel, o_rad, dt = args
+                lines = orca.orca_lines(pos_, vel_, rad_, o_pos, o_vel, o_rad, dt)
+                v, _ = orca_module.solve_orca_lp(*lines, pref_, vmax_)
+                return pos_ + dt * v, v
+
+            model.step = numpy_step  # type: ignore[method-assign]
         ref = step()
         out["identical"] = float(
             np.array_equal(fast[0], ref[0]) and np.array_equal(fast[1], ref[1])
@@ -458,14 +470,14 @@ def main() -> None:
     print(f"load average (1, 5, 15 min): {os.getloadavg()} on {os.cpu_count()} cores")
     print(f"one crowd step, {N} pedestrians + a robot, dt = {DT:.4f} s: median / p95")
     sf_wall, sf_cpu, w = ours(SocialForceModel(), args.steps)
-    print(row("social_force (ours, numpy)", sf_wall, sf_cpu))
+    print(row("social_force (ours)", sf_wall, sf_cpu))
     psf = bench_pysocialforce(w, args.steps)
     if psf is None:
         print("  pysocialforce not installed (pip install -e '.[crowds]')")
     else:
         print(row("pysocialforce Simulator.step", *psf, (np.median(sf_wall), np.median(sf_cpu))))
     or_wall, or_cpu, w = ours(ORCAModel(), args.steps)
-    print(row("orca (ours, numpy)", or_wall, or_cpu))
+    print(row("orca (ours, compiled)", or_wall, or_cpu))
     rvo = bench_pyrvo(w, args.steps)
     if rvo is None:
         print("  pyrvo not installed (pip install -e '.[crowds]')")
