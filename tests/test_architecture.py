@@ -129,6 +129,7 @@ LAYERS: dict[str, int] = {
     "sweep": 7,
     "bench": 8,
     "envs": 8,
+    "export": 8,
     "reproduce": 8,
     "api": 9,
     "commands": 10,
