@@ -182,7 +182,7 @@ def _methods(args: argparse.Namespace) -> int:
 
 
 def _grids(items: list[str] | None) -> dict[str, list[Any]]:
-    from ..sim.config import parse_value
+    from ..flagship.params import parse_value
 
     out: dict[str, list[Any]] = {}
     for item in items or []:

@@ -246,7 +246,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     @classmethod
     def _unit_test_environment(cls) -> Any:
-        from ..sim.environment import ReplayEnvironment
+        from ..world.replay import ReplayEnvironment
 
         return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
 

@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.Dynamics` plugins."""
+"""Contract checks for :class:`~conformal_control.cbf.roles.Dynamics` plugins."""
 
 from __future__ import annotations
 

@@ -100,7 +100,7 @@ def test_loss_is_the_miscoverage_of_out_of_sample_errors_and_monotone():
 
 def test_aci_drives_the_miscoverage_to_alpha_in_closed_loop():
     from conformal_control.data.synthetic import crossing_scene
-    from conformal_control.sim.environment import ReplayEnvironment
+    from conformal_control.world.replay import ReplayEnvironment
 
     scene = crossing_scene(duration=40.0)
     dyn = VelocityTrackingDoubleIntegrator(K_acc=20.0)
