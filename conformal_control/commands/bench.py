@@ -261,7 +261,7 @@ def _shifts() -> int:
 
 
 def _grids(items: list[str] | None) -> dict[str, list[Any]]:
-    from ..sim.config import parse_value
+    from ..flagship.params import parse_value
 
     out: dict[str, list[Any]] = {}
     for item in items or []:

@@ -4,9 +4,9 @@
 instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
 episode of a batch advances by one interval per iteration, and the work of an iteration is
 done for all of them together -- ONE compiled call for every control instant of the
-interval (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, the exact
+interval (:func:`~conformal_control.engines.interval.run_interval`: reference, the exact
 2-D filter's fused APF step, plant, goal check, frame clock and log), compiled loops for
-the replay bookkeeping (:mod:`~conformal_control.sim.batch_kernels`), and, at sampling
+the replay bookkeeping (:mod:`~conformal_control.engines.kernels`), and, at sampling
 times, ONE call of the predictor, the interpolation, the constraint and the loss on the
 agents of every episode at that sampling time laid side by side (these are computed agent
 by agent, so one call on the concatenation is the same arithmetic as one call per
@@ -14,11 +14,11 @@ episode). :func:`run_episode` itself runs a single episode on this engine when i
 (:func:`run_single`, keeping the per-instant steps and the animation record too).
 
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
-:func:`~conformal_control.sim.build.build_flagship` (same parameter resolution, same
+:func:`~conformal_control.flagship.build.build_flagship` (same parameter resolution, same
 validation, same errors), its lambda is updated by its own update rule through its own
 :class:`~conformal_control.monitor.GuaranteeMonitor`, its counters are written into the
 same learned attributes the per-episode loop fills, and it is measured by the same code.
-The per-instant arithmetic is written to round the same way (``tests/sim/test_batch.py``
+The per-instant arithmetic is written to round the same way (``tests/engines/test_batch.py``
 checks every metric against :func:`run_episode`). The wall time of the control loop
 (``wall_s``) is the episode's share of the batch's: each iteration's time divided among
 the episodes it advanced.
@@ -33,7 +33,7 @@ name (an instance would be shared by every episode).
 What runs compiled and what runs through the episode's own objects: the constant-velocity
 and the oracle predictor are compiled (above); any other predictor is called at each
 sampling time on the query the episode's environment builds
-(:meth:`~conformal_control.sim.environment.ReplayEnvironment.sense`), through the
+(:meth:`~conformal_control.world.replay.ReplayEnvironment.sense`), through the
 controller's own ``begin_interval`` (sanitising, counters, interpolation, the same
 :class:`~conformal_control.cbf.controller.PredictorError`), and its interpolated
 predictions are copied into the batch. The gap loss is compiled; the ``collision`` and
@@ -48,8 +48,8 @@ receives the loss as a function of lambda, as
 Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
 refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
 memory) at the next common sampling time. With ``output="metrics"`` (default) only the
-:class:`~conformal_control.sim.metrics.EpisodeMetrics` are kept; ``output="results"``
-keeps an :class:`~conformal_control.sim.episode.EpisodeResult` per episode (scene, config,
+:class:`~conformal_control.results.metrics.EpisodeMetrics` are kept; ``output="results"``
+keeps an :class:`~conformal_control.results.episode.EpisodeResult` per episode (scene, config,
 intervals, per-frame trajectory, the loop's result; no per-instant ``steps`` and no
 animation record).
 """
@@ -59,12 +59,11 @@ from __future__ import annotations
 import math
 import sys
 import time
-import types
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
-from typing import Any, TypeVar, cast
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -75,34 +74,36 @@ from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.fallbacks import Brake, Hold, LambdaSearch
-from ..cbf.feasibility import feasibility_floor
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.kernels_batch import BRAKE, HOLD, SEARCH, gap_maxima
 from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene
-from ..loop import ConformalLoop, IntervalLog, LoopResult, _LossAt
+from ..flagship.build import Flagship, build_flagship
+from ..loop import IntervalLog, LoopResult, LossAt
 from ..monitor import GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityPredictor
 from ..predictors.oracle import OraclePredictor
-from . import batch_kernels as bk
-from .batch_interval import run_interval
-from .build import Flagship, build_flagship
-from .environment import FrameLog, ReplayEnvironment
-from .episode import (
+from ..results.episode import EpisodeResult
+from ..results.measure import (
     LAMBDA_LIMIT,
-    EpisodeResult,
-    _check_lambda,
-    _config,
-    _jsonable,
-    _measure,
-    _warn_after_run,
-    _warn_before_run,
+    check_lambda,
+    episode_config,
+    feasibility,
+    jsonable,
+    lambda_safe_values,
+    measure,
+    warn_after_run,
+    warn_before_run,
 )
-from .metrics import EpisodeMetrics
+from ..results.metrics import EpisodeMetrics
+from ..results.record import AnimationRecorder
+from ..world.replay import FrameLog, ReplayEnvironment
+from . import kernels as bk
+from .gap_kernels import BRAKE, HOLD, SEARCH, gap_maxima
+from .interval import run_interval
 
 __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
@@ -271,7 +272,7 @@ def _parts(fl: Flagship) -> _Parts:
 
 
 def _predictor_code(pred: object) -> int:
-    """The compiled predictor of :func:`~conformal_control.sim.batch_kernels.predict_interpolate`
+    """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
     that ``pred`` is (its class exactly: a subclass may predict otherwise), else ``_OWN``."""
     if type(pred) is ConstantVelocityPredictor:
         return bk.CONSTANT_VELOCITY
@@ -580,17 +581,10 @@ class _Engine:
         learn = kw["learn"]
         fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
         parts = _parts(fl)
-        sc, si = fl.scene, fl.params.si
-        lam_unit = sc.units.factor("lambda_init")
-        lambda_safe = kw["lambda_safe"]
-        if lambda_safe is not None and kw["units"] == "si":
-            lambda_safe = lambda_safe / lam_unit
-        lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
-        h_max = parts.barrier.upper_bound
-        floor = feasibility_floor(
-            si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
-        )
-        _warn_before_run(fl, floor, learn)
+        sc = fl.scene
+        lambda_safe, lam_safe_si = lambda_safe_values(fl, kw["lambda_safe"], kw["units"])
+        floor = feasibility(fl)
+        warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
         # the timing), the family (validates; resets predictor, filter, reference), the rule
         env, filt, ref = parts.env, parts.safety_filter, parts.reference
@@ -761,7 +755,7 @@ class _Engine:
     def control(self, slots: np.ndarray) -> None:
         """The control instants of the current interval of ``slots``, each slot up to its
         interval's end or its episode's end, in one compiled call
-        (:func:`~conformal_control.sim.batch_interval.run_interval`: reference, filter,
+        (:func:`~conformal_control.engines.interval.run_interval`: reference, filter,
         plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
         bad = run_interval(
@@ -838,7 +832,7 @@ class _Engine:
                 rec, revealed, own_loss = self._record(b), self._truth(b), ep.parts.loss
                 l_k = own_loss(rec, revealed, lam)
                 diagnostics = own_loss.diagnostics(rec, revealed, lam) if l_k is not None else {}
-                loss_at = _LossAt(own_loss, rec, revealed)
+                loss_at = LossAt(own_loss, rec, revealed)
             elif pairs:
                 l_k = float(loss[b])
                 diagnostics = {
@@ -867,9 +861,7 @@ class _Engine:
                 log.l_avg = mon.average
                 p.lam[b] = lam
             if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
-                # _check_lambda reads only the loop's lambda: a namespace holding it stands in
-                stand_in = cast(ConformalLoop, types.SimpleNamespace(lam=lam))
-                _check_lambda(stand_in, ep.fl, log)  # raises
+                check_lambda(lam, ep.fl, log.k)  # raises
             if p.done[b]:
                 finished.append(b)
             else:
@@ -939,15 +931,15 @@ class _Engine:
         result = LoopResult(
             intervals=ep.intervals, lambda_final=float(p.lam[b]), monitor=ep.monitor
         )
-        metrics, intervals, traj = _measure(
+        metrics, intervals, traj = measure(
             fl, result, ep.learn, ep.lambda_safe, ep.floor, float(p.wall[b])
         )
-        _warn_after_run(fl, metrics, ep.learn, ep.max_frames)
+        warn_after_run(fl, metrics, ep.learn, ep.max_frames)
         p.active[b] = False
         self.eps[b] = None
         if self.output == "metrics":
             return ep.index, metrics
-        config = _config(
+        config = episode_config(
             fl,
             kw["rule_params"],
             kw["units"],
@@ -957,7 +949,7 @@ class _Engine:
             ep.seed,
         )
         config["max_frames"] = ep.max_frames
-        config["feasibility"] = _jsonable(ep.floor.as_dict())
+        config["feasibility"] = jsonable(ep.floor.as_dict())
         config.update(kw["extra_config"] or {})
         config["crowd"] = {"crowd": "replay"}
         config["engine"] = "batch"
@@ -1148,8 +1140,6 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
     not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
     ``ValueError`` saying why.
     """
-    from .record import AnimationRecorder
-
     kw = dict(run_kwargs)
     record_animation = bool(kw.pop("record_animation", True))
     reason = supports(**kw)

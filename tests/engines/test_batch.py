@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from conformal_control.data import load_scene
+from conformal_control.engines.batch import iter_batch, run_batch, supports
 from conformal_control.exceptions import NoUpdatesWarning
 from conformal_control.sim import run_episode
-from conformal_control.sim.batch import iter_batch, run_batch, supports
 
 
 @pytest.fixture(scope="module")

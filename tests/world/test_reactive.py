@@ -18,16 +18,16 @@ from conformal_control.cbf import (
 )
 from conformal_control.cbf.controller import PredictorError
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.flagship.params import resolve_params
 from conformal_control.loop import ConformalLoop
 from conformal_control.predictors.base import TruthUnavailableError
-from conformal_control.sim.config import resolve_params
-from conformal_control.sim.environment import ReplayEnvironment
-from conformal_control.sim.reactive import (
+from conformal_control.update_rules import FixedEtaRule
+from conformal_control.world.reactive import (
     ReactiveEnvironment,
     make_environment,
     make_environment_like,
 )
-from conformal_control.update_rules import FixedEtaRule
+from conformal_control.world.replay import ReplayEnvironment
 
 
 @pytest.mark.parametrize(

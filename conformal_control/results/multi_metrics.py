@@ -1,7 +1,7 @@
 """Metrics of a multi-robot run: per robot, robot-robot contacts, and the fleet's aggregate.
 
 Each robot is measured as a single robot is
-(:class:`~conformal_control.sim.metrics.EpisodeMetrics`, with ``d_min`` and ``n_collide``
+(:class:`~conformal_control.results.metrics.EpisodeMetrics`, with ``d_min`` and ``n_collide``
 about *pedestrians*), plus :class:`RobotContacts` about the *other robots*. A robot's
 ``success`` requires its goal and no collision of either kind.
 
@@ -25,7 +25,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .metrics import EpisodeMetrics, _m, _plain, format_value
+from .metrics import EpisodeMetrics, format_value, plain
+from .metrics import metric as _m
 
 __all__ = ["FleetMetrics", "RobotContacts", "fleet_metrics", "robot_contacts"]
 
@@ -39,7 +40,7 @@ class RobotContacts:
     d_min_robot: float | None = _m("m", "smallest centre distance to another robot")
 
     def as_dict(self) -> dict[str, Any]:
-        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
 def robot_contacts(d_min_robot: Sequence[float], robot_radius: float) -> RobotContacts:
@@ -86,7 +87,7 @@ class FleetMetrics(Mapping[str, Any]):
     wall_s: float = _m("s", "wall time of the whole run's loop", 0.0)
     wall_s_per_robot: float = _m("s", "wall_s / n_robots", 0.0)
     cpu_s: float = _m("s", "process CPU time of the loop", 0.0)
-    units: dict[str, str] | None = _m("-", "unit of each metric")
+    units: dict[str, str] | None = _m("-", "unit of each metric")  # noqa: RUF009 (a field)
 
     SUMMARY: ClassVar[tuple[str, ...]] = (
         "n_robots",
@@ -121,7 +122,7 @@ class FleetMetrics(Mapping[str, Any]):
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready dict (non-finite floats become None)."""
-        return {name: _plain(getattr(self, name)) for name in _FIELDS}
+        return {name: plain(getattr(self, name)) for name in _FIELDS}
 
     def unit(self, name: str) -> str:
         return (self.units or {}).get(name, "-")

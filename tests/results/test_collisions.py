@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformal_control.sim.collisions import (
+from conformal_control.results.collisions import (
     CLOSING_TOL,
     account_collisions,
     avoidable,
@@ -177,7 +177,7 @@ def test_a_trap_that_only_the_grid_proves():
 def test_the_grid_never_contradicts_the_closed_form_tests(x, y, vx, vy, v_max, n):
     """Straight-line pedestrians: when the covering test proves a collision, the grid finds
     no path; when a straight escape exists, the grid does not prove there is none."""
-    from conformal_control.sim.collisions import _grid, _straight
+    from conformal_control.results.collisions import _grid, _straight
 
     k = np.arange(1, n + 1)
     q = np.array([x, y]) + np.outer(k / FPS, [vx, vy])

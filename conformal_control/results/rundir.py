@@ -6,25 +6,26 @@ import csv
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .episode import EpisodeResult
+if TYPE_CHECKING:
+    from .episode import EpisodeResult
 
-__all__ = ["write_run_dir"]
+__all__ = ["csv_cell", "finite_or_none", "write_run_dir"]
 
 
-def _clean(obj: Any) -> Any:
+def finite_or_none(obj: Any) -> Any:
     """``obj`` with every non-finite float replaced by None (JSON has no NaN or inf)."""
     if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
+        return {k: finite_or_none(v) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [_clean(v) for v in obj]
+        return [finite_or_none(v) for v in obj]
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
 
 
-def _fmt(v: Any) -> Any:
+def csv_cell(v: Any) -> Any:
     """A CSV cell: floats in full precision (``repr``), None and non-finite as empty."""
     if v is None:
         return ""
@@ -51,7 +52,7 @@ def write_run_dir(
       the largest constraint gap, agents sensed, control steps);
     * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
     * ``animation.npz`` - what ``conformal-control animate`` renders (if the episode kept
-      it; see :mod:`conformal_control.sim.record`);
+      it; see :mod:`conformal_control.results.record`);
     * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
       nearest pedestrian;
     * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
@@ -61,7 +62,7 @@ def write_run_dir(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
+    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
     (out / "metrics.json").write_text(json.dumps(result.metrics.as_dict(), indent=2) + "\n")
     if only is not None:
         unknown = set(only) - {"config.json", "metrics.json"}
@@ -75,13 +76,15 @@ def write_run_dir(
         w.writerow(["k", "t", "lambda", "loss"])
         for iv in result.intervals:
             if iv["loss"] is not None:
-                w.writerow([iv["k"], _fmt(iv["t"]), _fmt(iv["lambda"]), _fmt(iv["loss"])])
+                w.writerow(
+                    [iv["k"], csv_cell(iv["t"]), csv_cell(iv["lambda"]), csv_cell(iv["loss"])]
+                )
     cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
     with (out / "intervals.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for iv in result.intervals:
-            w.writerow([_fmt(iv.get(c)) for c in cols])
+            w.writerow([csv_cell(iv.get(c)) for c in cols])
     tr = result.trajectory
     with (out / "trajectory.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -90,7 +93,7 @@ def write_run_dir(
             w.writerow(
                 [
                     int(tr["frame"][i]),
-                    *(_fmt(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
+                    *(csv_cell(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
                 ]
             )
     animation = getattr(result, "animation", None)

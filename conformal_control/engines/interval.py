@@ -1,6 +1,6 @@
 """Every control instant of an interval, for every live episode of a batch, in one call.
 
-The lockstep engine (:mod:`conformal_control.sim.batch`) calls :func:`run_interval` once
+The lockstep engine (:mod:`conformal_control.engines.batch`) calls :func:`run_interval` once
 per interval: for each slot it runs the interval's control instants back to back --
 the attractive field's reference velocity, the fused APF step of the exact 2-D filter
 (:func:`~conformal_control.cbf.kernels2d.apf_step`), the ``brake`` / ``hold``
@@ -9,7 +9,7 @@ frame clock and the per-frame log with the nearest agent's distance -- and stops
 at its interval's end or at its episode's end. It is the work of
 :meth:`ConformalCBFController.decide
 <conformal_control.cbf.controller.ConformalCBFController.decide>`,
-:meth:`ReplayEnvironment.apply <conformal_control.sim.environment.ReplayEnvironment.apply>`
+:meth:`ReplayEnvironment.apply <conformal_control.world.replay.ReplayEnvironment.apply>`
 and the dynamics' ``step``, with the same floating-point operations in the same order:
 the distances the Python code takes with ``math.hypot`` (the reference's speed, the goal
 check) are taken with :func:`~conformal_control.cbf.pyhypot.py_hypot`, those it takes with
@@ -24,9 +24,9 @@ import numba
 import numpy as np
 
 from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
-from ..cbf.kernels_batch import HOLD
 from ..cbf.pyhypot import py_hypot
-from .batch_kernels import _d_min, recording
+from .gap_kernels import HOLD
+from .kernels import d_min, recording
 
 __all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
 
@@ -229,7 +229,7 @@ def run_interval(
                     log[b, r, 0] = t[b]
                     for c in range(4):
                         log[b, r, 1 + c] = x[b, c]
-                    log[b, r, 5] = _d_min(recording(store, where, b), fi[b], x0, x1)
+                    log[b, r, 5] = d_min(recording(store, where, b), fi[b], x0, x1)
                     n_log[b] = r + 1
             if done[b] or s >= n_ctrl[b]:
                 break

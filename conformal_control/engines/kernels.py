@@ -1,15 +1,15 @@
 """The replay environment's bookkeeping for many episodes at once, compiled.
 
-What :class:`~conformal_control.sim.environment.ReplayEnvironment` does per episode in
-Python -- the sensor's range test, the history / truth windows it cuts from the
-recording, the per-frame log (the frame clock itself runs in
-:func:`~conformal_control.sim.batch_interval.run_interval`) -- written as loops over the
-episodes of a batch (:mod:`conformal_control.sim.batch`), with the same floating-point operations
-(numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls). Each episode
-reads its own recording: the recordings of the live episodes lie in one flat buffer
-``store``; slot ``b``'s is ``store[o : o + F * M * 2]`` seen as ``(F, M, 2)`` with
-``(o, F, M) = where[b]`` (plain arrays compile once and are cached, a typed list of
-arrays would be compiled anew in every process).
+What :class:`~conformal_control.world.replay.ReplayEnvironment` does per episode in Python
+-- the sensor's range test, the history / truth windows it cuts from the recording, the
+per-frame log (the frame clock itself runs in
+:func:`~conformal_control.engines.interval.run_interval`) -- written as loops over the
+episodes of a batch (:mod:`conformal_control.engines.batch`), with the same floating-point
+operations (numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls).
+Each episode reads its own recording: the recordings of the live episodes lie in one flat
+buffer ``store``; slot ``b``'s is ``store[o : o + F * M * 2]`` seen as ``(F, M, 2)`` with
+``(o, F, M) = where[b]`` (plain arrays compile once and are cached, a typed list of arrays
+would be compiled anew in every process).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ __all__ = [
     "CONSTANT_VELOCITY",
     "ORACLE",
     "count_sensed",
+    "d_min",
     "gather_windows",
     "log_frames",
     "predict_interpolate",
@@ -104,7 +105,7 @@ def gather_windows(
 
 
 @jit
-def _d_min(pos: np.ndarray, f: int, x0: float, x1: float) -> float:
+def d_min(pos: np.ndarray, f: int, x0: float, x1: float) -> float:
     """Smallest centre distance to the agents present (finite x) at frame ``f``; NaN if
     none (or if a present agent's distance is NaN, as ``ndarray.min`` would say)."""
     best = math.inf
@@ -141,7 +142,7 @@ def log_frames(
         log[b, k, 0] = t[b]
         for c in range(4):
             log[b, k, 1 + c] = x[b, c]
-        log[b, k, 5] = _d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
+        log[b, k, 5] = d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
         n_log[b] = k + 1
 
 

@@ -35,9 +35,9 @@ from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
 from ..predictors.base import Predictor
 from ..update_rules import FixedEtaRule
-from .config import ResolvedParams, resolve_params
-from .environment import ReplayEnvironment
-from .reactive import make_environment
+from ..world.reactive import make_environment
+from ..world.replay import ReplayEnvironment
+from .params import ResolvedParams, resolve_params
 
 __all__ = ["Flagship", "RoleSpec", "build_flagship", "build_rule", "role_name"]
 
@@ -225,7 +225,7 @@ def build_flagship(
     crowd : str
         ``"replay"`` (the recording, default), ``"social_force"``, ``"orca"`` or
         ``"mixed"``: pedestrians who react to the robot (see
-        :func:`~conformal_control.sim.reactive.make_environment`), with ``crowd_params``
+        :func:`~conformal_control.world.reactive.make_environment`), with ``crowd_params``
         (SI); a reactive crowd's ``seed`` defaults to ``seed``.
     learn : bool
         False runs the noLearn baseline: lambda stays at ``lambda_init`` (eta = 0).
@@ -237,7 +237,7 @@ def build_flagship(
     if isinstance(params, ResolvedParams):
         resolved = params
     else:
-        from .config import to_scene_units
+        from .params import to_scene_units
 
         given = to_scene_units(scene, dict(params or {}), units)
         if not learn:

@@ -5,7 +5,7 @@ batch: the largest gap between the APF constraint on the predicted and on the tr
 (:class:`~conformal_control.cbf.loss.CBFGapLoss`, with
 :meth:`~conformal_control.cbf.constraint.ConformalConstraint.value`'s arithmetic), agent by
 agent and instant by instant. The control instants themselves run in
-:func:`~conformal_control.sim.batch_interval.run_interval`, which calls the exact 2-D
+:func:`~conformal_control.engines.interval.run_interval`, which calls the exact 2-D
 filter's fused APF step (:func:`~conformal_control.cbf.kernels2d.apf_step`) as is.
 :data:`SEARCH`, :data:`BRAKE` and :data:`HOLD` are the fallback codes the engine gives it.
 """

@@ -1,6 +1,6 @@
 """Several robots in one scene: the world they share, stepped one control instant at a time.
 
-:class:`MultiRobotWorld` is :class:`~conformal_control.sim.environment.ReplayEnvironment`
+:class:`MultiRobotWorld` is :class:`~conformal_control.world.replay.ReplayEnvironment`
 for ``R`` robots: the same clock (frames of the scene, ``substeps`` control instants per
 frame, intervals of ``tau_frames`` frames), the same sensor, the same reveal of the truth,
 the same frame log with ``d_min``, the same goals -- per robot. With one robot it computes
@@ -55,7 +55,7 @@ from ..cbf.roles import Dynamics
 from ..crowds.crowd import Crowd
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from .environment import FrameLog
+from .replay import FrameLog
 
 __all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]
 
@@ -131,7 +131,7 @@ class MultiRobotWorld:
     dynamics : Dynamics or sequence of R Dynamics
         Plant of each robot (one instance is used for all: plants hold no state).
     tau_frames, substeps, sensing_radius, history_frames, max_frames
-        As for :class:`~conformal_control.sim.environment.ReplayEnvironment`.
+        As for :class:`~conformal_control.world.replay.ReplayEnvironment`.
     crowd : Crowd, optional
         Simulated pedestrians (seeing every robot); None replays the recording.
     sensor_history : {"tracked", "observed"}

@@ -1,7 +1,7 @@
 """Pedestrians who react to the robot: the reactive environment and the factory by name.
 
 :class:`ReactiveEnvironment` has the interface and the timing of
-:class:`~conformal_control.sim.environment.ReplayEnvironment` (same sensor, histories,
+:class:`~conformal_control.world.replay.ReplayEnvironment` (same sensor, histories,
 reveal of the true trajectories over each interval, frame log with ``d_min``, goals,
 collision counting), but after the robot's start frame the pedestrians' positions are
 simulated online by a :class:`~conformal_control.crowds.crowd.Crowd`: one model step per
@@ -28,7 +28,7 @@ from ..cbf.loss import CBFTruth
 from ..crowds.crowd import MODELS, Crowd
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from .environment import ReplayEnvironment
+from .replay import ReplayEnvironment
 
 __all__ = [
     "CROWDS",
@@ -62,7 +62,7 @@ class ReactiveEnvironment(ReplayEnvironment):
     crowd : Crowd
         The crowd model and its seeding (reset with the scene at every episode).
     tau_frames, substeps, sensing_radius, history_frames, max_frames
-        As for :class:`~conformal_control.sim.environment.ReplayEnvironment`.
+        As for :class:`~conformal_control.world.replay.ReplayEnvironment`.
 
     Attributes
     ----------

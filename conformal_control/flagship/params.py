@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..data.scene import Scene
-from ..data.units import PARAM_DIMENSIONS
 from ..exceptions import InputError, SuspiciousValueWarning
+from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI
 
 __all__ = [
     "PARAMETERS",
@@ -42,36 +42,6 @@ __all__ = [
     "suggest",
     "to_scene_units",
 ]
-
-#: Every controller parameter: name -> (default, description). ``None`` defaults are
-#: filled from the scene (``scene.defaults`` first, then the scene's own attributes).
-#: Dimensional parameters are typed in the scene's units (see ``conformal_control.data.units``).
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "a": (None, "slope of alpha(h) = a h (1/time)"),
-    "K_acc": (None, "velocity-tracking gain of u = -K_acc (v - v_QP) (1/time)"),
-    "K_rep": (None, "repulsive gain of the APF barrier (length^2)"),
-    "K_att": (None, "attractive gain of the reference v_ref = -K_att (X - X_goal) (1/time)"),
-    "rho0": (None, "APF influence distance (length)"),
-    "sensing_radius": (None, "sensor range, centre distance (length); default rho0"),
-    "tau": (None, "sampling period of sensor, predictor and lambda update (time)"),
-    "eta": (None, "learning rate of lambda (1/time)"),
-    "epsilon": (None, "target average loss, in (-1/2, 1/2)"),
-    "loss_scale": (None, "loss scale c in s(r) = arctan(r/c)/pi (1/time)"),
-    "lambda_init": (0.0, "initial lambda (1/time)"),
-    "lambda_min": (-math.inf, "clip lambda from below (1/time) against wind-up"),
-    "lambda_max": (math.inf, "clip lambda from above (1/time)"),
-    "convention": ("surface", "barrier distance: 'surface' (disc gap) or 'centre'"),
-    "delta": (None, "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)"),
-    "fallback": ("lambda_search", "on an infeasible QP: lambda_search | brake | hold"),
-    "speed_sides": (16, "sides of the inscribed speed polygon (0 = box)"),
-    "substeps": (4, "QP solves (control instants) per data frame"),
-    "history": (None, "frames of history handed to the predictor; default 4 s of frames"),
-    "v_max": (None, "robot speed bound (m/s)"),
-    "barrier_margin": (0.0, "extra distance added to d_c in the barrier only (m): a robust CBF"),
-    "robot_radius": (None, "robot radius (m)"),
-    "agent_radius": (None, "pedestrian radius (m)"),
-    "goal_radius": (None, "goal radius (m)"),
-}
 
 
 def to_scene_units(scene: Scene, params: dict[str, Any], units: str) -> dict[str, Any]:
@@ -107,12 +77,6 @@ _DIMENSION_NAMES = {(1, 0): "a length", (2, 0): "an area", (0, 1): "a time", (0,
 _QUANTITY = re.compile(
     r"^\s*(?P<num>[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?inf)\s*(?P<unit>[^\d\s].*?)\s*$"
 )
-#: SI range outside which a bare (suffix-less) value is reported as suspicious
-_PLAUSIBLE_SI: dict[str, tuple[float, float, str]] = {
-    "rho0": (1.0, 100.0, "m"),
-    "sensing_radius": (1.0, 100.0, "m"),
-    "tau": (0.0, 10.0, "s"),
-}
 
 
 def suggest(name: str, known: list[str] | tuple[str, ...]) -> str:
@@ -206,11 +170,11 @@ def convert_units(scene: Scene, given: dict[str, Any]) -> tuple[dict[str, Any], 
 
 def _check_plausible(scene: Scene, key: str, value: Any) -> None:
     """Warn when a bare number is implausible in the unit it is read in."""
-    if key not in _PLAUSIBLE_SI or isinstance(value, bool):
+    if key not in PLAUSIBLE_SI or isinstance(value, bool):
         return
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         return
-    lo, hi, si_unit = _PLAUSIBLE_SI[key]
+    lo, hi, si_unit = PLAUSIBLE_SI[key]
     si = value * scene.units.factor(key)
     if lo <= si <= hi:
         return

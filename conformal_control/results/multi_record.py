@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from .multi import RobotResult
-    from .multi_world import MultiRobotWorld
+    from ..sim.multi import RobotResult
+    from ..world.multi import MultiRobotWorld
 
 __all__ = ["multi_record"]
 

@@ -21,16 +21,27 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-__all__ = ["PERSONAL_SPACE", "EpisodeMetrics", "episode_metrics", "metric_fields"]
+__all__ = [
+    "PERSONAL_SPACE",
+    "EpisodeMetrics",
+    "episode_metrics",
+    "format_value",
+    "metric",
+    "metric_fields",
+    "plain",
+]
 
 #: Surface gap (m) under which the robot is inside a pedestrian's personal space.
 PERSONAL_SPACE = 0.5
 
 
-def _m(unit: str, doc: str, default: Any = None) -> Any:
+def metric(unit: str, doc: str, default: Any = None) -> Any:
     """A metric field: ``unit`` is "-" (count/flag/dimensionless), an SI unit, or
     ``"lambda"`` (the scene's unit of lambda, e.g. 1/frame for SDD scenes)."""
     return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+_m = metric  # a short name for the table below
 
 
 @dataclass
@@ -48,7 +59,7 @@ class EpisodeMetrics(Mapping[str, Any]):
     any_collision: bool = _m("-", "at least one collision frame", False)
     d_min: float | None = _m("m", "smallest centre distance to a pedestrian")
     time_in_personal_space: float = _m("s", "time with a surface gap < 0.5 m", 0.0)
-    # -- collision accounting (conformal_control.sim.collisions) -----------------------
+    # -- collision accounting (conformal_control.results.collisions) -----------------------
     n_collision_events: int = _m("-", "runs of frames with one pedestrian closer than d_c", 0)
     n_collide_avoidable: int = _m(
         "-", "collision frames a point robot could have avoided from first sensing (no pop-in)", 0
@@ -60,7 +71,7 @@ class EpisodeMetrics(Mapping[str, Any]):
     )
     n_collide_popin: int = _m("-", "collision frames of pedestrians that popped in nearby", 0)
     penetration_max: float | None = _m("m", "deepest intrusion, d_c - distance")
-    collision_events: list[dict[str, Any]] | None = _m("-", "every collision event, classified")
+    collision_events: list[dict[str, Any]] | None = _m("-", "every collision event, classified")  # noqa: RUF009
     # -- conformal variable and loss --------------------------------------------------
     l_avg: float | None = _m("-", "average loss over the lambda updates (learning runs)")
     l_avg_applied: float | None = _m("-", "average loss with the lambda actually applied")
@@ -104,10 +115,10 @@ class EpisodeMetrics(Mapping[str, Any]):
     # -- data and predictor -----------------------------------------------------------
     n_nonfinite_predictions: int = _m("-", "agent-intervals with non-finite predictions", 0)
     n_truth_missing: int = _m("-", "(agent, instant) pairs without truth (left the view)", 0)
-    predictor_info: dict[str, Any] | None = _m("-", "the predictor's counters and messages")
+    predictor_info: dict[str, Any] | None = _m("-", "the predictor's counters and messages")  # noqa: RUF009 (a field)
     frames: int = _m("-", "video frames simulated", 0)
     wall_s: float = _m("s", "wall time of the control loop", 0.0)
-    units: dict[str, str] | None = _m("-", "unit of each metric")
+    units: dict[str, str] | None = _m("-", "unit of each metric")  # noqa: RUF009 (a field)
 
     #: What ``conformal-control run`` prints.
     SUMMARY: ClassVar[tuple[str, ...]] = (
@@ -154,7 +165,7 @@ class EpisodeMetrics(Mapping[str, Any]):
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready dict: non-finite floats become None, numpy scalars Python ones."""
-        return {name: _plain(getattr(self, name)) for name in _FIELD_NAMES}
+        return {name: plain(getattr(self, name)) for name in _FIELD_NAMES}
 
     def unit(self, name: str) -> str:
         """The unit of metric ``name`` ("-" when it has none)."""
@@ -203,11 +214,11 @@ def format_value(v: Any) -> str:
     return str(v)
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     if isinstance(x, (np.floating, float)):
         x = float(x)
         return x if math.isfinite(x) else None

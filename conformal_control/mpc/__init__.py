@@ -1,0 +1,25 @@
+"""Sampling-based model-predictive control as conformal decision families.
+
+=================  ===============================================================
+``mpc``            :class:`SamplingMPC`: sampled plans, safe distance
+                   ``d_c + margin - lambda`` to the predictions (the CDT conformal
+                   controller when lambda is learned: ``cc_mpc``)
+``acp_mpc``        :class:`ACPMPC`: adaptive conformal prediction regions per plan step
+                   (Dixit et al. 2023), lambda = their miscoverage level
+=================  ===============================================================
+"""
+
+from .acp import ACPMPC, ACPMPCIntervalRecord, PlanMiscoverageLoss
+from .controller import FALLBACKS, MPCIntervalRecord, Plan, SamplingMPC
+from .kernels import evaluate
+
+__all__ = [
+    "ACPMPC",
+    "FALLBACKS",
+    "ACPMPCIntervalRecord",
+    "MPCIntervalRecord",
+    "Plan",
+    "PlanMiscoverageLoss",
+    "SamplingMPC",
+    "evaluate",
+]
