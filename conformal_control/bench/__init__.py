@@ -7,7 +7,7 @@ data), methods declared as data (:mod:`~conformal_control.bench.methods`), predi
 (:mod:`~conformal_control.bench.tune`), the runner (:mod:`~conformal_control.bench.runner`),
 statistics (:mod:`~conformal_control.bench.stats`) and reports
 (:mod:`~conformal_control.bench.report`). Collisions are classified in every run's metrics
-(:mod:`conformal_control.sim.collisions`).
+(:mod:`conformal_control.results.collisions`).
 """
 
 from ..data.suites import (
