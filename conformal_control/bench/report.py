@@ -604,6 +604,10 @@ def _collisions(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) 
 
 
 # ------------------------------------------------------------------ figures
+#: How the figures label the tuned methods and the reference.
+_SHORT = {"tuned on dev": " (dev-tuned)", REFERENCE: " (re-tuned here: reference)"}
+
+
 def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     import matplotlib
 
@@ -613,7 +617,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     xcol, ycol = "reached", "collision frames"
     pts = [(-s.estimates[xcol].mean, s.estimates[ycol].mean) for s in v.shown]
     front = _pareto(pts)
-    fig, ax = plt.subplots(figsize=(11.0, 5.5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(10.0, 5.0), constrained_layout=True)
     markers = "osD^vP*Xhp<>"
     for i, (s, on_front) in enumerate(zip(v.shown, front, strict=True)):
         ex, ey = s.estimates[xcol], s.estimates[ycol]
@@ -630,7 +634,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
             color=f"C{i % 10}",
             capsize=3,
             lw=1.0,
-            label=s.method + (f" ({s.label})" if s.label else "") + (" *" if on_front else ""),
+            label=s.method + _SHORT.get(s.label, "") + (" *" if on_front else ""),
         )
     fp = sorted(((-p[0], p[1]) for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
     if len(fp) > 1:
