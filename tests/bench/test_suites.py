@@ -284,3 +284,35 @@ def test_v2_nolearn_record_is_the_benchmark_nolearn(data_root) -> None:
     )  # fmt: skip
     assert res.metrics["n_collide"] == sc.nolearn["n_collide"]
     assert round(res.metrics["d_min"], 3) == sc.nolearn["d_min"]
+
+
+@pytest.mark.parametrize("name", ["crossings-v1", "crossings-v2"])
+def test_the_docs_suite_tables_are_the_manifests(name) -> None:
+    """The Benchmark page's count tables (scenarios, nolearn collisions and goals per source
+    and split) are the manifests' (a stale table once said 29 / 85 for v1's 28 / 86)."""
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "docs" / "benchmark.md").read_text()
+    section = text.split(f"### `{name}`", 1)[1].split("\n### ", 1)[0]
+    table = [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in section.splitlines()
+        if line.startswith("| ") and line.split("|")[2].strip() in ("dev", "test")
+    ]
+    suite = load_suite(name)
+    expect = []
+    for src in ("sdd", "trajnet", "ethucy", "**all**"):
+        for split in ("dev", "test"):
+            scs = [
+                s for s in suite.scenarios
+                if s.split == split and (src == "**all**" or s.source == src)
+            ]  # fmt: skip
+            expect.append(
+                [
+                    src,
+                    split,
+                    str(len(scs)),
+                    str(sum(bool(s.collided_nolearn) for s in scs)),
+                    str(sum(bool(s.nolearn["goal_reached"]) for s in scs)),
+                ]
+            )
+    assert [[r[0], r[1], r[3], r[4], r[5]] for r in table] == expect
