@@ -187,3 +187,13 @@ def test_report_refuses_pooled_conditions(tmp_path: Path):
     ]  # fmt: skip
     with pytest.raises(ValueError, match="hold 3 runs of method nolearn on scenario s1"):
         write_report(rows, tmp_path)
+
+
+def test_tune_refuses_families_without_a_grid(tmp_path):
+    from conformal_control.bench.tune import tune
+
+    with pytest.raises(ValueError, match="method 'nolearn' has no setting to tune"):
+        tune(tmp_path / "t", families=["nolearn"])
+    with pytest.raises(ValueError, match="unknown method 'fixd'"):
+        tune(tmp_path / "t", families=["fixd"])
+    assert not (tmp_path / "t").exists()
