@@ -19,6 +19,12 @@ The families (``conformal-control bench methods`` lists them with their settings
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
 ``fallback:*``     ``conformal`` with another fallback (``brake``, ``relax``)
 ``acp``            adaptive conformal prediction regions (when registered)
+``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
+``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
+``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
+
+The MPC families are not in the default method set (``--methods mpc,cc_mpc,...``).
 """
 
 from __future__ import annotations
@@ -237,6 +243,65 @@ def _acp(alpha: float) -> Method:
     )
 
 
+#: The MPC families' search on the crossing suites: 500 sampled sequences of 12 steps of
+#: 0.4 s, a plan every video frame (4 control instants), the least violating plan when none
+#: is safe.
+MPC_SEARCH: dict[str, Any] = {
+    "n_samples": 500,
+    "horizon": 12,
+    "dt_plan": 0.4,
+    "replan_every": 4,
+    "fallback": "least_violation",
+}
+
+
+def _mpc(margin: float) -> Method:
+    return Method(
+        "mpc",
+        f"margin={margin:g}m",
+        "sampling MPC, a fixed safe distance d_c + margin to the predictions, no learning",
+        learn=False,
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "margin": margin}},
+    )
+
+
+def _cc_mpc(eps: float) -> Method:
+    return Method(
+        "cc_mpc",
+        f"eps={eps:g}",
+        "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, fixed-eta "
+        "rule on the distance shortfall below d_c + 1 m",
+        params={"epsilon": eps, "eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": dict(MPC_SEARCH)},
+    )
+
+
+def _acp_mpc(alpha: float) -> Method:
+    return Method(
+        "acp_mpc",
+        f"alpha={alpha:g}",
+        "sampling MPC avoiding ACP regions per plan step (ACI on their miscoverage)",
+        rule="aci",
+        rule_params={"alpha": alpha, "gamma": 0.02},
+        roles={"decision_family": "acp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    )
+
+
+def _ecp_mpc(alpha: float) -> Method:
+    return Method(
+        "ecp_mpc",
+        f"alpha={alpha:g}",
+        "sampling MPC avoiding egocentric conformal regions (ACI on their miscoverage)",
+        rule="aci",
+        rule_params={"alpha": alpha, "gamma": 0.02},
+        roles={"decision_family": "ecp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    )
+
+
 #: family -> (default settings, factory, settings meaning)
 METHOD_FAMILIES: dict[str, tuple[tuple[Any, ...], Any, str]] = {
     "nolearn": ((None,), _nolearn, "-"),
@@ -250,6 +315,10 @@ METHOD_FAMILIES: dict[str, tuple[tuple[Any, ...], Any, str]] = {
     "fallback:brake": ((None,), lambda _: _fallback("brake"), "-"),
     "fallback:relax": ((None,), lambda _: _fallback("relax"), "-"),
     "acp": ((0.1,), _acp, "alpha (miscoverage)"),
+    "mpc": ((0.0, 0.25, 0.5), _mpc, "margin (m)"),
+    "cc_mpc": ((0.1,), _cc_mpc, "epsilon (distance shortfall)"),
+    "acp_mpc": ((0.1,), _acp_mpc, "alpha (miscoverage)"),
+    "ecp_mpc": ((0.1,), _ecp_mpc, "alpha (miscoverage)"),
 }
 
 #: The default method set of ``bench run``.
