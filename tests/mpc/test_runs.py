@@ -158,3 +158,11 @@ def test_bench_methods_run_the_mpc_families(scene):
         res = run_episode(scene, max_frames=30, record_animation=False, **kw)
         assert res.config["decision_family"]["name"] == kw["family"]
         assert math.isfinite(res.metrics["lambda_final"])
+
+
+def test_several_robots_refuse_another_family_in_one_line(capsys):
+    from conformal_control.cli import main
+
+    assert main(["run", "--robots", "2", "--family", "mpc", "--frames", "5"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--robots runs the CBF family only" in err[0]
