@@ -26,17 +26,18 @@ import json
 import math
 import os
 import re
-import tempfile
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
+
+from ..fileio import TMP_PREFIX as _TMP_PREFIX
+from ..fileio import TMP_SUFFIX as _TMP_SUFFIX
+from ..fileio import atomic_write
 
 __all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record"]
 
 _FIRST = ["key", "status", "label", "scene", "predictor", "learn", "seed", "max_frames"]
-_TMP_PREFIX = "."
-_TMP_SUFFIX = ".tmp"
 #: Names temporary files had before they were unique (removed when the folder is locked).
 _OLD_TMP = ("results.csv.tmp", "results.parquet.tmp")
 
@@ -341,26 +342,6 @@ class ResultsStore:
                     p.unlink()
                     gone.append(p)
         return gone
-
-
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any]) -> None:
-    """Write ``path`` through ``write(tmp)`` on a unique temporary file, then rename it.
-
-    The temporary file is in the same folder (``.<name>.<random>.tmp``), so the rename is
-    atomic and two writers never share one; it is removed if ``write`` fails.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(
-        dir=path.parent, prefix=f"{_TMP_PREFIX}{path.name}.", suffix=_TMP_SUFFIX
-    )
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def _json_default(obj: Any) -> Any:

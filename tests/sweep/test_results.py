@@ -222,3 +222,44 @@ def test_stale_temp_files_are_removed(tmp_path: Path) -> None:
         p.write_text("x")
     assert sorted(store.remove_stale_temp_files()) == sorted(stale)
     assert keep.exists()
+
+
+def test_tables_have_the_permissions_of_any_new_file(tmp_path: Path) -> None:
+    """Tables were created 0600 (mkstemp's mode): unreadable by the group that shares them."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        store = ResultsStore(tmp_path)
+        store.append(rec("a", status="ok", metrics={"x": 1.0}))
+        written = store.write_tables()
+    finally:
+        os.umask(old)
+    assert written
+    for path in written:
+        assert path.stat().st_mode & 0o777 == 0o644, path
+
+
+def test_a_failed_table_write_names_the_file_and_keeps_the_old_table(
+    tmp_path: Path, monkeypatch
+) -> None:
+    import errno
+
+    from conformal_control.exceptions import OutputNotWritableError
+
+    store = ResultsStore(tmp_path)
+    store.append(rec("a", status="ok", metrics={"x": 1.0}))
+    store.write_tables(parquet=False)
+    before = store.csv_path.read_bytes()
+    store.append(rec("b", status="ok", metrics={"x": 2.0}))
+
+    def full(self: Path, *args: object, **kwargs: object) -> int:
+        self.open("wb").write(b"half a ta")  # what a full disk leaves
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OutputNotWritableError, match=r"results\.csv: no space left"):
+        store.write_tables(parquet=False)
+    monkeypatch.undo()
+    assert store.csv_path.read_bytes() == before  # the previous table, never a truncated one
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
