@@ -295,3 +295,107 @@ def test_ethucy_file_that_is_a_folder(ethucy_dir: Path, tmp_path: Path, capsys) 
     assert main([*argv, "--data-root", str(root)]) == EXIT_ERROR
     line = one_error(capsys)
     assert "extra.txt" in line and "is a folder, not a file" in line
+
+
+# ------------------------------------------------------------------------------ code in files
+class _WritesMarker:
+    """Unpickling this object writes a file: the proof that loading ran code."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[object, tuple[Path, str]]:
+        return (Path.write_text, (self.marker, "code ran"))
+
+
+def test_weights_folder_with_a_pickle_runs_no_code(tmp_path: Path, capsys) -> None:
+    """A config or sweep spec naming ``weights=<folder>`` must not execute the folder."""
+    import pickle
+
+    folder = tmp_path / "weights"
+    folder.mkdir()
+    params = {"estimator": "Ridge", "estimator_params": None, "obs": 8, "horizon": 12}
+    params |= {"model_dt": 0.4, "weights": None, "random_state": 0}
+    (folder / "config.json").write_text(json.dumps({"class": "SklearnPredictor", "params": params}))
+    marker = tmp_path / "pwned"
+    (folder / "model.joblib").write_bytes(pickle.dumps(_WritesMarker(marker)))
+    argv = ["run", "--predictor", "sklearn", "--predictor-param", f"weights={folder}"]
+    assert main([*argv, "--out", str(tmp_path / "r"), "--no-plot"]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "a pickle of an older version, which is not loaded" in line
+    assert not marker.exists()
+
+
+# ------------------------------------------------------------------------------ the step-wise API
+def _stepwise(**kw: object) -> object:
+    from conformal_control.cbf import StepwiseCBF
+
+    return StepwiseCBF("constant_velocity", tau=0.4, dt=0.1, **kw)
+
+
+def _observed(*samples: tuple[list[object], list[list[float]], float]) -> None:
+    ctrl = _stepwise()
+    for ids, pos, t in samples:
+        ctrl.observe(ids, pos, t=t)
+
+
+def _steps(per_sample: int, spacing: float) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    for k in range(3):
+        ctrl.observe([0], [[10.0, 3.0]], t=k * 0.1)
+        for j in range(per_sample):
+            ctrl.step(np.zeros(4), t=k * 0.1 + j * spacing, goal=[20.0, 0.0])
+
+
+def _step_at(t: float) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=[20.0, 0.0])
+    ctrl.step(np.zeros(4), t=t, goal=[20.0, 0.0])
+
+
+def _goal(goal: list[float]) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=goal)
+
+
+# (name, call, words of the one-sentence ValueError)
+STEPWISE: list[tuple[str, Callable[[], object], list[str]]] = [
+    ("duplicate ids", lambda: _observed(([7, 7], [[5.0, 0.0], [3.0, 0.0]], 0.0)), ["id 7"]),
+    ("float id", lambda: _observed(([1.5], [[5.0, 0.0]], 0.0)), ["whole numbers", "1.5"]),
+    ("id of 1e20", lambda: _observed(([1e20], [[5.0, 0.0]], 0.0)), ["too large"]),
+    ("epsilon 5", lambda: _stepwise(epsilon=5.0), ["epsilon must lie in (-1/2, 1/2)"]),
+    (
+        "2 steps per sample",
+        lambda: _steps(2, 0.05),
+        ["step() at t = 0.05 s, expected t = 0.025 s", "4 times"],
+    ),
+    ("8 steps per sample", lambda: _steps(8, 0.0125), ["expected t = 0.025 s"]),
+    ("step at t = -5", lambda: _step_at(-5.0), ["expected t = 0.025 s"]),
+    ("step at t = nan", lambda: _step_at(float("nan")), ["t must be finite"]),
+    ("step at t = 1e9", lambda: _step_at(1e9), ["expected t = 0.025 s"]),
+    (
+        "observe twice at one t",
+        lambda: _observed(([0], [[5.0, 0.0]], 0.0), ([1], [[3.0, 0.0]], 0.0)),
+        ["already observed"],
+    ),
+    ("observe at t = nan", lambda: _observed(([0], [[5.0, 0.0]], float("nan"))), ["finite"]),
+    ("goal of 3 numbers", lambda: _goal([1.0, 2.0, 3.0]), ["goal must be 2 finite numbers"]),
+]
+
+
+@pytest.mark.parametrize(("call", "words"), [c[1:] for c in STEPWISE], ids=[c[0] for c in STEPWISE])
+def test_stepwise_input_contract(call: Callable[[], object], words: list[str]) -> None:
+    with pytest.raises(ValueError) as info:
+        call()
+    message = str(info.value)
+    assert "\n" not in message and not re.search(r"[.!?] +[A-Z][a-z]", message), message
+    for w in words:
+        assert w in message, f"{w!r} not in {message!r}"

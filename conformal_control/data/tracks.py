@@ -7,7 +7,48 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Tracks"]
+__all__ = ["MAX_AGENT_ID", "Tracks", "agent_ids"]
+
+#: Largest agent id (ids are stored as 64-bit integers; float ids are exact below 2**53).
+MAX_AGENT_ID = 2**53
+
+
+def agent_ids(values: Any, what: str = "ids") -> np.ndarray:
+    """Agent ids as an int64 array; whole numbers only, each at most ``2**53`` in size.
+
+    Accepts integer arrays and sequences, and floats that are whole numbers (``3.0``, as
+    text files hold them). Raises :class:`~conformal_control.exceptions.InputError` for a
+    fractional, non-finite, boolean, non-numeric or too large id, naming it; ``what`` says
+    where the ids came from. Uniqueness is the caller's to check (per sample, per frame).
+    """
+    from ..exceptions import InputError
+
+    if not isinstance(values, np.ndarray) and any(
+        isinstance(v, (bool, np.bool_)) for v in np.ravel(np.asarray(values, dtype=object))
+    ):
+        raise InputError(f"{what} must be whole numbers, got a boolean")
+    arr = np.asarray(values)
+    if arr.dtype == bool or arr.dtype.kind not in "iuf":
+        if arr.dtype == object and all(
+            isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in arr.flat
+        ):
+            arr = np.array([int(v) for v in arr.flat], dtype=object).reshape(arr.shape)
+            big = [int(v) for v in arr.flat if abs(int(v)) > MAX_AGENT_ID]
+            if big:
+                raise InputError(f"{what}: id {big[0]} is too large (at most 2**53)")
+            return arr.astype(np.int64)
+        if arr.size == 0:
+            return np.zeros(arr.shape, dtype=np.int64)
+        raise InputError(f"{what} must be whole numbers, got {arr.dtype} values")
+    if arr.dtype.kind == "f":
+        bad = ~np.isfinite(arr) | (arr != np.round(arr))
+        if bad.any():
+            raise InputError(f"{what} must be whole numbers, got {arr[bad].flat[0]!r}")
+    big = np.abs(arr.astype(float)) > MAX_AGENT_ID
+    if big.any():
+        raise InputError(f"{what}: id {arr[big].flat[0]!r} is too large (at most 2**53)")
+    out: np.ndarray = arr.astype(np.int64)
+    return out
 
 
 @dataclass
