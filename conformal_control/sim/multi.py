@@ -331,6 +331,9 @@ def run_multi(
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
 
+    The parameters not listed below are as for
+    :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
+
     Parameters
     ----------
     scene : Scene
@@ -345,8 +348,6 @@ def run_multi(
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor (see
         :class:`~conformal_control.sim.multi_world.MultiRobotWorld`).
-    Others
-        As for :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
 
     Returns
     -------
