@@ -31,6 +31,7 @@ from ..exceptions import (
 )
 from ..loop import ConformalLoop, IntervalLog, LoopResult
 from .build import Flagship, RoleSpec, build_flagship
+from .collisions import account_collisions
 from .metrics import EpisodeMetrics, episode_metrics
 
 __all__ = ["EpisodeResult", "run_episode"]
@@ -406,7 +407,11 @@ def _measure(
     lambda_safe: float | None,
     floor: Any,
     wall: float,
+    positions: np.ndarray | None = None,
 ) -> tuple[EpisodeMetrics, list[dict[str, Any]], dict[str, np.ndarray]]:
+    """The episode's metrics, interval rows and trajectory. ``positions``: the pedestrians
+    the robot met (F, M, 2), when they are not the environment's (default: its simulated
+    crowd, else the recording)."""
     env, scene, si = fl.env, fl.scene, fl.params.si
     units = scene.units
     lam_unit = units.factor("lambda_init")
@@ -449,6 +454,19 @@ def _measure(
             "long_run_holds",
         )
     }
+    if positions is None:
+        positions = getattr(env, "simulated_scene", lambda: scene)().positions
+    collisions = account_collisions(
+        np.column_stack([traj["x"], traj["y"], traj["vx"], traj["vy"]]),
+        traj["frame"] - scene.first_frame,
+        positions,
+        scene.agent_ids,
+        fps=scene.fps,
+        collision_distance=scene.collision_distance,
+        sensing_radius=si["sensing_radius"],
+        v_max=si["v_max"],
+        sample_every=fl.params.tau_frames,
+    )
     metrics = episode_metrics(
         trajectory=traj,
         collision_distance=scene.collision_distance,
@@ -484,6 +502,8 @@ def _measure(
         n_truth_missing=int(sum(iv.diagnostics.get("n_truth_missing", 0) for iv in updates)),
         predictor_info=dict(fl.policy.forecast_info_),
         wall_s=wall,
+        **collisions.figures(),
+        collision_events=[e.as_dict() for e in collisions.events],
     )
     return metrics, intervals, traj
 

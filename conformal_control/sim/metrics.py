@@ -48,6 +48,19 @@ class EpisodeMetrics(Mapping[str, Any]):
     any_collision: bool = _m("-", "at least one collision frame", False)
     d_min: float | None = _m("m", "smallest centre distance to a pedestrian")
     time_in_personal_space: float = _m("s", "time with a surface gap < 0.5 m", 0.0)
+    # -- collision accounting (conformal_control.sim.collisions) -----------------------
+    n_collision_events: int = _m("-", "runs of frames with one pedestrian closer than d_c", 0)
+    n_collide_avoidable: int = _m(
+        "-", "collision frames a point robot could have avoided from first sensing (no pop-in)", 0
+    )
+    n_collide_unavoidable: int = _m("-", "collision frames proven unavoidable (no pop-in)", 0)
+    n_collide_undecided: int = _m("-", "collision frames neither proven (no pop-in)", 0)
+    n_collide_at_fault: int = _m(
+        "-", "collision frames with the robot moving toward its nearest pedestrian", 0
+    )
+    n_collide_popin: int = _m("-", "collision frames of pedestrians that popped in nearby", 0)
+    penetration_max: float | None = _m("m", "deepest intrusion, d_c - distance")
+    collision_events: list[dict[str, Any]] | None = _m("-", "every collision event, classified")
     # -- conformal variable and loss --------------------------------------------------
     l_avg: float | None = _m("-", "average loss over the lambda updates (learning runs)")
     l_avg_applied: float | None = _m("-", "average loss with the lambda actually applied")
@@ -161,7 +174,7 @@ class EpisodeMetrics(Mapping[str, Any]):
 
 
 _FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EpisodeMetrics))
-_NON_SCALAR = frozenset({"predictor_info", "units"})
+_NON_SCALAR = frozenset({"predictor_info", "units", "collision_events"})
 
 
 def metric_fields() -> dict[str, tuple[str, str]]:

@@ -445,7 +445,9 @@ def run_multi(
         rec = world.robots[i]
         # the robot's record is what the single-robot measurement reads of an environment
         view = dataclasses.replace(fl, env=rec)  # type: ignore[arg-type]
-        m, intervals, traj = _measure(view, st.result(), learn, lambda_safe, floor, own[i])
+        m, intervals, traj = _measure(
+            view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
+        )
         contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
         m = dataclasses.replace(
             m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
