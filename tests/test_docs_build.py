@@ -322,7 +322,9 @@ def _setup_command() -> str:
     lines = code.strip().splitlines()
     assert len(lines) == 2 and lines[1] == ".venv/bin/python -m pytest", lines
     setup = lines[0]
-    assert setup.startswith("python3 -m venv .venv && .venv/bin/pip install -q torch==2.13.0 ")
+    assert setup.startswith(
+        "python3 -m venv .venv && .venv/bin/pip install -q -c constraints.txt torch==2.13.0 "
+    )
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     extras = sorted(pyproject["project"]["optional-dependencies"])
     installed = re.search(r'-e "\.\[([\w,]+)\]"', setup)
