@@ -92,7 +92,7 @@ def _rss_mb() -> float:
 def child_crossing(cache: Path, n: int, batch_size: int) -> None:
     """Run the batch engine on the cached scenes 0 .. n-1; print a JSON line."""
     warnings.simplefilter("ignore")
-    from conformal_control.sim.batch import run_batch
+    from conformal_control.engines.batch import run_batch
 
     run_batch([load_cached(cache, 0)], batch_size=batch_size)  # load the compiled kernels
     load = {"wall": 0.0, "cpu": 0.0}
@@ -204,8 +204,8 @@ def bench_suite(args: argparse.Namespace) -> dict[str, float]:
     """Print and return the figures of the suite's dev split (see the module docstring)."""
     from conformal_control.bench import load_scenario, load_suite
     from conformal_control.bench.methods import expand_methods
+    from conformal_control.engines.batch import run_batch, supports
     from conformal_control.sim import run_episode
-    from conformal_control.sim.batch import run_batch, supports
 
     warnings.simplefilter("ignore")
     suite = load_suite("crossings-v1")

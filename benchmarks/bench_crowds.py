@@ -256,12 +256,12 @@ def row(name: str, wall: np.ndarray, cpu: np.ndarray, base: tuple | None = None)
 def _wire(scene, params: dict):
     """The flagship's components (env, policy, loss, rule) with whichever builder exists."""
     try:  # the builder of later layouts
-        from conformal_control.sim.build import build_flagship
+        from conformal_control.flagship.build import build_flagship
 
         return build_flagship(scene, params)
     except ImportError:
         from conformal_control import registry
-        from conformal_control.sim.config import resolve_params
+        from conformal_control.flagship.params import resolve_params
         from conformal_control.sim.episode import build_components
 
         predictor = registry.create("predictor", "constant_velocity")
@@ -271,7 +271,7 @@ def _wire(scene, params: dict):
 def bench_episodes(data_root: Path) -> None:
     from conformal_control.data import load_scene
     from conformal_control.loop import ConformalLoop
-    from conformal_control.sim.reactive import make_environment_like
+    from conformal_control.world.reactive import make_environment_like
 
     scene = load_scene("nexus_4", data_root / "sdd")
     params = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}

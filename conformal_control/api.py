@@ -17,8 +17,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .sim.build import RoleSpec
-from .sim.episode import EpisodeResult
+from .flagship.build import RoleSpec
+from .results.episode import EpisodeResult
 
 __all__ = ["run"]
 

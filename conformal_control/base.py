@@ -36,10 +36,8 @@ Sign convention (all of the toolkit): a *smaller* lambda is *more conservative*.
 from __future__ import annotations
 
 import functools
-import importlib
 import inspect
 import math
-import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any, ClassVar, Generic, Literal, TypeVar
@@ -293,29 +291,3 @@ class UpdateRule(Plugin, ABC):
     @abstractmethod
     def value(self) -> float:
         """Current lambda."""
-
-
-# --------------------------------------------------------------------------------------
-# Deprecated locations (0.1): the flagship's roles moved beside their users in 0.2.
-_MOVED = {
-    "Predictor": "conformal_control.predictors.base",
-    "PredictionQuery": "conformal_control.predictors.base",
-    "Forecast": "conformal_control.predictors.base",
-    "Barrier": "conformal_control.cbf.roles",
-    "SafetyFilter": "conformal_control.cbf.roles",
-    "FilterResult": "conformal_control.cbf.roles",
-    "ReferenceController": "conformal_control.cbf.roles",
-    "Dynamics": "conformal_control.cbf.roles",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED:
-        warnings.warn(
-            f"conformal_control.base.{name} moved to {_MOVED[name]}.{name} in 0.2; "
-            "the old location will be removed in 0.3",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -28,7 +28,7 @@ import numpy as np
 from .base import DecisionFamily, Environment, Loss, UpdateRule
 from .monitor import GuaranteeMonitor
 
-__all__ = ["ConformalLoop", "ConformalStepper", "IntervalLog", "LoopResult"]
+__all__ = ["ConformalLoop", "ConformalStepper", "IntervalLog", "LoopResult", "LossAt"]
 
 
 @dataclass
@@ -187,7 +187,7 @@ class ConformalStepper:
         if l_k is not None:
             if self.learn:
                 if rule.uses_loss_function:
-                    rule.set_loss_function(_LossAt(loss, record, truth))
+                    rule.set_loss_function(LossAt(loss, record, truth))
                 self.lam_ = monitor.update(l_k)
             else:
                 monitor.observe(l_k, lam)
@@ -275,7 +275,7 @@ class ConformalLoop(ConformalStepper):
         return self.result()
 
 
-class _LossAt:
+class LossAt:
     """l_k as a function of lambda: the interval's loss re-evaluated at another lambda."""
 
     def __init__(self, loss: Loss[Any, Any], record: Any, truth: Any) -> None:

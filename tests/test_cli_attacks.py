@@ -135,6 +135,41 @@ def test_config_that_is_a_folder_or_garbage(tmp_path: Path, capsys) -> None:
     assert "no such file" in one_error(capsys)
 
 
+@pytest.mark.parametrize(
+    ("stored", "words"),
+    [
+        ({"no_learning": "false"}, ["no_learning", "true or false", "'false'"]),
+        ({"frames": "abc"}, ["frames", "abc"]),
+        ({"frames": -3}, ["frames", "-3"]),
+        ({"seed": 1.5}, ["seed", "1.5"]),
+        ({"crowd": "stampede"}, ["crowd", "stampede"]),
+        ({"goal": [[0.1, "x"]]}, ["goal", "0.1,x"]),
+        ({"epsilon": {"a": 1}}, ["epsilon", "numbers or text"]),
+    ],
+)
+def test_config_replay_is_type_checked(tmp_path: Path, capsys, stored, words) -> None:
+    (tmp_path / "config.json").write_text(json.dumps({"cli": {"scene": "crossing", **stored}}))
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(tmp_path), "--out", str(out)]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert all(w in line for w in words), line
+    assert not out.exists()
+
+
+def test_config_replay_never_applies_an_output_folder(tmp_path: Path, capsys) -> None:
+    """A config.json naming an output folder (or anything a run does not store) is not
+    obeyed: the replay writes where this command line says, and says what it skipped."""
+    victim = tmp_path / "victim"
+    cfg = {"cli": {"scene": "crossing", "frames": 20, "out": str(victim), "no_plot": True}}
+    (tmp_path / "config.json").write_text(json.dumps(cfg))
+    out = tmp_path / "mine"
+    assert main(["run", "--config", str(tmp_path), "--out", str(out), "--no-plot"]) == 0
+    assert not victim.exists() and (out / "metrics.json").exists()
+    assert json.loads((out / "metrics.json").read_text())["frames"] <= 21
+    err = capsys.readouterr().err
+    assert "no_plot, out are not options a run stores" in err
+
+
 def test_fetch_data_offline_is_one_line(tmp_path: Path, capsys) -> None:
     # port 9 on loopback refuses connections at once: the same path as an offline machine
     argv = ["fetch-data", "--dest", str(tmp_path / "d"), "--only", "sdd:nexus_4"]

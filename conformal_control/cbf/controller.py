@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
 from typing import Any
 
 import numpy as np
 
-from ..base import DecisionFamily
+from ..base import DecisionFamily, Environment
+from ..data.synthetic import crossing_scene
 from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .barriers import APFBarrier
 from .constraint import ConformalConstraint
+from .dynamics import VelocityTrackingDoubleIntegrator
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
+from .records import CBFIntervalRecord, CBFTruth, ControlState
 from .reference import AttractiveField
 from .roles import FilterResult, ReferenceController, SafetyFilter
 
@@ -21,6 +24,7 @@ __all__ = [
     "CBFIntervalRecord",
     "ConformalCBFController",
     "ControlState",
+    "CrossingTestbed",
     "PredictorError",
     "merge_forecast_info",
 ]
@@ -53,45 +57,6 @@ def merge_forecast_info(total: dict[str, Any], info: dict[str, Any]) -> None:
             kept.extend(items[:room])
             if len(items) > room:
                 total[f"{key}_dropped"] = total.get(f"{key}_dropped", 0) + len(items) - room
-
-
-@dataclass
-class ControlState:
-    """Decision input at one control instant.
-
-    Attributes
-    ----------
-    x : ndarray of shape (4,)
-        Ego state (x, y, vx, vy) in SI units.
-    t : float
-        Time (s) since the episode started.
-    step : int
-        Index of the control instant within the current interval.
-    goal : ndarray of shape (2,)
-        The task's current goal (m).
-    """
-
-    x: np.ndarray
-    t: float
-    step: int
-    goal: np.ndarray
-
-
-@dataclass
-class CBFIntervalRecord:
-    """What the controller did during one interval (the loss's input)."""
-
-    ids: np.ndarray
-    x_ego: np.ndarray  # (S, 2) ego position at each executed control instant
-    v_ego: np.ndarray  # (S, 2) velocity decision applied (v_QP)
-    x_pred: np.ndarray  # (S, N, 2) interpolated predicted positions
-    v_pred: np.ndarray  # (S, N, 2) their time derivatives (m/s)
-    lam_applied: np.ndarray  # (S,) lambda the decision satisfies (nan for brake/hold)
-    status: list[str] = field(default_factory=list)
-
-    @property
-    def n_steps(self) -> int:
-        return int(self.x_ego.shape[0])
 
 
 class ConformalCBFController(
@@ -172,10 +137,8 @@ class ConformalCBFController(
         ]
 
     @classmethod
-    def _unit_test_environment(cls) -> Any:
-        from ..sim.environment import ReplayEnvironment
-
-        return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
+    def _unit_test_environment(cls) -> CrossingTestbed:
+        return CrossingTestbed()
 
     def reset(self) -> None:
         self.constraint.validate()
@@ -407,3 +370,113 @@ class ConformalCBFController(
             lam_applied=np.array(self._rec_lam, dtype=float),
             status=list(self._rec_status),
         )
+
+
+class CrossingTestbed(Environment[PredictionQuery, ControlState, np.ndarray, CBFTruth]):
+    """A small world for the contract checks of the controller: pedestrians of the built-in
+    crossing scene replayed around a robot driven by a double integrator, sensed every
+    ``tau_frames`` frames (the controller's ``_unit_test_environment()``).
+
+    It lives beside the controller, in this module, so that the family's checks need
+    nothing from a higher floor of the package and partner and family do not import each
+    other; the full replay world (waypoints, frame log, time limits) is
+    :class:`conformal_control.world.replay.ReplayEnvironment`.
+
+    Parameters
+    ----------
+    frames : int
+        Frames simulated (the episode ends after them or at the goal).
+    tau_frames : int
+        Frames per interval.
+    substeps : int
+        Control instants per frame.
+    sensing_radius : float
+        Sensor range (m).
+    seed : int
+        Seed of the crossing scene.
+    """
+
+    def __init__(
+        self,
+        frames: int = 24,
+        tau_frames: int = 4,
+        substeps: int = 2,
+        sensing_radius: float = 10.0,
+        seed: int = 0,
+    ) -> None:
+        self.frames = frames
+        self.tau_frames = tau_frames
+        self.substeps = substeps
+        self.sensing_radius = sensing_radius
+        self.seed = seed
+
+    @classmethod
+    def _unit_test_family(cls) -> ConformalCBFController:
+        return ConformalCBFController(**ConformalCBFController._unit_test_params()[0])
+
+    def reset(self) -> None:
+        scene = crossing_scene(seed=self.seed, duration=4.0)
+        self._scene = scene
+        self._plant = VelocityTrackingDoubleIntegrator(K_acc=10.0)
+        self._dt_frame = 1.0 / scene.fps
+        self._dt = self._dt_frame / self.substeps
+        self._fi = scene.start_index
+        self._last = min(scene.n_frames - 1, scene.start_index + self.frames)
+        self._x = np.array([*scene.start, 0.0, 0.0])
+        self._t = 0.0
+        self._step = 0
+        self._done = False
+        self._sensed = np.zeros(0, dtype=np.int64)
+        self._k_start = self._fi
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def _window(self, lo: int, hi: int) -> np.ndarray:
+        pos = self._scene.positions
+        out = np.full((self._sensed.size, hi - lo, 2), np.nan)
+        a, b = max(lo, 0), min(hi, pos.shape[0])
+        if b > a and self._sensed.size:
+            out[:, a - lo : b - lo] = pos[a:b, self._sensed].transpose(1, 0, 2)
+        return out
+
+    def sense(self) -> PredictionQuery:
+        pos = self._scene.positions[self._fi]
+        d = np.hypot(*(np.nan_to_num(pos, nan=np.inf) - self._x[:2]).T)
+        self._sensed = np.flatnonzero(d <= self.sensing_radius)
+        self._k_start, self._step = self._fi, 0
+        return PredictionQuery(
+            ids=self._scene.agent_ids[self._sensed],
+            history=self._window(self._fi - 7, self._fi + 1),
+            dt=self._dt_frame,
+            horizon=self.tau_frames,
+            t=self._t,
+            frame=self._fi,
+            scene=self._scene.name,
+        )
+
+    def control_instants(self) -> int:
+        return max(min(self.tau_frames, self._last - self._fi), 0) * self.substeps
+
+    def state(self) -> ControlState:
+        goal = self._scene.goals[-1].copy()
+        return ControlState(x=self._x.copy(), t=self._t, step=self._step, goal=goal)
+
+    def apply(self, decision: np.ndarray) -> None:
+        if self._done:
+            raise RuntimeError("apply() called on a finished episode")
+        self._x = self._plant.step(self._x, decision, self._dt)
+        self._t += self._dt
+        self._step += 1
+        goal = self._scene.goals[-1]
+        if math.hypot(*(self._x[:2] - goal)) <= self._scene.goal_radius:
+            self._done = True
+        if self._step % self.substeps == 0:
+            self._fi += 1
+            self._done = self._done or self._fi >= self._last
+
+    def reveal(self) -> CBFTruth:
+        frames = -(-self._step // self.substeps)
+        samples = self._window(self._k_start, self._k_start + frames + 1)
+        return CBFTruth(samples=samples, dt=self._dt_frame, substeps=self.substeps)

@@ -3,37 +3,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..base import Loss
 from .constraint import ConformalConstraint
-from .controller import CBFIntervalRecord
 from .interp import interpolate_at_substeps
+from .records import CBFIntervalRecord, CBFTruth
 
 __all__ = ["CBFGapLoss", "CBFTruth"]
-
-
-@dataclass
-class CBFTruth:
-    """The sensor's true trajectories of the agents sensed at the interval's start.
-
-    Attributes
-    ----------
-    samples : ndarray of shape (N, F + 1, 2)
-        True positions at the interval's sample times (its start included), NaN where an
-        agent was not observed (vanished, left the view).
-    dt : float
-        Sample spacing (s).
-    substeps : int
-        Control instants per sample.
-    """
-
-    samples: np.ndarray
-    dt: float
-    substeps: int
 
 
 class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):

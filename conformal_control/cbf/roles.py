@@ -26,6 +26,7 @@ from ..base import Plugin
 
 __all__ = [
     "Barrier",
+    "CommandKind",
     "Dynamics",
     "Fallback",
     "FilterPrimitives",
@@ -215,14 +216,66 @@ class ReferenceController(Plugin, ABC):
         """Reset internal state (validate parameters here)."""
 
 
+#: What a dynamics' command is: ``"velocity"`` (a world-frame velocity, m/s, bounded by the
+#: run's speed limit), ``"acceleration"`` (m/s^2) or ``"unicycle"`` (forward speed v in m/s
+#: and turn rate omega in rad/s, bounded by :meth:`Dynamics.command_limits`).
+CommandKind = Literal["velocity", "acceleration", "unicycle"]
+
+
 class Dynamics(Plugin, ABC):
-    """Plant of the ego agent: ``state`` is a flat float array ``(x, y, vx, vy)``."""
+    """Plant of the ego agent: ``state`` is a flat float array starting ``(x, y, vx, vy)``
+    (position and world-frame velocity, SI); a plant with more state appends it (the
+    unicycle's heading is ``state[4]``).
+
+    Besides :meth:`step`, a plant tells planners what its command is (:attr:`command_kind`,
+    :meth:`command_limits`) and rolls many command sequences out at once
+    (:meth:`rollout`; the default loops over :meth:`step`, plants override it with a
+    vectorised equivalent that the contract kit compares with the loop).
+    """
 
     state_dim: ClassVar[int] = 4
+    command_kind: ClassVar[CommandKind] = "velocity"
 
     @abstractmethod
     def step(self, state: np.ndarray, command: np.ndarray, dt: float) -> np.ndarray:
         """State after holding ``command`` for ``dt`` seconds (returns a new array)."""
+
+    def initial_state(self, position: np.ndarray, heading: float = 0.0) -> np.ndarray:
+        """The state of a robot at rest at ``position`` (m) facing ``heading`` (rad; plants
+        without a heading ignore it)."""
+        out = np.zeros(self.state_dim)
+        out[:2] = np.asarray(position, dtype=float)[:2]
+        return out
+
+    def command_limits(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Box ``(low, high)`` of admissible commands, or ``None`` when the plant itself
+        has none (a velocity command is then bounded by the run's speed limit)."""
+        return None
+
+    def rollout(self, state: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
+        """States after each step of many command sequences, all from ``state``.
+
+        Parameters
+        ----------
+        state : ndarray of shape (state_dim,)
+        commands : ndarray of shape (N, H, 2)
+            N sequences of H commands, each held for ``dt`` seconds.
+        dt : float
+
+        Returns
+        -------
+        ndarray of shape (N, H, state_dim)
+            ``out[n, h]`` is the state after commands ``0..h`` of sequence ``n``.
+        """
+        cmd = np.asarray(commands, dtype=float)
+        n, h = cmd.shape[:2]
+        out = np.empty((n, h, self.state_dim))
+        for i in range(n):
+            x = np.asarray(state, dtype=float)
+            for j in range(h):
+                x = self.step(x, cmd[i, j], dt)
+                out[i, j] = x
+        return out
 
     def position(self, state: np.ndarray) -> np.ndarray:
         """Position part of the state (metres)."""

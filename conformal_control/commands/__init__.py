@@ -74,7 +74,7 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     import warnings
 
     from ..exceptions import InputError, OptionConflictWarning
-    from ..sim.config import parse_value
+    from ..flagship.params import parse_value
 
     out: dict[str, Any] = {}
     raw: dict[str, str] = {}

@@ -55,7 +55,7 @@ def _fmt(value: Any) -> str:
 @_params_args.handler
 def _params(args: argparse.Namespace) -> int:
     from ..data.units import PARAM_DIMENSIONS
-    from ..sim.config import PARAMETERS, UNIT_SUFFIXES
+    from ..flagship.params import PARAMETERS, UNIT_SUFFIXES
 
     if not args.scene:
         print(
@@ -73,7 +73,7 @@ def _params(args: argparse.Namespace) -> int:
         return 0
 
     from ..data import load_scene
-    from ..sim.config import resolve_params
+    from ..flagship.params import resolve_params
 
     scene = load_scene(args.scene, args.data_root)
     resolved = resolve_params(scene, {})

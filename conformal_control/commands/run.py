@@ -187,15 +187,29 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 
 # ------------------------------------------------------------------------------ replay
-def _explicit_options(argv: list[str]) -> dict[str, Any]:
-    """The ``run`` options given on this command line (defaults left out)."""
-    from ..cli import build_parser
-
-    parser = build_parser()
-    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    for action in subs.choices["run"]._actions:
+def _run_parser() -> argparse.ArgumentParser:
+    """The command's own parser: the options :func:`_run_args` declares, every default
+    suppressed (a parsed namespace holds only what was given), errors raised rather than
+    printed."""
+    parser = argparse.ArgumentParser(
+        prog="conformal-control run", add_help=False, exit_on_error=False
+    )
+    _run_args(parser)
+    parser.add_argument("-q", "--quiet", action="store_true")
+    parser.add_argument("-v", "--verbose", action="count")
+    for action in parser._actions:
         action.default = argparse.SUPPRESS
-    ns = vars(parser.parse_args(argv))
+    return parser
+
+
+def _explicit_options(argv: list[str]) -> dict[str, Any]:
+    """The ``run`` options given on this command line (defaults left out).
+
+    ``argv`` is the whole command line: global flags (``-q``, ``-v``: no values), the
+    command name, then the command's own options.
+    """
+    name = next((i for i, a in enumerate(argv) if not a.startswith("-")), None)
+    ns = vars(_run_parser().parse_args(argv[name + 1 :] if name is not None else argv))
     return {k: v for k, v in ns.items() if k not in ("command", "quiet", "verbose")}
 
 
@@ -212,6 +226,78 @@ def _stored_options(args: argparse.Namespace, data_root: str | None) -> dict[str
         out[key] = value
     out["data_root"] = data_root
     return out
+
+
+def _option_text(value: Any) -> str:
+    """A stored option value as the command line types it (a pair as ``fx,fy``)."""
+    if isinstance(value, (list, tuple)):
+        return ",".join(_option_text(v) for v in value)
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise TypeError
+    return str(value)
+
+
+def _replayed_options(stored: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The options a config.json stores (its ``cli`` entry), checked as the command line
+    checks them: each is turned back into the flags that set it and parsed by the
+    command's own parser (types, ranges, choices). Only the options the tool stores are
+    applied: an output folder (``out``) never is, nor anything else outside the run's
+    identity (unknown keys are reported and skipped).
+
+    Raises
+    ------
+    InputError
+        For a value of the wrong type (``no_learning: "false"``, ``frames: "abc"``): one
+        line naming the file, the key and what it must be.
+    """
+    from ..exceptions import IgnoredOptionWarning, InputError
+
+    parser = _run_parser()
+    actions = {a.dest: a for a in parser._actions if a.option_strings and a.dest not in _NOT_STORED}
+    applied: dict[str, Any] = {}
+    skipped = []
+    for key, value in stored.items():
+        action = actions.get(key)
+        if action is None:
+            skipped.append(key)
+            continue
+        if value is None:
+            continue
+        flag = action.option_strings[-1]
+        where = f"--config {path}: {key}"
+        if isinstance(action, argparse._StoreTrueAction):
+            if not isinstance(value, bool):
+                raise InputError(f"{where} must be true or false, got {value!r}")
+            tokens = [flag] if value else []
+        else:
+            items = value if isinstance(action, argparse._AppendAction) else [value]
+            if not isinstance(items, list):
+                raise InputError(f"{where} must be a list, got {value!r}")
+            tokens = []
+            for item in items:
+                try:
+                    tokens += [flag, _option_text(item)]
+                except TypeError:
+                    raise InputError(
+                        f"{where} must be {'a list of ' if len(items) > 1 else ''}"
+                        f"numbers or text, got {item!r}"
+                    ) from None
+        try:
+            ns = vars(parser.parse_args(tokens))
+        except argparse.ArgumentError as exc:
+            raise InputError(f"{where}: {exc.message}") from None
+        if key in ns:
+            applied[key] = ns[key]
+    if skipped:
+        warnings.warn(
+            IgnoredOptionWarning(
+                f"--config {path}: {', '.join(sorted(skipped))} "
+                f"{'is not an option' if len(skipped) == 1 else 'are not options'} a run "
+                "stores, so not replayed"
+            ),
+            stacklevel=2,
+        )
+    return applied
 
 
 def _apply_config(args: argparse.Namespace) -> None:
@@ -235,18 +321,14 @@ def _apply_config(args: argparse.Namespace) -> None:
             f"--config {path} was not written by `conformal-control run` (it has no 'cli' "
             "entry), so it cannot be replayed from the command line"
         )
+    replayed = _replayed_options(stored, path)
     explicit = _explicit_options(getattr(args, "argv", []))
-    for key, value in stored.items():
-        if not hasattr(args, key) or key in explicit:
-            continue
-        if key == "start" and value is not None:
-            value = tuple(value)
-        elif key == "goal" and value is not None:
-            value = [tuple(g) for g in value]
-        setattr(args, key, value)
+    for key, value in replayed.items():
+        if key not in explicit:
+            setattr(args, key, value)
     for key in ("param", "predictor_param", "rule_param", *(f"{r}_param" for r in _ROLES)):
-        if key in explicit and stored.get(key):
-            merged = {i.partition("=")[0].strip(): i for i in stored[key]}
+        if key in explicit and replayed.get(key):
+            merged = {i.partition("=")[0].strip(): i for i in replayed[key]}
             merged.update({i.partition("=")[0].strip(): i for i in explicit[key]})
             setattr(args, key, list(merged.values()))
 
@@ -356,10 +438,10 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..data import load_scene
     from ..data.paths import resolve_data_root
+    from ..flagship.params import check_names, resolve_params
     from ..progress import progress
-    from ..sim.config import check_names, resolve_params
+    from ..results.rundir import write_run_dir
     from ..sim.episode import run_episode
-    from ..sim.rundir import write_run_dir
 
     log = logging.getLogger("conformal_control.run")
     if args.config:

@@ -7,8 +7,8 @@
 * :class:`~conformal_control.crowds.crowd.Crowd` - seeds a model from the recording
   (positions, velocities, waypoints) and runs it around the robot, in full or mixed mode;
 * the episode's environment with such a crowd is
-  :class:`~conformal_control.sim.reactive.ReactiveEnvironment` (built by
-  :func:`~conformal_control.sim.reactive.make_environment`, ``crowd="replay" |
+  :class:`~conformal_control.world.reactive.ReactiveEnvironment` (built by
+  :func:`~conformal_control.world.reactive.make_environment`, ``crowd="replay" |
   "social_force" | "orca" | "mixed"``).
 """
 

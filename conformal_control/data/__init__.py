@@ -1,8 +1,9 @@
 """Data: loaders (SDD raw and TrajNet), scenes, the built-in scene, data-root handling."""
 
+from .catalog import load_scene
 from .paths import ENV_VAR, DataNotFoundError, ethucy_root, resolve_data_root, sdd_root
 from .scene import Scene, scene_from_tracks
-from .scenes import PAPER_SCENES, TABLE_I, TABLE_II, load_scene, scene_names
+from .scenes import PAPER_SCENES, TABLE_I, TABLE_II, scene_names
 from .sdd import SDD_FPS, load_scales, read_annotations, sdd_video
 from .synthetic import crossing_scene
 from .tracks import Tracks

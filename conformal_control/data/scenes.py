@@ -362,14 +362,14 @@ def load_scene(
     they override the registry's values. ``start_m`` and ``goals_m`` give them in metres
     instead (ETH/UCY scenes need them; on SDD scenes they replace the fractions).
     ``last_frame`` ends the replayed data early (a smaller scene for a short episode).
-    ``seed`` only matters for ``crossing``. ``scenario:<suite>/<id>`` is a scenario of a
-    shipped benchmark suite (its time limit in ``scene.meta["max_frames"]``).
+    ``seed`` only matters for ``crossing``. ``scenario:<suite>/<id>`` (a scenario of a
+    shipped benchmark suite) is read by :func:`conformal_control.data.catalog.load_scene`,
+    which resolves every name (``conformal_control.data.load_scene`` is that one).
     """
     if name.startswith("scenario:"):
-        from .suites import load_scenario, shipped_scenario  # suites reads scenes here
-
-        suite, _, sid = name[len("scenario:") :].partition("/")
-        return load_scenario(shipped_scenario(suite, sid), data_root)
+        raise ValueError(
+            f"{name!r} is a benchmark scenario: load it with conformal_control.data.load_scene"
+        )
     if name == "crossing":
         if any(v is not None for v in (start, goals, start_frame, start_m, goals_m)):
             raise ValueError("the built-in crossing scene has a fixed start, goal and frame")

@@ -28,23 +28,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["PARAM_DIMENSIONS", "SI", "UnitSystem"]
+from ..spec import PARAM_DIMENSIONS  # the dimensions come from the one parameter table
 
-#: parameter -> (length exponent, time exponent); parameters not listed are SI already.
-PARAM_DIMENSIONS: dict[str, tuple[int, int]] = {
-    "rho0": (1, 0),
-    "sensing_radius": (1, 0),
-    "K_rep": (2, 0),
-    "a": (0, -1),
-    "K_att": (0, -1),
-    "K_acc": (0, -1),
-    "lambda_init": (0, -1),
-    "lambda_min": (0, -1),
-    "lambda_max": (0, -1),
-    "eta": (0, -1),
-    "loss_scale": (0, -1),
-    "tau": (0, 1),
-}
+__all__ = ["PARAM_DIMENSIONS", "SI", "UnitSystem"]
 
 
 @dataclass(frozen=True)

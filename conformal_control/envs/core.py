@@ -1,6 +1,6 @@
 """The engine of the RL environments: robots in a crowd, each with a conformal monitor.
 
-:class:`CrowdCore` runs a :class:`~conformal_control.sim.multi_world.MultiRobotWorld` one
+:class:`CrowdCore` runs a :class:`~conformal_control.world.multi.MultiRobotWorld` one
 control instant per call and computes, for every robot, what an RL environment returns:
 its observation, reward and information. The gymnasium environment is a core with one
 robot; the PettingZoo environment a core with several.
@@ -60,10 +60,10 @@ from typing import Any
 import numpy as np
 
 from ..data.scene import Scene
+from ..flagship.build import Flagship, RoleSpec, build_flagship
 from ..loop import ConformalStepper
 from ..predictors.base import PredictionQuery
-from ..sim.build import Flagship, RoleSpec, build_flagship
-from ..sim.multi_world import MultiRobotWorld
+from ..world.multi import MultiRobotWorld
 from .roles import GivenVelocity, MonitorFilter
 
 __all__ = ["CrowdCore", "StepOutcome"]
@@ -101,7 +101,8 @@ class CrowdCore:
         Run parameters (see ``conformal-control params``) in ``units``.
     units : {"scene", "si"}
     crowd, crowd_params
-        Pedestrians replayed or reactive (see :func:`~conformal_control.sim.build.build_flagship`).
+        Pedestrians replayed or reactive (see
+        :func:`~conformal_control.flagship.build.build_flagship`).
     max_agents : int
         Agents in an observation (nearest first).
     predictor, predictor_params, rule, rule_params

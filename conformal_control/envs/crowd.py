@@ -20,7 +20,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ..data.scene import Scene
-from ..sim.build import RoleSpec
+from ..flagship.build import RoleSpec
 from .core import CrowdCore, load
 
 __all__ = ["ConformalCrowdEnv", "observation_space"]

@@ -23,8 +23,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from ..data.scene import Scene
-from ..sim.build import RoleSpec
-from ..sim.multi import _as_tasks, robot_tasks
+from ..flagship.build import RoleSpec
+from ..sim.multi import as_tasks, robot_tasks
 from .core import CrowdCore, load
 from .crowd import observation_space
 
@@ -87,7 +87,7 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
         self.render_mode = render_mode
         sc = load(scene, data_root)
         if starts is not None or goals is not None:
-            s, tasks = _as_tasks(starts, goals)
+            s, tasks = as_tasks(starts, goals)
         else:
             s, tasks = robot_tasks(sc, robots, layout, radius=radius, center=center)
         self.core = CrowdCore(

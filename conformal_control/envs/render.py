@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sim.multi_world import MultiRobotWorld
+from ..world.multi import MultiRobotWorld
 
 __all__ = ["render_world"]
 

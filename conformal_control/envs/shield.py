@@ -37,8 +37,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from ..flagship.build import RoleSpec, build_flagship
 from ..loop import ConformalStepper
-from ..sim.build import RoleSpec, build_flagship
 from .crowd import ConformalCrowdEnv
 from .roles import GivenVelocity, LastSolve, RecordingFilter
 
@@ -61,7 +61,7 @@ class ConformalShield(
     predictor, predictor_params, barrier, barrier_params, safety_filter,
     safety_filter_params, fallback, loss, loss_params, rule, rule_params
         The shield's roles (names or instances), as for
-        :func:`~conformal_control.sim.build.build_flagship`; the default is the flagship's
+        :func:`~conformal_control.flagship.build.build_flagship`; the default is the flagship's
         (constant velocity, APF barrier, the piqp QP with the lambda-search fallback, the
         gap loss, the fixed-step rule).
     learn : bool

@@ -129,7 +129,7 @@ def render_animation(
     from matplotlib.patches import Circle
     from tqdm import tqdm
 
-    from .run import _mpl
+    from .run import pyplot
 
     out = Path(out)
     suffix = out.suffix.lower()
@@ -137,7 +137,7 @@ def render_animation(
         raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
     rec = load_record(source)
     frames = animation_frames(rec, start, end, fps)
-    plt = _mpl()
+    plt = pyplot()
 
     t = np.asarray(rec["t"], dtype=float)
     robot = np.asarray(rec["robot"], dtype=float)

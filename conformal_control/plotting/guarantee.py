@@ -40,9 +40,9 @@ def plot_guarantee(
     path : path, optional
         Where to save the figure (PNG); the figure is returned either way.
     """
-    from .run import SAVE_DPI, _mpl, _png_options
+    from .run import SAVE_DPI, png_options, pyplot
 
-    plt = _mpl()  # Agg outside Jupyter; keeps the inline backend in notebooks
+    plt = pyplot()  # Agg outside Jupyter; keeps the inline backend in notebooks
     # a fixed layout (a layout engine would cost a second drawing pass): room on the left
     # for the tick labels and axis labels, below for the x label, above for the title
     fig: Figure
@@ -126,6 +126,6 @@ def plot_guarantee(
     ax_l.set_xlabel("update k")
     ax_l.set_ylabel(lambda_label)
     if path is not None:
-        fig.savefig(path, dpi=SAVE_DPI, **_png_options(path))
+        fig.savefig(path, dpi=SAVE_DPI, **png_options(path))
         plt.close(fig)
     return fig

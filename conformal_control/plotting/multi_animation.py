@@ -96,7 +96,7 @@ def render_multi_animation(
     from tqdm import tqdm
 
     from .animation import animation_frames
-    from .run import _mpl
+    from .run import pyplot
 
     out = Path(out)
     suffix = out.suffix.lower()
@@ -104,7 +104,7 @@ def render_multi_animation(
         raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
     rec = _load(source)
     frames = animation_frames(rec, start, end, fps)
-    plt = _mpl()
+    plt = pyplot()
 
     t = np.asarray(rec["t"], dtype=float)
     robots = np.asarray(rec["robots"], dtype=float)

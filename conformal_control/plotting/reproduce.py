@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .run import _mpl, plot_scene
+from .run import plot_scene, pyplot
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -31,7 +31,7 @@ def _save(fig: Any, path: str | Path, dpi: int) -> None:
     The figure is rendered once and its pixels are quantised in memory (no full-colour
     PNG encoded, read back and encoded again).
     """
-    plt = _mpl()
+    plt = pyplot()
     try:
         from PIL import Image
     except ImportError:  # pragma: no cover - Pillow comes with matplotlib
@@ -105,7 +105,7 @@ def plot_paths_grid(
     runs : list of dict
         ``label``, ``trajectory`` (dict of arrays: frame, x, y, d_min) and ``metrics``.
     """
-    plt = _mpl()
+    plt = pyplot()
     n = len(runs)
     ys = [scene.start[1], *scene.goals[:, 1]]
     for run in runs:
@@ -172,7 +172,7 @@ def plot_lambda_loss_rows(
     arrays ``t``, ``lambda``, ``loss``). Three panels per line, each ``panel_size``
     inches; every axis is labelled with its unit. Returns the (saved and closed) figure.
     """
-    plt = _mpl()
+    plt = pyplot()
     n = len(runs)
     cols = min(3, max(1, n))
     nrows = math.ceil(n / cols)
@@ -228,7 +228,7 @@ def plot_lavg_vs_epsilon(
     ``points``: dicts with ``series`` (legend name), ``epsilon`` and ``l_avg``. Returns
     the (saved and closed) figure.
     """
-    plt = _mpl()
+    plt = pyplot()
     fig: Figure
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
     series: dict[str, list[tuple[float, float]]] = {}

@@ -32,7 +32,7 @@ SAVE_DPI = 110
 PNG_OPTIONS = {"compress_level": 1}
 
 
-def _mpl() -> ModuleType:
+def pyplot() -> ModuleType:
     """``matplotlib.pyplot``, on the Agg backend outside Jupyter."""
     import sys
 
@@ -201,7 +201,7 @@ def plot_run(result: Any, path: str | Path | None = None) -> Figure:
     """
     from .distance import plot_distance
 
-    plt = _mpl()
+    plt = pyplot()
     # a fixed layout (inches on a 12 x 7.5 in figure): the scene on the left, three
     # stacked panels on the right with room for their tick labels and axis labels
     W, H = 12.0, 7.5
@@ -230,12 +230,12 @@ def plot_run(result: Any, path: str | Path | None = None) -> Figure:
         y=0.985,
     )
     if path is not None:
-        fig.savefig(path, dpi=SAVE_DPI, **_png_options(path))
+        fig.savefig(path, dpi=SAVE_DPI, **png_options(path))
         plt.close(fig)
     return fig
 
 
-def _png_options(path: str | Path | object) -> dict[str, Any]:
+def png_options(path: str | Path | object) -> dict[str, Any]:
     """savefig keywords for fast PNG encoding when ``path`` names a PNG file."""
     if isinstance(path, (str, Path)) and str(path).lower().endswith(".png"):
         return {"pil_kwargs": dict(PNG_OPTIONS)}

@@ -75,7 +75,7 @@ def _fmt_value(v: Any) -> str:
 
 def _parameter_columns(rows: Sequence[Mapping[str, Any]], exclude: set[str]) -> list[str]:
     """Columns that are parameters of the runs (not metrics, not bookkeeping)."""
-    from ..sim.config import PARAMETERS
+    from ..spec import PARAMETERS
 
     out = []
     for col in dict.fromkeys(k for r in rows for k in r):
@@ -142,7 +142,7 @@ def plot_sweep(
     """
     from matplotlib.ticker import MaxNLocator
 
-    from .run import _mpl
+    from .run import pyplot
 
     rows = load_results(results)
     if not rows:
@@ -173,7 +173,7 @@ def plot_sweep(
     if not notes:
         notes.append("one run per point")
 
-    plt = _mpl()
+    plt = pyplot()
     fig: Figure
     fig, axes = plt.subplots(
         1, len(metrics), figsize=(3.8 * len(metrics), 3.6), constrained_layout=True, squeeze=False

@@ -134,7 +134,7 @@ def _ethucy_windows(
 def _sdd_windows(
     name: str, data_root: str | os.PathLike[str] | None, obs: int, horizon: int
 ) -> Windows:
-    from ..data.scenes import load_scene
+    from ..data.catalog import load_scene
     from ..data.trajnet import TRAJNET_STEP
 
     scene = load_scene(name, data_root)

@@ -1,10 +1,10 @@
 """Decentralized multi-robot runs: M robots, each its own conformal CBF controller.
 
-Every robot is the flagship of :func:`~conformal_control.sim.build.build_flagship` -- its
+Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
 is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. The
-robots share nothing but the world (:class:`~conformal_control.sim.multi_world.MultiRobotWorld`):
+robots share nothing but the world (:class:`~conformal_control.world.multi.MultiRobotWorld`):
 each senses the pedestrians and the other robots through its own sensor, treats a robot
 like any other agent, and learns its own lambda from its own losses. There is no
 communication.
@@ -41,19 +41,21 @@ import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
 from ..data.scene import Scene
+from ..flagship.build import Flagship, RoleSpec, build_flagship
 from ..loop import ConformalStepper, LoopResult
-from .build import Flagship, RoleSpec, build_flagship
-from .episode import _config, _jsonable, _measure
-from .metrics import EpisodeMetrics
-from .multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
-from .multi_world import MultiRobotWorld
-from .rundir import _clean, _fmt
+from ..results.measure import episode_config, jsonable, measure
+from ..results.metrics import EpisodeMetrics
+from ..results.multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
+from ..results.multi_record import multi_record
+from ..results.rundir import csv_cell, finite_or_none
+from ..world.multi import MultiRobotWorld
 
 __all__ = [
     "LAYOUTS",
     "MAX_ROBOTS",
     "MultiResult",
     "RobotResult",
+    "as_tasks",
     "drive",
     "load_robots_file",
     "robot_tasks",
@@ -126,7 +128,7 @@ def robot_tasks(
     return c + r * unit, [(c - r * u).reshape(1, 2) for u in unit]
 
 
-def _as_tasks(starts: Any, goals: Any) -> tuple[np.ndarray, list[np.ndarray]]:
+def as_tasks(starts: Any, goals: Any) -> tuple[np.ndarray, list[np.ndarray]]:
     s = np.asarray(starts, dtype=float)
     if s.ndim != 2 or s.shape[1] != 2 or not 1 <= s.shape[0] <= MAX_ROBOTS:
         raise ValueError(
@@ -186,7 +188,7 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
             ) from None
         starts.append(st * scale)
         goals.append(g * scale)
-    return _as_tasks(np.array(starts), goals)
+    return as_tasks(np.array(starts), goals)
 
 
 # ---------------------------------------------------------------------------- results
@@ -347,7 +349,7 @@ def run_multi(
         See :func:`robot_tasks`.
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor (see
-        :class:`~conformal_control.sim.multi_world.MultiRobotWorld`).
+        :class:`~conformal_control.world.multi.MultiRobotWorld`).
 
     Returns
     -------
@@ -358,7 +360,7 @@ def run_multi(
             raise ValueError(f"robots={robots} but {len(starts)} starts were given")
         if layout != "scene" or radius is not None or center is not None:
             raise ValueError("give either explicit starts and goals or a layout, not both")
-        s, tasks = _as_tasks(starts, goals)
+        s, tasks = as_tasks(starts, goals)
     else:
         s, tasks = robot_tasks(
             scene, 1 if robots is None else robots, layout, radius=radius, center=center
@@ -445,7 +447,7 @@ def run_multi(
         rec = world.robots[i]
         # the robot's record is what the single-robot measurement reads of an environment
         view = dataclasses.replace(fl, env=rec)  # type: ignore[arg-type]
-        m, intervals, traj = _measure(
+        m, intervals, traj = measure(
             view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
         )
         contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
@@ -483,7 +485,7 @@ def run_multi(
         lam_unit_name=results[0].metrics.unit("lambda_final"),
         cpu_s=cpu,
     )
-    config = _config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
+    config = episode_config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
     config["kind"] = "multi"
     config["n_robots"] = n
     for key in ("start_m", "goals_m"):
@@ -509,16 +511,14 @@ def run_multi(
     )
     config["sensor_history"] = sensor_history
     config["max_frames"] = max_frames
-    config["feasibility"] = _jsonable(floor.as_dict())
+    config["feasibility"] = jsonable(floor.as_dict())
     crowd_config = getattr(env0, "crowd_config", None)
     config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
     config.update(extra_config or {})
     animation = None
     if record_animation:
-        from .multi_record import multi_record
-
         animation = multi_record(world, results, track, epsilon=si["epsilon"])
-    return MultiResult(run_scene, _jsonable(config), metrics, results, track, animation)
+    return MultiResult(run_scene, jsonable(config), metrics, results, track, animation)
 
 
 def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[float]:
@@ -594,29 +594,29 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(_clean(result.config), indent=2) + "\n")
+    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
     summary = {
         "fleet": result.metrics.as_dict(),
         "robots": [r.summary() for r in result.robots],
     }
-    (out / "metrics.json").write_text(json.dumps(_clean(summary), indent=2) + "\n")
+    (out / "metrics.json").write_text(json.dumps(finite_or_none(summary), indent=2) + "\n")
     for r in result.robots:
         d = out / "robots" / f"robot_{r.index:02d}"
         d.mkdir(parents=True, exist_ok=True)
-        (d / "metrics.json").write_text(json.dumps(_clean(r.summary()), indent=2) + "\n")
+        (d / "metrics.json").write_text(json.dumps(finite_or_none(r.summary()), indent=2) + "\n")
         cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
         with (d / "intervals.csv").open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(cols)
             for iv in r.intervals:
-                w.writerow([_fmt(iv.get(c)) for c in cols])
+                w.writerow([csv_cell(iv.get(c)) for c in cols])
         tr = r.trajectory
         keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
         with (d / "trajectory.csv").open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["frame", *keys])
             for j in range(len(tr["frame"])):
-                w.writerow([int(tr["frame"][j]), *(_fmt(float(tr[c][j])) for c in keys)])
+                w.writerow([int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)])
     tk = result.track
     with (out / "trajectories.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -627,10 +627,10 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
                 w.writerow(
                     [
                         int(tk["frame"][j]),
-                        _fmt(float(tk["t"][j])),
+                        csv_cell(float(tk["t"][j])),
                         i,
-                        _fmt(float(x)),
-                        _fmt(float(y)),
+                        csv_cell(float(x)),
+                        csv_cell(float(y)),
                         int(tk["active"][j, i]),
                     ]
                 )

@@ -3,7 +3,7 @@
 With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the runs of a
 sweep are split in two:
 
-* a run is **batched** when :func:`~conformal_control.sim.batch.supports` accepts its
+* a run is **batched** when :func:`~conformal_control.engines.batch.supports` accepts its
   ``run_episode`` arguments (replayed crowd; the constant-velocity or oracle predictor, or
   any predictor marked ``fast`` -- the engine calls the others in this process, one episode
   after another, while the pool predicts in parallel; any update rule given by name; APF
@@ -13,7 +13,7 @@ sweep are split in two:
   (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
   limit, and each group runs in this process through
-  :func:`~conformal_control.sim.batch.iter_batch` (one core);
+  :func:`~conformal_control.engines.batch.iter_batch` (one core);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
@@ -46,7 +46,7 @@ _PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
 
 def batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | None:
     """Why the run ``cfg`` (``RunConfig.as_dict()``) is not batched, or None if it is."""
-    from ..sim.batch import supports
+    from ..engines.batch import supports
 
     files = plot if isinstance(plot, str) else ("plots" if plot else "full")
     episode = dict(cfg.get("episode") or {})
@@ -91,7 +91,7 @@ def _record(
     """The sweep record of a batched run (as :func:`execute_run` writes it)."""
     import os
 
-    from ..sim.rundir import write_run_dir
+    from ..results.rundir import write_run_dir
 
     rec: dict[str, Any] = {
         "key": key,
@@ -138,7 +138,7 @@ def run_batched(
     pool's workers and this process share the machine instead of taking turns."""
     import dataclasses
 
-    from ..sim.batch import iter_batch
+    from ..engines.batch import iter_batch
     from .worker import load_run_scene
 
     groups: dict[str, list[int]] = {}

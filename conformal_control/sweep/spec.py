@@ -22,7 +22,7 @@ A run configuration has these keys (all optional except ``scene``):
 ``predictor_params`` (dict; a key ``predictor_params.NAME`` in a grid sets one entry),
 ``learn`` (default true; false = the noLearn baseline), ``seed`` (default 0), ``frames``
 (limit on simulated frames, default none), ``data_root``, ``label`` (free text), and any
-controller parameter of :data:`conformal_control.sim.config.PARAMETERS` (``epsilon``,
+controller parameter of :data:`conformal_control.flagship.params.PARAMETERS` (``epsilon``,
 ``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
 
 The **key** of a run is a hash of its normalised configuration (everything except
@@ -184,7 +184,7 @@ class RunConfig:
         ValueError
             For a missing scene, an unknown key or a badly typed reserved value.
         """
-        from ..sim.config import PARAMETERS
+        from ..spec import PARAMETERS
 
         flat = dict(flat)
         pp = dict(flat.pop("predictor_params", None) or {})
@@ -347,7 +347,7 @@ def load_spec(path: str | Path) -> SweepSpec:
 
 def parse_grid_option(items: Iterable[str] | None) -> dict[str, list[Any]]:
     """Parse repeated ``--grid KEY=V1,V2,...`` options (values typed like ``--param``)."""
-    from ..sim.config import parse_value
+    from ..flagship.params import parse_value
 
     grid: dict[str, list[Any]] = {}
     for item in items or []:

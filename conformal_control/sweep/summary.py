@@ -1,7 +1,7 @@
 """One summary plot of a sweep (``summary.png``) instead of a plot per run.
 
 The horizontal axis is the swept controller parameter (``epsilon`` first, then the other
-parameters in the order of ``sim.config.PARAMETERS``, then predictor parameters, then the
+parameters in the order of ``spec.PARAMETERS``, then predictor parameters, then the
 seed); one line is drawn per value of another swept column with few values (predictor,
 learn, label, scene, another parameter). Runs that share a point - other axes, seeds - are
 averaged with their min-max range shaded (:func:`conformal_control.plotting.sweep.plot_sweep`).
@@ -42,7 +42,7 @@ def summary_axes(rows: Sequence[Mapping[str, Any]]) -> tuple[str | None, str | N
     rows : list of dict
         Flat result rows of the ok runs (``ResultsStore.rows``).
     """
-    from ..sim.config import PARAMETERS
+    from ..spec import PARAMETERS
 
     cols: list[str] = []
     for r in rows:
@@ -75,7 +75,7 @@ def write_summary_plot(
     (path or None, note)
         The file written, or None with the reason there is nothing to plot.
     """
-    from ..plotting.run import _mpl
+    from ..plotting.run import pyplot
     from ..plotting.sweep import plot_sweep
     from .results import atomic_write
 
@@ -104,6 +104,6 @@ def write_summary_plot(
     try:
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
     finally:
-        _mpl().close(fig)
+        pyplot().close(fig)
     where = f"{xs} on the x axis" + (f", one line per {gs}" if gs else "")
     return Path(path), f"summary plot ({where}): {path}"

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..sim.metrics import EpisodeMetrics
+from ..results.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
     from ..data.scene import Scene
@@ -62,7 +62,8 @@ def load_run_scene(cfg: dict[str, Any]) -> Scene:
 
 
 @functools.lru_cache(maxsize=8)
-def _scene(name: str, data_root: str | None, seed: int) -> Scene:
+def cached_scene(name: str, data_root: str | None, seed: int) -> Scene:
+    """:func:`load_run_scene`, the last eight scenes kept (a serial sweep reuses them)."""
     return load_run_scene({"scene": name, "data_root": data_root, "seed": seed})
 
 
@@ -105,11 +106,11 @@ def execute_run(
         "worker": f"{os.uname().nodename}:{os.getpid()}",
     }
     try:
+        from ..results.rundir import write_run_dir
         from ..sim.episode import run_episode
-        from ..sim.rundir import write_run_dir
 
         seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
-        cached = _scene(cfg["scene"], cfg.get("data_root"), seed)
+        cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
         scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))

@@ -72,7 +72,7 @@ def plugin_label(plugin: Any) -> str:
         if hasattr(plugin, "get_params"):
             params = plugin.get_params()
         else:
-            params = {n: getattr(plugin, n) for n in _init_names(cls) if hasattr(plugin, n)}
+            params = {n: getattr(plugin, n) for n in init_names(cls) if hasattr(plugin, n)}
     except Exception:  # a broken get_params must not hide the real failure
         return cls.__name__
     args = ", ".join(f"{k}={_short(v)}" for k, v in params.items())
@@ -283,12 +283,12 @@ def deep_clone(plugin: Any) -> Any:
 def with_seed(plugin: Any, seed: int) -> Any:
     """A fresh copy, with ``random_state=seed`` if the plugin takes a ``random_state``."""
     params = plugin.get_params()
-    if "random_state" in _init_names(type(plugin)):
+    if "random_state" in init_names(type(plugin)):
         params["random_state"] = seed
     return type(plugin)(**params)
 
 
-def _init_names(cls: type[Any]) -> list[str]:
+def init_names(cls: type[Any]) -> list[str]:
     names = getattr(cls, "_param_names", None)
     if names is not None:
         return list(names())

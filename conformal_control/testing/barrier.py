@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.Barrier` plugins."""
+"""Contract checks for :class:`~conformal_control.cbf.roles.Barrier` plugins."""
 
 from __future__ import annotations
 

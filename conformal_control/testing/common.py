@@ -26,10 +26,10 @@ import numpy as np
 
 from ._core import (
     ContractError,
-    _init_names,
     deep_clone,
     differ,
     expect,
+    init_names,
     plugin_label,
     unit_test_params,
     with_seed,
@@ -57,7 +57,7 @@ def check_get_params_round_trip(plugin: Any) -> None:
     expect(
         isinstance(params, dict), plugin, f"expected get_params() to return a dict, got {params!r}"
     )
-    missing = [n for n in _init_names(type(plugin)) if n not in params]
+    missing = [n for n in init_names(type(plugin)) if n not in params]
     expect(
         not missing,
         plugin,
@@ -135,7 +135,7 @@ def _fresh(plugin: Any) -> Any:
                 f"copies), got {type(exc).__name__}: {exc}"
             ) from exc
     fresh = deep_clone(plugin)
-    return with_seed(fresh, 0) if "random_state" in _init_names(type(fresh)) else fresh
+    return with_seed(fresh, 0) if "random_state" in init_names(type(fresh)) else fresh
 
 
 def _round_trip(plugin: Any, when: str) -> Any:
@@ -216,7 +216,7 @@ def check_docstring_parameters(plugin: Any) -> None:
     """The class has a numpy-style docstring whose ``Parameters`` section names every
     ``__init__`` argument (river's docstring check; runs record parameters by name)."""
     cls = type(plugin)
-    names = _init_names(cls)
+    names = init_names(cls)
     doc = cls.__doc__ or ""
     expect(
         bool(doc.strip()),

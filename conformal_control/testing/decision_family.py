@@ -37,7 +37,7 @@ from .common import (
     check_repr,
     sample_behaviour,
 )
-from .environment import AnyEnvironment, AnyFamily, EpisodeTrace, _differ_or_fail, drive, partner
+from .environment import AnyEnvironment, AnyFamily, EpisodeTrace, differ_or_fail, drive, partner
 
 __all__ = [
     "ORDER_LAMBDAS",
@@ -104,9 +104,7 @@ def check_decision_family_no_mutation(family: AnyFamily) -> None:
 def check_decision_family_deterministic(family: AnyFamily) -> None:
     """Two fresh copies in two fresh environments decide and record identically."""
     a, b = _episode(family), _episode(family)
-    _differ_or_fail(
-        family, a, b, "expected two fresh copies driven the same way to decide the same"
-    )
+    differ_or_fail(family, a, b, "expected two fresh copies driven the same way to decide the same")
 
 
 def check_decision_family_reset(family: AnyFamily) -> None:
@@ -116,7 +114,7 @@ def check_decision_family_reset(family: AnyFamily) -> None:
     fresh = drive(partner_environment(family), fam, subject=family)
     drive(partner_environment(family), fam, subject=family, stop_after=2)
     again = drive(partner_environment(family), fam, subject=family)
-    _differ_or_fail(
+    differ_or_fail(
         family, fresh, again, "expected reset() to restart the family: a second episode differs"
     )
 

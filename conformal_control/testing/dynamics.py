@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.Dynamics` plugins."""
+"""Contract checks for :class:`~conformal_control.cbf.roles.Dynamics` plugins."""
 
 from __future__ import annotations
 
@@ -32,6 +32,7 @@ __all__ = [
     "check_dynamics_deterministic",
     "check_dynamics_no_mutation",
     "check_dynamics_output",
+    "check_dynamics_rollout",
     "check_dynamics_zero_dt",
 ]
 
@@ -120,6 +121,41 @@ def check_dynamics_bad_dt(dynamics: Dynamics) -> None:
         )
 
 
+def check_dynamics_rollout(dynamics: Dynamics) -> None:
+    """``rollout`` of several command sequences equals :meth:`step` applied in a loop
+    (to 1e-9 relative), returns shape ``(N, H, state_dim)`` and leaves its inputs
+    unchanged."""
+    d = clone(dynamics)
+    s = _state(d)
+    rng = np.random.default_rng(0)
+    cmds = rng.uniform(-1.0, 1.0, (4, 3, 2))
+    before = snapshot((s, cmds))
+    try:
+        out = np.asarray(d.rollout(s, cmds, 0.1))
+    except Exception as exc:
+        raise ContractError(
+            f"{plugin_label(d)}: expected rollout(state, commands (4, 3, 2), 0.1) to work, "
+            f"got {type(exc).__name__}: {exc}"
+        ) from exc
+    assert_unchanged(before[0], s, d, "state", "rollout()")
+    assert_unchanged(before[1], cmds, d, "commands", "rollout()")
+    expect(
+        out.shape == (4, 3, s.size),
+        d,
+        f"expected rollout() of shape (4, 3, {s.size}), got {out.shape}",
+    )
+    for i in range(4):
+        x = s
+        for j in range(3):
+            x = _step(d, x, cmds[i, j], 0.1)
+            expect(
+                close(out[i, j], x, rtol=1e-9, atol=1e-12),
+                d,
+                f"expected rollout()[{i}, {j}] to equal step() in a loop, got "
+                f"{out[i, j].tolist()} against {x.tolist()}",
+            )
+
+
 @sample_behaviour.register(Dynamics)
 def _behaviour(dynamics: Dynamics) -> list[np.ndarray]:
     """Three steps from the sample state (for the pickling check)."""
@@ -141,6 +177,7 @@ check_dynamics = CheckList(
         check_dynamics_no_mutation,
         check_dynamics_deterministic,
         check_dynamics_bad_dt,
+        check_dynamics_rollout,
         check_pickle_round_trip,
         check_docstring_parameters,
         check_no_mutable_defaults,

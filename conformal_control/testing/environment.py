@@ -347,7 +347,7 @@ def scribble(obj: Any, _depth: int = 0, _seen: set[int] | None = None) -> None:
             scribble(getattr(obj, f.name), _depth + 1, seen)
 
 
-def _differ_or_fail(env: Any, a: EpisodeTrace, b: EpisodeTrace, message: str) -> None:
+def differ_or_fail(env: Any, a: EpisodeTrace, b: EpisodeTrace, message: str) -> None:
     d = differ(a, b, "episode")
     expect(d is None, env, f"{message}, but {d}")
 
@@ -368,7 +368,7 @@ def check_environment_reset(env: AnyEnvironment) -> None:
     first = drive(e, partner_family(e))
     drive(e, partner_family(e), stop_after=2)
     again = drive(e, partner_family(e))
-    _differ_or_fail(
+    differ_or_fail(
         e, first, again, "expected reset() in the middle of an episode to restart it exactly"
     )
 
@@ -399,7 +399,7 @@ def check_environment_deterministic(env: AnyEnvironment) -> None:
     """Two copies driven by fresh partner families give identical episodes."""
     a = drive(env_copy(env), partner_family(env))
     b = drive(env_copy(env), partner_family(env))
-    _differ_or_fail(env, a, b, "expected two copies driven the same way to give the same episode")
+    differ_or_fail(env, a, b, "expected two copies driven the same way to give the same episode")
 
 
 def check_environment_outputs_not_aliased(env: AnyEnvironment) -> None:
@@ -413,9 +413,9 @@ def check_environment_outputs_not_aliased(env: AnyEnvironment) -> None:
         "expected the environment's outputs to be copies: after the caller overwrote what "
         "sense()/state()/reveal() returned"
     )
-    _differ_or_fail(e, reference, scribbled, f"{hint}, later outputs changed")
+    differ_or_fail(e, reference, scribbled, f"{hint}, later outputs changed")
     after = drive(e, partner_family(e), isolate=True)
-    _differ_or_fail(e, reference, after, f"{hint}, the next episode after reset() changed")
+    differ_or_fail(e, reference, after, f"{hint}, the next episode after reset() changed")
 
 
 def check_environment_apply_after_done(env: AnyEnvironment) -> None:

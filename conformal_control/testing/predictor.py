@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.Predictor` plugins."""
+"""Contract checks for :class:`~conformal_control.predictors.base.Predictor` plugins."""
 
 from __future__ import annotations
 

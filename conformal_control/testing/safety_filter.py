@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.SafetyFilter` plugins.
+"""Contract checks for :class:`~conformal_control.cbf.roles.SafetyFilter` plugins.
 
 Constraints are ``A @ u + b + lam >= 0`` row-wise. Every check recomputes the residuals of
 the returned decision itself instead of trusting the filter's status.

@@ -21,11 +21,11 @@ from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.data.scene import scene_from_tracks
 from conformal_control.data.tracks import Tracks
 from conformal_control.data.units import SI
+from conformal_control.flagship.params import resolve_params
 from conformal_control.loop import ConformalLoop
 from conformal_control.predictors import ConstantVelocityPredictor
-from conformal_control.sim.config import resolve_params
-from conformal_control.sim.environment import ReplayEnvironment
 from conformal_control.update_rules import ACIRule
+from conformal_control.world.replay import ReplayEnvironment
 
 
 def _acp_run(

@@ -17,8 +17,8 @@ from conformal_control.cbf import (
     VelocityTrackingDoubleIntegrator,
 )
 from conformal_control.cbf import kernels2d as k
-from conformal_control.sim.config import resolve_params
-from conformal_control.sim.environment import ReplayEnvironment
+from conformal_control.flagship.params import resolve_params
+from conformal_control.world.replay import ReplayEnvironment
 
 
 def twin_controllers(scene, params, fallback="lambda_search"):

@@ -15,9 +15,9 @@ PARENT = os.getpid()
 
 
 def _figure(path: Path, seed: int) -> None:
-    from conformal_control.plotting.run import _mpl
+    from conformal_control.plotting.run import pyplot
 
-    plt = _mpl()
+    plt = pyplot()
     rng = np.random.default_rng(seed)
     fig, ax = plt.subplots(figsize=(3, 2))
     ax.plot(rng.normal(size=50).cumsum())

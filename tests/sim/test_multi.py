@@ -19,7 +19,7 @@ from conformal_control.sim.multi import (
     robot_tasks,
     run_multi,
 )
-from conformal_control.sim.multi_world import MultiRobotWorld
+from conformal_control.world.multi import MultiRobotWorld
 
 #: Metrics that are timings, not results.
 TIMINGS = {"wall_s"}

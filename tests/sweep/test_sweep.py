@@ -20,7 +20,7 @@ from conformal_control.sweep import (
     parse_grid_option,
     run_sweep,
 )
-from conformal_control.sweep.worker import _scene
+from conformal_control.sweep.worker import cached_scene
 
 
 def need(module: str):
@@ -179,13 +179,13 @@ def test_runs_sharing_a_scene_do_not_leak_into_each_other(tmp_path: Path) -> Non
     big = RunConfig.from_flat({**base, "robot_radius": 2.0, "v_max": 1.0})
     plain = RunConfig.from_flat(base)
     alone = execute_run(plain.as_dict(), "alone", str(tmp_path / "a"), False)
-    _scene.cache_clear()
+    cached_scene.cache_clear()
     first = execute_run(big.as_dict(), "big", str(tmp_path / "b"), False)
     after = execute_run(plain.as_dict(), "after", str(tmp_path / "b"), False)
     assert first["status"] == after["status"] == alone["status"] == "ok"
     from conformal_control.data import load_scene
 
-    cached, fresh = _scene("crossing", None, 0), load_scene("crossing")
+    cached, fresh = cached_scene("crossing", None, 0), load_scene("crossing")
     assert (cached.robot_radius, cached.v_max) == (fresh.robot_radius, fresh.v_max)
     assert fresh.robot_radius != 2.0 and fresh.v_max != 1.0
     for k in ("t_goal", "n_collide", "d_min", "l_avg"):

@@ -24,7 +24,6 @@ from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
 from conformal_control.domains.intervals import ConformalDisc, PedestrianSeries
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import Forecast, Predictor
-from conformal_control.sim.environment import ReplayEnvironment
 from conformal_control.testing import (
     ContractError,
     check_barrier,
@@ -76,6 +75,7 @@ from conformal_control.testing.safety_filter import (
 )
 from conformal_control.testing.update_rule import check_update_rule_monotone
 from conformal_control.update_rules import FixedEtaRule
+from conformal_control.world.replay import ReplayEnvironment
 
 # ------------------------------------------------------------------ built-ins failing today
 #: Built-in classes failing a check today, with the reason: reported for a fix. The tests

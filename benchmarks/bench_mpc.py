@@ -1,0 +1,179 @@
+"""Latency of one control step of the sampling MPC, with its baselines from the same run.
+
+One control step = one plan: N sampled command sequences of H steps rolled out through the
+plant, cost and clearance against M predicted agents, the choice (what
+``SamplingMPC.decide`` does when it plans). Timed for the issue's target configuration
+(N = 500, H = 12, M = 20) with
+
+* a velocity-command plant (the velocity-tracking double integrator of the paper's scenes),
+* the unicycle of the ETH/UCY planar protocol,
+* ``acp_mpc`` on the unicycle (its regions from 2,000 past errors per step),
+* ``ecp_mpc`` on the unicycle (egocentric regions of every candidate from 15 past times),
+
+and, in the same run on the same inputs,
+
+* the **numpy reference** of the same step (the plant's rollout as a loop of ``step`` calls
+  replaced by ``Dynamics.rollout``'s default only for the unicycle's vectorised numpy form,
+  and the cost/clearance by ``kernels.evaluate_numpy``), the baseline the compiled path
+  is measured against;
+* the **CBF family's control step** with 20 agents (exact 2-D filter, the flagship), the
+  other decision family's cost per step.
+
+Medians over ``--repeats`` steps (each on a fresh crowd every 12 steps), after warm-up.
+Usage::
+
+    python benchmarks/bench_mpc.py [--repeats 400] [--samples 500] [--horizon 12] [--agents 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from typing import Any
+
+import numpy as np
+
+from conformal_control.cbf import (
+    APFBarrier,
+    AttractiveField,
+    ConformalCBFController,
+    ConformalConstraint,
+    ControlState,
+    Exact2DSafetyFilter,
+)
+from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.cbf.roles import Dynamics
+from conformal_control.mpc import ACPMPC, ECPMPC, SamplingMPC
+from conformal_control.mpc.kernels import evaluate_numpy
+from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
+
+DT = 0.4
+
+
+def crowd(rng: np.random.Generator, m: int, t: float) -> PredictionQuery:
+    cur = rng.uniform([-6.0, -6.0], [6.0, 6.0], (m, 2))
+    vel = rng.normal(0.0, 1.0, (m, 2))
+    hist = cur[:, None, :] - vel[:, None, :] * DT * np.arange(7, -1, -1)[None, :, None]
+    return PredictionQuery(ids=np.arange(m), history=hist, dt=DT, horizon=1, t=t)
+
+
+class NumpyMPC(SamplingMPC):
+    """The same step with numpy arithmetic for the cost/clearance (the baseline)."""
+
+    def plan(self, state: ControlState, lam: float) -> Any:  # same code path, numpy kernel
+        import conformal_control.mpc.controller as ctl
+
+        compiled = ctl.evaluate
+        ctl.evaluate = evaluate_numpy  # type: ignore[assignment]
+        try:
+            return super().plan(state, lam)
+        finally:
+            ctl.evaluate = compiled
+
+
+class LoopRollout(Unicycle):
+    """The unicycle with the generic rollout (a loop over ``step``) for the baseline."""
+
+    def rollout(self, state: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
+        return Dynamics.rollout(self, state, commands, dt)
+
+
+def time_steps(make: Any, plant: Dynamics, m: int, repeats: int, warm: int = 20) -> float:
+    """Median latency (ms) of ``decide`` when it plans."""
+    rng = np.random.default_rng(0)
+    fam = make()
+    fam.reset()
+    x = plant.initial_state(np.zeros(2), 0.3)
+    goal = np.array([20.0, 5.0])
+    times = []
+    for i in range(repeats + warm):
+        if i % 12 == 0:
+            fam.begin_interval(crowd(rng, m, t=i * DT))
+        st = ControlState(x=x, t=i * DT, step=0, goal=goal)
+        t0 = time.perf_counter()
+        fam.decide(st, -0.2)
+        times.append(time.perf_counter() - t0)
+        fam._plan = None  # plan again at the next instant
+    return float(np.median(times[warm:]) * 1e3)
+
+
+def time_cbf(m: int, repeats: int) -> float:
+    rng = np.random.default_rng(1)
+    ctrl = ConformalCBFController(
+        ConstantVelocityPredictor(),
+        ConformalConstraint(APFBarrier(K_rep=0.5, rho0=20.0, d_c=1.0), a=2.0),
+        Exact2DSafetyFilter(v_max=1.5),
+        AttractiveField(K_att=1.0, v_max=1.5),
+        substeps=4,
+    )
+    ctrl.reset()
+    times = []
+    goal = np.array([20.0, 5.0])
+    for i in range(repeats + 20):
+        if i % 4 == 0:
+            q = crowd(rng, m, t=i * 0.1)
+            ctrl.begin_interval(PredictionQuery(q.ids, q.history, 0.1, 1, q.t))
+        st = ControlState(x=np.array([0.0, 0.0, 1.0, 0.0]), t=i * 0.1, step=i % 4, goal=goal)
+        t0 = time.perf_counter()
+        ctrl.decide(st, 0.0)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[20:]) * 1e3)
+
+
+def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: int = 400) -> list:
+    """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
+    vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
+    uni = Unicycle()
+    common = {"n_samples": samples, "horizon": horizon, "dt_plan": DT, "substeps": 1}
+    cv = ConstantVelocityPredictor
+
+    def mpc(plant: Dynamics, cls: type = SamplingMPC, **kw: Any) -> Any:
+        return lambda: cls(cv(), plant, v_max=1.5, **common, **kw)
+
+    def acp() -> ACPMPC:
+        fam = ACPMPC(cv(), uni, **common, max_inflation=1.0)
+        fam.reset()
+        rng = np.random.default_rng(2)
+        for s in fam.scores_:
+            s.extend(np.abs(rng.normal(0.0, 0.4, 2000)).tolist())
+        fam.reset = lambda: None  # type: ignore[method-assign]  # keep the scores
+        return fam
+
+    rows = []
+    cbf = time_cbf(agents, repeats * 4)
+    v = time_steps(mpc(vt), vt, agents, repeats)
+    v_np = time_steps(mpc(vt, NumpyMPC), vt, agents, repeats)
+    u = time_steps(mpc(uni), uni, agents, repeats)
+    u_np = time_steps(mpc(LoopRollout(), NumpyMPC), uni, agents, repeats // 4)
+    a = time_steps(acp, uni, agents, repeats)
+    e = time_steps(mpc(uni, ECPMPC, calibration_size=15), uni, agents, repeats)
+    rows.append(("mpc, velocity plant", v, "numpy reference", v_np, v_np / v))
+    rows.append(("mpc, unicycle", u, "numpy + step loop", u_np, u_np / u))
+    rows.append(("acp_mpc, unicycle", a, "mpc, unicycle", u, a / u))
+    rows.append(("ecp_mpc, unicycle", e, "mpc, unicycle", u, e / u))
+    rows.append(("mpc, unicycle", u, "cbf (exact2d) step", cbf, u / cbf))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=400)
+    ap.add_argument("--samples", type=int, default=500)
+    ap.add_argument("--horizon", type=int, default=12)
+    ap.add_argument("--agents", type=int, default=20)
+    args = ap.parse_args()
+    rows = measure(args.samples, args.horizon, args.agents, args.repeats)
+    print(
+        f"one control step, N = {args.samples} samples x H = {args.horizon} steps, "
+        f"{args.agents} agents ({platform.processor() or platform.machine()}, "
+        f"{platform.python_version()})"
+    )
+    for name, ms, base, base_ms, ratio in rows:
+        print(f"  {name:22s} {ms:7.3f} ms   {base:20s} {base_ms:9.4f} ms   ratio {ratio:7.2f}")
+    target = rows[1][1]
+    print(f"target <= 2 ms (unicycle): {'met' if target <= 2.0 else 'NOT met'} ({target:.3f} ms)")
+
+
+if __name__ == "__main__":
+    main()

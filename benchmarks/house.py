@@ -1,0 +1,293 @@
+"""The shape of the package, measured from its own source: the figures of the "house".
+
+Rooms are modules, floors the layers of ``tests/test_architecture.py`` (read from there,
+so the figures follow the rules the test enforces), arrows the imports between modules --
+module-level AND inside functions (a function-level import closes a circle all the same,
+it only closes it later), ``if TYPE_CHECKING:`` blocks aside (they never run). Usage::
+
+    python benchmarks/house.py            # the table
+    python benchmarks/house.py --json     # the same figures as JSON
+
+Figures:
+
+* rooms, floors, arrows (distinct module -> module imports), arrows running up (a unit
+  importing a unit of its own or a higher layer, which the layer rule forbids), the
+  function-level imports among them;
+* circles: strongly connected groups of modules in the import graph (every import);
+* the longest parameter lists of functions and constructors (compiled ``@jit`` kernels
+  aside, as their arguments are arrays by design);
+* private names (``_x``) imported from another module, and the module pairs;
+* lines of ``sim/``, and of the whole package.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib.util
+import json
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "conformal_control"
+
+
+def _layers() -> dict[str, int]:
+    spec = importlib.util.spec_from_file_location(
+        "_arch_test", ROOT / "tests" / "test_architecture.py"
+    )
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return dict(mod.LAYERS)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING"
+    )
+
+
+def _targets(node: ast.Import | ast.ImportFrom, me: str, is_pkg: bool) -> list[tuple[str, str]]:
+    """(module, imported name or '') for each conformal_control target of an import."""
+    if isinstance(node, ast.Import):
+        return [(a.name, "") for a in node.names if a.name.startswith("conformal_control")]
+    package = me if is_pkg else me.rpartition(".")[0]
+    if node.level:
+        base = package.split(".")
+        base = base[: len(base) - node.level + 1]
+        target = ".".join([*base, node.module] if node.module else base)
+    else:
+        target = node.module or ""
+    if not target.startswith("conformal_control"):
+        return []
+    out = []
+    for alias in node.names:
+        sub = f"{target}.{alias.name}"
+        p = ROOT / sub.replace(".", "/")
+        if p.with_suffix(".py").exists() or (p / "__init__.py").exists():
+            out.append((sub, ""))
+        else:
+            out.append((target, alias.name))
+    return out
+
+
+def imports(path: Path) -> list[tuple[str, str, bool]]:
+    """(target module, name, inside a function) for every runtime import of ``path``."""
+    me = module_name(path)
+    is_pkg = path.name == "__init__.py"
+    out: list[tuple[str, str, bool]] = []
+
+    class Visitor(ast.NodeVisitor):
+        depth = 0
+
+        def visit_If(self, node: ast.If) -> None:
+            if _is_type_checking(node):  # never runs
+                for n in node.orelse:
+                    self.visit(n)
+            else:
+                self.generic_visit(node)
+
+        def _fn(self, node: ast.AST) -> None:
+            self.depth += 1
+            self.generic_visit(node)
+            self.depth -= 1
+
+        visit_FunctionDef = visit_AsyncFunctionDef = visit_Lambda = _fn
+
+        def visit_Import(self, node: ast.Import) -> None:
+            out.extend((t, n, self.depth > 0) for t, n in _targets(node, me, is_pkg))
+
+        visit_ImportFrom = visit_Import  # type: ignore[assignment]
+
+    Visitor().visit(ast.parse(path.read_text()))
+    return out
+
+
+def _unit(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _sccs(g: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components with more than one module."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(g.get(v, ())):
+            if w not in g:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _is_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
+    for d in fn.decorator_list:
+        name = d.func if isinstance(d, ast.Call) else d
+        text = ast.unparse(name)
+        if text.split(".")[-1] in ("jit", "njit", "vectorize", "guvectorize"):
+            return True
+    return False
+
+
+def parameter_lists(files: list[Path], kernels: bool = False) -> list[tuple[int, str, bool]]:
+    """(number of parameters, qualified name, takes **kwargs) of every function (of every
+    compiled kernel with ``kernels``)."""
+    out = []
+    for path in files:
+        mod = module_name(path)
+        tree = ast.parse(path.read_text())
+
+        def visit(nodes: list[ast.stmt], prefix: str, mod: str = mod) -> None:
+            for node in nodes:
+                if isinstance(node, ast.ClassDef):
+                    visit(node.body, f"{prefix}{node.name}.")
+                elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    if _is_kernel(node) != kernels:
+                        continue
+                    a = node.args
+                    names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)]
+                    if names and names[0] in ("self", "cls"):
+                        names = names[1:]
+                    out.append((len(names), f"{mod}.{prefix}{node.name}", a.kwarg is not None))
+                    visit(node.body, f"{prefix}{node.name}.")
+
+        visit(tree.body, "")
+    return sorted(out, key=lambda r: (-r[0], r[1]))
+
+
+def measure() -> dict[str, Any]:
+    layers = _layers()
+    files = sorted(PKG.rglob("*.py"))
+    g: dict[str, set[str]] = {}
+    edges: dict[tuple[str, str], bool] = {}  # (a, b) -> only inside functions
+    private: list[tuple[str, str, str]] = []
+    n_function_level = 0
+    for p in files:
+        me = module_name(p)
+        deps: set[str] = set()
+        for target, name, nested in imports(p):
+            n_function_level += nested
+            parts = target.split(".")
+            # importing a.b.c runs a/__init__ and a/b/__init__ first
+            chain = {".".join(parts[:i]) for i in range(2, len(parts) + 1)}
+            for d in chain:
+                if d == me or me.startswith(d + "."):
+                    continue
+                deps.add(d)
+                edges[(me, d)] = edges.get((me, d), True) and nested
+            if name.startswith("_") and not name.startswith("__") and target != me:
+                private.append((me, target, name))
+        g[me] = deps
+    up = []
+    for (a, b), nested in sorted(edges.items()):
+        u, v = _unit(a), _unit(b)
+        if u and v and u != v and layers.get(v, -1) >= layers.get(u, 99):
+            up.append((a, b, nested))
+    circles = _sccs(g)
+    in_circle = {m: i for i, c in enumerate(circles) for m in c}
+    closing = [
+        (a, b)
+        for (a, b), nested in edges.items()
+        if nested and a in in_circle and in_circle.get(b) == in_circle[a]
+    ]
+    params = parameter_lists(files)
+    sim = PKG / "sim"
+    sim_lines = (
+        sum(len(f.read_text().splitlines()) for f in sim.rglob("*.py")) if sim.exists() else 0
+    )
+    return {
+        "rooms (modules)": len(files),
+        "floors (layers)": len(set(layers.values())),
+        "arrows (module -> module imports)": len(edges),
+        "function-level imports": n_function_level,
+        "arrows running up": len(up),
+        "arrows running up, function-level only": sum(1 for *_, n in up if n),
+        "circles (strongly connected groups)": len(circles),
+        "modules in circles": sum(len(c) for c in circles),
+        "function-level imports inside circles": len(closing),
+        "longest parameter lists": [
+            f"{n}{' + **kwargs' if kw else ''}  {name}" for n, name, kw in params[:10]
+        ],
+        "functions over 15 parameters": sum(1 for n, *_ in params if n > 15),
+        "longest compiled kernel": " ".join(map(str, parameter_lists(files, True)[0][:2])),
+        "api.run": next(
+            f"{n}{' + **kwargs' if kw else ''}"
+            for n, name, kw in params
+            if name == "conformal_control.api.run"
+        ),
+        "private names imported across modules": len(private),
+        "module pairs with private imports": len({(a, b) for a, b, _ in private}),
+        "lines of sim/": sim_lines,
+        "lines of the package": sum(len(f.read_text().splitlines()) for f in files),
+        "_detail": {
+            "up": [f"{a} -> {b}{' (in a function)' if n else ''}" for a, b, n in up],
+            "circles": circles,
+            "closing": [f"{a} -> {b}" for a, b in sorted(closing)],
+            "private": [f"{a} <- {b}.{n}" for a, b, n in private],
+        },
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true", help="print JSON")
+    ap.add_argument("--detail", action="store_true", help="list the offending imports")
+    args = ap.parse_args()
+    m = measure()
+    detail = m.pop("_detail")
+    if args.json:
+        print(json.dumps({**m, **({"detail": detail} if args.detail else {})}, indent=1))
+        return
+    for k, v in m.items():
+        if isinstance(v, list):
+            print(f"{k}:")
+            for x in v:
+                print(f"    {x}")
+        else:
+            print(f"{k:45s} {v}")
+    if args.detail:
+        for k, rows in detail.items():
+            print(f"\n{k}:")
+            for r in rows:
+                print(f"    {r}")
+
+
+if __name__ == "__main__":
+    main()

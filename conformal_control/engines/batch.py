@@ -1,0 +1,1236 @@
+"""Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
+
+:func:`run_episode`'s generic loop runs one episode as a chain of Python calls per control
+instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
+episode of a batch advances by one interval per iteration, and the work of an iteration is
+done for all of them together -- ONE compiled call for every control instant of the
+interval (:func:`~conformal_control.engines.interval.run_interval`: reference, the exact
+2-D filter's fused APF step, plant, goal check, frame clock and log), compiled loops for
+the replay bookkeeping (:mod:`~conformal_control.engines.kernels`), and, at sampling
+times, ONE call of the predictor, the interpolation, the constraint and the loss on the
+agents of every episode at that sampling time laid side by side (these are computed agent
+by agent, so one call on the concatenation is the same arithmetic as one call per
+episode). :func:`run_episode` itself runs a single episode on this engine when it can
+(:func:`run_single`, keeping the per-instant steps and the animation record too).
+
+The metrics are those of :func:`run_episode`, exactly: every episode is built by
+:func:`~conformal_control.flagship.build.build_flagship` (same parameter resolution, same
+validation, same errors), its lambda is updated by its own update rule through its own
+:class:`~conformal_control.monitor.GuaranteeMonitor`, its counters are written into the
+same learned attributes the per-episode loop fills, and it is measured by the same code.
+The per-instant arithmetic is written to round the same way (``tests/engines/test_batch.py``
+checks every metric against :func:`run_episode`). The wall time of the control loop
+(``wall_s``) is the episode's share of the batch's: each iteration's time divided among
+the episodes it advanced.
+
+Supported (:func:`supports` says why not otherwise, so a caller can fall back to
+:func:`run_episode`): replayed crowds; any registered predictor; the APF barrier; the exact
+2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback; the attractive-field
+reference; the velocity-tracking plant; the ``cbf_gap``, ``collision`` or
+``distance_shortfall`` loss; any registered update rule, learning or not. Roles are given by
+name (an instance would be shared by every episode).
+
+What runs compiled and what runs through the episode's own objects: the constant-velocity
+and the oracle predictor are compiled (above); any other predictor is called at each
+sampling time on the query the episode's environment builds
+(:meth:`~conformal_control.world.replay.ReplayEnvironment.sense`), through the
+controller's own ``begin_interval`` (sanitising, counters, interpolation, the same
+:class:`~conformal_control.cbf.controller.PredictorError`), and its interpolated
+predictions are copied into the batch. The gap loss is compiled; the ``collision`` and
+``distance_shortfall`` losses are the loss objects themselves, called on the interval's
+record and on the truth the environment reveals. The rule is the episode's own; a rule that
+evaluates the interval's loss at other lambdas (``uses_loss_function``, e.g. ``dtaci``)
+receives the loss as a function of lambda, as
+:class:`~conformal_control.loop.ConformalStepper` hands it (for the gap loss
+``s(max_gap + lambda)``: the gaps do not depend on lambda, and
+:class:`~conformal_control.cbf.loss.CBFGapLoss` adds lambda to their maximum).
+
+Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
+refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
+memory) at the next common sampling time. With ``output="metrics"`` (default) only the
+:class:`~conformal_control.results.metrics.EpisodeMetrics` are kept; ``output="results"``
+keeps an :class:`~conformal_control.results.episode.EpisodeResult` per episode (scene, config,
+intervals, per-frame trajectory, the loop's result; no per-instant ``steps`` and no
+animation record).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import warnings
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from itertools import repeat
+from typing import Any, TypeVar
+
+import numpy as np
+
+from ..base import Loss
+from ..cbf import kernels2d
+from ..cbf.barriers import APFBarrier
+from ..cbf.constraint import ConformalConstraint
+from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+from ..cbf.fallbacks import Brake, Hold, LambdaSearch
+from ..cbf.filters.exact2d import Exact2DSafetyFilter
+from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
+from ..cbf.reference import AttractiveField
+from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
+from ..cbf.speed import speed_polygon
+from ..data.scene import Scene
+from ..flagship.build import Flagship, build_flagship
+from ..loop import IntervalLog, LoopResult, LossAt
+from ..monitor import GuaranteeMonitor
+from ..predictors.constant_velocity import ConstantVelocityPredictor
+from ..predictors.oracle import OraclePredictor
+from ..results.episode import EpisodeResult
+from ..results.measure import (
+    LAMBDA_LIMIT,
+    check_lambda,
+    episode_config,
+    feasibility,
+    jsonable,
+    lambda_safe_values,
+    measure,
+    warn_after_run,
+    warn_before_run,
+)
+from ..results.metrics import EpisodeMetrics
+from ..results.record import AnimationRecorder
+from ..world.replay import FrameLog, ReplayEnvironment
+from . import kernels as bk
+from .gap_kernels import BRAKE, HOLD, SEARCH, gap_maxima
+from .interval import run_interval
+
+__all__ = ["iter_batch", "run_batch", "run_single", "supports"]
+
+_T = TypeVar("_T")
+
+#: Roles the engine runs, by the names they are registered under (None: the default).
+SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
+    "barrier": (None, "apf"),
+    "safety_filter": (None, "exact2d"),
+    "fallback": (None, "lambda_search", "brake", "hold"),
+    "reference": (None, "attractive_field"),
+    "dynamics": (None, "velocity_tracking"),
+    "loss": (None, "cbf_gap", "collision", "distance_shortfall"),
+    "family": (None, "cbf"),
+}
+#: Roles the engine runs under any registered name (each episode builds and runs its own).
+ANY_NAME_ROLES = ("predictor", "rule")
+#: Losses the engine scores with their own code on the interval's record and truth (they
+#: read the ego's positions and the truth, not the filter's status strings).
+_RECORD_LOSSES = (CollisionLoss, DistanceShortfallLoss)
+#: Predictor code of an episode whose predictor is called in Python (not compiled).
+_OWN = -1
+_FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
+#: The role keywords of :func:`run_episode` (a name or instance, and its parameters).
+_ROLE_KEYS = (
+    "barrier",
+    "barrier_params",
+    "safety_filter",
+    "safety_filter_params",
+    "fallback",
+    "reference",
+    "reference_params",
+    "dynamics",
+    "dynamics_params",
+    "loss",
+    "loss_params",
+    "family",
+    "family_params",
+)
+#: Keyword arguments of :func:`run_episode` the engine accepts (besides the scene).
+_RUN_KEYS = frozenset(
+    {
+        "predictor",
+        "params",
+        "units",
+        "learn",
+        "max_frames",
+        "seed",
+        "seeds",
+        "predictor_params",
+        "extra_config",
+        "rule",
+        "rule_params",
+        "lambda_safe",
+        "lambda_safe_source",
+        *_ROLE_KEYS,
+        "crowd",
+        "crowd_params",
+        "record_animation",
+        "on_interval",
+    }
+)
+
+
+def supports(**run_kwargs: Any) -> str | None:
+    """Whether :func:`run_batch` runs episodes configured by these :func:`run_episode`
+    keyword arguments: None if it does, else the reason (one sentence).
+
+    Examples
+    --------
+    >>> supports(predictor="constant_velocity", learn=False) is None
+    True
+    >>> supports(crowd="orca")
+    "crowd 'orca': the batch engine replays recorded crowds only"
+    """
+    unknown = sorted(set(run_kwargs) - _RUN_KEYS)
+    if unknown:
+        return f"{unknown[0]!r} is not a keyword argument of run_episode"
+    kw = {"predictor": "constant_velocity", **run_kwargs}
+    for role in (*ANY_NAME_ROLES, *SUPPORTED_ROLES):
+        spec = kw.get(role)
+        if spec is not None and not isinstance(spec, str):
+            return (
+                f"{role} given as a {type(spec).__name__} instance: the batch engine builds "
+                "one per episode, give it by registered name"
+            )
+        names = SUPPORTED_ROLES.get(role)
+        if names is not None and spec not in names:
+            shown = ", ".join(n for n in names if n is not None)
+            return f"{role} {spec!r}: the batch engine runs {shown}"
+    fallback = (kw.get("params") or {}).get("fallback")
+    if fallback is not None and fallback not in SUPPORTED_ROLES["fallback"]:
+        return f"fallback {fallback!r}: the batch engine runs lambda_search, brake and hold"
+    filter_params = kw.get("safety_filter_params") or {}
+    if filter_params.get("compiled_step", True) is not True:
+        return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
+    if isinstance(filter_params.get("fallback"), str):
+        if filter_params["fallback"] not in SUPPORTED_ROLES["fallback"]:
+            return f"fallback {filter_params['fallback']!r}: the batch engine runs lambda_search, brake and hold"  # noqa: E501
+    elif filter_params.get("fallback") is not None:
+        return "a fallback instance: the batch engine builds one per episode, give it by name"
+    crowd = kw.get("crowd", "replay")
+    if crowd != "replay":
+        return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
+    if kw.get("record_animation"):
+        return "record_animation: the batch engine keeps no animation record"
+    if kw.get("on_interval") is not None:
+        return "on_interval: the batch engine takes no per-interval callback"
+    return None
+
+
+class _NotRun(ValueError):
+    """An episode as built is not one the engine runs (a name resolved to a plugin of
+    another class); the message says why."""
+
+    def __init__(self, why: str) -> None:
+        super().__init__(f"run_batch cannot run this episode: {why}; use run_episode")
+
+
+def _exact(obj: object, cls: type[_T], role: str) -> _T:
+    """``obj`` if its class is exactly ``cls`` (a subclass may compute something else
+    than the compiled step does), else :class:`_NotRun`."""
+    if type(obj) is not cls:
+        raise _NotRun(f"the {role} is a {type(obj).__name__}, not a {cls.__name__}")
+    return obj
+
+
+@dataclass(frozen=True)
+class _Parts:
+    """The roles of a built episode the engine reads, as the classes it runs."""
+
+    env: ReplayEnvironment
+    barrier: APFBarrier
+    safety_filter: Exact2DSafetyFilter
+    reference: AttractiveField
+    dynamics: VelocityTrackingDoubleIntegrator
+    loss: Loss[Any, Any]  # a CBFGapLoss (compiled) or one of _RECORD_LOSSES
+    gap: CBFGapLoss | None  # the loss if it is the gap loss
+
+
+def _parts(fl: Flagship) -> _Parts:
+    """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
+    ValueError) if the episode as built is not one it runs."""
+    policy = _exact(fl.policy, ConformalCBFController, "decision family")
+    env = _exact(fl.env, ReplayEnvironment, "environment")
+    constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
+    barrier = _exact(fl.barrier, APFBarrier, "barrier")
+    filt = _exact(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
+    reference = _exact(fl.reference, AttractiveField, "reference")
+    dynamics = _exact(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
+    loss = fl.loss
+    gap = loss if type(loss) is CBFGapLoss else None
+    if gap is None and type(loss) not in _RECORD_LOSSES:
+        shown = ", ".join(c.__name__ for c in (CBFGapLoss, *_RECORD_LOSSES))
+        raise _NotRun(f"the loss is a {type(loss).__name__}, not one of {shown}")
+    if (gap is not None and gap.constraint is not constraint) or (
+        policy.constraint is not constraint
+    ):
+        raise _NotRun("the loss and the controller do not share the run's constraint")
+    if filt.compiled_step is not True:
+        raise _NotRun("the safety filter's compiled step is off")
+    fallback = filt.fallback
+    if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
+        raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
+    return _Parts(env, barrier, filt, reference, dynamics, loss, gap)
+
+
+def _predictor_code(pred: object) -> int:
+    """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
+    that ``pred`` is (its class exactly: a subclass may predict otherwise), else ``_OWN``."""
+    if type(pred) is ConstantVelocityPredictor:
+        return bk.CONSTANT_VELOCITY
+    if type(pred) is OraclePredictor:
+        return bk.ORACLE
+    return _OWN
+
+
+class _GapLossAt:
+    """The gap loss of an interval as a function of lambda: ``s(max_gap + lambda)``, as
+    :meth:`CBFGapLoss.__call__ <conformal_control.cbf.loss.CBFGapLoss.__call__>` computes it
+    (the gaps do not depend on lambda; lambda is added to their maximum), from the maximum
+    the engine computed (what ``ConformalStepper.end_interval`` hands a rule with
+    ``uses_loss_function``, without rebuilding the interval's record)."""
+
+    def __init__(self, loss: CBFGapLoss, max_gap: np.float64) -> None:
+        self.loss, self.max_gap = loss, max_gap
+
+    def __call__(self, lam: float) -> float:
+        if math.isnan(lam):
+            raise ValueError("the loss needs a lambda that is a number, got nan")
+        return float(self.loss.squash(self.max_gap + lam))
+
+
+# ------------------------------------------------------------------------------ episodes
+@dataclass
+class _Episode:
+    """One live episode: its built flagship and what the loop accumulates in Python."""
+
+    index: int
+    fl: Flagship
+    parts: _Parts  # fl's roles as the classes the engine runs
+    monitor: GuaranteeMonitor
+    learn: bool
+    seed: int
+    max_frames: int | None
+    lambda_safe: float | None  # in the scene's units, as run_episode reports it
+    floor: Any
+    goals: np.ndarray
+    intervals: list[IntervalLog] = field(default_factory=list)
+    n_sensed: list[int] = field(default_factory=list)
+
+
+class _Pool:
+    """The state of ``size`` episode slots, one row per slot (grown on demand).
+
+    Every array's first axis is the slot. The per-slot scalars are float64 (times, lambda,
+    the plant's and the reference's constants, the loss scale, the wall time) or int64
+    (step and frame counters, sizes, codes of the fallback and the predictor).
+    """
+
+    size: int
+    t: np.ndarray  # float64 (size,)
+    lam: np.ndarray  # float64 (size,)
+    dt: np.ndarray  # float64 (size,)
+    dt_frame: np.ndarray  # float64 (size,)
+    decay: np.ndarray  # float64 (size,)
+    gain: np.ndarray  # float64 (size,)
+    k_acc: np.ndarray  # float64 (size,)
+    neg_k_att: np.ndarray  # float64 (size,)
+    v_ref_max: np.ndarray  # float64 (size,)
+    goal_radius: np.ndarray  # float64 (size,)
+    radius: np.ndarray  # float64 (size,)
+    t_goal: np.ndarray  # float64 (size,)
+    scale: np.ndarray  # float64 (size,)
+    wall: np.ndarray  # float64 (size,)
+    step: np.ndarray  # int64 (size,)
+    n_ctrl: np.ndarray  # int64 (size,)
+    n_agents: np.ndarray  # int64 (size,)
+    fi: np.ndarray  # int64 (size,)
+    last_frame: np.ndarray  # int64 (size,)
+    k_start: np.ndarray  # int64 (size,)
+    substeps: np.ndarray  # int64 (size,)
+    tau: np.ndarray  # int64 (size,)
+    history: np.ndarray  # int64 (size,)
+    goal_idx: np.ndarray  # int64 (size,)
+    n_log: np.ndarray  # int64 (size,)
+    poly_len: np.ndarray  # int64 (size,)
+    fallback: np.ndarray  # int64 (size,)
+    predictor: np.ndarray  # int64 (size,)
+    window: np.ndarray  # int64 (size,)
+    n_short: np.ndarray  # int64 (size,)
+    n_short_total: np.ndarray  # int64 (size,)
+    n_predicted: np.ndarray  # int64 (size,)
+    n_bad: np.ndarray  # int64 (size,)
+    n_bad_total: np.ndarray  # int64 (size,)
+    x: np.ndarray  # (size, 4): position, velocity
+    goal: np.ndarray  # (size, 2)
+    last: np.ndarray  # (size, 2): the previous decision (the filter's output)
+    active: np.ndarray  # bool (size,)
+    done: np.ndarray  # bool (size,)
+    need_begin: np.ndarray  # bool (size,)
+    prm: np.ndarray  # (size, len(kernels2d.PARAMS))
+    poly: np.ndarray  # (size, 5 * sides): the speed polygon
+    counts: np.ndarray  # int64 (size, 5): solves, infeasible, fallback, vertex, steps
+    sensed: np.ndarray  # int64 (size, columns)
+    xp: np.ndarray  # (size, steps, cap, 2): predicted positions
+    vp: np.ndarray  # (size, steps, cap, 2): predicted velocities
+    rec_x: np.ndarray  # (size, steps, 2)
+    rec_v: np.ndarray  # (size, steps, 2)
+    rec_lam: np.ndarray  # (size, steps)
+    log: np.ndarray  # (size, frames, 6)
+    samples: np.ndarray  # (>= tau + 1, 2): one agent's predicted samples, scratch
+    cap: int  # agents per slot that xp / vp and the work buffer hold
+    sides: int  # sides of the largest speed polygon
+    work: np.ndarray  # the compiled filter's work buffer
+    store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
+    where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    goals: np.ndarray  # (size, waypoints, 2): each slot's goals
+    n_goals: np.ndarray  # int64 (size,)
+    rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
+    keep: bool  # whether st_* keep every control instant of the episodes
+    st_t: np.ndarray  # (size, instants): time after each control instant
+    st_x: np.ndarray  # (size, instants, 4): state after it
+    st_cmd: np.ndarray  # (size, instants, 2): the command applied
+    n_st: np.ndarray  # int64 (size,)
+    used: int  # floats of store in use
+
+    def __init__(self, size: int) -> None:
+        b = self.size = size
+        self.t = np.zeros(b)
+        self.lam = np.zeros(b)
+        self.dt = np.zeros(b)
+        self.dt_frame = np.zeros(b)
+        self.decay = np.zeros(b)
+        self.gain = np.zeros(b)
+        self.k_acc = np.zeros(b)
+        self.neg_k_att = np.zeros(b)
+        self.v_ref_max = np.zeros(b)
+        self.goal_radius = np.zeros(b)
+        self.radius = np.zeros(b)
+        self.t_goal = np.zeros(b)
+        self.scale = np.zeros(b)
+        self.wall = np.zeros(b)
+        self.step = np.zeros(b, dtype=np.int64)
+        self.n_ctrl = np.zeros(b, dtype=np.int64)
+        self.n_agents = np.zeros(b, dtype=np.int64)
+        self.fi = np.zeros(b, dtype=np.int64)
+        self.last_frame = np.zeros(b, dtype=np.int64)
+        self.k_start = np.zeros(b, dtype=np.int64)
+        self.substeps = np.zeros(b, dtype=np.int64)
+        self.tau = np.zeros(b, dtype=np.int64)
+        self.history = np.zeros(b, dtype=np.int64)
+        self.goal_idx = np.zeros(b, dtype=np.int64)
+        self.n_log = np.zeros(b, dtype=np.int64)
+        self.poly_len = np.zeros(b, dtype=np.int64)
+        self.fallback = np.zeros(b, dtype=np.int64)
+        self.predictor = np.zeros(b, dtype=np.int64)
+        self.window = np.zeros(b, dtype=np.int64)
+        self.n_short = np.zeros(b, dtype=np.int64)
+        self.n_short_total = np.zeros(b, dtype=np.int64)
+        self.n_predicted = np.zeros(b, dtype=np.int64)
+        self.n_bad = np.zeros(b, dtype=np.int64)
+        self.n_bad_total = np.zeros(b, dtype=np.int64)
+        self.x = np.zeros((b, 4))
+        self.goal = np.zeros((b, 2))
+        self.last = np.zeros((b, 2))
+        self.active = np.zeros(b, dtype=bool)
+        self.done = np.zeros(b, dtype=bool)
+        self.need_begin = np.zeros(b, dtype=bool)
+        self.prm = np.zeros((b, len(kernels2d.PARAMS)))
+        self.poly = np.zeros((b, 0))
+        self.counts = np.zeros((b, 5), dtype=np.int64)
+        self.sensed = np.zeros((b, 0), dtype=np.int64)
+        self.xp = np.zeros((b, 0, 0, 2))
+        self.vp = np.zeros((b, 0, 0, 2))
+        self.rec_x = np.zeros((b, 0, 2))
+        self.rec_v = np.zeros((b, 0, 2))
+        self.rec_lam = np.zeros((b, 0))
+        self.log = np.zeros((b, 0, 6))
+        self.samples = np.zeros((1, 2))
+        self.cap = 0  # agents per slot that xp / vp and the work buffer hold
+        self.sides = 0
+        self.work = np.zeros(0)
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
+        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.used = 0
+        self.borrowed = False  # store is a live episode's own recording (see load)
+        self.goals = np.zeros((b, 1, 2))
+        self.n_goals = np.zeros(b, dtype=np.int64)
+        self.rec_code = np.zeros((b, 0), dtype=np.int8)
+        self.keep = False
+        self.st_t = np.zeros((b, 0))
+        self.st_x = np.zeros((b, 0, 4))
+        self.st_cmd = np.zeros((b, 0, 2))
+        self.n_st = np.zeros(b, dtype=np.int64)
+
+    @staticmethod
+    def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
+        if arr.shape[axis] >= n:
+            return arr
+        shape = list(arr.shape)
+        shape[axis] = n
+        out = np.zeros(shape, dtype=arr.dtype)
+        out[tuple(slice(0, k) for k in arr.shape)] = arr
+        return out
+
+    def load(self, b: int, positions: np.ndarray) -> None:
+        """Copy slot ``b``'s recording into the store (compacting or growing it).
+
+        With no other slot live, the store is the recording itself (read in place, not
+        copied: a single episode's case); it is copied out as soon as another one joins.
+        """
+        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+        n = data.size
+        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
+            self.store, self.borrowed, self.used = data, True, n
+            self.where[b] = (0, positions.shape[0], positions.shape[1])
+            return
+        if self.borrowed:  # never write into an episode's recording
+            self.store, self.borrowed = self.store[: self.used].copy(), False
+        if self.used + n > self.store.size:
+            self._compact()
+            if self.used + n > self.store.size:
+                free = int(self.size - self.active.sum())  # room for the free slots too
+                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+                grown[: self.used] = self.store[: self.used]
+                self.store = grown
+        self.store[self.used : self.used + n] = data
+        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.used += n
+
+    def _compact(self) -> None:
+        """Move the live slots' recordings to the front of the store, in place."""
+        live = np.flatnonzero(self.active)
+        end = 0
+        for b in live[np.argsort(self.where[live, 0])].tolist():
+            o, f, m = self.where[b].tolist()
+            n = f * m * 2
+            if o != end:
+                self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
+                self.where[b, 0] = end
+            end += n
+        self.used = end
+
+    def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
+        """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
+        if goals.shape[0] > self.goals.shape[1]:
+            self.goals = self._grown(self.goals, 1, goals.shape[0])
+        self.goals[b, : goals.shape[0]] = goals
+        self.n_goals[b] = goals.shape[0]
+        self.n_st[b] = 0
+        if self.keep and instants > self.st_t.shape[1]:
+            g = self._grown
+            self.st_t = g(self.st_t, 1, instants)
+            self.st_x, self.st_cmd = g(self.st_x, 1, instants), g(self.st_cmd, 1, instants)
+
+    def ensure(
+        self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
+    ) -> None:
+        """Room for ``steps`` control instants per interval, ``agents`` sensed agents,
+        ``columns`` agents in a recording, ``frames`` logged frames, ``sides`` polygon sides."""
+        g = self._grown
+        if steps > self.xp.shape[1]:
+            self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
+            self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
+            self.rec_lam = g(self.rec_lam, 1, steps)
+            self.rec_code = g(self.rec_code, 1, steps)
+            self.samples = g(self.samples, 0, steps + 1)  # >= tau + 1 rows
+        if agents > self.cap or sides > self.sides:
+            if agents > self.cap:
+                self.cap = max(agents, 2 * self.cap, 16)
+                self.xp, self.vp = g(self.xp, 2, self.cap), g(self.vp, 2, self.cap)
+                self.prm[:, 11] = self.cap
+            if sides > self.sides:
+                self.sides = sides
+                self.poly = g(self.poly, 1, 5 * sides)
+            self.work = np.zeros(kernels2d.work_size(self.cap, self.sides))
+        if columns > self.sensed.shape[1]:
+            self.sensed = g(self.sensed, 1, columns)
+        if frames > self.log.shape[1]:
+            self.log = g(self.log, 1, frames)
+
+
+# ------------------------------------------------------------------------------ engine
+class _Engine:
+    """The lockstep loop over a :class:`_Pool` (see the module docstring)."""
+
+    def __init__(
+        self, size: int, output: str, build: dict[str, Any], episode_kw: dict[str, Any]
+    ) -> None:
+        self.pool = _Pool(size)
+        self.eps: list[_Episode | None] = [None] * size
+        self.output = output
+        self.build = build
+        self.episode_kw = episode_kw
+        self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
+        self._own = False  # whether an episode predicts with its own predictor object
+        # the scores of an interval end, per slot (reset for the slots that end; reused
+        # rather than allocated at every interval end)
+        self._scores = (
+            np.empty(size),  # top gap
+            np.empty(size),  # top gap at the lambda applied
+            np.empty(size, dtype=np.int64),  # pairs scored
+            np.empty(size),  # loss
+            np.empty(size),  # loss at the lambda applied
+        )
+        #: called with the slots after their interval's control instants, before it is
+        #: scored (the single-episode run keeps its animation record with it)
+        self.on_control: Any = None
+
+    # ------------------------------------------------------------------ start
+    def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
+        """Build episode ``index`` as run_episode does and load it into slot ``b``."""
+        kw = self.episode_kw
+        learn = kw["learn"]
+        fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
+        parts = _parts(fl)
+        sc = fl.scene
+        lambda_safe, lam_safe_si = lambda_safe_values(fl, kw["lambda_safe"], kw["units"])
+        floor = feasibility(fl)
+        warn_before_run(fl, floor, learn)
+        # what ConformalLoop.run does first: reset the environment (validates the scene and
+        # the timing), the family (validates; resets predictor, filter, reference), the rule
+        env, filt, ref = parts.env, parts.safety_filter, parts.reference
+        dyn, bar = parts.dynamics, parts.barrier
+        env.reset()
+        fl.policy.reset()
+        monitor = GuaranteeMonitor.for_rule(
+            fl.rule,
+            lambda_safe=lam_safe_si,
+            lambda_safe_source=kw["lambda_safe_source"],
+            premise_proven=False,
+            bounds=parts.loss.bounds,
+            learn=learn,
+        )
+        k = float(dyn.K_acc)
+        if not (math.isfinite(k) and k > 0):
+            raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
+        pred = fl.predictor
+        code = _predictor_code(pred)
+        window = getattr(pred, "window", 1) if code == bk.CONSTANT_VELOCITY else 1
+        if int(window) != window or window < 1:
+            raise PredictorError(
+                f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
+                f"window must be a positive integer, got {window!r}"
+            )
+        ep = _Episode(
+            index=index,
+            fl=fl,
+            parts=parts,
+            monitor=monitor,
+            learn=learn,
+            seed=seed,
+            max_frames=max_frames,
+            lambda_safe=lambda_safe,
+            floor=floor,
+            goals=np.asarray(sc.goals, dtype=float),
+        )
+        p = self.pool
+        substeps, tau = int(env.substeps), int(env.tau_frames)
+        last = sc.n_frames - 1
+        if max_frames is not None:
+            last = min(last, sc.start_index + int(max_frames))
+        S, s, verts, radius = speed_polygon(int(filt.speed_sides), float(filt.v_max))
+        p.ensure(
+            steps=tau * substeps,
+            agents=1,
+            columns=sc.n_agents,
+            frames=last - sc.start_index + 1,
+            sides=S.shape[0],
+        )
+        dt_frame = 1.0 / sc.fps
+        dt = dt_frame / substeps
+        p.load(b, sc.positions)
+        p.x[b] = (*sc.start, 0.0, 0.0)
+        p.t[b] = 0.0
+        p.goal[b] = ep.goals[0]
+        p.goal_idx[b] = 0
+        p.goal_radius[b] = sc.goal_radius
+        p.t_goal[b] = math.nan
+        p.neg_k_att[b] = -ref.K_att
+        p.v_ref_max[b] = ref.v_max
+        p.dt[b] = dt
+        p.dt_frame[b] = dt_frame
+        p.decay[b] = math.exp(-k * dt)
+        p.gain[b] = -math.expm1(-k * dt)
+        p.k_acc[b] = k
+        p.radius[b] = env.sensing_radius
+        p.lam[b] = monitor.lambda_1
+        if parts.gap is not None:
+            p.scale[b] = parts.gap.scale
+            self._squash.setdefault(float(parts.gap.scale), parts.gap.squash)
+        else:  # scored by the loss object (see end)
+            p.scale[b] = math.nan
+        p.last[b] = 0.0
+        p.step[b] = 0
+        p.fi[b] = sc.start_index
+        p.last_frame[b] = last
+        p.substeps[b] = substeps
+        p.tau[b] = tau
+        p.history[b] = int(env.history_frames)
+        p.predictor[b] = code
+        self._own = self._own or code == _OWN
+        p.window[b] = int(window)
+        p.n_log[b] = 0
+        p.wall[b] = 0.0
+        p.n_predicted[b] = p.n_short_total[b] = p.n_bad_total[b] = 0
+        p.counts[b] = 0
+        p.done[b] = False
+        p.need_begin[b] = True
+        p.active[b] = True
+        poly = np.concatenate([S.ravel(), s, verts.ravel()])
+        p.poly[b, : poly.size] = poly
+        p.poly_len[b] = poly.size
+        p.fallback[b] = _FALLBACKS[type(filt.fallback_)]
+        p.prm[b] = (
+            float(bar.K_rep),
+            float(bar.rho0),
+            float(bar.d_c),
+            bar.effective_delta,
+            bar.convention == "surface",
+            float(fl.constraint.a),
+            radius,
+            not filt.speed_sides,
+            filt.v_max,
+            type(filt.fallback_) is LambdaSearch,
+            filt.lambda_margin,
+            p.cap,
+        )
+        self.eps[b] = ep
+        bk.log_frames(np.array([b]), p.store, p.where, p.fi, p.x, p.t, p.log, p.n_log)
+
+    # ------------------------------------------------------------------ sampling time
+    def begin(self, slots: np.ndarray) -> None:
+        """Sampling time of ``slots``: sense, predict, interpolate."""
+        p = self.pool
+        bk.count_sensed(slots, p.store, p.where, p.fi, p.x, p.radius, p.sensed, p.n_agents)
+        n = p.n_agents[slots]
+        most = int(n.max(initial=0))
+        if most > p.cap:
+            p.ensure(agents=most)
+        p.k_start[slots] = p.fi[slots]
+        p.step[slots] = 0
+        p.need_begin[slots] = False
+        for b, m in zip(slots.tolist(), n.tolist(), strict=True):
+            ep = self.eps[b]
+            assert ep is not None  # slots are live
+            ep.n_sensed.append(m)
+        predicted = slots[n > 0]  # the controller asks its predictor only about agents
+        if self._own:
+            own = p.predictor[predicted] == _OWN
+            for b in predicted[own].tolist():
+                self._predict_own(b)
+            predicted = predicted[~own]
+        if predicted.size:
+            bk.predict_interpolate(
+                predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
+                p.history, p.tau, p.substeps, p.dt_frame, p.samples, p.xp, p.vp, p.n_short,
+                p.n_bad,
+            )  # fmt: skip
+            p.n_predicted[predicted] += 1
+            p.n_bad_total[predicted] += p.n_bad[predicted]
+            p.n_short_total[predicted] += p.n_short[predicted]
+
+    def _predict_own(self, b: int) -> None:
+        """Slot ``b``'s predictions from its own predictor: the environment's query (its
+        sensor on the engine's state), the controller's ``begin_interval`` (prediction,
+        counters, sanitising, interpolation), copied into ``xp`` / ``vp``."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None  # b is live
+        env, policy = ep.parts.env, ep.fl.policy
+        n = int(p.n_agents[b])
+        # the environment senses where the engine's robot is, at the engine's frame and time
+        env._x = p.x[b].copy()
+        env._fi = int(p.fi[b])
+        env._t = float(p.t[b])
+        query = env.sense()
+        if not np.array_equal(env._sensed, p.sensed[b, :n]):  # both are the same range test
+            raise RuntimeError(
+                f"run_batch: the sensor and the engine disagree on the agents sensed in "
+                f"episode {ep.index} at frame {query.frame}; use run_episode"
+            )
+        policy.begin_interval(query)
+        s = int(policy._xp.shape[0])
+        p.xp[b, :s, :n] = policy._xp
+        p.vp[b, :s, :n] = policy._vp
+
+    # ------------------------------------------------------------------ control instants
+    def control(self, slots: np.ndarray) -> None:
+        """The control instants of the current interval of ``slots``, each slot up to its
+        interval's end or its episode's end, in one compiled call
+        (:func:`~conformal_control.engines.interval.run_interval`: reference, filter,
+        plant, goal with waypoints, frame clock and frame log)."""
+        p = self.pool
+        bad = run_interval(
+            slots, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
+            p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
+            p.v_ref_max,
+            p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
+            p.last, p.counts,
+            p.dt, p.decay, p.gain, p.k_acc,
+            p.rec_x, p.rec_v, p.rec_lam, p.rec_code,
+            p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
+            p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
+        )  # fmt: skip
+        if bad >= 0:
+            ep = self.eps[bad]
+            assert ep is not None  # bad is one of slots, which are live
+            which = f"episode {ep.index} of the batch, " if len(self.eps) > 1 else ""
+            raise ValueError(
+                "Exact2DSafetyFilter received non-finite constraints, lambda or nominal "
+                f"decision ({which}scene {ep.fl.scene.name}, t = {p.t[bad]:.3f} s); "
+                "predictions must be sanitised before building constraints"
+            )
+
+    # ------------------------------------------------------------------ interval end
+    def end(self, slots: np.ndarray) -> list[int]:
+        """Score the intervals of ``slots`` (they end now), update lambda; returns the
+        slots whose episode is over."""
+        p = self.pool
+        # the gap loss's intervals with pairs to score (other losses: their objects, below)
+        if slots.size == 1:  # one episode (run_episode's): the same test on scalars
+            b = int(slots[0])
+            one = p.n_agents[b] > 0 and p.step[b] > 0 and not math.isnan(p.scale[b])
+            scored = slots if one else slots[:0]
+        else:
+            scored = slots[
+                (p.n_agents[slots] > 0) & (p.step[slots] > 0) & ~np.isnan(p.scale[slots])
+            ]
+        top, top_applied, n_pairs, loss, applied = self._scores
+        top[slots] = -np.inf
+        top_applied[slots] = -np.inf
+        n_pairs[slots] = 0
+        loss[slots] = np.nan
+        applied[slots] = np.nan
+        if scored.size:
+            counts = p.n_agents[scored]
+            offsets = np.zeros(scored.size, dtype=np.int64)
+            if scored.size > 1:
+                np.cumsum(counts[:-1], out=offsets[1:])
+            frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
+            truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
+            bk.gather_windows(
+                scored, p.store, p.where, p.k_start, p.sensed, p.n_agents, offsets, truth
+            )
+            gap_maxima(
+                scored, offsets, p.n_agents, p.step, truth, p.dt_frame, p.substeps, p.rec_x,
+                p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
+            )  # fmt: skip
+            for scale, squash in self._squash.items():
+                # one loss scale in the engine: every scored slot has it
+                sel = scored if len(self._squash) == 1 else scored[p.scale[scored] == scale]
+                if sel.size:  # the loss's own squashing, s(r) = arctan(r / c) / pi
+                    loss[sel] = squash(top[sel] + p.lam[sel])
+                    applied[sel] = squash(top_applied[sel])
+        finished = []
+        for b in slots.tolist():
+            ep = self.eps[b]
+            assert ep is not None
+            lam = float(p.lam[b])
+            s = int(p.step[b])
+            pairs = int(n_pairs[b])
+            loss_at: Any = None  # l_k as a function of lambda, for a rule that asks for it
+            gap = ep.parts.gap
+            if gap is None:  # the loss object on the interval's record and truth
+                rec, revealed, own_loss = self._record(b), self._truth(b), ep.parts.loss
+                l_k = own_loss(rec, revealed, lam)
+                diagnostics = own_loss.diagnostics(rec, revealed, lam) if l_k is not None else {}
+                loss_at = LossAt(own_loss, rec, revealed)
+            elif pairs:
+                l_k = float(loss[b])
+                diagnostics = {
+                    "loss_applied": float(applied[b]),
+                    "max_gap": float(top[b]),
+                    "n_pairs": pairs,
+                    "n_truth_missing": s * int(p.n_agents[b]) - pairs,
+                }
+                loss_at = _GapLossAt(gap, top[b])
+            else:
+                l_k, diagnostics = None, {}
+            log = IntervalLog(
+                k=len(ep.intervals), lam=lam, loss=l_k, n_steps=s, diagnostics=diagnostics
+            )
+            ep.intervals.append(log)
+            if l_k is not None:  # as ConformalStepper.end_interval
+                mon = ep.monitor
+                if ep.learn:
+                    rule = ep.fl.rule
+                    if rule.uses_loss_function:
+                        rule.set_loss_function(loss_at)
+                    lam = mon.update(l_k)
+                else:
+                    mon.observe(l_k, lam)
+                    mon.set_lambda_next(lam)
+                log.l_avg = mon.average
+                p.lam[b] = lam
+            if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
+                check_lambda(lam, ep.fl, log.k)  # raises
+            if p.done[b]:
+                finished.append(b)
+            else:
+                p.need_begin[b] = True
+        return finished
+
+    def _record(self, b: int) -> CBFIntervalRecord:
+        """Slot ``b``'s interval as the controller's ``interval_record`` gives it, without
+        the filter's status strings (the engine keeps them as codes, ``rec_code``, for the
+        animation record; the losses that read a record do not use them)."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        s, n = int(p.step[b]), int(p.n_agents[b])
+        return CBFIntervalRecord(
+            ids=np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :n]]),
+            x_ego=p.rec_x[b, :s].copy(),
+            v_ego=p.rec_v[b, :s].copy(),
+            x_pred=p.xp[b, :s, :n].copy(),
+            v_pred=p.vp[b, :s, :n].copy(),
+            lam_applied=p.rec_lam[b, :s].copy(),
+        )
+
+    def _truth(self, b: int) -> CBFTruth:
+        """Slot ``b``'s truth, revealed by its environment (its own code) on the engine's
+        state of the interval: its start frame, the agents sensed then, its steps."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        env = ep.parts.env
+        env._k_start = int(p.k_start[b])
+        env._sensed = p.sensed[b, : int(p.n_agents[b])].copy()
+        env._step = int(p.step[b])
+        return env.reveal()
+
+    # ------------------------------------------------------------------ episode end
+    def finish(self, b: int) -> tuple[int, EpisodeResult | EpisodeMetrics]:
+        """Measure the episode of slot ``b`` with run_episode's code; free the slot.
+
+        The counters go where the per-episode loop keeps them (the environment's frame log,
+        ``t_goal_`` and ``n_sensed_``; the controller's and the filter's learned attributes),
+        then :func:`run_episode`'s own measuring code runs on them.
+        """
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        fl, kw = ep.fl, self.episode_kw
+        sc, env, policy, filt = fl.scene, ep.parts.env, fl.policy, ep.parts.safety_filter
+        n = int(p.n_log[b])
+        rows = p.log[b, :n]
+        env.log = FrameLog(
+            frame=(sc.first_frame + sc.start_index + np.arange(n)).tolist(),
+            t=rows[:, 0].tolist(),
+            state=list(rows[:, 1:5].copy()),
+            d_min=rows[:, 5].tolist(),
+        )
+        env.t_goal_ = None if math.isnan(p.t_goal[b]) else float(p.t_goal[b])
+        env.n_sensed_ = ep.n_sensed
+        c = p.counts[b].tolist()
+        policy.n_steps_ = c[4]
+        if p.predictor[b] != _OWN:  # (an own predictor's are the controller's already)
+            policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
+        if p.n_predicted[b] and p.predictor[b] == bk.CONSTANT_VELOCITY:
+            policy.forecast_info_ = {"n_short_history": int(p.n_short_total[b])}
+        filt.n_solves_, filt.n_infeasible_, filt.n_fallback_ = c[0], c[1], c[2]
+        if c[2]:
+            filt.fallback_counts_[filt.fallback_.name] = c[2]
+        if c[3]:
+            filt.events_["lambda_search_vertex"] = c[3]
+        result = LoopResult(
+            intervals=ep.intervals, lambda_final=float(p.lam[b]), monitor=ep.monitor
+        )
+        metrics, intervals, traj = measure(
+            fl, result, ep.learn, ep.lambda_safe, ep.floor, float(p.wall[b])
+        )
+        warn_after_run(fl, metrics, ep.learn, ep.max_frames)
+        p.active[b] = False
+        self.eps[b] = None
+        if self.output == "metrics":
+            return ep.index, metrics
+        config = episode_config(
+            fl,
+            kw["rule_params"],
+            kw["units"],
+            ep.learn,
+            ep.lambda_safe,
+            kw["lambda_safe_source"],
+            ep.seed,
+        )
+        config["max_frames"] = ep.max_frames
+        config["feasibility"] = jsonable(ep.floor.as_dict())
+        config.update(kw["extra_config"] or {})
+        config["crowd"] = {"crowd": "replay"}
+        config["engine"] = "batch"
+        return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
+
+    # ------------------------------------------------------------------ the loop
+    def run(
+        self, source: Iterator[tuple[int, Scene, int, int | None]]
+    ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
+        """Advance every live episode one interval per iteration (every slot is then at a
+        sampling time, so free slots are refilled at every iteration)."""
+        p = self.pool
+        free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
+        slots = np.zeros(0, dtype=np.int64)
+        elapsed = 0.0  # time of the iterations since the live slots last changed
+        while True:
+            if free:
+                started = False
+                while free:
+                    nxt = next(source, None)
+                    if nxt is None:
+                        break
+                    b = free.pop()
+                    self.start(b, *nxt)
+                    ep = self.eps[b]
+                    assert ep is not None
+                    frames = int(p.last_frame[b] - p.fi[b]) + 1
+                    p.prepare(b, ep.goals, frames * int(p.substeps[b]))
+                    started = True
+                if started:
+                    slots = np.flatnonzero(p.active)
+            if not slots.size:
+                return
+            t0 = time.perf_counter()
+            # every live slot is at a sampling time: a new one, or its interval was scored
+            self.begin(slots)
+            self.control(slots)
+            if self.on_control is not None:
+                self.on_control(slots)
+            finished = self.end(slots)
+            elapsed += time.perf_counter() - t0
+            if finished:  # each slot's share of the iterations it took part in
+                p.wall[slots] += elapsed / slots.size
+                elapsed = 0.0
+                for b in finished:
+                    yield self.finish(b)
+                free += reversed(finished)
+                slots = np.flatnonzero(p.active)
+
+
+def _per_episode(value: Any, name: str) -> Iterator[Any]:
+    """A value for every episode: a scalar repeated, or one per episode from a sequence."""
+    if value is None or isinstance(value, (int, np.integer)):
+        return repeat(None if value is None else int(value))
+    if isinstance(value, Iterable) and not isinstance(value, (str, bytes)):
+        return iter(value)
+    raise TypeError(f"{name} must be an int, None or one value per scene, got {value!r}")
+
+
+def iter_batch(
+    scenes: Iterable[Scene],
+    predictor: str = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    *,
+    units: str = "scene",
+    learn: bool = True,
+    max_frames: int | Iterable[int | None] | None = None,
+    seeds: int | Sequence[int] | None = None,
+    batch_size: int = 256,
+    output: str = "metrics",
+    **run_kwargs: Any,
+) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
+    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
+    order; ``index`` is the scene's position in ``scenes``). ``max_frames`` may also be
+    an iterator, consumed one value per scene as the scene is started."""
+    reason = supports(predictor=predictor, **run_kwargs)
+    if reason is not None:
+        raise ValueError(f"run_batch does not support this configuration: {reason}")
+    if output not in ("metrics", "results"):
+        raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
+    if int(batch_size) != batch_size or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    if units not in ("scene", "si"):
+        raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
+    kw = dict(run_kwargs)
+    build = {
+        "predictor": predictor,
+        "units": units,
+        "params": params,
+        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
+        "rule": kw.get("rule") or "fixed_eta",
+    }
+    episode_kw = {
+        "learn": bool(learn),
+        "units": units,
+        "lambda_safe": kw.get("lambda_safe"),
+        "lambda_safe_source": kw.get("lambda_safe_source"),
+        "rule_params": kw.get("rule_params"),
+        "extra_config": kw.get("extra_config"),
+    }
+    frames = _per_episode(max_frames, "max_frames")
+    seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
+
+    def source() -> Iterator[tuple[int, Scene, int, int | None]]:
+        for i, scene in enumerate(scenes):
+            try:
+                mf, seed = next(frames), next(seed_values)
+            except StopIteration:
+                raise ValueError("max_frames / seeds have fewer values than scenes") from None
+            yield i, scene, int(seed), None if mf is None else int(mf)
+
+    engine = _Engine(int(batch_size), output, build, episode_kw)
+    yield from engine.run(source())
+
+
+def run_batch(
+    scenes: Iterable[Scene],
+    predictor: str = "constant_velocity",
+    params: dict[str, Any] | None = None,
+    *,
+    units: str = "scene",
+    learn: bool = True,
+    max_frames: int | Sequence[int | None] | None = None,
+    seeds: int | Sequence[int] | None = None,
+    batch_size: int = 256,
+    output: str = "metrics",
+    **run_kwargs: Any,
+) -> list[EpisodeMetrics] | list[EpisodeResult]:
+    """Run one episode per scene, many at once, with the metrics of :func:`run_episode`.
+
+    Parameters
+    ----------
+    scenes : iterable of Scene
+        Consumed lazily (a generator keeps only the live episodes' scenes in memory).
+    predictor, params, units, learn
+        As in :func:`~conformal_control.sim.run_episode`, for every episode.
+    max_frames : int, sequence or None
+        The frame limit of every episode, or one per scene (e.g. each benchmark
+        scenario's ``max_frames``).
+    seeds : int, sequence or None
+        The seed recorded for every episode (default 0, as ``run_episode``), or one per
+        scene.
+    batch_size : int
+        Episodes alive at a time (memory grows with it; 256 keeps the per-iteration
+        overhead well below the compiled work).
+    output : {"metrics", "results"}
+        Return :class:`EpisodeMetrics` (default) or :class:`EpisodeResult` objects.
+    **run_kwargs
+        Any other keyword argument of ``run_episode`` that :func:`supports` accepts
+        (``rule_params``, ``fallback``, ``lambda_safe``, ``extra_config``, ...).
+
+    Returns
+    -------
+    list
+        One item per scene, in the order of ``scenes``.
+
+    Raises
+    ------
+    ValueError
+        For a configuration :func:`supports` rejects (the message gives the reason), and
+        for anything ``run_episode`` rejects.
+    """
+    out: dict[int, Any] = {}
+    for index, item in iter_batch(
+        scenes,
+        predictor,
+        params,
+        units=units,
+        learn=learn,
+        max_frames=max_frames,
+        seeds=seeds,
+        batch_size=batch_size,
+        output=output,
+        **run_kwargs,
+    ):
+        out[index] = item
+    return [out[i] for i in range(len(out))]
+
+
+# ------------------------------------------------------------------------------ one episode
+def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> EpisodeResult | None:
+    """One episode on the compiled engine, as :func:`run_episode` returns it.
+
+    ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
+    per-episode loop gives (metrics but the wall time, intervals, trajectory, per-instant
+    ``steps`` and, with ``record_animation``, the animation record), with
+    ``config["engine"] = "batch"``. With ``engine="auto"`` returns None if the engine does
+    not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
+    ``ValueError`` saying why.
+    """
+    kw = dict(run_kwargs)
+    record_animation = bool(kw.pop("record_animation", True))
+    reason = supports(**kw)
+    if reason is None and not EXACT_FOR_THIS_PYTHON:
+        reason = (
+            "the engine's distances reproduce CPython 3.11's math.hypot, not this "
+            f"Python's ({sys.version_info[0]}.{sys.version_info[1]})"
+        )
+    if reason is not None:
+        if engine == "auto":
+            return None
+        raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
+    learn = bool(kw.get("learn", True))
+    units = kw.get("units", "scene")
+    build = {
+        "predictor": kw.get("predictor", "constant_velocity"),
+        "units": units,
+        "params": kw.get("params"),
+        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
+        "rule": kw.get("rule") or "fixed_eta",
+        "crowd": kw.get("crowd", "replay"),
+        "crowd_params": kw.get("crowd_params"),
+    }
+    episode_kw = {
+        "learn": learn,
+        "units": units,
+        "lambda_safe": kw.get("lambda_safe"),
+        "lambda_safe_source": kw.get("lambda_safe_source"),
+        "rule_params": kw.get("rule_params"),
+        "extra_config": kw.get("extra_config"),
+    }
+    eng = _Engine(1, "results", build, episode_kw)
+    p = eng.pool
+    p.keep = True
+    recorder: list[AnimationRecorder] = []
+    built: list[Flagship] = []
+
+    def on_control(slots: np.ndarray) -> None:
+        ep = eng.eps[0]
+        assert ep is not None
+        if not built:
+            fl = ep.fl
+            built.append(fl)
+            if record_animation:
+                si = fl.params.si
+                recorder.append(
+                    AnimationRecorder(
+                        fl.scene,
+                        fl.policy,
+                        fl.barrier,
+                        fl.params.tau_frames,
+                        si["substeps"],
+                        si["sensing_radius"],
+                    )
+                )
+        if recorder:  # what the recorder reads of the controller after an interval
+            s, n = int(p.step[0]), int(p.n_agents[0])
+            recorder[0].add_interval(
+                ep.fl.scene.agent_ids[p.sensed[0, :n]], p.xp[0, :s, :n], p.rec_code[0, :s]
+            )
+
+    eng.on_control = on_control
+    seed = int(kw.get("seed", 0))
+    max_frames = kw.get("max_frames")
+    # the engine's warnings are those of run_episode: re-issued for run_episode's caller
+    # (also when the episode stops with an error), unless the loop runs it instead
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+    except _NotRun:
+        if engine == "auto":
+            caught.clear()  # the loop builds the episode again and warns itself
+            return None
+        raise
+    finally:
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=3)
+    assert isinstance(result, EpisodeResult)
+    n = int(p.n_st[0])
+    result.steps = {
+        "t": p.st_t[0, :n].copy(),
+        "x": p.st_x[0, :n].copy(),
+        "cmd": p.st_cmd[0, :n].copy(),
+    }
+    if recorder:
+        si = built[0].params.si
+        result.animation = recorder[0].finish(
+            result.trajectory,
+            result.intervals,
+            {"epsilon": si["epsilon"], "lambda_unit": result.metrics.unit("lambda_final")},
+        )
+    return result

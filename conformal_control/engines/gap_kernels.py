@@ -1,0 +1,139 @@
+"""The gap loss of many episodes at once, compiled (the lockstep engine's interval end).
+
+:func:`gap_maxima` scores the intervals that end at a sampling time for every episode of a
+batch: the largest gap between the APF constraint on the predicted and on the true agents
+(:class:`~conformal_control.cbf.loss.CBFGapLoss`, with
+:meth:`~conformal_control.cbf.constraint.ConformalConstraint.value`'s arithmetic), agent by
+agent and instant by instant. The control instants themselves run in
+:func:`~conformal_control.engines.interval.run_interval`, which calls the exact 2-D
+filter's fused APF step (:func:`~conformal_control.cbf.kernels2d.apf_step`) as is.
+:data:`SEARCH`, :data:`BRAKE` and :data:`HOLD` are the fallback codes the engine gives it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["BRAKE", "HOLD", "SEARCH", "gap_maxima"]
+
+#: Fallback codes of the engine (``lambda_search`` runs inside ``apf_step``).
+SEARCH, BRAKE, HOLD = 0, 1, 2
+
+jit = numba.njit(cache=True, nogil=True)
+
+
+@jit
+def _apf_value(
+    ex: float,
+    ey: float,
+    evx: float,
+    evy: float,
+    ax: float,
+    ay: float,
+    avx: float,
+    avy: float,
+    prm: np.ndarray,
+) -> float:
+    """``dh/dx . v + dh/dx_j . v_j + a h`` for the APF barrier of ``prm`` (the arithmetic
+    of :meth:`APFBarrier.evaluate` and :meth:`ConformalConstraint.value`)."""
+    K = prm[0]
+    rho0 = prm[1]
+    d0 = ex - ax
+    d1 = ey - ay
+    d = math.hypot(d0, d1)
+    rho = d - prm[2] if prm[4] != 0.0 else d
+    r = min(max(rho, 0.0), rho0)
+    q = 1.0 - r / rho0
+    r2 = r * r
+    inv_d = 1.0 / (2.0 * r2 + K * q * q)
+    h = 2.0 * r2 * inv_d - prm[3]
+    scale = 4.0 * K * q * r * inv_d * inv_d / max(d, 1e-300)
+    g0 = scale * d0
+    g1 = scale * d1
+    value: float = (g0 * evx + g1 * evy) + ((-g0) * avx + (-g1) * avy) + prm[5] * h
+    return value
+
+
+@jit
+def gap_maxima(
+    slots: np.ndarray,
+    offsets: np.ndarray,
+    n_agents: np.ndarray,
+    step: np.ndarray,
+    truth: np.ndarray,
+    dt_frame: np.ndarray,
+    substeps: np.ndarray,
+    rec_x: np.ndarray,
+    rec_v: np.ndarray,
+    rec_lam: np.ndarray,
+    xp: np.ndarray,
+    vp: np.ndarray,
+    lam: np.ndarray,
+    prm: np.ndarray,
+    top: np.ndarray,
+    top_applied: np.ndarray,
+    n_pairs: np.ndarray,
+) -> None:
+    """The gap loss's maxima for the interval that ends now, per slot.
+
+    The ``i``-th slot ``b`` has ``n_agents[b]`` sensed agents whose true positions at the
+    interval's frames are rows ``truth[offsets[i] + a]`` (NaN where unobserved); it ran
+    ``step[b]`` control instants. As :class:`~conformal_control.cbf.loss.CBFGapLoss`: the
+    truth is interpolated at the control instants like the prediction
+    (:func:`~conformal_control.cbf.interp.interpolate_at_substeps`), the gap is the
+    constraint on the prediction minus the constraint on the truth (with the ego's recorded
+    position and decision), pairs without truth are left out. Writes the largest gap
+    ``top[b]``, the largest gap plus the lambda applied (``lam[b]`` where brake / hold
+    applied none) ``top_applied[b]`` and the number of pairs with a truth ``n_pairs[b]``.
+    """
+    for i in range(slots.shape[0]):
+        b = slots[i]
+        o = offsets[i]
+        sub = substeps[b]
+        dt = dt_frame[b]
+        p = prm[b]
+        best = -math.inf
+        best_applied = -math.inf
+        count = 0
+        for k in range(step[b]):
+            j = k // sub
+            frac = (k % sub) / sub
+            la = rec_lam[b, k]
+            if not math.isfinite(la):
+                la = lam[b]
+            ex = rec_x[b, k, 0]
+            ey = rec_x[b, k, 1]
+            evx = rec_v[b, k, 0]
+            evy = rec_v[b, k, 1]
+            for a in range(n_agents[b]):
+                px0 = truth[o + a, j, 0]
+                py0 = truth[o + a, j, 1]
+                dx = truth[o + a, j + 1, 0] - px0
+                dy = truth[o + a, j + 1, 1] - py0
+                tx = px0 + frac * dx
+                ty = py0 + frac * dy
+                tvx = dx / dt
+                tvy = dy / dt
+                if not (
+                    math.isfinite(tx)
+                    and math.isfinite(ty)
+                    and math.isfinite(tvx)
+                    and math.isfinite(tvy)
+                ):
+                    continue
+                pred = _apf_value(
+                    ex, ey, evx, evy, xp[b, k, a, 0], xp[b, k, a, 1], vp[b, k, a, 0],
+                    vp[b, k, a, 1], p,
+                )  # fmt: skip
+                gap = pred - _apf_value(ex, ey, evx, evy, tx, ty, tvx, tvy, p)
+                count += 1
+                if gap > best:
+                    best = gap
+                if gap + la > best_applied:
+                    best_applied = gap + la
+        top[b] = best
+        top_applied[b] = best_applied
+        n_pairs[b] = count

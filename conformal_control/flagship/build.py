@@ -1,0 +1,378 @@
+"""Build the flagship from a scene and parameters: every role an instance or a name.
+
+One builder is used by the Python front door, the CLI, sweeps and the benchmark. Each
+role -- predictor, barrier, safety filter, fallback, reference controller, dynamics, loss,
+update rule -- is given as
+
+* an instance (used as given, SI units), or
+* a registered name (``conformal-control plugins``) built with ``<role>_params``, or
+* ``None``: the flagship's default built from the run's parameters.
+
+A named plugin receives, for each constructor argument it declares and the caller did not
+give, the value the run's parameters fix for it (SI): ``d_c`` (robot + agent radius; for
+barriers plus ``barrier_margin``), ``K_rep``, ``rho0``, ``convention``, ``delta``,
+``v_max``, ``K_att``, ``K_acc``, ``fallback``, ``speed_sides``, ``scale`` (the loss scale
+c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.ConformalConstraint`),
+``random_state`` (the seed). Update-rule parameters are typed in the scene's units (see
+:func:`build_rule`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from .. import registry
+from ..base import Loss, Plugin, UpdateRule
+from ..cbf.barriers import APFBarrier
+from ..cbf.constraint import ConformalConstraint
+from ..cbf.controller import ConformalCBFController
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+from ..cbf.loss import CBFGapLoss
+from ..cbf.reference import AttractiveField
+from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..data.scene import Scene
+from ..predictors.base import Predictor
+from ..update_rules import FixedEtaRule
+from ..world.reactive import make_environment
+from ..world.replay import ReplayEnvironment
+from .params import ResolvedParams, resolve_params
+
+__all__ = ["Flagship", "RoleSpec", "build_flagship", "build_rule", "role_name"]
+
+#: A role given as an instance, a registered name, or None (the default).
+RoleSpec = Plugin | str | None
+
+
+@dataclass
+class Flagship:
+    """The wired flagship: environment, decision family, loss, rule and their parts.
+
+    Attributes
+    ----------
+    scene : Scene
+        A copy of the caller's scene carrying the resolved radii, goal radius and v_max
+        (the caller's scene is never modified).
+    params : ResolvedParams
+        The run's parameters as given, as used (scene units) and in SI.
+    names : dict
+        role -> the registered name it was built from, or the class name of an instance.
+    """
+
+    scene: Scene
+    params: ResolvedParams
+    env: ReplayEnvironment  # a ReactiveEnvironment for a reactive crowd
+    policy: ConformalCBFController
+    loss: Loss[Any, Any]
+    rule: UpdateRule
+    constraint: ConformalConstraint
+    predictor: Predictor
+    barrier: Barrier
+    safety_filter: SafetyFilter
+    reference: ReferenceController
+    dynamics: Dynamics
+    names: dict[str, str] = field(default_factory=dict)
+
+    def role_params(self) -> dict[str, dict[str, Any]]:
+        """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
+        roles = {
+            "predictor": self.predictor,
+            "barrier": self.barrier,
+            "safety_filter": self.safety_filter,
+            "reference": self.reference,
+            "dynamics": self.dynamics,
+            "loss": self.loss,
+            "rule": self.rule,
+        }
+        out = {
+            role: {"name": self.names.get(role, type(obj).__name__), "params": obj.get_params()}
+            for role, obj in roles.items()
+        }
+        parts = ("predictor", "constraint", "safety_filter", "reference")
+        out["decision_family"] = {
+            "name": self.names.get("family", type(self.policy).__name__),
+            "params": {k: v for k, v in self.policy.get_params().items() if k not in parts},
+        }
+        return out
+
+
+def role_name(spec: RoleSpec, default: str) -> str:
+    """The name recorded for a role: the registered name, the class name, or ``default``."""
+    if spec is None:
+        return default
+    if isinstance(spec, str):
+        return spec
+    return type(spec).__name__
+
+
+def _create(role: str, name: str, given: dict[str, Any] | None, context: dict[str, Any]) -> Any:
+    """``registry.create`` with the run's values for the arguments the caller left out."""
+    params = dict(given or {})
+    cls = registry.get(role, name)
+    accepted = set(cls._param_names()) if hasattr(cls, "_param_names") else set()
+    for key, value in context.items():
+        if key in accepted and key not in params:
+            params[key] = value
+    return registry.create(role, name, **params)
+
+
+def _resolve(
+    role: str,
+    spec: RoleSpec,
+    given: dict[str, Any] | None,
+    context: dict[str, Any],
+    base: type,
+) -> Any | None:
+    """An instance for ``spec``: None stays None (caller builds the default)."""
+    if spec is None:
+        if given:
+            raise ValueError(f"{role}_params given without a {role} name")
+        return None
+    if isinstance(spec, str):
+        return _create(role, spec, given, context)
+    if given:
+        raise ValueError(f"{role}_params apply to a {role} given by name, not to an instance")
+    if not isinstance(spec, base):
+        raise TypeError(
+            f"{role} must be a registered name or a {base.__name__} instance, "
+            f"got {type(spec).__name__}"
+        )
+    return spec
+
+
+def build_rule(
+    name: str, rule_params: dict[str, Any] | None, params: ResolvedParams, lam_unit: float
+) -> UpdateRule:
+    """A registered update rule for the flagship, from the run's parameters.
+
+    The rule receives ``epsilon``, ``eta``, ``lambda_init``, ``lambda_min`` and
+    ``lambda_max`` from the run's parameters (SI) for those of its constructor arguments
+    with these names; ``rule_params`` (in the scene's units) override them and add the
+    rule's own parameters. Parameters the rule declares in ``lambda_params`` (units of
+    lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted with ``lam_unit``.
+    """
+    cls = registry.get("update_rule", name)
+    accepted = set(cls._param_names())
+    kwargs = {
+        k: params.si[k]
+        for k in ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
+        if k in accepted
+    }
+    user = dict(rule_params or {})
+    registry.check_params("update_rule", name, cls, user)
+    lam_params = set(getattr(cls, "lambda_params", ()))
+    for k, v in user.items():
+        if isinstance(v, str) and "," in v:  # a list from the command line: "0.1,1,10"
+            v = [float(x) for x in v.split(",") if x.strip()]
+        if k in lam_params and v is not None:
+            v = [x * lam_unit for x in v] if isinstance(v, (list, tuple)) else v * lam_unit
+        kwargs[k] = v
+    rule: UpdateRule = registry.create("update_rule", name, **kwargs)
+    return rule
+
+
+def build_flagship(
+    scene: Scene,
+    params: dict[str, Any] | ResolvedParams | None = None,
+    *,
+    predictor: RoleSpec = "constant_velocity",
+    barrier: RoleSpec = None,
+    safety_filter: RoleSpec = None,
+    fallback: RoleSpec = None,
+    reference: RoleSpec = None,
+    dynamics: RoleSpec = None,
+    loss: RoleSpec = None,
+    rule: RoleSpec = "fixed_eta",
+    family: str | None = None,
+    family_params: dict[str, Any] | None = None,
+    predictor_params: dict[str, Any] | None = None,
+    barrier_params: dict[str, Any] | None = None,
+    safety_filter_params: dict[str, Any] | None = None,
+    reference_params: dict[str, Any] | None = None,
+    dynamics_params: dict[str, Any] | None = None,
+    loss_params: dict[str, Any] | None = None,
+    rule_params: dict[str, Any] | None = None,
+    units: str = "scene",
+    crowd: str = "replay",
+    crowd_params: dict[str, Any] | None = None,
+    learn: bool = True,
+    seed: int = 0,
+    max_frames: int | None = None,
+) -> Flagship:
+    """Wire the conformal CBF controller on ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+    params : dict or ResolvedParams, optional
+        Run parameters in the scene's units (see ``conformal-control params``), or already
+        resolved ones.
+    predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule
+        Each an instance, a registered name (built with the matching ``*_params``), or
+        None for the flagship's default (the paper's APF barrier, the exact 2-D filter
+        ``exact2d`` with the run's fallback, the attractive-field reference, the
+        velocity-tracking double integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule).
+        ``fallback`` is handed to the safety filter's ``fallback`` argument.
+    family : str, optional
+        A registered decision family built from the same parts (predictor, constraint,
+        safety filter, reference, substeps) and ``family_params``; default ``"cbf"``, the
+        conformal CBF controller (Algorithm 1). ``"acp"``: adaptive conformal prediction
+        regions (:class:`~conformal_control.cbf.acp.ACPController`).
+    units : {"scene", "si"}
+        Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
+        plugins are always SI).
+    crowd : str
+        ``"replay"`` (the recording, default), ``"social_force"``, ``"orca"`` or
+        ``"mixed"``: pedestrians who react to the robot (see
+        :func:`~conformal_control.world.reactive.make_environment`), with ``crowd_params``
+        (SI); a reactive crowd's ``seed`` defaults to ``seed``.
+    learn : bool
+        False runs the noLearn baseline: lambda stays at ``lambda_init`` (eta = 0).
+    seed : int
+        Passed as ``random_state`` to named plugins that take one.
+    max_frames : int, optional
+        Limit on simulated frames.
+    """
+    if isinstance(params, ResolvedParams):
+        resolved = params
+    else:
+        from .params import to_scene_units
+
+        given = to_scene_units(scene, dict(params or {}), units)
+        if not learn:
+            given.setdefault("eta", 0.0)
+        resolved = resolve_params(scene, given)
+    si = resolved.si
+    d_c = si["robot_radius"] + si["agent_radius"]
+    # The environment reads radii and v_max from the scene: give it a copy carrying the
+    # resolved values, never mutate the caller's scene (runs may share one in a process).
+    scene = dataclasses.replace(
+        scene,
+        robot_radius=si["robot_radius"],
+        agent_radius=si["agent_radius"],
+        goal_radius=si["goal_radius"],
+        v_max=si["v_max"],
+    )
+    names: dict[str, str] = {}
+    context: dict[str, Any] = {
+        "d_c": d_c,
+        "v_max": si["v_max"],
+        "K_att": si["K_att"],
+        "K_acc": si["K_acc"],
+        "speed_sides": si["speed_sides"],
+        "random_state": seed,
+    }
+    fallback_value: Any = si["fallback"] if fallback is None else fallback
+    if fallback is not None and not isinstance(fallback, str):
+        names["fallback"] = type(fallback).__name__
+    else:
+        names["fallback"] = str(fallback_value)
+    context["fallback"] = fallback_value
+
+    pred = _resolve("predictor", predictor, predictor_params, context, Predictor)
+    if pred is None:
+        pred = _create("predictor", "constant_velocity", None, context)
+    names["predictor"] = role_name(predictor, "constant_velocity")
+
+    barrier_context = {
+        **context,
+        "d_c": d_c + si["barrier_margin"],
+        "K_rep": si["K_rep"],
+        "rho0": si["rho0"],
+        "convention": si["convention"],
+        "delta": si["delta"],
+    }
+    bar = _resolve("barrier", barrier, barrier_params, barrier_context, Barrier)
+    if bar is None:
+        bar = APFBarrier(
+            K_rep=si["K_rep"],
+            rho0=si["rho0"],
+            d_c=d_c + si["barrier_margin"],
+            convention=si["convention"],
+            delta=si["delta"],
+        )
+    names["barrier"] = role_name(barrier, "apf")
+    constraint = ConformalConstraint(bar, a=si["a"])
+    context["constraint"] = constraint
+    context["scale"] = si["loss_scale"]
+
+    filt = _resolve("safety_filter", safety_filter, safety_filter_params, context, SafetyFilter)
+    if filt is None:
+        filt = _create("safety_filter", "exact2d", None, context)
+    names["safety_filter"] = role_name(safety_filter, "exact2d")
+
+    ref = _resolve("reference", reference, reference_params, context, ReferenceController)
+    if ref is None:
+        ref = AttractiveField(K_att=si["K_att"], v_max=si["v_max"])
+    names["reference"] = role_name(reference, "attractive_field")
+
+    dyn = _resolve("dynamics", dynamics, dynamics_params, context, Dynamics)
+    if dyn is None:
+        dyn = VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"])
+    names["dynamics"] = role_name(dynamics, "velocity_tracking")
+
+    loss_obj = _resolve("loss", loss, loss_params, context, Loss)
+    if loss_obj is None:
+        loss_obj = CBFGapLoss(constraint, scale=si["loss_scale"])
+    names["loss"] = role_name(loss, "cbf_gap")
+
+    if isinstance(rule, str):
+        lam_unit = 1.0 if units == "si" else scene.units.factor("lambda_init")
+        rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
+    elif rule is None:
+        rule_obj = FixedEtaRule(
+            epsilon=si["epsilon"],
+            eta=si["eta"],
+            lambda_init=si["lambda_init"],
+            lambda_min=si["lambda_min"],
+            lambda_max=si["lambda_max"],
+        )
+    else:
+        if rule_params:
+            raise ValueError("rule_params apply to a rule given by name, not to an instance")
+        if not isinstance(rule, UpdateRule):
+            raise TypeError(f"rule must be a registered name or an UpdateRule, got {rule!r}")
+        rule_obj = rule
+    names["rule"] = role_name(rule, "fixed_eta")
+    names["crowd"] = crowd
+
+    fam_name = family or "cbf"
+    fam_cls = registry.get("decision_family", fam_name)
+    if not issubclass(fam_cls, ConformalCBFController):
+        raise TypeError(
+            f"decision family {fam_name!r} is not built from the flagship's parts "
+            "(a ConformalCBFController subclass)"
+        )
+    registry.check_params("decision_family", fam_name, fam_cls, dict(family_params or {}))
+    policy = fam_cls(pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {}))
+    names["family"] = fam_name
+    cp = dict(crowd_params or {})
+    if crowd != "replay":
+        cp.setdefault("seed", seed)
+    env = make_environment(
+        scene,
+        crowd,
+        cp,
+        dynamics=dyn,
+        tau_frames=resolved.tau_frames,
+        substeps=si["substeps"],
+        sensing_radius=si["sensing_radius"],
+        history_frames=resolved.history_frames,
+        max_frames=max_frames,
+    )
+    return Flagship(
+        scene=scene,
+        params=resolved,
+        env=env,
+        policy=policy,
+        loss=loss_obj,
+        rule=rule_obj,
+        constraint=constraint,
+        predictor=pred,
+        barrier=bar,
+        safety_filter=filt,
+        reference=ref,
+        dynamics=dyn,
+        names=names,
+    )

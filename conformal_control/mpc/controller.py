@@ -1,0 +1,528 @@
+"""A sampling-based model-predictive controller as a conformal decision family (``mpc``).
+
+At a control instant the controller
+
+1. draws ``n_samples`` command sequences of ``horizon`` steps of ``dt_plan`` seconds in the
+   plant's command space (:mod:`~conformal_control.mpc.sampling`), plus three seeds: the
+   previous plan shifted to now (warm start), standing still / braking, and the reference
+   controller's command held (velocity commands only);
+2. rolls them out through the plant (:meth:`~conformal_control.cbf.roles.Dynamics.rollout`);
+3. keeps the **safe** ones: at every plan step h the robot stays at least the safe
+   distance ``r_h(lambda)`` from every sensed agent's *predicted* position at that time
+   (:mod:`~conformal_control.mpc.kernels`; over the whole step, not only at its end);
+4. among them picks the cheapest: ``cost = w_goal sum_{h<H} |p_h - g|^2 + w_terminal
+   |p_H - g|^2 + w_effort sum |u_h|^2 + w_comfort sum |u_h - u_{h-1}|^2`` (progress to the
+   goal g, control effort, and an optional comfort term on command changes; the form of
+   the published sampling MPCs with ``w_comfort = 0``);
+5. applies the plan's first command (and, with ``replan_every > 1``, its next commands at
+   the following instants without planning again).
+
+**The knob.** ``r_h(lambda) = max(d_c + margin - lambda, 0)``: a smaller lambda keeps the
+robot further from the predictions (the toolkit's sign convention), lambda = 0 asks for
+the collision distance ``d_c`` plus the fixed ``margin``. Subclasses move the knob
+elsewhere by overriding :meth:`SamplingMPC.safe_radius` (the ``acp_mpc`` family:
+conformal regions per plan step).
+
+**Infeasibility.** When no sample is safe the step is *infeasible*: it is counted
+(``n_infeasible``) and the ``fallback`` decides, also counted (``n_fallback_<name>``):
+
+* ``"brake"`` (default; what the published ETH/UCY protocol does): stand still (zero
+  velocity or unicycle command; for an acceleration command, the deceleration that stops
+  the robot within one plan step, bounded by ``a_max``);
+* ``"least_violation"``: the sample that intrudes least into the safe distances, summed
+  over its steps (the cheapest among equals).
+
+The interval's record says, per control instant, the clearance of the applied plan (its
+smallest ``distance - r_h`` over steps and agents, m; ``inf`` with nobody sensed) and the
+lambda it satisfies (``nan`` for a fallback). With ``status == "optimal"`` the clearance is
+``>= 0``: the chosen plan meets every constraint it reports.
+
+Predictions: at each sampling time the predictor is asked for the whole plan horizon
+beyond the interval (``horizon * dt_plan`` seconds, in the scene's frames); positions at
+plan times between samples are interpolated linearly, and beyond the forecast the last
+sample is held. Non-finite predicted samples are replaced by the last finite one before
+them (counted in ``n_nonfinite_predictions``), as the CBF family does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..base import DecisionFamily
+from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
+from ..cbf.interp import forward_fill, interpolate_at_substeps
+from ..cbf.roles import Dynamics, ReferenceController
+from ..predictors.base import Forecast, PredictionQuery, Predictor
+from .kernels import evaluate
+from .sampling import sample_sequences
+
+__all__ = ["FALLBACKS", "MPCIntervalRecord", "Plan", "SamplingMPC"]
+
+#: The fallbacks a sampling MPC knows (see the module docstring).
+FALLBACKS = ("brake", "least_violation")
+
+
+@dataclass
+class MPCIntervalRecord(CBFIntervalRecord):
+    """The CBF record of an interval (ego positions, velocities, the sensed agents'
+    interpolated predictions at the control instants, lambda applied, status) plus what
+    the MPC planned.
+
+    Attributes
+    ----------
+    command : ndarray of shape (S, 2)
+        The command applied at each control instant (the plant's command: a velocity,
+        an acceleration or ``(v, omega)``).
+    clearance : ndarray of shape (S,)
+        Clearance of the applied plan at the lambda it was planned with (m; ``inf`` with
+        nobody sensed).
+    n_safe : ndarray of shape (S,)
+        Safe samples when the plan was made (-1 at instants that replayed a plan).
+    """
+
+    command: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    clearance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_safe: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+@dataclass
+class Plan:
+    """One planning step's outcome (:meth:`SamplingMPC.plan`).
+
+    Attributes
+    ----------
+    commands : ndarray of shape (H, 2)
+        The chosen command sequence.
+    positions : ndarray of shape (H, 2)
+        Its planned positions at plan steps 1..H (m).
+    clearance : float
+        Its clearance (m) against the safe distances it was planned with.
+    cost : float
+    status : str
+        ``"optimal"`` (the cheapest safe sample), ``"unconstrained"`` (nobody sensed:
+        the cheapest sample) or the fallback's name.
+    n_safe : int
+        Number of safe samples.
+    """
+
+    commands: np.ndarray
+    positions: np.ndarray
+    clearance: float
+    cost: float
+    status: str
+    n_safe: int
+
+
+class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCIntervalRecord]):
+    """Sampling-based MPC whose safe distance to the predicted agents is set by lambda.
+
+    See the module docstring for the algorithm, the knob and the fallbacks. Every length
+    is in metres, every time in seconds.
+
+    Parameters
+    ----------
+    predictor : Predictor
+        Trajectory predictor, asked at every sampling time for the plan's horizon.
+    dynamics : Dynamics
+        The plant model plans are rolled out with (the robot's own plant in a run).
+    reference : ReferenceController, optional
+        Seeds one sample with its command held (velocity commands only).
+    n_samples : int
+        Random command sequences per plan (>= 1; three seeds are added).
+    horizon : int
+        Plan steps H (>= 1).
+    dt_plan : float
+        Duration of a plan step (s, > 0).
+    hold : int
+        Plan steps each random command is held for (>= 1).
+    d_c : float
+        Collision distance between centres (m, >= 0): robot radius + agent radius.
+    margin : float
+        Fixed extra safe distance (m).
+    v_max : float
+        Speed bound of sampled velocity commands (m/s, > 0).
+    a_max : float
+        Bound of sampled acceleration commands (m/s^2, > 0).
+    w_goal, w_terminal, w_effort, w_comfort : float
+        Cost weights (>= 0): distance to the goal along the plan, at its end, control
+        effort, command changes.
+    fallback : {"brake", "least_violation"}
+        What is applied when no sample is safe.
+    continuous : bool
+        Check the safe distance over the whole of every plan step, robot and agents
+        moving linearly within it (True), or at the steps' end points only (False, as
+        the published sampling MPCs do); see :mod:`~conformal_control.mpc.kernels`.
+    replan_every : int
+        Control instants between plans (>= 1); in between the plan's commands are replayed.
+    substeps : int
+        Control instants per prediction sample (for the interval's record).
+    random_state : int
+        Seed of the sampler (reset at every episode).
+    """
+
+    #: Names of the seeded samples, in order (reported by :meth:`plan`'s tests).
+    SEEDS: ClassVar[tuple[str, ...]] = ("warm_start", "stop", "reference")
+
+    def __init__(
+        self,
+        predictor: Predictor,
+        dynamics: Dynamics,
+        reference: ReferenceController | None = None,
+        n_samples: int = 500,
+        horizon: int = 12,
+        dt_plan: float = 0.4,
+        hold: int = 2,
+        d_c: float = 1.0,
+        margin: float = 0.0,
+        v_max: float = 1.0,
+        a_max: float = 2.0,
+        w_goal: float = 1.0,
+        w_terminal: float = 10.0,
+        w_effort: float = 0.001,
+        w_comfort: float = 0.0,
+        fallback: str = "brake",
+        continuous: bool = True,
+        replan_every: int = 1,
+        substeps: int = 4,
+        random_state: int = 0,
+    ) -> None:
+        self.predictor = predictor
+        self.dynamics = dynamics
+        self.reference = reference
+        self.n_samples = n_samples
+        self.horizon = horizon
+        self.dt_plan = dt_plan
+        self.hold = hold
+        self.d_c = d_c
+        self.margin = margin
+        self.v_max = v_max
+        self.a_max = a_max
+        self.w_goal = w_goal
+        self.w_terminal = w_terminal
+        self.w_effort = w_effort
+        self.w_comfort = w_comfort
+        self.fallback = fallback
+        self.continuous = continuous
+        self.replan_every = replan_every
+        self.substeps = substeps
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ contract kit
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+        from ..cbf.reference import AttractiveField
+        from ..predictors.constant_velocity import ConstantVelocityPredictor
+
+        return [
+            {
+                "predictor": ConstantVelocityPredictor(),
+                "dynamics": VelocityTrackingDoubleIntegrator(K_acc=10.0),
+                "reference": AttractiveField(K_att=1.0),
+                "n_samples": 40,
+                "horizon": 6,
+                "dt_plan": 0.3,
+                "v_max": 1.5,
+                "substeps": 2,
+            },
+            {
+                "predictor": ConstantVelocityPredictor(),
+                "dynamics": VelocityTrackingDoubleIntegrator(K_acc=10.0),
+                "n_samples": 25,
+                "horizon": 4,
+                "dt_plan": 0.5,
+                "hold": 1,
+                "fallback": "least_violation",
+                "replan_every": 3,
+                "w_comfort": 0.1,
+                "substeps": 2,
+            },
+        ]
+
+    @classmethod
+    def _unit_test_environment(cls) -> Any:
+        from ..world.replay import ReplayEnvironment
+
+        return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
+
+    # ------------------------------------------------------------------ episode
+    def _validate(self) -> None:
+        for name in ("n_samples", "horizon", "hold", "replan_every", "substeps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        positive = {"dt_plan": self.dt_plan, "v_max": self.v_max, "a_max": self.a_max}
+        for name, v in positive.items():
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if not (math.isfinite(self.d_c) and self.d_c >= 0):
+            raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
+        if not math.isfinite(self.margin):
+            raise ValueError(f"margin must be a finite distance, got {self.margin!r}")
+        for name in ("w_goal", "w_terminal", "w_effort", "w_comfort"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite weight >= 0, got {v!r}")
+        if self.fallback not in FALLBACKS:
+            raise ValueError(
+                f"fallback must be one of {', '.join(FALLBACKS)}, got {self.fallback!r}"
+            )
+
+    def reset(self) -> None:
+        self._validate()
+        self.predictor.reset()
+        if self.reference is not None:
+            self.reference.reset()
+        kind = self.dynamics.command_kind
+        self._box = self.dynamics.command_limits() if kind == "unicycle" else None
+        if kind == "unicycle" and self._box is None:
+            raise ValueError(
+                f"{type(self.dynamics).__name__} takes unicycle commands but has no limits"
+            )
+        self._rng = np.random.default_rng(self.random_state)
+        self.n_steps_ = 0
+        self.n_plans_ = 0
+        self.n_infeasible_ = 0
+        self.n_fallback_: dict[str, int] = dict.fromkeys(FALLBACKS, 0)
+        self.n_nonfinite_predictions_ = 0
+        self.forecast_info_: dict[str, Any] = {}
+        self._warm: np.ndarray | None = None  # last plan's commands
+        self._warm_t = 0.0
+        self._last_cmd = np.zeros(2)
+        self._begin_empty(0.0)
+
+    def stats(self) -> dict[str, float]:
+        return {
+            "n_steps": self.n_steps_,
+            "n_plans": self.n_plans_,
+            "n_infeasible": self.n_infeasible_,
+            "n_fallback": sum(self.n_fallback_.values()),
+            **{f"n_fallback_{k}": v for k, v in self.n_fallback_.items()},
+            "n_nonfinite_predictions": self.n_nonfinite_predictions_,
+        }
+
+    def _begin_empty(self, t: float) -> None:
+        self._t0 = t
+        self._dt = 1.0
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._samples = np.zeros((0, 1, 2))  # (M, F + 1, 2) from the sampling time
+        self._xp = np.zeros((0, 0, 2))
+        self._vp = np.zeros((0, 0, 2))
+        self._plan: Plan | None = None
+        self._plan_t = 0.0
+        self._since = 0
+        self._rec: dict[str, list[Any]] = {
+            k: [] for k in ("x", "v", "cmd", "lam", "status", "clear", "safe")
+        }
+
+    # ------------------------------------------------------------------ sampling time
+    def _predict(self, observation: PredictionQuery) -> Forecast:
+        try:
+            return self.predictor.predict(observation)
+        except Exception as exc:
+            raise PredictorError(
+                f"predictor {type(self.predictor).__name__} failed on scene "
+                f"{observation.scene or '?'} at frame {observation.frame} "
+                f"(t = {observation.t:.2f} s, {observation.n_agents} sensed agents): "
+                f"{type(exc).__name__}: {exc}"
+            ) from exc
+
+    def forecast_frames(self, observation: PredictionQuery) -> int:
+        """Samples asked of the predictor: the interval plus the plan's horizon."""
+        ahead = math.ceil(self.horizon * self.dt_plan / observation.dt - 1e-9)
+        return int(observation.horizon) + max(ahead, 1)
+
+    def begin_interval(self, observation: PredictionQuery) -> None:
+        self._begin_empty(observation.t)
+        self._dt = float(observation.dt)
+        self._ids = np.asarray(observation.ids)
+        n = observation.n_agents
+        if n == 0:
+            return
+        frames = self.forecast_frames(observation)
+        query = dataclasses.replace(observation, horizon=frames)
+        forecast = self._predict(query)
+        merge_forecast_info(self.forecast_info_, forecast.info)
+        pos = np.asarray(forecast.positions, dtype=float)
+        if pos.ndim != 3 or pos.shape[0] != n or pos.shape[1] < frames or pos.shape[2] != 2:
+            raise ValueError(
+                f"predictor returned positions of shape {pos.shape}; expected "
+                f"({n}, >= {frames}, 2) for {n} sensed agents and horizon {frames}"
+            )
+        samples = np.concatenate([observation.current[:, None, :], pos[:, :frames]], axis=1)
+        samples, had_bad = forward_fill(samples)
+        self.n_nonfinite_predictions_ += int(had_bad.sum())
+        self._samples = samples
+        steps = int(observation.horizon) * int(self.substeps)
+        self._xp, self._vp = interpolate_at_substeps(samples, self._dt, int(self.substeps), steps)
+
+    def predicted_at(self, offsets: np.ndarray) -> np.ndarray:
+        """Predicted positions of the sensed agents at ``offsets`` seconds after the
+        sampling time, shape (M, len(offsets), 2) (linear between samples, the samples'
+        own values at sample times, the last sample held beyond the forecast)."""
+        last = self._samples.shape[1] - 1
+        f = np.clip(np.asarray(offsets, dtype=float) / self._dt, 0.0, float(last))
+        near = np.abs(f - np.rint(f)) < 1e-9  # a sample time is that sample, exactly
+        f = np.where(near, np.rint(f), f)
+        i0 = np.minimum(np.floor(f).astype(np.int64), max(last - 1, 0))
+        i1 = np.minimum(i0 + 1, last)
+        w = (f - i0)[None, :, None]
+        s = self._samples
+        out: np.ndarray = s[:, i0] + w * (s[:, i1] - s[:, i0])
+        return out
+
+    # ------------------------------------------------------------------ the knob
+    def safe_radius(self, lam: float) -> np.ndarray:
+        """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -
+        lambda, 0)``. Subclasses move the knob here."""
+        r = max(float(self.d_c) + float(self.margin) - float(lam), 0.0)
+        return np.full(int(self.horizon), r)
+
+    def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
+        """Safe distance per plan and step (m), shape (N, H) or (H,): :meth:`safe_radius`
+        shared by every plan (a family whose regions depend on where the robot would be
+        overrides this)."""
+        return self.safe_radius(lam)
+
+    # ------------------------------------------------------------------ planning
+    def _seeds(self, state: ControlState, t_off: float) -> list[np.ndarray]:
+        """Warm start, stop, reference (each a (H, 2) sequence)."""
+        h = int(self.horizon)
+        out = []
+        if self._warm is not None:
+            shift = min(round((state.t - self._warm_t) / self.dt_plan), h)
+            warm = np.concatenate([self._warm[shift:], np.repeat(self._warm[-1:], shift, 0)])
+            out.append(warm)
+        out.append(np.repeat(self._stop_command(state)[None], h, axis=0))
+        kind = self.dynamics.command_kind
+        if self.reference is not None and kind == "velocity":
+            v = np.asarray(self.reference(state.x, state.t, state.goal), dtype=float)
+            speed = math.hypot(v[0], v[1])
+            if speed > self.v_max:
+                v = v * (self.v_max / speed)
+            out.append(np.repeat(v[None], h, axis=0))
+        return out
+
+    def _stop_command(self, state: ControlState) -> np.ndarray:
+        if self.dynamics.command_kind != "acceleration":
+            return np.zeros(2)
+        a = -np.asarray(self.dynamics.velocity(state.x), dtype=float) / self.dt_plan
+        norm = math.hypot(a[0], a[1])
+        return a * (self.a_max / norm) if norm > self.a_max else a
+
+    def sample_commands(self, state: ControlState, t_off: float) -> np.ndarray:
+        """The candidate command sequences, shape (N + seeds, H, 2): the seeds first."""
+        seeds = self._seeds(state, t_off)
+        radius = self.a_max if self.dynamics.command_kind == "acceleration" else self.v_max
+        rand = sample_sequences(
+            self._rng,
+            int(self.n_samples),
+            int(self.horizon),
+            int(self.hold),
+            box=self._box,
+            radius=float(radius),
+        )
+        return np.concatenate([np.stack(seeds), rand], axis=0)
+
+    def plan(self, state: ControlState, lam: float) -> Plan:
+        """Sample, roll out, check and choose (one planning step; counts included)."""
+        goal = np.asarray(state.goal, dtype=float)
+        if goal.shape != (2,) or not np.isfinite(goal).all():
+            raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
+        t_off = float(state.t - self._t0)
+        cmds = self.sample_commands(state, t_off)
+        states = self.dynamics.rollout(state.x, cmds, float(self.dt_plan))
+        pos = np.ascontiguousarray(states[..., :2])
+        self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
+        h = int(self.horizon)
+        if self._ids.size:
+            pred = self.predicted_at(t_off + self.dt_plan * np.arange(0, h + 1))
+            y0, pred = pred[:, 0], pred[:, 1:]
+            radius = self.plan_radius(lam, pos)
+        else:
+            pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
+        weights = (self.w_goal, self.w_terminal, self.w_effort, self.w_comfort)
+        cost, clear, viol = evaluate(
+            pos,
+            cmds,
+            state.x[:2],
+            pred,
+            y0,
+            radius,
+            goal,
+            weights,
+            self._last_cmd,
+            bool(self.continuous),
+        )
+        safe = clear >= 0.0
+        n_safe = int(safe.sum())
+        self.n_plans_ += 1
+        if n_safe:
+            i = int(np.argmin(np.where(safe, cost, np.inf)))
+            status = "optimal" if self._ids.size else "unconstrained"
+        else:
+            self.n_infeasible_ += 1
+            self.n_fallback_[self.fallback] += 1
+            status = self.fallback
+            if self.fallback == "least_violation":  # least total intrusion, then cheapest
+                i = int(np.lexsort((cost, viol))[0])
+            else:  # brake: the stop seed (index 1 with a warm start, else 0)
+                i = 1 if self._warm is not None else 0
+        return Plan(
+            commands=cmds[i].copy(),
+            positions=pos[i].copy(),
+            clearance=float(clear[i]),
+            cost=float(cost[i]),
+            status=status,
+            n_safe=n_safe,
+        )
+
+    # ------------------------------------------------------------------ control instant
+    def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        replan = self._plan is None or self._since >= int(self.replan_every)
+        if replan:
+            self._plan = plan = self.plan(state, lam)
+            self._plan_t = state.t
+            self._since = 0
+            self._warm, self._warm_t = plan.commands, state.t
+            j = 0
+        else:
+            plan = self._plan  # type: ignore[assignment]  # set above on the first instant
+            j = min(int((state.t - self._plan_t) / self.dt_plan + 1e-9), int(self.horizon) - 1)
+        self._since += 1
+        cmd: np.ndarray = plan.commands[j].copy()
+        self._last_cmd = cmd
+        ok = plan.status in ("optimal", "unconstrained")
+        rec = self._rec
+        rec["x"].append(np.array(state.x[:2], dtype=float))
+        vel = cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
+        rec["v"].append(np.array(vel, dtype=float))
+        rec["cmd"].append(cmd)
+        rec["lam"].append(float(lam) if ok else math.nan)
+        rec["status"].append(plan.status)
+        rec["clear"].append(plan.clearance)
+        rec["safe"].append(plan.n_safe if replan else -1)
+        self.n_steps_ += 1
+        return cmd
+
+    def interval_record(self) -> MPCIntervalRecord:
+        rec = self._rec
+        s = len(rec["x"])
+        n = self._ids.size
+        return MPCIntervalRecord(
+            ids=self._ids,
+            x_ego=np.array(rec["x"]).reshape(s, 2),
+            v_ego=np.array(rec["v"]).reshape(s, 2),
+            x_pred=self._xp[:s].copy() if n else np.zeros((s, 0, 2)),
+            v_pred=self._vp[:s].copy() if n else np.zeros((s, 0, 2)),
+            lam_applied=np.array(rec["lam"], dtype=float),
+            status=list(rec["status"]),
+            command=np.array(rec["cmd"]).reshape(s, 2),
+            clearance=np.array(rec["clear"], dtype=float),
+            n_safe=np.array(rec["safe"], dtype=np.int64),
+        )

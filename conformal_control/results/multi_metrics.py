@@ -1,0 +1,232 @@
+"""Metrics of a multi-robot run: per robot, robot-robot contacts, and the fleet's aggregate.
+
+Each robot is measured as a single robot is
+(:class:`~conformal_control.results.metrics.EpisodeMetrics`, with ``d_min`` and ``n_collide``
+about *pedestrians*), plus :class:`RobotContacts` about the *other robots*. A robot's
+``success`` requires its goal and no collision of either kind.
+
+Counting conventions (frames are video frames, counted while the robot is under way, i.e.
+until it reaches its last goal or the run ends):
+
+* robot-pedestrian collision frame: centre distance to a pedestrian < robot radius +
+  pedestrian radius (as for one robot);
+* robot-robot collision frame: centre distance to another robot < 2 robot radii;
+* fleet robot-robot *pair-frames*: pairs (i < j) in contact in a frame while at least one
+  of the two is under way, each pair counted once (not once per robot).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .metrics import EpisodeMetrics, format_value, plain
+from .metrics import metric as _m
+
+__all__ = ["FleetMetrics", "RobotContacts", "fleet_metrics", "robot_contacts"]
+
+
+@dataclass
+class RobotContacts:
+    """One robot's encounters with the other robots (until its goal or the end)."""
+
+    n_collide_robot: int = _m("-", "frames with another robot closer than 2 robot radii", 0)
+    any_robot_collision: bool = _m("-", "at least one robot-robot collision frame", False)
+    d_min_robot: float | None = _m("m", "smallest centre distance to another robot")
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def robot_contacts(d_min_robot: Sequence[float], robot_radius: float) -> RobotContacts:
+    """:class:`RobotContacts` from a robot's per-frame distance to the nearest other robot."""
+    d = np.asarray(d_min_robot, dtype=float)
+    with np.errstate(invalid="ignore"):
+        n = int(np.sum(d < 2.0 * robot_radius))
+    return RobotContacts(
+        n_collide_robot=n,
+        any_robot_collision=n > 0,
+        d_min_robot=float(np.nanmin(d)) if np.isfinite(d).any() else None,
+    )
+
+
+@dataclass
+class FleetMetrics(Mapping[str, Any]):
+    """What a multi-robot run measured over all its robots (see each field's metadata)."""
+
+    n_robots: int = _m("-", "robots", 0)
+    n_goal_reached: int = _m("-", "robots that reached their last goal", 0)
+    goal_rate: float = _m("-", "n_goal_reached / n_robots", 0.0)
+    n_success: int = _m("-", "robots with their goal and no collision of either kind", 0)
+    success_rate: float = _m("-", "n_success / n_robots", 0.0)
+    n_collide_pedestrian: int = _m("-", "robot-pedestrian collision frames, summed over robots", 0)
+    n_robots_hit_pedestrian: int = _m("-", "robots with a robot-pedestrian collision frame", 0)
+    n_collide_robot_pairs: int = _m("-", "robot-robot collision pair-frames (each pair once)", 0)
+    n_robots_hit_robot: int = _m("-", "robots with a robot-robot collision frame", 0)
+    d_min_pedestrian: float | None = _m("m", "smallest robot-pedestrian centre distance")
+    d_min_robot: float | None = _m("m", "smallest robot-robot centre distance")
+    t_goal_mean: float | None = _m("s", "mean time to goal over the robots that reached it")
+    t_goal_max: float | None = _m(
+        "s", "time the last robot reached its goal (None if one never did)"
+    )
+    path_length_mean: float | None = _m("m", "mean path length")
+    time_in_personal_space: float = _m("s", "robot-pedestrian personal-space time, summed", 0.0)
+    l_avg_mean: float | None = _m("-", "mean over robots of their average loss")
+    lambda_final_mean: float | None = _m("lambda", "mean over robots of their final lambda")
+    lambda_final_min: float | None = _m("lambda", "smallest final lambda")
+    lambda_final_max: float | None = _m("lambda", "largest final lambda")
+    n_fallback: int = _m("-", "control instants decided by a fallback, summed", 0)
+    n_qp_solves: int = _m("-", "solver calls, summed", 0)
+    n_steps: int = _m("-", "control instants decided, summed over robots", 0)
+    frames: int = _m("-", "video frames simulated", 0)
+    wall_s: float = _m("s", "wall time of the whole run's loop", 0.0)
+    wall_s_per_robot: float = _m("s", "wall_s / n_robots", 0.0)
+    cpu_s: float = _m("s", "process CPU time of the loop", 0.0)
+    units: dict[str, str] | None = _m("-", "unit of each metric")  # noqa: RUF009 (a field)
+
+    SUMMARY: ClassVar[tuple[str, ...]] = (
+        "n_robots",
+        "goal_rate",
+        "success_rate",
+        "n_collide_pedestrian",
+        "n_robots_hit_pedestrian",
+        "n_collide_robot_pairs",
+        "n_robots_hit_robot",
+        "d_min_pedestrian",
+        "d_min_robot",
+        "t_goal_mean",
+        "t_goal_max",
+        "l_avg_mean",
+        "lambda_final_mean",
+        "n_fallback",
+        "frames",
+        "wall_s",
+        "wall_s_per_robot",
+    )
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in _FIELDS:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_FIELDS)
+
+    def __len__(self) -> int:
+        return len(_FIELDS)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (non-finite floats become None)."""
+        return {name: plain(getattr(self, name)) for name in _FIELDS}
+
+    def unit(self, name: str) -> str:
+        return (self.units or {}).get(name, "-")
+
+    def format(self, keys: tuple[str, ...] | None = None) -> str:
+        """Aligned ``name  value unit`` lines."""
+        keys = keys or self.SUMMARY
+        width = max(len(k) for k in keys)
+        lines = []
+        for k in keys:
+            unit = self.unit(k)
+            text = format_value(getattr(self, k))
+            suffix = f" {unit}" if unit != "-" and text not in ("-", "none") else ""
+            lines.append(f"{k:<{width}}  {text}{suffix}")
+        return "\n".join(lines)
+
+
+_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FleetMetrics))
+
+
+def _mean(values: list[float | None]) -> float | None:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.mean(v)) if v else None
+
+
+def fleet_metrics(
+    robots: Sequence[EpisodeMetrics],
+    contacts: Sequence[RobotContacts],
+    *,
+    robot_track: np.ndarray,
+    active: np.ndarray,
+    robot_radius: float,
+    frames: int,
+    wall_s: float,
+    lam_unit_name: str,
+    cpu_s: float = 0.0,
+) -> FleetMetrics:
+    """Aggregate the robots' metrics.
+
+    Parameters
+    ----------
+    robots, contacts
+        Per robot, its :class:`EpisodeMetrics` and :class:`RobotContacts`.
+    robot_track : ndarray of shape (F, R, 2)
+        Robot positions at each simulated frame.
+    active : ndarray of shape (F, R)
+        Whether each robot was under way at each frame.
+    robot_radius : float
+    frames : int
+        Video frames simulated.
+    wall_s : float
+    lam_unit_name : str
+    cpu_s : float
+        Unit of lambda (scene units) for the report.
+    """
+    n = len(robots)
+    reached = [m.goal_reached for m in robots]
+    success = [
+        bool(m.goal_reached and m.n_collide == 0 and c.n_collide_robot == 0)
+        for m, c in zip(robots, contacts, strict=True)
+    ]
+    pairs = 0
+    x = np.asarray(robot_track, dtype=float)
+    if n > 1 and x.size:
+        d = np.hypot(x[:, :, None, 0] - x[:, None, :, 0], x[:, :, None, 1] - x[:, None, :, 1])
+        act = np.asarray(active, dtype=bool)
+        either = act[:, :, None] | act[:, None, :]
+        upper = np.triu(np.ones((n, n), dtype=bool), k=1)
+        with np.errstate(invalid="ignore"):
+            pairs = int(np.sum((d < 2.0 * robot_radius) & either & upper[None]))
+    d_ped = [m.d_min for m in robots if m.d_min is not None]
+    d_rob = [c.d_min_robot for c in contacts if c.d_min_robot is not None]
+    t_goals = [m.t_goal for m in robots if m.t_goal is not None]
+    finals = [m.lambda_final for m in robots if m.lambda_final is not None]
+    units = {
+        f.name: (lam_unit_name if f.metadata["unit"] == "lambda" else f.metadata["unit"])
+        for f in dataclasses.fields(FleetMetrics)
+    }
+    return FleetMetrics(
+        n_robots=n,
+        n_goal_reached=int(sum(reached)),
+        goal_rate=sum(reached) / n if n else 0.0,
+        n_success=int(sum(success)),
+        success_rate=sum(success) / n if n else 0.0,
+        n_collide_pedestrian=int(sum(m.n_collide for m in robots)),
+        n_robots_hit_pedestrian=int(sum(m.n_collide > 0 for m in robots)),
+        n_collide_robot_pairs=pairs,
+        n_robots_hit_robot=int(sum(c.n_collide_robot > 0 for c in contacts)),
+        d_min_pedestrian=min(d_ped) if d_ped else None,
+        d_min_robot=min(d_rob) if d_rob else None,
+        t_goal_mean=_mean(list(t_goals)),
+        t_goal_max=max(t_goals) if t_goals and len(t_goals) == n else None,
+        path_length_mean=_mean([m.path_length for m in robots]),
+        time_in_personal_space=float(sum(m.time_in_personal_space for m in robots)),
+        l_avg_mean=_mean([m.l_avg for m in robots]),
+        lambda_final_mean=_mean(list(finals)),
+        lambda_final_min=min(finals) if finals else None,
+        lambda_final_max=max(finals) if finals else None,
+        n_fallback=int(sum(m.n_fallback for m in robots)),
+        n_qp_solves=int(sum(m.n_qp_solves for m in robots)),
+        n_steps=int(sum(m.n_steps for m in robots)),
+        frames=int(frames),
+        wall_s=float(wall_s),
+        wall_s_per_robot=float(wall_s) / n if n else 0.0,
+        cpu_s=float(cpu_s),
+        units=units,
+    )

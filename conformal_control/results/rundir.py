@@ -1,0 +1,119 @@
+"""Run directories: config, metrics, trace, intervals, trajectory and plot of a run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .episode import EpisodeResult
+
+__all__ = ["csv_cell", "finite_or_none", "write_run_dir"]
+
+
+def finite_or_none(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (JSON has no NaN or inf)."""
+    if isinstance(obj, dict):
+        return {k: finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [finite_or_none(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def csv_cell(v: Any) -> Any:
+    """A CSV cell: floats in full precision (``repr``), None and non-finite as empty."""
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ""
+    return v
+
+
+def write_run_dir(
+    result: EpisodeResult,
+    out: str | Path,
+    *,
+    plot: bool = True,
+    only: tuple[str, ...] | None = None,
+) -> Path:
+    """Write the files of a run into ``out`` (created if needed) and return it.
+
+    * ``config.json`` - every parameter as given, as used (scene units) and in SI, the
+      scene, predictor (with its parameters), seed and version;
+    * ``metrics.json`` - the run's metrics (see the README for each key);
+    * ``trace.csv`` - ``k,t,lambda,loss``: one row per scored interval (lambda_k in the
+      scene's units, t in s since the start);
+    * ``intervals.csv`` - every interval with extra columns (loss with the applied lambda,
+      the largest constraint gap, agents sensed, control steps);
+    * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
+    * ``animation.npz`` - what ``conformal-control animate`` renders (if the episode kept
+      it; see :mod:`conformal_control.results.record`);
+    * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
+      nearest pedestrian;
+    * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
+
+    ``only`` restricts the files to ``("config.json", "metrics.json")`` (what large
+    benchmarks keep).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
+    (out / "metrics.json").write_text(json.dumps(result.metrics.as_dict(), indent=2) + "\n")
+    if only is not None:
+        unknown = set(only) - {"config.json", "metrics.json"}
+        if unknown:
+            raise ValueError(
+                f"write_run_dir(only=...) takes config.json and metrics.json, got {unknown}"
+            )
+        return out
+    with (out / "trace.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["k", "t", "lambda", "loss"])
+        for iv in result.intervals:
+            if iv["loss"] is not None:
+                w.writerow(
+                    [iv["k"], csv_cell(iv["t"]), csv_cell(iv["lambda"]), csv_cell(iv["loss"])]
+                )
+    cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+    with (out / "intervals.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for iv in result.intervals:
+            w.writerow([csv_cell(iv.get(c)) for c in cols])
+    tr = result.trajectory
+    with (out / "trajectory.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "t", "x", "y", "vx", "vy", "d_min"])
+        for i in range(len(tr["frame"])):
+            w.writerow(
+                [
+                    int(tr["frame"][i]),
+                    *(csv_cell(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
+                ]
+            )
+    animation = getattr(result, "animation", None)
+    if animation is not None:
+        import numpy as np
+
+        np.savez_compressed(out / "animation.npz", **animation)
+    if plot:
+        from ..plotting.jobs import FigureJob, draw_all
+        from ..plotting.run import plot_run
+
+        jobs: list[FigureJob] = [(plot_run, (result, out / "plot.png"), {})]
+        if result.loop is not None and result.loop.monitor.n:
+            from ..plotting.guarantee import plot_guarantee
+
+            units = result.scene.units
+            kwargs = {
+                "lambda_unit": units.factor("lambda_init"),
+                "lambda_label": f"lambda (1/{units.time_name})",
+            }
+            jobs.append((plot_guarantee, (result.loop.monitor, out / "guarantee.png"), kwargs))
+        draw_all(jobs)  # the two figures on two cores where possible
+    return out

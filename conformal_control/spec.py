@@ -1,0 +1,493 @@
+"""The run specification: the one table of controller parameters (this module) and the
+:class:`RunSpec` every entry point builds or takes.
+
+:class:`Parameters` is the table: one field per controller parameter, each carrying its
+default, its dimension (``length^p time^q``: how it converts between a scene's units and
+SI), the range it must lie in and its documentation. Everything else that lists
+parameters is derived from it: :data:`PARAMETERS` (name -> (default, doc), what
+``conformal-control params`` prints), :data:`PARAM_DIMENSIONS` (what
+:class:`~conformal_control.data.units.UnitSystem` converts) and :data:`PLAUSIBLE_SI`
+(the SI range outside which a bare number is reported as suspicious).
+
+This module imports nothing of the package but the exceptions, so every floor of the
+house can read the table and the specification.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from .exceptions import InputError
+
+__all__ = [
+    "OPTION_FIELDS",
+    "PARAMETERS",
+    "PARAM_DIMENSIONS",
+    "PLAUSIBLE_SI",
+    "ROLE_FIELDS",
+    "ParamInfo",
+    "Parameters",
+    "RunSpec",
+    "parameter_info",
+]
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    """What the table knows about one parameter.
+
+    Attributes
+    ----------
+    doc : str
+        One line, as ``conformal-control params`` prints it.
+    dimension : (int, int) or None
+        Exponents of length and time (``(0, -1)``: a rate); None for a parameter that is
+        not converted between unit systems (dimensionless, or always SI such as ``v_max``).
+    kind : {"float", "int", "text"}
+        The value's type.
+    low, high : float
+        The range the value (in SI) must lie in.
+    closed : (bool, bool)
+        Whether ``low`` and ``high`` belong to the range.
+    plausible : (float, float, str) or None
+        SI range and unit outside which a bare number (no unit suffix) is reported as
+        suspicious (probably typed in the wrong unit).
+    """
+
+    doc: str
+    dimension: tuple[int, int] | None = None
+    kind: str = "float"
+    low: float = -math.inf
+    high: float = math.inf
+    closed: tuple[bool, bool] = (True, True)
+    plausible: tuple[float, float, str] | None = None
+
+    @property
+    def range_text(self) -> str:
+        """The range as a reader writes it, e.g. ``(0, inf)`` or ``[1, inf)``."""
+        lo = "[" if self.closed[0] and math.isfinite(self.low) else "("
+        hi = "]" if self.closed[1] and math.isfinite(self.high) else ")"
+        return f"{lo}{self.low:g}, {self.high:g}{hi}"
+
+
+def _p(default: Any, doc: str, **info: Any) -> Any:
+    """A table entry: ``default`` (None: from the scene) and its :class:`ParamInfo`."""
+    return field(default=default, metadata={"info": ParamInfo(doc, **info)})
+
+
+_RATE = (0, -1)
+_LENGTH = (1, 0)
+_POSITIVE: dict[str, Any] = {"low": 0.0, "closed": (False, True)}
+_NON_NEGATIVE: dict[str, Any] = {"low": 0.0}
+
+
+@dataclass(frozen=True)
+class Parameters:
+    """Every controller parameter with its default (None: the scene's default).
+
+    Dimensional parameters are typed in the scene's units (SDD: pixels and frames, the
+    paper's) unless a run says ``units="si"``; each field's ``metadata["info"]`` is its
+    :class:`ParamInfo` (unit, range, doc).
+    """
+
+    a: float | None = _p(None, "slope of alpha(h) = a h (1/time)", dimension=_RATE, **_POSITIVE)
+    K_acc: float | None = _p(
+        None,
+        "velocity-tracking gain of u = -K_acc (v - v_QP) (1/time)",
+        dimension=_RATE,
+        **_POSITIVE,
+    )
+    K_rep: float | None = _p(
+        None, "repulsive gain of the APF barrier (length^2)", dimension=(2, 0), **_POSITIVE
+    )
+    K_att: float | None = _p(
+        None,
+        "attractive gain of the reference v_ref = -K_att (X - X_goal) (1/time)",
+        dimension=_RATE,
+        **_POSITIVE,
+    )
+    rho0: float | None = _p(
+        None,
+        "APF influence distance (length)",
+        dimension=_LENGTH,
+        plausible=(1.0, 100.0, "m"),
+        **_POSITIVE,
+    )
+    sensing_radius: float | None = _p(
+        None,
+        "sensor range, centre distance (length); default rho0",
+        dimension=_LENGTH,
+        plausible=(1.0, 100.0, "m"),
+        **_POSITIVE,
+    )
+    tau: float | None = _p(
+        None,
+        "sampling period of sensor, predictor and lambda update (time)",
+        dimension=(0, 1),
+        plausible=(0.0, 10.0, "s"),
+        **_POSITIVE,
+    )
+    eta: float | None = _p(
+        None, "learning rate of lambda (1/time)", dimension=_RATE, **_NON_NEGATIVE
+    )
+    epsilon: float | None = _p(
+        None,
+        "target average loss, in (-1/2, 1/2)",
+        low=-0.5,
+        high=0.5,
+        closed=(False, False),
+    )
+    loss_scale: float | None = _p(
+        None, "loss scale c in s(r) = arctan(r/c)/pi (1/time)", dimension=_RATE, **_POSITIVE
+    )
+    lambda_init: float = _p(0.0, "initial lambda (1/time)", dimension=_RATE)
+    lambda_min: float = _p(
+        -math.inf, "clip lambda from below (1/time) against wind-up", dimension=_RATE
+    )
+    lambda_max: float = _p(math.inf, "clip lambda from above (1/time)", dimension=_RATE)
+    convention: str = _p(
+        "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
+    )
+    delta: float | None = _p(
+        None,
+        "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)",
+        low=0.0,
+        high=1.0,
+        closed=(False, False),
+    )
+    fallback: str = _p(
+        "lambda_search", "on an infeasible QP: lambda_search | brake | hold", kind="text"
+    )
+    speed_sides: int = _p(
+        16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
+    )
+    substeps: int = _p(4, "QP solves (control instants) per data frame", kind="int", low=1.0)
+    history: int | None = _p(
+        None,
+        "frames of history handed to the predictor; default 4 s of frames",
+        kind="int",
+        low=1.0,
+    )
+    v_max: float | None = _p(None, "robot speed bound (m/s)", **_POSITIVE)
+    barrier_margin: float = _p(
+        0.0,
+        "extra distance added to d_c in the barrier only (m): a robust CBF",
+        **_NON_NEGATIVE,
+    )
+    robot_radius: float | None = _p(None, "robot radius (m)", **_POSITIVE)
+    agent_radius: float | None = _p(None, "pedestrian radius (m)", **_POSITIVE)
+    goal_radius: float | None = _p(None, "goal radius (m)", **_POSITIVE)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """Every parameter name, in the table's order."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def parameter_info(name: str) -> ParamInfo:
+    """The :class:`ParamInfo` of parameter ``name`` (KeyError for an unknown name)."""
+    return _INFO[name]
+
+
+_INFO: dict[str, ParamInfo] = {f.name: f.metadata["info"] for f in dataclasses.fields(Parameters)}
+
+#: name -> (default, description): ``None`` defaults are filled from the scene
+#: (``scene.defaults`` first, then the scene's own attributes).
+PARAMETERS: dict[str, tuple[Any, str]] = {
+    f.name: (f.default, f.metadata["info"].doc) for f in dataclasses.fields(Parameters)
+}
+
+#: parameter -> (length exponent, time exponent); parameters not listed are SI already.
+PARAM_DIMENSIONS: dict[str, tuple[int, int]] = {
+    name: info.dimension for name, info in _INFO.items() if info.dimension is not None
+}
+
+#: SI range (and its unit) outside which a bare (suffix-less) value is reported as suspicious.
+PLAUSIBLE_SI: dict[str, tuple[float, float, str]] = {
+    name: info.plausible for name, info in _INFO.items() if info.plausible is not None
+}
+
+
+# ------------------------------------------------------------------------------ RunSpec
+#: A role of a run: a registered name, an instance (used as given), ``(name, params)``,
+#: or None (the flagship's default).
+RoleValue = Any
+
+#: The roles of a run, in the order they are reported; ``rule`` is the ``update_rule``
+#: role, ``family`` the ``decision_family`` role, ``crowd`` the crowd model.
+ROLE_FIELDS: tuple[str, ...] = (
+    "predictor",
+    "barrier",
+    "safety_filter",
+    "fallback",
+    "reference",
+    "dynamics",
+    "loss",
+    "rule",
+    "family",
+    "crowd",
+)
+#: Options of a run (not controller parameters, not roles).
+OPTION_FIELDS: tuple[str, ...] = (
+    "units",
+    "learn",
+    "seed",
+    "max_frames",
+    "lambda_safe",
+    "lambda_safe_source",
+    "record_animation",
+    "engine",
+)
+_ROLE_DEFAULTS: dict[str, Any] = {
+    "predictor": "constant_velocity",
+    "rule": "fixed_eta",
+    "crowd": "replay",
+}
+_OPTION_TYPES: dict[str, tuple[type, ...]] = {
+    "units": (str,),
+    "learn": (bool,),
+    "seed": (int,),
+    "max_frames": (int, type(None)),
+    "lambda_safe": (int, float, type(None)),
+    "lambda_safe_source": (str, type(None)),
+    "record_animation": (bool,),
+    "engine": (str,),
+}
+
+
+def _spec_error(message: str) -> Exception:
+    return InputError(message)
+
+
+def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
+    """``(name or instance or None, params)`` of a role value, type-checked."""
+    if isinstance(value, tuple):
+        if len(value) != 2 or not isinstance(value[0], str) or not isinstance(value[1], dict):
+            raise _spec_error(f"role {name} as a pair must be (name, params dict), got {value!r}")
+        return value[0], dict(value[1])
+    if isinstance(value, list) and len(value) == 2 and isinstance(value[0], str):
+        if not isinstance(value[1], dict):
+            raise _spec_error(f"role {name} params must be a mapping, got {value[1]!r}")
+        return value[0], dict(value[1])
+    if isinstance(value, dict):  # the serialised form {"name": ..., "params": {...}}
+        unknown = set(value) - {"name", "params"}
+        if unknown or not isinstance(value.get("name"), str):
+            raise _spec_error(
+                f"role {name} as a mapping must be {{'name': str, 'params': {{...}}}}, "
+                f"got {value!r}"
+            )
+        params = value.get("params") or {}
+        if not isinstance(params, dict):
+            raise _spec_error(f"role {name} params must be a mapping, got {params!r}")
+        return value["name"], dict(params)
+    if value is None or isinstance(value, str):
+        return value, {}
+    return value, {}  # an instance: checked against the role's base class when built
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of the flagship, fully specified: parameters, roles, crowd, robots, options.
+
+    Every entry point builds one (the CLI from its flags, :func:`conformal_control.run`
+    from its arguments, sweeps from a run configuration, the benchmark from a method and a
+    scenario) and hands it to the same builder and engines; ``config.json`` holds
+    :meth:`as_dict`, and :meth:`from_dict` reads it back (type-checked).
+
+    Parameters
+    ----------
+    params : dict
+        Controller parameters (:class:`Parameters`) overriding the scene's defaults, in
+        the unit system ``units``; a string value may carry a unit suffix (``"18m"``).
+    predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule, family, crowd
+        Each role as a registered name, an instance (used as given, SI units),
+        ``(name, params)``, or None for the flagship's default. ``rule`` is the
+        ``update_rule`` role (its parameters in ``units``), ``family`` the
+        ``decision_family`` role, ``crowd`` the crowd model (``"replay"``: the recording).
+    units : {"scene", "si"}
+        Unit system of ``params`` and of the rule's parameters.
+    learn : bool
+        False keeps lambda at ``lambda_init`` (the noLearn baseline).
+    seed : int
+        Seed of the built-in scene, of reactive crowds and of plugins with a
+        ``random_state``.
+    max_frames : int, optional
+        Limit on simulated frames.
+    lambda_safe : float, optional
+        lambda known or estimated to keep the robot safe (in ``units``).
+    lambda_safe_source : str, optional
+        Where ``lambda_safe`` came from.
+    record_animation : bool
+        Keep the compact record ``conformal-control animate`` renders.
+    engine : {"auto", "loop", "batch"}
+        The backend (:mod:`conformal_control.engines`).
+
+    Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
+    ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
+    parameter; ``spec.set_params(predictor__window=3, epsilon=-0.1)`` returns the changed
+    copy.
+    """
+
+    params: dict[str, Any] = field(default_factory=dict)
+    predictor: RoleValue = "constant_velocity"
+    barrier: RoleValue = None
+    safety_filter: RoleValue = None
+    fallback: RoleValue = None
+    reference: RoleValue = None
+    dynamics: RoleValue = None
+    loss: RoleValue = None
+    rule: RoleValue = "fixed_eta"
+    family: RoleValue = None
+    crowd: RoleValue = "replay"
+    units: str = "scene"
+    learn: bool = True
+    seed: int = 0
+    max_frames: int | None = None
+    lambda_safe: float | None = None
+    lambda_safe_source: str | None = None
+    record_animation: bool = True
+    engine: str = "auto"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.params, dict):
+            raise _spec_error(f"params must be a mapping, got {self.params!r}")
+        unknown = sorted(set(self.params) - set(PARAMETERS))
+        if unknown:
+            import difflib
+
+            close = difflib.get_close_matches(unknown[0], list(PARAMETERS), n=1, cutoff=0.6)
+            hint = f" did you mean {close[0]!r}?" if close else ""
+            raise _spec_error(
+                f"unknown parameter {unknown[0]!r};{hint} the parameters are "
+                f"{', '.join(PARAMETERS)} (see `conformal-control params`)"
+            )
+        for name, types in _OPTION_TYPES.items():
+            value = getattr(self, name)
+            if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+                what = " or ".join(t.__name__ for t in types).replace("NoneType", "None")
+                raise _spec_error(f"{name} must be {what}, got {value!r}")
+        if self.units not in ("scene", "si"):
+            raise _spec_error(f"units must be 'scene' or 'si', got {self.units!r}")
+        if self.engine not in ("auto", "loop", "batch"):
+            raise _spec_error(f"engine must be 'auto', 'loop' or 'batch', got {self.engine!r}")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
+        for role in ROLE_FIELDS:
+            _role_parts(role, getattr(self, role))
+
+    # ------------------------------------------------------------------ roles
+    def role(self, name: str) -> tuple[Any, dict[str, Any]]:
+        """Role ``name`` as ``(registered name, instance or None; its params)``."""
+        if name not in ROLE_FIELDS:
+            raise KeyError(name)
+        return _role_parts(name, getattr(self, name))
+
+    def role_name(self, name: str) -> str | None:
+        """The registered name of a role (an instance: its class name; None: default)."""
+        spec, _ = self.role(name)
+        if spec is None or isinstance(spec, str):
+            return spec
+        return type(spec).__name__
+
+    # ------------------------------------------------------------------ deep parameters
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """Every field; with ``deep``, also ``<role>__<param>`` for each role's
+        parameters and one key per controller parameter."""
+        out: dict[str, Any] = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if deep:
+            for role in ROLE_FIELDS:
+                spec, params = self.role(role)
+                out[role] = spec
+                if spec is not None and not isinstance(spec, str):
+                    get = getattr(spec, "get_params", None)
+                    params = dict(get()) if get is not None else {}
+                out.update({f"{role}__{k}": v for k, v in params.items()})
+            out.update(self.params)
+        return out
+
+    def set_params(self, **changes: Any) -> RunSpec:
+        """A copy with ``changes`` applied: fields by name, ``<role>__<param>`` for a
+        role's parameter (the role must be given by name), controller parameters by
+        name."""
+        fields = {f.name for f in dataclasses.fields(self)}
+        new: dict[str, Any] = {}
+        params = dict(self.params)
+        roles: dict[str, tuple[Any, dict[str, Any]]] = {}
+        for key, value in changes.items():
+            role, sep, sub = key.partition("__")
+            if sep:
+                if role not in ROLE_FIELDS:
+                    raise _spec_error(f"{key}: {role!r} is not a role of a run")
+                spec, rp = roles.get(role) or self.role(role)
+                if spec is not None and not isinstance(spec, str):
+                    raise _spec_error(f"{key}: the {role} is an instance; set its parameter on it")
+                if spec is None:
+                    raise _spec_error(f"{key}: give the {role} by name first")
+                roles[role] = (spec, {**rp, sub: value})
+            elif key in fields and key != "params":
+                new[key] = value
+            elif key in PARAMETERS:
+                params[key] = value
+            else:
+                raise _spec_error(f"unknown run setting {key!r}")
+        for role, (spec, rp) in roles.items():
+            new[role] = (spec, rp) if rp else spec
+        return dataclasses.replace(self, params=params, **new)
+
+    # ------------------------------------------------------------------ serialisation
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (``config.json``'s ``spec``); :meth:`from_dict` inverts it.
+
+        Roles given as instances are written as their class name and ``get_params()``
+        (they cannot be rebuilt from JSON; :meth:`from_dict` rejects them).
+        """
+        out: dict[str, Any] = {"params": dict(self.params)}
+        for role in ROLE_FIELDS:
+            spec, params = self.role(role)
+            if spec is None or isinstance(spec, str):
+                out[role] = spec if not params else {"name": spec, "params": params}
+            else:
+                get = getattr(spec, "get_params", None)
+                out[role] = {
+                    "instance": type(spec).__name__,
+                    "params": {k: repr(v) for k, v in (get() if get else {}).items()},
+                }
+        for name in OPTION_FIELDS:
+            out[name] = getattr(self, name)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "run specification") -> RunSpec:
+        """The :class:`RunSpec` of :meth:`as_dict`'s output, every value type-checked.
+
+        Raises
+        ------
+        InputError
+            For an unknown key, a value of the wrong type or a role written from an
+            instance (one line naming ``where`` and the key).
+        """
+        if not isinstance(data, dict):
+            raise _spec_error(f"{where} must be a mapping, got {type(data).__name__}")
+        known = {"params", *ROLE_FIELDS, *OPTION_FIELDS}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise _spec_error(f"{where}: unknown key {unknown[0]!r}")
+        kw: dict[str, Any] = {}
+        for key, value in data.items():
+            if key in ROLE_FIELDS and isinstance(value, dict) and "instance" in value:
+                raise _spec_error(
+                    f"{where}: the {key} was an instance of {value['instance']}, which a "
+                    "file cannot rebuild; give it by registered name"
+                )
+            if key in ROLE_FIELDS and isinstance(value, dict):
+                name, params = _role_parts(key, value)
+                kw[key] = (name, params) if params else name
+            else:
+                kw[key] = value
+        try:
+            return cls(**kw)
+        except TypeError as exc:  # pragma: no cover - the keys were checked above
+            raise _spec_error(f"{where}: {exc}") from None

@@ -1,0 +1,83 @@
+"""The run specification: the parameter table and RunSpec (types, deep parameters, JSON)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import pytest
+
+from conformal_control.exceptions import InputError
+from conformal_control.spec import (
+    PARAM_DIMENSIONS,
+    PARAMETERS,
+    PLAUSIBLE_SI,
+    Parameters,
+    RunSpec,
+    parameter_info,
+)
+
+
+def test_one_table_gives_every_derived_table() -> None:
+    names = Parameters.names()
+    assert tuple(PARAMETERS) == names
+    assert set(PARAM_DIMENSIONS) <= set(names) and set(PLAUSIBLE_SI) <= set(PARAM_DIMENSIONS)
+    assert PARAM_DIMENSIONS["eta"] == (0, -1) and PARAM_DIMENSIONS["K_rep"] == (2, 0)
+    assert "v_max" not in PARAM_DIMENSIONS  # always SI
+    info = parameter_info("epsilon")
+    assert (info.low, info.high, info.closed) == (-0.5, 0.5, (False, False))
+    assert info.range_text == "(-0.5, 0.5)"
+    assert parameter_info("substeps").kind == "int"
+    assert PARAMETERS["lambda_max"][0] == math.inf
+    assert dataclasses.fields(Parameters)[0].metadata["info"].doc == PARAMETERS["a"][1]
+
+
+def test_round_trip_through_json() -> None:
+    spec = RunSpec(
+        params={"epsilon": -0.1, "rho0": "18m"},
+        predictor=("constant_velocity", {"window": 3}),
+        barrier="apf",
+        rule=("pid", {"K_I": 0.1}),
+        crowd=("social_force", {"radius": 3.0}),
+        units="si",
+        learn=False,
+        seed=7,
+        max_frames=120,
+        lambda_safe=0.5,
+        engine="loop",
+    )
+    text = json.dumps(spec.as_dict())
+    assert RunSpec.from_dict(json.loads(text)) == spec
+
+
+def test_deep_parameters() -> None:
+    spec = RunSpec(predictor="constant_velocity")
+    changed = spec.set_params(predictor__window=4, epsilon=-0.2, seed=3)
+    assert changed.role("predictor") == ("constant_velocity", {"window": 4})
+    assert changed.params == {"epsilon": -0.2} and changed.seed == 3
+    flat = changed.get_params()
+    assert flat["predictor__window"] == 4 and flat["epsilon"] == -0.2
+    assert spec.role("predictor") == ("constant_velocity", {})  # frozen: spec unchanged
+    with pytest.raises(InputError, match="give the barrier by name"):
+        spec.set_params(barrier__K_rep=1.0)
+    with pytest.raises(InputError, match="unknown run setting 'epsilonn'"):
+        spec.set_params(epsilonn=0.1)
+
+
+@pytest.mark.parametrize(
+    ("data", "words"),
+    [
+        ({"learn": "false"}, "learn must be bool, got 'false'"),
+        ({"max_frames": "abc"}, "max_frames must be int or None, got 'abc'"),
+        ({"seed": True}, "seed must be int, got True"),
+        ({"params": {"epsilonn": 0.1}}, "did you mean 'epsilon'"),
+        ({"units": "px"}, "units must be 'scene' or 'si'"),
+        ({"out": "/tmp/x"}, "unknown key 'out'"),
+        ({"predictor": {"name": 3}}, "role predictor as a mapping"),
+        ({"barrier": {"instance": "APFBarrier", "params": {}}}, "give it by registered name"),
+    ],
+)
+def test_from_dict_is_type_checked(data: dict, words: str) -> None:
+    with pytest.raises(InputError, match=words.replace("(", r"\(").replace(")", r"\)")):
+        RunSpec.from_dict(data)
