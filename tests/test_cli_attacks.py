@@ -16,6 +16,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conformal_control.cli import EXIT_ERROR, main
@@ -277,7 +278,45 @@ def _scales_not_yaml(root: Path) -> str:
     return "estimated_scales.yaml: not valid YAML"
 
 
+def _trajnet_far_frame(root: Path) -> str:
+    """One row at frame 2e9: the dense scene would need billions of frames (MemoryError)."""
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: ["2000000004", *p[1:]])
+    return "gates_1.txt:30: frame 2000000004 comes"
+
+
+def _trajnet_off_grid(root: Path) -> str:
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: [str(int(p[0]) + 5), *p[1:]])
+    return "gates_1.txt:30: frame"
+
+
+def _trajnet_huge_id(root: Path) -> str:
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: [p[0], "1e20", *p[2:]])
+    return "gates_1.txt:30: agent id 1e+20"
+
+
+def _sdd_far_frame(root: Path) -> str:
+    ann = root / NEXUS / "annotations.txt"
+    k = _first_pedestrian_line(ann)
+    _rewrite_line(ann, k, lambda p: [*p[:5], "2000000000", *p[6:]])
+    return f"annotations.txt:{k}: frame 2000000000 comes"
+
+
+def _sdd_huge_id(root: Path) -> str:
+    ann = root / NEXUS / "annotations.txt"
+    k = _first_pedestrian_line(ann)
+    _rewrite_line(ann, k, lambda p: ["1e20", *p[1:]])
+    return f"annotations.txt:{k}: agent id 1e+20"
+
+
 DATA = [
+    ("trajnet row at frame 2e9", "gates_1", _trajnet_far_frame, "probably wrong"),
+    ("trajnet row off the frame grid", "gates_1", _trajnet_off_grid, "off the file's grid"),
+    ("trajnet id of 1e20", "gates_1", _trajnet_huge_id, "not a whole number"),
+    ("sdd row at frame 2e9", "nexus_4", _sdd_far_frame, "probably wrong"),
+    ("sdd id of 1e20", "nexus_4", _sdd_huge_id, "not a whole number"),
     ("nan box coordinate", "nexus_4", _nan_box, "non-finite box coordinate"),
     ("truncated label", "nexus_4", _truncated_label, "is not a quoted name"),
     ("truncated line", "nexus_4", _truncated_line, "expected 10"),
@@ -434,3 +473,65 @@ def test_stepwise_input_contract(call: Callable[[], object], words: list[str]) -
     assert "\n" not in message and not re.search(r"[.!?] +[A-Z][a-z]", message), message
     for w in words:
         assert w in message, f"{w!r} not in {message!r}"
+
+
+# ------------------------------------------------------------------------------ ETH/UCY rows
+@pytest.fixture
+def zara_copy(ethucy_dir: Path, tmp_path: Path) -> Path:
+    root = tmp_path / "ethucy"
+    shutil.copytree(ethucy_dir / "zara1" / "test", root / "zara1" / "test")
+    for other in ("eth", "hotel", "univ"):
+        (root / other).mkdir()
+    return root
+
+
+def _zara_rows(root: Path) -> tuple[Path, list[str]]:
+    path = root / "zara1" / "test" / "crowds_zara01.txt"
+    return path, path.read_text().splitlines()
+
+
+def _eval(root: Path) -> int:
+    argv = ["eval-predictor", "--predictor", "constant_velocity", "--dataset", "ethucy:zara1"]
+    return main([*argv, "--data-root", str(root)])
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda f: [str(float(f[0]) + 3), *f[1:]], "is off the file's grid of one sample every 10"),
+        (lambda f: ["2000000000", *f[1:]], "comes"),
+        (lambda f: [f[0], "1e20", *f[2:]], "agent id 1e+20 is not a whole number"),
+    ],
+    ids=["off-grid frame", "frame 2e9", "id of 1e20"],
+)
+def test_ethucy_bad_row_is_one_line_with_file_and_line(
+    edit: Callable[[list[str]], list[str]], words: str, zara_copy: Path, capsys
+) -> None:
+    """An off-grid row used to become the file's time step: every pedestrian 3.3x slower."""
+    path, lines = _zara_rows(zara_copy)
+    lines[40] = " ".join(edit(lines[40].split()))
+    path.write_text("\n".join(lines) + "\n")
+    assert _eval(zara_copy) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "crowds_zara01.txt:41" in line and words in line, line
+
+
+def test_ethucy_duplicate_rows_are_counted_or_refused(zara_copy: Path, capsys) -> None:
+    from conformal_control.data.ethucy import read_ethucy
+
+    path, lines = _zara_rows(zara_copy)
+    clean = read_ethucy(path)
+    assert clean.meta["n_duplicate_rows"] == 0
+    path.write_text("\n".join([*lines[:41], lines[40], *lines[41:]]) + "\n")  # repeated
+    again = read_ethucy(path)
+    assert again.meta["n_duplicate_rows"] == 1 and again.meta["n_rows"] == len(lines) + 1
+    for i, (f, xy) in clean.tracks.items():
+        np.testing.assert_array_equal(again.tracks[i][0], f)
+        np.testing.assert_array_equal(again.tracks[i][1], xy)
+    moved = lines[40].split()
+    moved[2] = str(float(moved[2]) + 1.0)
+    path.write_text("\n".join([*lines[:41], " ".join(moved), *lines[41:]]) + "\n")
+    assert _eval(zara_copy) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "crowds_zara01.txt:42" in line and "second, different position" in line, line
+    assert "first at line 41" in line

@@ -22,7 +22,7 @@ import yaml
 
 from ..exceptions import DataFormatError, InputError
 from .paths import missing, sdd_root
-from .tracks import Tracks
+from .tracks import Tracks, check_frames, file_agent_ids
 
 __all__ = [
     "SDD_FPS",
@@ -195,6 +195,9 @@ def read_annotations(
             f"{path}:{linenos[k]}: non-finite box coordinate ({' '.join(numbers[k][1:5])}); "
             "SDD boxes are finite pixel coordinates (an absent agent is marked lost=1)"
         )
+    # every row, pedestrian or not: a wrong frame number anywhere is an error
+    check_frames(num[:, 5], SDD_FPS, path, linenos)
+    file_agent_ids(num[:, 0], path, linenos)
     is_label = np.array(tags) == wanted
     lost = num[:, 6] != 0
     n_other = int((~is_label).sum())

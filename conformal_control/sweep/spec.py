@@ -42,7 +42,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..exceptions import InputError
+
 __all__ = [
+    "MAX_RUNS",
     "RESERVED_KEYS",
     "RunConfig",
     "SweepSpec",
@@ -51,6 +54,9 @@ __all__ = [
     "parse_grid_option",
     "run_key",
 ]
+
+#: Most runs one sweep may have (checked before the grid is expanded).
+MAX_RUNS = 1_000_000
 
 #: Keys of a run configuration that are not controller parameters.
 RESERVED_KEYS = (
@@ -286,16 +292,38 @@ class SweepSpec:
             raise ValueError("'runs' must be a list of mappings")
         return cls(base, grid, [dict(r) for r in runs])
 
+    def size(self) -> int:
+        """Number of runs before duplicates are merged: ``len(runs) x product of axes``."""
+        return max(len(self.runs), 1) * math.prod(len(v) for v in self.grid.values())
+
     def expand(self) -> list[RunConfig]:
-        """All runs, in order, without duplicates (same key kept once)."""
+        """All runs, in order, without duplicates (same key kept once).
+
+        Raises
+        ------
+        ValueError
+            If the sweep has more than :data:`MAX_RUNS` runs (checked before anything is
+            built), or a run is invalid.
+        """
+        n_runs = self.size()
+        if n_runs > MAX_RUNS:
+            shape = " x ".join(
+                [
+                    *([f"{len(self.runs)} runs"] if self.runs else []),
+                    *(f"{len(v)} {k}" for k, v in self.grid.items()),
+                ]
+            )
+            raise InputError(
+                f"the sweep has {n_runs:,} runs ({shape}), more than the {MAX_RUNS:,} one "
+                "sweep may hold; split it into several sweeps or use coarser grids"
+            )
         axes = list(self.grid)
-        points = list(itertools.product(*(self.grid[a] for a in axes))) or [()]
         out: list[RunConfig] = []
         seen: set[str] = set()
         errors: dict[str, int] = {}
         n = 0
         for run in self.runs or [{}]:
-            for point in points:
+            for point in itertools.product(*(self.grid[a] for a in axes)):
                 n += 1
                 flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
                 try:
