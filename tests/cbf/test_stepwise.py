@@ -187,7 +187,7 @@ def test_rates_and_gains_are_checked(name, value) -> None:
 
 def test_the_same_message_as_the_command_line_for_epsilon() -> None:
     from conformal_control.data import load_scene
-    from conformal_control.sim.config import resolve_params
+    from conformal_control.flagship.params import resolve_params
 
     with pytest.raises(ValueError) as cli:
         resolve_params(load_scene("crossing"), {"epsilon": 5.0})
