@@ -141,6 +141,7 @@ LAYERS: dict[str, int] = {
     "exceptions": 0,
     "progress": 0,
     "fileio": 1,
+    "compiled": 1,
     "monitor": 1,
     "registry": 1,
     "losses": 1,
