@@ -54,6 +54,7 @@ def write_error(path: str | os.PathLike[str], exc: OSError) -> OutputNotWritable
     reason = {
         errno.ENOSPC: "no space left on the device",
         errno.EDQUOT: "disk quota exceeded",
+        errno.EFBIG: "the file exceeds the size limit of this process or file system",
         errno.EROFS: "the file system is read-only",
         errno.EACCES: "permission denied",
         errno.EPERM: "permission denied",

@@ -535,3 +535,33 @@ def test_ethucy_duplicate_rows_are_counted_or_refused(zara_copy: Path, capsys) -
     line = one_error(capsys)
     assert "crowds_zara01.txt:42" in line and "second, different position" in line, line
     assert "first at line 41" in line
+
+
+# ------------------------------------------------------------------------------ disks
+def test_a_full_disk_names_the_file_and_leaves_no_truncated_one(tmp_path: Path) -> None:
+    """Files cut off by a full disk (here: a 4 KiB file-size limit) used to stay behind,
+    truncated or empty, with an error that named no path."""
+    import subprocess
+    import sys
+
+    code = (
+        "import resource, signal, sys\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail (EFBIG)\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
+        "from conformal_control.cli import main\n"
+        "sys.exit(main())\n"
+    )
+    out = tmp_path / "r"
+    argv = ["run", "--frames", "20", "--no-plot", "--quiet", "--out", str(out)]
+    res = subprocess.run(
+        [sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=600
+    )
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    assert res.returncode == EXIT_ERROR and len(errors) == 1, res.stderr
+    assert "Traceback" not in res.stderr
+    assert f"cannot write {out}" in errors[0] and "size limit" in errors[0], errors[0]
+    for path in out.rglob("*"):
+        assert not path.name.endswith(".tmp"), path
+        if path.suffix == ".json":
+            json.loads(path.read_text())  # complete, never cut off
+    assert not (out / "metrics.json").exists()  # the run directory is not marked complete

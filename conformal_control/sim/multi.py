@@ -589,51 +589,58 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
       robot as a single-robot run writes them (plus ``d_min_robot``);
     * ``trajectories.csv`` -- ``frame,t,robot,x,y,active``: every robot at every frame;
     * ``animation.npz`` -- what ``conformal-control animate`` renders (if recorded).
+
+    Every file is written atomically (temporary name, then rename), the fleet's
+    ``metrics.json`` last; a write error names the file.
     """
-    import csv
+    from ..fileio import atomic_write, atomic_write_json, atomic_write_text
+    from ..results.rundir import csv_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
+    atomic_write_json(out / "config.json", finite_or_none(result.config))
+    for r in result.robots:
+        d = out / "robots" / f"robot_{r.index:02d}"
+        d.mkdir(parents=True, exist_ok=True)
+        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+        rows = ([csv_cell(iv.get(c)) for c in cols] for iv in r.intervals)
+        atomic_write_text(d / "intervals.csv", csv_text(cols, rows))
+        tr = r.trajectory
+        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
+        traj = (
+            [int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)]
+            for j in range(len(tr["frame"]))
+        )
+        atomic_write_text(d / "trajectory.csv", csv_text(["frame", *keys], traj))
+        atomic_write_json(d / "metrics.json", finite_or_none(r.summary()))
+    tk = result.track
+    track = (
+        [
+            int(tk["frame"][j]),
+            csv_cell(float(tk["t"][j])),
+            i,
+            csv_cell(float(tk["robots"][j, i][0])),
+            csv_cell(float(tk["robots"][j, i][1])),
+            int(tk["active"][j, i]),
+        ]
+        for j in range(tk["frame"].size)
+        for i in range(tk["robots"].shape[1])
+    )
+    atomic_write_text(
+        out / "trajectories.csv", csv_text(["frame", "t", "robot", "x", "y", "active"], track)
+    )
+    animation = result.animation
+    if animation is not None:
+
+        def save_npz(tmp: Path) -> None:
+            with tmp.open("wb") as fh:  # a file object: numpy would append .npz to a name
+                np.savez_compressed(fh, **animation)
+
+        atomic_write(out / "animation.npz", save_npz)
+    # last: the fleet's metrics.json marks a complete run directory
     summary = {
         "fleet": result.metrics.as_dict(),
         "robots": [r.summary() for r in result.robots],
     }
-    (out / "metrics.json").write_text(json.dumps(finite_or_none(summary), indent=2) + "\n")
-    for r in result.robots:
-        d = out / "robots" / f"robot_{r.index:02d}"
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "metrics.json").write_text(json.dumps(finite_or_none(r.summary()), indent=2) + "\n")
-        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
-        with (d / "intervals.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(cols)
-            for iv in r.intervals:
-                w.writerow([csv_cell(iv.get(c)) for c in cols])
-        tr = r.trajectory
-        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
-        with (d / "trajectory.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", *keys])
-            for j in range(len(tr["frame"])):
-                w.writerow([int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)])
-    tk = result.track
-    with (out / "trajectories.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "t", "robot", "x", "y", "active"])
-        for j in range(tk["frame"].size):
-            for i in range(tk["robots"].shape[1]):
-                x, y = tk["robots"][j, i]
-                w.writerow(
-                    [
-                        int(tk["frame"][j]),
-                        csv_cell(float(tk["t"][j])),
-                        i,
-                        csv_cell(float(x)),
-                        csv_cell(float(y)),
-                        int(tk["active"][j, i]),
-                    ]
-                )
-    if result.animation is not None:
-        np.savez_compressed(out / "animation.npz", **result.animation)
+    atomic_write_json(out / "metrics.json", finite_or_none(summary))
     return out
