@@ -565,3 +565,150 @@ def test_a_full_disk_names_the_file_and_leaves_no_truncated_one(tmp_path: Path) 
         if path.suffix == ".json":
             json.loads(path.read_text())  # complete, never cut off
     assert not (out / "metrics.json").exists()  # the run directory is not marked complete
+
+
+# ------------------------------------------------------------------------------ smaller files
+def _scales(root: Path, edit: Callable[[str], str]) -> None:
+    path = root / "estimated_scales.yaml"
+    path.write_text(edit(path.read_text()))
+
+
+def _nexus_scale(value: str) -> Callable[[str], str]:
+    def edit(text: str) -> str:
+        head, _, tail = text.partition("nexus:")
+        before, _, after = tail.partition("video4:")
+        scale_line = after.split("\n", 2)
+        return head + "nexus:" + before + "video4:\n      scale: " + value + "\n" + scale_line[2]
+
+    return edit
+
+
+def _bomb(root: Path) -> None:
+    """A PNG header claiming 60000 x 60000 pixels: 3.6 billion, from 57 bytes."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = zlib.crc32(kind + data) & 0xFFFFFFFF
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
+
+    header = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
+    (root / NEXUS / "reference.jpg").write_bytes(png)
+
+
+SMALLER = [
+    ("scale 0", lambda r: _scales(r, _nexus_scale("0")), "scale in metres per pixel > 0"),
+    ("scale nan", lambda r: _scales(r, _nexus_scale(".nan")), "scale in metres per pixel > 0"),
+    (
+        "scene not a mapping",
+        lambda r: _scales(r, lambda t: "nexus: [1, 2]\n" + t.split("nexus:")[0]),
+        "scene nexus must map videoN",
+    ),
+    (
+        "video entry not a mapping",
+        lambda r: _scales(r, _nexus_scale("0.04\n      x: [")),
+        "estimated_scales.yaml",
+    ),
+    ("decompression bomb image", _bomb, "decompression bomb"),
+]
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "words"), [c[1:] for c in SMALLER], ids=[c[0] for c in SMALLER]
+)
+def test_smaller_data_attacks(
+    corrupt: Callable[[Path], None], words: str, sdd_copy: Path, tmp_path: Path, capsys
+) -> None:
+    corrupt(sdd_copy)
+    argv = ["run", "--scene", "nexus_4", "--data-root", str(sdd_copy), "--no-plot"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line
+
+
+def _deep(path: Path, opener: str = "[", closer: str = "]") -> Path:
+    path.write_text(opener * 50_000 + closer * 50_000)
+    return path
+
+
+DEEP = [
+    ("sweep spec json", lambda t: ["sweep", str(_deep(t / "s.json")), "--dry-run"], "sweep spec"),
+    (
+        "run config",
+        lambda t: ["run", "--config", str(_deep(t / "c.json", '{"a":', "}"))],
+        "--config",
+    ),
+    (
+        "robots file",
+        lambda t: ["run", "--robots-file", str(_deep(t / "r.json")), "--no-plot"],
+        "robots file",
+    ),
+    (
+        "sweep spec base not a mapping",
+        lambda t: ["sweep", str(_text(t / "s.yaml", "base: [1, 2]\n")), "--dry-run"],
+        "'base' of the sweep spec must be a mapping",
+    ),
+    (
+        "sweep spec grid not a mapping",
+        lambda t: ["sweep", str(_text(t / "s.yaml", "grid: [1, 2]\n")), "--dry-run"],
+        "'grid' of the sweep spec must be a mapping",
+    ),
+    ("bench run --limit -1", lambda t: ["bench", "run", "--limit", "-1"], "--limit"),
+    ("bench run -j 0", lambda t: ["bench", "run", "-j", "0"], "-j/--workers"),
+    ("sweep -j 0", lambda t: ["sweep", "--scene", "crossing", "-j", "0"], "-j/--workers"),
+]
+
+
+def _text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("make", "words"), [c[1:] for c in DEEP], ids=[c[0] for c in DEEP])
+def test_nested_or_nonsensical_inputs(
+    make: Callable[[Path], list[str]], words: str, tmp_path: Path, capsys
+) -> None:
+    argv = make(tmp_path)
+    assert main([*argv, "--out", str(tmp_path / "o")]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line
+
+
+ROBOTS = [
+    (
+        "unknown top-level key",
+        {"robots": [{"start": [1, 1], "goal": [9, 9]}], "unit": "m"},
+        "unknown key 'unit' at the top level; did you mean 'units'",
+    ),
+    (
+        "unknown robot key",
+        {"robots": [{"start": [1, 1], "goall": [9, 9], "goal": [9, 9]}]},
+        "unknown key 'goall' in robot 0",
+    ),
+    (
+        "fraction above 1",
+        {"units": "fraction", "robots": [{"start": [0.1, 1.5], "goal": [0.9, 0.5]}]},
+        "fraction outside [0, 1]",
+    ),
+    (
+        "fraction below 0",
+        {"units": "fraction", "robots": [{"start": [0.1, 0.5], "goal": [-0.2, 0.5]}]},
+        "fraction outside [0, 1]",
+    ),
+    (
+        "identical starts",
+        {"robots": [{"start": [2, 3], "goal": [9, 3]}, {"start": [2, 3], "goal": [9, 5]}]},
+        "robots 0 and 1 start 0 m apart",
+    ),
+]
+
+
+@pytest.mark.parametrize(("spec", "words"), [c[1:] for c in ROBOTS], ids=[c[0] for c in ROBOTS])
+def test_robots_file_attacks(spec: dict, words: str, tmp_path: Path, capsys) -> None:
+    path = tmp_path / "robots.json"
+    path.write_text(json.dumps(spec))
+    argv = ["run", "--robots-file", str(path), "--no-plot", "--out", str(tmp_path / "o")]
+    assert main(argv) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line

@@ -6,7 +6,7 @@ import argparse
 import sys
 import warnings
 
-from . import command, key_values
+from . import command, key_values, positive_int
 
 
 def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> None:
@@ -28,7 +28,7 @@ def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> No
     p.add_argument(
         "-j",
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
         help="worker processes (process pool / Dask LocalCluster); default: CPUs available",
     )

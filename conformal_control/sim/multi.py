@@ -155,6 +155,10 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
     stand for a single goal.
     """
+    import difflib
+
+    from ..exceptions import InputError
+
     p = Path(path)
     try:
         spec = json.loads(p.read_text())
@@ -164,9 +168,23 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
         raise ValueError(
             f"robots file {p} is not valid JSON ({exc.msg}, line {exc.lineno})"
         ) from None
+    except RecursionError:
+        raise InputError(f"robots file {p} is nested too deeply to be a robots file") from None
+
+    def no_unknown(keys: Any, known: tuple[str, ...], where: str) -> None:
+        for key in keys:
+            if key not in known:
+                close = difflib.get_close_matches(str(key), known, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise InputError(
+                    f"robots file {p}: unknown key {key!r} {where}; {hint}the keys are "
+                    f"{', '.join(known)}"
+                )
+
     robots = spec.get("robots") if isinstance(spec, dict) else None
     if not isinstance(robots, list) or not robots:
         raise ValueError(f'robots file {p} needs a non-empty list "robots"')
+    no_unknown(spec, ("units", "robots"), "at the top level")
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
@@ -179,6 +197,9 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
             raise ValueError(f'robots file {p}: robot {i} needs "start" and "goals" (or "goal")')
+        no_unknown(r, ("start", "goals", "goal"), f"in robot {i}")
+        if "goals" in r and "goal" in r:
+            raise InputError(f'robots file {p}: robot {i} has both "goal" and "goals"; give one')
         try:
             st = np.asarray(r["start"], dtype=float).reshape(2)
             g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)
@@ -186,9 +207,28 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
             raise ValueError(
                 f"robots file {p}: robot {i} has a start or goal that is not (x, y)"
             ) from None
+        if g.shape[0] == 0 or not (np.isfinite(st).all() and np.isfinite(g).all()):
+            raise InputError(f"robots file {p}: robot {i} needs a finite start and goal")
+        if units == "fraction" and not (
+            ((st >= 0) & (st <= 1)).all() and ((g >= 0) & (g <= 1)).all()
+        ):
+            raise InputError(
+                f"robots file {p}: robot {i} has a fraction outside [0, 1] (units "
+                '"fraction" are fractions of the scene\'s width and height)'
+            )
         starts.append(st * scale)
         goals.append(g * scale)
-    return as_tasks(np.array(starts), goals)
+    first = np.array(starts)
+    gap = 2.0 * float(scene.robot_radius)
+    for i in range(len(first)):
+        d = np.hypot(*(first[i + 1 :] - first[i]).T) if i + 1 < len(first) else np.zeros(0)
+        if d.size and d.min() < gap:
+            j = i + 1 + int(np.argmin(d))
+            raise InputError(
+                f"robots file {p}: robots {i} and {j} start {d.min():.3g} m apart, less than "
+                f"two robot radii ({gap:.3g} m): they would start in collision"
+            )
+    return as_tasks(first, goals)
 
 
 # ---------------------------------------------------------------------------- results

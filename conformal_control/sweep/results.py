@@ -186,6 +186,9 @@ class ResultsStore:
             except json.JSONDecodeError:
                 bad.append((n, "torn or not JSON"))
                 continue
+            except RecursionError:
+                bad.append((n, "nested too deeply"))
+                continue
             why = record_problem(rec)
             if why is not None:
                 bad.append((n, f"not a run record: {why}"))

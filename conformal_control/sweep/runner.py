@@ -420,7 +420,7 @@ def _adopt_finished(
         try:
             metrics = json.loads((runs / name / "metrics.json").read_text())
             saved = json.loads((runs / name / "config.json").read_text())
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             continue  # not finished (or not ours): the run is done again
         if not isinstance(metrics, dict) or not isinstance(saved, dict):
             continue

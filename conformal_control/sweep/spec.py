@@ -281,6 +281,12 @@ class SweepSpec:
                 f"unknown section(s) {', '.join(unknown)} in the sweep spec; "
                 "use base, grid and runs"
             )
+        for section in ("base", "grid"):
+            if data.get(section) is not None and not isinstance(data[section], Mapping):
+                raise InputError(
+                    f"'{section}' of the sweep spec must be a mapping of names to values, got "
+                    f"a {type(data[section]).__name__}"
+                )
         base = dict(data.get("base") or {})
         grid_in = dict(data.get("grid") or {})
         grid = {k: list(v) if isinstance(v, (list, tuple)) else [v] for k, v in grid_in.items()}
@@ -353,21 +359,30 @@ def load_spec(path: str | Path) -> SweepSpec:
     if not path.is_file():
         raise FileNotFoundError(f"sweep spec {path} not found")
     suffix = path.suffix.lower()
-    text = path.read_text()
-    if suffix in (".yaml", ".yml"):
-        import yaml
-
-        data = yaml.safe_load(text)
-    elif suffix == ".json":
-        data = json.loads(text)
-    elif suffix == ".toml":
-        if sys.version_info >= (3, 11):
-            import tomllib
-        else:  # Python 3.10
-            import tomli as tomllib
-        data = tomllib.loads(text)
-    else:
+    if suffix not in (".yaml", ".yml", ".json", ".toml"):
         raise ValueError(f"sweep spec {path}: use a .yaml, .yml, .json or .toml file")
+    text = path.read_text()
+    try:
+        if suffix in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        elif suffix == ".json":
+            data = json.loads(text)
+        else:
+            if sys.version_info >= (3, 11):
+                import tomllib
+            else:  # Python 3.10
+                import tomli as tomllib
+            data = tomllib.loads(text)
+    except RecursionError:
+        raise InputError(f"sweep spec {path}: nested too deeply to be a sweep spec") from None
+    except ValueError as exc:  # JSONDecodeError, TOMLDecodeError
+        raise InputError(f"sweep spec {path}: not valid {suffix[1:].upper()} ({exc})") from None
+    except Exception as exc:  # yaml.YAMLError (yaml is imported only for YAML files)
+        if type(exc).__module__.startswith("yaml"):
+            raise InputError(f"sweep spec {path}: not valid YAML ({exc})") from None
+        raise
     if not isinstance(data, Mapping):
         raise ValueError(f"sweep spec {path}: expected a mapping with base/grid/runs")
     return SweepSpec.from_mapping(data)
