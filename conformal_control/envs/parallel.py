@@ -33,6 +33,9 @@ __all__ = ["ConformalCrowdParallel", "parallel_env"]
 class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]):  # type: ignore[misc]
     """M robots with velocity commands among pedestrians (see the module docstring).
 
+    The parameters not listed below are as for
+    :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+
     Parameters
     ----------
     scene : Scene or str

@@ -55,7 +55,8 @@ __all__ = ["ConformalShield"]
 
 
 class ConformalShield(
-    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray],
+    gym.utils.RecordConstructorArgs,  # gymnasium re-creates it (spec, check_env)
 ):
     """Filter a policy's velocity commands through the conformal CBF (see module docs).
 
@@ -91,7 +92,10 @@ class ConformalShield(
         active_tol: float = 1e-6,
         **settings: Any,
     ) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, params=params, spec=spec, active_tol=active_tol, **settings
+        )
+        gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         if not isinstance(base, ConformalCrowdEnv):
             raise TypeError(
@@ -182,7 +186,7 @@ class ConformalShield(
             active = ids[np.abs(slack) <= self.active_tol * max(1.0, abs(lam))]
             min_slack = float(slack.min())
         else:
-            active, min_slack = ids[:0], math.nan
+            active, min_slack = ids[:0], math.inf  # no constraint: unbounded slack
         cause = _cause(modified, active.size > 0, res.fallback is not None)
         self.n_interventions_ += cause == "constraint"
         self.n_speed_clips_ += cause == "speed_limit"
