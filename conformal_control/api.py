@@ -84,6 +84,7 @@ def run(
     from .data.units import PARAM_DIMENSIONS
     from .sim.episode import run_episode
 
+    _check_keywords(kwargs)
     if isinstance(scene, str):
         goals = None if goal is None else [tuple(goal)]
         scene = load_scene(scene, data_root, start=start, goals=goals, seed=seed)
@@ -114,3 +115,32 @@ def run(
         max_frames=max_frames,
         **kwargs,
     )
+
+
+def _check_keywords(kwargs: dict[str, Any]) -> None:
+    """A keyword neither :func:`run` nor ``run_episode`` takes: a TypeError naming the
+    closest keyword, or the ``params`` entry for a controller parameter."""
+    import difflib
+    import inspect
+
+    from .sim.episode import run_episode
+    from .spec import PARAMETERS
+
+    own = [p for p in inspect.signature(run).parameters if p != "kwargs"]
+    passed = [p for p in inspect.signature(run_episode).parameters if p not in own]
+    for key, value in kwargs.items():
+        if key in passed:
+            continue
+        if key in PARAMETERS:
+            raise TypeError(
+                f"run() takes the controller parameter {key!r} in params: "
+                f"run(..., params={{{key!r}: {value!r}}})"
+            )
+        close = difflib.get_close_matches(key, [*own, *passed, *PARAMETERS], n=1, cutoff=0.6)
+        if not close:
+            hint = f"; its keywords are {', '.join([*own, *passed])}, parameters go in params="
+        elif close[0] in PARAMETERS and close[0] not in own:
+            hint = f"; did you mean params={{{close[0]!r}: {value!r}}}?"
+        else:
+            hint = f"; did you mean {close[0]}={value!r}?"
+        raise TypeError(f"run() got an unexpected keyword argument {key!r}{hint}")

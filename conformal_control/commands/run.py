@@ -24,8 +24,10 @@ from . import (
     command,
     command_line,
     finite_float,
+    finite_quantity,
     key_values,
     non_negative_int,
+    plugin_key_values,
     positive_int,
 )
 
@@ -121,17 +123,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--eta",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; unset: scene's)",
+        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; or with a unit: "
+        "30/s, 1/frame; unset: scene's)",
     )
     p.add_argument(
         "--tau",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="sampling period (SDD scenes: frames; built-in scene: s; unset: scene's)",
+        help="sampling period (SDD scenes: frames; built-in scene: s; or with a unit: 0.4s, "
+        "12frames; unset: scene's)",
     )
-    p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
+    p.add_argument(
+        "--no-learning",
+        "--no-learn",
+        dest="no_learning",
+        action="store_true",
+        help="keep lambda fixed (noLearn); --no-learn is an alias",
+    )
     p.add_argument(
         "--rule",
         default="fixed_eta",
@@ -352,10 +362,11 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     for name in ("epsilon", "eta", "tau"):
         flag = getattr(args, name)
         if flag is not None and name in params and params[name] != flag:
+            shown = f"{flag:g}" if isinstance(flag, float) else flag
             warnings.warn(
                 OptionConflictWarning(
-                    f"--{name} {flag:g} and --param {name}={params[name]} disagree; using "
-                    f"--{name} {flag:g}"
+                    f"--{name} {shown} and --param {name}={params[name]} disagree; using "
+                    f"--{name} {shown}"
                 ),
                 stacklevel=2,
             )
@@ -402,10 +413,28 @@ def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--predictor-param`` values, checked against the predictor's constructor."""
     from .. import registry
 
-    pp = key_values(args.predictor_param, "--predictor-param")
-    registry.check_params(
-        "predictor", args.predictor, registry.get("predictor", args.predictor), pp
+    cls = registry.get("predictor", args.predictor)
+    pp = plugin_key_values(args.predictor_param, "--predictor-param", [cls])
+    registry.check_params("predictor", args.predictor, cls, pp)
+    return pp
+
+
+def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
+    """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
+    before the scene is loaded)."""
+    from ..crowds.crowd import MODELS, Crowd
+    from ..data.units import si_value
+
+    given = key_values(args.crowd_param, "--crowd-param")
+    model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
+    classes: list[type] = [Crowd, *([MODELS[model]] if model in MODELS else [])]
+    radius = given.pop("radius", None) if args.crowd == "mixed" else None
+    items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
+    pp = plugin_key_values(
+        items if args.crowd == "mixed" else args.crowd_param, "--crowd-param", classes
     )
+    if radius is not None:  # the mixed crowd's own radius (m)
+        pp["radius"] = si_value("radius", radius, "m", "--crowd-param")
     return pp
 
 
@@ -466,7 +495,8 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
-            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+            whole = name == "tau" and isinstance(value, float) and value.is_integer()
+            params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
     from .. import registry
 
@@ -474,6 +504,7 @@ def _run(args: argparse.Namespace) -> int:
         "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
     )
     given_predictor_params = _checked_predictor_params(args)
+    crowd_params = _checked_crowd_params(args)
 
     scene = load_scene(
         args.scene,
@@ -539,7 +570,7 @@ def _run(args: argparse.Namespace) -> int:
             lambda_safe=args.lambda_safe,
             fallback=args.fallback,
             crowd=args.crowd,
-            crowd_params=key_values(args.crowd_param, "--crowd-param"),
+            crowd_params=crowd_params,
             on_interval=on_interval,
             **roles,
         )
@@ -634,7 +665,7 @@ def _run_multi(
         fallback=args.fallback,
         sensor_history=args.sensor_history,
         crowd=args.crowd,
-        crowd_params=key_values(args.crowd_param, "--crowd-param"),
+        crowd_params=_checked_crowd_params(args),
         extra_config={"command": command_line(args), "data_root": args.data_root},
         **roles,
     )

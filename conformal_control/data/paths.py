@@ -64,7 +64,11 @@ def _where(path: Path) -> str:
     user = user_data_dir()
     try:
         under_user = path.resolve().is_relative_to(user.resolve())
-        under_env = bool(env) and path.resolve().is_relative_to(Path(env).expanduser().resolve())
+        under_env = (
+            env is not None
+            and env != ""
+            and path.resolve().is_relative_to(Path(env).expanduser().resolve())
+        )
     except (OSError, RuntimeError):  # pragma: no cover - an unresolvable path
         under_user = under_env = False
     if under_env:
@@ -74,7 +78,7 @@ def _where(path: Path) -> str:
     else:
         origin = "the data folder was given with --data-root (data_root= in Python)"
     return (
-        f"{origin}. The toolkit reads --data-root DIR, else ${ENV_VAR}, else the per-user "
+        f"{origin}; the toolkit reads --data-root DIR, else ${ENV_VAR}, else the per-user "
         f"data folder {user}, where `{FETCH_HINT}` downloads the data"
     )
 

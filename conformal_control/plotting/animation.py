@@ -123,12 +123,12 @@ def render_animation(
     dpi : int
         Resolution: the frame is ``width * dpi`` pixels wide.
     progress : bool
-        Show a tqdm progress bar.
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
-    from tqdm import tqdm
 
+    from ..progress import track
     from .run import pyplot
 
     out = Path(out)
@@ -245,7 +245,7 @@ def render_animation(
         )
     n_written = 0
     try:
-        for i in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+        for i in track(frames, f"rendering {out.name}", "frames", enabled=progress):
             x = robot[i]
             collide = False
             p = peds[i]

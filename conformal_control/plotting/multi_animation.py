@@ -89,12 +89,12 @@ def render_multi_animation(
     trail : float
         Length (s) of the trail drawn behind each robot.
     progress : bool
-        Show a tqdm progress bar.
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
-    from tqdm import tqdm
 
+    from ..progress import track
     from .animation import animation_frames
     from .run import pyplot
 
@@ -200,7 +200,7 @@ def render_multi_animation(
         )
     n_written = 0
     try:
-        for f in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+        for f in track(frames, f"rendering {out.name}", "frames", enabled=progress):
             p = peds[f]
             ok = np.isfinite(p[:, 0])
             others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))
