@@ -19,7 +19,8 @@ def _fetch_args(p: argparse.ArgumentParser) -> None:
         "--only",
         action="append",
         metavar="SEL",
-        help="sdd, ethucy, sdd:<scene>_<video> (e.g. sdd:nexus_4) or ethucy:<scene>",
+        help="sdd, ethucy, external, sdd:<scene>_<video> (e.g. sdd:nexus_4), ethucy:<scene> "
+        "or external:<folder> (trajectron-ethucy, fcp-planar: mirror only)",
     )
     p.add_argument(
         "--mirror",
@@ -38,7 +39,8 @@ def _fetch(args: argparse.Namespace) -> int:
 
     if args.dry_run:
         for item in plan(args.only, args.mirror):
-            print(f"{item.path}  <- {item.url}" + (" (metres -> pixels)" if item.convert else ""))
+            source = item.url or "mirror only (pass --mirror DIR)"
+            print(f"{item.path}  <- {source}" + (" (metres -> pixels)" if item.convert else ""))
         return 0
     dest = args.dest if args.dest is not None else str(user_data_dir())
     check_writable(dest, "data folder")
@@ -49,8 +51,14 @@ def _fetch(args: argparse.Namespace) -> int:
         use = f"every command reads it unless --data-root or ${ENV_VAR} says otherwise"
     else:
         use = f"use --data-root {dest} or {ENV_VAR}={dest}"
+    skipped = (
+        f", {counts['mirror_only']} mirror-only file(s) of external/ not fetched (copy them "
+        "with --mirror DIR)"
+        if counts.get("mirror_only")
+        else ""
+    )
     print(
         f"{counts['downloaded']} file(s) downloaded, {counts['verified_existing']} already "
-        f"present and verified, in {dest}; {use}"
+        f"present and verified{skipped}, in {dest}; {use}"
     )
     return 0
