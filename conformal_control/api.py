@@ -80,6 +80,7 @@ def run(
     from .data.units import PARAM_DIMENSIONS
     from .sim.episode import run_episode
 
+    _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
     base = spec if spec is not None else RunSpec()
     seed = int(settings.get("seed", base.seed))
@@ -109,3 +110,37 @@ def run(
             units = "si"
     settings["units"] = units
     return run_episode(scene, base, given, on_interval=on_interval, **settings)
+
+
+def _check_keywords(kwargs: dict[str, Any]) -> None:
+    """A keyword that is no setting of a run: a TypeError naming the closest keyword, or
+    the ``params`` entry for a controller parameter."""
+    import difflib
+    import inspect
+
+    from .spec import OPTION_FIELDS, PARAMETERS, ROBOT_FIELDS, ROLE_FIELDS
+
+    own = [p for p in inspect.signature(run).parameters if p not in ("settings", "spec")]
+    passed = [
+        "on_interval",
+        *ROLE_FIELDS,
+        *(f"{r}_params" for r in ROLE_FIELDS),
+        *OPTION_FIELDS,
+        *ROBOT_FIELDS,
+    ]
+    for key, value in kwargs.items():
+        if key in passed:
+            continue
+        if key in PARAMETERS:
+            raise TypeError(
+                f"run() takes the controller parameter {key!r} in params: "
+                f"run(..., params={{{key!r}: {value!r}}})"
+            )
+        close = difflib.get_close_matches(key, [*own, *passed, *PARAMETERS], n=1, cutoff=0.6)
+        if not close:
+            hint = f"; its keywords are {', '.join([*own, *passed])}, parameters go in params="
+        elif close[0] in PARAMETERS and close[0] not in own:
+            hint = f"; did you mean params={{{close[0]!r}: {value!r}}}?"
+        else:
+            hint = f"; did you mean {close[0]}={value!r}?"
+        raise TypeError(f"run() got an unexpected keyword argument {key!r}{hint}")

@@ -54,7 +54,10 @@ class ParamInfo:
         Whether ``low`` and ``high`` belong to the range.
     plausible : (float, float, str) or None
         SI range and unit outside which a bare number (no unit suffix) is reported as
-        suspicious (probably typed in the wrong unit).
+        suspicious (probably typed in the other unit system: seconds for frames, 1/s for
+        1/frame, metres for pixels). Every scene's defaults and the paper's values lie
+        inside, but Table I's eta = 100/frame (3000/s on gates_1), which is gates_1's
+        default (a scene's own default is never reported).
     """
 
     doc: str
@@ -93,11 +96,18 @@ class Parameters:
     :class:`ParamInfo` (unit, range, doc).
     """
 
-    a: float | None = _p(None, "slope of alpha(h) = a h (1/time)", dimension=_RATE, **_POSITIVE)
+    a: float | None = _p(
+        None,
+        "slope of alpha(h) = a h (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 1000.0, "1/s"),
+        **_POSITIVE,
+    )
     K_acc: float | None = _p(
         None,
         "velocity-tracking gain of u = -K_acc (v - v_QP) (1/time)",
         dimension=_RATE,
+        plausible=(0.0, 200.0, "1/s"),
         **_POSITIVE,
     )
     K_rep: float | None = _p(
@@ -107,6 +117,7 @@ class Parameters:
         None,
         "attractive gain of the reference v_ref = -K_att (X - X_goal) (1/time)",
         dimension=_RATE,
+        plausible=(0.0, 100.0, "1/s"),
         **_POSITIVE,
     )
     rho0: float | None = _p(
@@ -127,11 +138,15 @@ class Parameters:
         None,
         "sampling period of sensor, predictor and lambda update (time)",
         dimension=(0, 1),
-        plausible=(0.0, 10.0, "s"),
+        plausible=(0.0, 2.0, "s"),
         **_POSITIVE,
     )
     eta: float | None = _p(
-        None, "learning rate of lambda (1/time)", dimension=_RATE, **_NON_NEGATIVE
+        None,
+        "learning rate of lambda (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 100.0, "1/s"),
+        **_NON_NEGATIVE,
     )
     epsilon: float | None = _p(
         None,
@@ -141,7 +156,11 @@ class Parameters:
         closed=(False, False),
     )
     loss_scale: float | None = _p(
-        None, "loss scale c in s(r) = arctan(r/c)/pi (1/time)", dimension=_RATE, **_POSITIVE
+        None,
+        "loss scale c in s(r) = arctan(r/c)/pi (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 1000.0, "1/s"),
+        **_POSITIVE,
     )
     lambda_init: float = _p(0.0, "initial lambda (1/time)", dimension=_RATE)
     lambda_min: float = _p(

@@ -71,7 +71,7 @@ TYPED = [
     ("param without value", ["--param", "a"], ["KEY=VALUE"]),
     ("start on the built-in scene", ["--start", "0.1,0.5"], ["fixed start"]),
     ("start not two numbers", ["--start", "0.1"], ["--start", "fx,fy"]),
-    ("huge eta overflows lambda", ["--eta", "1e300"], ["lambda overflowed", "smaller eta"]),
+    ("huge eta overflows lambda", ["--eta", "1e300/s"], ["lambda overflowed", "smaller eta"]),
     ("unknown option", ["--epsilonn", "0.1"], ["unrecognized arguments: --epsilonn"]),
 ]
 

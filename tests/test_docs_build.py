@@ -178,6 +178,45 @@ def test_no_cdn_script_and_math_served_locally(site: Path) -> None:
     assert 'processHtmlClass: "arithmatex"' in config
 
 
+#: TeX that was not typeset: subscripts and superscripts in braces, backslash commands, a
+#: Greek letter with an underscore subscript (unicode subscripts such as λ₁ are typography)
+RAW_MATH = re.compile(
+    r"_\{|\^\{|\\(?:frac|lambda|varepsilon|eta|alpha|sum|le|ge|text)\b|[λεηαγτσρ]_[\w{(]"
+)
+
+
+def test_math_is_typeset_on_every_page(site: Path) -> None:
+    """No narrative page shows raw math in its prose: formulas are arithmatex spans that
+    MathJax typesets (the API pages quote docstrings, written in ASCII for ``help()``)."""
+    checked = 0
+    for page in _pages(site):
+        rel = page.relative_to(site).as_posix()
+        if rel.startswith(("api/", "assets/")):
+            continue
+        html = page.read_text()
+        text = re.sub(r'<(span|div) class="arithmatex">.*?</\1>', " ", html, flags=re.S)
+        text = re.sub(r"<[^>]+>", " ", _prose(text))
+        found = RAW_MATH.search(text)
+        assert found is None, (rel, text[max(found.start() - 60, 0) : found.end() + 40])
+        checked += 1
+    assert checked > 20
+    repro = (site / "reproducing/index.html").read_text()
+    assert r"\lambda_1 - \lambda_{K+1}" in repro  # the identity, as math
+
+
+def test_tables_fit_or_scroll(site: Path) -> None:
+    """Every page loads the table style: names in code are never broken inside a cell (the
+    table scrolls sideways in Material's scroll frame instead), and the content column
+    grows on wide screens."""
+    css = (site / "assets/tables.css").read_text()
+    rule = re.search(r"\.md-typeset table:not\(\[class\]\) code \{([^}]*)\}", css)
+    assert rule is not None and "white-space: nowrap" in rule.group(1)
+    assert re.search(r"\.md-grid \{\s*max-width: 80rem", css)
+    for page in ("benchmark/index.html", "update-rules/index.html", "index.html"):
+        html = (site / page).read_text()
+        assert re.search(r'<link[^>]*href="[^"]*assets/tables\.css"', html), page
+
+
 @pytest.mark.parametrize("notebook", MATH_NOTEBOOKS)
 def test_notebook_math_is_wrapped(site: Path, notebook: str) -> None:
     """``$...$`` in the notebooks' Markdown cells becomes the site's arithmatex markup."""

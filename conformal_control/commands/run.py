@@ -25,8 +25,10 @@ from . import (
     command,
     command_line,
     finite_float,
+    finite_quantity,
     key_values,
     non_negative_int,
+    plugin_key_values,
     positive_int,
 )
 
@@ -125,17 +127,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--eta",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; unset: scene's)",
+        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; or with a unit: "
+        "30/s, 1/frame; unset: scene's)",
     )
     p.add_argument(
         "--tau",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="sampling period (SDD scenes: frames; built-in scene: s; unset: scene's)",
+        help="sampling period (SDD scenes: frames; built-in scene: s; or with a unit: 0.4s, "
+        "12frames; unset: scene's)",
     )
-    p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
+    p.add_argument(
+        "--no-learning",
+        "--no-learn",
+        dest="no_learning",
+        action="store_true",
+        help="keep lambda fixed (noLearn); --no-learn is an alias",
+    )
     p.add_argument(
         "--rule",
         default="fixed_eta",
@@ -358,10 +368,11 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     for name in ("epsilon", "eta", "tau"):
         flag = getattr(args, name)
         if flag is not None and name in params and params[name] != flag:
+            shown = f"{flag:g}" if isinstance(flag, float) else flag
             warnings.warn(
                 OptionConflictWarning(
-                    f"--{name} {flag:g} and --param {name}={params[name]} disagree; using "
-                    f"--{name} {flag:g}"
+                    f"--{name} {shown} and --param {name}={params[name]} disagree; using "
+                    f"--{name} {shown}"
                 ),
                 stacklevel=2,
             )
@@ -408,10 +419,28 @@ def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--predictor-param`` values, checked against the predictor's constructor."""
     from .. import registry
 
-    pp = key_values(args.predictor_param, "--predictor-param")
-    registry.check_params(
-        "predictor", args.predictor, registry.get("predictor", args.predictor), pp
+    cls = registry.get("predictor", args.predictor)
+    pp = plugin_key_values(args.predictor_param, "--predictor-param", [cls])
+    registry.check_params("predictor", args.predictor, cls, pp)
+    return pp
+
+
+def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
+    """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
+    before the scene is loaded)."""
+    from ..crowds.crowd import MODELS, Crowd
+    from ..data.units import si_value
+
+    given = key_values(args.crowd_param, "--crowd-param")
+    model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
+    classes: list[type] = [Crowd, *([MODELS[model]] if model in MODELS else [])]
+    radius = given.pop("radius", None) if args.crowd == "mixed" else None
+    items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
+    pp = plugin_key_values(
+        items if args.crowd == "mixed" else args.crowd_param, "--crowd-param", classes
     )
+    if radius is not None:  # the mixed crowd's own radius (m)
+        pp["radius"] = si_value("radius", radius, "m", "--crowd-param")
     return pp
 
 
@@ -489,7 +518,8 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
-            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+            whole = name == "tau" and isinstance(value, float) and value.is_integer()
+            params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
     from .. import registry
 
@@ -497,6 +527,7 @@ def _run(args: argparse.Namespace) -> int:
         "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
     )
     given_predictor_params = _checked_predictor_params(args)
+    crowd_params = _checked_crowd_params(args)
 
     scene = load_scene(
         args.scene,
@@ -523,7 +554,6 @@ def _run(args: argparse.Namespace) -> int:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)
     predictor_params = _predictor_params(args, scene, given_predictor_params)
-    crowd_params = key_values(args.crowd_param, "--crowd-param")
     if args.robots is not None or args.robots_file is not None:  # several robots: --robots
         return _run_multi(args, scene, params, roles, rule_params, predictor_params, out)
     log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
@@ -669,7 +699,7 @@ def _run_multi(
         fallback=args.fallback,
         sensor_history=args.sensor_history,
         crowd=args.crowd,
-        crowd_params=key_values(args.crowd_param, "--crowd-param"),
+        crowd_params=_checked_crowd_params(args),
         extra_config={"command": command_line(args), "data_root": args.data_root},
         **roles,
     )

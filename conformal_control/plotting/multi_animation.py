@@ -89,13 +89,13 @@ def render_multi_animation(
     trail : float
         Length (s) of the trail drawn behind each robot.
     progress : bool
-        Show a tqdm progress bar.
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
-    from tqdm import tqdm
 
-    from .animation import animation_frames
+    from ..progress import track
+    from .animation import animation_frames, frame_size
     from .run import pyplot
 
     out = Path(out)
@@ -137,8 +137,7 @@ def render_multi_animation(
             rob_pairs = ((d < 2 * r_robot) & either & upper).sum(axis=(1, 2))
     rob_so_far = np.cumsum(rob_pairs)
 
-    px_w = 2 * round(width * dpi / 2)
-    px_h = 2 * round(width * dpi * 0.45 / 2)
+    px_w, px_h = frame_size(width, dpi)  # the single-robot animation's size rules
     fig = plt.figure(figsize=(px_w / dpi, px_h / dpi), dpi=dpi)
     gs = fig.add_gridspec(
         1, 2, width_ratios=[1.8, 1], left=0.07, right=0.98, top=0.86, bottom=0.13, wspace=0.25
@@ -200,7 +199,7 @@ def render_multi_animation(
         )
     n_written = 0
     try:
-        for f in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+        for f in track(frames, f"rendering {out.name}", "frames", enabled=progress):
             p = peds[f]
             ok = np.isfinite(p[:, 0])
             others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))

@@ -93,6 +93,9 @@ def warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
     )
 
 
+#: share of control instants decided by the fallback from which a missed goal is blamed on it
+FALLBACK_SHARE_WARN = 0.25
+
 #: |lambda| (1/s) beyond which the constraint arithmetic (a h + lambda, summed over rows)
 #: is no longer meaningful and soon overflows; no sensible run gets anywhere near it
 LAMBDA_LIMIT = 1e150
@@ -166,11 +169,26 @@ def warn_after_run(
             gap,
         )
         return
+    share = float(metrics["fallback_share"] or 0.0)
+    if learn and metrics["epsilon_attainable"] is False:
+        advice = (
+            f"epsilon={si['epsilon']:g} is below the feasibility floor, so lambda sank below "
+            f"it and the fallback decided at {share:.0%} of the control instants (see the "
+            "warning before the run): raise epsilon or a, or clip lambda with lambda_min"
+        )
+    elif share >= FALLBACK_SHARE_WARN:
+        advice = (
+            f"the fallback decided at {share:.0%} of the control instants (the constraints "
+            "were infeasible there): a lambda_min, a larger a or another fallback keeps the "
+            "safety filter in charge"
+        )
+    else:
+        advice = "choose an earlier start frame (--start-frame) or a closer goal"
     warnings.warn(
         GoalNotReachedWarning(
             f"the goal was not reached: the scene's data ended at frame {last_data} "
             f"({frames / scene.fps:.1f} s after the start) with the robot {gap:.1f} m "
-            "from it; choose an earlier start frame or a closer goal",
+            f"from it; {advice}",
             "data_ended",
         ),
         stacklevel=stacklevel,
