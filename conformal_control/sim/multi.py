@@ -40,12 +40,21 @@ from typing import Any
 import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
+from ..cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..data.scene import Scene
 from ..flagship.build import Flagship, RoleSpec, build_flagship
 from ..loop import ConformalStepper, LoopResult
 from ..results.measure import episode_config, jsonable, measure
 from ..results.metrics import EpisodeMetrics
-from ..results.multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
+from ..results.multi_metrics import (
+    DeadlockRule,
+    FleetMetrics,
+    RobotContacts,
+    deadlocks,
+    fleet_metrics,
+    remaining_paths,
+    robot_contacts,
+)
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
 from ..world.multi import MultiRobotWorld
@@ -330,6 +339,12 @@ def run_multi(
     sensor_history: str = "tracked",
     record_animation: bool = True,
     extra_config: dict[str, Any] | None = None,
+    reciprocity: str = "reciprocal",
+    information: str = "velocity",
+    lambda_scope: str = "pedestrians",
+    weights: Sequence[float] | None = None,
+    ignoring: Sequence[int] = (),
+    deadlock: DeadlockRule | None = None,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
 
@@ -400,6 +415,13 @@ def run_multi(
                 max_frames=max_frames,
             )
         )
+    modes = robot_modes(n, reciprocity, ignoring)
+    radii = fleet[0].params.si
+    for fl, mode in zip(fleet, modes, strict=True):
+        # robot rows keep two robot radii apart; the barrier was built for robot + agent
+        set_reciprocity(
+            fl.policy, mode, lambda_scope, radii["robot_radius"] - radii["agent_radius"]
+        )
     fl0 = fleet[0]
     env0 = fl0.env
     world = MultiRobotWorld(
@@ -414,6 +436,8 @@ def run_multi(
         max_frames=max_frames,
         crowd=getattr(env0, "crowd", None),
         sensor_history=sensor_history,
+        information=information if "reciprocal" in modes else None,
+        weights=weights,
     )
     run_scene = fl0.scene
     si = fl0.params.si
@@ -434,13 +458,14 @@ def run_multi(
     ]
 
     t0, c0 = time.perf_counter(), time.process_time()
-    own = drive(world, steppers)
+    own = drive(world, steppers, broadcast=information == "plan")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 
     h_max = fl0.barrier.upper_bound
     floor = feasibility_floor(
         si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
     )
+    stuck = _deadlocks(world, tasks, deadlock or DeadlockRule())
     results: list[RobotResult] = []
     for i, (fl, st) in enumerate(zip(fleet, steppers, strict=True)):
         rec = world.robots[i]
@@ -449,7 +474,7 @@ def run_multi(
         m, intervals, traj = measure(
             view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
         )
-        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
+        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius, stuck[i])
         m = dataclasses.replace(
             m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
         )
@@ -509,6 +534,14 @@ def run_multi(
         }
     )
     config["sensor_history"] = sensor_history
+    config["reciprocity"] = {
+        "reciprocity": reciprocity,
+        "information": information,
+        "lambda_scope": lambda_scope,
+        "weights": None if weights is None else [float(w) for w in weights],
+        "ignoring": [int(i) for i in ignoring],
+        "modes": modes,
+    }
     config["max_frames"] = max_frames
     config["feasibility"] = jsonable(floor.as_dict())
     crowd_config = getattr(env0, "crowd_config", None)
@@ -520,9 +553,40 @@ def run_multi(
     return MultiResult(run_scene, jsonable(config), metrics, results, track, animation)
 
 
-def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[float]:
+def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[str]:
+    """Each robot's treatment of the others: ``reciprocity`` for all, ``"ignore"`` for the
+    robots listed in ``ignoring`` (a robot that does not comply)."""
+    if reciprocity not in RECIPROCITY or reciprocity == "ignore":
+        raise ValueError(f"reciprocity must be 'reciprocal' or 'none', got {reciprocity!r}")
+    bad = [i for i in ignoring if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < n]
+    if bad:
+        raise ValueError(f"ignoring lists robots that do not exist (0 to {n - 1}): {bad}")
+    return ["ignore" if i in set(ignoring) else reciprocity for i in range(n)]
+
+
+def set_reciprocity(policy: Any, mode: str, lambda_scope: str, robot_margin: float = 0.0) -> None:
+    """Give a robot's decision family its treatment of the other robots (a one-line error
+    for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
+    collision distance for the robot rows."""
+    if not hasattr(policy, "reciprocity"):
+        raise ValueError(
+            f"decision family {type(policy).__name__} does not handle other robots "
+            "(no reciprocity setting)"
+        )
+    rec = Reciprocity(mode, lambda_scope, robot_margin)
+    rec.validate()
+    policy.reciprocity = rec
+
+
+def drive(
+    world: MultiRobotWorld, steppers: Sequence[ConformalStepper], *, broadcast: bool = False
+) -> list[float]:
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
     wall time (s) spent in its own sensing, deciding and learning.
+
+    With ``broadcast`` each robot broadcasts the velocity it decided
+    (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: its plan, seen by
+    the others at the next control instant).
 
     The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
     stepping together: at a sampling time each robot under way senses and begins an
@@ -549,6 +613,8 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
                     continue
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
+                if broadcast:
+                    world.broadcast(i, cmds[i])
                 own[i] += clock() - t0
             world.apply(cmds)
             if world.done:
@@ -558,6 +624,21 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
             steppers[i].end_interval(world.reveal(i))
             own[i] += clock() - t0
     return own
+
+
+def _deadlocks(
+    world: MultiRobotWorld, tasks: list[np.ndarray], rule: DeadlockRule
+) -> list[float | None]:
+    """When each robot deadlocked (:func:`~conformal_control.results.multi_metrics.deadlocks`)."""
+    sc = world.scene
+    lo, hi = sc.start_index, world.frame_index
+    track = world.robot_track()[lo : hi + 1]
+    active = np.zeros(track.shape[:2], dtype=bool)
+    first = sc.first_frame + lo
+    for i, rec in enumerate(world.robots):
+        active[np.asarray(rec.log.frame, dtype=np.int64) - first, i] = True
+    remaining = remaining_paths(track, tasks, sc.goal_radius)
+    return deadlocks(remaining, active, sc.fps, rule)
 
 
 def _track(world: MultiRobotWorld, results: list[RobotResult]) -> dict[str, np.ndarray]:

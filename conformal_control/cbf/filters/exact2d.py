@@ -260,6 +260,62 @@ class Exact2DSafetyFilter(VelocityFilter):
             return None
         return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i)
 
+    def step_apf_record_peers(
+        self,
+        x0: float,
+        x1: float,
+        n0: float,
+        n1: float,
+        lam: float,
+        pv: np.ndarray,
+        s: int,
+        rec: np.ndarray,
+        i: int,
+        rows: tuple[np.ndarray, int],
+        peers: tuple[np.ndarray, np.ndarray, float, float, np.ndarray, float, float],
+    ) -> FilterResult | None:
+        """:meth:`step_apf_record` with robot rows (a multi-robot world's reciprocal rows).
+
+        ``rows = (col, npred)``: per column of ``pv`` the weight of ``a h``, 1 for a row
+        without lambda and the collision distance added (``col``, shape (3, N)), and the
+        number of predicted columns; ``peers = (positions, references, own_x, own_y,
+        turn, vx, vy)``: the peers' positions and reference velocities now and the robot's
+        own reference, written into ``pv``'s columns ``npred:`` at step ``s``, the
+        side-step rule and the robot's velocity
+        (:func:`~conformal_control.cbf.kernels_peers.apf_control_peers`).
+        Same results, counters and fallbacks as :meth:`step_apf_record`; a fallback
+        decided in Python starts from the nominal velocity as given.
+        """
+        from .. import kernels_peers
+
+        col, npred = rows
+        pos, ref, o0, o1, turn, vx, vy = peers
+        code = kernels_peers.apf_control_peers(
+            x0, x1, n0, n1, lam, s, i, pv, self._buf, rec, col, npred, pos, ref, o0, o1, turn,
+            vx, vy,
+        )  # fmt: skip
+        if code == 0 or code == 1:
+            self.n_solves_ += code
+            self._last = self._lastv
+            self._fell_back = False
+            return None
+        k = self._k
+        if code == k.TOO_MANY:
+            self._buffers(pv.shape[2])
+            return self.step_apf_record_peers(x0, x1, n0, n1, lam, pv, s, rec, i, rows, peers)
+        if code == k.OUT_OF_RANGE:
+            raise IndexError(
+                f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
+            )
+        if code == k.SEARCHED or code == k.SEARCH_VERTEX:
+            self.n_solves_ += 3
+            self._count_search(code)
+            self._last = self._lastv
+            return None
+        if code == k.INFEASIBLE:
+            self.n_solves_ += 1
+        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+
     def _step_record_rest(
         self,
         code: int,
