@@ -19,6 +19,7 @@ from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
     Reciprocity,
     check_peer_view,
+    lexicographic_search,
     peer_rows,
     reference_velocities,
     sidestep,
@@ -40,8 +41,18 @@ __all__ = [
 MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
-#: infeasible step the Python fallback decided) records the fallback's own name.
-_CODE_STATUS = ("unconstrained", "optimal", "", "lambda_search", "lambda_search")
+#: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+_CODE_STATUS = (
+    "unconstrained",
+    "optimal",
+    "",
+    "lambda_search",
+    "lambda_search",
+    "",
+    "",
+    "lambda_search",
+)
 
 
 class PredictorError(RuntimeError):
@@ -403,6 +414,8 @@ class ConformalCBFController(
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
+            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
+                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
@@ -429,6 +442,19 @@ class ConformalCBFController(
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))
         return np.concatenate([A, Ar]), np.concatenate([b, br])
+
+    def _keep_hard_rows(
+        self, v_ref: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float, res: FilterResult
+    ) -> FilterResult:
+        """The lambda search again, keeping the rows without slack
+        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`)."""
+        f = self.safety_filter
+        if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
+            return res  # a filter without the primitives: its own search stands
+        v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam)
+        if relaxed:
+            f.count("hard_rows_relaxed")  # type: ignore[attr-defined]
+        return FilterResult(v, "fallback", used, "lambda_search")
 
     def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
         """:meth:`decide` through the compiled step, which writes the record itself."""

@@ -10,7 +10,14 @@ positions and ``v~_j`` into the interval's arrays, builds the rows (the arithmet
 :func:`~conformal_control.cbf.kernels2d.apf_rows` with the two weights) and solves with
 :func:`~conformal_control.cbf.kernels2d.filter_step`, recorded as ``apf_control`` records.
 A row without slack is handed to the filter as ``b - lambda`` (so ``A v + b >= 0`` at the
-requested lambda; a fallback that raises lambda relaxes it as it relaxes the others).
+requested lambda).
+
+When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``,
+:func:`lexicographic_search` raises a common slack level ``lambda' >= lambda``: the rows
+with slack get ``lambda'``, the rows without slack ``max(0, lambda')`` -- they keep no
+slack until the level passes 0 (the smallest such level, by bisection on the exact
+projection's feasibility, which is monotone in it). A step whose level ended above 0
+relaxed the rows without slack too (:data:`SEARCH_ALL`, counted).
 """
 
 from __future__ import annotations
@@ -25,12 +32,128 @@ from .kernels2d import (
     NONFINITE,
     OUT_OF_RANGE,
     RECORD_FIELDS,
+    SEARCHED,
     TOO_MANY,
     filter_step,
     jit,
+    lambda_margin,
+    smallest_lambda,
+    solve_rows,
 )
 
-__all__ = ["apf_control_peers", "apf_rows_weighted"]
+__all__ = ["SEARCH_ALL", "apf_control_peers", "apf_rows_weighted", "lexicographic_search"]
+
+#: Result code of :func:`apf_control_peers`: the search had to give the rows without
+#: slack some too (the common level ended above 0).
+SEARCH_ALL = 7
+
+#: Bisection steps of :func:`lexicographic_search` at most.
+MAX_BISECTIONS = 60
+
+
+@jit
+def _feasible_at(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    b: np.ndarray,
+    hard: np.ndarray,
+    lam: float,
+    lam_soft: float,
+    S: np.ndarray,
+    s: np.ndarray,
+    radius: float,
+    G: np.ndarray,
+    h: np.ndarray,
+    rhs: np.ndarray,
+) -> tuple[bool, float, float]:
+    """The projection at the common level ``lam_soft``: the rows without slack (whose ``b``
+    holds ``- lam``) at ``max(0, lam_soft)``, the others at ``lam_soft``."""
+    up = lam + max(0.0, lam_soft)
+    for j in range(A.shape[0]):
+        rhs[j] = b[j] + (up if hard[j] != 0.0 else lam_soft)
+    return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+
+
+@jit
+def lexicographic_search(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    b: np.ndarray,
+    hard: np.ndarray,
+    lam: float,
+    S: np.ndarray,
+    s: np.ndarray,
+    verts: np.ndarray,
+    radius: float,
+    margin_rel: float,
+    G: np.ndarray,
+    h: np.ndarray,
+    rhs: np.ndarray,
+    Ak: np.ndarray,
+    bk: np.ndarray,
+) -> tuple[int, float, float, float, int]:
+    """The fallback of an infeasible step with rows without slack (``hard`` != 0; their
+    ``b`` already holds ``- lam``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
+
+    The smallest common level ``lambda' >= lam`` at which the rows with slack at
+    ``lambda'`` and the others at ``max(0, lambda')`` are feasible (see the module
+    docstring), bracketed below by the smallest lambda of the rows with slack alone and
+    above by the level that meets every row anywhere in the speed disc, then bisected to
+    the filter's margin; the projection there. :data:`SEARCHED` when the level stayed at
+    or below 0, :data:`SEARCH_ALL` otherwise.
+    """
+    m = A.shape[0]
+    # the rows with slack alone: their smallest lambda (lower bound), compacted into G, h
+    ms = 0
+    hi = lam
+    for j in range(m):
+        top = -b[j] + math.hypot(A[j, 0], A[j, 1]) * radius
+        if hard[j] == 0.0:
+            G[ms, 0] = A[j, 0]
+            G[ms, 1] = A[j, 1]
+            h[ms] = b[j]
+            ms += 1
+        else:
+            top -= lam
+        if top > hi:
+            hi = top
+    lo = lam
+    if ms:
+        star, _, _ = smallest_lambda(G[:ms], h[:ms].copy(), S, s, verts, radius, Ak, bk)
+        if star > lo:
+            lo = star
+    solves = 1
+    margin = lambda_margin(max(abs(lo), abs(hi)), A, b, radius, margin_rel)
+    ok, v0, v1 = _feasible_at(n0, n1, A, b, hard, lam, hi + margin, S, s, radius, G, h, rhs)
+    solves += 1
+    if not ok:  # not met at a level that meets every row in the disc: round-off; as before
+        star, w0, w1 = smallest_lambda(A, b, S, s, verts, radius, Ak, bk)
+        floor = max(lam, star)
+        used = floor + lambda_margin(floor, A, b, radius, margin_rel)
+        for j in range(m):
+            rhs[j] = b[j] + used
+        ok, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+        if ok:
+            return SEARCH_ALL, v0, v1, used, solves + 2
+        return SEARCH_ALL, w0, w1, floor, solves + 2
+    hi = hi + margin
+    ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, lo + margin, S, s, radius, G, h, rhs)
+    solves += 1
+    if ok:
+        return (SEARCHED if lo + margin <= 0.0 else SEARCH_ALL), w0, w1, lo + margin, solves
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, mid, S, s, radius, G, h, rhs)
+        solves += 1
+        if ok:
+            hi, v0, v1 = mid, w0, w1
+        else:
+            lo = mid
+    return (SEARCHED if hi <= 0.0 else SEARCH_ALL), v0, v1, hi, solves
 
 
 @jit
@@ -166,10 +289,17 @@ def apf_control_peers(
     sv = poly[2 * ns : 3 * ns]
     verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
     apf_rows_weighted(x0, x1, pv[0, s], pv[1, s], col, lam, prm, A, b)
+    search = prm[9] != 0.0
+    hard = col[1, :m]
+    lexicographic = search and hard.any()
     code, v0, v1, lam_used, _ = filter_step(
-        n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0, prm[10],
-        G, h, rhs, Ak, bk,
+        n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8],
+        search and not lexicographic, prm[10], G, h, rhs, Ak, bk,
     )  # fmt: skip
+    if lexicographic and code == INFEASIBLE:
+        code, v0, v1, lam_used, _ = lexicographic_search(
+            n0, n1, A, b, hard, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak, bk
+        )
     if code == NONFINITE:
         return code
     rows = rec.shape[0] // RECORD_FIELDS

@@ -46,8 +46,12 @@ get ``+ lambda``; the robot rows are hard), ``"robots"`` (only the robot rows) o
 :class:`~conformal_control.cbf.loss.CBFGapLoss`): for a robot row the "prediction" is
 the partner's assumed part ``dh/dx_j . v~_j + s_ij a h`` and the truth its actual part
 ``dh/dx_j . v_j + a h``, so a positive gap says that the partner did not take its share.
-When the rows are infeasible at lambda, the filter's fallback (``lambda_search``) raises
-the slack of every row, hard rows included (counted with the fallbacks).
+When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``, the
+search raises a common slack level ``lambda' >= lambda`` (:func:`lexicographic_search`):
+the rows lambda is the slack of get ``lambda'``, the hard rows ``max(0, lambda')``. With a
+cautious (negative) lambda, the margin on the predicted rows goes first; the hard rows
+get slack only once the level passes 0, and then the same as the others (such steps are
+counted as ``n_hard_rows_relaxed``). Other fallbacks see the rows as one problem.
 
 **Side-stepping.** Two robots exactly head-on (or any symmetric jam) can stop face to
 face: each row cancels the component of the nominal velocity towards the other, and
@@ -77,6 +81,7 @@ import numpy as np
 
 from ..base import Plugin
 from .constraint import ConformalConstraint
+from .speed import speed_polygon
 
 __all__ = [
     "INFORMATION",
@@ -88,6 +93,7 @@ __all__ = [
     "Reciprocity",
     "check_peer_view",
     "grown_constraint",
+    "lexicographic_search",
     "pair_shares",
     "peer_rows",
     "reference_velocities",
@@ -105,6 +111,9 @@ INFORMATION = ("position", "velocity", "plan")
 
 #: The rows the conformal lambda is the slack of.
 LAMBDA_SCOPES = ("pedestrians", "robots", "both")
+
+#: Bisection steps of :func:`lexicographic_search` at most.
+MAX_BISECTIONS = 60
 
 #: Side-stepping: a robot turns when another robot is within this many seconds of its
 #: nominal velocity ...
@@ -342,3 +351,58 @@ def sidestep(
     if n0 * rel[j, 1] - n1 * rel[j, 0] < 0.0:  # on the right: turn counter-clockwise
         s = -s
     return np.array([c * n0 + s * n1, -s * n0 + c * n1])
+
+
+def lexicographic_search(
+    solver: Any, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, hard: np.ndarray, lam: float
+) -> tuple[np.ndarray, float, bool]:
+    """The ``lambda_search`` fallback with rows without slack (``hard``; their ``b``
+    already holds ``- lam``): ``(v, lambda_applied, hard rows relaxed)``.
+
+    The generic path's twin of
+    :func:`~conformal_control.cbf.kernels_peers.lexicographic_search`, on the filter's
+    primitives (``project``, ``min_lambda``, ``search_margin``): the smallest common level
+    ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at
+    ``max(0, lambda')`` are feasible, by bisection.
+    """
+    hard = np.asarray(hard, dtype=bool)
+    soft = ~hard
+
+    def at(level: float) -> np.ndarray | None:
+        rhs = b + np.where(hard, lam + max(0.0, level), level)
+        out: np.ndarray | None = solver.project(nominal, A, rhs)
+        return out
+
+    sides = getattr(solver, "speed_sides", None)
+    if isinstance(sides, int):  # the disc around the filter's speed polygon
+        reach = speed_polygon(sides, float(solver.v_max))[3]
+    else:
+        reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
+    top = -b + np.hypot(A[:, 0], A[:, 1]) * reach - np.where(hard, lam, 0.0)
+    hi = max([lam, *top])
+    lo = lam
+    if soft.any():
+        star, _ = solver.min_lambda(A[soft], b[soft])
+        lo = max(lo, float(star))
+    margin = float(solver.search_margin(max(abs(lo), abs(hi)), A, b))
+    v = at(hi + margin)
+    if v is None:  # not met at a level meeting every row in the disc: round-off
+        star, v_star = solver.min_lambda(A, b)
+        floor = max(lam, float(star))
+        used = floor + float(solver.search_margin(floor, A, b))
+        w = solver.project(nominal, A, b + used)
+        return (np.asarray(v_star, float), floor, True) if w is None else (w, used, True)
+    hi += margin
+    w = at(lo + margin)
+    if w is not None:
+        return w, lo + margin, lo + margin > 0.0
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        w = at(mid)
+        if w is not None:
+            hi, v = mid, w
+        else:
+            lo = mid
+    return v, hi, hi > 0.0

@@ -65,6 +65,7 @@ __all__ = [
     "MultiResult",
     "RobotResult",
     "as_tasks",
+    "check_tasks",
     "drive",
     "load_robots_file",
     "robot_tasks",
@@ -176,6 +177,9 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     robots = spec.get("robots") if isinstance(spec, dict) else None
     if not isinstance(robots, list) or not robots:
         raise ValueError(f'robots file {p} needs a non-empty list "robots"')
+    unknown = sorted(set(spec) - {"units", "robots"})
+    if unknown:
+        raise ValueError(f'robots file {p}: unknown key(s) {unknown}; known: "units", "robots"')
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
@@ -188,6 +192,12 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
             raise ValueError(f'robots file {p}: robot {i} needs "start" and "goals" (or "goal")')
+        unknown = sorted(set(r) - {"start", "goal", "goals"})
+        if unknown or ("goal" in r and "goals" in r):
+            raise ValueError(
+                f'robots file {p}: robot {i} may only have "start" and "goals" (or "goal"), '
+                f"got {sorted(r)}"
+            )
         try:
             st = np.asarray(r["start"], dtype=float).reshape(2)
             g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)
@@ -195,9 +205,34 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
             raise ValueError(
                 f"robots file {p}: robot {i} has a start or goal that is not (x, y)"
             ) from None
+        if not (np.isfinite(st).all() and np.isfinite(g).all()):
+            raise ValueError(f"robots file {p}: robot {i} has a start or goal that is not finite")
+        if units == "fraction" and ((st < 0) | (st > 1)).any() | ((g < 0) | (g > 1)).any():
+            raise ValueError(
+                f"robots file {p}: robot {i} has a fraction outside [0, 1] "
+                f"(start {st.tolist()}, goals {g.tolist()})"
+            )
         starts.append(st * scale)
         goals.append(g * scale)
     return as_tasks(np.array(starts), goals)
+
+
+def check_tasks(starts: np.ndarray, goals: Sequence[np.ndarray], robot_radius: float) -> None:
+    """Refuse tasks no fleet can do (a one-line ``ValueError``): two robots that start, or
+    end at their last goals, closer than two robot radii."""
+    d_c = 2.0 * float(robot_radius)
+    for what, pts in (
+        ("start", np.asarray(starts)),
+        ("end at goals", np.array([g[-1] for g in goals])),
+    ):
+        d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+        d[np.tril_indices(d.shape[0])] = np.inf
+        if d.size and d.min() < d_c:
+            i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+            raise ValueError(
+                f"robots {i} and {j} {what} {d[i, j]:.3g} m apart, closer than two robot radii "
+                f"({d_c:.3g} m): no fleet can do these tasks"
+            )
 
 
 # ---------------------------------------------------------------------------- results
@@ -344,6 +379,7 @@ def run_multi(
     lambda_scope: str = "pedestrians",
     weights: Sequence[float] | None = None,
     ignoring: Sequence[int] = (),
+    sidestep: float = 0.3,
     deadlock: DeadlockRule | None = None,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
@@ -415,12 +451,17 @@ def run_multi(
                 max_frames=max_frames,
             )
         )
+    check_tasks(s, tasks, fleet[0].params.si["robot_radius"])
     modes = robot_modes(n, reciprocity, ignoring)
     radii = fleet[0].params.si
     for fl, mode in zip(fleet, modes, strict=True):
         # robot rows keep two robot radii apart; the barrier was built for robot + agent
         set_reciprocity(
-            fl.policy, mode, lambda_scope, radii["robot_radius"] - radii["agent_radius"]
+            fl.policy,
+            mode,
+            lambda_scope,
+            radii["robot_radius"] - radii["agent_radius"],
+            sidestep,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -540,6 +581,7 @@ def run_multi(
         "lambda_scope": lambda_scope,
         "weights": None if weights is None else [float(w) for w in weights],
         "ignoring": [int(i) for i in ignoring],
+        "sidestep": float(sidestep),
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -564,7 +606,9 @@ def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[
     return ["ignore" if i in set(ignoring) else reciprocity for i in range(n)]
 
 
-def set_reciprocity(policy: Any, mode: str, lambda_scope: str, robot_margin: float = 0.0) -> None:
+def set_reciprocity(
+    policy: Any, mode: str, lambda_scope: str, robot_margin: float = 0.0, sidestep: float = 0.3
+) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
     collision distance for the robot rows."""
@@ -573,7 +617,7 @@ def set_reciprocity(policy: Any, mode: str, lambda_scope: str, robot_margin: flo
             f"decision family {type(policy).__name__} does not handle other robots "
             "(no reciprocity setting)"
         )
-    rec = Reciprocity(mode, lambda_scope, robot_margin)
+    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep)
     rec.validate()
     policy.reciprocity = rec
 

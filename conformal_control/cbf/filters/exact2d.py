@@ -307,9 +307,11 @@ class Exact2DSafetyFilter(VelocityFilter):
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
-        if code == k.SEARCHED or code == k.SEARCH_VERTEX:
+        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL):
             self.n_solves_ += 3
-            self._count_search(code)
+            self._count_search(k.SEARCHED if code == kernels_peers.SEARCH_ALL else code)
+            if code == kernels_peers.SEARCH_ALL:
+                self.count("hard_rows_relaxed")
             self._last = self._lastv
             return None
         if code == k.INFEASIBLE:
