@@ -451,7 +451,8 @@ class ConformalCBFController(
         f = self.safety_filter
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
-        v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam)
+        keep = self._turn[5] != 0.0
+        v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam, keep)
         if relaxed:
             f.count("hard_rows_relaxed")  # type: ignore[attr-defined]
         return FilterResult(v, "fallback", used, "lambda_search")

@@ -13,11 +13,12 @@ A row without slack is handed to the filter as ``b - lambda`` (so ``A v + b >= 0
 requested lambda).
 
 When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``,
-:func:`lexicographic_search` raises a common slack level ``lambda' >= lambda``: the rows
-with slack get ``lambda'``, the rows without slack ``max(0, lambda')`` -- they keep no
-slack until the level passes 0 (the smallest such level, by bisection on the exact
-projection's feasibility, which is monotone in it). A step whose level ended above 0
-relaxed the rows without slack too (:data:`SEARCH_ALL`, counted).
+:func:`lexicographic_search` raises a slack level ``lambda' >= lambda`` on the rows with
+slack (the smallest feasible one, by bisection on the exact projection's feasibility,
+which is monotone in it). The rows without slack, by the ``keep`` flag, either join the
+level once it passes 0 (they get ``max(0, lambda')``) or keep no slack at all unless they
+cannot be met on their own (then every row is relaxed together, as ``lambda_search``
+does). A step that relaxed the rows without slack returns :data:`SEARCH_ALL` (counted).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ def _feasible_at(
     hard: np.ndarray,
     lam: float,
     lam_soft: float,
+    keep: bool,
     S: np.ndarray,
     s: np.ndarray,
     radius: float,
@@ -67,9 +69,9 @@ def _feasible_at(
     h: np.ndarray,
     rhs: np.ndarray,
 ) -> tuple[bool, float, float]:
-    """The projection at the common level ``lam_soft``: the rows without slack (whose ``b``
-    holds ``- lam``) at ``max(0, lam_soft)``, the others at ``lam_soft``."""
-    up = lam + max(0.0, lam_soft)
+    """The projection at the level ``lam_soft``: the rows without slack (whose ``b`` holds
+    ``- lam``) at 0 (``keep``) or ``max(0, lam_soft)``, the others at ``lam_soft``."""
+    up = lam if keep else lam + max(0.0, lam_soft)
     for j in range(A.shape[0]):
         rhs[j] = b[j] + (up if hard[j] != 0.0 else lam_soft)
     return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
@@ -83,6 +85,7 @@ def lexicographic_search(
     b: np.ndarray,
     hard: np.ndarray,
     lam: float,
+    keep: bool,
     S: np.ndarray,
     s: np.ndarray,
     verts: np.ndarray,
@@ -97,12 +100,13 @@ def lexicographic_search(
     """The fallback of an infeasible step with rows without slack (``hard`` != 0; their
     ``b`` already holds ``- lam``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
 
-    The smallest common level ``lambda' >= lam`` at which the rows with slack at
-    ``lambda'`` and the others at ``max(0, lambda')`` are feasible (see the module
+    The smallest level ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and
+    the others at 0 (``keep``) or ``max(0, lambda')`` are feasible (see the module
     docstring), bracketed below by the smallest lambda of the rows with slack alone and
-    above by the level that meets every row anywhere in the speed disc, then bisected to
-    the filter's margin; the projection there. :data:`SEARCHED` when the level stayed at
-    or below 0, :data:`SEARCH_ALL` otherwise.
+    above by the level that meets them anywhere in the speed disc, then bisected to the
+    filter's margin; the projection there. :data:`SEARCHED` when the rows without slack
+    kept none, :data:`SEARCH_ALL` otherwise (with ``keep``: every row relaxed together
+    because the rows without slack could not be met on their own).
     """
     m = A.shape[0]
     # the rows with slack alone: their smallest lambda (lower bound), compacted into G, h
@@ -115,6 +119,8 @@ def lexicographic_search(
             G[ms, 1] = A[j, 1]
             h[ms] = b[j]
             ms += 1
+        elif keep:
+            continue
         else:
             top -= lam
         if top > hi:
@@ -126,9 +132,9 @@ def lexicographic_search(
             lo = star
     solves = 1
     margin = lambda_margin(max(abs(lo), abs(hi)), A, b, radius, margin_rel)
-    ok, v0, v1 = _feasible_at(n0, n1, A, b, hard, lam, hi + margin, S, s, radius, G, h, rhs)
+    ok, v0, v1 = _feasible_at(n0, n1, A, b, hard, lam, hi + margin, keep, S, s, radius, G, h, rhs)
     solves += 1
-    if not ok:  # not met at a level that meets every row in the disc: round-off; as before
+    if not ok:  # the rows without slack cannot be met (keep), or round-off: all together
         star, w0, w1 = smallest_lambda(A, b, S, s, verts, radius, Ak, bk)
         floor = max(lam, star)
         used = floor + lambda_margin(floor, A, b, radius, margin_rel)
@@ -139,21 +145,22 @@ def lexicographic_search(
             return SEARCH_ALL, v0, v1, used, solves + 2
         return SEARCH_ALL, w0, w1, floor, solves + 2
     hi = hi + margin
-    ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, lo + margin, S, s, radius, G, h, rhs)
+    ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, lo + margin, keep, S, s, radius, G, h, rhs)
     solves += 1
     if ok:
-        return (SEARCHED if lo + margin <= 0.0 else SEARCH_ALL), w0, w1, lo + margin, solves
+        code = SEARCHED if keep or lo + margin <= 0.0 else SEARCH_ALL
+        return code, w0, w1, lo + margin, solves
     for _ in range(MAX_BISECTIONS):
         if hi - lo <= margin:
             break
         mid = 0.5 * (lo + hi)
-        ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, mid, S, s, radius, G, h, rhs)
+        ok, w0, w1 = _feasible_at(n0, n1, A, b, hard, lam, mid, keep, S, s, radius, G, h, rhs)
         solves += 1
         if ok:
             hi, v0, v1 = mid, w0, w1
         else:
             lo = mid
-    return (SEARCHED if hi <= 0.0 else SEARCH_ALL), v0, v1, hi, solves
+    return (SEARCHED if keep or hi <= 0.0 else SEARCH_ALL), v0, v1, hi, solves
 
 
 @jit
@@ -234,9 +241,10 @@ def apf_control_peers(
     column the share weighing ``a h`` (1 for predicted agents), 1 for a row without
     ``+ lambda`` (else 0) and the collision distance added (m; "surface" convention).
     ``turn`` holds the side-step rule's cosine, sine, horizon (s), cone cosine and slow
-    fraction (:meth:`~conformal_control.cbf.reciprocal.Reciprocity.turn`): with the
-    robot's velocity ``(vx, vy)`` below that fraction of the nominal speed, the nominal
-    velocity is first turned away from the nearest peer ahead. Same codes, record and buffers as
+    fraction, then the lexicographic search's ``keep`` flag
+    (:meth:`~conformal_control.cbf.reciprocal.Reciprocity.turn`): with the robot's velocity
+    ``(vx, vy)`` below that fraction of the nominal speed, the nominal velocity is first
+    turned away from the nearest peer ahead. Same codes, record and buffers as
     ``apf_control``.
     """
     cap = int(buf[11])
@@ -298,8 +306,9 @@ def apf_control_peers(
     )  # fmt: skip
     if lexicographic and code == INFEASIBLE:
         code, v0, v1, lam_used, _ = lexicographic_search(
-            n0, n1, A, b, hard, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak, bk
-        )
+            n0, n1, A, b, hard, lam, turn[5] != 0.0, S, sv, verts, prm[6], prm[10], G, h, rhs,
+            Ak, bk,
+        )  # fmt: skip
     if code == NONFINITE:
         return code
     rows = rec.shape[0] // RECORD_FIELDS

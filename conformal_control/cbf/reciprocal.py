@@ -47,11 +47,17 @@ get ``+ lambda``; the robot rows are hard), ``"robots"`` (only the robot rows) o
 the partner's assumed part ``dh/dx_j . v~_j + s_ij a h`` and the truth its actual part
 ``dh/dx_j . v_j + a h``, so a positive gap says that the partner did not take its share.
 When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``, the
-search raises a common slack level ``lambda' >= lambda`` (:func:`lexicographic_search`):
-the rows lambda is the slack of get ``lambda'``, the hard rows ``max(0, lambda')``. With a
-cautious (negative) lambda, the margin on the predicted rows goes first; the hard rows
-get slack only once the level passes 0, and then the same as the others (such steps are
-counted as ``n_hard_rows_relaxed``). Other fallbacks see the rows as one problem.
+search raises a slack level ``lambda' >= lambda`` on the rows lambda is the slack of
+(:func:`lexicographic_search`), and the hard rows by ``hard_rows``:
+
+* ``"level"``: they get ``max(0, lambda')``: with a cautious (negative) lambda the margin
+  on the other rows goes first, the hard rows get slack once the level passes 0, and then
+  the same as the others;
+* ``"last"``: they keep none unless they cannot be met on their own (then every row is
+  relaxed together, as ``lambda_search`` does).
+
+Steps that relaxed hard rows are counted (``n_hard_rows_relaxed``). Other fallbacks see
+the rows as one problem.
 
 **Side-stepping.** Two robots exactly head-on (or any symmetric jam) can stop face to
 face: each row cancels the component of the nominal velocity towards the other, and
@@ -84,6 +90,7 @@ from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
 __all__ = [
+    "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
     "RECIPROCITY",
@@ -111,6 +118,9 @@ INFORMATION = ("position", "velocity", "plan")
 
 #: The rows the conformal lambda is the slack of.
 LAMBDA_SCOPES = ("pedestrians", "robots", "both")
+
+#: How the lambda search treats the rows without slack (:class:`Reciprocity`).
+HARD_ROWS = ("level", "last")
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -141,6 +151,9 @@ class Reciprocity(Plugin):
     sidestep : float
         Angle (rad, in [0, pi/2]) a reciprocal robot turns its nominal velocity by, away
         from another robot ahead (see the module docstring); 0 never turns.
+    hard_rows : {"level", "last"}
+        How the ``lambda_search`` fallback treats the rows without slack (see the module
+        docstring).
     """
 
     def __init__(
@@ -149,11 +162,13 @@ class Reciprocity(Plugin):
         lambda_scope: str = "pedestrians",
         robot_margin: float = 0.0,
         sidestep: float = 0.3,
+        hard_rows: str = "level",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
         self.robot_margin = robot_margin
         self.sidestep = sidestep
+        self.hard_rows = hard_rows
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -168,15 +183,28 @@ class Reciprocity(Plugin):
         k = self.sidestep
         if not (isinstance(k, (int, float)) and 0.0 <= k <= math.pi / 2):
             raise ValueError(f"sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        if self.hard_rows not in HARD_ROWS:
+            raise ValueError(
+                f"hard_rows must be one of {', '.join(HARD_ROWS)}, got {self.hard_rows!r}"
+            )
 
     def turn(self) -> np.ndarray:
-        """``(cos, sin)`` of :attr:`sidestep`, the horizon (s), the cosine of the cone and
-        the slow fraction: the compiled step's side-step parameters (zeros: never turn)."""
+        """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
+        the cosine of the cone, the slow fraction (zeros: never turn), and 1 when the hard
+        rows are relaxed last (:attr:`hard_rows`)."""
+        keep = float(self.hard_rows == "last")
         if not self.sidestep:
-            return np.zeros(5)
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep])
         k = float(self.sidestep)
         return np.array(
-            [math.cos(k), math.sin(k), SIDESTEP_HORIZON, math.cos(SIDESTEP_CONE), SIDESTEP_SLOW]
+            [
+                math.cos(k),
+                math.sin(k),
+                SIDESTEP_HORIZON,
+                math.cos(SIDESTEP_CONE),
+                SIDESTEP_SLOW,
+                keep,
+            ]
         )
 
     def robot_constraint(self, constraint: ConformalConstraint) -> ConformalConstraint:
@@ -335,7 +363,7 @@ def sidestep(
     """The nominal velocity turned away from the nearest peer ahead when the robot is held
     back (:meth:`Reciprocity.turn`'s parameters; ``x_ego`` the state (x, y, vx, vy);
     ``d_c`` the robots' collision distance); as given otherwise."""
-    c, s, horizon, cone, slow = (float(v) for v in turn)
+    c, s, horizon, cone, slow = (float(v) for v in turn[:5])
     n0, n1 = float(nominal[0]), float(nominal[1])
     sp = math.hypot(n0, n1)
     if s == 0.0 or sp == 0.0 or view.n_peers == 0:
@@ -354,22 +382,28 @@ def sidestep(
 
 
 def lexicographic_search(
-    solver: Any, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, hard: np.ndarray, lam: float
+    solver: Any,
+    nominal: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    hard: np.ndarray,
+    lam: float,
+    keep: bool = False,
 ) -> tuple[np.ndarray, float, bool]:
     """The ``lambda_search`` fallback with rows without slack (``hard``; their ``b``
     already holds ``- lam``): ``(v, lambda_applied, hard rows relaxed)``.
 
     The generic path's twin of
     :func:`~conformal_control.cbf.kernels_peers.lexicographic_search`, on the filter's
-    primitives (``project``, ``min_lambda``, ``search_margin``): the smallest common level
-    ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at
-    ``max(0, lambda')`` are feasible, by bisection.
+    primitives (``project``, ``min_lambda``, ``search_margin``): the smallest level
+    ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at 0
+    (``keep``) or ``max(0, lambda')`` are feasible, by bisection.
     """
     hard = np.asarray(hard, dtype=bool)
     soft = ~hard
 
     def at(level: float) -> np.ndarray | None:
-        rhs = b + np.where(hard, lam + max(0.0, level), level)
+        rhs = b + np.where(hard, lam if keep else lam + max(0.0, level), level)
         out: np.ndarray | None = solver.project(nominal, A, rhs)
         return out
 
@@ -379,14 +413,14 @@ def lexicographic_search(
     else:
         reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
     top = -b + np.hypot(A[:, 0], A[:, 1]) * reach - np.where(hard, lam, 0.0)
-    hi = max([lam, *top])
+    hi = max([lam, *(top[soft] if keep else top)])
     lo = lam
     if soft.any():
         star, _ = solver.min_lambda(A[soft], b[soft])
         lo = max(lo, float(star))
     margin = float(solver.search_margin(max(abs(lo), abs(hi)), A, b))
     v = at(hi + margin)
-    if v is None:  # not met at a level meeting every row in the disc: round-off
+    if v is None:  # the hard rows cannot be met (keep), or round-off: all together
         star, v_star = solver.min_lambda(A, b)
         floor = max(lam, float(star))
         used = floor + float(solver.search_margin(floor, A, b))
@@ -395,7 +429,7 @@ def lexicographic_search(
     hi += margin
     w = at(lo + margin)
     if w is not None:
-        return w, lo + margin, lo + margin > 0.0
+        return w, lo + margin, not keep and lo + margin > 0.0
     for _ in range(MAX_BISECTIONS):
         if hi - lo <= margin:
             break
@@ -405,4 +439,4 @@ def lexicographic_search(
             hi, v = mid, w
         else:
             lo = mid
-    return v, hi, hi > 0.0
+    return v, hi, not keep and hi > 0.0

@@ -380,6 +380,7 @@ def run_multi(
     weights: Sequence[float] | None = None,
     ignoring: Sequence[int] = (),
     sidestep: float = 0.3,
+    hard_rows: str = "level",
     deadlock: DeadlockRule | None = None,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
@@ -462,6 +463,7 @@ def run_multi(
             lambda_scope,
             radii["robot_radius"] - radii["agent_radius"],
             sidestep,
+            hard_rows,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -582,6 +584,7 @@ def run_multi(
         "weights": None if weights is None else [float(w) for w in weights],
         "ignoring": [int(i) for i in ignoring],
         "sidestep": float(sidestep),
+        "hard_rows": hard_rows,
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -607,7 +610,12 @@ def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[
 
 
 def set_reciprocity(
-    policy: Any, mode: str, lambda_scope: str, robot_margin: float = 0.0, sidestep: float = 0.3
+    policy: Any,
+    mode: str,
+    lambda_scope: str,
+    robot_margin: float = 0.0,
+    sidestep: float = 0.3,
+    hard_rows: str = "level",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
@@ -617,7 +625,7 @@ def set_reciprocity(
             f"decision family {type(policy).__name__} does not handle other robots "
             "(no reciprocity setting)"
         )
-    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep)
+    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep, hard_rows)
     rec.validate()
     policy.reciprocity = rec
 
@@ -628,9 +636,10 @@ def drive(
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
     wall time (s) spent in its own sensing, deciding and learning.
 
-    With ``broadcast`` each robot broadcasts the velocity it decided
-    (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: its plan, seen by
-    the others at the next control instant).
+    With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
+    plans ahead (``planned_path``), its plan's path
+    (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: seen by the others
+    at the next control instant).
 
     The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
     stepping together: at a sampling time each robot under way senses and begins an
@@ -657,8 +666,9 @@ def drive(
                     continue
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
-                if broadcast:
-                    world.broadcast(i, cmds[i])
+                if broadcast:  # its command, and its plan's path if it plans ahead
+                    path = getattr(steppers[i].policy, "planned_path", None)
+                    world.broadcast(i, cmds[i], None if path is None else path())
                 own[i] += clock() - t0
             world.apply(cmds)
             if world.done:

@@ -86,6 +86,7 @@ def test_reciprocity_settings_are_checked():
         ({"mode": "polite"}, "reciprocity must be"),
         ({"lambda_scope": "everyone"}, "lambda_scope must be"),
         ({"sidestep": 2.0}, "sidestep must be"),
+        ({"hard_rows": "never"}, "hard_rows must be"),
     ):
         with pytest.raises(ValueError, match=msg):
             Reciprocity(**kw).validate()
@@ -139,14 +140,16 @@ def test_loss_on_a_robot_row_sees_a_partner_that_does_not_take_its_share():
 
 
 # ------------------------------------------------------------------------------ the step
-def _controller(compiled, mode="reciprocal", scope="pedestrians", margin=0.1, sidestep=0.3):
+def _controller(
+    compiled, mode="reciprocal", scope="pedestrians", margin=0.1, sidestep=0.3, hard="level"
+):
     return ConformalCBFController(
         ConstantVelocityPredictor(),
         ConformalConstraint(APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7), a=2.0),
         Exact2DSafetyFilter(v_max=1.5, compiled_step=compiled),
         AttractiveField(K_att=1.0, v_max=1.5),
         substeps=2,
-        reciprocity=Reciprocity(mode, scope, margin, sidestep),
+        reciprocity=Reciprocity(mode, scope, margin, sidestep, hard),
     )
 
 
@@ -162,13 +165,15 @@ def _query(rng, n_ped, n_rob):
     )
 
 
+@pytest.mark.parametrize("hard", ["level", "last"])
 @pytest.mark.parametrize("scope", ["pedestrians", "robots", "both"])
 @pytest.mark.parametrize("info", INFORMATION)
-def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info):
+def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard):
     rng = np.random.default_rng(3)
     for trial in range(6):
         q = _query(rng, n_ped=3, n_rob=2)
-        fast, slow = _controller(True, scope=scope), _controller(False, scope=scope)
+        fast = _controller(True, scope=scope, hard=hard)
+        slow = _controller(False, scope=scope, hard=hard)
         for c in (fast, slow):
             c.reset()
             c.begin_interval(q)
