@@ -50,7 +50,9 @@ from typing import Any
 import numpy as np
 
 from ..data.suites import SPLITS, TAIL_S, Scenario, load_suite
-from .methods import Method, available, expand_methods
+from .methods import Method, available
+from .runner import load_tuned, plan_methods
+from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
 __all__ = [
@@ -243,7 +245,7 @@ def multi_suite_names() -> list[str]:
 
 
 def make_multi_manifest(
-    base: str = "crossings-v1",
+    base: str = "crossings-v2",
     *,
     per_recording: int = 2,
     spacing: float = 2.5,
@@ -378,12 +380,20 @@ class MultiRun:
     lambda_scope: str
     seed: int
     options: dict[str, Any] = field(default_factory=dict)  # more reciprocal settings
+    shift: str = "nominal"
 
 
 def _key(
-    entry: MultiEntry, n: int, method: Method, rec: str, info: str, scope: str, opts: str
+    entry: MultiEntry,
+    n: int,
+    method: Method,
+    shift: Shift,
+    rec: str,
+    info: str,
+    scope: str,
+    opts: str,
 ) -> str:
-    return f"{entry.id}|M{n}|{method.name}|{rec}|{info}|{scope}{opts}"
+    return f"{entry.id}|M{n}|{method.name}|{shift.name}|{rec}|{info}|{scope}{opts}"
 
 
 def _options_label(options: Mapping[str, Any]) -> str:
@@ -407,6 +417,7 @@ def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str,
         "method": run.method,
         "family": run.family,
         "setting": run.setting,
+        "shift": run.shift,
         "reciprocity": run.reciprocity,
         "information": run.information,
         "lambda_scope": run.lambda_scope,
@@ -452,6 +463,8 @@ def _runs(
     seed: int,
     limit: int | None,
     options: Mapping[str, Any],
+    shifts: Sequence[Shift],
+    data_root: str | None,
 ) -> list[MultiRun]:
     entries = suite.entries_for(split)
     if limit is not None:
@@ -459,21 +472,27 @@ def _runs(
     if not entries:
         raise ValueError(f"no entry of {suite.name} matches (split={split!r})")
     out = []
-    for e in entries:
-        for n in robots:
-            for m in methods:
-                for rec in reciprocity:
-                    recip = rec == "reciprocal"
-                    info = information if recip else "-"
-                    scope = lambda_scope if recip else "both"
-                    opts = _options_label(options) if recip else ""
-                    key = _key(e, n, m, rec, info, scope, opts)
-                    kw = m.run_kwargs(predictor)
-                    run = MultiRun(
-                        key, e, n, m.name, m.family, m.setting, kw, rec, information, scope,
-                        seed, dict(options),
-                    )  # fmt: skip
-                    out.append(run)
+    for e, n, m, shift in (
+        (e, n, m, sh) for sh in shifts for e in entries for n in robots for m in methods
+    ):
+        if not shift.covers(e.recording):
+            continue
+        name, params = shift.predictor_for(m.predictor or predictor, None, data_root)
+        for rec in reciprocity:
+            recip = rec == "reciprocal"
+            info = information if recip else "-"
+            scope = lambda_scope if recip else "both"
+            opts = _options_label(options) if recip else ""
+            key = _key(e, n, m, shift, rec, info, scope, opts)
+            kw = m.run_kwargs(predictor)
+            kw["predictor"] = name
+            if params:
+                kw["predictor_params"] = params
+            run = MultiRun(
+                key, e, n, m.name, m.family, m.setting, kw, rec, information, scope,
+                seed, dict(options), shift.name,
+            )  # fmt: skip
+            out.append(run)
     return out
 
 
@@ -503,6 +522,8 @@ def run_multi_bench(
     split: str | None = "test",
     methods: Sequence[str] = ("nolearn", "conformal"),
     grids: Mapping[str, Sequence[Any]] | None = None,
+    shifts: Sequence[str] = ("nominal",),
+    tuned: str | None = "default",
     reciprocity: Sequence[str] = RECIPROCITY_OPTIONS,
     information: str = "velocity",
     lambda_scope: str = "pedestrians",
@@ -524,8 +545,14 @@ def run_multi_bench(
         Fleet sizes.
     suite, split
         The multi-robot suite and its split (None: both).
-    methods, grids
-        Method families of :mod:`conformal_control.bench.methods` and their settings.
+    methods, grids, tuned
+        Method families of :mod:`conformal_control.bench.methods`, their settings (a
+        family's ``grids`` entry, else its tuned value for the base suite where one is
+        shipped or given as a ``tuned.json``, else its settings), as the single-robot
+        benchmark plans them (:func:`~conformal_control.bench.runner.plan_methods`).
+    shifts : sequence of str
+        Predictor shifts of :mod:`conformal_control.bench.shifts` (entries a shift does
+        not cover are left out of it).
     reciprocity : sequence of {"none", "reciprocal"}
         How the robots treat each other (``"none"``: predicted like pedestrians, lambda on
         every row: the behaviour without reciprocity).
@@ -548,7 +575,8 @@ def run_multi_bench(
     ms = suite if Path(suite).suffix == ".json" else None
     loaded = load_multi_suite(path=ms) if ms else load_multi_suite(suite)
     suite_path = str(ms or _manifest_dir() / f"{suite}.json")
-    chosen = expand_methods(methods, grids)
+    chosen = plan_methods(methods, load_tuned(tuned, loaded.base), grids)
+    shift_objs = [get_shift(s) for s in shifts]
     missing = {m.name: why for m in chosen if (why := available(m)) is not None}
     if missing:
         raise ValueError(
@@ -566,6 +594,8 @@ def run_multi_bench(
         seed,
         limit,
         dict(options or {}),
+        shift_objs,
+        data_root,
     )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -583,6 +613,8 @@ def run_multi_bench(
                 "lambda_scope": lambda_scope,
                 "options": dict(options or {}),
                 "predictor": predictor,
+                "shifts": list(shifts),
+                "tuned": tuned,
                 "seed": seed,
                 "limit": limit,
             },
@@ -710,15 +742,15 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
     ``paired`` (reciprocal against none, per robots and method; per layout too)."""
     groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
     for r in rows:
-        groups.setdefault((r["robots"], r["method"], r["reciprocity"]), []).append(r)
+        key = (r["robots"], r["method"], r.get("shift", "nominal"), r["reciprocity"])
+        groups.setdefault(key, []).append(r)
     fleet = []
-    for (n, method, rec), rs in sorted(
-        groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2])
-    ):
+    for (n, method, shift, rec), rs in sorted(groups.items()):
         fleet.append(
             {
                 "robots": n,
                 "method": method,
+                "shift": shift,
                 "reciprocity": rec,
                 "episodes": len(rs),
                 "goal_rate": _est(r["goal_rate"] for r in rs),
@@ -736,12 +768,13 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
         for r in rows:
             if layout is not None and r["layout"] != layout:
                 continue
-            keyed.setdefault((r["robots"], r["method"], r["entry"]), {})[r["reciprocity"]] = r
+            k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
+            keyed.setdefault(k, {})[r["reciprocity"]] = r
         by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
-        for (n, method, _), pair in keyed.items():
+        for (n, method, shift, _), pair in keyed.items():
             if "none" in pair and "reciprocal" in pair:
-                by.setdefault((n, method), []).append((pair["reciprocal"], pair["none"]))
-        for (n, method), pairs in sorted(by.items()):
+                by.setdefault((n, method, shift), []).append((pair["reciprocal"], pair["none"]))
+        for (n, method, shift), pairs in sorted(by.items()):
             rec = np.array([float(a["n_collide_robot_pairs"]) for a, _ in pairs])
             non = np.array([float(b["n_collide_robot_pairs"]) for _, b in pairs])
             red = _ratio_ci(rec, non)
@@ -766,6 +799,7 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
                     "layout": layout or "all",
                     "robots": n,
                     "method": method,
+                    "shift": shift,
                     "pairs": len(pairs),
                     "robot_pair_frames_none": float(non.sum()),
                     "robot_pair_frames_reciprocal": float(rec.sum()),
@@ -804,11 +838,11 @@ def write_multi_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fleet_cols = (
-        "robots", "method", "reciprocity", "episodes", "goal_rate", "robot_pair_frames",
+        "robots", "method", "shift", "reciprocity", "episodes", "goal_rate", "robot_pair_frames",
         "episodes_robot_collision", "pedestrian_frames", "makespan_s", "deadlocked",
     )  # fmt: skip
     paired_cols = (
-        "layout", "robots", "method", "pairs", "robot_pair_frames_none",
+        "layout", "robots", "method", "shift", "pairs", "robot_pair_frames_none",
         "robot_pair_frames_reciprocal", "reduction", "goal_rate_difference",
         "pedestrian_frames_difference", "deadlocked_difference",
     )  # fmt: skip
@@ -852,3 +886,50 @@ def write_multi_report(
         + "\n"
     )
     return page
+
+
+# ---------------------------------------------------------------------------- the command
+def _ints(text: str, what: str) -> list[int]:
+    try:
+        out = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"{what} expects integers separated by commas, got {text!r}") from None
+    if not out:
+        raise ValueError(f"{what} expects at least one integer, got {text!r}")
+    return out
+
+
+def run_command(args: Any, default_suite: str, families: Sequence[str], grids: Any) -> int:
+    """``bench run --robots M``: the multi-robot benchmark into ``--out``."""
+    robots = _ints(args.robots, "--robots")
+    suite = args.suite if args.suite != default_suite else "multi-crossings-v1"
+    res = run_multi_bench(
+        args.out,
+        robots=robots,
+        suite=suite,
+        split=None if args.split == "all" else args.split,
+        methods=families,
+        grids=grids,
+        shifts=[s.strip() for s in args.shift.split(",") if s.strip()],
+        tuned=args.tuned,
+        reciprocity=[s.strip() for s in args.reciprocity.split(",") if s.strip()],
+        information=args.information,
+        lambda_scope=args.lambda_scope,
+        predictor=args.predictor or "constant_velocity",
+        data_root=args.data_root,
+        workers=args.workers,
+        limit=args.limit,
+        progress=None if args.progress == "off" else print,
+    )
+    print(res.summary())
+    return 0 if res.failed == 0 else 1
+
+
+def report_command(folder: str | Path, out: str | Path | None) -> int:
+    """``bench report`` of a multi-robot folder: ``multi_report.md`` (printed)."""
+    rows = read_multi_rows(folder)
+    dest = Path(out) if out else Path(folder) / "report"
+    page = write_multi_report(rows, dest, title=f"Multi-robot benchmark: {Path(folder).name}")
+    print(page.read_text())
+    print(f"wrote {page} and {page.with_suffix('.json')}")
+    return 0
