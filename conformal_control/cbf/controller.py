@@ -235,6 +235,7 @@ class ConformalCBFController(
         self._scored = np.zeros(0, dtype=bool)  # per record column (ignored robots too)
         self._order: np.ndarray | None = None  # record columns -> query order
         self._special = False  # the compiled step with robot rows or hard rows
+        self._valid_ids: np.ndarray | None = None  # the peer view's ids, once checked
         self._rec_px: list[np.ndarray] = []
         self._rec_pv: list[np.ndarray] = []
         self._rec_x: list[np.ndarray] = []
@@ -380,7 +381,12 @@ class ConformalCBFController(
 
     # ------------------------------------------------------------------ control instant
     def _peer_view(self, state: ControlState) -> Any:
-        return check_peer_view(state.peers, self._peer_ids)
+        view = state.peers
+        if view is not None and view.ids is self._valid_ids:  # checked this interval
+            return view
+        view = check_peer_view(view, self._peer_ids)
+        self._valid_ids = view.ids
+        return view
 
     def constraint_rows(self, state: ControlState, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """The safety filter's rows ``A v + b + slack >= 0`` at this control instant.

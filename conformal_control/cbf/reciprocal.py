@@ -223,12 +223,14 @@ class Reciprocity(Plugin):
         return self.lambda_scope != "pedestrians"
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class PeerView:
     """What a robot knows of the robots it sensed at the last sampling time, now.
 
     The world builds it for each robot at each control instant from what the chosen
-    information option allows; a controller reads nothing else about another robot.
+    information option allows; a controller reads nothing else about another robot. The
+    arrays are the robot's own (copies, or read-only for the ids and shares): writing into
+    them changes nothing in the world.
 
     Attributes
     ----------

@@ -278,6 +278,7 @@ class MultiRobotWorld:
         base = int(ids.max()) + 1 if ids.size else 0
         self.robot_ids = np.arange(base, base + r, dtype=np.int64)
         self.robots = [RobotLog(FrameLog([], [], [], [])) for _ in range(r)]
+        self._peer_static: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * r
         # broadcast plans: visible (as of this instant) and pending (for the next)
         self._plan_v = np.zeros((r, 2))
         self._next_v = np.zeros((r, 2))
@@ -374,7 +375,7 @@ class MultiRobotWorld:
         if self.information is not None:
             rob = self._sensed[i][1]
             if rob.size:
-                peers = self.peer_view(i, rob)
+                peers = self._peer_view(i, rob)
         return ControlState(
             x=self._x[i].copy(),
             t=self._t,
@@ -385,25 +386,35 @@ class MultiRobotWorld:
 
     def peer_view(self, i: int, robots: np.ndarray) -> PeerView:
         """What robot ``i`` knows now of ``robots`` (indices), by the information option."""
+        return self._make_view(i, robots, self.robot_ids[robots], self._shares[i, robots])
+
+    def _peer_view(self, i: int, robots: np.ndarray) -> PeerView:
+        """:meth:`peer_view` of the robots sensed at the sampling time (their ids and
+        shares computed once per interval)."""
+        cached = self._peer_static[i]
+        if cached is None or cached[0] is not robots:
+            ids, shares = self.robot_ids[robots], self._shares[i, robots]
+            ids.setflags(write=False)  # shared by the interval's views: read-only
+            shares.setflags(write=False)
+            cached = (robots, ids, shares)
+            self._peer_static[i] = cached
+        return self._make_view(i, robots, cached[1], cached[2])
+
+    def _make_view(
+        self, i: int, robots: np.ndarray, ids: np.ndarray, shares: np.ndarray
+    ) -> PeerView:
         info = self.information or "position"
+        sub = self._x.take(robots, axis=0)  # a copy: positions and velocities now
         ref = own = None
         plans = None
         if info == "velocity":
-            ref = self._x[robots, 2:]
+            ref = sub[:, 2:]
             own = self._x[i, 2:].copy()
         elif info == "plan":
-            ref = self._plan_v[robots]
+            ref = self._plan_v.take(robots, axis=0)
             own = self._plan_v[i].copy()
             plans = tuple(self._paths[int(j)] for j in robots)
-        return PeerView(
-            ids=self.robot_ids[robots],
-            positions=self._x[robots, :2],
-            shares=self._shares[i, robots],
-            information=info,
-            reference=ref,
-            own_reference=own,
-            plans=plans,
-        )
+        return PeerView(ids, sub[:, :2], shares, info, ref, own, plans)
 
     def broadcast(
         self,

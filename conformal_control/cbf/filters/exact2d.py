@@ -72,9 +72,10 @@ class Exact2DSafetyFilter(VelocityFilter):
             raise ValueError(
                 f"lambda_margin must be a number in (0, 1e-3), got {self.lambda_margin!r}"
             )
-        from .. import kernels2d
+        from .. import kernels2d, kernels_peers
 
         self._k = kernels2d
+        self._kp = kernels_peers
         self._S = np.ascontiguousarray(self._S)
         self._verts = np.ascontiguousarray(self._verts)
         poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
@@ -94,7 +95,8 @@ class Exact2DSafetyFilter(VelocityFilter):
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state.pop("_k", None)  # a module: re-imported on unpickling
+        state.pop("_k", None)  # modules: re-imported on unpickling
+        state.pop("_kp", None)
         if "_lastv" in state and state.get("_last") is state["_lastv"]:
             state["_last"] = np.array(state["_lastv"])  # a copy, not a view of _buf
         for name in ("_prm", "_poly", "_work", "_lastv"):  # views of _buf, rebuilt
@@ -104,9 +106,10 @@ class Exact2DSafetyFilter(VelocityFilter):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         if "_buf" in state:
-            from .. import kernels2d
+            from .. import kernels2d, kernels_peers
 
             self._k = kernels2d
+            self._kp = kernels_peers
             self._views()
 
     def _views(self) -> None:
@@ -286,8 +289,7 @@ class Exact2DSafetyFilter(VelocityFilter):
         Same results, counters and fallbacks as :meth:`step_apf_record`; a fallback
         decided in Python starts from the nominal velocity as given.
         """
-        from .. import kernels_peers
-
+        kernels_peers = self._kp
         col, npred = rows
         pos, ref, o0, o1, turn, vx, vy = peers
         code = kernels_peers.apf_control_peers(
