@@ -15,9 +15,10 @@ A **multi-robot suite** (``multi-crossings-v1``) is derived from a crossing suit
            perpendicular, through ``c``, from beyond the first stream's side), each stream
            side by side: two streams crossing
 ``lanes``  one robot per lane across the crossing, neighbouring lanes in opposite directions
-``random`` starts and goals drawn in the square of side ``L`` about ``c`` (seeded by the
-           entry): starts, and goals, at least ``spacing`` apart, every start at least
-           ``L / 2`` from its goal
+``random`` starts and goals drawn in the square about ``c`` of side ``L`` (or
+           ``2 spacing sqrt(M)`` if larger: room for the fleet), seeded by the entry:
+           starts, and goals, at least ``spacing`` apart, every start at least ``L / 2``
+           from its goal
 =========  ==================================================================================
 
 Lateral offsets are centred on the crossing's line; a fleet wider than the recording's
@@ -170,16 +171,17 @@ def layout_tasks(
 
 
 def _random_tasks(
-    m: int, c: np.ndarray, L: float, spacing: float, seed: int, tries: int = 2000
+    m: int, c: np.ndarray, L: float, spacing: float, seed: int, tries: int = 5000
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     rng = np.random.default_rng(seed)
+    side = max(L, 2.0 * spacing * math.sqrt(m))  # room for the fleet at the spacing
     starts: list[np.ndarray] = []
     goals: list[np.ndarray] = []
     for _ in range(tries):
         if len(starts) == m:
             break
-        s = c + rng.uniform(-0.5 * L, 0.5 * L, 2)
-        g = c + rng.uniform(-0.5 * L, 0.5 * L, 2)
+        s = c + rng.uniform(-0.5 * side, 0.5 * side, 2)
+        g = c + rng.uniform(-0.5 * side, 0.5 * side, 2)
         if np.hypot(*(g - s)) < 0.5 * L:
             continue
         if any(np.hypot(*(s - o)) < spacing for o in starts):
@@ -190,7 +192,7 @@ def _random_tasks(
         goals.append(g)
     if len(starts) < m:
         raise ValueError(
-            f"layout random cannot place {m} robots {spacing} m apart in a {L:g} m square "
+            f"layout random cannot place {m} robots {spacing} m apart in a {side:g} m square "
             f"({len(starts)} placed in {tries} draws)"
         )
     return np.array(starts), goals
