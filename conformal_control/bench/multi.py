@@ -527,7 +527,7 @@ def run_multi_bench(
     shifts: Sequence[str] = ("nominal",),
     tuned: str | None = "default",
     reciprocity: Sequence[str] = RECIPROCITY_OPTIONS,
-    information: str = "velocity",
+    information: str = "plan",
     lambda_scope: str = "pedestrians",
     predictor: str = "constant_velocity",
     data_root: str | None = None,

@@ -15,7 +15,8 @@ requested lambda).
 When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``,
 :func:`lexicographic_search` raises a slack level ``lambda' >= lambda`` on the rows with
 slack (the smallest feasible one, by bisection on the exact projection's feasibility,
-which is monotone in it). The rows without slack, by the ``keep`` flag, either join the
+which is monotone in it; rows with a zero gradient -- an agent already overlapped, which
+no velocity helps -- are left out). The rows without slack, by the ``keep`` flag, either join the
 level once it passes 0 (they get ``max(0, lambda')``) or keep no slack at all unless they
 cannot be met on their own (then every row is relaxed together, as ``lambda_search``
 does). A step that relaxed the rows without slack returns :data:`SEARCH_ALL` (counted).
@@ -73,7 +74,10 @@ def _feasible_at(
     ``- lam``) at 0 (``keep``) or ``max(0, lam_soft)``, the others at ``lam_soft``."""
     up = lam if keep else lam + max(0.0, lam_soft)
     for j in range(A.shape[0]):
-        rhs[j] = b[j] + (up if hard[j] != 0.0 else lam_soft)
+        if A[j, 0] == 0.0 and A[j, 1] == 0.0:  # no velocity changes it: left out
+            rhs[j] = math.inf
+        else:
+            rhs[j] = b[j] + (up if hard[j] != 0.0 else lam_soft)
     return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
 
 
@@ -100,7 +104,10 @@ def lexicographic_search(
     """The fallback of an infeasible step with rows without slack (``hard`` != 0; their
     ``b`` already holds ``- lam``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
 
-    The smallest level ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and
+    Rows with a zero gradient (an agent the robot already overlaps: no velocity changes
+    them) are left out of the search -- they would set the level for every other row
+    and cannot be helped. The smallest level ``lambda' >= lam`` at which the rows with
+    slack at ``lambda'`` and
     the others at 0 (``keep``) or ``max(0, lambda')`` are feasible (see the module
     docstring), bracketed below by the smallest lambda of the rows with slack alone and
     above by the level that meets them anywhere in the speed disc, then bisected to the
@@ -113,7 +120,10 @@ def lexicographic_search(
     ms = 0
     hi = lam
     for j in range(m):
-        top = -b[j] + math.hypot(A[j, 0], A[j, 1]) * radius
+        nrm = math.hypot(A[j, 0], A[j, 1])
+        if nrm == 0.0:
+            continue
+        top = -b[j] + nrm * radius
         if hard[j] == 0.0:
             G[ms, 0] = A[j, 0]
             G[ms, 1] = A[j, 1]

@@ -56,8 +56,10 @@ search raises a slack level ``lambda' >= lambda`` on the rows lambda is the slac
 * ``"last"``: they keep none unless they cannot be met on their own (then every row is
   relaxed together, as ``lambda_search`` does).
 
-Steps that relaxed hard rows are counted (``n_hard_rows_relaxed``). Other fallbacks see
-the rows as one problem.
+Rows with a zero gradient (an agent already overlapped: no velocity changes them) are
+left out of that search, where they would set the level for every other row. Steps that
+relaxed hard rows are counted (``n_hard_rows_relaxed``). Other fallbacks see the rows as
+one problem.
 
 **Side-stepping.** Two robots exactly head-on (or any symmetric jam) can stop face to
 face: each row cancels the component of the nominal velocity towards the other, and
@@ -162,7 +164,7 @@ class Reciprocity(Plugin):
         lambda_scope: str = "pedestrians",
         robot_margin: float = 0.0,
         sidestep: float = 0.3,
-        hard_rows: str = "level",
+        hard_rows: str = "last",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -399,8 +401,12 @@ def lexicographic_search(
     :func:`~conformal_control.cbf.kernels_peers.lexicographic_search`, on the filter's
     primitives (``project``, ``min_lambda``, ``search_margin``): the smallest level
     ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at 0
-    (``keep``) or ``max(0, lambda')`` are feasible, by bisection.
+    (``keep``) or ``max(0, lambda')`` are feasible, by bisection; rows with a zero
+    gradient (an agent already overlapped: no velocity changes them) are left out.
     """
+    live = np.hypot(A[:, 0], A[:, 1]) > 0.0  # rows no velocity changes are left out
+    if not live.all():
+        A, b, hard = A[live], b[live], np.asarray(hard, dtype=bool)[live]
     hard = np.asarray(hard, dtype=bool)
     soft = ~hard
 

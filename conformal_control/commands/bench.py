@@ -193,9 +193,9 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--information",
-        default="velocity",
+        default="plan",
         choices=("position", "velocity", "plan"),
-        help="with --robots: what reciprocal robots know of each other (default velocity)",
+        help="with --robots: what reciprocal robots know of each other (default plan)",
     )
     ru.add_argument(
         "--lambda-scope",

@@ -595,9 +595,9 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--information",
         choices=("position", "velocity", "plan"),
-        default="velocity",
-        help="what reciprocal robots know of each other: positions, and velocities "
-        "(default), or broadcast plans",
+        default="plan",
+        help="what reciprocal robots know of each other: positions, positions and "
+        "velocities (sensed), or positions and the velocities they broadcast (default)",
     )
     g.add_argument(
         "--lambda-scope",

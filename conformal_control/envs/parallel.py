@@ -218,7 +218,7 @@ class ReciprocalShield(BaseParallelWrapper):  # type: ignore[misc]
     def __init__(
         self,
         env: ConformalCrowdParallel,
-        information: str = "velocity",
+        information: str = "plan",
         lambda_scope: str = "pedestrians",
         learn: bool = True,
     ) -> None:

@@ -375,12 +375,12 @@ def run_multi(
     record_animation: bool = True,
     extra_config: dict[str, Any] | None = None,
     reciprocity: str = "reciprocal",
-    information: str = "velocity",
+    information: str = "plan",
     lambda_scope: str = "pedestrians",
     weights: Sequence[float] | None = None,
     ignoring: Sequence[int] = (),
     sidestep: float = 0.3,
-    hard_rows: str = "level",
+    hard_rows: str = "last",
     deadlock: DeadlockRule | None = None,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
@@ -615,7 +615,7 @@ def set_reciprocity(
     lambda_scope: str,
     robot_margin: float = 0.0,
     sidestep: float = 0.3,
-    hard_rows: str = "level",
+    hard_rows: str = "last",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
