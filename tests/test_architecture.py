@@ -140,6 +140,8 @@ LAYERS: dict[str, int] = {
     "base": 0,
     "exceptions": 0,
     "progress": 0,
+    "fileio": 1,
+    "compiled": 1,
     "monitor": 1,
     "registry": 1,
     "losses": 1,

@@ -22,6 +22,12 @@ them with their settings and tuning grids):
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
 ``fallback:*``     ``conformal`` with another fallback (``brake``, ``relax``)
 ``acp``            adaptive conformal prediction regions (when registered)
+``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
+``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
+``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
+
+The MPC families are not in the default method set (``--methods mpc,cc_mpc,...``).
 """
 
 from __future__ import annotations
@@ -254,6 +260,17 @@ class Family:
         return [self.method(v) for v in (self.settings if grid is None else grid)]
 
 
+#: The MPC families' search on the crossing suites: 500 sampled sequences of 12 steps of
+#: 0.4 s, a plan every video frame (4 control instants), the least violating plan when none
+#: is safe.
+MPC_SEARCH: dict[str, Any] = {
+    "n_samples": 500,
+    "horizon": 12,
+    "dt_plan": 0.4,
+    "replan_every": 4,
+    "fallback": "least_violation",
+}
+
 _DECLARED: tuple[Family, ...] = (
     Family("nolearn", "lambda = 0, no learning (pred/noLearn)", learn=False),
     Family(
@@ -354,6 +371,58 @@ _DECLARED: tuple[Family, ...] = (
         rule="aci",
         rule_params={"gamma": 0.005},
         roles={"decision_family": "acp", "loss": "acp_miscoverage"},
+    ),
+    Family(
+        "mpc",
+        "sampling MPC, a fixed safe distance d_c + margin to the predictions, no learning",
+        setting="role_params.decision_family.margin",
+        label="margin={:g}m",
+        meaning="margin (m)",
+        settings=(0.0, 0.25, 0.5),
+        tune=(0.0, 0.25, 0.5),
+        reference=True,
+        learn=False,
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": MPC_SEARCH},
+    ),
+    Family(
+        "cc_mpc",
+        "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, fixed-eta "
+        "rule on the distance shortfall below d_c + 1 m",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (distance shortfall)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": MPC_SEARCH},
+    ),
+    Family(
+        "acp_mpc",
+        "sampling MPC avoiding ACP regions per plan step (ACI on their miscoverage)",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (miscoverage)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        rule="aci",
+        rule_params={"gamma": 0.02},
+        roles={"decision_family": "acp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    ),
+    Family(
+        "ecp_mpc",
+        "sampling MPC avoiding egocentric conformal regions (ACI on their miscoverage)",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (miscoverage)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        rule="aci",
+        rule_params={"gamma": 0.02},
+        roles={"decision_family": "ecp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
     ),
 )
 

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..compiled import njit
 
 __all__ = [
     "PARALLEL",
@@ -49,7 +50,7 @@ NONFINITE, UNCONSTRAINED, OPTIMAL, INFEASIBLE, SEARCHED, SEARCH_VERTEX = -1, 0, 
 #: the step is outside the predictions.
 TOO_MANY, OUT_OF_RANGE = 5, 6
 
-jit = numba.njit(cache=True, nogil=True)
+jit = njit(nogil=True)
 
 
 @jit

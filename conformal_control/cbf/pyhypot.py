@@ -25,11 +25,11 @@ from __future__ import annotations
 import math
 import sys
 
-import numba
+from ..compiled import njit
 
 __all__ = ["EXACT_FOR_THIS_PYTHON", "hypot_fma", "hypot_split", "py_hypot"]
 
-jit = numba.njit(cache=True, nogil=True, inline="always")
+jit = njit(nogil=True, inline="always")
 
 #: Veltkamp's splitting constant for doubles, 2**27 + 1.
 _T27 = 134217729.0

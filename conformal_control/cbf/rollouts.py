@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..compiled import njit
 
 __all__ = ["tracking_rollout", "unicycle_rollout"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = njit(nogil=True)
 
 
 @jit

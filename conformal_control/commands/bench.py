@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Any
 
-from . import command, key_values
+from . import command, key_values, positive_int
 
 #: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
 #: that ``--help`` stays fast).
@@ -51,7 +51,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     sc.add_argument(
         "-j",
         "--workers",
-        type=int,
+        type=positive_int,
         default=1,
         help="with --regenerate: processes for the nolearn episodes (default 1)",
     )
@@ -170,9 +170,9 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "serial: one by one in this process; dask: a Dask cluster"
         ),
     )
-    ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
+    ru.add_argument("-j", "--workers", type=positive_int, default=None, help="worker processes")
     ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")
-    ru.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
         "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
     )

@@ -14,15 +14,16 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..compiled import njit
 
 __all__ = ["BRAKE", "HOLD", "SEARCH", "gap_maxima"]
 
 #: Fallback codes of the engine (``lambda_search`` runs inside ``apf_step``).
 SEARCH, BRAKE, HOLD = 0, 1, 2
 
-jit = numba.njit(cache=True, nogil=True)
+jit = njit(nogil=True)
 
 
 @jit

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..compiled import njit
 
 __all__ = [
     "CONSTANT_VELOCITY",
@@ -30,7 +31,7 @@ __all__ = [
     "recording",
 ]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = njit(nogil=True)
 
 
 @jit

@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..compiled import njit
 
 __all__ = ["evaluate", "evaluate_numpy"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = njit(nogil=True)
 
 
 @jit
