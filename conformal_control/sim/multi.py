@@ -3,11 +3,20 @@
 Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
-is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. The
-robots share nothing but the world (:class:`~conformal_control.world.multi.MultiRobotWorld`):
-each senses the pedestrians and the other robots through its own sensor, treats a robot
-like any other agent, and learns its own lambda from its own losses. There is no
-communication.
+is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. Each
+senses the pedestrians and the other robots through its own sensor in the shared world
+(:class:`~conformal_control.world.multi.MultiRobotWorld`), which types the robots as
+robots, and learns its own lambda from its own losses.
+
+How a robot treats the others (:mod:`conformal_control.cbf.reciprocal`): by default each
+pair shares one constraint, each robot taking its share of the pair's barrier rate
+(``reciprocity="reciprocal"``), from what the ``information`` option lets robots know of
+each other (positions, velocities, or the commands they broadcast: ``"plan"``, the
+default, the only communication); ``reciprocity="none"`` predicts the other robots like
+pedestrians (each taking the whole constraint for its prediction), and robots listed in
+``ignoring`` take no robot into account. ``lambda_scope`` says which rows lambda is the
+slack of, ``hard_rows`` how the lambda search treats the others, ``sidestep`` how a robot
+held back by another turns. Nothing else of another robot is ever read.
 
 Starts and goals (:func:`robot_tasks`):
 
@@ -426,6 +435,22 @@ def run_multi(
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor (see
         :class:`~conformal_control.world.multi.MultiRobotWorld`).
+    reciprocity : {"reciprocal", "none"}
+        Robots share each pair's constraint, or predict each other like pedestrians.
+    information : {"position", "velocity", "plan"}
+        What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+    lambda_scope : {"pedestrians", "robots", "both"}
+        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+    weights : sequence of float, optional
+        The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+    ignoring : sequence of int
+        Robots that take no other robot into account (a robot that does not comply).
+    sidestep : float
+        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+    hard_rows : {"last", "level"}
+        How the lambda search treats the rows lambda is not the slack of.
+    deadlock : DeadlockRule, optional
+        When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
 
     Returns
     -------
