@@ -317,6 +317,13 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "radius",
     "center",
     "sensor_history",
+    "reciprocity",
+    "information",
+    "lambda_scope",
+    "weights",
+    "ignoring",
+    "sidestep",
+    "hard_rows",
 )
 
 
@@ -337,6 +344,20 @@ class Robots:
     center : [x, y], optional
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor.
+    reciprocity : {"reciprocal", "none"}
+        Robots share each pair's constraint, or predict each other like pedestrians.
+    information : {"position", "velocity", "plan"}
+        What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+    lambda_scope : {"pedestrians", "robots", "both"}
+        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+    weights : sequence of float, optional
+        The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+    ignoring : sequence of int
+        Robots that take no other robot into account (a robot that does not comply).
+    sidestep : float
+        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+    hard_rows : {"last", "level"}
+        How the lambda search treats the rows lambda is not the slack of.
     """
 
     robots: int | None = None
@@ -346,6 +367,13 @@ class Robots:
     radius: float | None = None
     center: Any = None
     sensor_history: str = "tracked"
+    reciprocity: str = "reciprocal"
+    information: str = "plan"
+    lambda_scope: str = "pedestrians"
+    weights: Any = None
+    ignoring: Any = ()
+    sidestep: float = 0.3
+    hard_rows: str = "last"
 
     def __post_init__(self) -> None:
         if self.robots is not None and (

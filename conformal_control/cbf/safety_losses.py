@@ -30,12 +30,15 @@ __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]
 
 
 def min_distances(record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
-    """Centre distance ego-agent at each control instant, shape (S, N); NaN if unknown."""
+    """Centre distance ego-agent at each control instant, shape (S, N) over the agents the
+    record scores (``record.scored``, every agent by default); NaN if unknown."""
     s, n = record.n_steps, record.ids.size
     if s == 0 or n == 0:
         return np.zeros((s, n))
     x_true, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
     d: np.ndarray = np.linalg.norm(x_true - record.x_ego[:, None, :], axis=-1)
+    if record.scored is not None:
+        d = d[:, np.asarray(record.scored, dtype=bool)]
     return d
 
 

@@ -179,6 +179,31 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
     ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    ru.add_argument(
+        "--robots",
+        default=None,
+        metavar="M[,M]",
+        help="fleets of M robots (2-20) on the multi-robot suite (multi-crossings-v1, derived "
+        "from the crossing suite; see the Multi-robot page)",
+    )
+    ru.add_argument(
+        "--reciprocity",
+        default="none,reciprocal",
+        metavar="none,reciprocal",
+        help="with --robots: how the robots treat each other (default both, paired)",
+    )
+    ru.add_argument(
+        "--information",
+        default="plan",
+        choices=("position", "velocity", "plan"),
+        help="with --robots: what reciprocal robots know of each other (default plan)",
+    )
+    ru.add_argument(
+        "--lambda-scope",
+        default="pedestrians",
+        choices=("pedestrians", "robots", "both"),
+        help="with --robots: the rows lambda is the slack of (default pedestrians)",
+    )
 
     re_ = sub.add_parser(
         "report",
@@ -322,6 +347,12 @@ def _run(args: argparse.Namespace) -> int:
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
 
+    if args.robots is not None:  # several robots: the multi-robot suite
+        from ..bench.multi import run_command as run_multi_command
+
+        families = _families(args.methods, ("nolearn", "conformal"))
+        return run_multi_command(args, SUITE, families, _grids(args.grid))
+
     shifts = [s.name for s in parse_shifts(args.shift)]
     res = run_bench(
         args.out,
@@ -357,6 +388,11 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
+    from ..bench.multi import is_multi_folder
+    from ..bench.multi import report_command as multi_report
+
+    if is_multi_folder(folder):
+        return multi_report(folder, args.out)
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None

@@ -613,9 +613,9 @@ def _run(args: argparse.Namespace) -> int:
 def _multi_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
         "several robots",
-        "M robots, each its own conformal CBF controller, no communication (see the "
-        "Multi-robot page of the docs); the scene's own start and goal define the default "
-        "layout",
+        "M robots, each its own conformal CBF controller, sharing their robot-robot "
+        "constraints (see the Multi-robot page of the docs); the scene's own start and "
+        "goal define the default layout",
     )
     g.add_argument("--robots", type=int, default=None, metavar="M", help="number of robots (1-20)")
     g.add_argument(
@@ -643,6 +643,27 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
         default="tracked",
         help="histories handed to each robot's predictor: as tracked (the single-robot "
         "sensor) or only where the robot itself had the agent in range",
+    )
+    g.add_argument(
+        "--reciprocity",
+        choices=("reciprocal", "none"),
+        default="reciprocal",
+        help="reciprocal (default): each robot takes its share of every robot pair's "
+        "constraint; none: each predicts the others like pedestrians",
+    )
+    g.add_argument(
+        "--information",
+        choices=("position", "velocity", "plan"),
+        default="plan",
+        help="what reciprocal robots know of each other: positions, positions and "
+        "velocities (sensed), or positions and the velocities they broadcast (default)",
+    )
+    g.add_argument(
+        "--lambda-scope",
+        choices=("pedestrians", "robots", "both"),
+        default=None,
+        help="the rows lambda is the slack of (default: pedestrians with reciprocity, both "
+        "without)",
     )
 
 
@@ -698,6 +719,9 @@ def _run_multi(
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         sensor_history=args.sensor_history,
+        reciprocity=args.reciprocity,
+        information=args.information,
+        lambda_scope=args.lambda_scope or ("both" if args.reciprocity == "none" else "pedestrians"),
         crowd=args.crowd,
         crowd_params=_checked_crowd_params(args),
         extra_config={"command": command_line(args), "data_root": args.data_root},

@@ -52,6 +52,11 @@ class PredictionQuery:
         ``truth_provider() -> (N, horizon, 2)``: computes the true future on demand. An
         environment that replays recorded data attaches one to every query; only the
         oracle baseline calls it (:meth:`future`).
+    robot : ndarray of shape (N,) or None
+        The agent type the sensor reports: True for an agent it identifies as a robot (in a
+        multi-robot world), False for a pedestrian; None when the sensor does not tell
+        (every agent is then treated alike). Predictors may ignore it; a controller that
+        handles robots apart (reciprocal constraints) reads it.
     """
 
     ids: np.ndarray
@@ -63,10 +68,53 @@ class PredictionQuery:
     scene: str = ""
     ground_truth: np.ndarray | None = None
     truth_provider: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
+    robot: np.ndarray | None = None
 
     @property
     def n_agents(self) -> int:
         return int(self.history.shape[0])
+
+    @property
+    def is_robot(self) -> np.ndarray:
+        """The agent types as a boolean array of shape (N,) (all False when not told)."""
+        if self.robot is None:
+            return np.zeros(self.n_agents, dtype=bool)
+        out = np.asarray(self.robot, dtype=bool)
+        if out.shape != (self.n_agents,):
+            raise ValueError(
+                f"robot must have one entry per sensed agent ({self.n_agents}), got shape "
+                f"{out.shape}"
+            )
+        return out
+
+    def select(self, keep: np.ndarray) -> PredictionQuery:
+        """The query restricted to some agents (a boolean mask or indices), in order.
+
+        The true future is restricted alike (the provider is called for every agent and
+        its rows selected).
+        """
+        idx = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        truth = None if self.ground_truth is None else np.asarray(self.ground_truth)[idx]
+        provider = self.truth_provider
+        sub_provider = None
+        if truth is None and provider is not None:
+
+            def sub_provider() -> np.ndarray:
+                out: np.ndarray = np.asarray(provider())[idx]
+                return out
+
+        return PredictionQuery(
+            ids=np.asarray(self.ids)[idx],
+            history=self.history[idx],
+            dt=self.dt,
+            horizon=self.horizon,
+            t=self.t,
+            frame=self.frame,
+            scene=self.scene,
+            ground_truth=truth,
+            truth_provider=sub_provider,
+            robot=None if self.robot is None else np.asarray(self.robot)[idx],
+        )
 
     @property
     def current(self) -> np.ndarray:

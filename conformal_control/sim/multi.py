@@ -3,11 +3,20 @@
 Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
-is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. The
-robots share nothing but the world (:class:`~conformal_control.world.multi.MultiRobotWorld`):
-each senses the pedestrians and the other robots through its own sensor, treats a robot
-like any other agent, and learns its own lambda from its own losses. There is no
-communication.
+is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. Each
+senses the pedestrians and the other robots through its own sensor in the shared world
+(:class:`~conformal_control.world.multi.MultiRobotWorld`), which types the robots as
+robots, and learns its own lambda from its own losses.
+
+How a robot treats the others (:mod:`conformal_control.cbf.reciprocal`): by default each
+pair shares one constraint, each robot taking its share of the pair's barrier rate
+(``reciprocity="reciprocal"``), from what the ``information`` option lets robots know of
+each other (positions, velocities, or the commands they broadcast: ``"plan"``, the
+default, the only communication); ``reciprocity="none"`` predicts the other robots like
+pedestrians (each taking the whole constraint for its prediction), and robots listed in
+``ignoring`` take no robot into account. ``lambda_scope`` says which rows lambda is the
+slack of, ``hard_rows`` how the lambda search treats the others, ``sidestep`` how a robot
+held back by another turns. Nothing else of another robot is ever read.
 
 Starts and goals (:func:`robot_tasks`):
 
@@ -40,12 +49,21 @@ from typing import Any
 import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
+from ..cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..data.scene import Scene
 from ..flagship.build import Flagship, build_flagship
 from ..loop import ConformalStepper, LoopResult
 from ..results.measure import episode_config, jsonable, measure
 from ..results.metrics import EpisodeMetrics
-from ..results.multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
+from ..results.multi_metrics import (
+    DeadlockRule,
+    FleetMetrics,
+    RobotContacts,
+    deadlocks,
+    fleet_metrics,
+    remaining_paths,
+    robot_contacts,
+)
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
 from ..spec import Robots, RunSpec
@@ -57,6 +75,7 @@ __all__ = [
     "MultiResult",
     "RobotResult",
     "as_tasks",
+    "check_tasks",
     "drive",
     "load_robots_file",
     "robot_tasks",
@@ -232,6 +251,24 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     return as_tasks(first, goals)
 
 
+def check_tasks(starts: np.ndarray, goals: Sequence[np.ndarray], robot_radius: float) -> None:
+    """Refuse tasks no fleet can do (a one-line ``ValueError``): two robots that start, or
+    end at their last goals, closer than two robot radii."""
+    d_c = 2.0 * float(robot_radius)
+    for what, pts in (
+        ("start", np.asarray(starts)),
+        ("end at goals", np.array([g[-1] for g in goals])),
+    ):
+        d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+        d[np.tril_indices(d.shape[0])] = np.inf
+        if d.size and d.min() < d_c:
+            i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+            raise ValueError(
+                f"robots {i} and {j} {what} {d[i, j]:.3g} m apart, closer than two robot radii "
+                f"({d_c:.3g} m): no fleet can do these tasks"
+            )
+
+
 # ---------------------------------------------------------------------------- results
 @dataclass
 class RobotResult:
@@ -341,6 +378,7 @@ def run_multi(
     robots: int | RunSpec | None = None,
     *,
     extra_config: dict[str, Any] | None = None,
+    deadlock: DeadlockRule | None = None,
     **settings: Any,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
@@ -368,6 +406,22 @@ def run_multi(
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor (see
         :class:`~conformal_control.world.multi.MultiRobotWorld`).
+    reciprocity : {"reciprocal", "none"}
+        Robots share each pair's constraint, or predict each other like pedestrians.
+    information : {"position", "velocity", "plan"}
+        What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+    lambda_scope : {"pedestrians", "robots", "both"}
+        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+    weights : sequence of float, optional
+        The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+    ignoring : sequence of int
+        Robots that take no other robot into account (a robot that does not comply).
+    sidestep : float
+        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+    hard_rows : {"last", "level"}
+        How the lambda search treats the rows lambda is not the slack of.
+    deadlock : DeadlockRule, optional
+        When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
 
     Returns
     -------
@@ -383,6 +437,9 @@ def run_multi(
     robots, starts, goals = section.robots, section.starts, section.goals
     layout, radius, center = section.layout, section.radius, section.center
     sensor_history = section.sensor_history
+    reciprocity, information = section.reciprocity, section.information
+    lambda_scope, weights, ignoring = section.lambda_scope, section.weights, section.ignoring
+    sidestep, hard_rows = section.sidestep, section.hard_rows
     learn, seed, max_frames = run.learn, run.seed, run.max_frames
     if starts is not None or goals is not None:
         if robots is not None and np.asarray(starts).reshape(-1, 2).shape[0] != robots:
@@ -409,6 +466,19 @@ def run_multi(
             **copies,
         )
         fleet.append(build_flagship(scene_i, robot_run))
+    check_tasks(s, tasks, fleet[0].params.si["robot_radius"])
+    modes = robot_modes(n, reciprocity, ignoring)
+    radii = fleet[0].params.si
+    for fl, mode in zip(fleet, modes, strict=True):
+        # robot rows keep two robot radii apart; the barrier was built for robot + agent
+        set_reciprocity(
+            fl.policy,
+            mode,
+            lambda_scope,
+            radii["robot_radius"] - radii["agent_radius"],
+            sidestep,
+            hard_rows,
+        )
     fl0 = fleet[0]
     env0 = fl0.env
     world = MultiRobotWorld(
@@ -423,6 +493,8 @@ def run_multi(
         max_frames=max_frames,
         crowd=getattr(env0, "crowd", None),
         sensor_history=sensor_history,
+        information=information if "reciprocal" in modes else None,
+        weights=weights,
     )
     run_scene = fl0.scene
     si = fl0.params.si
@@ -444,13 +516,14 @@ def run_multi(
     ]
 
     t0, c0 = time.perf_counter(), time.process_time()
-    own = drive(world, steppers)
+    own = drive(world, steppers, broadcast=information == "plan")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 
     h_max = fl0.barrier.upper_bound
     floor = feasibility_floor(
         si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
     )
+    stuck = _deadlocks(world, tasks, deadlock or DeadlockRule())
     results: list[RobotResult] = []
     for i, (fl, st) in enumerate(zip(fleet, steppers, strict=True)):
         rec = world.robots[i]
@@ -459,7 +532,7 @@ def run_multi(
         m, intervals, traj = measure(
             view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
         )
-        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
+        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius, stuck[i])
         m = dataclasses.replace(
             m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
         )
@@ -519,6 +592,17 @@ def run_multi(
         }
     )
     config["sensor_history"] = sensor_history
+    config["reciprocity"] = {
+        "reciprocity": reciprocity,
+        "information": information,
+        "lambda_scope": lambda_scope,
+        "weights": None if weights is None else [float(w) for w in weights],
+        "ignoring": [int(i) for i in ignoring],
+        "sidestep": float(sidestep),
+        "hard_rows": hard_rows,
+        "modes": modes,
+    }
+    config["max_frames"] = max_frames
     config["feasibility"] = jsonable(floor.as_dict())
     crowd_config = getattr(env0, "crowd_config", None)
     config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
@@ -529,9 +613,48 @@ def run_multi(
     return MultiResult(run_scene, jsonable(config), metrics, results, track, animation)
 
 
-def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[float]:
+def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[str]:
+    """Each robot's treatment of the others: ``reciprocity`` for all, ``"ignore"`` for the
+    robots listed in ``ignoring`` (a robot that does not comply)."""
+    if reciprocity not in RECIPROCITY or reciprocity == "ignore":
+        raise ValueError(f"reciprocity must be 'reciprocal' or 'none', got {reciprocity!r}")
+    bad = [i for i in ignoring if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < n]
+    if bad:
+        raise ValueError(f"ignoring lists robots that do not exist (0 to {n - 1}): {bad}")
+    return ["ignore" if i in set(ignoring) else reciprocity for i in range(n)]
+
+
+def set_reciprocity(
+    policy: Any,
+    mode: str,
+    lambda_scope: str,
+    robot_margin: float = 0.0,
+    sidestep: float = 0.3,
+    hard_rows: str = "last",
+) -> None:
+    """Give a robot's decision family its treatment of the other robots (a one-line error
+    for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
+    collision distance for the robot rows."""
+    if not hasattr(policy, "reciprocity"):
+        raise ValueError(
+            f"decision family {type(policy).__name__} does not handle other robots "
+            "(no reciprocity setting)"
+        )
+    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep, hard_rows)
+    rec.validate()
+    policy.reciprocity = rec
+
+
+def drive(
+    world: MultiRobotWorld, steppers: Sequence[ConformalStepper], *, broadcast: bool = False
+) -> list[float]:
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
     wall time (s) spent in its own sensing, deciding and learning.
+
+    With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
+    plans ahead (``planned_path``), its plan's path
+    (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: seen by the others
+    at the next control instant).
 
     The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
     stepping together: at a sampling time each robot under way senses and begins an
@@ -558,6 +681,9 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
                     continue
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
+                if broadcast:  # its command, and its plan's path if it plans ahead
+                    path = getattr(steppers[i].policy, "planned_path", None)
+                    world.broadcast(i, cmds[i], None if path is None else path())
                 own[i] += clock() - t0
             world.apply(cmds)
             if world.done:
@@ -567,6 +693,21 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
             steppers[i].end_interval(world.reveal(i))
             own[i] += clock() - t0
     return own
+
+
+def _deadlocks(
+    world: MultiRobotWorld, tasks: list[np.ndarray], rule: DeadlockRule
+) -> list[float | None]:
+    """When each robot deadlocked (:func:`~conformal_control.results.multi_metrics.deadlocks`)."""
+    sc = world.scene
+    lo, hi = sc.start_index, world.frame_index
+    track = world.robot_track()[lo : hi + 1]
+    active = np.zeros(track.shape[:2], dtype=bool)
+    first = sc.first_frame + lo
+    for i, rec in enumerate(world.robots):
+        active[np.asarray(rec.log.frame, dtype=np.int64) - first, i] = True
+    remaining = remaining_paths(track, tasks, sc.goal_radius)
+    return deadlocks(remaining, active, sc.fps, rule)
 
 
 def _track(world: MultiRobotWorld, results: list[RobotResult]) -> dict[str, np.ndarray]:
