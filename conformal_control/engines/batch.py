@@ -80,7 +80,7 @@ from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
-from ..data.scene import Scene
+from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
 from ..loop import IntervalLog, LoopResult, LossAt
 from ..monitor import GuaranteeMonitor
@@ -379,8 +379,8 @@ class _Pool:
     cap: int  # agents per slot that xp / vp and the work buffer hold
     sides: int  # sides of the largest speed polygon
     work: np.ndarray  # the compiled filter's work buffer
-    store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
-    where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    store: np.ndarray  # the live episodes' recordings, flat (see kernels)
+    where: np.ndarray  # int64 (size, 5): slot -> (offset, frames, agents, samples, present)
     goals: np.ndarray  # (size, waypoints, 2): each slot's goals
     n_goals: np.ndarray  # int64 (size,)
     rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
@@ -447,10 +447,10 @@ class _Pool:
         self.cap = 0  # agents per slot that xp / vp and the work buffer hold
         self.sides = 0
         self.work = np.zeros(0)
-        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
-        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see kernels)
+        # slot -> (offset, frames, agents, samples, present samples)
+        self.where = np.zeros((b, 5), dtype=np.int64)
         self.used = 0
-        self.borrowed = False  # store is a live episode's own recording (see load)
         self.goals = np.zeros((b, 1, 2))
         self.n_goals = np.zeros(b, dtype=np.int64)
         self.rec_code = np.zeros((b, 0), dtype=np.int8)
@@ -470,20 +470,11 @@ class _Pool:
         out[tuple(slice(0, k) for k in arr.shape)] = arr
         return out
 
-    def load(self, b: int, positions: np.ndarray) -> None:
-        """Copy slot ``b``'s recording into the store (compacting or growing it).
-
-        With no other slot live, the store is the recording itself (read in place, not
-        copied: a single episode's case); it is copied out as soon as another one joins.
-        """
-        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+    def load(self, b: int, tracks: SparseTracks) -> None:
+        """Copy slot ``b``'s recording (sparse, :func:`~conformal_control.engines.kernels.pack`)
+        into the store (compacting or growing it)."""
+        data = bk.pack(tracks)
         n = data.size
-        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
-            self.store, self.borrowed, self.used = data, True, n
-            self.where[b] = (0, positions.shape[0], positions.shape[1])
-            return
-        if self.borrowed:  # never write into an episode's recording
-            self.store, self.borrowed = self.store[: self.used].copy(), False
         if self.used + n > self.store.size:
             self._compact()
             if self.used + n > self.store.size:
@@ -492,7 +483,13 @@ class _Pool:
                 grown[: self.used] = self.store[: self.used]
                 self.store = grown
         self.store[self.used : self.used + n] = data
-        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.where[b] = (
+            self.used,
+            tracks.n_frames,
+            tracks.n_agents,
+            tracks.xy.shape[0],
+            tracks.frame_cols.size,
+        )
         self.used += n
 
     def _compact(self) -> None:
@@ -500,8 +497,8 @@ class _Pool:
         live = np.flatnonzero(self.active)
         end = 0
         for b in live[np.argsort(self.where[live, 0])].tolist():
-            o, f, m = self.where[b].tolist()
-            n = f * m * 2
+            o, f, m, ns, k = self.where[b].tolist()
+            n = bk.slot_size(f, m, ns, k)
             if o != end:
                 self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
                 self.where[b, 0] = end
@@ -637,7 +634,7 @@ class _Engine:
         )
         dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
-        p.load(b, sc.positions)
+        p.load(b, sc.tracks)
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]

@@ -19,7 +19,6 @@ c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.Conforma
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -247,8 +246,7 @@ def build_flagship(
     d_c = si["robot_radius"] + si["agent_radius"]
     # The environment reads radii and v_max from the scene: give it a copy carrying the
     # resolved values, never mutate the caller's scene (runs may share one in a process).
-    scene = dataclasses.replace(
-        scene,
+    scene = scene.replace(
         robot_radius=si["robot_radius"],
         agent_radius=si["agent_radius"],
         goal_radius=si["goal_radius"],

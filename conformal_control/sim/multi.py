@@ -377,7 +377,7 @@ def run_multi(
     }
     fleet: list[Flagship] = []
     for i in range(n):
-        scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
+        scene_i = scene.replace(start=s[i], goals=tasks[i])
         role_kw: dict[str, Any] = {k: _copy_role(v) for k, v in roles.items()}
         fleet.append(
             build_flagship(

@@ -136,7 +136,6 @@ def run_batched(
     arguments of :func:`execute_run`): the batched groups in this process while the other
     runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
     pool's workers and this process share the machine instead of taking turns."""
-    import dataclasses
 
     from ..engines.batch import iter_batch
     from .worker import load_run_scene
@@ -169,7 +168,7 @@ def run_batched(
         else:
             kept.pop(sid, None)
         # a shallow copy per run: building an episode sets radii and v_max on its scene
-        return dataclasses.replace(scene, meta=dict(scene.meta), defaults=dict(scene.defaults))
+        return scene.replace(meta=dict(scene.meta), defaults=dict(scene.defaults))
 
     def batched() -> Iterator[Outcome]:
         for idx in groups.values():
