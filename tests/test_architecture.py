@@ -140,6 +140,7 @@ LAYERS: dict[str, int] = {
     "base": 0,
     "exceptions": 0,
     "progress": 0,
+    "jit": 0,
     "monitor": 1,
     "registry": 1,
     "losses": 1,

@@ -47,6 +47,7 @@ from .ethucy import ETHUCY_RECORDINGS, ethucy_recording, read_ethucy
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
+from .track_cache import cached_tracks
 from .tracks import Tracks
 from .trajnet import read_trajnet
 from .units import UnitSystem
@@ -255,11 +256,14 @@ def scene_names() -> list[str]:
 def _read_tracks_cached(
     kind: str, path: str, m_per_px: float, fps: float | None, _stamp: tuple[int, int]
 ) -> Tracks:
-    if kind == "raw":
-        return read_annotations(path, m_per_px)
-    if kind == "trajnet":
-        return read_trajnet(path, m_per_px)
-    return read_ethucy(path, fps=fps)
+    def read() -> Tracks:
+        if kind == "raw":
+            return read_annotations(path, m_per_px)
+        if kind == "trajnet":
+            return read_trajnet(path, m_per_px)
+        return read_ethucy(path, fps=fps)
+
+    return cached_tracks(kind, path, {"m_per_px": m_per_px, "fps": fps}, read)
 
 
 def read_tracks(
@@ -271,8 +275,10 @@ def read_tracks(
     """Tracks of a recording (``kind``: ``raw`` SDD, ``trajnet`` or ``ethucy``), read once.
 
     The last few files read are kept in memory (keyed by path, size and modification
-    time), so that many short episodes on one recording parse it once. Treat the result
-    as read-only: it is shared.
+    time), so that many short episodes on one recording parse it once, and every file parsed
+    is kept on disk as ``.npz`` (:mod:`~conformal_control.data.track_cache`: keyed by the
+    file's content and the loaders' code), so that the next process reads it in
+    milliseconds. Treat the result as read-only: it is shared.
     """
     if kind not in ("raw", "trajnet", "ethucy"):
         raise ValueError(f"kind must be raw, trajnet or ethucy, got {kind!r}")

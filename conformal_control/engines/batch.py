@@ -82,6 +82,7 @@ from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
+from ..jit import compile_now
 from ..loop import IntervalLog, LoopResult, LossAt
 from ..monitor import GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityPredictor
@@ -1031,6 +1032,7 @@ def iter_batch(
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
     if units not in ("scene", "si"):
         raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
+    compile_now()  # many episodes: compiled from the start (see conformal_control.jit)
     kw = dict(run_kwargs)
     build = {
         "predictor": predictor,

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
 from ..cbf.pyhypot import py_hypot
+from ..jit import kernel
 from .gap_kernels import HOLD
 from .kernels import d_min
 
@@ -34,7 +34,7 @@ __all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
 #: was safe, the filter changed it, the fallback decided.
 FREE, ACTIVE, FALLBACK = 0, 1, 2
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

@@ -23,8 +23,10 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
+
+from ..cbf.pyhypot import c_hypot
+from ..jit import kernel
 
 if TYPE_CHECKING:
     from ..data.scene import SparseTracks
@@ -43,7 +45,7 @@ __all__ = [
     "slot_size",
 ]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 def pack(tracks: SparseTracks) -> np.ndarray:
@@ -113,7 +115,7 @@ def count_sensed(
         for q in range(lo, hi):
             j = int(store[q])
             px, py = sample(store, where, b, f, j)
-            if math.hypot(px - x0, py - x1) <= r:
+            if c_hypot(px - x0, py - x1) <= r:
                 sensed[b, c] = j
                 c += 1
         counts[b] = c
@@ -155,7 +157,7 @@ def d_min(store: np.ndarray, where: np.ndarray, b: int, f: int, x0: float, x1: f
     lo, hi = frame_range(store, where, b, f)
     for q in range(lo, hi):
         px, py = sample(store, where, b, f, int(store[q]))
-        d = math.hypot(px - x0, py - x1)
+        d = c_hypot(px - x0, py - x1)
         if math.isnan(d):
             return math.nan
         seen = True
