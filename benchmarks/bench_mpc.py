@@ -8,6 +8,7 @@ plant, cost and clearance against M predicted agents, the choice (what
 * a velocity-command plant (the velocity-tracking double integrator of the paper's scenes),
 * the unicycle of the ETH/UCY planar protocol,
 * ``acp_mpc`` on the unicycle (its regions from 2,000 past errors per step),
+* ``ecp_mpc`` on the unicycle (egocentric regions of every candidate from 15 past times),
 
 and, in the same run on the same inputs,
 
@@ -44,7 +45,7 @@ from conformal_control.cbf import (
 from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.roles import Dynamics
 from conformal_control.jit import compile_now
-from conformal_control.mpc import ACPMPC, SamplingMPC
+from conformal_control.mpc import ACPMPC, ECPMPC, SamplingMPC
 from conformal_control.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
@@ -148,9 +149,11 @@ def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: in
     u = time_steps(mpc(uni), uni, agents, repeats)
     u_np = time_steps(mpc(LoopRollout(), NumpyMPC), uni, agents, repeats // 4)
     a = time_steps(acp, uni, agents, repeats)
+    e = time_steps(mpc(uni, ECPMPC, calibration_size=15), uni, agents, repeats)
     rows.append(("mpc, velocity plant", v, "numpy reference", v_np, v_np / v))
     rows.append(("mpc, unicycle", u, "numpy + step loop", u_np, u_np / u))
     rows.append(("acp_mpc, unicycle", a, "mpc, unicycle", u, a / u))
+    rows.append(("ecp_mpc, unicycle", e, "mpc, unicycle", u, e / u))
     rows.append(("mpc, unicycle", u, "cbf (exact2d) step", cbf, u / cbf))
     return rows
 

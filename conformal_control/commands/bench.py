@@ -81,7 +81,12 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         metavar="FAMILY=V1,V2",
         help="override a family's settings, e.g. conformal=-0.2,-0.1 (repeatable)",
     )
-    ru.add_argument("--predictor", default="constant_velocity", help="registered predictor")
+    ru.add_argument(
+        "--predictor",
+        default=None,
+        help="registered predictor (default constant_velocity; for fcp-planar a comma-"
+        "separated list, default recorded,constant_velocity)",
+    )
     ru.add_argument(
         "--set",
         action="append",
@@ -114,6 +119,9 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")
     ru.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    ru.add_argument(
+        "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
+    )
     ru.add_argument("--out", required=True, help="benchmark folder")
     ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
 
@@ -194,6 +202,10 @@ def _grids(items: list[str] | None) -> dict[str, list[Any]]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
+        from ..bench.planar import run_command
+
+        return run_command(args.out, args.methods, args.predictor, args.data_root, args.datasets)
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
 
@@ -209,7 +221,7 @@ def _run(args: argparse.Namespace) -> int:
         split=None if args.split == "all" else args.split,
         methods=methods,
         grids=_grids(args.grid),
-        predictor=args.predictor,
+        predictor=args.predictor or "constant_velocity",
         crowd=args.crowd,
         data_root=args.data_root,
         executor=args.executor,
@@ -230,6 +242,10 @@ def _report(args: argparse.Namespace) -> int:
     from ..bench.runner import read_rows
 
     folder = Path(args.folder)
+    from ..bench.planar import is_planar_folder, report_command
+
+    if is_planar_folder(folder):
+        return report_command(args.folder, args.out)
     rows = read_rows(folder)
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"

@@ -363,10 +363,12 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     def predicted_at(self, offsets: np.ndarray) -> np.ndarray:
         """Predicted positions of the sensed agents at ``offsets`` seconds after the
-        sampling time, shape (M, len(offsets), 2) (linear between samples, the last
-        sample held beyond the forecast)."""
+        sampling time, shape (M, len(offsets), 2) (linear between samples, the samples'
+        own values at sample times, the last sample held beyond the forecast)."""
         last = self._samples.shape[1] - 1
         f = np.clip(np.asarray(offsets, dtype=float) / self._dt, 0.0, float(last))
+        near = np.abs(f - np.rint(f)) < 1e-9  # a sample time is that sample, exactly
+        f = np.where(near, np.rint(f), f)
         i0 = np.minimum(np.floor(f).astype(np.int64), max(last - 1, 0))
         i1 = np.minimum(i0 + 1, last)
         w = (f - i0)[None, :, None]
@@ -436,6 +438,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         cmds = self.sample_commands(state, t_off)
         states = self.dynamics.rollout(state.x, cmds, float(self.dt_plan))
         pos = np.ascontiguousarray(states[..., :2])
+        self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
         h = int(self.horizon)
         if self._ids.size:
             pred = self.predicted_at(t_off + self.dt_plan * np.arange(0, h + 1))

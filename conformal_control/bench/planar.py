@@ -1,0 +1,943 @@
+"""The ETH/UCY planar protocol of the conformal sampling-MPC papers (suite ``fcp-planar``).
+
+ACP-MPC (Dixit et al. 2023), CC-MPC (the conformal controller of Lekeufack et al. 2024),
+ECP-MPC (Shin et al. 2025) and FCP-MPC (2026) were compared under one closed-loop protocol
+on five ETH/UCY test recordings, with a published table (CORE-SNU/FCP-MPC,
+``planar/runner_2d.py``, ``planar/sims/sim_*.py`` and ``planar/make_table_2d.py``, MIT
+licence). This module states that protocol as those files apply it, runs our decision
+families through it, and holds the published table beside our rows. Facts and figures are
+carried over; none of that code is used.
+
+**Tasks** (:data:`TASKS`): per dataset, the recording, the start time steps (13 scenarios in
+all), the offset mapping a time step to the recording's frame (``frame = 10 * timestep +
+frame_offset``), the step limit, the robot's initial pose (x, y, heading) and its goal.
+
+**Robot**: a unicycle of radius 0.4 m, ``-0.8 <= v <= 0.8`` m/s, ``|omega| <= 0.7`` rad/s,
+moved by forward Euler over steps of 0.4 s. Pedestrians have radius ``1/sqrt(2)`` m; a
+collision is a centre distance below 1.107 m.
+
+**Time.** The scenario walks the recording's time steps from its start. A time step counts
+as a *step* only when at least one pedestrian has a history there (is present at that
+sample and at the previous one): the published runs iterate over the keys of their
+prediction files, which are exactly those time steps (checked here on eth, hotel and zara1:
+identical), so time steps without such a pedestrian pass with the robot frozen and the
+step counter unchanged. The pedestrians of a step are those with a history.
+
+**Warm-up.** For the first 15 steps the robot stands still (no decision; the families
+still receive the observations, so a conformal method may calibrate) and nothing is
+recorded; the counter keeps running, so steps to goal include them.
+
+**Recorded steps.** From step 15 on, before the controller decides: the goal is reached
+when the robot is within 0.6 m of it (the scenario ends there: from then on nothing is
+recorded); otherwise the step is recorded, a collision if a pedestrian is closer than
+1.107 m, infeasible if the controller then reports no feasible control. The scenario ends
+after ``max_steps`` steps (or when the recording ends, which the published scenarios
+never reach).
+
+**Metrics** (:data:`METRICS`), per scenario, then averaged over a dataset's scenarios:
+collision rate (collision steps / recorded steps), infeasible rate (infeasible steps /
+recorded steps), steps to goal (the step count at which the goal was reached; a scenario
+that did not reach it counts as ``max_steps``, and the dataset's figure reads "timeout"
+when the average is within 0.5 of ``max_steps``, i.e. when no scenario reached it, as the
+published table's code does), controller time per step (ms, mean over the decided steps).
+A scenario with no recorded step is left out (the published code drops such scenarios).
+
+**eth's time base.** The published protocol uses ``biwi_eth.txt`` as it is, whose 0.4 s
+steps play the original recording about 1.67 times too fast (pedestrians at 2.45 m/s
+median); this protocol follows it for the comparison.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..predictors.base import Forecast, PredictionQuery, Predictor
+
+__all__ = [
+    "GOAL_TOLERANCE_M",
+    "METRICS",
+    "PED_RADIUS_M",
+    "PLANAR_METHODS",
+    "PUBLISHED",
+    "ROBOT",
+    "STEP_S",
+    "TASKS",
+    "WARM_UP_STEPS",
+    "PlanarMethod",
+    "PlanarRecording",
+    "PlanarTask",
+    "ScenarioResult",
+    "dataset_metrics",
+    "planar_table",
+    "run_planar",
+    "run_scenario",
+    "scenario_metrics",
+]
+
+SUITE = "fcp-planar"
+STEP_S = 0.4
+FRAMES_PER_STEP = 10
+WARM_UP_STEPS = 15
+GOAL_TOLERANCE_M = 0.6
+PED_RADIUS_M = math.sqrt(0.5)  # 1/sqrt(2) m
+#: The robot: a unicycle (limits in m/s and rad/s, radius in m).
+ROBOT: dict[str, Any] = {
+    "model": "unicycle",
+    "radius_m": 0.4,
+    "v_min_mps": -0.8,
+    "v_max_mps": 0.8,
+    "omega_min_radps": -0.7,
+    "omega_max_radps": 0.7,
+}
+COLLISION_M = ROBOT["radius_m"] + PED_RADIUS_M
+#: Length of a history handed to the predictors (samples, the current one included).
+HISTORY_SAMPLES = 8
+
+
+PI = math.pi
+
+
+@dataclass(frozen=True)
+class PlanarTask:
+    """One dataset of the protocol.
+
+    Attributes
+    ----------
+    dataset : str
+        ``eth``, ``hotel``, ``univ``, ``zara1`` or ``zara2``.
+    recording : str
+        The ETH/UCY recording (``biwi_eth``, ...).
+    start_timesteps : tuple of int
+        One scenario per start time step.
+    frame_offset : int
+        ``frame = 10 * timestep + frame_offset``.
+    max_steps : int
+    init_pose : (x, y, heading)
+        m, m, rad.
+    goal : (x, y)
+        m.
+    """
+
+    dataset: str
+    recording: str
+    start_timesteps: tuple[int, ...]
+    frame_offset: int
+    max_steps: int
+    init_pose: tuple[float, float, float]
+    goal: tuple[float, float]
+
+
+#: The protocol's tasks, as published. univ: the published repository names the dataset
+#: univ without saying which file; ``students001`` (the one whose Trajectron++ predictions
+#: the published runs used is not available) is the assumption here.
+TASKS: dict[str, PlanarTask] = {
+    t.dataset: t
+    for t in (
+        PlanarTask("eth", "biwi_eth", (732, 339, 653), 780, 100, (5.0, 1.0, PI / 2), (3.0, 10.0)),
+        PlanarTask(
+            "hotel", "biwi_hotel", (1001, 1245, 1582), 0, 100, (-1.5, 0.0, -PI / 2), (2.0, -6.0)
+        ),
+        PlanarTask("univ", "students001", (100,), 0, 300, (3.5, 2.0, PI / 4), (11.5, 8.5)),
+        PlanarTask("zara1", "crowds_zara01", (100, 200, 300), 0, 100, (12.0, 5.0, PI), (3.0, 6.0)),
+        PlanarTask(
+            "zara2", "crowds_zara02", (100, 200, 300), 10, 100, (1.0, 6.0, 0.0), (14.0, 5.0)
+        ),
+    )
+}
+
+#: Metric definitions (what every figure of the table means).
+METRICS: dict[str, str] = {
+    "collision_rate": "collision steps / recorded steps (after warm-up, until the goal or the "
+    "step limit), averaged over a dataset's scenarios",
+    "infeasible_rate": "steps at which the controller reported no feasible control / recorded "
+    "steps, averaged over a dataset's scenarios",
+    "steps_to_goal": "step count (warm-up included) at which the goal was reached, a scenario "
+    "that did not reach it counting as max_steps, averaged; 'timeout' when the average is "
+    "within 0.5 of max_steps",
+    "ctrl_time_ms": "controller wall time per decided step (ms), without the predictor's own "
+    "time, mean per scenario, averaged",
+}
+
+#: The published table (collision rate, infeasible rate, steps to goal, ms per step);
+#: ``None`` where the method has no hard constraint (no infeasibility).
+PUBLISHED: dict[str, dict[str, tuple[float, float | None, float | str, float]]] = {
+    "eth": {
+        "ACP-MPC": (0.079, 0.284, 79.0, 0.94),
+        "CC-MPC": (0.036, None, 96.7, 1.08),
+        "ECP-MPC": (0.047, 0.239, "timeout", 39.60),
+        "FCP-MPC (hard)": (0.069, 0.589, 83.7, 0.89),
+        "FCP-MPC (soft)": (0.175, None, 41.0, 1.75),
+    },
+    "hotel": {
+        "ACP-MPC": (0.041, 0.428, 80.3, 1.23),
+        "CC-MPC": (0.049, None, 99.3, 1.48),
+        "ECP-MPC": (0.020, 0.213, 85.7, 50.16),
+        "FCP-MPC (hard)": (0.080, 0.143, 46.3, 1.60),
+        "FCP-MPC (soft)": (0.045, None, 35.7, 1.97),
+    },
+    "univ": {
+        "ACP-MPC": (0.000, 0.660, "timeout", 4.70),
+        "CC-MPC": (0.053, None, "timeout", 5.78),
+        "ECP-MPC": (0.081, 0.365, "timeout", 74.16),
+        "FCP-MPC (hard)": (0.333, 0.550, "timeout", 2.58),
+        "FCP-MPC (soft)": (0.333, None, 96.0, 6.56),
+    },
+    "zara1": {
+        "ACP-MPC": (0.188, 0.573, "timeout", 0.88),
+        "CC-MPC": (0.041, None, 90.0, 1.07),
+        "ECP-MPC": (0.094, 0.161, 82.0, 53.90),
+        "FCP-MPC (hard)": (0.204, 0.341, 81.0, 1.00),
+        "FCP-MPC (soft)": (0.191, None, 38.0, 1.75),
+    },
+    "zara2": {
+        "ACP-MPC": (0.262, 0.628, 94.0, 1.09),
+        "CC-MPC": (0.056, None, "timeout", 1.25),
+        "ECP-MPC": (0.176, 0.318, "timeout", 57.26),
+        "FCP-MPC (hard)": (0.203, 0.347, 84.0, 1.20),
+        "FCP-MPC (soft)": (0.189, None, 65.0, 2.05),
+    },
+}
+
+
+# ------------------------------------------------------------------------------ recording
+class PlanarRecording:
+    """An ETH/UCY recording indexed by sample (``frame / 10``), for the protocol.
+
+    Parameters
+    ----------
+    path : path
+        The recording's file (``frame ped_id x y``, metres, a row every 10 frames).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        from ..data.ethucy import read_ethucy
+
+        tracks = read_ethucy(path)
+        step = float(tracks.meta.get("frame_step", FRAMES_PER_STEP))
+        if step != FRAMES_PER_STEP:
+            raise ValueError(
+                f"{path}: samples every {step:g} frames; the planar protocol needs a row "
+                f"every {FRAMES_PER_STEP} frames"
+            )
+        self.path = str(path)
+        lo, hi = tracks.frame_range()
+        self.first, self.last = lo, hi
+        ids, pos = tracks.dense(lo, hi)
+        self.ids = ids.astype(np.int64)
+        self.positions = pos  # (samples, M, 2), NaN where absent
+
+    def sample(self, timestep: int, frame_offset: int) -> int:
+        """Index into :attr:`positions` of a protocol time step."""
+        return int(timestep) + frame_offset // FRAMES_PER_STEP - self.first
+
+    def pedestrians(self, i: int) -> np.ndarray:
+        """Columns of the pedestrians with a history at sample ``i`` (present at ``i`` and
+        ``i - 1``)."""
+        if i < 1 or i >= self.positions.shape[0]:
+            return np.zeros(0, dtype=np.int64)
+        now = np.isfinite(self.positions[i, :, 0])
+        before = np.isfinite(self.positions[i - 1, :, 0])
+        return np.flatnonzero(now & before)
+
+    def history(self, i: int, cols: np.ndarray, length: int = HISTORY_SAMPLES) -> np.ndarray:
+        """Positions of ``cols`` at samples ``i - length + 1 .. i``, shape (N, length, 2)."""
+        out = np.full((cols.size, length, 2), np.nan)
+        lo = i - length + 1
+        a = max(lo, 0)
+        out[:, a - lo :] = self.positions[a : i + 1, cols].transpose(1, 0, 2)
+        return out
+
+    def at(self, i: int, cols: np.ndarray) -> np.ndarray:
+        """Positions of ``cols`` at sample ``i`` (NaN where absent or beyond the data)."""
+        if 0 <= i < self.positions.shape[0]:
+            out: np.ndarray = self.positions[i, cols]
+            return out
+        return np.full((cols.size, 2), np.nan)
+
+
+@lru_cache(maxsize=8)
+def _recording(path: str) -> PlanarRecording:
+    return PlanarRecording(path)
+
+
+def recording(task: PlanarTask, data_root: str | Path | None = None) -> PlanarRecording:
+    """The task's recording (read once per process)."""
+    from ..data.ethucy import ethucy_recording
+
+    return _recording(str(ethucy_recording(task.recording, data_root)))
+
+
+# ------------------------------------------------------------------------------ methods
+@dataclass(frozen=True)
+class PlanarMethod:
+    """One of our methods on the protocol: a decision family with its loss and rule.
+
+    Attributes
+    ----------
+    name : str
+    family : {"cbf", "mpc", "acp_mpc", "ecp_mpc"}
+    description : str
+    learn : bool
+    family_params : mapping
+        Overrides of the family's parameters (SI).
+    loss, rule : str
+        Registered names.
+    loss_params, rule_params : mapping
+    """
+
+    name: str
+    family: str
+    description: str
+    learn: bool = True
+    family_params: Mapping[str, Any] = field(default_factory=dict)
+    loss: str = "cbf_gap"
+    loss_params: Mapping[str, Any] = field(default_factory=dict)
+    rule: str = "fixed_eta"
+    rule_params: Mapping[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        return {k: dict(v) if isinstance(v, Mapping) else v for k, v in d.items()}
+
+
+#: The CBF's parameters on the protocol: the built-in SI scene's defaults (a, K_rep, rho0,
+#: K_att, eta, epsilon, loss scale), not tuned on the protocol.
+CBF_PARAMS: dict[str, float] = {
+    "a": 2.0,
+    "K_rep": 0.5,
+    "rho0": 5.0,
+    "K_att": 1.0,
+    "lookahead": 0.2,
+}
+#: The MPC's search: the published runs' budget (1,200 sampled sequences, 12 steps of
+#: 0.4 s, commands held for 2 steps). With no safe sample our MPCs take the plan that
+#: intrudes least (``least_violation``); ``cc_mpc_brake`` stands still instead, as the
+#: published runs do (pedestrians replayed from a recording do not avoid a robot that
+#: stopped in their way).
+MPC_PARAMS: dict[str, Any] = {
+    "n_samples": 1200,
+    "horizon": 12,
+    "dt_plan": STEP_S,
+    "hold": 2,
+    "fallback": "least_violation",
+}
+
+PLANAR_METHODS: dict[str, PlanarMethod] = {
+    m.name: m
+    for m in (
+        PlanarMethod("cbf_nolearn", "cbf", "conformal CBF family, lambda = 0, no learning", False),
+        PlanarMethod(
+            "cbf_conformal",
+            "cbf",
+            "conformal CBF (Algorithm 1): fixed-eta rule on the gap loss, eps = -0.1",
+            rule_params={"epsilon": -0.1, "eta": 2.0},
+        ),
+        PlanarMethod(
+            "mpc",
+            "mpc",
+            "sampling MPC, safe distance d_c (lambda = 0), no learning",
+            False,
+            loss="distance_shortfall",
+            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
+        ),
+        PlanarMethod(
+            "cc_mpc",
+            "mpc",
+            "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, "
+            "fixed-eta rule on the distance shortfall below 2 m, eps = 0.1",
+            loss="distance_shortfall",
+            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
+            rule_params={"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": COLLISION_M},
+        ),
+        PlanarMethod(
+            "cc_mpc_brake",
+            "mpc",
+            "cc_mpc standing still when no sample is safe (the published runs' fallback)",
+            family_params={"fallback": "brake"},
+            loss="distance_shortfall",
+            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
+            rule_params={"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": COLLISION_M},
+        ),
+        PlanarMethod(
+            "acp_mpc",
+            "acp_mpc",
+            "ACP regions per plan step (ACI, alpha = 0.2, gamma = 0.05, as published)",
+            loss="plan_miscoverage",
+            rule="aci",
+            rule_params={"alpha": 0.2, "gamma": 0.05},
+        ),
+        PlanarMethod(
+            "ecp_mpc",
+            "ecp_mpc",
+            "egocentric conformal regions (ACI, alpha = 0.1, gamma = 0.02, 15 calibration "
+            "times, as published)",
+            family_params={"calibration_size": 15},
+            loss="ego_miscoverage",
+            rule="aci",
+            rule_params={"alpha": 0.1, "gamma": 0.02},
+        ),
+    )
+}
+
+
+def _predictor(name: str, task: PlanarTask, data_root: str | Path | None) -> TimedPredictor:
+    from .. import registry
+
+    if name == "recorded":
+        inner = registry.create("predictor", "recorded", **_recorded_params(task, data_root))
+    else:
+        inner = registry.create("predictor", name)
+    return TimedPredictor(inner)
+
+
+class TimedPredictor(Predictor):
+    """A predictor that measures its own time (``seconds_``): the protocol's controller
+    time leaves the predictions out (the published runs read them from files).
+
+    Parameters
+    ----------
+    predictor : Predictor
+        The predictor timed.
+    """
+
+    def __init__(self, predictor: Predictor) -> None:
+        self.predictor = predictor
+
+    def reset(self) -> None:
+        self.predictor.reset()
+        self.seconds_ = 0.0
+
+    def predict(self, query: PredictionQuery) -> Forecast:
+        t0 = time.perf_counter()
+        try:
+            return self.predictor.predict(query)
+        finally:
+            self.seconds_ += time.perf_counter() - t0
+
+
+def _recorded_params(task: PlanarTask, data_root: str | Path | None) -> dict[str, Any]:
+    """Arguments of the ``recorded`` predictor for a task's Trajectron++ file."""
+    from ..data.paths import resolve_data_root
+
+    path = (
+        resolve_data_root(data_root) / "external" / "trajectron-ethucy" / f"{task.dataset}.csv.gz"
+    )
+    return {"path": str(path), "step_s": STEP_S, "frames_per_step": float(FRAMES_PER_STEP)}
+
+
+RECORDED_DATASETS = ("eth", "hotel", "zara1")
+
+
+def build_method(method: PlanarMethod, predictor: Any, seed: int = 0) -> tuple[Any, Any, Any, Any]:
+    """``(family, plant, loss, rule)`` of a method on the protocol's robot."""
+    from .. import registry
+    from ..cbf.barriers import APFBarrier
+    from ..cbf.constraint import ConformalConstraint
+    from ..cbf.controller import ConformalCBFController
+    from ..cbf.dynamics import Unicycle, UnicycleLookahead
+    from ..cbf.filters.exact2d import Exact2DSafetyFilter
+    from ..cbf.reference import AttractiveField
+
+    limits = {
+        "v_min": ROBOT["v_min_mps"],
+        "v_max": ROBOT["v_max_mps"],
+        "omega_max": ROBOT["omega_max_radps"],
+        "integrator": "euler",
+    }
+    v_max = float(ROBOT["v_max_mps"])
+    fp = dict(method.family_params)
+    constraint = None
+    plant: Unicycle
+    if method.family == "cbf":
+        p = {**CBF_PARAMS, **fp}
+        plant = UnicycleLookahead(**limits, lookahead=p["lookahead"])
+        barrier = APFBarrier(K_rep=p["K_rep"], rho0=p["rho0"], d_c=COLLISION_M + p["lookahead"])
+        constraint = ConformalConstraint(barrier, a=p["a"])
+        family: Any = ConformalCBFController(
+            predictor,
+            constraint,
+            Exact2DSafetyFilter(v_max=v_max),
+            AttractiveField(K_att=p["K_att"], v_max=v_max),
+            substeps=1,
+        )
+    else:
+        plant = Unicycle(**limits)
+        params = {**MPC_PARAMS, "d_c": COLLISION_M, "substeps": 1, "random_state": seed, **fp}
+        family = registry.create(
+            "decision_family", method.family, predictor=predictor, dynamics=plant, **params
+        )
+    loss_params = dict(method.loss_params)
+    if method.loss == "cbf_gap":
+        loss_params.setdefault("constraint", constraint)
+    loss = registry.create("loss", method.loss, **loss_params)
+    rule = registry.create("update_rule", method.rule, **dict(method.rule_params))
+    return family, plant, loss, rule
+
+
+# ------------------------------------------------------------------------------ episodes
+@dataclass
+class ScenarioResult:
+    """One scenario of the protocol: per-step log and metrics.
+
+    Attributes
+    ----------
+    dataset, method, predictor : str
+    start_timestep : int
+    steps : list of dict
+        One entry per step: ``count``, ``timestep``, ``x``, ``y``, ``heading``,
+        ``recorded``, ``collision``, ``infeasible``, ``status``, ``lambda``, ``d_min``,
+        ``ctrl_ms``.
+    goal_step : int or None
+        Step count at which the goal was reached.
+    ended : str
+        ``"goal"``, ``"max_steps"`` or ``"data"``.
+    stats : dict
+        The family's counters.
+    """
+
+    dataset: str
+    method: str
+    predictor: str
+    start_timestep: int
+    max_steps: int
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    goal_step: int | None = None
+    ended: str = "max_steps"
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def metrics(self) -> dict[str, Any]:
+        """The protocol's metrics of this scenario (:func:`scenario_metrics`)."""
+        return scenario_metrics(self.steps, self.goal_step, self.max_steps)
+
+
+def scenario_metrics(
+    steps: Sequence[Mapping[str, Any]], goal_step: int | None, max_steps: int
+) -> dict[str, Any]:
+    """Collision rate, infeasible rate, steps to goal and controller time of a scenario,
+    from its per-step log (see :data:`METRICS`)."""
+    rec = [s for s in steps if s["recorded"]]
+    n = len(rec)
+    timed = [s["ctrl_ms"] for s in steps if s.get("ctrl_ms") is not None]
+    return {
+        "n_recorded": n,
+        "collision_rate": sum(bool(s["collision"]) for s in rec) / n if n else math.nan,
+        "infeasible_rate": sum(bool(s["infeasible"]) for s in rec) / n if n else math.nan,
+        "steps_to_goal": float(min(goal_step, max_steps) if goal_step is not None else max_steps),
+        "reached": goal_step is not None,
+        "ctrl_time_ms": float(np.mean(timed)) if timed else math.nan,
+    }
+
+
+def dataset_metrics(scenarios: Sequence[Mapping[str, Any]], max_steps: int) -> dict[str, Any]:
+    """A dataset's figures from its scenarios' metrics (scenarios without a recorded step
+    are left out)."""
+    valid = [m for m in scenarios if m["n_recorded"] > 0]
+
+    def mean(key: str) -> float:
+        vals = [float(m[key]) for m in valid if math.isfinite(float(m[key]))]
+        return float(np.mean(vals)) if vals else math.nan
+
+    steps = mean("steps_to_goal")
+    return {
+        "n_scenarios": len(valid),
+        "n_reached": sum(bool(m["reached"]) for m in valid),
+        "collision_rate": mean("collision_rate"),
+        "infeasible_rate": mean("infeasible_rate"),
+        "steps_to_goal": steps,
+        "timeout": bool(math.isfinite(steps) and steps >= max_steps - 0.5),
+        "ctrl_time_ms": mean("ctrl_time_ms"),
+    }
+
+
+def run_scenario(
+    task: PlanarTask,
+    start_timestep: int,
+    method: PlanarMethod,
+    predictor: str = "constant_velocity",
+    *,
+    data_root: str | Path | None = None,
+    seed: int = 0,
+) -> ScenarioResult:
+    """Run one scenario of the protocol with one of our methods (see the module docstring).
+
+    The family runs through :class:`~conformal_control.loop.ConformalStepper`, one interval
+    per step: at each step it receives the pedestrians with a history (their last
+    ``HISTORY_SAMPLES`` positions), decides once (after the warm-up), and the interval is
+    scored on the pedestrians' positions at the next time step.
+    """
+    from ..cbf.controller import ControlState
+    from ..cbf.loss import CBFTruth
+    from ..loop import ConformalStepper
+
+    rec = recording(task, data_root)
+    pred = _predictor(predictor, task, data_root)
+    family, plant, loss, rule = build_method(method, pred, seed)
+    stepper = ConformalStepper(family, loss, rule, learn=method.learn)
+    stepper.start()
+    x = plant.initial_state(np.array(task.init_pose[:2]), task.init_pose[2])
+    goal = np.array(task.goal, dtype=float)
+    out = ScenarioResult(task.dataset, method.name, predictor, int(start_timestep), task.max_steps)
+    ts, count = int(start_timestep), 0
+    t0_ts = ts
+    while count < task.max_steps:
+        i = rec.sample(ts, task.frame_offset)
+        if i >= rec.positions.shape[0]:
+            out.ended = "data"
+            break
+        cols = rec.pedestrians(i)
+        if cols.size == 0:  # no pedestrian with a history: not a step of the protocol
+            ts += 1
+            continue
+        t = (ts - t0_ts) * STEP_S
+        current = rec.at(i, cols)
+        query = PredictionQuery(
+            ids=rec.ids[cols],
+            history=rec.history(i, cols),
+            dt=STEP_S,
+            horizon=1,
+            t=t,
+            frame=ts + task.frame_offset // FRAMES_PER_STEP,  # sample index (frame / 10)
+            scene=task.dataset,
+        )
+        d_min = float(np.hypot(*(current - x[:2]).T).min())
+        entry: dict[str, Any] = {
+            "count": count,
+            "timestep": ts,
+            "x": float(x[0]),
+            "y": float(x[1]),
+            "heading": float(x[4]),
+            "recorded": False,
+            "collision": False,
+            "infeasible": False,
+            "status": "warm_up",
+            "lambda": stepper.lam,
+            "d_min": d_min,
+            "ctrl_ms": None,
+        }
+        reached = count >= WARM_UP_STEPS and math.hypot(*(x[:2] - goal)) <= GOAL_TOLERANCE_M
+        if reached:
+            out.goal_step = count
+            out.ended = "goal"
+            entry["status"] = "goal"
+            out.steps.append(entry)
+            break
+        c0 = time.perf_counter()
+        p0 = pred.seconds_
+        stepper.begin_interval(query)
+        cmd = np.zeros(2)
+        if count >= WARM_UP_STEPS:
+            st = ControlState(x=x.copy(), t=t, step=0, goal=goal)
+            cmd = np.asarray(stepper.decide(st), dtype=float)
+            status = family.interval_record().status[-1]
+            entry["ctrl_ms"] = (time.perf_counter() - c0 - (pred.seconds_ - p0)) * 1e3
+            entry["pred_ms"] = (pred.seconds_ - p0) * 1e3
+            entry["status"] = status
+            entry["recorded"] = True
+            entry["collision"] = d_min < COLLISION_M
+            entry["infeasible"] = status not in ("optimal", "unconstrained")
+        nxt = rec.at(i + 1, cols)
+        stepper.end_interval(
+            CBFTruth(samples=np.stack([current, nxt], axis=1), dt=STEP_S, substeps=1)
+        )
+        x = plant.step(x, cmd, STEP_S)
+        out.steps.append(entry)
+        ts += 1
+        count += 1
+    out.stats = {k: float(v) for k, v in family.stats().items()}
+    out.stats["lambda_final"] = float(stepper.lam)
+    return out
+
+
+# ------------------------------------------------------------------------------ suite
+def predictors_for(dataset: str, predictors: Sequence[str]) -> list[str]:
+    """The predictors run on a dataset: ``recorded`` only where its file exists."""
+    return [p for p in predictors if p != "recorded" or dataset in RECORDED_DATASETS]
+
+
+def run_planar(
+    out: str | Path,
+    *,
+    methods: Iterable[str] | None = None,
+    predictors: Sequence[str] = ("recorded", "constant_velocity"),
+    datasets: Iterable[str] | None = None,
+    data_root: str | Path | None = None,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run the suite: every dataset's scenarios x methods x predictors.
+
+    Writes ``OUT/config.json`` (the protocol, the methods, the predictors, the seed) and
+    ``OUT/rows.jsonl`` (one row per scenario: its metrics, the family's counters, the
+    per-step log); returns the rows.
+
+    Raises
+    ------
+    ValueError
+        For an unknown method or dataset (the message lists the known ones).
+    """
+    names = list(methods or PLANAR_METHODS)
+    unknown = [m for m in names if m not in PLANAR_METHODS]
+    if unknown:
+        raise ValueError(
+            f"unknown planar method(s) {', '.join(unknown)}; known: {', '.join(PLANAR_METHODS)}"
+        )
+    sets = list(datasets or TASKS)
+    bad = [d for d in sets if d not in TASKS]
+    if bad:
+        raise ValueError(f"unknown dataset(s) {', '.join(bad)}; known: {', '.join(TASKS)}")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    warm_up_kernels()
+    config = {
+        "suite": SUITE,
+        "protocol": protocol_dict(),
+        "methods": [PLANAR_METHODS[m].as_dict() for m in names],
+        "predictors": list(predictors),
+        "datasets": sets,
+        "seed": seed,
+    }
+    (folder / "config.json").write_text(json.dumps(config, indent=1, default=str) + "\n")
+    rows = []
+    tmp = folder / "rows.jsonl.part"
+    with tmp.open("w") as fh:
+        for ds in sets:
+            task = TASKS[ds]
+            for pred in predictors_for(ds, predictors):
+                for name in names:
+                    for start in task.start_timesteps:
+                        res = run_scenario(
+                            task, start, PLANAR_METHODS[name], pred, data_root=data_root, seed=seed
+                        )
+                        row = {
+                            "dataset": ds,
+                            "method": name,
+                            "predictor": pred,
+                            "start_timestep": start,
+                            "ended": res.ended,
+                            "goal_step": res.goal_step,
+                            **res.metrics(),
+                            "stats": res.stats,
+                            "steps": res.steps,
+                        }
+                        rows.append(row)
+                        fh.write(json.dumps(row, default=float) + "\n")
+                        if progress is not None:
+                            m = res.metrics()
+                            progress(
+                                f"{ds} {start} {name} ({pred}): collision "
+                                f"{m['collision_rate']:.3f}, infeasible "
+                                f"{m['infeasible_rate']:.3f}, steps {m['steps_to_goal']:.0f}, "
+                                f"{m['ctrl_time_ms']:.2f} ms"
+                            )
+    tmp.replace(folder / "rows.jsonl")
+    return rows
+
+
+def warm_up_kernels() -> None:
+    """Compile (or load from numba's cache) the MPC's kernels once, so that the first
+    scenario's controller time does not include it."""
+    from ..cbf.dynamics import Unicycle
+    from ..jit import compile_now
+    from ..mpc.kernels import evaluate
+
+    compile_now()  # a suite of episodes: compiled (see conformal_control.jit)
+    cmds = np.zeros((2, 3, 2))
+    pos = Unicycle().rollout(np.zeros(5), cmds, STEP_S)[..., :2]
+    evaluate(
+        pos,
+        cmds,
+        np.zeros(2),
+        np.ones((1, 3, 2)),
+        np.ones((1, 2)),
+        np.ones(3),
+        np.zeros(2),
+        (1.0, 1.0, 0.0, 0.0),
+        np.zeros(2),
+        True,
+    )
+
+
+def read_planar_rows(folder: str | Path) -> list[dict[str, Any]]:
+    """The rows a :func:`run_planar` folder holds."""
+    path = Path(folder) / "rows.jsonl"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: not a `bench run --suite {SUITE}` folder")
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def is_planar_folder(folder: str | Path) -> bool:
+    cfg = Path(folder) / "config.json"
+    if not cfg.is_file():
+        return False
+    try:
+        return bool(json.loads(cfg.read_text()).get("suite") == SUITE)
+    except (ValueError, AttributeError):
+        return False
+
+
+def protocol_dict() -> dict[str, Any]:
+    """The protocol as data (written beside every result)."""
+    return {
+        "time_step_s": STEP_S,
+        "frames_per_step": FRAMES_PER_STEP,
+        "robot": dict(ROBOT),
+        "pedestrian_radius_m": PED_RADIUS_M,
+        "collision_distance_m": COLLISION_M,
+        "warm_up_steps": WARM_UP_STEPS,
+        "goal_tolerance_m": GOAL_TOLERANCE_M,
+        "datasets": {
+            k: {
+                "recording": t.recording,
+                "start_timesteps": list(t.start_timesteps),
+                "frame_offset": t.frame_offset,
+                "max_steps": t.max_steps,
+                "init_pose": list(t.init_pose),
+                "goal": list(t.goal),
+            }
+            for k, t in TASKS.items()
+        },
+        "metrics": dict(METRICS),
+    }
+
+
+def _fmt(v: Any, nd: int = 3) -> str:
+    if v is None:
+        return "N/A"
+    if isinstance(v, str):
+        return v
+    return "--" if not math.isfinite(float(v)) else f"{float(v):.{nd}f}"
+
+
+def planar_table(rows: Sequence[Mapping[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+    """Markdown table of our rows beside the published ones, and its rows as dicts.
+
+    Per dataset: the published methods, then ours (method, predictor), with collision
+    rate, infeasible rate, steps to goal ("timeout" when no scenario reached the goal;
+    reached/run beside ours) and ms per step.
+    """
+    lines = [
+        "| dataset | method | predictor | collision rate | infeasible rate | steps to goal "
+        "| reached | ms/step | source |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    table: list[dict[str, Any]] = []
+    for ds, task in TASKS.items():
+        for name, (col, inf, steps, ms) in PUBLISHED[ds].items():
+            table.append(
+                {
+                    "dataset": ds,
+                    "method": name,
+                    "predictor": "Trajectron++",
+                    "collision_rate": col,
+                    "infeasible_rate": inf,
+                    "steps_to_goal": steps,
+                    "reached": None,
+                    "ctrl_time_ms": ms,
+                    "source": "published",
+                }
+            )
+            lines.append(
+                f"| {ds} | {name} | Trajectron++ | {_fmt(col)} | {_fmt(inf)} | "
+                f"{steps if isinstance(steps, str) else f'{steps:.1f}'} | | {ms:.2f} | published |"
+            )
+        groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+        for r in rows:
+            if r["dataset"] == ds:
+                groups.setdefault((str(r["method"]), str(r["predictor"])), []).append(r)
+        for (method, pred), rs in groups.items():
+            m = dataset_metrics(rs, task.max_steps)
+            steps_s = "timeout" if m["timeout"] else _fmt(m["steps_to_goal"], 1)
+            table.append(
+                {"dataset": ds, "method": method, "predictor": pred, **m, "source": "ours"}
+            )
+            lines.append(
+                f"| {ds} | **{method}** | {pred} | {_fmt(m['collision_rate'])} | "
+                f"{_fmt(m['infeasible_rate'])} | {steps_s} | {m['n_reached']}/{m['n_scenarios']} | "
+                f"{_fmt(m['ctrl_time_ms'], 2)} | ours |"
+            )
+    return "\n".join(lines) + "\n", table
+
+
+# ------------------------------------------------------------------------------ commands
+def run_command(
+    out: str,
+    methods: str | None,
+    predictor: str | None,
+    data_root: str | None,
+    datasets: str | None = None,
+) -> int:
+    """``bench run --suite fcp-planar``: run, write the folder and print the table."""
+    from .. import registry
+
+    preds = [p.strip() for p in (predictor or "recorded,constant_velocity").split(",") if p]
+    if "recorded" in preds and "recorded" not in registry.names("predictor"):
+        print("the `recorded` predictor is not installed: running without it")
+        preds = [p for p in preds if p != "recorded"]
+    rows = run_planar(
+        out,
+        methods=[m.strip() for m in methods.split(",") if m.strip()] if methods else None,
+        predictors=preds,
+        datasets=[d.strip() for d in datasets.split(",") if d.strip()] if datasets else None,
+        data_root=data_root,
+        progress=lambda line: print(line, flush=True),
+    )
+    write_planar_report(rows, Path(out) / "report")
+    print(planar_table(rows)[0])
+    return 0
+
+
+def write_planar_report(rows: Sequence[Mapping[str, Any]], out: str | Path) -> dict[str, Path]:
+    """``planar.md`` (our rows beside the published ones, the metric definitions, the
+    differences) and ``planar.csv``."""
+    import csv
+
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    text, table = planar_table(rows)
+    md = folder / "planar.md"
+    defs = "\n".join(f"- **{k}**: {v}" for k, v in METRICS.items())
+    md.write_text(
+        f"# {SUITE}: our methods beside the published table\n\n{text}\n"
+        f"Metric definitions:\n\n{defs}\n\n"
+        "Published rows: CORE-SNU/FCP-MPC's table (Trajectron++ predictions, their machine). "
+        "Ours: this machine; see the Planar protocol page of the documentation for what "
+        "differs.\n"
+    )
+    path = folder / "planar.csv"
+    keys = [
+        "dataset",
+        "method",
+        "predictor",
+        "source",
+        "collision_rate",
+        "infeasible_rate",
+        "steps_to_goal",
+        "timeout",
+        "n_reached",
+        "n_scenarios",
+        "ctrl_time_ms",
+    ]
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        for r in table:
+            w.writerow(r)
+    return {"markdown": md, "csv": path}
+
+
+def report_command(folder: str, out: str | None) -> int:
+    """``bench report FOLDER`` for a planar folder."""
+    rows = read_planar_rows(folder)
+    files = write_planar_report(rows, out or Path(folder) / "report")
+    print(files["markdown"].read_text())
+    print("wrote " + ", ".join(str(f) for f in files.values()))
+    return 0

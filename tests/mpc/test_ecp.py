@@ -1,0 +1,135 @@
+"""ecp_mpc: egocentric scores and quantiles, scoring of past plans, errors."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from conformal_control.cbf.controller import ControlState
+from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.loop import ConformalLoop
+from conformal_control.mpc import ECPMPC, EgocentricMiscoverageLoss
+from conformal_control.mpc.ecp import egocentric_quantiles
+from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
+from conformal_control.update_rules import ACIRule
+
+DT = 0.4
+
+
+class Frozen(Predictor):
+    """Every agent stays where it is."""
+
+    def predict(self, query: PredictionQuery) -> Forecast:
+        return Forecast(np.repeat(query.current[:, None, :], query.horizon, axis=1))
+
+
+def test_quantiles_equal_a_brute_force_evaluation():
+    rng = np.random.default_rng(0)
+    h_n, b_max, m = 3, 6, 4
+    pos = rng.normal(0, 3, (7, h_n, 2))
+    cal_pred = rng.normal(0, 3, (h_n, b_max, m, 2))
+    cal_obs = rng.normal(0, 3, (h_n, b_max, m, 2))
+    cal_n = rng.integers(0, m + 1, (h_n, b_max))
+    cal_b = np.array([6, 4, 0])
+    for lam in (-0.1, 0.0, 0.1, 0.3, 0.5, 0.99, 1.0, 1.5):
+        q = egocentric_quantiles(pos, cal_pred, cal_obs, cal_n, cal_b, lam)
+        for n in range(7):
+            for h in range(h_n):
+                scores = []
+                for b in range(cal_b[h]):
+                    k = cal_n[h, b]
+                    if k == 0:
+                        scores.append(0.0)
+                        continue
+                    dp = min(np.hypot(*(pos[n, h] - cal_pred[h, b, j])) for j in range(k))
+                    do = min(np.hypot(*(pos[n, h] - cal_obs[h, b, j])) for j in range(k))
+                    scores.append(max(dp - do, 0.0))
+                if lam >= 1:
+                    expected = -math.inf
+                else:
+                    k = math.ceil((len(scores) + 1) * (1 - lam))
+                    if lam <= 0 or not scores or k > len(scores):
+                        expected = math.inf
+                    else:
+                        expected = sorted(scores)[k - 1]
+                assert math.isclose(q[n, h], expected, abs_tol=1e-12) or q[n, h] == expected
+
+
+def observation(k: int, speeds: np.ndarray) -> PredictionQuery:
+    t = k * DT
+    times = t - DT * np.arange(9, -1, -1)
+    hist = np.stack(
+        [np.stack([s * times, np.full_like(times, 1.0 + j)], -1) for j, s in enumerate(speeds)]
+    )
+    return PredictionQuery(
+        ids=np.arange(len(speeds)), history=hist, dt=DT, horizon=1, t=t, frame=k, scene="t"
+    )
+
+
+def family(**kw) -> ECPMPC:
+    params = {
+        "predictor": Frozen(),
+        "dynamics": VelocityTrackingDoubleIntegrator(10.0),
+        "n_samples": 20,
+        "horizon": 3,
+        "dt_plan": DT,
+        "substeps": 1,
+        "calibration_size": 4,
+        "max_inflation": 3.0,
+    }
+    params.update(kw)
+    fam = ECPMPC(**params)
+    fam.reset()
+    return fam
+
+
+def test_past_plans_are_scored_and_calibration_pairs_collected():
+    fam = family()
+    speeds = np.array([1.0, -0.5])
+    for k in range(8):
+        fam.begin_interval(observation(k, speeds))
+        fam.decide(ControlState(np.array([0.0, 5.0, 0, 0]), k * DT, 0, np.array([9.0, 5.0])), 0.3)
+        rec = fam.interval_record()
+        # every step h <= k has a plan made h steps ago, scored candidate by candidate: 20
+        # random ones + the stop seed (+ the warm start from the second plan on)
+        assert rec.ego_missed.size == sum(21 if k - h == 0 else 22 for h in range(1, min(k, 3) + 1))
+    cal_pred, cal_obs, cal_n, cal_b = fam._cal
+    np.testing.assert_array_equal(cal_b, [4, 4, 4])
+    assert (cal_n[:, :4] == 2).all()
+    # a frozen prediction of step h is the position h steps earlier
+    np.testing.assert_allclose(cal_obs[1, 0] - cal_pred[1, 0], [[2 * DT, 0.0], [-DT, 0.0]])
+
+
+def test_a_smaller_lambda_gives_larger_regions():
+    fam = family()
+    for k in range(8):
+        fam.begin_interval(observation(k, np.array([1.0, -0.5, 0.7])))
+    pos = np.random.default_rng(1).normal(0, 2, (30, 3, 2))
+    r = [fam.plan_radius(lam, pos) for lam in (0.0, 0.2, 0.5, 0.9, 1.0)]
+    for a, b in itertools.pairwise(r):
+        assert (a >= b).all()
+    np.testing.assert_allclose(r[0], 1.0 + 3.0)  # unbounded: capped
+    np.testing.assert_allclose(r[-1], 1.0)  # empty
+
+
+def test_plan_steps_must_be_whole_sampling_periods():
+    fam = family(dt_plan=0.5)
+    with pytest.raises(ValueError, match="whole sampling periods") as info:
+        fam.begin_interval(observation(0, np.array([1.0])))
+    assert "\n" not in str(info.value)
+
+
+def test_aci_drives_the_egocentric_miscoverage_to_alpha_in_closed_loop():
+    from conformal_control.data.synthetic import crossing_scene
+    from conformal_control.world.replay import ReplayEnvironment
+
+    scene = crossing_scene(duration=40.0)
+    dyn = VelocityTrackingDoubleIntegrator(K_acc=20.0)
+    env = ReplayEnvironment(scene, dyn, tau_frames=4, substeps=1, history_frames=20)
+    fam = ECPMPC(Frozen(), dyn, n_samples=40, horizon=5, v_max=0.3, substeps=1, max_inflation=1.0)
+    result = ConformalLoop(env, fam, EgocentricMiscoverageLoss(), ACIRule(0.2, 0.05)).run()
+    assert result.n_updates > 50
+    assert abs(result.l_avg - 0.2) <= result.guarantee["long_run_bound"]
