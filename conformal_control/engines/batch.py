@@ -478,9 +478,10 @@ class _Pool:
         n = data.size
         if self.used + n > self.store.size:
             self._compact()
-            if self.used + n > self.store.size:
-                free = int(self.size - self.active.sum())  # room for the free slots too
-                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+            if self.used + n > self.store.size:  # doubled: amortised, and no room reserved
+                # for slots that may never fill (a long scene and batch_size 256 asked for
+                # 256 copies of it)
+                grown = np.empty(max(2 * self.store.size, self.used + n))
                 grown[: self.used] = self.store[: self.used]
                 self.store = grown
         self.store[self.used : self.used + n] = data
@@ -635,7 +636,10 @@ class _Engine:
         )
         dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
-        p.load(b, sc.tracks)
+        # the frames the episode reads: its history before the start, its frames, the last
+        # interval's future (the oracle, the truth); the rest of a long scene stays out
+        lo = sc.start_index - int(env.history_frames)
+        p.load(b, sc.tracks.clip(lo, last + tau + 2))
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]

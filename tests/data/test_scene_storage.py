@@ -60,6 +60,20 @@ def test_present_and_window_read_the_dense_values(seed: int) -> None:
     np.testing.assert_array_equal(sp.dense(lo, hi, ov), pos[lo:hi, ov])
 
 
+@pytest.mark.parametrize(("lo", "hi"), [(0, 40), (5, 20), (-3, 12), (30, 80), (17, 17)])
+def test_clip_keeps_exactly_the_frames_asked_for(lo: int, hi: int) -> None:
+    pos = _random_dense(np.random.default_rng(7))
+    clipped = SparseTracks.from_dense(pos).clip(lo, hi)
+    want = np.full_like(pos, np.nan)
+    a, b = max(lo, 0), min(hi, pos.shape[0])
+    want[a:b] = pos[a:b]
+    assert clipped.n_frames == pos.shape[0] and clipped.n_agents == pos.shape[1]
+    np.testing.assert_array_equal(clipped.dense(), want)
+    for f in range(pos.shape[0]):
+        cols, _ = clipped.present(f)
+        assert cols.size == (np.isfinite(want[f, :, 0]).sum())
+
+
 def test_from_tracks_equals_the_dense_window() -> None:
     rng = np.random.default_rng(3)
     tracks = {}
