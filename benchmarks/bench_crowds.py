@@ -1,8 +1,10 @@
-"""Crowd-model step time for 100 pedestrians, against the published packages.
+"""Crowd-model step time for 100 pedestrians against the published packages, and for up to
+10,000 pedestrians against the dense neighbour search.
 
 Usage::
 
     python benchmarks/bench_crowds.py [--data-root ../shared/data] [--steps 400]
+    python benchmarks/bench_crowds.py --scale-only [--quick]
 
 Scenario: 100 pedestrians in a 40 m x 40 m square (at least 1 m apart at the start),
 each walking at 1.3 m/s to a random goal (a new one when reached), a robot crossing the
@@ -21,6 +23,18 @@ largest difference of the social force interaction against pysocialforce's, of t
 velocities against RVO2's) and, with the data, nexus_4 episodes under each crowd.
 The packages come with ``pip install -e '.[crowds]'``; without them their rows are
 skipped with a message.
+
+Scale (``measure_scale``, also run by ``run_all.py``): the same crowd at the same density
+(100 pedestrians per 40 m x 40 m, so each has about 20 others within the 10 m cut-off) for
+100, 1,000, 5,000 and 10,000 pedestrians, on a jittered lattice (at least 1 m apart), each
+model stepped as shipped (the cell neighbour search; ORCA's half-planes and programs
+compiled) and as before (the dense ``N x M`` search,
+:func:`~conformal_control.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
+``orca_lines`` and ``solve_orca_lp``; not at 10,000: about 5 GB). Each figure comes from its own
+subprocess: after warm-up steps (with the cell search, whose steps are identical), the
+median wall and CPU time of a step and the peak memory of the steps (the process's peak
+resident set size minus its resident set before them). The dense process also checks that
+one step from the same state gives identical positions and velocities both ways.
 """
 
 from __future__ import annotations
@@ -33,6 +47,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -295,22 +310,174 @@ def bench_episodes(data_root: Path) -> None:
         )
 
 
+# ------------------------------------------------------------------------------ scale
+#: pedestrians -> (timed steps with the cell search, with the dense search or 0: not run)
+SCALE_STEPS = {100: (400, 400), 1000: (100, 20), 5000: (30, 2), 10000: (20, 0)}
+SCALE_QUICK = {100: (100, 100), 5000: (10, 1)}
+
+
+def scale_world(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """``n`` pedestrians at the density of :class:`World` on a jittered lattice, their goals
+    and the side of the square (m)."""
+    rng = np.random.default_rng(seed)
+    side = L * np.sqrt(n / N)
+    k = int(np.ceil(np.sqrt(n)))
+    s = side / k  # lattice step (4 m at the density of World): jitter keeps 1 m apart
+    cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)[:n]
+    pos = (cells + 0.5) * s + rng.uniform(-(s - 1.0) / 2, (s - 1.0) / 2, (n, 2))
+    return pos, rng.uniform(0.0, side, (n, 2)), side
+
+
+def _rss_now() -> float:
+    """Resident set size now (bytes); the peak so far where /proc is not available."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return _rss_peak()
+
+
+def _rss_peak() -> float:
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return float(peak if sys.platform == "darwin" else peak * 1024)
+
+
+def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, float]:
+    """One figure of the scale table (run in its own process; see the module docstring)."""
+    from conformal_control.crowds import neighbors
+    from conformal_control.crowds import orca as orca_module
+    from conformal_control.crowds import social_force as sf_module
+
+    model: CrowdModel = SocialForceModel() if model_name == "social_force" else ORCAModel()
+    model.reset(np.random.default_rng(0))
+    pos, goal, side = scale_world(n)
+    vel = np.zeros((n, 2))
+    rad, vmax = np.full(n, RADIUS), np.full(n, 1.3 * V0)
+    robot, robot_vel, robot_rad = (
+        np.array([[0.0, side / 2]]),
+        np.array([[1.0, 0.0]]),
+        np.array([ROBOT_RADIUS]),
+    )
+
+    def pref() -> np.ndarray:
+        d = goal - pos
+        return d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None] * V0
+
+    def step() -> tuple[np.ndarray, np.ndarray]:
+        return model.step(pos, vel, rad, pref(), vmax, robot, robot_vel, robot_rad, DT)
+
+    for _ in range(200 if n <= 1000 else 20):  # a moving crowd (the cell search)
+        pos, vel = step()
+    out: dict[str, float] = {}
+    if method == "dense":
+        fast = step()
+        for mod in (sf_module, orca_module):
+            mod.neighbor_pairs = neighbors.dense_neighbor_pairs  # type: ignore[attr-defined]
+        if isinstance(model, ORCAModel):  # ORCA's step before: numpy lines and programs
+            orca = model
+
+            def numpy_step(*args: Any) -> tuple[np.ndarray, np.ndarray]:
+                pos_, vel_, rad_, pref_, vmax_, o_pos, o_vel, o_rad, dt = args
+                lines = orca.orca_lines(pos_, vel_, rad_, o_pos, o_vel, o_rad, dt)
+                v, _ = orca_module.solve_orca_lp(*lines, pref_, vmax_)
+                return pos_ + dt * v, v
+
+            model.step = numpy_step  # type: ignore[method-assign]
+        ref = step()
+        out["identical"] = float(
+            np.array_equal(fast[0], ref[0]) and np.array_equal(fast[1], ref[1])
+        )
+    wall, cpu = [], []
+    rss0 = _rss_now()
+    for _ in range(steps):
+        w0, c0 = time.perf_counter(), time.process_time()
+        new = step()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    out["peak_mb"] = max(_rss_peak() - rss0, 0.0) / 1e6  # 0: below the page-level noise
+    pos, vel = new
+    out["wall_s"] = float(np.median(wall))
+    out["cpu_s"] = float(np.median(cpu))
+    return out
+
+
+def measure_scale(quick: bool = False) -> list[dict[str, object]]:
+    """Every (model, pedestrians, search) of the scale table, each from a subprocess."""
+    import json
+    import subprocess
+    import sys
+
+    rows: list[dict[str, object]] = []
+    for model in ("social_force", "orca"):
+        for n, (steps, dense_steps) in (SCALE_QUICK if quick else SCALE_STEPS).items():
+            for method, k in (("cell", steps), ("dense", dense_steps)):
+                if not k:
+                    continue
+                cmd = [sys.executable, __file__, "--scale-child", model, str(n), method, str(k)]
+                proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+                if proc.returncode != 0:
+                    raise RuntimeError(f"{' '.join(cmd[1:])} failed:\n{proc.stderr}")
+                r = json.loads(proc.stdout.strip().splitlines()[-1])
+                rows.append({"model": model, "n": n, "method": method, "steps": k, **r})
+    return rows
+
+
+def print_scale(rows: list[dict[str, object]]) -> None:
+    print(
+        f"\none crowd step at the density of 100 pedestrians per 40 m x 40 m, dt = {DT:.4f} s "
+        "(median of the timed steps; peak memory of the steps):"
+    )
+    dense = {(r["model"], r["n"]): r for r in rows if r["method"] == "dense"}
+    for r in rows:
+        if r["method"] != "cell":
+            continue
+        line = (
+            f"  {r['model']:<13} {r['n']:>6} pedestrians  wall {r['wall_s'] * 1e3:8.2f} ms  "
+            f"cpu {r['cpu_s'] * 1e3:8.2f} ms  peak {r['peak_mb']:7.1f} MB"
+        )
+        d = dense.get((r["model"], r["n"]))
+        if d is not None:
+            line += (
+                f"   dense: wall {d['wall_s'] * 1e3:8.1f} ms, cpu {d['cpu_s'] * 1e3:8.1f} ms, "
+                f"peak {d['peak_mb']:7.1f} MB -> {d['wall_s'] / r['wall_s']:.0f}x faster"
+                f" (cpu {d['cpu_s'] / r['cpu_s']:.0f}x), identical step: "
+                f"{'yes' if d['identical'] else 'NO'}"
+            )
+        print(line)
+
+
 def main() -> None:
+    import json
+    import sys
+
+    if len(sys.argv) > 1 and sys.argv[1] == "--scale-child":
+        model, n, method, steps = sys.argv[2], int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
+        print(json.dumps(scale_child(model, n, method, steps)))
+        return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--scale-only", action="store_true", help="only the scale table")
+    parser.add_argument("--quick", action="store_true", help="a smaller scale table")
     args = parser.parse_args()
+    if args.scale_only:
+        print(f"load average (1, 5, 15 min): {os.getloadavg()} on {os.cpu_count()} cores")
+        print_scale(measure_scale(args.quick))
+        return
     print(f"load average (1, 5, 15 min): {os.getloadavg()} on {os.cpu_count()} cores")
     print(f"one crowd step, {N} pedestrians + a robot, dt = {DT:.4f} s: median / p95")
     sf_wall, sf_cpu, w = ours(SocialForceModel(), args.steps)
-    print(row("social_force (ours, numpy)", sf_wall, sf_cpu))
+    print(row("social_force (ours)", sf_wall, sf_cpu))
     psf = bench_pysocialforce(w, args.steps)
     if psf is None:
         print("  pysocialforce not installed (pip install -e '.[crowds]')")
     else:
         print(row("pysocialforce Simulator.step", *psf, (np.median(sf_wall), np.median(sf_cpu))))
     or_wall, or_cpu, w = ours(ORCAModel(), args.steps)
-    print(row("orca (ours, numpy)", or_wall, or_cpu))
+    print(row("orca (ours, compiled)", or_wall, or_cpu))
     rvo = bench_pyrvo(w, args.steps)
     if rvo is None:
         print("  pyrvo not installed (pip install -e '.[crowds]')")
@@ -321,6 +488,7 @@ def main() -> None:
     print("\nagreement:")
     print("  " + agreement_social_force())
     print("  " + agreement_orca())
+    print_scale(measure_scale(args.quick))
     if (args.data_root / "sdd").is_dir():
         bench_episodes(args.data_root)
     else:

@@ -33,6 +33,9 @@ as goals, never asserted. Sections (``--only`` picks some):
   from ``bench_batch.measure(quick=..., data_root=...)`` when that function exists (it
   returns figure dicts as below or ``(name, value, unit, baseline, ratio)`` rows), else a
   line saying it is not available;
+* ``crowds``     -- one social force and one ORCA step for 100, 1,000, 5,000 and 10,000
+  pedestrians with the cell neighbour search against the dense search
+  (``bench_crowds.measure_scale``, each in its own process, with its peak memory);
 * ``suite``      -- the benchmark's default suite, ``conformal-control bench run --split
   test -j 2`` (every method, 4,368 episodes; ``--quick``: the first 40 scenarios), against
   one episode per task on a 2-worker process pool for the first scenarios. The longest
@@ -461,6 +464,40 @@ def _from_row(row: Any) -> Figure:
     return figure("batch", name, value, unit, note=note)
 
 
+def sec_crowds(args: argparse.Namespace) -> list[Figure]:
+    import bench_crowds as bc
+
+    rows = bc.measure_scale(quick=args.quick)
+    dense = {(r["model"], r["n"]): r for r in rows if r["method"] == "dense"}
+    figs: list[Figure] = []
+    for r in rows:
+        if r["method"] != "cell":
+            continue
+        n, model = int(r["n"]), str(r["model"])
+        d = dense.get((model, n))
+        target = {100: 0.5e-3, 5000: 50e-3}.get(n)
+        note = f"CPU {r['cpu_s'] * 1e3:.2f} ms; peak memory {r['peak_mb']:.0f} MB"
+        ratios = []
+        if d is not None:
+            ratios = [("the dense search", float(d["wall_s"]), "faster")]
+            same = "identical" if d["identical"] else "NOT identical"
+            note += f" (dense: {d['peak_mb']:.0f} MB); a step {same} to the dense search's"
+        if n == 5000:
+            note += "; target 200 MB"
+        figs.append(
+            figure(
+                "crowds",
+                f"{model} step, {n:,} pedestrians",
+                float(r["wall_s"]),
+                "ms",
+                target=target,
+                ratios=ratios,
+                note=note,
+            )
+        )
+    return figs
+
+
 def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
     try:
         import bench_batch
@@ -721,6 +758,7 @@ SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str
     "synthetic": ("Synthetic crossing scenes", sec_synthetic),
     "sweep": ("Sweeps: summary plot vs per-run plots", sec_sweep),
     "batch": ("Many episodes: batch engine vs per-episode loop", sec_batch),
+    "crowds": ("Reactive crowds: cell neighbour search vs dense", sec_crowds),
     "suite": ("The benchmark's default suite", sec_suite),
     "shift": ("The benchmark's shift axis", sec_shift),
     "mpc": ("Sampling MPC: one control step", sec_mpc),

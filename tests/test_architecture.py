@@ -168,6 +168,7 @@ LAYERS: dict[str, int] = {
     # many episodes, environments for RL, the paper's tables
     "sweep": 11,
     "envs": 11,
+    "export": 11,
     "bench": 12,
     "reproduce": 12,
     # the front door and the command line

@@ -46,10 +46,12 @@ cannot remove an agent (pedestrians enter and leave the scene) and computes in s
 precision; (iii) it pulls in a robot simulator (``ir-sim``, with shapely and loguru).
 Speed is not a reason: synchronising 101 agents one call at a time plus ``do_step``
 costs about 1.5 ms of CPU per step for 100 pedestrians on this machine, and this module
-about 2-2.7 ms (``do_step`` alone: 0.34 ms); ``benchmarks/bench_crowds.py`` prints the
+about 0.1 ms (``do_step`` alone: 0.34 ms); ``benchmarks/bench_crowds.py`` prints the
 figures and the ratios.
-This module solves the same linear programs exactly, vectorised over the pedestrians: a
-2-D program's optimum is one of a few candidate points (the preferred velocity clipped
+This module solves the same linear programs exactly, vectorised over the pedestrians (and,
+in :meth:`ORCAModel.step`, compiled per pedestrian with the same arithmetic:
+:mod:`~conformal_control.crowds.orca_compiled`): a 2-D program's optimum is one of a few
+candidate points (the preferred velocity clipped
 to the disc, its projection on each line clipped to the disc, the intersection of each
 pair of lines), so all candidates are formed at once and the closest feasible one is
 kept; the same enumeration (lines, pairs on the circle, triples of equal violation)
@@ -63,7 +65,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .base import CrowdModel, neighbor_pairs
+from .base import CrowdModel
+from .neighbors import neighbor_pairs
+from .orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 
 __all__ = ["ORCAModel", "solve_orca_lp"]
 
@@ -201,10 +205,28 @@ class ORCAModel(CrowdModel):
     ) -> tuple[np.ndarray, np.ndarray]:
         if pos.shape[0] == 0:
             return pos.copy(), vel.copy()
-        point, direction, valid = self.orca_lines(
-            pos, vel, radius, other_pos, other_vel, other_radius, dt
+        # orca_lines and solve_orca_lp, compiled per pedestrian (the same numbers, bit for
+        # bit; most of a step of a hundred pedestrians was numpy's per-call overhead)
+        n = pos.shape[0]
+        f64 = np.float64
+        vel = np.ascontiguousarray(vel, dtype=f64)
+        all_pos = np.concatenate([pos, other_pos]).astype(f64, copy=False)
+        all_vel = np.ascontiguousarray(np.concatenate([vel, other_vel]), dtype=f64)
+        radius = np.ascontiguousarray(radius, dtype=f64)
+        all_rad = np.ascontiguousarray(np.concatenate([radius, other_radius]), dtype=f64)
+        kmax = int(self.max_neighbors)
+        rows, cols, px, py = neighbor_pairs(pos, all_pos, self.neighbor_dist, kmax)
+        point, direction, valid = orca_lines_compiled(
+            n, kmax, rows, cols, px, py, vel, all_vel, radius, all_rad,
+            float(self.other_responsibility), 1.0 / dt, 1.0 / self.time_horizon,
+        )  # fmt: skip
+        v, _ = solve_orca_lp_compiled(
+            point,
+            direction,
+            valid,
+            np.ascontiguousarray(v_pref, dtype=f64),
+            np.ascontiguousarray(v_max, dtype=f64),
         )
-        v, _ = solve_orca_lp(point, direction, valid, v_pref, v_max)
         return pos + dt * v, v
 
 

@@ -69,7 +69,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import CrowdModel, neighbor_pairs
+from .base import CrowdModel
+from .neighbors import neighbor_pairs
 
 __all__ = ["SocialForceModel"]
 

@@ -4,9 +4,13 @@ Needs the ``rl`` extra (``pip install -e ".[rl]"``: gymnasium and PettingZoo).
 
 * ``ConformalCrowd-v0`` (:class:`ConformalCrowdEnv`, registered with gymnasium when this
   package is imported): one robot crossing a replayed or reactive crowd, the action its
-  velocity command;
+  velocity command. In a fresh interpreter, ``gymnasium.make(
+  "conformal_control.envs:ConformalCrowd-v0")`` imports this package and makes it
+  (gymnasium 1.x loads no plugin entry points: the id with its module is the way a
+  program that takes environment ids as strings finds it);
 * :class:`ConformalShield`: a wrapper that filters any policy's actions through the
-  conformal CBF with its own predictor and online lambda, reporting its interventions;
+  conformal CBF with its own predictor and online lambda, reporting its interventions
+  (a constraint shaped the action) apart from speed clips (only ``v_max`` did);
 * :class:`ConformalCrowdParallel`: the multi-robot case as a PettingZoo parallel
   environment (agents = robots).
 

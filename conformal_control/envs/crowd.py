@@ -6,9 +6,10 @@ to its goals. Observation, action, reward, termination and the conformal monitor
 ``info`` are described in :mod:`conformal_control.envs.core`. Time advances one control
 instant per step (``1 / (fps * substeps)`` s: 0.025 s on the built-in ``crossing`` scene).
 
-Make it with ``gymnasium.make("ConformalCrowd-v0", scene="crossing", crowd="orca")`` once
-:mod:`conformal_control.envs` is imported (or with the id
-``"conformal_control.envs:ConformalCrowd-v0"``, which imports it).
+Make it with ``gymnasium.make("conformal_control.envs:ConformalCrowd-v0", scene="crossing",
+crowd="orca")`` in a fresh interpreter (gymnasium imports the module before the colon,
+which registers the id), or with the short id ``"ConformalCrowd-v0"`` once
+:mod:`conformal_control.envs` is imported.
 """
 
 from __future__ import annotations

@@ -22,7 +22,14 @@ Added to ``info`` at every step:
 * ``shield_lambda`` -- lambda_k (1/s) the step was filtered with; ``shield_lambda_applied``
   -- the lambda every constraint holds at (lambda_k unless a fallback raised it; NaN
   for brake/hold); ``shield_loss`` -- the shield's loss when an interval closed;
-* ``shield_interventions`` -- steps modified so far.
+* ``shield_cause`` -- why the action was changed: ``"none"`` (it was not),
+  ``"constraint"`` (a conformal constraint binds at the returned velocity, or a fallback
+  was used: the constraints shaped the result) or ``"speed_limit"`` (no constraint binds
+  and no fallback was used: the action was only brought into the filter's speed set,
+  ``|v| <= v_max`` -- by convexity the filter then returns what it would return without
+  any constraint);
+* ``shield_interventions`` -- steps the constraints changed so far (cause
+  ``"constraint"``); ``shield_speed_clips`` -- steps changed by the speed limit alone.
 
 The base environment must be a ``ConformalCrowd-v0`` (:class:`ConformalCrowdEnv`): the
 shield reads the robot's sensor from it (the agents sensed at each sampling time and
@@ -156,10 +163,16 @@ class ConformalShield(
         obs, info = self.env.reset(seed=seed, options=options)
         self.stepper.start()
         self.n_interventions_ = 0
+        self.n_speed_clips_ = 0
         self.last_ = None
         core = self.env.unwrapped.core  # type: ignore[attr-defined]
         self._begin(core.query_[0])
-        info = {**info, "shield_lambda": self.stepper.lam, "shield_interventions": 0}
+        info = {
+            **info,
+            "shield_lambda": self.stepper.lam,
+            "shield_interventions": 0,
+            "shield_speed_clips": 0,
+        }
         return obs, info
 
     def step(
@@ -183,7 +196,6 @@ class ConformalShield(
         self.last_prediction_ = (rec.x_pred[-1].copy(), rec.v_pred[-1].copy())
         delta = float(np.hypot(*(v - a)))
         modified = delta > 1e-9
-        self.n_interventions_ += modified
         res = last.result
         ids = self._ids
         self.last_ids_ = ids
@@ -193,6 +205,9 @@ class ConformalShield(
             min_slack = float(slack.min())
         else:
             active, min_slack = ids[:0], math.nan
+        cause = _cause(modified, active.size > 0, res.fallback is not None)
+        self.n_interventions_ += cause == "constraint"
+        self.n_speed_clips_ += cause == "speed_limit"
         obs, reward, terminated, truncated, info = self.env.step(v)
         shield_loss = None
         if info.get("interval_closed"):
@@ -211,6 +226,21 @@ class ConformalShield(
             "shield_lambda": lam,
             "shield_lambda_applied": res.lambda_applied,
             "shield_loss": shield_loss,
+            "shield_cause": cause,
             "shield_interventions": int(self.n_interventions_),
+            "shield_speed_clips": int(self.n_speed_clips_),
         }
         return obs, float(reward), terminated, truncated, info
+
+
+def _cause(modified: bool, any_active: bool, fell_back: bool) -> str:
+    """Why the shield changed an action: ``"none"``, ``"constraint"`` or ``"speed_limit"``.
+
+    The filter returns the point of its speed set meeting the rows that is closest to the
+    action. If no row binds there (and no fallback relaxed them), the rows' multipliers
+    are zero and the same point is the closest point of the speed set alone: the change
+    is the speed limit's, not the constraints'.
+    """
+    if not modified:
+        return "none"
+    return "constraint" if any_active or fell_back else "speed_limit"

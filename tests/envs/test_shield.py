@@ -76,6 +76,7 @@ def test_the_shield_never_returns_an_action_that_violates_its_constraints(
             a *= burst  # now and then beyond v_max
         obs, _, term, trunc, info = shield.step(a)
         _check_step(shield, a, info)
+        _check_cause(shield, a, info)
         if term or trunc:
             break
 
@@ -131,3 +132,66 @@ def test_shield_runs_at_the_environments_rate(crossing):
     env = ConformalCrowdEnv(crossing, max_frames=5)
     with pytest.raises(ValueError, match="rate"):
         ConformalShield(env, {"substeps": 2})
+
+
+# ---------------------------------------------------------------- why an action changed
+def _unconstrained_answer(shield: ConformalShield, action: np.ndarray, lam: float) -> np.ndarray:
+    """What a fresh copy of the shield's filter returns for ``action`` without any row."""
+    inner = shield.filter.inner
+    fresh = type(inner)(**inner.get_params())
+    fresh.reset()
+    return fresh.solve(action, np.zeros((0, 2)), np.zeros(0), lam).decision
+
+
+def _check_cause(shield: ConformalShield, action: np.ndarray, info: dict) -> str:
+    cause = info["shield_cause"]
+    assert (cause == "none") == (not info["shield_modified"])
+    if cause == "speed_limit":
+        # no row binds and no fallback: the answer is the speed set's alone
+        assert not info["shield_active"]
+        assert info["shield_status"] == "optimal"
+        v = np.asarray(info["shield_action"], dtype=float)
+        np.testing.assert_allclose(
+            v, _unconstrained_answer(shield, action, info["shield_lambda"]), atol=1e-6
+        )
+    elif cause == "constraint":
+        assert info["shield_active"] or info["shield_status"] not in ("optimal", "unconstrained")
+    return cause
+
+
+def test_speed_clipping_is_not_counted_as_an_intervention(line_scene, straight):
+    # one pedestrian far off the robot's path: an action beyond v_max is clipped, never
+    # constrained
+    scene = line_scene([straight((40.0, 0.0), (0.0, 0.1), n=300)], start_index=5)
+    scene = dataclasses.replace(scene, defaults=dict(SYNTHETIC_DEFAULTS), v_max=2.0)
+    shield = ConformalShield(ConformalCrowdEnv(scene, max_frames=20))
+    _, info = shield.reset(seed=0)
+    assert info["shield_interventions"] == info["shield_speed_clips"] == 0
+    for k in range(40):
+        a = np.array([0.0, 3.0]) if k % 2 else np.array([0.0, 1.0])
+        _, _, term, trunc, info = shield.step(a)
+        assert not (term or trunc)
+        assert _check_cause(shield, a, info) == ("speed_limit" if k % 2 else "none")
+        if k % 2:  # onto the 16-gon inscribed in the speed disc: within 2 % of v_max
+            assert 0.98 * 2.0 <= np.hypot(*info["shield_action"]) <= 2.0 + 1e-9
+    assert info["shield_speed_clips"] == 20
+    assert info["shield_interventions"] == 0
+
+
+def test_interventions_and_speed_clips_are_told_apart(shield):
+    # a random policy in the action box through a reactive crowd: both causes occur, every
+    # step's cause is consistent with what the filter did, and the counters add up
+    rng = np.random.default_rng(0)
+    shield.reset(seed=0)
+    v_max = shield.env.unwrapped.core.v_max
+    counts = {"none": 0, "constraint": 0, "speed_limit": 0}
+    for k in range(800):
+        if k % 40 == 0:
+            a = rng.uniform(-v_max, v_max, 2)
+        _, _, term, trunc, info = shield.step(a)
+        counts[_check_cause(shield, a, info)] += 1
+        if term or trunc:
+            break
+    assert counts["constraint"] > 20 and counts["speed_limit"] > 20
+    assert info["shield_interventions"] == counts["constraint"]
+    assert info["shield_speed_clips"] == counts["speed_limit"]
