@@ -57,6 +57,7 @@ out["oracle-loss"] = [
     {k: repr(v) for k, v in m.as_dict().items() if k != "wall_s"}
     for m in run_batch(scenes, "oracle", loss="distance_shortfall")
 ]
+out["orca"] = result(run_episode(scenes[2], "constant_velocity", crowd="orca", max_frames=50))
 out["social_force"] = result(run_episode(scenes[1], "constant_velocity", crowd="social_force",
                                          max_frames=50))
 nexus = load_scene("nexus_4", sys.argv[2])
