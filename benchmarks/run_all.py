@@ -17,10 +17,11 @@ as goals, never asserted. Sections (``--only`` picks some):
 * ``episode``    -- a full nexus_4 episode in this process (``run_episode``, which takes the
   compiled engine) against the per-episode loop (``engine="loop"``) and the piqp filter
   (``bench_controller.measure_episode``);
-* ``startup``    -- the command line as a subprocess: ``import conformal_control.cli``,
-  ``--help``, ``run --scene nexus_4`` with and without its plots, against ``python -c
-  pass``, ``python -c "import numpy"`` and the floor of any such command (numpy, numba's
-  first compiled call, matplotlib saving a figure, no project code);
+* ``startup``    -- the command line as a subprocess, as a user's set-up runs it (bytecode
+  written, its own cache folder): ``import conformal_control.cli``, ``--help``, ``run
+  --scene nexus_4`` with its plots (target: twice the floor of a plot alone, numpy +
+  matplotlib saving an empty figure) and without (target: four times ``python -c "import
+  numpy"``), against ``python -c pass``, ``python -c "import numpy"`` and those floors;
 * ``reproduce``  -- ``reproduce table2 --predictor var`` from a cold forecast cache, against
   the same command with constant-velocity predictions (no predictor cost);
 * ``predictors`` -- ``var``'s fit + forecast per window against darts' VARIMA on the same
@@ -38,8 +39,17 @@ as goals, never asserted. Sections (``--only`` picks some):
   (``bench_crowds.measure_scale``, each in its own process, with its peak memory);
 * ``suite``      -- the benchmark's default suite, ``conformal-control bench run --split
   test -j 2`` (every method, 4,368 episodes; ``--quick``: the first 40 scenarios), against
-  one episode per task on a 2-worker process pool for the first scenarios. The longest
-  section (minutes).
+  one episode per task on a 2-worker process pool for the first scenarios (target 120 s);
+* ``crowds``     -- one social-force / ORCA step at 100 to 5,000 pedestrians, the cell
+  neighbour search against the dense one (``bench_crowds.measure_scale``);
+* ``shift``      -- ``bench run --shift all`` when the command has it (target 15 min);
+* ``mpc``        -- one sampling-MPC step, N = 500, H = 12, 20 pedestrians (target 2 ms),
+  against its numpy reference and the CBF step (``bench_mpc.measure``);
+* ``scene``      -- a 100,000-frame scene of 9,000 passers-by: the memory it holds, the peak
+  of building it and of a 600-frame episode on it (target 200 MB), against the dense array;
+* ``sweep_scale`` -- a 100,000-run sweep whose runs are stubs: the time per run over the last
+  tenth against the first (target: within 20 %). The longest sections (minutes): ``suite``
+  and ``sweep_scale``.
 
 A figure is a dict: ``section``, ``name``, ``value`` (seconds), ``unit`` (display unit:
 ``us``, ``ms`` or ``s``), optional ``target`` (seconds; the goal is value <= target),

@@ -93,21 +93,21 @@ class Kernel(Generic[F]):
         state = "compiled" if self.dispatcher is not None else "interpreted"
         return f"<kernel {self.__module__}.{self.__qualname__} ({state})>"
 
-    def __call__(self, *args: Any) -> Any:
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
         d = self.dispatcher
         if d is not None:
-            return d(*args)
+            return d(*args, **kwargs)
         local = _State.local
         depth = getattr(local, "depth", 0)
         if depth:  # inside an interpreted kernel: no accounting
-            return self.python(*args)
+            return self.python(*args, **kwargs)
         if _State.compiled or mode() == "always":
             compile_now()
-            return self.dispatcher(*args)
+            return self.dispatcher(*args, **kwargs)
         local.depth = 1
         t0 = time.process_time()
         try:
-            return self.python(*args)
+            return self.python(*args, **kwargs)
         finally:
             local.depth = 0
             _State.spent += time.process_time() - t0
