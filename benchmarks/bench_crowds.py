@@ -332,20 +332,36 @@ def scale_world(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def _rss_now() -> float:
-    """Resident set size now (bytes); the peak so far where /proc is not available."""
+    """Resident set size now (bytes); 0 where /proc is not available."""
     try:
         with open("/proc/self/statm") as fh:
             return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except OSError:
-        return _rss_peak()
+        return 0.0
+
+
+def _reset_peak() -> bool:
+    """Reset the kernel's peak resident set size of this process (Linux >= 4.0)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
 
 
 def _rss_peak() -> float:
-    import resource
-    import sys
-
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return float(peak if sys.platform == "darwin" else peak * 1024)
+    """Peak resident set size (bytes) since :func:`_reset_peak`: ``VmHWM`` of this process.
+    (Not ``ru_maxrss``: on Linux a child starts with its parent's, so a big parent would
+    hide a small child's peak.)"""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float("nan")
 
 
 def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, float]:
@@ -398,6 +414,7 @@ def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, f
         )
     wall, cpu = [], []
     rss0 = _rss_now()
+    _reset_peak()
     for _ in range(steps):
         w0, c0 = time.perf_counter(), time.process_time()
         new = step()

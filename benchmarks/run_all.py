@@ -489,9 +489,9 @@ def sec_crowds(args: argparse.Namespace) -> list[Figure]:
         note = f"CPU {r['cpu_s'] * 1e3:.2f} ms; peak memory {r['peak_mb']:.0f} MB"
         ratios = []
         if d is not None:
-            ratios = [("the dense search", float(d["wall_s"]), "faster")]
+            ratios = [("the step before (dense search)", float(d["wall_s"]), "faster")]
             same = "identical" if d["identical"] else "NOT identical"
-            note += f" (dense: {d['peak_mb']:.0f} MB); a step {same} to the dense search's"
+            note += f" (before: {d['peak_mb']:.0f} MB); a step {same} to the one before"
         if n == 5000:
             note += "; target 200 MB"
         figs.append(

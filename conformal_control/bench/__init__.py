@@ -2,9 +2,12 @@
 
 Scenario suites (:mod:`conformal_control.data.suites`: the shipped manifests and a
 scenario's scene; :mod:`~conformal_control.bench.generator` regenerates them from the
-data), methods (:mod:`~conformal_control.bench.methods`), the runner
-(:mod:`~conformal_control.bench.runner`), statistics (:mod:`~conformal_control.bench.stats`)
-and reports (:mod:`~conformal_control.bench.report`).
+data), methods declared as data (:mod:`~conformal_control.bench.methods`), predictor shifts
+(:mod:`~conformal_control.bench.shifts`), the tuning protocol
+(:mod:`~conformal_control.bench.tune`), the runner (:mod:`~conformal_control.bench.runner`),
+statistics (:mod:`~conformal_control.bench.stats`) and reports
+(:mod:`~conformal_control.bench.report`). Collisions are classified in every run's metrics
+(:mod:`conformal_control.results.collisions`).
 """
 
 from ..data.suites import (

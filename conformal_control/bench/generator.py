@@ -79,7 +79,7 @@ from typing import Any
 
 import numpy as np
 
-from ..data.ethucy import ETHUCY_RECORDINGS, ethucy_recording
+from ..data.ethucy import ETHUCY_FPS, ETHUCY_ORIGINAL_RATE, ETHUCY_RECORDINGS, ethucy_recording
 from ..data.paths import resolve_data_root
 from ..data.scenes import read_tracks
 from ..data.sdd import SDD_FPS, sdd_video
@@ -170,8 +170,10 @@ _ETHUCY_LOCATION = {
 }
 
 
-def default_recordings() -> list[Recording]:
-    """Every raw SDD video of the data, the TrajNet-only videos, the ETH/UCY recordings."""
+def default_recordings(corrected: bool = False) -> list[Recording]:
+    """Every raw SDD video of the data, the TrajNet-only videos, the ETH/UCY recordings
+    (``corrected``: on their original clock, ``ethucy:<name>:corrected`` where it differs,
+    see :data:`conformal_control.data.ethucy.ETHUCY_ORIGINAL_RATE`)."""
     recs = [
         Recording(f"sdd:{sc}/video{v}", "sdd", sc, v) for sc, vs in _SDD_RAW.items() for v in vs
     ]
@@ -181,7 +183,12 @@ def default_recordings() -> list[Recording]:
         for v in vs
     ]
     recs += [
-        Recording(f"ethucy:{stem}", "ethucy", *_ETHUCY_LOCATION[stem]) for stem in ETHUCY_RECORDINGS
+        Recording(
+            f"ethucy:{stem}" + (":corrected" if corrected and stem in ETHUCY_ORIGINAL_RATE else ""),
+            "ethucy",
+            *_ETHUCY_LOCATION[stem],
+        )
+        for stem in ETHUCY_RECORDINGS
     ]
     return sorted(recs, key=lambda r: r.id)
 
@@ -199,6 +206,9 @@ class SuiteSpec:
     nolearn_params: dict[str, Any] = field(default_factory=dict)
     #: pinned so that a change of the flagship's default filter does not change the record
     nolearn_safety_filter: str = "exact2d"
+    #: the nolearn record with the paper's parameters (v1) or the scenes' defaults (v2: the
+    #: benchmark's own nolearn)
+    nolearn_published: bool = True
 
     @property
     def full_name(self) -> str:
@@ -217,7 +227,23 @@ CROSSINGS_V1 = SuiteSpec(
     recordings=tuple(default_recordings()),
 )
 
-SUITES: dict[str, SuiteSpec] = {CROSSINGS_V1.full_name: CROSSINGS_V1}
+#: v2: biwi_eth on its original clock (0.667 s per row, real walking speeds) and the nolearn
+#: record made with the scenes' defaults (what ``bench run`` runs as ``nolearn``).
+CROSSINGS_V2 = SuiteSpec(
+    name="crossings",
+    version=2,
+    description=(
+        "Straight crossings of real crowds, as crossings-v1 with biwi_eth on its original "
+        "clock (one row every 0.667 s, not 0.4 s): every raw SDD video of the data, the "
+        "TrajNet-only SDD videos and the ETH/UCY recordings, cut into windows; a window is "
+        "kept when at least k pedestrian tracks cross the robot's start-goal segment while a "
+        "robot at the reference speed traverses it."
+    ),
+    recordings=tuple(default_recordings(corrected=True)),
+    nolearn_published=False,
+)
+
+SUITES: dict[str, SuiteSpec] = {s.full_name: s for s in (CROSSINGS_V1, CROSSINGS_V2)}
 
 
 def assign_splits(recordings: Sequence[Recording]) -> dict[str, str]:
@@ -277,8 +303,10 @@ def _sha256(path: Path) -> str:
 def _load_source(rec: Recording, data_root: Path, crit: Criterion) -> _Source:
     root = resolve_data_root(data_root)
     if rec.source == "ethucy":
-        path = ethucy_recording(rec.id.split(":", 1)[1], root)
-        tracks = read_tracks("ethucy", path, fps=FPS)
+        _, stem, *form = rec.id.split(":")
+        path = ethucy_recording(stem, root)
+        rate = ETHUCY_ORIGINAL_RATE.get(stem, ETHUCY_FPS) if form == ["corrected"] else ETHUCY_FPS
+        tracks = read_tracks("ethucy", path, fps=FPS, rate=rate)
         m_per_px, image_px = None, None
     else:
         body = rec.id.split(":")[1]
@@ -545,6 +573,23 @@ def recording_scenarios(
     return entry, scenarios
 
 
+_NOTE_PUBLISHED = (
+    "run_episode(load_scenario(s), predictor, params, learn=False, "
+    "max_frames=s.max_frames): lambda fixed at lambda_init = 0, every other "
+    "parameter the paper's (scene.meta['published_params'], units='scene') - "
+    "SDD/TrajNet: Table II in px and frames "
+    "with a = 10 per frame (the published code's alpha(h) = 10 h), "
+    "radii 0.5 m; ETH/UCY: the same in m and frames at 30 fps, lengths "
+    "converted at 0.04 m per px; v_max = the scenario's v_ref"
+)
+_NOTE_DEFAULTS = (
+    "run_episode(load_scenario(s), predictor, params, learn=False, "
+    "max_frames=s.max_frames): lambda fixed at lambda_init = 0, every other parameter the "
+    "scene's default (the benchmark's nolearn: a = 100/s, K_rep = 0.2 m^2, radii 0.5 m, "
+    "v_max = the scenario's v_ref)"
+)
+
+
 def _map(fn: Callable[[Any], Any], items: list[Any], workers: int) -> list[Any]:
     """``[fn(x) for x in items]``, in order, on ``workers`` processes when > 1."""
     if int(workers) != workers or workers < 1:
@@ -563,17 +608,19 @@ def nolearn_outcome(
     predictor: str,
     params: dict[str, Any],
     safety_filter: str = "exact2d",
+    published: bool = True,
 ) -> dict[str, Any]:
     """Run the suite's nolearn baseline on one scenario; the rounded outcome."""
     from ..sim.episode import run_episode
 
     sc = Scenario.from_dict(scenario)
     scene = load_scenario(sc, data_root)
-    # the record was made with the paper's parameters, whatever the scene's defaults are now
+    # v1's record was made with the paper's parameters, whatever the scene's defaults are now
+    base = dict(scene.meta.get("published_params") or {}) if published else {}
     res = run_episode(
         scene,
         predictor,
-        {**dict(scene.meta.get("published_params") or {}), **dict(params)},
+        {**base, **dict(params)},
         units="scene",
         learn=False,
         max_frames=sc.max_frames,
@@ -649,6 +696,7 @@ def generate_suite(
                 predictor=spec.nolearn_predictor,
                 params=spec.nolearn_params,
                 safety_filter=spec.nolearn_safety_filter,
+                published=spec.nolearn_published,
             ),
             scenarios,
             workers,
@@ -683,15 +731,7 @@ def generate_suite(
             "learn": False,
             "params": dict(spec.nolearn_params),
             "safety_filter": spec.nolearn_safety_filter,
-            "note": (
-                "run_episode(load_scenario(s), predictor, params, learn=False, "
-                "max_frames=s.max_frames): lambda fixed at lambda_init = 0, every other "
-                "parameter the paper's (scene.meta['published_params'], units='scene') - "
-                "SDD/TrajNet: Table II in px and frames "
-                "with a = 10 per frame (the published code's alpha(h) = 10 h), "
-                "radii 0.5 m; ETH/UCY: the same in m and frames at 30 fps, lengths "
-                "converted at 0.04 m per px; v_max = the scenario's v_ref"
-            ),
+            "note": _NOTE_PUBLISHED if spec.nolearn_published else _NOTE_DEFAULTS,
         },
         "split_rule": SPLIT_RULE,
         "recordings": entries,

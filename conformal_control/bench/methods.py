@@ -7,7 +7,10 @@ method runs through the same public builder (:func:`conformal_control.sim.build_
 via :func:`conformal_control.sim.run_episode`), so a user can reproduce any row of a
 leaderboard with ``run_episode(scene, **method.run_kwargs(predictor))``.
 
-The families (``conformal-control bench methods`` lists them with their settings):
+Families are declared as data (:class:`Family`: roles by registered name, parameters, and
+the one parameter its setting fills), one entry each in :data:`FAMILIES`; a plugin adds its
+own with :func:`register_family`. The families (``conformal-control bench methods`` lists
+them with their settings and tuning grids):
 
 ``nolearn``        lambda = 0, no learning (the paper's pred/noLearn)
 ``fixed``          a fixed lambda < 0 (a fixed-margin CBF), no learning
@@ -19,6 +22,12 @@ The families (``conformal-control bench methods`` lists them with their settings
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
 ``fallback:*``     ``conformal`` with another fallback (``brake``, ``relax``)
 ``acp``            adaptive conformal prediction regions (when registered)
+``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
+``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
+``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
+
+The MPC families are not in the default method set (``--methods mpc,cc_mpc,...``).
 """
 
 from __future__ import annotations
@@ -30,11 +39,14 @@ from typing import Any
 
 __all__ = [
     "DEFAULT_METHODS",
+    "FAMILIES",
     "FRAME",
     "METHOD_FAMILIES",
+    "Family",
     "Method",
     "available",
     "expand_methods",
+    "register_family",
 ]
 
 #: One video frame of SDD (30 fps) in seconds: the paper's unit of lambda is 1/frame.
@@ -139,133 +151,303 @@ class Method:
 
 
 # --------------------------------------------------------------------------------------
-# families: name -> (settings grid, factory)
+# families, declared as data
 ETA = 1.0 / FRAME  # the paper's eta = 1 per frame
 
 
-def _nolearn(_: Any) -> Method:
-    return Method("nolearn", "", "lambda = 0, no learning (pred/noLearn)", learn=False)
+def _frozen_map(d: Mapping[str, Any] | None) -> Mapping[str, Any]:
+    return MappingProxyType({k: v for k, v in (d or {}).items()})
 
 
-def _fixed(lam: float) -> Method:
-    return Method(
-        "fixed",
-        f"lambda={lam:g}/s",
-        "fixed lambda (a fixed-margin CBF), no learning",
-        learn=False,
-        params={"lambda_init": lam},
-    )
+@dataclass(frozen=True)
+class Family:
+    """A method family declared as data: what it runs, and where its one setting goes.
+
+    A new benchmark method is one :class:`Family` entry (in :data:`FAMILIES`, or
+    :func:`register_family` from a plugin): its roles by registered name, its parameters,
+    and the parameter its setting fills. ``bench run`` runs one :class:`Method` per setting.
+
+    Attributes
+    ----------
+    name : str
+        The family's name (``bench run --methods``).
+    description : str
+        One line for ``bench methods`` and the reports.
+    setting : str or None
+        Where a setting goes: ``"params.<key>"`` (a run parameter in SI, e.g.
+        ``params.epsilon``), ``"rule_params.<key>"`` or ``"role_params.<role>.<key>"``;
+        None for a family without a setting.
+    label : str
+        How a setting is shown in the method's name (``"eps={:g}"``); a family without a
+        setting may still carry a fixed label.
+    meaning : str
+        What the setting is, with its unit (``bench methods``).
+    settings : tuple
+        The settings ``bench run`` runs when no tuned value is given.
+    tune : tuple
+        The grid ``bench tune`` searches (empty: the family is not tuned).
+    reference : bool
+        ``bench run`` with tuned values keeps the whole ``tune`` grid (the family's
+        setting re-tuned per shift on the reported split is then a labelled reference).
+    learn, predictor, params, rule, rule_params, roles, role_params
+        As in :class:`Method`.
+    """
+
+    name: str
+    description: str
+    setting: str | None = None
+    label: str = ""
+    meaning: str = "-"
+    settings: tuple[Any, ...] = (None,)
+    tune: tuple[Any, ...] = ()
+    reference: bool = False
+    learn: bool = True
+    predictor: str | None = None
+    params: Mapping[str, Any] = field(default_factory=dict)
+    rule: str = "fixed_eta"
+    rule_params: Mapping[str, Any] = field(default_factory=dict)
+    roles: Mapping[str, str] = field(default_factory=dict)
+    role_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("params", "rule_params", "roles"):
+            object.__setattr__(self, name, _frozen_map(getattr(self, name)))
+        object.__setattr__(
+            self, "role_params", _frozen_map({k: _frozen(v) for k, v in self.role_params.items()})
+        )
+        if self.setting is not None:
+            head = self.setting.split(".")[0]
+            parts = len(self.setting.split("."))
+            if head not in ("params", "rule_params", "role_params") or parts != (
+                3 if head == "role_params" else 2
+            ):
+                raise ValueError(
+                    f"family {self.name!r}: setting must be params.<key>, rule_params.<key> or "
+                    f"role_params.<role>.<key>, got {self.setting!r}"
+                )
+
+    def method(self, value: Any = None) -> Method:
+        """The member of the family with this setting."""
+        params = dict(self.params)
+        rule_params = dict(self.rule_params)
+        role_params = {k: dict(v) for k, v in self.role_params.items()}
+        if self.setting is not None:
+            if value is None:
+                raise ValueError(f"family {self.name!r} needs a setting ({self.meaning})")
+            where, *path = self.setting.split(".")
+            if where == "params":
+                params[path[0]] = value
+            elif where == "rule_params":
+                rule_params[path[0]] = value
+            else:
+                role_params.setdefault(path[0], {})[path[1]] = value
+        label = self.label.format(value) if self.label else ""
+        return Method(
+            self.name,
+            label,
+            self.description,
+            learn=self.learn,
+            predictor=self.predictor,
+            params=params,
+            rule=self.rule,
+            rule_params=rule_params,
+            roles=self.roles,
+            role_params=role_params,
+        )
+
+    def members(self, grid: Iterable[Any] | None = None) -> list[Method]:
+        """One method per setting of ``grid`` (default: :attr:`settings`)."""
+        return [self.method(v) for v in (self.settings if grid is None else grid)]
 
 
-def _conformal(eps: float) -> Method:
-    return Method(
-        "conformal",
-        f"eps={eps:g}",
-        "the paper's fixed-eta rule on the CBF gap loss",
-        params={"epsilon": eps, "eta": ETA},
-    )
-
-
-def _pid(eps: float) -> Method:
-    return Method(
-        "conformal_pid",
-        f"eps={eps:g}",
-        "conformal PID control on the gap loss (P = fixed eta, saturated integrator)",
-        params={"epsilon": eps, "eta": ETA},
-        rule="pid",
-        rule_params={"K_I": ETA / 2, "C_sat": 1.0},
-    )
-
-
-def _dtaci(eps: float) -> Method:
-    return Method(
-        "conformal_dtaci",
-        f"eps={eps:g}",
-        "DtACI experts (several learning rates) on the gap loss",
-        params={"epsilon": eps},
-        rule="dtaci",
-        rule_params={"gammas": (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA), "sigma": 0.01},
-    )
-
-
-def _aci(alpha: float) -> Method:
-    return Method(
-        "conformal_aci",
-        f"alpha={alpha:g}",
-        "ACI's rule on the collision loss: target collision rate per interval",
-        params={"epsilon": 0.0},
-        rule="aci",
-        rule_params={"alpha": alpha, "gamma": ETA, "lambda_init": 0.0},
-        roles={"loss": "collision"},
-    )
-
-
-def _oracle(_: Any) -> Method:
-    return Method(
-        "oracle", "", "the true future as prediction, lambda = 0 (gt/noLearn)", False, "oracle"
-    )
-
-
-def _inflated(margin: float) -> Method:
-    return Method(
-        "inflated",
-        f"margin={margin:g}m",
-        "robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0",
-        learn=False,
-        params={"barrier_margin": margin},
-    )
-
-
-def _fallback(name: str) -> Method:
-    return Method(
-        f"fallback:{name}",
-        "eps=-0.1",
-        f"the paper's rule (eps = -0.1) with the {name!r} fallback",
-        params={"epsilon": -0.1, "eta": ETA},
-        roles={"fallback": name},
-    )
-
-
-def _acp(alpha: float) -> Method:
-    return Method(
-        "acp",
-        f"alpha={alpha:g}",
-        "adaptive conformal prediction regions inflating each agent's radius (ACI)",
-        rule="aci",
-        rule_params={"alpha": alpha, "gamma": 0.005},
-        roles={"decision_family": "acp", "loss": "acp_miscoverage"},
-    )
-
-
-#: family -> (default settings, factory, settings meaning)
-METHOD_FAMILIES: dict[str, tuple[tuple[Any, ...], Any, str]] = {
-    "nolearn": ((None,), _nolearn, "-"),
-    "fixed": ((-15.0, -30.0, -60.0), _fixed, "lambda (1/s)"),
-    "conformal": ((-0.1, -0.05, 0.0), _conformal, "epsilon"),
-    "conformal_pid": ((-0.1,), _pid, "epsilon"),
-    "conformal_dtaci": ((-0.1,), _dtaci, "epsilon"),
-    "conformal_aci": ((0.05,), _aci, "alpha (collision rate per interval)"),
-    "oracle": ((None,), _oracle, "-"),
-    "inflated": ((0.25, 0.5), _inflated, "margin (m)"),
-    "fallback:brake": ((None,), lambda _: _fallback("brake"), "-"),
-    "fallback:relax": ((None,), lambda _: _fallback("relax"), "-"),
-    "acp": ((0.1,), _acp, "alpha (miscoverage)"),
+#: The MPC families' search on the crossing suites: 500 sampled sequences of 12 steps of
+#: 0.4 s, a plan every video frame (4 control instants), the least violating plan when none
+#: is safe.
+MPC_SEARCH: dict[str, Any] = {
+    "n_samples": 500,
+    "horizon": 12,
+    "dt_plan": 0.4,
+    "replan_every": 4,
+    "fallback": "least_violation",
 }
 
-#: The default method set of ``bench run``.
-DEFAULT_METHODS = (
-    "nolearn",
-    "fixed",
-    "conformal",
-    "conformal_pid",
-    "conformal_dtaci",
-    "conformal_aci",
-    "oracle",
-    "inflated",
-    "fallback:brake",
-    "fallback:relax",
-    "acp",
+_DECLARED: tuple[Family, ...] = (
+    Family("nolearn", "lambda = 0, no learning (pred/noLearn)", learn=False),
+    Family(
+        "fixed",
+        "fixed lambda (a fixed-margin CBF), no learning",
+        setting="params.lambda_init",
+        label="lambda={:g}/s",
+        meaning="lambda (1/s)",
+        settings=(-15.0, -30.0, -60.0),
+        tune=(-5.0, -10.0, -20.0, -30.0, -45.0),
+        reference=True,
+        learn=False,
+    ),
+    Family(
+        "conformal",
+        "the paper's fixed-eta rule on the CBF gap loss",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon",
+        settings=(-0.1, -0.05, 0.0),
+        tune=(-0.2, -0.15, -0.1, -0.05, 0.0),
+        params={"eta": ETA},
+    ),
+    Family(
+        "conformal_pid",
+        "conformal PID control on the gap loss (P = fixed eta, saturated integrator)",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon",
+        settings=(-0.1,),
+        tune=(-0.2, -0.1, -0.05),
+        params={"eta": ETA},
+        rule="pid",
+        rule_params={"K_I": ETA / 2, "C_sat": 1.0},
+    ),
+    Family(
+        "conformal_dtaci",
+        "DtACI experts (several learning rates) on the gap loss",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon",
+        settings=(-0.1,),
+        tune=(-0.2, -0.1, -0.05),
+        rule="dtaci",
+        rule_params={"gammas": (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA), "sigma": 0.01},
+    ),
+    Family(
+        "conformal_aci",
+        "ACI's rule on the collision loss: target collision rate per interval",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (collision rate per interval)",
+        settings=(0.05,),
+        tune=(0.01, 0.05),
+        params={"epsilon": 0.0},
+        rule="aci",
+        rule_params={"gamma": ETA, "lambda_init": 0.0},
+        roles={"loss": "collision"},
+    ),
+    Family(
+        "oracle",
+        "the true future as prediction, lambda = 0 (gt/noLearn)",
+        learn=False,
+        predictor="oracle",
+    ),
+    Family(
+        "inflated",
+        "robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0",
+        setting="params.barrier_margin",
+        label="margin={:g}m",
+        meaning="margin (m)",
+        settings=(0.25, 0.5),
+        tune=(0.1, 0.25, 0.5),
+        learn=False,
+    ),
+    Family(
+        "fallback:brake",
+        "the paper's rule (eps = -0.1) with the 'brake' fallback",
+        label="eps=-0.1",
+        params={"epsilon": -0.1, "eta": ETA},
+        roles={"fallback": "brake"},
+    ),
+    Family(
+        "fallback:relax",
+        "the paper's rule (eps = -0.1) with the 'relax' fallback",
+        label="eps=-0.1",
+        params={"epsilon": -0.1, "eta": ETA},
+        roles={"fallback": "relax"},
+    ),
+    Family(
+        "acp",
+        "adaptive conformal prediction regions inflating each agent's radius (ACI)",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (miscoverage)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        rule="aci",
+        rule_params={"gamma": 0.005},
+        roles={"decision_family": "acp", "loss": "acp_miscoverage"},
+    ),
+    Family(
+        "mpc",
+        "sampling MPC, a fixed safe distance d_c + margin to the predictions, no learning",
+        setting="role_params.decision_family.margin",
+        label="margin={:g}m",
+        meaning="margin (m)",
+        settings=(0.0, 0.25, 0.5),
+        tune=(0.0, 0.25, 0.5),
+        reference=True,
+        learn=False,
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": MPC_SEARCH},
+    ),
+    Family(
+        "cc_mpc",
+        "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, fixed-eta "
+        "rule on the distance shortfall below d_c + 1 m",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (distance shortfall)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": MPC_SEARCH},
+    ),
+    Family(
+        "acp_mpc",
+        "sampling MPC avoiding ACP regions per plan step (ACI on their miscoverage)",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (miscoverage)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        rule="aci",
+        rule_params={"gamma": 0.02},
+        roles={"decision_family": "acp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    ),
+    Family(
+        "ecp_mpc",
+        "sampling MPC avoiding egocentric conformal regions (ACI on their miscoverage)",
+        setting="rule_params.alpha",
+        label="alpha={:g}",
+        meaning="alpha (miscoverage)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        rule="aci",
+        rule_params={"gamma": 0.02},
+        roles={"decision_family": "ecp_mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    ),
 )
+
+#: name -> family: every benchmark method family (``conformal-control bench methods``).
+FAMILIES: dict[str, Family] = {f.name: f for f in _DECLARED}
+#: The same table under its former name.
+METHOD_FAMILIES = FAMILIES
+
+#: The method families ``bench run`` runs by default: the baseline, the fixed margin (its
+#: whole tuning grid, for the re-tuned reference), the conformal rule, ACP, the robust CBF.
+DEFAULT_METHODS = ("nolearn", "fixed", "conformal", "acp", "inflated")
+
+
+def register_family(family: Family, *, replace: bool = False) -> Family:
+    """Add a method family to :data:`FAMILIES` (a plugin's methods: one entry each).
+
+    Raises
+    ------
+    ValueError
+        If the name is taken (unless ``replace``).
+    """
+    if family.name in FAMILIES and not replace:
+        raise ValueError(f"a method family named {family.name!r} exists already")
+    FAMILIES[family.name] = family
+    return family
 
 
 def expand_methods(
@@ -281,15 +463,13 @@ def expand_methods(
     out: list[Method] = []
     grids = dict(grids or {})
     for fam in families:
-        if fam not in METHOD_FAMILIES:
+        if fam not in FAMILIES:
             import difflib
 
-            close = difflib.get_close_matches(fam, METHOD_FAMILIES, n=1)
+            close = difflib.get_close_matches(fam, FAMILIES, n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ValueError(f"unknown method {fam!r}{hint} known: {', '.join(METHOD_FAMILIES)}")
-        settings, factory, _ = METHOD_FAMILIES[fam]
-        for value in grids.get(fam, settings):
-            out.append(factory(value))
+            raise ValueError(f"unknown method {fam!r}{hint} known: {', '.join(FAMILIES)}")
+        out.extend(FAMILIES[fam].members(grids.get(fam)))
     return out
 
 

@@ -1,25 +1,34 @@
 """Benchmark reports, built from the stored per-episode rows only.
 
-:func:`write_report` reads the rows of a benchmark run (one per scenario x method) and
-writes
+:func:`write_report` reads the rows of a benchmark folder (one per shift x scenario x
+method) and writes, per predictor shift:
 
 * ``leaderboard.md`` / ``leaderboard.csv`` -- per method: success, reached and collision
-  rates, collision frames, time to goal, minimum distance, time in personal space,
-  fallback share, ... as means over scenarios with bootstrap 95 % CIs, and the paired
-  comparison with the baseline method on the same scenarios;
-* ``per_scene.csv`` / ``per_scene.md`` -- the same per source (video) and method;
-* ``frontier.png`` -- collision rate against mean time to goal, CIs as error bars, one
-  point per method/setting, the Pareto front marked;
+  rates, collision frames, avoidable collision frames, time to goal, d_min, ... as means over
+  scenarios with bootstrap 95 % CIs; the avoidable share of the collision frames; paired
+  comparisons with ``nolearn`` AND with the fixed lambda tuned on dev on the same scenarios;
+  and, where the folder ran a reference family's whole grid (``fixed``), the setting
+  re-tuned on the reported split by the tuning rule, labelled as a reference that peeks at
+  it;
+* ``frontier-<shift>.png`` -- collision frames per scenario against the rate of reaching
+  the goal in time, one point per method with CIs, the Pareto front marked;
+* ``strata.md`` / ``strata.csv`` -- success and collision frames per recording, per tertile
+  of corridor density and per tertile of the crossing pedestrians' speed;
+* ``collisions.md`` / ``collisions.csv`` -- what the collisions are: events, avoidable,
+  unavoidable, pop-in and at-fault frames, who closed on whom, penetration;
+* ``per_scene.md`` / ``per_scene.csv`` -- per recording and method (all shifts);
+* ``targets.md`` -- the benchmark's targets, met or not, with the figures;
 * ``success_vs_epsilon.png`` -- success rate against epsilon for the epsilon families.
 
-Time to goal for the frontier counts an episode that did not reach its goal at its time
-limit (so a method cannot look fast by failing); the leaderboard also gives the mean over
-reached episodes only.
+Rows of different conditions (crowd, run parameters, ...) are never pooled: a folder holds
+one (``bench run`` refuses to mix them), and a report of rows with two runs of one method on
+one scenario under one shift is refused.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
@@ -29,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_mean, paired_comparison
 
 __all__ = ["MethodSummary", "summarise", "write_report"]
@@ -40,8 +50,11 @@ COLUMNS: tuple[tuple[str, str, bool, bool], ...] = (
     ("collision rate", "any_collision", True, True),
     ("collision frames", "n_collide", False, True),
     ("time to goal (s, limit if not reached)", "t_goal_or_limit", False, True),
-    ("time to goal (s, reached)", "t_goal", False, True),
+    ("avoidable collision frames", "n_collide_avoidable", False, True),
     ("d_min (m)", "d_min", False, False),
+    ("time to goal (s, reached)", "t_goal", False, True),
+    ("at-fault collision frames", "n_collide_at_fault", False, True),
+    ("pop-in collision frames", "n_collide_popin", False, True),
     ("personal space (s)", "time_in_personal_space", False, True),
     ("path length (m)", "path_length", False, True),
     ("mean speed (m/s)", "mean_speed", False, False),
@@ -51,6 +64,20 @@ COLUMNS: tuple[tuple[str, str, bool, bool], ...] = (
     ("lambda mean (1/s)", "lambda_mean_si", False, False),
     ("wall (s)", "wall_s", False, True),
 )
+#: The columns of the markdown leaderboard (the CSV has them all).
+MD_COLUMNS = (
+    "success",
+    "reached",
+    "collision rate",
+    "collision frames",
+    "avoidable collision frames",
+    "time to goal (s, limit if not reached)",
+    "d_min (m)",
+)
+#: The metrics of the paired comparisons.
+PAIRED = ("success", "reached", "collision frames", "avoidable collision frames")
+#: Reference label of a family's setting re-tuned on the reported split.
+REFERENCE = "re-tuned on this split: a reference that peeks at it"
 
 
 def _num(v: Any) -> float:
@@ -75,12 +102,13 @@ def _prepared(row: Mapping[str, Any]) -> dict[str, Any]:
     r["t_goal_or_limit"] = t_goal if reached else limit
     # lambda statistics are reported in the scene's unit; the benchmark compares in 1/s
     r["lambda_mean_si"] = _num(r.get("lambda_mean")) * _num(r.get("lambda_unit_si") or 1.0)
+    r["shift"] = str(r.get("shift") or "nominal")
     return r
 
 
 @dataclass
 class MethodSummary:
-    """One leaderboard row: estimates per column and the paired comparison."""
+    """One leaderboard row: estimates per column and the paired comparisons."""
 
     method: str
     family: str
@@ -89,6 +117,13 @@ class MethodSummary:
     n_failed: int
     estimates: dict[str, Estimate]
     paired: dict[str, PairedComparison]
+    label: str = ""
+    paired_fixed: dict[str, PairedComparison] | None = None
+    shares: dict[str, float] | None = None
+
+    @property
+    def shown(self) -> str:
+        return f"`{self.method}`" + (f" ({self.label})" if self.label else "")
 
 
 def _ok_rows(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict[str, Any]], list[Any]]:
@@ -101,10 +136,44 @@ def _ok_rows(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict[str, Any]], l
     return ok, failed
 
 
+def _paired(
+    mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]], seed: int
+) -> dict[str, PairedComparison]:
+    common = [r for r in mrows if str(r["scenario"]) in base]
+    out = {}
+    for col, metric, _, lower in COLUMNS:
+        if col not in PAIRED:
+            continue
+        out[col] = paired_comparison(
+            [_num(r.get(metric)) for r in common],
+            [_num(base[str(r["scenario"])].get(metric)) for r in common],
+            metric=metric,
+            lower_is_better=lower,
+            seed=seed,
+        )
+    return out
+
+
+def _shares(mrows: list[dict[str, Any]]) -> dict[str, float]:
+    total = sum(_num(r.get("n_collide")) for r in mrows)
+    out = {}
+    for key in ("n_collide_avoidable", "n_collide_at_fault", "n_collide_popin"):
+        vals = [_num(r.get(key)) for r in mrows]
+        part = sum(v for v in vals if math.isfinite(v))
+        out[key] = part / total if total > 0 else math.nan
+    return out
+
+
 def summarise(
-    rows: Sequence[Mapping[str, Any]], *, baseline: str = "nolearn", seed: int = 0
+    rows: Sequence[Mapping[str, Any]],
+    *,
+    baseline: str = "nolearn",
+    seed: int = 0,
+    fixed: str | None = None,
 ) -> list[MethodSummary]:
-    """One :class:`MethodSummary` per method, in order of first appearance."""
+    """One :class:`MethodSummary` per method, in order of first appearance (rows of one
+    shift); ``fixed``: the method every other is also paired with (the dev-tuned fixed
+    lambda)."""
     ok, failed = _ok_rows(rows)
     by_method: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in ok:
@@ -113,23 +182,15 @@ def summarise(
     for r in failed:
         failed_count[str(r.get("method"))] += 1
     base = {str(r["scenario"]): r for r in by_method.get(baseline, [])}
+    ref = {str(r["scenario"]): r for r in by_method.get(fixed, [])} if fixed else {}
     out = []
     for method, mrows in by_method.items():
         est = {
             col: bootstrap_mean([_num(r.get(metric)) for r in mrows], seed=seed)
             for col, metric, _, _ in COLUMNS
         }
-        paired: dict[str, PairedComparison] = {}
-        if method != baseline and base:
-            common = [r for r in mrows if str(r["scenario"]) in base]
-            for col, metric, _, lower in COLUMNS[:5]:
-                paired[col] = paired_comparison(
-                    [_num(r.get(metric)) for r in common],
-                    [_num(base[str(r["scenario"])].get(metric)) for r in common],
-                    metric=metric,
-                    lower_is_better=lower,
-                    seed=seed,
-                )
+        paired = _paired(mrows, base, seed) if method != baseline and base else {}
+        paired_fixed = _paired(mrows, ref, seed) if method != fixed and ref else None
         first = mrows[0]
         out.append(
             MethodSummary(
@@ -140,6 +201,8 @@ def summarise(
                 n_failed=failed_count.get(method, 0),
                 estimates=est,
                 paired=paired,
+                paired_fixed=paired_fixed,
+                shares=_shares(mrows),
             )
         )
     return out
@@ -158,33 +221,123 @@ def _pareto(points: list[tuple[float, float]]) -> list[bool]:
     return front
 
 
-def _leaderboard_md(summaries: list[MethodSummary], baseline: str, title: str) -> str:
-    cols = [c for c, _, _, _ in COLUMNS[:9]]
+# ------------------------------------------------------------------ what to show
+@dataclass
+class _ShiftView:
+    """One shift's summaries and which of them the markdown tables show."""
+
+    shift: str
+    summaries: list[MethodSummary]
+    shown: list[MethodSummary]
+    fixed: str | None  # the dev-tuned fixed lambda's method name
+    reference: str | None  # the re-tuned reference's method name
+    n_scenarios: int
+
+
+def _tuned_names(bench: Mapping[str, Any] | None) -> dict[str, str]:
+    """family -> the name of its dev-tuned member (from ``bench.json``)."""
+    from .methods import FAMILIES
+
+    tuned = ((bench or {}).get("tuned") or {}).get("values") or {}
+    out = {}
+    for fam, value in tuned.items():
+        if fam in FAMILIES:
+            out[fam] = FAMILIES[fam].method(value).name
+    return out
+
+
+def _view(
+    shift: str,
+    rows: list[dict[str, Any]],
+    baseline: str,
+    seed: int,
+    bench: Mapping[str, Any] | None,
+) -> _ShiftView:
+    from .methods import FAMILIES
+    from .tune import choose
+
+    tuned = _tuned_names(bench)
+    fixed = tuned.get("fixed")
+    present = {str(r["method"]) for r in rows}
+    if fixed not in present:
+        fixed = None
+    summaries = summarise(rows, baseline=baseline, seed=seed, fixed=fixed)
+    reference = None
+    ref_family = next((f for f in FAMILIES.values() if f.reference), None)
+    if ref_family is not None and ref_family.name in tuned:
+        grid = [v for v in ref_family.tune if ref_family.method(v).name in present]
+        if len(grid) > 1:
+            ok, _ = _ok_rows(rows)
+            value, _ = choose(ok, ref_family.name, grid)
+            reference = ref_family.method(value).name
+    rank = {name: i for i, name in enumerate(FAMILIES)}
+    summaries.sort(key=lambda s: (s.method != baseline, rank.get(s.family, len(rank))))
+    shown = []
+    for s in summaries:
+        fam = FAMILIES.get(s.family)
+        if s.method == fixed or s.method == tuned.get(s.family):
+            s.label = "tuned on dev"
+        if fam is not None and fam.reference and s.family in tuned and s.method != fixed:
+            continue  # the grid's other members: in the CSV only
+        shown.append(s)
+    if reference is not None:
+        ref = next(s for s in summaries if s.method == reference)
+        ref_copy = MethodSummary(**{**ref.__dict__, "label": REFERENCE})
+        shown.append(ref_copy)
+    n_scen = len({str(r.get("scenario")) for r in rows})
+    return _ShiftView(shift, summaries, shown, fixed, reference, n_scen)
+
+
+# ------------------------------------------------------------------ markdown
+def _share(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{100 * x:.0f} %"
+
+
+def _leaderboard_md(views: list[_ShiftView], baseline: str, title: str) -> str:
+    rate = {c for c, _, r, _ in COLUMNS if r}
     lines = [
         f"# {title}",
         "",
-        f"Means over scenarios with bootstrap 95 % CIs; baseline for "
-        f"the paired comparison: `{baseline}`.",
+        "Means over scenarios with bootstrap 95 % CIs. *Avoidable share*: the share of the "
+        "collision frames that a point robot with the speed bound could have avoided from "
+        "where the robot was when the pedestrian was first sensed (pop-ins excluded; see "
+        "the Benchmark page). Paired comparisons on the same scenarios: with "
+        f"`{baseline}`, and with the fixed lambda tuned on dev.",
         "",
     ]
-    lines.append("| method | n | " + " | ".join(cols) + " |")
-    lines.append("|---|---:|" + "---|" * len(cols))
-    for s in summaries:
-        cells = []
-        for col, _, rate, _ in COLUMNS[:9]:
-            cells.append(s.estimates[col].format(3, percent=rate))
-        fail = f" ({s.n_failed} failed)" if s.n_failed else ""
-        lines.append(f"| `{s.method}` | {s.n}{fail} | " + " | ".join(cells) + " |")
-    lines += ["", f"## Paired comparison with `{baseline}` (same scenarios)", ""]
-    lines.append("| method | metric | n | wins | losses | ties | mean difference [95 % CI] |")
-    lines.append("|---|---|---:|---:|---:|---:|---|")
-    for s in summaries:
-        for col, pc in s.paired.items():
-            rate = any(c == col and r for c, _, r, _ in COLUMNS)
-            lines.append(
-                f"| `{s.method}` | {col} | {pc.n} | {pc.wins} | {pc.losses} | {pc.ties} | "
-                f"{pc.difference.format(3, percent=rate)} |"
-            )
+    for v in views:
+        sh = SHIFTS.get(v.shift)
+        desc = f": {sh.description}" if sh else ""
+        lines += [f"## Shift `{v.shift}`{desc} ({v.n_scenarios} scenarios)", ""]
+        lines.append("| method | n | " + " | ".join(MD_COLUMNS) + " | avoidable share |")
+        lines.append("|---|---:|" + "---|" * len(MD_COLUMNS) + "---:|")
+        for s in v.shown:
+            cells = [s.estimates[c].format(3, percent=c in rate) for c in MD_COLUMNS]
+            fail = f" ({s.n_failed} failed)" if s.n_failed else ""
+            share = _share((s.shares or {}).get("n_collide_avoidable", math.nan))
+            lines.append(f"| {s.shown} | {s.n}{fail} | " + " | ".join(cells) + f" | {share} |")
+        for against, attr in ((f"`{baseline}`", "paired"), (f"`{v.fixed}`", "paired_fixed")):
+            if attr == "paired_fixed" and v.fixed is None:
+                continue
+            lines += [
+                "",
+                f"Paired with {against} (wins / losses / ties, mean difference [95 % CI]):",
+                "",
+                "| method | n | " + " | ".join(PAIRED) + " |",
+                "|---|---:|" + "---|" * len(PAIRED),
+            ]
+            for s in v.shown:
+                pcs = getattr(s, attr) or {}
+                if not pcs:
+                    continue
+                n = next(iter(pcs.values())).n
+                cells = [
+                    f"{pcs[c].wins}/{pcs[c].losses}/{pcs[c].ties}, "
+                    f"{pcs[c].difference.format(3, percent=c in rate)}"
+                    for c in PAIRED
+                ]
+                lines.append(f"| {s.shown} | {n} | " + " | ".join(cells) + " |")
+        lines.append("")
     return "\n".join(lines) + "\n"
 
 
@@ -195,26 +348,36 @@ def _write_csv(path: Path, header: list[str], rows: list[list[Any]]) -> None:
         w.writerows(rows)
 
 
-def _leaderboard_csv(path: Path, summaries: list[MethodSummary]) -> None:
-    header = ["method", "family", "setting", "n", "n_failed"]
+def _leaderboard_csv(path: Path, views: list[_ShiftView]) -> None:
+    header = ["shift", "method", "family", "setting", "role", "n", "n_failed"]
     for col, _, _, _ in COLUMNS:
         header += [col, f"{col} low", f"{col} high"]
+    header += ["avoidable share", "at-fault share", "pop-in share"]
     rows = []
-    for s in summaries:
-        row: list[Any] = [s.method, s.family, s.setting, s.n, s.n_failed]
-        for col, _, _, _ in COLUMNS:
-            e = s.estimates[col]
-            row += [e.mean, e.low, e.high]
-        rows.append(row)
+    for v in views:
+        for s in v.summaries:
+            role = "tuned on dev" if s.label == "tuned on dev" else ""
+            if s.method == v.reference:
+                role = (role + "; " if role else "") + REFERENCE
+            row: list[Any] = [v.shift, s.method, s.family, s.setting, role, s.n, s.n_failed]
+            for col, _, _, _ in COLUMNS:
+                e = s.estimates[col]
+                row += [e.mean, e.low, e.high]
+            sh = s.shares or {}
+            row += [sh.get(k) for k in ("n_collide_avoidable", "n_collide_at_fault")]
+            row += [sh.get("n_collide_popin")]
+            rows.append(row)
     _write_csv(path, header, rows)
 
 
-def _per_scene(rows: list[dict[str, Any]], out: Path, seed: int) -> None:
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+def _per_scene(rows: list[dict[str, Any]], out: Path) -> None:
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
-        groups[(str(r.get("source", "?")), str(r["method"]))].append(r)
+        rec = str(r.get("recording") or r.get("source", "?"))
+        groups[(r["shift"], rec, str(r["method"]))].append(r)
     header = [
-        "source",
+        "shift",
+        "recording",
         "method",
         "n",
         "success",
@@ -223,9 +386,10 @@ def _per_scene(rows: list[dict[str, Any]], out: Path, seed: int) -> None:
         "time to goal (s)",
     ]
     table: list[list[Any]] = []
-    for (src, method), g in sorted(groups.items()):
+    for (shift, src, method), g in sorted(groups.items()):
         table.append(
             [
+                shift,
                 src,
                 method,
                 len(g),
@@ -236,58 +400,257 @@ def _per_scene(rows: list[dict[str, Any]], out: Path, seed: int) -> None:
             ]
         )
     _write_csv(out / "per_scene.csv", header, table)
-    md = ["| " + " | ".join(header) + " |", "|---|---|---:|---:|---:|---:|---:|"]
+    md = ["| " + " | ".join(header) + " |", "|---|---|---|---:|---:|---:|---:|---:|"]
     for row in table:
         md.append(
-            f"| {row[0]} | `{row[1]}` | {row[2]} | {100 * row[3]:.0f} % | "
-            f"{100 * row[4]:.0f} % | {row[5]:.2f} | {row[6]:.2f} |"
+            f"| {row[0]} | {row[1]} | `{row[2]}` | {row[3]} | {100 * row[4]:.0f} % | "
+            f"{100 * row[5]:.0f} % | {row[6]:.2f} | {row[7]:.2f} |"
         )
     (out / "per_scene.md").write_text("\n".join(md) + "\n")
 
 
-def _frontier(summaries: list[MethodSummary], path: Path, title: str) -> None:
+# ------------------------------------------------------------------ strata
+def _tertiles(values: dict[str, float]) -> tuple[dict[str, str], tuple[float, float]]:
+    """scenario -> ``low`` / ``mid`` / ``high`` tertile of its value, and the two cuts."""
+    finite = np.array([v for v in values.values() if math.isfinite(v)])
+    if finite.size == 0:
+        return {}, (math.nan, math.nan)
+    lo, hi = (float(x) for x in np.quantile(finite, [1 / 3, 2 / 3]))
+    out = {}
+    for k, v in values.items():
+        if math.isfinite(v):
+            out[k] = "low" if v <= lo else ("mid" if v <= hi else "high")
+    return out, (lo, hi)
+
+
+def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> None:
+    by_shift: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        by_shift[r["shift"]].append(r)
+    header = ["shift", "method", "stratum", "group", "n", "success", "reached",
+              "collision frames", "collision rate"]  # fmt: skip
+    table: list[list[Any]] = []
+    md = [
+        "# Strata",
+        "",
+        "Per recording, and per tertile (over the reported scenarios) of the corridor "
+        "density (pedestrians per 100 m² within 2 m of the robot's segment) and of the "
+        "crossing pedestrians' mean speed (m/s): n, success, collision frames per scenario.",
+        "",
+    ]
+    for v in views:
+        srows = by_shift[v.shift]
+        scen: dict[str, dict[str, Any]] = {}
+        for r in srows:
+            scen.setdefault(str(r["scenario"]), r)
+        dens, dcut = _tertiles({k: _num(r.get("corridor_density")) for k, r in scen.items()})
+        speed, scut = _tertiles({k: _num(r.get("crossing_speed")) for k, r in scen.items()})
+        kinds = {
+            "recording": {k: str(r.get("recording") or r.get("source")) for k, r in scen.items()},
+            "density": dens,
+            "speed": speed,
+        }
+        md += [
+            f"## Shift `{v.shift}`",
+            "",
+            f"Density tertile cuts {dcut[0]:.3g} and {dcut[1]:.3g} per 100 m²; speed tertile "
+            f"cuts {scut[0]:.3g} and {scut[1]:.3g} m/s.",
+            "",
+        ]
+        names = [s.method for s in v.shown if s.label != REFERENCE]
+        for kind, group_of in kinds.items():
+            present = set(group_of.values())
+            if kind == "recording":
+                groups = sorted(present)
+            else:
+                groups = [g for g in ("low", "mid", "high") if g in present]
+            md += [
+                f"### {kind}",
+                "",
+                "success and collision frames per scenario, per method:",
+                "",
+                f"| {kind} | n | " + " | ".join(f"`{m}`" for m in names) + " |",
+                "|---|---:|" + "---|" * len(names),
+            ]
+            for g in groups:
+                cells = []
+                n_g = sum(1 for k in group_of if group_of[k] == g)
+                for m in names:
+                    sel = [
+                        r for r in srows
+                        if r["method"] == m and group_of.get(str(r["scenario"])) == g
+                    ]  # fmt: skip
+                    if not sel:
+                        cells.append("-")
+                        continue
+                    succ = float(np.mean([_num(r.get("success")) for r in sel]))
+                    coll = float(np.mean([_num(r.get("n_collide")) for r in sel]))
+                    reach = float(np.mean([_num(r.get("goal_reached")) for r in sel]))
+                    anyc = float(np.mean([_num(r.get("any_collision")) for r in sel]))
+                    cells.append(f"{100 * succ:.0f} %, {coll:.2f}")
+                    table.append([v.shift, m, kind, g, len(sel), succ, reach, coll, anyc])
+                md.append(f"| {g} | {n_g} | " + " | ".join(cells) + " |")
+            md.append("")
+    _write_csv(out / "strata.csv", header, table)
+    (out / "strata.md").write_text("\n".join(md) + "\n")
+
+
+# ------------------------------------------------------------------ collisions
+def _events(row: Mapping[str, Any]) -> list[dict[str, Any]] | None:
+    """The collision events of a row's run (from its ``metrics.json``), None if unknown."""
+    rd = row.get("run_dir")
+    if not rd:
+        return None
+    path = Path(str(rd)) / "metrics.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    ev = data.get("collision_events")
+    return ev if isinstance(ev, list) else None
+
+
+def _collisions(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> dict[str, Any]:
+    """Write the collision tables; return the totals for the targets."""
+    header = [
+        "shift", "method", "episodes", "episodes with a collision", "events", "collision frames",
+        "avoidable", "unavoidable", "undecided", "pop-in", "at fault", "robot closing",
+        "pedestrian closing", "both closing", "neither", "median penetration (m)",
+    ]  # fmt: skip
+    table: list[list[Any]] = []
+    md = [
+        "# Collisions",
+        "",
+        "Collision frames split by the event of their nearest pedestrian: avoidable (a point "
+        "robot with the speed bound could have kept clear from where the robot was when "
+        "that pedestrian was first sensed), unavoidable (proven), undecided, pop-in (the "
+        "pedestrian became visible next to the robot or just before; never counted "
+        "avoidable); at fault: frames at which the robot moved toward its nearest "
+        "pedestrian. Events by who closed on whom at their first frame.",
+        "",
+        "| shift | method | episodes with a collision | events | collision frames | avoidable "
+        "| unavoidable | undecided | pop-in | at fault | robot / pedestrian / both / neither "
+        "closing | median penetration (m) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    totals = {"events": 0, "undecided_frames": 0, "frames": 0, "unknown": 0}
+    by = defaultdict(list)
+    for r in rows:
+        by[(r["shift"], str(r["method"]))].append(r)
+    for v in views:
+        for s in v.shown:
+            if s.label == REFERENCE:
+                continue
+            mrows = by[(v.shift, s.method)]
+            sums = {
+                k: int(sum(_num(r.get(k)) for r in mrows if math.isfinite(_num(r.get(k)))))
+                for k in (
+                    "n_collide",
+                    "n_collision_events",
+                    "n_collide_avoidable",
+                    "n_collide_unavoidable",
+                    "n_collide_undecided",
+                    "n_collide_popin",
+                    "n_collide_at_fault",
+                )
+            }
+            closing: dict[str, int] = defaultdict(int)
+            pen: list[float] = []
+            for r in mrows:
+                if _num(r.get("n_collide")) > 0:
+                    ev = _events(r)
+                    if ev is None:
+                        totals["unknown"] += 1
+                        continue
+                    for e in ev:
+                        closing[str(e.get("closing"))] += 1
+                        pen.append(float(e.get("penetration") or 0.0))
+            any_c = int(sum(_num(r.get("any_collision")) for r in mrows))
+            med = float(np.median(pen)) if pen else math.nan
+            cl = [closing.get(k, 0) for k in ("robot", "pedestrian", "both", "neither")]
+            table.append(
+                [
+                    v.shift,
+                    s.method,
+                    len(mrows),
+                    any_c,
+                    sums["n_collision_events"],
+                    sums["n_collide"],
+                    sums["n_collide_avoidable"],
+                    sums["n_collide_unavoidable"],
+                    sums["n_collide_undecided"],
+                    sums["n_collide_popin"],
+                    sums["n_collide_at_fault"],
+                    *cl,
+                    med,
+                ]
+            )
+            f = max(sums["n_collide"], 1)
+            md.append(
+                f"| {v.shift} | `{s.method}` | {any_c} / {len(mrows)} | "
+                f"{sums['n_collision_events']} | {sums['n_collide']} | "
+                f"{sums['n_collide_avoidable']} ({100 * sums['n_collide_avoidable'] / f:.0f} %) | "
+                f"{sums['n_collide_unavoidable']} | {sums['n_collide_undecided']} | "
+                f"{sums['n_collide_popin']} ({100 * sums['n_collide_popin'] / f:.0f} %) | "
+                f"{sums['n_collide_at_fault']} ({100 * sums['n_collide_at_fault'] / f:.0f} %) | "
+                f"{' / '.join(map(str, cl))} | " + ("-" if math.isnan(med) else f"{med:.2f}") + " |"
+            )
+            totals["events"] += sums["n_collision_events"]
+            totals["undecided_frames"] += sums["n_collide_undecided"]
+            totals["frames"] += sums["n_collide"]
+    _write_csv(out / "collisions.csv", header, table)
+    (out / "collisions.md").write_text("\n".join(md) + "\n")
+    return totals
+
+
+# ------------------------------------------------------------------ figures
+#: How the figures label the tuned methods and the reference.
+_SHORT = {"tuned on dev": " (dev-tuned)", REFERENCE: " (re-tuned here: reference)"}
+
+
+def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    xcol, ycol = COLUMNS[4][0], COLUMNS[2][0]
-    pts = [(s.estimates[xcol].mean, s.estimates[ycol].mean) for s in summaries]
+    xcol, ycol = "reached", "collision frames"
+    pts = [(-s.estimates[xcol].mean, s.estimates[ycol].mean) for s in v.shown]
     front = _pareto(pts)
-    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
-    for s, (x, y), on_front in zip(summaries, pts, front, strict=True):
-        if math.isnan(x) or math.isnan(y):
-            continue
+    fig, ax = plt.subplots(figsize=(10.0, 5.0), constrained_layout=True)
+    markers = "osD^vP*Xhp<>"
+    for i, (s, on_front) in enumerate(zip(v.shown, front, strict=True)):
         ex, ey = s.estimates[xcol], s.estimates[ycol]
+        if math.isnan(ex.mean) or math.isnan(ey.mean):
+            continue
         ax.errorbar(
-            x,
-            100 * y,
-            xerr=[[x - ex.low], [ex.high - x]],
-            yerr=[[100 * (y - ey.low)], [100 * (ey.high - y)]],
-            fmt="o" if on_front else "s",
-            ms=7 if on_front else 5,
-            mfc="C3" if on_front else "white",
-            color="C3" if on_front else "0.35",
-            capsize=2,
-            lw=0.8,
+            100 * ex.mean,
+            ey.mean,
+            xerr=[[100 * (ex.mean - ex.low)], [100 * (ex.high - ex.mean)]],
+            yerr=[[ey.mean - ey.low], [ey.high - ey.mean]],
+            fmt=markers[i % len(markers)],
+            ms=9 if on_front else 7,
+            mfc=f"C{i % 10}" if on_front else "white",
+            color=f"C{i % 10}",
+            capsize=3,
+            lw=1.0,
+            label=s.method + _SHORT.get(s.label, "") + (" *" if on_front else ""),
         )
-        ax.annotate(s.method, (x, 100 * y), textcoords="offset points", xytext=(5, 4), fontsize=7)
-    fp = sorted((p for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
+    fp = sorted(((-p[0], p[1]) for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
     if len(fp) > 1:
-        ax.plot(
-            [p[0] for p in fp],
-            [100 * p[1] for p in fp],
-            "--",
-            color="C3",
-            lw=1,
-            label="Pareto front",
-        )
-        ax.legend(loc="upper right")
-    ax.set_xlabel("mean time to goal (s; time limit when not reached)")
-    ax.set_ylabel("episodes with a collision (%)")
-    ax.set_title(title)
+        ax.plot([100 * p[0] for p in fp], [p[1] for p in fp], "--", color="0.5", lw=1)
+    ax.set_xlabel("goal reached in time (% of scenarios)", fontsize=11)
+    ax.set_ylabel("collision frames per scenario", fontsize=11)
+    ax.set_title(title, fontsize=12)
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
+    ax.legend(
+        fontsize=9,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+        title="* on the Pareto front (filled)",
+        title_fontsize=9,
+    )
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -301,7 +664,7 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
     fams: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         setting = str(r.get("setting") or "")
-        if setting.startswith("eps="):
+        if setting.startswith("eps=") and r["shift"] == "nominal":
             fams[str(r.get("family"))][float(setting[4:])].append(_num(r.get("success")))
     if not fams:
         return False
@@ -317,18 +680,97 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
             capsize=3,
             label=fam,
         )
-    base = [_num(r.get("success")) for r in rows if r.get("method") == "nolearn"]
+    base = [
+        _num(r.get("success"))
+        for r in rows
+        if r.get("method") == "nolearn" and r["shift"] == "nominal"
+    ]
     if base:
         ax.axhline(100 * float(np.nanmean(base)), color="0.4", ls=":", label="nolearn")
     ax.set_xlabel("epsilon (target average loss)")
     ax.set_ylabel("success rate (%)")
-    ax.set_title("Success against epsilon (95 % CIs)")
+    ax.set_title("Success against epsilon, nominal predictor (95 % CIs)")
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return True
+
+
+# ------------------------------------------------------------------ targets
+def _targets(
+    views: list[_ShiftView],
+    totals: Mapping[str, Any],
+    bench: Mapping[str, Any] | None,
+    tune_wall: float | None,
+) -> str:
+    lines = ["# Targets", ""]
+    wall = (bench or {}).get("wall_s")
+    if wall is not None:
+        total = float(wall) + (tune_wall or 0.0)
+        tw = "not known (shipped values)" if tune_wall is None else f"{tune_wall:.0f} s"
+        lines.append(
+            f"- Run time: `bench tune` {tw} + `bench run` {float(wall):.0f} s = {total:.0f} s "
+            f"({total / 60:.1f} min; target <= 15 min: {'met' if total <= 900 else 'NOT met'})."
+        )
+    v = next((x for x in views if x.shift == "delay-0.5s"), None)
+    tuned = _tuned_names(bench)
+    conf = tuned.get("conformal")
+    if v is not None and conf is not None:
+        by = {s.method: s for s in v.summaries}
+        c, base = by.get(conf), by.get("nolearn")
+        if c is not None and base is not None:
+            cf, bf = c.estimates["collision frames"].mean, base.estimates["collision frames"].mean
+            ratio = cf / bf if bf > 0 else math.nan
+            d = c.paired["collision frames"].difference
+            ok = math.isfinite(ratio) and ratio <= 0.5
+            lines.append(
+                f"- `delay-0.5s`: `{conf}` has {cf:.2f} collision frames per scenario against "
+                f"`nolearn`'s {bf:.2f} ({100 * ratio:.0f} %; paired difference "
+                f"{d.format(3)}); target <= 50 %: {'met' if ok else 'NOT met'}."
+            )
+        if c is not None and c.paired_fixed:
+            dc = c.paired_fixed["collision frames"].difference
+            ds = c.paired_fixed["success"].difference
+            fewer = dc.high < 0
+            not_lower = ds.mean >= 0 and ds.high >= 0
+            lines.append(
+                f"- `delay-0.5s`: `{conf}` against the dev-tuned `{v.fixed}`: collision frames "
+                f"{dc.format(3)} (fewer, CI below 0: {'met' if fewer else 'NOT met'}), "
+                f"success {ds.format(3, percent=True)} (not lower: "
+                f"{'met' if not_lower else 'NOT met'})."
+            )
+    elif v is None:
+        lines.append("- `delay-0.5s` was not run: its target is not evaluated.")
+    lines.append(
+        f"- Collision events: {totals['events']} over the shown methods; frames of events "
+        f"neither proven avoidable nor unavoidable: {totals['undecided_frames']} of "
+        f"{totals['frames']} collision frames"
+        + (
+            f"; {totals['unknown']} colliding episodes without their run directory"
+            if totals["unknown"]
+            else ""
+        )
+        + f" (every event classified: {'met' if totals['undecided_frames'] == 0 else 'NOT met'})."
+    )
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------ entry point
+def _check_unique(rows: list[dict[str, Any]]) -> None:
+    seen: dict[tuple[str, str, str], int] = defaultdict(int)
+    for r in rows:
+        seen[(r["shift"], str(r["method"]), str(r["scenario"]))] += 1
+    dup = [k for k, n in seen.items() if n > 1]
+    if dup:
+        shift, method, scenario = dup[0]
+        raise ValueError(
+            f"the rows hold {seen[dup[0]]} runs of method {method} on scenario {scenario} "
+            f"under shift {shift} ({len(dup)} such pairs): runs of different conditions "
+            "(crowd, --set, seed, ...) were written into one folder; report them from "
+            "separate folders"
+        )
 
 
 def write_report(
@@ -338,25 +780,55 @@ def write_report(
     baseline: str = "nolearn",
     title: str = "Benchmark",
     seed: int = 0,
+    bench: Mapping[str, Any] | None = None,
+    tune_wall: float | None = None,
 ) -> dict[str, Path]:
-    """Write the leaderboard, per-scene table and figures into ``out``; return the files."""
+    """Write the report (see the module docstring) into ``out``; return the files.
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        The benchmark's rows (:func:`~conformal_control.bench.runner.read_rows`).
+    baseline : str
+        The method every other is paired with.
+    bench : mapping, optional
+        The folder's ``bench.json`` (its tuned values name the dev-tuned methods).
+    tune_wall : float, optional
+        Seconds ``bench tune`` took (for the run-time target).
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ok, _ = _ok_rows(rows)
     if not ok:
         raise ValueError("no successful episode in the results: nothing to report")
-    summaries = summarise(rows, baseline=baseline, seed=seed)
+    _check_unique(ok)
+    order = {name: i for i, name in enumerate(SHIFTS)}
+    shifts = sorted({r["shift"] for r in ok}, key=lambda s: (order.get(s, len(order)), s))
+    prepared = [_prepared(r) for r in rows]
+    views = [
+        _view(sh, [r for r in prepared if r["shift"] == sh], baseline, seed, bench) for sh in shifts
+    ]
     files = {
         "leaderboard.md": out / "leaderboard.md",
         "leaderboard.csv": out / "leaderboard.csv",
         "per_scene.csv": out / "per_scene.csv",
         "per_scene.md": out / "per_scene.md",
-        "frontier.png": out / "frontier.png",
+        "strata.md": out / "strata.md",
+        "strata.csv": out / "strata.csv",
+        "collisions.md": out / "collisions.md",
+        "collisions.csv": out / "collisions.csv",
+        "targets.md": out / "targets.md",
     }
-    files["leaderboard.md"].write_text(_leaderboard_md(summaries, baseline, title))
-    _leaderboard_csv(files["leaderboard.csv"], summaries)
-    _per_scene(ok, out, seed)
-    _frontier(summaries, files["frontier.png"], title)
+    files["leaderboard.md"].write_text(_leaderboard_md(views, baseline, title))
+    _leaderboard_csv(files["leaderboard.csv"], views)
+    _per_scene(ok, out)
+    _strata(views, ok, out)
+    totals = _collisions(views, ok, out)
+    files["targets.md"].write_text(_targets(views, totals, bench, tune_wall))
+    for v in views:
+        name = "frontier.png" if len(views) == 1 else f"frontier-{v.shift}.png"
+        files[name] = out / name
+        _frontier(v, files[name], f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)")
     if _success_vs_epsilon(ok, out / "success_vs_epsilon.png", seed):
         files["success_vs_epsilon.png"] = out / "success_vs_epsilon.png"
     return files

@@ -1,44 +1,200 @@
-"""Run the benchmark: every scenario of a suite split x every method, on the sweep runner.
+"""Run the benchmark: scenarios x methods x predictor shifts, on the sweep runner.
 
-Each (scenario, method) pair is one run of a sweep (:func:`conformal_control.sweep.run_sweep`):
-resumable by key, failures isolated and recorded, a progress bar, any executor (local
-processes, serial, Dask). The scene of a run is ``scenario:<suite>/<id>`` (its time limit
-comes with it), the method's parameters are in SI (``units="si"``), and the row of every
-episode carries the scenario's and the method's description (``meta``) so that reports
-are built from the stored rows alone (:func:`conformal_control.bench.report.write_report`).
+Each (shift, scenario, method) triple is one run of a sweep
+(:func:`conformal_control.sweep.run_sweep`): resumable by key, failures isolated and
+recorded, a progress bar, any executor (the lockstep batch engine, local processes, Dask).
+The scene of a run is ``scenario:<suite>/<id>`` (its time limit comes with it), the method's
+parameters are in SI (``units="si"``), and the row of every episode carries the scenario's,
+the method's and the shift's description (``meta``) so that reports are built from the
+stored rows alone (:func:`conformal_control.bench.report.write_report`).
+
+**Tuned values.** :func:`run_bench` uses, by default, the values ``bench tune`` chose on the
+suite's dev split and the package ships (``conformal_control/bench/tuned/<suite>.json``), or
+a ``tuned.json`` given with ``tuned=``: a tuned family runs its tuned setting only, except a
+*reference* family (``fixed``), which runs its whole tuning grid so that the report can show,
+clearly labelled, the setting re-tuned on the reported split itself. ``bench.json`` records
+where the values came from.
+
+**One folder, one condition.** A folder holds the runs of one suite, split, predictor,
+crowd, set of run parameters (``--set``), seed and tuned values. A second ``bench run`` into
+it may add methods, shifts or scenarios; one with another condition is refused with a
+one-line error before anything is written, as is a run into a folder another ``bench run``
+is writing to (``bench.json`` is then left as it is).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from ..data.suites import Scenario, load_suite
-from .methods import DEFAULT_METHODS, Method, available, expand_methods
+from ..exceptions import InputError
+from .methods import DEFAULT_METHODS, FAMILIES, Method, available, expand_methods
+from .shifts import SHIFTS, Shift, get_shift
 
-__all__ = ["BenchRun", "bench_configs", "read_rows", "run_bench"]
+__all__ = [
+    "DEFAULT_SUITE",
+    "BenchFolderError",
+    "BenchRun",
+    "Tuned",
+    "bench_configs",
+    "load_tuned",
+    "plan_methods",
+    "read_bench",
+    "read_rows",
+    "run_bench",
+]
 
+#: The suite ``bench`` commands use by default.
+DEFAULT_SUITE = "crossings-v2"
 #: What each run of the benchmark writes (config.json + metrics.json); the rows are in
 #: the sweep's journal and tables.
 RUN_FILES = "metrics"
+#: The keys of ``bench.json`` that define a folder's condition (see the module docstring).
+CONDITION_KEYS = (
+    "suite",
+    "split",
+    "predictor",
+    "predictor_params",
+    "crowd",
+    "crowd_params",
+    "base_params",
+    "seed",
+    "tuned_sha256",
+)
 
 
-def _meta(suite: str, sc: Scenario, method: Method, crowd: str) -> dict[str, Any]:
+class BenchFolderError(InputError):
+    """A benchmark folder cannot take this run (busy, or another condition)."""
+
+
+# ------------------------------------------------------------------ tuned values
+@dataclass(frozen=True)
+class Tuned:
+    """Tuned settings (``bench tune``'s ``tuned.json``) and where they come from.
+
+    Attributes
+    ----------
+    values : dict
+        family -> setting.
+    source : str
+        The file (``shipped:<name>`` for the package's own).
+    sha256 : str
+        Of the file's bytes.
+    data : dict
+        The whole file (rule, candidates, the split and suite they were tuned on).
+    """
+
+    values: dict[str, Any]
+    source: str
+    sha256: str
+    data: dict[str, Any]
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "sha256": self.sha256,
+            "suite": self.data.get("suite"),
+            "split": self.data.get("split"),
+            "rule": self.data.get("rule"),
+            "values": dict(self.values),
+        }
+
+
+def _shipped_tuned(suite: str) -> Path | None:
+    path = Path(str(resources.files("conformal_control.bench") / "tuned" / f"{suite}.json"))
+    return path if path.is_file() else None
+
+
+def load_tuned(tuned: str | Path | None, suite: str) -> Tuned | None:
+    """The tuned values to use: ``"default"`` (the package's for ``suite``, if it ships
+    any), ``None`` / ``"none"`` (none), or a ``tuned.json`` file (or a ``bench tune``
+    folder holding one).
+
+    Raises
+    ------
+    ValueError
+        A file that is not a ``bench tune`` result, or tuned on another suite.
+    """
+    if tuned is None or tuned == "none":
+        return None
+    if tuned == "default":
+        path = _shipped_tuned(suite)
+        if path is None:
+            return None
+        source = f"shipped:conformal_control/bench/tuned/{path.name}"
+    else:
+        path = Path(tuned)
+        if path.is_dir():
+            path = path / "tuned.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"no tuned values at {path} (run `bench tune` first)")
+        source = str(path)
+    raw = path.read_bytes()
+    try:
+        data = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict) or not isinstance(data.get("families"), dict):
+        raise ValueError(f"{path}: not a `bench tune` result (no 'families')")
+    if data.get("suite") != suite:
+        raise ValueError(f"{path}: tuned on suite {data.get('suite')!r}, this run is on {suite!r}")
+    values = {}
+    for fam, entry in data["families"].items():
+        if not isinstance(entry, dict) or "setting" not in entry:
+            raise ValueError(f"{path}: family {fam!r} has no 'setting'")
+        values[fam] = entry["setting"]
+    return Tuned(values, source, hashlib.sha256(raw).hexdigest(), data)
+
+
+def plan_methods(
+    families: Iterable[str],
+    tuned: Tuned | None = None,
+    grids: Mapping[str, Sequence[Any]] | None = None,
+) -> list[Method]:
+    """The methods to run: a family's ``grids`` entry if given, else its tuned setting (its
+    whole tuning grid plus the tuned setting for a reference family), else its settings."""
+    out: list[Method] = []
+    grids = dict(grids or {})
+    for fam in families:
+        if fam in grids or fam not in FAMILIES or tuned is None or fam not in tuned.values:
+            out.extend(expand_methods([fam], grids))
+            continue
+        f = FAMILIES[fam]
+        value = tuned.values[fam]
+        grid: list[Any] = [value]
+        if f.reference and f.tune:
+            grid = list(f.tune) + ([value] if value not in f.tune else [])
+        out.extend(f.members(grid))
+    return out
+
+
+# ------------------------------------------------------------------ configurations
+def _meta(
+    suite: str, sc: Scenario, method: Method, crowd: str, shift: Shift, tuned: Tuned | None
+) -> dict[str, Any]:
     return {
         "suite": suite,
         "scenario": sc.id,
         "split": sc.split,
-        "source": sc.recording,
+        "source": sc.source,
+        "recording": sc.recording,
         "time_limit": sc.time_limit_s,
         "method": method.name,
         "family": method.family,
         "setting": method.setting,
+        "shift": shift.name,
         "crowd": crowd,
+        "tuned_from": None if tuned is None else tuned.source,
         "n_crossing": sc.stats.get("n_crossing"),
+        "corridor_density": sc.stats.get("corridor_density"),
+        "crossing_speed": sc.stats.get("crossing_speed"),
         # suite scenes count time in frames: lambda in 1/frame = fps / s
         "lambda_unit_si": sc.fps,
     }
@@ -50,6 +206,7 @@ def bench_configs(
     methods: Sequence[Method],
     *,
     predictor: str = "constant_velocity",
+    predictor_params: Mapping[str, Any] | None = None,
     crowd: str = "replay",
     crowd_params: Mapping[str, Any] | None = None,
     data_root: str | None = None,
@@ -57,8 +214,10 @@ def bench_configs(
     scenarios: Iterable[str] | None = None,
     limit: int | None = None,
     base_params: Mapping[str, Any] | None = None,
+    shifts: Sequence[Shift | str] = ("nominal",),
+    tuned: Tuned | None = None,
 ) -> list[Any]:
-    """The sweep's run configurations: one per (scenario, method), scenarios outermost.
+    """The sweep's run configurations: one per (shift, scenario, method), shifts outermost.
 
     Parameters
     ----------
@@ -67,7 +226,7 @@ def bench_configs(
     split : {"dev", "test"} or None
         None runs both.
     methods : sequence of Method
-    predictor : str
+    predictor, predictor_params :
         The predictor every method uses (a method may replace it, e.g. the oracle).
     crowd, crowd_params :
         Replayed pedestrians or a reactive crowd (see ``run --crowd``).
@@ -77,9 +236,15 @@ def bench_configs(
         Only the first ``limit`` scenarios of the split (quick looks, tests).
     base_params : mapping, optional
         Run parameters (SI) applied to every method; a method's own parameters win.
+    shifts : sequence of Shift or str
+        The predictor shifts (:mod:`conformal_control.bench.shifts`).
+    tuned : Tuned, optional
+        Recorded in every row (``tuned_from``).
     """
     from ..sweep.spec import RunConfig
 
+    if limit is not None and (int(limit) != limit or limit < 1):
+        raise ValueError(f"limit must be a positive number of scenarios, got {limit!r}")
     s = load_suite(suite)
     chosen = s.scenarios_for(split) if split else list(s.scenarios)
     if scenarios is not None:
@@ -92,35 +257,137 @@ def bench_configs(
         chosen = chosen[: int(limit)]
     if not chosen:
         raise ValueError(f"no scenario of suite {suite} matches (split={split!r})")
-    name = s.name if hasattr(s, "name") else suite
+    shift_list = [get_shift(x) if isinstance(x, str) else x for x in shifts]
+    name = s.name
     configs = []
-    for sc in chosen:
-        for m in methods:
-            kw = m.run_kwargs(predictor)
-            episode = {
-                k: v
-                for k, v in kw.items()
-                if k not in ("predictor", "params", "learn", "predictor_params")
-            }
-            if crowd != "replay":
-                episode["crowd"] = crowd
-                if crowd_params:
-                    episode["crowd_params"] = dict(crowd_params)
-            episode["record_animation"] = False
-            configs.append(
-                RunConfig(
-                    scene=f"scenario:{name}/{sc.id}",
-                    predictor=kw["predictor"],
-                    learn=kw["learn"],
-                    seed=seed,
-                    params={**dict(base_params or {}), **dict(kw["params"])},
-                    data_root=data_root,
-                    label=f"{sc.id}-{m.name}",
-                    episode=episode,
-                    meta=_meta(name, sc, m, crowd),
+    for shift in shift_list:
+        for sc in chosen:
+            if not shift.covers(sc.recording):
+                continue
+            for m in methods:
+                kw = m.run_kwargs(predictor)
+                own = m.predictor is None
+                pred, pred_params = shift.predictor_for(
+                    kw["predictor"], predictor_params if own else None, data_root
                 )
-            )
+                episode = {
+                    k: v
+                    for k, v in kw.items()
+                    if k not in ("predictor", "params", "learn", "predictor_params")
+                }
+                if crowd != "replay":
+                    episode["crowd"] = crowd
+                    if crowd_params:
+                        episode["crowd_params"] = dict(crowd_params)
+                episode["record_animation"] = False
+                shown = "" if shift.name == "nominal" else f"{shift.name}-"
+                configs.append(
+                    RunConfig(
+                        scene=f"scenario:{name}/{sc.id}",
+                        predictor=pred,
+                        predictor_params=pred_params or {},
+                        learn=kw["learn"],
+                        seed=seed,
+                        params={**dict(base_params or {}), **dict(kw["params"])},
+                        data_root=data_root,
+                        label=f"{shown}{sc.id}-{m.name}",
+                        episode=episode,
+                        meta=_meta(name, sc, m, crowd, shift, tuned),
+                    )
+                )
+    if not configs:
+        raise ValueError(
+            f"no scenario of suite {suite} (split={split!r}) is covered by the shifts "
+            f"{', '.join(s.name for s in shift_list)}"
+        )
     return configs
+
+
+# ------------------------------------------------------------------ the folder
+class _BenchLock:
+    """``OUT/.bench.lock``: one ``bench run`` (or ``tune``) at a time per folder (the
+    sweep's own lock, on ``OUT/.lock``, is taken later, by the sweep)."""
+
+    def __init__(self, out: Path) -> None:
+        from ..sweep.lock import SweepLock
+
+        self._lock = SweepLock(out)
+        self._lock.path = out / ".bench.lock"
+        self.out = out
+
+    def __enter__(self) -> _BenchLock:
+        from ..sweep.lock import SweepLockedError
+
+        try:
+            self._lock.acquire()
+        except SweepLockedError as exc:
+            owner = exc.owner
+            who = f"PID {owner.get('pid', 'unknown')}" + (
+                f" on {owner['host']}" if owner.get("host") else ""
+            )
+            raise BenchFolderError(
+                f"{self.out} is in use by another bench run ({who}); wait for it to finish, "
+                "stop it, or use another --out folder"
+            ) from None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+
+def read_bench(out: str | Path) -> dict[str, Any] | None:
+    """The folder's ``bench.json`` (None if there is none)."""
+    path = Path(out) / "bench.json"
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise BenchFolderError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise BenchFolderError(f"{path}: expected a JSON object")
+    return data
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, default=str)
+
+
+def _merged_description(out: Path, new: dict[str, Any]) -> dict[str, Any]:
+    """``new`` merged into the folder's ``bench.json``, or :class:`BenchFolderError` if the
+    folder holds runs of another condition."""
+    old = read_bench(out)
+    if old is None:
+        return new
+    if "tuned_sha256" not in old and "suite" in old:  # written before conditions existed
+        old = {**old, "tuned_sha256": None, "predictor_params": old.get("predictor_params")}
+    differ = [k for k in CONDITION_KEYS if _canonical(old.get(k)) != _canonical(new.get(k))]
+    if differ:
+        shown = "; ".join(
+            f"{k}: folder {_canonical(old.get(k))}, this run {_canonical(new.get(k))}"
+            for k in differ
+        )
+        raise BenchFolderError(
+            f"{out} holds benchmark runs of another condition ({shown}); runs of different "
+            "conditions are never pooled: use another --out folder"
+        )
+    merged = dict(new)
+    seen = {m["method"] for m in new["methods"]}
+    merged["methods"] = new["methods"] + [
+        m for m in old.get("methods", []) if m["method"] not in seen
+    ]
+    merged["shifts"] = list(dict.fromkeys([*old.get("shifts", []), *new["shifts"]]))
+    merged["unavailable"] = {**old.get("unavailable", {}), **new["unavailable"]}
+    limits = [old.get("limit"), new.get("limit")]
+    merged["limit"] = None if None in limits else max(x for x in limits if x is not None)
+    merged["wall_s"] = old.get("wall_s", 0.0)
+    return merged
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
+    tmp.replace(path)
 
 
 @dataclass
@@ -148,11 +415,14 @@ class BenchRun:
 def run_bench(
     out: str | Path,
     *,
-    suite: str = "crossings-v1",
+    suite: str = DEFAULT_SUITE,
     split: str | None = "test",
     methods: Sequence[str] = DEFAULT_METHODS,
     grids: Mapping[str, Sequence[Any]] | None = None,
+    shifts: Sequence[str] = ("nominal",),
+    tuned: str | Path | None = "default",
     predictor: str = "constant_velocity",
+    predictor_params: Mapping[str, Any] | None = None,
     crowd: str = "replay",
     crowd_params: Mapping[str, Any] | None = None,
     data_root: str | None = None,
@@ -170,13 +440,24 @@ def run_bench(
     ``executor="batch"`` (default) runs the (scenario, method) pairs the lockstep engine
     supports many at once in this process, with the metrics of the per-episode loop, and
     the others on a process pool of ``workers`` (see :mod:`conformal_control.sweep.batch`);
-    ``"process"``, ``"serial"`` and ``"dask"`` run one episode per task.
-    ``bench.json`` in ``out`` records the benchmark's configuration.
+    ``"process"``, ``"serial"`` and ``"dask"`` run one episode per task. ``shifts`` are
+    names of :data:`~conformal_control.bench.shifts.SHIFTS`; ``tuned`` the tuned values
+    (see the module docstring). ``bench.json`` in ``out`` records the benchmark's
+    configuration and condition.
+
+    Raises
+    ------
+    BenchFolderError
+        ``out`` is in use by another ``bench run``, or holds runs of another condition.
     """
     from ..sweep.runner import run_sweep
 
     out = Path(out)
-    all_methods = expand_methods(methods, grids)
+    if workers is not None and (int(workers) != workers or workers < 1):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    shift_list = [get_shift(s) for s in shifts]
+    tuned_values = load_tuned(tuned, suite)
+    all_methods = plan_methods(methods, tuned_values, grids)
     unavailable = {m.name: why for m in all_methods if (why := available(m)) is not None}
     chosen = [m for m in all_methods if m.name not in unavailable]
     if not chosen:
@@ -186,48 +467,60 @@ def run_bench(
         split,
         chosen,
         predictor=predictor,
+        predictor_params=predictor_params,
         crowd=crowd,
         crowd_params=crowd_params,
         data_root=data_root,
         seed=seed,
         limit=limit,
         base_params=base_params,
+        shifts=shift_list,
+        tuned=tuned_values,
     )
+    description: dict[str, Any] = {
+        "suite": suite,
+        "split": split,
+        "predictor": predictor,
+        "predictor_params": dict(predictor_params or {}) or None,
+        "crowd": crowd,
+        "crowd_params": dict(crowd_params or {}),
+        "base_params": dict(base_params or {}),
+        "seed": seed,
+        "tuned_sha256": None if tuned_values is None else tuned_values.sha256,
+        "tuned": None if tuned_values is None else tuned_values.describe(),
+        "shifts": [s.name for s in shift_list],
+        "shift_table": {s.name: s.as_dict() for s in SHIFTS.values()},
+        "methods": [m.as_dict() for m in chosen],
+        "unavailable": unavailable,
+        "limit": limit,
+    }
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench.json").write_text(
-        json.dumps(
-            {
-                "suite": suite,
-                "split": split,
-                "predictor": predictor,
-                "crowd": crowd,
-                "crowd_params": dict(crowd_params or {}),
-                "methods": [m.as_dict() for m in chosen],
-                "unavailable": unavailable,
-                "limit": limit,
-                "seed": seed,
-                "base_params": dict(base_params or {}),
-            },
-            indent=2,
-            default=str,
-        )
-        + "\n"
-    )
     t0 = time.perf_counter()
-    rep = run_sweep(
-        configs,
-        out,
-        executor,
-        workers=workers,
-        scheduler=scheduler,
-        plot=RUN_FILES,
-        summary_plot=False,
-        progress=progress,
-        # the journal has every episode as it finishes; the tables (rewritten whole) about
-        # ten times over the run: after every 50 episodes made a suite of thousands
-        # quadratic in its size
-        table_every=max(50, len(configs) // 10),
-    )
+    with _BenchLock(out):
+        description = _merged_description(out, description)
+        _write_json(out / "bench.json", description)
+        rep = run_sweep(
+            configs,
+            out,
+            executor,
+            workers=workers,
+            scheduler=scheduler,
+            plot=RUN_FILES,
+            summary_plot=False,
+            progress=progress,
+            # the journal has every episode as it finishes; the tables (rewritten whole)
+            # about ten times over the run
+            table_every=max(50, len(configs) // 10),
+        )
+        wall = time.perf_counter() - t0
+        description["wall_s"] = float(description.get("wall_s") or 0.0) + wall
+        description["last_run"] = {
+            "episodes": len(configs),
+            "ran": len(rep.ran),
+            "wall_s": wall,
+            "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
+        }
+        _write_json(out / "bench.json", description)
     return BenchRun(
         out_dir=out,
         n_runs=len(configs),
@@ -235,7 +528,7 @@ def run_bench(
         ran=len(rep.ran),
         failed=len(rep.failed),
         unavailable=unavailable,
-        wall_s=time.perf_counter() - t0,
+        wall_s=wall,
     )
 
 
@@ -246,4 +539,4 @@ def read_rows(out: str | Path) -> list[dict[str, Any]]:
     out = Path(out)
     if not (out / "results.jsonl").exists():
         raise FileNotFoundError(f"{out} holds no benchmark results (no results.jsonl)")
-    return ResultsStore(out).rows()
+    return ResultsStore(out).rows(absolute=True)

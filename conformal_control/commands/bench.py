@@ -1,8 +1,9 @@
 """``conformal-control bench``: the closed-loop safety benchmark on real crowds.
 
 ``bench scenarios`` lists (or regenerates) a suite, ``bench methods`` lists the methods,
-``bench run`` runs scenarios x methods on the sweep runner (resumable), ``bench report``
-writes the leaderboard and figures from the stored rows.
+``bench shifts`` the predictor shifts, ``bench tune`` chooses each family's setting on the
+dev split, ``bench run`` runs shifts x scenarios x methods on the sweep runner (resumable),
+``bench report`` writes the leaderboards, tables and figures from the stored rows.
 """
 
 from __future__ import annotations
@@ -13,6 +14,10 @@ import time
 from typing import Any
 
 from . import command, key_values
+
+#: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
+#: that ``--help`` stays fast).
+SUITE = "crossings-v2"
 
 
 @command("bench", "closed-loop safety benchmark on real crowds (scenario suites)")
@@ -26,7 +31,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "from the data and compare it byte for byte with the shipped manifest."
         ),
     )
-    sc.add_argument("--suite", default="crossings-v1", help="suite name (default crossings-v1)")
+    sc.add_argument("--suite", default=SUITE, help=f"suite name (default {SUITE})")
     sc.add_argument("--split", choices=("dev", "test"), help="only this split")
     sc.add_argument("--summary", action="store_true", help="counts per source and split only")
     sc.add_argument(
@@ -58,6 +63,37 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     me.add_argument("--json", action="store_true", help="machine-readable output")
 
+    sub.add_parser(
+        "shifts",
+        help="list the predictor shifts (--shift)",
+        description="The named predictor shifts of `bench run --shift`, with what they do.",
+    )
+
+    tu = sub.add_parser(
+        "tune",
+        help="choose each method family's setting on the dev split (writes tuned.json)",
+        description=(
+            "Run every tuned family's grid on a split (default dev) under the nominal "
+            "predictor and choose one setting per family by one rule: the highest success "
+            "rate, ties by fewer collision frames per scenario, then shorter time to goal, "
+            "then the first setting of the grid. Writes OUT/tuned.json; `bench run --tuned "
+            "OUT` uses it (by default `bench run` uses the values shipped for the suite)."
+        ),
+    )
+    tu.add_argument("--suite", default=SUITE, help=f"suite name (default {SUITE})")
+    tu.add_argument("--split", default="dev", choices=("dev", "test"), help="split (default dev)")
+    tu.add_argument(
+        "--methods",
+        default=None,
+        help="comma-separated families to tune (default: fixed,conformal,acp,inflated)",
+    )
+    tu.add_argument("--data-root", default=None, help="data folder")
+    tu.add_argument("--executor", default="batch", choices=("batch", "process", "serial", "dask"))
+    tu.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
+    tu.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    tu.add_argument("--out", required=True, help="tuning folder (runs and tuned.json)")
+    tu.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+
     ru = sub.add_parser(
         "run",
         help="run scenarios x methods (resumable; failures isolated)",
@@ -66,14 +102,32 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "Finished episodes are skipped on a rerun into the same --out."
         ),
     )
-    ru.add_argument("--suite", default="crossings-v1", help="suite name (default crossings-v1)")
+    ru.add_argument("--suite", default=SUITE, help=f"suite name (default {SUITE})")
     ru.add_argument(
         "--split", default="test", choices=("dev", "test", "all"), help="split (default test)"
     )
     ru.add_argument(
         "--methods",
         default=None,
-        help="comma-separated method families (default: every family, see `bench methods`)",
+        help=(
+            "comma-separated method families, or 'all' (default: nolearn,fixed,conformal,"
+            "acp,inflated; see `bench methods`)"
+        ),
+    )
+    ru.add_argument(
+        "--shift",
+        default="nominal",
+        metavar="NAME[,NAME]",
+        help="predictor shifts to run (default nominal; see `bench shifts`)",
+    )
+    ru.add_argument(
+        "--tuned",
+        default="default",
+        metavar="FILE|default|none",
+        help=(
+            "tuned settings: a `bench tune` folder or its tuned.json, 'default' (the values "
+            "shipped for the suite) or 'none' (every family's default settings)"
+        ),
     )
     ru.add_argument(
         "--grid",
@@ -144,6 +198,11 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     re_.add_argument("--out", default=None, help="report folder (default FOLDER/report)")
     re_.add_argument("--baseline", default="nolearn", help="method compared against")
     re_.add_argument("--title", default=None, help="title of the leaderboard and figures")
+    re_.add_argument(
+        "--tune-folder",
+        default=None,
+        help="the `bench tune` folder whose time counts in the run-time target",
+    )
 
 
 @_bench_args.handler
@@ -152,12 +211,16 @@ def _bench(args: argparse.Namespace) -> int:
         return _scenarios(args)
     if args.bench_command == "methods":
         return _methods(args)
+    if args.bench_command == "shifts":
+        return _shifts()
+    if args.bench_command == "tune":
+        return _tune(args)
     if args.bench_command == "run":
         return _run(args)
     if args.bench_command == "report":
         return _report(args)
     print(
-        "usage: conformal-control bench {scenarios,methods,run,report} ... "
+        "usage: conformal-control bench {scenarios,methods,shifts,tune,run,report} ... "
         "(see `conformal-control bench --help`)",
         file=sys.stderr,
     )
@@ -167,19 +230,23 @@ def _bench(args: argparse.Namespace) -> int:
 def _methods(args: argparse.Namespace) -> int:
     import json
 
-    from ..bench.methods import METHOD_FAMILIES, available, expand_methods
+    from ..bench.methods import FAMILIES, available, expand_methods
 
-    methods = expand_methods(METHOD_FAMILIES)
+    methods = expand_methods(FAMILIES)
     if args.json:
         rows = [{**m.as_dict(), "unavailable": available(m)} for m in methods]
         print(json.dumps(rows, indent=2, default=str))
         return 0
-    for fam, (_, _, meaning) in METHOD_FAMILIES.items():
-        members = [m for m in methods if m.family == fam]
+    for fam in FAMILIES.values():
+        members = [m for m in methods if m.family == fam.name]
         first = members[0]
-        print(f"{fam}: {first.description}")
-        if meaning != "-":
-            print(f"  settings ({meaning}): {', '.join(m.setting for m in members)}")
+        print(f"{fam.name}: {fam.description}")
+        if fam.setting is not None:
+            print(f"  settings ({fam.meaning}): {', '.join(m.setting for m in members)}")
+            if fam.tune:
+                ref = " (bench run runs the whole grid: a reference)" if fam.reference else ""
+                grid = ", ".join(fam.method(v).setting for v in fam.tune)
+                print(f"  tuned by `bench tune` over: {grid}{ref}")
         plugins = {"rule": first.rule, **dict(first.roles)}
         if first.predictor:
             plugins["predictor"] = first.predictor
@@ -196,6 +263,18 @@ def _methods(args: argparse.Namespace) -> int:
     return 0
 
 
+def _shifts() -> int:
+    from ..bench.shifts import SHIFTS
+
+    for sh in SHIFTS.values():
+        what = "unchanged" if sh.predictor is None else f"{sh.predictor} {dict(sh.params)}"
+        if sh.name == "learned":
+            what = "recorded (Trajectron++ predictions from the data folder)"
+        cover = "" if sh.recordings is None else f"; only {', '.join(sh.recordings)}"
+        print(f"{sh.name}: {sh.description}\n  predictor: {what}{cover}")
+    return 0
+
+
 def _grids(items: list[str] | None) -> dict[str, list[Any]]:
     from ..flagship.params import parse_value
 
@@ -208,6 +287,38 @@ def _grids(items: list[str] | None) -> dict[str, list[Any]]:
     return out
 
 
+def _families(text: str | None, default: tuple[str, ...]) -> list[str]:
+    from ..bench.methods import FAMILIES
+
+    if not text:
+        return list(default)
+    if text.strip() == "all":
+        return list(FAMILIES)
+    return [m.strip() for m in text.split(",") if m.strip()]
+
+
+def _progress(value: str | None) -> bool | None:
+    return None if value is None else value == "on"
+
+
+def _tune(args: argparse.Namespace) -> int:
+    from ..bench.tune import DEFAULT_TUNED, tune
+
+    res = tune(
+        args.out,
+        suite=args.suite,
+        split=args.split,
+        families=_families(args.methods, DEFAULT_TUNED),
+        data_root=args.data_root,
+        executor=args.executor,
+        workers=args.workers,
+        progress=_progress(args.progress),
+        limit=args.limit,
+    )
+    print(res.summary())
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
         from ..bench.planar import run_command
@@ -215,26 +326,24 @@ def _run(args: argparse.Namespace) -> int:
         return run_command(args.out, args.methods, args.predictor, args.data_root, args.datasets)
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
+    from ..bench.shifts import parse_shifts
 
-    methods = (
-        [m.strip() for m in args.methods.split(",") if m.strip()]
-        if args.methods
-        else list(DEFAULT_METHODS)
-    )
-    progress = None if args.progress is None else args.progress == "on"
+    shifts = [s.name for s in parse_shifts(args.shift)]
     res = run_bench(
         args.out,
         suite=args.suite,
         split=None if args.split == "all" else args.split,
-        methods=methods,
+        methods=_families(args.methods, DEFAULT_METHODS),
         grids=_grids(args.grid),
+        shifts=shifts,
+        tuned=args.tuned,
         predictor=args.predictor or "constant_velocity",
         crowd=args.crowd,
         data_root=args.data_root,
         executor=_executor(args),
         workers=args.workers,
         scheduler=args.scheduler,
-        progress=progress,
+        progress=_progress(args.progress),
         limit=args.limit,
         base_params=key_values(args.set, "--set"),
     )
@@ -254,10 +363,11 @@ def _executor(args: argparse.Namespace) -> str:
 
 
 def _report(args: argparse.Namespace) -> int:
+    import json
     from pathlib import Path
 
     from ..bench.report import write_report
-    from ..bench.runner import read_rows
+    from ..bench.runner import read_bench, read_rows
 
     folder = Path(args.folder)
     from ..bench.planar import is_planar_folder, report_command
@@ -265,10 +375,19 @@ def _report(args: argparse.Namespace) -> int:
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
     rows = read_rows(folder)
+    bench = read_bench(folder)
+    tune_wall = None
+    if args.tune_folder:
+        path = Path(args.tune_folder)
+        path = path / "tuned.json" if path.is_dir() else path
+        tune_wall = float(json.loads(path.read_text())["wall_s"])
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"
-    files = write_report(rows, out, baseline=args.baseline, title=title)
+    files = write_report(
+        rows, out, baseline=args.baseline, title=title, bench=bench, tune_wall=tune_wall
+    )
     print((out / "leaderboard.md").read_text())
+    print((out / "targets.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files.values()))
     return 0
 

@@ -29,7 +29,9 @@ from . import (
     positive_int,
 )
 
-_ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss")
+_ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss", "family")
+#: the registry's name of a role when it differs from the option's
+_REGISTRY_ROLE = {"family": "decision_family"}
 #: options that are not part of a run's identity (not stored for --config)
 _NOT_STORED = ("out", "config", "argv", "command", "quiet", "verbose", "no_plot")
 
@@ -88,6 +90,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         ("reference", "reference controller (unset: attractive_field)"),
         ("dynamics", "robot dynamics (unset: velocity_tracking)"),
         ("loss", "loss (unset: cbf_gap; e.g. collision, distance_shortfall)"),
+        ("family", "decision family (unset: cbf; e.g. acp, mpc, acp_mpc, ecp_mpc)"),
     ):
         p.add_argument(f"--{role}", default=None, help=f"registered {what}")
         p.add_argument(
@@ -343,7 +346,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     registry.entry("update_rule", args.rule)
     for role in _ROLES:
         if getattr(args, role):
-            registry.entry(role, getattr(args, role))
+            registry.entry(_REGISTRY_ROLE.get(role, role), getattr(args, role))
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
             f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
@@ -597,7 +600,13 @@ def _run_multi(
     out: Path | None = None,
 ) -> int:
     """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
+    from ..exceptions import InputError
     from ..sim.multi import load_robots_file, run_multi
+
+    roles = dict(roles)
+    family, family_params = roles.pop("family", None), roles.pop("family_params", None)
+    if family or family_params:
+        raise InputError("--robots runs the CBF family only: drop --family / --family-param")
 
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:

@@ -12,6 +12,18 @@ linear for runs of fewer than 4 samples), separately on each run of consecutive 
 so that a track's gaps stay gaps (NaN in a scene) instead of being bridged by the spline.
 Frame numbers then count frames at ``fps`` from sample 0 (sample index x fps / 2.5).
 :func:`ethucy_recording` finds the full recording of one scene (its ``test/`` files).
+
+**The clock of biwi_eth.** These files are the Social-LSTM / Social-GAN copies, read by the
+trajectory-prediction literature as one row every 0.4 s. For ETH's ``seq_eth``
+(``biwi_eth.txt``) that is not the recording's clock: the original annotation
+(``seq_eth/obsmat.txt``) samples the video every 6 frames at 2.5 samples per second (0.4 s per
+6 frames, per the dataset's own ``info.txt``), while the copy steps its frame numbers by 10 for
+consecutive samples, so one of its rows is 10 x 0.4 / 6 = 0.667 s apart. Read at 0.4 s, its
+pedestrians walk at a median 2.45 m/s (90th percentile 3.06 m/s) against 0.52-1.27 m/s on the
+five other recordings; at 0.667 s per row, 1.47 m/s, an ordinary walking speed.
+:data:`ETHUCY_ORIGINAL_RATE` holds the rows per second of each recording on its original
+clock (``rate`` of :func:`read_ethucy`); the scene form ``ethucy:<recording>:corrected`` uses
+it, the plain form keeps the literature's 2.5 rows per second.
 """
 
 from __future__ import annotations
@@ -27,6 +39,7 @@ from .tracks import Tracks
 
 __all__ = [
     "ETHUCY_FPS",
+    "ETHUCY_ORIGINAL_RATE",
     "ETHUCY_RECORDINGS",
     "ETHUCY_SCENES",
     "ethucy_files",
@@ -35,6 +48,9 @@ __all__ = [
 ]
 
 ETHUCY_FPS = 2.5
+#: Rows per second of each recording on its original clock, where it is not
+#: :data:`ETHUCY_FPS` (see the module docstring: biwi_eth's rows are 0.667 s apart).
+ETHUCY_ORIGINAL_RATE: dict[str, float] = {"biwi_eth": 1.5}
 ETHUCY_SCENES = ("eth", "hotel", "univ", "zara1", "zara2")
 SPLITS = ("train", "val", "test")
 #: The full recordings: ``<scene>/test/<stem>.txt`` (univ has two).
@@ -74,7 +90,9 @@ def _interpolate(
     return out, n_gaps
 
 
-def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Tracks:
+def read_ethucy(
+    path: str | os.PathLike[str], fps: float | None = None, rate: float = ETHUCY_FPS
+) -> Tracks:
     """Read one file; frames are renumbered to sample indices (frame / frame step).
 
     Parameters
@@ -82,9 +100,12 @@ def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Track
     path : path
         A ``frame ped_id x y`` file (metres).
     fps : float, optional
-        Interpolate every track to this frame rate (a whole multiple of 2.5, e.g. 30; see
-        the module docstring); frame numbers are then frames at ``fps``. Default: keep the
-        2.5 fps samples (frame numbers are sample indices).
+        Interpolate every track to this frame rate (a whole multiple of ``rate``, e.g. 30;
+        see the module docstring); frame numbers are then frames at ``fps``. Default: keep
+        the samples (frame numbers are sample indices).
+    rate : float
+        Rows per second of the file (2.5; 1.5 for biwi_eth on its original clock, see
+        :data:`ETHUCY_ORIGINAL_RATE`).
 
     Raises
     ------
@@ -93,11 +114,13 @@ def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Track
         multiple of 2.5.
     """
     factor = 1
+    if not (isinstance(rate, (int, float)) and np.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate must be a number of rows per second > 0, got {rate!r}")
     if fps is not None:
-        ratio = float(fps) / ETHUCY_FPS
+        ratio = float(fps) / float(rate)
         factor = round(ratio)
         if not (np.isfinite(ratio) and factor >= 1 and abs(ratio - factor) < 1e-9):
-            raise ValueError(f"fps must be a whole multiple of {ETHUCY_FPS} (e.g. 30), got {fps!r}")
+            raise ValueError(f"fps must be a whole multiple of {rate:g} (e.g. 30), got {fps!r}")
     path = Path(path)
     if not path.is_file():
         raise missing(path, "ETH/UCY file")
@@ -123,9 +146,9 @@ def read_ethucy(path: str | os.PathLike[str], fps: float | None = None) -> Track
         xy = arr[sel][order, 2:4]
         keep = np.concatenate([[True], np.diff(f) > 0])  # drop duplicated frames
         tracks[int(pid)] = (f[keep], xy[keep])
-    meta: dict[str, object] = {"frame_step": step, "format": "ethucy"}
+    meta: dict[str, object] = {"frame_step": step, "format": "ethucy", "rate": float(rate)}
     if fps is None:
-        return Tracks(ETHUCY_FPS, tracks, source=str(path), meta=meta)
+        return Tracks(float(rate), tracks, source=str(path), meta=meta)
     tracks, n_gaps = _interpolate(tracks, factor)
     meta.update(
         {

@@ -16,7 +16,10 @@ Scene names accepted by :func:`load_scene` and ``conformal-control run --scene``
   ``students001``, ``students003``, ``crowds_zara01``, ``crowds_zara02``), interpolated
   from 2.5 to 30 fps (:func:`conformal_control.data.ethucy.read_ethucy`). These
   recordings are in world metres without an image: ``start_m`` and ``goals_m`` give start
-  and goals in metres (required).
+  and goals in metres (required). ``ethucy:<recording>:corrected`` replays the recording on
+  its original clock: biwi_eth's rows are 0.667 s apart, not the literature's 0.4 s
+  (:data:`conformal_control.data.ethucy.ETHUCY_ORIGINAL_RATE`); the other recordings are the
+  same in both forms. The corrected biwi_eth scene is named ``biwi_eth:corrected``.
 
 Parameters of SDD scenes are typed in the paper's units (px, frames; see
 :mod:`conformal_control.data.units`). ETH/UCY scenes are typed in metres and frames of
@@ -43,7 +46,13 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import InputError
-from .ethucy import ETHUCY_RECORDINGS, ethucy_recording, read_ethucy
+from .ethucy import (
+    ETHUCY_FPS,
+    ETHUCY_ORIGINAL_RATE,
+    ETHUCY_RECORDINGS,
+    ethucy_recording,
+    read_ethucy,
+)
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
@@ -243,7 +252,7 @@ ETHUCY_DEFAULTS = crowd_defaults(1.0, 30.0, ETHUCY_PUBLISHED)
 ETHUCY_SCENE_FPS = SDD_FPS
 
 _SDD_RE = re.compile(r"^sdd:(?P<scene>[A-Za-z]+)/video(?P<video>\d+)(?::(?P<form>raw|trajnet))?$")
-_ETHUCY_RE = re.compile(r"^ethucy:(?P<stem>\w+)$")
+_ETHUCY_RE = re.compile(r"^ethucy:(?P<stem>\w+)(?P<corrected>:corrected)?$")
 
 
 def scene_names() -> list[str]:
@@ -254,16 +263,21 @@ def scene_names() -> list[str]:
 
 @functools.lru_cache(maxsize=8)
 def _read_tracks_cached(
-    kind: str, path: str, m_per_px: float, fps: float | None, _stamp: tuple[int, int]
+    kind: str,
+    path: str,
+    m_per_px: float,
+    fps: float | None,
+    _stamp: tuple[int, int],
+    rate: float = ETHUCY_FPS,
 ) -> Tracks:
     def read() -> Tracks:
         if kind == "raw":
             return read_annotations(path, m_per_px)
         if kind == "trajnet":
             return read_trajnet(path, m_per_px)
-        return read_ethucy(path, fps=fps)
+        return read_ethucy(path, fps=fps, rate=rate)
 
-    return cached_tracks(kind, path, {"m_per_px": m_per_px, "fps": fps}, read)
+    return cached_tracks(kind, path, {"m_per_px": m_per_px, "fps": fps, "rate": rate}, read)
 
 
 def read_tracks(
@@ -271,6 +285,7 @@ def read_tracks(
     path: str | os.PathLike[str],
     m_per_px: float = 1.0,
     fps: float | None = None,
+    rate: float = ETHUCY_FPS,
 ) -> Tracks:
     """Tracks of a recording (``kind``: ``raw`` SDD, ``trajnet`` or ``ethucy``), read once.
 
@@ -278,7 +293,8 @@ def read_tracks(
     time), so that many short episodes on one recording parse it once, and every file parsed
     is kept on disk as ``.npz`` (:mod:`~conformal_control.data.track_cache`: keyed by the
     file's content and the loaders' code), so that the next process reads it in
-    milliseconds. Treat the result as read-only: it is shared.
+    milliseconds. Treat the result as read-only: it is shared. ``rate``: rows per second of
+    an ETH/UCY file.
     """
     if kind not in ("raw", "trajnet", "ethucy"):
         raise ValueError(f"kind must be raw, trajnet or ethucy, got {kind!r}")
@@ -288,7 +304,7 @@ def read_tracks(
         stamp = (st.st_size, st.st_mtime_ns)
     except OSError:
         stamp = (-1, -1)  # the reader raises the clear missing-file error
-    return _read_tracks_cached(kind, str(p), float(m_per_px), fps, stamp)
+    return _read_tracks_cached(kind, str(p), float(m_per_px), fps, stamp, float(rate))
 
 
 def _metres(value: Any, what: str) -> np.ndarray:
@@ -323,10 +339,11 @@ def _ethucy_scene(
     if start_m is None or goals_m is None:
         raise ValueError(f"{name} needs start_m and goals_m (metres): it has no default task")
     path = ethucy_recording(m["stem"], data_root)
-    tracks = read_tracks("ethucy", path, fps=ETHUCY_SCENE_FPS)
+    rate = ETHUCY_ORIGINAL_RATE.get(m["stem"], ETHUCY_FPS) if m["corrected"] else ETHUCY_FPS
+    tracks = read_tracks("ethucy", path, fps=ETHUCY_SCENE_FPS, rate=rate)
     scene = scene_from_tracks(
         tracks,
-        name=m["stem"],
+        name=m["stem"] + (":corrected" if rate != ETHUCY_FPS else ""),
         start=_metres(start_m, "start_m")[0],
         goals=_metres(goals_m, "goals_m"),
         start_frame=int(start_frame if start_frame is not None else history_frames),
@@ -336,7 +353,13 @@ def _ethucy_scene(
         units=UnitSystem(1.0, 1.0 / ETHUCY_SCENE_FPS, "m", "frame"),
         defaults=dict(ETHUCY_DEFAULTS),
     )
-    scene.meta.update({"ethucy_recording": m["stem"], "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]]})
+    scene.meta.update(
+        {
+            "ethucy_recording": m["stem"],
+            "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]],
+            "ethucy_rate": rate,
+        }
+    )
     scene.meta["published_params"] = dict(ETHUCY_PUBLISHED)
     return scene
 

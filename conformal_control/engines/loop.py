@@ -106,7 +106,7 @@ def run_loop(
     env = fl.env
     steps = {
         "t": np.array(env.steps_t),
-        "x": np.array(env.steps_x).reshape(-1, 4),
+        "x": np.array([x[:4] for x in env.steps_x]).reshape(-1, 4),
         "cmd": np.array(env.steps_cmd).reshape(-1, 2),
     }
     crowd_config = getattr(env, "crowd_config", None)

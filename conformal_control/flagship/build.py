@@ -19,11 +19,12 @@ c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.Conforma
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import Loss, Plugin, UpdateRule
+from ..base import DecisionFamily, Loss, Plugin, UpdateRule
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
@@ -62,7 +63,9 @@ class Flagship:
     scene: Scene
     params: ResolvedParams
     env: ReplayEnvironment  # a ReactiveEnvironment for a reactive crowd
-    policy: ConformalCBFController
+    # a ConformalCBFController (the compiled engine and the shield need one and check), or
+    # a family that plans with the plant (the MPC families, a floor up): typed by duck
+    policy: Any
     loss: Loss[Any, Any]
     rule: UpdateRule
     constraint: ConformalConstraint
@@ -94,6 +97,13 @@ class Flagship:
             "params": {k: v for k, v in self.policy.get_params().items() if k not in parts},
         }
         return out
+
+
+def _plans_with_a_plant(cls: type) -> bool:
+    """Whether a decision family is built from a predictor and the robot's plant (the
+    MPC families: ``predictor=``, ``dynamics=``)."""
+    names = set(getattr(cls, "_param_names", lambda: [])())
+    return {"predictor", "dynamics"} <= names
 
 
 def role_name(spec: RoleSpec, default: str) -> str:
@@ -217,7 +227,15 @@ def build_flagship(
         A registered decision family built from the same parts (predictor, constraint,
         safety filter, reference, substeps) and ``family_params``; default ``"cbf"``, the
         conformal CBF controller (Algorithm 1). ``"acp"``: adaptive conformal prediction
-        regions (:class:`~conformal_control.cbf.acp.ACPController`).
+        regions (:class:`~conformal_control.cbf.acp.ACPController`). A family built from a
+        predictor and the plant (the sampling MPCs ``"mpc"``, ``"acp_mpc"``, ``"ecp_mpc"``,
+        :mod:`conformal_control.mpc`) receives the predictor, the dynamics, the reference,
+        ``d_c`` (robot + agent radius), ``margin`` (``barrier_margin``), ``v_max``,
+        ``substeps`` and ``random_state`` (the seed) for the arguments it takes, then
+        ``family_params``; its loss defaults to the family's ``default_loss`` (with
+        ``d_safe`` = ``d_c`` + 1 m where the loss takes one), its rule's ``epsilon`` and
+        ``eta`` to the family's ``default_rule_params`` unless the run gives them, and the
+        rule's parameters are in SI (its lambda is a length or a level, not a rate).
     units : {"scene", "si"}
         Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
         plugins are always SI).
@@ -310,18 +328,41 @@ def build_flagship(
         dyn = VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"])
     names["dynamics"] = role_name(dynamics, "velocity_tracking")
 
+    fam_name = family or "cbf"
+    fam_cls = registry.get("decision_family", fam_name)
+    planning = not issubclass(fam_cls, ConformalCBFController)
+    if planning and not _plans_with_a_plant(fam_cls):
+        raise TypeError(
+            f"decision family {fam_name!r} is neither built from the flagship's parts (a "
+            "ConformalCBFController subclass) nor from a predictor and a plant (a family "
+            "taking predictor= and dynamics=, as the MPC families do)"
+        )
+    # an MPC family's loss defaults to its own (a safety distance 1 m beyond collision)
+    context["d_safe"] = d_c + 1.0
     loss_obj = _resolve("loss", loss, loss_params, context, Loss)
-    if loss_obj is None:
+    default_loss = str(getattr(fam_cls, "default_loss", "cbf_gap"))
+    if loss_obj is None and planning:
+        loss_obj = _create("loss", default_loss, None, context)
+    elif loss_obj is None:
         loss_obj = CBFGapLoss(constraint, scale=si["loss_scale"])
-    names["loss"] = role_name(loss, "cbf_gap")
+    names["loss"] = role_name(loss, default_loss)
 
+    rule_resolved = resolved
+    if planning:
+        # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
+        # defaults apply unless the run gave them
+        fam_defaults = dict(getattr(fam_cls, "default_rule_params", {}))
+        own = {k: v for k, v in fam_defaults.items() if k not in resolved.given}
+        if own:
+            rule_resolved = dataclasses.replace(resolved, si={**si, **own})
     if isinstance(rule, str):
-        lam_unit = 1.0 if units == "si" else scene.units.factor("lambda_init")
-        rule_obj = build_rule(rule, rule_params, resolved, lam_unit)
+        # an MPC family's lambda is a length or a level, never in the scene's time unit
+        lam_unit = 1.0 if units == "si" or planning else scene.units.factor("lambda_init")
+        rule_obj = build_rule(rule, rule_params, rule_resolved, lam_unit)
     elif rule is None:
         rule_obj = FixedEtaRule(
-            epsilon=si["epsilon"],
-            eta=si["eta"],
+            epsilon=rule_resolved.si["epsilon"],
+            eta=rule_resolved.si["eta"],
             lambda_init=si["lambda_init"],
             lambda_min=si["lambda_min"],
             lambda_max=si["lambda_max"],
@@ -335,15 +376,26 @@ def build_flagship(
     names["rule"] = role_name(rule, "fixed_eta")
     names["crowd"] = crowd
 
-    fam_name = family or "cbf"
-    fam_cls = registry.get("decision_family", fam_name)
-    if not issubclass(fam_cls, ConformalCBFController):
-        raise TypeError(
-            f"decision family {fam_name!r} is not built from the flagship's parts "
-            "(a ConformalCBFController subclass)"
-        )
     registry.check_params("decision_family", fam_name, fam_cls, dict(family_params or {}))
-    policy = fam_cls(pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {}))
+    policy: DecisionFamily[Any, Any, Any, Any]
+    if planning:
+        plan_context = {
+            "predictor": pred,
+            "dynamics": dyn,
+            "reference": ref,
+            "d_c": d_c,
+            "margin": si["barrier_margin"],
+            "v_max": si["v_max"],
+            "substeps": si["substeps"],
+            "random_state": seed,
+            **(family_params or {}),
+        }
+        accepted = set(fam_cls._param_names())
+        policy = fam_cls(**{k: v for k, v in plan_context.items() if k in accepted})
+    else:
+        policy = fam_cls(
+            pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {})
+        )
     names["family"] = fam_name
     cp = dict(crowd_params or {})
     if crowd != "replay":

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -177,6 +177,11 @@ class ECPMPC(SamplingMPC):
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions.
     """
+
+    default_loss: ClassVar[str] = "ego_miscoverage"
+    lambda_unit: ClassVar[str] = "level"
+    #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
+    default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
     def __init__(
         self,

@@ -189,7 +189,9 @@ class RecordedPredictor(Predictor):
     ----------
     path : str or dict
         The predictions file, or a dict scene name -> file (the scene name of the query,
-        e.g. ``biwi_eth``; a scene without an entry is an error).
+        e.g. ``biwi_eth``; a scene without an entry is an error). A dict's value may be a
+        dict ``{"file": ..., "step_s": ..., "frames_per_step": ...}`` (a scene whose clock
+        differs).
     step_s : float
         Time between two prediction steps, in seconds (> 0; 0.4 for ETH/UCY).
     frames_per_step : float
@@ -237,8 +239,10 @@ class RecordedPredictor(Predictor):
         self.fallback_.reset()
         self.counts_: dict[str, int] = {}
 
-    def _file(self, scene: str) -> Path:
-        spec = self.path
+    def _source(self, scene: str) -> tuple[Path, float, float]:
+        """The file, step length and CSV frames per step used for ``scene``."""
+        spec: Any = self.path
+        step_s, per_step = float(self.step_s), float(self.frames_per_step)
         if isinstance(spec, Mapping):
             if scene not in spec:
                 raise ValueError(
@@ -246,16 +250,26 @@ class RecordedPredictor(Predictor):
                     f"{', '.join(map(str, spec)) or 'no scene'}"
                 )
             spec = spec[scene]
+            if isinstance(spec, Mapping):
+                unknown = sorted(set(spec) - {"file", "step_s", "frames_per_step"})
+                if unknown or "file" not in spec:
+                    raise ValueError(
+                        f"path[{scene!r}] must be a file or a dict with 'file' (and optionally "
+                        f"'step_s', 'frames_per_step'), got {dict(spec)!r}"
+                    )
+                step_s = float(spec.get("step_s", step_s))
+                per_step = float(spec.get("frames_per_step", per_step))
+                spec = spec["file"]
         p = Path(str(spec)).expanduser()
         if not p.is_absolute() and not p.exists():
             from ..data.paths import resolve_data_root
 
             p = resolve_data_root(self.data_root) / p
-        return p
+        return p, step_s, per_step
 
     def predictions(self, scene: str) -> RecordedPredictions:
         """The indexed predictions used for ``scene``."""
-        return _cached(self._file(scene))
+        return _cached(self._source(scene)[0])
 
     def predict(self, query: PredictionQuery) -> Forecast:
         if not hasattr(self, "fallback_"):
@@ -265,13 +279,14 @@ class RecordedPredictor(Predictor):
         out = np.full((n, H, 2), np.nan)
         if n == 0:
             return Forecast(out, info=info)
-        rec = self.predictions(query.scene)
+        path, step_s, per_step = self._source(query.scene)
+        rec = _cached(path)
         hist = np.asarray(query.history, dtype=float)
         cur = hist[:, -1]
         ok_cur = np.isfinite(cur).all(axis=1)
         dt = float(query.dt)
         t_q = int(query.frame) * dt
-        f_s = float(self.step_s) / float(self.frames_per_step)
+        f_s = step_s / per_step
         # the latest forecast issued at or before t_q (a tolerance for the clocks' rounding)
         k = int(np.searchsorted(rec.frames * f_s, t_q + 1e-9, side="right")) - 1
         times = t_q + dt * np.arange(1, H + 1)
@@ -282,7 +297,7 @@ class RecordedPredictor(Predictor):
             qids = np.asarray(query.ids).astype(np.int64)
             pos = np.searchsorted(ids, qids)
             found = (pos < ids.size) & (ids[np.minimum(pos, ids.size - 1)] == qids)
-            knots_t = t_f + float(self.step_s) * np.arange(1, pts.shape[1] + 1)
+            knots_t = t_f + step_s * np.arange(1, pts.shape[1] + 1)
             # a requested time within 1e-9 s of a knot is that knot (exact CSV values)
             near = np.abs(times[:, None] - knots_t[None, :]) < 1e-9
             times_snapped = np.where(near.any(axis=1), knots_t[np.argmax(near, axis=1)], times)

@@ -52,11 +52,21 @@ def feasibility(fl: Flagship) -> Any:
     )
 
 
+def lambda_unit(fl: Flagship) -> tuple[float, str]:
+    """How lambda is reported: (SI value of one reported unit, its name). The CBF families'
+    lambda is a rate, reported in the scene's time unit (1/frame on SDD); a family that
+    declares ``lambda_unit`` (the MPC families: metres, or a level) is reported in it."""
+    declared = getattr(fl.policy, "lambda_unit", None)
+    if isinstance(declared, str):
+        return 1.0, declared
+    return fl.scene.units.factor("lambda_init"), f"1/{fl.scene.units.time_name}"
+
+
 def lambda_safe_values(
     fl: Flagship, lambda_safe: float | None, units: str
 ) -> tuple[float | None, float | None]:
     """``lambda_safe`` given in ``units``: (in the scene's units, as reported; in SI)."""
-    lam_unit = fl.scene.units.factor("lambda_init")
+    lam_unit = lambda_unit(fl)[0]
     if lambda_safe is not None and units == "si":
         lambda_safe = lambda_safe / lam_unit
     return lambda_safe, None if lambda_safe is None else float(lambda_safe) * lam_unit
@@ -160,8 +170,7 @@ def measure(
     the robot met (F, M, 2), when they are not the environment's (default: its simulated
     crowd, else the recording)."""
     env, scene, si = fl.env, fl.scene, fl.params.si
-    units = scene.units
-    lam_unit = units.factor("lambda_init")
+    lam_unit, lam_name = lambda_unit(fl)
     traj = env.log.arrays()
     updates = result.updates
     n_steps = max(fl.policy.n_steps_, 1)
@@ -184,7 +193,7 @@ def measure(
         }
         for iv in result.intervals
     ]
-    filt = fl.safety_filter.stats()
+    filt = fl.policy.stats()  # a CBF family's counters include its safety filter's
     g = {
         k: guarantee.get(k)
         for k in (
@@ -229,7 +238,7 @@ def measure(
         t_goal=env.t_goal_,
         lambdas=result.lambdas,
         lam_unit=lam_unit,
-        lam_unit_name=f"1/{units.time_name}",
+        lam_unit_name=lam_name,
         l_avg=mon.average if (learn and mon.n) else None,
         l_avg_applied=_nanmean(losses_applied) if learn else None,
         l_mean=mon.average if mon.n else None,

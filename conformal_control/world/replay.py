@@ -28,7 +28,7 @@ class FrameLog:
     d_min: list[float]
 
     def arrays(self) -> dict[str, np.ndarray]:
-        st = np.array(self.state).reshape(-1, 4)
+        st = np.array([s[:4] for s in self.state]).reshape(-1, 4)
         return {
             "frame": np.array(self.frame, dtype=np.int64),
             "t": np.array(self.t, dtype=float),
@@ -38,6 +38,16 @@ class FrameLog:
             "vy": st[:, 3],
             "d_min": np.array(self.d_min, dtype=float),
         }
+
+
+def _heading(scene: Scene) -> float:
+    """The robot's initial heading (rad): ``scene.meta["start_heading"]`` if given, else
+    toward the first goal (used by plants with a heading, the unicycle)."""
+    given = scene.meta.get("start_heading")
+    if given is not None:
+        return float(given)
+    d = np.asarray(scene.goals[0], dtype=float) - np.asarray(scene.start, dtype=float)
+    return float(math.atan2(d[1], d[0])) if np.any(d) else 0.0
 
 
 class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, CBFTruth]):
@@ -130,7 +140,7 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         if self.max_frames is not None:
             last = min(last, sc.start_index + int(self.max_frames))
         self._last = last
-        self._x = np.array([*sc.start, 0.0, 0.0], dtype=float)
+        self._x = self.dynamics.initial_state(sc.start, _heading(sc))
         self._t = 0.0
         self._step = 0
         self._goal = 0

@@ -63,7 +63,7 @@ def test_pareto_front() -> None:
 def test_write_report_files(tmp_path) -> None:
     files = write_report(rows(), tmp_path, title="toy")
     md = files["leaderboard.md"].read_text()
-    assert "| `nolearn` | 40 (1 failed) |" in md and "Paired comparison with `nolearn`" in md
+    assert "| `nolearn` | 40 (1 failed) |" in md and "Paired with `nolearn`" in md
     with files["leaderboard.csv"].open() as fh:
         table = list(csv.DictReader(fh))
     assert [r["method"] for r in table] == ["nolearn", "conformal[eps=-0.1]"]

@@ -89,3 +89,45 @@ def test_bench_run_resume_and_report(tmp_path: Path, data_root: Path, capsys) ->
 
 def test_default_methods_are_known() -> None:
     assert set(DEFAULT_METHODS) <= set(METHOD_FAMILIES)
+
+
+def test_tune_run_report_end_to_end(tmp_path: Path, data_root: Path, capsys) -> None:
+    """bench tune on 10 dev scenarios, bench run with its values on 10 test scenarios under
+    two shifts, bench report: every piece carries where it came from."""
+    import json
+
+    tune_dir, run_dir = tmp_path / "tune", tmp_path / "run"
+    common = ["--limit", "10", "--data-root", str(data_root), "--progress", "off"]
+    assert main(["bench", "tune", "--methods", "fixed,conformal", "--out", str(tune_dir),
+                 *common]) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    tuned = json.loads((tune_dir / "tuned.json").read_text())
+    assert tuned["split"] == "dev" and tuned["n_scenarios"] == 10
+    assert set(tuned["families"]) == {"fixed", "conformal"}
+    fixed = tuned["families"]["fixed"]
+    assert len(fixed["candidates"]) == 5 and f"fixed: {fixed['label']}" in printed
+    assert main(["bench", "run", "--methods", "nolearn,fixed,conformal", "--shift",
+                 "nominal,delay-0.5s", "--tuned", str(tune_dir), "--out", str(run_dir),
+                 *common]) == 0  # fmt: skip
+    bench = json.loads((run_dir / "bench.json").read_text())
+    assert bench["tuned"]["source"] == str(tune_dir / "tuned.json")
+    assert bench["tuned"]["values"]["fixed"] == fixed["setting"]
+    assert bench["shifts"] == ["nominal", "delay-0.5s"] and bench["wall_s"] > 0
+    rows = read_rows(run_dir)
+    # 10 scenarios x 2 shifts x (nolearn + 5 fixed + 1 conformal)
+    assert len(rows) == 140
+    assert {r["shift"] for r in rows} == {"nominal", "delay-0.5s"}
+    assert {r["tuned_from"] for r in rows} == {str(tune_dir / "tuned.json")}
+    capsys.readouterr()
+    assert main(["bench", "report", str(run_dir), "--tune-folder", str(tune_dir)]) == 0
+    out = capsys.readouterr().out
+    report = run_dir / "report"
+    md = (report / "leaderboard.md").read_text()
+    assert "## Shift `nominal`" in md and "## Shift `delay-0.5s`" in md
+    assert "(tuned on dev)" in md and "a reference that peeks at it" in md
+    assert f"Paired with `fixed[lambda={fixed['setting']:g}/s]`" in md
+    assert "Run time: `bench tune`" in out and "`delay-0.5s`: `conformal[eps=" in out
+    assert (report / "frontier-delay-0.5s.png").stat().st_size > 10_000
+    strata = (report / "strata.md").read_text()
+    assert "### recording" in strata and "### density" in strata and "### speed" in strata
+    assert "| delay-0.5s | `nolearn` |" in (report / "collisions.md").read_text()

@@ -233,3 +233,86 @@ def test_shipped_scenarios_are_read_once_and_again_when_the_file_changes(
         shipped_scenario("crossings-v1", "nope")
     with pytest.raises(ValueError, match="unknown suite 'crossings-v9'"):
         shipped_scenario("crossings-v9", first.id)
+
+
+# ------------------------------------------------------------------ crossings-v2
+def test_v2_replays_biwi_eth_on_its_original_clock(data_root) -> None:
+    """crossings-v2's biwi_eth scenarios read the recording at 0.667 s per row: walking
+    speeds, where v1's 0.4 s gives 2.45 m/s."""
+    from conformal_control.bench.generator import CROSSINGS_V2
+
+    v1, v2 = load_suite("crossings-v1"), load_suite("crossings-v2")
+    validate_manifest(v2.manifest)
+    assert v2.manifest["version"] == 2 and "original clock" in v2.manifest["description"]
+    assert "scene's default" in v2.manifest["nolearn"]["note"]
+    eth1 = [s for s in v1.scenarios if "biwi_eth" in s.recording]
+    eth2 = [s for s in v2.scenarios if "biwi_eth" in s.recording]
+    assert {s.scene for s in eth1} == {"ethucy:biwi_eth"}
+    assert {s.scene for s in eth2} == {"ethucy:biwi_eth:corrected"}
+    # every other recording is the same in both suites
+    others1 = [s for s in v1.scenarios if "biwi_eth" not in s.recording]
+    others2 = [s for s in v2.scenarios if "biwi_eth" not in s.recording]
+    strip = ("nolearn",)
+    assert [{k: v for k, v in s.__dict__.items() if k not in strip} for s in others1] == [
+        {k: v for k, v in s.__dict__.items() if k not in strip} for s in others2
+    ]
+    speeds = {}
+    for sc in (eth1[0], eth2[0]):
+        scene = load_scenario(sc, data_root)
+        v = np.hypot(*np.diff(scene.positions, axis=0).T) * scene.fps
+        speeds[sc.scene] = float(np.nanmedian(v))
+    assert speeds["ethucy:biwi_eth"] > 2.0
+    assert 1.0 < speeds["ethucy:biwi_eth:corrected"] < 1.7
+    # the generator reproduces the corrected recording's scenarios
+    rec = ["ethucy:biwi_eth:corrected"]
+    regenerated = generate_suite(CROSSINGS_V2, data_root, recordings=rec, nolearn=False)
+    assert _entries(regenerated, rec, drop_nolearn=True) == _entries(
+        v2.manifest, rec, drop_nolearn=True
+    )
+
+
+def test_v2_nolearn_record_is_the_benchmark_nolearn(data_root) -> None:
+    """v2 records the nolearn outcome with the scenes' defaults: bench run's nolearn."""
+    from conformal_control.bench.methods import expand_methods
+
+    v2 = load_suite("crossings-v2")
+    sc = next(s for s in v2.scenarios_for("test") if s.nolearn and s.nolearn["n_collide"] > 0)
+    (m,) = expand_methods(["nolearn"])
+    res = run_episode(
+        load_scenario(sc, data_root), **m.run_kwargs(), max_frames=sc.max_frames,
+        record_animation=False,
+    )  # fmt: skip
+    assert res.metrics["n_collide"] == sc.nolearn["n_collide"]
+    assert round(res.metrics["d_min"], 3) == sc.nolearn["d_min"]
+
+
+@pytest.mark.parametrize("name", ["crossings-v1", "crossings-v2"])
+def test_the_docs_suite_tables_are_the_manifests(name) -> None:
+    """The Benchmark page's count tables (scenarios, nolearn collisions and goals per source
+    and split) are the manifests' (a stale table once said 29 / 85 for v1's 28 / 86)."""
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "docs" / "benchmark.md").read_text()
+    section = text.split(f"### `{name}`", 1)[1].split("\n### ", 1)[0]
+    table = [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in section.splitlines()
+        if line.startswith("| ") and line.split("|")[2].strip() in ("dev", "test")
+    ]
+    suite = load_suite(name)
+    expect = []
+    for src in ("sdd", "trajnet", "ethucy", "**all**"):
+        for split in ("dev", "test"):
+            scs = [
+                s for s in suite.scenarios
+                if s.split == split and (src == "**all**" or s.source == src)
+            ]  # fmt: skip
+            expect.append(
+                [
+                    src,
+                    split,
+                    str(len(scs)),
+                    str(sum(bool(s.collided_nolearn) for s in scs)),
+                    str(sum(bool(s.nolearn["goal_reached"]) for s in scs)),
+                ]
+            )
+    assert [[r[0], r[1], r[3], r[4], r[5]] for r in table] == expect

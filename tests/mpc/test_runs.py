@@ -1,0 +1,168 @@
+"""The MPC families run where the CBF family runs: run_episode, cc.run, the CLI, the
+bench's methods, reactive crowds, a unicycle robot."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import conformal_control as cc
+from conformal_control.bench.methods import expand_methods
+from conformal_control.data.synthetic import crossing_scene
+from conformal_control.sim.episode import run_episode
+
+FAST = {"n_samples": 60, "horizon": 6, "replan_every": 2}
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return crossing_scene(duration=20.0)
+
+
+@pytest.mark.parametrize(
+    ("family", "rule", "rule_params", "unit"),
+    [
+        ("mpc", "fixed_eta", {}, "m"),
+        ("acp_mpc", "aci", {"alpha": 0.2, "gamma": 0.05}, "level"),
+        ("ecp_mpc", "aci", {"alpha": 0.2, "gamma": 0.05}, "level"),
+    ],
+)
+def test_run_episode_runs_every_mpc_family(scene, family, rule, rule_params, unit):
+    res = run_episode(
+        scene,
+        family=family,
+        family_params=FAST,
+        rule=rule,
+        rule_params=rule_params,
+        max_frames=80,
+        record_animation=False,
+    )
+    m = res.metrics
+    assert res.config["engine"] == "loop"
+    assert res.config["decision_family"]["name"] == family
+    assert m["n_steps"] > 0 and m["n_updates"] > 0
+    assert m.unit("lambda_final") == unit
+    # the family's own default loss and its counters reach the metrics
+    default = {
+        "mpc": "distance_shortfall",
+        "acp_mpc": "plan_miscoverage",
+        "ecp_mpc": "ego_miscoverage",
+    }[family]
+    assert res.config["loss"]["name"] == default
+    assert m["n_infeasible"] >= 0 and m["fallback_share"] <= 1.0
+
+
+def test_a_fixed_margin_mpc_keeps_further_away_than_none(scene):
+    near = run_episode(
+        scene, family="mpc", family_params=FAST, learn=False, max_frames=150, record_animation=False
+    )
+    far = run_episode(
+        scene,
+        family="mpc",
+        family_params={**FAST, "margin": 1.5},
+        learn=False,
+        max_frames=150,
+        record_animation=False,
+    )
+    assert far.metrics["d_min"] >= near.metrics["d_min"]
+
+
+def test_the_front_door_and_a_unicycle(scene):
+    res = cc.run(
+        scene,
+        family="mpc",
+        family_params=FAST,
+        dynamics="unicycle",
+        dynamics_params={"v_max": 1.5, "omega_max": 1.5},
+        units="si",
+        epsilon=0.1,
+        eta=0.2,
+        max_frames=60,
+    )
+    assert res.config["dynamics"]["name"] == "unicycle"
+    assert res.steps["x"].shape[1] == 4 and res.metrics["n_steps"] > 0
+    # the unicycle starts facing its goal and never exceeds its limits
+    v = np.hypot(res.steps["x"][:, 2], res.steps["x"][:, 3])
+    assert v.max() <= 1.5 + 1e-9
+
+
+def test_the_cbf_family_drives_a_unicycle_through_the_lookahead_point(scene):
+    res = run_episode(
+        scene,
+        dynamics="unicycle_lookahead",
+        dynamics_params={"v_max": 2.0, "omega_max": 2.0, "lookahead": 0.3},
+        params={"barrier_margin": 0.3},
+        max_frames=60,
+        record_animation=False,
+        engine="loop",
+    )
+    assert res.metrics["n_steps"] > 0
+    assert np.isfinite(res.trajectory["x"]).all()
+
+
+def test_a_reactive_crowd_with_the_mpc(scene):
+    res = run_episode(
+        scene,
+        family="mpc",
+        family_params=FAST,
+        crowd="social_force",
+        max_frames=60,
+        record_animation=False,
+    )
+    assert res.config["crowd"]["crowd"] == "social_force" and res.metrics["n_steps"] > 0
+
+
+def test_cli_run_family_mpc(tmp_path, capsys):
+    from conformal_control.cli import main
+
+    out = tmp_path / "run"
+    assert (
+        main(
+            [
+                "run",
+                "--family",
+                "mpc",
+                "--family-param",
+                "n_samples=40",
+                "--family-param",
+                "horizon=5",
+                "--frames",
+                "40",
+                "--no-plot",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    config = json.loads((out / "config.json").read_text())
+    assert config["decision_family"]["name"] == "mpc"
+    assert config["decision_family"]["params"]["n_samples"] == 40
+
+
+def test_cli_rejects_an_unknown_family_in_one_line(capsys):
+    from conformal_control.cli import main
+
+    assert main(["run", "--family", "mcp", "--frames", "5"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mcp" in err[0] and "mpc" in err[0]
+
+
+def test_bench_methods_run_the_mpc_families(scene):
+    for m in expand_methods(["mpc", "cc_mpc", "acp_mpc", "ecp_mpc"]):
+        kw = m.run_kwargs()
+        kw["family_params"] = {**kw.get("family_params", {}), **FAST}
+        res = run_episode(scene, max_frames=30, record_animation=False, **kw)
+        assert res.config["decision_family"]["name"] == kw["family"]
+        assert math.isfinite(res.metrics["lambda_final"])
+
+
+def test_several_robots_refuse_another_family_in_one_line(capsys):
+    from conformal_control.cli import main
+
+    assert main(["run", "--robots", "2", "--family", "mpc", "--frames", "5"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--robots runs the CBF family only" in err[0]
