@@ -10,7 +10,8 @@ that than for its work. So :func:`kernel` defers it:
 
 * ``auto`` (the default): a kernel runs as Python (its ``py_func``) until the process has
   spent :data:`BUDGET_S` seconds of CPU in interpreted kernels, then every kernel is compiled
-  (``numba.njit`` with the kernel's options, loaded from numba's cache) and the rest of the
+  (:func:`conformal_control.compiled.njit` with the kernel's options: numba, loaded from its
+  cache, whose problems are warnings) and the rest of the
   process runs compiled. Whatever the amount of work, the process spends at most about twice
   what the better of the two choices would have cost (the rent-or-buy argument: interpret
   until the rent paid equals the price of buying). Code that knows it has much work (the
@@ -145,9 +146,15 @@ def is_compiled() -> bool:
 
 
 def _compile(k: Kernel[Any]) -> None:
-    import numba
+    options = dict(k.options)
+    if options.pop("cache", True):  # cached on disk, its problems warnings (compiled.njit)
+        from .compiled import njit
 
-    k.dispatcher = numba.njit(**k.options)(k.py_func)
+        k.dispatcher = njit(**options)(k.py_func)
+    else:
+        import numba
+
+        k.dispatcher = numba.njit(**options)(k.py_func)
 
 
 def compile_now() -> None:

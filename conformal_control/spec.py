@@ -297,6 +297,11 @@ class RunSpec:
     scenario) and hands it to the same builder and engines; ``config.json`` holds
     :meth:`as_dict`, and :meth:`from_dict` reads it back (type-checked).
 
+    Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
+    ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
+    parameter; ``spec.set_params(predictor__window=3, epsilon=-0.1)`` returns the changed
+    copy.
+
     Parameters
     ----------
     params : dict
@@ -325,10 +330,6 @@ class RunSpec:
     engine : {"auto", "loop", "batch"}
         The backend (:mod:`conformal_control.engines`).
 
-    Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
-    ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
-    parameter; ``spec.set_params(predictor__window=3, epsilon=-0.1)`` returns the changed
-    copy.
     """
 
     params: dict[str, Any] = field(default_factory=dict)

@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Any
 
-from . import command, key_values
+from . import command, key_values, positive_int
 
 #: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
 #: that ``--help`` stays fast).
@@ -51,7 +51,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     sc.add_argument(
         "-j",
         "--workers",
-        type=int,
+        type=positive_int,
         default=1,
         help="with --regenerate: processes for the nolearn episodes (default 1)",
     )
@@ -171,7 +171,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "in chunks, each on a worker's own engine; default with --scheduler)"
         ),
     )
-    ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
+    ru.add_argument("-j", "--workers", type=positive_int, default=None, help="worker processes")
     ru.add_argument(
         "--scheduler",
         default=None,
@@ -179,7 +179,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help="run on the Dask cluster at ADDRESS (e.g. tcp://head:8786; implies --executor "
         "dask): workers need the package, the data root and --out on a shared file system",
     )
-    ru.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
         "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
     )

@@ -14,7 +14,8 @@ def _fetch_args(p: argparse.ArgumentParser) -> None:
         "--only",
         action="append",
         metavar="SEL",
-        help="sdd, ethucy, sdd:<scene>_<video> (e.g. sdd:nexus_4) or ethucy:<scene>",
+        help="sdd, ethucy, external, sdd:<scene>_<video> (e.g. sdd:nexus_4), ethucy:<scene> "
+        "or external:<folder> (trajectron-ethucy, fcp-planar: mirror only)",
     )
     p.add_argument(
         "--mirror",
@@ -32,14 +33,21 @@ def _fetch(args: argparse.Namespace) -> int:
 
     if args.dry_run:
         for item in plan(args.only, args.mirror):
-            print(f"{item.path}  <- {item.url}" + (" (metres -> pixels)" if item.convert else ""))
+            source = item.url or "mirror only (pass --mirror DIR)"
+            print(f"{item.path}  <- {source}" + (" (metres -> pixels)" if item.convert else ""))
         return 0
     check_writable(args.dest, "data folder")
     counts = fetch(
         args.dest, only=args.only, mirror=args.mirror, force=args.force, progress=not is_quiet()
     )
+    skipped = (
+        f", {counts['mirror_only']} mirror-only file(s) of external/ not fetched (copy them "
+        "with --mirror DIR)"
+        if counts.get("mirror_only")
+        else ""
+    )
     print(
         f"{counts['downloaded']} file(s) downloaded, {counts['verified_existing']} already "
-        f"present and verified, in {args.dest}; use --data-root {args.dest}"
+        f"present and verified{skipped}, in {args.dest}; use --data-root {args.dest}"
     )
     return 0

@@ -318,6 +318,8 @@ def _apply_config(args: argparse.Namespace) -> None:
         raise InputError(
             f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})"
         ) from None
+    except RecursionError:
+        raise InputError(f"--config {path}: nested too deeply to be a run's config") from None
     stored = cfg.get("cli") if isinstance(cfg, dict) else None
     if not isinstance(stored, dict):
         raise InputError(

@@ -41,7 +41,8 @@ safety filter: it never changes an action, it scores it. ``info`` holds
   the values the flagship would learn from these actions;
 * ``constraint_status`` -- ``"none"`` (no agent sensed), ``"satisfied"`` (the action meets
   every conformal constraint at lambda_k) or ``"violated"``; ``n_constraints``,
-  ``n_violated`` and ``min_slack`` (the smallest ``A v + b + lambda``, 1/s);
+  ``n_violated`` and ``min_slack`` (the smallest ``A v + b + lambda``, 1/s; ``inf`` without
+  constraints);
 * ``collision_pedestrian``, ``collision_robot`` -- contact after the step;
   ``n_collision_steps`` -- steps in contact so far; ``goal_reached``; ``action_clipped``;
   ``interval_closed``; ``t`` (s).
@@ -339,7 +340,9 @@ def _status(filt: MonitorFilter) -> dict[str, Any]:
             "constraint_status": "none",
             "n_constraints": 0,
             "n_violated": 0,
-            "min_slack": math.nan,
+            # no constraint: unbounded slack (inf compares equal to itself, NaN does not,
+            # and PettingZoo's and gymnasium's determinism checks compare infos)
+            "min_slack": math.inf,
         }
     slack = last.A @ last.nominal + last.b + last.lam
     n_bad = int((slack < 0).sum())

@@ -34,6 +34,9 @@ __all__ = ["ConformalCrowdParallel", "parallel_env"]
 class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]):  # type: ignore[misc]
     """M robots with velocity commands among pedestrians (see the module docstring).
 
+    The parameters not listed below are as for
+    :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+
     Parameters
     ----------
     scene : Scene or str
@@ -43,8 +46,6 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
         Explicit tasks (m).
     layout, radius, center
         See :func:`~conformal_control.sim.multi.robot_tasks`.
-    Others
-        As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance

@@ -53,7 +53,8 @@ __all__ = ["ConformalShield"]
 
 
 class ConformalShield(
-    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray],
+    gym.utils.RecordConstructorArgs,  # gymnasium re-creates it (spec, check_env)
 ):
     """Filter a policy's velocity commands through the conformal CBF (see module docs).
 
@@ -99,7 +100,25 @@ class ConformalShield(
         seed: int = 0,
         active_tol: float = 1e-6,
     ) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(
+            self,
+            params=params,
+            predictor=predictor,
+            predictor_params=predictor_params,
+            barrier=barrier,
+            barrier_params=barrier_params,
+            safety_filter=safety_filter,
+            safety_filter_params=safety_filter_params,
+            fallback=fallback,
+            loss=loss,
+            loss_params=loss_params,
+            rule=rule,
+            rule_params=rule_params,
+            learn=learn,
+            seed=seed,
+            active_tol=active_tol,
+        )
+        gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         if not isinstance(base, ConformalCrowdEnv):
             raise TypeError(
@@ -204,7 +223,7 @@ class ConformalShield(
             active = ids[np.abs(slack) <= self.active_tol * max(1.0, abs(lam))]
             min_slack = float(slack.min())
         else:
-            active, min_slack = ids[:0], math.nan
+            active, min_slack = ids[:0], math.inf  # no constraint: unbounded slack
         cause = _cause(modified, active.size > 0, res.fallback is not None)
         self.n_interventions_ += cause == "constraint"
         self.n_speed_clips_ += cause == "speed_limit"

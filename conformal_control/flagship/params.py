@@ -30,6 +30,7 @@ from typing import Any
 from ..data.scene import Scene
 from ..exceptions import InputError, SuspiciousValueWarning
 from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI
+from ..update_rules.base import check_epsilon
 
 __all__ = [
     "PARAMETERS",
@@ -301,9 +302,7 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
         _positive(si, name)
     _positive(si, "eta", allow_zero=True)
     _positive(si, "barrier_margin", allow_zero=True)
-    eps = si["epsilon"]
-    if not (isinstance(eps, (int, float)) and -0.5 < eps < 0.5):
-        raise InputError(f"epsilon must lie in (-1/2, 1/2) (the loss's range), got {eps!r}")
+    check_epsilon(si["epsilon"])
     for name in ("substeps", "history"):
         v = merged[name]
         if not (isinstance(v, int) and v >= 1):

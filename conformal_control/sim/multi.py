@@ -155,6 +155,10 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
     stand for a single goal.
     """
+    import difflib
+
+    from ..exceptions import InputError
+
     p = Path(path)
     try:
         spec = json.loads(p.read_text())
@@ -164,9 +168,23 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
         raise ValueError(
             f"robots file {p} is not valid JSON ({exc.msg}, line {exc.lineno})"
         ) from None
+    except RecursionError:
+        raise InputError(f"robots file {p} is nested too deeply to be a robots file") from None
+
+    def no_unknown(keys: Any, known: tuple[str, ...], where: str) -> None:
+        for key in keys:
+            if key not in known:
+                close = difflib.get_close_matches(str(key), known, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise InputError(
+                    f"robots file {p}: unknown key {key!r} {where}; {hint}the keys are "
+                    f"{', '.join(known)}"
+                )
+
     robots = spec.get("robots") if isinstance(spec, dict) else None
     if not isinstance(robots, list) or not robots:
         raise ValueError(f'robots file {p} needs a non-empty list "robots"')
+    no_unknown(spec, ("units", "robots"), "at the top level")
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
@@ -179,6 +197,9 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
             raise ValueError(f'robots file {p}: robot {i} needs "start" and "goals" (or "goal")')
+        no_unknown(r, ("start", "goals", "goal"), f"in robot {i}")
+        if "goals" in r and "goal" in r:
+            raise InputError(f'robots file {p}: robot {i} has both "goal" and "goals"; give one')
         try:
             st = np.asarray(r["start"], dtype=float).reshape(2)
             g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)
@@ -186,9 +207,28 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
             raise ValueError(
                 f"robots file {p}: robot {i} has a start or goal that is not (x, y)"
             ) from None
+        if g.shape[0] == 0 or not (np.isfinite(st).all() and np.isfinite(g).all()):
+            raise InputError(f"robots file {p}: robot {i} needs a finite start and goal")
+        if units == "fraction" and not (
+            ((st >= 0) & (st <= 1)).all() and ((g >= 0) & (g <= 1)).all()
+        ):
+            raise InputError(
+                f"robots file {p}: robot {i} has a fraction outside [0, 1] (units "
+                '"fraction" are fractions of the scene\'s width and height)'
+            )
         starts.append(st * scale)
         goals.append(g * scale)
-    return as_tasks(np.array(starts), goals)
+    first = np.array(starts)
+    gap = 2.0 * float(scene.robot_radius)
+    for i in range(len(first)):
+        d = np.hypot(*(first[i + 1 :] - first[i]).T) if i + 1 < len(first) else np.zeros(0)
+        if d.size and d.min() < gap:
+            j = i + 1 + int(np.argmin(d))
+            raise InputError(
+                f"robots file {p}: robots {i} and {j} start {d.min():.3g} m apart, less than "
+                f"two robot radii ({gap:.3g} m): they would start in collision"
+            )
+    return as_tasks(first, goals)
 
 
 # ---------------------------------------------------------------------------- results
@@ -333,6 +373,9 @@ def run_multi(
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
 
+    The parameters not listed below are as for
+    :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
+
     Parameters
     ----------
     scene : Scene
@@ -347,8 +390,6 @@ def run_multi(
     sensor_history : {"tracked", "observed"}
         Histories handed to each robot's predictor (see
         :class:`~conformal_control.world.multi.MultiRobotWorld`).
-    Others
-        As for :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
 
     Returns
     -------
@@ -588,51 +629,58 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
       robot as a single-robot run writes them (plus ``d_min_robot``);
     * ``trajectories.csv`` -- ``frame,t,robot,x,y,active``: every robot at every frame;
     * ``animation.npz`` -- what ``conformal-control animate`` renders (if recorded).
+
+    Every file is written atomically (temporary name, then rename), the fleet's
+    ``metrics.json`` last; a write error names the file.
     """
-    import csv
+    from ..fileio import atomic_write, atomic_write_json, atomic_write_text
+    from ..results.rundir import csv_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
+    atomic_write_json(out / "config.json", finite_or_none(result.config))
+    for r in result.robots:
+        d = out / "robots" / f"robot_{r.index:02d}"
+        d.mkdir(parents=True, exist_ok=True)
+        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+        rows = ([csv_cell(iv.get(c)) for c in cols] for iv in r.intervals)
+        atomic_write_text(d / "intervals.csv", csv_text(cols, rows))
+        tr = r.trajectory
+        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
+        traj = (
+            [int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)]
+            for j in range(len(tr["frame"]))
+        )
+        atomic_write_text(d / "trajectory.csv", csv_text(["frame", *keys], traj))
+        atomic_write_json(d / "metrics.json", finite_or_none(r.summary()))
+    tk = result.track
+    track = (
+        [
+            int(tk["frame"][j]),
+            csv_cell(float(tk["t"][j])),
+            i,
+            csv_cell(float(tk["robots"][j, i][0])),
+            csv_cell(float(tk["robots"][j, i][1])),
+            int(tk["active"][j, i]),
+        ]
+        for j in range(tk["frame"].size)
+        for i in range(tk["robots"].shape[1])
+    )
+    atomic_write_text(
+        out / "trajectories.csv", csv_text(["frame", "t", "robot", "x", "y", "active"], track)
+    )
+    animation = result.animation
+    if animation is not None:
+
+        def save_npz(tmp: Path) -> None:
+            with tmp.open("wb") as fh:  # a file object: numpy would append .npz to a name
+                np.savez_compressed(fh, **animation)
+
+        atomic_write(out / "animation.npz", save_npz)
+    # last: the fleet's metrics.json marks a complete run directory
     summary = {
         "fleet": result.metrics.as_dict(),
         "robots": [r.summary() for r in result.robots],
     }
-    (out / "metrics.json").write_text(json.dumps(finite_or_none(summary), indent=2) + "\n")
-    for r in result.robots:
-        d = out / "robots" / f"robot_{r.index:02d}"
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "metrics.json").write_text(json.dumps(finite_or_none(r.summary()), indent=2) + "\n")
-        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
-        with (d / "intervals.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(cols)
-            for iv in r.intervals:
-                w.writerow([csv_cell(iv.get(c)) for c in cols])
-        tr = r.trajectory
-        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
-        with (d / "trajectory.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", *keys])
-            for j in range(len(tr["frame"])):
-                w.writerow([int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)])
-    tk = result.track
-    with (out / "trajectories.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "t", "robot", "x", "y", "active"])
-        for j in range(tk["frame"].size):
-            for i in range(tk["robots"].shape[1]):
-                x, y = tk["robots"][j, i]
-                w.writerow(
-                    [
-                        int(tk["frame"][j]),
-                        csv_cell(float(tk["t"][j])),
-                        i,
-                        csv_cell(float(x)),
-                        csv_cell(float(y)),
-                        int(tk["active"][j, i]),
-                    ]
-                )
-    if result.animation is not None:
-        np.savez_compressed(out / "animation.npz", **result.animation)
+    atomic_write_json(out / "metrics.json", finite_or_none(summary))
     return out

@@ -242,6 +242,7 @@ class _PoolDrain:
 
         self._queue: queue.Queue[Any] = queue.Queue()
         self._index = index
+        self._ex = ex
         self._stopping = threading.Event()
         self._outcomes = ex.run(execute_run, tasks)
         self._thread = threading.Thread(target=self._drain, name="sweep-pool", daemon=True)
@@ -289,8 +290,15 @@ class _PoolDrain:
             yield self._take(item)
 
     def stop(self) -> None:
-        """Ask the thread to stop after its current outcome (an interrupted sweep)."""
+        """Stop the pool (an interrupted sweep): its workers are terminated at once
+        (:meth:`ProcessExecutor.abort`, when the executor has it) and the thread ends;
+        when this returns no worker writes a run directory any more, so the caller can
+        journal the finished ones from disk."""
         self._stopping.set()
+        abort = getattr(self._ex, "abort", None)
+        if abort is not None:
+            abort()
+        self._thread.join(timeout=60)
 
 
 def run_chunk(tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]]) -> list[Outcome]:
