@@ -142,6 +142,7 @@ LAYERS: dict[str, int] = {
     "progress": 0,
     "fileio": 1,
     "compiled": 1,
+    "jit": 2,
     "monitor": 1,
     "registry": 1,
     "losses": 1,

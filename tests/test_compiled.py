@@ -20,8 +20,13 @@ print(hypot_split(3.0, 4.0))
 """
 
 
+#: kernels compiled at their first call (a short process would run them interpreted and never
+#: touch numba's cache; see conformal_control.jit)
+COMPILED = {"CONFORMAL_CONTROL_JIT": "always"}
+
+
 def run(cache: Path, code: str = CODE) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), **COMPILED}
     return subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600
     )
@@ -76,7 +81,7 @@ def test_one_warning_per_kind_through_the_command_line(tmp_path: Path) -> None:
     cache = tmp_path / "numba"
     code = "import sys; from conformal_control.cli import main; sys.exit(main())"
     argv = ["run", "--frames", "5", "--no-plot", "--quiet"]
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), **COMPILED}
 
     def cli(out: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

@@ -638,6 +638,7 @@ class CrossingTestbed(Environment[PredictionQuery, ControlState, np.ndarray, CBF
 
     def reset(self) -> None:
         scene = crossing_scene(seed=self.seed, duration=4.0)
+        scene = scene.replace(positions=scene.positions)  # dense: read at every frame below
         self._scene = scene
         self._plant = VelocityTrackingDoubleIntegrator(K_acc=10.0)
         self._dt_frame = 1.0 / scene.fps

@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from ..compiled import njit
+from ..jit import kernel
 
 __all__ = ["tracking_rollout", "unicycle_rollout"]
 
-jit = njit(nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

@@ -159,7 +159,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--executor",
-        default="batch",
+        default=None,
         choices=("batch", "process", "serial", "dask"),
         help=(
             "batch (default): the runs the lockstep engine supports (replayed crowd, "
@@ -168,11 +168,18 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "but fallback:relax and acp) many at once in this process, with the same "
             "metrics, the others on a process pool; "
             "process: one episode per task on a process pool; "
-            "serial: one by one in this process; dask: a Dask cluster"
+            "serial: one by one in this process; dask: a Dask cluster (the batched runs "
+            "in chunks, each on a worker's own engine; default with --scheduler)"
         ),
     )
     ru.add_argument("-j", "--workers", type=positive_int, default=None, help="worker processes")
-    ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")
+    ru.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on the Dask cluster at ADDRESS (e.g. tcp://head:8786; implies --executor "
+        "dask): workers need the package, the data root and --out on a shared file system",
+    )
     ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
         "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
@@ -365,7 +372,7 @@ def _run(args: argparse.Namespace) -> int:
         predictor=args.predictor or "constant_velocity",
         crowd=args.crowd,
         data_root=args.data_root,
-        executor=args.executor,
+        executor=_executor(args),
         workers=args.workers,
         scheduler=args.scheduler,
         progress=_progress(args.progress),
@@ -374,6 +381,17 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(res.summary())
     return 0 if res.failed == 0 else 1
+
+
+def _executor(args: argparse.Namespace) -> str:
+    """``--executor``, ``dask`` with ``--scheduler``, else ``batch``."""
+    from ..exceptions import InputError
+
+    if args.scheduler is None:
+        return str(args.executor or "batch")
+    if args.executor not in (None, "dask"):
+        raise InputError(f"--scheduler runs on a Dask cluster: drop --executor {args.executor}")
+    return "dask"
 
 
 def _report(args: argparse.Namespace) -> int:

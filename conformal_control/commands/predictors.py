@@ -241,7 +241,7 @@ def scene_windows(scene: Any, obs: int = 8, horizon: int = 12) -> Any:
             f"{STANDARD_DT} s, so learned predictors cannot be trained on it; pass "
             "--predictor-param weights=FOLDER from `conformal-control train-predictor`"
         )
-    pos = scene.positions[: scene.start_index + 1]
+    pos = scene.tracks.dense(0, scene.start_index + 1)
     hists, futs = [], []
     for phase in range(step):
         sub = pos[phase::step]

@@ -109,7 +109,8 @@ def load_scales(root: Path) -> dict[tuple[str, int], float]:
     if not path.is_file():
         raise missing(path, "SDD pixel scales (estimated_scales.yaml)")
     try:
-        data = yaml.safe_load(path.read_text())
+        # libyaml's safe loader when PyYAML has it (the same documents, ten times faster)
+        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except yaml.YAMLError as exc:
         raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
     except RecursionError:

@@ -80,8 +80,9 @@ from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.speed import speed_polygon
-from ..data.scene import Scene
+from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
+from ..jit import compile_now
 from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
 from ..monitor import GuaranteeMonitor
 from ..results.episode import EpisodeResult
@@ -384,8 +385,8 @@ class _Pool:
     cap: int  # agents per slot that xp / vp and the work buffer hold
     sides: int  # sides of the largest speed polygon
     work: np.ndarray  # the compiled filter's work buffer
-    store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
-    where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    store: np.ndarray  # the live episodes' recordings, flat (see kernels)
+    where: np.ndarray  # int64 (size, 5): slot -> (offset, frames, agents, samples, present)
     goals: np.ndarray  # (size, waypoints, 2): each slot's goals
     n_goals: np.ndarray  # int64 (size,)
     rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
@@ -452,10 +453,10 @@ class _Pool:
         self.cap = 0  # agents per slot that xp / vp and the work buffer hold
         self.sides = 0
         self.work = np.zeros(0)
-        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
-        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see kernels)
+        # slot -> (offset, frames, agents, samples, present samples)
+        self.where = np.zeros((b, 5), dtype=np.int64)
         self.used = 0
-        self.borrowed = False  # store is a live episode's own recording (see load)
         self.goals = np.zeros((b, 1, 2))
         self.n_goals = np.zeros(b, dtype=np.int64)
         self.rec_code = np.zeros((b, 0), dtype=np.int8)
@@ -475,29 +476,27 @@ class _Pool:
         out[tuple(slice(0, k) for k in arr.shape)] = arr
         return out
 
-    def load(self, b: int, positions: np.ndarray) -> None:
-        """Copy slot ``b``'s recording into the store (compacting or growing it).
-
-        With no other slot live, the store is the recording itself (read in place, not
-        copied: a single episode's case); it is copied out as soon as another one joins.
-        """
-        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+    def load(self, b: int, tracks: SparseTracks) -> None:
+        """Copy slot ``b``'s recording (sparse, :func:`~conformal_control.engines.kernels.pack`)
+        into the store (compacting or growing it)."""
+        data = bk.pack(tracks)
         n = data.size
-        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
-            self.store, self.borrowed, self.used = data, True, n
-            self.where[b] = (0, positions.shape[0], positions.shape[1])
-            return
-        if self.borrowed:  # never write into an episode's recording
-            self.store, self.borrowed = self.store[: self.used].copy(), False
         if self.used + n > self.store.size:
             self._compact()
-            if self.used + n > self.store.size:
-                free = int(self.size - self.active.sum())  # room for the free slots too
-                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+            if self.used + n > self.store.size:  # doubled: amortised, and no room reserved
+                # for slots that may never fill (a long scene and batch_size 256 asked for
+                # 256 copies of it)
+                grown = np.empty(max(2 * self.store.size, self.used + n))
                 grown[: self.used] = self.store[: self.used]
                 self.store = grown
         self.store[self.used : self.used + n] = data
-        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.where[b] = (
+            self.used,
+            tracks.n_frames,
+            tracks.n_agents,
+            tracks.xy.shape[0],
+            tracks.frame_cols.size,
+        )
         self.used += n
 
     def _compact(self) -> None:
@@ -505,8 +504,8 @@ class _Pool:
         live = np.flatnonzero(self.active)
         end = 0
         for b in live[np.argsort(self.where[live, 0])].tolist():
-            o, f, m = self.where[b].tolist()
-            n = f * m * 2
+            o, f, m, ns, k = self.where[b].tolist()
+            n = bk.slot_size(f, m, ns, k)
             if o != end:
                 self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
                 self.where[b, 0] = end
@@ -647,7 +646,10 @@ class _Engine:
         )
         dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
-        p.load(b, sc.positions)
+        # the frames the episode reads: its history before the start, its frames, the last
+        # interval's future (the oracle, the truth); the rest of a long scene stays out
+        lo = sc.start_index - int(env.history_frames)
+        p.load(b, sc.tracks.clip(lo, last + tau + 2))
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]
@@ -1069,6 +1071,7 @@ def iter_batch(
         raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
     if int(batch_size) != batch_size or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    compile_now()  # many episodes: compiled from the start (see conformal_control.jit)
     frames = _per_episode(max_frames, "max_frames")
     seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
 

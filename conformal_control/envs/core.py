@@ -142,7 +142,7 @@ class CrowdCore:
         n = len(starts)
         self.fleet: list[Flagship] = []
         for i in range(n):
-            scene_i = dataclasses.replace(scene, start=np.asarray(starts[i]), goals=goals[i])
+            scene_i = scene.replace(start=np.asarray(starts[i]), goals=goals[i])
             robot_run = dataclasses.replace(
                 spec,
                 predictor=_copy_role(spec.predictor),

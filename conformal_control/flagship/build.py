@@ -269,8 +269,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     d_c = si["robot_radius"] + si["agent_radius"]
     # The environment reads radii and v_max from the scene: give it a copy carrying the
     # resolved values, never mutate the caller's scene (runs may share one in a process).
-    scene = dataclasses.replace(
-        scene,
+    scene = scene.replace(
         robot_radius=si["robot_radius"],
         agent_radius=si["agent_radius"],
         goal_radius=si["goal_radius"],

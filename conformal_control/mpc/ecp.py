@@ -42,14 +42,14 @@ import numpy as np
 from ..base import Loss
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
-from ..compiled import njit
+from ..jit import kernel
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, SamplingMPC
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
 
-jit = njit(nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

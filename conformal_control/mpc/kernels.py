@@ -32,11 +32,11 @@ import math
 
 import numpy as np
 
-from ..compiled import njit
+from ..jit import kernel
 
 __all__ = ["evaluate", "evaluate_numpy"]
 
-jit = njit(nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

@@ -270,13 +270,21 @@ def measure(
             "long_run_holds",
         )
     }
+    frames = traj["frame"] - scene.first_frame
+    ids = scene.agent_ids
     if positions is None:
-        positions = getattr(env, "simulated_scene", lambda: scene)().positions
+        shown = getattr(env, "simulated_scene", lambda: scene)()
+        # the frames of the episode and one on either side (the pedestrians' velocities),
+        # the agents seen there: the rest of the scene does not take part
+        lo = max(int(frames.min(initial=0)) - 1, 0)
+        hi = min(int(frames.max(initial=0)) + 2, shown.n_frames)
+        cols = shown.tracks.overlapping(lo, hi)
+        positions, ids, frames = shown.tracks.dense(lo, hi, cols), ids[cols], frames - lo
     collisions = account_collisions(
         np.column_stack([traj["x"], traj["y"], traj["vx"], traj["vy"]]),
-        traj["frame"] - scene.first_frame,
+        frames,
         positions,
-        scene.agent_ids,
+        ids,
         fps=scene.fps,
         collision_distance=scene.collision_distance,
         sensing_radius=si["sensing_radius"],

@@ -455,7 +455,7 @@ def run_multi(
     roles = ("predictor", "barrier", "safety_filter", "fallback", "reference", "dynamics")
     fleet: list[Flagship] = []
     for i in range(n):
-        scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
+        scene_i = scene.replace(start=s[i], goals=tasks[i])
         copies: dict[str, Any] = {r: _copy_role(getattr(run, r)) for r in (*roles, "loss", "rule")}
         robot_run = dataclasses.replace(
             run,

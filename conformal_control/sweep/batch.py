@@ -39,7 +39,7 @@ from .executors.base import Executor, Outcome
 from .spec import run_spec
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
-__all__ = ["batch_reason", "run_batched"]
+__all__ = ["batch_reason", "run_batched", "run_chunk", "run_chunked"]
 
 #: Run-configuration keys that may differ inside one batch.
 _PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
@@ -137,7 +137,6 @@ def run_batched(
     arguments of :func:`execute_run`): the batched groups in this process while the other
     runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
     pool's workers and this process share the machine instead of taking turns."""
-    import dataclasses
 
     from ..engines.batch import iter_batch
     from .worker import load_run_scene
@@ -170,7 +169,7 @@ def run_batched(
         else:
             kept.pop(sid, None)
         # a shallow copy per run: building an episode sets radii and v_max on its scene
-        return dataclasses.replace(scene, meta=dict(scene.meta), defaults=dict(scene.defaults))
+        return scene.replace(meta=dict(scene.meta), defaults=dict(scene.defaults))
 
     def batched() -> Iterator[Outcome]:
         for idx in groups.values():
@@ -294,3 +293,53 @@ class _PoolDrain:
         if abort is not None:
             abort()
         self._thread.join(timeout=60)
+
+
+def run_chunk(tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]]) -> list[Outcome]:
+    """Run ``tasks`` in this process (the batched groups on the lockstep engine, the others
+    one by one) and return their ``(index, record)``: the task a cluster's worker runs for a
+    chunk of a sweep (:func:`run_chunked`)."""
+    from .executors.serial import SerialExecutor
+
+    return list(run_batched(SerialExecutor(), tasks))
+
+
+def _chunk_or_run(*args: Any) -> Any:
+    """A job of :func:`run_chunked`: a chunk (one argument, the tasks) or one run."""
+    return run_chunk(args[0]) if len(args) == 1 else execute_run(*args)
+
+
+def run_chunked(
+    ex: Executor,
+    tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]],
+    *,
+    chunk: int | None = None,
+) -> Iterator[Outcome]:
+    """Yield ``(index, record)`` for every task on a cluster (``ex``, e.g. Dask): the runs the
+    lockstep engine batches are cut into chunks of ``chunk`` runs with the same settings
+    (default: about four chunks per worker, 8 to 256 runs each), each chunk one task that a
+    worker runs on its own engine (:func:`run_chunk`); every other run is one task. The
+    records are those of :func:`run_batched`; a chunk lost with its worker fails its runs
+    (rerun them: finished runs are skipped)."""
+    batched: dict[str, list[int]] = {}
+    rest: list[int] = []
+    for i, (cfg, _key, _out, plot) in enumerate(tasks):
+        if batch_reason(cfg, plot) is None:
+            batched.setdefault(_group_key(cfg), []).append(i)
+        else:
+            rest.append(i)
+    order = [i for idx in batched.values() for i in idx]
+    if chunk is None:
+        chunk = max(8, min(256, -(-len(order) // (4 * max(1, ex.n_workers)))))
+    parts = [order[k : k + chunk] for k in range(0, len(order), chunk)]
+    jobs: list[tuple[Any, ...]] = [([tasks[i] for i in part],) for part in parts]
+    jobs += [tasks[i] for i in rest]
+    for k, outcome in ex.run(_chunk_or_run, jobs):
+        if k < len(parts):
+            part = parts[k]
+            if isinstance(outcome, BaseException):  # the chunk's worker failed
+                yield from ((i, outcome) for i in part)
+            else:
+                yield from ((part[j], rec) for j, rec in outcome)
+        else:
+            yield rest[k - len(parts)], outcome

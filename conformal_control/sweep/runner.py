@@ -220,7 +220,10 @@ def run_sweep(
         ``"process"`` (default), ``"serial"``, ``"dask"``, ``"batch"``, or an executor
         instance (not closed here). ``"batch"`` runs every run the lockstep engine supports
         many at once in this process (same metrics; see :mod:`conformal_control.sweep.batch`)
-        and the others on a process pool.
+        and the others on a process pool; ``"dask"`` (``scheduler``: a running cluster's
+        address, else a local one) sends those runs in chunks, each batched on a worker
+        (:func:`~conformal_control.sweep.batch.run_chunked`), and the others one per task.
+        Either way this process journals every record as it arrives.
     workers, scheduler :
         For executors built by name.
     resume : bool
@@ -286,9 +289,11 @@ def run_sweep(
         text = json.dumps({"runs": runs}, indent=1, default=str) + "\n"
         atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
         own = isinstance(executor, str)
-        batch = executor == "batch"  # the lockstep engine, the other runs on a process pool
+        # the lockstep engine: here with the other runs on a process pool (batch), or in
+        # chunks on a cluster's workers (dask)
+        batch = executor in ("batch", "dask") or getattr(executor, "distributed", False)
         if isinstance(executor, str):
-            name = "process" if batch else executor
+            name = "process" if executor == "batch" else executor
             ex = make_executor(name, workers=workers, scheduler=scheduler)
         else:
             ex = executor
@@ -344,7 +349,12 @@ def _run(
     n_since_table = 0
     last_table = time.perf_counter()
     table_cost = 0.0
-    if batch:
+    if batch and ex.distributed:
+        from .batch import run_chunked
+
+        report.executor = f"batch chunks on {report.executor}"
+        outcomes = run_chunked(ex, tasks)
+    elif batch:
         from .batch import run_batched
 
         report.executor = f"batch + {report.executor}"

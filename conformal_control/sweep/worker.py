@@ -9,7 +9,6 @@ the same way.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import os
 import time
@@ -114,7 +113,7 @@ def execute_run(
         cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
-        scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))
+        scene = cached.replace(meta=dict(cached.meta), defaults=dict(cached.defaults))
         with _single_threaded_blas():
             result = run_episode(
                 # a benchmark scenario carries its time limit

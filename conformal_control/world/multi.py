@@ -288,8 +288,9 @@ class MultiRobotWorld:
         if self.crowd is None:
             self._peds = sc.positions
         else:
-            self.crowd.reset(sc.positions, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
-            buf = sc.positions.copy()
+            buf = sc.positions  # dense (a sparse scene's is assembled here)
+            self.crowd.reset(buf, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
+            buf = buf.copy()
             buf[sc.start_index + 1 :] = np.nan
             buf[sc.start_index] = self.crowd.frame_positions(sc.start_index)
             self._peds = buf

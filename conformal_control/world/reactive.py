@@ -18,7 +18,6 @@ close, then reactive).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -102,18 +101,19 @@ class ReactiveEnvironment(ReplayEnvironment):
         ]
 
     # ------------------------------------------------------------------ episode
-    def _init_positions(self) -> np.ndarray:
+    def _init_positions(self) -> np.ndarray:  # a dense buffer, filled as simulated
         if not isinstance(self.crowd, Crowd):
             raise ValueError(f"crowd must be a Crowd, got {type(self.crowd).__name__}")
         sc = self.scene
-        self.crowd.reset(sc.positions, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
-        buf = sc.positions.copy()
+        recorded: np.ndarray = sc.positions  # dense (a sparse scene's is assembled here)
+        self.crowd.reset(recorded, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
+        buf: np.ndarray = recorded.copy()
         buf[sc.start_index + 1 :] = np.nan  # filled as the crowd is simulated
         buf[sc.start_index] = self.crowd.frame_positions(sc.start_index)
         self._crowd_frame = sc.start_index
         self._crowd_sub = 0
-        out: np.ndarray = buf
-        return out
+        self._buffer = buf
+        return buf
 
     def _advance_crowd(self) -> None:
         """One crowd step with the robot's current state; store a frame when complete."""
@@ -123,7 +123,7 @@ class ReactiveEnvironment(ReplayEnvironment):
         if self._crowd_sub == self.substeps:
             self._crowd_frame += 1
             self._crowd_sub = 0
-            self._positions[self._crowd_frame] = self.crowd.frame_positions(self._crowd_frame)
+            self._buffer[self._crowd_frame] = self.crowd.frame_positions(self._crowd_frame)
 
     def apply(self, decision: np.ndarray) -> None:
         if self._done:
@@ -153,7 +153,7 @@ class ReactiveEnvironment(ReplayEnvironment):
         The recording before the start frame, the simulation after it, NaN beyond the last
         simulated frame; the positions array is the environment's buffer (not a copy).
         """
-        return dataclasses.replace(self.scene, positions=self._positions)
+        return self.scene.replace(positions=self._buffer)
 
     def crowd_config(self) -> dict[str, Any]:
         """The crowd's configuration and counters, for the run's config (JSON-ready)."""
