@@ -428,12 +428,14 @@ def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
 def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
     before the scene is loaded)."""
-    from ..crowds.crowd import MODELS, Crowd
+    from .. import registry
+    from ..crowds.crowd import Crowd
     from ..data.units import si_value
 
     given = key_values(args.crowd_param, "--crowd-param")
     model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
-    classes: list[type] = [Crowd, *([MODELS[model]] if model in MODELS else [])]
+    known = model in registry.names("crowd_model")
+    classes: list[type] = [Crowd, *([registry.get("crowd_model", model)] if known else [])]
     radius = given.pop("radius", None) if args.crowd == "mixed" else None
     items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
     pp = plugin_key_values(

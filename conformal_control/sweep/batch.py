@@ -27,6 +27,7 @@ bad run fails alone, as in any sweep.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 import traceback
