@@ -59,8 +59,6 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
         Reward weights.
     terminate_on_collision : bool
         End the episode at the first contact.
-    max_frames : int, optional
-        Cut the episode after this many frames of the scene.
     data_root : str, optional
         Where SDD data lives (for scene names).
     render_mode : {"rgb_array"}, optional

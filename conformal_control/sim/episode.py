@@ -51,49 +51,50 @@ def run_episode(
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
         <conformal_control.spec.RunSpec.from_settings>`), as follows.
-    units : {"scene", "si"}
-        ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
-        frames, the paper's); ``"si"``: in metres and seconds.
-    learn : bool
-        False runs the "noLearn" baseline: lambda stays at ``lambda_init`` (eta = 0).
-    max_frames : int, optional
-        Limit on simulated frames.
-    seed : int
-        Recorded in the config; named plugins with a ``random_state`` receive it.
-    rule : str or UpdateRule
-        A registered update rule built from the run's parameters and ``rule_params``
-        (in ``units``; see :func:`~conformal_control.flagship.build.build_rule`), or an instance
-        (SI units, used as given).
-    lambda_safe : float, optional
-        lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
-        the Theorem-2 bound and the monitor's verdict (fixed-step rules).
-    lambda_safe_source : str, optional
-        Where ``lambda_safe`` came from (reported with the verdict; default "given").
-    barrier, safety_filter, fallback, reference, dynamics, loss
-        Each an instance, a registered name (built with the matching ``*_params``, SI
-        units) or None for the flagship's default; see
-        :func:`~conformal_control.flagship.build.build_flagship`.
-    crowd : str
-        ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
-        who react to the robot, with ``crowd_params`` (SI; see
-        :func:`~conformal_control.world.reactive.make_environment`).
-    family : str, optional
-        A registered decision family built from the flagship's parts (default ``"cbf"``;
-        ``"acp"``), with ``family_params``.
-    record_animation : bool
-        Keep the compact record ``conformal-control animate`` renders (``result.animation``,
-        written as ``animation.npz``; see :mod:`conformal_control.results.record`).
-    engine : {"auto", "loop", "batch"}
-        How the episode is run. ``"loop"``: the generic
-        :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
-        control instant, for any configuration. ``"batch"``: the compiled engine of
-        :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
-        configurations :func:`~conformal_control.engines.batch.supports` accepts (the
-        flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
-        ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
-        runs the configuration, else the loop. Both give the same result (metrics but
-        ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
-        ``config["engine"]`` says which ran.
+
+        - ``units`` ({"scene", "si"}):
+          ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
+          frames, the paper's); ``"si"``: in metres and seconds.
+        - ``learn`` (bool):
+          False runs the "noLearn" baseline: lambda stays at ``lambda_init`` (eta = 0).
+        - ``max_frames`` (int, optional):
+          Limit on simulated frames.
+        - ``seed`` (int):
+          Recorded in the config; named plugins with a ``random_state`` receive it.
+        - ``rule`` (str or UpdateRule):
+          A registered update rule built from the run's parameters and ``rule_params``
+          (in ``units``; see :func:`~conformal_control.flagship.build.build_rule`), or an instance
+          (SI units, used as given).
+        - ``lambda_safe`` (float, optional):
+          lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
+          the Theorem-2 bound and the monitor's verdict (fixed-step rules).
+        - ``lambda_safe_source`` (str, optional):
+          Where ``lambda_safe`` came from (reported with the verdict; default "given").
+        - ``barrier``, ``safety_filter``, ``fallback``, ``reference``, ``dynamics``, ``loss``:
+          Each an instance, a registered name (built with the matching ``*_params``, SI
+          units) or None for the flagship's default; see
+          :func:`~conformal_control.flagship.build.build_flagship`.
+        - ``crowd`` (str):
+          ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
+          who react to the robot, with ``crowd_params`` (SI; see
+          :func:`~conformal_control.world.reactive.make_environment`).
+        - ``family`` (str, optional):
+          A registered decision family built from the flagship's parts (default ``"cbf"``;
+          ``"acp"``), with ``family_params``.
+        - ``record_animation`` (bool):
+          Keep the compact record ``conformal-control animate`` renders (``result.animation``,
+          written as ``animation.npz``; see :mod:`conformal_control.results.record`).
+        - ``engine`` ({"auto", "loop", "batch"}):
+          How the episode is run. ``"loop"``: the generic
+          :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
+          control instant, for any configuration. ``"batch"``: the compiled engine of
+          :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
+          configurations :func:`~conformal_control.engines.batch.supports` accepts (the
+          flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
+          ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
+          runs the configuration, else the loop. Both give the same result (metrics but
+          ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
+          ``config["engine"]`` says which ran.
     """
     run = as_run_spec(spec, params, **settings)
     if run.engine != "loop":

@@ -395,33 +395,34 @@ def run_multi(
         its ``robots`` section saying where they go; the settings below apply on it).
     extra_config : dict, optional
         Merged into the configuration (``config.json``).
+    deadlock : DeadlockRule, optional
+        When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
         <conformal_control.spec.RunSpec.from_settings>`), the robots section's included:
-    starts, goals : array-like, optional
-        Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
-        waypoints per robot.
-    layout, radius, center
-        See :func:`robot_tasks`.
-    sensor_history : {"tracked", "observed"}
-        Histories handed to each robot's predictor (see
-        :class:`~conformal_control.world.multi.MultiRobotWorld`).
-    reciprocity : {"reciprocal", "none"}
-        Robots share each pair's constraint, or predict each other like pedestrians.
-    information : {"position", "velocity", "plan"}
-        What reciprocal robots know of each other (``"plan"``: they broadcast commands).
-    lambda_scope : {"pedestrians", "robots", "both"}
-        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
-    weights : sequence of float, optional
-        The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
-    ignoring : sequence of int
-        Robots that take no other robot into account (a robot that does not comply).
-    sidestep : float
-        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
-    hard_rows : {"last", "level"}
-        How the lambda search treats the rows lambda is not the slack of.
-    deadlock : DeadlockRule, optional
-        When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
+
+        - ``starts``, ``goals`` (array-like, optional):
+          Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
+          waypoints per robot.
+        - ``layout``, ``radius``, ``center``:
+          See :func:`robot_tasks`.
+        - ``sensor_history`` ({"tracked", "observed"}):
+          Histories handed to each robot's predictor (see
+          :class:`~conformal_control.world.multi.MultiRobotWorld`).
+        - ``reciprocity`` ({"reciprocal", "none"}):
+          Robots share each pair's constraint, or predict each other like pedestrians.
+        - ``information`` ({"position", "velocity", "plan"}):
+          What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+        - ``lambda_scope`` ({"pedestrians", "robots", "both"}):
+          The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+        - ``weights`` (sequence of float, optional):
+          The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+        - ``ignoring`` (sequence of int):
+          Robots that take no other robot into account (a robot that does not comply).
+        - ``sidestep`` (float):
+          Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+        - ``hard_rows`` ({"last", "level"}):
+          How the lambda search treats the rows lambda is not the slack of.
 
     Returns
     -------

@@ -39,7 +39,7 @@ def error_line(capsys: pytest.CaptureFixture[str]) -> str:
         (
             ["run", "--crowd", "socialforce"],
             "error: unknown crowd 'socialforce'; did you mean 'social_force'? (one of replay, "
-            "social_force, orca, mixed; see `conformal-control run --help`)",
+            "orca, social_force, mixed; see `conformal-control run --help`)",
         ),
         (
             ["bench", "run", "--split", "val"],
