@@ -423,7 +423,7 @@ def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> Non
     for key in params:
         if key not in known:
             close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
+            hint = f"; did you mean {close[0]!r}?" if close else ";"
             raise UnknownParameterError(
                 f"{role} {name!r} has no parameter {key!r}{hint} "
                 f"its parameters: {', '.join(known) or 'none'}"

@@ -107,9 +107,22 @@ def plugin_key_values(
 
     out = key_values(items, flag)
     for key, value in out.items():
+        if not any(_takes(c, key) for c in classes):
+            continue  # not an argument at all: the plugin's own check names it, did-you-mean
         unit = next((u for c in classes if (u := documented_unit(c, key)) is not None), None)
         out[key] = si_value(key, value, unit, flag)
     return out
+
+
+def _takes(cls: type, key: str) -> bool:
+    """Whether ``cls(**{key: ...})`` is accepted by its constructor's signature."""
+    import inspect
+
+    try:
+        params = inspect.signature(cls).parameters
+    except (TypeError, ValueError):  # no introspectable signature: let the class decide
+        return True
+    return key in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def finite_float(text: str) -> float:

@@ -222,6 +222,11 @@ def test_plugin_parameters_take_si_suffixes(tmp_path: Path) -> None:
         ),
         (["--predictor", "delayed", "--predictor-param", "delay_s=3frames"], "not converted"),
         (["--predictor", "noisy", "--predictor-param", "sigma_m=2furlongs"], "unknown unit"),
+        (  # not an argument at all: named as such, not as a unit problem
+            ["--predictor-param", "max_speed=2m/s"],
+            "predictor 'constant_velocity' has no parameter 'max_speed'; its parameters: window",
+        ),
+        (["--predictor-param", "windw=2"], "no parameter 'windw'; did you mean 'window'?"),
     ],
 )
 def test_a_plugin_unit_that_does_not_fit_fails_before_the_data_is_read(
