@@ -472,23 +472,20 @@ def cli_reference() -> str:
 def cli_run_output(*args: str) -> str:
     """What ``conformal-control run ARGS`` prints, run now (so the page shows this version).
 
-    SDD scenes read ``$CONFORMAL_CONTROL_DATA`` (else ``../shared/data`` beside the
-    checkout); without data the block says so instead of failing the build.
+    SDD scenes read the data where every command does (``$CONFORMAL_CONTROL_DATA``, else
+    the per-user data folder; the docs test sets the variable); without data the block
+    says so instead of failing the build.
     """
     import contextlib
     import io
-    import os
     import tempfile
 
     from conformal_control.cli import main
+    from conformal_control.data.paths import sdd_root
 
-    env_root = os.environ.get("CONFORMAL_CONTROL_DATA")
-    root = Path(env_root) if env_root else ROOT.parent / "shared" / "data"
     argv = ["run", *args, "--no-plot", "--quiet"]
-    if "--scene" in args:
-        if not (root / "sdd").is_dir():
-            return f"(the SDD data was not found at {root} when this page was built)"
-        argv += ["--data-root", str(root)]
+    if "--scene" in args and not (sdd_root() / "annotations").is_dir():
+        return "(the SDD data was not found when this page was built: see Data)"
     with tempfile.TemporaryDirectory() as tmp:
         out, err = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
