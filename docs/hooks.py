@@ -496,12 +496,109 @@ def cli_run_output(*args: str) -> str:
     return text.rstrip() + (("\n" + err.getvalue().rstrip()) if err.getvalue() else "")
 
 
+# ---------------------------------------------------------------------------- plugins
+def _public_name(obj: type) -> str:
+    """How a user imports ``obj``: from the package's top level if it is exported there,
+    else from the module that defines it."""
+    import conformal_control
+
+    name = obj.__name__
+    if getattr(conformal_control, "_LAZY", {}).get(name) == obj.__module__:
+        return f"from conformal_control import {name}"
+    return f"from {obj.__module__} import {name}"
+
+
+def roles_table() -> str:
+    """Every role of the registry: its base class (how to import it), entry-point group,
+    contract check list and the plugins registered under it now, from this package and
+    from the other installed distributions (the plugins in ``plugins/``, third parties)."""
+    from conformal_control import registry, testing
+    from conformal_control.testing import ROLE_BASES, checks_for
+
+    rows = [
+        "| role | base class | entry-point group | contract checks | in conformal-control "
+        "| from other installed packages |",
+        "|---|---|---|---|---|---|",
+    ]
+    for role, group in registry.ROLES.items():
+        base = ROLE_BASES[role]
+        core, other = [], []
+        for e in registry.entries(role):
+            (core if e.origin == "conformal-control" else other).append(e)
+        checks = checks_for(role)
+        check_name = next(n for n in testing.__all__ if getattr(testing, n) is checks)
+        core_names = ", ".join(f"`{e.name}`" for e in core) or "-"
+        other_names = ", ".join(f"`{e.name}` ({e.origin})" for e in other) or "-"
+        rows.append(
+            f"| `{role}` | [`{base.__name__}`][{base.__module__}.{base.__qualname__}]: "
+            f"`{_public_name(base)}` | `{group}` | `{check_name}` ({len(checks)}) "
+            f"| {core_names} | {other_names} |"
+        )
+    return "\n".join(rows)
+
+
+def fields_table(dotted: str) -> str:
+    """The fields of a dataclass (type, default, meaning) from its numpy-style
+    ``Attributes`` section; a field the docstring does not describe fails the build."""
+    import dataclasses
+    import importlib
+    import inspect
+
+    module, _, name = dotted.rpartition(".")
+    cls = getattr(importlib.import_module(module), name)
+    doc = griffe.Docstring(inspect.getdoc(cls) or "", parser="numpy")
+    described = {
+        a.name: a
+        for section in doc.parse()
+        if section.kind.value == "attributes"
+        for a in section.value
+    }
+    rows = ["| field | type | default | meaning |", "|---|---|---|---|"]
+    for f in dataclasses.fields(cls):
+        if f.name not in described:
+            raise PluginError(f"{dotted}.{f.name} is not described in its Attributes section")
+        attr = described[f.name]
+        if f.default is not dataclasses.MISSING:
+            default = f"`{f.default!r}`"
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f"`{f.default_factory()!r}`"
+        else:
+            default = "required"
+        text = " ".join(attr.description.split()).replace("``", "`").replace("|", "\\|")
+        kind = str(attr.annotation or "").replace("|", "\\|")
+        rows.append(f"| `{f.name}` | {kind} | {default} | {text} |")
+    return "\n".join(rows)
+
+
+def cli_output(command: str) -> str:
+    """``$ conformal-control COMMAND`` and what it prints, run now (versions, plugins and
+    counts of this build); a non-zero exit fails the build."""
+    import contextlib
+    import io
+    import shlex
+
+    from conformal_control.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(shlex.split(command))
+    if code != 0:
+        raise PluginError(f"conformal-control {command} failed ({code}): {err.getvalue()}")
+    return f"$ conformal-control {command}\n{out.getvalue().rstrip()}"
+
+
+#: ``<!-- generated:KIND ARGUMENT -->`` markers taking an argument.
+_ARG_MARKER = re.compile(r"<!-- generated:(fields|command) (.+?) -->")
+_ARG_GENERATORS = {"fields": fields_table, "command": cli_output}
+
+
 GENERATORS = {
     "<!-- generated:api-index -->": api_index,
     "<!-- generated:parameters -->": parameters_table,
     "<!-- generated:cli -->": cli_reference,
     "<!-- generated:run-demo -->": lambda: cli_run_output(),
     "<!-- generated:run-nexus_4 -->": lambda: cli_run_output("--scene", "nexus_4"),
+    "<!-- generated:roles -->": roles_table,
 }
 
 
@@ -509,4 +606,4 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str
     for marker, make in GENERATORS.items():
         if marker in markdown:
             markdown = markdown.replace(marker, make())
-    return markdown
+    return _ARG_MARKER.sub(lambda m: _ARG_GENERATORS[m.group(1)](m.group(2)), markdown)

@@ -138,6 +138,57 @@ def test_mkdocs_build_strict(site: Path) -> None:
     assert (site / "assets/demo.png").is_file()
 
 
+def _table_rows(html: str, *header: str) -> list[list[str]]:
+    """The rows of the page's tables whose columns start with ``header``, as cell texts."""
+    out = []
+    for table in re.findall(r"<table>(.*?)</table>", html, re.S):
+        head = [
+            re.sub(r"<[^>]+>", "", h).strip()
+            for h in re.findall(r"<th[^>]*>(.*?)</th>", table, re.S)
+        ]
+        if tuple(head[: len(header)]) == header:
+            rows = re.findall(r"<tr>(.*?)</tr>", table.split("</thead>", 1)[1], re.S)
+            cells = [re.findall(r"<td[^>]*>(.*?)</td>", r, re.S) for r in rows]
+            out += [[re.sub(r"<[^>]+>", "", c).strip() for c in row] for row in cells]
+    assert out, f"no table headed {header}"
+    return out
+
+
+def test_plugin_pages_are_generated_from_the_registry(site: Path) -> None:
+    """Plugins' role table lists, per role, every plugin the registry holds now (this
+    package's and the installed packages'), its base class and check list; the
+    ``conformal-control plugins`` outputs carry this version; Write your own plugin
+    documents every field of ``PredictionQuery`` and ``Forecast``."""
+    import dataclasses
+
+    import conformal_control
+    from conformal_control import registry
+    from conformal_control.predictors.base import Forecast, PredictionQuery
+    from conformal_control.testing import ROLE_BASES
+
+    html = (site / "plugins/index.html").read_text()
+    rows = {r[0]: r for r in _table_rows(html, "role", "base class")}
+    assert list(rows) == list(registry.ROLES), list(rows)
+    for role, group in registry.ROLES.items():
+        _, base, grp, checks, core, other = rows[role]
+        assert ROLE_BASES[role].__name__ in base and grp == group, rows[role]
+        for e in registry.entries(role):
+            assert e.name in (core if e.origin == "conformal-control" else other), (role, e.name)
+        assert checks.startswith("check_"), checks
+    assert "var" in rows["predictor"][4] and "kalman" in rows["predictor"][5]
+    version = f"[conformal-control {conformal_control.__version__}]"
+    assert html.count(version) > len(registry.names("predictor")) // 2, version
+    assert "generated:" not in html
+    mine = (site / "write-your-own-plugin/index.html").read_text()
+    assert "generated:" not in mine and version in mine
+    documented = {r[0] for r in _table_rows(mine, "field")}
+    for cls in (PredictionQuery, Forecast):
+        assert {f.name for f in dataclasses.fields(cls)} <= documented, cls.__name__
+    # the example package's files are shown as they are (included, then highlighted)
+    assert '<span class="nc">DistanceSquaredBarrier</span>' in mine and "einsum" in mine
+    assert "8&lt;--" not in mine
+
+
 def test_algorithm_steps_and_qp_render(site: Path) -> None:
     """Algorithm 1 is a five-item list and the QP is a whole display equation."""
     html = (site / "controller/index.html").read_text()
@@ -283,8 +334,24 @@ EXECUTED = ("README.md", "docs/getting-started.md")
 _FENCE = re.compile(r"^```(\w*)[^\n]*\n(.*?)^```[ \t]*$", re.S | re.M)
 
 
+#: pymdownx.snippets' include block: ``--8<--``, a path from the repository's root per
+#: line, ``--8<--`` (the block form: not Python, so the formatter leaves it alone).
+_SNIPPET = re.compile(r"^--8<--[ \t]*\n(.*?)^--8<--[ \t]*$", re.M | re.S)
+
+
+def expand_snippets(code: str) -> str:
+    """A block as the site shows it: the included files in place of their snippet block."""
+
+    def files(m: re.Match[str]) -> str:
+        paths = [p.strip() for p in m.group(1).splitlines() if p.strip()]
+        return "\n".join((ROOT / p).read_text().rstrip("\n") for p in paths)
+
+    return _SNIPPET.sub(files, code)
+
+
 def code_blocks(path: Path) -> list[tuple[str, str, str, str | None]]:
-    """``(section heading, language, code, output shown right after it or None)`` per block."""
+    """``(section heading, language, code, output shown right after it or None)`` per block
+    (included files expanded)."""
     text = path.read_text()
     matches = list(_FENCE.finditer(text))
     out = []
@@ -294,7 +361,8 @@ def code_blocks(path: Path) -> list[tuple[str, str, str, str | None]]:
         shown = None
         if nxt is not None and nxt.group(1) == "text" and not text[m.end() : nxt.start()].strip():
             shown = nxt.group(2)
-        out.append((headings[-1] if headings else "", m.group(1), m.group(2), shown))
+        code = expand_snippets(m.group(2))
+        out.append((headings[-1] if headings else "", m.group(1), code, shown))
     return out
 
 
@@ -338,6 +406,81 @@ def test_python_blocks_run_and_print_what_the_page_shows(
     for where, shown in PYTHON_BLOCKS[code]:
         assert shown is not None, f"{where}: show the block's output in a text block after it"
         assert proc.stdout.rstrip() == shown.rstrip(), where
+
+
+#: Pages whose Python blocks run in order in one interpreter, as a reader types them (a
+#: block uses the classes earlier blocks defined); a block that prints shows its output in
+#: a text block right after it, and one that shows none prints nothing.
+SESSION_PAGES = ("docs/plugins.md", "docs/write-your-own-plugin.md", "docs/update-rules.md")
+
+#: Runs the blocks (JSON list on stdin) in ``__main__`` (so that the contract kit can pickle
+#: the classes they define), one stdout capture per block, calls of deprecated API from a
+#: block as errors; prints the captures as JSON.
+_SESSION = """
+import contextlib, io, json, sys, warnings
+import __main__
+warnings.filterwarnings("error", category=DeprecationWarning, module="__main__")
+warnings.filterwarnings("error", category=FutureWarning, module="__main__")
+_blocks, _out = json.load(sys.stdin), []
+for _i, _code in enumerate(_blocks):
+    _buf = io.StringIO()
+    with contextlib.redirect_stdout(_buf):
+        exec(compile(_code, f"<block {_i + 1}>", "exec"), __main__.__dict__)
+    _out.append(_buf.getvalue())
+print(json.dumps(_out))
+"""
+
+
+@pytest.mark.parametrize("page", SESSION_PAGES)
+def test_session_pages_run_and_print_what_they_show(
+    page: str, tmp_path: Path, data_root: Path
+) -> None:
+    blocks = [(h, c, shown) for h, lang, c, shown in code_blocks(ROOT / page) if lang == "python"]
+    assert blocks, page
+    env = {**os.environ, "CONFORMAL_CONTROL_DATA": str(data_root), "MPLBACKEND": "Agg"}
+    proc = subprocess.run(
+        [sys.executable, "-c", _SESSION],
+        input=json.dumps([c for _, c, _ in blocks]),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    printed = json.loads(proc.stdout.strip().splitlines()[-1])
+    for (heading, _, shown), out in zip(blocks, printed, strict=True):
+        where = f"{page}: {heading}"
+        if shown is None:
+            assert out == "", f"{where}: prints {out[:200]!r} but shows no output"
+        else:
+            assert out.rstrip() == shown.rstrip(), where
+
+
+def test_plugin_pages_use_the_public_api_and_show_no_stale_version() -> None:
+    """Every name the plugin snippets import exists and is not deprecated (importing it
+    warns of nothing); no sample output carries a hard-coded version: the
+    ``conformal-control plugins`` outputs are generated when the site is built."""
+    import warnings
+
+    n = 0
+    for page in ("docs/plugins.md", "docs/write-your-own-plugin.md", "docs/getting-started.md"):
+        text = (ROOT / page).read_text()
+        assert not re.search(r"\[conformal-control \d", text), page
+        for _, lang, code, _ in code_blocks(ROOT / page):
+            if lang != "python":
+                continue
+            imports = re.findall(
+                r"^from (conformal_control\S*) import (\([^()]+\)|.+)$", code, re.M
+            )
+            for module, names in imports:
+                names = re.sub(r"#[^\n]*", "", names)
+                for name in filter(None, (x.strip(" \n()") for x in names.split(","))):
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("error")
+                        assert hasattr(importlib.import_module(module), name), (page, name)
+                    n += 1
+    assert n >= 15
 
 
 def test_getting_started_shows_the_front_door_stepwise_api_and_a_plugin() -> None:

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from conformal_control.cbf.roles import Barrier
+from conformal_control import Barrier
 
 __all__ = ["DistanceSquaredBarrier"]
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
+from conformal_control import Forecast, PredictionQuery, Predictor
 from conformal_control.predictors.constant_velocity import trailing_valid
 
 __all__ = ["DampedConstantVelocity"]
