@@ -509,32 +509,56 @@ def _public_name(obj: type) -> str:
 
 
 def roles_table() -> str:
-    """Every role of the registry: its base class (how to import it), entry-point group,
-    contract check list and the plugins registered under it now, from this package and
-    from the other installed distributions (the plugins in ``plugins/``, third parties)."""
+    """Every role of the registry (entry-point group, base class, contract check list, the
+    plugins registered under it now), how to import the base classes, and the installed
+    distributions other than this package that add plugins (``plugins/``, third parties)."""
     from conformal_control import registry, testing
     from conformal_control.testing import ROLE_BASES, checks_for
 
     rows = [
-        "| role | base class | entry-point group | contract checks | in conformal-control "
-        "| from other installed packages |",
-        "|---|---|---|---|---|---|",
+        "| role | entry-point group | base class | contract checks | registered plugins |",
+        "|---|---|---|---|---|",
     ]
+    top, elsewhere = [], []
+    packages: dict[tuple[str, str], list[str]] = {}
     for role, group in registry.ROLES.items():
         base = ROLE_BASES[role]
-        core, other = [], []
-        for e in registry.entries(role):
-            (core if e.origin == "conformal-control" else other).append(e)
+        entries = registry.entries(role)
+        for e in entries:
+            if e.origin != "conformal-control":
+                packages.setdefault((e.origin, e.version or "?"), []).append(f"`{e.name}`")
         checks = checks_for(role)
         check_name = next(n for n in testing.__all__ if getattr(testing, n) is checks)
-        core_names = ", ".join(f"`{e.name}`" for e in core) or "-"
-        other_names = ", ".join(f"`{e.name}` ({e.origin})" for e in other) or "-"
+        names = ", ".join(f"`{e.name}`" for e in entries) or "-"
         rows.append(
-            f"| `{role}` | [`{base.__name__}`][{base.__module__}.{base.__qualname__}]: "
-            f"`{_public_name(base)}` | `{group}` | `{check_name}` ({len(checks)}) "
-            f"| {core_names} | {other_names} |"
+            f"| `{role}` | `{group}` | [`{base.__name__}`][{base.__module__}.{base.__qualname__}]"
+            f" | `{check_name}` ({len(checks)}) | {names} |"
         )
-    return "\n".join(rows)
+        line = _public_name(base)
+        (top if line.startswith("from conformal_control import") else elsewhere).append(
+            (base.__name__, line)
+        )
+    imports = (
+        f"Base classes import from the package's top level (`from conformal_control import "
+        f"{', '.join(n for n, _ in top)}`)"
+        + (
+            "; the others from their module: " + ", ".join(f"`{line}`" for _, line in elsewhere)
+            if elsewhere
+            else ""
+        )
+        + "."
+    )
+    out = ["\n".join(rows), "", imports]
+    if packages:
+        out += [
+            "",
+            "Plugins from installed packages other than conformal-control:",
+            "",
+            "| package | version | plugins |",
+            "|---|---|---|",
+        ]
+        out += [f"| `{d}` | {v} | {', '.join(n)} |" for (d, v), n in sorted(packages.items())]
+    return "\n".join(out)
 
 
 def fields_table(dotted: str) -> str:

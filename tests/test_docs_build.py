@@ -167,15 +167,19 @@ def test_plugin_pages_are_generated_from_the_registry(site: Path) -> None:
     from conformal_control.testing import ROLE_BASES
 
     html = (site / "plugins/index.html").read_text()
-    rows = {r[0]: r for r in _table_rows(html, "role", "base class")}
+    rows = {r[0]: r for r in _table_rows(html, "role", "entry-point group", "base class")}
     assert list(rows) == list(registry.ROLES), list(rows)
+    packages = {r[0]: r for r in _table_rows(html, "package", "version", "plugins")}
     for role, group in registry.ROLES.items():
-        _, base, grp, checks, core, other = rows[role]
-        assert ROLE_BASES[role].__name__ in base and grp == group, rows[role]
-        for e in registry.entries(role):
-            assert e.name in (core if e.origin == "conformal-control" else other), (role, e.name)
+        _, grp, base, checks, names = rows[role]
+        assert ROLE_BASES[role].__name__ == base and grp == group, rows[role]
         assert checks.startswith("check_"), checks
-    assert "var" in rows["predictor"][4] and "kalman" in rows["predictor"][5]
+        assert [n.strip() for n in names.split(",")] == registry.names(role), (role, names)
+        for e in registry.entries(role):
+            if e.origin != "conformal-control":
+                assert e.name in packages[e.origin][2], (e.origin, e.name)
+    assert {"conformal-control-kalman", "conformal-control-example-plugin"} <= set(packages)
+    assert "from conformal_control import Predictor, Barrier" in re.sub(r"<[^>]+>", "", html)
     version = f"[conformal-control {conformal_control.__version__}]"
     assert html.count(version) > len(registry.names("predictor")) // 2, version
     assert "generated:" not in html
