@@ -588,7 +588,10 @@ def fields_table(dotted: str) -> str:
             default = f"`{f.default_factory()!r}`"
         else:
             default = "required"
-        text = " ".join(attr.description.split()).replace("``", "`").replace("|", "\\|")
+        text = " ".join(attr.description.split())
+        text = re.sub(r":(?:meth|func):`~?([^`]+)`", r"``\1()``", text)  # Sphinx roles
+        text = re.sub(r":\w+:`~?([^`]+)`", r"``\1``", text)
+        text = text.replace("``", "`").replace("|", "\\|")
         kind = str(attr.annotation or "").replace("|", "\\|")
         rows.append(f"| `{f.name}` | {kind} | {default} | {text} |")
     return "\n".join(rows)

@@ -185,6 +185,7 @@ def test_plugin_pages_are_generated_from_the_registry(site: Path) -> None:
     assert "generated:" not in html
     mine = (site / "write-your-own-plugin/index.html").read_text()
     assert "generated:" not in mine and version in mine
+    assert not re.search(r":(meth|func|class|attr):", _prose(mine))  # roles became code
     documented = {r[0] for r in _table_rows(mine, "field")}
     for cls in (PredictionQuery, Forecast):
         assert {f.name for f in dataclasses.fields(cls)} <= documented, cls.__name__
