@@ -24,6 +24,7 @@ from typing import Any, Protocol, cast
 
 __all__ = [
     "COMMANDS",
+    "add_data_root",
     "check_writable",
     "command",
     "command_line",
@@ -94,6 +95,18 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
         raw[key] = value.strip()
         out[key] = parse_value(value)
     return out
+
+
+def add_data_root(parser: argparse.ArgumentParser, purpose: str = "") -> None:
+    """``--data-root DIR``, with the same help everywhere: the three places the data is
+    looked for, in order (:mod:`conformal_control.data.paths`)."""
+    parser.add_argument(
+        "--data-root",
+        default=None,
+        metavar="DIR",
+        help=f"data folder{purpose} (holding sdd/ and ethucy/, or one of them); unset: "
+        "$CONFORMAL_CONTROL_DATA, else the per-user data folder that fetch-data fills",
+    )
 
 
 def plugin_key_values(

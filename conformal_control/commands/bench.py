@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 from .. import registry
-from . import command, key_values, positive_int
+from . import add_data_root, command, key_values, positive_int
 
 #: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
 #: that ``--help`` stays fast).
@@ -41,7 +41,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help="regenerate from --data-root and compare with the shipped manifest (slow: "
         "runs the nolearn baseline on every scenario)",
     )
-    sc.add_argument("--data-root", default=None, help="data folder (for --regenerate)")
+    add_data_root(sc, " for --regenerate")
     sc.add_argument(
         "--recording",
         action="append",
@@ -88,7 +88,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="comma-separated families to tune (default: fixed,conformal,acp,inflated)",
     )
-    tu.add_argument("--data-root", default=None, help="data folder")
+    add_data_root(tu)
     tu.add_argument("--executor", default="batch", choices=("batch", "process", "serial", "dask"))
     tu.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     tu.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
@@ -154,9 +154,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         choices=registry.crowd_names(),
         help="pedestrians replayed, or reacting to the robot (default replay)",
     )
-    ru.add_argument(
-        "--data-root", default=None, help="data folder (default $CONFORMAL_CONTROL_DATA)"
-    )
+    add_data_root(ru)
     ru.add_argument(
         "--executor",
         default=None,

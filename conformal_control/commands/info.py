@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from . import command
+from . import add_data_root, command
 
 
 @command("scenes", "list the registered scenes")
@@ -35,7 +35,7 @@ def _params_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="show this scene's units and resolved defaults (e.g. crossing, nexus_4)",
     )
-    p.add_argument("--data-root", default=None, help="data folder for SDD scenes")
+    add_data_root(p, " for SDD scenes")
 
 
 _DIMENSION_WORDS = {

@@ -19,12 +19,12 @@ from pathlib import Path
 from typing import Any
 
 from ..base import Plugin
-from . import check_writable, command, command_line, key_values
+from . import add_data_root, check_writable, command, command_line, key_values
 
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", required=True, help="ethucy:<scene> or sdd:<scene> / nexus_4")
-    p.add_argument("--data-root", default=None, help="data folder (or its ethucy/ or sdd/)")
+    add_data_root(p)
     p.add_argument("--obs", type=int, default=8, help="observed samples (0.4 s apart)")
     p.add_argument("--horizon", type=int, default=12, help="predicted samples (0.4 s apart)")
     p.add_argument("--seed", type=int, default=0, help="seed (training, subsampling)")

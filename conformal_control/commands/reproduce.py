@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import check_writable, command, key_values
+from . import add_data_root, check_writable, command, key_values
 from .sweep import add_executor_args
 
 
@@ -17,11 +17,7 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
         choices=("table1", "table2", "forms", "all"),
         help="table1 (gates_1), table2 (nexus_4), forms (nexus_4 raw vs TrajNet), or all",
     )
-    p.add_argument(
-        "--data-root",
-        default=None,
-        help="data folder (or its sdd/ subfolder); default $CONFORMAL_CONTROL_DATA",
-    )
+    add_data_root(p)
     p.add_argument(
         "--predictor",
         default="constant_velocity",

@@ -21,6 +21,7 @@ from typing import Any
 
 from .. import registry
 from . import (
+    add_data_root,
     check_writable,
     command,
     command_line,
@@ -57,11 +58,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         help="crossing (built-in, no data needed), a paper scene (nexus_4, gates_1, ...), "
         "or sdd:<scene>/video<N> (needs --start and --goal)",
     )
-    p.add_argument(
-        "--data-root",
-        default=None,
-        help="data folder (or its sdd/ subfolder); unset: $CONFORMAL_CONTROL_DATA",
-    )
+    add_data_root(p)
     p.add_argument(
         "--config",
         default=None,

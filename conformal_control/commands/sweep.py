@@ -6,7 +6,7 @@ import argparse
 import sys
 import warnings
 
-from . import command, key_values, positive_int
+from . import add_data_root, command, key_values, positive_int
 
 
 def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> None:
@@ -57,7 +57,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--scene", default=None, help="shorthand for --set scene=NAME")
     p.add_argument("--predictor", default=None, help="shorthand for --set predictor=NAME")
-    p.add_argument("--data-root", default=None, help="data folder (or its sdd/ subfolder)")
+    add_data_root(p)
     p.add_argument("--out", required=True, help="sweep folder (created; reused to resume)")
     add_executor_args(p)
     p.add_argument("--no-resume", action="store_true", help="rerun runs already finished")

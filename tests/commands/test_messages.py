@@ -287,3 +287,30 @@ def test_animate_writes_lines_not_carriage_returns_into_a_log(
     assert "\r" not in err
     lines = [ln for ln in err.splitlines() if ln.startswith("rendering r.gif")]
     assert len(lines) >= 2 and lines[-1].startswith("rendering r.gif: done,")
+
+
+# ------------------------------------------------------------------------------ data root
+def test_every_data_root_option_names_the_three_places_in_order() -> None:
+    """Every command reading data takes ``--data-root`` and says where it looks without it:
+    the option, ``$CONFORMAL_CONTROL_DATA``, the per-user folder ``fetch-data`` fills."""
+    import argparse
+
+    from conformal_control.cli import build_parser
+
+    def parsers(p: argparse.ArgumentParser, name: str):
+        yield name, p
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for sub, sp in a.choices.items():
+                    yield from parsers(sp, f"{name} {sub}")
+
+    found = []
+    for name, p in parsers(build_parser(), "conformal-control"):
+        for a in p._actions:
+            if "--data-root" in a.option_strings:
+                found.append(name)
+                text = " ".join((a.help or "").split())
+                assert "$CONFORMAL_CONTROL_DATA, else the per-user data folder" in text, name
+                assert "fetch-data" in text, name
+    for name in ("run", "params", "sweep", "reproduce", "eval-predictor", "bench run"):
+        assert f"conformal-control {name}" in found, (name, found)
