@@ -24,11 +24,22 @@ checks every metric against :func:`run_episode`). The wall time of the control l
 the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
-:func:`run_episode`): replayed crowds; any registered predictor; the APF barrier; the exact
-2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback; the attractive-field
-reference; the velocity-tracking plant; the ``cbf_gap``, ``collision`` or
-``distance_shortfall`` loss; any registered update rule, learning or not. Roles are given by
-name (an instance would be shared by every episode).
+:func:`run_episode`): replayed crowds; any registered predictor; the ``cbf`` family and the
+``acp`` family (adaptive conformal prediction regions); the APF barrier; the exact 2-D
+filter with any registered fallback (``lambda_search``, ``brake`` and ``hold`` are decided
+by the compiled step; any other, e.g. ``relax``, by the episode's own fallback object on the
+compiled step's rows: the engine pauses that episode at that instant, lets the fallback
+decide in Python and runs on); the attractive-field reference; the velocity-tracking plant;
+the ``cbf_gap``, ``collision``, ``distance_shortfall`` or ``acp_miscoverage`` loss; any
+registered update rule, learning or not. Roles are given by name (an instance would be
+shared by every episode).
+
+The ``acp`` family runs its own per-interval code (scoring its past predictions, sorting
+their errors, the regions' radii at the interval's lambda: its ``begin_interval`` and
+``_inflation``) on the episode's own controller, and the engine runs the interval's control
+instants compiled with the barrier's collision distance raised per horizon step, as
+:meth:`ACPController.decide <conformal_control.cbf.acp.ACPController.decide>` sets up the
+compiled step; its miscoverage loss scores the interval's record with its own code.
 
 What runs compiled and what runs through the episode's own objects: the constant-velocity
 and the oracle predictor are compiled (above); any other predictor is called at each
@@ -75,12 +86,12 @@ from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
-from ..cbf.roles import InfeasibleStep
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
+from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship

@@ -6,9 +6,10 @@ the attractive field's reference velocity, the fused APF step of the exact 2-D f
 (:func:`~conformal_control.cbf.kernels2d.apf_step`; for the ``acp`` family with the barrier's
 collision distance raised per horizon step and no slack), the ``brake`` / ``hold``
 fallbacks (any other fallback pauses the slot: the engine lets the episode's own fallback
-object decide in Python and calls again), the velocity-tracking plant, the goal check (with the scene's waypoints), the
-frame clock and the per-frame log with the nearest agent's distance -- and stops the slot
-at its interval's end or at its episode's end. It is the work of
+object decide in Python and calls again), the velocity-tracking plant, the goal check
+(with the scene's waypoints), the frame clock and the per-frame log with the nearest
+agent's distance -- and stops the slot at its interval's end or at its episode's end. It is
+the work of
 :meth:`ConformalCBFController.decide
 <conformal_control.cbf.controller.ConformalCBFController.decide>`,
 :meth:`ReplayEnvironment.apply <conformal_control.world.replay.ReplayEnvironment.apply>`
