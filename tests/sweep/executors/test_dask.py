@@ -17,8 +17,8 @@ from conformal_control.sweep.executors.serial import SerialExecutor
 distributed = pytest.importorskip("distributed")  # the sweep extra, installed by the README
 
 #: one method without learning, one learning method, one whose fallback decides in Python
-#: (relax; every one batched)
-METHODS = "nolearn,conformal,fallback:relax"
+#: (relax; these three batched), one the engine does not batch (cc_mpc: the sampling MPC)
+METHODS = "nolearn,conformal,fallback:relax,cc_mpc"
 
 
 def _bench(out: Path, data: Path, *extra: str) -> None:
@@ -46,7 +46,8 @@ def test_a_suite_on_a_two_worker_cluster_equals_the_serial_run(
             workers = {w["id"] for w in client.scheduler_info()["workers"].values()}
     _bench(tmp_path / "serial", data_root, "--executor", "serial")
     on_cluster, serial = _metrics(tmp_path / "cluster"), _metrics(tmp_path / "serial")
-    assert on_cluster.keys() == serial.keys() and len(serial) == 3 * 5  # 3 x (1 + 3 + 1)
+    # 3 scenarios x (1 + 3 + 1 + 1)
+    assert on_cluster.keys() == serial.keys() and len(serial) == 3 * 6
     for key, metrics in serial.items():
         wall = {k for k in metrics if "wall" in k}
         assert {k: v for k, v in on_cluster[key].items() if k not in wall} == {
