@@ -58,7 +58,7 @@ def test_robots_settings_are_checked_when_given_in_one_line(setting, words):
 
 
 def test_an_unknown_robots_key_in_a_file_is_one_line():
-    with pytest.raises(InputError, match="config.json: robots must be a mapping of robots,"):
+    with pytest.raises(InputError, match=r"config\.json: robots must be a mapping of robots,"):
         RunSpec.from_dict({"robots": {"robots": 2, "reciprocal": True}}, "config.json")
 
 
@@ -122,9 +122,9 @@ def test_config_json_reads_back_into_the_same_multi_robot_run(tmp_path, crossing
         assert [iv["lambda"] for iv in a.intervals] == [iv["lambda"] for iv in b.intervals]
     assert again.config["reciprocity"] == res.config["reciprocity"]
     # a changed setting on the spec is a different run (the equality above can fail)
-    other = run_multi(crossing, dataclasses.replace(spec, robots=dataclasses.replace(
-        spec.robots, ignoring=()
-    )))
+    other = run_multi(
+        crossing, dataclasses.replace(spec, robots=dataclasses.replace(spec.robots, ignoring=()))
+    )
     assert not np.array_equal(other.track["robots"], res.track["robots"], equal_nan=True)
 
 
