@@ -41,7 +41,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -649,10 +649,15 @@ def set_reciprocity(
 
 
 def drive(
-    world: MultiRobotWorld, steppers: Sequence[ConformalStepper], *, broadcast: bool = False
+    world: MultiRobotWorld,
+    steppers: Sequence[ConformalStepper],
+    *,
+    broadcast: bool = False,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> list[float]:
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
-    wall time (s) spent in its own sensing, deciding and learning.
+    time (s, by ``clock``: wall time by default) spent in its own sensing, deciding and
+    learning.
 
     With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
     plans ahead (``planned_path``), its plan's path
@@ -666,7 +671,6 @@ def drive(
     on the truth its own sensor reveals and updates its own lambda.
     """
     n = len(steppers)
-    clock = time.perf_counter
     own = [0.0] * n
     world.reset()
     for st in steppers:
