@@ -430,8 +430,8 @@ class MultiRobotWorld:
         tau = self.tau_frames
         if self.crowd is None and rob.size == 0:
 
-            def future() -> np.ndarray:
-                return self._ped_window(fi + 1, fi + 1 + tau, ped)
+            def future(horizon: int) -> np.ndarray:
+                return self._ped_window(fi + 1, fi + 1 + horizon, ped)
 
         else:
             future = _no_future
@@ -572,7 +572,7 @@ class MultiRobotWorld:
             self._world_done = True
 
 
-def _no_future() -> np.ndarray:
+def _no_future(horizon: int) -> np.ndarray:
     raise TruthUnavailableError(
         "the future of this query is not known at the sampling time: it includes other "
         "robots, or pedestrians who react to the robots (the oracle predictor needs "

@@ -152,7 +152,7 @@ def test_cli_rejects_an_unknown_family_in_one_line(capsys):
 
 
 def test_bench_methods_run_the_mpc_families(scene):
-    for m in expand_methods(["mpc", "cc_mpc", "acp_mpc", "ecp_mpc"]):
+    for m in expand_methods(["mpc", "cc_mpc", "oracle_mpc", "acp_mpc", "ecp_mpc"]):
         kw = m.run_kwargs()
         kw["family_params"] = {**kw.get("family_params", {}), **FAST}
         res = run_episode(scene, max_frames=30, record_animation=False, **kw)
