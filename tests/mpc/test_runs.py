@@ -166,3 +166,64 @@ def test_several_robots_refuse_another_family_in_one_line(capsys):
     assert main(["run", "--robots", "2", "--family", "mpc", "--frames", "5"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--robots runs the CBF family only" in err[0]
+
+
+def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
+    import csv
+
+    from conformal_control.sweep import SweepSpec, run_sweep
+
+    spec = SweepSpec(
+        base={
+            "scene": "crossing",
+            "frames": 30,
+            "family": "mpc",
+            "family_params": {"n_samples": 40, "replan_every": 2},
+            "units": "si",
+        },
+        grid={"family_params.horizon": [4, 6], "epsilon": [0.05, 0.2]},
+    )
+    runs = spec.expand()
+    assert len(runs) == 4
+    assert runs[0].episode["family_params"] == {"n_samples": 40, "replan_every": 2, "horizon": 4}
+    report = run_sweep(spec, tmp_path / "sw", "serial", plot=False, progress=False)
+    assert not report.failed and len(report.ran) == 4
+    with (tmp_path / "sw" / "results.csv").open() as fh:
+        table = list(csv.DictReader(fh))
+    assert {r["episode.family"] for r in table} == {"mpc"}
+    assert {json.loads(r["episode.family_params"])["horizon"] for r in table} == {4, 6}
+    assert {float(r["param.epsilon"]) for r in table} == {0.05, 0.2}
+    for r in table:
+        config = json.loads((tmp_path / "sw" / r["run_dir"] / "config.json").read_text())
+        fam = config["decision_family"]
+        assert fam["name"] == "mpc" and fam["params"]["n_samples"] == 40
+        assert fam["params"]["horizon"] == json.loads(r["episode.family_params"])["horizon"]
+        assert config["engine"] == "loop" and float(r["n_steps"]) > 0
+
+
+def test_a_dotted_family_parameter_needs_a_mapping():
+    from conformal_control.sweep import SweepSpec
+
+    spec = SweepSpec(base={"scene": "crossing", "family_params": 3}, grid={"family_params.x": [1]})
+    with pytest.raises(ValueError, match="'family_params' must be a mapping, got 3"):
+        spec.expand()
+
+
+def test_the_metrics_report_the_family_defaults_the_rule_uses(scene):
+    # the scene's epsilon and eta are the CBF's; the mpc family's own apply (and are reported)
+    res = run_episode(scene, family="mpc", family_params=FAST, max_frames=30, record_animation=False)
+    rule = res.config["rule"]["params_si"]
+    assert (rule["epsilon"], rule["eta"], rule["lambda_min"]) == (0.1, 0.2, -1.0)
+    assert res.metrics["epsilon"] == 0.1 and res.metrics["eta"] == 0.2
+    assert res.config["params"]["si"]["epsilon"] == 0.1
+    assert scene.defaults["epsilon"] != 0.1  # the scene's value is another
+    given = run_episode(
+        scene,
+        family="mpc",
+        family_params=FAST,
+        params={"epsilon": 0.3},
+        units="si",
+        max_frames=30,
+        record_animation=False,
+    )
+    assert given.metrics["epsilon"] == given.config["rule"]["params_si"]["epsilon"] == 0.3
