@@ -140,8 +140,10 @@ def _fmt(wall: float, cpu: float) -> str:
 
 def bench_crossing(args: argparse.Namespace) -> dict[str, float]:
     """Print and return the crossing figures (see the module docstring)."""
+    from conformal_control.jit import compile_now
     from conformal_control.sim import run_episode
 
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
     cache = _cache_dir(args.cache)
     ensure_scenes(cache, args.seeds, args.workers)
     print(f"\n== crossing: {args.seeds} seeds, learning (fixed_eta), batch_size={args.batch_size}")
@@ -205,8 +207,10 @@ def bench_suite(args: argparse.Namespace) -> dict[str, float]:
     from conformal_control.bench import load_scenario, load_suite
     from conformal_control.bench.methods import expand_methods
     from conformal_control.engines.batch import run_batch, supports
+    from conformal_control.jit import compile_now
     from conformal_control.sim import run_episode
 
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
     warnings.simplefilter("ignore")
     suite = load_suite("crossings-v1")
     dev = suite.scenarios_for("dev")[: args.scenarios]

@@ -102,6 +102,9 @@ def timed(step: Callable[[], None], n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ours(model: CrowdModel, steps: int) -> tuple[np.ndarray, np.ndarray, World]:
+    from conformal_control.jit import compile_now
+
+    compile_now()  # timed compiled (see conformal_control.jit)
     model.reset(np.random.default_rng(0))
     w = World()
     rad, vmax = np.full(N, RADIUS), np.full(N, 1.3 * V0)
@@ -366,6 +369,9 @@ def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, f
     from conformal_control.crowds import neighbors
     from conformal_control.crowds import orca as orca_module
     from conformal_control.crowds import social_force as sf_module
+    from conformal_control.jit import compile_now
+
+    compile_now()  # timed compiled (see conformal_control.jit)
 
     model: CrowdModel = SocialForceModel() if model_name == "social_force" else ORCAModel()
     model.reset(np.random.default_rng(0))

@@ -44,6 +44,7 @@ from conformal_control.cbf import (
 )
 from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.roles import Dynamics
+from conformal_control.jit import compile_now
 from conformal_control.mpc import ACPMPC, ECPMPC, SamplingMPC
 from conformal_control.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
@@ -123,6 +124,7 @@ def time_cbf(m: int, repeats: int) -> float:
 
 def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: int = 400) -> list:
     """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
+    compile_now()  # timed compiled (see conformal_control.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
     uni = Unicycle()
     common = {"n_samples": samples, "horizon": horizon, "dt_plan": DT, "substeps": 1}

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
     from .loop import ConformalLoop, IntervalLog, LoopResult
     from .monitor import GuaranteeMonitor
     from .predictors.base import Forecast, PredictionQuery, Predictor
+    from .spec import Parameters, RunSpec
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
@@ -48,6 +49,8 @@ _LAZY = {
     "LoopResult": "conformal_control.loop",
     "GuaranteeMonitor": "conformal_control.monitor",
     "run": "conformal_control.api",
+    "RunSpec": "conformal_control.spec",
+    "Parameters": "conformal_control.spec",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
@@ -71,10 +74,12 @@ __all__ = [
     "IntervalLog",
     "LoopResult",
     "Loss",
+    "Parameters",
     "Plugin",
     "PredictionQuery",
     "Predictor",
     "ReferenceController",
+    "RunSpec",
     "SafetyFilter",
     "SingleStepEnvironment",
     "StepwiseCBF",

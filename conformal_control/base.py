@@ -51,6 +51,7 @@ __all__ = [
     "Plugin",
     "SingleStepEnvironment",
     "UpdateRule",
+    "compiled_as",
 ]
 
 ObsT = TypeVar("ObsT")
@@ -88,7 +89,16 @@ class Plugin:
 
     Subclasses store each ``__init__`` argument under an attribute of the same name and do
     no work in ``__init__`` (validation happens in ``reset``).
+
+    A plugin the compiled engine (:mod:`conformal_control.engines.batch`) runs as compiled
+    code declares it with ``compiled_as``: the name of its compiled counterpart. The
+    declaration holds for the class that makes it only (read it with
+    :func:`compiled_as`): a subclass may compute something else, and runs in the engine
+    only if it declares the name again.
     """
+
+    #: Name of this exact class's compiled counterpart in the compiled engine, or None.
+    compiled_as: ClassVar[str | None] = None
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -120,6 +130,13 @@ class Plugin:
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
+
+
+def compiled_as(cls: type) -> str | None:
+    """The compiled counterpart ``cls`` itself declares (``compiled_as`` in its own body),
+    None if it declares none (an inherited declaration does not count)."""
+    value = vars(cls).get("compiled_as")
+    return value if isinstance(value, str) else None
 
 
 # --------------------------------------------------------------------------------------

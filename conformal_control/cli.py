@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 import warnings
 from collections.abc import Sequence
@@ -25,7 +26,7 @@ from typing import Any, NoReturn
 
 from . import __version__
 
-__all__ = ["EXIT_BUG", "EXIT_ERROR", "build_parser", "describe_error", "main"]
+__all__ = ["EXIT_BUG", "EXIT_ERROR", "build_parser", "choice_noun", "describe_error", "main"]
 
 EXIT_ERROR = 2
 EXIT_BUG = 70
@@ -52,22 +53,56 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} [default: %(default)s]"
 
 
+def choice_noun(action: argparse.Action) -> str:
+    """What a value of ``action`` is called in an error: ``command`` for a subcommand,
+    else the option's name (``--crowd`` -> ``crowd``, ``--robot-layout`` -> ``robot
+    layout``) or the positional argument's metavar or name, singular for a list
+    (``targets`` -> ``target``)."""
+    if isinstance(action, argparse._SubParsersAction):
+        return "command"
+    if action.option_strings:
+        name = max(action.option_strings, key=len)
+        return name.lstrip("-").replace("-", " ")
+    name = action.metavar if isinstance(action.metavar, str) else action.dest
+    if action.nargs in ("+", "*") and name.endswith("s"):
+        name = name[:-1]  # one value of a list: "targets" -> "target"
+    return name.lower().replace("_", " ")
+
+
+#: the message of an unknown choice, found again in ``ArgumentParser.error``
+_CHOICE = re.compile(r"^argument [^:]+: (unknown .*?)(?: \[(one of .*)\])?$", re.S)
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with one-line errors (``error: ...``, with a did-you-mean for commands)."""
+    """argparse with one-line errors (``error: ...``); a value that is not one of the
+    choices is named by what it is (``unknown crowd 'socialforce'; did you mean
+    'social_force'?``), with the closest choice or the list of choices."""
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        choices = action.choices
+        if choices is None or value in choices:
+            return
+        import difflib
+
+        names = [str(c) for c in choices]
+        close = difflib.get_close_matches(str(value), names, n=1, cutoff=0.6)
+        listed = len(names) <= 12 and not isinstance(action, argparse._SubParsersAction)
+        if close:
+            hint = f"; did you mean {close[0]!r}?" + (
+                f" [one of {', '.join(names)}]" if listed else ""
+            )
+        else:
+            hint = f"; choose from {', '.join(names)}"
+        raise argparse.ArgumentError(action, f"unknown {choice_noun(action)} {value!r}{hint}")
 
     def error(self, message: str) -> NoReturn:
-        import difflib
-        import re
-
-        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        see = f"see `{self.prog} --help`"
+        m = _CHOICE.match(message)
         if m:
-            choices = re.findall(r"'([^']*)'", m[2])
-            close = difflib.get_close_matches(m[1], choices, n=1, cutoff=0.6)
-            hint = (
-                f"; did you mean {close[0]!r}?" if close else f"; choose from {', '.join(choices)}"
-            )
-            message = f"unknown command {m[1]!r}{hint}"
-        self.exit(EXIT_ERROR, f"error: {message} (see `{self.prog} --help`)\n")
+            message = m[1]
+            if m[2]:
+                see = f"{m[2]}; {see}"
+        self.exit(EXIT_ERROR, f"error: {message} ({see})\n")
 
 
 def _global_options(parser: argparse.ArgumentParser, *, top: bool) -> None:

@@ -24,6 +24,7 @@ This module imports nothing from the package: every layer may use it.
 from __future__ import annotations
 
 __all__ = [
+    "CacheWarning",
     "ConformalControlError",
     "ConformalControlWarning",
     "DataFetchError",
@@ -76,6 +77,12 @@ class OptionConflictWarning(ConformalControlWarning):
 
 class IgnoredOptionWarning(ConformalControlWarning):
     """An option was given that has no effect on this run (the message says why)."""
+
+
+class CacheWarning(ConformalControlWarning):
+    """A cache entry (trained weights, compiled code) was unreadable, failed its checksum
+    or could not be written; it was set aside and the work is redone (the message names
+    the path)."""
 
 
 class SuspiciousValueWarning(ConformalControlWarning):

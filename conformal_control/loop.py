@@ -28,7 +28,15 @@ import numpy as np
 from .base import DecisionFamily, Environment, Loss, UpdateRule
 from .monitor import GuaranteeMonitor
 
-__all__ = ["ConformalLoop", "ConformalStepper", "IntervalLog", "LoopResult", "LossAt"]
+__all__ = [
+    "ConformalLoop",
+    "ConformalStepper",
+    "IntervalLog",
+    "IntervalScore",
+    "LoopResult",
+    "LossAt",
+    "close_interval",
+]
 
 
 @dataclass
@@ -89,6 +97,83 @@ class LoopResult:
     def guarantee(self) -> dict[str, Any]:
         """The monitor's figures: guarantee kind, identity residual, bounds and checks."""
         return self.monitor.summary()
+
+
+@dataclass
+class IntervalScore:
+    """An interval's score: its loss l_k, the loss's diagnostics, and l_k as a function of
+    lambda (for rules that re-evaluate it, ``uses_loss_function``)."""
+
+    loss: float | None
+    diagnostics: dict[str, float] = field(default_factory=dict)
+    loss_at: Callable[[float], float | None] | None = None
+
+
+def close_interval(
+    k: int,
+    lam: float,
+    n_steps: int,
+    *,
+    rule: UpdateRule,
+    monitor: GuaranteeMonitor,
+    learn: bool = True,
+    loss: Loss[Any, Any] | None = None,
+    record: Any = None,
+    truth: Any = None,
+    score: IntervalScore | None = None,
+) -> tuple[IntervalLog, float]:
+    """Score interval ``k`` and update lambda: the end of every interval, in every engine.
+
+    The interval is scored by ``loss`` on its ``record`` and ``truth`` with the lambda it
+    ran with, unless ``score`` is given (an engine that computed l_k itself, the same
+    arithmetic). A scored interval updates lambda through the ``monitor`` (which steps the
+    ``rule``; without ``learn`` lambda stays and the loss is only observed).
+
+    Parameters
+    ----------
+    k : int
+        The interval's index (from 0).
+    lam : float
+        lambda_k, the lambda the interval's decisions were taken with.
+    n_steps : int
+        Control instants the interval ran.
+    rule : UpdateRule
+        Turns losses into the next lambda; a rule with ``uses_loss_function`` first
+        receives l_k as a function of lambda.
+    monitor : GuaranteeMonitor
+        The running average loss and the guarantee's bookkeeping (steps ``rule``).
+    learn : bool
+        False keeps lambda at its value.
+    loss, record, truth
+        The loss and what it scores (when ``score`` is None).
+    score : IntervalScore, optional
+        The interval's score, computed by the caller.
+
+    Returns
+    -------
+    (IntervalLog, float)
+        The interval's log and lambda_{k+1}.
+    """
+    if score is None:
+        if loss is None:
+            raise ValueError("close_interval needs a loss (with record and truth) or a score")
+        l_k = loss(record, truth, lam)
+        score = IntervalScore(
+            l_k,
+            loss.diagnostics(record, truth, lam) if l_k is not None else {},
+            LossAt(loss, record, truth),
+        )
+    log = IntervalLog(k=k, lam=lam, loss=score.loss, n_steps=n_steps, diagnostics=score.diagnostics)
+    if score.loss is not None:
+        if learn:
+            if rule.uses_loss_function:
+                rule.set_loss_function(score.loss_at)
+            lam = monitor.update(score.loss)
+        else:
+            monitor.observe(score.loss, lam)
+            monitor.set_lambda_next(lam)
+        log.l_avg = monitor.average
+    return log, lam
 
 
 class ConformalStepper:
@@ -172,27 +257,18 @@ class ConformalStepper:
         if not self._open:
             raise RuntimeError("end_interval() called without begin_interval()")
         self._open = False
-        lam, loss, rule, monitor = self.lam_, self.loss, self.rule, self.monitor_
-        record = self.policy.interval_record()
-        l_k = loss(record, truth, lam)
-        diagnostics = loss.diagnostics(record, truth, lam) if l_k is not None else {}
-        log = IntervalLog(
-            k=len(self.intervals_),
-            lam=lam,
-            loss=l_k,
-            n_steps=self._n_steps,
-            diagnostics=diagnostics,
+        log, self.lam_ = close_interval(
+            len(self.intervals_),
+            self.lam_,
+            self._n_steps,
+            rule=self.rule,
+            monitor=self.monitor_,
+            learn=self.learn,
+            loss=self.loss,
+            record=self.policy.interval_record(),
+            truth=truth,
         )
         self.intervals_.append(log)
-        if l_k is not None:
-            if self.learn:
-                if rule.uses_loss_function:
-                    rule.set_loss_function(LossAt(loss, record, truth))
-                self.lam_ = monitor.update(l_k)
-            else:
-                monitor.observe(l_k, lam)
-                monitor.set_lambda_next(lam)
-            log.l_avg = monitor.average
         if self.on_interval is not None:
             self.on_interval(log)
         return log

@@ -129,6 +129,21 @@ class GuaranteeMonitor:
 
         With ``learn=False`` lambda stays at lambda_1 and no guarantee is computed (the
         losses are still averaged).
+
+        Parameters
+        ----------
+        rule : UpdateRule
+            The rule (reset here); its ``epsilon``, step and guarantee kind.
+        lambda_safe : float, optional
+            A lambda known or estimated to be safe (the Theorem-2 bound).
+        lambda_safe_source : str, optional
+            Where ``lambda_safe`` came from.
+        premise_proven : bool
+            lambda <= ``lambda_safe`` provably keeps the loss <= epsilon.
+        bounds : (float, float)
+            The loss's range.
+        learn : bool
+            False keeps lambda at lambda_1.
         """
         lam = rule.reset()
         return cls(

@@ -19,10 +19,13 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Collection, Iterator
 from types import TracebackType
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
-__all__ = ["Progress", "is_quiet", "note", "progress", "set_quiet", "write"]
+__all__ = ["Progress", "is_quiet", "note", "progress", "set_quiet", "track", "write"]
+
+T = TypeVar("T")
 
 logger = logging.getLogger("conformal_control")
 
@@ -213,3 +216,17 @@ def progress(
         Keep the finished bar on screen (terminal mode).
     """
     return Progress(total, desc, unit, delay=delay, every=every, leave=leave)
+
+
+def track(
+    items: Collection[T], desc: str, unit: str = "items", *, enabled: bool = True
+) -> Iterator[T]:
+    """Iterate over ``items`` with a :func:`progress` report (a bar on a terminal, plain
+    lines in a log file); ``enabled=False`` reports nothing."""
+    if not enabled:
+        yield from items
+        return
+    with progress(len(items), desc, unit) as bar:
+        for item in items:
+            yield item
+            bar.update()

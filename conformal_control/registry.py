@@ -41,6 +41,7 @@ __all__ = [
     "check_params",
     "clashes",
     "create",
+    "crowd_names",
     "entries",
     "entry",
     "get",
@@ -61,6 +62,7 @@ ROLES: dict[str, str] = {
     "dynamics": "conformal_control.dynamics",
     "reference": "conformal_control.references",
     "decision_family": "conformal_control.families",
+    "crowd_model": "conformal_control.crowd_models",
 }
 
 
@@ -292,7 +294,24 @@ def register(
         register("predictor", "mine", "pkg.mod:Mine")  # lazy: imported on first use
 
     A name that is taken by a different plugin raises ``ValueError`` unless
-    ``overwrite=True``. Returns the class (decorator and class forms) or the target string.
+    ``overwrite=True``.
+
+    Parameters
+    ----------
+    role : str
+        One of :data:`ROLES`.
+    name : str
+        The name the plugin is asked for by.
+    target : class or str, optional
+        The class, or ``"package.module:Class"`` (imported on first use); None: used as a
+        class decorator.
+    overwrite : bool
+        Replace a different plugin registered under the name.
+
+    Returns
+    -------
+    class or str
+        The class (decorator and class forms) or the target string.
     """
     _check_role(role)
     _discover()
@@ -347,6 +366,13 @@ def names(role: str) -> list[str]:
     return [e.name for e in entries(role)]
 
 
+def crowd_names() -> list[str]:
+    """Every crowd a run can have: ``replay`` (the recording), each registered crowd model
+    (``crowd_model`` role: every pedestrian simulated), ``mixed`` (replayed until the robot
+    comes near, then simulated). The command line's choices come from here."""
+    return ["replay", *names("crowd_model"), "mixed"]
+
+
 def entry(role: str, name: str) -> PluginEntry:
     """The registry entry ``role``/``name`` (:class:`UnknownPluginError` if there is none)."""
     _check_role(role)
@@ -375,7 +401,17 @@ class UnknownParameterError(ValueError):
 
 
 def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> None:
-    """Raise :class:`UnknownParameterError` for arguments ``cls`` does not take."""
+    """Raise :class:`UnknownParameterError` for arguments ``cls`` does not take.
+
+    Parameters
+    ----------
+    role, name : str
+        The plugin's role and registered name (named in the message).
+    cls : type
+        Its class.
+    params : dict
+        The arguments to check against ``cls``'s constructor.
+    """
     if not params:  # nothing to check (and a signature costs tens of microseconds)
         return
     import inspect

@@ -54,7 +54,10 @@ class ParamInfo:
         Whether ``low`` and ``high`` belong to the range.
     plausible : (float, float, str) or None
         SI range and unit outside which a bare number (no unit suffix) is reported as
-        suspicious (probably typed in the wrong unit).
+        suspicious (probably typed in the other unit system: seconds for frames, 1/s for
+        1/frame, metres for pixels). Every scene's defaults and the paper's values lie
+        inside, but Table I's eta = 100/frame (3000/s on gates_1), which is gates_1's
+        default (a scene's own default is never reported).
     """
 
     doc: str
@@ -93,11 +96,18 @@ class Parameters:
     :class:`ParamInfo` (unit, range, doc).
     """
 
-    a: float | None = _p(None, "slope of alpha(h) = a h (1/time)", dimension=_RATE, **_POSITIVE)
+    a: float | None = _p(
+        None,
+        "slope of alpha(h) = a h (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 1000.0, "1/s"),
+        **_POSITIVE,
+    )
     K_acc: float | None = _p(
         None,
         "velocity-tracking gain of u = -K_acc (v - v_QP) (1/time)",
         dimension=_RATE,
+        plausible=(0.0, 200.0, "1/s"),
         **_POSITIVE,
     )
     K_rep: float | None = _p(
@@ -107,6 +117,7 @@ class Parameters:
         None,
         "attractive gain of the reference v_ref = -K_att (X - X_goal) (1/time)",
         dimension=_RATE,
+        plausible=(0.0, 100.0, "1/s"),
         **_POSITIVE,
     )
     rho0: float | None = _p(
@@ -127,11 +138,15 @@ class Parameters:
         None,
         "sampling period of sensor, predictor and lambda update (time)",
         dimension=(0, 1),
-        plausible=(0.0, 10.0, "s"),
+        plausible=(0.0, 2.0, "s"),
         **_POSITIVE,
     )
     eta: float | None = _p(
-        None, "learning rate of lambda (1/time)", dimension=_RATE, **_NON_NEGATIVE
+        None,
+        "learning rate of lambda (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 100.0, "1/s"),
+        **_NON_NEGATIVE,
     )
     epsilon: float | None = _p(
         None,
@@ -141,7 +156,11 @@ class Parameters:
         closed=(False, False),
     )
     loss_scale: float | None = _p(
-        None, "loss scale c in s(r) = arctan(r/c)/pi (1/time)", dimension=_RATE, **_POSITIVE
+        None,
+        "loss scale c in s(r) = arctan(r/c)/pi (1/time)",
+        dimension=_RATE,
+        plausible=(0.0, 1000.0, "1/s"),
+        **_POSITIVE,
     )
     lambda_init: float = _p(0.0, "initial lambda (1/time)", dimension=_RATE)
     lambda_min: float = _p(
@@ -157,9 +176,6 @@ class Parameters:
         low=0.0,
         high=1.0,
         closed=(False, False),
-    )
-    fallback: str = _p(
-        "lambda_search", "on an infeasible QP: lambda_search | brake | hold", kind="text"
     )
     speed_sides: int = _p(
         16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
@@ -258,6 +274,10 @@ _OPTION_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
+#: How config.json writes infinite parameter values (JSON has no infinity).
+_INFINITE_TEXT = frozenset({"inf", "-inf", "Infinity", "-Infinity"})
+
+
 def _spec_error(message: str) -> Exception:
     return InputError(message)
 
@@ -288,6 +308,94 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
     return value, {}  # an instance: checked against the role's base class when built
 
 
+#: The settings of a run's robots section (:class:`Robots`).
+ROBOT_FIELDS: tuple[str, ...] = (
+    "robots",
+    "starts",
+    "goals",
+    "layout",
+    "radius",
+    "center",
+    "sensor_history",
+    "reciprocity",
+    "information",
+    "lambda_scope",
+    "weights",
+    "ignoring",
+    "sidestep",
+    "hard_rows",
+)
+
+
+@dataclass(frozen=True)
+class Robots:
+    """Several robots in one crowd (each its own controller, no communication).
+
+    Parameters
+    ----------
+    robots : int, optional
+        Number of robots, placed by ``layout``; or give ``starts`` and ``goals``.
+    starts, goals : lists, optional
+        Explicit tasks (m): one start ``[x, y]`` and one list of goals per robot.
+    layout : {"scene", "antipodal"}
+        ``scene``: robot 0 does the scene's task, robot i the same task rotated by
+        2 pi i / M; ``antipodal``: on a circle of ``radius`` about ``center``.
+    radius : float, optional
+    center : [x, y], optional
+    sensor_history : {"tracked", "observed"}
+        Histories handed to each robot's predictor.
+    reciprocity : {"reciprocal", "none"}
+        Robots share each pair's constraint, or predict each other like pedestrians.
+    information : {"position", "velocity", "plan"}
+        What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+    lambda_scope : {"pedestrians", "robots", "both"}
+        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+    weights : sequence of float, optional
+        The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+    ignoring : sequence of int
+        Robots that take no other robot into account (a robot that does not comply).
+    sidestep : float
+        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+    hard_rows : {"last", "level"}
+        How the lambda search treats the rows lambda is not the slack of.
+    """
+
+    robots: int | None = None
+    starts: Any = None
+    goals: Any = None
+    layout: str = "scene"
+    radius: float | None = None
+    center: Any = None
+    sensor_history: str = "tracked"
+    reciprocity: str = "reciprocal"
+    information: str = "plan"
+    lambda_scope: str = "pedestrians"
+    weights: Any = None
+    ignoring: Any = ()
+    sidestep: float = 0.3
+    hard_rows: str = "last"
+
+    def __post_init__(self) -> None:
+        if self.robots is not None and (
+            isinstance(self.robots, bool) or not isinstance(self.robots, int)
+        ):
+            raise _spec_error(f"robots must be an integer, got {self.robots!r}")
+        if self.layout not in ("scene", "antipodal"):
+            raise _spec_error(f"layout must be 'scene' or 'antipodal', got {self.layout!r}")
+        if self.sensor_history not in ("tracked", "observed"):
+            raise _spec_error(
+                f"sensor_history must be 'tracked' or 'observed', got {self.sensor_history!r}"
+            )
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (arrays as lists)."""
+        out = {}
+        for name in ROBOT_FIELDS:
+            v = getattr(self, name)
+            out[name] = v.tolist() if hasattr(v, "tolist") else v
+        return out
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of the flagship, fully specified: parameters, roles, crowd, robots, options.
@@ -296,6 +404,11 @@ class RunSpec:
     from its arguments, sweeps from a run configuration, the benchmark from a method and a
     scenario) and hands it to the same builder and engines; ``config.json`` holds
     :meth:`as_dict`, and :meth:`from_dict` reads it back (type-checked).
+
+    Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
+    ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
+    parameter; ``spec.set_params(predictor__window=3, epsilon=-0.1)`` returns the changed
+    copy.
 
     Parameters
     ----------
@@ -324,11 +437,9 @@ class RunSpec:
         Keep the compact record ``conformal-control animate`` renders.
     engine : {"auto", "loop", "batch"}
         The backend (:mod:`conformal_control.engines`).
+    robots : Robots, optional
+        Several robots in the crowd (:func:`conformal_control.sim.multi.run_multi`).
 
-    Deep parameters (scikit-learn style): ``spec.get_params()`` flattens everything,
-    ``predictor__window`` for a role's parameter and ``epsilon`` for a controller
-    parameter; ``spec.set_params(predictor__window=3, epsilon=-0.1)`` returns the changed
-    copy.
     """
 
     params: dict[str, Any] = field(default_factory=dict)
@@ -350,10 +461,12 @@ class RunSpec:
     lambda_safe_source: str | None = None
     record_animation: bool = True
     engine: str = "auto"
+    robots: Robots | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.params, dict):
             raise _spec_error(f"params must be a mapping, got {self.params!r}")
+        self._fallback_one_way()
         unknown = sorted(set(self.params) - set(PARAMETERS))
         if unknown:
             import difflib
@@ -377,6 +490,47 @@ class RunSpec:
             raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))
+        if self.robots is not None and not isinstance(self.robots, Robots):
+            raise _spec_error(f"robots must be a Robots section, got {self.robots!r}")
+
+    def _fallback_one_way(self) -> None:
+        """The fallback is a role (``fallback=``): a ``fallback`` among the parameters or
+        the safety filter's parameters (the ways of 0.2) moves there, with a
+        :class:`DeprecationWarning`; two different fallbacks are an error."""
+        filter_name, filter_params = _role_parts("safety_filter", self.safety_filter)
+        given = {
+            where: value
+            for where, value in (
+                ("params", self.params.get("fallback")),
+                ("safety_filter parameters", filter_params.get("fallback")),
+            )
+            if value is not None
+        }
+        if not given:
+            return
+        import warnings
+
+        names = {repr(v) for v in given.values()}
+        if self.fallback is not None:
+            names.add(repr(self.fallback))
+        if len(names) > 1:
+            raise _spec_error(
+                f"the fallback is given twice with different values ({', '.join(sorted(names))});"
+                " give it once, as the run's fallback"
+            )
+        warnings.warn(
+            f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
+            "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+        object.__setattr__(self, "fallback", next(iter(given.values())))
+        object.__setattr__(
+            self, "params", {k: v for k, v in self.params.items() if k != "fallback"}
+        )
+        if "fallback" in filter_params:
+            rest = {k: v for k, v in filter_params.items() if k != "fallback"}
+            object.__setattr__(self, "safety_filter", (filter_name, rest) if rest else filter_name)
 
     # ------------------------------------------------------------------ roles
     def role(self, name: str) -> tuple[Any, dict[str, Any]]:
@@ -437,6 +591,61 @@ class RunSpec:
             new[role] = (spec, rp) if rp else spec
         return dataclasses.replace(self, params=params, **new)
 
+    # ------------------------------------------------------------------ keyword settings
+    @classmethod
+    def from_settings(
+        cls, params: dict[str, Any] | None = None, base: RunSpec | None = None, **settings: Any
+    ) -> RunSpec:
+        """A :class:`RunSpec` from keyword settings, as the functions that run episodes
+        take them: fields by name (``predictor=``, ``learn=``, ...), ``params``, and a
+        role's parameters as ``<role>_params`` (``predictor_params={"window": 3}``, the
+        role given by name); applied on ``base`` (default: the default specification).
+
+        Raises
+        ------
+        TypeError
+            For a keyword that is no setting of a run (with a did-you-mean).
+        ValueError
+            For ``<role>_params`` without a role given by name.
+        """
+        spec = cls() if base is None else base
+        fields = set(ROLE_FIELDS) | set(OPTION_FIELDS)
+        kw: dict[str, Any] = {}
+        role_params: dict[str, Any] = {}
+        robots: dict[str, Any] = {}
+        for key, value in settings.items():
+            if key in ROBOT_FIELDS:
+                robots[key] = value
+            elif key.endswith("_params") and key[: -len("_params")] in ROLE_FIELDS:
+                role_params[key[: -len("_params")]] = value
+            elif key in fields:
+                kw[key] = value
+            else:
+                import difflib
+
+                known = sorted(
+                    fields | set(ROBOT_FIELDS) | {"params"} | {f"{r}_params" for r in ROLE_FIELDS}
+                )
+                close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                raise TypeError(f"unexpected keyword argument {key!r}{hint}")
+        for role, given in role_params.items():
+            if not given:
+                continue
+            name, existing = _role_parts(role, kw.get(role, getattr(spec, role)))
+            if name is None:
+                raise ValueError(f"{role}_params given without a {role} name")
+            if not isinstance(name, str):
+                raise ValueError(
+                    f"{role}_params apply to a {role} given by name, not to an instance"
+                )
+            kw[role] = (name, {**existing, **dict(given)})
+        if params is not None:
+            kw["params"] = dict(params)
+        if robots:
+            kw["robots"] = dataclasses.replace(spec.robots or Robots(), **robots)
+        return dataclasses.replace(spec, **kw)
+
     # ------------------------------------------------------------------ serialisation
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (``config.json``'s ``spec``); :meth:`from_dict` inverts it.
@@ -457,6 +666,8 @@ class RunSpec:
                 }
         for name in OPTION_FIELDS:
             out[name] = getattr(self, name)
+        if self.robots is not None:
+            out["robots"] = self.robots.as_dict()
         return out
 
     @classmethod
@@ -471,12 +682,25 @@ class RunSpec:
         """
         if not isinstance(data, dict):
             raise _spec_error(f"{where} must be a mapping, got {type(data).__name__}")
-        known = {"params", *ROLE_FIELDS, *OPTION_FIELDS}
+        known = {"params", "robots", *ROLE_FIELDS, *OPTION_FIELDS}
         unknown = sorted(set(data) - known)
         if unknown:
             raise _spec_error(f"{where}: unknown key {unknown[0]!r}")
         kw: dict[str, Any] = {}
         for key, value in data.items():
+            if key == "params" and isinstance(value, dict):
+                # JSON has no infinity: config.json writes it as text
+                value = {
+                    k: float(v) if isinstance(v, str) and v in _INFINITE_TEXT else v
+                    for k, v in value.items()
+                }
+            if key == "robots" and value is not None:
+                if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
+                    raise _spec_error(
+                        f"{where}: robots must be a mapping of {', '.join(ROBOT_FIELDS)}"
+                    )
+                kw[key] = Robots(**value)
+                continue
             if key in ROLE_FIELDS and isinstance(value, dict) and "instance" in value:
                 raise _spec_error(
                     f"{where}: the {key} was an instance of {value['instance']}, which a "

@@ -140,6 +140,9 @@ LAYERS: dict[str, int] = {
     "base": 0,
     "exceptions": 0,
     "progress": 0,
+    "fileio": 1,
+    "compiled": 1,
+    "jit": 2,
     "monitor": 1,
     "registry": 1,
     "losses": 1,
@@ -204,3 +207,30 @@ def test_imports_point_downward() -> None:
             if v and v != u and LAYERS[v] >= LAYERS[u] and (mod, dep) not in ALLOWED_UP:
                 bad.append(f"{mod} (layer {LAYERS[u]}) imports {dep} (layer {LAYERS[v]})")
     assert not bad, "imports must point to lower layers:\n" + "\n".join(sorted(bad))
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    """A name starting with ``_`` is its module's own: another module that needs it needs
+    a public name (``from .x import _y`` hides a dependency the API does not show)."""
+    bad = []
+    for path in PKG.rglob("*.py"):
+        me = module_name(path)
+        is_pkg = path.name == "__init__.py"
+        package = me if is_pkg else me.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                target = ".".join([*base, node.module] if node.module else base)
+            else:
+                target = node.module or ""
+            if not target.startswith("conformal_control") or target == me:
+                continue
+            bad += [
+                f"{me} imports {target}.{a.name}"
+                for a in node.names
+                if a.name.startswith("_") and not a.name.startswith("__")
+            ]
+    assert not bad, "private names imported across modules:\n" + "\n".join(sorted(bad))

@@ -16,6 +16,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conformal_control.cli import EXIT_ERROR, main
@@ -70,7 +71,7 @@ TYPED = [
     ("param without value", ["--param", "a"], ["KEY=VALUE"]),
     ("start on the built-in scene", ["--start", "0.1,0.5"], ["fixed start"]),
     ("start not two numbers", ["--start", "0.1"], ["--start", "fx,fy"]),
-    ("huge eta overflows lambda", ["--eta", "1e300"], ["lambda overflowed", "smaller eta"]),
+    ("huge eta overflows lambda", ["--eta", "1e300/s"], ["lambda overflowed", "smaller eta"]),
     ("unknown option", ["--epsilonn", "0.1"], ["unrecognized arguments: --epsilonn"]),
 ]
 
@@ -277,7 +278,45 @@ def _scales_not_yaml(root: Path) -> str:
     return "estimated_scales.yaml: not valid YAML"
 
 
+def _trajnet_far_frame(root: Path) -> str:
+    """One row at frame 2e9: the dense scene would need billions of frames (MemoryError)."""
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: ["2000000004", *p[1:]])
+    return "gates_1.txt:30: frame 2000000004 comes"
+
+
+def _trajnet_off_grid(root: Path) -> str:
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: [str(int(p[0]) + 5), *p[1:]])
+    return "gates_1.txt:30: frame"
+
+
+def _trajnet_huge_id(root: Path) -> str:
+    tj = root / "trajnet_pixels/gates_1.txt"
+    _rewrite_line(tj, 30, lambda p: [p[0], "1e20", *p[2:]])
+    return "gates_1.txt:30: agent id 1e+20"
+
+
+def _sdd_far_frame(root: Path) -> str:
+    ann = root / NEXUS / "annotations.txt"
+    k = _first_pedestrian_line(ann)
+    _rewrite_line(ann, k, lambda p: [*p[:5], "2000000000", *p[6:]])
+    return f"annotations.txt:{k}: frame 2000000000 comes"
+
+
+def _sdd_huge_id(root: Path) -> str:
+    ann = root / NEXUS / "annotations.txt"
+    k = _first_pedestrian_line(ann)
+    _rewrite_line(ann, k, lambda p: ["1e20", *p[1:]])
+    return f"annotations.txt:{k}: agent id 1e+20"
+
+
 DATA = [
+    ("trajnet row at frame 2e9", "gates_1", _trajnet_far_frame, "probably wrong"),
+    ("trajnet row off the frame grid", "gates_1", _trajnet_off_grid, "off the file's grid"),
+    ("trajnet id of 1e20", "gates_1", _trajnet_huge_id, "not a whole number"),
+    ("sdd row at frame 2e9", "nexus_4", _sdd_far_frame, "probably wrong"),
+    ("sdd id of 1e20", "nexus_4", _sdd_huge_id, "not a whole number"),
     ("nan box coordinate", "nexus_4", _nan_box, "non-finite box coordinate"),
     ("truncated label", "nexus_4", _truncated_label, "is not a quoted name"),
     ("truncated line", "nexus_4", _truncated_line, "expected 10"),
@@ -330,3 +369,346 @@ def test_ethucy_file_that_is_a_folder(ethucy_dir: Path, tmp_path: Path, capsys) 
     assert main([*argv, "--data-root", str(root)]) == EXIT_ERROR
     line = one_error(capsys)
     assert "extra.txt" in line and "is a folder, not a file" in line
+
+
+# ------------------------------------------------------------------------------ code in files
+class _WritesMarker:
+    """Unpickling this object writes a file: the proof that loading ran code."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[object, tuple[Path, str]]:
+        return (Path.write_text, (self.marker, "code ran"))
+
+
+def test_weights_folder_with_a_pickle_runs_no_code(tmp_path: Path, capsys) -> None:
+    """A config or sweep spec naming ``weights=<folder>`` must not execute the folder."""
+    import pickle
+
+    folder = tmp_path / "weights"
+    folder.mkdir()
+    params = {"estimator": "Ridge", "estimator_params": None, "obs": 8, "horizon": 12}
+    params |= {"model_dt": 0.4, "weights": None, "random_state": 0}
+    (folder / "config.json").write_text(json.dumps({"class": "SklearnPredictor", "params": params}))
+    marker = tmp_path / "pwned"
+    (folder / "model.joblib").write_bytes(pickle.dumps(_WritesMarker(marker)))
+    argv = ["run", "--predictor", "sklearn", "--predictor-param", f"weights={folder}"]
+    assert main([*argv, "--out", str(tmp_path / "r"), "--no-plot"]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "a pickle of an older version, which is not loaded" in line
+    assert not marker.exists()
+
+
+# ------------------------------------------------------------------------------ the step-wise API
+def _stepwise(**kw: object) -> object:
+    from conformal_control.cbf import StepwiseCBF
+
+    return StepwiseCBF("constant_velocity", tau=0.4, dt=0.1, **kw)
+
+
+def _observed(*samples: tuple[list[object], list[list[float]], float]) -> None:
+    ctrl = _stepwise()
+    for ids, pos, t in samples:
+        ctrl.observe(ids, pos, t=t)
+
+
+def _steps(per_sample: int, spacing: float) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    for k in range(3):
+        ctrl.observe([0], [[10.0, 3.0]], t=k * 0.1)
+        for j in range(per_sample):
+            ctrl.step(np.zeros(4), t=k * 0.1 + j * spacing, goal=[20.0, 0.0])
+
+
+def _step_at(t: float) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=[20.0, 0.0])
+    ctrl.step(np.zeros(4), t=t, goal=[20.0, 0.0])
+
+
+def _goal(goal: list[float]) -> None:
+    import numpy as np
+
+    ctrl = _stepwise()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=goal)
+
+
+# (name, call, words of the one-sentence ValueError)
+STEPWISE: list[tuple[str, Callable[[], object], list[str]]] = [
+    ("duplicate ids", lambda: _observed(([7, 7], [[5.0, 0.0], [3.0, 0.0]], 0.0)), ["id 7"]),
+    ("float id", lambda: _observed(([1.5], [[5.0, 0.0]], 0.0)), ["whole numbers", "1.5"]),
+    ("id of 1e20", lambda: _observed(([1e20], [[5.0, 0.0]], 0.0)), ["too large"]),
+    ("epsilon 5", lambda: _stepwise(epsilon=5.0), ["epsilon must lie in (-1/2, 1/2)"]),
+    (
+        "2 steps per sample",
+        lambda: _steps(2, 0.05),
+        ["step() at t = 0.05 s, expected t = 0.025 s", "4 times"],
+    ),
+    ("8 steps per sample", lambda: _steps(8, 0.0125), ["expected t = 0.025 s"]),
+    ("step at t = -5", lambda: _step_at(-5.0), ["expected t = 0.025 s"]),
+    ("step at t = nan", lambda: _step_at(float("nan")), ["t must be finite"]),
+    ("step at t = 1e9", lambda: _step_at(1e9), ["expected t = 0.025 s"]),
+    (
+        "observe twice at one t",
+        lambda: _observed(([0], [[5.0, 0.0]], 0.0), ([1], [[3.0, 0.0]], 0.0)),
+        ["already observed"],
+    ),
+    ("observe at t = nan", lambda: _observed(([0], [[5.0, 0.0]], float("nan"))), ["finite"]),
+    ("goal of 3 numbers", lambda: _goal([1.0, 2.0, 3.0]), ["goal must be 2 finite numbers"]),
+]
+
+
+@pytest.mark.parametrize(("call", "words"), [c[1:] for c in STEPWISE], ids=[c[0] for c in STEPWISE])
+def test_stepwise_input_contract(call: Callable[[], object], words: list[str]) -> None:
+    with pytest.raises(ValueError) as info:
+        call()
+    message = str(info.value)
+    assert "\n" not in message and not re.search(r"[.!?] +[A-Z][a-z]", message), message
+    for w in words:
+        assert w in message, f"{w!r} not in {message!r}"
+
+
+# ------------------------------------------------------------------------------ ETH/UCY rows
+@pytest.fixture
+def zara_copy(ethucy_dir: Path, tmp_path: Path) -> Path:
+    root = tmp_path / "ethucy"
+    shutil.copytree(ethucy_dir / "zara1" / "test", root / "zara1" / "test")
+    for other in ("eth", "hotel", "univ"):
+        (root / other).mkdir()
+    return root
+
+
+def _zara_rows(root: Path) -> tuple[Path, list[str]]:
+    path = root / "zara1" / "test" / "crowds_zara01.txt"
+    return path, path.read_text().splitlines()
+
+
+def _eval(root: Path) -> int:
+    argv = ["eval-predictor", "--predictor", "constant_velocity", "--dataset", "ethucy:zara1"]
+    return main([*argv, "--data-root", str(root)])
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda f: [str(float(f[0]) + 3), *f[1:]], "is off the file's grid of one sample every 10"),
+        (lambda f: ["2000000000", *f[1:]], "comes"),
+        (lambda f: [f[0], "1e20", *f[2:]], "agent id 1e+20 is not a whole number"),
+    ],
+    ids=["off-grid frame", "frame 2e9", "id of 1e20"],
+)
+def test_ethucy_bad_row_is_one_line_with_file_and_line(
+    edit: Callable[[list[str]], list[str]], words: str, zara_copy: Path, capsys
+) -> None:
+    """An off-grid row used to become the file's time step: every pedestrian 3.3x slower."""
+    path, lines = _zara_rows(zara_copy)
+    lines[40] = " ".join(edit(lines[40].split()))
+    path.write_text("\n".join(lines) + "\n")
+    assert _eval(zara_copy) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "crowds_zara01.txt:41" in line and words in line, line
+
+
+def test_ethucy_duplicate_rows_are_counted_or_refused(zara_copy: Path, capsys) -> None:
+    from conformal_control.data.ethucy import read_ethucy
+
+    path, lines = _zara_rows(zara_copy)
+    clean = read_ethucy(path)
+    assert clean.meta["n_duplicate_rows"] == 0
+    path.write_text("\n".join([*lines[:41], lines[40], *lines[41:]]) + "\n")  # repeated
+    again = read_ethucy(path)
+    assert again.meta["n_duplicate_rows"] == 1 and again.meta["n_rows"] == len(lines) + 1
+    for i, (f, xy) in clean.tracks.items():
+        np.testing.assert_array_equal(again.tracks[i][0], f)
+        np.testing.assert_array_equal(again.tracks[i][1], xy)
+    moved = lines[40].split()
+    moved[2] = str(float(moved[2]) + 1.0)
+    path.write_text("\n".join([*lines[:41], " ".join(moved), *lines[41:]]) + "\n")
+    assert _eval(zara_copy) == EXIT_ERROR
+    line = one_error(capsys)
+    assert "crowds_zara01.txt:42" in line and "second, different position" in line, line
+    assert "first at line 41" in line
+
+
+# ------------------------------------------------------------------------------ disks
+def test_a_full_disk_names_the_file_and_leaves_no_truncated_one(tmp_path: Path) -> None:
+    """Files cut off by a full disk (here: a 4 KiB file-size limit) used to stay behind,
+    truncated or empty, with an error that named no path."""
+    import subprocess
+    import sys
+
+    code = (
+        "import resource, signal, sys\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail (EFBIG)\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
+        "from conformal_control.cli import main\n"
+        "sys.exit(main())\n"
+    )
+    out = tmp_path / "r"
+    argv = ["run", "--frames", "20", "--no-plot", "--quiet", "--out", str(out)]
+    res = subprocess.run(
+        [sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=600
+    )
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error: ")]
+    assert res.returncode == EXIT_ERROR and len(errors) == 1, res.stderr
+    assert "Traceback" not in res.stderr
+    assert f"cannot write {out}" in errors[0] and "size limit" in errors[0], errors[0]
+    for path in out.rglob("*"):
+        assert not path.name.endswith(".tmp"), path
+        if path.suffix == ".json":
+            json.loads(path.read_text())  # complete, never cut off
+    assert not (out / "metrics.json").exists()  # the run directory is not marked complete
+
+
+# ------------------------------------------------------------------------------ smaller files
+def _scales(root: Path, edit: Callable[[str], str]) -> None:
+    path = root / "estimated_scales.yaml"
+    path.write_text(edit(path.read_text()))
+
+
+def _nexus_scale(value: str) -> Callable[[str], str]:
+    def edit(text: str) -> str:
+        head, _, tail = text.partition("nexus:")
+        before, _, after = tail.partition("video4:")
+        scale_line = after.split("\n", 2)
+        return head + "nexus:" + before + "video4:\n      scale: " + value + "\n" + scale_line[2]
+
+    return edit
+
+
+def _bomb(root: Path) -> None:
+    """A PNG header claiming 60000 x 60000 pixels: 3.6 billion, from 57 bytes."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = zlib.crc32(kind + data) & 0xFFFFFFFF
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
+
+    header = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b"")
+    (root / NEXUS / "reference.jpg").write_bytes(png)
+
+
+SMALLER = [
+    ("scale 0", lambda r: _scales(r, _nexus_scale("0")), "scale in metres per pixel > 0"),
+    ("scale nan", lambda r: _scales(r, _nexus_scale(".nan")), "scale in metres per pixel > 0"),
+    (
+        "scene not a mapping",
+        lambda r: _scales(r, lambda t: "nexus: [1, 2]\n" + t.split("nexus:")[0]),
+        "scene nexus must map videoN",
+    ),
+    (
+        "video entry not a mapping",
+        lambda r: _scales(r, _nexus_scale("0.04\n      x: [")),
+        "estimated_scales.yaml",
+    ),
+    ("decompression bomb image", _bomb, "decompression bomb"),
+]
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "words"), [c[1:] for c in SMALLER], ids=[c[0] for c in SMALLER]
+)
+def test_smaller_data_attacks(
+    corrupt: Callable[[Path], None], words: str, sdd_copy: Path, tmp_path: Path, capsys
+) -> None:
+    corrupt(sdd_copy)
+    argv = ["run", "--scene", "nexus_4", "--data-root", str(sdd_copy), "--no-plot"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line
+
+
+def _deep(path: Path, opener: str = "[", closer: str = "]") -> Path:
+    path.write_text(opener * 50_000 + closer * 50_000)
+    return path
+
+
+DEEP = [
+    ("sweep spec json", lambda t: ["sweep", str(_deep(t / "s.json")), "--dry-run"], "sweep spec"),
+    (
+        "run config",
+        lambda t: ["run", "--config", str(_deep(t / "c.json", '{"a":', "}"))],
+        "--config",
+    ),
+    (
+        "robots file",
+        lambda t: ["run", "--robots-file", str(_deep(t / "r.json")), "--no-plot"],
+        "robots file",
+    ),
+    (
+        "sweep spec base not a mapping",
+        lambda t: ["sweep", str(_text(t / "s.yaml", "base: [1, 2]\n")), "--dry-run"],
+        "'base' of the sweep spec must be a mapping",
+    ),
+    (
+        "sweep spec grid not a mapping",
+        lambda t: ["sweep", str(_text(t / "s.yaml", "grid: [1, 2]\n")), "--dry-run"],
+        "'grid' of the sweep spec must be a mapping",
+    ),
+    ("bench run --limit -1", lambda t: ["bench", "run", "--limit", "-1"], "--limit"),
+    ("bench run -j 0", lambda t: ["bench", "run", "-j", "0"], "-j/--workers"),
+    ("sweep -j 0", lambda t: ["sweep", "--scene", "crossing", "-j", "0"], "-j/--workers"),
+]
+
+
+def _text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("make", "words"), [c[1:] for c in DEEP], ids=[c[0] for c in DEEP])
+def test_nested_or_nonsensical_inputs(
+    make: Callable[[Path], list[str]], words: str, tmp_path: Path, capsys
+) -> None:
+    argv = make(tmp_path)
+    assert main([*argv, "--out", str(tmp_path / "o")]) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line
+
+
+ROBOTS = [
+    (
+        "unknown top-level key",
+        {"robots": [{"start": [1, 1], "goal": [9, 9]}], "unit": "m"},
+        "unknown key 'unit' at the top level; did you mean 'units'",
+    ),
+    (
+        "unknown robot key",
+        {"robots": [{"start": [1, 1], "goall": [9, 9], "goal": [9, 9]}]},
+        "unknown key 'goall' in robot 0",
+    ),
+    (
+        "fraction above 1",
+        {"units": "fraction", "robots": [{"start": [0.1, 1.5], "goal": [0.9, 0.5]}]},
+        "fraction outside [0, 1]",
+    ),
+    (
+        "fraction below 0",
+        {"units": "fraction", "robots": [{"start": [0.1, 0.5], "goal": [-0.2, 0.5]}]},
+        "fraction outside [0, 1]",
+    ),
+    (
+        "identical starts",
+        {"robots": [{"start": [2, 3], "goal": [9, 3]}, {"start": [2, 3], "goal": [9, 5]}]},
+        "robots 0 and 1 start 0 m apart",
+    ),
+]
+
+
+@pytest.mark.parametrize(("spec", "words"), [c[1:] for c in ROBOTS], ids=[c[0] for c in ROBOTS])
+def test_robots_file_attacks(spec: dict, words: str, tmp_path: Path, capsys) -> None:
+    path = tmp_path / "robots.json"
+    path.write_text(json.dumps(spec))
+    argv = ["run", "--robots-file", str(path), "--no-plot", "--out", str(tmp_path / "o")]
+    assert main(argv) == EXIT_ERROR
+    line = one_error(capsys)
+    assert words in line, line

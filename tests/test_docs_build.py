@@ -39,22 +39,49 @@ def _has_math(notebook: str) -> bool:
 MATH_NOTEBOOKS = [nb for nb in NOTEBOOKS if _has_math(nb)]
 
 
+#: A line of mkdocs' log at level WARNING or above (``WARNING -  ...``, ``ERROR -  ...``).
+_LOGGED_PROBLEM = re.compile(r"^\s*(WARNING|ERROR|CRITICAL)\b", re.M)
+
+
 @pytest.fixture(scope="module")
-def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def build_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``mkdocs build --strict`` at its normal verbosity (no ``-q``, which hides warnings)."""
     if importlib.util.find_spec("mkdocs") is None:
         pytest.fail("mkdocs is not installed: pip install -e '.[docs]'")
     site = tmp_path_factory.mktemp("docs") / "site"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
     proc = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(site)],
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "-d", str(site)],
         cwd=ROOT,
         capture_output=True,
         text=True,
         env=env,
         timeout=900,
     )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return site
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log
+    return site, log
+
+
+@pytest.fixture(scope="module")
+def site(build_log: tuple[Path, str]) -> Path:
+    return build_log[0]
+
+
+def test_mkdocs_build_logs_no_warning(build_log: tuple[Path, str]) -> None:
+    """Zero warnings, not merely under the strict limit: a fresh install builds cleanly."""
+    _, log = build_log
+    assert "Documentation built in" in log, log[-2000:]
+    problems = [ln for ln in log.splitlines() if _LOGGED_PROBLEM.match(ln)]
+    assert problems == [], "\n".join(problems)
+
+
+def test_each_object_has_one_primary_page() -> None:
+    """Pages other than the API reference link to it instead of rendering modules again
+    (an object rendered twice has two primary URLs: autorefs warns and strict mode fails)."""
+    for page in sorted((ROOT / "docs").rglob("*.md")):
+        rendered = re.findall(r"^:::\s*(\S+)", page.read_text(), re.M)
+        assert not rendered, (page.relative_to(ROOT), rendered)
 
 
 def _pages(site: Path) -> list[Path]:
@@ -149,6 +176,45 @@ def test_no_cdn_script_and_math_served_locally(site: Path) -> None:
             assert 'class="arithmatex"' in html, name
     config = (site / "assets/mathjax-config.js").read_text()
     assert 'processHtmlClass: "arithmatex"' in config
+
+
+#: TeX that was not typeset: subscripts and superscripts in braces, backslash commands, a
+#: Greek letter with an underscore subscript (unicode subscripts such as λ₁ are typography)
+RAW_MATH = re.compile(
+    r"_\{|\^\{|\\(?:frac|lambda|varepsilon|eta|alpha|sum|le|ge|text)\b|[λεηαγτσρ]_[\w{(]"
+)
+
+
+def test_math_is_typeset_on_every_page(site: Path) -> None:
+    """No narrative page shows raw math in its prose: formulas are arithmatex spans that
+    MathJax typesets (the API pages quote docstrings, written in ASCII for ``help()``)."""
+    checked = 0
+    for page in _pages(site):
+        rel = page.relative_to(site).as_posix()
+        if rel.startswith(("api/", "assets/")):
+            continue
+        html = page.read_text()
+        text = re.sub(r'<(span|div) class="arithmatex">.*?</\1>', " ", html, flags=re.S)
+        text = re.sub(r"<[^>]+>", " ", _prose(text))
+        found = RAW_MATH.search(text)
+        assert found is None, (rel, text[max(found.start() - 60, 0) : found.end() + 40])
+        checked += 1
+    assert checked > 20
+    repro = (site / "reproducing/index.html").read_text()
+    assert r"\lambda_1 - \lambda_{K+1}" in repro  # the identity, as math
+
+
+def test_tables_fit_or_scroll(site: Path) -> None:
+    """Every page loads the table style: names in code are never broken inside a cell (the
+    table scrolls sideways in Material's scroll frame instead), and the content column
+    grows on wide screens."""
+    css = (site / "assets/tables.css").read_text()
+    rule = re.search(r"\.md-typeset table:not\(\[class\]\) code \{([^}]*)\}", css)
+    assert rule is not None and "white-space: nowrap" in rule.group(1)
+    assert re.search(r"\.md-grid \{\s*max-width: 80rem", css)
+    for page in ("benchmark/index.html", "update-rules/index.html", "index.html"):
+        html = (site / page).read_text()
+        assert re.search(r'<link[^>]*href="[^"]*assets/tables\.css"', html), page
 
 
 @pytest.mark.parametrize("notebook", MATH_NOTEBOOKS)
@@ -295,7 +361,9 @@ def _setup_command() -> str:
     lines = code.strip().splitlines()
     assert len(lines) == 2 and lines[1] == ".venv/bin/python -m pytest", lines
     setup = lines[0]
-    assert setup.startswith("python3 -m venv .venv && .venv/bin/pip install -q torch==2.13.0 ")
+    assert setup.startswith(
+        "python3 -m venv .venv && .venv/bin/pip install -q -c constraints.txt torch==2.13.0 "
+    )
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     extras = sorted(pyproject["project"]["optional-dependencies"])
     installed = re.search(r'-e "\.\[([\w,]+)\]"', setup)

@@ -81,3 +81,64 @@ def test_deep_parameters() -> None:
 def test_from_dict_is_type_checked(data: dict, words: str) -> None:
     with pytest.raises(InputError, match=words.replace("(", r"\(").replace(")", r"\)")):
         RunSpec.from_dict(data)
+
+
+def test_every_benchmark_method_is_a_run_specification() -> None:
+    from conformal_control.bench.methods import METHOD_FAMILIES, expand_methods
+
+    for m in expand_methods(METHOD_FAMILIES):
+        spec = m.run_spec("oracle")
+        assert spec.units == "si" and spec.learn == m.learn
+        assert spec.role_name("predictor") == (m.predictor or "oracle")
+        data = json.loads(json.dumps(spec.as_dict()))  # tuples come back as lists
+        assert RunSpec.from_dict(data).as_dict() == data
+
+
+def test_config_json_is_the_specification_of_the_run() -> None:
+    """config.json holds the run's specification; read back, it runs the same episode."""
+    from conformal_control.data import load_scene
+    from conformal_control.sim import run_episode
+
+    spec = RunSpec(
+        params={"epsilon": 0.1, "a": 2.0, "lambda_min": -math.inf},
+        rule=("aci", {"alpha": 0.2}),
+        units="si",
+        seed=3,
+        max_frames=80,
+    )
+    first = run_episode(load_scene("crossing", seed=3), spec, engine="loop")
+    data = json.loads(json.dumps(first.config["spec"]))
+    assert data["engine"] == "loop" and data["params"]["lambda_min"] == "-inf"
+    again = RunSpec.from_dict(data)
+    assert again == dataclasses.replace(spec, engine="loop")
+    second = run_episode(load_scene("crossing", seed=3), again, engine="loop")
+    a, b = first.metrics.as_dict(), second.metrics.as_dict()
+    a.pop("wall_s"), b.pop("wall_s")
+    assert a == b and a["n_updates"] > 0
+
+
+def test_the_fallback_is_set_one_way() -> None:
+    """The run's fallback role; the parameter and the filter parameter of 0.2 move there."""
+    assert "fallback" not in PARAMETERS
+    with pytest.warns(DeprecationWarning, match="fallback=NAME"):
+        spec = RunSpec(params={"fallback": "brake", "epsilon": 0.1})
+    assert spec.fallback == "brake" and spec.params == {"epsilon": 0.1}
+    with pytest.warns(DeprecationWarning):
+        spec = RunSpec(safety_filter=("exact2d", {"fallback": "hold", "speed_sides": 8}))
+    assert spec.fallback == "hold" and spec.role("safety_filter") == ("exact2d", {"speed_sides": 8})
+    with pytest.raises(InputError, match="given twice"):
+        RunSpec(params={"fallback": "brake"}, fallback="hold")
+
+
+def test_the_fallback_parameter_of_the_command_line_is_the_role(tmp_path) -> None:
+    from conformal_control.cli import main
+
+    for name, argv in (("a", ["--fallback", "brake"]), ("b", ["--param", "fallback=brake"])):
+        out = tmp_path / name
+        assert main(["run", "--frames", "40", "--out", str(out), "-q", "--no-plot", *argv]) == 0
+    cfgs = [json.loads((tmp_path / n / "config.json").read_text()) for n in "ab"]
+    assert cfgs[0]["fallback"] == cfgs[1]["fallback"] == "brake"
+    metrics = [json.loads((tmp_path / n / "metrics.json").read_text()) for n in "ab"]
+    for m in metrics:
+        m.pop("wall_s")
+    assert metrics[0] == metrics[1]

@@ -38,6 +38,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from ..spec import RunSpec
+
 __all__ = [
     "DEFAULT_METHODS",
     "FAMILIES",
@@ -133,6 +135,11 @@ class Method:
             if role != "fallback" and self.role_params.get(role):
                 kw[f"{key}_params"] = dict(self.role_params[role])
         return kw
+
+    def run_spec(self, predictor: str = "constant_velocity") -> RunSpec:
+        """The method as a :class:`~conformal_control.spec.RunSpec` (SI units), with the
+        benchmark's ``predictor`` unless the method names its own."""
+        return RunSpec.from_settings(**self.run_kwargs(predictor))
 
     def as_dict(self) -> dict[str, Any]:
         """Plain description (for ``bench methods`` and the results table)."""

@@ -746,8 +746,10 @@ def warm_up_kernels() -> None:
     """Compile (or load from numba's cache) the MPC's kernels once, so that the first
     scenario's controller time does not include it."""
     from ..cbf.dynamics import Unicycle
+    from ..jit import compile_now
     from ..mpc.kernels import evaluate
 
+    compile_now()  # a suite of episodes: compiled (see conformal_control.jit)
     cmds = np.zeros((2, 3, 2))
     pos = Unicycle().rollout(np.zeros(5), cmds, STEP_S)[..., :2]
     evaluate(

@@ -651,6 +651,20 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
         title="* on the Pareto front (filled)",
         title_fontsize=9,
     )
+    # every point named beside it (points that coincide stay readable): Pareto members
+    # first and in bold; plotting.labels guarantees no two labels overlap
+    from ..plotting.labels import place_labels
+
+    order = sorted(range(len(v.shown)), key=lambda i: not front[i])
+    place_labels(
+        ax,
+        [100 * -pts[i][0] for i in order],
+        [pts[i][1] for i in order],
+        [v.shown[i].method + (" *" if front[i] else "") for i in order],
+        fontsize=8,
+        colors=[f"C{i % 10}" for i in order],
+        weights=["bold" if front[i] else "normal" for i in order],
+    )
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -384,7 +384,8 @@ def _merged_description(out: Path, new: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
-def _write_json(path: Path, data: dict[str, Any]) -> None:
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` as indented JSON to ``path`` atomically (a temporary name, renamed)."""
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
     tmp.replace(path)
@@ -498,7 +499,7 @@ def run_bench(
     t0 = time.perf_counter()
     with _BenchLock(out):
         description = _merged_description(out, description)
-        _write_json(out / "bench.json", description)
+        write_json(out / "bench.json", description)
         rep = run_sweep(
             configs,
             out,
@@ -520,7 +521,7 @@ def run_bench(
             "wall_s": wall,
             "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
         }
-        _write_json(out / "bench.json", description)
+        write_json(out / "bench.json", description)
     return BenchRun(
         out_dir=out,
         n_runs=len(configs),

@@ -20,7 +20,7 @@ from typing import Any
 
 from .. import __version__
 from .methods import FAMILIES
-from .runner import DEFAULT_SUITE, _write_json, read_rows, run_bench
+from .runner import DEFAULT_SUITE, read_rows, run_bench, write_json
 
 __all__ = ["DEFAULT_TUNED", "RULE", "TuneResult", "choose", "tune"]
 
@@ -196,5 +196,5 @@ def tune(
         "finished": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
     path = out / "tuned.json"
-    _write_json(path, data)
+    write_json(path, data)
     return TuneResult(path, chosen, data)

@@ -237,7 +237,8 @@ class ACPController(ConformalCBFController):
         while len(self.scores_) < horizon:
             self.scores_.append(deque(maxlen=int(self.window)))
         self._sorted = tuple(np.sort(np.fromiter(self.scores_[h], float)) for h in range(horizon))
-        self._prev = (np.asarray(observation.ids), self._pred, observation.t)
+        # the predicted agents (robots handled reciprocally are not predicted)
+        self._prev = (np.asarray(self._ids), self._pred, observation.t)
         self._lam = None
         self._infl = np.zeros(horizon)
         self._capped = np.zeros(horizon, dtype=bool)

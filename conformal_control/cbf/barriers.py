@@ -49,6 +49,9 @@ class APFBarrier(Barrier):
         Offset; defaults to 1/2 ("surface") or 1/(1 + U(d_c)) ("centre").
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "apf"
+
     def __init__(
         self,
         K_rep: float = 1.0,

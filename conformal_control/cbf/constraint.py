@@ -71,6 +71,7 @@ class ConformalConstraint(Plugin):
         v_ego: np.ndarray,
         x_agents: np.ndarray,
         v_agents: np.ndarray,
+        share: np.ndarray | None = None,
     ) -> np.ndarray:
         """``dh/dx . v + dh/dx_j . v_j + a h`` (lambda excluded), broadcast over leading axes.
 
@@ -78,13 +79,17 @@ class ConformalConstraint(Plugin):
         ----------
         x_ego, v_ego : ndarrays of shape (..., 2)
         x_agents, v_agents : ndarrays of shape (..., 2)
+        share : ndarray broadcastable to (...), optional
+            Weight of ``a h`` (a robot's share of a reciprocal pair,
+            :mod:`~conformal_control.cbf.reciprocal`); 1 when not given.
 
         Returns
         -------
         ndarray of shape (...)
         """
         h, dh_dego, dh_dagent = self.barrier.evaluate(x_ego, x_agents)
-        out: np.ndarray = (dh_dego * v_ego).sum(-1) + (dh_dagent * v_agents).sum(-1) + self.a * h
+        ah = self.a * h if share is None else self.a * share * h
+        out: np.ndarray = (dh_dego * v_ego).sum(-1) + (dh_dagent * v_agents).sum(-1) + ah
         return out
 
     def lambda_floor(self) -> float:

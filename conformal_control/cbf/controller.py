@@ -16,6 +16,14 @@ from .dynamics import VelocityTrackingDoubleIntegrator
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
+from .reciprocal import (
+    Reciprocity,
+    check_peer_view,
+    lexicographic_search,
+    peer_rows,
+    reference_velocities,
+    sidestep,
+)
 from .records import CBFIntervalRecord, CBFTruth, ControlState
 from .reference import AttractiveField
 from .roles import FilterResult, ReferenceController, SafetyFilter
@@ -33,8 +41,18 @@ __all__ = [
 MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
-#: infeasible step the Python fallback decided) records the fallback's own name.
-_CODE_STATUS = ("unconstrained", "optimal", "", "lambda_search", "lambda_search")
+#: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+_CODE_STATUS = (
+    "unconstrained",
+    "optimal",
+    "",
+    "lambda_search",
+    "lambda_search",
+    "",
+    "",
+    "lambda_search",
+)
 
 
 class PredictorError(RuntimeError):
@@ -102,7 +120,23 @@ class ConformalCBFController(
         Nominal controller (called with the environment's current goal).
     substeps : int
         Control instants per prediction sample.
+    reciprocity : Reciprocity, optional
+        How the agents the sensor reports as robots are treated, and which rows lambda is
+        the slack of (:mod:`~conformal_control.cbf.reciprocal`). None (default) treats
+        every agent alike, as a predicted pedestrian with ``+ lambda``.
+
+    Notes
+    -----
+    With ``reciprocity`` in ``"reciprocal"`` mode, the robots of a query are not handed
+    to the predictor: at each control instant ``state.peers`` (the world's
+    :class:`~conformal_control.cbf.reciprocal.PeerView` of the robots sensed at the
+    sampling time) gives their rows. In ``"ignore"`` mode they get no row (a robot that
+    does not comply). The compiled step handles these rows too
+    (:meth:`Exact2DSafetyFilter.step_apf_record_peers`).
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "cbf"
 
     def __init__(
         self,
@@ -111,18 +145,20 @@ class ConformalCBFController(
         safety_filter: SafetyFilter,
         reference: ReferenceController,
         substeps: int = 4,
+        reciprocity: Reciprocity | None = None,
     ) -> None:
         self.predictor = predictor
         self.constraint = constraint
         self.safety_filter = safety_filter
         self.reference = reference
         self.substeps = substeps
+        self.reciprocity = reciprocity
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         from ..predictors.constant_velocity import ConstantVelocityPredictor
         from .barriers import APFBarrier
-        from .qp import QPSafetyFilter
+        from .filters.piqp import QPSafetyFilter
         from .reference import AttractiveField
 
         barrier = APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7)
@@ -144,6 +180,15 @@ class ConformalCBFController(
         self.constraint.validate()
         if int(self.substeps) != self.substeps or self.substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        if self.reciprocity is not None:
+            if not isinstance(self.reciprocity, Reciprocity):
+                raise ValueError(
+                    f"reciprocity must be a Reciprocity or None, got {self.reciprocity!r}"
+                )
+            self.reciprocity.validate()
+            self._robot_constraint = self.reciprocity.robot_constraint(self.constraint)
+            self._turn = self.reciprocity.turn()
+            self._robot_dc = float(self._robot_constraint.barrier.get_params().get("d_c", 0.0))
         self.predictor.reset()
         self.safety_filter.reset()
         self.reference.reset()
@@ -179,9 +224,23 @@ class ConformalCBFController(
         }
 
     def _begin_empty(self) -> None:
-        self._ids = np.zeros(0, dtype=np.int64)
+        self._ids = np.zeros(0, dtype=np.int64)  # the predicted agents (rows of _xp)
+        self._query_ids = self._ids  # every sensed agent, in the query's order
         self._xp = np.zeros((0, 0, 2))
         self._vp = np.zeros((0, 0, 2))
+        # multi-robot: peers (reciprocal rows), ignored robots, per-column weights
+        self._typed = False
+        self._peer_ids = self._ids
+        self._ignored_x = np.zeros((0, 2))
+        self._ignored_ids = self._ids
+        # per column (predicted, peers): share of a h, 1 without lambda, distance added
+        self._col = np.zeros((3, 0))
+        self._scored = np.zeros(0, dtype=bool)  # per record column (ignored robots too)
+        self._order: np.ndarray | None = None  # record columns -> query order
+        self._special = False  # the compiled step with robot rows or hard rows
+        self._valid_ids: np.ndarray | None = None  # the peer view's ids, once checked
+        self._rec_px: list[np.ndarray] = []
+        self._rec_pv: list[np.ndarray] = []
         self._rec_x: list[np.ndarray] = []
         self._rec_v: list[np.ndarray] = []
         self._rec_lam: list[float] = []
@@ -230,7 +289,8 @@ class ConformalCBFController(
         if "_rec" in state:
             self._views()
         if state.get("_fast"):
-            self._xp, self._vp = self._pv[0], self._pv[1]
+            n = self._ids.size
+            self._xp, self._vp = self._pv[0, :, :n], self._pv[1, :, :n]
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -244,34 +304,76 @@ class ConformalCBFController(
                 f"{type(exc).__name__}: {exc}"
             ) from exc
 
+    def _split_robots(self, observation: PredictionQuery) -> PredictionQuery:
+        """The agents to predict; robots apart as the reciprocity says (sets the columns'
+        shares, slack and scoring)."""
+        rec = self.reciprocity
+        self._query_ids = np.asarray(observation.ids)
+        if rec is None:
+            return observation
+        self._typed = True
+        robot = observation.is_robot
+        predicted = ~robot if rec.mode != "none" else np.ones(robot.size, dtype=bool)
+        peers = robot if rec.mode == "reciprocal" else np.zeros(robot.size, dtype=bool)
+        ignored = robot if rec.mode == "ignore" else np.zeros(robot.size, dtype=bool)
+        self._peer_ids = self._query_ids[peers]
+        self._ignored_ids = self._query_ids[ignored]
+        self._ignored_x = np.array(observation.current[ignored], dtype=float).reshape(-1, 2)
+        # record columns: predicted agents, peers, ignored robots (query order restored)
+        cols = np.concatenate([np.flatnonzero(c) for c in (predicted, peers, ignored)])
+        if not np.array_equal(cols, np.arange(cols.size)):
+            self._order = np.argsort(cols, kind="stable")
+        on_ped, on_rob = rec.lambda_on_pedestrians, rec.lambda_on_robots
+        slack_on = np.where(robot, on_rob, on_ped)
+        used = np.concatenate([np.flatnonzero(predicted), np.flatnonzero(peers)])
+        col = np.zeros((3, used.size))
+        col[0] = 1.0  # the peers' shares come with their view
+        col[1] = ~slack_on[used]
+        col[2, np.flatnonzero(peers[used])] = float(rec.robot_margin)
+        self._col = col
+        scored = slack_on & ~ignored
+        self._scored = scored[cols]
+        return observation if predicted.all() else observation.select(predicted)
+
     def begin_interval(self, observation: PredictionQuery) -> None:
         self._begin_empty()
-        n = observation.n_agents
-        self._ids = np.asarray(observation.ids)
-        if n == 0:
-            return
-        prediction = self._predict(observation)
-        merge_forecast_info(self.forecast_info_, prediction.info)
-        pos = np.asarray(prediction.positions, dtype=float)
+        query = self._split_robots(observation)
+        n = query.n_agents
+        self._ids = np.asarray(query.ids)
         horizon = observation.horizon
-        if pos.ndim != 3 or pos.shape[0] != n or pos.shape[1] < horizon or pos.shape[2] != 2:
-            raise ValueError(
-                f"predictor returned positions of shape {pos.shape}; expected "
-                f"({n}, >= {horizon}, 2) for {n} sensed agents and horizon {horizon}"
-            )
-        samples = np.concatenate([observation.current[:, None, :], pos[:, :horizon]], axis=1)
-        samples, had_bad = forward_fill(samples)
-        self.n_nonfinite_predictions_ += int(had_bad.sum())
         n_steps = horizon * int(self.substeps)
-        xp, vp = interpolate_at_substeps(samples, observation.dt, int(self.substeps), n_steps)
+        k = self._peer_ids.size
+        if n == 0 and k == 0:
+            return
+        if n:
+            prediction = self._predict(query)
+            merge_forecast_info(self.forecast_info_, prediction.info)
+            pos = np.asarray(prediction.positions, dtype=float)
+            if pos.ndim != 3 or pos.shape[0] != n or pos.shape[1] < horizon or pos.shape[2] != 2:
+                raise ValueError(
+                    f"predictor returned positions of shape {pos.shape}; expected "
+                    f"({n}, >= {horizon}, 2) for {n} sensed agents and horizon {horizon}"
+                )
+            samples = np.concatenate([query.current[:, None, :], pos[:, :horizon]], axis=1)
+            samples, had_bad = forward_fill(samples)
+            self.n_nonfinite_predictions_ += int(had_bad.sum())
+            xp, vp = interpolate_at_substeps(samples, query.dt, int(self.substeps), n_steps)
+        else:
+            xp = vp = np.zeros((n_steps, 0, 2))
         if not self._fused:
             self._xp, self._vp = xp, vp
             return
-        # positions and velocities in one C-ordered array for the compiled step
-        self._pv = pv = np.empty((2, *xp.shape))
-        pv[0] = xp
-        pv[1] = vp
-        self._xp, self._vp = pv[0], pv[1]
+        # positions and velocities in one C-ordered array for the compiled step; the
+        # peers' columns (after the predicted ones) are written at each control instant
+        self._pv = pv = np.zeros((2, n_steps, n + k, 2))
+        pv[0, :, :n] = xp
+        pv[1, :, :n] = vp
+        self._xp, self._vp = pv[0, :, :n], pv[1, :, :n]
+        self._special = bool(k or self._col[1].any())
+        if self._special and self.constraint.barrier.convention != "surface":  # type: ignore[attr-defined]
+            if self._col[2].any():  # the compiled rows add distance on the disc gap only
+                self._xp, self._vp = xp, vp
+                return
         self._fast = True
         self._attract = (
             type(self.reference) is AttractiveField
@@ -281,6 +383,14 @@ class ConformalCBFController(
         self._record(max(n_steps, 1))
 
     # ------------------------------------------------------------------ control instant
+    def _peer_view(self, state: ControlState) -> Any:
+        view = state.peers
+        if view is not None and view.ids is self._valid_ids:  # checked this interval
+            return view
+        view = check_peer_view(view, self._peer_ids)
+        self._valid_ids = view.ids
+        return view
+
     def constraint_rows(self, state: ControlState, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """The safety filter's rows ``A v + b + slack >= 0`` at this control instant.
 
@@ -301,6 +411,8 @@ class ConformalCBFController(
             return self._decide_compiled(state, lam)
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
+        if self._peer_ids.size and self._turn[1]:
+            v_ref = sidestep(v_ref, state.x, self._peer_view(state), self._turn, self._robot_dc)
         res: FilterResult
         if self._fused and self._ids.size:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
@@ -308,13 +420,51 @@ class ConformalCBFController(
             )
         else:
             A, b = self.constraint_rows(state, lam)
+            if self._typed:
+                A, b = self._with_robots(state, lam, A, b)
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
+            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
+                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def _with_robots(
+        self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The predicted rows, hard where lambda is not their slack, and the peers' rows."""
+        n = A.shape[0]
+        hard = self._col[1] != 0.0
+        sl = self.slack(lam)
+        if hard[:n].any():
+            b = np.where(hard[:n], b - sl, b)
+        if not self._peer_ids.size:
+            return A, b
+        view = self._peer_view(state)
+        self._col[0, n:] = view.shares
+        Ar, br = peer_rows(self._robot_constraint, state.x[:2], view)
+        if hard[n:].any():
+            br = np.where(hard[n:], br - sl, br)
+        self._rec_px.append(np.array(view.positions, dtype=float))
+        self._rec_pv.append(reference_velocities(view))
+        return np.concatenate([A, Ar]), np.concatenate([b, br])
+
+    def _keep_hard_rows(
+        self, v_ref: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float, res: FilterResult
+    ) -> FilterResult:
+        """The lambda search again, keeping the rows without slack
+        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`)."""
+        f = self.safety_filter
+        if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
+            return res  # a filter without the primitives: its own search stands
+        keep = self._turn[5] != 0.0
+        v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam, keep)
+        if relaxed:
+            f.count("hard_rows_relaxed")  # type: ignore[attr-defined]
+        return FilterResult(v, "fallback", used, "lambda_search")
 
     def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
         """:meth:`decide` through the compiled step, which writes the record itself."""
@@ -331,9 +481,13 @@ class ConformalCBFController(
             v_ref = self.reference(state.x, state.t, state.goal)
             n0 = float(v_ref[0])
             n1 = float(v_ref[1])
-        res: FilterResult | None = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
-            x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
-        )
+        res: FilterResult | None
+        if self._special:
+            res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
+        else:
+            res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
+                x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
+            )
         self._n = i + 1
         self.n_steps_ += 1
         if res is None:
@@ -344,31 +498,99 @@ class ConformalCBFController(
         self._names[i] = res.status if res.fallback is None else res.fallback
         return res.decision
 
+    def _compiled_with_robots(
+        self, state: ControlState, x0: float, x1: float, n0: float, n1: float, lam: float, i: int
+    ) -> FilterResult | None:
+        """The compiled step with the peers' rows and hard rows (one compiled call)."""
+        k = self._peer_ids.size
+        n = self._ids.size
+        if k:
+            view = self._peer_view(state)
+            self._col[0, n:] = view.shares
+            pos = view.positions
+            ref = view.reference
+            own = view.own_reference
+            if ref is None or own is None:
+                ref, o0, o1 = np.zeros((k, 2)), 0.0, 0.0
+            else:
+                o0, o1 = float(own[0]), float(own[1])
+        else:
+            pos = ref = np.zeros((0, 2))
+            o0 = o1 = 0.0
+        return self.safety_filter.step_apf_record_peers(  # type: ignore[attr-defined, no-any-return]
+            x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, (self._col, n),
+            (pos, ref, o0, o1, self._turn, float(state.x[2]), float(state.x[3])),
+        )  # fmt: skip
+
+    def _robot_columns(
+        self, x_pred: np.ndarray, v_pred: np.ndarray, s: int
+    ) -> dict[str, np.ndarray | None]:
+        """The record's agent columns in the query's order (predicted, peers, ignored),
+        with their shares, collision distances added and scoring."""
+        if not self._typed:
+            return {"x_pred": x_pred, "v_pred": v_pred}
+        m = self._ignored_ids.size
+        share = np.r_[self._col[0], np.ones(m)]
+        margin = np.r_[self._col[2], np.zeros(m)]
+        scored = self._scored
+        if m:
+            held = np.broadcast_to(self._ignored_x, (s, m, 2))
+            x_pred = np.concatenate([x_pred, held], axis=1)
+            v_pred = np.concatenate([v_pred, np.zeros((s, m, 2))], axis=1)
+        if self._order is not None:
+            o = self._order
+            x_pred, v_pred, share, margin, scored = (
+                x_pred[:, o],
+                v_pred[:, o],
+                share[o],
+                margin[o],
+                scored[o],
+            )
+        return {
+            "x_pred": x_pred,
+            "v_pred": v_pred,
+            "share": share,
+            "scored": scored.copy(),
+            "margin": margin if margin.any() else None,
+        }
+
     def interval_record(self) -> CBFIntervalRecord:
         if self._fast:
             s = self._n
             names = self._names
+            if self._typed:
+                xp, vp = self._pv[0, :s], self._pv[1, :s]
+            else:
+                xp, vp = self._xp[:s], self._vp[:s]
             return CBFIntervalRecord(
-                ids=self._ids,
+                ids=self._query_ids,
                 x_ego=self._rx[:s].copy(),
                 v_ego=self._rv[:s].copy(),
-                x_pred=self._xp[:s],
-                v_pred=self._vp[:s],
                 lam_applied=self._rl[:s].copy(),
                 status=[
                     names[j] if c == 2 else _CODE_STATUS[c]
                     for j, c in enumerate(self._rc[:s].astype(int).tolist())
                 ],
+                **self._robot_columns(xp, vp, s),  # type: ignore[arg-type]
             )
         s = len(self._rec_x)
+        xp = self._xp[:s] if self._ids.size else np.zeros((s, 0, 2))
+        vp = self._vp[:s] if self._ids.size else np.zeros((s, 0, 2))
+        k = self._peer_ids.size
+        if k:
+            px = np.array(self._rec_px).reshape(-1, k, 2)
+            pvel = np.array(self._rec_pv).reshape(-1, k, 2)
+            if px.shape[0] != s:  # a robot decided by the fused path has no peer rows
+                raise RuntimeError("peer rows were not recorded at every control instant")
+            xp = np.concatenate([xp, px], axis=1)
+            vp = np.concatenate([vp, pvel], axis=1)
         return CBFIntervalRecord(
-            ids=self._ids,
+            ids=self._query_ids,
             x_ego=np.array(self._rec_x).reshape(s, 2),
             v_ego=np.array(self._rec_v).reshape(s, 2),
-            x_pred=self._xp[:s] if self._ids.size else np.zeros((s, 0, 2)),
-            v_pred=self._vp[:s] if self._ids.size else np.zeros((s, 0, 2)),
             lam_applied=np.array(self._rec_lam, dtype=float),
             status=list(self._rec_status),
+            **self._robot_columns(xp, vp, s),  # type: ignore[arg-type]
         )
 
 
@@ -416,6 +638,7 @@ class CrossingTestbed(Environment[PredictionQuery, ControlState, np.ndarray, CBF
 
     def reset(self) -> None:
         scene = crossing_scene(seed=self.seed, duration=4.0)
+        scene = scene.replace(positions=scene.positions)  # dense: read at every frame below
         self._scene = scene
         self._plant = VelocityTrackingDoubleIntegrator(K_acc=10.0)
         self._dt_frame = 1.0 / scene.fps

@@ -92,6 +92,9 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
         Tracking gain in 1/s (> 0).
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "velocity_tracking"
+
     state_dim = 4
 
     def __init__(self, K_acc: float = 60.0) -> None:

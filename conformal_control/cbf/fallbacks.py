@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import registry
 from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
 
 __all__ = ["Brake", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
@@ -37,6 +38,9 @@ class LambdaSearch(Fallback):
     ``n_lambda_search_retry``); should it still fail, the LP's own velocity, which meets
     every row at ``lambda*``, is returned (counted as ``n_lambda_search_vertex``).
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "lambda_search"
 
     name = "lambda_search"
 
@@ -121,6 +125,9 @@ class Relax(Fallback):
 class Brake(Fallback):
     """Command zero velocity (``lambda_applied`` is ``nan``: no lambda is guaranteed)."""
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "brake"
+
     name = "brake"
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
@@ -130,32 +137,23 @@ class Brake(Fallback):
 class Hold(Fallback):
     """Repeat the previous decision (``lambda_applied`` is ``nan``)."""
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "hold"
+
     name = "hold"
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
         return FilterResult(np.array(step.previous, dtype=float), "fallback", math.nan, self.name)
 
 
-#: The core fallbacks by name (the registry lists them and any third-party one).
-CORE_FALLBACKS: dict[str, type[Fallback]] = {
-    "lambda_search": LambdaSearch,
-    "relax": Relax,
-    "brake": Brake,
-    "hold": Hold,
-}
-
-
 def resolve_fallback(fallback: str | Fallback) -> Fallback:
-    """A fresh :class:`Fallback` from a registered name, or the instance itself."""
+    """A fresh :class:`Fallback` from a registered name (the ``fallback`` role: the core
+    ones and any third-party one, all through the registry), or the instance itself."""
     if isinstance(fallback, Fallback):
         return fallback
     if not isinstance(fallback, str):
         raise TypeError(
             f"fallback must be a Fallback instance or a registered name, got {fallback!r}"
         )
-    if fallback in CORE_FALLBACKS:
-        return CORE_FALLBACKS[fallback]()
-    from .. import registry
-
     created: Fallback = registry.create("fallback", fallback)
     return created

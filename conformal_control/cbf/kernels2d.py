@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..jit import kernel
+from .pyhypot import c_hypot
 
 __all__ = [
     "PARALLEL",
@@ -49,7 +51,7 @@ NONFINITE, UNCONSTRAINED, OPTIMAL, INFEASIBLE, SEARCHED, SEARCH_VERTEX = -1, 0, 
 #: the step is outside the predictions.
 TOO_MANY, OUT_OF_RANGE = 5, 6
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit
@@ -66,7 +68,7 @@ def presolve(A: np.ndarray, rhs: np.ndarray, radius: float, G: np.ndarray, h: np
         a0 = A[j, 0]
         a1 = A[j, 1]
         r = rhs[j]
-        nrm = math.hypot(a0, a1)
+        nrm = c_hypot(a0, a1)
         reach = nrm * radius
         if r >= reach:
             continue
@@ -163,7 +165,7 @@ def min_lambda(
     ns = S.shape[0]
     L = -math.inf
     for j in range(m):
-        lb = -b[j] - math.hypot(A[j, 0], A[j, 1]) * radius
+        lb = -b[j] - c_hypot(A[j, 0], A[j, 1]) * radius
         if lb > L:
             L = lb
     v0 = 0.0
@@ -186,7 +188,7 @@ def min_lambda(
             g0, g1, hq = _lp_con(q, i, A, b, L)
             if g0 * v0 + g1 * v1 - hq <= tol:
                 continue
-            nrm = math.hypot(g0, g1)
+            nrm = c_hypot(g0, g1)
             if nrm * radius <= tol:  # (nearly) identical gradients: flat over the speed set,
                 continue  # and met where row i is violated (up to round-off)
             u0 = g0 / nrm
@@ -206,7 +208,7 @@ def min_lambda(
                     wn = 1.0
                 else:
                     w0, w1, wh = _lp_con(k - ns, i, A, b, L)
-                    wn = math.hypot(w0, w1)
+                    wn = c_hypot(w0, w1)
                     if wn * radius <= tol:  # flat over the speed set (see above)
                         continue
                 # a parallel constraint cannot empty the interval: the LP is feasible
@@ -264,7 +266,7 @@ def apf_rows(
     for j in range(xp.shape[0]):
         dx0 = x0 - xp[j, 0]
         dx1 = x1 - xp[j, 1]
-        d = math.hypot(dx0, dx1)
+        d = c_hypot(dx0, dx1)
         rho = d - d_c if surface else d
         r = min(max(rho, 0.0), rho0)
         q = 1.0 - r / rho0
@@ -284,7 +286,7 @@ def problem_scale(A: np.ndarray, b: np.ndarray, m: int, radius: float) -> float:
     """``max(1, |b_j|, ||A_j|| radius)``: the size of the rows, in lambda units."""
     scale = 1.0
     for j in range(m):
-        x = max(abs(b[j]), math.hypot(A[j, 0], A[j, 1]) * radius)
+        x = max(abs(b[j]), c_hypot(A[j, 0], A[j, 1]) * radius)
         if x > scale:
             scale = x
     return scale

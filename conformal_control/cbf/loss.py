@@ -10,6 +10,7 @@ import numpy as np
 from ..base import Loss
 from .constraint import ConformalConstraint
 from .interp import interpolate_at_substeps
+from .reciprocal import grown_constraint
 from .records import CBFIntervalRecord, CBFTruth
 
 __all__ = ["CBFGapLoss", "CBFTruth"]
@@ -29,6 +30,12 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
     left out of the max and counted in the diagnostics; an interval with no pair left has
     no loss (and lambda is not updated).
 
+    In a multi-robot world the record says which agents are scored (``record.scored``:
+    those whose rows lambda is the slack of) and, for a robot handled reciprocally, its
+    share ``s_ij`` (``record.share``): the predicted constraint is then the partner's
+    assumed part ``dh^/dx_j . v~_j + s_ij a h^`` and the true one its actual part
+    ``dh/dx_j . v_j + a h`` (:mod:`~conformal_control.cbf.reciprocal`).
+
     Parameters
     ----------
     constraint : ConformalConstraint
@@ -36,6 +43,9 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
     scale : float
         Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "cbf_gap"
 
     bounds = (-0.5, 0.5)
 
@@ -107,7 +117,8 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
         return np.arctan(np.asarray(r) / self.scale) / np.pi
 
     def gaps(self, record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
-        """gap_j(t) without lambda, shape (S, N); NaN where the truth is missing."""
+        """gap_j(t) without lambda, shape (S, N) over the scored agents; NaN where the
+        truth is missing."""
         cached: tuple[CBFIntervalRecord, CBFTruth, np.ndarray] | None = getattr(
             self, "_cache", None
         )
@@ -126,12 +137,25 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
         x_true, v_true = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
         x_ego = record.x_ego[:, None, :]
         v_ego = record.v_ego[:, None, :]
-        pred = self.constraint.value(x_ego, v_ego, record.x_pred, record.v_pred)
+        pred = self.constraint.value(x_ego, v_ego, record.x_pred, record.v_pred, record.share)
         with np.errstate(invalid="ignore"):
             true = self.constraint.value(x_ego, v_ego, x_true, v_true)
+        if record.margin is not None:  # agents (robots) with a larger collision distance
+            margin = np.asarray(record.margin, dtype=float)
+            share = None if record.share is None else np.asarray(record.share)
+            for m in np.unique(margin[margin != 0.0]):
+                c = margin == m
+                con = grown_constraint(self.constraint, float(m))
+                sh = None if share is None else share[c]
+                pred[:, c] = con.value(x_ego, v_ego, record.x_pred[:, c], record.v_pred[:, c], sh)
+                with np.errstate(invalid="ignore"):
+                    true[:, c] = con.value(x_ego, v_ego, x_true[:, c], v_true[:, c])
         gap = pred - true
         valid = np.isfinite(x_true).all(-1) & np.isfinite(v_true).all(-1)
-        return np.where(valid, gap, np.nan)
+        gap = np.where(valid, gap, np.nan)
+        if record.scored is not None:
+            gap = gap[:, np.asarray(record.scored, dtype=bool)]
+        return gap
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         if math.isnan(lam):

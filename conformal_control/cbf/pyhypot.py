@@ -25,11 +25,13 @@ from __future__ import annotations
 import math
 import sys
 
-import numba
+import numpy as np
 
-__all__ = ["EXACT_FOR_THIS_PYTHON", "hypot_fma", "hypot_split", "py_hypot"]
+from ..jit import kernel
 
-jit = numba.njit(cache=True, nogil=True, inline="always")
+__all__ = ["EXACT_FOR_THIS_PYTHON", "c_hypot", "hypot_fma", "hypot_split", "py_hypot"]
+
+jit = kernel(cache=True, nogil=True, inline="always")
 
 #: Veltkamp's splitting constant for doubles, 2**27 + 1.
 _T27 = 134217729.0
@@ -182,16 +184,29 @@ def hypot_fma(x: float, y: float) -> float:
 _FMA = sys.version_info >= (3, 12)
 
 
-@jit
+@kernel(cache=True, nogil=True, inline="always", python=math.hypot)
 def py_hypot(x: float, y: float) -> float:
     """``math.hypot(x, y)`` as the running CPython computes it, bit for bit.
 
     Infinite if either is infinite (even with a NaN), else NaN if either is NaN; exact for
-    zeros; subnormals, huge values and everything between as CPython.
+    zeros; subnormals, huge values and everything between as CPython. Interpreted (see
+    :mod:`conformal_control.jit`), it is ``math.hypot`` itself.
     """
     if _FMA:
         return hypot_fma(x, y)
     return hypot_split(x, y)
+
+
+def _c_hypot_python(x: float, y: float) -> float:
+    return float(np.hypot(x, y))  # numpy's hypot is the C library's
+
+
+@kernel(cache=True, nogil=True, inline="always", python=_c_hypot_python)
+def c_hypot(x: float, y: float) -> float:
+    """The C library's ``hypot(x, y)``: numba's ``math.hypot`` compiled, ``numpy.hypot``
+    interpreted (the one the per-episode code's ``numpy.hypot`` distances take); kernels
+    call it rather than ``math.hypot``, which is another function in Python."""
+    return math.hypot(x, y)
 
 
 #: Whether :func:`py_hypot` is checked to be this interpreter's ``math.hypot`` (CPython

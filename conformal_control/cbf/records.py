@@ -4,8 +4,12 @@ control instant, the record of an interval, the truth revealed at its end."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .reciprocal import PeerView
 
 __all__ = ["CBFIntervalRecord", "CBFTruth", "ControlState"]
 
@@ -24,17 +28,38 @@ class ControlState:
         Index of the control instant within the current interval.
     goal : ndarray of shape (2,)
         The task's current goal (m).
+    peers : PeerView or None
+        In a multi-robot world, what the robot knows now of the robots it sensed at the
+        sampling time (:class:`~conformal_control.cbf.reciprocal.PeerView`); None alone
+        or when the world hands out no such view.
     """
 
     x: np.ndarray
     t: float
     step: int
     goal: np.ndarray
+    peers: PeerView | None = None
 
 
 @dataclass
 class CBFIntervalRecord:
-    """What the controller did during one interval (the loss's input)."""
+    """What the controller did during one interval (the loss's input).
+
+    Agents are in the order of the sensor's query. For a robot handled reciprocally
+    (:mod:`~conformal_control.cbf.reciprocal`) ``x_pred`` holds its measured position at
+    each control instant, ``v_pred`` the reference velocity ``v~_j`` of its row and
+    ``share`` the robot's share ``s_ij``.
+
+    Attributes
+    ----------
+    share : ndarray of shape (N,) or None
+        Weight of ``a h`` in each agent's predicted constraint (None: 1 for every agent).
+    scored : ndarray of shape (N,) or None
+        The agents the loss scores (None: every agent).
+    margin : ndarray of shape (N,) or None
+        Distance added to the barrier's collision distance for each agent (m; a robot
+        larger than a pedestrian); None: 0 for every agent.
+    """
 
     ids: np.ndarray
     x_ego: np.ndarray  # (S, 2) ego position at each executed control instant
@@ -43,6 +68,9 @@ class CBFIntervalRecord:
     v_pred: np.ndarray  # (S, N, 2) their time derivatives (m/s)
     lam_applied: np.ndarray  # (S,) lambda the decision satisfies (nan for brake/hold)
     status: list[str] = field(default_factory=list)
+    share: np.ndarray | None = None
+    scored: np.ndarray | None = None
+    margin: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:

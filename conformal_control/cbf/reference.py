@@ -25,6 +25,9 @@ class AttractiveField(ReferenceController):
         Speed saturation in m/s.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "attractive_field"
+
     def __init__(self, K_att: float = 30.0, v_max: float = 2.0) -> None:
         self.K_att = K_att
         self.v_max = v_max
@@ -47,7 +50,15 @@ class AttractiveField(ReferenceController):
     def velocity(self, x0: float, x1: float, g0: float, g1: float) -> tuple[float, float]:
         """:meth:`__call__` on Python floats, for a position ``(x0, x1)`` and a goal ``(g0,
         g1)``: the same IEEE operations in the same order, so the same bits (the compiled
-        control step takes this path; ``K_att`` and ``v_max`` must be Python numbers)."""
+        control step takes this path; ``K_att`` and ``v_max`` must be Python numbers).
+
+        Parameters
+        ----------
+        x0, x1 : float
+            The robot's position (m).
+        g0, g1 : float
+            The goal (m).
+        """
         k = -self.K_att
         v0 = k * (x0 - g0)
         v1 = k * (x1 - g1)

@@ -118,7 +118,19 @@ class SafetyFilter(Plugin, ABC):
 
     @abstractmethod
     def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
-        """Return the decision closest to ``nominal`` satisfying the constraints."""
+        """Return the decision closest to ``nominal`` satisfying the constraints.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        """
 
     def reset(self) -> None:
         """Reset counters and warm-start state (validate parameters here)."""
@@ -177,7 +189,19 @@ class FilterPrimitives(Protocol):
         self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray, weights: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Smallest weighted relaxation ``s >= 0`` (min ``weights @ s``) making
-        ``A v + rhs + s >= 0`` feasible, then the v closest to ``nominal`` there: ``(v, s)``."""
+        ``A v + rhs + s >= 0`` feasible, then the v closest to ``nominal`` there: ``(v, s)``.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            Constraint rows.
+        rhs : ndarray of shape (N,)
+            Their constant terms (lambda included).
+        weights : ndarray of shape (N,)
+            The cost of relaxing each row.
+        """
 
     def count(self, event: str) -> None:
         """Count an event in the filter's stats (``n_<event>``)."""

@@ -30,12 +30,15 @@ __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]
 
 
 def min_distances(record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
-    """Centre distance ego-agent at each control instant, shape (S, N); NaN if unknown."""
+    """Centre distance ego-agent at each control instant, shape (S, N) over the agents the
+    record scores (``record.scored``, every agent by default); NaN if unknown."""
     s, n = record.n_steps, record.ids.size
     if s == 0 or n == 0:
         return np.zeros((s, n))
     x_true, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)
     d: np.ndarray = np.linalg.norm(x_true - record.x_ego[:, None, :], axis=-1)
+    if record.scored is not None:
+        d = d[:, np.asarray(record.scored, dtype=bool)]
     return d
 
 
@@ -47,6 +50,9 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
     d_c : float
         Collision distance between centres (m); the paper's 0.5 m + 0.5 m.
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "collision"
 
     bounds = (0.0, 1.0)
 
@@ -90,6 +96,9 @@ class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
     d_c : float
         Collision distance (m), >= 0.
     """
+
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "distance_shortfall"
 
     bounds = (0.0, 1.0)
 

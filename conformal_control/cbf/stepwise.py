@@ -18,6 +18,26 @@ observed since, the loss is scored and lambda updated -- then senses the agents 
 ``sensing_radius``, predicts them over the next ``tau`` and decides with the new lambda
 until the next sampling time. Call :meth:`observe` with a sample BEFORE :meth:`step` at
 the same time; call :meth:`step` exactly every ``dt / substeps`` seconds. Units are SI.
+
+The input contract, checked at every call (a ``ValueError`` naming the offending value,
+never a silent repair):
+
+* **times** lie on the grid: sample times ``t = k dt`` (any integer ``k``, so samples
+  before the start may be negative), control times ``t = k dt + j dt / substeps``;
+* **samples** arrive once each, in increasing time (a second :meth:`observe` at the same
+  ``t`` is refused, not merged or replaced), not earlier than the next control instant
+  (once :meth:`step` has been called) and at most one interval (``tau``) ahead of it;
+  samples may be skipped (a sensor dropout is missing truth, counted), except the sample
+  at a sampling time, which :meth:`step` needs;
+* **agent ids** are whole numbers, unique within a sample; positions are finite, one
+  (x, y) row per id;
+* **control steps**: exactly ``substeps`` calls of :meth:`step` per sample, at the
+  control times in order (a skipped or repeated control instant is refused);
+* **ego state** is 4 finite numbers, **goal** 2 finite numbers;
+* **parameters**: ``epsilon`` strictly inside the loss's range ((-1/2, 1/2) for the
+  default loss, checked by the same function as the command line and
+  :func:`conformal_control.run`), ``eta`` finite and >= 0, lengths, gains and rates
+  finite and > 0.
 """
 
 from __future__ import annotations
@@ -30,6 +50,8 @@ import numpy as np
 
 from .. import registry
 from ..base import Loss, UpdateRule
+from ..data.tracks import agent_ids
+from ..exceptions import InputError
 from ..loop import ConformalStepper, LoopResult
 from ..predictors.base import PredictionQuery, Predictor
 from .barriers import APFBarrier
@@ -38,6 +60,9 @@ from .controller import ConformalCBFController, ControlState
 from .loss import CBFGapLoss, CBFTruth
 from .reference import AttractiveField
 from .roles import Barrier, ReferenceController, SafetyFilter
+
+#: Tolerance on time grids, as a fraction of the grid's step.
+_GRID_TOL = 1e-6
 
 __all__ = ["StepwiseCBF"]
 
@@ -109,9 +134,32 @@ class StepwiseCBF:
         loss_scale: float = 1.0,
         lambda_init: float = 0.0,
     ) -> None:
-        for name, value in (("tau", tau), ("dt", dt), ("sensing_radius", sensing_radius)):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        from ..update_rules.base import check_epsilon, check_finite, check_positive
+
+        for name, value in (
+            ("tau", tau),
+            ("dt", dt),
+            ("sensing_radius", sensing_radius),
+            ("a", a),
+            ("d_c", d_c),
+            ("v_max", v_max),
+            ("K_att", K_att),
+            ("loss_scale", loss_scale),
+        ):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+                raise InputError(f"{name} must be a finite number > 0, got {value!r}")
+            check_positive(name, value)
+        if isinstance(eta, bool) or not isinstance(eta, (int, float, np.number)):
+            raise InputError(f"eta must be a finite number >= 0, got {eta!r}")
+        check_positive("eta", eta, allow_zero=True)
+        check_finite("lambda_init", lambda_init)
+        bounds = loss.bounds if loss is not None else CBFGapLoss.bounds
+        if rule is None:
+            check_epsilon(epsilon, bounds)
+        else:
+            target = getattr(rule, "epsilon", None)
+            if target is not None:
+                check_epsilon(target, bounds)
         tau_samples = tau / dt
         if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
             raise ValueError(f"tau ({tau} s) must be a whole number of samples of dt ({dt} s)")
@@ -154,26 +202,77 @@ class StepwiseCBF:
         self._step = 0
 
     # ------------------------------------------------------------------ input
-    def _index(self, t: float) -> int:
-        k = t / self.dt
-        if abs(k - round(k)) > 1e-6:
-            raise ValueError(f"observe() at t = {t} s is not a multiple of dt = {self.dt} s")
+    @staticmethod
+    def _time(t: object, call: str) -> float:
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.number)):
+            raise InputError(f"{call}: t must be a number of seconds, got {t!r}")
+        value = float(t)
+        if not math.isfinite(value):
+            raise InputError(f"{call}: t must be finite, got {t!r}")
+        return value
+
+    def _index(self, t: object) -> int:
+        value = self._time(t, "observe()")
+        k = value / self.dt
+        if abs(k - round(k)) > _GRID_TOL * max(1.0, abs(k) * 1e-9):
+            raise InputError(f"observe() at t = {t} s is not a multiple of dt = {self.dt} s")
         return round(k)
+
+    def _next_tick(self) -> int | None:
+        """Control instant (in units of dt / substeps) of the next :meth:`step`, if started."""
+        if self._start is None:
+            return None
+        return self._start * self.substeps + self._step
 
     def observe(self, ids: Sequence[int] | np.ndarray, positions: np.ndarray, t: float) -> None:
         """One sensor sample: the agents seen at time ``t`` (s) and their positions (m).
 
-        Agents not listed are absent at that sample (they may reappear later).
+        Agents not listed are absent at that sample (they may reappear later). ``ids``
+        are whole numbers, unique within the sample; ``positions`` is (len(ids), 2). See
+        the module docstring for the time grid and the order of calls.
         """
-        pos = np.asarray(positions, dtype=float).reshape(-1, 2)
-        idv = np.asarray(ids).reshape(-1)
-        if idv.size != pos.shape[0]:
-            raise ValueError(f"{idv.size} ids for {pos.shape[0]} positions")
-        if not np.isfinite(pos).all():
-            raise ValueError("observed positions must be finite (leave absent agents out)")
         k = self._index(t)
+        idv = agent_ids(ids, f"observe() at t = {t} s: ids").reshape(-1)
+        pos = np.asarray(positions, dtype=float)
+        if pos.size == 0 and idv.size == 0:
+            pos = pos.reshape(0, 2)
+        if pos.ndim != 2 or pos.shape[1] != 2:
+            raise InputError(
+                f"observe() at t = {t} s: positions must be an (n, 2) array, got shape {pos.shape}"
+            )
+        if idv.size != pos.shape[0]:
+            raise InputError(f"observe() at t = {t} s: {idv.size} ids for {pos.shape[0]} positions")
+        uniq, counts = np.unique(idv, return_counts=True)
+        if (counts > 1).any():
+            dup = int(uniq[np.argmax(counts > 1)])
+            raise InputError(
+                f"observe() at t = {t} s: id {dup} appears {int(counts.max())} times; each "
+                "agent once per sample"
+            )
+        if not np.isfinite(pos).all():
+            raise InputError("observed positions must be finite (leave absent agents out)")
+        if self._latest is not None and k == self._latest:
+            raise InputError(
+                f"observe() at t = {t} s: that sample was already observed (one call per "
+                "sample; put every agent seen at that time in it)"
+            )
         if self._latest is not None and k < self._latest:
-            raise ValueError(f"samples must arrive in time order (t = {t} s after a later one)")
+            raise InputError(f"samples must arrive in time order (t = {t} s after a later one)")
+        tick = self._next_tick()
+        if tick is not None:
+            if k * self.substeps < tick:
+                raise InputError(
+                    f"observe() at t = {t} s comes after step() reached t = "
+                    f"{tick * self.dt_control:g} s; observe each sample before the steps at "
+                    f"its time ({self.substeps} step() calls per sample)"
+                )
+            ahead = k * self.substeps - tick
+            if ahead > self.tau_samples * self.substeps:
+                raise InputError(
+                    f"observe() at t = {t} s is more than one interval (tau) ahead of the next "
+                    f"control time {tick * self.dt_control:g} s; call step() for the control "
+                    "instants in between first"
+                )
         self._samples[k] = {int(i): p.copy() for i, p in zip(idv, pos, strict=True)}
         self._latest = k
         # keep what a history or an open interval's truth can still need
@@ -199,19 +298,39 @@ class StepwiseCBF:
         """The safe velocity (m/s) at control time ``t`` for ego state (x, y, vx, vy)."""
         x = np.asarray(ego_state, dtype=float)
         if x.shape != (4,) or not np.isfinite(x).all():
-            raise ValueError(f"ego_state must be 4 finite numbers (x, y, vx, vy), got {x}")
-        at_sampling = self._start is None or self._step >= self.tau_samples * self.substeps
+            raise InputError(f"ego_state must be 4 finite numbers (x, y, vx, vy), got {x}")
+        g = np.asarray(goal, dtype=float)
+        if g.shape != (2,) or not np.isfinite(g).all():
+            raise InputError(f"goal must be 2 finite numbers (x, y) in m, got {g}")
+        value = self._time(t, "step()")
+        tick = self._next_tick()
+        if tick is None:  # the first step: at a sample time
+            k = round(value / self.dt)
+            if abs(value / self.dt - k) > _GRID_TOL * max(1.0, abs(k) * 1e-9):
+                raise InputError(
+                    f"step() at t = {t} s: the first step is at a sample time (a multiple of "
+                    f"dt = {self.dt} s)"
+                )
+        else:
+            want = tick * self.dt_control
+            if abs(value - want) > _GRID_TOL * max(self.dt_control, abs(want) * 1e-9):
+                raise InputError(
+                    f"step() at t = {t} s, expected t = {want:g} s: call step() exactly "
+                    f"{self.substeps} times per sample, every dt / substeps = "
+                    f"{self.dt_control:g} s"
+                )
+        at_sampling = tick is None or self._step >= self.tau_samples * self.substeps
         if at_sampling:
-            k = round(t / self.dt)
-            if self._latest != k:
-                raise ValueError(
+            k = round(value / self.dt) if tick is None else tick // self.substeps
+            if k not in self._samples:
+                raise InputError(
                     f"t = {t} s is a sampling time: observe() the sample at t = {k * self.dt} s "
                     "before step()"
                 )
             if self._start is not None:
                 self._close(k)
             self._open(k, x[:2])
-        state = ControlState(x=x, t=float(t), step=self._step, goal=np.asarray(goal, float))
+        state = ControlState(x=x, t=value, step=self._step, goal=g)
         self._step += 1
         v: np.ndarray = self.stepper.decide(state)
         return v

@@ -96,6 +96,22 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     return out
 
 
+def plugin_key_values(
+    items: Sequence[str] | None, flag: str, classes: Sequence[type]
+) -> dict[str, Any]:
+    """:func:`key_values` for the constructor arguments of ``classes`` (a plugin, a crowd
+    and its model): values with an SI unit suffix (``max_speed=2m/s``, ``delay_s=500ms``)
+    are converted to the number in the unit the class documents, and a suffix that does
+    not fit is an error now, before anything runs."""
+    from ..data.units import documented_unit, si_value
+
+    out = key_values(items, flag)
+    for key, value in out.items():
+        unit = next((u for c in classes if (u := documented_unit(c, key)) is not None), None)
+        out[key] = si_value(key, value, unit, flag)
+    return out
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite number (no nan, no inf)."""
     import math
@@ -107,6 +123,19 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
+
+
+def finite_quantity(text: str) -> float | str:
+    """argparse type: a finite number, or a number with a unit suffix (``30/s``,
+    ``0.4s``, ``12frames``), kept as text for the parameter's own conversion."""
+    import re
+
+    try:
+        return finite_float(text)
+    except argparse.ArgumentTypeError:
+        if re.fullmatch(r"\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*[^\d\s].*", text):
+            return text.strip()
+        raise
 
 
 def positive_int(text: str) -> int:

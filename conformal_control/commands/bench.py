@@ -13,7 +13,8 @@ import sys
 import time
 from typing import Any
 
-from . import command, key_values
+from .. import registry
+from . import command, key_values, positive_int
 
 #: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
 #: that ``--help`` stays fast).
@@ -51,7 +52,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     sc.add_argument(
         "-j",
         "--workers",
-        type=int,
+        type=positive_int,
         default=1,
         help="with --regenerate: processes for the nolearn episodes (default 1)",
     )
@@ -150,7 +151,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     ru.add_argument(
         "--crowd",
         default="replay",
-        choices=("replay", "social_force", "orca", "mixed"),
+        choices=registry.crowd_names(),
         help="pedestrians replayed, or reacting to the robot (default replay)",
     )
     ru.add_argument(
@@ -158,7 +159,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--executor",
-        default="batch",
+        default=None,
         choices=("batch", "process", "serial", "dask"),
         help=(
             "batch (default): the runs the lockstep engine supports (replayed crowd, "
@@ -167,17 +168,49 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
             "but fallback:relax and acp) many at once in this process, with the same "
             "metrics, the others on a process pool; "
             "process: one episode per task on a process pool; "
-            "serial: one by one in this process; dask: a Dask cluster"
+            "serial: one by one in this process; dask: a Dask cluster (the batched runs "
+            "in chunks, each on a worker's own engine; default with --scheduler)"
         ),
     )
-    ru.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
-    ru.add_argument("--scheduler", default=None, help="Dask scheduler address (--executor dask)")
-    ru.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
+    ru.add_argument("-j", "--workers", type=positive_int, default=None, help="worker processes")
+    ru.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on the Dask cluster at ADDRESS (e.g. tcp://head:8786; implies --executor "
+        "dask): workers need the package, the data root and --out on a shared file system",
+    )
+    ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
         "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
     ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    ru.add_argument(
+        "--robots",
+        default=None,
+        metavar="M[,M]",
+        help="fleets of M robots (2-20) on the multi-robot suite (multi-crossings-v1, derived "
+        "from the crossing suite; see the Multi-robot page)",
+    )
+    ru.add_argument(
+        "--reciprocity",
+        default="none,reciprocal",
+        metavar="none,reciprocal",
+        help="with --robots: how the robots treat each other (default both, paired)",
+    )
+    ru.add_argument(
+        "--information",
+        default="plan",
+        choices=("position", "velocity", "plan"),
+        help="with --robots: what reciprocal robots know of each other (default plan)",
+    )
+    ru.add_argument(
+        "--lambda-scope",
+        default="pedestrians",
+        choices=("pedestrians", "robots", "both"),
+        help="with --robots: the rows lambda is the slack of (default pedestrians)",
+    )
 
     re_ = sub.add_parser(
         "report",
@@ -321,6 +354,12 @@ def _run(args: argparse.Namespace) -> int:
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
 
+    if args.robots is not None:  # several robots: the multi-robot suite
+        from ..bench.multi import run_command as run_multi_command
+
+        families = _families(args.methods, ("nolearn", "conformal"))
+        return run_multi_command(args, SUITE, families, _grids(args.grid))
+
     shifts = [s.name for s in parse_shifts(args.shift)]
     res = run_bench(
         args.out,
@@ -333,7 +372,7 @@ def _run(args: argparse.Namespace) -> int:
         predictor=args.predictor or "constant_velocity",
         crowd=args.crowd,
         data_root=args.data_root,
-        executor=args.executor,
+        executor=_executor(args),
         workers=args.workers,
         scheduler=args.scheduler,
         progress=_progress(args.progress),
@@ -342,6 +381,17 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(res.summary())
     return 0 if res.failed == 0 else 1
+
+
+def _executor(args: argparse.Namespace) -> str:
+    """``--executor``, ``dask`` with ``--scheduler``, else ``batch``."""
+    from ..exceptions import InputError
+
+    if args.scheduler is None:
+        return str(args.executor or "batch")
+    if args.executor not in (None, "dask"):
+        raise InputError(f"--scheduler runs on a Dask cluster: drop --executor {args.executor}")
+    return "dask"
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -356,6 +406,11 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
+    from ..bench.multi import is_multi_folder
+    from ..bench.multi import report_command as multi_report
+
+    if is_multi_folder(folder):
+        return multi_report(folder, args.out)
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None

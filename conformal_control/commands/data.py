@@ -9,12 +9,18 @@ from . import check_writable, command
 
 @command("fetch-data", "download SDD and ETH/UCY files and verify their checksums")
 def _fetch_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dest", required=True, help="data folder to create/complete")
+    p.add_argument(
+        "--dest",
+        default=None,
+        help="data folder to create/complete (unset: the per-user data folder, which every "
+        "command reads when neither --data-root nor $CONFORMAL_CONTROL_DATA is given)",
+    )
     p.add_argument(
         "--only",
         action="append",
         metavar="SEL",
-        help="sdd, ethucy, sdd:<scene>_<video> (e.g. sdd:nexus_4) or ethucy:<scene>",
+        help="sdd, ethucy, external, sdd:<scene>_<video> (e.g. sdd:nexus_4), ethucy:<scene> "
+        "or external:<folder> (trajectron-ethucy, fcp-planar: mirror only)",
     )
     p.add_argument(
         "--mirror",
@@ -28,18 +34,31 @@ def _fetch_args(p: argparse.ArgumentParser) -> None:
 @_fetch_args.handler
 def _fetch(args: argparse.Namespace) -> int:
     from ..data.fetch import fetch, plan
+    from ..data.paths import ENV_VAR, user_data_dir
     from ..progress import is_quiet
 
     if args.dry_run:
         for item in plan(args.only, args.mirror):
-            print(f"{item.path}  <- {item.url}" + (" (metres -> pixels)" if item.convert else ""))
+            source = item.url or "mirror only (pass --mirror DIR)"
+            print(f"{item.path}  <- {source}" + (" (metres -> pixels)" if item.convert else ""))
         return 0
-    check_writable(args.dest, "data folder")
+    dest = args.dest if args.dest is not None else str(user_data_dir())
+    check_writable(dest, "data folder")
     counts = fetch(
-        args.dest, only=args.only, mirror=args.mirror, force=args.force, progress=not is_quiet()
+        dest, only=args.only, mirror=args.mirror, force=args.force, progress=not is_quiet()
+    )
+    if args.dest is None:
+        use = f"every command reads it unless --data-root or ${ENV_VAR} says otherwise"
+    else:
+        use = f"use --data-root {dest} or {ENV_VAR}={dest}"
+    skipped = (
+        f", {counts['mirror_only']} mirror-only file(s) of external/ not fetched (copy them "
+        "with --mirror DIR)"
+        if counts.get("mirror_only")
+        else ""
     )
     print(
         f"{counts['downloaded']} file(s) downloaded, {counts['verified_existing']} already "
-        f"present and verified, in {args.dest}; use --data-root {args.dest}"
+        f"present and verified{skipped}, in {dest}; {use}"
     )
     return 0

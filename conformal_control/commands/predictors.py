@@ -12,6 +12,8 @@ import argparse
 import csv
 import hashlib
 import json
+import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -74,7 +76,9 @@ def _fit_and_save(
         "fit_s": round(time.perf_counter() - t0, 2),
         "command": command,
     }
-    (out / "training.json").write_text(json.dumps(info, indent=2, default=str))
+    from ..fileio import atomic_write_json
+
+    atomic_write_json(out / "training.json", info, default=str)
     return out
 
 
@@ -148,22 +152,68 @@ def cached_weights(
     if dataset.partition(":")[0] != "ethucy":
         dataset = "sdd:any"  # every SDD scene trains on all of ETH/UCY: one cached model
     folder = _weights_folder(name, dataset, params, {"s": seed, "o": obs, "h": horizon})
-    if not (folder / "training.json").is_file():
-        from ..predictors.evaluation import training_windows
-        from ..progress import note
+    if _cached_weights_ok(folder):
+        return folder
+    from ..predictors.evaluation import training_windows
+    from ..progress import note
 
-        win = training_windows(dataset, data_root, obs, horizon)
-        if len(win) == 0:
-            from ..exceptions import InputError
+    win = training_windows(dataset, data_root, obs, horizon)
+    if len(win) == 0:
+        from ..exceptions import InputError
 
-            raise InputError(f"no training windows of {obs + horizon} samples for {dataset}")
-        what = "all of ETH/UCY" if dataset == "sdd:any" else win.source
-        note(
-            f"training {name} on {len(win)} windows of {what} for {dataset} (first use, "
-            f"cached) -> {folder}"
-        )
-        _fit_and_save(name, win, folder, params, seed, obs, horizon, dataset)
+        raise InputError(f"no training windows of {obs + horizon} samples for {dataset}")
+    what = "all of ETH/UCY" if dataset == "sdd:any" else win.source
+    note(
+        f"training {name} on {len(win)} windows of {what} for {dataset} (first use, "
+        f"cached) -> {folder}"
+    )
+    # trained into a private folder and renamed into place: a crash, a full disk or a
+    # concurrent run never leaves a half-written cache entry under the real name
+    tmp = folder.with_name(f".{folder.name}.{os.getpid()}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        _fit_and_save(name, win, tmp, params, seed, obs, horizon, dataset)
+        if folder.exists():  # a stale or corrupt entry (checked above)
+            shutil.rmtree(folder, ignore_errors=True)
+        try:
+            os.rename(tmp, folder)
+        except OSError:
+            if not _cached_weights_ok(folder):  # not another process's complete entry
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return folder
+
+
+def _cached_weights_ok(folder: Path) -> bool:
+    """Whether a cached weights folder is complete and every model file matches its
+    SHA-256 in ``config.json``; a folder that exists but fails is reported (a
+    :class:`~conformal_control.exceptions.CacheWarning`) and will be trained again.
+
+    Entries without checksums (written by older versions) count as stale.
+    """
+    import warnings
+
+    from ..exceptions import CacheWarning
+    from ..predictors.learned import verify_model_files
+
+    if not folder.exists():
+        return False
+    try:
+        cfg = json.loads((folder / "config.json").read_text())
+        if not (folder / "training.json").is_file():
+            raise ValueError("training.json is missing")
+        if not isinstance(cfg, dict) or not isinstance(cfg.get("sha256"), dict):
+            raise ValueError("written by an older version, without checksums")
+        verify_model_files(folder, cfg)
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        warnings.warn(
+            f"cached weights {folder} are not usable ({exc}); training again",
+            CacheWarning,
+            stacklevel=3,
+        )
+        return False
+    return True
 
 
 #: fewest windows of a scene's own tracks a learned predictor is trained on
@@ -191,7 +241,7 @@ def scene_windows(scene: Any, obs: int = 8, horizon: int = 12) -> Any:
             f"{STANDARD_DT} s, so learned predictors cannot be trained on it; pass "
             "--predictor-param weights=FOLDER from `conformal-control train-predictor`"
         )
-    pos = scene.positions[: scene.start_index + 1]
+    pos = scene.tracks.dense(0, scene.start_index + 1)
     hists, futs = [], []
     for phase in range(step):
         sub = pos[phase::step]

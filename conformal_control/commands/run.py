@@ -19,13 +19,16 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from .. import registry
 from . import (
     check_writable,
     command,
     command_line,
     finite_float,
+    finite_quantity,
     key_values,
     non_negative_int,
+    plugin_key_values,
     positive_int,
 )
 
@@ -108,7 +111,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--crowd",
         default="replay",
-        choices=("replay", "social_force", "orca", "mixed"),
+        choices=registry.crowd_names(),
         help="pedestrians replayed from the data, or reacting to the robot (social force, "
         "ORCA, or replayed until the robot comes near: mixed)",
     )
@@ -124,17 +127,25 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--eta",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; unset: scene's)",
+        help="learning rate (SDD scenes: per frame; built-in scene: 1/s; or with a unit: "
+        "30/s, 1/frame; unset: scene's)",
     )
     p.add_argument(
         "--tau",
-        type=finite_float,
+        type=finite_quantity,
         default=None,
-        help="sampling period (SDD scenes: frames; built-in scene: s; unset: scene's)",
+        help="sampling period (SDD scenes: frames; built-in scene: s; or with a unit: 0.4s, "
+        "12frames; unset: scene's)",
     )
-    p.add_argument("--no-learning", action="store_true", help="keep lambda fixed (noLearn)")
+    p.add_argument(
+        "--no-learning",
+        "--no-learn",
+        dest="no_learning",
+        action="store_true",
+        help="keep lambda fixed (noLearn); --no-learn is an alias",
+    )
     p.add_argument(
         "--rule",
         default="fixed_eta",
@@ -318,6 +329,8 @@ def _apply_config(args: argparse.Namespace) -> None:
         raise InputError(
             f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})"
         ) from None
+    except RecursionError:
+        raise InputError(f"--config {path}: nested too deeply to be a run's config") from None
     stored = cfg.get("cli") if isinstance(cfg, dict) else None
     if not isinstance(stored, dict):
         raise InputError(
@@ -355,10 +368,11 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     for name in ("epsilon", "eta", "tau"):
         flag = getattr(args, name)
         if flag is not None and name in params and params[name] != flag:
+            shown = f"{flag:g}" if isinstance(flag, float) else flag
             warnings.warn(
                 OptionConflictWarning(
-                    f"--{name} {flag:g} and --param {name}={params[name]} disagree; using "
-                    f"--{name} {flag:g}"
+                    f"--{name} {shown} and --param {name}={params[name]} disagree; using "
+                    f"--{name} {shown}"
                 ),
                 stacklevel=2,
             )
@@ -405,10 +419,30 @@ def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--predictor-param`` values, checked against the predictor's constructor."""
     from .. import registry
 
-    pp = key_values(args.predictor_param, "--predictor-param")
-    registry.check_params(
-        "predictor", args.predictor, registry.get("predictor", args.predictor), pp
+    cls = registry.get("predictor", args.predictor)
+    pp = plugin_key_values(args.predictor_param, "--predictor-param", [cls])
+    registry.check_params("predictor", args.predictor, cls, pp)
+    return pp
+
+
+def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
+    """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
+    before the scene is loaded)."""
+    from .. import registry
+    from ..crowds.crowd import Crowd
+    from ..data.units import si_value
+
+    given = key_values(args.crowd_param, "--crowd-param")
+    model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
+    known = model in registry.names("crowd_model")
+    classes: list[type] = [Crowd, *([registry.get("crowd_model", model)] if known else [])]
+    radius = given.pop("radius", None) if args.crowd == "mixed" else None
+    items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
+    pp = plugin_key_values(
+        items if args.crowd == "mixed" else args.crowd_param, "--crowd-param", classes
     )
+    if radius is not None:  # the mixed crowd's own radius (m)
+        pp["radius"] = si_value("radius", radius, "m", "--crowd-param")
     return pp
 
 
@@ -441,10 +475,12 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..data import load_scene
     from ..data.paths import resolve_data_root
+    from ..exceptions import SuspiciousValueWarning
     from ..flagship.params import check_names, resolve_params
     from ..progress import progress
     from ..results.rundir import write_run_dir
     from ..sim.episode import run_episode
+    from ..spec import RunSpec
 
     log = logging.getLogger("conformal_control.run")
     if args.config:
@@ -453,6 +489,21 @@ def _run(args: argparse.Namespace) -> int:
     check_writable(out, "run directory")
 
     params = key_values(args.param, "--param")
+    if "fallback" in params:  # the way of 0.2: the fallback is a role, --fallback NAME
+        old_way = str(params.pop("fallback"))
+        if args.fallback is not None and args.fallback != old_way:
+            from ..exceptions import InputError
+
+            raise InputError(
+                f"--fallback {args.fallback} and --param fallback={old_way} disagree; give "
+                "--fallback NAME only"
+            )
+        warnings.warn(
+            f"--param fallback={old_way} is --fallback {old_way} since 0.3",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        args.fallback = old_way
     check_names(params)
     _check_options(args, params)
     roles: dict[str, Any] = {}
@@ -469,7 +520,8 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("epsilon", "eta", "tau"):
         value = getattr(args, name)
         if value is not None:
-            params[name] = int(value) if name == "tau" and float(value).is_integer() else value
+            whole = name == "tau" and isinstance(value, float) and value.is_integer()
+            params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
     from .. import registry
 
@@ -477,6 +529,7 @@ def _run(args: argparse.Namespace) -> int:
         "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
     )
     given_predictor_params = _checked_predictor_params(args)
+    crowd_params = _checked_crowd_params(args)
 
     scene = load_scene(
         args.scene,
@@ -496,7 +549,9 @@ def _run(args: argparse.Namespace) -> int:
     check = dict(params)
     if args.no_learning:
         check.setdefault("eta", 0.0)
-    resolved = resolve_params(scene, check)
+    with warnings.catch_warnings():  # checked here; the run reports them (once)
+        warnings.simplefilter("ignore", SuspiciousValueWarning)
+        resolved = resolve_params(scene, check)
     for text in resolved.notes:
         log.info("unit conversion: %s", text)
     log.debug("parameters in SI: %s", resolved.si)
@@ -523,28 +578,31 @@ def _run(args: argparse.Namespace) -> int:
             bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
         bar.update(-(-steps[0] // substeps) - before)
 
+    spec = RunSpec.from_settings(
+        params,
+        predictor=args.predictor,
+        predictor_params=predictor_params,
+        learn=not args.no_learning,
+        max_frames=args.frames,
+        seed=args.seed,
+        rule=args.rule,
+        rule_params=rule_params,
+        lambda_safe=args.lambda_safe,
+        fallback=args.fallback,
+        crowd=args.crowd,
+        crowd_params=crowd_params,
+        **roles,
+    )
     with bar:
         result = run_episode(
             scene,
-            args.predictor,
-            params,
-            learn=not args.no_learning,
-            max_frames=args.frames,
-            seed=args.seed,
-            predictor_params=predictor_params,
+            spec,
             extra_config={
                 "command": command_line(args),
                 "data_root": data_root,
                 "cli": _stored_options(args, data_root),
             },
-            rule=args.rule,
-            rule_params=rule_params,
-            lambda_safe=args.lambda_safe,
-            fallback=args.fallback,
-            crowd=args.crowd,
-            crowd_params=key_values(args.crowd_param, "--crowd-param"),
             on_interval=on_interval,
-            **roles,
         )
     log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)
@@ -557,9 +615,9 @@ def _run(args: argparse.Namespace) -> int:
 def _multi_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
         "several robots",
-        "M robots, each its own conformal CBF controller, no communication (see the "
-        "Multi-robot page of the docs); the scene's own start and goal define the default "
-        "layout",
+        "M robots, each its own conformal CBF controller, sharing their robot-robot "
+        "constraints (see the Multi-robot page of the docs); the scene's own start and "
+        "goal define the default layout",
     )
     g.add_argument("--robots", type=int, default=None, metavar="M", help="number of robots (1-20)")
     g.add_argument(
@@ -587,6 +645,27 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
         default="tracked",
         help="histories handed to each robot's predictor: as tracked (the single-robot "
         "sensor) or only where the robot itself had the agent in range",
+    )
+    g.add_argument(
+        "--reciprocity",
+        choices=("reciprocal", "none"),
+        default="reciprocal",
+        help="reciprocal (default): each robot takes its share of every robot pair's "
+        "constraint; none: each predicts the others like pedestrians",
+    )
+    g.add_argument(
+        "--information",
+        choices=("position", "velocity", "plan"),
+        default="plan",
+        help="what reciprocal robots know of each other: positions, positions and "
+        "velocities (sensed), or positions and the velocities they broadcast (default)",
+    )
+    g.add_argument(
+        "--lambda-scope",
+        choices=("pedestrians", "robots", "both"),
+        default=None,
+        help="the rows lambda is the slack of (default: pedestrians with reciprocity, both "
+        "without)",
     )
 
 
@@ -642,8 +721,11 @@ def _run_multi(
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         sensor_history=args.sensor_history,
+        reciprocity=args.reciprocity,
+        information=args.information,
+        lambda_scope=args.lambda_scope or ("both" if args.reciprocity == "none" else "pedestrians"),
         crowd=args.crowd,
-        crowd_params=key_values(args.crowd_param, "--crowd-param"),
+        crowd_params=_checked_crowd_params(args),
         extra_config={"command": command_line(args), "data_root": args.data_root},
         **roles,
     )

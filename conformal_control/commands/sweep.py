@@ -6,7 +6,7 @@ import argparse
 import sys
 import warnings
 
-from . import command, key_values
+from . import command, key_values, positive_int
 
 
 def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> None:
@@ -28,7 +28,7 @@ def add_executor_args(p: argparse.ArgumentParser, auto: str | None = None) -> No
     p.add_argument(
         "-j",
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
         help="worker processes (process pool / Dask LocalCluster); default: CPUs available",
     )
@@ -138,11 +138,7 @@ def _sweep(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         except SweepInterrupted as exc:
-            print(
-                f"sweep {exc}: finished runs are recorded in {args.out}; "
-                "run the same command again to resume",
-                file=sys.stderr,
-            )
+            print(f"sweep {exc}: {interrupted_summary(args.out)}", file=sys.stderr)
             return 128 + exc.signum
     print(report.summary())
     if report.summary_plot is not None:
@@ -162,3 +158,19 @@ def _show_warning(
     message: Warning | str, category: type[Warning], *args: object, **kw: object
 ) -> None:
     print(f"warning: {message}", file=sys.stderr)
+
+
+def interrupted_summary(out: str) -> str:
+    """What an interrupted sweep left, read back from its journal (only true statements)."""
+    from ..sweep import ResultsStore
+
+    store = ResultsStore(out)
+    latest = store.latest()
+    ok = sum(r.get("status") == "ok" for r in latest.values())
+    failed = len(latest) - ok
+    recovered = sum(bool(r.get("recovered")) for r in latest.values())
+    adopted = f" ({recovered} recovered from their run directories)" if recovered else ""
+    return (
+        f"{ok} finished and {failed} failed run(s) are in the journal {store.journal}"
+        f"{adopted}; the runs in flight were abandoned; run the same command again to resume"
+    )

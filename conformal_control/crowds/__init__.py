@@ -13,15 +13,15 @@
 """
 
 from .base import CrowdModel
-from .crowd import MODELS, Crowd, build_model
+from .crowd import Crowd, build_model, model_names
 from .orca import ORCAModel
 from .social_force import SocialForceModel
 
 __all__ = [
-    "MODELS",
     "Crowd",
     "CrowdModel",
     "ORCAModel",
     "SocialForceModel",
     "build_model",
+    "model_names",
 ]

@@ -36,24 +36,23 @@ from typing import Any
 
 import numpy as np
 
+from .. import registry
 from ..base import Plugin
 from .base import CrowdModel
-from .orca import ORCAModel
-from .social_force import SocialForceModel
 
-__all__ = ["MODELS", "Crowd", "build_model"]
+__all__ = ["Crowd", "build_model", "model_names"]
 
-#: Crowd models by name.
-MODELS: dict[str, type[CrowdModel]] = {
-    "social_force": SocialForceModel,
-    "orca": ORCAModel,
-}
+
+def model_names() -> list[str]:
+    """The registered crowd models (the ``crowd_model`` role: ``conformal-control plugins``)."""
+    return registry.names("crowd_model")
+
 
 REPLAY, ACTIVE, GONE = 0, 1, 2
 
 
 def build_model(model: CrowdModel | str, model_params: dict[str, Any] | None = None) -> CrowdModel:
-    """A crowd model from a name in :data:`MODELS` (with parameters) or an instance."""
+    """A crowd model from a registered name (with parameters) or an instance."""
     params = dict(model_params or {})
     if isinstance(model, CrowdModel):
         if params:
@@ -62,20 +61,15 @@ def build_model(model: CrowdModel | str, model_params: dict[str, Any] | None = N
                 "instance on the instance"
             )
         return model
-    if not isinstance(model, str) or model not in MODELS:
+    if not isinstance(model, str):
         raise ValueError(
-            f"unknown crowd model {model!r}; choose one of {', '.join(sorted(MODELS))} "
-            "or pass a CrowdModel instance"
+            f"a crowd model must be a registered name ({', '.join(model_names())}) or a "
+            f"CrowdModel instance, got {model!r}"
         )
-    cls = MODELS[model]
-    known = set(cls._param_names())
-    unknown = sorted(set(params) - known)
-    if unknown:
-        raise ValueError(
-            f"crowd model {model!r} has no parameter(s) {', '.join(unknown)}; "
-            f"its parameters: {', '.join(sorted(known))}"
-        )
-    return cls(**params)
+    cls = registry.get("crowd_model", model)  # an unknown name: the known ones, did you mean
+    registry.check_params("crowd_model", model, cls, params)
+    built: CrowdModel = cls(**params)
+    return built
 
 
 class Crowd(Plugin):

@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..jit import kernel
 
 __all__ = ["dense_neighbor_pairs", "neighbor_pairs"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 #: The pairs of a search: rows, cols (int64), dx, dy (float64), see :func:`neighbor_pairs`.
 Pairs = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..jit import kernel
 
 __all__ = ["orca_lines_compiled", "solve_orca_lp_compiled"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 _TOL = 1e-9  # as in orca.py
 _EPS = 1e-9

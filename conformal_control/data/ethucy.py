@@ -34,8 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..exceptions import DataFormatError
 from .paths import ethucy_root, missing
-from .tracks import Tracks
+from .tracks import Tracks, check_frames, file_agent_ids
 
 __all__ = [
     "ETHUCY_FPS",
@@ -90,6 +91,34 @@ def _interpolate(
     return out, n_gaps
 
 
+def _parse(path: Path) -> tuple[np.ndarray, list[int]]:
+    """The rows of an ETH/UCY file (n, 4) and their line numbers."""
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    with path.open() as fh:
+        for lineno, line in enumerate(fh, start=1):
+            parts = line.split()
+            if not parts:
+                continue
+            if len(parts) != 4:
+                raise DataFormatError(
+                    f"{path}:{lineno}: expected 4 fields (frame ped_id x y), got "
+                    f"{len(parts)}; the file is malformed or truncated"
+                )
+            try:
+                rows.append([float(p) for p in parts])
+            except ValueError as exc:
+                raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+            lines.append(lineno)
+    if not rows:
+        raise DataFormatError(f"{path}: no rows")
+    arr = np.array(rows)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
+    return arr, lines
+
+
 def read_ethucy(
     path: str | os.PathLike[str], fps: float | None = None, rate: float = ETHUCY_FPS
 ) -> Tracks:
@@ -124,29 +153,54 @@ def read_ethucy(
     path = Path(path)
     if not path.is_file():
         raise missing(path, "ETH/UCY file")
-    try:
-        arr = np.loadtxt(path, ndmin=2)
-    except ValueError as exc:
-        raise ValueError(f"{path}: malformed row ({exc}); expected 'frame ped_id x y'") from exc
-    if arr.size == 0:
-        raise ValueError(f"{path}: no rows")
-    if arr.shape[1] != 4:
-        raise ValueError(f"{path}: expected 4 columns (frame ped_id x y), got {arr.shape[1]}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{path}: non-finite values")
-    frames = np.unique(arr[:, 0])
-    steps = np.diff(frames)
-    step = float(np.min(steps)) if steps.size else 1.0
-    index = np.rint(arr[:, 0] / step).astype(np.int64)
+    arr, lines = _parse(path)
+    raw = arr[:, 0]
+    uniq = np.unique(raw)
+    steps = np.diff(uniq)
+    # the file's step is its most common gap between consecutive frames (ties: the
+    # smaller): one misplaced row must not change it (it did when the smallest gap was
+    # taken, making every pedestrian slower); such a row is an error, named below
+    if steps.size:
+        values, counts = np.unique(steps, return_counts=True)
+        step = float(values[np.argmax(counts)])
+    else:
+        step = 1.0
+    if step != round(step) or step < 1:
+        raise DataFormatError(
+            f"{path}: frames are {step:g} apart, expected a whole number of video frames"
+        )
+    # ``rate`` rows per second, ``step`` video frames apart: the video runs at rate x step
+    frames = check_frames(raw, float(rate) * step, path, lines, step=int(step))
+    ids = file_agent_ids(arr[:, 1], path, lines)
+    index = (frames - int(frames.min())) // int(step) + int(frames.min()) // int(step)
     tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for pid in np.unique(arr[:, 1]).astype(int):
-        sel = arr[:, 1] == pid
-        order = np.argsort(index[sel])
-        f = index[sel][order]
-        xy = arr[sel][order, 2:4]
-        keep = np.concatenate([[True], np.diff(f) > 0])  # drop duplicated frames
-        tracks[int(pid)] = (f[keep], xy[keep])
-    meta: dict[str, object] = {"frame_step": step, "format": "ethucy", "rate": float(rate)}
+    n_dup = 0
+    for pid in np.unique(ids):
+        sel = np.flatnonzero(ids == pid)
+        order = sel[np.argsort(index[sel], kind="stable")]
+        f = index[order]
+        xy = arr[order, 2:4]
+        same = np.flatnonzero(np.diff(f) == 0)
+        if same.size:
+            differ = ~np.all(xy[same] == xy[same + 1], axis=1)
+            if differ.any():
+                i = int(same[np.argmax(differ)])
+                raise DataFormatError(
+                    f"{path}:{lines[order[i + 1]]}: pedestrian {int(pid)} has a second, "
+                    f"different position for frame {int(raw[order[i]]):d} (first at line "
+                    f"{lines[order[i]]})"
+                )
+            n_dup += same.size  # exact repeats of a row: counted, kept once
+            keep = np.concatenate([[True], np.diff(f) > 0])
+            f, xy = f[keep], xy[keep]
+        tracks[int(pid)] = (f, xy)
+    meta: dict[str, object] = {
+        "frame_step": step,
+        "format": "ethucy",
+        "n_rows": len(arr),
+        "n_duplicate_rows": n_dup,
+        "rate": float(rate),
+    }
     if fps is None:
         return Tracks(float(rate), tracks, source=str(path), meta=meta)
     tracks, n_gaps = _interpolate(tracks, factor)

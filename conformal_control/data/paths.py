@@ -1,22 +1,91 @@
-"""Where the data lives: ``--data-root``, ``$CONFORMAL_CONTROL_DATA``, clear errors."""
+"""Where the data lives: one story, three places, clear errors.
+
+The data folder (the one holding ``sdd/`` and ``ethucy/``) is, in this order:
+
+1. the folder given with ``--data-root DIR`` (``data_root=`` in Python);
+2. else ``$CONFORMAL_CONTROL_DATA``;
+3. else the per-user data folder of the platform (``platformdirs``; on Linux
+   ``~/.local/share/conformal-control``, on macOS ``~/Library/Application
+   Support/conformal-control``, on Windows ``%LOCALAPPDATA%\\conformal-control``), which is
+   where ``conformal-control fetch-data`` puts its downloads when no ``--dest`` is given.
+
+A missing file is a :class:`DataNotFoundError` that names the path, which of the three
+places it came from, and the other two.
+"""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-__all__ = ["ENV_VAR", "DataNotFoundError", "ethucy_root", "resolve_data_root", "sdd_root"]
+__all__ = [
+    "ENV_VAR",
+    "DataNotFoundError",
+    "data_root_origin",
+    "ethucy_root",
+    "resolve_data_root",
+    "sdd_root",
+    "user_data_dir",
+]
 
 ENV_VAR = "CONFORMAL_CONTROL_DATA"
-FETCH_HINT = "conformal-control fetch-data --dest DIR"
+#: the download command (into the per-user data folder unless --dest is given)
+FETCH_HINT = "conformal-control fetch-data"
+_APP = "conformal-control"
 
 
 class DataNotFoundError(FileNotFoundError):
-    """A data file is missing; the message names the path and the download command."""
+    """A data file is missing; the message names the path, where the data folder came
+    from, the other places it may be, and the download command."""
+
+
+def user_data_dir() -> Path:
+    """The per-user data folder: the default data root and ``fetch-data``'s default
+    destination (``platformdirs.user_data_dir("conformal-control")``)."""
+    import platformdirs
+
+    return Path(platformdirs.user_data_dir(_APP, appauthor=False))
+
+
+def data_root_origin(data_root: str | os.PathLike[str] | None = None) -> tuple[Path, str]:
+    """(the data root, where it came from: ``"--data-root"``, ``"$CONFORMAL_CONTROL_DATA"``
+    or ``"the per-user data folder"``)."""
+    if data_root is not None:
+        return Path(data_root).expanduser(), "--data-root"
+    env = os.environ.get(ENV_VAR)
+    if env:
+        return Path(env).expanduser(), f"${ENV_VAR}"
+    return user_data_dir(), "the per-user data folder"
+
+
+def _where(path: Path) -> str:
+    """Which of the three places a missing path is in, and the other two."""
+    env = os.environ.get(ENV_VAR)
+    user = user_data_dir()
+    try:
+        under_user = path.resolve().is_relative_to(user.resolve())
+        under_env = (
+            env is not None
+            and env != ""
+            and path.resolve().is_relative_to(Path(env).expanduser().resolve())
+        )
+    except (OSError, RuntimeError):  # pragma: no cover - an unresolvable path
+        under_user = under_env = False
+    if under_env:
+        origin = f"the data folder is ${ENV_VAR}={env}"
+    elif under_user and not env:
+        origin = "the data folder is the per-user data folder"
+    else:
+        origin = "the data folder was given with --data-root (data_root= in Python)"
+    return (
+        f"{origin}; the toolkit reads --data-root DIR, else ${ENV_VAR}, else the per-user "
+        f"data folder {user}, where `{FETCH_HINT}` downloads the data"
+    )
 
 
 def missing(path: Path, what: str) -> DataNotFoundError:
-    """The error for data that is not where it should be (says what stands there instead)."""
+    """The error for data that is not where it should be (says what stands there instead,
+    and where the toolkit looks)."""
     path = Path(path)
     if path.is_dir() and (path.suffix or "file" in what):
         return DataNotFoundError(
@@ -26,29 +95,29 @@ def missing(path: Path, what: str) -> DataNotFoundError:
     if path.is_dir():
         return DataNotFoundError(
             f"{what} not found: the folder {path} exists but holds none of its files; "
-            f"download the data with `{FETCH_HINT}` and pass --data-root DIR (or set "
-            f"{ENV_VAR}=DIR)."
+            f"{_where(path)}."
         )
     if path.exists():
         return DataNotFoundError(
-            f"{what} expected at {path}, but that is not a regular file; download the data "
-            f"with `{FETCH_HINT}`."
+            f"{what} expected at {path}, but that is not a regular file; {_where(path)}."
         )
-    return DataNotFoundError(
-        f"{what} not found at {path}: download the data with `{FETCH_HINT}` and pass "
-        f"--data-root DIR (or set {ENV_VAR}=DIR)."
-    )
+    return DataNotFoundError(f"{what} not found at {path}: {_where(path)}.")
 
 
 def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
-    """The data root: the argument, else ``$CONFORMAL_CONTROL_DATA``, else ``./data``."""
-    if data_root is None:
-        data_root = os.environ.get(ENV_VAR) or "data"
-    root = Path(data_root).expanduser()
+    """The data root: the argument, else ``$CONFORMAL_CONTROL_DATA``, else the per-user
+    data folder (:func:`user_data_dir`).
+
+    Raises
+    ------
+    DataNotFoundError
+        If a file stands where the folder should be.
+    """
+    root, origin = data_root_origin(data_root)
     if root.exists() and not root.is_dir():
         raise DataNotFoundError(
-            f"the data root {root} is a file; pass the data folder (the one holding sdd/ and "
-            f"ethucy/) with --data-root DIR or {ENV_VAR}=DIR"
+            f"the data root {root} ({origin}) is a file; pass the data folder (the one "
+            f"holding sdd/ and ethucy/) with --data-root DIR or {ENV_VAR}=DIR"
         )
     return root
 

@@ -56,6 +56,7 @@ from .ethucy import (
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
+from .track_cache import cached_tracks
 from .tracks import Tracks
 from .trajnet import read_trajnet
 from .units import UnitSystem
@@ -269,11 +270,14 @@ def _read_tracks_cached(
     _stamp: tuple[int, int],
     rate: float = ETHUCY_FPS,
 ) -> Tracks:
-    if kind == "raw":
-        return read_annotations(path, m_per_px)
-    if kind == "trajnet":
-        return read_trajnet(path, m_per_px)
-    return read_ethucy(path, fps=fps, rate=rate)
+    def read() -> Tracks:
+        if kind == "raw":
+            return read_annotations(path, m_per_px)
+        if kind == "trajnet":
+            return read_trajnet(path, m_per_px)
+        return read_ethucy(path, fps=fps, rate=rate)
+
+    return cached_tracks(kind, path, {"m_per_px": m_per_px, "fps": fps, "rate": rate}, read)
 
 
 def read_tracks(
@@ -286,8 +290,11 @@ def read_tracks(
     """Tracks of a recording (``kind``: ``raw`` SDD, ``trajnet`` or ``ethucy``), read once.
 
     The last few files read are kept in memory (keyed by path, size and modification
-    time), so that many short episodes on one recording parse it once. Treat the result
-    as read-only: it is shared. ``rate``: rows per second of an ETH/UCY file.
+    time), so that many short episodes on one recording parse it once, and every file parsed
+    is kept on disk as ``.npz`` (:mod:`~conformal_control.data.track_cache`: keyed by the
+    file's content and the loaders' code), so that the next process reads it in
+    milliseconds. Treat the result as read-only: it is shared. ``rate``: rows per second of
+    an ETH/UCY file.
     """
     if kind not in ("raw", "trajnet", "ethucy"):
         raise ValueError(f"kind must be raw, trajnet or ethucy, got {kind!r}")

@@ -2,12 +2,69 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Tracks"]
+__all__ = [
+    "MAX_AGENT_ID",
+    "MAX_FRAME",
+    "MAX_FRAME_GAP_S",
+    "Tracks",
+    "agent_ids",
+    "check_frames",
+    "file_agent_ids",
+]
+
+#: Longest time (s) a recording may go without any row: a longer jump between consecutive
+#: frame numbers of a file is a wrong frame number. (Scenes are stored densely over their
+#: frame range, so one row at frame 2e9 would ask for billions of frames of memory.)
+MAX_FRAME_GAP_S = 600.0
+#: Largest frame number a data file may hold.
+MAX_FRAME = 2**31 - 1
+
+#: Largest agent id (ids are stored as 64-bit integers; float ids are exact below 2**53).
+MAX_AGENT_ID = 2**53
+
+
+def agent_ids(values: Any, what: str = "ids") -> np.ndarray:
+    """Agent ids as an int64 array; whole numbers only, each at most ``2**53`` in size.
+
+    Accepts integer arrays and sequences, and floats that are whole numbers (``3.0``, as
+    text files hold them). Raises :class:`~conformal_control.exceptions.InputError` for a
+    fractional, non-finite, boolean, non-numeric or too large id, naming it; ``what`` says
+    where the ids came from. Uniqueness is the caller's to check (per sample, per frame).
+    """
+    from ..exceptions import InputError
+
+    if not isinstance(values, np.ndarray) and any(
+        isinstance(v, (bool, np.bool_)) for v in np.ravel(np.asarray(values, dtype=object))
+    ):
+        raise InputError(f"{what} must be whole numbers, got a boolean")
+    arr = np.asarray(values)
+    if arr.dtype == bool or arr.dtype.kind not in "iuf":
+        if arr.dtype == object and all(
+            isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in arr.flat
+        ):
+            arr = np.array([int(v) for v in arr.flat], dtype=object).reshape(arr.shape)
+            big = [int(v) for v in arr.flat if abs(int(v)) > MAX_AGENT_ID]
+            if big:
+                raise InputError(f"{what}: id {big[0]} is too large (at most 2**53)")
+            return arr.astype(np.int64)
+        if arr.size == 0:
+            return np.zeros(arr.shape, dtype=np.int64)
+        raise InputError(f"{what} must be whole numbers, got {arr.dtype} values")
+    if arr.dtype.kind == "f":
+        bad = ~np.isfinite(arr) | (arr != np.round(arr))
+        if bad.any():
+            raise InputError(f"{what} must be whole numbers, got {arr[bad].flat[0]!r}")
+    big = np.abs(arr.astype(float)) > MAX_AGENT_ID
+    if big.any():
+        raise InputError(f"{what}: id {arr[big].flat[0]!r} is too large (at most 2**53)")
+    out: np.ndarray = arr.astype(np.int64)
+    return out
 
 
 @dataclass
@@ -63,3 +120,76 @@ class Tracks:
             sel = (f >= first) & (f <= last)
             pos[f[sel] - first, col] = xy[sel]
         return np.array(keep, dtype=np.int64), pos
+
+
+def _where(path: object, lines: Sequence[int] | np.ndarray | None, row: int) -> str:
+    return f"{path}:{int(lines[row])}" if lines is not None else f"{path} (row {row + 1})"
+
+
+def file_agent_ids(
+    values: np.ndarray, path: object, lines: Sequence[int] | np.ndarray | None = None
+) -> np.ndarray:
+    """The id column of a data file as int64, or a ``DataFormatError`` at ``file:line``."""
+    from ..exceptions import DataFormatError
+
+    v = np.asarray(values, dtype=float)
+    bad = ~np.isfinite(v) | (v != np.round(v)) | (np.abs(v) > MAX_AGENT_ID)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise DataFormatError(
+            f"{_where(path, lines, k)}: agent id {float(values[k]):g} is not a whole number of at "
+            "most 2**53 in size"
+        )
+    out: np.ndarray = v.astype(np.int64)
+    return out
+
+
+def check_frames(
+    frames: np.ndarray,
+    fps: float,
+    path: object,
+    lines: Sequence[int] | np.ndarray | None = None,
+    *,
+    step: int | None = None,
+) -> np.ndarray:
+    """Check the frame column of a data file; return it as int64.
+
+    Every frame is a whole number in ``[0, MAX_FRAME]``; with ``step``, every frame lies on
+    the file's grid ``first + k * step``; consecutive distinct frames are at most
+    :data:`MAX_FRAME_GAP_S` seconds apart. Each failure is a one-line
+    ``DataFormatError`` naming the file and line.
+    """
+    from ..exceptions import DataFormatError
+
+    f = np.asarray(frames, dtype=float)
+    bad = ~np.isfinite(f) | (f != np.round(f)) | (f < 0) | (f > MAX_FRAME)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise DataFormatError(
+            f"{_where(path, lines, k)}: frame {float(frames[k]):g} is not a whole number in "
+            f"[0, {MAX_FRAME}]"
+        )
+    fi = f.astype(np.int64)
+    first = int(fi.min()) if fi.size else 0
+    if step is not None and step > 1:
+        off = (fi - first) % step != 0
+        if off.any():
+            k = int(np.argmax(off))
+            raise DataFormatError(
+                f"{_where(path, lines, k)}: frame {int(fi[k])} is off the file's grid of one "
+                f"sample every {step} frames (from frame {first}); the row is misplaced"
+            )
+    uniq = np.unique(fi)
+    gaps = np.diff(uniq)
+    limit = MAX_FRAME_GAP_S * fps
+    if gaps.size and gaps.max() > limit:
+        j = int(np.argmax(gaps > limit))
+        after = int(uniq[j + 1])
+        k = int(np.argmax(fi == after))
+        raise DataFormatError(
+            f"{_where(path, lines, k)}: frame {after} comes {after - int(uniq[j])} frames "
+            f"({(after - int(uniq[j])) / fps:.0f} s) after the file's previous frame "
+            f"{int(uniq[j])}, more than the {MAX_FRAME_GAP_S:g} s a recording may skip; the "
+            "frame number is probably wrong"
+        )
+    return fi

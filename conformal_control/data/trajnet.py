@@ -22,7 +22,7 @@ import numpy as np
 from ..exceptions import DataFormatError
 from .paths import missing
 from .sdd import SDD_FPS
-from .tracks import Tracks
+from .tracks import Tracks, check_frames, file_agent_ids
 
 __all__ = ["TRAJNET_STEP", "read_trajnet"]
 
@@ -53,10 +53,12 @@ def _parse(path: Path, m_per_px: float) -> dict[int, tuple[np.ndarray, np.ndarra
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
         raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
+    frames = check_frames(arr[:, 0], SDD_FPS, path, lines, step=TRAJNET_STEP)
+    ids = file_agent_ids(arr[:, 1], path, lines)
     segs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for tid in np.unique(arr[:, 1]).astype(int):
-        sel = np.flatnonzero(arr[:, 1] == tid)
-        order = sel[np.argsort(arr[sel, 0], kind="stable")]
+    for tid in np.unique(ids):
+        sel = np.flatnonzero(ids == tid)
+        order = sel[np.argsort(frames[sel], kind="stable")]
         block = arr[order]
         same = np.flatnonzero(np.diff(block[:, 0]) == 0)
         if same.size:
@@ -65,7 +67,7 @@ def _parse(path: Path, m_per_px: float) -> dict[int, tuple[np.ndarray, np.ndarra
                 f"{path}:{lines[int(order[i + 1])]}: track {tid} has a second row for frame "
                 f"{int(block[i, 0])} (first at line {lines[int(order[i])]})"
             )
-        segs[int(tid)] = (block[:, 0].astype(np.int64), block[:, 2:4] * m_per_px)
+        segs[int(tid)] = (frames[order], block[:, 2:4] * m_per_px)
     return segs
 
 

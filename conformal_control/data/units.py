@@ -25,12 +25,15 @@ SI (m/s, m), as the published code's scene files give them.
 
 from __future__ import annotations
 
+import inspect
+import re
 from dataclasses import dataclass
 from typing import Any
 
+from ..exceptions import InputError
 from ..spec import PARAM_DIMENSIONS  # the dimensions come from the one parameter table
 
-__all__ = ["PARAM_DIMENSIONS", "SI", "UnitSystem"]
+__all__ = ["PARAM_DIMENSIONS", "SI", "SI_UNITS", "UnitSystem", "documented_unit", "si_value"]
 
 
 @dataclass(frozen=True)
@@ -91,3 +94,109 @@ class UnitSystem:
 
 
 SI = UnitSystem()
+
+
+# ------------------------------------------------------------------ plugin parameters (SI)
+#: unit suffix -> ((length exponent, time exponent), value of one unit in SI), for the
+#: parameters of plugins and crowd models, which are always in SI (pixels and frames
+#: depend on a scene and are not accepted there)
+SI_UNITS: dict[str, tuple[tuple[int, int], float]] = {
+    "m": ((1, 0), 1.0),
+    "cm": ((1, 0), 0.01),
+    "mm": ((1, 0), 0.001),
+    "km": ((1, 0), 1000.0),
+    "m^2": ((2, 0), 1.0),
+    "m2": ((2, 0), 1.0),
+    "m²": ((2, 0), 1.0),
+    "s": ((0, 1), 1.0),
+    "ms": ((0, 1), 0.001),
+    "min": ((0, 1), 60.0),
+    "m/s": ((1, -1), 1.0),
+    "km/h": ((1, -1), 1.0 / 3.6),
+    "/s": ((0, -1), 1.0),
+    "1/s": ((0, -1), 1.0),
+    "hz": ((0, -1), 1.0),
+    "m/s^2": ((1, -2), 1.0),
+    "m/s2": ((1, -2), 1.0),
+    "m/s²": ((1, -2), 1.0),
+    "1/s^2": ((0, -2), 1.0),
+    "1/s2": ((0, -2), 1.0),
+    "1/s²": ((0, -2), 1.0),
+}
+_DIMENSION_WORDS = {
+    (1, 0): "a length",
+    (2, 0): "an area",
+    (0, 1): "a time",
+    (1, -1): "a speed",
+    (0, -1): "a rate",
+    (1, -2): "an acceleration",
+    (0, -2): "a rate per second",
+}
+_QUANTITY = re.compile(
+    r"^\s*(?P<num>[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?inf)\s*(?P<unit>[^\d\s].*?)\s*$"
+)
+_PARAM_ENTRY = re.compile(r"^(?P<names>\w[\w, ]*?)\s*:[^\n]*\n(?P<desc>(?:[ \t]+[^\n]*\n?)*)", re.M)
+
+
+def documented_unit(cls: type, name: str) -> str | None:
+    """The SI unit of constructor argument ``name`` of ``cls``, as its numpy docstring
+    states it (the first parenthesis of the description: ``tau : float`` /
+    ``Relaxation time (s) ...``) or its name says it (``delay_s``, ``sigma_m``); None if
+    neither does."""
+    for suffix, unit in (("_s", "s"), ("_m", "m"), ("_mps", "m/s")):
+        if name.endswith(suffix):
+            return unit
+    for klass in getattr(cls, "__mro__", (cls,)):
+        doc = inspect.getdoc(klass) or ""
+        section = doc.partition("Parameters\n----------\n")[2]
+        section = re.split(r"\n\n\S[^\n]*\n-{3,}\n", section)[0]
+        for m in _PARAM_ENTRY.finditer(section + "\n"):
+            if name not in [n.strip() for n in m["names"].split(",")]:
+                continue
+            for group in re.findall(r"\(([^()]*)\)", " ".join(m["desc"].split())):
+                unit = re.split(r"[,;]", group)[0].strip()
+                if unit.lower() in SI_UNITS and unit.lower() not in ("min",):
+                    return unit
+            return None
+    return None
+
+
+def si_value(key: str, value: Any, unit: str | None, flag: str) -> Any:
+    """A plugin parameter given with a unit suffix (``2m/s``, ``500ms``, ``20cm``), in SI;
+    anything else unchanged.
+
+    ``unit`` is the parameter's documented SI unit (:func:`documented_unit`).
+
+    Raises
+    ------
+    InputError
+        For an unknown suffix, pixels or frames, a suffix of another dimension than the
+        documented unit, or a suffix on a parameter without a documented unit.
+    """
+    if not isinstance(value, str):
+        return value
+    m = _QUANTITY.match(value)
+    if m is None:
+        return value
+    number, suffix = float(m["num"]), m["unit"]
+    given = SI_UNITS.get(suffix) or SI_UNITS.get(suffix.lower())
+    known = "m, cm, mm, s, ms, m/s, km/h, 1/s, Hz, m/s^2, m^2"
+    if suffix.lower() in ("px", "frame", "frames", "/frame", "1/frame", "px/frame"):
+        raise InputError(
+            f"{flag} {key}={value}: plugin parameters are in SI units ({known}); pixels and "
+            "frames depend on the scene and are not converted here"
+        )
+    if given is None:
+        raise InputError(f"unknown unit {suffix!r} in {flag} {key}={value}; use one of {known}")
+    if unit is None:
+        raise InputError(
+            f"{flag} {key}={value}: {key} has no documented unit, so a suffix cannot be "
+            f"checked; write {key}={m['num']} (in SI)"
+        )
+    want = SI_UNITS[unit.lower()]
+    if given[0] != want[0]:
+        raise InputError(
+            f"{flag} {key}={value}: {key} is {_DIMENSION_WORDS.get(want[0], 'a quantity')} "
+            f"in {unit}, but {suffix} is {_DIMENSION_WORDS.get(given[0], 'another quantity')}"
+        )
+    return number * given[1] / want[1]

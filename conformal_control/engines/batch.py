@@ -56,36 +56,35 @@ animation record).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import repeat
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from ..base import Loss
+from .. import registry
+from ..base import Loss, compiled_as
 from ..cbf import kernels2d
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
-from ..cbf.fallbacks import Brake, Hold, LambdaSearch
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
-from ..cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
 from ..cbf.speed import speed_polygon
-from ..data.scene import Scene
+from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
-from ..loop import IntervalLog, LoopResult, LossAt
+from ..jit import compile_now
+from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
 from ..monitor import GuaranteeMonitor
-from ..predictors.constant_velocity import ConstantVelocityPredictor
-from ..predictors.oracle import OraclePredictor
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -100,6 +99,7 @@ from ..results.measure import (
 )
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
+from ..spec import RunSpec
 from ..world.replay import FrameLog, ReplayEnvironment
 from . import kernels as bk
 from .gap_kernels import BRAKE, HOLD, SEARCH, gap_maxima
@@ -109,68 +109,58 @@ __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
 _T = TypeVar("_T")
 
-#: Roles the engine runs, by the names they are registered under (None: the default).
-SUPPORTED_ROLES: dict[str, tuple[str | None, ...]] = {
-    "barrier": (None, "apf"),
-    "safety_filter": (None, "exact2d"),
-    "fallback": (None, "lambda_search", "brake", "hold"),
-    "reference": (None, "attractive_field"),
-    "dynamics": (None, "velocity_tracking"),
-    "loss": (None, "cbf_gap", "collision", "distance_shortfall"),
-    "family": (None, "cbf"),
+#: What the engine compiles, per role of a run: the compiled counterparts it has kernels
+#: for. A plugin runs compiled when its class declares one of them (``compiled_as``, see
+#: :func:`~conformal_control.base.compiled_as`); the role's default (None) always does.
+KERNELS: dict[str, frozenset[str]] = {
+    "barrier": frozenset({"apf"}),
+    "safety_filter": frozenset({"exact2d"}),
+    "fallback": frozenset({"lambda_search", "brake", "hold"}),
+    "reference": frozenset({"attractive_field"}),
+    "dynamics": frozenset({"velocity_tracking"}),
+    "loss": frozenset({"cbf_gap", "collision", "distance_shortfall"}),
+    "family": frozenset({"cbf"}),
 }
-#: Roles the engine runs under any registered name (each episode builds and runs its own).
+#: Roles the engine runs under any registered name (each episode builds and runs its own;
+#: a predictor declaring ``constant_velocity`` or ``oracle`` is compiled).
 ANY_NAME_ROLES = ("predictor", "rule")
+#: The registry's name of a run's role.
+_REGISTRY_ROLE = {"family": "decision_family", "rule": "update_rule"}
 #: Losses the engine scores with their own code on the interval's record and truth (they
 #: read the ego's positions and the truth, not the filter's status strings).
-_RECORD_LOSSES = (CollisionLoss, DistanceShortfallLoss)
+_RECORD_LOSSES = frozenset({"collision", "distance_shortfall"})
 #: Predictor code of an episode whose predictor is called in Python (not compiled).
 _OWN = -1
-_FALLBACKS = {LambdaSearch: SEARCH, Brake: BRAKE, Hold: HOLD}
-#: The role keywords of :func:`run_episode` (a name or instance, and its parameters).
-_ROLE_KEYS = (
-    "barrier",
-    "barrier_params",
-    "safety_filter",
-    "safety_filter_params",
-    "fallback",
-    "reference",
-    "reference_params",
-    "dynamics",
-    "dynamics_params",
-    "loss",
-    "loss_params",
-    "family",
-    "family_params",
-)
-#: Keyword arguments of :func:`run_episode` the engine accepts (besides the scene).
-_RUN_KEYS = frozenset(
-    {
-        "predictor",
-        "params",
-        "units",
-        "learn",
-        "max_frames",
-        "seed",
-        "seeds",
-        "predictor_params",
-        "extra_config",
-        "rule",
-        "rule_params",
-        "lambda_safe",
-        "lambda_safe_source",
-        *_ROLE_KEYS,
-        "crowd",
-        "crowd_params",
-        "record_animation",
-        "on_interval",
-    }
-)
+_FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}
+_PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
 
 
-def supports(**run_kwargs: Any) -> str | None:
-    """Whether :func:`run_batch` runs episodes configured by these :func:`run_episode`
-    keyword arguments: None if it does, else the reason (one sentence).
+def _kernel_of(role: str, name: str) -> str | None:
+    """The compiled counterpart the plugin registered as ``name`` declares (None: none,
+    or no such plugin: the loop then says so)."""
+    try:
+        return compiled_as(registry.get(_REGISTRY_ROLE.get(role, role), name))
+    except (ValueError, ImportError):
+        return None
+
+
+def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settings: Any) -> RunSpec:
+    """The :class:`~conformal_control.spec.RunSpec` of the arguments the functions that
+    run episodes take: a RunSpec (with ``settings`` applied), or the predictor (a name or
+    an instance; the positional argument of before) and ``settings``."""
+    if isinstance(spec, RunSpec):
+        if params is None and not settings:
+            return spec
+        return RunSpec.from_settings(params, base=spec, **settings)
+    if spec is not None:
+        settings["predictor"] = spec
+    return RunSpec.from_settings(params, **settings)
+
+
+def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
+    """Whether the compiled engine runs episodes of ``spec`` (or of the settings of a run,
+    as :func:`~conformal_control.sim.run_episode` takes them): None if it does, else the
+    reason (one sentence).
 
     Examples
     --------
@@ -179,39 +169,44 @@ def supports(**run_kwargs: Any) -> str | None:
     >>> supports(crowd="orca")
     "crowd 'orca': the batch engine replays recorded crowds only"
     """
-    unknown = sorted(set(run_kwargs) - _RUN_KEYS)
-    if unknown:
-        return f"{unknown[0]!r} is not a keyword argument of run_episode"
-    kw = {"predictor": "constant_velocity", **run_kwargs}
-    for role in (*ANY_NAME_ROLES, *SUPPORTED_ROLES):
-        spec = kw.get(role)
-        if spec is not None and not isinstance(spec, str):
+    settings.pop("seeds", None)  # one per episode: not a setting of the run
+    settings.pop("extra_config", None)
+    settings.pop("on_interval", None)  # called as the loop calls it
+    try:
+        run = as_run_spec(spec, **settings)
+    except TypeError as exc:
+        return str(exc)
+    for role in (*ANY_NAME_ROLES, *KERNELS):
+        name, params = run.role(role)
+        if name is not None and not isinstance(name, str):
             return (
-                f"{role} given as a {type(spec).__name__} instance: the batch engine builds "
+                f"{role} given as a {type(name).__name__} instance: the batch engine builds "
                 "one per episode, give it by registered name"
             )
-        names = SUPPORTED_ROLES.get(role)
-        if names is not None and spec not in names:
-            shown = ", ".join(n for n in names if n is not None)
-            return f"{role} {spec!r}: the batch engine runs {shown}"
-    fallback = (kw.get("params") or {}).get("fallback")
-    if fallback is not None and fallback not in SUPPORTED_ROLES["fallback"]:
-        return f"fallback {fallback!r}: the batch engine runs lambda_search, brake and hold"
-    filter_params = kw.get("safety_filter_params") or {}
+        kernels = KERNELS.get(role)
+        if kernels is not None and name is not None and _kernel_of(role, name) not in kernels:
+            return f"{role} {name!r}: the batch engine compiles {', '.join(sorted(kernels))}"
+        if role == "fallback" and params:
+            return "fallback parameters: the batch engine runs the fallbacks as registered"
+    fallbacks = KERNELS["fallback"]
+    filter_params = run.role("safety_filter")[1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
     if isinstance(filter_params.get("fallback"), str):
-        if filter_params["fallback"] not in SUPPORTED_ROLES["fallback"]:
-            return f"fallback {filter_params['fallback']!r}: the batch engine runs lambda_search, brake and hold"  # noqa: E501
+        if _kernel_of("fallback", filter_params["fallback"]) not in fallbacks:
+            return (
+                f"fallback {filter_params['fallback']!r}: the batch engine compiles "
+                f"{', '.join(sorted(fallbacks))}"
+            )
     elif filter_params.get("fallback") is not None:
         return "a fallback instance: the batch engine builds one per episode, give it by name"
-    crowd = kw.get("crowd", "replay")
+    if run.robots is not None:
+        return "robots: the batch engine runs one robot per episode"
+    crowd = run.role_name("crowd")
     if crowd != "replay":
         return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
-    if kw.get("record_animation"):
+    if settings.get("record_animation"):
         return "record_animation: the batch engine keeps no animation record"
-    if kw.get("on_interval") is not None:
-        return "on_interval: the batch engine takes no per-interval callback"
     return None
 
 
@@ -231,6 +226,19 @@ def _exact(obj: object, cls: type[_T], role: str) -> _T:
     return obj
 
 
+def _compiled(obj: object, cls: type[_T], role: str) -> _T:
+    """``obj`` if its class declares the compiled counterpart ``cls`` declares (its own
+    ``compiled_as``, see :func:`~conformal_control.base.compiled_as`), else
+    :class:`_NotRun`."""
+    kernel = compiled_as(cls)
+    if kernel is None or compiled_as(type(obj)) != kernel:
+        raise _NotRun(
+            f"the {role} is a {type(obj).__name__}, which does not declare the compiled "
+            f"counterpart {kernel!r}"
+        )
+    return cast(_T, obj)
+
+
 @dataclass(frozen=True)
 class _Parts:
     """The roles of a built episode the engine reads, as the classes it runs."""
@@ -247,18 +255,19 @@ class _Parts:
 def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
-    policy = _exact(fl.policy, ConformalCBFController, "decision family")
+    policy = _compiled(fl.policy, ConformalCBFController, "decision family")
     env = _exact(fl.env, ReplayEnvironment, "environment")
     constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
-    barrier = _exact(fl.barrier, APFBarrier, "barrier")
-    filt = _exact(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
-    reference = _exact(fl.reference, AttractiveField, "reference")
-    dynamics = _exact(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
+    barrier = _compiled(fl.barrier, APFBarrier, "barrier")
+    filt = _compiled(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
+    reference = _compiled(fl.reference, AttractiveField, "reference")
+    dynamics = _compiled(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
     loss = fl.loss
-    gap = loss if type(loss) is CBFGapLoss else None
-    if gap is None and type(loss) not in _RECORD_LOSSES:
-        shown = ", ".join(c.__name__ for c in (CBFGapLoss, *_RECORD_LOSSES))
-        raise _NotRun(f"the loss is a {type(loss).__name__}, not one of {shown}")
+    kernel = compiled_as(type(loss))
+    gap = cast(CBFGapLoss, loss) if kernel == "cbf_gap" else None
+    if gap is None and kernel not in _RECORD_LOSSES:
+        shown = ", ".join(sorted(KERNELS["loss"]))
+        raise _NotRun(f"the loss is a {type(loss).__name__}, which declares none of {shown}")
     if (gap is not None and gap.constraint is not constraint) or (
         policy.constraint is not constraint
     ):
@@ -266,19 +275,15 @@ def _parts(fl: Flagship) -> _Parts:
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
-    if not (isinstance(fallback, str) and fallback in SUPPORTED_ROLES["fallback"]):
+    if not (isinstance(fallback, str) and _kernel_of("fallback", fallback) in KERNELS["fallback"]):
         raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
     return _Parts(env, barrier, filt, reference, dynamics, loss, gap)
 
 
 def _predictor_code(pred: object) -> int:
     """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
-    that ``pred`` is (its class exactly: a subclass may predict otherwise), else ``_OWN``."""
-    if type(pred) is ConstantVelocityPredictor:
-        return bk.CONSTANT_VELOCITY
-    if type(pred) is OraclePredictor:
-        return bk.ORACLE
-    return _OWN
+    that ``pred``'s class declares (``compiled_as``), else ``_OWN``."""
+    return _PREDICTORS.get(compiled_as(type(pred)) or "", _OWN)
 
 
 class _GapLossAt:
@@ -303,6 +308,7 @@ class _Episode:
     """One live episode: its built flagship and what the loop accumulates in Python."""
 
     index: int
+    run: RunSpec  # the episode's own: its seed and time limit
     fl: Flagship
     parts: _Parts  # fl's roles as the classes the engine runs
     monitor: GuaranteeMonitor
@@ -379,8 +385,8 @@ class _Pool:
     cap: int  # agents per slot that xp / vp and the work buffer hold
     sides: int  # sides of the largest speed polygon
     work: np.ndarray  # the compiled filter's work buffer
-    store: np.ndarray  # the live episodes' recordings, flat (see batch_kernels)
-    where: np.ndarray  # int64 (size, 3): slot -> (offset, frames, agents) in store
+    store: np.ndarray  # the live episodes' recordings, flat (see kernels)
+    where: np.ndarray  # int64 (size, 5): slot -> (offset, frames, agents, samples, present)
     goals: np.ndarray  # (size, waypoints, 2): each slot's goals
     n_goals: np.ndarray  # int64 (size,)
     rec_code: np.ndarray  # int8 (size, steps): status of each control instant (FREE, ...)
@@ -447,10 +453,10 @@ class _Pool:
         self.cap = 0  # agents per slot that xp / vp and the work buffer hold
         self.sides = 0
         self.work = np.zeros(0)
-        self.store = np.zeros(0)  # the live episodes' recordings, flat (see batch_kernels)
-        self.where = np.zeros((b, 3), dtype=np.int64)  # slot -> (offset, frames, agents)
+        self.store = np.zeros(0)  # the live episodes' recordings, flat (see kernels)
+        # slot -> (offset, frames, agents, samples, present samples)
+        self.where = np.zeros((b, 5), dtype=np.int64)
         self.used = 0
-        self.borrowed = False  # store is a live episode's own recording (see load)
         self.goals = np.zeros((b, 1, 2))
         self.n_goals = np.zeros(b, dtype=np.int64)
         self.rec_code = np.zeros((b, 0), dtype=np.int8)
@@ -470,29 +476,27 @@ class _Pool:
         out[tuple(slice(0, k) for k in arr.shape)] = arr
         return out
 
-    def load(self, b: int, positions: np.ndarray) -> None:
-        """Copy slot ``b``'s recording into the store (compacting or growing it).
-
-        With no other slot live, the store is the recording itself (read in place, not
-        copied: a single episode's case); it is copied out as soon as another one joins.
-        """
-        data = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+    def load(self, b: int, tracks: SparseTracks) -> None:
+        """Copy slot ``b``'s recording (sparse, :func:`~conformal_control.engines.kernels.pack`)
+        into the store (compacting or growing it)."""
+        data = bk.pack(tracks)
         n = data.size
-        if not self.active.any() and data.flags.writeable:  # numba types read-only apart
-            self.store, self.borrowed, self.used = data, True, n
-            self.where[b] = (0, positions.shape[0], positions.shape[1])
-            return
-        if self.borrowed:  # never write into an episode's recording
-            self.store, self.borrowed = self.store[: self.used].copy(), False
         if self.used + n > self.store.size:
             self._compact()
-            if self.used + n > self.store.size:
-                free = int(self.size - self.active.sum())  # room for the free slots too
-                grown = np.empty(max(2 * self.store.size, self.used + n * free))
+            if self.used + n > self.store.size:  # doubled: amortised, and no room reserved
+                # for slots that may never fill (a long scene and batch_size 256 asked for
+                # 256 copies of it)
+                grown = np.empty(max(2 * self.store.size, self.used + n))
                 grown[: self.used] = self.store[: self.used]
                 self.store = grown
         self.store[self.used : self.used + n] = data
-        self.where[b] = (self.used, positions.shape[0], positions.shape[1])
+        self.where[b] = (
+            self.used,
+            tracks.n_frames,
+            tracks.n_agents,
+            tracks.xy.shape[0],
+            tracks.frame_cols.size,
+        )
         self.used += n
 
     def _compact(self) -> None:
@@ -500,8 +504,8 @@ class _Pool:
         live = np.flatnonzero(self.active)
         end = 0
         for b in live[np.argsort(self.where[live, 0])].tolist():
-            o, f, m = self.where[b].tolist()
-            n = f * m * 2
+            o, f, m, ns, k = self.where[b].tolist()
+            n = bk.slot_size(f, m, ns, k)
             if o != end:
                 self.store[end : end + n] = self.store[o : o + n]  # numpy copies overlaps safely
                 self.where[b, 0] = end
@@ -552,13 +556,13 @@ class _Engine:
     """The lockstep loop over a :class:`_Pool` (see the module docstring)."""
 
     def __init__(
-        self, size: int, output: str, build: dict[str, Any], episode_kw: dict[str, Any]
+        self, size: int, output: str, run: RunSpec, extra_config: dict[str, Any] | None
     ) -> None:
         self.pool = _Pool(size)
         self.eps: list[_Episode | None] = [None] * size
         self.output = output
-        self.build = build
-        self.episode_kw = episode_kw
+        self.run_spec = run
+        self.extra_config = extra_config
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
         self._own = False  # whether an episode predicts with its own predictor object
         # the scores of an interval end, per slot (reset for the slots that end; reused
@@ -573,16 +577,20 @@ class _Engine:
         #: called with the slots after their interval's control instants, before it is
         #: scored (the single-episode run keeps its animation record with it)
         self.on_control: Any = None
+        #: called with each scored interval's log, as the loop's ``on_interval``
+        self.on_interval: Callable[[IntervalLog], None] | None = None
+        #: stack level of the warnings of an episode's end (who they point at)
+        self.warn_stacklevel = 4
 
     # ------------------------------------------------------------------ start
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
         """Build episode ``index`` as run_episode does and load it into slot ``b``."""
-        kw = self.episode_kw
-        learn = kw["learn"]
-        fl = build_flagship(scene, seed=seed, max_frames=max_frames, learn=learn, **self.build)
+        run = dataclasses.replace(self.run_spec, seed=seed, max_frames=max_frames)
+        learn = run.learn
+        fl = build_flagship(scene, run)
         parts = _parts(fl)
         sc = fl.scene
-        lambda_safe, lam_safe_si = lambda_safe_values(fl, kw["lambda_safe"], kw["units"])
+        lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
         floor = feasibility(fl)
         warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
@@ -594,7 +602,7 @@ class _Engine:
         monitor = GuaranteeMonitor.for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
-            lambda_safe_source=kw["lambda_safe_source"],
+            lambda_safe_source=run.lambda_safe_source,
             premise_proven=False,
             bounds=parts.loss.bounds,
             learn=learn,
@@ -612,6 +620,7 @@ class _Engine:
             )
         ep = _Episode(
             index=index,
+            run=run,
             fl=fl,
             parts=parts,
             monitor=monitor,
@@ -637,7 +646,10 @@ class _Engine:
         )
         dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
-        p.load(b, sc.positions)
+        # the frames the episode reads: its history before the start, its frames, the last
+        # interval's future (the oracle, the truth); the rest of a long scene stays out
+        lo = sc.start_index - int(env.history_frames)
+        p.load(b, sc.tracks.clip(lo, last + tau + 2))
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]
@@ -678,7 +690,9 @@ class _Engine:
         poly = np.concatenate([S.ravel(), s, verts.ravel()])
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
-        p.fallback[b] = _FALLBACKS[type(filt.fallback_)]
+        fallback_kernel = compiled_as(type(filt.fallback_))
+        assert fallback_kernel is not None  # checked by _parts
+        p.fallback[b] = _FALLBACKS[fallback_kernel]
         p.prm[b] = (
             float(bar.K_rep),
             float(bar.rho0),
@@ -689,7 +703,7 @@ class _Engine:
             radius,
             not filt.speed_sides,
             filt.v_max,
-            type(filt.fallback_) is LambdaSearch,
+            fallback_kernel == "lambda_search",
             filt.lambda_margin,
             p.cap,
         )
@@ -826,42 +840,42 @@ class _Engine:
             lam = float(p.lam[b])
             s = int(p.step[b])
             pairs = int(n_pairs[b])
-            loss_at: Any = None  # l_k as a function of lambda, for a rule that asks for it
             gap = ep.parts.gap
+            score: IntervalScore | None = None
+            record = revealed = None
             if gap is None:  # the loss object on the interval's record and truth
-                rec, revealed, own_loss = self._record(b), self._truth(b), ep.parts.loss
-                l_k = own_loss(rec, revealed, lam)
-                diagnostics = own_loss.diagnostics(rec, revealed, lam) if l_k is not None else {}
-                loss_at = LossAt(own_loss, rec, revealed)
-            elif pairs:
-                l_k = float(loss[b])
-                diagnostics = {
-                    "loss_applied": float(applied[b]),
-                    "max_gap": float(top[b]),
-                    "n_pairs": pairs,
-                    "n_truth_missing": s * int(p.n_agents[b]) - pairs,
-                }
-                loss_at = _GapLossAt(gap, top[b])
+                record, revealed = self._record(b), self._truth(b)
+            elif pairs:  # the compiled gap loss: the same arithmetic as CBFGapLoss
+                score = IntervalScore(
+                    float(loss[b]),
+                    {
+                        "loss_applied": float(applied[b]),
+                        "max_gap": float(top[b]),
+                        "n_pairs": pairs,
+                        "n_truth_missing": s * int(p.n_agents[b]) - pairs,
+                    },
+                    _GapLossAt(gap, top[b]),
+                )
             else:
-                l_k, diagnostics = None, {}
-            log = IntervalLog(
-                k=len(ep.intervals), lam=lam, loss=l_k, n_steps=s, diagnostics=diagnostics
+                score = IntervalScore(None)
+            log, lam = close_interval(
+                len(ep.intervals),
+                lam,
+                s,
+                rule=ep.fl.rule,
+                monitor=ep.monitor,
+                learn=ep.learn,
+                loss=ep.parts.loss,
+                record=record,
+                truth=revealed,
+                score=score,
             )
             ep.intervals.append(log)
-            if l_k is not None:  # as ConformalStepper.end_interval
-                mon = ep.monitor
-                if ep.learn:
-                    rule = ep.fl.rule
-                    if rule.uses_loss_function:
-                        rule.set_loss_function(loss_at)
-                    lam = mon.update(l_k)
-                else:
-                    mon.observe(l_k, lam)
-                    mon.set_lambda_next(lam)
-                log.l_avg = mon.average
-                p.lam[b] = lam
+            p.lam[b] = lam
             if not (math.isfinite(lam) and abs(lam) <= LAMBDA_LIMIT):
                 check_lambda(lam, ep.fl, log.k)  # raises
+            if self.on_interval is not None:
+                self.on_interval(log)
             if p.done[b]:
                 finished.append(b)
             else:
@@ -905,7 +919,7 @@ class _Engine:
         """
         p, ep = self.pool, self.eps[b]
         assert ep is not None
-        fl, kw = ep.fl, self.episode_kw
+        fl = ep.fl
         sc, env, policy, filt = fl.scene, ep.parts.env, fl.policy, ep.parts.safety_filter
         n = int(p.n_log[b])
         rows = p.log[b, :n]
@@ -934,52 +948,48 @@ class _Engine:
         metrics, intervals, traj = measure(
             fl, result, ep.learn, ep.lambda_safe, ep.floor, float(p.wall[b])
         )
-        warn_after_run(fl, metrics, ep.learn, ep.max_frames)
+        warn_after_run(fl, metrics, ep.learn, ep.max_frames, stacklevel=self.warn_stacklevel)
         p.active[b] = False
         self.eps[b] = None
         if self.output == "metrics":
             return ep.index, metrics
-        config = episode_config(
-            fl,
-            kw["rule_params"],
-            kw["units"],
-            ep.learn,
-            ep.lambda_safe,
-            kw["lambda_safe_source"],
-            ep.seed,
-        )
-        config["max_frames"] = ep.max_frames
+        config = episode_config(fl, ep.run, ep.lambda_safe)
         config["feasibility"] = jsonable(ep.floor.as_dict())
-        config.update(kw["extra_config"] or {})
+        config.update(self.extra_config or {})
         config["crowd"] = {"crowd": "replay"}
         config["engine"] = "batch"
         return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
 
     # ------------------------------------------------------------------ the loop
+    def load(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
+        """Start episode ``index`` in slot ``b`` and lay out its interval's buffers."""
+        p = self.pool
+        self.start(b, index, scene, seed, max_frames)
+        ep = self.eps[b]
+        assert ep is not None
+        frames = int(p.last_frame[b] - p.fi[b]) + 1
+        p.prepare(b, ep.goals, frames * int(p.substeps[b]))
+
     def run(
-        self, source: Iterator[tuple[int, Scene, int, int | None]]
+        self, source: Iterator[tuple[int, Scene, int, int | None]], started: int = 0
     ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
         """Advance every live episode one interval per iteration (every slot is then at a
-        sampling time, so free slots are refilled at every iteration)."""
+        sampling time, so free slots are refilled at every iteration). Slots below
+        ``started`` hold episodes loaded already (:meth:`load`)."""
         p = self.pool
-        free = list(range(p.size - 1, -1, -1))  # slots to fill (popped from the end)
-        slots = np.zeros(0, dtype=np.int64)
+        free = list(range(p.size - 1, started - 1, -1))  # slots to fill (popped from the end)
+        slots = np.flatnonzero(p.active) if started else np.zeros(0, dtype=np.int64)
         elapsed = 0.0  # time of the iterations since the live slots last changed
         while True:
             if free:
-                started = False
+                loaded = False
                 while free:
                     nxt = next(source, None)
                     if nxt is None:
                         break
-                    b = free.pop()
-                    self.start(b, *nxt)
-                    ep = self.eps[b]
-                    assert ep is not None
-                    frames = int(p.last_frame[b] - p.fi[b]) + 1
-                    p.prepare(b, ep.goals, frames * int(p.substeps[b]))
-                    started = True
-                if started:
+                    self.load(free.pop(), *nxt)
+                    loaded = True
+                if loaded:
                     slots = np.flatnonzero(p.active)
             if not slots.size:
                 return
@@ -1011,45 +1021,57 @@ def _per_episode(value: Any, name: str) -> Iterator[Any]:
 
 def iter_batch(
     scenes: Iterable[Scene],
-    predictor: str = "constant_velocity",
+    spec: Any = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
     max_frames: int | Iterable[int | None] | None = None,
     seeds: int | Sequence[int] | None = None,
     batch_size: int = 256,
     output: str = "metrics",
-    **run_kwargs: Any,
+    extra_config: dict[str, Any] | None = None,
+    **settings: Any,
 ) -> Iterator[tuple[int, EpisodeResult | EpisodeMetrics]]:
-    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish (completion
-    order; ``index`` is the scene's position in ``scenes``). ``max_frames`` may also be
-    an iterator, consumed one value per scene as the scene is started."""
-    reason = supports(predictor=predictor, **run_kwargs)
+    """:func:`run_batch`, yielding ``(index, result)`` as episodes finish.
+
+    Parameters
+    ----------
+    scenes : iterable of Scene
+        Consumed lazily, one scene as a slot opens.
+    spec : RunSpec or str, optional
+        The run of every episode, or its predictor's registered name.
+    params : dict, optional
+        Parameter overrides (the run's ``params``).
+    max_frames : int, iterable or None
+        The frame limit of every episode, or one per scene (an iterator is consumed one
+        value per scene as the scene is started).
+    seeds : int, sequence or None
+        The seed of every episode, or one per scene.
+    batch_size : int
+        Episodes alive at a time.
+    output : {"metrics", "results"}
+        What is yielded per episode.
+    extra_config : dict, optional
+        Merged into each episode's configuration.
+    **settings
+        Other settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`).
+
+    Yields
+    ------
+    (int, EpisodeMetrics or EpisodeResult)
+        In completion order; the int is the scene's position in ``scenes``.
+    """
+    settings.pop("max_frames", None)
+    settings.pop("seed", None)
+    run = as_run_spec(spec or settings.pop("predictor", None), params, **settings)
+    reason = supports(run)
     if reason is not None:
         raise ValueError(f"run_batch does not support this configuration: {reason}")
     if output not in ("metrics", "results"):
         raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
     if int(batch_size) != batch_size or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    if units not in ("scene", "si"):
-        raise ValueError(f"units must be 'scene' or 'si', got {units!r}")
-    kw = dict(run_kwargs)
-    build = {
-        "predictor": predictor,
-        "units": units,
-        "params": params,
-        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
-        "rule": kw.get("rule") or "fixed_eta",
-    }
-    episode_kw = {
-        "learn": bool(learn),
-        "units": units,
-        "lambda_safe": kw.get("lambda_safe"),
-        "lambda_safe_source": kw.get("lambda_safe_source"),
-        "rule_params": kw.get("rule_params"),
-        "extra_config": kw.get("extra_config"),
-    }
+    compile_now()  # many episodes: compiled from the start (see conformal_control.jit)
     frames = _per_episode(max_frames, "max_frames")
     seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
 
@@ -1061,22 +1083,22 @@ def iter_batch(
                 raise ValueError("max_frames / seeds have fewer values than scenes") from None
             yield i, scene, int(seed), None if mf is None else int(mf)
 
-    engine = _Engine(int(batch_size), output, build, episode_kw)
+    # the engine keeps no animation record of a batch: the specification says so
+    run = dataclasses.replace(run, record_animation=False)
+    engine = _Engine(int(batch_size), output, run, extra_config)
     yield from engine.run(source())
 
 
 def run_batch(
     scenes: Iterable[Scene],
-    predictor: str = "constant_velocity",
+    spec: Any = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
     max_frames: int | Sequence[int | None] | None = None,
     seeds: int | Sequence[int] | None = None,
     batch_size: int = 256,
     output: str = "metrics",
-    **run_kwargs: Any,
+    **settings: Any,
 ) -> list[EpisodeMetrics] | list[EpisodeResult]:
     """Run one episode per scene, many at once, with the metrics of :func:`run_episode`.
 
@@ -1084,8 +1106,11 @@ def run_batch(
     ----------
     scenes : iterable of Scene
         Consumed lazily (a generator keeps only the live episodes' scenes in memory).
-    predictor, params, units, learn
-        As in :func:`~conformal_control.sim.run_episode`, for every episode.
+    spec : RunSpec or str, optional
+        The run of every episode (:class:`~conformal_control.spec.RunSpec`), or its
+        predictor (a registered name).
+    params : dict, optional
+        Parameter overrides (the run's ``params``).
     max_frames : int, sequence or None
         The frame limit of every episode, or one per scene (e.g. each benchmark
         scenario's ``max_frames``).
@@ -1097,9 +1122,10 @@ def run_batch(
         overhead well below the compiled work).
     output : {"metrics", "results"}
         Return :class:`EpisodeMetrics` (default) or :class:`EpisodeResult` objects.
-    **run_kwargs
-        Any other keyword argument of ``run_episode`` that :func:`supports` accepts
-        (``rule_params``, ``fallback``, ``lambda_safe``, ``extra_config``, ...).
+    **settings
+        Any other setting of the run that :func:`supports` accepts (``units``,
+        ``learn``, ``rule_params``, ``fallback``, ``lambda_safe``, ...), and
+        ``extra_config`` (merged into each episode's config).
 
     Returns
     -------
@@ -1115,34 +1141,46 @@ def run_batch(
     out: dict[int, Any] = {}
     for index, item in iter_batch(
         scenes,
-        predictor,
+        spec,
         params,
-        units=units,
-        learn=learn,
         max_frames=max_frames,
         seeds=seeds,
         batch_size=batch_size,
         output=output,
-        **run_kwargs,
+        **settings,
     ):
         out[index] = item
     return [out[i] for i in range(len(out))]
 
 
 # ------------------------------------------------------------------------------ one episode
-def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> EpisodeResult | None:
-    """One episode on the compiled engine, as :func:`run_episode` returns it.
+def run_single(
+    scene: Scene,
+    run: RunSpec,
+    *,
+    on_interval: Callable[[IntervalLog], None] | None = None,
+    extra_config: dict[str, Any] | None = None,
+) -> EpisodeResult | None:
+    """One episode of ``run`` on the compiled engine, as :func:`run_episode` returns it.
 
-    ``run_kwargs`` are :func:`run_episode`'s keyword arguments. The result is the one the
-    per-episode loop gives (metrics but the wall time, intervals, trajectory, per-instant
-    ``steps`` and, with ``record_animation``, the animation record), with
-    ``config["engine"] = "batch"``. With ``engine="auto"`` returns None if the engine does
-    not run this configuration (the caller runs the loop); with ``engine="batch"`` raises
-    ``ValueError`` saying why.
+    The result is the one the per-episode loop gives (metrics but the wall time,
+    intervals, trajectory, per-instant ``steps`` and, with ``record_animation``, the
+    animation record), with ``config["engine"] = "batch"``. With ``run.engine == "auto"``
+    returns None if the engine does not run this configuration (the caller runs the
+    loop); with ``"batch"`` raises ``ValueError`` saying why.
+
+    Parameters
+    ----------
+    scene : Scene
+    run : RunSpec
+        The episode's specification.
+    on_interval : callable, optional
+        Called with each scored interval's log, as the loop calls it.
+    extra_config : dict, optional
+        Merged into the configuration.
     """
-    kw = dict(run_kwargs)
-    record_animation = bool(kw.pop("record_animation", True))
-    reason = supports(**kw)
+    engine = run.engine
+    reason = supports(run)
     if reason is None and not EXACT_FOR_THIS_PYTHON:
         reason = (
             "the engine's distances reproduce CPython 3.11's math.hypot, not this "
@@ -1152,26 +1190,8 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
         if engine == "auto":
             return None
         raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
-    learn = bool(kw.get("learn", True))
-    units = kw.get("units", "scene")
-    build = {
-        "predictor": kw.get("predictor", "constant_velocity"),
-        "units": units,
-        "params": kw.get("params"),
-        **{k: kw.get(k) for k in ("predictor_params", "rule_params", *_ROLE_KEYS)},
-        "rule": kw.get("rule") or "fixed_eta",
-        "crowd": kw.get("crowd", "replay"),
-        "crowd_params": kw.get("crowd_params"),
-    }
-    episode_kw = {
-        "learn": learn,
-        "units": units,
-        "lambda_safe": kw.get("lambda_safe"),
-        "lambda_safe_source": kw.get("lambda_safe_source"),
-        "rule_params": kw.get("rule_params"),
-        "extra_config": kw.get("extra_config"),
-    }
-    eng = _Engine(1, "results", build, episode_kw)
+    record_animation = run.record_animation
+    eng = _Engine(1, "results", run, extra_config)
     p = eng.pool
     p.keep = True
     recorder: list[AnimationRecorder] = []
@@ -1202,15 +1222,16 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
             )
 
     eng.on_control = on_control
-    seed = int(kw.get("seed", 0))
-    max_frames = kw.get("max_frames")
-    # the engine's warnings are those of run_episode: re-issued for run_episode's caller
-    # (also when the episode stops with an error), unless the loop runs it instead
+    eng.on_interval = on_interval
+    seed, max_frames = run.seed, run.max_frames
+    # the warnings of building the episode (before the engine knows whether it runs it)
+    # are re-issued for run_episode's caller, unless the loop runs it instead; the
+    # warnings of the run point at the caller by themselves
     caught: list[warnings.WarningMessage] = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            [(_, result)] = list(eng.run(iter([(0, scene, seed, max_frames)])))
+            eng.load(0, 0, scene, seed, max_frames)
     except _NotRun:
         if engine == "auto":
             caught.clear()  # the loop builds the episode again and warns itself
@@ -1219,6 +1240,9 @@ def run_single(scene: Scene, engine: str = "auto", **run_kwargs: Any) -> Episode
     finally:
         for w in caught:
             warnings.warn(w.message, w.category, stacklevel=3)
+    # warn_after_run < finish < run < run_single < run_episode < its caller
+    eng.warn_stacklevel = 6
+    [(_, result)] = list(eng.run(iter(()), started=1))
     assert isinstance(result, EpisodeResult)
     n = int(p.n_st[0])
     result.steps = {

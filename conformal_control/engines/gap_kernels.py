@@ -14,15 +14,17 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..cbf.pyhypot import c_hypot
+from ..jit import kernel
 
 __all__ = ["BRAKE", "HOLD", "SEARCH", "gap_maxima"]
 
 #: Fallback codes of the engine (``lambda_search`` runs inside ``apf_step``).
 SEARCH, BRAKE, HOLD = 0, 1, 2
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit
@@ -43,7 +45,7 @@ def _apf_value(
     rho0 = prm[1]
     d0 = ex - ax
     d1 = ey - ay
-    d = math.hypot(d0, d1)
+    d = c_hypot(d0, d1)
     rho = d - prm[2] if prm[4] != 0.0 else d
     r = min(max(rho, 0.0), rho0)
     q = 1.0 - r / rho0

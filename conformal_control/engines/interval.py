@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
 from ..cbf.pyhypot import py_hypot
+from ..jit import kernel
 from .gap_kernels import HOLD
-from .kernels import d_min, recording
+from .kernels import d_min
 
 __all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
 
@@ -34,7 +34,7 @@ __all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
 #: was safe, the filter changed it, the fallback decided.
 FREE, ACTIVE, FALLBACK = 0, 1, 2
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit
@@ -229,7 +229,7 @@ def run_interval(
                     log[b, r, 0] = t[b]
                     for c in range(4):
                         log[b, r, 1 + c] = x[b, c]
-                    log[b, r, 5] = d_min(recording(store, where, b), fi[b], x0, x1)
+                    log[b, r, 5] = d_min(store, where, b, fi[b], x0, x1)
                     n_log[b] = r + 1
             if done[b] or s >= n_ctrl[b]:
                 break

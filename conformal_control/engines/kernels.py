@@ -6,38 +6,88 @@ per-frame log (the frame clock itself runs in
 :func:`~conformal_control.engines.interval.run_interval`) -- written as loops over the
 episodes of a batch (:mod:`conformal_control.engines.batch`), with the same floating-point
 operations (numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls).
-Each episode reads its own recording: the recordings of the live episodes lie in one flat
-buffer ``store``; slot ``b``'s is ``store[o : o + F * M * 2]`` seen as ``(F, M, 2)`` with
-``(o, F, M) = where[b]`` (plain arrays compile once and are cached, a typed list of arrays
-would be compiled anew in every process).
+Each episode reads its own recording, stored sparsely as the scene holds it
+(:class:`~conformal_control.data.scene.SparseTracks`: memory proportional to the
+observations, not to frames x agents). The recordings of the live episodes lie in one flat
+float64 buffer ``store`` (plain arrays compile once and are cached, a typed list of arrays
+would be compiled anew in every process); slot ``b``'s starts at ``o`` with ``(o, F, M, N,
+K) = where[b]`` (frames, agents, stored samples, present samples) and holds, in order
+(:func:`pack`): the ``N`` samples ``(x, y)``, then each agent's first frame, span and
+first sample row, the ``F + 1`` frame pointers and the ``K`` columns present at each frame
+(the index tables as float64, exact below 2**53). :func:`sample` reads one agent at one
+frame, :func:`frame_range` the agents present at a frame.
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
+
+from ..cbf.pyhypot import c_hypot
+from ..jit import kernel
+
+if TYPE_CHECKING:
+    from ..data.scene import SparseTracks
 
 __all__ = [
     "CONSTANT_VELOCITY",
     "ORACLE",
     "count_sensed",
     "d_min",
+    "frame_range",
     "gather_windows",
     "log_frames",
+    "pack",
     "predict_interpolate",
-    "recording",
+    "sample",
+    "slot_size",
 ]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
+
+
+def pack(tracks: SparseTracks) -> np.ndarray:
+    """One episode's recording laid out as the engine's kernels read it (module docstring)."""
+    return np.concatenate(
+        [
+            tracks.xy.ravel(),
+            tracks.start,
+            tracks.length,
+            tracks.offset,
+            tracks.frame_ptr,
+            tracks.frame_cols,
+        ]
+    ).astype(np.float64, copy=False)
+
+
+def slot_size(frames: int, agents: int, samples: int, present: int) -> int:
+    """Floats of :func:`pack`'s layout for these counts."""
+    return 2 * samples + 3 * agents + frames + 1 + present
 
 
 @jit
-def recording(store: np.ndarray, where: np.ndarray, b: int) -> np.ndarray:
-    """Slot ``b``'s recording, ``(F, M, 2)`` (a view of ``store``)."""
-    o = where[b, 0]
-    return store[o : o + where[b, 1] * where[b, 2] * 2].reshape((where[b, 1], where[b, 2], 2))
+def sample(store: np.ndarray, where: np.ndarray, b: int, f: int, j: int) -> tuple[float, float]:
+    """Agent ``j``'s position at frame ``f`` in slot ``b``'s recording (NaN outside its
+    span: the dense array's value)."""
+    m = where[b, 2]
+    s0 = where[b, 0] + 2 * where[b, 3]  # the index tables
+    k = f - int(store[s0 + j])
+    if k < 0 or k >= int(store[s0 + m + j]):
+        return math.nan, math.nan
+    r = where[b, 0] + 2 * (int(store[s0 + 2 * m + j]) + k)
+    return store[r], store[r + 1]
+
+
+@jit
+def frame_range(store: np.ndarray, where: np.ndarray, b: int, f: int) -> tuple[int, int]:
+    """``(lo, hi)``: the agents present (finite x) at frame ``f`` of slot ``b`` are
+    ``int(store[lo])`` .. ``int(store[hi - 1])``, in column order."""
+    m = where[b, 2]
+    ptr = where[b, 0] + 2 * where[b, 3] + 3 * m + f
+    cols = where[b, 0] + 2 * where[b, 3] + 3 * m + where[b, 1] + 1
+    return cols + int(store[ptr]), cols + int(store[ptr + 1])
 
 
 @jit
@@ -56,17 +106,16 @@ def count_sensed(
     to ``sensed[b]``; their number to ``counts[b]``."""
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = recording(store, where, b)
         f = fi[b]
         x0 = x[b, 0]
         x1 = x[b, 1]
         r = radius[b]
         c = 0
-        for j in range(pos.shape[1]):
-            px = pos[f, j, 0]
-            if not math.isfinite(px):
-                continue
-            if math.hypot(px - x0, pos[f, j, 1] - x1) <= r:
+        lo, hi = frame_range(store, where, b, f)
+        for q in range(lo, hi):
+            j = int(store[q])
+            px, py = sample(store, where, b, f, j)
+            if c_hypot(px - x0, py - x1) <= r:
                 sensed[b, c] = j
                 c += 1
         counts[b] = c
@@ -89,32 +138,26 @@ def gather_windows(
     length = out.shape[1]
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = recording(store, where, b)
-        n_frames = pos.shape[0]
         o = offsets[i]
         for a in range(counts[b]):
             j = sensed[b, a]
             for k in range(length):
-                f = lo[b] + k
-                if 0 <= f < n_frames:
-                    out[o + a, k, 0] = pos[f, j, 0]
-                    out[o + a, k, 1] = pos[f, j, 1]
-                else:
-                    out[o + a, k, 0] = math.nan
-                    out[o + a, k, 1] = math.nan
+                px, py = sample(store, where, b, lo[b] + k, j)
+                out[o + a, k, 0] = px
+                out[o + a, k, 1] = py
 
 
 @jit
-def d_min(pos: np.ndarray, f: int, x0: float, x1: float) -> float:
-    """Smallest centre distance to the agents present (finite x) at frame ``f``; NaN if
-    none (or if a present agent's distance is NaN, as ``ndarray.min`` would say)."""
+def d_min(store: np.ndarray, where: np.ndarray, b: int, f: int, x0: float, x1: float) -> float:
+    """Smallest centre distance to the agents present (finite x) at frame ``f`` of slot
+    ``b``'s recording; NaN if none (or if a present agent's distance is NaN, as
+    ``ndarray.min`` would say)."""
     best = math.inf
     seen = False
-    for j in range(pos.shape[1]):
-        px = pos[f, j, 0]
-        if not math.isfinite(px):
-            continue
-        d = math.hypot(px - x0, pos[f, j, 1] - x1)
+    lo, hi = frame_range(store, where, b, f)
+    for q in range(lo, hi):
+        px, py = sample(store, where, b, f, int(store[q]))
+        d = c_hypot(px - x0, py - x1)
         if math.isnan(d):
             return math.nan
         seen = True
@@ -142,7 +185,7 @@ def log_frames(
         log[b, k, 0] = t[b]
         for c in range(4):
             log[b, k, 1 + c] = x[b, c]
-        log[b, k, 5] = d_min(recording(store, where, b), fi[b], x[b, 0], x[b, 1])
+        log[b, k, 5] = d_min(store, where, b, fi[b], x[b, 0], x[b, 1])
         n_log[b] = k + 1
 
 
@@ -187,8 +230,7 @@ def predict_interpolate(
     """
     for i in range(slots.shape[0]):
         b = slots[i]
-        pos = recording(store, where, b)
-        n_frames = pos.shape[0]
+        n_frames = where[b, 1]
         f = fi[b]
         dt = dt_frame[b]
         horizon = tau[b]
@@ -197,8 +239,7 @@ def predict_interpolate(
         bad = 0
         for a in range(n_agents[b]):
             j = sensed[b, a]
-            cx = pos[f, j, 0]
-            cy = pos[f, j, 1]
+            cx, cy = sample(store, where, b, f, j)
             samples[0, 0] = cx
             samples[0, 1] = cy
             if predictor[b] == CONSTANT_VELOCITY:
@@ -209,7 +250,8 @@ def predict_interpolate(
                     g = f - back
                     if g < 0 or g >= n_frames:
                         break
-                    if not (math.isfinite(pos[g, j, 0]) and math.isfinite(pos[g, j, 1])):
+                    gx, gy = sample(store, where, b, g, j)
+                    if not (math.isfinite(gx) and math.isfinite(gy)):
                         break
                     run += 1
                 k = min(run - 1, window[b])
@@ -218,8 +260,9 @@ def predict_interpolate(
                 vx = 0.0
                 vy = 0.0
                 if k > 0:
-                    vx = (cx - pos[f - k, j, 0]) / (k * dt)
-                    vy = (cy - pos[f - k, j, 1]) / (k * dt)
+                    kx, ky = sample(store, where, b, f - k, j)
+                    vx = (cx - kx) / (k * dt)
+                    vy = (cy - ky) / (k * dt)
                 else:
                     short += 1
                 for h in range(horizon):
@@ -230,8 +273,7 @@ def predict_interpolate(
                 for h in range(horizon):
                     g = f + 1 + h
                     if g < n_frames:
-                        samples[h + 1, 0] = pos[g, j, 0]
-                        samples[h + 1, 1] = pos[g, j, 1]
+                        samples[h + 1, 0], samples[h + 1, 1] = sample(store, where, b, g, j)
                     else:
                         samples[h + 1, 0] = math.nan
                         samples[h + 1, 1] = math.nan

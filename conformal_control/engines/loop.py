@@ -25,48 +25,40 @@ from ..results.record import AnimationRecorder
 
 if TYPE_CHECKING:
     from ..flagship.build import Flagship
+    from ..spec import RunSpec
 
 __all__ = ["run_loop"]
 
 
 def run_loop(
     fl: Flagship,
+    run: RunSpec,
     *,
-    learn: bool = True,
-    units: str = "scene",
-    seed: int = 0,
-    max_frames: int | None = None,
-    lambda_safe: float | None = None,
-    lambda_safe_source: str | None = None,
-    rule_params: dict[str, Any] | None = None,
-    extra_config: dict[str, Any] | None = None,
-    record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
+    extra_config: dict[str, Any] | None = None,
 ) -> EpisodeResult:
-    """Run the built flagship ``fl`` through the generic loop and measure it.
+    """Run the built flagship ``fl`` of ``run`` through the generic loop and measure it.
 
     Parameters
     ----------
     fl : Flagship
         The wired episode (:func:`~conformal_control.flagship.build.build_flagship`).
-    learn, units, seed, max_frames, lambda_safe, lambda_safe_source, rule_params
-        As given to :func:`~conformal_control.sim.run_episode` (recorded in the config;
-        ``lambda_safe`` in ``units``).
-    extra_config : dict, optional
-        Merged into the configuration (``config.json``).
-    record_animation : bool
-        Keep the compact record ``conformal-control animate`` renders.
+    run : RunSpec
+        Its specification (options: ``learn``, ``lambda_safe``, ``record_animation``, ...).
     on_interval : callable, optional
         Called with each scored :class:`~conformal_control.loop.IntervalLog`.
+    extra_config : dict, optional
+        Merged into the configuration (``config.json``).
     """
+    learn, max_frames = run.learn, run.max_frames
     scene = fl.scene  # the copy carrying the resolved radii, v_max and goal radius
     si = fl.params.si
-    lambda_safe, lam_safe_si = lambda_safe_values(fl, lambda_safe, units)
+    lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
     floor = feasibility(fl)
     warn_before_run(fl, floor, learn)
 
     recorder = None
-    if record_animation:
+    if run.record_animation:
         recorder = AnimationRecorder(
             scene,
             fl.policy,
@@ -91,7 +83,7 @@ def run_loop(
         fl.rule,
         learn=learn,
         lambda_safe=lam_safe_si,
-        lambda_safe_source=lambda_safe_source,
+        lambda_safe_source=run.lambda_safe_source,
         on_interval=hooks,
     )
     result = loop.run()
@@ -99,8 +91,7 @@ def run_loop(
 
     metrics, intervals, traj = measure(fl, result, learn, lambda_safe, floor, wall)
     warn_after_run(fl, metrics, learn, max_frames)
-    config = episode_config(fl, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
-    config["max_frames"] = max_frames
+    config = episode_config(fl, run, lambda_safe)
     config["feasibility"] = jsonable(floor.as_dict())
     config.update(extra_config or {})
     env = fl.env

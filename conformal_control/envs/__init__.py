@@ -12,7 +12,9 @@ Needs the ``rl`` extra (``pip install -e ".[rl]"``: gymnasium and PettingZoo).
   conformal CBF with its own predictor and online lambda, reporting its interventions
   (a constraint shaped the action) apart from speed clips (only ``v_max`` did);
 * :class:`ConformalCrowdParallel`: the multi-robot case as a PettingZoo parallel
-  environment (agents = robots).
+  environment (agents = robots), and :class:`ReciprocalShield`, its shield: every robot's
+  action filtered by its own conformal CBF, the robots' rows shared
+  (:mod:`conformal_control.cbf.reciprocal`).
 
 Observation, action, reward and ``info`` are described in :mod:`conformal_control.envs.core`.
 """
@@ -29,7 +31,13 @@ except ImportError as exc:  # pragma: no cover - exercised without the extra onl
 from .crowd import ConformalCrowdEnv
 from .shield import ConformalShield
 
-__all__ = ["ENV_ID", "ConformalCrowdEnv", "ConformalCrowdParallel", "ConformalShield"]
+__all__ = [
+    "ENV_ID",
+    "ConformalCrowdEnv",
+    "ConformalCrowdParallel",
+    "ConformalShield",
+    "ReciprocalShield",
+]
 
 #: The gymnasium id of :class:`ConformalCrowdEnv`.
 ENV_ID = "ConformalCrowd-v0"
@@ -44,4 +52,8 @@ def __getattr__(name: str) -> object:
         from .parallel import ConformalCrowdParallel
 
         return ConformalCrowdParallel
+    if name == "ReciprocalShield":
+        from .parallel import ReciprocalShield
+
+        return ReciprocalShield
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

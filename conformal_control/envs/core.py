@@ -41,7 +41,8 @@ safety filter: it never changes an action, it scores it. ``info`` holds
   the values the flagship would learn from these actions;
 * ``constraint_status`` -- ``"none"`` (no agent sensed), ``"satisfied"`` (the action meets
   every conformal constraint at lambda_k) or ``"violated"``; ``n_constraints``,
-  ``n_violated`` and ``min_slack`` (the smallest ``A v + b + lambda``, 1/s);
+  ``n_violated`` and ``min_slack`` (the smallest ``A v + b + lambda``, 1/s; ``inf`` without
+  constraints);
 * ``collision_pedestrian``, ``collision_robot`` -- contact after the step;
   ``n_collision_steps`` -- steps in contact so far; ``goal_reached``; ``action_clipped``;
   ``interval_closed``; ``t`` (s).
@@ -60,9 +61,10 @@ from typing import Any
 import numpy as np
 
 from ..data.scene import Scene
-from ..flagship.build import Flagship, RoleSpec, build_flagship
+from ..flagship.build import Flagship, build_flagship
 from ..loop import ConformalStepper
 from ..predictors.base import PredictionQuery
+from ..spec import RunSpec
 from ..world.multi import MultiRobotWorld
 from .roles import GivenVelocity, MonitorFilter
 
@@ -97,20 +99,15 @@ class CrowdCore:
     scene : Scene
     starts : ndarray of shape (R, 2)
     goals : list of R arrays of shape (G, 2)
-    params : dict, optional
-        Run parameters (see ``conformal-control params``) in ``units``.
-    units : {"scene", "si"}
-    crowd, crowd_params
-        Pedestrians replayed or reactive (see
-        :func:`~conformal_control.flagship.build.build_flagship`).
+    spec : RunSpec
+        The run (:class:`~conformal_control.spec.RunSpec`): parameters in its ``units``,
+        the crowd, the monitors' predictor and update rule, ``max_frames``; robot ``i``
+        is built with seed ``i``.
     max_agents : int
         Agents in an observation (nearest first).
-    predictor, predictor_params, rule, rule_params
-        The monitors' predictor and update rule.
     progress_weight, collision_penalty, goal_bonus : float
         Reward weights (see the module docstring).
     terminate_on_collision : bool
-    max_frames : int, optional
     """
 
     def __init__(
@@ -118,21 +115,13 @@ class CrowdCore:
         scene: Scene,
         starts: np.ndarray,
         goals: list[np.ndarray],
+        spec: RunSpec,
         *,
-        params: dict[str, Any] | None = None,
-        units: str = "scene",
-        crowd: str = "replay",
-        crowd_params: dict[str, Any] | None = None,
         max_agents: int = 8,
-        predictor: RoleSpec = "constant_velocity",
-        predictor_params: dict[str, Any] | None = None,
-        rule: RoleSpec = "fixed_eta",
-        rule_params: dict[str, Any] | None = None,
         progress_weight: float = 1.0,
         collision_penalty: float = 1.0,
         goal_bonus: float = 10.0,
         terminate_on_collision: bool = False,
-        max_frames: int | None = None,
     ) -> None:
         if isinstance(max_agents, bool) or not isinstance(max_agents, int) or max_agents < 1:
             raise ValueError(f"max_agents must be an integer >= 1, got {max_agents!r}")
@@ -148,29 +137,23 @@ class CrowdCore:
         self.collision_penalty = float(collision_penalty)
         self.goal_bonus = float(goal_bonus)
         self.terminate_on_collision = bool(terminate_on_collision)
-        self.params_given = dict(params or {})
-        self.units = units
+        self.spec = spec
+        max_frames = spec.max_frames
         n = len(starts)
         self.fleet: list[Flagship] = []
         for i in range(n):
-            scene_i = dataclasses.replace(scene, start=np.asarray(starts[i]), goals=goals[i])
-            self.fleet.append(
-                build_flagship(
-                    scene_i,
-                    params,
-                    units=units,
-                    predictor=predictor if isinstance(predictor, str) else _copy(predictor),
-                    predictor_params=predictor_params,
-                    rule=rule if isinstance(rule, str) else _copy(rule),
-                    rule_params=rule_params,
-                    reference=GivenVelocity(),
-                    safety_filter=MonitorFilter(),
-                    crowd=crowd if i == 0 else "replay",
-                    crowd_params=crowd_params if i == 0 else None,
-                    seed=i,
-                    max_frames=max_frames,
-                )
+            scene_i = scene.replace(start=np.asarray(starts[i]), goals=goals[i])
+            robot_run = dataclasses.replace(
+                spec,
+                predictor=_copy_role(spec.predictor),
+                rule=_copy_role(spec.rule),
+                reference=GivenVelocity(),
+                safety_filter=MonitorFilter(),
+                crowd=spec.crowd if i == 0 else "replay",
+                seed=i,
+                robots=None,
             )
+            self.fleet.append(build_flagship(scene_i, robot_run))
         fl0 = self.fleet[0]
         env0 = fl0.env
         self.scene = fl0.scene
@@ -339,7 +322,9 @@ def _status(filt: MonitorFilter) -> dict[str, Any]:
             "constraint_status": "none",
             "n_constraints": 0,
             "n_violated": 0,
-            "min_slack": math.nan,
+            # no constraint: unbounded slack (inf compares equal to itself, NaN does not,
+            # and PettingZoo's and gymnasium's determinism checks compare infos)
+            "min_slack": math.inf,
         }
     slack = last.A @ last.nominal + last.b + last.lam
     n_bad = int((slack < 0).sum())
@@ -351,7 +336,11 @@ def _status(filt: MonitorFilter) -> dict[str, Any]:
     }
 
 
-def _copy(obj: Any) -> Any:
+def _copy_role(role: Any) -> Any:
+    """A name, ``(name, params)`` or None as is; an instance deep-copied (each robot its
+    own)."""
+    if role is None or isinstance(role, (str, tuple)):
+        return role
     import copy
 
-    return copy.deepcopy(obj)
+    return copy.deepcopy(role)

@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ..data.scene import Scene
-from ..flagship.build import RoleSpec
+from ..spec import RunSpec
 from .core import CrowdCore, load
 
 __all__ = ["ConformalCrowdEnv", "observation_space"]
@@ -50,23 +50,24 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
     params : dict, optional
         Run parameters in ``units`` (``v_max``, radii, ``tau``, ``substeps``, the
         monitor's ``epsilon``, ``eta``, ...; see ``conformal-control params``).
-    units : {"scene", "si"}
-    crowd : {"replay", "social_force", "orca", "mixed"}
-    crowd_params : dict, optional
-        Reactive crowd parameters (SI).
+    spec : RunSpec, optional
+        The run (:class:`~conformal_control.spec.RunSpec`); ``params`` and the settings
+        below are applied on it.
     max_agents : int
         Agents in an observation.
-    predictor, predictor_params, rule, rule_params
-        The conformal monitor's predictor and update rule.
     progress_weight, collision_penalty, goal_bonus : float
         Reward weights.
     terminate_on_collision : bool
         End the episode at the first contact.
-    max_frames : int, optional
-        Cut the episode after this many frames of the scene.
     data_root : str, optional
         Where SDD data lives (for scene names).
     render_mode : {"rgb_array"}, optional
+    **settings
+        Settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`): ``units`` ({"scene", "si"}),
+        ``crowd`` ({"replay", "social_force", "orca", "mixed"}) and ``crowd_params``
+        (SI), the conformal monitor's ``predictor``, ``predictor_params``, ``rule`` and
+        ``rule_params``, ``max_frames`` (cut the episode after this many frames).
     """
 
     # gymnasium's attribute (an instance's copy carries the scene's frame rate)
@@ -77,21 +78,15 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
         scene: Scene | str = "crossing",
         params: dict[str, Any] | None = None,
         *,
-        units: str = "scene",
-        crowd: str = "replay",
-        crowd_params: dict[str, Any] | None = None,
+        spec: RunSpec | None = None,
         max_agents: int = 8,
-        predictor: RoleSpec = "constant_velocity",
-        predictor_params: dict[str, Any] | None = None,
-        rule: RoleSpec = "fixed_eta",
-        rule_params: dict[str, Any] | None = None,
         progress_weight: float = 1.0,
         collision_penalty: float = 1.0,
         goal_bonus: float = 10.0,
         terminate_on_collision: bool = False,
-        max_frames: int | None = None,
         data_root: str | None = None,
         render_mode: str | None = None,
+        **settings: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -101,20 +96,12 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
             sc,
             np.asarray(sc.start, dtype=float).reshape(1, 2),
             [np.asarray(sc.goals, dtype=float).reshape(-1, 2)],
-            params=params,
-            units=units,
-            crowd=crowd,
-            crowd_params=crowd_params,
+            RunSpec.from_settings(params, base=spec, **settings),
             max_agents=max_agents,
-            predictor=predictor,
-            predictor_params=predictor_params,
-            rule=rule,
-            rule_params=rule_params,
             progress_weight=progress_weight,
             collision_penalty=collision_penalty,
             goal_bonus=goal_bonus,
             terminate_on_collision=terminate_on_collision,
-            max_frames=max_frames,
         )
         v = np.float32(self.core.v_max)
         self.action_space = spaces.Box(-v, v, shape=(2,), dtype=np.float32)

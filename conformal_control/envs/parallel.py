@@ -15,36 +15,48 @@ the scene's task rotated about its midpoint, or ``"antipodal"`` on a circle), or
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import copy
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
+from pettingzoo.utils import BaseParallelWrapper
 
+from ..cbf.controller import ConformalCBFController
+from ..cbf.filters.exact2d import Exact2DSafetyFilter
+from ..cbf.loss import CBFGapLoss
+from ..cbf.reciprocal import Reciprocity
 from ..data.scene import Scene
-from ..flagship.build import RoleSpec
+from ..loop import ConformalStepper
 from ..sim.multi import as_tasks, robot_tasks
+from ..spec import Robots, RunSpec
 from .core import CrowdCore, load
 from .crowd import observation_space
+from .roles import GivenVelocity, RecordingFilter
 
-__all__ = ["ConformalCrowdParallel", "parallel_env"]
+__all__ = ["ConformalCrowdParallel", "ReciprocalShield", "parallel_env"]
 
 
 class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]):  # type: ignore[misc]
     """M robots with velocity commands among pedestrians (see the module docstring).
+
+    The parameters not listed below are as for
+    :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
 
     Parameters
     ----------
     scene : Scene or str
     robots : int
         Number of robots (with ``layout``); ignored when ``starts`` is given.
-    starts, goals : array-like, optional
-        Explicit tasks (m).
-    layout, radius, center
-        See :func:`~conformal_control.sim.multi.robot_tasks`.
-    Others
+    params, spec, max_agents, progress_weight, collision_penalty, goal_bonus
         As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+    terminate_on_collision, data_root, render_mode
+        As for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`.
+    **settings
+        Settings of the run, as for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`,
+        and of its robots section: ``starts``, ``goals`` (explicit tasks, m), ``layout``,
+        ``radius``, ``center`` (see :func:`~conformal_control.sim.multi.robot_tasks`).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance
@@ -59,54 +71,40 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
         scene: Scene | str = "crossing",
         robots: int = 2,
         *,
-        starts: Any = None,
-        goals: Any = None,
-        layout: str = "scene",
-        radius: float | None = None,
-        center: Sequence[float] | None = None,
         params: dict[str, Any] | None = None,
-        units: str = "scene",
-        crowd: str = "replay",
-        crowd_params: dict[str, Any] | None = None,
+        spec: RunSpec | None = None,
         max_agents: int = 8,
-        predictor: RoleSpec = "constant_velocity",
-        predictor_params: dict[str, Any] | None = None,
-        rule: RoleSpec = "fixed_eta",
-        rule_params: dict[str, Any] | None = None,
         progress_weight: float = 1.0,
         collision_penalty: float = 1.0,
         goal_bonus: float = 10.0,
         terminate_on_collision: bool = False,
-        max_frames: int | None = None,
         data_root: str | None = None,
         render_mode: str | None = None,
+        **settings: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         sc = load(scene, data_root)
-        if starts is not None or goals is not None:
-            s, tasks = as_tasks(starts, goals)
+        run = RunSpec.from_settings(params, base=spec, **settings)
+        section = run.robots or Robots()
+        if section.starts is not None or section.goals is not None:
+            s, tasks = as_tasks(section.starts, section.goals)
         else:
-            s, tasks = robot_tasks(sc, robots, layout, radius=radius, center=center)
+            n = robots if section.robots is None else section.robots
+            s, tasks = robot_tasks(
+                sc, n, section.layout, radius=section.radius, center=section.center
+            )
         self.core = CrowdCore(
             sc,
             s,
             tasks,
-            params=params,
-            units=units,
-            crowd=crowd,
-            crowd_params=crowd_params,
+            run,
             max_agents=max_agents,
-            predictor=predictor,
-            predictor_params=predictor_params,
-            rule=rule,
-            rule_params=rule_params,
             progress_weight=progress_weight,
             collision_penalty=collision_penalty,
             goal_bonus=goal_bonus,
             terminate_on_collision=terminate_on_collision,
-            max_frames=max_frames,
         )
         self.possible_agents = [f"robot_{i}" for i in range(s.shape[0])]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
@@ -175,3 +173,159 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
 def parallel_env(**kwargs: Any) -> ConformalCrowdParallel:
     """PettingZoo-style constructor: ``parallel_env(scene="crossing", robots=4)``."""
     return ConformalCrowdParallel(**kwargs)
+
+
+class ReciprocalShield(BaseParallelWrapper):  # type: ignore[misc]
+    """Filter every robot's action through its own conformal CBF, robots sharing their rows.
+
+    Each robot gets the flagship controller with its action as the reference velocity
+    (as :class:`~conformal_control.envs.shield.ConformalShield` does for one robot): its
+    pedestrians' rows from its own predictor, with its own lambda learned online from its
+    own losses, and **reciprocal rows about the other robots**
+    (:mod:`~conformal_control.cbf.reciprocal`: each robot takes its share of every pair's
+    barrier rate, from what the world lets robots know of each other). Two shielded
+    policies can therefore not drive their robots into each other, whatever the policies
+    do; a robot whose policy drives at a pedestrian is held back by its own rows.
+
+    Added to each robot's ``info``: ``shield_modified``, ``shield_delta`` (m/s),
+    ``shield_action``, ``shield_status`` (``unconstrained``, ``optimal`` or the fallback),
+    ``shield_lambda`` (1/s), ``shield_loss`` (when an interval closed) and
+    ``shield_interventions`` (steps modified so far).
+
+    Parameters
+    ----------
+    env : ConformalCrowdParallel
+        The environment (unwrapped or wrapped).
+    information : {"position", "velocity", "plan"}
+        What robots know of each other (the shield's rows); ``"plan"``: each robot's last
+        filtered action, broadcast.
+    lambda_scope : {"pedestrians", "robots", "both"}
+        The rows lambda is the slack of.
+    learn : bool
+        False keeps every shield's lambda at its initial value.
+    """
+
+    def __init__(
+        self,
+        env: ConformalCrowdParallel,
+        information: str = "plan",
+        lambda_scope: str = "pedestrians",
+        learn: bool = True,
+    ) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        if not isinstance(base, ConformalCrowdParallel):
+            raise TypeError(
+                "ReciprocalShield wraps a ConformalCrowdParallel environment (it reads the "
+                f"robots' sensors from it), got {type(base).__name__}"
+            )
+        self.information = information
+        self.lambda_scope = lambda_scope
+        self.learn = learn
+        core = base.core
+        core.world.information = information  # the world hands each robot its peers
+        si = core.fleet[0].params.si
+        margin = float(si["robot_radius"] - si["agent_radius"])
+        self.controllers: list[ConformalCBFController] = []
+        self.filters: list[RecordingFilter] = []
+        self.steppers: list[ConformalStepper] = []
+        for fl in core.fleet:
+            filt = RecordingFilter(
+                Exact2DSafetyFilter(v_max=core.v_max, speed_sides=int(si["speed_sides"]))
+            )
+            self.filters.append(filt)
+            ctrl = ConformalCBFController(
+                copy.deepcopy(fl.predictor),
+                fl.constraint,
+                filt,
+                GivenVelocity(),
+                substeps=int(si["substeps"]),
+                reciprocity=Reciprocity("reciprocal", lambda_scope, margin),
+            )
+            loss = CBFGapLoss(fl.constraint, scale=float(si["loss_scale"]))
+            self.controllers.append(ctrl)
+            self.steppers.append(
+                ConformalStepper(ctrl, loss, copy.deepcopy(fl.rule), learn=bool(learn))
+            )
+        self._base = base
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, dict[str, Any]]]:
+        obs, infos = self.env.reset(seed=seed, options=options)
+        core = self._base.core
+        self.n_interventions_ = np.zeros(len(self.steppers), dtype=np.int64)
+        self._open = np.zeros(len(self.steppers), dtype=bool)
+        for i, st in enumerate(self.steppers):
+            st.start()
+            query = core.query_[i]
+            if query is not None:
+                st.begin_interval(query)
+                self._open[i] = True
+        for a, info in infos.items():
+            i = self._base.possible_agents.index(a)
+            info.update({"shield_lambda": self.steppers[i].lam, "shield_interventions": 0})
+        return obs, infos
+
+    def step(
+        self, actions: dict[str, np.ndarray]
+    ) -> tuple[
+        dict[str, dict[str, np.ndarray]],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        core = self._base.core
+        world = core.world
+        index = {a: i for i, a in enumerate(self._base.possible_agents)}
+        filtered: dict[str, np.ndarray] = {}
+        extra: dict[str, dict[str, Any]] = {}
+        for a, act in actions.items():
+            i = index[a]
+            v_in, _ = core.clip(act)
+            ctrl = self.controllers[i]
+            assert isinstance(ctrl.reference, GivenVelocity)
+            ctrl.reference.velocity = v_in
+            lam = self.steppers[i].lam
+            v = np.asarray(self.steppers[i].decide(world.state(i)), dtype=float)
+            if self.information == "plan":
+                world.broadcast(i, v)
+            delta = float(np.hypot(*(v - v_in)))
+            self.n_interventions_[i] += delta > 1e-9
+            last = self.filters[i].last_
+            status = (
+                "unconstrained" if last is None else (last.result.fallback or last.result.status)
+            )
+            filtered[a] = v
+            extra[a] = {
+                "shield_modified": delta > 1e-9,
+                "shield_delta": delta,
+                "shield_action": v,
+                "shield_status": status,
+                "shield_lambda": lam,
+                "shield_loss": None,
+                "shield_interventions": int(self.n_interventions_[i]),
+            }
+        obs, rewards, terms, truncs, infos = self.env.step(filtered)
+        closed = any(info.get("interval_closed") for info in infos.values())
+        if closed:
+            for i in map(int, np.flatnonzero(self._open)):
+                a = self._base.possible_agents[i]
+                truth = core.truth_[i]
+                if truth is not None and a in extra:
+                    extra[a]["shield_loss"] = self.steppers[i].end_interval(truth).loss
+                self._open[i] = False
+            if not world.done:
+                for i in core.under_way():
+                    query = core.query_[i]
+                    if query is not None:
+                        self.steppers[i].begin_interval(query)
+                        self._open[i] = True
+        else:  # a robot that left mid-interval: its interval is dropped (reset restarts it)
+            for a in actions:
+                if terms.get(a) or truncs.get(a):
+                    self._open[index[a]] = False
+        for a, info in infos.items():
+            info.update(extra.get(a, {}))
+        return obs, rewards, terms, truncs, infos

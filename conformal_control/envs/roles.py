@@ -66,6 +66,20 @@ class MonitorFilter(SafetyFilter):
         self.n_violations_ = 0
 
     def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
+        """``nominal`` unchanged, with the constraint violation counted (the monitor only
+        watches).
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        """
         v = np.asarray(nominal, dtype=float)
         slack = A @ v + b + lam
         self.n_solves_ += 1
@@ -100,6 +114,19 @@ class RecordingFilter(SafetyFilter):
         self.last_: LastSolve | None = None
 
     def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
+        """The inner filter's solution, the problem and the result kept in ``last_``.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        """
         res = self.inner.solve(nominal, A, b, lam)
         self.last_ = LastSolve(np.array(nominal, dtype=float), A.copy(), b.copy(), lam, res)
         return res

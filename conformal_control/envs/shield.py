@@ -38,14 +38,16 @@ their true trajectories at the next), as the flagship reads its environment.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from ..flagship.build import RoleSpec, build_flagship
+from ..flagship.build import build_flagship
 from ..loop import ConformalStepper
+from ..spec import RunSpec
 from .crowd import ConformalCrowdEnv
 from .roles import GivenVelocity, LastSolve, RecordingFilter
 
@@ -53,7 +55,8 @@ __all__ = ["ConformalShield"]
 
 
 class ConformalShield(
-    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray]
+    gym.Wrapper[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray],
+    gym.utils.RecordConstructorArgs,  # gymnasium re-creates it (spec, check_env)
 ):
     """Filter a policy's velocity commands through the conformal CBF (see module docs).
 
@@ -65,18 +68,19 @@ class ConformalShield(
         Parameters of the shield, in the environment's units, over the environment's own
         (e.g. ``{"epsilon": -0.1, "eta": 2, "a": 2}``); timing (``tau``, ``substeps``)
         must stay the environment's.
-    predictor, predictor_params, barrier, barrier_params, safety_filter,
-    safety_filter_params, fallback, loss, loss_params, rule, rule_params
-        The shield's roles (names or instances), as for
-        :func:`~conformal_control.flagship.build.build_flagship`; the default is the flagship's
-        (constant velocity, APF barrier, the piqp QP with the lambda-search fallback, the
-        gap loss, the fixed-step rule).
-    learn : bool
-        False keeps lambda at ``lambda_init``.
-    seed : int
-        ``random_state`` of named plugins that take one.
+    spec : RunSpec, optional
+        The shield's run (:class:`~conformal_control.spec.RunSpec`); ``params`` and the
+        settings below are applied on it, and its units are the environment's.
     active_tol : float
         A constraint is reported active when its slack is within this (1/s).
+    **settings
+        Settings of the run: the shield's roles (names or instances) ``predictor``,
+        ``barrier``, ``safety_filter``, ``fallback``, ``loss``, ``rule`` and their
+        ``*_params``, as for :func:`~conformal_control.flagship.build.build_flagship`
+        (the default is the flagship's: constant velocity, APF barrier, the exact 2-D
+        filter with the lambda-search fallback, the gap loss, the fixed-step rule);
+        ``learn`` (False keeps lambda at ``lambda_init``); ``seed`` (``random_state`` of
+        named plugins that take one).
     """
 
     def __init__(
@@ -84,22 +88,14 @@ class ConformalShield(
         env: gym.Env[dict[str, np.ndarray], np.ndarray],
         params: dict[str, Any] | None = None,
         *,
-        predictor: RoleSpec = "constant_velocity",
-        predictor_params: dict[str, Any] | None = None,
-        barrier: RoleSpec = None,
-        barrier_params: dict[str, Any] | None = None,
-        safety_filter: RoleSpec = None,
-        safety_filter_params: dict[str, Any] | None = None,
-        fallback: RoleSpec = None,
-        loss: RoleSpec = None,
-        loss_params: dict[str, Any] | None = None,
-        rule: RoleSpec = "fixed_eta",
-        rule_params: dict[str, Any] | None = None,
-        learn: bool = True,
-        seed: int = 0,
+        spec: RunSpec | None = None,
         active_tol: float = 1e-6,
+        **settings: Any,
     ) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, params=params, spec=spec, active_tol=active_tol, **settings
+        )
+        gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         if not isinstance(base, ConformalCrowdEnv):
             raise TypeError(
@@ -107,26 +103,12 @@ class ConformalShield(
                 f"sensor from it), got {type(base).__name__}"
             )
         core = base.core
-        merged = {**core.params_given, **(params or {})}
-        fl = build_flagship(
-            base.scene,
-            merged,
-            units="scene" if core.units == "scene" else "si",
-            predictor=predictor,
-            predictor_params=predictor_params,
-            barrier=barrier,
-            barrier_params=barrier_params,
-            safety_filter=safety_filter,
-            safety_filter_params=safety_filter_params,
-            fallback=fallback,
-            reference=GivenVelocity(),
-            loss=loss,
-            loss_params=loss_params,
-            rule=rule,
-            rule_params=rule_params,
-            learn=learn,
-            seed=seed,
+        env_run = core.spec
+        run = RunSpec.from_settings(
+            {**env_run.params, **(params or {})}, base=spec, units=env_run.units, **settings
         )
+        learn = run.learn
+        fl = build_flagship(base.scene, dataclasses.replace(run, reference=GivenVelocity()))
         w = core.world
         if fl.env.tau_frames != w.tau_frames or fl.env.substeps != w.substeps:
             raise ValueError(
@@ -204,7 +186,7 @@ class ConformalShield(
             active = ids[np.abs(slack) <= self.active_tol * max(1.0, abs(lam))]
             min_slack = float(slack.min())
         else:
-            active, min_slack = ids[:0], math.nan
+            active, min_slack = ids[:0], math.inf  # no constraint: unbounded slack
         cause = _cause(modified, active.size > 0, res.fallback is not None)
         self.n_interventions_ += cause == "constraint"
         self.n_speed_clips_ += cause == "speed_limit"

@@ -34,6 +34,7 @@ from ..cbf.reference import AttractiveField
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
 from ..predictors.base import Predictor
+from ..spec import RunSpec
 from ..update_rules import FixedEtaRule
 from ..world.reactive import make_environment
 from ..world.replay import ReplayEnvironment
@@ -160,6 +161,17 @@ def build_rule(
     with these names; ``rule_params`` (in the scene's units) override them and add the
     rule's own parameters. Parameters the rule declares in ``lambda_params`` (units of
     lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted with ``lam_unit``.
+
+    Parameters
+    ----------
+    name : str
+        The rule's registered name.
+    rule_params : dict, optional
+        Its parameters, in the scene's units.
+    params : ResolvedParams
+        The run's parameters.
+    lam_unit : float
+        SI value of one unit of lambda as ``rule_params`` are typed (1 for SI).
     """
     cls = registry.get("update_rule", name)
     accepted = set(cls._param_names())
@@ -183,80 +195,73 @@ def build_rule(
 
 def build_flagship(
     scene: Scene,
-    params: dict[str, Any] | ResolvedParams | None = None,
-    *,
-    predictor: RoleSpec = "constant_velocity",
-    barrier: RoleSpec = None,
-    safety_filter: RoleSpec = None,
-    fallback: RoleSpec = None,
-    reference: RoleSpec = None,
-    dynamics: RoleSpec = None,
-    loss: RoleSpec = None,
-    rule: RoleSpec = "fixed_eta",
-    family: str | None = None,
-    family_params: dict[str, Any] | None = None,
-    predictor_params: dict[str, Any] | None = None,
-    barrier_params: dict[str, Any] | None = None,
-    safety_filter_params: dict[str, Any] | None = None,
-    reference_params: dict[str, Any] | None = None,
-    dynamics_params: dict[str, Any] | None = None,
-    loss_params: dict[str, Any] | None = None,
-    rule_params: dict[str, Any] | None = None,
-    units: str = "scene",
-    crowd: str = "replay",
-    crowd_params: dict[str, Any] | None = None,
-    learn: bool = True,
-    seed: int = 0,
-    max_frames: int | None = None,
+    spec: RunSpec | dict[str, Any] | ResolvedParams | None = None,
+    **settings: Any,
 ) -> Flagship:
-    """Wire the conformal CBF controller on ``scene``.
+    """Wire the conformal CBF controller on ``scene`` as ``spec`` says.
 
     Parameters
     ----------
     scene : Scene
-    params : dict or ResolvedParams, optional
-        Run parameters in the scene's units (see ``conformal-control params``), or already
-        resolved ones.
-    predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule
-        Each an instance, a registered name (built with the matching ``*_params``), or
-        None for the flagship's default (the paper's APF barrier, the exact 2-D filter
-        ``exact2d`` with the run's fallback, the attractive-field reference, the
-        velocity-tracking double integrator, the ``cbf_gap`` loss, the ``fixed_eta`` rule).
-        ``fallback`` is handed to the safety filter's ``fallback`` argument.
-    family : str, optional
-        A registered decision family built from the same parts (predictor, constraint,
-        safety filter, reference, substeps) and ``family_params``; default ``"cbf"``, the
-        conformal CBF controller (Algorithm 1). ``"acp"``: adaptive conformal prediction
-        regions (:class:`~conformal_control.cbf.acp.ACPController`). A family built from a
-        predictor and the plant (the sampling MPCs ``"mpc"``, ``"acp_mpc"``, ``"ecp_mpc"``,
-        :mod:`conformal_control.mpc`) receives the predictor, the dynamics, the reference,
-        ``d_c`` (robot + agent radius), ``margin`` (``barrier_margin``), ``v_max``,
-        ``substeps`` and ``random_state`` (the seed) for the arguments it takes, then
-        ``family_params``; its loss defaults to the family's ``default_loss`` (with
-        ``d_safe`` = ``d_c`` + 1 m where the loss takes one), its rule's ``epsilon`` and
-        ``eta`` to the family's ``default_rule_params`` unless the run gives them, and the
-        rule's parameters are in SI (its lambda is a length or a level, not a rate).
-    units : {"scene", "si"}
-        Unit system of ``params`` and ``rule_params`` (the ``*_params`` of other named
-        plugins are always SI).
-    crowd : str
-        ``"replay"`` (the recording, default), ``"social_force"``, ``"orca"`` or
-        ``"mixed"``: pedestrians who react to the robot (see
-        :func:`~conformal_control.world.reactive.make_environment`), with ``crowd_params``
-        (SI); a reactive crowd's ``seed`` defaults to ``seed``.
-    learn : bool
-        False runs the noLearn baseline: lambda stays at ``lambda_init`` (eta = 0).
-    seed : int
-        Passed as ``random_state`` to named plugins that take one.
-    max_frames : int, optional
-        Limit on simulated frames.
+    spec : RunSpec, dict or ResolvedParams, optional
+        The run (:class:`~conformal_control.spec.RunSpec`); a dict is its ``params`` (in
+        its ``units``), a :class:`ResolvedParams` parameters already resolved.
+    **settings
+        Settings of the run applied on ``spec``
+        (:meth:`RunSpec.from_settings <conformal_control.spec.RunSpec.from_settings>`):
+        ``predictor``, ``barrier``, ``safety_filter``, ``fallback``, ``reference``,
+        ``dynamics``, ``loss``, ``rule``, ``family``, ``crowd`` (each an instance, a
+        registered name, ``(name, params)`` or None for the flagship's default: the
+        paper's APF barrier, the exact 2-D filter ``exact2d`` with the run's fallback, the
+        attractive-field reference, the velocity-tracking double integrator, the
+        ``cbf_gap`` loss, the ``fixed_eta`` rule, the ``cbf`` family, the replayed crowd),
+        ``<role>_params``, ``units``, ``learn``, ``seed``, ``max_frames``.
+
+    Notes
+    -----
+    ``fallback`` is handed to the safety filter's ``fallback`` argument. ``family``
+    ``"acp"`` is adaptive conformal prediction regions
+    (:class:`~conformal_control.cbf.acp.ACPController`). A family built from a predictor
+    and the plant (the sampling MPCs ``"mpc"``, ``"acp_mpc"``, ``"ecp_mpc"``,
+    :mod:`conformal_control.mpc`) receives the predictor, the dynamics, the reference,
+    ``d_c`` (robot + agent radius), ``margin`` (``barrier_margin``), ``v_max``,
+    ``substeps`` and ``random_state`` (the seed) for the arguments it takes, then the
+    family's parameters; its loss defaults to the family's ``default_loss`` (with
+    ``d_safe`` = ``d_c`` + 1 m where the loss takes one), its rule's ``epsilon`` and
+    ``eta`` to the family's ``default_rule_params`` unless the run gives them, and the
+    rule's parameters are in SI (its lambda is a length or a level, not a rate). The
+    parameters of ``rule`` are otherwise in ``units``, those of every other named plugin
+    in SI. A reactive crowd's ``seed`` defaults to the run's.
     """
-    if isinstance(params, ResolvedParams):
-        resolved = params
+    resolved: ResolvedParams | None = None
+    if isinstance(spec, ResolvedParams):
+        resolved, spec = spec, None
+    if isinstance(spec, RunSpec):
+        run = RunSpec.from_settings(None, base=spec, **settings) if settings else spec
     else:
+        run = RunSpec.from_settings(spec, **settings)
+    return _build(scene, run, resolved)
+
+
+def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flagship:
+    """:func:`build_flagship` on a complete specification."""
+    units, learn, seed, max_frames = run.units, run.learn, run.seed, run.max_frames
+    predictor, predictor_params = run.role("predictor")
+    barrier, barrier_params = run.role("barrier")
+    safety_filter, safety_filter_params = run.role("safety_filter")
+    fallback, fallback_params = run.role("fallback")
+    reference, reference_params = run.role("reference")
+    dynamics, dynamics_params = run.role("dynamics")
+    loss, loss_params = run.role("loss")
+    rule, rule_params = run.role("rule")
+    family, family_params = run.role("family")
+    crowd, crowd_params = run.role("crowd")
+    if fallback_params:  # a fallback with its own parameters: built here, by name
+        fallback = registry.create("fallback", fallback, **fallback_params)
+    if resolved is None:
         from .params import to_scene_units
 
-        given = to_scene_units(scene, dict(params or {}), units)
+        given = to_scene_units(scene, dict(run.params), units)
         if not learn:
             given.setdefault("eta", 0.0)
         resolved = resolve_params(scene, given)
@@ -264,8 +269,7 @@ def build_flagship(
     d_c = si["robot_radius"] + si["agent_radius"]
     # The environment reads radii and v_max from the scene: give it a copy carrying the
     # resolved values, never mutate the caller's scene (runs may share one in a process).
-    scene = dataclasses.replace(
-        scene,
+    scene = scene.replace(
         robot_radius=si["robot_radius"],
         agent_radius=si["agent_radius"],
         goal_radius=si["goal_radius"],
@@ -280,7 +284,7 @@ def build_flagship(
         "speed_sides": si["speed_sides"],
         "random_state": seed,
     }
-    fallback_value: Any = si["fallback"] if fallback is None else fallback
+    fallback_value: Any = "lambda_search" if fallback is None else fallback
     if fallback is not None and not isinstance(fallback, str):
         names["fallback"] = type(fallback).__name__
     else:

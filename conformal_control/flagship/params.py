@@ -30,6 +30,7 @@ from typing import Any
 from ..data.scene import Scene
 from ..exceptions import InputError, SuspiciousValueWarning
 from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI
+from ..update_rules.base import check_epsilon
 
 __all__ = [
     "PARAMETERS",
@@ -168,11 +169,31 @@ def convert_units(scene: Scene, given: dict[str, Any]) -> tuple[dict[str, Any], 
     return out, notes
 
 
+#: dimension -> the suffixes of each unit system (SI first), as a value is written
+_SYSTEM_SUFFIXES: dict[tuple[int, int], tuple[str, ...]] = {
+    (1, 0): ("m", "px"),
+    (0, 1): ("s", "frames"),
+    (0, -1): ("/s", "/frame"),
+}
+
+
+def _suffix(unit: str) -> str:
+    """How a value in ``unit`` (``unit_of``'s name) is written: ``frame`` -> ``frames``,
+    ``1/frame`` -> ``/frame``."""
+    if unit == "frame":
+        return "frames"
+    return unit[1:] if unit.startswith("1/") else unit
+
+
 def _check_plausible(scene: Scene, key: str, value: Any) -> None:
-    """Warn when a bare number is implausible in the unit it is read in."""
+    """Warn when a bare number is implausible in the unit it is read in; suggest the
+    suffix of the unit system in which it would be plausible (seconds / frames, 1/s /
+    1/frame, metres / pixels), if there is one."""
     if key not in PLAUSIBLE_SI or isinstance(value, bool):
         return
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        return
+    if scene.defaults.get(key) == value:  # the scene's own default (Table I's eta = 100)
         return
     lo, hi, si_unit = PLAUSIBLE_SI[key]
     si = value * scene.units.factor(key)
@@ -180,15 +201,52 @@ def _check_plausible(scene: Scene, key: str, value: Any) -> None:
         return
     unit = scene.units.unit_of(key)
     side = f"less than {lo:g} {si_unit}" if si < lo else f"more than {hi:g} {si_unit}"
-    keep = f"{key}={value:g}{'frames' if unit == 'frame' else unit}"
-    alt = "" if unit == si_unit else f", or {key}={value:g}{si_unit} if you meant {si_unit}"
+    keep = f"{key}={value:g}{_suffix(unit)}"
+    alt = ""
+    for other in _SYSTEM_SUFFIXES.get(PARAM_DIMENSIONS[key], ()):
+        if other == _suffix(unit):
+            continue
+        try:
+            hit = _unit_si(scene, other)
+        except InputError:  # no pixel scale on this scene
+            continue
+        if hit is None:
+            continue
+        other_si = value * hit[1]
+        if lo <= other_si <= hi:
+            meant = "1" + other if other.startswith("/") else other
+            alt = f", or {key}={value:g}{other} if you meant {meant}" + (
+                "" if other_si == value else f" ({other_si:.3g} {si_unit})"
+            )
+            break
+    read = f"{value:g} {unit}" + ("" if unit == si_unit else f" = {si:.3g} {si_unit}")
     warnings.warn(
         SuspiciousValueWarning(
-            f"{key}={value:g} is read in the scene's unit: {value:g} {unit} = {si:.3g} "
-            f"{si_unit} on {scene.name}, {side}; write {keep} to confirm it{alt}"
+            f"{key}={value:g} is read in the scene's unit: {read} on {scene.name}, {side}; "
+            f"write {keep} to confirm it{alt}"
         ),
         stacklevel=2,
     )
+
+
+def _tau_message(scene: Scene, tau: Any, frames: float) -> str:
+    """Why ``tau`` is not a whole number of frames, and the value probably meant."""
+    unit = scene.units.time_name
+    head = (
+        f"tau must be a positive whole number of frames (frame period {1 / scene.fps:g} s on "
+        f"{scene.name})"
+    )
+    if unit == "frame":
+        text = f"{head}, not {tau:g}"
+    else:
+        text = f"{head}; tau = {tau:g} {unit} is {frames:g} frames"
+    if unit == "frame" and isinstance(tau, (int, float)):
+        as_seconds = tau * scene.fps  # the number read as seconds, in frames
+        if as_seconds >= 1 and abs(as_seconds - round(as_seconds)) < 1e-6:
+            return f"{text}; write tau={tau:g}s if you meant seconds ({round(as_seconds)} frames)"
+    near = sorted({max(1, math.floor(frames)), max(1, math.ceil(frames))})
+    options = " or ".join(f"tau={n / scene.fps:g}s ({n} frame{'s' if n > 1 else ''})" for n in near)
+    return f"{text}; the nearest are {options}"
 
 
 def parse_value(text: str) -> Any:
@@ -240,7 +298,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention", "fallback")
+_TEXT_PARAMS = ("convention",)
 
 
 def check_names(given: dict[str, Any]) -> None:
@@ -301,9 +359,7 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
         _positive(si, name)
     _positive(si, "eta", allow_zero=True)
     _positive(si, "barrier_margin", allow_zero=True)
-    eps = si["epsilon"]
-    if not (isinstance(eps, (int, float)) and -0.5 < eps < 0.5):
-        raise InputError(f"epsilon must lie in (-1/2, 1/2) (the loss's range), got {eps!r}")
+    check_epsilon(si["epsilon"])
     for name in ("substeps", "history"):
         v = merged[name]
         if not (isinstance(v, int) and v >= 1):
@@ -317,10 +373,7 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     tau_frames_f = si["tau"] * scene.fps
     tau_frames = round(tau_frames_f)
     if tau_frames < 1 or abs(tau_frames - tau_frames_f) > 1e-6:
-        raise InputError(
-            f"tau must be a positive whole number of frames (frame period {1 / scene.fps:g} s); "
-            f"tau = {merged['tau']} {scene.units.time_name} is {tau_frames_f:g} frames"
-        )
+        raise InputError(_tau_message(scene, merged["tau"], tau_frames_f))
     for name in ("lambda_init", "lambda_min", "lambda_max"):
         v = si[name]
         if not isinstance(v, (int, float)) or math.isnan(v):

@@ -56,9 +56,11 @@ import numpy as np
 from ..base import DecisionFamily
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
+from ..cbf.reciprocal import Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
 from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .kernels import evaluate
+from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 
 __all__ = ["FALLBACKS", "MPCIntervalRecord", "Plan", "SamplingMPC"]
@@ -179,6 +181,12 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         "eta": 0.2,
         "lambda_min": -1.0,
     }
+
+    #: How the robots the sensor reports are treated (set by a multi-robot run,
+    #: :func:`~conformal_control.sim.multi.set_reciprocity`): reciprocal robots are kept on
+    #: their side of shared lines (:mod:`~conformal_control.mpc.peers`); None predicts
+    #: every agent alike.
+    reciprocity: Reciprocity | None = None
 
     def __init__(
         self,
@@ -350,6 +358,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         return int(observation.horizon) + max(ahead, 1)
 
     def begin_interval(self, observation: PredictionQuery) -> None:
+        observation, self._robots = split_robots(self.reciprocity, observation)
         self._begin_empty(observation.t)
         self._dt = float(observation.dt)
         self._ids = np.asarray(observation.ids)
@@ -471,6 +480,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             self._last_cmd,
             bool(self.continuous),
         )
+        clear, viol = peer_terms(self, state, lam, pos, clear, viol)
         safe = clear >= 0.0
         n_safe = int(safe.sum())
         self.n_plans_ += 1
@@ -522,7 +532,18 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.n_steps_ += 1
         return cmd
 
+    def planned_path(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The current plan as ``(times (H,) s since the start, positions (H, 2) m)``: what
+        a robot broadcasts to the others (None before the first plan)."""
+        if self._plan is None:
+            return None
+        h = self._plan.positions.shape[0]
+        return self._plan_t + self.dt_plan * np.arange(1, h + 1), self._plan.positions
+
     def interval_record(self) -> MPCIntervalRecord:
+        return with_robot_columns(self._record(), getattr(self, "_robots", None))  # type: ignore[no-any-return]
+
+    def _record(self) -> MPCIntervalRecord:
         rec = self._rec
         s = len(rec["x"])
         n = self._ids.size

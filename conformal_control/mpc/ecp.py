@@ -37,19 +37,19 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-import numba
 import numpy as np
 
 from ..base import Loss
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
+from ..jit import kernel
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, SamplingMPC
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from ..jit import kernel
 
 __all__ = ["evaluate", "evaluate_numpy"]
 
-jit = numba.njit(cache=True, nogil=True)
+jit = kernel(cache=True, nogil=True)
 
 
 @jit

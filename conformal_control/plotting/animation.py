@@ -18,7 +18,43 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["animation_frames", "load_record", "render_animation"]
+__all__ = ["LEGIBLE_WIDTH_PX", "animation_frames", "frame_size", "load_record", "render_animation"]
+
+#: Narrowest frame (pixels) whose text is legible: the animations' labels are 8 pt, which
+#: is 10 px at the default 9.6 in x 80 dpi = 768 px; at 60 dpi they shrink to 7 px.
+LEGIBLE_WIDTH_PX = 720
+
+
+def frame_size(width: float, dpi: int) -> tuple[int, int]:
+    """Even pixel sizes (H.264 needs them) of a ``width`` inch frame at ``dpi``; warns
+    (:class:`~conformal_control.exceptions.SuspiciousValueWarning`) when the frame is too
+    narrow for its text to be read (:data:`LEGIBLE_WIDTH_PX`).
+
+    Raises
+    ------
+    ValueError
+        For a non-positive width or dpi.
+    """
+    import warnings
+
+    from ..exceptions import SuspiciousValueWarning
+
+    if not (math.isfinite(width) and width > 0 and dpi > 0):
+        raise ValueError(f"width and dpi must be > 0, got width={width!r}, dpi={dpi!r}")
+    px_w = 2 * round(width * dpi / 2)
+    px_h = 2 * round(width * dpi * 0.45 / 2)
+    if px_w < LEGIBLE_WIDTH_PX:
+        need = math.ceil(LEGIBLE_WIDTH_PX / width)
+        warnings.warn(
+            SuspiciousValueWarning(
+                f"the animation will be {px_w} x {px_h} px ({width:g} in at {dpi} dpi): its "
+                f"8 pt labels are {8 * dpi / 72:.0f} px tall, hard to read below "
+                f"{LEGIBLE_WIDTH_PX} px wide; use --dpi {need} or more (or a larger --width)"
+            ),
+            stacklevel=3,
+        )
+    return px_w, px_h
+
 
 _STATUS_TEXT = {
     0: ("constraints: inactive", "tab:green"),
@@ -123,12 +159,12 @@ def render_animation(
     dpi : int
         Resolution: the frame is ``width * dpi`` pixels wide.
     progress : bool
-        Show a tqdm progress bar.
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
-    from tqdm import tqdm
 
+    from ..progress import track
     from .run import pyplot
 
     out = Path(out)
@@ -153,9 +189,7 @@ def render_animation(
     d_c = float(rec["collision_distance"])
     r_sense = float(rec["sensing_radius"])
 
-    # even pixel sizes (H.264 needs them)
-    px_w = 2 * round(width * dpi / 2)
-    px_h = 2 * round(width * dpi * 0.45 / 2)
+    px_w, px_h = frame_size(width, dpi)
     fig = plt.figure(figsize=(px_w / dpi, px_h / dpi), dpi=dpi)
     gs = fig.add_gridspec(
         2, 2, width_ratios=[1.7, 1], left=0.06, right=0.98, top=0.93, bottom=0.1, hspace=0.3
@@ -245,7 +279,7 @@ def render_animation(
         )
     n_written = 0
     try:
-        for i in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+        for i in track(frames, f"rendering {out.name}", "frames", enabled=progress):
             x = robot[i]
             collide = False
             p = peds[i]

@@ -18,6 +18,8 @@ def plot_distance(
     collision_distance: float,
     *,
     t_goal: float | None = None,
+    color: str = "tab:blue",
+    label: str = "distance to nearest pedestrian",
 ) -> None:
     """``d_min(t)`` (m) per frame, the collision distance ``d_c`` and the frames below it.
 
@@ -35,10 +37,12 @@ def plot_distance(
         d_c = robot radius + pedestrian radius (m); drawn as a dashed red line.
     t_goal : float, optional
         Marks the arrival time with a vertical line.
+    color, label : str
+        Colour and legend label of the distance curve (to draw two runs on one axes).
     """
     t = np.asarray(trajectory["t"], dtype=float)
     d = np.asarray(trajectory["d_min"], dtype=float)
-    ax.plot(t, d, color="tab:blue", lw=1.2, label="distance to nearest pedestrian")
+    ax.plot(t, d, color=color, lw=1.2, label=label)
     ax.axhline(
         collision_distance, color="red", ls="--", lw=1.0, label=f"d_c = {collision_distance:g} m"
     )

@@ -8,20 +8,27 @@ imported matplotlib and the figures' data (nothing is pickled but the results).
 Forking is used only where it is safe and cheap: on Linux, from a process with a single
 thread (forking a multi-threaded process can deadlock the child), with more than one CPU
 available. Anywhere else, or with ``workers=1``, the figures are drawn here one after the
-other; the output is the same either way. A child that dies is reported by a warning,
-and its figures are then drawn here.
+other; the output is the same either way. A child that dies, is stopped (SIGSTOP, a
+debugger, a job-control stop) or takes far longer than this process's share (more than
+:data:`CHILD_TIMEOUT_S` seconds and ten times as long) is reported by a warning, killed, and
+its figures are then drawn here: a figure never hangs a run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["FigureJob", "can_fork", "draw_all"]
+__all__ = ["CHILD_TIMEOUT_S", "FigureJob", "can_fork", "draw_all"]
+
+#: Least time (s) the figure process is given after this process finished its share.
+CHILD_TIMEOUT_S = 120.0
 
 #: a figure to draw: ``(function, args, kwargs)``; the function saves it and returns anything
 FigureJob = tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]
@@ -79,7 +86,6 @@ def draw_all(jobs: Sequence[FigureJob], workers: int | None = None) -> str:
         return "serial"
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
 
     import matplotlib.pyplot  # noqa: F401 - imported once, before the fork, for both
 
@@ -88,12 +94,13 @@ def draw_all(jobs: Sequence[FigureJob], workers: int | None = None) -> str:
     try:
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) as pool:
             child = pool.submit(_draw, theirs)  # forks now: the child sees _JOBS
+            pids = list((getattr(pool, "_processes", None) or {}).keys())
+            t0 = time.monotonic()
             _draw(mine)
-            try:
-                child.result()
-            except BrokenProcessPool as exc:
+            problem = _wait_child(child, pids, max(CHILD_TIMEOUT_S, 10 * (time.monotonic() - t0)))
+            if problem is not None:
                 warnings.warn(
-                    f"the figure process died ({exc}); drawing its {len(theirs)} figures here",
+                    f"the figure process {problem}; drawing its {len(theirs)} figures here",
                     RuntimeWarning,
                     stacklevel=2,
                 )
@@ -101,3 +108,42 @@ def draw_all(jobs: Sequence[FigureJob], workers: int | None = None) -> str:
     finally:
         _JOBS = ()
     return "forked"
+
+
+def _state(pid: int) -> str | None:
+    """The state letter of process ``pid`` from ``/proc`` (``T``: stopped), or None."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            text = fh.read().decode(errors="replace")
+    except OSError:
+        return None
+    return text[text.rfind(")") + 2 :].split()[0]
+
+
+def _wait_child(child: Any, pids: list[int], timeout: float) -> str | None:
+    """Wait for the child's future; None when it finished, else what went wrong (the child
+    is then killed)."""
+    import signal
+    from concurrent.futures import TimeoutError as FutureTimeout
+    from concurrent.futures.process import BrokenProcessPool
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            child.result(timeout=0.2)
+            return None
+        except BrokenProcessPool as exc:
+            return f"died ({exc})"
+        except FutureTimeout:
+            pass
+        stopped = [pid for pid in pids if _state(pid) in ("T", "t")]
+        late = time.monotonic() > deadline
+        if stopped or late:
+            for pid in pids:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+            return (
+                f"was stopped (pid {stopped[0]})"
+                if stopped
+                else f"took more than {timeout:.0f} s and was killed"
+            )

@@ -83,19 +83,20 @@ def render_multi_animation(
     fps : float
         Output frame rate; the animation plays in real time.
     width : float
-        Figure width in inches (height = 0.45 width).
+        Figure width in inches; the height follows the scene's aspect (the scene takes
+        two thirds of the width, each robot's lambda the rest).
     dpi : int
         Pixels per inch.
     trail : float
         Length (s) of the trail drawn behind each robot.
     progress : bool
-        Show a tqdm progress bar.
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
     import imageio.v2 as imageio
     from matplotlib.patches import Circle
-    from tqdm import tqdm
 
-    from .animation import animation_frames
+    from ..progress import track
+    from .animation import animation_frames, frame_size
     from .run import pyplot
 
     out = Path(out)
@@ -137,18 +138,24 @@ def render_multi_animation(
             rob_pairs = ((d < 2 * r_robot) & either & upper).sum(axis=(1, 2))
     rob_so_far = np.cumsum(rob_pairs)
 
-    px_w = 2 * round(width * dpi / 2)
-    px_h = 2 * round(width * dpi * 0.45 / 2)
+    px_w, _ = frame_size(width, dpi)  # the single-robot animation's width rule and warning
+    xlim, ylim = _view(rec)
+    aspect = abs(ylim[0] - ylim[1]) / max(abs(xlim[1] - xlim[0]), 1e-9)
+    # the scene panel: 0.62 of the width; the height leaves room for the title and labels
+    height = min(max(0.62 * width * aspect + 1.3, 0.4 * width), 0.95 * width)
+    px_h = 2 * round(height * dpi / 2)
     fig = plt.figure(figsize=(px_w / dpi, px_h / dpi), dpi=dpi)
+    top = 1.0 - 0.75 / height
+    bottom = 0.55 / height
     gs = fig.add_gridspec(
-        1, 2, width_ratios=[1.8, 1], left=0.07, right=0.98, top=0.86, bottom=0.13, wspace=0.25
+        1, 2, width_ratios=[2.2, 1], left=0.07, right=0.98, top=top, bottom=bottom, wspace=0.22
     )
     ax = fig.add_subplot(gs[0, 0])
     ax_lam = fig.add_subplot(gs[0, 1])
+    fs = 11  # legible at the figure's own size
 
     image = str(rec.get("image") or "")
     ext = np.asarray(rec["extent"], dtype=float)
-    xlim, ylim = _view(rec)
     if image and Path(image).is_file() and np.isfinite(ext).all():
         img = plt.imread(image)
         sx, sy = img.shape[1] / ext[0], img.shape[0] / ext[1]
@@ -156,17 +163,31 @@ def render_multi_animation(
         r0, r1 = max(int(ylim[1] * sy), 0), min(math.ceil(ylim[0] * sy), img.shape[0])
         step = max(1, int((c1 - c0) / (0.6 * px_w)))
         crop = img[r0:r1:step, c0:c1:step]
-        ax.imshow(crop, extent=(c0 / sx, c1 / sx, r1 / sy, r0 / sy), alpha=0.6)
+        # the reference image in light grey: context without a photograph's colours
+        # (which also keeps a GIF's frames small)
+        grey = crop[..., :3].mean(axis=2) if crop.ndim == 3 else crop
+        grey = np.round(grey / max(float(grey.max()), 1e-9) * 15) / 15  # 16 levels
+        ax.imshow(
+            grey,
+            extent=(c0 / sx, c1 / sx, r1 / sy, r0 / sy),
+            cmap="gray",
+            vmin=-0.8,
+            vmax=1.0,
+            interpolation="nearest",
+        )
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
     ax.set_aspect("equal")
-    ax.set_xlabel("x (m)", fontsize=8)
-    ax.set_ylabel("y (m)", fontsize=8)
-    ax.tick_params(labelsize=7)
+    ax.set_xlabel("x (m)", fontsize=fs)
+    ax.set_ylabel("y (m)", fontsize=fs)
+    ax.tick_params(labelsize=fs - 1)
     for i in range(n):
         g = goals[i][np.isfinite(goals[i, :, 0])]
-        ax.plot(g[:, 0], g[:, 1], "*", color=colours[i], ms=9, mec="black", mew=0.4)
-    others = ax.scatter([], [], s=14, c="0.35", zorder=3, label="pedestrians")
+        ax.plot(g[:, 0], g[:, 1], "*", color=colours[i], ms=12, mec="black", mew=0.5)
+    # pedestrians at their size (points for tiny scales)
+    pts_per_m = 72.0 * px_w / dpi * 0.62 * 0.91 / max(abs(xlim[1] - xlim[0]), 1e-9)
+    size = max((2.0 * r_ped * pts_per_m) ** 2, 12.0)
+    others = ax.scatter([], [], s=size, c="0.3", alpha=0.8, zorder=3, label="pedestrians")
     ped_discs: list[Circle] = []
     trails = [ax.plot([], [], color=colours[i], lw=1.2, alpha=0.8)[0] for i in range(n)]
     discs = []
@@ -175,11 +196,15 @@ def render_multi_animation(
         ax.add_patch(c)
         discs.append(c)
 
+    labels = [
+        ax.text(np.nan, np.nan, str(i), fontsize=fs - 3, ha="center", va="center", zorder=6)
+        for i in range(n)
+    ]
     for i in range(n):
-        ax_lam.step(t_k, lam[:, i], where="post", color=colours[i], lw=1.0)
-    ax_lam.set_xlabel("t (s)", fontsize=8)
-    ax_lam.set_ylabel(f"lambda_k ({rec.get('lambda_unit', '')})", fontsize=8)
-    ax_lam.tick_params(labelsize=7)
+        ax_lam.step(t_k, lam[:, i], where="post", color=colours[i], lw=1.2)
+    ax_lam.set_xlabel("t (s)", fontsize=fs)
+    ax_lam.set_ylabel(f"λ_k of each robot ({rec.get('lambda_unit', '')})", fontsize=fs)
+    ax_lam.tick_params(labelsize=fs - 1)
     ax_lam.grid(alpha=0.3)
     ax_lam.set_xlim(t[frames[0]], max(t[frames[-1]], t[frames[0]] + 1e-6))
     cursor = ax_lam.axvline(t[frames[0]], color="black", lw=0.8)
@@ -200,7 +225,7 @@ def render_multi_animation(
         )
     n_written = 0
     try:
-        for f in tqdm(frames, desc=f"rendering {out.name}", unit="frame", disable=not progress):
+        for f in track(frames, f"rendering {out.name}", "frames", enabled=progress):
             p = peds[f]
             ok = np.isfinite(p[:, 0])
             others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))
@@ -212,6 +237,7 @@ def render_multi_animation(
                 trails[i].set_data(robots[lo : f + 1, i, 0], robots[lo : f + 1, i, 1])
                 disc = discs[i]
                 disc.center = (robots[f, i, 0], robots[f, i, 1])
+                labels[i].set_position((robots[f, i, 0], robots[f, i, 1] - 2.2 * r_robot))
                 disc.set_alpha(1.0 if active[f, i] else 0.35)
                 if c_rob[f, i] and active[f, i]:
                     disc.set_edgecolor("black")
@@ -231,7 +257,7 @@ def render_multi_animation(
                 f"{rec.get('scene', '')}: {n} robots, t = {t[f]:4.1f} s, "
                 f"{int(active[f].sum())} under way\ncollision frames so far: robot-pedestrian "
                 f"{int(ped_so_far[f])}, robot-robot {int(rob_so_far[f])}",
-                fontsize=8,
+                fontsize=fs,
             )
             fig.canvas.draw()
             rgba = np.asarray(fig.canvas.buffer_rgba())

@@ -136,7 +136,8 @@ def plot_scene(
     if frames.size:
         # every track in one line, NaN-separated (one artist instead of one per
         # pedestrian: the drawing and the legend's placement scale with the artists)
-        win = scene.positions[frames[0] : frames[-1] + 1]
+        lo, hi = int(frames[0]), int(frames[-1]) + 1
+        win = scene.tracks.dense(lo, hi, scene.tracks.overlapping(lo, hi))
         seen = np.isfinite(win[:, :, 0])
         cols = np.flatnonzero(seen.any(axis=0))
         if cols.size:

@@ -74,14 +74,24 @@ def _fmt_value(v: Any) -> str:
 
 
 def _parameter_columns(rows: Sequence[Mapping[str, Any]], exclude: set[str]) -> list[str]:
-    """Columns that are parameters of the runs (not metrics, not bookkeeping)."""
+    """Columns that are parameters of the runs (not metrics, not bookkeeping).
+
+    In a sweep's ``results.csv`` the parameters are the ``param.*`` columns, and a bare
+    column named like a parameter is a metric (``lambda_min``: the lowest lambda reached;
+    ``epsilon``, ``eta``: the values used, in SI); in plain rows without such columns a
+    column named after a controller parameter is that parameter. A column that names the
+    same parameter as one of ``exclude`` (the x axis, the lines) is never another one.
+    """
     from ..spec import PARAMETERS
 
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    prefixed = any(c.startswith(_PREFIXES) for c in cols)
+    taken = {_short(c) for c in exclude}
     out = []
-    for col in dict.fromkeys(k for r in rows for k in r):
-        if col in exclude or col in _REPLICATES:
+    for col in cols:
+        if col in exclude or col in _REPLICATES or _short(col) in taken:
             continue
-        if col.startswith(_PREFIXES) or col in _IDENTITY or col in PARAMETERS:
+        if col.startswith(_PREFIXES) or col in _IDENTITY or (col in PARAMETERS and not prefixed):
             out.append(col)
     return out
 
@@ -110,9 +120,11 @@ def plot_sweep(
 
     Lines: one per combination of the values of every parameter that varies across the
     results and is not on the x axis (``group`` restricts the lines to those columns; the
-    other varying parameters are then averaged and the legend names them with their
-    values). Repeated runs of one configuration (``seed``) are averaged with their min-max
-    range shaded, and the legend says over how many. Parameters are the sweep's
+    other varying parameters are then averaged, and the line under the title names them
+    with their values). Repeated runs of one configuration (``seed``) are averaged with
+    their min-max range shaded, and the line under the title says over how many (or "one
+    run"). Lines differ in style and marker as well as colour, so lines that
+    coincide stay visible; the panels share one x label. Parameters are the sweep's
     ``param.*`` / ``predictor_params.*`` columns, ``scene``, ``predictor``, ``learn``,
     ``max_frames``, ``rule``, and any column named after a controller parameter (so in
     plain rows ``eta`` or ``tau`` count, metrics do not). ``x`` and ``group`` may name a
@@ -149,12 +161,13 @@ def plot_sweep(
         raise ValueError("plot_sweep needs at least one result")
     x = _column(rows, x)
     metrics = [_column(rows, m) for m in metrics]
-    params = _parameter_columns(rows, {x, *metrics})
-    varying = [c for c in params if len({_value_key(r.get(c)) for r in rows}) > 1]
     if group is None:
-        lines = varying
+        params = _parameter_columns(rows, {x, *metrics})
+        lines = [c for c in params if len({_value_key(r.get(c)) for r in rows}) > 1]
     else:
         lines = [_column(rows, g) for g in ([group] if isinstance(group, str) else group)]
+    params = _parameter_columns(rows, {x, *metrics, *lines})
+    varying = [c for c in params if len({_value_key(r.get(c)) for r in rows}) > 1]
     averaged = [c for c in varying if c not in lines]
     replicates = [
         c for c in _REPLICATES if c not in lines and len({_value_key(r.get(c)) for r in rows}) > 1
@@ -171,15 +184,16 @@ def plot_sweep(
         vals = sorted({_value_key(r.get(c)) for r in rows}, key=str)
         notes.append(f"averaged over {_short(c)} in {{{', '.join(map(_fmt_value, vals))}}}")
     if not notes:
-        notes.append("one run per point")
+        notes.append("one run")
 
     plt = pyplot()
     fig: Figure
     fig, axes = plt.subplots(
-        1, len(metrics), figsize=(3.8 * len(metrics), 3.6), constrained_layout=True, squeeze=False
+        1, len(metrics), figsize=(3.8 * len(metrics), 3.9), constrained_layout=True, squeeze=False
     )
+    styles = list(zip(("-", "--", ":", "-.") * 3, "osD^vP<>*hXp", strict=True))
     for ax, metric in zip(axes[0], metrics, strict=True):
-        for gval, grows in groups.items():
+        for i, (gval, grows) in enumerate(groups.items()):
             xs = np.array([_num(r.get(x)) for r in grows])
             ys = np.array([_num(r.get(metric)) for r in grows])
             ux = np.unique(xs[np.isfinite(xs)])
@@ -192,7 +206,8 @@ def plot_sweep(
             label = ", ".join(
                 f"{_short(c)} = {_fmt_value(v)}" for c, v in zip(lines, gval, strict=True)
             )
-            (line,) = ax.plot(ux, mean, "o-", ms=4, label=label or "all runs")
+            ls, mk = styles[i % len(styles)]  # lines that coincide stay visible
+            (line,) = ax.plot(ux, mean, ls=ls, marker=mk, ms=4, label=label or "all runs")
             if any(a != b for a, b in zip(lo, hi, strict=True)):
                 ax.fill_between(ux, lo, hi, alpha=0.2, color=line.get_color())
         if _short(metric) == "l_avg" and _short(x) == "epsilon":
@@ -210,16 +225,17 @@ def plot_sweep(
             ax.yaxis.set_major_locator(MaxNLocator(integer=True))
             top = np.nanmax([_num(r.get(metric)) for r in rows] + [0.0])
             ax.set_ylim(0, max(1.0, 1.1 * top))
-        ax.set_xlabel(_x_label(x))
         ax.set_ylabel(_LABELS.get(_short(metric), _short(metric)))
         ax.grid(alpha=0.3)
-    axes[0][-1].legend(fontsize=7, title="; ".join(notes), title_fontsize=7)
+    fig.supxlabel(_x_label(x), fontsize=10)  # one label for the panels: none overlaps
+    axes[0][-1].legend(fontsize=7)
     if title is None:
         scenes = sorted({str(r["scene"]) for r in rows if r.get("scene") not in (None, "")})
         what = ", ".join(_short(m) for m in metrics)
         title = f"{' / '.join(scenes) + ': ' if scenes else ''}{what} against {_short(x)}"
         title += f" ({len(rows)} runs)"
-    fig.suptitle(title, fontsize=10)
+    # what each point is, under the title: exactly what was averaged (or nothing)
+    fig.suptitle(f"{title}\neach point: {'; '.join(notes)}", fontsize=10)
     if path is not None:
         fig.savefig(path, dpi=110)
         plt.close(fig)

@@ -55,6 +55,11 @@ class PredictionQuery:
         oracle baseline calls it (:meth:`future`). It takes the horizon because a
         decision family may ask further ahead than the environment's interval (a plan's
         horizon: ``dataclasses.replace(query, horizon=...)`` keeps the provider).
+    robot : ndarray of shape (N,) or None
+        The agent type the sensor reports: True for an agent it identifies as a robot (in a
+        multi-robot world), False for a pedestrian; None when the sensor does not tell
+        (every agent is then treated alike). Predictors may ignore it; a controller that
+        handles robots apart (reciprocal constraints) reads it.
     """
 
     ids: np.ndarray
@@ -68,10 +73,53 @@ class PredictionQuery:
     truth_provider: Callable[[int], np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
+    robot: np.ndarray | None = None
 
     @property
     def n_agents(self) -> int:
         return int(self.history.shape[0])
+
+    @property
+    def is_robot(self) -> np.ndarray:
+        """The agent types as a boolean array of shape (N,) (all False when not told)."""
+        if self.robot is None:
+            return np.zeros(self.n_agents, dtype=bool)
+        out = np.asarray(self.robot, dtype=bool)
+        if out.shape != (self.n_agents,):
+            raise ValueError(
+                f"robot must have one entry per sensed agent ({self.n_agents}), got shape "
+                f"{out.shape}"
+            )
+        return out
+
+    def select(self, keep: np.ndarray) -> PredictionQuery:
+        """The query restricted to some agents (a boolean mask or indices), in order.
+
+        The true future is restricted alike (the provider is called for every agent and
+        its rows selected).
+        """
+        idx = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        truth = None if self.ground_truth is None else np.asarray(self.ground_truth)[idx]
+        provider = self.truth_provider
+        sub_provider = None
+        if truth is None and provider is not None:
+
+            def sub_provider(horizon: int) -> np.ndarray:
+                out: np.ndarray = np.asarray(provider(horizon))[idx]
+                return out
+
+        return PredictionQuery(
+            ids=np.asarray(self.ids)[idx],
+            history=self.history[idx],
+            dt=self.dt,
+            horizon=self.horizon,
+            t=self.t,
+            frame=self.frame,
+            scene=self.scene,
+            ground_truth=truth,
+            truth_provider=sub_provider,
+            robot=None if self.robot is None else np.asarray(self.robot)[idx],
+        )
 
     @property
     def current(self) -> np.ndarray:

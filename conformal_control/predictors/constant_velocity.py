@@ -36,6 +36,9 @@ class ConstantVelocityPredictor(Predictor):
         Number of sample intervals the velocity is averaged over (>= 1).
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "constant_velocity"
+
     fast = True
 
     def __init__(self, window: int = 5) -> None:

@@ -141,10 +141,10 @@ def _sdd_windows(
     step = round(scene.fps * STANDARD_DT)
     if step != TRAJNET_STEP:  # pragma: no cover - SDD is 30 fps
         raise ValueError(f"scene {name} at {scene.fps} fps is not a multiple of 2.5 fps")
-    frames = scene.first_frame + np.arange(scene.positions.shape[0])
+    frames = scene.first_frame + np.arange(scene.n_frames)
     sel = frames % step == 0
     sub_frames = frames[sel] // step
-    pos = scene.positions[sel]
+    pos = scene.positions[sel]  # the dense array, once
     tracks = {}
     for j in range(pos.shape[1]):
         ok = np.isfinite(pos[:, j]).all(axis=1)

@@ -11,11 +11,15 @@ history padded backwards at its first observed velocity (counted in
 (``n_short_history``).
 
 Subclasses implement ``_fit_arrays`` and ``_predict_offsets`` on displacement arrays and
-``save`` / ``_load``; training goes through ``conformal-control train-predictor``.
+``_save_model`` / ``_load_model``; training goes through ``conformal-control
+train-predictor``. :meth:`WindowPredictor.save` records the SHA-256 of every model file in
+``config.json`` and loading verifies them first: a truncated, corrupt or swapped file is
+refused before its bytes reach a deserialiser (see :func:`verify_model_files`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from abc import abstractmethod
 from pathlib import Path
@@ -23,11 +27,52 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ..exceptions import InputError
+from ..fileio import atomic_write_json
 from .base import Forecast, PredictionQuery, Predictor
 from .constant_velocity import ConstantVelocityPredictor, trailing_valid
 from .evaluation import resample_future, resample_history
 
-__all__ = ["WindowPredictor", "synthetic_windows"]
+__all__ = ["WindowPredictor", "file_sha256", "synthetic_windows", "verify_model_files"]
+
+#: Files of a weights folder that are not the model's (never hashed into ``config.json``).
+_NOT_MODEL_FILES = ("config.json", "training.json")
+
+
+def file_sha256(path: Path) -> str:
+    """The SHA-256 (hex) of a file's bytes."""
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def verify_model_files(folder: Path, config: dict[str, Any]) -> None:
+    """Check every file listed in ``config["sha256"]`` against its recorded SHA-256.
+
+    Raises
+    ------
+    InputError
+        Naming the first file that is missing or whose content does not match: the folder
+        is corrupt (a crash or a full disk while saving) or was modified after saving.
+    """
+    digests = config.get("sha256")
+    if digests is None:
+        return  # saved before checksums were recorded: the loaders themselves are safe
+    if not isinstance(digests, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) for k, v in digests.items()
+    ):
+        raise InputError(f"{folder / 'config.json'}: 'sha256' must map file names to digests")
+    for name, want in sorted(digests.items()):
+        path = folder / name
+        if Path(name).name != name or not path.is_file():
+            raise InputError(f"{path}: model file listed in config.json is missing")
+        if file_sha256(path) != want:
+            raise InputError(
+                f"{path}: content does not match its SHA-256 in config.json (the folder is "
+                "corrupt or was modified after saving); train the model again"
+            )
 
 
 def synthetic_windows(
@@ -103,14 +148,23 @@ class WindowPredictor(Predictor):
         return self
 
     def save(self, folder: str | Path) -> Path:
-        """Write weights, normalisation and ``config.json`` into ``folder``."""
+        """Write weights, normalisation and ``config.json`` into ``folder``.
+
+        ``config.json`` is written last (atomically) and lists the SHA-256 of every other
+        file of the folder, which loading verifies.
+        """
         self._require_model()
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         self._save_model(folder)
         cfg: dict[str, Any] = {"class": type(self).__name__, "params": self.get_params()}
         cfg["params"]["weights"] = None
-        (folder / "config.json").write_text(json.dumps(cfg, indent=2, default=str))
+        cfg["sha256"] = {
+            p.name: file_sha256(p)
+            for p in sorted(folder.iterdir())
+            if p.is_file() and p.name not in _NOT_MODEL_FILES and not p.name.startswith(".")
+        }
+        atomic_write_json(folder / "config.json", cfg, default=str)
         return folder
 
     def _require_model(self) -> None:
@@ -125,7 +179,12 @@ class WindowPredictor(Predictor):
         cfg_path = folder / "config.json"
         if not cfg_path.is_file():
             raise FileNotFoundError(f"no trained model at {folder} (config.json missing)")
-        cfg = json.loads(cfg_path.read_text())
+        try:
+            cfg = json.loads(cfg_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+            raise InputError(f"{cfg_path}: not valid JSON ({exc})") from None
+        if not isinstance(cfg, dict) or not isinstance(cfg.get("params"), dict):
+            raise InputError(f"{cfg_path}: not a model config (no 'params' mapping)")
         if cfg.get("class") != type(self).__name__:
             raise ValueError(f"{folder} holds a {cfg.get('class')}, not a {type(self).__name__}")
         saved = cfg["params"]
@@ -135,6 +194,7 @@ class WindowPredictor(Predictor):
                     f"weights at {folder} were trained with {name}={saved.get(name)}, but this "
                     f"predictor has {name}={getattr(self, name)}"
                 )
+        verify_model_files(folder, cfg)
         self._load_model(folder, cfg)
         self.fitted_ = True
 

@@ -26,6 +26,9 @@ class OraclePredictor(Predictor):
     engine does with the oracle.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "oracle"
+
     fast = True
 
     requires_ground_truth = True

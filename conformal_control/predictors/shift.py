@@ -175,7 +175,7 @@ def _restart_rows(
 class ShiftedPredictor(Predictor):
     """Base of the predictor shifts: a wrapped predictor, built by :meth:`reset`.
 
-    Parameters
+    Attributes
     ----------
     predictor : str or Predictor
         The wrapped predictor: a registered name (built with ``predictor_params``) or an

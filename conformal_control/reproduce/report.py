@@ -406,7 +406,7 @@ def forms_data_stats(data_root: str | None, frames: int = 300) -> dict[str, Any]
     win = {}
     for form in ("raw", "trajnet"):
         sc = load_scene(f"nexus_4:{form}", data_root)
-        w = sc.positions[sc.start_index : sc.start_index + frames]
+        w = sc.tracks.dense(sc.start_index, min(sc.start_index + frames, sc.n_frames))
         win[form] = w
         present = np.isfinite(w[..., 0])
         out[form] = {

@@ -283,9 +283,26 @@ def avoidable(
     apart) can keep a centre distance >= ``d_c`` from a pedestrian at ``q[i]`` at frame
     ``k[i]`` (k > 0 increasing; frames where the pedestrian is absent are left out).
 
-    Returns ``(verdict, how)``: True (a path was found), False (no path exists) or None
-    (undecided), and which test decided (``covered``, ``straight``, ``grid`` or
-    ``undecided``).
+    Parameters
+    ----------
+    p0 : ndarray of shape (2,)
+        The robot's position at frame 0 (m).
+    q : ndarray of shape (K, 2)
+        The pedestrian's positions (m).
+    k : ndarray of int, shape (K,)
+        Their frames (> 0, increasing).
+    v_max : float
+        The robot's speed bound (m/s).
+    dt : float
+        Seconds between frames.
+    d_c : float
+        The collision distance (m).
+
+    Returns
+    -------
+    (bool or None, str)
+        True (a path was found), False (no path exists) or None (undecided), and which
+        test decided (``covered``, ``straight``, ``grid`` or ``undecided``).
     """
     p0 = np.asarray(p0, dtype=float)
     q = np.asarray(q, dtype=float).reshape(-1, 2)

@@ -28,6 +28,7 @@ from .metrics import EpisodeMetrics, episode_metrics
 
 if TYPE_CHECKING:
     from ..flagship.build import Flagship
+    from ..spec import RunSpec
 
 __all__ = [
     "LAMBDA_LIMIT",
@@ -92,6 +93,9 @@ def warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
     )
 
 
+#: share of control instants decided by the fallback from which a missed goal is blamed on it
+FALLBACK_SHARE_WARN = 0.25
+
 #: |lambda| (1/s) beyond which the constraint arithmetic (a h + lambda, summed over rows)
 #: is no longer meaningful and soon overflows; no sensible run gets anywhere near it
 LAMBDA_LIMIT = 1e150
@@ -115,10 +119,29 @@ def check_lambda(lam: float, fl: Flagship, k: int) -> None:
 
 
 def warn_after_run(
-    fl: Flagship, metrics: EpisodeMetrics, learn: bool, max_frames: int | None
+    fl: Flagship,
+    metrics: EpisodeMetrics,
+    learn: bool,
+    max_frames: int | None,
+    stacklevel: int = 4,
 ) -> None:
     """No lambda update at all (warning); the goal not reached because the data ended
-    (warning) or because of the ``max_frames`` limit the caller set (logged)."""
+    (warning) or because of the ``max_frames`` limit the caller set (logged).
+
+    Parameters
+    ----------
+    fl : Flagship
+        The episode as built.
+    metrics : EpisodeMetrics
+        What it measured.
+    learn : bool
+        Whether lambda was learned.
+    max_frames : int, optional
+        The caller's frame limit.
+    stacklevel : int
+        Whom the warnings point at (default: the caller of ``run_episode`` through the
+        loop backend).
+    """
     scene, si = fl.scene, fl.params.si
     if learn and metrics["n_updates"] == 0:
         warnings.warn(
@@ -127,7 +150,7 @@ def warn_after_run(
                 f"({si['sensing_radius']:.3g} m) at a sampling time, so the run did not "
                 "learn (l_avg is undefined); check sensing_radius / rho0 and their unit"
             ),
-            stacklevel=4,  # the caller of run_episode (through run_loop)
+            stacklevel=stacklevel,
         )
     if metrics["goal_reached"]:
         return
@@ -146,14 +169,29 @@ def warn_after_run(
             gap,
         )
         return
+    share = float(metrics["fallback_share"] or 0.0)
+    if learn and metrics["epsilon_attainable"] is False:
+        advice = (
+            f"epsilon={si['epsilon']:g} is below the feasibility floor, so lambda sank below "
+            f"it and the fallback decided at {share:.0%} of the control instants (see the "
+            "warning before the run): raise epsilon or a, or clip lambda with lambda_min"
+        )
+    elif share >= FALLBACK_SHARE_WARN:
+        advice = (
+            f"the fallback decided at {share:.0%} of the control instants (the constraints "
+            "were infeasible there): a lambda_min, a larger a or another fallback keeps the "
+            "safety filter in charge"
+        )
+    else:
+        advice = "choose an earlier start frame (--start-frame) or a closer goal"
     warnings.warn(
         GoalNotReachedWarning(
             f"the goal was not reached: the scene's data ended at frame {last_data} "
             f"({frames / scene.fps:.1f} s after the start) with the robot {gap:.1f} m "
-            "from it; choose an earlier start frame or a closer goal",
+            f"from it; {advice}",
             "data_ended",
         ),
-        stacklevel=4,  # the caller of run_episode (through run_loop)
+        stacklevel=stacklevel,
     )
 
 
@@ -166,9 +204,31 @@ def measure(
     wall: float,
     positions: np.ndarray | None = None,
 ) -> tuple[EpisodeMetrics, list[dict[str, Any]], dict[str, np.ndarray]]:
-    """The episode's metrics, interval rows and trajectory. ``positions``: the pedestrians
-    the robot met (F, M, 2), when they are not the environment's (default: its simulated
-    crowd, else the recording)."""
+    """The episode's metrics, interval rows and trajectory.
+
+    Parameters
+    ----------
+    fl : Flagship
+        The episode as built (its environment holds the frame log and the counters).
+    result : LoopResult
+        The loop's intervals, final lambda and monitor.
+    learn : bool
+        Whether lambda was learned.
+    lambda_safe : float, optional
+        The safe lambda given, in the scene's units.
+    floor : FeasibilityFloor
+        The run's feasibility floor (:func:`feasibility`).
+    wall : float
+        Wall time of the control loop (s).
+    positions : ndarray of shape (F, M, 2), optional
+        The pedestrians the robot met, when they are not the environment's (default: its
+        simulated crowd, else the recording).
+
+    Returns
+    -------
+    (EpisodeMetrics, list of dict, dict of arrays)
+        Metrics, one row per interval, the per-frame trajectory.
+    """
     env, scene, si = fl.env, fl.scene, fl.params.si
     lam_unit, lam_name = lambda_unit(fl)
     traj = env.log.arrays()
@@ -210,13 +270,21 @@ def measure(
             "long_run_holds",
         )
     }
+    frames = traj["frame"] - scene.first_frame
+    ids = scene.agent_ids
     if positions is None:
-        positions = getattr(env, "simulated_scene", lambda: scene)().positions
+        shown = getattr(env, "simulated_scene", lambda: scene)()
+        # the frames of the episode and one on either side (the pedestrians' velocities),
+        # the agents seen there: the rest of the scene does not take part
+        lo = max(int(frames.min(initial=0)) - 1, 0)
+        hi = min(int(frames.max(initial=0)) + 2, shown.n_frames)
+        cols = shown.tracks.overlapping(lo, hi)
+        positions, ids, frames = shown.tracks.dense(lo, hi, cols), ids[cols], frames - lo
     collisions = account_collisions(
         np.column_stack([traj["x"], traj["y"], traj["vx"], traj["vy"]]),
-        traj["frame"] - scene.first_frame,
+        frames,
         positions,
-        scene.agent_ids,
+        ids,
         fps=scene.fps,
         collision_distance=scene.collision_distance,
         sensing_radius=si["sensing_radius"],
@@ -271,16 +339,13 @@ def _nanmean(values: list[float]) -> float | None:
     return float(x.mean()) if x.size else None
 
 
-def episode_config(
-    fl: Flagship,
-    rule_params: dict[str, Any] | None,
-    units: str,
-    learn: bool,
-    lambda_safe: float | None,
-    lambda_safe_source: str | None,
-    seed: int,
-) -> dict[str, Any]:
+def episode_config(fl: Flagship, run: RunSpec, lambda_safe: float | None) -> dict[str, Any]:
+    """``config.json`` of an episode of ``run`` built as ``fl`` (``lambda_safe`` in the
+    scene's units): the scene, every role with its parameters, the parameters as given,
+    as used and in SI, and the run specification itself (``spec``, what
+    :meth:`RunSpec.from_dict <conformal_control.spec.RunSpec.from_dict>` reads back)."""
     scene = fl.scene
+    rule_params = run.role("rule")[1]
     roles = jsonable(fl.role_params())
     rule = roles.pop("rule")
     return {
@@ -297,17 +362,19 @@ def episode_config(
         },
         **roles,
         "fallback": fl.names.get("fallback"),
-        "learning": learn,
+        "learning": run.learn,
         "rule": {
             "name": rule["name"],
             "params_given": jsonable(dict(rule_params or {})),
             "params_si": rule["params"],
         },
-        "units_given": units,
+        "units_given": run.units,
         "lambda_safe": lambda_safe,
-        "lambda_safe_source": lambda_safe_source,
-        "seed": seed,
+        "lambda_safe_source": run.lambda_safe_source,
+        "seed": run.seed,
         "params": jsonable(fl.params.as_dict()),
+        "max_frames": run.max_frames,
+        "spec": jsonable(run.as_dict()),
     }
 
 

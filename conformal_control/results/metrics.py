@@ -24,6 +24,7 @@ import numpy as np
 __all__ = [
     "PERSONAL_SPACE",
     "EpisodeMetrics",
+    "MetricsTable",
     "episode_metrics",
     "format_value",
     "metric",
@@ -44,8 +45,68 @@ def metric(unit: str, doc: str, default: Any = None) -> Any:
 _m = metric  # a short name for the table below
 
 
+class MetricsTable(Mapping[str, Any]):
+    """What a run measured: a dataclass of metrics, each field with its unit and meaning
+    (``metadata``), read like a dict, written as JSON, printed as aligned lines.
+
+    One table type for one robot (:class:`EpisodeMetrics`) and a fleet
+    (:class:`~conformal_control.results.multi_metrics.FleetMetrics`).
+    """
+
+    #: What ``format()`` prints by default.
+    SUMMARY: ClassVar[tuple[str, ...]] = ()
+    #: Fields that are not one table column each (dicts, lists).
+    NON_SCALAR: ClassVar[frozenset[str]] = frozenset({"units"})
+    units: dict[str, str] | None
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """Every metric, in the table's order."""
+        cached: tuple[str, ...] | None = cls.__dict__.get("_names")
+        if cached is None:
+            cached = tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+            cls._names = cached  # type: ignore[attr-defined]  # per class, set once
+        return cached
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self.names():
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __len__(self) -> int:
+        return len(self.names())
+
+    @classmethod
+    def columns(cls) -> tuple[str, ...]:
+        """The scalar metrics (one table column each)."""
+        return tuple(n for n in cls.names() if n not in cls.NON_SCALAR)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready dict: non-finite floats become None, numpy scalars Python ones."""
+        return {name: plain(getattr(self, name)) for name in self.names()}
+
+    def unit(self, name: str) -> str:
+        """The unit of metric ``name`` ("-" when it has none)."""
+        return (self.units or {}).get(name, "-")
+
+    def format(self, keys: tuple[str, ...] | None = None) -> str:
+        """Metrics as aligned ``name  value unit`` lines with sensible precision."""
+        keys = keys or self.SUMMARY
+        width = max(len(k) for k in keys)
+        lines = []
+        for k in keys:
+            unit = self.unit(k)
+            text = format_value(getattr(self, k))
+            suffix = f" {unit}" if unit != "-" and text not in ("-", "none") else ""
+            lines.append(f"{k:<{width}}  {text}{suffix}")
+        return "\n".join(lines)
+
+
 @dataclass
-class EpisodeMetrics(Mapping[str, Any]):
+class EpisodeMetrics(MetricsTable):
     """What one episode of the flagship measured (see each field's ``metadata``)."""
 
     # -- task -------------------------------------------------------------------------
@@ -120,6 +181,9 @@ class EpisodeMetrics(Mapping[str, Any]):
     wall_s: float = _m("s", "wall time of the control loop", 0.0)
     units: dict[str, str] | None = _m("-", "unit of each metric")  # noqa: RUF009 (a field)
 
+    NON_SCALAR: ClassVar[frozenset[str]] = frozenset(
+        {"predictor_info", "units", "collision_events"}
+    )
     #: What ``conformal-control run`` prints.
     SUMMARY: ClassVar[tuple[str, ...]] = (
         "success",
@@ -145,47 +209,6 @@ class EpisodeMetrics(Mapping[str, Any]):
         "frames",
         "wall_s",
     )
-
-    # -- mapping interface ------------------------------------------------------------
-    def __getitem__(self, key: str) -> Any:
-        if key not in _FIELD_NAMES:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(_FIELD_NAMES)
-
-    def __len__(self) -> int:
-        return len(_FIELD_NAMES)
-
-    @classmethod
-    def columns(cls) -> tuple[str, ...]:
-        """The scalar metrics (one table column each)."""
-        return tuple(f.name for f in dataclasses.fields(cls) if f.name not in _NON_SCALAR)
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: non-finite floats become None, numpy scalars Python ones."""
-        return {name: plain(getattr(self, name)) for name in _FIELD_NAMES}
-
-    def unit(self, name: str) -> str:
-        """The unit of metric ``name`` ("-" when it has none)."""
-        return (self.units or {}).get(name, "-")
-
-    def format(self, keys: tuple[str, ...] | None = None) -> str:
-        """Metrics as aligned ``name  value unit`` lines with sensible precision."""
-        keys = keys or self.SUMMARY
-        width = max(len(k) for k in keys)
-        lines = []
-        for k in keys:
-            unit = self.unit(k)
-            text = format_value(getattr(self, k))
-            suffix = f" {unit}" if unit != "-" and text not in ("-", "none") else ""
-            lines.append(f"{k:<{width}}  {text}{suffix}")
-        return "\n".join(lines)
-
-
-_FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EpisodeMetrics))
-_NON_SCALAR = frozenset({"predictor_info", "units", "collision_events"})
 
 
 def metric_fields() -> dict[str, tuple[str, str]]:

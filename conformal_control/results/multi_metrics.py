@@ -12,23 +12,60 @@ until it reaches its last goal or the run ends):
   pedestrian radius (as for one robot);
 * robot-robot collision frame: centre distance to another robot < 2 robot radii;
 * fleet robot-robot *pair-frames*: pairs (i < j) in contact in a frame while at least one
-  of the two is under way, each pair counted once (not once per robot).
+  of the two is under way, each pair counted once (not once per robot);
+* **makespan**: the time the last robot reached its goal (None when one never did);
+* **deadlock** (:class:`DeadlockRule`): a robot under way whose *remaining path* (distance
+  to its current goal plus the legs after it) has not fallen below its smallest value so
+  far by more than ``progress`` metres for ``seconds`` seconds: it stopped making progress
+  (stuck face to face with another robot, behind a parked one, or oscillating in place).
+  A robot that waits that long for pedestrians to pass counts too; the time of the first
+  such frame is its ``t_deadlock``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from .metrics import EpisodeMetrics, format_value, plain
+from .metrics import EpisodeMetrics, MetricsTable, plain
 from .metrics import metric as _m
 
-__all__ = ["FleetMetrics", "RobotContacts", "fleet_metrics", "robot_contacts"]
+__all__ = [
+    "DeadlockRule",
+    "FleetMetrics",
+    "RobotContacts",
+    "deadlocks",
+    "fleet_metrics",
+    "remaining_paths",
+    "robot_contacts",
+]
+
+
+@dataclass(frozen=True)
+class DeadlockRule:
+    """When a robot counts as deadlocked (see the module docstring).
+
+    Parameters
+    ----------
+    seconds : float
+        How long without progress (s, > 0).
+    progress : float
+        The least decrease of the remaining path that counts as progress (m, > 0).
+    """
+
+    seconds: float = 5.0
+    progress: float = 0.25
+
+    def __post_init__(self) -> None:
+        for name in ("seconds", "progress"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"deadlock {name} must be a finite number > 0, got {v!r}")
 
 
 @dataclass
@@ -38,13 +75,17 @@ class RobotContacts:
     n_collide_robot: int = _m("-", "frames with another robot closer than 2 robot radii", 0)
     any_robot_collision: bool = _m("-", "at least one robot-robot collision frame", False)
     d_min_robot: float | None = _m("m", "smallest centre distance to another robot")
+    t_deadlock: float | None = _m("s", "first time it had made no progress for a while")
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
-def robot_contacts(d_min_robot: Sequence[float], robot_radius: float) -> RobotContacts:
-    """:class:`RobotContacts` from a robot's per-frame distance to the nearest other robot."""
+def robot_contacts(
+    d_min_robot: Sequence[float], robot_radius: float, t_deadlock: float | None = None
+) -> RobotContacts:
+    """:class:`RobotContacts` from a robot's per-frame distance to the nearest other robot
+    (and the time it deadlocked, :func:`deadlocks`)."""
     d = np.asarray(d_min_robot, dtype=float)
     with np.errstate(invalid="ignore"):
         n = int(np.sum(d < 2.0 * robot_radius))
@@ -52,11 +93,81 @@ def robot_contacts(d_min_robot: Sequence[float], robot_radius: float) -> RobotCo
         n_collide_robot=n,
         any_robot_collision=n > 0,
         d_min_robot=float(np.nanmin(d)) if np.isfinite(d).any() else None,
+        t_deadlock=t_deadlock,
     )
 
 
+def remaining_paths(
+    track: np.ndarray, goals: Sequence[np.ndarray], goal_radius: float
+) -> np.ndarray:
+    """Each robot's remaining path at each frame (m), shape (F, R): distance to its current
+    goal plus the legs after it, the current goal advancing once within ``goal_radius``
+    (NaN where the position is unknown).
+
+    Parameters
+    ----------
+    track : ndarray of shape (F, R, 2)
+        Positions at each frame (m).
+    goals : sequence of R arrays of shape (G_i, 2)
+    goal_radius : float
+    """
+    x = np.asarray(track, dtype=float)
+    f, r = x.shape[:2]
+    out = np.full((f, r), np.nan)
+    for i in range(r):
+        g = np.asarray(goals[i], dtype=float).reshape(-1, 2)
+        legs = np.r_[np.hypot(*np.diff(g, axis=0).T)[::-1].cumsum()[::-1], 0.0]
+        k = 0
+        for t in range(f):
+            p = x[t, i]
+            if not np.isfinite(p).all():
+                continue
+            while k < len(g) - 1 and math.hypot(*(p - g[k])) <= goal_radius:
+                k += 1
+            out[t, i] = math.hypot(*(p - g[k])) + legs[k]
+    return out
+
+
+def deadlocks(
+    remaining: np.ndarray, active: np.ndarray, fps: float, rule: DeadlockRule
+) -> list[float | None]:
+    """Per robot, the first time (s since the first frame) it had been under way for
+    ``rule.seconds`` without its remaining path falling ``rule.progress`` below its
+    smallest value so far (None: never).
+
+    Parameters
+    ----------
+    remaining : ndarray of shape (F, R)
+        :func:`remaining_paths`.
+    active : ndarray of shape (F, R)
+        Whether each robot was under way.
+    fps : float
+        Frames per second of the track.
+    rule : DeadlockRule
+    """
+    rem = np.asarray(remaining, dtype=float)
+    act = np.asarray(active, dtype=bool)
+    window = max(round(rule.seconds * fps), 1)
+    out: list[float | None] = []
+    for i in range(rem.shape[1]):
+        mark = math.inf  # the smallest remaining path at the last progress
+        since = 0  # the frame of the last progress
+        found = None
+        for t in range(rem.shape[0]):
+            v = rem[t, i]
+            if not act[t, i] or not math.isfinite(v):
+                continue
+            if not math.isfinite(mark) or v <= mark - rule.progress:
+                mark, since = v, t
+            elif t - since >= window:
+                found = t / fps
+                break
+        out.append(found)
+    return out
+
+
 @dataclass
-class FleetMetrics(Mapping[str, Any]):
+class FleetMetrics(MetricsTable):
     """What a multi-robot run measured over all its robots (see each field's metadata)."""
 
     n_robots: int = _m("-", "robots", 0)
@@ -71,9 +182,8 @@ class FleetMetrics(Mapping[str, Any]):
     d_min_pedestrian: float | None = _m("m", "smallest robot-pedestrian centre distance")
     d_min_robot: float | None = _m("m", "smallest robot-robot centre distance")
     t_goal_mean: float | None = _m("s", "mean time to goal over the robots that reached it")
-    t_goal_max: float | None = _m(
-        "s", "time the last robot reached its goal (None if one never did)"
-    )
+    makespan: float | None = _m("s", "time the last robot reached its goal (None if one never did)")
+    n_deadlocked: int = _m("-", "robots that stopped making progress (DeadlockRule)", 0)
     path_length_mean: float | None = _m("m", "mean path length")
     time_in_personal_space: float = _m("s", "robot-pedestrian personal-space time, summed", 0.0)
     l_avg_mean: float | None = _m("-", "mean over robots of their average loss")
@@ -100,7 +210,8 @@ class FleetMetrics(Mapping[str, Any]):
         "d_min_pedestrian",
         "d_min_robot",
         "t_goal_mean",
-        "t_goal_max",
+        "makespan",
+        "n_deadlocked",
         "l_avg_mean",
         "lambda_final_mean",
         "n_fallback",
@@ -108,39 +219,6 @@ class FleetMetrics(Mapping[str, Any]):
         "wall_s",
         "wall_s_per_robot",
     )
-
-    def __getitem__(self, key: str) -> Any:
-        if key not in _FIELDS:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(_FIELDS)
-
-    def __len__(self) -> int:
-        return len(_FIELDS)
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (non-finite floats become None)."""
-        return {name: plain(getattr(self, name)) for name in _FIELDS}
-
-    def unit(self, name: str) -> str:
-        return (self.units or {}).get(name, "-")
-
-    def format(self, keys: tuple[str, ...] | None = None) -> str:
-        """Aligned ``name  value unit`` lines."""
-        keys = keys or self.SUMMARY
-        width = max(len(k) for k in keys)
-        lines = []
-        for k in keys:
-            unit = self.unit(k)
-            text = format_value(getattr(self, k))
-            suffix = f" {unit}" if unit != "-" and text not in ("-", "none") else ""
-            lines.append(f"{k:<{width}}  {text}{suffix}")
-        return "\n".join(lines)
-
-
-_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FleetMetrics))
 
 
 def _mean(values: list[float | None]) -> float | None:
@@ -214,7 +292,8 @@ def fleet_metrics(
         d_min_pedestrian=min(d_ped) if d_ped else None,
         d_min_robot=min(d_rob) if d_rob else None,
         t_goal_mean=_mean(list(t_goals)),
-        t_goal_max=max(t_goals) if t_goals and len(t_goals) == n else None,
+        makespan=max(t_goals) if t_goals and len(t_goals) == n else None,
+        n_deadlocked=int(sum(c.t_deadlock is not None for c in contacts)),
         path_length_mean=_mean([m.path_length for m in robots]),
         time_in_personal_space=float(sum(m.time_in_personal_space for m in robots)),
         l_avg_mean=_mean([m.l_avg for m in robots]),

@@ -43,7 +43,24 @@ def multi_record(
     *,
     epsilon: float,
 ) -> dict[str, Any]:
-    """Assemble the record of a finished multi-robot run."""
+    """Assemble the record of a finished multi-robot run.
+
+    Parameters
+    ----------
+    world : MultiRobotWorld
+        The finished world (its pedestrians and robots).
+    results : list of RobotResult
+        Each robot's measured result.
+    track : dict of arrays
+        The robots' common per-frame track (``frame``, ``robots``, ``active``).
+    epsilon : float
+        The run's target loss (drawn as a reference line).
+
+    Returns
+    -------
+    dict
+        The compact record ``conformal-control animate`` renders.
+    """
     sc = world.scene
     frames = np.asarray(track["frame"]) - sc.first_frame
     robots = np.asarray(track["robots"], dtype=float)

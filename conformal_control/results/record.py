@@ -114,11 +114,17 @@ class AnimationRecorder:
         frames = np.asarray(trajectory["frame"]) - sc.first_frame
         n = frames.size
         robot = np.column_stack([trajectory["x"], trajectory["y"]])
-        win = sc.positions[frames] if n else np.zeros((0, sc.positions.shape[1], 2))
+        if n:  # the frames of the episode, the agents seen over them (read sparsely)
+            lo, hi = int(frames.min()), int(frames.max()) + 1
+            seen = sc.tracks.overlapping(lo, hi)
+            win = sc.tracks.dense(lo, hi, seen)[frames - lo]
+        else:
+            seen, win = np.zeros(0, dtype=np.int64), np.zeros((0, 0, 2))
         present = np.isfinite(win[..., 0]).any(axis=0)
         cols = np.flatnonzero(present)
         peds = win[:, cols].astype(np.float32)
-        col_of = {int(sc.agent_ids[c]): i for i, c in enumerate(cols)}
+        ped_ids = sc.agent_ids[seen[cols]]
+        col_of = {int(a): i for i, a in enumerate(ped_ids)}
         status = np.zeros(n, dtype=np.int8)
         if self._status:
             st = np.concatenate(self._status)[:n]
@@ -161,7 +167,7 @@ class AnimationRecorder:
             "t": np.asarray(trajectory["t"], dtype=float),
             "robot": robot.astype(np.float32),
             "peds": peds,
-            "ped_ids": sc.agent_ids[cols],
+            "ped_ids": ped_ids,
             "status": status,
             "h_true_min": h_min.astype(np.float32),
             "k_start": k_start,

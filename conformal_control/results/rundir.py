@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import csv
-import json
+import io
 import math
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from ..fileio import atomic_write, atomic_write_json, atomic_write_text
 
 if TYPE_CHECKING:
     from .episode import EpisodeResult
 
-__all__ = ["csv_cell", "finite_or_none", "write_run_dir"]
+__all__ = ["csv_cell", "csv_text", "finite_or_none", "write_run_dir"]
 
 
 def finite_or_none(obj: Any) -> Any:
@@ -32,6 +35,15 @@ def csv_cell(v: Any) -> Any:
     if isinstance(v, float):
         return repr(v) if math.isfinite(v) else ""
     return v
+
+
+def csv_text(header: list[str], rows: Iterable[list[Any]]) -> str:
+    """A CSV file's text (``header`` then ``rows``), as :mod:`csv` writes it."""
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
 
 
 def write_run_dir(
@@ -57,50 +69,78 @@ def write_run_dir(
       nearest pedestrian;
     * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
 
-    ``only`` restricts the files to ``("config.json", "metrics.json")`` (what large
-    benchmarks keep).
+    Each file is written to a temporary name and renamed into place, ``metrics.json``
+    after every other data file (before the plots): a run directory holding
+    ``metrics.json`` is complete, and a crash or a full disk never leaves a half-written or
+    empty file; a write error is an
+    :class:`~conformal_control.exceptions.OutputNotWritableError` naming the file.
+
+    Parameters
+    ----------
+    result : EpisodeResult
+        The episode.
+    out : path
+        The run directory.
+    plot : bool
+        Draw ``plot.png`` and ``guarantee.png``.
+    only : tuple of str, optional
+        Restrict the files to these, e.g. ``("config.json", "metrics.json")`` (what large
+        benchmarks keep).
+
+    Returns
+    -------
+    Path
+        ``out``.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
-    (out / "metrics.json").write_text(json.dumps(result.metrics.as_dict(), indent=2) + "\n")
     if only is not None:
         unknown = set(only) - {"config.json", "metrics.json"}
         if unknown:
             raise ValueError(
                 f"write_run_dir(only=...) takes config.json and metrics.json, got {unknown}"
             )
+    # every file is written to a temporary name and renamed (never half-written, errors
+    # name the file); metrics.json comes last of the data files: its presence marks a
+    # complete run directory (an interrupted sweep journals such directories)
+    atomic_write_json(out / "config.json", finite_or_none(result.config))
+    metrics = result.metrics.as_dict()
+    if only is not None:
+        atomic_write_json(out / "metrics.json", metrics)
         return out
-    with (out / "trace.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["k", "t", "lambda", "loss"])
-        for iv in result.intervals:
-            if iv["loss"] is not None:
-                w.writerow(
-                    [iv["k"], csv_cell(iv["t"]), csv_cell(iv["lambda"]), csv_cell(iv["loss"])]
-                )
+    trace = csv_text(
+        ["k", "t", "lambda", "loss"],
+        (
+            [iv["k"], csv_cell(iv["t"]), csv_cell(iv["lambda"]), csv_cell(iv["loss"])]
+            for iv in result.intervals
+            if iv["loss"] is not None
+        ),
+    )
+    atomic_write_text(out / "trace.csv", trace)
     cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
-    with (out / "intervals.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for iv in result.intervals:
-            w.writerow([csv_cell(iv.get(c)) for c in cols])
+    rows = ([csv_cell(iv.get(c)) for c in cols] for iv in result.intervals)
+    atomic_write_text(out / "intervals.csv", csv_text(cols, rows))
     tr = result.trajectory
-    with (out / "trajectory.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "t", "x", "y", "vx", "vy", "d_min"])
-        for i in range(len(tr["frame"])):
-            w.writerow(
-                [
-                    int(tr["frame"][i]),
-                    *(csv_cell(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
-                ]
-            )
+    traj = (
+        [
+            int(tr["frame"][i]),
+            *(csv_cell(float(tr[c][i])) for c in ("t", "x", "y", "vx", "vy", "d_min")),
+        ]
+        for i in range(len(tr["frame"]))
+    )
+    atomic_write_text(
+        out / "trajectory.csv", csv_text(["frame", "t", "x", "y", "vx", "vy", "d_min"], traj)
+    )
     animation = getattr(result, "animation", None)
     if animation is not None:
         import numpy as np
 
-        np.savez_compressed(out / "animation.npz", **animation)
+        def save_npz(tmp: Path) -> None:
+            with tmp.open("wb") as fh:  # a file object: numpy would append .npz to a name
+                np.savez_compressed(fh, **animation)
+
+        atomic_write(out / "animation.npz", save_npz)
+    atomic_write_json(out / "metrics.json", metrics)
     if plot:
         from ..plotting.jobs import FigureJob, draw_all
         from ..plotting.run import plot_run

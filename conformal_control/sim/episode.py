@@ -13,180 +13,94 @@ from collections.abc import Callable
 from typing import Any
 
 from ..data.scene import Scene
-from ..engines.batch import run_single
+from ..engines.batch import as_run_spec, run_single
 from ..engines.loop import run_loop
 from ..flagship.build import RoleSpec, build_flagship
 from ..loop import IntervalLog
 from ..results.episode import EpisodeResult
+from ..spec import RunSpec
 
 __all__ = ["EpisodeResult", "run_episode"]
 
 
 def run_episode(
     scene: Scene,
-    predictor: RoleSpec = "constant_velocity",
+    spec: RunSpec | RoleSpec = None,
     params: dict[str, Any] | None = None,
     *,
-    units: str = "scene",
-    learn: bool = True,
-    max_frames: int | None = None,
-    seed: int = 0,
-    predictor_params: dict[str, Any] | None = None,
-    extra_config: dict[str, Any] | None = None,
-    rule: RoleSpec = "fixed_eta",
-    rule_params: dict[str, Any] | None = None,
-    lambda_safe: float | None = None,
-    lambda_safe_source: str | None = None,
-    barrier: RoleSpec = None,
-    barrier_params: dict[str, Any] | None = None,
-    safety_filter: RoleSpec = None,
-    safety_filter_params: dict[str, Any] | None = None,
-    fallback: RoleSpec = None,
-    reference: RoleSpec = None,
-    reference_params: dict[str, Any] | None = None,
-    dynamics: RoleSpec = None,
-    dynamics_params: dict[str, Any] | None = None,
-    loss: RoleSpec = None,
-    loss_params: dict[str, Any] | None = None,
-    crowd: str = "replay",
-    crowd_params: dict[str, Any] | None = None,
-    family: str | None = None,
-    family_params: dict[str, Any] | None = None,
-    record_animation: bool = True,
     on_interval: Callable[[IntervalLog], None] | None = None,
-    engine: str = "auto",
+    extra_config: dict[str, Any] | None = None,
+    **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on ``scene`` and measure it.
 
     Parameters
     ----------
     scene : Scene
-    predictor : Predictor or str
-        A predictor instance or a registered name (built with ``predictor_params``).
+    spec : RunSpec, Predictor or str
+        The run (:class:`~conformal_control.spec.RunSpec`; the keyword settings below are
+        applied on it), or its predictor: an instance or a registered name (built with
+        ``predictor_params``).
     params : dict
         Parameter overrides (see ``conformal-control params``), in the unit system
         ``units`` says.
-    units : {"scene", "si"}
-        ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
-        frames, the paper's); ``"si"``: in metres and seconds.
-    learn : bool
-        False runs the "noLearn" baseline: lambda stays at ``lambda_init`` (eta = 0).
-    max_frames : int, optional
-        Limit on simulated frames.
-    seed : int
-        Recorded in the config; named plugins with a ``random_state`` receive it.
-    rule : str or UpdateRule
-        A registered update rule built from the run's parameters and ``rule_params``
-        (in ``units``; see :func:`~conformal_control.flagship.build.build_rule`), or an instance
-        (SI units, used as given).
-    lambda_safe : float, optional
-        lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
-        the Theorem-2 bound and the monitor's verdict (fixed-step rules).
-    lambda_safe_source : str, optional
-        Where ``lambda_safe`` came from (reported with the verdict; default "given").
-    barrier, safety_filter, fallback, reference, dynamics, loss
-        Each an instance, a registered name (built with the matching ``*_params``, SI
-        units) or None for the flagship's default; see
-        :func:`~conformal_control.flagship.build.build_flagship`.
-    crowd : str
-        ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
-        who react to the robot, with ``crowd_params`` (SI; see
-        :func:`~conformal_control.world.reactive.make_environment`).
-    family : str, optional
-        A registered decision family built from the flagship's parts (default ``"cbf"``;
-        ``"acp"``), with ``family_params``.
-    record_animation : bool
-        Keep the compact record ``conformal-control animate`` renders (``result.animation``,
-        written as ``animation.npz``; see :mod:`conformal_control.results.record`).
     on_interval : callable, optional
         Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
-    engine : {"auto", "loop", "batch"}
-        How the episode is run. ``"loop"``: the generic
-        :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
-        control instant, for any configuration. ``"batch"``: the compiled engine of
-        :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
-        configurations :func:`~conformal_control.engines.batch.supports` accepts (the
-        flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
-        ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
-        runs the configuration, else the loop. Both give the same result (metrics but
-        ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
-        ``config["engine"]`` says which ran.
+    extra_config : dict, optional
+        Merged into the result's configuration (``config.json``).
+    **settings
+        Settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`), as follows.
+
+        - ``units`` ({"scene", "si"}):
+          ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
+          frames, the paper's); ``"si"``: in metres and seconds.
+        - ``learn`` (bool):
+          False runs the "noLearn" baseline: lambda stays at ``lambda_init`` (eta = 0).
+        - ``max_frames`` (int, optional):
+          Limit on simulated frames.
+        - ``seed`` (int):
+          Recorded in the config; named plugins with a ``random_state`` receive it.
+        - ``rule`` (str or UpdateRule):
+          A registered update rule built from the run's parameters and ``rule_params``
+          (in ``units``; see :func:`~conformal_control.flagship.build.build_rule`), or an instance
+          (SI units, used as given).
+        - ``lambda_safe`` (float, optional):
+          lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
+          the Theorem-2 bound and the monitor's verdict (fixed-step rules).
+        - ``lambda_safe_source`` (str, optional):
+          Where ``lambda_safe`` came from (reported with the verdict; default "given").
+        - ``barrier``, ``safety_filter``, ``fallback``, ``reference``, ``dynamics``, ``loss``:
+          Each an instance, a registered name (built with the matching ``*_params``, SI
+          units) or None for the flagship's default; see
+          :func:`~conformal_control.flagship.build.build_flagship`.
+        - ``crowd`` (str):
+          ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
+          who react to the robot, with ``crowd_params`` (SI; see
+          :func:`~conformal_control.world.reactive.make_environment`).
+        - ``family`` (str, optional):
+          A registered decision family built from the flagship's parts (default ``"cbf"``;
+          ``"acp"``), with ``family_params``.
+        - ``record_animation`` (bool):
+          Keep the compact record ``conformal-control animate`` renders (``result.animation``,
+          written as ``animation.npz``; see :mod:`conformal_control.results.record`).
+        - ``engine`` ({"auto", "loop", "batch"}):
+          How the episode is run. ``"loop"``: the generic
+          :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
+          control instant, for any configuration. ``"batch"``: the compiled engine of
+          :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
+          configurations :func:`~conformal_control.engines.batch.supports` accepts (the
+          flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
+          ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
+          runs the configuration, else the loop. Both give the same result (metrics but
+          ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
+          ``config["engine"]`` says which ran.
     """
-    if engine not in ("auto", "loop", "batch"):
-        raise ValueError(f"engine must be 'auto', 'loop' or 'batch', got {engine!r}")
-    if engine != "loop":
-        compiled = run_single(
-            scene,
-            engine,
-            predictor=predictor,
-            params=params,
-            units=units,
-            learn=learn,
-            max_frames=max_frames,
-            seed=seed,
-            predictor_params=predictor_params,
-            extra_config=extra_config,
-            rule=rule,
-            rule_params=rule_params,
-            lambda_safe=lambda_safe,
-            lambda_safe_source=lambda_safe_source,
-            barrier=barrier,
-            barrier_params=barrier_params,
-            safety_filter=safety_filter,
-            safety_filter_params=safety_filter_params,
-            fallback=fallback,
-            reference=reference,
-            reference_params=reference_params,
-            dynamics=dynamics,
-            dynamics_params=dynamics_params,
-            loss=loss,
-            loss_params=loss_params,
-            crowd=crowd,
-            crowd_params=crowd_params,
-            family=family,
-            family_params=family_params,
-            record_animation=record_animation,
-            on_interval=on_interval,
-        )
+    run = as_run_spec(spec, params, **settings)
+    if run.engine != "loop":
+        compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:
             return compiled
-    fl = build_flagship(
-        scene,
-        params,
-        units=units,
-        predictor=predictor,
-        predictor_params=predictor_params,
-        barrier=barrier,
-        barrier_params=barrier_params,
-        safety_filter=safety_filter,
-        safety_filter_params=safety_filter_params,
-        fallback=fallback,
-        reference=reference,
-        reference_params=reference_params,
-        dynamics=dynamics,
-        dynamics_params=dynamics_params,
-        loss=loss,
-        loss_params=loss_params,
-        rule=rule,
-        rule_params=rule_params,
-        crowd=crowd,
-        crowd_params=crowd_params,
-        family=family,
-        family_params=family_params,
-        learn=learn,
-        seed=seed,
-        max_frames=max_frames,
-    )
     return run_loop(
-        fl,
-        learn=learn,
-        units=units,
-        seed=seed,
-        max_frames=max_frames,
-        lambda_safe=lambda_safe,
-        lambda_safe_source=lambda_safe_source,
-        rule_params=rule_params,
-        extra_config=extra_config,
-        record_animation=record_animation,
-        on_interval=on_interval,
+        build_flagship(scene, run), run, on_interval=on_interval, extra_config=extra_config
     )

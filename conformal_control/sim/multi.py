@@ -3,11 +3,20 @@
 Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
-is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. The
-robots share nothing but the world (:class:`~conformal_control.world.multi.MultiRobotWorld`):
-each senses the pedestrians and the other robots through its own sensor, treats a robot
-like any other agent, and learns its own lambda from its own losses. There is no
-communication.
+is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. Each
+senses the pedestrians and the other robots through its own sensor in the shared world
+(:class:`~conformal_control.world.multi.MultiRobotWorld`), which types the robots as
+robots, and learns its own lambda from its own losses.
+
+How a robot treats the others (:mod:`conformal_control.cbf.reciprocal`): by default each
+pair shares one constraint, each robot taking its share of the pair's barrier rate
+(``reciprocity="reciprocal"``), from what the ``information`` option lets robots know of
+each other (positions, velocities, or the commands they broadcast: ``"plan"``, the
+default, the only communication); ``reciprocity="none"`` predicts the other robots like
+pedestrians (each taking the whole constraint for its prediction), and robots listed in
+``ignoring`` take no robot into account. ``lambda_scope`` says which rows lambda is the
+slack of, ``hard_rows`` how the lambda search treats the others, ``sidestep`` how a robot
+held back by another turns. Nothing else of another robot is ever read.
 
 Starts and goals (:func:`robot_tasks`):
 
@@ -40,14 +49,24 @@ from typing import Any
 import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
+from ..cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..data.scene import Scene
-from ..flagship.build import Flagship, RoleSpec, build_flagship
+from ..flagship.build import Flagship, build_flagship
 from ..loop import ConformalStepper, LoopResult
 from ..results.measure import episode_config, jsonable, measure
 from ..results.metrics import EpisodeMetrics
-from ..results.multi_metrics import FleetMetrics, RobotContacts, fleet_metrics, robot_contacts
+from ..results.multi_metrics import (
+    DeadlockRule,
+    FleetMetrics,
+    RobotContacts,
+    deadlocks,
+    fleet_metrics,
+    remaining_paths,
+    robot_contacts,
+)
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
+from ..spec import Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -56,6 +75,7 @@ __all__ = [
     "MultiResult",
     "RobotResult",
     "as_tasks",
+    "check_tasks",
     "drive",
     "load_robots_file",
     "robot_tasks",
@@ -155,6 +175,10 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
     stand for a single goal.
     """
+    import difflib
+
+    from ..exceptions import InputError
+
     p = Path(path)
     try:
         spec = json.loads(p.read_text())
@@ -164,9 +188,23 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
         raise ValueError(
             f"robots file {p} is not valid JSON ({exc.msg}, line {exc.lineno})"
         ) from None
+    except RecursionError:
+        raise InputError(f"robots file {p} is nested too deeply to be a robots file") from None
+
+    def no_unknown(keys: Any, known: tuple[str, ...], where: str) -> None:
+        for key in keys:
+            if key not in known:
+                close = difflib.get_close_matches(str(key), known, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise InputError(
+                    f"robots file {p}: unknown key {key!r} {where}; {hint}the keys are "
+                    f"{', '.join(known)}"
+                )
+
     robots = spec.get("robots") if isinstance(spec, dict) else None
     if not isinstance(robots, list) or not robots:
         raise ValueError(f'robots file {p} needs a non-empty list "robots"')
+    no_unknown(spec, ("units", "robots"), "at the top level")
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
@@ -179,6 +217,9 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
             raise ValueError(f'robots file {p}: robot {i} needs "start" and "goals" (or "goal")')
+        no_unknown(r, ("start", "goals", "goal"), f"in robot {i}")
+        if "goals" in r and "goal" in r:
+            raise InputError(f'robots file {p}: robot {i} has both "goal" and "goals"; give one')
         try:
             st = np.asarray(r["start"], dtype=float).reshape(2)
             g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)
@@ -186,9 +227,46 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
             raise ValueError(
                 f"robots file {p}: robot {i} has a start or goal that is not (x, y)"
             ) from None
+        if g.shape[0] == 0 or not (np.isfinite(st).all() and np.isfinite(g).all()):
+            raise InputError(f"robots file {p}: robot {i} needs a finite start and goal")
+        if units == "fraction" and not (
+            ((st >= 0) & (st <= 1)).all() and ((g >= 0) & (g <= 1)).all()
+        ):
+            raise InputError(
+                f"robots file {p}: robot {i} has a fraction outside [0, 1] (units "
+                '"fraction" are fractions of the scene\'s width and height)'
+            )
         starts.append(st * scale)
         goals.append(g * scale)
-    return as_tasks(np.array(starts), goals)
+    first = np.array(starts)
+    gap = 2.0 * float(scene.robot_radius)
+    for i in range(len(first)):
+        d = np.hypot(*(first[i + 1 :] - first[i]).T) if i + 1 < len(first) else np.zeros(0)
+        if d.size and d.min() < gap:
+            j = i + 1 + int(np.argmin(d))
+            raise InputError(
+                f"robots file {p}: robots {i} and {j} start {d.min():.3g} m apart, less than "
+                f"two robot radii ({gap:.3g} m): they would start in collision"
+            )
+    return as_tasks(first, goals)
+
+
+def check_tasks(starts: np.ndarray, goals: Sequence[np.ndarray], robot_radius: float) -> None:
+    """Refuse tasks no fleet can do (a one-line ``ValueError``): two robots that start, or
+    end at their last goals, closer than two robot radii."""
+    d_c = 2.0 * float(robot_radius)
+    for what, pts in (
+        ("start", np.asarray(starts)),
+        ("end at goals", np.array([g[-1] for g in goals])),
+    ):
+        d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+        d[np.tril_indices(d.shape[0])] = np.inf
+        if d.size and d.min() < d_c:
+            i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+            raise ValueError(
+                f"robots {i} and {j} {what} {d[i, j]:.3g} m apart, closer than two robot radii "
+                f"({d_c:.3g} m): no fleet can do these tasks"
+            )
 
 
 # ---------------------------------------------------------------------------- results
@@ -287,73 +365,83 @@ class MultiResult:
 
 
 # ---------------------------------------------------------------------------- running
-def _copy_role(spec: RoleSpec) -> RoleSpec:
-    """A name or None as is; an instance deep-copied (no state shared between robots)."""
-    if spec is None or isinstance(spec, str):
+def _copy_role(spec: Any) -> Any:
+    """A name, ``(name, params)`` or None as is; an instance deep-copied (no state shared
+    between robots)."""
+    if spec is None or isinstance(spec, (str, tuple)):
         return spec
     return copy.deepcopy(spec)
 
 
 def run_multi(
     scene: Scene,
-    robots: int | None = None,
+    robots: int | RunSpec | None = None,
     *,
-    starts: Any = None,
-    goals: Any = None,
-    layout: str = "scene",
-    radius: float | None = None,
-    center: Sequence[float] | None = None,
-    predictor: RoleSpec = "constant_velocity",
-    params: dict[str, Any] | None = None,
-    units: str = "scene",
-    learn: bool = True,
-    max_frames: int | None = None,
-    seed: int = 0,
-    predictor_params: dict[str, Any] | None = None,
-    rule: RoleSpec = "fixed_eta",
-    rule_params: dict[str, Any] | None = None,
-    lambda_safe: float | None = None,
-    lambda_safe_source: str | None = None,
-    barrier: RoleSpec = None,
-    barrier_params: dict[str, Any] | None = None,
-    safety_filter: RoleSpec = None,
-    safety_filter_params: dict[str, Any] | None = None,
-    fallback: RoleSpec = None,
-    reference: RoleSpec = None,
-    reference_params: dict[str, Any] | None = None,
-    dynamics: RoleSpec = None,
-    dynamics_params: dict[str, Any] | None = None,
-    loss: RoleSpec = None,
-    loss_params: dict[str, Any] | None = None,
-    crowd: str = "replay",
-    crowd_params: dict[str, Any] | None = None,
-    sensor_history: str = "tracked",
-    record_animation: bool = True,
     extra_config: dict[str, Any] | None = None,
+    deadlock: DeadlockRule | None = None,
+    **settings: Any,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
+
+    The parameters not listed below are as for
+    :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
 
     Parameters
     ----------
     scene : Scene
-    robots : int, optional
+    robots : int or RunSpec, optional
         Number of robots (1 to :data:`MAX_ROBOTS`), placed by ``layout``; or give
-        ``starts`` and ``goals``.
-    starts, goals : array-like, optional
-        Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
-        waypoints per robot.
-    layout, radius, center
-        See :func:`robot_tasks`.
-    sensor_history : {"tracked", "observed"}
-        Histories handed to each robot's predictor (see
-        :class:`~conformal_control.world.multi.MultiRobotWorld`).
-    Others
-        As for :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
+        ``starts`` and ``goals``. Or the run (:class:`~conformal_control.spec.RunSpec`,
+        its ``robots`` section saying where they go; the settings below apply on it).
+    extra_config : dict, optional
+        Merged into the configuration (``config.json``).
+    deadlock : DeadlockRule, optional
+        When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
+    **settings
+        Settings of the run (:meth:`RunSpec.from_settings
+        <conformal_control.spec.RunSpec.from_settings>`), the robots section's included:
+
+        - ``starts``, ``goals`` (array-like, optional):
+          Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
+          waypoints per robot.
+        - ``layout``, ``radius``, ``center``:
+          See :func:`robot_tasks`.
+        - ``sensor_history`` ({"tracked", "observed"}):
+          Histories handed to each robot's predictor (see
+          :class:`~conformal_control.world.multi.MultiRobotWorld`).
+        - ``reciprocity`` ({"reciprocal", "none"}):
+          Robots share each pair's constraint, or predict each other like pedestrians.
+        - ``information`` ({"position", "velocity", "plan"}):
+          What reciprocal robots know of each other (``"plan"``: they broadcast commands).
+        - ``lambda_scope`` ({"pedestrians", "robots", "both"}):
+          The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+        - ``weights`` (sequence of float, optional):
+          The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
+        - ``ignoring`` (sequence of int):
+          Robots that take no other robot into account (a robot that does not comply).
+        - ``sidestep`` (float):
+          Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+        - ``hard_rows`` ({"last", "level"}):
+          How the lambda search treats the rows lambda is not the slack of.
 
     Returns
     -------
     MultiResult
     """
+    if isinstance(robots, RunSpec):
+        run = RunSpec.from_settings(None, base=robots, **settings) if settings else robots
+    else:
+        if robots is not None:
+            settings["robots"] = robots
+        run = RunSpec.from_settings(settings.pop("params", None), **settings)
+    section = run.robots or Robots()
+    robots, starts, goals = section.robots, section.starts, section.goals
+    layout, radius, center = section.layout, section.radius, section.center
+    sensor_history = section.sensor_history
+    reciprocity, information = section.reciprocity, section.information
+    lambda_scope, weights, ignoring = section.lambda_scope, section.weights, section.ignoring
+    sidestep, hard_rows = section.sidestep, section.hard_rows
+    learn, seed, max_frames = run.learn, run.seed, run.max_frames
     if starts is not None or goals is not None:
         if robots is not None and np.asarray(starts).reshape(-1, 2).shape[0] != robots:
             raise ValueError(f"robots={robots} but {len(starts)} starts were given")
@@ -365,40 +453,32 @@ def run_multi(
             scene, 1 if robots is None else robots, layout, radius=radius, center=center
         )
     n = s.shape[0]
-    roles: dict[str, Any] = {
-        "predictor": predictor,
-        "barrier": barrier,
-        "safety_filter": safety_filter,
-        "fallback": fallback,
-        "reference": reference,
-        "dynamics": dynamics,
-        "loss": loss,
-        "rule": rule,
-    }
+    roles = ("predictor", "barrier", "safety_filter", "fallback", "reference", "dynamics")
     fleet: list[Flagship] = []
     for i in range(n):
-        scene_i = dataclasses.replace(scene, start=s[i], goals=tasks[i])
-        role_kw: dict[str, Any] = {k: _copy_role(v) for k, v in roles.items()}
-        fleet.append(
-            build_flagship(
-                scene_i,
-                params,
-                units=units,
-                **role_kw,
-                predictor_params=predictor_params,
-                barrier_params=barrier_params,
-                safety_filter_params=safety_filter_params,
-                reference_params=reference_params,
-                dynamics_params=dynamics_params,
-                loss_params=loss_params,
-                rule_params=rule_params,
-                # the world's crowd is robot 0's (the others' environments are not used)
-                crowd=crowd if i == 0 else "replay",
-                crowd_params=crowd_params if i == 0 else None,
-                learn=learn,
-                seed=seed + i,
-                max_frames=max_frames,
-            )
+        scene_i = scene.replace(start=s[i], goals=tasks[i])
+        copies: dict[str, Any] = {r: _copy_role(getattr(run, r)) for r in (*roles, "loss", "rule")}
+        robot_run = dataclasses.replace(
+            run,
+            seed=seed + i,
+            # the world's crowd is robot 0's (the others' environments are not used)
+            crowd=run.crowd if i == 0 else "replay",
+            robots=None,
+            **copies,
+        )
+        fleet.append(build_flagship(scene_i, robot_run))
+    check_tasks(s, tasks, fleet[0].params.si["robot_radius"])
+    modes = robot_modes(n, reciprocity, ignoring)
+    radii = fleet[0].params.si
+    for fl, mode in zip(fleet, modes, strict=True):
+        # robot rows keep two robot radii apart; the barrier was built for robot + agent
+        set_reciprocity(
+            fl.policy,
+            mode,
+            lambda_scope,
+            radii["robot_radius"] - radii["agent_radius"],
+            sidestep,
+            hard_rows,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -414,11 +494,14 @@ def run_multi(
         max_frames=max_frames,
         crowd=getattr(env0, "crowd", None),
         sensor_history=sensor_history,
+        information=information if "reciprocal" in modes else None,
+        weights=weights,
     )
     run_scene = fl0.scene
     si = fl0.params.si
     lam_unit = run_scene.units.factor("lambda_init")
-    if lambda_safe is not None and units == "si":
+    lambda_safe = run.lambda_safe
+    if lambda_safe is not None and run.units == "si":
         lambda_safe = lambda_safe / lam_unit
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     steppers = [
@@ -428,19 +511,20 @@ def run_multi(
             fl.rule,
             learn=learn,
             lambda_safe=lam_safe_si,
-            lambda_safe_source=lambda_safe_source,
+            lambda_safe_source=run.lambda_safe_source,
         )
         for fl in fleet
     ]
 
     t0, c0 = time.perf_counter(), time.process_time()
-    own = drive(world, steppers)
+    own = drive(world, steppers, broadcast=information == "plan")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 
     h_max = fl0.barrier.upper_bound
     floor = feasibility_floor(
         si["a"], math.inf if h_max is None else h_max, si["epsilon"], si["loss_scale"]
     )
+    stuck = _deadlocks(world, tasks, deadlock or DeadlockRule())
     results: list[RobotResult] = []
     for i, (fl, st) in enumerate(zip(fleet, steppers, strict=True)):
         rec = world.robots[i]
@@ -449,7 +533,7 @@ def run_multi(
         m, intervals, traj = measure(
             view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
         )
-        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius)
+        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius, stuck[i])
         m = dataclasses.replace(
             m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
         )
@@ -484,7 +568,7 @@ def run_multi(
         lam_unit_name=results[0].metrics.unit("lambda_final"),
         cpu_s=cpu,
     )
-    config = episode_config(fl0, rule_params, units, learn, lambda_safe, lambda_safe_source, seed)
+    config = episode_config(fl0, run, lambda_safe)
     config["kind"] = "multi"
     config["n_robots"] = n
     for key in ("start_m", "goals_m"):
@@ -509,20 +593,69 @@ def run_multi(
         }
     )
     config["sensor_history"] = sensor_history
+    config["reciprocity"] = {
+        "reciprocity": reciprocity,
+        "information": information,
+        "lambda_scope": lambda_scope,
+        "weights": None if weights is None else [float(w) for w in weights],
+        "ignoring": [int(i) for i in ignoring],
+        "sidestep": float(sidestep),
+        "hard_rows": hard_rows,
+        "modes": modes,
+    }
     config["max_frames"] = max_frames
     config["feasibility"] = jsonable(floor.as_dict())
     crowd_config = getattr(env0, "crowd_config", None)
     config["crowd"] = crowd_config() if crowd_config is not None else {"crowd": "replay"}
     config.update(extra_config or {})
     animation = None
-    if record_animation:
+    if run.record_animation:
         animation = multi_record(world, results, track, epsilon=si["epsilon"])
     return MultiResult(run_scene, jsonable(config), metrics, results, track, animation)
 
 
-def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[float]:
+def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[str]:
+    """Each robot's treatment of the others: ``reciprocity`` for all, ``"ignore"`` for the
+    robots listed in ``ignoring`` (a robot that does not comply)."""
+    if reciprocity not in RECIPROCITY or reciprocity == "ignore":
+        raise ValueError(f"reciprocity must be 'reciprocal' or 'none', got {reciprocity!r}")
+    bad = [i for i in ignoring if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < n]
+    if bad:
+        raise ValueError(f"ignoring lists robots that do not exist (0 to {n - 1}): {bad}")
+    return ["ignore" if i in set(ignoring) else reciprocity for i in range(n)]
+
+
+def set_reciprocity(
+    policy: Any,
+    mode: str,
+    lambda_scope: str,
+    robot_margin: float = 0.0,
+    sidestep: float = 0.3,
+    hard_rows: str = "last",
+) -> None:
+    """Give a robot's decision family its treatment of the other robots (a one-line error
+    for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
+    collision distance for the robot rows."""
+    if not hasattr(policy, "reciprocity"):
+        raise ValueError(
+            f"decision family {type(policy).__name__} does not handle other robots "
+            "(no reciprocity setting)"
+        )
+    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep, hard_rows)
+    rec.validate()
+    policy.reciprocity = rec
+
+
+def drive(
+    world: MultiRobotWorld, steppers: Sequence[ConformalStepper], *, broadcast: bool = False
+) -> list[float]:
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
     wall time (s) spent in its own sensing, deciding and learning.
+
+    With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
+    plans ahead (``planned_path``), its plan's path
+    (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: seen by the others
+    at the next control instant).
 
     The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
     stepping together: at a sampling time each robot under way senses and begins an
@@ -549,6 +682,9 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
                     continue
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
+                if broadcast:  # its command, and its plan's path if it plans ahead
+                    path = getattr(steppers[i].policy, "planned_path", None)
+                    world.broadcast(i, cmds[i], None if path is None else path())
                 own[i] += clock() - t0
             world.apply(cmds)
             if world.done:
@@ -558,6 +694,21 @@ def drive(world: MultiRobotWorld, steppers: Sequence[ConformalStepper]) -> list[
             steppers[i].end_interval(world.reveal(i))
             own[i] += clock() - t0
     return own
+
+
+def _deadlocks(
+    world: MultiRobotWorld, tasks: list[np.ndarray], rule: DeadlockRule
+) -> list[float | None]:
+    """When each robot deadlocked (:func:`~conformal_control.results.multi_metrics.deadlocks`)."""
+    sc = world.scene
+    lo, hi = sc.start_index, world.frame_index
+    track = world.robot_track()[lo : hi + 1]
+    active = np.zeros(track.shape[:2], dtype=bool)
+    first = sc.first_frame + lo
+    for i, rec in enumerate(world.robots):
+        active[np.asarray(rec.log.frame, dtype=np.int64) - first, i] = True
+    remaining = remaining_paths(track, tasks, sc.goal_radius)
+    return deadlocks(remaining, active, sc.fps, rule)
 
 
 def _track(world: MultiRobotWorld, results: list[RobotResult]) -> dict[str, np.ndarray]:
@@ -588,51 +739,58 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
       robot as a single-robot run writes them (plus ``d_min_robot``);
     * ``trajectories.csv`` -- ``frame,t,robot,x,y,active``: every robot at every frame;
     * ``animation.npz`` -- what ``conformal-control animate`` renders (if recorded).
+
+    Every file is written atomically (temporary name, then rename), the fleet's
+    ``metrics.json`` last; a write error names the file.
     """
-    import csv
+    from ..fileio import atomic_write, atomic_write_json, atomic_write_text
+    from ..results.rundir import csv_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(finite_or_none(result.config), indent=2) + "\n")
+    atomic_write_json(out / "config.json", finite_or_none(result.config))
+    for r in result.robots:
+        d = out / "robots" / f"robot_{r.index:02d}"
+        d.mkdir(parents=True, exist_ok=True)
+        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
+        rows = ([csv_cell(iv.get(c)) for c in cols] for iv in r.intervals)
+        atomic_write_text(d / "intervals.csv", csv_text(cols, rows))
+        tr = r.trajectory
+        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
+        traj = (
+            [int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)]
+            for j in range(len(tr["frame"]))
+        )
+        atomic_write_text(d / "trajectory.csv", csv_text(["frame", *keys], traj))
+        atomic_write_json(d / "metrics.json", finite_or_none(r.summary()))
+    tk = result.track
+    track = (
+        [
+            int(tk["frame"][j]),
+            csv_cell(float(tk["t"][j])),
+            i,
+            csv_cell(float(tk["robots"][j, i][0])),
+            csv_cell(float(tk["robots"][j, i][1])),
+            int(tk["active"][j, i]),
+        ]
+        for j in range(tk["frame"].size)
+        for i in range(tk["robots"].shape[1])
+    )
+    atomic_write_text(
+        out / "trajectories.csv", csv_text(["frame", "t", "robot", "x", "y", "active"], track)
+    )
+    animation = result.animation
+    if animation is not None:
+
+        def save_npz(tmp: Path) -> None:
+            with tmp.open("wb") as fh:  # a file object: numpy would append .npz to a name
+                np.savez_compressed(fh, **animation)
+
+        atomic_write(out / "animation.npz", save_npz)
+    # last: the fleet's metrics.json marks a complete run directory
     summary = {
         "fleet": result.metrics.as_dict(),
         "robots": [r.summary() for r in result.robots],
     }
-    (out / "metrics.json").write_text(json.dumps(finite_or_none(summary), indent=2) + "\n")
-    for r in result.robots:
-        d = out / "robots" / f"robot_{r.index:02d}"
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "metrics.json").write_text(json.dumps(finite_or_none(r.summary()), indent=2) + "\n")
-        cols = ["k", "t", "lambda", "loss", "loss_applied", "max_gap", "n_sensed", "n_steps"]
-        with (d / "intervals.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(cols)
-            for iv in r.intervals:
-                w.writerow([csv_cell(iv.get(c)) for c in cols])
-        tr = r.trajectory
-        keys = ["t", "x", "y", "vx", "vy", "d_min", "d_min_robot"]
-        with (d / "trajectory.csv").open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", *keys])
-            for j in range(len(tr["frame"])):
-                w.writerow([int(tr["frame"][j]), *(csv_cell(float(tr[c][j])) for c in keys)])
-    tk = result.track
-    with (out / "trajectories.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "t", "robot", "x", "y", "active"])
-        for j in range(tk["frame"].size):
-            for i in range(tk["robots"].shape[1]):
-                x, y = tk["robots"][j, i]
-                w.writerow(
-                    [
-                        int(tk["frame"][j]),
-                        csv_cell(float(tk["t"][j])),
-                        i,
-                        csv_cell(float(x)),
-                        csv_cell(float(y)),
-                        int(tk["active"][j, i]),
-                    ]
-                )
-    if result.animation is not None:
-        np.savez_compressed(out / "animation.npz", **result.animation)
+    atomic_write_json(out / "metrics.json", finite_or_none(summary))
     return out

@@ -27,6 +27,7 @@ bad run fails alone, as in any sweep.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 import traceback
@@ -36,9 +37,10 @@ from pathlib import Path
 from typing import Any
 
 from .executors.base import Executor, Outcome
+from .spec import run_spec
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
-__all__ = ["batch_reason", "run_batched"]
+__all__ = ["batch_reason", "run_batched", "run_chunk", "run_chunked"]
 
 #: Run-configuration keys that may differ inside one batch.
 _PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
@@ -136,7 +138,6 @@ def run_batched(
     arguments of :func:`execute_run`): the batched groups in this process while the other
     runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
     pool's workers and this process share the machine instead of taking turns."""
-    import dataclasses
 
     from ..engines.batch import iter_batch
     from .worker import load_run_scene
@@ -169,7 +170,7 @@ def run_batched(
         else:
             kept.pop(sid, None)
         # a shallow copy per run: building an episode sets radii and v_max on its scene
-        return dataclasses.replace(scene, meta=dict(scene.meta), defaults=dict(scene.defaults))
+        return scene.replace(meta=dict(scene.meta), defaults=dict(scene.defaults))
 
     def batched() -> Iterator[Outcome]:
         for idx in groups.values():
@@ -192,21 +193,14 @@ def run_batched(
             done: set[int] = set()
             t0 = time.perf_counter()
             try:
+                run = run_spec({**cfg0, "frames": None})  # the limits are per scene
                 for j, result in iter_batch(
                     scenes(),
-                    cfg0.get("predictor") or "constant_velocity",
-                    dict(cfg0.get("params") or {}),
-                    learn=bool(cfg0.get("learn", True)),
+                    dataclasses.replace(run, record_animation=False),
                     max_frames=limits(),
                     seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
-                    predictor_params=dict(cfg0.get("predictor_params") or {}),
                     batch_size=batch_size,
                     output="results",
-                    **{
-                        k: v
-                        for k, v in (cfg0.get("episode") or {}).items()
-                        if k != "record_animation"
-                    },
                 ):
                     i = idx[j]
                     cfg, key, out_dir, plot = tasks[i]
@@ -243,6 +237,7 @@ class _PoolDrain:
 
         self._queue: queue.Queue[Any] = queue.Queue()
         self._index = index
+        self._ex = ex
         self._stopping = threading.Event()
         self._outcomes = ex.run(execute_run, tasks)
         self._thread = threading.Thread(target=self._drain, name="sweep-pool", daemon=True)
@@ -290,5 +285,62 @@ class _PoolDrain:
             yield self._take(item)
 
     def stop(self) -> None:
-        """Ask the thread to stop after its current outcome (an interrupted sweep)."""
+        """Stop the pool (an interrupted sweep): its workers are terminated at once
+        (:meth:`ProcessExecutor.abort`, when the executor has it) and the thread ends;
+        when this returns no worker writes a run directory any more, so the caller can
+        journal the finished ones from disk."""
         self._stopping.set()
+        abort = getattr(self._ex, "abort", None)
+        if abort is not None:
+            abort()
+        self._thread.join(timeout=60)
+
+
+def run_chunk(tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]]) -> list[Outcome]:
+    """Run ``tasks`` in this process (the batched groups on the lockstep engine, the others
+    one by one) and return their ``(index, record)``: the task a cluster's worker runs for a
+    chunk of a sweep (:func:`run_chunked`)."""
+    from .executors.serial import SerialExecutor
+
+    return list(run_batched(SerialExecutor(), tasks))
+
+
+def _chunk_or_run(*args: Any) -> Any:
+    """A job of :func:`run_chunked`: a chunk (one argument, the tasks) or one run."""
+    return run_chunk(args[0]) if len(args) == 1 else execute_run(*args)
+
+
+def run_chunked(
+    ex: Executor,
+    tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]],
+    *,
+    chunk: int | None = None,
+) -> Iterator[Outcome]:
+    """Yield ``(index, record)`` for every task on a cluster (``ex``, e.g. Dask): the runs the
+    lockstep engine batches are cut into chunks of ``chunk`` runs with the same settings
+    (default: about four chunks per worker, 8 to 256 runs each), each chunk one task that a
+    worker runs on its own engine (:func:`run_chunk`); every other run is one task. The
+    records are those of :func:`run_batched`; a chunk lost with its worker fails its runs
+    (rerun them: finished runs are skipped)."""
+    batched: dict[str, list[int]] = {}
+    rest: list[int] = []
+    for i, (cfg, _key, _out, plot) in enumerate(tasks):
+        if batch_reason(cfg, plot) is None:
+            batched.setdefault(_group_key(cfg), []).append(i)
+        else:
+            rest.append(i)
+    order = [i for idx in batched.values() for i in idx]
+    if chunk is None:
+        chunk = max(8, min(256, -(-len(order) // (4 * max(1, ex.n_workers)))))
+    parts = [order[k : k + chunk] for k in range(0, len(order), chunk)]
+    jobs: list[tuple[Any, ...]] = [([tasks[i] for i in part],) for part in parts]
+    jobs += [tasks[i] for i in rest]
+    for k, outcome in ex.run(_chunk_or_run, jobs):
+        if k < len(parts):
+            part = parts[k]
+            if isinstance(outcome, BaseException):  # the chunk's worker failed
+                yield from ((i, outcome) for i in part)
+            else:
+                yield from ((part[j], rec) for j, rec in outcome)
+        else:
+            yield rest[k - len(parts)], outcome

@@ -6,10 +6,11 @@ it finished. ``results.csv`` (and ``results.parquet`` when pyarrow is installed)
 flat row per run key (the latest record of each key), rewritten from the journal through
 a uniquely named temporary file and an atomic rename.
 
-A journal line that cannot be read (torn by a crash or a full disk, not UTF-8, not a run
-record) is skipped, counted and reported once with its line number; it is never rewritten
-or deleted. Before appending, the store makes sure the journal ends with a newline, so a
-torn tail stays a line of its own instead of swallowing the next record.
+A journal line that cannot be read (torn by a crash or a full disk, not UTF-8, valid JSON
+that is not a run record: see :func:`record_problem`) is skipped, counted and reported once
+with its line number; it is never rewritten or deleted. Before appending, the store makes
+sure the journal ends with a newline, so a torn tail stays a line of its own instead of
+swallowing the next record.
 
 Run directories are recorded relative to the sweep folder (``runs/<name>``), so a sweep
 folder can be moved or copied. Journals written with absolute paths are read too: such a
@@ -26,17 +27,18 @@ import json
 import math
 import os
 import re
-import tempfile
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record"]
+from ..fileio import TMP_PREFIX as _TMP_PREFIX
+from ..fileio import TMP_SUFFIX as _TMP_SUFFIX
+from ..fileio import atomic_write
+
+__all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record", "record_problem"]
 
 _FIRST = ["key", "status", "label", "scene", "predictor", "learn", "seed", "max_frames"]
-_TMP_PREFIX = "."
-_TMP_SUFFIX = ".tmp"
 #: Names temporary files had before they were unique (removed when the folder is locked).
 _OLD_TMP = ("results.csv.tmp", "results.parquet.tmp")
 
@@ -55,6 +57,45 @@ def _scalar(v: Any) -> Any:
     if isinstance(v, (dict, list, tuple)):
         return json.dumps(v, sort_keys=True)
     return v
+
+
+#: Optional fields of a run record and the JSON types they may hold.
+_RECORD_FIELDS: dict[str, tuple[type, ...]] = {
+    "run_dir": (str, type(None)),
+    "metrics": (dict, type(None)),
+    "config": (dict, type(None)),
+    "error": (str, type(None)),
+    "traceback": (str, type(None)),
+    "worker": (str, type(None)),
+    "elapsed_s": (int, float, type(None)),
+    "finished_at": (int, float, type(None)),
+}
+#: Parts of ``config`` that must be mappings when present.
+_CONFIG_MAPPINGS = ("meta", "episode", "predictor_params", "params")
+
+
+def record_problem(rec: Any) -> str | None:
+    """Why ``rec`` (a parsed journal line) is not a run record, or None if it is one.
+
+    A run record is an object with a string ``key``, a ``status`` of ``"ok"`` or
+    ``"failed"`` and, when present, fields of the types :func:`execute_run` writes
+    (``metrics`` and ``config`` objects, ``run_dir`` a string or null, ...). A line of
+    valid JSON that fails this is skipped and reported like a torn line.
+    """
+    if not isinstance(rec, dict):
+        return f"a JSON {type(rec).__name__}, not an object"
+    if not isinstance(rec.get("key"), str) or not rec["key"]:
+        return "no string 'key'"
+    if rec.get("status") not in ("ok", "failed"):
+        return f"status {rec.get('status')!r} is neither 'ok' nor 'failed'"
+    for name, types in _RECORD_FIELDS.items():
+        if name in rec and (not isinstance(rec[name], types) or isinstance(rec[name], bool)):
+            return f"{name!r} is a {type(rec[name]).__name__}"
+    cfg = rec.get("config") or {}
+    for name in _CONFIG_MAPPINGS:
+        if cfg.get(name) is not None and not isinstance(cfg[name], dict):
+            return f"'config.{name}' is a {type(cfg[name]).__name__}"
+    return None
 
 
 def flatten_record(rec: dict[str, Any]) -> dict[str, Any]:
@@ -145,8 +186,12 @@ class ResultsStore:
             except json.JSONDecodeError:
                 bad.append((n, "torn or not JSON"))
                 continue
-            if not isinstance(rec, dict) or not isinstance(rec.get("key"), str):
-                bad.append((n, "not a run record"))
+            except RecursionError:
+                bad.append((n, "nested too deeply"))
+                continue
+            why = record_problem(rec)
+            if why is not None:
+                bad.append((n, f"not a run record: {why}"))
                 continue
             out.append(rec)
         self.bad_lines_ = bad
@@ -341,26 +386,6 @@ class ResultsStore:
                     p.unlink()
                     gone.append(p)
         return gone
-
-
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any]) -> None:
-    """Write ``path`` through ``write(tmp)`` on a unique temporary file, then rename it.
-
-    The temporary file is in the same folder (``.<name>.<random>.tmp``), so the rename is
-    atomic and two writers never share one; it is removed if ``write`` fails.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(
-        dir=path.parent, prefix=f"{_TMP_PREFIX}{path.name}.", suffix=_TMP_SUFFIX
-    )
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def _json_default(obj: Any) -> Any:

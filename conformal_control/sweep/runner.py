@@ -4,8 +4,18 @@ Order of a call to :func:`run_sweep`: every configuration is checked (nothing ru
 is invalid); the folder's lock is taken (a second sweep on the same folder stops at once);
 the journal is read and finished keys are skipped; the rest go to the executor and every
 outcome is appended to the journal the moment it arrives; the tables and the summary plot
-are written at the end. SIGTERM and Ctrl-C stop the sweep cleanly: the run in flight is
-abandoned, workers are terminated, the tables are rewritten and the lock is released.
+are written at the end. SIGTERM and Ctrl-C stop the sweep cleanly: the runs in flight are
+abandoned, workers are terminated, every run whose directory was completed (``metrics.json``
+written) but whose outcome had not reached the journal yet -- a pool worker's finished run, a
+batched run between its files and its journal line -- is journaled from its run directory
+(counted in :attr:`SweepReport.recovered`), the tables are rewritten and the lock released.
+A resumed sweep adopts such run directories the same way instead of running them again.
+
+The tables are rewritten at the end and, during the sweep, at most every
+:data:`TABLE_INTERVAL_S` seconds and never more often than it takes to write them twenty
+times over (``table_every=None``, the default): their cost stays a small fraction of the
+sweep, whatever its size (rewriting them after every run made a sweep quadratic in its
+number of runs).
 """
 
 from __future__ import annotations
@@ -30,7 +40,12 @@ from .results import ResultsStore, atomic_write
 from .spec import RunConfig, SweepSpec
 from .worker import execute_run
 
-__all__ = ["SweepInterrupted", "SweepReport", "run_sweep"]
+__all__ = ["TABLE_INTERVAL_S", "SweepInterrupted", "SweepReport", "run_sweep"]
+
+#: Least time (s) between two rewrites of the tables during a sweep (``table_every=None``).
+TABLE_INTERVAL_S = 30.0
+#: The tables are rewritten at most once per this many times the last rewrite took.
+TABLE_COST_RATIO = 20.0
 
 
 class SweepInterrupted(KeyboardInterrupt):
@@ -69,6 +84,11 @@ class SweepReport:
         The summary plot written (``summary.png``), if any.
     notes : list of str
         Other things the caller should be told (why there is no summary plot).
+    recovered : list of str
+        Keys journaled from their finished run directory instead of their outcome (an
+        interrupted sweep's finished runs, or the run directories a resumed sweep found).
+    interrupted : bool
+        The sweep was stopped by a signal before every run finished.
     """
 
     out_dir: Path
@@ -82,12 +102,19 @@ class SweepReport:
     journal_skipped: list[tuple[int, str]] = field(default_factory=list)
     summary_plot: Path | None = None
     notes: list[str] = field(default_factory=list)
+    recovered: list[str] = field(default_factory=list)
+    interrupted: bool = False
 
     def summary(self) -> str:
+        recovered = (
+            f"{len(self.recovered)} recovered from their run directories, "
+            if self.recovered
+            else ""
+        )
         return (
-            f"{len(self.keys)} runs: {len(self.skipped)} already done, {len(self.ran)} ran "
-            f"({len(self.failed)} failed) in {self.wall_s:.1f} s on {self.executor}; "
-            f"results in {self.out_dir}"
+            f"{len(self.keys)} runs: {len(self.skipped)} already done, {recovered}"
+            f"{len(self.ran)} ran ({len(self.failed)} failed) in {self.wall_s:.1f} s on "
+            f"{self.executor}; results in {self.out_dir}"
         )
 
 
@@ -177,7 +204,7 @@ def run_sweep(
     summary_plot: bool = True,
     validate: bool = True,
     progress: bool | None = None,
-    table_every: int = 1,
+    table_every: int | None = None,
     parquet: bool = True,
 ) -> SweepReport:
     """Run every configuration of ``spec`` into ``out_dir``.
@@ -193,7 +220,10 @@ def run_sweep(
         ``"process"`` (default), ``"serial"``, ``"dask"``, ``"batch"``, or an executor
         instance (not closed here). ``"batch"`` runs every run the lockstep engine supports
         many at once in this process (same metrics; see :mod:`conformal_control.sweep.batch`)
-        and the others on a process pool.
+        and the others on a process pool; ``"dask"`` (``scheduler``: a running cluster's
+        address, else a local one) sends those runs in chunks, each batched on a worker
+        (:func:`~conformal_control.sweep.batch.run_chunked`), and the others one per task.
+        Either way this process journals every record as it arrives.
     workers, scheduler :
         For executors built by name.
     resume : bool
@@ -212,8 +242,9 @@ def run_sweep(
         runs start and be recorded as failed.
     progress : bool, optional
         Show a tqdm bar (runs done / total, ETA); default: when stderr is a terminal.
-    table_every : int
-        Rewrite the CSV/Parquet tables after every N completed runs (always at the end).
+    table_every : int or None
+        Rewrite the CSV/Parquet tables after every N completed runs (always at the end);
+        None (default): by time, see the module docstring.
     parquet : bool
         Write ``results.parquet`` beside ``results.csv`` (default, when pyarrow is
         installed). False writes the CSV only: building the Arrow table imports pandas
@@ -247,23 +278,43 @@ def run_sweep(
         store.records()  # reads the journal now: unreadable lines are reported up front
         report.journal_skipped = list(store.bad_lines_)  # also warned (JournalWarning)
         done = store.finished(include_failed=not retry_failed) if resume else set()
+        if resume:  # finished run directories the journal does not know (a killed sweep)
+            waiting = [(c, k) for c, k in zip(configs, keys, strict=True) if k not in done]
+            adopted = _adopt_finished(store, waiting, guard)
+            report.recovered.extend(adopted)
+            done |= set(adopted)
         todo = [(c, k) for c, k in zip(configs, keys, strict=True) if k not in done]
-        report.skipped = [k for k in keys if k in done]
+        report.skipped = [k for k in keys if k in done and k not in report.recovered]
         runs = [dict(c.as_dict(), key=k) for c, k in zip(configs, keys, strict=True)]
         text = json.dumps({"runs": runs}, indent=1, default=str) + "\n"
         atomic_write(out / "sweep.json", lambda tmp: tmp.write_text(text))
         own = isinstance(executor, str)
-        batch = executor == "batch"  # the lockstep engine, the other runs on a process pool
+        # the lockstep engine: here with the other runs on a process pool (batch), or in
+        # chunks on a cluster's workers (dask)
+        batch = executor in ("batch", "dask") or getattr(executor, "distributed", False)
         if isinstance(executor, str):
-            name = "process" if batch else executor
+            name = "process" if executor == "batch" else executor
             ex = make_executor(name, workers=workers, scheduler=scheduler)
         else:
             ex = executor
+        stopped = False
         try:
             _run(ex, todo, store, report, guard, plot, progress, table_every, batch, parquet)
+        except BaseException as exc:
+            stopped = True
+            report.interrupted = isinstance(exc, KeyboardInterrupt)  # SweepInterrupted too
+            raise
         finally:
             if own:
                 ex.close()
+            if stopped:  # after the workers stopped: their run directories are complete or not
+                with contextlib.suppress(SweepInterrupted, Exception):
+                    if report.interrupted:
+                        ran = set(report.ran)
+                        left = [(c, k) for c, k in todo if k not in ran]
+                        report.recovered.extend(_adopt_finished(store, left, guard))
+                with contextlib.suppress(SweepInterrupted, Exception):
+                    store.write_tables(parquet=parquet)
         report.rows = store.rows(keys, absolute=True)
         if summary_plot:
             from .summary import write_summary_plot
@@ -286,7 +337,7 @@ def _run(
     guard: _SignalGuard,
     plot: bool | str,
     progress: bool | None,
-    table_every: int,
+    table_every: int | None,
     batch: bool = False,
     parquet: bool = True,
 ) -> None:
@@ -294,9 +345,16 @@ def _run(
     report.executor = ex.describe() if todo else ex.name
     out_str = str(store.out_dir.resolve())
     tasks = [(c.as_dict(), k, out_str, plot) for c, k in todo]
-    bar = _progress(len(report.keys), len(report.skipped), progress)
+    bar = _progress(len(report.keys), len(report.keys) - len(todo), progress)
     n_since_table = 0
-    if batch:
+    last_table = time.perf_counter()
+    table_cost = 0.0
+    if batch and ex.distributed:
+        from .batch import run_chunked
+
+        report.executor = f"batch chunks on {report.executor}"
+        outcomes = run_chunked(ex, tasks)
+    elif batch:
         from .batch import run_batched
 
         report.executor = f"batch + {report.executor}"
@@ -329,12 +387,67 @@ def _run(
             bar.update(1)
             bar.set_postfix(failed=len(report.failed), refresh=False)
             n_since_table += 1
-            if n_since_table >= max(1, table_every):
+            now = time.perf_counter()
+            if (
+                n_since_table >= max(1, table_every)
+                if table_every is not None
+                else now - last_table >= max(TABLE_INTERVAL_S, TABLE_COST_RATIO * table_cost)
+            ):
                 store.write_tables(parquet=parquet)
+                last_table = time.perf_counter()
+                table_cost = last_table - now
                 n_since_table = 0
     finally:
         close = getattr(outcomes, "close", None)
         if close is not None:  # stop the executor now, not when the generator is collected
             close()
         bar.close()
-        store.write_tables(parquet=parquet)
+    store.write_tables(parquet=parquet)
+
+
+def _adopt_finished(
+    store: ResultsStore, todo: list[tuple[RunConfig, str]], guard: _SignalGuard
+) -> list[str]:
+    """Journal the runs of ``todo`` whose run directory is complete; return their keys.
+
+    A run directory is complete when its ``metrics.json`` exists (written atomically, after
+    ``config.json``) and its ``config.json`` names the run's key: the run finished, but its
+    outcome never reached the journal (the sweep was stopped in between). Its record is
+    the one the run would have sent, rebuilt from those files, marked ``"recovered": true``.
+    """
+    from .worker import METRIC_COLUMNS, run_dir_name
+
+    runs = store.out_dir / "runs"
+    if not todo or not runs.is_dir():
+        return []
+    present = {p.name for p in runs.iterdir()}
+    adopted: list[str] = []
+    for cfg, key in todo:
+        d = cfg.as_dict()
+        name = run_dir_name(d, key)
+        if name not in present:
+            continue
+        try:
+            metrics = json.loads((runs / name / "metrics.json").read_text())
+            saved = json.loads((runs / name / "config.json").read_text())
+        except (OSError, ValueError, RecursionError):
+            continue  # not finished (or not ours): the run is done again
+        if not isinstance(metrics, dict) or not isinstance(saved, dict):
+            continue
+        if (saved.get("sweep") or {}).get("key") != key:
+            continue
+        rec = {
+            "key": key,
+            "status": "ok",
+            "run_dir": f"runs/{name}",
+            "metrics": {k: metrics.get(k) for k in METRIC_COLUMNS},
+            "error": None,
+            "traceback": None,
+            "recovered": True,
+            "config": d,
+            "finished_at": time.time(),
+        }
+        with guard.critical():
+            store.append(rec)
+        adopted.append(key)
+    return adopted

@@ -45,7 +45,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..exceptions import InputError
+from ..spec import OPTION_FIELDS, ROLE_FIELDS, RunSpec
+
 __all__ = [
+    "MAX_RUNS",
     "RESERVED_KEYS",
     "RunConfig",
     "SweepSpec",
@@ -53,7 +57,11 @@ __all__ = [
     "load_spec",
     "parse_grid_option",
     "run_key",
+    "run_spec",
 ]
+
+#: Most runs one sweep may have (checked before the grid is expanded).
+MAX_RUNS = 1_000_000
 
 #: Keys of a run configuration that are not controller parameters.
 RESERVED_KEYS = (
@@ -67,30 +75,15 @@ RESERVED_KEYS = (
     "label",
     "meta",
 )
-#: Keys passed to :func:`~conformal_control.sim.run_episode` as they are (roles by name,
-#: the rule, the unit system, the crowd, the family, lambda_safe); they enter the run key.
-EPISODE_KEYS = (
-    "units",
-    "rule",
-    "rule_params",
-    "barrier",
-    "barrier_params",
-    "safety_filter",
-    "safety_filter_params",
-    "fallback",
-    "reference",
-    "reference_params",
-    "dynamics",
-    "dynamics_params",
-    "loss",
-    "loss_params",
-    "family",
-    "family_params",
-    "crowd",
-    "crowd_params",
-    "lambda_safe",
-    "lambda_safe_source",
-    "record_animation",
+#: Keys of the run specification (:class:`~conformal_control.spec.RunSpec`) a run
+#: configuration holds as they are, under ``episode`` (roles by name and their parameters,
+#: the rule, the unit system, the crowd, the family, lambda_safe, the engine); they enter
+#: the run key. Derived from the specification's fields: the predictor, ``learn``,
+#: ``seed`` and ``frames`` (``max_frames``) are reserved keys of their own.
+EPISODE_KEYS: tuple[str, ...] = (
+    *(o for o in OPTION_FIELDS if o not in ("learn", "seed", "max_frames")),
+    *(r for r in ROLE_FIELDS if r != "predictor"),
+    *(f"{r}_params" for r in ROLE_FIELDS if r != "predictor"),
 )
 #: Keys that do not enter the run key.
 UNHASHED_KEYS = ("label", "data_root", "meta")
@@ -259,6 +252,21 @@ def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
     )
 
 
+def run_spec(cfg: Mapping[str, Any], max_frames: int | None = None) -> RunSpec:
+    """The :class:`~conformal_control.spec.RunSpec` of a run configuration
+    (:meth:`RunConfig.as_dict`); ``max_frames`` is the limit when the configuration sets
+    none (a benchmark scenario's time limit)."""
+    return RunSpec.from_settings(
+        dict(cfg.get("params") or {}),
+        predictor=cfg.get("predictor") or "constant_velocity",
+        predictor_params=dict(cfg.get("predictor_params") or {}),
+        learn=bool(cfg.get("learn", True)),
+        seed=int(cfg.get("seed", 0)),
+        max_frames=cfg.get("frames") or max_frames,
+        **dict(cfg.get("episode") or {}),
+    )
+
+
 def run_key(hashed: Mapping[str, Any]) -> str:
     """Short SHA-256 of the canonical JSON of a configuration (16 hex digits)."""
     text = json.dumps(_canonical(dict(hashed)), sort_keys=True, separators=(",", ":"))
@@ -291,6 +299,12 @@ class SweepSpec:
                 f"unknown section(s) {', '.join(unknown)} in the sweep spec; "
                 "use base, grid and runs"
             )
+        for section in ("base", "grid"):
+            if data.get(section) is not None and not isinstance(data[section], Mapping):
+                raise InputError(
+                    f"'{section}' of the sweep spec must be a mapping of names to values, got "
+                    f"a {type(data[section]).__name__}"
+                )
         base = dict(data.get("base") or {})
         grid_in = dict(data.get("grid") or {})
         grid = {k: list(v) if isinstance(v, (list, tuple)) else [v] for k, v in grid_in.items()}
@@ -302,16 +316,38 @@ class SweepSpec:
             raise ValueError("'runs' must be a list of mappings")
         return cls(base, grid, [dict(r) for r in runs])
 
+    def size(self) -> int:
+        """Number of runs before duplicates are merged: ``len(runs) x product of axes``."""
+        return max(len(self.runs), 1) * math.prod(len(v) for v in self.grid.values())
+
     def expand(self) -> list[RunConfig]:
-        """All runs, in order, without duplicates (same key kept once)."""
+        """All runs, in order, without duplicates (same key kept once).
+
+        Raises
+        ------
+        ValueError
+            If the sweep has more than :data:`MAX_RUNS` runs (checked before anything is
+            built), or a run is invalid.
+        """
+        n_runs = self.size()
+        if n_runs > MAX_RUNS:
+            shape = " x ".join(
+                [
+                    *([f"{len(self.runs)} runs"] if self.runs else []),
+                    *(f"{len(v)} {k}" for k, v in self.grid.items()),
+                ]
+            )
+            raise InputError(
+                f"the sweep has {n_runs:,} runs ({shape}), more than the {MAX_RUNS:,} one "
+                "sweep may hold; split it into several sweeps or use coarser grids"
+            )
         axes = list(self.grid)
-        points = list(itertools.product(*(self.grid[a] for a in axes))) or [()]
         out: list[RunConfig] = []
         seen: set[str] = set()
         errors: dict[str, int] = {}
         n = 0
         for run in self.runs or [{}]:
-            for point in points:
+            for point in itertools.product(*(self.grid[a] for a in axes)):
                 n += 1
                 flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
                 try:
@@ -341,21 +377,30 @@ def load_spec(path: str | Path) -> SweepSpec:
     if not path.is_file():
         raise FileNotFoundError(f"sweep spec {path} not found")
     suffix = path.suffix.lower()
-    text = path.read_text()
-    if suffix in (".yaml", ".yml"):
-        import yaml
-
-        data = yaml.safe_load(text)
-    elif suffix == ".json":
-        data = json.loads(text)
-    elif suffix == ".toml":
-        if sys.version_info >= (3, 11):
-            import tomllib
-        else:  # Python 3.10
-            import tomli as tomllib
-        data = tomllib.loads(text)
-    else:
+    if suffix not in (".yaml", ".yml", ".json", ".toml"):
         raise ValueError(f"sweep spec {path}: use a .yaml, .yml, .json or .toml file")
+    text = path.read_text()
+    try:
+        if suffix in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        elif suffix == ".json":
+            data = json.loads(text)
+        else:
+            if sys.version_info >= (3, 11):
+                import tomllib
+            else:  # Python 3.10
+                import tomli as tomllib
+            data = tomllib.loads(text)
+    except RecursionError:
+        raise InputError(f"sweep spec {path}: nested too deeply to be a sweep spec") from None
+    except ValueError as exc:  # JSONDecodeError, TOMLDecodeError
+        raise InputError(f"sweep spec {path}: not valid {suffix[1:].upper()} ({exc})") from None
+    except Exception as exc:  # yaml.YAMLError (yaml is imported only for YAML files)
+        if type(exc).__module__.startswith("yaml"):
+            raise InputError(f"sweep spec {path}: not valid YAML ({exc})") from None
+        raise
     if not isinstance(data, Mapping):
         raise ValueError(f"sweep spec {path}: expected a mapping with base/grid/runs")
     return SweepSpec.from_mapping(data)

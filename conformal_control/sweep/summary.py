@@ -93,14 +93,9 @@ def write_summary_plot(
         return col.removeprefix("param.")
 
     xs, gs = short(x), (short(group) if group else None)
-    data = []
-    for r in ok:  # swept values under their short names (plot_sweep knows "epsilon")
-        d = dict(r)
-        d[xs] = r.get(x)
-        if group and gs:
-            d[gs] = r.get(group)
-        data.append(d)
-    fig = plot_sweep(data, xs, metrics, group=gs)
+    # the swept columns as they are (param.epsilon): a bare "epsilon" or "lambda_min" in
+    # the results is a metric, never averaged over
+    fig = plot_sweep(ok, x, metrics, group=group)
     try:
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
     finally:

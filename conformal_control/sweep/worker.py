@@ -9,7 +9,6 @@ the same way.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import os
 import time
@@ -108,24 +107,19 @@ def execute_run(
     try:
         from ..results.rundir import write_run_dir
         from ..sim.episode import run_episode
+        from .spec import run_spec
 
         seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
         cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
-        scene = dataclasses.replace(cached, meta=dict(cached.meta), defaults=dict(cached.defaults))
+        scene = cached.replace(meta=dict(cached.meta), defaults=dict(cached.defaults))
         with _single_threaded_blas():
             result = run_episode(
-                scene,
-                cfg.get("predictor") or "constant_velocity",
-                dict(cfg.get("params") or {}),
-                learn=bool(cfg.get("learn", True)),
                 # a benchmark scenario carries its time limit
-                max_frames=cfg.get("frames") or scene.meta.get("max_frames"),
-                seed=int(cfg.get("seed", 0)),
-                predictor_params=dict(cfg.get("predictor_params") or {}),
+                scene,
+                run_spec(cfg, scene.meta.get("max_frames")),
                 extra_config={"sweep": {"key": key, "run": cfg}},
-                **dict(cfg.get("episode") or {}),
             )
         files = plot if isinstance(plot, str) else ("plots" if plot else "full")
         run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)

@@ -47,6 +47,7 @@ from typing import Any
 
 from ..base import DecisionFamily, Environment, Loss, UpdateRule
 from ..cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
+from ..crowds.base import CrowdModel
 from ..predictors.base import Predictor
 from ._core import (
     CheckList,
@@ -68,6 +69,7 @@ from .common import (
     check_pickle_round_trip,
     check_repr,
 )
+from .crowd_model import check_crowd_model
 from .decision_family import check_decision_family
 from .dynamics import check_dynamics
 from .environment import check_environment
@@ -84,6 +86,7 @@ __all__ = [
     "ContractError",
     "ExpectedFailures",
     "check_barrier",
+    "check_crowd_model",
     "check_decision_family",
     "check_dynamics",
     "check_environment",
@@ -122,6 +125,7 @@ ROLE_BASES: dict[str, type] = {
     "reference": ReferenceController,
     "environment": Environment,
     "decision_family": DecisionFamily,
+    "crowd_model": CrowdModel,
 }
 
 _CHECKS: dict[str, CheckList] = {
@@ -135,6 +139,7 @@ _CHECKS: dict[str, CheckList] = {
     "reference": check_reference_controller,
     "environment": check_environment,
     "decision_family": check_decision_family,
+    "crowd_model": check_crowd_model,
 }
 
 

@@ -115,7 +115,20 @@ def _a(name: str) -> str:
 
 
 def partner(obj: Any, hook: str, kind: type, what: str) -> Any:
-    """A fresh copy of the partner ``type(obj).<hook>()`` returns (checked to be a ``kind``)."""
+    """A fresh copy of the partner ``type(obj).<hook>()`` returns (checked to be a ``kind``).
+
+    Parameters
+    ----------
+    obj : object
+        The plugin whose class names its partner.
+    hook : str
+        The classmethod that returns the partner (``_unit_test_family`` or
+        ``_unit_test_environment``).
+    kind : type
+        The base class the partner must derive from.
+    what : str
+        What ``obj`` is, for the message.
+    """
     cls = type(obj)
     fn = getattr(cls, hook, None)
     if fn is None:
@@ -348,6 +361,17 @@ def scribble(obj: Any, _depth: int = 0, _seen: set[int] | None = None) -> None:
 
 
 def differ_or_fail(env: Any, a: EpisodeTrace, b: EpisodeTrace, message: str) -> None:
+    """Fail the check (naming ``env``) when two episode traces differ.
+
+    Parameters
+    ----------
+    env : object
+        The plugin under test.
+    a, b : EpisodeTrace
+        The traces compared.
+    message : str
+        What was expected; the first difference is appended.
+    """
     d = differ(a, b, "episode")
     expect(d is None, env, f"{message}, but {d}")
 

@@ -8,8 +8,9 @@ from typing import ClassVar
 import numpy as np
 
 from ..base import UpdateRule
+from ..exceptions import InputError
 
-__all__ = ["StepRule", "check_finite", "check_loss", "check_positive"]
+__all__ = ["StepRule", "check_epsilon", "check_finite", "check_loss", "check_positive"]
 
 
 def check_finite(name: str, value: float) -> float:
@@ -26,6 +27,26 @@ def check_positive(name: str, value: float, allow_zero: bool = False) -> float:
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
     return value
+
+
+def check_epsilon(epsilon: object, bounds: tuple[float, float] = (-0.5, 0.5)) -> float:
+    """The target average loss, strictly inside the loss's range ``bounds``.
+
+    A target at or beyond a bound can never be met on average (the loss never exceeds
+    it), so lambda would drift without end. Raises
+    :class:`~conformal_control.exceptions.InputError` (a ``ValueError``) otherwise; the
+    command line, :func:`conformal_control.run` and
+    :class:`~conformal_control.cbf.StepwiseCBF` all check with this function.
+    """
+    lo, hi = bounds
+    if (
+        isinstance(epsilon, bool)
+        or not isinstance(epsilon, (int, float, np.integer, np.floating))
+        or not lo < float(epsilon) < hi
+    ):
+        rng = "(-1/2, 1/2)" if (lo, hi) == (-0.5, 0.5) else f"({lo:g}, {hi:g})"
+        raise InputError(f"epsilon must lie in {rng} (the loss's range), got {epsilon!r}")
+    return float(epsilon)
 
 
 def check_loss(loss: float) -> float:

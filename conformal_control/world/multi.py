@@ -6,17 +6,32 @@ frame, intervals of ``tau_frames`` frames), the same sensor, the same reveal of 
 the same frame log with ``d_min``, the same goals -- per robot. With one robot it computes
 exactly what the replay (or reactive) environment computes, number for number.
 
-**What a robot knows.** Nothing is shared between robots: the world hands robot ``i`` only
-what its own sensor returns. At a sampling time :meth:`MultiRobotWorld.sense` lists the
-agents within robot ``i``'s sensing radius -- pedestrians *and other robots*, the latter
-with ids of their own (:attr:`MultiRobotWorld.robot_ids`, after the largest pedestrian id)
--- and their histories; at the end of the interval :meth:`MultiRobotWorld.reveal` gives
-the true trajectories of those agents. Another robot's lambda, predictor, plan or goal is
-never read: to robot ``i`` it is an agent that moves. The histories are, by default, what
-the single-robot sensor gives (``sensor_history="tracked"``: the agent's positions over the
-last ``history_frames`` frames, as a tracker that had it in view would report them); with
-``sensor_history="observed"`` only the frames at which the agent was within robot ``i``'s
-own sensing radius are kept (NaN elsewhere).
+**What a robot knows.** The world hands robot ``i`` only what its own sensor returns and,
+with an ``information`` option, what the robots tell each other. At a sampling time
+:meth:`MultiRobotWorld.sense` lists the agents within robot ``i``'s sensing radius --
+pedestrians *and other robots*, the latter with ids of their own
+(:attr:`MultiRobotWorld.robot_ids`, after the largest pedestrian id) and typed as robots
+(the query's ``robot`` flags) -- and their histories; at the end of the interval
+:meth:`MultiRobotWorld.reveal` gives the true trajectories of those agents. The histories
+are, by default, what the single-robot sensor gives (``sensor_history="tracked"``: the
+agent's positions over the last ``history_frames`` frames, as a tracker that had it in view
+would report them); with ``sensor_history="observed"`` only the frames at which the agent
+was within robot ``i``'s own sensing radius are kept (NaN elsewhere).
+
+With ``information`` set, :meth:`MultiRobotWorld.state` also gives robot ``i``, at every
+control instant, a :class:`~conformal_control.cbf.reciprocal.PeerView` of the robots it
+sensed at the sampling time (what a reciprocal controller builds its rows from): their
+positions now and robot ``i``'s share of each pair, plus, by option,
+
+* ``"position"``: nothing else;
+* ``"velocity"``: their velocities now and robot ``i``'s own (a sensor measuring velocity);
+* ``"plan"``: the plans they broadcast and robot ``i``'s own -- what each robot passed to
+  :meth:`MultiRobotWorld.broadcast` at the previous control instant (every robot sees
+  the plans of the same instant, whatever the order robots decide in); zero velocity
+  before the first broadcast and once a robot has stopped at its goal.
+
+Nothing else about another robot is ever handed out: not its lambda, predictor, goal,
+reference or command (except as the broadcast plan).
 
 **Pedestrians** are replayed from the recording, or simulated by a
 :class:`~conformal_control.crowds.crowd.Crowd` that sees every robot (position, velocity,
@@ -51,6 +66,7 @@ import numpy as np
 
 from ..cbf.controller import ControlState
 from ..cbf.loss import CBFTruth
+from ..cbf.reciprocal import INFORMATION, PeerView, pair_shares
 from ..cbf.roles import Dynamics
 from ..crowds.crowd import Crowd
 from ..data.scene import Scene
@@ -107,7 +123,7 @@ class Neighbours:
     rel_pos, rel_vel : ndarray of shape (N, 2)
         Position and velocity relative to the robot (m, m/s).
     is_robot : ndarray of shape (N,)
-        For plots and tests only; a robot's controller never reads it.
+        The agent type the sensor reports (True for a robot).
     """
 
     ids: np.ndarray
@@ -136,6 +152,12 @@ class MultiRobotWorld:
         Simulated pedestrians (seeing every robot); None replays the recording.
     sensor_history : {"tracked", "observed"}
         Histories handed to the predictors (see the module docstring).
+    information : {"position", "velocity", "plan"}, optional
+        What robots know of each other at a control instant (:meth:`state`'s ``peers``);
+        None hands out no peer view.
+    weights : sequence of R floats, optional
+        The fleet's share weights: robot i's share of a pair with robot j is
+        ``w_i / (w_i + w_j)`` (default: one half).
 
     Attributes
     ----------
@@ -158,6 +180,8 @@ class MultiRobotWorld:
         max_frames: int | None = None,
         crowd: Crowd | None = None,
         sensor_history: str = "tracked",
+        information: str | None = None,
+        weights: Sequence[float] | None = None,
     ) -> None:
         self.scene = scene
         self.starts = starts
@@ -170,6 +194,8 @@ class MultiRobotWorld:
         self.max_frames = max_frames
         self.crowd = crowd
         self.sensor_history = sensor_history
+        self.information = information
+        self.weights = weights
 
     # ------------------------------------------------------------------ set-up
     @property
@@ -189,6 +215,11 @@ class MultiRobotWorld:
             raise ValueError(
                 f"sensor_history must be one of {', '.join(SENSOR_HISTORIES)}, "
                 f"got {self.sensor_history!r}"
+            )
+        if self.information is not None and self.information not in INFORMATION:
+            raise ValueError(
+                f"information must be one of {', '.join(INFORMATION)} or None, "
+                f"got {self.information!r}"
             )
         if self.crowd is not None and not isinstance(self.crowd, Crowd):
             raise ValueError(f"crowd must be a Crowd or None, got {type(self.crowd).__name__}")
@@ -210,6 +241,10 @@ class MultiRobotWorld:
         plants = list(dyn) if isinstance(dyn, Sequence) else [dyn] * starts.shape[0]
         if len(plants) != starts.shape[0]:
             raise ValueError(f"{starts.shape[0]} robots but {len(plants)} dynamics")
+        w = np.ones(starts.shape[0]) if self.weights is None else np.asarray(self.weights, float)
+        if w.shape != (starts.shape[0],):
+            raise ValueError(f"{starts.shape[0]} robots but {w.size} share weights")
+        self._shares = pair_shares(w)
         self._starts = starts
         self._goals = goals
         self._plants = plants
@@ -243,12 +278,19 @@ class MultiRobotWorld:
         base = int(ids.max()) + 1 if ids.size else 0
         self.robot_ids = np.arange(base, base + r, dtype=np.int64)
         self.robots = [RobotLog(FrameLog([], [], [], [])) for _ in range(r)]
+        self._peer_static: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * r
+        # broadcast plans: visible (as of this instant) and pending (for the next)
+        self._plan_v = np.zeros((r, 2))
+        self._next_v = np.zeros((r, 2))
+        self._paths: list[tuple[np.ndarray, np.ndarray] | None] = [None] * r
+        self._next_paths: list[tuple[np.ndarray, np.ndarray] | None] = [None] * r
         # pedestrians: the recording, or a buffer the crowd fills as it is simulated
         if self.crowd is None:
             self._peds = sc.positions
         else:
-            self.crowd.reset(sc.positions, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
-            buf = sc.positions.copy()
+            buf = sc.positions  # dense (a sparse scene's is assembled here)
+            self.crowd.reset(buf, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
+            buf = buf.copy()
             buf[sc.start_index + 1 :] = np.nan
             buf[sc.start_index] = self.crowd.frame_positions(sc.start_index)
             self._peds = buf
@@ -329,10 +371,66 @@ class MultiRobotWorld:
         return self._n_instants % (self.tau_frames * self.substeps) == 0
 
     def state(self, i: int) -> ControlState:
-        """Decision input of robot ``i`` now."""
+        """Decision input of robot ``i`` now (with ``information``: its peer view)."""
+        peers = None
+        if self.information is not None:
+            rob = self._sensed[i][1]
+            if rob.size:
+                peers = self._peer_view(i, rob)
         return ControlState(
-            x=self._x[i].copy(), t=self._t, step=int(self._step[i]), goal=self.current_goal(i)
+            x=self._x[i].copy(),
+            t=self._t,
+            step=int(self._step[i]),
+            goal=self.current_goal(i),
+            peers=peers,
         )
+
+    def peer_view(self, i: int, robots: np.ndarray) -> PeerView:
+        """What robot ``i`` knows now of ``robots`` (indices), by the information option."""
+        return self._make_view(i, robots, self.robot_ids[robots], self._shares[i, robots])
+
+    def _peer_view(self, i: int, robots: np.ndarray) -> PeerView:
+        """:meth:`peer_view` of the robots sensed at the sampling time (their ids and
+        shares computed once per interval)."""
+        cached = self._peer_static[i]
+        if cached is None or cached[0] is not robots:
+            ids, shares = self.robot_ids[robots], self._shares[i, robots]
+            ids.setflags(write=False)  # shared by the interval's views: read-only
+            shares.setflags(write=False)
+            cached = (robots, ids, shares)
+            self._peer_static[i] = cached
+        return self._make_view(i, robots, cached[1], cached[2])
+
+    def _make_view(
+        self, i: int, robots: np.ndarray, ids: np.ndarray, shares: np.ndarray
+    ) -> PeerView:
+        info = self.information or "position"
+        sub = self._x.take(robots, axis=0)  # a copy: positions and velocities now
+        ref = own = None
+        plans = None
+        if info == "velocity":
+            ref = sub[:, 2:]
+            own = self._x[i, 2:].copy()
+        elif info == "plan":
+            ref = self._plan_v.take(robots, axis=0)
+            own = self._plan_v[i].copy()
+            plans = tuple(self._paths[int(j)] for j in robots)
+        return PeerView(ids, sub[:, :2], shares, info, ref, own, plans)
+
+    def broadcast(
+        self,
+        i: int,
+        velocity: np.ndarray,
+        path: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        """Robot ``i`` broadcasts its plan: the velocity it intends (m/s) and, optionally,
+        its planned path ``(times (H,) s since the start, positions (H, 2) m)``. The
+        others see it from the next control instant on (``information="plan"``)."""
+        v = np.asarray(velocity, dtype=float).reshape(-1)
+        if v.shape != (2,) or not np.isfinite(v).all():
+            raise ValueError(f"a broadcast velocity is a finite (vx, vy), got {velocity!r}")
+        self._next_v[i] = v
+        self._next_paths[i] = path
 
     # ------------------------------------------------------------------ logging
     def _log_frame(self) -> None:
@@ -428,10 +526,14 @@ class MultiRobotWorld:
             history = self._seen_by(i, lo, hi, history)
         ids = np.concatenate([np.asarray(sc.agent_ids)[ped], self.robot_ids[rob]])
         tau = self.tau_frames
-        if self.crowd is None and rob.size == 0:
+        if self.crowd is None:
 
             def future(horizon: int) -> np.ndarray:
-                return self._ped_window(fi + 1, fi + 1 + horizon, ped)
+                # the robots' futures are not known at the sampling time: NaN (the
+                # oracle's convention for an unknown future)
+                out = np.full((ped.size + rob.size, horizon, 2), np.nan)
+                out[: ped.size] = self._ped_window(fi + 1, fi + 1 + horizon, ped)
+                return out
 
         else:
             future = _no_future
@@ -444,6 +546,7 @@ class MultiRobotWorld:
             frame=sc.first_frame + fi,
             scene=sc.name,
             truth_provider=future,
+            robot=np.r_[np.zeros(ped.size, bool), np.ones(rob.size, bool)],
         )
 
     def reveal(self, i: int) -> CBFTruth:
@@ -559,6 +662,13 @@ class MultiRobotWorld:
                 rec.t_goal_ = t
                 self._done[i] = True
             self._goal[i] = g
+        # the plans broadcast at this instant are what the others see at the next one; a
+        # robot at its goal (stopping) broadcasts standing still
+        if self.information == "plan":
+            self._next_v[self._done] = 0.0
+            self._plan_v[:] = self._next_v
+            done, nxt = self._done, self._next_paths
+            self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
         if self._n_instants % self.substeps == 0:
             self._fi += 1
             self._robot_pos[self._fi] = self._x[:, :2]
@@ -574,9 +684,8 @@ class MultiRobotWorld:
 
 def _no_future(horizon: int) -> np.ndarray:
     raise TruthUnavailableError(
-        "the future of this query is not known at the sampling time: it includes other "
-        "robots, or pedestrians who react to the robots (the oracle predictor needs "
-        "crowd='replay' and a robot alone)"
+        "the future of this query is not known at the sampling time: its pedestrians "
+        "react to the robots (the oracle predictor needs crowd='replay')"
     )
 
 

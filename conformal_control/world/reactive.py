@@ -18,28 +18,28 @@ close, then reactive).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
 import numpy as np
 
+from .. import registry
 from ..cbf.loss import CBFTruth
-from ..crowds.crowd import MODELS, Crowd
+from ..crowds.crowd import Crowd, model_names
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
 from .replay import ReplayEnvironment
 
 __all__ = [
-    "CROWDS",
     "DEFAULT_MIXED_RADIUS",
     "ReactiveEnvironment",
     "make_environment",
     "make_environment_like",
 ]
 
+
 #: Crowd names accepted by :func:`make_environment`.
-CROWDS: tuple[str, ...] = ("replay", "social_force", "orca", "mixed")
+
 
 #: Default switching radius (m) of the mixed crowd.
 DEFAULT_MIXED_RADIUS = 5.0
@@ -101,18 +101,19 @@ class ReactiveEnvironment(ReplayEnvironment):
         ]
 
     # ------------------------------------------------------------------ episode
-    def _init_positions(self) -> np.ndarray:
+    def _init_positions(self) -> np.ndarray:  # a dense buffer, filled as simulated
         if not isinstance(self.crowd, Crowd):
             raise ValueError(f"crowd must be a Crowd, got {type(self.crowd).__name__}")
         sc = self.scene
-        self.crowd.reset(sc.positions, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
-        buf = sc.positions.copy()
+        recorded: np.ndarray = sc.positions  # dense (a sparse scene's is assembled here)
+        self.crowd.reset(recorded, sc.fps, sc.start_index, self.substeps, sc.robot_radius)
+        buf: np.ndarray = recorded.copy()
         buf[sc.start_index + 1 :] = np.nan  # filled as the crowd is simulated
         buf[sc.start_index] = self.crowd.frame_positions(sc.start_index)
         self._crowd_frame = sc.start_index
         self._crowd_sub = 0
-        out: np.ndarray = buf
-        return out
+        self._buffer = buf
+        return buf
 
     def _advance_crowd(self) -> None:
         """One crowd step with the robot's current state; store a frame when complete."""
@@ -122,7 +123,7 @@ class ReactiveEnvironment(ReplayEnvironment):
         if self._crowd_sub == self.substeps:
             self._crowd_frame += 1
             self._crowd_sub = 0
-            self._positions[self._crowd_frame] = self.crowd.frame_positions(self._crowd_frame)
+            self._buffer[self._crowd_frame] = self.crowd.frame_positions(self._crowd_frame)
 
     def apply(self, decision: np.ndarray) -> None:
         if self._done:
@@ -152,7 +153,7 @@ class ReactiveEnvironment(ReplayEnvironment):
         The recording before the start frame, the simulation after it, NaN beyond the last
         simulated frame; the positions array is the environment's buffer (not a copy).
         """
-        return dataclasses.replace(self.scene, positions=self._positions)
+        return self.scene.replace(positions=self._buffer)
 
     def crowd_config(self) -> dict[str, Any]:
         """The crowd's configuration and counters, for the run's config (JSON-ready)."""
@@ -209,15 +210,17 @@ def make_environment(
                 f"crowd 'replay' takes no crowd_params, got {', '.join(sorted(params))}"
             )
         return ReplayEnvironment(scene, **env_kwargs)
-    if crowd not in CROWDS:
-        raise ValueError(f"unknown crowd {crowd!r}; choose one of {', '.join(CROWDS)}")
+    if crowd != "mixed" and crowd not in model_names():
+        raise ValueError(
+            f"unknown crowd {crowd!r}; choose one of {', '.join(registry.crowd_names())}"
+        )
     if crowd == "mixed":
         model = params.pop("model", "social_force")
         radius = params.pop("radius", DEFAULT_MIXED_RADIUS)
-        if model not in MODELS:
+        if model not in model_names():
             raise ValueError(
                 f"unknown model {model!r} for the mixed crowd; choose one of "
-                f"{', '.join(sorted(MODELS))}"
+                f"{', '.join(model_names())}"
             )
         if (
             radius is None
@@ -235,7 +238,7 @@ def make_environment(
         model, radius = crowd, None
     own = set(Crowd._param_names()) - {"model", "model_params", "mixed_radius"}
     crowd_kw = {k: params.pop(k) for k in list(params) if k in own}
-    known_model = set(MODELS[model]._param_names())
+    known_model = set(registry.get("crowd_model", model)._param_names())
     unknown = sorted(set(params) - known_model)
     if unknown:
         raise ValueError(

@@ -12,7 +12,7 @@ from ..base import Environment
 from ..cbf.controller import ConformalCBFController, ControlState
 from ..cbf.loss import CBFTruth
 from ..cbf.roles import Dynamics
-from ..data.scene import Scene
+from ..data.scene import Scene, SparseTracks
 from ..predictors.base import PredictionQuery
 
 __all__ = ["FrameLog", "ReplayEnvironment"]
@@ -156,14 +156,25 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self._positions = self._init_positions()
         self._log_frame()
 
-    def _init_positions(self) -> np.ndarray:
-        """Agent positions (F, M, 2) the sensor, the frame log and the truth read.
+    def _init_positions(self) -> np.ndarray | SparseTracks:
+        """Agent positions the sensor, the frame log and the truth read.
 
-        The recording itself here. A subclass may return a buffer of the same shape that
-        it fills as the episode runs (e.g. a crowd simulated online); called by ``reset``
-        once the episode's timing and the robot's start state are set.
+        The recording itself here, as the scene stores it (:class:`SparseTracks`). A
+        subclass may return a dense ``(F, M, 2)`` buffer that it fills as the episode runs
+        (e.g. a crowd simulated online); called by ``reset`` once the episode's timing and
+        the robot's start state are set.
         """
-        return self.scene.positions
+        return self.scene.tracks
+
+    def _present(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        """The agents present (finite x) at frame ``f``, in column order, and their
+        positions ``(k, 2)``."""
+        src = self._positions
+        if isinstance(src, SparseTracks):
+            return src.present(f)
+        pos = src[f]
+        cols = np.flatnonzero(np.isfinite(pos[:, 0]))
+        return cols, pos[cols]
 
     @property
     def done(self) -> bool:
@@ -174,9 +185,8 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         return self.t_goal_ is not None
 
     def _log_frame(self) -> None:
-        pos = self._positions[self._fi]
-        present = np.isfinite(pos[:, 0])
-        d = np.hypot(*(pos[present] - self._x[:2]).T) if present.any() else np.zeros(0)
+        _, xy = self._present(self._fi)
+        d = np.hypot(*(xy - self._x[:2]).T) if xy.shape[0] else np.zeros(0)
         self.log.frame.append(self.scene.first_frame + self._fi)
         self.log.t.append(self._t)
         self.log.state.append(self._x.copy())
@@ -185,20 +195,20 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
     # ------------------------------------------------------------------ sensor
     def _window(self, lo: int, hi: int, idx: np.ndarray) -> np.ndarray:
         """positions[lo:hi, idx] as (N, hi - lo, 2), NaN outside the data."""
+        src = self._positions
+        if isinstance(src, SparseTracks):
+            return src.window(lo, hi, idx)
         n = hi - lo
         out = np.full((idx.size, n, 2), np.nan)
         a, b = max(lo, 0), min(hi, self.scene.n_frames)
         if b > a and idx.size:
-            out[:, a - lo : b - lo] = self._positions[a:b, idx].transpose(1, 0, 2)
+            out[:, a - lo : b - lo] = src[a:b, idx].transpose(1, 0, 2)
         return out
 
     def sense(self) -> PredictionQuery:
         sc, fi = self.scene, self._fi
-        pos = self._positions[fi]
-        present = np.isfinite(pos[:, 0])
-        d = np.full(pos.shape[0], np.inf)
-        d[present] = np.hypot(*(pos[present] - self._x[:2]).T)
-        idx = np.flatnonzero(d <= self.sensing_radius)
+        cols, xy = self._present(fi)
+        idx = cols[np.hypot(*(xy - self._x[:2]).T) <= self.sensing_radius]
         self._sensed = idx
         self._k_start = fi
         self._step = 0

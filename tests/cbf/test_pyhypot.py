@@ -10,6 +10,10 @@ import numpy as np
 import pytest
 
 from conformal_control.cbf.pyhypot import EXACT_FOR_THIS_PYTHON, hypot_fma, hypot_split, py_hypot
+from conformal_control.jit import compile_now
+
+# the compiled kernels (interpreted, py_hypot is math.hypot itself; see conformal_control.jit)
+compile_now()
 
 
 @numba.njit(cache=False)

@@ -139,3 +139,128 @@ def test_finish_without_the_closing_sample_scores_what_was_observed() -> None:
         == closed.intervals[-1].diagnostics["n_truth_missing"]
     )
     assert last.loss is not None and np.isfinite(last.loss)
+
+
+# ---------------------------------------------------------------------- input contract
+def _ctrl(**kw) -> StepwiseCBF:
+    return StepwiseCBF("constant_velocity", epsilon=-0.1, eta=0.5, tau=0.4, dt=0.1, **kw)
+
+
+GOAL = np.array([20.0, 0.0])
+
+
+def test_duplicate_ids_in_one_sample_are_refused_not_collapsed() -> None:
+    """Keeping only the last row drove the robot 1e-14 m past the other pedestrian."""
+    ctrl = _ctrl()
+    with pytest.raises(ValueError, match="id 7 appears 2 times"):
+        ctrl.observe([7, 7], [[5.0, 0.0], [3.0, 0.0]], t=0.0)
+
+
+@pytest.mark.parametrize("bad", [1.5, np.nan, 1e20, True, "a"])
+def test_ids_are_whole_numbers(bad) -> None:
+    with pytest.raises(ValueError, match="ids"):
+        _ctrl().observe([0, bad], [[5.0, 0.0], [3.0, 0.0]], t=0.0)
+
+
+def test_whole_float_ids_are_the_same_agents_as_int_ids() -> None:
+    a, b = _ctrl(), _ctrl()
+    for k in range(3):
+        a.observe([1, 2], [[5.0 - k * 0.1, 0.0], [9.0, 1.0]], t=k * 0.1)
+        b.observe(np.array([1.0, 2.0]), [[5.0 - k * 0.1, 0.0], [9.0, 1.0]], t=k * 0.1)
+    np.testing.assert_array_equal(
+        a.step(np.zeros(4), t=0.2, goal=GOAL), b.step(np.zeros(4), t=0.2, goal=GOAL)
+    )
+
+
+@pytest.mark.parametrize("eps", [5.0, 0.5, -0.5, np.nan, np.inf])
+def test_epsilon_outside_the_loss_range_is_refused(eps) -> None:
+    """epsilon=5 drove lambda to 45.5 and the robot into a static pedestrian."""
+    with pytest.raises(ValueError, match=r"epsilon must lie in \(-1/2, 1/2\)"):
+        StepwiseCBF(epsilon=eps)
+
+
+@pytest.mark.parametrize(("name", "value"), [("eta", -1.0), ("eta", np.nan), ("a", 0.0)])
+def test_rates_and_gains_are_checked(name, value) -> None:
+    with pytest.raises(ValueError, match=name):
+        StepwiseCBF(**{name: value})
+
+
+def test_the_same_message_as_the_command_line_for_epsilon() -> None:
+    from conformal_control.data import load_scene
+    from conformal_control.flagship.params import resolve_params
+
+    with pytest.raises(ValueError) as cli:
+        resolve_params(load_scene("crossing"), {"epsilon": 5.0})
+    with pytest.raises(ValueError) as step:
+        StepwiseCBF(epsilon=5.0)
+    assert str(cli.value) == str(step.value)
+
+
+@pytest.mark.parametrize("per_sample", [2, 8])
+def test_control_steps_per_sample_are_checked(per_sample) -> None:
+    ctrl = _ctrl()
+    robot = np.zeros(4)
+
+    def run() -> None:
+        for k in range(8):
+            ctrl.observe([0], [[10.0, 3.0]], t=k * 0.1)
+            for j in range(per_sample):
+                ctrl.step(robot, t=k * 0.1 + j * 0.1 / per_sample, goal=GOAL)
+
+    with pytest.raises(ValueError, match=r"step\(\) at t = .* expected t = "):
+        run()
+
+
+def test_eight_steps_at_the_documented_spacing_are_caught_at_the_next_sample() -> None:
+    ctrl = _ctrl()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    for j in range(8):  # twice the control instants of one sample, at the right spacing
+        ctrl.step(np.zeros(4), t=j * ctrl.dt_control, goal=GOAL)
+    with pytest.raises(ValueError, match=r"comes after step\(\) reached t = 0.2 s"):
+        ctrl.observe([0], [[10.0, 3.0]], t=0.1)  # the sample the steps already passed
+
+
+@pytest.mark.parametrize("t", [-5.0, np.nan, 1e9, 0.05])
+def test_step_times_off_the_control_grid_are_refused(t) -> None:
+    ctrl = _ctrl()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=GOAL)
+    with pytest.raises(ValueError, match=r"step\(\)"):
+        ctrl.step(np.zeros(4), t=t, goal=GOAL)
+
+
+def test_a_repeated_observe_at_the_same_time_is_refused() -> None:
+    ctrl = _ctrl()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    with pytest.raises(ValueError, match="already observed"):
+        ctrl.observe([1], [[4.0, 0.0]], t=0.0)
+
+
+@pytest.mark.parametrize("t", [np.nan, np.inf, 0.05])
+def test_observe_times_off_the_sample_grid_are_refused(t) -> None:
+    with pytest.raises(ValueError, match=r"observe\(\)"):
+        _ctrl().observe([0], [[10.0, 3.0]], t=t)
+
+
+def test_a_sample_far_ahead_of_the_control_clock_is_refused() -> None:
+    ctrl = _ctrl()
+    ctrl.observe([0], [[10.0, 3.0]], t=0.0)
+    ctrl.step(np.zeros(4), t=0.0, goal=GOAL)
+    with pytest.raises(ValueError, match="more than one interval"):
+        ctrl.observe([0], [[10.0, 3.0]], t=1e9)
+    ctrl.observe([0], [[10.0, 3.0]], t=0.3)  # a dropout of two samples is fine
+
+
+@pytest.mark.parametrize(
+    ("positions", "goal", "words"),
+    [
+        ([[1.0, 2.0, 3.0]], GOAL, "positions must be an"),
+        ([[10.0, 3.0]], np.array([1.0, 2.0, 3.0]), "goal must be 2 finite"),
+        ([[10.0, 3.0]], np.array([np.nan, 0.0]), "goal must be 2 finite"),
+    ],
+)
+def test_shapes_are_checked(positions, goal, words) -> None:
+    ctrl = _ctrl()
+    with pytest.raises(ValueError, match=words):
+        ctrl.observe([0], positions, t=0.0)
+        ctrl.step(np.zeros(4), t=0.0, goal=goal)

@@ -17,6 +17,8 @@ def test_predictor_database_error_is_one_line(monkeypatch, tmp_path: Path, capsy
         raise sqlite3.DatabaseError("file is not a database")
 
     monkeypatch.setattr(ConstantVelocityPredictor, "predict", broken)
+    # the patched class is no longer the one the engine compiles: its predict() is called
+    monkeypatch.setattr(ConstantVelocityPredictor, "compiled_as", None)
     argv = ["run", "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]
     assert main(argv) == EXIT_ERROR
     err = capsys.readouterr().err.strip()

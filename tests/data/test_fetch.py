@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import shutil
 from pathlib import Path
 
 import pytest
 
-from conformal_control.cli import main
+from conformal_control.cli import EXIT_ERROR, main
 from conformal_control.data import load_scene
 from conformal_control.data.fetch import (
     ChecksumError,
+    DataFetchError,
     fetch,
     load_manifest,
     plan,
@@ -49,9 +51,9 @@ def test_upstream_plan_points_at_the_source_repositories() -> None:
 def test_fetch_from_a_mirror_then_run(tmp_path: Path, data_root: Path) -> None:
     dest = tmp_path / "data"
     counts = fetch(dest, only=["sdd:nexus_4"], mirror=str(data_root), progress=False)
-    assert counts == {"downloaded": 5, "verified_existing": 0}
+    assert counts == {"downloaded": 5, "verified_existing": 0, "mirror_only": 0}
     again = fetch(dest, only=["sdd:nexus_4"], mirror=str(data_root), progress=False)
-    assert again == {"downloaded": 0, "verified_existing": 5}
+    assert again == {"downloaded": 0, "verified_existing": 5, "mirror_only": 0}
     scene = load_scene("nexus_4", dest)
     assert scene.n_agents == 47
 
@@ -89,3 +91,118 @@ def test_cli_dry_run(capsys) -> None:
     assert main(["fetch-data", "--dest", "x", "--only", "ethucy:zara1", "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "ethucy/zara1/test/crowds_zara01.txt" in out and "Trajectron" in out
+
+
+# ---------------------------------------------------------------------- external/ (mirror only)
+def test_external_files_are_listed_and_mirror_only(tmp_path: Path, data_root: Path) -> None:
+    items = {it.path: it for it in plan(["external"])}
+    assert set(items) == {
+        "external/README.md",
+        "external/fcp-planar/protocol.json",
+        "external/trajectron-ethucy/eth.csv.gz",
+        "external/trajectron-ethucy/hotel.csv.gz",
+        "external/trajectron-ethucy/zara1.csv.gz",
+    }
+    assert all(it.url is None for it in items.values())  # upstream pickles are never read
+    assert {it.path for it in plan(["external:fcp-planar"])} == {
+        "external/README.md",
+        "external/fcp-planar/protocol.json",
+    }
+    with pytest.raises(DataFetchError, match="can only be copied from a mirror"):
+        fetch(tmp_path / "d", only=["external:trajectron-ethucy"], progress=False)
+    assert not (tmp_path / "d").exists() or not list((tmp_path / "d").rglob("*.gz"))
+    dest = tmp_path / "d"
+    counts = fetch(dest, only=["external:trajectron-ethucy"], mirror=str(data_root), progress=False)
+    assert counts["downloaded"] == 4
+    got = hashlib.sha256((dest / "external/trajectron-ethucy/eth.csv.gz").read_bytes()).hexdigest()
+    assert got == items["external/trajectron-ethucy/eth.csv.gz"].sha256
+
+
+def test_a_fetch_of_everything_without_a_mirror_skips_the_mirror_only_files(
+    tmp_path: Path, data_root: Path, monkeypatch
+) -> None:
+    import conformal_control.data.fetch as fetch_mod
+
+    real = fetch_mod.plan
+    upstream = data_root / "ethucy/zara1/test/crowds_zara01.txt"
+
+    def small_plan(only=None, mirror=None):  # one upstream file (served from disk) + external
+        keep = [it for it in real(None, mirror) if it.path.startswith("external/")]
+        zara = next(it for it in real(["ethucy:zara1"], mirror) if "test/crowds_zara01" in it.path)
+        return [dataclasses.replace(zara, url=str(upstream)), *keep]
+
+    monkeypatch.setattr(fetch_mod, "plan", small_plan)
+    counts = fetch_mod.fetch(tmp_path / "d", progress=False)
+    assert counts == {"downloaded": 1, "verified_existing": 0, "mirror_only": 5}
+    assert main(["fetch-data", "--dest", str(tmp_path / "e"), "--quiet"]) == 0
+
+
+def test_cli_only_external_without_a_mirror_is_one_line(tmp_path: Path, capsys) -> None:
+    argv = ["fetch-data", "--dest", str(tmp_path / "d"), "--only", "external", "--quiet"]
+    assert main(argv) == EXIT_ERROR
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--mirror DIR" in err[0] and "pickles" in err[0]
+
+
+# ---------------------------------------------------------------------- downloads are capped
+def test_an_oversized_mirror_file_is_not_copied(tmp_path: Path, data_root: Path) -> None:
+    mirror = tmp_path / "mirror"
+    src = data_root / "ethucy/zara1/test/crowds_zara01.txt"
+    target = mirror / "ethucy/zara1/test/crowds_zara01.txt"
+    target.parent.mkdir(parents=True)
+    target.write_bytes(src.read_bytes() + b"0" * 5_000_000)
+    dest = tmp_path / "dest"
+    with pytest.raises(ChecksumError, match=r"more than the .* the manifest allows"):
+        fetch(dest, only=["ethucy:zara1"], mirror=str(mirror), progress=False)
+    assert not list(dest.rglob("crowds_zara01*"))
+
+
+def test_an_endless_http_download_is_cut_off_at_the_manifest_size(tmp_path: Path) -> None:
+    """A server that never stops (no Content-Length) used to fill the disk."""
+    import http.server
+    import threading
+
+    sent = []
+
+    class Endless(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            self.send_response(200)
+            self.end_headers()
+            chunk = b"x" * 65536
+            try:
+                for _ in range(2000):  # 131 MB at most, then the test server gives up
+                    self.wfile.write(chunk)
+                    sent.append(len(chunk))
+            except (BrokenPipeError, ConnectionResetError):
+                pass
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Endless)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        mirror = f"http://127.0.0.1:{server.server_address[1]}"
+        dest = tmp_path / "dest"
+        with pytest.raises(ChecksumError, match=r"larger than the .* bytes the manifest allows"):
+            fetch(dest, only=["ethucy:zara1"], mirror=mirror, progress=False)
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert not list(dest.rglob("*.part"))
+    assert sum(sent) < 50_000_000  # stopped long before the server's 131 MB
+
+
+def test_a_full_disk_names_the_file(tmp_path: Path, data_root: Path, monkeypatch) -> None:
+    import errno
+
+    import conformal_control.data.fetch as fetch_mod
+    from conformal_control.exceptions import OutputNotWritableError
+
+    def full(*args: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(fetch_mod, "_copy_capped", full)
+    with pytest.raises(OutputNotWritableError, match=r"crowds_zara01\.txt: no space left"):
+        fetch(tmp_path / "d", only=["ethucy:zara1"], mirror=str(data_root), progress=False)

@@ -111,7 +111,7 @@ def test_lost_rows_are_dropped_and_counted(tmp_path: Path) -> None:
 
 def test_malformed_scales(tmp_path: Path) -> None:
     (tmp_path / "estimated_scales.yaml").write_text("nexus:\n  video4:\n    certainty: 1\n")
-    with pytest.raises(ValueError, match="bad entry for nexus/video4"):
+    with pytest.raises(ValueError, match="nexus/video4 needs a scale in metres per pixel > 0"):
         load_scales(tmp_path)
 
 

@@ -116,6 +116,8 @@ def test_results_output_keeps_config_intervals_and_trajectory(crossings):
     )
     assert res.config.pop("engine") == "batch"
     assert ref.config.pop("engine") == "loop"
+    assert res.config["spec"].pop("engine") == "auto"  # asked for, in the specification
+    assert ref.config["spec"].pop("engine") == "loop"
     assert res.config == ref.config
     assert res.intervals == ref.intervals
     assert res.trajectory.keys() == ref.trajectory.keys()
@@ -141,8 +143,8 @@ def test_iter_batch_yields_indices_in_completion_order(crossings):
         ({"fallback": "relax"}, "fallback 'relax'"),
         ({"family": "acp"}, "family 'acp'"),
         ({"record_animation": True}, "animation"),
-        ({"on_interval": print}, "callback"),
-        ({"robots": 2}, "not a keyword argument"),
+        ({"robots": 2}, "one robot"),
+        ({"robotz": 2}, "unexpected keyword argument 'robotz'"),
     ],
 )
 def test_supports_names_the_reason(kwargs, words):
@@ -156,3 +158,29 @@ def test_supported_configuration_and_clear_error(crossings):
         run_batch(crossings[:1], fallback="relax")
     with pytest.raises(ValueError, match="batch_size must be a positive integer"):
         run_batch(crossings[:1], batch_size=0)
+
+
+def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
+    """Capability, not a list of names: a subclass inherits no declaration (it may compute
+    something else); one that declares the compiled counterpart runs compiled."""
+    from conformal_control import registry
+    from conformal_control.base import compiled_as
+    from conformal_control.cbf.barriers import APFBarrier
+
+    class Tweaked(APFBarrier):
+        """An APF barrier computing something else."""
+
+    class Same(APFBarrier):
+        """An APF barrier under another name."""
+
+        compiled_as = "apf"
+
+    assert compiled_as(APFBarrier) == "apf" and compiled_as(Tweaked) is None
+    registry.register("barrier", "tweaked_apf", Tweaked)
+    registry.register("barrier", "same_apf", Same)
+    try:
+        assert "compiles apf" in (supports(barrier="tweaked_apf") or "")
+        assert supports(barrier="same_apf") is None
+    finally:
+        registry.unregister("barrier", "tweaked_apf")
+        registry.unregister("barrier", "same_apf")

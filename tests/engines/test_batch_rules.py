@@ -196,3 +196,38 @@ def test_benchmark_methods_now_batched():
     for fam, words in (("fallback:relax", "fallback 'relax'"), ("acp", "'acp")):
         why = supports(**expand_methods([fam])[0].run_kwargs())
         assert why is not None and words in why
+
+
+SHIFTS = {
+    "delayed": {"delay_s": 0.4},
+    "noisy": {"sigma_m": 0.3},
+    "scaled": {"scale": 0.5},
+    "dropout": {"p": 0.3, "duration_s": 0.5},
+}
+
+
+@pytest.mark.parametrize("shift", sorted(SHIFTS))
+@pytest.mark.parametrize("base", ["constant_velocity", "oracle"])
+def test_predictor_shifts_match_run_episode(crossings, compare_batch, shift, base):
+    # the benchmark's shift axis: every wrapper around a compiled and a recorded-future base,
+    # learning, seeds differing per episode (the wrappers' draws hash the run's seed)
+    params = {**SHIFTS[shift], "predictor": base}
+    if shift in ("noisy", "dropout"):
+        params["random_state"] = None  # build_flagship passes each run's seed
+    batched, _ = compare_batch(
+        crossings,
+        predictor=shift,
+        predictor_params=params,
+        params={"epsilon": -0.1, "eta": ETA},
+        max_frames=FRAMES,
+        seeds=[3, 4, 5],
+        batch_size=2,
+        output="results",
+    )
+    if base == "oracle" and shift == "dropout":
+        return  # the recorded future does not depend on the detections a dropout removes
+    # the shift took effect: the run differs from the unshifted one
+    plain = run_batch(crossings, base, {"epsilon": -0.1, "eta": ETA}, max_frames=FRAMES)
+    assert any(
+        b.metrics.lambda_final != p.lambda_final for b, p in zip(batched, plain, strict=True)
+    )

@@ -180,3 +180,6 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
 class _Scene:
     meta: dict = dataclasses.field(default_factory=dict)
     defaults: dict = dataclasses.field(default_factory=dict)
+
+    def replace(self, **changes: object) -> _Scene:  # as Scene.replace
+        return dataclasses.replace(self, **changes)

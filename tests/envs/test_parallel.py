@@ -69,3 +69,18 @@ def test_each_robot_sees_the_other_as_an_agent_and_learns_its_own_lambda(crossin
         if not env.agents:
             break
     assert lams["robot_0"] != lams["robot_1"]
+
+
+def test_parallel_seed_test(crossing):
+    """Same seed, same run: it failed only because ``min_slack`` was NaN (NaN != NaN) at
+    steps without constraints; it is now inf (unbounded slack)."""
+    from pettingzoo.test import parallel_seed_test
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the API test above owns the warnings
+        parallel_seed_test(lambda: ConformalCrowdParallel(crossing, robots=3, max_frames=40))
+    env = ConformalCrowdParallel(crossing, robots=3, max_frames=40)
+    _, infos = env.reset(seed=0)
+    _, _, _, _, infos = env.step({a: np.zeros(2) for a in env.agents})
+    none = [i for i in infos.values() if i["constraint_status"] == "none"]
+    assert none and all(i["min_slack"] == np.inf for i in none)

@@ -134,6 +134,25 @@ def test_shield_runs_at_the_environments_rate(crossing):
         ConformalShield(env, {"substeps": 2})
 
 
+def test_gymnasium_check_env_accepts_the_shield(crossing):
+    """check_env re-creates the wrapper from its recorded arguments: it refused it before."""
+    import warnings
+
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = ConformalShield(
+        gym.make("ConformalCrowd-v0", scene=crossing, max_frames=30), {"epsilon": -0.1}
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env, skip_render_check=True)
+    # the advice to check the raw environment is what this test does not want to follow
+    benign = ("infinity", "symmetric and normalized", "recommend using the raw environment")
+    assert [str(w.message) for w in caught if not any(b in str(w.message) for b in benign)] == []
+    assert env._saved_kwargs["params"] == {"epsilon": -0.1}
+
+
 # ---------------------------------------------------------------- why an action changed
 def _unconstrained_answer(shield: ConformalShield, action: np.ndarray, lam: float) -> np.ndarray:
     """What a fresh copy of the shield's filter returns for ``action`` without any row."""

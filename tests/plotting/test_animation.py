@@ -102,3 +102,19 @@ def test_animation_record_content(crossing):
     assert np.isfinite(rec["h_true_min"]).any()
     off = run_episode(crossing, "constant_velocity", max_frames=20, record_animation=False)
     assert off.animation is None
+
+
+def test_a_frame_too_narrow_to_read_is_warned() -> None:
+    import warnings
+
+    from conformal_control.exceptions import SuspiciousValueWarning
+    from conformal_control.plotting.animation import LEGIBLE_WIDTH_PX, frame_size
+
+    with pytest.warns(SuspiciousValueWarning, match=r"480 x 216 px .* use --dpi 90 or more"):
+        assert frame_size(8, 60) == (480, 216)  # the size the multi-robot GIF had
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SuspiciousValueWarning)
+        w, h = frame_size(9.6, 80)  # the defaults
+    assert (w, h) == (768, 346) and w >= LEGIBLE_WIDTH_PX
+    with pytest.raises(ValueError, match="must be > 0"):
+        frame_size(0, 80)

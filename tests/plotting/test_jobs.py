@@ -99,3 +99,40 @@ def test_serial_when_a_second_thread_runs(tmp_path: Path) -> None:
 def test_bad_workers(workers: object) -> None:
     with pytest.raises(ValueError, match="workers must be a positive integer"):
         draw_all([], workers=workers)  # type: ignore[arg-type]
+
+
+STOPPED_CHILD = """
+import os, signal, sys, warnings
+from pathlib import Path
+from conformal_control.plotting.jobs import can_fork, draw_all
+
+parent = os.getpid()
+
+def job(path):
+    if os.getpid() != parent:  # the forked figure process stops itself (kill -STOP)
+        os.kill(os.getpid(), signal.SIGSTOP)
+    Path(path).write_text("drawn")
+
+assert can_fork(), "this test needs Linux and two CPUs"
+out = Path(sys.argv[1])
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    how = draw_all([(job, (out / "a",), {}), (job, (out / "b",), {})])
+print(how, sorted(p.name for p in out.iterdir()), [str(w.message) for w in caught])
+"""
+
+
+def test_a_stopped_figure_process_does_not_hang_the_run(tmp_path: Path) -> None:
+    """A stopped child used to be waited for forever."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", STOPPED_CHILD, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("forked ['a', 'b']"), res.stdout
+    assert "was stopped" in res.stdout and "drawing its 1 figures here" in res.stdout

@@ -173,20 +173,26 @@ def test_sweep_plot_one_line_per_varying_parameter(tmp_path):
     assert set(lines) == {"eta = 0.1", "eta = 1"}  # eta is not averaged away
     np.testing.assert_allclose(lines["eta = 0.1"].get_xdata(), [-0.2, 0.0, 0.2])
     np.testing.assert_allclose(lines["eta = 0.1"].get_ydata(), [10.4, 10.6, 10.8])  # seeds
-    assert ax_t.get_xlabel().startswith("epsilon") and ax_t.get_ylabel() == "t_goal (s)"
+    # one x label for the panels (none overlaps), the y label of each metric
+    assert fig.get_supxlabel().startswith("epsilon") and ax_t.get_xlabel() == ""
+    assert ax_t.get_ylabel() == "t_goal (s)"
     legend = ax_l.get_legend()
-    assert legend.get_title().get_text() == "mean over 2 seeds (min-max shaded)"
     assert "l_avg = epsilon" in [t.get_text() for t in legend.get_texts()]
+    # what each point averages, under the title
+    assert fig.get_suptitle().endswith("\neach point: mean over 2 seeds (min-max shaded)")
+    # lines that coincide stay visible: every line has its own style and marker
+    styles = {(ln.get_linestyle(), ln.get_marker()) for ln in ax_t.get_lines()}
+    assert len(styles) == len(ax_t.get_lines())
     # collision frames: an integer axis from 0
     assert ax_c.get_ylim()[0] == 0 and ax_c.get_ylim()[1] >= 1
     assert all(float(t).is_integer() for t in ax_c.get_yticks())
-    assert "t_goal, n_collide, l_avg against epsilon (12 runs)" in fig._suptitle.get_text()
+    assert "t_goal, n_collide, l_avg against epsilon (12 runs)" in fig.get_suptitle()
     plt.close(fig)
-    # lines only per seed: eta is averaged, and the legend says so
+    # lines only per seed: eta is averaged, and the figure says so
     fig = plot_sweep(rows, "epsilon", ("t_goal",), group="seed")
     ax = fig.axes[0]
     assert [ln.get_label() for ln in ax.get_lines()] == ["seed = 0", "seed = 1"]
-    assert ax.get_legend().get_title().get_text() == "averaged over eta in {0.1, 1}"
+    assert fig.get_suptitle().endswith("\neach point: averaged over eta in {0.1, 1}")
     plt.close(fig)
 
 
@@ -215,8 +221,7 @@ def test_sweep_plot_reads_the_runner_csv(tmp_path):
     fig = plot_sweep(path, "epsilon", ("t_goal",))
     ax = fig.axes[0]
     assert [ln.get_label() for ln in ax.get_lines()] == ["tau = 4", "tau = 8"]
-    assert ax.get_legend().get_title().get_text() == "one run per point"
-    assert fig._suptitle.get_text() == "crossing: t_goal against epsilon (4 runs)"
+    assert fig.get_suptitle() == "crossing: t_goal against epsilon (4 runs)\neach point: one run"
     plt.close(fig)
 
 

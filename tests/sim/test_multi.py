@@ -144,10 +144,18 @@ def test_no_communication_other_robots_internal_state_does_not_matter(crossing):
     assert sum(rid in ids for i, ids in sensed[4 * 4 :] if i != j) >= 10
 
 
-def test_to_a_robot_another_robot_is_an_agent_replaying_its_track(crossing):
-    # robot 1's track, appended to the recording as one more pedestrian, drives robot 0
-    # alone (run_episode) exactly as robot 1 itself did: robot 0 reads nothing else of it
-    res = run_multi(crossing, robots=2, max_frames=150, record_animation=False)
+def test_without_reciprocity_another_robot_is_an_agent_replaying_its_track(crossing):
+    # reciprocity "none" (lambda on every row): robot 1's track, appended to the recording
+    # as one more pedestrian, drives robot 0 alone (run_episode) exactly as robot 1 itself
+    # did: robot 0 reads nothing else of it
+    res = run_multi(
+        crossing,
+        robots=2,
+        max_frames=150,
+        record_animation=False,
+        reciprocity="none",
+        lambda_scope="both",
+    )
     track = res.track["robots"][:, 1]
     k0 = crossing.start_index
     col = np.full((crossing.n_frames, 1, 2), np.nan)
@@ -176,10 +184,11 @@ def test_robots_see_each_other_only_within_the_sensing_radius(line_scene, straig
     q0, q2 = world.sense(0), world.sense(2)
     assert q0.ids.tolist() == [int(world.robot_ids[1])]
     assert q2.ids.size == 0
-    # the sensed robot's history is its position where it stood (no intent, no plan)
+    # the sensor types it as a robot; its history is its position where it stood (no
+    # intent, no plan), and its future is unknown at the sampling time (NaN)
+    assert q0.robot.tolist() == [True]
     np.testing.assert_array_equal(q0.history[0, -1], [3.0, 0.0])
-    with pytest.raises(Exception, match="future"):
-        q0.future()
+    assert np.isnan(q0.future()).all()
 
 
 def test_observed_history_masks_what_the_robot_did_not_see(line_scene, straight):

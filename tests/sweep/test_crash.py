@@ -261,3 +261,54 @@ def test_process_pool_workers_exit_with_their_driver() -> None:
     finally:
         driver.stdout.close()
         kill_token(token)
+
+
+def test_ctrl_c_on_the_batch_executor_journals_every_finished_run(tmp_path: Path) -> None:
+    """Ctrl-C (SIGINT to the whole process group) during ``sweep --executor batch``: every
+    run whose directory is complete is in the journal, and the message says what is."""
+    out = tmp_path / "sw"
+    token = uuid.uuid4().hex
+    eps = ",".join(f"{-0.45 + 0.9 * i / 300:.4f}" for i in range(300))
+    argv = [*CLI, "sweep", "--scene", "crossing", "--grid", f"epsilon={eps}", "--set"]
+    argv += ["frames=10", "--executor", "batch", "-j", "2", "--progress", "off"]
+    argv += ["--no-summary-plot", "--out", str(out)]
+    log = tmp_path / "log.txt"
+    with log.open("w") as fh:
+        proc = subprocess.Popen(
+            argv,
+            env={**os.environ, TOKEN: token},
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    try:
+        deadline = time.monotonic() + 240
+        while len(list(out.glob("runs/*/metrics.json"))) < 20 and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+        rc = proc.wait(timeout=120)
+        assert wait_gone(token) == []
+    finally:
+        kill_token(token)
+    text = log.read_text()
+    assert rc == 128 + signal.SIGINT, text
+    recs = journal(out)
+    in_journal = {r["key"] for r in recs if r["status"] == "ok"}
+    finished = set()
+    for metrics in out.glob("runs/*/metrics.json"):
+        cfg = json.loads((metrics.parent / "config.json").read_text())
+        finished.add(cfg["sweep"]["key"])
+    assert finished and finished <= in_journal, f"{len(finished - in_journal)} not journaled"
+    assert len(in_journal) < 300  # it was stopped
+    assert f"{len(in_journal)} finished and 0 failed run(s) are in the journal" in text, text
+    check_consistent(
+        out,
+        {
+            c.key
+            for c in SweepSpec(
+                base={"scene": "crossing", "frames": 10},
+                grid={"epsilon": [float(v) for v in eps.split(",")]},
+            ).expand()
+        },
+    )

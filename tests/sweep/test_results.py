@@ -67,7 +67,7 @@ def test_undecodable_and_foreign_lines_are_counted_once(tmp_path: Path) -> None:
     assert len(caught) == 1
     msg = str(caught[0].message)
     assert "skipped 2 unreadable lines" in msg
-    assert "2 (not UTF-8)" in msg and "3 (not a run record)" in msg
+    assert "2 (not UTF-8)" in msg and "3 (not a run record: a JSON list" in msg
 
 
 # ------------------------------------------------------------------ journal (CLI)
@@ -81,8 +81,10 @@ def test_cli_resume_after_a_torn_journal_line(tmp_path: Path, capsys) -> None:
     capsys.readouterr()
     assert main([*SWEEP, "--out", str(out)]) == 0
     cap = capsys.readouterr()
-    assert "2 already done, 1 ran (0 failed)" in cap.out
+    # the torn line's run had finished (its run directory is complete): journaled from it
+    assert "2 already done, 1 recovered from their run directories, 0 ran" in cap.out
     assert "warning:" in cap.err and "line 3 (torn or not JSON)" in cap.err
+    assert json.loads(journal.read_bytes()[len(torn) :].splitlines()[-1])["recovered"] is True
     assert len(table(out)) == 3 and {r["status"] for r in table(out)} == {"ok"}
     assert journal.read_bytes().startswith(torn)  # nothing rewritten, only appended
     # the re-run record was not glued to the fragment: nothing left to do
@@ -222,3 +224,87 @@ def test_stale_temp_files_are_removed(tmp_path: Path) -> None:
         p.write_text("x")
     assert sorted(store.remove_stale_temp_files()) == sorted(stale)
     assert keep.exists()
+
+
+def test_tables_have_the_permissions_of_any_new_file(tmp_path: Path) -> None:
+    """Tables were created 0600 (mkstemp's mode): unreadable by the group that shares them."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        store = ResultsStore(tmp_path)
+        store.append(rec("a", status="ok", metrics={"x": 1.0}))
+        written = store.write_tables()
+    finally:
+        os.umask(old)
+    assert written
+    for path in written:
+        assert path.stat().st_mode & 0o777 == 0o644, path
+
+
+def test_a_failed_table_write_names_the_file_and_keeps_the_old_table(
+    tmp_path: Path, monkeypatch
+) -> None:
+    import errno
+
+    from conformal_control.exceptions import OutputNotWritableError
+
+    store = ResultsStore(tmp_path)
+    store.append(rec("a", status="ok", metrics={"x": 1.0}))
+    store.write_tables(parquet=False)
+    before = store.csv_path.read_bytes()
+    store.append(rec("b", status="ok", metrics={"x": 2.0}))
+
+    def full(self: Path, *args: object, **kwargs: object) -> int:
+        self.open("wb").write(b"half a ta")  # what a full disk leaves
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OutputNotWritableError, match=r"results\.csv: no space left"):
+        store.write_tables(parquet=False)
+    monkeypatch.undo()
+    assert store.csv_path.read_bytes() == before  # the previous table, never a truncated one
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+WRONG_SCHEMA = [
+    b'{"key": "a", "status": 5}\n',
+    b'{"key": "b", "status": "ok", "metrics": "fast"}\n',
+    b'{"key": "c", "status": "ok", "config": []}\n',
+    b'{"key": "d", "status": "ok", "config": {"params": 3}}\n',
+    b'{"key": "e", "status": "ok", "run_dir": 7}\n',
+    b'{"key": "", "status": "ok"}\n',
+    b'"just a string"\n',
+]
+
+
+def test_valid_json_of_the_wrong_schema_is_skipped_like_a_torn_line(tmp_path: Path) -> None:
+    """Such a line broke resume, the tables and `bench report` (AttributeError deep inside)."""
+    from conformal_control.bench.runner import read_rows
+
+    store = ResultsStore(tmp_path)
+    store.append(rec("good", status="ok", metrics={"x": 1.0}))
+    with store.journal.open("ab") as fh:
+        fh.writelines(WRONG_SCHEMA)
+    with pytest.warns(UserWarning, match=r"skipped 7 unreadable lines: lines 2 \(not a run record"):
+        assert [r["key"] for r in store.records()] == ["good"]
+    assert [n for n, _ in store.bad_lines_] == list(range(2, 9))
+    assert "status 5 is neither" in store.bad_lines_[0][1]
+    assert "'metrics' is a str" in store.bad_lines_[1][1]
+    assert "'config.params' is a int" in store.bad_lines_[3][1]
+    store.write_tables(parquet=False)
+    assert [r["key"] for r in table(tmp_path)] == ["good"]
+    with pytest.warns(UserWarning, match="skipped 7 unreadable lines"):
+        assert [r["key"] for r in read_rows(tmp_path)] == ["good"]  # what `bench report` reads
+
+
+def test_cli_resume_with_a_wrong_schema_journal_line(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "sw"
+    assert main([*SWEEP, "--out", str(out)]) == 0
+    with (out / "results.jsonl").open("ab") as fh:
+        fh.write(b'{"key": "zz", "status": "ok", "config": "not a mapping"}\n')
+    capsys.readouterr()
+    assert main([*SWEEP, "--out", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert "3 already done, 0 ran" in cap.out
+    assert "line 4 (not a run record: 'config' is a str)" in cap.err

@@ -63,3 +63,47 @@ def test_cli_sweep_writes_a_summary_not_per_run_plots(tmp_path: Path, capsys) ->
     (run,) = (out2 / "runs").iterdir()
     assert (run / "plot.png").exists() and (run / "guarantee.png").exists()
     assert not (out2 / "summary.png").exists()
+
+
+def test_summary_plot_averages_nothing_it_does_not_say(tmp_path: Path) -> None:
+    """A sweep's results hold metrics named like parameters (lambda_min, epsilon, eta):
+    the summary neither averages over them nor over the x axis or its lines."""
+    from matplotlib.figure import Figure
+
+    import conformal_control.plotting.sweep as plotting_sweep
+
+    rows = [
+        row(
+            scene="nexus_4",
+            **{"param.epsilon": e, "param.eta": eta},
+            epsilon=e,  # the metrics copy the values used ...
+            eta=30 * eta,  # ... in SI
+            lambda_min=-0.7 - i,  # a metric that differs in every run
+            t_goal=8.3,
+            n_collide=0,
+            d_min=1.23,
+            l_avg=e + 0.05,
+        )
+        for i, (e, eta) in enumerate((e, eta) for e in (-0.3, -0.25, -0.2) for eta in (0.5, 1))
+    ]
+    captured: list[Figure] = []
+    real = plotting_sweep.plot_sweep
+
+    def spy(*a, **k):
+        fig = real(*a, **k)
+        captured.append(fig)
+        return fig
+
+    import pytest
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plotting_sweep, "plot_sweep", spy)
+        path, note = write_summary_plot(rows, tmp_path / "summary.png")
+    assert path is not None and "epsilon on the x axis, one line per eta" in note
+    (fig,) = captured
+    title = fig.get_suptitle()
+    assert title.endswith("\neach point: one run"), title
+    assert "lambda_min" not in title and "averaged" not in title
+    assert fig.get_supxlabel().startswith("epsilon")
+    labels = [ln.get_label() for ln in fig.axes[0].get_lines()]
+    assert labels == ["eta = 0.5", "eta = 1"]

@@ -20,6 +20,7 @@ from conformal_control.sweep import (
     parse_grid_option,
     run_sweep,
 )
+from conformal_control.sweep.executors import Executor
 from conformal_control.sweep.worker import cached_scene
 
 
@@ -109,10 +110,19 @@ def test_resume_skips_finished_runs(tmp_path: Path) -> None:
     with pytest.raises(KeyboardInterrupt):
         run_sweep(spec, out, InterruptAfter(2), plot=False, progress=False)
     store = ResultsStore(out)
-    assert len(store.finished()) == 2  # both runs finished before the interrupt are kept
-    assert len(rows(out)) == 2
+    # both runs journaled before the interrupt are kept, and the third, which finished
+    # (its run directory is complete) but was interrupted before its journal line, is
+    # journaled from its run directory
+    assert len(store.finished()) == 3
+    assert [bool(r.get("recovered")) for r in store.records()] == [False, False, True]
+    assert len(rows(out)) == 3
     report = run_sweep(spec, out, "serial", plot=False, progress=False)
-    assert len(report.skipped) == 2 and len(report.ran) == 1 and not report.failed
+    assert len(report.skipped) == 3 and report.ran == [] and not report.failed
+    (out / "results.jsonl").write_bytes(  # as before: the third run's line is lost
+        b"".join((out / "results.jsonl").read_bytes().splitlines(keepends=True)[:2])
+    )
+    report = run_sweep(spec, out, "serial", plot=False, progress=False)
+    assert len(report.skipped) == 2 and len(report.recovered) == 1 and report.ran == []
     # nothing left to do
     report = run_sweep(spec, out, "serial", plot=False, progress=False)
     assert len(report.skipped) == 3 and report.ran == []
@@ -317,3 +327,66 @@ def test_process_pool_survives_a_dying_worker() -> None:
     assert len(out) == 4 and isinstance(out[1], BrokenProcessPool)
     assert out[0] == 2 and out[3] == 6  # before the crash, and on the restarted pool
     assert out[2] == 4 or isinstance(out[2], BrokenProcessPool)  # in flight when it died
+
+
+class InstantExecutor(Executor):
+    """Every run 'finishes' at once with a fixed record: the sweep's own overhead only."""
+
+    name = "instant"
+
+    def run(self, fn, tasks) -> Iterator:
+        for i, (_cfg, key, _out, _plot) in enumerate(tasks):
+            yield i, {"key": key, "status": "ok", "run_dir": None, "metrics": {"t_goal": 1.0}}
+
+
+def test_tables_are_not_rewritten_after_every_run(tmp_path: Path, monkeypatch) -> None:
+    """Rewriting the tables after each run made a sweep quadratic in its size."""
+    calls = []
+    real = ResultsStore.write_tables
+
+    def counted(self, *a, **k):
+        calls.append(len(self.latest()))
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(ResultsStore, "write_tables", counted)
+    grid = {"epsilon": [round(-0.45 + 0.9 * i / 400, 6) for i in range(400)]}
+    spec = SweepSpec(base={"scene": "crossing", "frames": 10}, grid=grid)
+    report = run_sweep(
+        spec, tmp_path, InstantExecutor(), validate=False, summary_plot=False, progress=False
+    )
+    assert len(report.ran) == 400
+    assert len(calls) <= 3 and calls[-1] == 400  # at the end (and at most every 30 s)
+    assert len(rows(tmp_path)) == 400
+    # an explicit count still works: every 100 runs, plus the end
+    calls.clear()
+    run_sweep(
+        spec,
+        tmp_path / "b",
+        InstantExecutor(),
+        validate=False,
+        summary_plot=False,
+        progress=False,
+        table_every=100,
+    )
+    assert calls == [100, 200, 300, 400, 400]
+
+
+def test_a_huge_grid_is_refused_before_it_is_expanded(monkeypatch) -> None:
+    import conformal_control.sweep.spec as spec_mod
+
+    huge = SweepSpec(grid={"epsilon": list(range(10**4)), "eta": list(range(10**4))})
+    assert huge.size() == 10**8
+    with pytest.raises(ValueError, match=r"100,000,000 runs \(10000 epsilon x 10000 eta\)"):
+        huge.expand()  # at once: nothing is built (it used to take 5.6 GB, then MemoryError)
+    monkeypatch.setattr(spec_mod, "MAX_RUNS", 50)
+    small = SweepSpec(base={"scene": "crossing"}, runs=[{}, {"seed": 1}], grid={"eta": [0, 1] * 13})
+    with pytest.raises(ValueError, match=r"52 runs \(2 runs x 26 eta\), more than the 50"):
+        small.expand()
+
+
+def test_cli_refuses_a_huge_grid_in_one_line(tmp_path: Path, capsys) -> None:
+    values = ",".join(str(i) for i in range(1001))
+    argv = ["sweep", "--scene", "crossing", "--out", str(tmp_path / "s"), "--dry-run"]
+    code = main([*argv, "--grid", f"seed={values}", "--grid", f"frames={values}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "1,002,001 runs" in err[0], err

@@ -107,7 +107,7 @@ def _flagship(scene, crowd, crowd_params=None, max_frames=None, predictor="const
     policy = ConformalCBFController(
         registry.create("predictor", predictor),
         constraint,
-        QPSafetyFilter(v_max=si["v_max"], fallback=si["fallback"]),
+        QPSafetyFilter(v_max=si["v_max"], fallback="lambda_search"),
         AttractiveField(K_att=si["K_att"], v_max=si["v_max"]),
         substeps=si["substeps"],
     )

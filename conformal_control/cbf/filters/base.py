@@ -30,7 +30,8 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from ..fallbacks import CORE_FALLBACKS, resolve_fallback
+from ... import registry
+from ..fallbacks import resolve_fallback
 from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
 from ..speed import speed_polygon
 
@@ -118,7 +119,7 @@ class VelocityFilter(SafetyFilter):
             "n_fallback": self.n_fallback_,
             "n_solver_failure": self.n_solver_failure_,
         }
-        for name in (*CORE_FALLBACKS, self.fallback_.name):
+        for name in dict.fromkeys((*registry.names("fallback"), self.fallback_.name)):
             out[f"n_fallback_{name}"] = self.fallback_counts_.get(name, 0)
         for event, n in self.events_.items():
             out[f"n_{event}"] = n
@@ -154,6 +155,17 @@ class VelocityFilter(SafetyFilter):
         ``max(0, -rhs_j)``). Relaxed rows get the backend's margin on top, so the
         projection finds them feasible; should it still fail, the LP's own velocity is
         returned (counted as ``n_relax_vertex``). ``v`` meets ``A v + rhs + s >= 0``.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            Constraint rows.
+        rhs : ndarray of shape (N,)
+            Their constant terms (lambda included).
+        weights : ndarray of shape (N,)
+            The cost of relaxing each row.
         """
         from scipy.optimize import linprog  # only the relax fallback needs it
 
@@ -223,6 +235,20 @@ class VelocityFilter(SafetyFilter):
         return nominal, A, b
 
     def solve(self, nominal: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float) -> FilterResult:
+        """The velocity closest to ``nominal`` with ``A v + b + lam >= 0`` in the speed set;
+        the fallback decides when there is none.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        """
         nominal, A, b = self._checked(nominal, A, b)
         rhs = b + lam
         slack = A @ nominal + rhs

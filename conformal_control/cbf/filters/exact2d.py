@@ -55,6 +55,9 @@ class Exact2DSafetyFilter(VelocityFilter):
         the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
     """
 
+    #: the compiled engine runs this class as compiled code
+    compiled_as = "exact2d"
+
     def __init__(
         self,
         v_max: float = 2.0,
@@ -72,9 +75,10 @@ class Exact2DSafetyFilter(VelocityFilter):
             raise ValueError(
                 f"lambda_margin must be a number in (0, 1e-3), got {self.lambda_margin!r}"
             )
-        from .. import kernels2d
+        from .. import kernels2d, kernels_peers
 
         self._k = kernels2d
+        self._kp = kernels_peers
         self._S = np.ascontiguousarray(self._S)
         self._verts = np.ascontiguousarray(self._verts)
         poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
@@ -94,7 +98,8 @@ class Exact2DSafetyFilter(VelocityFilter):
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state.pop("_k", None)  # a module: re-imported on unpickling
+        state.pop("_k", None)  # modules: re-imported on unpickling
+        state.pop("_kp", None)
         if "_lastv" in state and state.get("_last") is state["_lastv"]:
             state["_last"] = np.array(state["_lastv"])  # a copy, not a view of _buf
         for name in ("_prm", "_poly", "_work", "_lastv"):  # views of _buf, rebuilt
@@ -104,9 +109,10 @@ class Exact2DSafetyFilter(VelocityFilter):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         if "_buf" in state:
-            from .. import kernels2d
+            from .. import kernels2d, kernels_peers
 
             self._k = kernels2d
+            self._kp = kernels_peers
             self._views()
 
     def _views(self) -> None:
@@ -259,6 +265,63 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._fell_back = False
             return None
         return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i)
+
+    def step_apf_record_peers(
+        self,
+        x0: float,
+        x1: float,
+        n0: float,
+        n1: float,
+        lam: float,
+        pv: np.ndarray,
+        s: int,
+        rec: np.ndarray,
+        i: int,
+        rows: tuple[np.ndarray, int],
+        peers: tuple[np.ndarray, np.ndarray, float, float, np.ndarray, float, float],
+    ) -> FilterResult | None:
+        """:meth:`step_apf_record` with robot rows (a multi-robot world's reciprocal rows).
+
+        ``rows = (col, npred)``: per column of ``pv`` the weight of ``a h``, 1 for a row
+        without lambda and the collision distance added (``col``, shape (3, N)), and the
+        number of predicted columns; ``peers = (positions, references, own_x, own_y,
+        turn, vx, vy)``: the peers' positions and reference velocities now and the robot's
+        own reference, written into ``pv``'s columns ``npred:`` at step ``s``, the
+        side-step rule and the robot's velocity
+        (:func:`~conformal_control.cbf.kernels_peers.apf_control_peers`).
+        Same results, counters and fallbacks as :meth:`step_apf_record`; a fallback
+        decided in Python starts from the nominal velocity as given.
+        """
+        kernels_peers = self._kp
+        col, npred = rows
+        pos, ref, o0, o1, turn, vx, vy = peers
+        code = kernels_peers.apf_control_peers(
+            x0, x1, n0, n1, lam, s, i, pv, self._buf, rec, col, npred, pos, ref, o0, o1, turn,
+            vx, vy,
+        )  # fmt: skip
+        if code == 0 or code == 1:
+            self.n_solves_ += code
+            self._last = self._lastv
+            self._fell_back = False
+            return None
+        k = self._k
+        if code == k.TOO_MANY:
+            self._buffers(pv.shape[2])
+            return self.step_apf_record_peers(x0, x1, n0, n1, lam, pv, s, rec, i, rows, peers)
+        if code == k.OUT_OF_RANGE:
+            raise IndexError(
+                f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
+            )
+        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL):
+            self.n_solves_ += 3
+            self._count_search(k.SEARCHED if code == kernels_peers.SEARCH_ALL else code)
+            if code == kernels_peers.SEARCH_ALL:
+                self.count("hard_rows_relaxed")
+            self._last = self._lastv
+            return None
+        if code == k.INFEASIBLE:
+            self.n_solves_ += 1
+        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
 
     def _step_record_rest(
         self,

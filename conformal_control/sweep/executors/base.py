@@ -22,6 +22,9 @@ class Executor(ABC):
     """
 
     name = "base"
+    #: whether the workers are other processes, maybe on other machines, that take chunks of
+    #: batched runs (the sweep runner sends them :func:`~conformal_control.sweep.batch.run_chunk`)
+    distributed = False
 
     @abstractmethod
     def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[Outcome]:

@@ -42,6 +42,7 @@ class DaskExecutor(Executor):
     """
 
     name = "dask"
+    distributed = True
 
     def __init__(
         self,

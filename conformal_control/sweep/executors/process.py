@@ -154,12 +154,41 @@ class ProcessExecutor(Executor):
     def __init__(self, workers: int | None = None, start_method: str | None = None) -> None:
         self.workers = workers
         self.start_method = start_method
+        self._live: set[ProcessPoolExecutor] = set()
+        self._live_lock = threading.Lock()
+        self._aborted = threading.Event()
+
+    def abort(self) -> None:
+        """Terminate the workers of every running :meth:`run` now, from any thread.
+
+        Their runs are abandoned (never half-recorded: run files are written atomically);
+        once this returns, no worker of this executor writes anything. A :meth:`run`
+        iterated by another thread sees its tasks fail and ends.
+        """
+        self._aborted.set()  # a run() in another thread starts no new pool
+        with self._live_lock:
+            pools = list(self._live)
+        for pool in pools:
+            _stop_pool(pool)
+
+    def close(self) -> None:
+        self.abort()
 
     @property
     def n_workers(self) -> int:
         return int(self.workers or default_workers())
 
     def _pool(self) -> ProcessPoolExecutor:
+        pool = self._new_pool()
+        with self._live_lock:
+            self._live.add(pool)
+        return pool
+
+    def _done(self, pool: ProcessPoolExecutor) -> None:
+        with self._live_lock:
+            self._live.discard(pool)
+
+    def _new_pool(self) -> ProcessPoolExecutor:
         method = self.start_method or (
             "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
         )
@@ -178,6 +207,7 @@ class ProcessExecutor(Executor):
     def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[Outcome]:
         if self.n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers!r}")
+        self._aborted.clear()
         pending = list(enumerate(tasks))[::-1]  # pop() from the end keeps the order
         stack = contextlib.ExitStack()
         stack.enter_context(_single_threaded_children())
@@ -186,6 +216,8 @@ class ProcessExecutor(Executor):
         completed = False
         try:
             while pending or inflight:
+                if self._aborted.is_set():
+                    return  # abort(): the pool is stopped below
                 while pending and len(inflight) < 2 * self.n_workers:
                     i, args = pending.pop()
                     try:
@@ -195,6 +227,7 @@ class ProcessExecutor(Executor):
                         break
                 if not inflight:  # broken pool and nothing running: start a new one
                     pool.shutdown(cancel_futures=True)
+                    self._done(pool)
                     pool = self._pool()
                     continue
                 done, _ = wait(inflight, return_when=FIRST_COMPLETED)
@@ -209,6 +242,7 @@ class ProcessExecutor(Executor):
                         yield i, fut.result()
                 if broken:
                     pool.shutdown(cancel_futures=True)
+                    self._done(pool)
                     pool = self._pool()
             completed = True
         finally:
@@ -216,4 +250,5 @@ class ProcessExecutor(Executor):
                 pool.shutdown(cancel_futures=True)
             else:  # interrupted: do not wait for the runs in flight
                 _stop_pool(pool)
+            self._done(pool)
             stack.close()

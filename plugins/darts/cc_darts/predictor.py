@@ -56,6 +56,11 @@ class ForecastCache:
     naming both files, counted in :attr:`n_reset_`, and a fresh cache takes its place
     (the forecasts are recomputed).
 
+    Every row stores the SHA-256 of its key, shape and value; a row that fails it (a
+    value of the wrong length, a flipped byte, a row written by hand) is not served: it is
+    counted in :attr:`n_bad_rows_`, reported once per cache with a
+    :class:`CacheCorruptWarning`, deleted, and its forecast recomputed.
+
     Parameters
     ----------
     path : path-like
@@ -66,6 +71,7 @@ class ForecastCache:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.n_reset_ = 0
+        self.n_bad_rows_ = 0
         self._guard(self._create)
 
     def _connect(self) -> sqlite3.Connection:
@@ -73,7 +79,11 @@ class ForecastCache:
 
     def _create(self) -> None:
         with closing(self._connect()) as con, con:
-            con.execute("CREATE TABLE IF NOT EXISTS f (k TEXT PRIMARY KEY, h INT, v BLOB)")
+            # table "f" of earlier versions had no checksums: its rows are never read
+            con.execute(
+                "CREATE TABLE IF NOT EXISTS forecasts "
+                "(k TEXT PRIMARY KEY, h INT NOT NULL, v BLOB NOT NULL, c TEXT NOT NULL)"
+            )
 
     def _guard(self, fn: Callable[[], _T]) -> _T:
         """Run ``fn``; if the file is corrupt, move it aside, start afresh, run it again."""
@@ -111,40 +121,78 @@ class ForecastCache:
 
     def _get_many(self, keys: list[str]) -> dict[str, np.ndarray | str]:
         out: dict[str, np.ndarray | str] = {}
+        bad: list[str] = []
         with closing(self._connect()) as con:
             for s in range(0, len(keys), 500):
                 chunk = keys[s : s + 500]
                 marks = ",".join("?" * len(chunk))
-                for k, h, v in con.execute(f"SELECT k, h, v FROM f WHERE k IN ({marks})", chunk):
-                    if h < 0:
-                        out[k] = bytes(v).decode()
+                rows = con.execute(f"SELECT k, h, v, c FROM forecasts WHERE k IN ({marks})", chunk)
+                for k, h, v, c in rows:
+                    value = _decode_row(k, h, v, c)
+                    if value is None:
+                        bad.append(k)
                     else:
-                        out[k] = np.frombuffer(v, dtype=np.float64).reshape(h, 2).copy()
+                        out[k] = value
+            if bad:
+                with con:
+                    con.executemany("DELETE FROM forecasts WHERE k = ?", [(k,) for k in bad])
+        if bad:
+            if not self.n_bad_rows_:
+                warnings.warn(
+                    f"darts forecast cache {self.path}: {len(bad)} row(s) failed their "
+                    "checksum; deleted, their forecasts are recomputed",
+                    CacheCorruptWarning,
+                    stacklevel=4,
+                )
+            self.n_bad_rows_ += len(bad)
         return out
 
     def put_many(self, items: dict[str, np.ndarray | str]) -> None:
         """Store arrays of shape (H, 2), or failure reasons (str)."""
         if not items:
             return
-        rows = [
-            (k, -1, v.encode())
-            if isinstance(v, str)
-            else (k, int(v.shape[0]), np.ascontiguousarray(v, dtype=np.float64).tobytes())
-            for k, v in items.items()
-        ]
+        rows = []
+        for k, v in items.items():
+            if isinstance(v, str):
+                h, blob = -1, v.encode()
+            else:
+                h, blob = int(v.shape[0]), np.ascontiguousarray(v, dtype=np.float64).tobytes()
+            rows.append((k, h, blob, _row_digest(k, h, blob)))
 
         def put() -> None:
             with closing(self._connect()) as con, con:
-                con.executemany("INSERT OR REPLACE INTO f VALUES (?, ?, ?)", rows)
+                con.executemany("INSERT OR REPLACE INTO forecasts VALUES (?, ?, ?, ?)", rows)
 
         self._guard(put)
 
     def __len__(self) -> int:
         def count() -> int:
             with closing(self._connect()) as con:
-                return int(con.execute("SELECT COUNT(*) FROM f").fetchone()[0])
+                return int(con.execute("SELECT COUNT(*) FROM forecasts").fetchone()[0])
 
         return self._guard(count)
+
+
+def _row_digest(key: str, h: int, blob: bytes) -> str:
+    """SHA-256 of one cache row (key, shape, value)."""
+    d = hashlib.sha256(key.encode())
+    d.update(str(h).encode() + b"\0")
+    d.update(blob)
+    return d.hexdigest()
+
+
+def _decode_row(key: Any, h: Any, blob: Any, digest: Any) -> np.ndarray | str | None:
+    """A row's value, or None if it fails its checksum or does not decode."""
+    if not (isinstance(key, str) and isinstance(h, int) and isinstance(blob, bytes)):
+        return None
+    if digest != _row_digest(key, h, blob):
+        return None
+    try:
+        if h < 0:
+            return blob.decode()
+        return np.frombuffer(blob, dtype=np.float64).reshape(h, 2).copy()
+    except (ValueError, UnicodeDecodeError):
+        return None
 
 
 def _fit_one(
@@ -191,8 +239,8 @@ class DartsPredictor(Predictor):
     regression is singular), ``n_fit_failed`` (the fit raised or returned non-finite
     values; ``fit_errors`` is a list of short messages, one per distinct reason, with
     its count when above one). ``n_cached`` / ``n_fitted`` count cache hits and fits;
-    ``n_cache_reset`` counts unreadable cache files moved aside (see
-    :class:`ForecastCache`).
+    ``n_cache_reset`` counts unreadable cache files moved aside and ``n_cache_bad_rows``
+    cache rows that failed their checksum and were recomputed (see :class:`ForecastCache`).
 
     Parameters
     ----------
@@ -361,6 +409,7 @@ class DartsPredictor(Predictor):
         if store is not None:
             store.put_many(fresh)
             info["n_cache_reset"] = store.n_reset_
+            info["n_cache_bad_rows"] = store.n_bad_rows_
         if errors:  # short messages, one per distinct reason (the controller keeps lists)
             info["fit_errors"] = [
                 reason if c == 1 else f"{reason} ({c} fits)" for reason, c in errors.items()

@@ -130,7 +130,7 @@ def _corrupt(path, how):
     path.write_bytes(bytes(raw))
     with pytest.raises(sqlite3.DatabaseError, match="malformed"):
         with sqlite3.connect(path) as con:
-            con.execute("SELECT COUNT(*) FROM f").fetchone()
+            con.execute("SELECT COUNT(*) FROM forecasts").fetchone()
 
 
 @pytest.mark.parametrize("how", ["garbage", "malformed"])
@@ -150,3 +150,31 @@ def test_corrupt_cache_is_moved_aside_and_replaced(tmp_path, how):
         again = p.predict(q)  # the fresh cache works: served from it, no further warning
     assert again.info["n_cached"] == 2 and again.info["n_cache_reset"] == 0
     np.testing.assert_array_equal(again.positions, fc.positions)
+
+
+@pytest.mark.parametrize("how", ["short value", "flipped byte", "wrong shape", "text row"])
+def test_corrupt_rows_are_recomputed_not_served(tmp_path, how):
+    """A row-level corruption (the file itself is fine) must not break later runs."""
+    path = tmp_path / "darts.sqlite"
+    q = _query([12, 12])
+    p = DartsPredictor("NaiveDrift", {}, min_history=2, cache_path=str(path))
+    first = p.predict(q)
+    with sqlite3.connect(path) as con:
+        (table,) = con.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchone()
+        (key, h, v) = con.execute(f"SELECT k, h, v FROM {table} LIMIT 1").fetchone()
+        bad = {
+            "short value": (h, bytes(v)[:-8]),
+            "flipped byte": (h, bytes([v[0] ^ 1]) + bytes(v)[1:]),
+            "wrong shape": (h + 3, bytes(v)),
+            "text row": (-1, b"\xff\xfe not utf-8"),
+        }[how]
+        con.execute(f"UPDATE {table} SET h = ?, v = ? WHERE k = ?", (*bad, key))
+    with pytest.warns(CacheCorruptWarning, match="failed their checksum"):
+        again = p.predict(q)
+    assert again.info["n_cache_bad_rows"] == 1
+    assert again.info["n_cached"] == 1 and again.info["n_fitted"] == 1
+    np.testing.assert_array_equal(again.positions, first.positions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CacheCorruptWarning)
+        third = p.predict(q)  # the recomputed row replaced the bad one
+    assert third.info["n_cached"] == 2 and third.info["n_cache_bad_rows"] == 0

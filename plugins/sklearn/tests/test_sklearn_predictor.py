@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import json
+import pickle
+from pathlib import Path
+
 import numpy as np
 import pytest
+import skops.io
 from cc_sklearn import SklearnPredictor
 from cc_sklearn.predictor import UNIT_TEST_WEIGHTS, make_unit_test_weights
 
 from conformal_control import registry
+from conformal_control.exceptions import InputError
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
@@ -80,3 +86,102 @@ def test_clear_errors():
         SklearnPredictor().predict(PredictionQuery(np.arange(1), np.zeros((1, 8, 2)), 0.4, 3))
     with pytest.raises(ValueError, match="unknown scikit-learn regressor"):
         SklearnPredictor("Nope").fit(*synthetic_windows(20), dt=0.4)
+
+
+# ------------------------------------------------------------------ nothing is unpickled
+class _RunsCode:
+    """Pickles to a call of ``Path.write_text``: loading the pickle would create a file."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.write_text, (self.marker, "code ran"))
+
+
+def _weights_folder(folder: Path) -> Path:
+    folder.mkdir()
+    cfg = {"class": "SklearnPredictor", "params": SklearnPredictor().get_params()}
+    (folder / "config.json").write_text(json.dumps(cfg))
+    return folder
+
+
+def test_a_pickled_model_is_refused_without_running_it(tmp_path):
+    folder = _weights_folder(tmp_path / "w")
+    marker = tmp_path / "pwned"
+    (folder / "model.joblib").write_bytes(pickle.dumps(_RunsCode(marker)))
+    q = PredictionQuery(np.arange(1), np.zeros((1, 8, 2)), 0.4, 3)
+    with pytest.raises(InputError, match=r"no model\.skops .*a pickle .* not loaded"):
+        SklearnPredictor(weights=str(folder)).predict(q)
+    assert not marker.exists()
+
+
+class Smuggled:
+    """A type outside scikit-learn: skops would have to import and build it."""
+
+    built = 0
+
+    def __setstate__(self, state):
+        Smuggled.built += 1
+        self.__dict__.update(state)
+
+
+def test_a_skops_file_naming_an_untrusted_type_is_refused(tmp_path):
+    folder = _weights_folder(tmp_path / "w")
+    evil = Smuggled()
+    evil.x = 1
+    (folder / "model.skops").write_bytes(skops.io.dumps({"model": evil}))
+    q = PredictionQuery(np.arange(1), np.zeros((1, 8, 2)), 0.4, 3)
+    with pytest.raises(InputError, match=r"outside the trusted list \(.*Smuggled"):
+        SklearnPredictor(weights=str(folder)).predict(q)
+    assert Smuggled.built == 0
+    # garbage where the skops zip should be: one clear error, not a zipfile traceback
+    (folder / "model.skops").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="not a skops model file"):
+        SklearnPredictor(weights=str(folder)).predict(q)
+
+
+@pytest.mark.parametrize("estimator", ["Ridge", "KNeighborsRegressor", "RandomForestRegressor"])
+def test_saved_models_load_without_untrusted_types(tmp_path, estimator):
+    h, f = synthetic_windows(60, seed=0)
+    params = {"n_estimators": 3} if estimator == "RandomForestRegressor" else None
+    model = SklearnPredictor(estimator, params).fit(h, f, dt=0.4)
+    folder = model.save(tmp_path / "w")
+    assert sorted(p.name for p in folder.iterdir()) == ["config.json", "model.skops"]
+    q = PredictionQuery(np.arange(3), h[:3].copy(), dt=0.4, horizon=12)
+    loaded = SklearnPredictor(estimator, params, weights=str(folder)).predict(q)
+    np.testing.assert_allclose(loaded.positions, model.predict(q).positions)
+
+
+def test_a_modified_model_file_fails_its_checksum(tmp_path):
+    folder = SklearnPredictor().fit(*synthetic_windows(60), dt=0.4).save(tmp_path / "w")
+    digest = json.loads((folder / "config.json").read_text())["sha256"]["model.skops"]
+    data = bytearray((folder / "model.skops").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (folder / "model.skops").write_bytes(bytes(data))
+    assert len(digest) == 64
+    q = PredictionQuery(np.arange(1), np.zeros((1, 8, 2)), 0.4, 3)
+    with pytest.raises(InputError, match="does not match its SHA-256"):
+        SklearnPredictor(weights=str(folder)).predict(q)
+    (folder / "model.skops").unlink()
+    with pytest.raises(InputError, match="missing"):
+        SklearnPredictor(weights=str(folder)).predict(q)
+
+
+def test_a_corrupt_cached_model_is_trained_again(tmp_path, monkeypatch, data_root):
+    from conformal_control.commands.predictors import cached_weights
+    from conformal_control.exceptions import CacheWarning
+
+    monkeypatch.setenv("CONFORMAL_CONTROL_CACHE", str(tmp_path / "cache"))
+    args = ("sklearn", "ethucy:zara1", str(data_root), {}, 0, 8, 12)
+    folder = cached_weights(*args)
+    for p in folder.iterdir():  # every model file truncated (a full disk while saving)
+        if p.suffix != ".json":
+            p.write_bytes(p.read_bytes()[:100])
+    with pytest.warns(CacheWarning, match="not usable"):
+        again = cached_weights(*args)
+    assert again == folder
+    h, _ = synthetic_windows(3, seed=5)
+    q = PredictionQuery(np.arange(3), h, dt=0.4, horizon=12)
+    assert np.isfinite(SklearnPredictor(weights=str(again)).predict(q).positions).all()
+    assert not [p for p in folder.parent.iterdir() if p.name.startswith(".")]  # no temp left

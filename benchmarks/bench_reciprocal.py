@@ -1,0 +1,133 @@
+"""Cost per robot of the reciprocal robot-robot constraints, against the single-robot step.
+
+Usage::
+
+    python benchmarks/bench_reciprocal.py [--data-root ../shared/data] [--robots 10] [--repeat 3]
+
+Scene: SDD ``nexus/video3``, start 0.05,0.5 -> goal 0.95,0.5 (the multi-robot page's
+command), pedestrians replayed. Timed in the same run, best of ``--repeat``:
+
+* **one robot** -- :func:`~conformal_control.sim.multi.run_multi` with one robot (the
+  single-robot episode, number for number): the baseline step;
+* **M robots, reciprocal** -- the default: each robot's rows about the others shared
+  (position and velocity information), in the compiled step;
+* **M robots, none** -- the robots predicted like pedestrians (no reciprocity), for
+  reference.
+
+Two figures per run, each with its ratio to the single robot's:
+
+* *decision per robot-step*: the process CPU time each robot spends in its own sensing,
+  predicting, deciding (the reciprocal rows and the world's peer view included) and
+  learning, per control instant it decided (summed over robots / robot-steps; the loop of
+  :func:`~conformal_control.sim.multi.drive`, timed with ``time.process_time``);
+* *loop per robot-step*: the process CPU time of the whole loop (the world's plants,
+  sensors and logs included) per robot-step.
+
+The target of the multi-robot issue is the decision ratio of the reciprocal run <= 1.5.
+The machine may be shared: the load average is printed; CPU time is the figure to read,
+and the ratios of one run are what to compare.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from conformal_control.data import load_scene
+from conformal_control.sim.multi import run_multi
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def cpu_drive(world, steppers, *, broadcast: bool = False) -> list[float]:
+    """:func:`~conformal_control.sim.multi.drive` with each robot's share in CPU time."""
+    clock = time.process_time
+    n = len(steppers)
+    own = [0.0] * n
+    world.reset()
+    for st in steppers:
+        st.start()
+    cmds = np.zeros((n, 2))
+    while not world.done:
+        active = [int(i) for i in world.active()]
+        for i in active:
+            t0 = clock()
+            steppers[i].begin_interval(world.sense(i))
+            own[i] += clock() - t0
+        for _ in range(world.control_instants()):
+            for i in active:
+                if world.robot_done(i):
+                    continue
+                t0 = clock()
+                cmds[i] = steppers[i].decide(world.state(i))
+                own[i] += clock() - t0
+            world.apply(cmds)
+            if world.done:
+                break
+        for i in active:
+            t0 = clock()
+            steppers[i].end_interval(world.reveal(i))
+            own[i] += clock() - t0
+    return own
+
+
+def timed(scene, **kw) -> tuple[float, float, int, object]:
+    """(decision CPU s, loop CPU s, robot-steps, fleet metrics) of one run."""
+    from conformal_control.sim import multi
+
+    saved = multi.drive
+    multi.drive = cpu_drive  # the same loop, its shares in CPU time
+    try:
+        res = run_multi(scene, record_animation=False, **kw)
+    finally:
+        multi.drive = saved
+    steps = sum(r.metrics.n_steps for r in res.robots)
+    own = sum(r.metrics.wall_s for r in res.robots)  # cpu_drive's shares
+    return own, res.metrics.cpu_s, steps, res.metrics
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data-root", default=str(ROOT.parent / "shared" / "data"))
+    ap.add_argument("--robots", type=int, default=10)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    scene = load_scene("sdd:nexus/video3", args.data_root, start=(0.05, 0.5), goals=[(0.95, 0.5)])
+    run_multi(scene, 2, max_frames=30, record_animation=False)  # compile / load kernels
+    cases = {
+        "one robot": {"robots": 1},
+        f"{args.robots} robots, reciprocal": {"robots": args.robots},
+        f"{args.robots} robots, none": {
+            "robots": args.robots,
+            "reciprocity": "none",
+            "lambda_scope": "both",
+        },
+    }
+    best: dict[str, tuple[float, float, int, object]] = {}
+    for _ in range(args.repeat):
+        for name, kw in cases.items():
+            own, cpu, steps, m = timed(scene, **kw)
+            prev = best.get(name)
+            if prev is None or own / steps < prev[0] / prev[2]:
+                best[name] = (own, cpu, steps, m)
+    print(f"load average {os.getloadavg()[0]:.2f} (2 cores); best of {args.repeat}")
+    base_own, base_cpu, base_steps, _ = best["one robot"]
+    d0, c0 = base_own / base_steps, base_cpu / base_steps
+    print(f"{'run':<28} {'decision/robot-step':>20} {'ratio':>6} {'loop/robot-step':>16} "
+          f"{'ratio':>6}  robot pairs  ped frames  goal")  # fmt: skip
+    for name, (own, cpu, steps, m) in best.items():
+        d, c = own / steps, cpu / steps
+        print(
+            f"{name:<28} {1e6 * d:17.1f} us {d / d0:6.2f} {1e6 * c:13.1f} us {c / c0:6.2f}  "
+            f"{m.n_collide_robot_pairs:>11}  {m.n_collide_pedestrian:>10}  {m.goal_rate:.2f}"
+        )
+
+
+if __name__ == "__main__":
+    t0 = time.perf_counter()
+    main()
+    print(f"({time.perf_counter() - t0:.0f} s)")

@@ -1,0 +1,450 @@
+"""Reciprocal robot-robot constraints: each robot of a pair takes a share of the pair's barrier.
+
+Two robots i and j that both run a CBF safety filter can share one pairwise constraint
+instead of each assuming the other will keep going (or dodge) as predicted. For the pair's
+barrier ``h = h(x_i, x_j)`` (the run's barrier, symmetric in the two positions) and
+velocities ``v_i``, ``v_j``, safety of the pair needs
+
+    dh/dx_i . v_i + dh/dx_j . v_j + a h >= 0.                                  (pair)
+
+With the rule of safety barrier certificates for multi-robot systems (Wang, Ames &
+Egerstedt 2017: each robot of a pair enforces its own part of the pairwise constraint,
+halves for identical robots), robot i enforces its **row** about j
+
+    dh/dx_i . v_i + dh/dx_j . v~_j + s_ij a h >= 0,                            (row)
+    v~_j = s_ij r_j + (1 - s_ij) r_i,
+
+where ``s_ij`` is robot i's **share** of the pair (``s_ij + s_ji = 1``; from the fleet's
+agreed weights ``s_ij = w_i / (w_i + w_j)``, one half by default) and ``r_i``, ``r_j``
+are the two robots' **reference velocities**, which depend on what robots know of each
+other (:data:`INFORMATION`):
+
+* ``"position"``: positions only, ``r = 0``. The row is ``dh/dx_i . v_i + s_ij a h >= 0``:
+  robot i may let h fall at rate ``s_ij a h`` at most (the decentralised certificate);
+* ``"velocity"``: positions and the current velocities (measured by the sensor), ``r``
+  the two velocities now. The row asks robot i to change the pair's rate, relative to
+  the current velocities, by its share of what the pair lacks: ``dh/dx_i . (v_i - r_i)
+  >= -s_ij c`` with ``c = dh/dx_i . r_i + dh/dx_j . r_j + a h`` (the split of reciprocal
+  velocity obstacles, written for the barrier);
+* ``"plan"``: positions and the plans the robots broadcast (for this family, the velocity
+  each decided at the previous control instant), ``r`` those plans.
+
+Adding robot i's row and robot j's row gives (pair) exactly, whatever the information
+(the ``r`` terms cancel because both robots use the same two references): **when both
+comply, the pair is as safe as one robot avoiding a static obstacle** (the barrier's
+forward invariance, up to the discretisation of the control step). When one does *not*
+comply (it ignores the other, or is not a robot of the fleet), the other's row alone gives
+no such guarantee; with ``"velocity"`` (or ``"plan"``) information its row is relative to
+the partner's actual motion, so at every control instant it takes its share of what is
+still missing and, over a few instants, all of it (within its speed bound); with
+``"position"`` it only ever takes its share.
+
+**lambda** (the conformal slack) applies to the rows chosen by the scope
+(:data:`LAMBDA_SCOPES`): ``"pedestrians"`` (default: the rows of predicted pedestrians
+get ``+ lambda``; the robot rows are hard), ``"robots"`` (only the robot rows) or
+``"both"``. The loss the controller learns lambda from scores the same agents (see
+:class:`~conformal_control.cbf.loss.CBFGapLoss`): for a robot row the "prediction" is
+the partner's assumed part ``dh/dx_j . v~_j + s_ij a h`` and the truth its actual part
+``dh/dx_j . v_j + a h``, so a positive gap says that the partner did not take its share.
+When the rows are infeasible at lambda and the filter's fallback is ``lambda_search``, the
+search raises a slack level ``lambda' >= lambda`` on the rows lambda is the slack of
+(:func:`lexicographic_search`), and the hard rows by ``hard_rows``:
+
+* ``"level"``: they get ``max(0, lambda')``: with a cautious (negative) lambda the margin
+  on the other rows goes first, the hard rows get slack once the level passes 0, and then
+  the same as the others;
+* ``"last"``: they keep none unless they cannot be met on their own (then every row is
+  relaxed together, as ``lambda_search`` does).
+
+Rows with a zero gradient (an agent already overlapped: no velocity changes them) are
+left out of that search, where they would set the level for every other row. Steps that
+relaxed hard rows are counted (``n_hard_rows_relaxed``). Other fallbacks see the rows as
+one problem.
+
+**Side-stepping.** Two robots exactly head-on (or any symmetric jam) can stop face to
+face: each row cancels the component of the nominal velocity towards the other, and
+nothing turns them. A reciprocal robot that is held back (moving slower than
+:data:`SIDESTEP_SLOW` times its nominal speed) while its nominal velocity points at
+another robot (within :data:`SIDESTEP_CONE` of it) that it would reach within
+:data:`SIDESTEP_HORIZON` seconds at that velocity turns its nominal velocity away from
+the nearest such robot by ``sidestep`` radians before filtering: clockwise when that
+robot is on its left or dead ahead, counter-clockwise when it is on its right. Two robots
+in a symmetric encounter turn the same way round and pass; a robot facing one that does
+not comply turns away from its path. It changes only what the filter starts from: the
+rows, hence the safety argument, are untouched.
+
+This module holds the rule (:class:`Reciprocity`, the controller's setting), what a
+robot knows of its peers at a control instant (:class:`PeerView`, handed to it by the
+world) and the rows (:func:`peer_rows`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..base import Plugin
+from .constraint import ConformalConstraint
+from .speed import speed_polygon
+
+__all__ = [
+    "HARD_ROWS",
+    "INFORMATION",
+    "LAMBDA_SCOPES",
+    "RECIPROCITY",
+    "SIDESTEP_CONE",
+    "SIDESTEP_HORIZON",
+    "PeerView",
+    "Reciprocity",
+    "check_peer_view",
+    "grown_constraint",
+    "lexicographic_search",
+    "pair_shares",
+    "peer_rows",
+    "reference_velocities",
+    "sidestep",
+]
+
+#: How a robot treats the robots its sensor identifies: ``"reciprocal"`` (a shared
+#: constraint, its share of each pair), ``"none"`` (predicted like pedestrians, each robot
+#: taking the whole constraint for its prediction of the other: the behaviour without
+#: reciprocity) or ``"ignore"`` (no constraint at all: a robot that does not comply).
+RECIPROCITY = ("reciprocal", "none", "ignore")
+
+#: What robots know of each other at a control instant (see the module docstring).
+INFORMATION = ("position", "velocity", "plan")
+
+#: The rows the conformal lambda is the slack of.
+LAMBDA_SCOPES = ("pedestrians", "robots", "both")
+
+#: How the lambda search treats the rows without slack (:class:`Reciprocity`).
+HARD_ROWS = ("level", "last")
+
+#: Bisection steps of :func:`lexicographic_search` at most.
+MAX_BISECTIONS = 60
+
+#: Side-stepping: a robot turns when another robot is within this many seconds of its
+#: nominal velocity ...
+SIDESTEP_HORIZON = 1.0
+#: ... and within this angle (rad) of its direction ...
+SIDESTEP_CONE = math.pi / 4
+#: ... while it moves slower than this fraction of its nominal speed.
+SIDESTEP_SLOW = 0.5
+
+
+class Reciprocity(Plugin):
+    """How a CBF controller treats the robots its sensor reports (see the module docstring).
+
+    Parameters
+    ----------
+    mode : {"reciprocal", "none", "ignore"}
+        Reciprocal rows, prediction (as a pedestrian), or no constraint.
+    lambda_scope : {"pedestrians", "robots", "both"}
+        Rows that get ``+ lambda`` (and agents the loss scores).
+    robot_margin : float
+        Added to the barrier's collision distance for a robot (m): the run's barrier is
+        built for robot + pedestrian radii, a robot-robot pair needs two robot radii, so
+        ``robot_radius - agent_radius`` (the barrier needs a ``d_c`` parameter when this
+        is not 0). Applies to the reciprocal rows.
+    sidestep : float
+        Angle (rad, in [0, pi/2]) a reciprocal robot turns its nominal velocity by, away
+        from another robot ahead (see the module docstring); 0 never turns.
+    hard_rows : {"level", "last"}
+        How the ``lambda_search`` fallback treats the rows without slack (see the module
+        docstring).
+    """
+
+    def __init__(
+        self,
+        mode: str = "reciprocal",
+        lambda_scope: str = "pedestrians",
+        robot_margin: float = 0.0,
+        sidestep: float = 0.3,
+        hard_rows: str = "last",
+    ) -> None:
+        self.mode = mode
+        self.lambda_scope = lambda_scope
+        self.robot_margin = robot_margin
+        self.sidestep = sidestep
+        self.hard_rows = hard_rows
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` for an unknown mode or scope."""
+        if self.mode not in RECIPROCITY:
+            raise ValueError(
+                f"reciprocity must be one of {', '.join(RECIPROCITY)}, got {self.mode!r}"
+            )
+        if self.lambda_scope not in LAMBDA_SCOPES:
+            raise ValueError(
+                f"lambda_scope must be one of {', '.join(LAMBDA_SCOPES)}, got {self.lambda_scope!r}"
+            )
+        k = self.sidestep
+        if not (isinstance(k, (int, float)) and 0.0 <= k <= math.pi / 2):
+            raise ValueError(f"sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        if self.hard_rows not in HARD_ROWS:
+            raise ValueError(
+                f"hard_rows must be one of {', '.join(HARD_ROWS)}, got {self.hard_rows!r}"
+            )
+
+    def turn(self) -> np.ndarray:
+        """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
+        the cosine of the cone, the slow fraction (zeros: never turn), and 1 when the hard
+        rows are relaxed last (:attr:`hard_rows`)."""
+        keep = float(self.hard_rows == "last")
+        if not self.sidestep:
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep])
+        k = float(self.sidestep)
+        return np.array(
+            [
+                math.cos(k),
+                math.sin(k),
+                SIDESTEP_HORIZON,
+                math.cos(SIDESTEP_CONE),
+                SIDESTEP_SLOW,
+                keep,
+            ]
+        )
+
+    def robot_constraint(self, constraint: ConformalConstraint) -> ConformalConstraint:
+        """The constraint of the robot rows: ``constraint`` with the barrier's collision
+        distance ``d_c`` grown by :attr:`robot_margin` (``constraint`` itself for 0)."""
+        return grown_constraint(constraint, self.robot_margin)
+
+    @property
+    def lambda_on_pedestrians(self) -> bool:
+        """Whether the pedestrians' rows get ``+ lambda``."""
+        return self.lambda_scope != "robots"
+
+    @property
+    def lambda_on_robots(self) -> bool:
+        """Whether the robots' rows get ``+ lambda``."""
+        return self.lambda_scope != "pedestrians"
+
+
+@dataclass(slots=True)
+class PeerView:
+    """What a robot knows of the robots it sensed at the last sampling time, now.
+
+    The world builds it for each robot at each control instant from what the chosen
+    information option allows; a controller reads nothing else about another robot. The
+    arrays are the robot's own (copies, or read-only for the ids and shares): writing into
+    them changes nothing in the world.
+
+    Attributes
+    ----------
+    ids : ndarray of shape (K,)
+        The robots' ids (as in the sensor's query).
+    positions : ndarray of shape (K, 2)
+        Their positions now (m).
+    shares : ndarray of shape (K,)
+        This robot's share ``s_ij`` of each pair.
+    information : {"position", "velocity", "plan"}
+    reference : ndarray of shape (K, 2) or None
+        The peers' reference velocities ``r_j`` (m/s): their velocities now
+        (``"velocity"``) or their broadcast plans (``"plan"``); None with ``"position"``.
+    own_reference : ndarray of shape (2,) or None
+        This robot's own ``r_i`` of the same kind (its velocity now, or the plan it
+        broadcast); None with ``"position"``.
+    plans : tuple of (ndarray, ndarray) or None
+        With ``"plan"``, each peer's broadcast path when it has one: ``(times, positions)``
+        with times in seconds since the start (H,) and positions (H, 2); None entries for
+        peers that broadcast a velocity only. Planners that look ahead (the MPC family)
+        read it.
+    """
+
+    ids: np.ndarray
+    positions: np.ndarray
+    shares: np.ndarray
+    information: str = "position"
+    reference: np.ndarray | None = None
+    own_reference: np.ndarray | None = None
+    plans: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+
+    @property
+    def n_peers(self) -> int:
+        return int(self.positions.shape[0])
+
+
+def pair_shares(weights: np.ndarray) -> np.ndarray:
+    """``s_ij = w_i / (w_i + w_j)`` for every ordered pair, shape (R, R) (diagonal 1/2).
+
+    Parameters
+    ----------
+    weights : ndarray of shape (R,)
+        Positive weights agreed by the fleet (equal weights: every share is one half).
+    """
+    w = np.asarray(weights, dtype=float).reshape(-1)
+    if w.size == 0 or not np.isfinite(w).all() or (w <= 0).any():
+        raise ValueError(f"share weights must be finite numbers > 0, got {w.tolist()}")
+    out: np.ndarray = w[:, None] / (w[:, None] + w[None, :])
+    return out
+
+
+def reference_velocities(view: PeerView) -> np.ndarray:
+    """``v~_j = s_ij r_j + (1 - s_ij) r_i`` for every peer, shape (K, 2) (0 for position)."""
+    k = view.n_peers
+    if view.reference is None or view.own_reference is None:
+        return np.zeros((k, 2))
+    s = view.shares[:, None]
+    out: np.ndarray = s * view.reference + (1.0 - s) * np.asarray(view.own_reference)[None, :]
+    return out
+
+
+def peer_rows(
+    constraint: ConformalConstraint, x_ego: np.ndarray, view: PeerView
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robot rows ``A v + b >= 0`` of :func:`reference_velocities`'s rule (lambda apart).
+
+    Parameters
+    ----------
+    constraint : ConformalConstraint
+        Barrier and slope (the run's: the same as the pedestrians').
+    x_ego : ndarray of shape (2,)
+    view : PeerView
+
+    Returns
+    -------
+    A : ndarray of shape (K, 2)
+        ``dh/dx_i`` for each peer.
+    b : ndarray of shape (K,)
+        ``dh/dx_j . v~_j + s_ij a h``.
+    """
+    if view.n_peers == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    h, dh_dego, dh_dpeer = constraint.barrier.evaluate(x_ego, view.positions)
+    vt = reference_velocities(view)
+    b: np.ndarray = np.einsum("ij,ij->i", dh_dpeer, vt) + view.shares * float(constraint.a) * h
+    return dh_dego, b
+
+
+def check_peer_view(view: Any, ids: np.ndarray) -> PeerView:
+    """``view`` as a :class:`PeerView` about exactly the robots ``ids`` (a clear error else)."""
+    if not isinstance(view, PeerView):
+        raise TypeError(f"state.peers must be a PeerView, got {type(view).__name__}")
+    if view.ids.shape != ids.shape or not np.array_equal(view.ids, ids):
+        raise ValueError(
+            f"the world's peer view lists robots {view.ids.tolist()} but the robots sensed at "
+            f"the sampling time are {ids.tolist()}"
+        )
+    if view.positions.shape != (ids.size, 2) or view.shares.shape != (ids.size,):
+        raise ValueError("a peer view needs positions (K, 2) and shares (K,)")
+    if view.information not in INFORMATION:
+        raise ValueError(
+            f"information must be one of {', '.join(INFORMATION)}, got {view.information!r}"
+        )
+    return view
+
+
+def grown_constraint(constraint: ConformalConstraint, margin: float) -> ConformalConstraint:
+    """``constraint`` with its barrier's collision distance ``d_c`` grown by ``margin`` (m)
+    (``constraint`` itself for 0; a clear error for a barrier without ``d_c``)."""
+    m = float(margin)
+    if not math.isfinite(m):
+        raise ValueError(f"robot_margin must be a finite distance, got {margin!r}")
+    if m == 0.0:
+        return constraint
+    params = constraint.barrier.get_params()
+    if "d_c" not in params:
+        raise ValueError(
+            f"robots larger than pedestrians need a barrier with a collision distance d_c; "
+            f"{type(constraint.barrier).__name__} has none (give barrier_margin instead)"
+        )
+    d_c = float(params["d_c"]) + m
+    if d_c < 0:
+        raise ValueError(f"the robots' collision distance would be negative ({d_c} m)")
+    barrier = copy.deepcopy(constraint.barrier)
+    barrier.set_params(d_c=d_c)
+    return ConformalConstraint(barrier, constraint.a)
+
+
+def sidestep(
+    nominal: np.ndarray, x_ego: np.ndarray, view: PeerView, turn: np.ndarray, d_c: float
+) -> np.ndarray:
+    """The nominal velocity turned away from the nearest peer ahead when the robot is held
+    back (:meth:`Reciprocity.turn`'s parameters; ``x_ego`` the state (x, y, vx, vy);
+    ``d_c`` the robots' collision distance); as given otherwise."""
+    c, s, horizon, cone, slow = (float(v) for v in turn[:5])
+    n0, n1 = float(nominal[0]), float(nominal[1])
+    sp = math.hypot(n0, n1)
+    if s == 0.0 or sp == 0.0 or view.n_peers == 0:
+        return np.asarray(nominal, dtype=float)
+    if math.hypot(float(x_ego[2]), float(x_ego[3])) >= slow * sp:
+        return np.asarray(nominal, dtype=float)
+    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    ahead = (d < d_c + sp * horizon) & (rel @ np.array([n0, n1]) > cone * sp * d)
+    if not ahead.any():
+        return np.asarray(nominal, dtype=float)
+    j = int(np.flatnonzero(ahead)[np.argmin(d[ahead])])
+    if n0 * rel[j, 1] - n1 * rel[j, 0] < 0.0:  # on the right: turn counter-clockwise
+        s = -s
+    return np.array([c * n0 + s * n1, -s * n0 + c * n1])
+
+
+def lexicographic_search(
+    solver: Any,
+    nominal: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    hard: np.ndarray,
+    lam: float,
+    keep: bool = False,
+) -> tuple[np.ndarray, float, bool]:
+    """The ``lambda_search`` fallback with rows without slack (``hard``; their ``b``
+    already holds ``- lam``): ``(v, lambda_applied, hard rows relaxed)``.
+
+    The generic path's twin of
+    :func:`~conformal_control.cbf.kernels_peers.lexicographic_search`, on the filter's
+    primitives (``project``, ``min_lambda``, ``search_margin``): the smallest level
+    ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at 0
+    (``keep``) or ``max(0, lambda')`` are feasible, by bisection; rows with a zero
+    gradient (an agent already overlapped: no velocity changes them) are left out.
+    """
+    live = np.hypot(A[:, 0], A[:, 1]) > 0.0  # rows no velocity changes are left out
+    if not live.all():
+        A, b, hard = A[live], b[live], np.asarray(hard, dtype=bool)[live]
+    hard = np.asarray(hard, dtype=bool)
+    soft = ~hard
+
+    def at(level: float) -> np.ndarray | None:
+        rhs = b + np.where(hard, lam if keep else lam + max(0.0, level), level)
+        out: np.ndarray | None = solver.project(nominal, A, rhs)
+        return out
+
+    sides = getattr(solver, "speed_sides", None)
+    if isinstance(sides, int):  # the disc around the filter's speed polygon
+        reach = speed_polygon(sides, float(solver.v_max))[3]
+    else:
+        reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
+    top = -b + np.hypot(A[:, 0], A[:, 1]) * reach - np.where(hard, lam, 0.0)
+    hi = max([lam, *(top[soft] if keep else top)])
+    lo = lam
+    if soft.any():
+        star, _ = solver.min_lambda(A[soft], b[soft])
+        lo = max(lo, float(star))
+    margin = float(solver.search_margin(max(abs(lo), abs(hi)), A, b))
+    v = at(hi + margin)
+    if v is None:  # the hard rows cannot be met (keep), or round-off: all together
+        star, v_star = solver.min_lambda(A, b)
+        floor = max(lam, float(star))
+        used = floor + float(solver.search_margin(floor, A, b))
+        w = solver.project(nominal, A, b + used)
+        return (np.asarray(v_star, float), floor, True) if w is None else (w, used, True)
+    hi += margin
+    w = at(lo + margin)
+    if w is not None:
+        return w, lo + margin, not keep and lo + margin > 0.0
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        w = at(mid)
+        if w is not None:
+            hi, v = mid, w
+        else:
+            lo = mid
+    return v, hi, not keep and hi > 0.0

@@ -1,0 +1,181 @@
+"""The multi-robot benchmark: layouts, the suite, the runner, the paired report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conformal_control.bench.multi import (
+    LAYOUTS,
+    entry_tasks,
+    is_multi_folder,
+    layout_tasks,
+    load_multi_suite,
+    make_multi_manifest,
+    multi_tables,
+    read_multi_rows,
+    run_multi_bench,
+    write_multi_report,
+)
+from conformal_control.data.suites import dump_manifest, load_suite
+from conformal_control.sim.multi import check_tasks
+
+P, Q = (0.0, 0.0), (10.0, 0.0)
+
+
+def _sep(points: np.ndarray) -> float:
+    d = np.hypot(*(points[:, None] - points[None]).transpose(2, 0, 1))
+    d[np.diag_indices(len(points))] = np.inf
+    return float(d.min())
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("n", [2, 5, 10, 20])
+def test_layouts_give_tasks_a_fleet_can_do(layout, n):
+    s, g = layout_tasks(layout, n, P, Q, spacing=2.5, seed=3)
+    assert s.shape == (n, 2) and len(g) == n
+    ends = np.array([gi[-1] for gi in g])
+    assert _sep(s) >= 2.5 - 1e-9 and _sep(ends) >= 2.5 - 1e-9
+    check_tasks(s, g, robot_radius=0.5)  # no error
+    lengths = np.hypot(*(ends - s).T)
+    assert (lengths >= 5.0 - 1e-9).all()
+
+
+def test_swap_puts_two_robots_head_on_on_every_line():
+    s, g = layout_tasks("swap", 6, P, Q, spacing=2.5)
+    ends = np.array([gi[-1] for gi in g])
+    # robots 0-2 go +x, 3-5 go -x along the same three lines
+    np.testing.assert_allclose(ends[:3, 0] - s[:3, 0], 10.0)
+    np.testing.assert_allclose(ends[3:, 0] - s[3:, 0], -10.0)
+    np.testing.assert_allclose(s[:3, 1], s[3:, 1])
+    np.testing.assert_allclose(s[:3, 1], [-2.5, 0.0, 2.5])
+
+
+def test_cross_is_two_perpendicular_streams_and_lanes_alternate():
+    s, g = layout_tasks("cross", 4, P, Q, spacing=2.5)
+    d = np.array([gi[-1] for gi in g]) - s
+    assert np.allclose(d[:2, 1], 0.0) and np.allclose(d[2:, 0], 0.0)
+    s, g = layout_tasks("lanes", 4, P, Q, spacing=2.5)
+    d = np.array([gi[-1] for gi in g]) - s
+    np.testing.assert_allclose(np.sign(d[:, 0]), [1, -1, 1, -1])
+    np.testing.assert_allclose(s[:, 1], [-3.75, -1.25, 1.25, 3.75])
+
+
+def test_random_layout_is_seeded():
+    a = layout_tasks("random", 8, P, Q, seed=1)
+    b = layout_tasks("random", 8, P, Q, seed=1)
+    c = layout_tasks("random", 8, P, Q, seed=2)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert not np.array_equal(a[0], c[0])
+
+
+def test_impossible_layouts_are_one_line_errors():
+    for args, kw, msg in (
+        (("spiral", 4, P, Q), {}, "unknown layout"),
+        (("swap", 1, P, Q), {}, "2 to 20 robots"),
+        (("swap", 21, P, Q), {}, "2 to 20 robots"),
+        (("swap", 4, P, P), {}, "start and a goal apart"),
+        (("swap", 4, P, Q), {"spacing": 0.0}, "spacing must be"),
+    ):
+        with pytest.raises(ValueError, match=msg) as err:
+            layout_tasks(*args, **kw)
+        assert "\n" not in str(err.value)
+
+
+def test_the_shipped_suite_is_the_generator_s_output():
+    suite = load_multi_suite()
+    assert suite.base == "crossings-v2"
+    text = dump_manifest(make_multi_manifest(suite.base))
+    shipped = (
+        __import__("pathlib").Path(__file__).resolve().parents[2]
+        / "conformal_control/bench/multi_manifests/multi-crossings-v1.json"
+    )
+    assert shipped.read_text() == text
+    base = load_suite(suite.base)
+    for e in suite.entries:
+        sc = base.scenario(e.scenario)
+        assert sc.split == e.split and sc.recording == e.recording
+    # every layout of every chosen scenario, both splits
+    assert {e.layout for e in suite.entries} == set(LAYOUTS)
+    assert {e.split for e in suite.entries} == {"dev", "test"}
+
+
+def test_entry_tasks_follow_the_scenario(tmp_path):
+    suite = load_multi_suite()
+    e = suite.entries_for("test")[0]
+    base, s, _ = entry_tasks(suite, e, 5)
+    assert s.shape == (5, 2)
+    mid = 0.5 * (np.array(base.start_m) + np.array(base.goal_m))
+    assert np.linalg.norm(s.mean(0) - mid) < base.length_m
+
+
+def test_bad_manifests_are_one_line_errors(tmp_path):
+    f = tmp_path / "m.json"
+    for content, msg in (
+        ("{oops", "not valid JSON"),
+        (json.dumps({"schema": "other"}), "not a multi-robot suite"),
+        (json.dumps({"schema": "conformal-control/multi-suite"}), "missing key"),
+    ):
+        f.write_text(content)
+        with pytest.raises(ValueError, match=msg):
+            load_multi_suite(path=f)
+    m = make_multi_manifest()
+    m["entries"][0]["layout"] = "spiral"
+    f.write_text(json.dumps(m))
+    with pytest.raises(ValueError, match="layout 'spiral'"):
+        load_multi_suite(path=f)
+
+
+def _row(entry, rec, pairs, goal, ped=0, layout="swap", robots=5):
+    return {
+        "key": f"{entry}|{rec}",
+        "entry": entry,
+        "layout": layout,
+        "split": "test",
+        "robots": robots,
+        "method": "nolearn",
+        "shift": "nominal",
+        "reciprocity": rec,
+        "goal_rate": goal,
+        "n_collide_robot_pairs": pairs,
+        "n_collide_pedestrian": ped,
+        "makespan": 10.0,
+        "n_deadlocked": 0,
+        "cpu_s": 1.0,
+    }
+
+
+def test_the_paired_reduction_is_computed_from_the_pairs():
+    rows = []
+    for k, (none, rec) in enumerate([(10, 0), (0, 0), (30, 4), (20, 0)]):
+        rows.append(_row(f"e{k}", "none", none, 0.8))
+        rows.append(_row(f"e{k}", "reciprocal", rec, 1.0))
+    tables = multi_tables(rows)
+    (allrow,) = [r for r in tables["paired"] if r["layout"] == "all"]
+    point, lo, hi = allrow["reduction"]
+    assert point == pytest.approx(1 - 4 / 60)
+    assert lo <= point <= hi <= 1.0
+    assert allrow["goal_rate_difference"].mean == pytest.approx(0.2)
+    assert allrow["pairs"] == 4
+    fleet = {r["reciprocity"]: r for r in tables["fleet"]}
+    assert fleet["none"]["robot_pair_frames"].mean == pytest.approx(15.0)
+    assert fleet["reciprocal"]["episodes_robot_collision"].mean == pytest.approx(0.25)
+
+
+def test_run_report_and_resume(tmp_path, data_root):
+    out = tmp_path / "bench"
+    kw = dict(robots=(3,), split="test", limit=1, methods=("nolearn",), data_root=str(data_root))
+    first = run_multi_bench(out, workers=1, **kw)
+    assert first.ran == 2 and first.failed == 0
+    again = run_multi_bench(out, workers=1, **kw)
+    assert again.skipped == 2 and again.ran == 0
+    assert is_multi_folder(out)
+    rows = read_multi_rows(out)
+    assert {r["reciprocity"] for r in rows} == {"none", "reciprocal"}
+    for r in rows:
+        assert r["robots"] == 3 and 0.0 <= r["goal_rate"] <= 1.0
+    page = write_multi_report(rows, tmp_path / "report")
+    text = page.read_text()
+    assert "Reciprocal against none" in text and "| 3 | nolearn | nominal |" in text

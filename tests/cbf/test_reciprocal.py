@@ -1,0 +1,253 @@
+"""Reciprocal robot rows: the pair's constraint split in two, the loss on robot rows, the
+compiled step against the generic one."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conformal_control.cbf.barriers import APFBarrier
+from conformal_control.cbf.constraint import ConformalConstraint
+from conformal_control.cbf.controller import ConformalCBFController
+from conformal_control.cbf.filters.exact2d import Exact2DSafetyFilter
+from conformal_control.cbf.loss import CBFGapLoss
+from conformal_control.cbf.reciprocal import (
+    INFORMATION,
+    PeerView,
+    Reciprocity,
+    grown_constraint,
+    pair_shares,
+    peer_rows,
+    sidestep,
+)
+from conformal_control.cbf.records import CBFTruth, ControlState
+from conformal_control.cbf.reference import AttractiveField
+from conformal_control.predictors.base import PredictionQuery
+from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
+
+CON = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.8), a=2.0)
+
+
+def _views(rng, info, s_ij):
+    """Robot i's and robot j's views of each other (the same instant, same information)."""
+    x = rng.uniform(-2.0, 2.0, size=(2, 2))
+    v = rng.uniform(-1.0, 1.0, size=(2, 2))
+    plan = rng.uniform(-1.0, 1.0, size=(2, 2))
+    ref = {"position": None, "velocity": v, "plan": plan}[info]
+
+    def view(me, other, share):
+        return PeerView(
+            ids=np.array([other]),
+            positions=x[[other]],
+            shares=np.array([share]),
+            information=info,
+            reference=None if ref is None else ref[[other]],
+            own_reference=None if ref is None else ref[me].copy(),
+        )
+
+    return x, view(0, 1, s_ij), view(1, 0, 1.0 - s_ij)
+
+
+@pytest.mark.parametrize("info", INFORMATION)
+@pytest.mark.parametrize("s_ij", [0.5, 0.2, 0.9])
+def test_the_two_rows_add_up_to_the_pairs_constraint(info, s_ij):
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        x, vi, vj = _views(rng, info, s_ij)
+        Ai, bi = peer_rows(CON, x[0], vi)
+        Aj, bj = peer_rows(CON, x[1], vj)
+        u = rng.uniform(-2.0, 2.0, size=(2, 2))  # any velocities the two choose
+        pair = CON.value(x[0], u[0], x[1], u[1])
+        np.testing.assert_allclose(Ai[0] @ u[0] + bi[0] + Aj[0] @ u[1] + bj[0], pair, atol=1e-12)
+
+
+def test_position_rows_are_the_decentralised_certificate():
+    # dh/dx_i . v + s a h >= 0: standing still meets it wherever h >= 0
+    x, vi, _ = _views(np.random.default_rng(1), "position", 0.5)
+    A, b = peer_rows(CON, x[0], vi)
+    h, dh, _ = CON.barrier.evaluate(x[0], x[1])
+    np.testing.assert_allclose(A[0], dh)
+    np.testing.assert_allclose(b[0], 0.5 * CON.a * h)
+
+
+def test_shares_of_a_pair_add_to_one():
+    s = pair_shares(np.array([1.0, 3.0, 2.0]))
+    np.testing.assert_allclose(s + s.T, 1.0)
+    assert s[0, 1] == pytest.approx(0.25)
+    for bad in ([1.0, 0.0], [1.0, -2.0], [np.nan, 1.0], []):
+        with pytest.raises(ValueError, match="share weights"):
+            pair_shares(np.array(bad))
+
+
+def test_reciprocity_settings_are_checked():
+    for kw, msg in (
+        ({"mode": "polite"}, "reciprocity must be"),
+        ({"lambda_scope": "everyone"}, "lambda_scope must be"),
+        ({"sidestep": 2.0}, "sidestep must be"),
+        ({"hard_rows": "never"}, "hard_rows must be"),
+    ):
+        with pytest.raises(ValueError, match=msg):
+            Reciprocity(**kw).validate()
+    with pytest.raises(ValueError, match="collision distance d_c"):
+
+        class NoDc(APFBarrier):
+            def get_params(self):
+                return {}
+
+        grown_constraint(ConformalConstraint(NoDc()), 0.1)
+
+
+def test_a_robot_row_with_a_margin_keeps_two_robot_radii():
+    grown = grown_constraint(CON, 0.2)
+    assert grown.barrier.d_c == pytest.approx(1.0) and CON.barrier.d_c == pytest.approx(0.8)
+    assert grown_constraint(CON, 0.0) is CON
+
+
+# ------------------------------------------------------------------------------ the loss
+def _record_for(view_positions, v_assumed, share, x_ego, v_ego, steps):
+    from conformal_control.cbf.records import CBFIntervalRecord
+
+    return CBFIntervalRecord(
+        ids=np.array([10]),
+        x_ego=np.tile(x_ego, (steps, 1)),
+        v_ego=np.tile(v_ego, (steps, 1)),
+        x_pred=np.tile(view_positions, (steps, 1, 1)),
+        v_pred=np.tile(v_assumed, (steps, 1, 1)),
+        lam_applied=np.zeros(steps),
+        share=np.array([share]),
+        scored=np.array([True]),
+    )
+
+
+def test_loss_on_a_robot_row_sees_a_partner_that_does_not_take_its_share():
+    # position information: robot i assumes the partner contributes at least -s a h; a
+    # partner that stands still complies (gap <= 0), one that drives at i does not
+    loss = CBFGapLoss(CON, scale=1.0)
+    dt, substeps, steps = 0.1, 2, 4
+    xi, xj = np.array([0.0, 0.0]), np.array([2.0, 0.0])
+    rec = _record_for(xj[None], np.zeros((1, 2)), 0.5, xi, np.zeros(2), steps)
+    t = np.arange(3) * dt
+    still = CBFTruth(np.tile(xj, (1, 3, 1)), dt, substeps)
+    ramming = CBFTruth((xj + np.outer(t, [-1.5, 0.0]))[None], dt, substeps)
+    assert np.nanmax(loss.gaps(rec, still)) <= 0.0
+    assert np.nanmax(loss.gaps(rec, ramming)) > 0.0
+    # not scored: no gap at all
+    rec.scored = np.array([False])
+    loss._cache = None
+    assert loss.gaps(rec, ramming).shape == (steps, 0)
+
+
+# ------------------------------------------------------------------------------ the step
+def _controller(
+    compiled, mode="reciprocal", scope="pedestrians", margin=0.1, sidestep=0.3, hard="level"
+):
+    return ConformalCBFController(
+        ConstantVelocityPredictor(),
+        ConformalConstraint(APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7), a=2.0),
+        Exact2DSafetyFilter(v_max=1.5, compiled_step=compiled),
+        AttractiveField(K_att=1.0, v_max=1.5),
+        substeps=2,
+        reciprocity=Reciprocity(mode, scope, margin, sidestep, hard),
+    )
+
+
+def _query(rng, n_ped, n_rob):
+    n = n_ped + n_rob
+    hist = rng.uniform(-3.0, 3.0, size=(n, 1, 2)) + np.linspace(0, 0.3, 6)[None, :, None]
+    return PredictionQuery(
+        ids=np.arange(n) + 1,
+        history=hist,
+        dt=0.1,
+        horizon=3,
+        robot=np.r_[np.zeros(n_ped, bool), np.ones(n_rob, bool)],
+    )
+
+
+@pytest.mark.parametrize("hard", ["level", "last"])
+@pytest.mark.parametrize("scope", ["pedestrians", "robots", "both"])
+@pytest.mark.parametrize("info", INFORMATION)
+def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard):
+    rng = np.random.default_rng(3)
+    for trial in range(6):
+        q = _query(rng, n_ped=3, n_rob=2)
+        fast = _controller(True, scope=scope, hard=hard)
+        slow = _controller(False, scope=scope, hard=hard)
+        for c in (fast, slow):
+            c.reset()
+            c.begin_interval(q)
+        assert fast._fast and not slow._fast
+        robots = q.history[3:, -1]
+        for step in range(6):
+            x = np.r_[rng.uniform(-1.0, 1.0, 2), rng.uniform(-0.2, 0.2, 2)]
+            ref = rng.uniform(-1.0, 1.0, (2, 2)) if info != "position" else None
+            view = PeerView(
+                ids=q.ids[3:],
+                positions=robots + rng.uniform(-0.3, 0.3, (2, 2)),
+                shares=np.array([0.5, 0.3]),
+                information=info,
+                reference=ref,
+                own_reference=None if ref is None else x[2:].copy(),
+            )
+            state = ControlState(x, 0.05 * step, step, np.array([5.0, 1.0]), view)
+            lam = float(rng.uniform(-1.0, 0.5))
+            a, b = fast.decide(state, lam), slow.decide(state, lam)
+            np.testing.assert_allclose(a, b, atol=1e-9, err_msg=f"trial {trial} step {step}")
+        ra, rb = fast.interval_record(), slow.interval_record()
+        np.testing.assert_allclose(ra.lam_applied, rb.lam_applied, atol=1e-9)
+        np.testing.assert_allclose(ra.x_pred, rb.x_pred, atol=1e-12)
+        np.testing.assert_allclose(ra.v_pred, rb.v_pred, atol=1e-12)
+        np.testing.assert_array_equal(ra.share, rb.share)
+        np.testing.assert_array_equal(ra.scored, rb.scored)
+        assert ra.scored.tolist() == [scope != "robots"] * 3 + [scope != "pedestrians"] * 2
+
+
+def test_robots_are_not_handed_to_the_predictor():
+    seen = []
+
+    class Spy(ConstantVelocityPredictor):
+        def predict(self, query):
+            seen.append(query.ids.tolist())
+            return super().predict(query)
+
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=2, n_rob=2)
+    for mode, predicted in (("reciprocal", [1, 2]), ("ignore", [1, 2]), ("none", [1, 2, 3, 4])):
+        c = _controller(True, mode=mode)
+        c.predictor = Spy()
+        c.reset()
+        c.begin_interval(q)
+        assert seen[-1] == predicted
+        # every sensed agent is a column of the record, in the query's order
+        x = np.zeros(4)
+        view = PeerView(q.ids[2:], q.history[2:, -1], np.array([0.5, 0.5]))
+        c.decide(ControlState(x, 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        rec = c.interval_record()
+        assert rec.ids.tolist() == [1, 2, 3, 4] and rec.x_pred.shape == (1, 4, 2)
+
+
+def test_a_peer_view_about_other_robots_is_refused():
+    rng = np.random.default_rng(0)
+    c = _controller(True)
+    c.reset()
+    c.begin_interval(_query(rng, n_ped=1, n_rob=1))
+    wrong = PeerView(np.array([99]), np.zeros((1, 2)), np.array([0.5]))
+    with pytest.raises(ValueError, match="peer view lists robots"):
+        c.decide(ControlState(np.zeros(4), 0.0, 0, np.ones(2), wrong), 0.0)
+
+
+def test_sidestep_turns_away_from_the_robot_ahead_only_when_held_back():
+    turn = Reciprocity(sidestep=0.3).turn()
+    ahead_left = PeerView(np.array([2]), np.array([[1.0, 0.1]]), np.array([0.5]))
+    ahead_right = PeerView(np.array([2]), np.array([[1.0, -0.1]]), np.array([0.5]))
+    behind = PeerView(np.array([2]), np.array([[-1.0, 0.0]]), np.array([0.5]))
+    n = np.array([1.0, 0.0])
+    stopped, moving = np.zeros(4), np.array([0.0, 0.0, 0.9, 0.0])
+    right = sidestep(n, stopped, ahead_left, turn, 0.8)
+    left = sidestep(n, stopped, ahead_right, turn, 0.8)
+    assert right[1] < 0 < left[1]  # clockwise / counter-clockwise
+    np.testing.assert_allclose(np.hypot(*right), 1.0)
+    np.testing.assert_allclose(math.atan2(left[1], left[0]), 0.3)
+    np.testing.assert_array_equal(sidestep(n, stopped, behind, turn, 0.8), n)
+    np.testing.assert_array_equal(sidestep(n, moving, ahead_left, turn, 0.8), n)

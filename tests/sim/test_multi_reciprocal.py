@@ -1,0 +1,369 @@
+"""Robots that share their pairwise constraints: mirror symmetry, a partner that does not
+comply, what each information option hands out, determinism, the fleet metrics recomputed
+from the trajectories, tasks no fleet can do."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conformal_control.data.scene import Scene
+from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+from conformal_control.loop import ConformalStepper
+from conformal_control.sim import build_flagship
+from conformal_control.sim.multi import load_robots_file, robot_tasks, run_multi, set_reciprocity
+from conformal_control.world.multi import MultiRobotWorld
+
+
+def free_scene(n_frames: int = 500) -> Scene:
+    """No pedestrian anywhere near: one far away, so the scene is valid."""
+    pos = np.full((n_frames, 1, 2), np.nan)
+    pos[:, 0] = [500.0, 500.0]
+    return Scene(
+        name="free",
+        fps=10.0,
+        first_frame=0,
+        start_index=20,
+        positions=pos,
+        agent_ids=np.array([1]),
+        start=np.zeros(2),
+        goals=np.array([[10.0, 0.0]]),
+        v_max=1.0,
+        robot_radius=0.4,
+        agent_radius=0.3,
+        defaults=dict(SYNTHETIC_DEFAULTS),
+    )
+
+
+def _pair(**kw):
+    return run_multi(free_scene(), record_animation=False, max_frames=400, **kw)
+
+
+# -------------------------------------------------------------------- two robots head-on
+@pytest.mark.parametrize("information", ["position", "velocity", "plan"])
+def test_head_on_robots_pass_without_collision_and_symmetrically(information):
+    starts, goals = [(-8.0, 0.0), (8.0, 0.0)], [[(8.0, 0.0)], [(-8.0, 0.0)]]
+    res = _pair(starts=starts, goals=goals, information=information)
+    m = res.metrics
+    assert m.goal_rate == 1.0 and m.n_deadlocked == 0
+    assert m.n_collide_robot_pairs == 0 and m.d_min_robot > 2 * res.scene.robot_radius
+    # mirror: robot 1 moves as robot 0 reflected through the midpoint, to round-off
+    x = res.track["robots"]
+    np.testing.assert_allclose(x[:, 1], -x[:, 0], atol=1e-9)
+    # they did go round each other (not through)
+    assert np.abs(x[:, :, 1]).max() > 0.3
+
+
+def test_without_side_step_exactly_head_on_robots_deadlock():
+    # the classic jam the side-step convention resolves: both stop face to face
+    starts, goals = [(-8.0, 0.0), (8.0, 0.0)], [[(8.0, 0.0)], [(-8.0, 0.0)]]
+    res = _pair(starts=starts, goals=goals, sidestep=0.0)
+    assert res.metrics.goal_rate == 0.0 and res.metrics.n_deadlocked == 2
+    assert res.metrics.n_collide_robot_pairs == 0
+
+
+# -------------------------------------------------------------------- a partner that ignores
+CROSS = {"starts": [(-8.0, 0.0), (0.0, -8.0)], "goals": [[(8.0, 0.0)], [(0.0, 8.0)]]}
+
+
+def test_a_robot_avoids_one_that_ignores_it():
+    # robot 0 drives straight through; robot 1 alone keeps them apart
+    vel = _pair(ignoring=[0], information="velocity", **CROSS)
+    assert vel.metrics.n_collide_robot_pairs == 0
+    assert vel.metrics.d_min_robot > 2 * vel.scene.robot_radius
+    path0 = vel.track["robots"][:, 0]
+    np.testing.assert_allclose(path0[:, 1], 0.0, atol=1e-9)  # robot 0 did not give way
+
+
+def test_what_happens_when_the_partner_does_not_comply():
+    # documented: with positions only a robot takes its share and no more, so it passes
+    # closer than with velocities (where its row follows the partner's actual motion);
+    # with lambda on the robot rows the loss sees the partner not taking its share and
+    # lambda makes the robot take more
+    d = {
+        (info, scope): _pair(ignoring=[0], information=info, lambda_scope=scope, **CROSS)
+        .metrics.d_min_robot
+        for info, scope in (("position", "pedestrians"), ("velocity", "pedestrians"),
+                            ("position", "robots"))
+    }  # fmt: skip
+    assert d["position", "pedestrians"] < d["velocity", "pedestrians"]
+    assert d["position", "pedestrians"] < d["position", "robots"]
+    # complying partners keep at least as far apart
+    both = _pair(information="position", **CROSS).metrics.d_min_robot
+    assert both > d["position", "pedestrians"]
+
+
+# -------------------------------------------------------------------- information
+def _world(information, scene=None):
+    scene = scene or free_scene()
+    starts = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0]])
+    goals = [np.array([[9.0, 0.0]]), np.array([[-9.0, 0.0]]), np.array([[0.0, -9.0]])]
+    return MultiRobotWorld(
+        scene,
+        starts,
+        goals,
+        build_flagship(scene).dynamics,
+        tau_frames=4,
+        substeps=2,
+        sensing_radius=10.0,
+        information=information,
+    )
+
+
+@pytest.mark.parametrize("information", ["position", "velocity", "plan"])
+def test_a_robot_gets_only_what_the_information_option_allows(information):
+    w = _world(information)
+    w.reset()
+    for _ in range(3):  # every robot moving
+        w.apply(np.array([[1.0, 0.2], [-0.5, 0.0], [0.0, -0.7]]))
+    for i in range(3):
+        w.broadcast(i, np.array([0.1 * i, -0.3]))
+    w.apply(np.array([[1.0, 0.2], [-0.5, 0.0], [0.0, -0.7]]))
+    w.sense(0)
+    view = w.state(0).peers
+    assert view.ids.tolist() == w.robot_ids[[1, 2]].tolist()
+    np.testing.assert_array_equal(view.positions, w.positions[[1, 2], :2])
+    np.testing.assert_array_equal(view.shares, [0.5, 0.5])
+    if information == "position":
+        assert view.reference is None and view.own_reference is None and view.plans is None
+    elif information == "velocity":
+        np.testing.assert_array_equal(view.reference, w.positions[[1, 2], 2:])
+        np.testing.assert_array_equal(view.own_reference, w.positions[0, 2:])
+        assert view.plans is None
+    else:  # the plans broadcast at the previous instant, not the velocities
+        np.testing.assert_array_equal(view.reference, [[0.1, -0.3], [0.2, -0.3]])
+        np.testing.assert_array_equal(view.own_reference, [0.0, -0.3])
+    # the fields are copies: a controller cannot write into the world through them
+    view.positions[:] = 99.0
+    assert np.isfinite(w.positions).all() and w.positions[1, 0] != 99.0
+
+
+def test_a_broadcast_is_seen_from_the_next_instant_by_everyone():
+    w = _world("plan")
+    w.reset()
+    w.sense(1)
+    w.broadcast(0, np.array([1.0, 0.0]))
+    assert w.state(1).peers.reference[0].tolist() == [0.0, 0.0]  # not yet
+    w.apply(np.zeros((3, 2)))
+    assert w.state(1).peers.reference[0].tolist() == [1.0, 0.0]
+
+
+def _fleet(scene, starts, goals, information, **params):
+    fleet = [
+        build_flagship(
+            dataclasses.replace(scene, start=np.asarray(s), goals=np.asarray(g).reshape(-1, 2)),
+            params,
+            seed=i,
+        )
+        for i, (s, g) in enumerate(zip(starts, goals, strict=True))
+    ]
+    for f in fleet:
+        set_reciprocity(f.policy, "reciprocal", "pedestrians", 0.1)
+    env = fleet[0].env
+    world = MultiRobotWorld(
+        fleet[0].scene,
+        np.asarray(starts, dtype=float),
+        [np.asarray(g, dtype=float).reshape(-1, 2) for g in goals],
+        [f.dynamics for f in fleet],
+        tau_frames=env.tau_frames,
+        substeps=env.substeps,
+        sensing_radius=env.sensing_radius,
+        history_frames=env.history_frames,
+        information=information,
+    )
+    return world, [ConformalStepper(f.policy, f.loss, f.rule) for f in fleet], fleet
+
+
+def _drive(world, steppers, *, perturb=None, replay=None, intervals=30):
+    """The run_multi loop (every robot broadcasts the command applied), recording every
+    command; optionally perturb robot j's insides and replay its recorded commands."""
+    world.reset()
+    for st in steppers:
+        st.start()
+    n, log = len(steppers), []
+    for k in range(intervals):
+        if world.done:
+            break
+        if perturb is not None and k == 3:
+            perturb()
+        active = [int(i) for i in world.active()]
+        for i in active:
+            steppers[i].begin_interval(world.sense(i))
+        for _ in range(world.control_instants()):
+            cmds = np.zeros((n, 2))
+            for i in active:
+                if not world.robot_done(i):
+                    cmds[i] = steppers[i].decide(world.state(i))
+            log.append(cmds.copy())
+            if replay is not None:
+                cmds[replay[0]] = replay[1][len(log) - 1][replay[0]]
+            for i in active:
+                world.broadcast(i, cmds[i])
+            world.apply(cmds)
+            if world.done:
+                break
+        for i in active:
+            steppers[i].end_interval(world.reveal(i))
+    return np.array(log)
+
+
+@pytest.mark.parametrize("information", ["position", "velocity", "plan"])
+def test_no_robot_reads_another_robots_insides(crossing, information):
+    # robot j gets another lambda, predictor and reference gain; its commands are replayed
+    # so that what the others can sense (positions, velocities, broadcasts) is unchanged:
+    # no other robot's decision moves by a bit
+    from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
+
+    starts, goals = robot_tasks(crossing, 4, "antipodal", radius=3.0, center=(15.0, 8.0))
+    base = _drive(*_fleet(crossing, starts, goals, information)[:2])
+    world, steppers, fleet = _fleet(crossing, starts, goals, information)
+    j = 2
+
+    def perturb():
+        steppers[j].lam_ -= 5.0
+        fleet[j].policy.predictor = ConstantVelocityPredictor(window=1)
+        fleet[j].policy.reference.K_att *= 3.0
+
+    perturbed = _drive(world, steppers, perturb=perturb, replay=(j, base))
+    others = [i for i in range(4) if i != j]
+    assert not np.allclose(perturbed[:, j], base[:, j])
+    np.testing.assert_array_equal(perturbed[:, others], base[:, others])
+
+
+# -------------------------------------------------------------------- determinism
+def test_reciprocal_runs_are_deterministic_with_a_seed(crossing):
+    kw = dict(robots=4, crowd="social_force", max_frames=100, seed=3, record_animation=False)
+    a, b = run_multi(crossing, **kw), run_multi(crossing, **kw)
+    np.testing.assert_array_equal(a.track["robots"], b.track["robots"])
+    for ra, rb in zip(a.robots, b.robots, strict=True):
+        np.testing.assert_array_equal(ra.steps["cmd"], rb.steps["cmd"])
+        assert [iv["lambda"] for iv in ra.intervals] == [iv["lambda"] for iv in rb.intervals]
+
+
+# -------------------------------------------------------------------- fleet metrics
+def test_fleet_metrics_recomputed_from_the_run_directory(tmp_path, crossing):
+    # ten robots through the centre, three of which ignore the others: robot contacts,
+    # pedestrian contacts and deadlocks to count
+    res = run_multi(
+        crossing,
+        robots=10,
+        layout="antipodal",
+        radius=5.0,
+        center=(15.0, 8.0),
+        ignoring=[0, 3, 6],
+        max_frames=250,
+        seed=1,
+    )
+    out = res.save(tmp_path / "run")
+    cfg = json.loads((out / "config.json").read_text())
+    fleet = json.loads((out / "metrics.json").read_text())["fleet"]
+    rows = np.genfromtxt(out / "trajectories.csv", delimiter=",", names=True)
+    n = cfg["n_robots"]
+    frames = np.unique(rows["frame"])
+    f = frames.size
+    x = np.full((f, n, 2), np.nan)
+    act = np.zeros((f, n), dtype=bool)
+    t = np.zeros(f)
+    for r in rows:
+        k = int(np.searchsorted(frames, r["frame"]))
+        i = int(r["robot"])
+        x[k, i] = r["x"], r["y"]
+        act[k, i] = bool(r["active"])
+        t[k] = r["t"]
+    sc = res.scene
+    # robot-robot pair-frames, each pair once, while one of the two is under way
+    pairs = 0
+    for k in range(f):
+        for i in range(n):
+            for j in range(i + 1, n):
+                if (act[k, i] or act[k, j]) and math.dist(x[k, i], x[k, j]) < 2 * sc.robot_radius:
+                    pairs += 1
+    assert pairs == fleet["n_collide_robot_pairs"] > 0
+    # robot-pedestrian collision frames from the scene's pedestrians
+    peds = sc.positions[sc.start_index : sc.start_index + f]
+    ped_frames = 0
+    for k in range(f):
+        p = peds[k][np.isfinite(peds[k, :, 0])]
+        for i in range(n):
+            if act[k, i] and p.size and np.hypot(*(p - x[k, i]).T).min() < sc.collision_distance:
+                ped_frames += 1
+    assert ped_frames == fleet["n_collide_pedestrian"] > 0
+    # goals and makespan: a robot stops being under way when it reaches its goal (the
+    # world ends before its time limit only when every robot has); it got there within
+    # one frame after its last frame under way
+    goals = [np.array(r["goals_m"]) for r in cfg["robots"]]
+    ended_early = f - 1 < cfg["max_frames"]
+    reached = []
+    for i in range(n):
+        last = np.flatnonzero(act[:, i]).max()
+        done = bool(last < f - 1 or ended_early)
+        if last < f - 1:
+            step = sc.v_max / sc.fps
+            assert math.dist(x[last + 1, i], goals[i][-1]) <= sc.goal_radius + step
+        reached.append(done)
+        t_goal = res.robots[i].metrics.t_goal
+        assert (t_goal is not None) == done
+        if done:
+            assert t[last] < t_goal <= t[last] + 1.0 / sc.fps + 1e-9
+    assert fleet["goal_rate"] == pytest.approx(np.mean(reached))
+    if all(reached):
+        assert fleet["makespan"] == pytest.approx(max(r.metrics.t_goal for r in res.robots))
+    else:
+        assert fleet["makespan"] is None
+    # deadlocks: a window of 5 s in which the remaining distance never fell 0.25 m below
+    # its value at the window's start, recomputed by brute force
+    stuck = []
+    w = round(5.0 * sc.fps)
+    for i in range(n):
+        dist = np.hypot(*(x[:, i] - goals[i][-1]).T)
+        ks = np.flatnonzero(act[:, i])
+        first = None
+        anchor = ks[0]
+        for k in ks:
+            if dist[k] <= dist[anchor] - 0.25:
+                anchor = k
+            elif k - anchor >= w:
+                first = t[k]
+                break
+        stuck.append(first)
+    assert fleet["n_deadlocked"] == sum(s is not None for s in stuck) > 0
+    for i in range(n):
+        got = res.robots[i].contacts.t_deadlock
+        assert (got is None) == (stuck[i] is None)
+        if got is not None:
+            assert got == pytest.approx(stuck[i])
+
+
+# -------------------------------------------------------------------- bad tasks
+def test_tasks_no_fleet_can_do_are_one_line_errors(tmp_path, crossing):
+    for starts, goals, msg in (
+        ([(5.0, 5.0), (5.0, 5.0)], [(20.0, 5.0), (20.0, 9.0)], "start 0 m apart"),
+        ([(5.0, 5.0), (5.0, 9.0)], [(20.0, 5.0), (20.3, 5.0)], "end at goals 0.3 m apart"),
+    ):
+        with pytest.raises(ValueError, match=msg) as err:
+            run_multi(crossing, starts=starts, goals=goals, record_animation=False)
+        assert "\n" not in str(err.value)
+    f = tmp_path / "robots.json"
+    for content, msg in (
+        ({"robots": [{"start": [0.1, 0.5], "goal": [0.9, 0.5]}], "unit": "m"}, "unknown key"),
+        ({"robots": [{"start": [0.1, 0.5], "goal": [0.9, 0.5], "speed": 2}]}, "unknown key"),
+        (
+            {"robots": [{"start": [0.1, 0.5], "goal": [0.9, 0.5], "goals": [[0.9, 0.5]]}]},
+            "has both",
+        ),
+        ({"units": "fraction", "robots": [{"start": [1.2, 0.5], "goal": [0.9, 0.5]}]}, "[0, 1]"),
+        ({"robots": [{"start": [1.0, "a"], "goal": [0.9, 0.5]}]}, "not \\(x, y\\)"),
+        ({"robots": [{"start": [1.0, 1e999], "goal": [0.9, 0.5]}]}, "finite start and goal"),
+    ):
+        f.write_text(json.dumps(content))
+        with pytest.raises(ValueError, match=msg) as err:
+            load_robots_file(f, crossing)
+        assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="ignoring lists robots"):
+        run_multi(crossing, robots=2, ignoring=[5], record_animation=False)
+    with pytest.raises(ValueError, match="information must be"):
+        run_multi(crossing, robots=2, information="telepathy", record_animation=False)
