@@ -22,8 +22,8 @@ A run configuration has these keys (all optional except ``scene``):
 ``predictor_params`` (dict; a key ``predictor_params.NAME`` in a grid sets one entry),
 ``learn`` (default true; false = the noLearn baseline), ``seed`` (default 0), ``frames``
 (limit on simulated frames, default none), ``data_root``, ``label`` (free text), the
-arguments of :func:`~conformal_control.sim.run_episode` in :data:`EPISODE_KEYS` (roles by
-name, ``family`` and ``family_params``, ``rule_params``, ``crowd``, ...; a key
+settings of the run specification in :data:`EPISODE_KEYS` (roles by name, ``family``
+and ``family_params``, ``rule_params``, ``crowd``, ...; a key
 ``family_params.NAME``, ``rule_params.NAME``, ... sets one entry of that dict), and any
 controller parameter of :data:`conformal_control.flagship.params.PARAMETERS` (``epsilon``,
 ``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
