@@ -17,9 +17,10 @@ where the values came from.
 
 **One folder, one condition.** A folder holds the runs of one suite, split, predictor,
 crowd, set of run parameters (``--set``), seed and tuned values. A second ``bench run`` into
-it may add methods, shifts or scenarios; one with another condition is refused with a
-one-line error before anything is written, as is a run into a folder another ``bench run``
-is writing to (``bench.json`` is then left as it is).
+it may add methods, shifts or scenarios; one with another condition, or with a method of
+the same name defined otherwise, is refused with a one-line error before anything is
+written, as is a run into a folder another ``bench run`` is writing to (``bench.json`` is
+then left as it is).
 """
 
 from __future__ import annotations
@@ -371,6 +372,25 @@ def _merged_description(out: Path, new: dict[str, Any]) -> dict[str, Any]:
             f"{out} holds benchmark runs of another condition ({shown}); runs of different "
             "conditions are never pooled: use another --out folder"
         )
+    before = {m.get("method"): m for m in old.get("methods", []) if isinstance(m, dict)}
+    for m in new["methods"]:
+        prev = before.get(m["method"])
+        if prev is None:
+            continue
+        # what runs (the description is prose: a reworded one defines the same method)
+        fields = [
+            k for k in m if k != "description" and _canonical(prev.get(k)) != _canonical(m[k])
+        ]
+        if fields:
+            shown = "; ".join(
+                f"{k}: folder {_canonical(prev.get(k))}, this run {_canonical(m[k])}"
+                for k in fields
+            )
+            raise BenchFolderError(
+                f"{out}: method {m['method']} is defined differently from the runs the folder "
+                f"holds ({shown}); runs of different definitions are never pooled: use "
+                "another --out folder"
+            )
     merged = dict(new)
     seen = {m["method"] for m in new["methods"]}
     merged["methods"] = new["methods"] + [
