@@ -106,8 +106,8 @@ def _hash(*keys: Any) -> np.ndarray:
         out = _mix(arrays[0].copy())
     else:
         out = _mix(np.uint64(h) ^ arrays[0])
-    for k in arrays[1:]:
-        out = _mix(out ^ k)
+    for a in arrays[1:]:
+        out = _mix(out ^ a)
     return out
 
 
