@@ -634,8 +634,26 @@ def set_reciprocity(
     hard_rows: str = "last",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
-    for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
-    collision distance for the robot rows."""
+    for a family that cannot have one).
+
+    Parameters
+    ----------
+    policy : DecisionFamily
+        The robot's decision family; it needs a ``reciprocity`` attribute.
+    mode : {"reciprocal", "none", "ignore"}
+        Reciprocal rows, prediction (as a pedestrian), or no constraint.
+    lambda_scope : {"pedestrians", "robots", "both"}
+        Rows that get ``+ lambda`` (and agents the loss scores).
+    robot_margin : float
+        Added to the barrier's collision distance for the robot rows (m).
+    sidestep : float
+        Angle (rad) a reciprocal robot turns its nominal velocity by, away from another
+        robot ahead.
+    hard_rows : {"level", "last"}
+        How the ``lambda_search`` fallback treats the rows without slack.
+
+    See :class:`~conformal_control.cbf.reciprocal.Reciprocity`.
+    """
     if not hasattr(policy, "reciprocity"):
         raise ValueError(
             f"decision family {type(policy).__name__} does not handle other robots "
