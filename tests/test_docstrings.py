@@ -47,7 +47,6 @@ UNDOCUMENTED: frozenset[str] = frozenset(
         "conformal_control.bench.report.summarise",
         "conformal_control.bench.report.write_report",
         "conformal_control.bench.runner.bench_configs",
-        "conformal_control.bench.runner.run_bench",
         "conformal_control.bench.stats.paired_comparison",
         "conformal_control.bench.tune.tune",
         "conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf",
