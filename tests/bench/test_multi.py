@@ -193,5 +193,5 @@ def test_the_base_run_gives_predictor_seed_and_the_robots_information():
         robots=Robots(information="position", lambda_scope="both", sidestep=0.0),
     )
     assert multi_bench_base(base) == ("oracle", 3, "position", "both", {"sidestep": 0.0})
-    with pytest.raises(InputError, match="drop learn, robots.layout"):
+    with pytest.raises(InputError, match=r"drop learn, robots\.layout"):
         multi_bench_base(RunSpec(learn=False, robots=Robots(layout="antipodal")))
