@@ -63,8 +63,6 @@ UNDOCUMENTED: frozenset[str] = frozenset(
         "conformal_control.crowds.orca.ORCAModel.orca_lines",
         "conformal_control.data.fetch.fetch",
         "conformal_control.data.scenes.load_scene",
-        "conformal_control.domains.factory.run_factory",
-        "conformal_control.domains.intervals.run_intervals",
         "conformal_control.export.foxglove.cylinder",
         "conformal_control.export.foxglove.entity",
         "conformal_control.export.foxglove.frame_transform",
