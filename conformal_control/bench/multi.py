@@ -564,7 +564,9 @@ def multi_bench_base(
         for k in ("sidestep", "hard_rows")
         if getattr(section, k) != getattr(default, k)
     }
-    return predictor, base.seed, section.information, section.lambda_scope, options
+    # a section without a lambda scope: the reciprocal runs' default
+    scope = section.lambda_scope or "pedestrians"
+    return predictor, base.seed, section.information, scope, options
 
 
 def run_multi_bench(
