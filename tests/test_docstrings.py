@@ -10,6 +10,9 @@ one it inherits, as the API reference shows it). The ``__init__`` a dataclass or
 generates is left out: its fields are the documentation (``#:`` comments or an
 ``Attributes`` section, read by the API reference).
 
+A ``Parameters`` section lists nothing but parameters (prose after the entries reads as
+one more: the API reference's strict build fails on it).
+
 ``UNDOCUMENTED`` lists the callables that did not meet the rule when the test was written:
 it may only shrink. A listed callable that now meets the rule fails the test until it is
 taken off the list, so the list stays true.
@@ -98,7 +101,11 @@ def _parameters(func: Callable[..., Any]) -> list[str]:
         signature = inspect.signature(func)
     except (TypeError, ValueError):  # builtins without a signature
         return []
-    return [p for p in signature.parameters if p not in ("self", "cls")]
+    names = list(signature.parameters)
+    in_class = "." in func.__qualname__.replace(".<locals>.", "")
+    if in_class and names and names[0] in ("self", "cls"):
+        names = names[1:]
+    return names
 
 
 def documented_parameters(doc: str) -> set[str] | None:
@@ -140,8 +147,8 @@ def _callables() -> Iterator[tuple[str, Callable[..., Any], str]]:
                     if name == "__init__":
                         if generated and member.__code__.co_filename.startswith("<"):
                             continue  # written by dataclasses / namedtuple
-                        doc = "\n".join(
-                            d for d in (inspect.getdoc(obj), inspect.getdoc(member)) if d
+                        doc = "\n".join(  # their own docstrings, not inherited ones
+                            inspect.cleandoc(d) for d in (obj.__doc__, member.__doc__) if d
                         )
                     else:
                         doc = inspect.getdoc(getattr(obj, name)) or ""
@@ -160,6 +167,20 @@ def _missing() -> dict[str, str]:
             out[qualname] = "no Parameters section"
         elif absent := [p for p in params if p not in listed]:
             out[qualname] = f"Parameters section without {', '.join(absent)}"
+    return out
+
+
+def _strangers() -> dict[str, list[str]]:
+    """Callables whose ``Parameters`` section lists a name their signature lacks (the API
+    reference's strict build fails on them; prose after the entries reads as one)."""
+    out: dict[str, list[str]] = {}
+    for qualname, func, doc in _callables():
+        if func.__doc__ is None and not qualname.endswith("__init__"):
+            continue  # judged by an inherited docstring: the base's parameters
+        listed = documented_parameters(doc)
+        params = set(_parameters(func))
+        if listed and params and (extra := sorted(listed - params)):
+            out[qualname] = extra
     return out
 
 
@@ -198,4 +219,11 @@ def test_the_list_of_undocumented_callables_only_shrinks() -> None:
     done = sorted(UNDOCUMENTED - set(missing))
     assert not done, "documented now: take these off UNDOCUMENTED:\n" + "\n".join(
         f"  {k}" for k in done
+    )
+
+
+def test_a_parameters_section_lists_only_parameters() -> None:
+    strangers = _strangers()
+    assert not strangers, "Parameters sections naming what is not a parameter:\n" + "\n".join(
+        f"  {k}: {', '.join(v)}" for k, v in sorted(strangers.items())
     )

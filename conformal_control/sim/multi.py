@@ -634,7 +634,8 @@ def set_reciprocity(
     hard_rows: str = "last",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
-    for a family that cannot have one).
+    for a family that cannot have one), a
+    :class:`~conformal_control.cbf.reciprocal.Reciprocity`.
 
     Parameters
     ----------
@@ -651,8 +652,6 @@ def set_reciprocity(
         robot ahead.
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack.
-
-    See :class:`~conformal_control.cbf.reciprocal.Reciprocity`.
     """
     if not hasattr(policy, "reciprocity"):
         raise ValueError(
