@@ -17,9 +17,12 @@ Usage::
    and CPU time (``time.process_time``: the machine is shared). The child's peak memory
    is its peak resident set size (``ru_maxrss``) minus its size before the run. The
    metrics of the baseline seeds are compared field by field (everything but ``wall_s``).
-2. The benchmark suite's ``dev`` split with the ``nolearn`` method (each scenario with its
-   own ``max_frames``): every scenario through the per-episode loop and through the batch
-   engine, episodes per second, and the same comparison of the metrics.
+2. The benchmark suite's ``dev`` split (each scenario with its own ``max_frames``) with the
+   ``nolearn`` method (every scenario), the ``acp`` method (adaptive conformal prediction
+   regions; the first ``--scenarios-acp``) and the ``fallback:relax`` method (its LP
+   decided in Python; the first ``--scenarios-relax``): each scenario through the
+   per-episode loop and through the batch engine, episodes per second, and the same
+   comparison of the metrics.
 
 :func:`measure` returns the same figures as ``(name, value, unit, baseline, ratio)``
 rows (for ``benchmarks/run_all.py``).
@@ -202,8 +205,11 @@ def bench_crossing(args: argparse.Namespace) -> dict[str, float]:
     }
 
 
-def bench_suite(args: argparse.Namespace) -> dict[str, float]:
-    """Print and return the figures of the suite's dev split (see the module docstring)."""
+def bench_suite(
+    args: argparse.Namespace, method: str = "nolearn", scenarios: int | None = None
+) -> dict[str, float]:
+    """Print and return the figures of the suite's dev split with ``method`` on its first
+    ``scenarios`` (default ``args.scenarios``; see the module docstring)."""
     from conformal_control.bench import load_scenario, load_suite
     from conformal_control.bench.methods import expand_methods
     from conformal_control.engines.batch import run_batch, supports
@@ -213,10 +219,10 @@ def bench_suite(args: argparse.Namespace) -> dict[str, float]:
     compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
     warnings.simplefilter("ignore")
     suite = load_suite("crossings-v1")
-    dev = suite.scenarios_for("dev")[: args.scenarios]
-    kw = expand_methods(["nolearn"])[0].run_kwargs()
+    dev = suite.scenarios_for("dev")[: scenarios or args.scenarios]
+    kw = expand_methods([method])[0].run_kwargs()
     assert supports(**kw) is None, supports(**kw)
-    print(f"\n== {suite.name} dev split: {len(dev)} scenarios, method nolearn")
+    print(f"\n== {suite.name} dev split: {len(dev)} scenarios, method {method}")
     t0 = time.perf_counter()
     scenes = [load_scenario(s, args.data_root) for s in dev]
     frames = [s.max_frames for s in dev]
@@ -288,13 +294,18 @@ def measure(
         ("batch crossing metrics differing", c["differing"], "episodes", c["n_base"], None),
     ]
     if suite:
-        d = bench_suite(args)
-        name = f"batch crossings-v1 dev nolearn {d['n']} scenarios"
-        out += [
-            (f"{name} wall", d["wall"], "s", d["base_wall"], d["base_wall"] / d["wall"]),
-            (f"{name} CPU", d["cpu"], "s", d["base_cpu"], d["base_cpu"] / d["cpu"]),
-            (f"{name} metrics differing", d["differing"], "episodes", d["n"], None),
-        ]
+        for method, count in (
+            ("nolearn", None),
+            ("acp", 10 if quick else 40),
+            ("fallback:relax", 5 if quick else 20),
+        ):
+            d = bench_suite(args, method, count)
+            name = f"batch crossings-v1 dev {method} {d['n']} scenarios"
+            out += [
+                (f"{name} wall", d["wall"], "s", d["base_wall"], d["base_wall"] / d["wall"]),
+                (f"{name} CPU", d["cpu"], "s", d["base_cpu"], d["base_cpu"] / d["cpu"]),
+                (f"{name} metrics differing", d["differing"], "episodes", d["n"], None),
+            ]
     return out
 
 
@@ -308,6 +319,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2, help="processes generating scenes")
     ap.add_argument("--no-suite", action="store_true", help="skip the suite's dev split")
     ap.add_argument("--scenarios", type=int, default=None, help="first N dev scenarios only")
+    ap.add_argument("--scenarios-acp", type=int, default=40, help="dev scenarios with acp")
+    ap.add_argument("--scenarios-relax", type=int, default=20, help="... with relax")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -316,6 +329,8 @@ def main() -> None:
     bench_crossing(args)
     if not args.no_suite:
         bench_suite(args)
+        bench_suite(args, "acp", args.scenarios_acp)
+        bench_suite(args, "fallback:relax", args.scenarios_relax)
 
 
 if __name__ == "__main__":

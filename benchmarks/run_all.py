@@ -522,14 +522,18 @@ def sec_batch(args: argparse.Namespace) -> list[Figure] | str:
 
 def _bench_run(args: argparse.Namespace, out: Path, extra: list[str]) -> tuple[float, int, str]:
     """``conformal-control bench run --split test -j 2 EXTRA`` into ``out``: wall time,
-    episodes run and the summary line."""
+    episodes run and the summary line (with the CPU time of the command and its worker
+    processes: on a shared machine the wall time depends on the load)."""
     import re
 
     cmd = [*_cli(), "bench", "run", "--split", "test", "-j", "2", "--progress", "off"]
     cmd += ["--data-root", str(args.data_root), "--out", str(out), *extra]
     t0 = time.perf_counter()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}: {tail}")
@@ -540,7 +544,7 @@ def _bench_run(args: argparse.Namespace, out: Path, extra: list[str]) -> tuple[f
     if m is None or int(m.group(2)):
         raise RuntimeError(f"unexpected bench run output: {line.strip()}")
     line = line.split("; results in")[0]  # not the temporary folder's path
-    return wall, int(m.group(1)), line.strip()
+    return wall, int(m.group(1)), f"{line.strip()}; CPU {cpu:.0f} s"
 
 
 def sec_suite(args: argparse.Namespace) -> list[Figure]:

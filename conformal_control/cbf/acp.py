@@ -126,6 +126,9 @@ class ACPController(ConformalCBFController):
         <= 0, or fewer errors than the level needs at the start of an episode).
     """
 
+    #: the compiled engine runs this class as compiled code (the inflated compiled step)
+    compiled_as = "acp"
+
     def __init__(
         self,
         predictor: Predictor,
@@ -245,6 +248,36 @@ class ACPController(ConformalCBFController):
         self._constraints = {}
 
     # ------------------------------------------------------------------ control instant
+    def _fused_apf(self) -> bool:
+        """The compiled step (with the APF parts it computes, see the base class): its
+        barrier's ``d_c`` is raised by the step's inflation before each decision
+        (:meth:`decide`), and lambda is not a slack of its rows."""
+        me = type(self)
+        self._apf_c: float | None = None  # the inflation the compiled step is set up with
+        return (
+            me.constraint_rows is ACPController.constraint_rows
+            and me.slack is ACPController.slack
+            and self._apf_parts()
+        )
+
+    def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        if not self._fast:  # the generic path: constraint_rows and slack below
+            return super().decide(state, lam)
+        # the compiled step on the rows constraint_rows gives: the inflated barrier, slack 0
+        infl = self._inflation(lam)
+        h = min(state.step // int(self.substeps), infl.size - 1)
+        self.n_capped_ += int(self._capped[h])
+        c = float(infl[h])
+        if c != self._apf_c:
+            barrier = self._inflated(c).barrier
+            K, rho0, d_c, delta = barrier._checked()  # type: ignore[attr-defined]
+            self.safety_filter.configure_apf(  # type: ignore[attr-defined]
+                (K, rho0, d_c, delta, barrier.convention == "surface"),  # type: ignore[attr-defined]
+                float(self.constraint.a),
+            )
+            self._apf_c = c
+        return super().decide(state, self.slack(lam))
+
     def _inflation(self, lam: float) -> np.ndarray:
         if self._lam != lam:
             radii = region_radii(self._sorted, lam)
@@ -299,6 +332,8 @@ class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
     """
 
     bounds = (0.0, 1.0)
+    #: the compiled engine scores it with this class's own code (on the engine's record)
+    compiled_as = "acp_miscoverage"
 
     def __init__(self) -> None:
         pass

@@ -201,20 +201,34 @@ class ConformalCBFController(
 
     def _fused_apf(self) -> bool:
         """Whether decide() takes the compiled APF step (configured here) or the generic path."""
-        f, c = self.safety_filter, self.constraint
         me = type(self)
         if not (
             me.constraint_rows is ConformalCBFController.constraint_rows
             and me.slack is ConformalCBFController.slack
-            and type(c) is ConformalConstraint
-            and type(c.barrier) is APFBarrier
-            and isinstance(f, Exact2DSafetyFilter)
-            and f.fused
+            and self._apf_parts()
         ):
             return False
-        K, rho0, d_c, delta = c.barrier._checked()
-        f.configure_apf((K, rho0, d_c, delta, c.barrier.convention == "surface"), float(c.a))
+        c = self.constraint
+        K, rho0, d_c, delta = c.barrier._checked()  # type: ignore[attr-defined]
+        self.safety_filter.configure_apf(  # type: ignore[attr-defined]
+            (K, rho0, d_c, delta, c.barrier.convention == "surface"),  # type: ignore[attr-defined]
+            float(c.a),
+        )
         return True
+
+    def _apf_parts(self) -> bool:
+        """Whether the parts are those the compiled step computes: the APF barrier in a
+        conformal constraint, the exact 2-D filter with its compiled step. A fallback the
+        step does not decide itself (e.g. ``relax``) decides in Python on the compiled
+        rows (:meth:`Exact2DSafetyFilter.step_apf_record`), except with robots (their hard
+        and reciprocal rows are built by the generic path for such a fallback)."""
+        f, c = self.safety_filter, self.constraint
+        return (
+            type(c) is ConformalConstraint
+            and type(c.barrier) is APFBarrier
+            and isinstance(f, Exact2DSafetyFilter)
+            and (f.fused or (f.compiled_step is True and self.reciprocity is None))
+        )
 
     def stats(self) -> dict[str, float]:
         return {

@@ -24,11 +24,22 @@ checks every metric against :func:`run_episode`). The wall time of the control l
 the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
-:func:`run_episode`): replayed crowds; any registered predictor; the APF barrier; the exact
-2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback; the attractive-field
-reference; the velocity-tracking plant; the ``cbf_gap``, ``collision`` or
-``distance_shortfall`` loss; any registered update rule, learning or not. Roles are given by
-name (an instance would be shared by every episode).
+:func:`run_episode`): replayed crowds; any registered predictor; the ``cbf`` family and the
+``acp`` family (adaptive conformal prediction regions); the APF barrier; the exact 2-D
+filter with any registered fallback (``lambda_search``, ``brake`` and ``hold`` are decided
+by the compiled step; any other, e.g. ``relax``, by the episode's own fallback object on the
+compiled step's rows: the engine pauses that episode at that instant, lets the fallback
+decide in Python and runs on); the attractive-field reference; the velocity-tracking plant;
+the ``cbf_gap``, ``collision``, ``distance_shortfall`` or ``acp_miscoverage`` loss; any
+registered update rule, learning or not. Roles are given by name (an instance would be
+shared by every episode).
+
+The ``acp`` family runs its own per-interval code (scoring its past predictions, sorting
+their errors, the regions' radii at the interval's lambda: its ``begin_interval`` and
+``_inflation``) on the episode's own controller, and the engine runs the interval's control
+instants compiled with the barrier's collision distance raised per horizon step, as
+:meth:`ACPController.decide <conformal_control.cbf.acp.ACPController.decide>` sets up the
+compiled step; its miscoverage loss scores the interval's record with its own code.
 
 What runs compiled and what runs through the episode's own objects: the constant-velocity
 and the oracle predictor are compiled (above); any other predictor is called at each
@@ -71,6 +82,7 @@ import numpy as np
 from .. import registry
 from ..base import Loss, compiled_as
 from ..cbf import kernels2d
+from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
@@ -79,6 +91,7 @@ from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.loss import CBFGapLoss, CBFTruth
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
+from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
@@ -102,7 +115,7 @@ from ..results.record import AnimationRecorder
 from ..spec import RunSpec
 from ..world.replay import FrameLog, ReplayEnvironment
 from . import kernels as bk
-from .gap_kernels import BRAKE, HOLD, SEARCH, gap_maxima
+from .gap_kernels import BRAKE, HOLD, PYTHON, SEARCH, gap_maxima
 from .interval import run_interval
 
 __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
@@ -115,23 +128,26 @@ _T = TypeVar("_T")
 KERNELS: dict[str, frozenset[str]] = {
     "barrier": frozenset({"apf"}),
     "safety_filter": frozenset({"exact2d"}),
-    "fallback": frozenset({"lambda_search", "brake", "hold"}),
     "reference": frozenset({"attractive_field"}),
     "dynamics": frozenset({"velocity_tracking"}),
-    "loss": frozenset({"cbf_gap", "collision", "distance_shortfall"}),
-    "family": frozenset({"cbf"}),
+    "loss": frozenset({"cbf_gap", "collision", "distance_shortfall", "acp_miscoverage"}),
+    "family": frozenset({"cbf", "acp"}),
 }
 #: Roles the engine runs under any registered name (each episode builds and runs its own;
-#: a predictor declaring ``constant_velocity`` or ``oracle`` is compiled).
-ANY_NAME_ROLES = ("predictor", "rule")
+#: a predictor declaring ``constant_velocity`` or ``oracle`` is compiled, a fallback
+#: declaring one of :data:`COMPILED_FALLBACKS` too; any other fallback decides in Python,
+#: the episode's own object on the compiled step's rows).
+ANY_NAME_ROLES = ("predictor", "rule", "fallback")
+#: The fallbacks the compiled step decides itself.
+COMPILED_FALLBACKS = frozenset({"lambda_search", "brake", "hold"})
 #: The registry's name of a run's role.
 _REGISTRY_ROLE = {"family": "decision_family", "rule": "update_rule"}
 #: Losses the engine scores with their own code on the interval's record and truth (they
 #: read the ego's positions and the truth, not the filter's status strings).
-_RECORD_LOSSES = frozenset({"collision", "distance_shortfall"})
+_RECORD_LOSSES = frozenset({"collision", "distance_shortfall", "acp_miscoverage"})
 #: Predictor code of an episode whose predictor is called in Python (not compiled).
 _OWN = -1
-_FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}
+_FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}  # else PYTHON
 _PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
 
 
@@ -186,19 +202,15 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         kernels = KERNELS.get(role)
         if kernels is not None and name is not None and _kernel_of(role, name) not in kernels:
             return f"{role} {name!r}: the batch engine compiles {', '.join(sorted(kernels))}"
-        if role == "fallback" and params:
-            return "fallback parameters: the batch engine runs the fallbacks as registered"
-    fallbacks = KERNELS["fallback"]
+        if role == "fallback" and params and _kernel_of(role, str(name)) in COMPILED_FALLBACKS:
+            return (
+                f"fallback parameters for {name!r}: the batch engine runs the compiled "
+                "fallbacks as registered"
+            )
     filter_params = run.role("safety_filter")[1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
-    if isinstance(filter_params.get("fallback"), str):
-        if _kernel_of("fallback", filter_params["fallback"]) not in fallbacks:
-            return (
-                f"fallback {filter_params['fallback']!r}: the batch engine compiles "
-                f"{', '.join(sorted(fallbacks))}"
-            )
-    elif filter_params.get("fallback") is not None:
+    if not isinstance(filter_params.get("fallback"), (str, type(None))):
         return "a fallback instance: the batch engine builds one per episode, give it by name"
     if run.robots is not None:
         return "robots: the batch engine runs one robot per episode"
@@ -250,12 +262,22 @@ class _Parts:
     dynamics: VelocityTrackingDoubleIntegrator
     loss: Loss[Any, Any]  # a CBFGapLoss (compiled) or one of _RECORD_LOSSES
     gap: CBFGapLoss | None  # the loss if it is the gap loss
+    acp: ACPController | None  # the decision family if it is the acp family
 
 
 def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
-    policy = _compiled(fl.policy, ConformalCBFController, "decision family")
+    policy = fl.policy
+    if compiled_as(type(policy)) not in KERNELS["family"] or not isinstance(
+        policy, ConformalCBFController
+    ):
+        raise _NotRun(
+            f"the decision family is a {type(policy).__name__}, which declares none of "
+            f"{', '.join(sorted(KERNELS['family']))}"
+        )
+    if policy.reciprocity is not None:
+        raise _NotRun("the decision family has robots' reciprocity")
     env = _exact(fl.env, ReplayEnvironment, "environment")
     constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
     barrier = _compiled(fl.barrier, APFBarrier, "barrier")
@@ -275,9 +297,13 @@ def _parts(fl: Flagship) -> _Parts:
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
-    if not (isinstance(fallback, str) and _kernel_of("fallback", fallback) in KERNELS["fallback"]):
-        raise _NotRun(f"the fallback {fallback!r} is not one the compiled step decides")
-    return _Parts(env, barrier, filt, reference, dynamics, loss, gap)
+    if not isinstance(fallback, str) and compiled_as(type(fallback)) in COMPILED_FALLBACKS:
+        # (a fallback decided in Python is the episode's own object, parameters and all)
+        raise _NotRun("the compiled fallbacks run as registered, not as a configured instance")
+    acp = policy if isinstance(policy, ACPController) else None
+    if (acp is not None) != (compiled_as(type(policy)) == "acp"):
+        raise _NotRun(f"the decision family {type(policy).__name__} is not the class it declares")
+    return _Parts(env, barrier, filt, reference, dynamics, loss, gap, acp)
 
 
 def _predictor_code(pred: object) -> int:
@@ -396,6 +422,13 @@ class _Pool:
     st_cmd: np.ndarray  # (size, instants, 2): the command applied
     n_st: np.ndarray  # int64 (size,)
     used: int  # floats of store in use
+    acp: np.ndarray  # bool (size,): the acp family (lambda is the regions' level)
+    acp_dc: np.ndarray  # (size, horizon): the barrier's d_c at each horizon step
+    acp_delta: np.ndarray  # (size, horizon): its delta
+    acp_h: np.ndarray  # int64 (size,): horizon steps of the interval's regions
+    forced: np.ndarray  # bool (size,): a decision given for the paused step
+    forced_v: np.ndarray  # (size, 3): that decision (v_x, v_y, lambda applied)
+    paused: np.ndarray  # (3,): the paused step's nominal decision and lambda
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -465,6 +498,13 @@ class _Pool:
         self.st_x = np.zeros((b, 0, 4))
         self.st_cmd = np.zeros((b, 0, 2))
         self.n_st = np.zeros(b, dtype=np.int64)
+        self.acp = np.zeros(b, dtype=bool)
+        self.acp_dc = np.zeros((b, 1))
+        self.acp_delta = np.zeros((b, 1))
+        self.acp_h = np.ones(b, dtype=np.int64)
+        self.forced = np.zeros(b, dtype=bool)
+        self.forced_v = np.zeros((b, 3))
+        self.paused = np.zeros(3)
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -565,6 +605,7 @@ class _Engine:
         self.extra_config = extra_config
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
         self._own = False  # whether an episode predicts with its own predictor object
+        self._acp = False  # whether an episode is of the acp family
         # the scores of an interval end, per slot (reset for the slots that end; reused
         # rather than allocated at every interval end)
         self._scores = (
@@ -611,7 +652,9 @@ class _Engine:
         if not (math.isfinite(k) and k > 0):
             raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
         pred = fl.predictor
-        code = _predictor_code(pred)
+        # the acp family predicts, scores its past errors and sorts them in its own
+        # begin_interval: its predictor is called through it
+        code = _OWN if parts.acp is not None else _predictor_code(pred)
         window = getattr(pred, "window", 1) if code == bk.CONSTANT_VELOCITY else 1
         if int(window) != window or window < 1:
             raise PredictorError(
@@ -679,6 +722,7 @@ class _Engine:
         p.history[b] = int(env.history_frames)
         p.predictor[b] = code
         self._own = self._own or code == _OWN
+        self._acp = self._acp or parts.acp is not None
         p.window[b] = int(window)
         p.n_log[b] = 0
         p.wall[b] = 0.0
@@ -691,8 +735,9 @@ class _Engine:
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
         fallback_kernel = compiled_as(type(filt.fallback_))
-        assert fallback_kernel is not None  # checked by _parts
-        p.fallback[b] = _FALLBACKS[fallback_kernel]
+        p.fallback[b] = _FALLBACKS.get(fallback_kernel or "", PYTHON)
+        p.forced[b] = False
+        p.acp[b] = parts.acp is not None
         p.prm[b] = (
             float(bar.K_rep),
             float(bar.rho0),
@@ -727,6 +772,12 @@ class _Engine:
             assert ep is not None  # slots are live
             ep.n_sensed.append(m)
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
+        if self._acp:  # the acp family's begin_interval runs at every sampling time
+            regions = p.acp[slots]
+            for b in slots[regions].tolist():
+                self._predict_own(b)
+                self._regions(b)
+            predicted = slots[(n > 0) & ~regions]
         if self._own:
             own = p.predictor[predicted] == _OWN
             for b in predicted[own].tolist():
@@ -741,6 +792,39 @@ class _Engine:
             p.n_predicted[predicted] += 1
             p.n_bad_total[predicted] += p.n_bad[predicted]
             p.n_short_total[predicted] += p.n_short[predicted]
+
+    def _regions(self, b: int) -> None:
+        """Slot ``b``'s barrier at each horizon step of the interval (the acp family:
+        ``d_c`` raised by the region's inflation at the interval's lambda), as
+        :meth:`ACPController.decide <conformal_control.cbf.acp.ACPController.decide>`
+        sets up the compiled step."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None and ep.parts.acp is not None  # b is a live acp slot
+        if not p.n_agents[b]:  # no agent: no row, the controller computes no region
+            return
+        acp = ep.parts.acp
+        infl = acp._inflation(float(p.lam[b]))
+        H = infl.size
+        if H > p.acp_dc.shape[1]:
+            p.acp_dc = p._grown(p.acp_dc, 1, H)
+            p.acp_delta = p._grown(p.acp_delta, 1, H)
+        p.acp_h[b] = H
+        for h in range(H):
+            _, _, d_c, delta = acp._inflated(float(infl[h])).barrier._checked()  # type: ignore[attr-defined]
+            p.acp_dc[b, h] = d_c
+            p.acp_delta[b, h] = delta
+
+    def _capped(self, b: int) -> None:
+        """Count slot ``b``'s control instants whose region was capped (the acp family's
+        ``n_capped_``, one per instant with agents, as its ``decide`` counts them)."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None and ep.parts.acp is not None
+        s = int(p.step[b])
+        if not p.n_agents[b] or not s:
+            return
+        capped = ep.parts.acp._capped
+        h = np.minimum(np.arange(s) // int(p.substeps[b]), capped.size - 1)
+        ep.parts.acp.n_capped_ += int(capped[h].sum())
 
     def _predict_own(self, b: int) -> None:
         """Slot ``b``'s predictions from its own predictor: the environment's query (its
@@ -772,17 +856,27 @@ class _Engine:
         (:func:`~conformal_control.engines.interval.run_interval`: reference, filter,
         plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
-        bad = run_interval(
-            slots, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
-            p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
-            p.v_ref_max,
-            p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
-            p.last, p.counts,
-            p.dt, p.decay, p.gain, p.k_acc,
-            p.rec_x, p.rec_v, p.rec_lam, p.rec_code,
-            p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
-            p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
-        )  # fmt: skip
+        todo = slots
+        while True:
+            bad, paused = run_interval(
+                todo, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
+                p.goal, p.goal_idx, p.goals, p.n_goals, p.goal_radius, p.t_goal, p.neg_k_att,
+                p.v_ref_max,
+                p.lam, p.n_agents, p.xp, p.vp, p.prm, p.poly, p.poly_len, p.fallback, p.work,
+                p.last, p.counts,
+                p.dt, p.decay, p.gain, p.k_acc,
+                p.rec_x, p.rec_v, p.rec_lam, p.rec_code,
+                p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
+                p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
+                p.acp, p.acp_dc, p.acp_delta, p.acp_h, p.forced, p.forced_v, p.paused,
+            )  # fmt: skip
+            if paused < 0 or bad >= 0:
+                break
+            todo = todo[paused:]  # the paused slot decides, then runs on with the rest
+            self._fall_back(int(todo[0]))
+        if self._acp:
+            for b in slots[p.acp[slots]].tolist():
+                self._capped(b)
         if bad >= 0:
             ep = self.eps[bad]
             assert ep is not None  # bad is one of slots, which are live
@@ -792,6 +886,28 @@ class _Engine:
                 f"decision ({which}scene {ep.fl.scene.name}, t = {p.t[bad]:.3f} s); "
                 "predictions must be sanitised before building constraints"
             )
+
+    def _fall_back(self, b: int) -> None:
+        """Slot ``b``'s infeasible step decided by its own fallback (one the compiled step
+        does not decide, e.g. ``relax``), on the rows the step left in the work buffer,
+        as :meth:`Exact2DSafetyFilter.step_apf_record
+        <conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf_record>`
+        hands it over; the decision is applied when the slot runs on."""
+        p, ep = self.pool, self.eps[b]
+        assert ep is not None
+        n, cap = int(p.n_agents[b]), p.cap
+        n0, n1, lam = p.paused.tolist()
+        step = InfeasibleStep(
+            np.array((n0, n1)),
+            p.work[: 2 * n].reshape(n, 2).copy(),
+            p.work[2 * cap : 2 * cap + n].copy(),
+            lam,
+            p.last[b].copy(),
+        )
+        res = ep.parts.safety_filter._fall_back(step)
+        v = np.asarray(res.decision, dtype=float)
+        p.forced_v[b] = (v[0], v[1], res.lambda_applied)
+        p.forced[b] = True
 
     # ------------------------------------------------------------------ interval end
     def end(self, slots: np.ndarray) -> list[int]:
@@ -889,14 +1005,23 @@ class _Engine:
         p, ep = self.pool, self.eps[b]
         assert ep is not None
         s, n = int(p.step[b]), int(p.n_agents[b])
-        return CBFIntervalRecord(
-            ids=np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :n]]),
-            x_ego=p.rec_x[b, :s].copy(),
-            v_ego=p.rec_v[b, :s].copy(),
-            x_pred=p.xp[b, :s, :n].copy(),
-            v_pred=p.vp[b, :s, :n].copy(),
-            lam_applied=p.rec_lam[b, :s].copy(),
-        )
+        fields = {
+            "ids": np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :n]]),
+            "x_ego": p.rec_x[b, :s].copy(),
+            "v_ego": p.rec_v[b, :s].copy(),
+            "x_pred": p.xp[b, :s, :n].copy(),
+            "v_pred": p.vp[b, :s, :n].copy(),
+            "lam_applied": p.rec_lam[b, :s].copy(),
+        }
+        acp = ep.parts.acp
+        if acp is not None:  # what its regions were made of (ACPController.interval_record)
+            return ACPIntervalRecord(
+                **fields,
+                pred_samples=acp._pred.copy(),
+                sorted_scores=acp._sorted,
+                inflation=acp._infl.copy(),
+            )
+        return CBFIntervalRecord(**fields)
 
     def _truth(self, b: int) -> CBFTruth:
         """Slot ``b``'s truth, revealed by its environment (its own code) on the engine's
@@ -937,9 +1062,13 @@ class _Engine:
             policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
         if p.n_predicted[b] and p.predictor[b] == bk.CONSTANT_VELOCITY:
             policy.forecast_info_ = {"n_short_history": int(p.n_short_total[b])}
-        filt.n_solves_, filt.n_infeasible_, filt.n_fallback_ = c[0], c[1], c[2]
+        # the compiled step's counts, added to those a fallback decided in Python counted
+        filt.n_solves_ += c[0]
+        filt.n_infeasible_ += c[1]
+        filt.n_fallback_ += c[2]
+        name = filt.fallback_.name
         if c[2]:
-            filt.fallback_counts_[filt.fallback_.name] = c[2]
+            filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2]
         if c[3]:
             filt.events_["lambda_search_vertex"] = c[3]
         result = LoopResult(

@@ -7,7 +7,8 @@ batch: the largest gap between the APF constraint on the predicted and on the tr
 agent and instant by instant. The control instants themselves run in
 :func:`~conformal_control.engines.interval.run_interval`, which calls the exact 2-D
 filter's fused APF step (:func:`~conformal_control.cbf.kernels2d.apf_step`) as is.
-:data:`SEARCH`, :data:`BRAKE` and :data:`HOLD` are the fallback codes the engine gives it.
+:data:`SEARCH`, :data:`BRAKE`, :data:`HOLD` and :data:`PYTHON` are the fallback codes the engine
+gives it.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ import numpy as np
 from ..cbf.pyhypot import c_hypot
 from ..jit import kernel
 
-__all__ = ["BRAKE", "HOLD", "SEARCH", "gap_maxima"]
+__all__ = ["BRAKE", "HOLD", "PYTHON", "SEARCH", "gap_maxima"]
 
-#: Fallback codes of the engine (``lambda_search`` runs inside ``apf_step``).
-SEARCH, BRAKE, HOLD = 0, 1, 2
+#: Fallback codes of the engine (``lambda_search`` runs inside ``apf_step``; ``PYTHON``: a
+#: fallback the episode's own object decides, e.g. ``relax``).
+SEARCH, BRAKE, HOLD, PYTHON = 0, 1, 2, 3
 
 jit = kernel(cache=True, nogil=True)
 

@@ -3,10 +3,13 @@
 The lockstep engine (:mod:`conformal_control.engines.batch`) calls :func:`run_interval` once
 per interval: for each slot it runs the interval's control instants back to back --
 the attractive field's reference velocity, the fused APF step of the exact 2-D filter
-(:func:`~conformal_control.cbf.kernels2d.apf_step`), the ``brake`` / ``hold``
-fallbacks, the velocity-tracking plant, the goal check (with the scene's waypoints), the
-frame clock and the per-frame log with the nearest agent's distance -- and stops the slot
-at its interval's end or at its episode's end. It is the work of
+(:func:`~conformal_control.cbf.kernels2d.apf_step`; for the ``acp`` family with the barrier's
+collision distance raised per horizon step and no slack), the ``brake`` / ``hold``
+fallbacks (any other fallback pauses the slot: the engine lets the episode's own fallback
+object decide in Python and calls again), the velocity-tracking plant, the goal check
+(with the scene's waypoints), the frame clock and the per-frame log with the nearest
+agent's distance -- and stops the slot at its interval's end or at its episode's end. It is
+the work of
 :meth:`ConformalCBFController.decide
 <conformal_control.cbf.controller.ConformalCBFController.decide>`,
 :meth:`ReplayEnvironment.apply <conformal_control.world.replay.ReplayEnvironment.apply>`
@@ -25,7 +28,7 @@ import numpy as np
 from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
 from ..cbf.pyhypot import py_hypot
 from ..jit import kernel
-from .gap_kernels import HOLD
+from .gap_kernels import HOLD, PYTHON
 from .kernels import d_min
 
 __all__ = ["ACTIVE", "FALLBACK", "FREE", "run_interval"]
@@ -91,7 +94,18 @@ def run_interval(
     st_x: np.ndarray,
     st_cmd: np.ndarray,
     n_st: np.ndarray,
-) -> int:
+    # the acp family: per slot, whether lambda is the regions' level (no slack), and the
+    # barrier's d_c and delta at each horizon step
+    acp: np.ndarray,
+    acp_dc: np.ndarray,
+    acp_delta: np.ndarray,
+    acp_h: np.ndarray,
+    # a fallback decided in Python: the decision given for a paused slot, and the paused
+    # step's (nominal x, nominal y, lambda) out
+    forced: np.ndarray,
+    forced_v: np.ndarray,
+    paused: np.ndarray,
+) -> tuple[int, int]:
     """Run the control instants of the current interval of each slot ``b`` in ``slots``
     (at least one, then until ``step[b] >= n_ctrl[b]`` or ``done[b]``); returns -1, or the
     first slot whose rows, lambda or nominal velocity were not finite (that slot stops
@@ -116,6 +130,18 @@ def run_interval(
     episode ends, else the frame is logged to ``log[b, n_log[b]]`` = (t, x, y, vx, vy,
     d_min) with the slot's recording in ``store`` / ``where``. With ``keep``, each
     instant's (t, x, command) goes to ``st_t[b, n_st[b]]``, ``st_x``, ``st_cmd``.
+
+    The ``acp`` family (``acp[b]``): the rows get no slack (lambda 0) and the barrier's
+    ``d_c`` and ``delta`` (``prm[b, 2:4]``) at instant s are ``acp_dc[b, h]`` and
+    ``acp_delta[b, h]``, h = min(s // substeps, acp_h[b] - 1).
+
+    Returns ``(bad, paused)``: ``bad`` as above; ``paused`` is -1, or the position in
+    ``slots`` of a slot whose step was infeasible with a fallback decided in Python
+    (``fallback[b] == PYTHON``): its rows are in ``work`` (as :func:`apf_step` leaves them),
+    ``paused`` holds (nominal x, nominal y, lambda given), nothing is applied and the
+    slots after it are not run. The caller decides, sets ``forced[b]`` and ``forced_v[b]``
+    = (v_x, v_y, lambda applied), and calls again from that slot: the step then applies
+    the given decision.
     """
     for i in range(slots.shape[0]):
         b: int = slots[i]  # an annotation only: no bytecode, numba types it from slots
@@ -131,6 +157,9 @@ def run_interval(
         vmax = v_ref_max[b]
         radius = goal_radius[b]
         sub = substeps[b]
+        regions = acp[b]
+        if regions:
+            la = 0.0
         if step[b] == 0:  # the interval's control instants, as ReplayEnvironment says
             n_ctrl[b] = max(min(tau[b], last_frame[b] - fi[b]), 0) * sub
         while True:
@@ -145,11 +174,29 @@ def run_interval(
                 f = vmax / speed
                 n0 *= f
                 n1 *= f
-            code, v0, v1, lam_used, solves = apf_step(
-                x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work
-            )
-            if code == NONFINITE:
-                return b
+            if forced[b]:  # the decision of the fallback decided in Python
+                forced[b] = False
+                code = INFEASIBLE
+                v0 = forced_v[b, 0]
+                v1 = forced_v[b, 1]
+                lam_used = forced_v[b, 2]
+                solves = 0
+            else:
+                if regions and n > 0:
+                    hh = min(s // sub, acp_h[b] - 1)
+                    p[2] = acp_dc[b, hh]
+                    p[3] = acp_delta[b, hh]
+                code, v0, v1, lam_used, solves = apf_step(
+                    x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work
+                )
+                if code == NONFINITE:
+                    return b, -1
+                if code == INFEASIBLE and fallback[b] == PYTHON:
+                    counts[b, 0] += solves
+                    paused[0] = n0
+                    paused[1] = n1
+                    paused[2] = la
+                    return -1, i
             counts[b, 0] += solves
             applied = la
             status = FALLBACK
@@ -159,16 +206,19 @@ def run_interval(
                 status = FREE
             elif code == OPTIMAL:
                 status = ACTIVE
-            elif code == INFEASIBLE:  # brake / hold decide
-                counts[b, 1] += 1
-                counts[b, 2] += 1
-                applied = math.nan
-                if fallback[b] == HOLD:
-                    v0 = last[b, 0]
-                    v1 = last[b, 1]
-                else:
-                    v0 = 0.0
-                    v1 = 0.0
+            elif code == INFEASIBLE:
+                if fallback[b] == PYTHON:  # decided (and counted) by the episode's fallback
+                    applied = lam_used
+                else:  # brake / hold decide
+                    counts[b, 1] += 1
+                    counts[b, 2] += 1
+                    applied = math.nan
+                    if fallback[b] == HOLD:
+                        v0 = last[b, 0]
+                        v1 = last[b, 1]
+                    else:
+                        v0 = 0.0
+                        v1 = 0.0
             else:  # lambda search (the projection at lambda* + margin, or the LP's vertex)
                 counts[b, 1] += 1
                 counts[b, 2] += 1
@@ -233,4 +283,4 @@ def run_interval(
                     n_log[b] = r + 1
             if done[b] or s >= n_ctrl[b]:
                 break
-    return -1
+    return -1, -1

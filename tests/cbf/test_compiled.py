@@ -17,6 +17,7 @@ from conformal_control.cbf import (
     VelocityTrackingDoubleIntegrator,
 )
 from conformal_control.cbf import kernels2d as k
+from conformal_control.cbf.reciprocal import Reciprocity
 from conformal_control.flagship.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 
@@ -115,12 +116,27 @@ def test_compiled_step_matches_python_path_on_nexus4(nexus4) -> None:
     assert seen.get("unconstrained", 0) > 20
 
 
-@pytest.mark.parametrize("fallback", ["lambda_search", "brake", "hold"])
+@pytest.mark.parametrize("fallback", ["lambda_search", "brake", "hold", "relax"])
 def test_compiled_step_matches_python_path_on_crossing(crossing, fallback) -> None:
     env, fused, generic = twin_controllers(crossing, {"a": 2.0}, fallback=fallback)
     floor = fused.constraint.lambda_floor()
     seen = run_lockstep(env, fused, generic, [0.0, 0.9 * floor, 2.0 * floor])
     assert seen.get("optimal", 0) > 5 and seen.get(fallback, 0) > 5
+
+
+@pytest.mark.parametrize("fallback", ["lambda_search", "relax"])
+def test_compiled_acp_step_matches_its_python_path(crossing, fallback) -> None:
+    """The acp family's compiled step (the barrier's d_c raised per horizon step, no
+    slack) decides as its generic path (constraint_rows, slack 0)."""
+    from conformal_control.cbf.acp import ACPController
+
+    env, fused, generic = twin_controllers(crossing, {"a": 2.0}, fallback=fallback)
+    fused = ACPController.from_controller(fused, window=50, max_inflation=0.6)
+    generic = ACPController.from_controller(generic, window=50, max_inflation=0.6)
+    # levels: infinite regions (capped), finite ones, empty ones
+    seen = run_lockstep(env, fused, generic, [0.0, 0.3, 0.1, 0.6, 1.0, 0.05])
+    assert fused.n_capped_ > 10 and fused.n_scored_ > 100
+    assert seen.get("optimal", 0) > 5 and seen.get("unconstrained", 0) > 5
 
 
 def test_other_barriers_and_fallbacks_take_the_generic_path(crossing) -> None:
@@ -131,7 +147,12 @@ def test_other_barriers_and_fallbacks_take_the_generic_path(crossing) -> None:
     fused.constraint.barrier = MyAPF(**fused.constraint.barrier.get_params())
     fused.reset()
     assert not fused._fused
+    # a fallback the compiled step does not decide (relax) decides on its rows in Python,
+    # but not with robots (their rows are built by the generic path)
     _, relax, _ = twin_controllers(crossing, {"a": 2.0}, fallback="relax")
+    relax.reset()
+    assert relax._fused
+    relax.reciprocity = Reciprocity()
     relax.reset()
     assert not relax._fused
 

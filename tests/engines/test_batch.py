@@ -41,6 +41,37 @@ def test_crossing_oracle_and_brake_with_si_parameters(crossings, compare_batch):
     )
 
 
+@pytest.mark.parametrize("fallback", ["relax", "brake"])
+def test_acp_family_matches_run_episode(crossings, compare_batch, fallback):
+    """The acp family (its regions, its miscoverage loss, ACI) with the compiled and a
+    Python fallback: every metric and every interval's row."""
+    from conformal_control.bench.methods import expand_methods
+
+    kw = expand_methods(["acp"])[0].run_kwargs()
+    kw["family_params"] = {"window": 200, "max_inflation": 0.6}
+    _, singles = compare_batch(
+        crossings, seeds=[0, 1, 2, 3], output="results", fallback=fallback, **kw
+    )
+    assert all(s.metrics.n_updates > 0 for s in singles)
+    assert len({s.metrics.lambda_final for s in singles}) > 1  # not four equal episodes
+    assert sum(s.metrics.n_fallback for s in singles) > 0  # the fallback decided too
+
+
+def test_relax_fallback_matches_run_episode(crossings, compare_batch):
+    """The relax fallback decides in Python (its LP) on the compiled step's rows, for the
+    paused episode only, while the others of the batch run on."""
+    _, singles = compare_batch(
+        crossings,
+        seeds=[0, 1, 2, 3],
+        output="results",
+        fallback="relax",
+        fallback_params={"weights": "inverse_gradient"},
+        params={"epsilon": -0.3},
+        max_frames=[240, 200, 160, 240],
+    )
+    assert all(s.metrics.n_fallback > 20 for s in singles)
+
+
 # ------------------------------------------------------------------ crossings-v1 scenarios
 DEV_SCENARIOS = 4
 
@@ -53,9 +84,7 @@ def suite_scenes(data_root):
     return [load_scene(f"scenario:crossings-v1/{i}", str(data_root)) for i in ids]
 
 
-@pytest.mark.parametrize(
-    "method", ["nolearn", "conformal", "inflated"], ids=["nolearn", "conformal", "inflated"]
-)
+@pytest.mark.parametrize("method", ["nolearn", "conformal", "inflated", "acp", "fallback:relax"])
 def test_suite_scenarios_match_run_episode(suite_scenes, compare_batch, method):
     from conformal_control.bench.methods import expand_methods
 
@@ -138,10 +167,11 @@ def test_iter_batch_yields_indices_in_completion_order(crossings):
     ("kwargs", "words"),
     [
         ({"crowd": "orca"}, "replays recorded crowds"),
-        ({"loss": "acp_miscoverage"}, "loss 'acp_miscoverage'"),
+        ({"loss": "miscoverage"}, "loss 'miscoverage'"),
         ({"predictor": object()}, "predictor given as a object instance"),
-        ({"fallback": "relax"}, "fallback 'relax'"),
-        ({"family": "acp"}, "family 'acp'"),
+        ({"fallback": "brake", "fallback_params": {"x": 1}}, "fallback parameters for 'brake'"),
+        ({"family": "mpc"}, "family 'mpc'"),
+        ({"barrier": "distance_squared"}, "barrier 'distance_squared'"),
         ({"record_animation": True}, "animation"),
         ({"robots": 2}, "one robot"),
         ({"robotz": 2}, "unexpected keyword argument 'robotz'"),
@@ -154,8 +184,8 @@ def test_supports_names_the_reason(kwargs, words):
 
 def test_supported_configuration_and_clear_error(crossings):
     assert supports(predictor="oracle", learn=False, fallback="hold") is None
-    with pytest.raises(ValueError, match="does not support this configuration: fallback 'relax'"):
-        run_batch(crossings[:1], fallback="relax")
+    with pytest.raises(ValueError, match="does not support this configuration: crowd 'orca'"):
+        run_batch(crossings[:1], crowd="orca")
     with pytest.raises(ValueError, match="batch_size must be a positive integer"):
         run_batch(crossings[:1], batch_size=0)
 

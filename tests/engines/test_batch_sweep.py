@@ -40,6 +40,7 @@ def test_bench_run_batched_equals_serial(tmp_path, data_root):
             "conformal_dtaci",
             "conformal_aci",
             "fallback:relax",
+            "acp",
         ],
         "grids": {"conformal": [-0.1]},
         "data_root": str(data_root),
@@ -48,13 +49,13 @@ def test_bench_run_batched_equals_serial(tmp_path, data_root):
     }
     batched = run_bench(tmp_path / "batch", executor="batch", workers=1, **kw)
     serial = run_bench(tmp_path / "serial", executor="serial", **kw)
-    assert batched.failed == serial.failed == 0 and batched.ran == serial.ran == 10
+    assert batched.failed == serial.failed == 0 and batched.ran == serial.ran == 12
     rows_b, rows_s = read_rows(tmp_path / "batch"), read_rows(tmp_path / "serial")
     _same_rows(_by_key(rows_b), _by_key(rows_s))
-    # the supported methods (any rule, the collision loss) ran batched, relax on the pool
+    # every method (any rule, the collision loss, the relax fallback, acp) ran batched
     batched_runs = {r["label"] for r in rows_b if r["worker"].endswith("(batch)")}
-    assert batched_runs == {r["label"] for r in rows_b if "relax" not in r["label"]}
-    assert len(batched_runs) == 8
+    assert batched_runs == {r["label"] for r in rows_b}
+    assert len(batched_runs) == 12
     # config.json is the per-episode run's, plus the engine
     for r in rows_b:
         cb = json.loads((tmp_path / "batch" / r["run_dir"] / "config.json").read_text())
@@ -96,8 +97,8 @@ def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypa
     [
         ({"scene": "crossing"}, False, "animation"),
         ({"scene": "crossing"}, True, "plot"),
-        ({"scene": "crossing", "episode": {"fallback": "relax"}}, "metrics", "fallback 'relax'"),
-        ({"scene": "crossing", "episode": {"family": "acp"}}, "none", "family 'acp'"),
+        ({"scene": "crossing", "episode": {"barrier": "distance_squared"}}, "metrics", "barrier"),
+        ({"scene": "crossing", "episode": {"family": "mpc"}}, "none", "family 'mpc'"),
     ],
 )
 def test_batch_reason(cfg, plot, words):
@@ -168,7 +169,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     )
     monkeypatch.setattr("conformal_control.sweep.worker.load_run_scene", lambda cfg: _Scene())
     batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
-    pooled = {"scene": "crossing", "seed": 1, "episode": {"fallback": "relax"}}
+    pooled = {"scene": "crossing", "seed": 1, "episode": {"family": "mpc"}}
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]
     assert batch_reason(batched, "none") is None and batch_reason(pooled, "none") is not None
     records = dict(sweep_batch.run_batched(FakePool(), tasks))

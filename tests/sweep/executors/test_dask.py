@@ -16,8 +16,9 @@ from conformal_control.sweep.executors.serial import SerialExecutor
 
 distributed = pytest.importorskip("distributed")  # the sweep extra, installed by the README
 
-#: one batched method, one learning method, one that the engine does not batch (relax)
-METHODS = "nolearn,conformal,fallback:relax"
+#: one method without learning, one learning method, one whose fallback decides in Python
+#: (relax; these three batched), one the engine does not batch (cc_mpc: the sampling MPC)
+METHODS = "nolearn,conformal,fallback:relax,cc_mpc"
 
 
 def _bench(out: Path, data: Path, *extra: str) -> None:
@@ -45,7 +46,8 @@ def test_a_suite_on_a_two_worker_cluster_equals_the_serial_run(
             workers = {w["id"] for w in client.scheduler_info()["workers"].values()}
     _bench(tmp_path / "serial", data_root, "--executor", "serial")
     on_cluster, serial = _metrics(tmp_path / "cluster"), _metrics(tmp_path / "serial")
-    assert on_cluster.keys() == serial.keys() and len(serial) == 3 * 5  # 3 x (1 + 3 + 1)
+    # 3 scenarios x (1 + 3 + 1 + 1)
+    assert on_cluster.keys() == serial.keys() and len(serial) == 3 * 6
     for key, metrics in serial.items():
         wall = {k for k in metrics if "wall" in k}
         assert {k: v for k, v in on_cluster[key].items() if k not in wall} == {
@@ -88,13 +90,12 @@ class _Cluster(SerialExecutor):
 def test_chunks_cover_every_run_once_and_a_lost_chunk_fails_its_runs(tmp_path: Path) -> None:
     cfg = {"scene": "crossing", "frames": 30, "episode": {"record_animation": False}}
     tasks = [({**cfg, "seed": s}, f"k{s}", str(tmp_path), "metrics") for s in range(20)]
-    tasks.append(
-        ({**cfg, "seed": 0, "episode": {"fallback": "relax"}}, "relax", str(tmp_path), "metrics")
-    )
+    other = {"record_animation": False, "barrier": "distance_squared"}  # not batched
+    tasks.append(({**cfg, "seed": 0, "episode": other}, "other", str(tmp_path), "metrics"))
     ex = _Cluster()
     got = dict(run_chunked(ex, tasks, chunk=8))
     assert sorted(got) == list(range(21))
-    assert ex.jobs == [1, 1, 1, 4]  # three chunks (8 + 8 + 4 runs), the relax run alone
+    assert ex.jobs == [1, 1, 1, 4]  # three chunks (8 + 8 + 4 runs), the other run alone
     assert all(r["status"] == "ok" for r in got.values())
     lost = dict(run_chunked(_Cluster(lose=1), tasks, chunk=8))
     failed = sorted(i for i, r in lost.items() if isinstance(r, BaseException))
