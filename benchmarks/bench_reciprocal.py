@@ -9,8 +9,8 @@ command), pedestrians replayed. Timed in the same run, best of ``--repeat``:
 
 * **one robot** -- :func:`~conformal_control.sim.multi.run_multi` with one robot (the
   single-robot episode, number for number): the baseline step;
-* **M robots, reciprocal** -- the default: each robot's rows about the others shared
-  (position and velocity information), in the compiled step;
+* **M robots, reciprocal** -- the command's default: each robot's rows about the others
+  shared (positions and broadcast plans), in the compiled step;
 * **M robots, none** -- the robots predicted like pedestrians (no reciprocity), for
   reference.
 
@@ -19,7 +19,7 @@ Two figures per run, each with its ratio to the single robot's:
 * *decision per robot-step*: the process CPU time each robot spends in its own sensing,
   predicting, deciding (the reciprocal rows and the world's peer view included) and
   learning, per control instant it decided (summed over robots / robot-steps; the loop of
-  :func:`~conformal_control.sim.multi.drive`, timed with ``time.process_time``);
+  :func:`~conformal_control.sim.multi.drive` itself, its clock ``time.process_time``);
 * *loop per robot-step*: the process CPU time of the whole loop (the world's plants,
   sensors and logs included) per robot-step.
 
@@ -31,11 +31,10 @@ and the ratios of one run are what to compare.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import time
 from pathlib import Path
-
-import numpy as np
 
 from conformal_control.data import load_scene
 from conformal_control.sim.multi import run_multi
@@ -43,44 +42,12 @@ from conformal_control.sim.multi import run_multi
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def cpu_drive(world, steppers, *, broadcast: bool = False) -> list[float]:
-    """:func:`~conformal_control.sim.multi.drive` with each robot's share in CPU time."""
-    clock = time.process_time
-    n = len(steppers)
-    own = [0.0] * n
-    world.reset()
-    for st in steppers:
-        st.start()
-    cmds = np.zeros((n, 2))
-    while not world.done:
-        active = [int(i) for i in world.active()]
-        for i in active:
-            t0 = clock()
-            steppers[i].begin_interval(world.sense(i))
-            own[i] += clock() - t0
-        for _ in range(world.control_instants()):
-            for i in active:
-                if world.robot_done(i):
-                    continue
-                t0 = clock()
-                cmds[i] = steppers[i].decide(world.state(i))
-                own[i] += clock() - t0
-            world.apply(cmds)
-            if world.done:
-                break
-        for i in active:
-            t0 = clock()
-            steppers[i].end_interval(world.reveal(i))
-            own[i] += clock() - t0
-    return own
-
-
 def timed(scene, **kw) -> tuple[float, float, int, object]:
     """(decision CPU s, loop CPU s, robot-steps, fleet metrics) of one run."""
     from conformal_control.sim import multi
 
     saved = multi.drive
-    multi.drive = cpu_drive  # the same loop, its shares in CPU time
+    multi.drive = functools.partial(saved, clock=time.process_time)  # shares in CPU time
     try:
         res = run_multi(scene, record_animation=False, **kw)
     finally:

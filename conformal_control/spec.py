@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -308,6 +309,19 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
     return value, {}  # an instance: checked against the role's base class when built
 
 
+#: The most robots one run drives.
+MAX_ROBOTS = 20
+
+#: The choices of the robots section's text settings (:class:`Robots`).
+ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
+    "layout": ("scene", "antipodal"),
+    "sensor_history": ("tracked", "observed"),
+    "reciprocity": ("reciprocal", "none"),
+    "information": ("position", "velocity", "plan"),
+    "lambda_scope": ("pedestrians", "robots", "both"),
+    "hard_rows": ("level", "last"),
+}
+
 #: The settings of a run's robots section (:class:`Robots`).
 ROBOT_FIELDS: tuple[str, ...] = (
     "robots",
@@ -327,6 +341,24 @@ ROBOT_FIELDS: tuple[str, ...] = (
 )
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _real_list(value: Any) -> list[float] | None:
+    """``value`` as a list of finite floats, or None when it is not one."""
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+        return None
+    items = list(value)
+    if not all(_is_real(v) and math.isfinite(v) for v in items):
+        return None
+    return [float(v) for v in items]
+
+
 @dataclass(frozen=True)
 class Robots:
     """Several robots in one crowd (each its own controller, no communication).
@@ -334,7 +366,8 @@ class Robots:
     Parameters
     ----------
     robots : int, optional
-        Number of robots, placed by ``layout``; or give ``starts`` and ``goals``.
+        Number of robots (1 to :data:`MAX_ROBOTS`), placed by ``layout``; or give
+        ``starts`` and ``goals``.
     starts, goals : lists, optional
         Explicit tasks (m): one start ``[x, y]`` and one list of goals per robot.
     layout : {"scene", "antipodal"}
@@ -348,16 +381,26 @@ class Robots:
         Robots share each pair's constraint, or predict each other like pedestrians.
     information : {"position", "velocity", "plan"}
         What reciprocal robots know of each other (``"plan"``: they broadcast commands).
-    lambda_scope : {"pedestrians", "robots", "both"}
-        The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+    lambda_scope : {"pedestrians", "robots", "both"}, optional
+        The rows lambda is the slack of; None (default): ``"pedestrians"`` with
+        reciprocity, ``"both"`` without (every row is a prediction then), see
+        :attr:`scope`.
     weights : sequence of float, optional
         The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
     ignoring : sequence of int
         Robots that take no other robot into account (a robot that does not comply).
     sidestep : float
-        Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
+        Angle (rad, 0 to pi/2) a reciprocal robot held back by another turns its nominal
+        velocity by.
     hard_rows : {"last", "level"}
         How the lambda search treats the rows lambda is not the slack of.
+
+    Raises
+    ------
+    InputError
+        For a setting of the wrong type or out of range (one line naming it). What
+        depends on the number of robots (``ignoring``'s indices, the number of
+        ``weights``) and the tasks themselves are checked when the run starts.
     """
 
     robots: int | None = None
@@ -369,23 +412,55 @@ class Robots:
     sensor_history: str = "tracked"
     reciprocity: str = "reciprocal"
     information: str = "plan"
-    lambda_scope: str = "pedestrians"
+    lambda_scope: str | None = None
     weights: Any = None
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
 
     def __post_init__(self) -> None:
-        if self.robots is not None and (
-            isinstance(self.robots, bool) or not isinstance(self.robots, int)
-        ):
-            raise _spec_error(f"robots must be an integer, got {self.robots!r}")
-        if self.layout not in ("scene", "antipodal"):
-            raise _spec_error(f"layout must be 'scene' or 'antipodal', got {self.layout!r}")
-        if self.sensor_history not in ("tracked", "observed"):
-            raise _spec_error(
-                f"sensor_history must be 'tracked' or 'observed', got {self.sensor_history!r}"
-            )
+        n = self.robots
+        if n is not None and (not _is_int(n) or not 1 <= n <= MAX_ROBOTS):
+            raise _spec_error(f"robots must be an integer from 1 to {MAX_ROBOTS}, got {n!r}")
+        for name, choices in ROBOT_CHOICES.items():
+            value = getattr(self, name)
+            if not (value is None and name == "lambda_scope") and value not in choices:
+                raise _spec_error(
+                    f"robots {name} must be one of {', '.join(choices)}, got {value!r}"
+                )
+        r = self.radius
+        if r is not None and not (_is_real(r) and math.isfinite(r) and r > 0):
+            raise _spec_error(f"robots radius must be a finite number > 0 (m), got {r!r}")
+        c = self.center
+        if c is not None:
+            xy = _real_list(c)
+            if xy is None or len(xy) != 2:
+                raise _spec_error(f"robots center must be two finite numbers [x, y] (m), got {c!r}")
+            object.__setattr__(self, "center", tuple(xy))
+        w = self.weights
+        if w is not None:
+            ws = _real_list(w)
+            if ws is None or not ws or min(ws) <= 0:
+                raise _spec_error(f"robots weights must be a list of finite numbers > 0, got {w!r}")
+            object.__setattr__(self, "weights", tuple(ws))
+        ig = self.ignoring
+        if isinstance(ig, (str, bytes, dict)) or not hasattr(ig, "__iter__"):
+            raise _spec_error(f"robots ignoring must be a list of robot indices, got {ig!r}")
+        ig = list(ig)
+        if not all(_is_int(i) and i >= 0 for i in ig):
+            raise _spec_error(f"robots ignoring must be a list of robot indices, got {ig!r}")
+        object.__setattr__(self, "ignoring", tuple(int(i) for i in ig))
+        k = self.sidestep
+        if not (_is_real(k) and 0.0 <= k <= math.pi / 2):
+            raise _spec_error(f"robots sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+
+    @property
+    def scope(self) -> str:
+        """The rows lambda is the slack of: :attr:`lambda_scope`, or when None
+        ``"pedestrians"`` with reciprocity and ``"both"`` without."""
+        if self.lambda_scope is not None:
+            return self.lambda_scope
+        return "both" if self.reciprocity == "none" else "pedestrians"
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (arrays as lists)."""

@@ -88,6 +88,7 @@ from typing import Any
 import numpy as np
 
 from ..base import Plugin
+from ..spec import ROBOT_CHOICES
 from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
@@ -113,16 +114,16 @@ __all__ = [
 #: constraint, its share of each pair), ``"none"`` (predicted like pedestrians, each robot
 #: taking the whole constraint for its prediction of the other: the behaviour without
 #: reciprocity) or ``"ignore"`` (no constraint at all: a robot that does not comply).
-RECIPROCITY = ("reciprocal", "none", "ignore")
+RECIPROCITY = (*ROBOT_CHOICES["reciprocity"], "ignore")
 
 #: What robots know of each other at a control instant (see the module docstring).
-INFORMATION = ("position", "velocity", "plan")
+INFORMATION = ROBOT_CHOICES["information"]
 
 #: The rows the conformal lambda is the slack of.
-LAMBDA_SCOPES = ("pedestrians", "robots", "both")
+LAMBDA_SCOPES = ROBOT_CHOICES["lambda_scope"]
 
 #: How the lambda search treats the rows without slack (:class:`Reciprocity`).
-HARD_ROWS = ("level", "last")
+HARD_ROWS = ROBOT_CHOICES["hard_rows"]
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60

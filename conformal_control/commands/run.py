@@ -707,6 +707,14 @@ def _run_multi(
             "radius": args.radius,
             "center": center,
         }
+    data_root = None
+    if args.scene != "crossing":
+        from ..data.paths import resolve_data_root
+
+        data_root = str(resolve_data_root(args.data_root).resolve())
+    stored = _stored_options(args, data_root)  # what `run --config` replays
+    if args.robots_file is not None:
+        stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
     result = run_multi(
         scene,
         **tasks,
@@ -723,10 +731,14 @@ def _run_multi(
         sensor_history=args.sensor_history,
         reciprocity=args.reciprocity,
         information=args.information,
-        lambda_scope=args.lambda_scope or ("both" if args.reciprocity == "none" else "pedestrians"),
+        lambda_scope=args.lambda_scope,
         crowd=args.crowd,
         crowd_params=_checked_crowd_params(args),
-        extra_config={"command": command_line(args), "data_root": args.data_root},
+        extra_config={
+            "command": command_line(args),
+            "data_root": data_root,
+            "cli": stored,
+        },
         **roles,
     )
     if out is None:

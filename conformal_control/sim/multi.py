@@ -41,7 +41,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -66,7 +66,8 @@ from ..results.multi_metrics import (
 )
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
-from ..spec import Robots, RunSpec
+from ..spec import MAX_ROBOTS as SPEC_MAX_ROBOTS
+from ..spec import ROBOT_CHOICES, Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -84,10 +85,10 @@ __all__ = [
 ]
 
 #: Built-in layouts of :func:`robot_tasks`.
-LAYOUTS = ("scene", "antipodal")
+LAYOUTS = ROBOT_CHOICES["layout"]
 
 #: Most robots in one run (the sensor and the metrics are quadratic in the robots).
-MAX_ROBOTS = 20
+MAX_ROBOTS = SPEC_MAX_ROBOTS
 
 
 # ---------------------------------------------------------------------------- tasks
@@ -413,8 +414,9 @@ def run_multi(
           Robots share each pair's constraint, or predict each other like pedestrians.
         - ``information`` ({"position", "velocity", "plan"}):
           What reciprocal robots know of each other (``"plan"``: they broadcast commands).
-        - ``lambda_scope`` ({"pedestrians", "robots", "both"}):
-          The rows lambda is the slack of (``"both"`` is the behaviour without reciprocity).
+        - ``lambda_scope`` ({"pedestrians", "robots", "both"}, optional):
+          The rows lambda is the slack of (default: ``"pedestrians"`` with reciprocity,
+          ``"both"`` without).
         - ``weights`` (sequence of float, optional):
           The fleet's share weights (robot i's share of a pair: ``w_i / (w_i + w_j)``).
         - ``ignoring`` (sequence of int):
@@ -439,7 +441,7 @@ def run_multi(
     layout, radius, center = section.layout, section.radius, section.center
     sensor_history = section.sensor_history
     reciprocity, information = section.reciprocity, section.information
-    lambda_scope, weights, ignoring = section.lambda_scope, section.weights, section.ignoring
+    lambda_scope, weights, ignoring = section.scope, section.weights, section.ignoring
     sidestep, hard_rows = section.sidestep, section.hard_rows
     learn, seed, max_frames = run.learn, run.seed, run.max_frames
     if starts is not None or goals is not None:
@@ -664,10 +666,15 @@ def set_reciprocity(
 
 
 def drive(
-    world: MultiRobotWorld, steppers: Sequence[ConformalStepper], *, broadcast: bool = False
+    world: MultiRobotWorld,
+    steppers: Sequence[ConformalStepper],
+    *,
+    broadcast: bool = False,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> list[float]:
     """Run every robot's conformal loop in ``world`` until it ends; returns, per robot, the
-    wall time (s) spent in its own sensing, deciding and learning.
+    time (s, by ``clock``: wall time by default) spent in its own sensing, deciding and
+    learning.
 
     With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
     plans ahead (``planned_path``), its plan's path
@@ -681,7 +688,6 @@ def drive(
     on the truth its own sensor reveals and updates its own lambda.
     """
     n = len(steppers)
-    clock = time.perf_counter
     own = [0.0] * n
     world.reset()
     for st in steppers:

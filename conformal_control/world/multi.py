@@ -71,12 +71,13 @@ from ..cbf.roles import Dynamics
 from ..crowds.crowd import Crowd
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
+from ..spec import ROBOT_CHOICES
 from .replay import FrameLog
 
 __all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]
 
 #: Values of ``sensor_history``.
-SENSOR_HISTORIES = ("tracked", "observed")
+SENSOR_HISTORIES = ROBOT_CHOICES["sensor_history"]
 
 #: Speed (m/s) under which a robot braking at its goal is taken to have stopped.
 PARKED_SPEED = 1e-3
