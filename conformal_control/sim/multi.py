@@ -686,6 +686,17 @@ def drive(
     interval; at each control instant each decides with its own lambda and the world
     applies all the decisions at once; at the next sampling time each scores its interval
     on the truth its own sensor reveals and updates its own lambda.
+
+    Parameters
+    ----------
+    world : MultiRobotWorld
+        The crowd and the robots.
+    steppers : sequence of ConformalStepper
+        One per robot, in the world's order.
+    broadcast : bool
+        Each robot broadcasts its decided velocity (and plan) to the others.
+    clock : callable
+        Gives the time (s) the robots' own work is measured with.
     """
     n = len(steppers)
     own = [0.0] * n
