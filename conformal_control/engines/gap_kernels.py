@@ -61,7 +61,111 @@ def _apf_value(
     return value
 
 
-@jit
+def _apf_values(
+    ex: np.ndarray,
+    ey: np.ndarray,
+    evx: np.ndarray,
+    evy: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    avx: np.ndarray,
+    avy: np.ndarray,
+    prm: np.ndarray,
+) -> np.ndarray:
+    """:func:`_apf_value` on arrays, element by element: the same operations in the same
+    order (``min`` and ``max`` as Python's, which return their first argument on a tie)."""
+    K = prm[0]
+    rho0 = prm[1]
+    d0 = ex - ax
+    d1 = ey - ay
+    d = np.hypot(d0, d1)  # c_hypot interpreted
+    rho = d - prm[2] if prm[4] != 0.0 else d
+    r = np.where(0.0 > rho, 0.0, rho)
+    r = np.where(rho0 < r, rho0, r)
+    q = 1.0 - r / rho0
+    r2 = r * r
+    inv_d = 1.0 / (2.0 * r2 + K * q * q)
+    h = 2.0 * r2 * inv_d - prm[3]
+    scale = 4.0 * K * q * r * inv_d * inv_d / np.where(1e-300 > d, 1e-300, d)
+    g0 = scale * d0
+    g1 = scale * d1
+    value: np.ndarray = (g0 * evx + g1 * evy) + ((-g0) * avx + (-g1) * avy) + prm[5] * h
+    return value
+
+
+def _gap_maxima_numpy(
+    slots: np.ndarray,
+    offsets: np.ndarray,
+    n_agents: np.ndarray,
+    step: np.ndarray,
+    truth: np.ndarray,
+    dt_frame: np.ndarray,
+    substeps: np.ndarray,
+    rec_x: np.ndarray,
+    rec_v: np.ndarray,
+    rec_lam: np.ndarray,
+    xp: np.ndarray,
+    vp: np.ndarray,
+    lam: np.ndarray,
+    prm: np.ndarray,
+    top: np.ndarray,
+    top_applied: np.ndarray,
+    n_pairs: np.ndarray,
+) -> None:
+    """:func:`gap_maxima`'s interpreted form: each slot's (instant, agent) pairs as arrays
+    (the same IEEE operations pair by pair, so the same numbers; the maxima of the same
+    values). A single run keeps its kernels interpreted (:mod:`conformal_control.jit`):
+    the scalar loop would be its largest cost."""
+    for i in range(slots.shape[0]):
+        b = int(slots[i])
+        o = int(offsets[i])
+        n = int(n_agents[b])
+        s = int(step[b])
+        sub = int(substeps[b])
+        top[b] = -math.inf
+        top_applied[b] = -math.inf
+        n_pairs[b] = 0
+        if n == 0 or s == 0:
+            continue
+        k = np.arange(s)
+        j = k // sub
+        frac = (k % sub) / sub
+        la = rec_lam[b, :s].copy()
+        la[~np.isfinite(la)] = lam[b]
+        rows = truth[o : o + n]
+        px0 = rows[:, j, 0]  # (agents, instants)
+        py0 = rows[:, j, 1]
+        dx = rows[:, j + 1, 0] - px0
+        dy = rows[:, j + 1, 1] - py0
+        tx = px0 + frac * dx
+        ty = py0 + frac * dy
+        dt = dt_frame[b]
+        tvx = dx / dt
+        tvy = dy / dt
+        ok = np.isfinite(tx) & np.isfinite(ty) & np.isfinite(tvx) & np.isfinite(tvy)
+        count = int(ok.sum())
+        if count:
+            ex = rec_x[b, :s, 0]
+            ey = rec_x[b, :s, 1]
+            evx = rec_v[b, :s, 0]
+            evy = rec_v[b, :s, 1]
+            p = prm[b]
+            pred = _apf_values(
+                ex, ey, evx, evy, xp[b, :s, :n, 0].T, xp[b, :s, :n, 1].T, vp[b, :s, :n, 0].T,
+                vp[b, :s, :n, 1].T, p,
+            )  # fmt: skip
+            gap = pred - _apf_values(ex, ey, evx, evy, tx, ty, tvx, tvy, p)
+            g = gap[ok]
+            g_applied = (gap + la)[ok]
+            # the loop's `>` never takes a NaN
+            if g.size and not np.isnan(g).all():
+                top[b] = float(np.nanmax(g))
+            if g_applied.size and not np.isnan(g_applied).all():
+                top_applied[b] = float(np.nanmax(g_applied))
+        n_pairs[b] = count
+
+
+@kernel(cache=True, nogil=True, python=_gap_maxima_numpy)
 def gap_maxima(
     slots: np.ndarray,
     offsets: np.ndarray,
