@@ -252,24 +252,42 @@ OVER_MAX_PARAMETERS: dict[str, int] = {
 }
 
 
+#: Decorators that compile a function into a kernel (``jit.kernel`` among them).
+KERNEL_DECORATORS = ("jit", "njit", "vectorize", "guvectorize", "kernel")
+
+
 def _is_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
     for d in fn.decorator_list:
         name = ast.unparse(d.func if isinstance(d, ast.Call) else d)
-        if name.split(".")[-1] in ("jit", "njit", "vectorize", "guvectorize"):
+        if name.split(".")[-1] in KERNEL_DECORATORS:
             return True
     return False
 
 
+def _interpreted_twins(tree: ast.Module) -> set[str]:
+    """Functions a kernel decorator names as the kernel's interpreted form
+    (``@kernel(python=f)``): the same array arguments as the kernel."""
+    return {
+        kw.value.id
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call) and ast.unparse(node.func).split(".")[-1] in KERNEL_DECORATORS
+        for kw in node.keywords
+        if kw.arg == "python" and isinstance(kw.value, ast.Name)
+    }
+
+
 def parameter_counts() -> dict[str, int]:
-    """Parameters of every function and method of the package (kernels aside)."""
+    """Parameters of every function and method of the package (kernels and their
+    interpreted forms aside)."""
     out: dict[str, int] = {}
+    twins: set[str] = set()
 
     def visit(nodes: list[ast.stmt], prefix: str) -> None:
         for node in nodes:
             if isinstance(node, ast.ClassDef):
                 visit(node.body, f"{prefix}{node.name}.")
             elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                if not _is_kernel(node):
+                if not _is_kernel(node) and node.name not in twins:
                     a = node.args
                     names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)]
                     if names and names[0] in ("self", "cls"):
@@ -278,7 +296,9 @@ def parameter_counts() -> dict[str, int]:
                 visit(node.body, f"{prefix}{node.name}.")
 
     for path in PKG.rglob("*.py"):
-        visit(ast.parse(path.read_text()).body, f"{module_name(path)}.")
+        tree = ast.parse(path.read_text())
+        twins = _interpreted_twins(tree)
+        visit(tree.body, f"{module_name(path)}.")
     return out
 
 
