@@ -24,6 +24,7 @@ them with their settings and tuning grids):
 ``acp``            adaptive conformal prediction regions (when registered)
 ``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
 ``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
 
@@ -386,7 +387,7 @@ _DECLARED: tuple[Family, ...] = (
         label="margin={:g}m",
         meaning="margin (m)",
         settings=(0.0, 0.25, 0.5),
-        tune=(0.0, 0.25, 0.5),
+        tune=(0.0, 0.1, 0.25, 0.5, 1.0),
         reference=True,
         learn=False,
         roles={"decision_family": "mpc"},
@@ -404,6 +405,15 @@ _DECLARED: tuple[Family, ...] = (
         params={"eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
         roles={"decision_family": "mpc"},
         role_params={"decision_family": MPC_SEARCH},
+    ),
+    Family(
+        "oracle_mpc",
+        "sampling MPC planning with the true future (oracle predictor), margin 0, no "
+        "learning: what perfect prediction gives the MPC",
+        learn=False,
+        predictor="oracle",
+        roles={"decision_family": "mpc"},
+        role_params={"decision_family": {**MPC_SEARCH, "margin": 0.0}},
     ),
     Family(
         "acp_mpc",

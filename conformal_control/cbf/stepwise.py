@@ -297,8 +297,11 @@ class StepwiseCBF:
     def step(self, ego_state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
         """The safe velocity (m/s) at control time ``t`` for ego state (x, y, vx, vy)."""
         x = np.asarray(ego_state, dtype=float)
-        if x.shape != (4,) or not np.isfinite(x).all():
-            raise InputError(f"ego_state must be 4 finite numbers (x, y, vx, vy), got {x}")
+        if x.shape != (self.state_dim,) or not np.isfinite(x).all():
+            raise InputError(
+                f"ego_state must be {self.state_dim} finite numbers (x, y, vx, vy"
+                f"{', ...' if self.state_dim > 4 else ''}), got {x}"
+            )
         g = np.asarray(goal, dtype=float)
         if g.shape != (2,) or not np.isfinite(g).all():
             raise InputError(f"goal must be 2 finite numbers (x, y) in m, got {g}")
@@ -378,6 +381,11 @@ class StepwiseCBF:
         return self.stepper.result()
 
     # ------------------------------------------------------------------ state
+    @property
+    def state_dim(self) -> int:
+        """Numbers in the ego state :meth:`step` takes: (x, y, vx, vy)."""
+        return 4
+
     @property
     def lam(self) -> float:
         """The lambda decisions are taken with now (1/s)."""

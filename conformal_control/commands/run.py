@@ -679,14 +679,9 @@ def _run_multi(
     out: Path | None = None,
 ) -> int:
     """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
-    from ..exceptions import InputError
     from ..sim.multi import load_robots_file, run_multi
 
     roles = dict(roles)
-    family, family_params = roles.pop("family", None), roles.pop("family_params", None)
-    if family or family_params:
-        raise InputError("--robots runs the CBF family only: drop --family / --family-param")
-
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:
         if args.robot_layout != "scene" or args.radius is not None or args.center is not None:

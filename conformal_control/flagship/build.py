@@ -359,7 +359,20 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         fam_defaults = dict(getattr(fam_cls, "default_rule_params", {}))
         own = {k: v for k, v in fam_defaults.items() if k not in resolved.given}
         if own:
-            rule_resolved = dataclasses.replace(resolved, si={**si, **own})
+            # the run's parameters are these (config.json, metrics): lambda's unit is the
+            # family's in the scene's units too (a length or a level, not a rate)
+            rule_resolved = dataclasses.replace(
+                resolved,
+                si={**si, **own},
+                scene_units={**resolved.scene_units, **own},
+                notes=[
+                    *resolved.notes,
+                    f"{', '.join(sorted(own))}: the {fam_name} family's defaults "
+                    f"({', '.join(f'{k}={v:g}' for k, v in sorted(own.items()))}), not the "
+                    "scene's (which are the CBF's)",
+                ],
+            )
+            resolved = rule_resolved
     if isinstance(rule, str):
         # an MPC family's lambda is a length or a level, never in the scene's time unit
         lam_unit = 1.0 if units == "si" or planning else scene.units.factor("lambda_init")
@@ -368,9 +381,9 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         rule_obj = FixedEtaRule(
             epsilon=rule_resolved.si["epsilon"],
             eta=rule_resolved.si["eta"],
-            lambda_init=si["lambda_init"],
-            lambda_min=si["lambda_min"],
-            lambda_max=si["lambda_max"],
+            lambda_init=rule_resolved.si["lambda_init"],
+            lambda_min=rule_resolved.si["lambda_min"],
+            lambda_max=rule_resolved.si["lambda_max"],
         )
     else:
         if rule_params:

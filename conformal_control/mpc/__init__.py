@@ -15,6 +15,7 @@ from .acp import ACPMPC, ACPMPCIntervalRecord, PlanMiscoverageLoss
 from .controller import FALLBACKS, MPCIntervalRecord, Plan, SamplingMPC
 from .ecp import ECPMPC, ECPMPCIntervalRecord, EgocentricMiscoverageLoss
 from .kernels import evaluate
+from .stepwise import StepwiseMPC
 
 __all__ = [
     "ACPMPC",
@@ -27,5 +28,6 @@ __all__ = [
     "Plan",
     "PlanMiscoverageLoss",
     "SamplingMPC",
+    "StepwiseMPC",
     "evaluate",
 ]

@@ -49,9 +49,12 @@ class PredictionQuery:
     ground_truth : ndarray of shape (N, horizon, 2) or None
         The true future, when the caller already has it (tests, replayed series).
     truth_provider : callable or None
-        ``truth_provider() -> (N, horizon, 2)``: computes the true future on demand. An
+        ``truth_provider(horizon) -> (N, horizon, 2)``: computes the true future over
+        ``horizon`` samples on demand (NaN where an agent is not in the data). An
         environment that replays recorded data attaches one to every query; only the
-        oracle baseline calls it (:meth:`future`).
+        oracle baseline calls it (:meth:`future`). It takes the horizon because a
+        decision family may ask further ahead than the environment's interval (a plan's
+        horizon: ``dataclasses.replace(query, horizon=...)`` keeps the provider).
     robot : ndarray of shape (N,) or None
         The agent type the sensor reports: True for an agent it identifies as a robot (in a
         multi-robot world), False for a pedestrian; None when the sensor does not tell
@@ -67,7 +70,9 @@ class PredictionQuery:
     frame: int = 0
     scene: str = ""
     ground_truth: np.ndarray | None = None
-    truth_provider: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
+    truth_provider: Callable[[int], np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
     robot: np.ndarray | None = None
 
     @property
@@ -99,8 +104,8 @@ class PredictionQuery:
         sub_provider = None
         if truth is None and provider is not None:
 
-            def sub_provider() -> np.ndarray:
-                out: np.ndarray = np.asarray(provider())[idx]
+            def sub_provider(horizon: int) -> np.ndarray:
+                out: np.ndarray = np.asarray(provider(horizon))[idx]
                 return out
 
         return PredictionQuery(
@@ -121,22 +126,47 @@ class PredictionQuery:
         """Positions at the sampling time, shape (N, 2)."""
         return self.history[:, -1, :]
 
-    def future(self) -> np.ndarray:
+    def future(self, horizon: int | None = None) -> np.ndarray:
         """The true future positions, shape (N, horizon, 2) (NaN where unobserved).
+
+        Parameters
+        ----------
+        horizon : int, optional
+            Samples wanted (default: the query's ``horizon``). A ``ground_truth`` shorter
+            than that is NaN-padded (the future beyond it is unknown).
 
         Raises
         ------
         TruthUnavailableError
             If the query carries neither ``ground_truth`` nor a ``truth_provider``.
+        ValueError
+            If ``horizon`` is negative, or the provider returns another shape.
         """
+        h = int(self.horizon if horizon is None else horizon)
+        if h < 0:
+            raise ValueError(f"the horizon of the true future must be >= 0, got {horizon!r}")
         if self.ground_truth is not None:
-            return self.ground_truth
+            gt = np.asarray(self.ground_truth, dtype=float)
+            if gt.ndim != 3 or gt.shape[0] != self.n_agents or gt.shape[2] != 2:
+                raise ValueError(
+                    f"ground_truth has shape {gt.shape}; expected ({self.n_agents}, horizon, 2)"
+                )
+            if gt.shape[1] >= h:
+                return gt[:, :h]
+            pad = np.full((gt.shape[0], h - gt.shape[1], 2), np.nan)
+            return np.concatenate([gt, pad], axis=1)
         if self.truth_provider is None:
             raise TruthUnavailableError(
                 "this environment cannot reveal the future of the sensed agents "
                 "(the oracle predictor needs replayed data)"
             )
-        return self.truth_provider()
+        out = np.asarray(self.truth_provider(h), dtype=float)
+        if out.shape != (self.n_agents, h, 2):
+            raise ValueError(
+                f"truth_provider({h}) returned shape {out.shape}; expected "
+                f"({self.n_agents}, {h}, 2)"
+            )
+        return out
 
 
 @dataclass

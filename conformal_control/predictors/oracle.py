@@ -12,11 +12,18 @@ __all__ = ["OraclePredictor"]
 class OraclePredictor(Predictor):
     """Ground-truth future of each sensed agent (the "gt/noLearn" baseline).
 
-    Reads the true future through :meth:`PredictionQuery.future` (replaying
-    environments attach it to every query; a reactive crowd cannot, and the oracle then
-    raises :class:`~conformal_control.predictors.base.TruthUnavailableError`). Where the
-    true future is unknown (the agent leaves the data) the forecast is NaN and the
-    controller holds the agent at its last known position (a counted fallback).
+    Reads the true future over the query's horizon through
+    :meth:`PredictionQuery.future` (replaying environments attach it to every query, for
+    any horizon: the CBF's interval or an MPC's whole plan; a reactive crowd cannot, and
+    the oracle then raises :class:`~conformal_control.predictors.base.TruthUnavailableError`).
+
+    **Agents who leave the data.** Where the true future is unknown -- the agent's track
+    ends within the horizon (it walks out of the recorded area, its annotation stops, or
+    the scene's data ends) -- the forecast is NaN from there on. Every decision family
+    then holds the agent at its last known position for the rest of the horizon, and
+    counts the agents concerned in ``n_nonfinite_predictions`` (the metrics of the run):
+    the same rule as for any predictor's non-finite forecast, and what the compiled
+    engine does with the oracle.
     """
 
     #: the compiled engine runs this class as compiled code

@@ -283,12 +283,15 @@ class DelayedPredictor(ShiftedPredictor):
                 seen = np.flatnonzero(_finite_rows(hist[i][None])[0])
                 widened[i, -1] = hist[i, seen[0]] if seen.size else hist[i, -1]
             old = widened
-        truth: Callable[[], np.ndarray] | None = None
+        truth: Callable[[int], np.ndarray] | None = None
         if query.ground_truth is not None or query.truth_provider is not None:
 
-            def truth() -> np.ndarray:  # the true future of t - delay
-                ahead = np.concatenate([hist[:, T - k :], query.future()], axis=1)
-                out: np.ndarray = ahead[:, : query.horizon]
+            def truth(horizon: int) -> np.ndarray:  # the true future of t - delay
+                known = hist[:, T - k :][:, :horizon]  # t - delay + 1 .. t: observed
+                rest = horizon - known.shape[1]
+                if rest <= 0:
+                    return known
+                out: np.ndarray = np.concatenate([known, query.future(rest)], axis=1)
                 return out
 
         delayed = PredictionQuery(

@@ -21,7 +21,10 @@ A run configuration has these keys (all optional except ``scene``):
 ``scene``, ``predictor`` (registered name, default ``constant_velocity``),
 ``predictor_params`` (dict; a key ``predictor_params.NAME`` in a grid sets one entry),
 ``learn`` (default true; false = the noLearn baseline), ``seed`` (default 0), ``frames``
-(limit on simulated frames, default none), ``data_root``, ``label`` (free text), and any
+(limit on simulated frames, default none), ``data_root``, ``label`` (free text), the
+settings of the run specification in :data:`EPISODE_KEYS` (roles by name, ``family``
+and ``family_params``, ``rule_params``, ``crowd``, ...; a key
+``family_params.NAME``, ``rule_params.NAME``, ... sets one entry of that dict), and any
 controller parameter of :data:`conformal_control.flagship.params.PARAMETERS` (``epsilon``,
 ``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
 
@@ -85,6 +88,9 @@ EPISODE_KEYS: tuple[str, ...] = (
 #: Keys that do not enter the run key.
 UNHASHED_KEYS = ("label", "data_root", "meta")
 _PP = "predictor_params."
+#: Episode keys holding a dict of a role's parameters: ``family_params.NAME`` (a dotted
+#: key, e.g. a grid axis) sets one entry, as ``predictor_params.NAME`` does.
+_NESTED = tuple(k for k in EPISODE_KEYS if k.endswith("_params"))
 
 
 def _canonical(value: Any) -> Any:
@@ -184,14 +190,24 @@ class RunConfig:
         params = dict(flat.pop("params", None) or {})
         for k in [k for k in flat if k.startswith(_PP)]:
             pp[k[len(_PP) :]] = flat.pop(k)
+        nested: dict[str, dict[str, Any]] = {}
+        for k in [k for k in flat if k.split(".", 1)[0] in _NESTED and "." in k]:
+            head, name = k.split(".", 1)
+            nested.setdefault(head, {})[name] = flat.pop(k)
         reserved = {k: flat.pop(k) for k in RESERVED_KEYS if k in flat}
         episode = dict(flat.pop("episode", None) or {})
         episode.update({k: flat.pop(k) for k in EPISODE_KEYS if k in flat})
+        for head, entries in nested.items():
+            given = episode.get(head)
+            if given is not None and not isinstance(given, Mapping):
+                raise ValueError(f"'{head}' must be a mapping, got {given!r}")
+            episode[head] = {**(given or {}), **entries}
         unknown = sorted(k for k in flat if k not in PARAMETERS)
         if unknown:
             raise ValueError(
                 f"unknown sweep key(s) {', '.join(unknown)}; use {', '.join(RESERVED_KEYS)}, "
-                f"'predictor_params.NAME' or a controller parameter ({', '.join(PARAMETERS)})"
+                f"'predictor_params.NAME', {', '.join(EPISODE_KEYS)} ('family_params.NAME' "
+                f"and the like set one entry) or a controller parameter ({', '.join(PARAMETERS)})"
             )
         params.update(flat)
         if not reserved.get("scene"):

@@ -529,11 +529,11 @@ class MultiRobotWorld:
         tau = self.tau_frames
         if self.crowd is None:
 
-            def future() -> np.ndarray:
+            def future(horizon: int) -> np.ndarray:
                 # the robots' futures are not known at the sampling time: NaN (the
                 # oracle's convention for an unknown future)
-                out = np.full((ped.size + rob.size, tau, 2), np.nan)
-                out[: ped.size] = self._ped_window(fi + 1, fi + 1 + tau, ped)
+                out = np.full((ped.size + rob.size, horizon, 2), np.nan)
+                out[: ped.size] = self._ped_window(fi + 1, fi + 1 + horizon, ped)
                 return out
 
         else:
@@ -683,7 +683,7 @@ class MultiRobotWorld:
             self._world_done = True
 
 
-def _no_future() -> np.ndarray:
+def _no_future(horizon: int) -> np.ndarray:
     raise TruthUnavailableError(
         "the future of this query is not known at the sampling time: its pedestrians "
         "react to the robots (the oracle predictor needs crowd='replay')"

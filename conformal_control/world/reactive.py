@@ -45,7 +45,7 @@ __all__ = [
 DEFAULT_MIXED_RADIUS = 5.0
 
 
-def _no_future() -> np.ndarray:
+def _no_future(horizon: int) -> np.ndarray:
     raise TruthUnavailableError(
         "the pedestrians of a reactive crowd respond to the robot, so their future is not "
         "known at the sampling time (the oracle predictor needs crowd='replay')"

@@ -222,7 +222,7 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
             t=self._t,
             frame=sc.first_frame + fi,
             scene=sc.name,
-            truth_provider=lambda: self._window(fi + 1, fi + 1 + self.tau_frames, idx),
+            truth_provider=lambda horizon: self._window(fi + 1, fi + 1 + horizon, idx),
         )
 
     def control_instants(self) -> int:

@@ -1,5 +1,5 @@
 """The MPC families run where the CBF family runs: run_episode, cc.run, the CLI, the
-bench's methods, reactive crowds, a unicycle robot."""
+bench's methods and shifts, sweeps, reactive crowds, several robots, a unicycle robot."""
 
 from __future__ import annotations
 
@@ -152,7 +152,7 @@ def test_cli_rejects_an_unknown_family_in_one_line(capsys):
 
 
 def test_bench_methods_run_the_mpc_families(scene):
-    for m in expand_methods(["mpc", "cc_mpc", "acp_mpc", "ecp_mpc"]):
+    for m in expand_methods(["mpc", "cc_mpc", "oracle_mpc", "acp_mpc", "ecp_mpc"]):
         kw = m.run_kwargs()
         kw["family_params"] = {**kw.get("family_params", {}), **FAST}
         res = run_episode(scene, max_frames=30, record_animation=False, **kw)
@@ -160,9 +160,123 @@ def test_bench_methods_run_the_mpc_families(scene):
         assert math.isfinite(res.metrics["lambda_final"])
 
 
-def test_several_robots_refuse_another_family_in_one_line(capsys):
+def test_several_robots_run_the_mpc_family(tmp_path, capsys):
+    # run --robots with --family mpc: two planners swapping places on the crossing scene
+    # keep their sides of the shared lines (reciprocity) and both arrive
     from conformal_control.cli import main
 
-    assert main(["run", "--robots", "2", "--family", "mpc", "--frames", "5"]) != 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--robots runs the CBF family only" in err[0]
+    out = tmp_path / "fleet"
+    args = ["run", "--robots", "2", "--family", "mpc", "--frames", "150", "--no-plot"]
+    for kv in ("n_samples=60", "horizon=6", "replan_every=2"):
+        args += ["--family-param", kv]
+    assert main([*args, "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["decision_family"]["name"] == "mpc"
+    assert config["decision_family"]["params"]["n_samples"] == 60
+    assert config["reciprocity"]["modes"] == ["reciprocal", "reciprocal"]
+    fleet = json.loads((out / "metrics.json").read_text())["fleet"]
+    assert fleet["n_collide_robot_pairs"] == 0 and fleet["success_rate"] == 1.0
+    assert fleet["d_min_robot"] >= 2 * config["params"]["si"]["robot_radius"]
+    robots = json.loads((out / "metrics.json").read_text())["robots"]
+    assert [r["eta"] for r in robots] == [0.2, 0.2]  # the mpc family's rule
+
+
+def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
+    import csv
+
+    from conformal_control.sweep import SweepSpec, run_sweep
+
+    spec = SweepSpec(
+        base={
+            "scene": "crossing",
+            "frames": 30,
+            "family": "mpc",
+            "family_params": {"n_samples": 40, "replan_every": 2},
+            "units": "si",
+        },
+        grid={"family_params.horizon": [4, 6], "epsilon": [0.05, 0.2]},
+    )
+    runs = spec.expand()
+    assert len(runs) == 4
+    assert runs[0].episode["family_params"] == {"n_samples": 40, "replan_every": 2, "horizon": 4}
+    report = run_sweep(spec, tmp_path / "sw", "serial", plot=False, progress=False)
+    assert not report.failed and len(report.ran) == 4
+    with (tmp_path / "sw" / "results.csv").open() as fh:
+        table = list(csv.DictReader(fh))
+    assert {r["episode.family"] for r in table} == {"mpc"}
+    assert {json.loads(r["episode.family_params"])["horizon"] for r in table} == {4, 6}
+    assert {float(r["param.epsilon"]) for r in table} == {0.05, 0.2}
+    for r in table:
+        config = json.loads((tmp_path / "sw" / r["run_dir"] / "config.json").read_text())
+        fam = config["decision_family"]
+        assert fam["name"] == "mpc" and fam["params"]["n_samples"] == 40
+        assert fam["params"]["horizon"] == json.loads(r["episode.family_params"])["horizon"]
+        assert config["engine"] == "loop" and float(r["n_steps"]) > 0
+
+
+def test_a_dotted_family_parameter_needs_a_mapping():
+    from conformal_control.sweep import SweepSpec
+
+    spec = SweepSpec(base={"scene": "crossing", "family_params": 3}, grid={"family_params.x": [1]})
+    with pytest.raises(ValueError, match="'family_params' must be a mapping, got 3"):
+        spec.expand()
+
+
+def test_the_metrics_report_the_family_defaults_the_rule_uses(scene):
+    # the scene's epsilon and eta are the CBF's; the mpc family's own apply (and are reported)
+    res = run_episode(
+        scene, family="mpc", family_params=FAST, max_frames=30, record_animation=False
+    )
+    rule = res.config["rule"]["params_si"]
+    assert (rule["epsilon"], rule["eta"], rule["lambda_min"]) == (0.1, 0.2, -1.0)
+    assert res.metrics["epsilon"] == 0.1 and res.metrics["eta"] == 0.2
+    assert res.config["params"]["si"]["epsilon"] == 0.1
+    assert scene.defaults["epsilon"] != 0.1  # the scene's value is another
+    given = run_episode(
+        scene,
+        family="mpc",
+        family_params=FAST,
+        params={"epsilon": 0.3},
+        units="si",
+        max_frames=30,
+        record_animation=False,
+    )
+    assert given.metrics["epsilon"] == given.config["rule"]["params_si"]["epsilon"] == 0.3
+
+
+@pytest.mark.parametrize(
+    ("shift", "crowd", "predictor"),
+    [("delay-0.5s", "replay", "delayed"), ("nominal", "social_force", "constant_velocity")],
+)
+def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
+    tmp_path, data_root, shift, crowd, predictor
+):
+    from conformal_control.bench.runner import run_bench
+
+    run = run_bench(
+        tmp_path / "b",
+        suite="crossings-v1",
+        split="test",
+        methods=["cc_mpc", "mpc"],
+        grids={"mpc": [0.0]},
+        shifts=[shift],
+        tuned=None,
+        crowd=crowd,
+        limit=1,
+        executor="serial",
+        data_root=str(data_root),
+        progress=False,
+    )
+    assert run.failed == 0 and run.ran == 2
+    rows = [json.loads(line) for line in (tmp_path / "b" / "results.jsonl").open()]
+    assert {r["status"] for r in rows} == {"ok"}
+    for r in rows:
+        config = json.loads((tmp_path / "b" / r["run_dir"] / "config.json").read_text())
+        assert config["decision_family"]["name"] == "mpc"
+        assert config["predictor"]["name"] == predictor
+        assert config["crowd"]["crowd"] == crowd
+        if predictor == "delayed":
+            assert config["predictor"]["params"]["delay_s"] == 0.5
+        # cc_mpc learns its distance, mpc[margin=0m] keeps lambda at 0
+        learned = r["metrics"]["n_updates"] > 0
+        assert learned == ("cc_mpc" in r["run_dir"])

@@ -1,0 +1,242 @@
+"""A sampling-MPC family for your own simulator or robot, one call at a time.
+
+:class:`StepwiseMPC` is :class:`~conformal_control.cbf.stepwise.StepwiseCBF` with a
+planning decision family (``mpc``, ``acp_mpc``, ``ecp_mpc``) in place of the CBF
+controller: the same calls, the same input contract, the same timing::
+
+    ctrl = StepwiseMPC(family="mpc", tau=0.4, dt=0.1, substeps=4)
+    for k in range(n_samples):                    # sensor samples, every dt seconds
+        ctrl.observe(ids, positions, t=k * dt)    # agents seen at this sample (m)
+        for j in range(ctrl.substeps):            # control instants, every dt/substeps
+            u = ctrl.step(ego_state, t=k * dt + j * ctrl.dt_control, goal=goal)
+            ego_state = my_robot.apply(u)
+
+:meth:`~StepwiseMPC.step` returns the plant's command (a velocity in m/s for the default
+``velocity_tracking`` plant; (v, omega) for the ``unicycle``), and takes the plant's
+state (``dynamics.state_dim`` numbers: x, y, vx, vy, and the heading for a unicycle).
+Every ``tau`` seconds the interval that ends is scored with the family's loss on the
+samples observed since (``distance_shortfall`` for ``mpc``, the miscoverage of its
+regions for ``acp_mpc`` and ``ecp_mpc``) and lambda updated; the predictor forecasts the
+sensed agents over the plan's horizon. The rule's ``epsilon``, ``eta`` and
+``lambda_min`` default to the family's (as in a run), not the CBF's.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .. import registry
+from ..base import DecisionFamily, Loss, UpdateRule
+from ..cbf.controller import ConformalCBFController
+from ..cbf.reference import AttractiveField
+from ..cbf.roles import Dynamics, ReferenceController
+from ..cbf.stepwise import StepwiseCBF
+from ..exceptions import InputError
+from ..loop import ConformalStepper
+from ..predictors.base import Predictor
+from ..update_rules.base import check_epsilon, check_finite, check_positive
+
+__all__ = ["StepwiseMPC"]
+
+
+def _number(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    return check_finite(name, float(value))
+
+
+class StepwiseMPC(StepwiseCBF):
+    """A conformal sampling-MPC family driven by your own loop (SI units throughout).
+
+    Parameters
+    ----------
+    predictor : Predictor or str
+        A predictor instance or a registered name.
+    family : str or DecisionFamily
+        A registered planning family (``mpc``, ``acp_mpc``, ``ecp_mpc``), or an instance
+        of one (then ``family_params`` must be empty and its own settings apply).
+    family_params : dict, optional
+        The family's parameters (``n_samples``, ``horizon``, ``dt_plan``, ``margin``, ...).
+    dynamics : Dynamics or str
+        The plant the family plans with (a registered name or an instance).
+    dynamics_params : dict, optional
+        Parameters of a plant given by name.
+    reference : ReferenceController, optional
+        The reference the family seeds its samples with; default the attractive field
+        with ``K_att`` and ``v_max``.
+    rule : UpdateRule, optional
+        Default: the fixed-step rule with ``epsilon``, ``eta``, ``lambda_init``,
+        ``lambda_min``, ``lambda_max``.
+    loss : Loss, optional
+        Default: the family's own loss (``distance_shortfall`` with a safety distance
+        1 m beyond ``d_c`` for ``mpc``).
+    epsilon, eta, lambda_min : float, optional
+        The rule's target, step and floor; default the family's (for ``mpc``: 0.1, 0.2 m,
+        -1 m). ``epsilon`` lies strictly inside the loss's range.
+    lambda_init, lambda_max : float
+        lambda_1 and the ceiling, in the family's unit (m for ``mpc``, a level for the
+        others).
+    tau, dt, substeps, sensing_radius, history
+        As for :class:`~conformal_control.cbf.stepwise.StepwiseCBF`.
+    d_c : float
+        Collision distance robot-agent, centre to centre (m).
+    margin : float
+        Extra distance the family keeps (m), unless ``family_params`` sets it.
+    v_max, K_att : float
+        Speed bound (m/s) and the default reference's gain (1/s).
+    seed : int
+        The family's random state (its sampled plans).
+    """
+
+    def __init__(
+        self,
+        predictor: Predictor | str = "constant_velocity",
+        *,
+        family: str | DecisionFamily[Any, Any, Any, Any] = "mpc",
+        family_params: dict[str, Any] | None = None,
+        dynamics: Dynamics | str = "velocity_tracking",
+        dynamics_params: dict[str, Any] | None = None,
+        reference: ReferenceController | None = None,
+        rule: UpdateRule | None = None,
+        loss: Loss[Any, Any] | None = None,
+        epsilon: float | None = None,
+        eta: float | None = None,
+        lambda_init: float = 0.0,
+        lambda_min: float | None = None,
+        lambda_max: float = math.inf,
+        tau: float = 0.4,
+        dt: float = 0.1,
+        substeps: int = 4,
+        d_c: float = 1.0,
+        margin: float = 0.0,
+        v_max: float = 2.0,
+        K_att: float = 1.0,
+        sensing_radius: float = 10.0,
+        history: int = 40,
+        seed: int = 0,
+    ) -> None:
+        for name, value in (
+            ("tau", tau),
+            ("dt", dt),
+            ("sensing_radius", sensing_radius),
+            ("v_max", v_max),
+            ("K_att", K_att),
+        ):
+            check_positive(name, _number(name, value))
+        check_positive("d_c", _number("d_c", d_c), allow_zero=True)
+        _number("margin", margin)
+        tau_samples = tau / dt
+        if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
+            raise ValueError(f"tau ({tau} s) must be a whole number of samples of dt ({dt} s)")
+        if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        if isinstance(history, bool) or int(history) != history or history < 1:
+            raise ValueError(f"history must be a positive integer, got {history!r}")
+
+        pred: Predictor = (
+            registry.create("predictor", predictor) if isinstance(predictor, str) else predictor
+        )
+        plant: Dynamics = (
+            registry.create("dynamics", dynamics, **(dynamics_params or {}))
+            if isinstance(dynamics, str)
+            else dynamics
+        )
+        if not isinstance(dynamics, str) and dynamics_params:
+            raise ValueError("dynamics_params apply to a plant given by name, not to an instance")
+        ref = reference if reference is not None else AttractiveField(K_att, v_max)
+        policy: DecisionFamily[Any, Any, Any, Any]
+        if isinstance(family, str):
+            cls = registry.get("decision_family", family)
+            if issubclass(cls, ConformalCBFController) or "dynamics" not in cls._param_names():
+                raise InputError(
+                    f"StepwiseMPC runs a planning family (one taking a predictor and a plant, "
+                    f"as mpc, acp_mpc, ecp_mpc do), not {family!r}; use StepwiseCBF for the CBF"
+                )
+            registry.check_params("decision_family", family, cls, dict(family_params or {}))
+            context = {
+                "predictor": pred,
+                "dynamics": plant,
+                "reference": ref,
+                "d_c": d_c,
+                "margin": margin,
+                "v_max": v_max,
+                "substeps": int(substeps),
+                "random_state": seed,
+                **(family_params or {}),
+            }
+            accepted = set(cls._param_names())
+            policy = cls(**{k: v for k, v in context.items() if k in accepted})
+        elif isinstance(family, DecisionFamily):
+            if family_params:
+                raise ValueError(
+                    "family_params apply to a family given by name, not to an instance"
+                )
+            policy = family
+        else:
+            raise InputError(
+                f"family must be a registered name or a DecisionFamily, got {family!r}"
+            )
+        fam_substeps = getattr(policy, "substeps", int(substeps))
+        if fam_substeps != substeps:
+            raise ValueError(
+                f"the family plans with substeps={fam_substeps}, the stream has "
+                f"substeps={substeps}: give the same number of control instants per sample"
+            )
+
+        if loss is None:
+            name = str(getattr(policy, "default_loss", "distance_shortfall"))
+            lcls = registry.get("loss", name)
+            lctx = {"d_safe": d_c + 1.0, "d_c": d_c}
+            accepted = set(lcls._param_names()) if hasattr(lcls, "_param_names") else set()
+            loss = registry.create("loss", name, **{k: v for k, v in lctx.items() if k in accepted})
+        defaults = dict(getattr(policy, "default_rule_params", {}))
+        if rule is None:
+            eps = _number("epsilon", defaults.get("epsilon", 0.0) if epsilon is None else epsilon)
+            step = _number("eta", defaults.get("eta", 1.0) if eta is None else eta)
+            check_positive("eta", step, allow_zero=True)
+            floor = defaults.get("lambda_min", -math.inf) if lambda_min is None else lambda_min
+            check_epsilon(eps, loss.bounds)
+            from ..update_rules import FixedEtaRule
+
+            rule = FixedEtaRule(
+                epsilon=eps,
+                eta=step,
+                lambda_init=check_finite("lambda_init", lambda_init),
+                lambda_min=float(floor),
+                lambda_max=float(lambda_max),
+            )
+            learn = step > 0
+        else:
+            target = getattr(rule, "epsilon", None)
+            if target is not None:
+                check_epsilon(target, loss.bounds)
+            learn = True
+
+        # the stream (StepwiseCBF's observe/step/finish read these)
+        self.dt = float(dt)
+        self.substeps = int(substeps)
+        self.dt_control = self.dt / self.substeps
+        self.tau_samples = round(tau_samples)
+        self.sensing_radius = float(sensing_radius)
+        self.history = int(history)
+        self.dynamics = plant
+        self.planner = policy
+        self.stepper = ConformalStepper(policy, loss, rule, learn=learn)
+        self.stepper.start()
+        self._samples: dict[int, dict[int, np.ndarray]] = {}
+        self._latest: int | None = None
+        self._start: int | None = None
+        self._sensed = np.zeros(0, dtype=np.int64)
+        self._step = 0
+
+    @property
+    def state_dim(self) -> int:
+        """Numbers in the ego state :meth:`step` takes (the plant's state)."""
+        return int(self.dynamics.state_dim)
+
+    def stats(self) -> dict[str, float]:
+        """Counters of the family (plans, infeasible steps, fallbacks)."""
+        return self.planner.stats()
