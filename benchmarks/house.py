@@ -161,7 +161,7 @@ def _is_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
     for d in fn.decorator_list:
         name = d.func if isinstance(d, ast.Call) else d
         text = ast.unparse(name)
-        if text.split(".")[-1] in ("jit", "njit", "vectorize", "guvectorize"):
+        if text.split(".")[-1] in ("jit", "njit", "vectorize", "guvectorize", "kernel"):
             return True
     return False
 
@@ -173,13 +173,23 @@ def parameter_lists(files: list[Path], kernels: bool = False) -> list[tuple[int,
     for path in files:
         mod = module_name(path)
         tree = ast.parse(path.read_text())
+        # a kernel's interpreted form (@kernel(python=f)) counts as the kernel
+        twins = {
+            kw.value.id
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Call) and ast.unparse(n.func).split(".")[-1] == "kernel"
+            for kw in n.keywords
+            if kw.arg == "python" and isinstance(kw.value, ast.Name)
+        }
 
-        def visit(nodes: list[ast.stmt], prefix: str, mod: str = mod) -> None:
+        def visit(
+            nodes: list[ast.stmt], prefix: str, mod: str = mod, twins: set[str] = twins
+        ) -> None:
             for node in nodes:
                 if isinstance(node, ast.ClassDef):
                     visit(node.body, f"{prefix}{node.name}.")
                 elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                    if _is_kernel(node) != kernels:
+                    if (_is_kernel(node) or node.name in twins) != kernels:
                         continue
                     a = node.args
                     names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)]

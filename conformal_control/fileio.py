@@ -107,5 +107,16 @@ def atomic_write_json(
 
     The text is made before anything touches the disk, so an object that cannot be
     serialised leaves no file behind.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file written (replaced whole, never left half-written).
+    obj : Any
+        What :func:`json.dumps` serialises.
+    indent : int, optional
+        JSON indentation (None: one line).
+    **kwargs
+        Further arguments of :func:`json.dumps` (e.g. ``default``, ``sort_keys``).
     """
     atomic_write_text(path, json.dumps(obj, indent=indent, **kwargs) + "\n")

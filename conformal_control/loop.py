@@ -191,7 +191,25 @@ class ConformalStepper:
             stepper.end_interval(truth)                 # at the next sampling time
         result = stepper.result()
 
-    Parameters are those of :class:`ConformalLoop` without the environment.
+    Parameters
+    ----------
+    policy : DecisionFamily
+        The decision family D^lambda (e.g. the conformal CBF controller).
+    loss : Loss
+        Scores an interval once its truth is revealed, with the lambda used during it.
+    rule : UpdateRule
+        Turns losses into the next lambda.
+    learn : bool
+        If False, lambda stays at its initial value (losses are still computed).
+    lambda_safe : float, optional
+        A lambda known (or estimated) to make the decisions safe (see
+        :class:`ConformalLoop`).
+    lambda_safe_source : str, optional
+        Where ``lambda_safe`` came from, reported with the verdict.
+    lambda_safe_proven : bool
+        lambda <= lambda_safe provably keeps the loss <= epsilon for this family.
+    on_interval : callable, optional
+        Called with each :class:`IntervalLog` as soon as the interval is scored.
     """
 
     def __init__(

@@ -89,6 +89,24 @@ class Progress:
 
     ``update(n)`` advances it, ``set_postfix(text)`` sets a short status shown after the
     counts (e.g. the current lambda), ``close()`` (or leaving the ``with`` block) ends it.
+
+    Parameters
+    ----------
+    total : float or None
+        Units of the whole work (None if unknown).
+    desc : str
+        What is progressing.
+    unit : str
+        What is counted, plural.
+    delay : float, optional
+        Seconds before anything is shown; default :data:`DELAY`.
+    every : float, optional
+        Seconds between two plain lines when the stream is not a terminal; default
+        :data:`EVERY`.
+    leave : bool
+        Keep the finished bar on screen (terminal mode).
+    stream : TextIO, optional
+        Where the report goes (default ``sys.stderr``).
     """
 
     def __init__(
@@ -222,7 +240,19 @@ def track(
     items: Collection[T], desc: str, unit: str = "items", *, enabled: bool = True
 ) -> Iterator[T]:
     """Iterate over ``items`` with a :func:`progress` report (a bar on a terminal, plain
-    lines in a log file); ``enabled=False`` reports nothing."""
+    lines in a log file).
+
+    Parameters
+    ----------
+    items : Collection
+        What is iterated over (its length is the report's total).
+    desc : str
+        What is progressing.
+    unit : str
+        What is counted, plural.
+    enabled : bool
+        False: no report, the items only.
+    """
     if not enabled:
         yield from items
         return

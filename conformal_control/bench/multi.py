@@ -46,7 +46,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -55,6 +55,9 @@ from .methods import Method, available
 from .runner import load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
+
+if TYPE_CHECKING:
+    from ..spec import RunSpec
 
 __all__ = [
     "LAYOUTS",
@@ -516,6 +519,56 @@ class MultiBenchRun:
         )
 
 
+def multi_bench_base(
+    base: RunSpec | None,
+) -> tuple[str, int, str, str, dict[str, Any]]:
+    """What the multi-robot benchmark takes from its base run specification:
+    ``(predictor, seed, information, lambda_scope, options)``.
+
+    The suite places the robots and the methods set the rest, so a base that sets more is
+    a one-line error rather than silently overridden.
+
+    Parameters
+    ----------
+    base : RunSpec, optional
+        None: the constant-velocity predictor, seed 0, the robots section's defaults.
+    """
+    from ..exceptions import InputError
+    from ..spec import Robots, RunSpec
+
+    if base is None:
+        base = RunSpec()
+    if not isinstance(base, RunSpec):
+        raise InputError(f"base must be a RunSpec, got {type(base).__name__}")
+    section = base.robots if base.robots is not None else Robots()
+    kept = RunSpec(predictor=base.predictor, seed=base.seed, robots=base.robots)
+    extra = [f for f in RunSpec.__dataclass_fields__ if getattr(base, f) != getattr(kept, f)]
+    default = Robots()
+    taken = ("information", "lambda_scope", "sidestep", "hard_rows")
+    extra += [
+        f"robots.{f}"
+        for f in Robots.__dataclass_fields__
+        if f not in taken and getattr(section, f) != getattr(default, f)
+    ]
+    if extra:
+        raise InputError(
+            "the multi-robot benchmark's base run sets only its predictor, seed and the "
+            "robots' information, lambda_scope, sidestep and hard_rows (the suite and the "
+            f"methods set the rest); drop {', '.join(extra)}"
+        )
+    predictor, params = base.role("predictor")
+    if not isinstance(predictor, str) or params:
+        raise InputError("the multi-robot benchmark's predictor is a registered name")
+    options = {
+        k: getattr(section, k)
+        for k in ("sidestep", "hard_rows")
+        if getattr(section, k) != getattr(default, k)
+    }
+    # a section without a lambda scope: the reciprocal runs' default
+    scope = section.lambda_scope or "pedestrians"
+    return predictor, base.seed, section.information, scope, options
+
+
 def run_multi_bench(
     out: str | Path,
     *,
@@ -527,14 +580,10 @@ def run_multi_bench(
     shifts: Sequence[str] = ("nominal",),
     tuned: str | None = "default",
     reciprocity: Sequence[str] = RECIPROCITY_OPTIONS,
-    information: str = "plan",
-    lambda_scope: str = "pedestrians",
-    predictor: str = "constant_velocity",
+    base: RunSpec | None = None,
     data_root: str | None = None,
     workers: int | None = None,
     limit: int | None = None,
-    seed: int = 0,
-    options: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> MultiBenchRun:
     """Run the multi-robot benchmark into ``out`` (resumable: finished runs are skipped).
@@ -558,19 +607,23 @@ def run_multi_bench(
     reciprocity : sequence of {"none", "reciprocal"}
         How the robots treat each other (``"none"``: predicted like pedestrians, lambda on
         every row: the behaviour without reciprocity).
-    information, lambda_scope
-        Of the reciprocal runs (see :mod:`conformal_control.cbf.reciprocal`).
-    predictor, data_root, seed, limit
-        The predictor every method uses (a method may replace it), the data folder, the
-        runs' seed, only the first ``limit`` entries.
-    options : mapping, optional
-        More settings of the reciprocal runs (``sidestep``, ``hard_rows``), recorded in
-        each row (``options``) and key.
+    base : RunSpec, optional
+        What every run takes (:func:`multi_bench_base`): the predictor (a method may
+        replace it) and the seed; its robots section (:class:`~conformal_control.spec.Robots`)
+        the reciprocal runs' ``information``, ``lambda_scope`` (see
+        :mod:`conformal_control.cbf.reciprocal`), ``sidestep`` and ``hard_rows`` (these two
+        recorded in each row, ``options``, and key when not the defaults). Default:
+        constant velocity, seed 0, the section's defaults.
+    data_root : str, optional
+        The data folder.
+    limit : int, optional
+        Only the first ``limit`` entries.
     workers : int, optional
         Processes (default: the CPUs; 1 runs in this process).
     progress : callable, optional
         Called with a line per finished run.
     """
+    predictor, seed, information, lambda_scope, options = multi_bench_base(base)
     bad = sorted(set(reciprocity) - set(RECIPROCITY_OPTIONS))
     if bad or not reciprocity:
         raise ValueError(f"reciprocity must be among {', '.join(RECIPROCITY_OPTIONS)}, got {bad}")
@@ -903,6 +956,8 @@ def _ints(text: str, what: str) -> list[int]:
 
 def run_command(args: Any, default_suite: str, families: Sequence[str], grids: Any) -> int:
     """``bench run --robots M``: the multi-robot benchmark into ``--out``."""
+    from ..spec import Robots, RunSpec
+
     robots = _ints(args.robots, "--robots")
     suite = args.suite if args.suite != default_suite else "multi-crossings-v1"
     res = run_multi_bench(
@@ -915,9 +970,10 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
         shifts=[s.strip() for s in args.shift.split(",") if s.strip()],
         tuned=args.tuned,
         reciprocity=[s.strip() for s in args.reciprocity.split(",") if s.strip()],
-        information=args.information,
-        lambda_scope=args.lambda_scope,
-        predictor=args.predictor or "constant_velocity",
+        base=RunSpec(
+            predictor=args.predictor or "constant_velocity",
+            robots=Robots(information=args.information, lambda_scope=args.lambda_scope),
+        ),
         data_root=args.data_root,
         workers=args.workers,
         limit=args.limit,

@@ -772,18 +772,46 @@ def _targets(
 
 
 # ------------------------------------------------------------------ entry point
+#: Row keys that describe a run's configuration (the sweep's flat rows: the run's own
+#: fields, its ``meta``, and its ``episode.*``, ``predictor_params.*``, ``param.*``).
+_CONFIG_KEYS = frozenset(
+    {"scene", "predictor", "learn", "seed", "max_frames", "suite", "split", "crowd",
+     "tuned_from", "family", "setting", "time_limit", "rule"}
+)  # fmt: skip
+_CONFIG_PREFIXES = ("episode.", "predictor_params.", "param.")
+
+
+def _differences(rows: list[dict[str, Any]]) -> list[str]:
+    """``key (v1, v2)`` for every configuration key whose value differs between ``rows``."""
+    keys = sorted({k for r in rows for k in r})
+    out = []
+    for k in keys:
+        if k not in _CONFIG_KEYS and not k.startswith(_CONFIG_PREFIXES):
+            continue
+        values = list(dict.fromkeys(json.dumps(r.get(k), default=str) for r in rows))
+        if len(values) > 1:
+            shown = ", ".join(repr(json.loads(v)) for v in values[:4])
+            out.append(f"{k} ({shown}{', ...' if len(values) > 4 else ''})")
+    return out
+
+
 def _check_unique(rows: list[dict[str, Any]]) -> None:
-    seen: dict[tuple[str, str, str], int] = defaultdict(int)
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
-        seen[(r["shift"], str(r["method"]), str(r["scenario"]))] += 1
-    dup = [k for k, n in seen.items() if n > 1]
+        groups[(r["shift"], str(r["method"]), str(r["scenario"]))].append(r)
+    dup = [k for k, g in groups.items() if len(g) > 1]
     if dup:
         shift, method, scenario = dup[0]
+        differ = _differences(groups[dup[0]])
+        what = (
+            "they differ in " + "; ".join(differ)
+            if differ
+            else "their stored configurations do not say how they differ"
+        )
         raise ValueError(
-            f"the rows hold {seen[dup[0]]} runs of method {method} on scenario {scenario} "
-            f"under shift {shift} ({len(dup)} such pairs): runs of different conditions "
-            "(crowd, --set, seed, ...) were written into one folder; report them from "
-            "separate folders"
+            f"the rows hold {len(groups[dup[0]])} runs of method {method} on scenario "
+            f"{scenario} under shift {shift} ({len(dup)} such triple(s)): {what}; runs of "
+            "different conditions are never pooled: report them from separate folders"
         )
 
 

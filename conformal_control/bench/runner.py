@@ -17,9 +17,10 @@ where the values came from.
 
 **One folder, one condition.** A folder holds the runs of one suite, split, predictor,
 crowd, set of run parameters (``--set``), seed and tuned values. A second ``bench run`` into
-it may add methods, shifts or scenarios; one with another condition is refused with a
-one-line error before anything is written, as is a run into a folder another ``bench run``
-is writing to (``bench.json`` is then left as it is).
+it may add methods, shifts or scenarios; one with another condition, or with a method of
+the same name defined otherwise, is refused with a one-line error before anything is
+written, as is a run into a folder another ``bench run`` is writing to (``bench.json`` is
+then left as it is).
 """
 
 from __future__ import annotations
@@ -31,12 +32,15 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..data.suites import Scenario, load_suite
 from ..exceptions import InputError
 from .methods import DEFAULT_METHODS, FAMILIES, Method, available, expand_methods
 from .shifts import SHIFTS, Shift, get_shift
+
+if TYPE_CHECKING:
+    from ..spec import RunSpec
 
 __all__ = [
     "DEFAULT_SUITE",
@@ -371,6 +375,25 @@ def _merged_description(out: Path, new: dict[str, Any]) -> dict[str, Any]:
             f"{out} holds benchmark runs of another condition ({shown}); runs of different "
             "conditions are never pooled: use another --out folder"
         )
+    before = {m.get("method"): m for m in old.get("methods", []) if isinstance(m, dict)}
+    for m in new["methods"]:
+        prev = before.get(m["method"])
+        if prev is None:
+            continue
+        # what runs (the description is prose: a reworded one defines the same method)
+        fields = [
+            k for k in m if k != "description" and _canonical(prev.get(k)) != _canonical(m[k])
+        ]
+        if fields:
+            shown = "; ".join(
+                f"{k}: folder {_canonical(prev.get(k))}, this run {_canonical(m[k])}"
+                for k in fields
+            )
+            raise BenchFolderError(
+                f"{out}: method {m['method']} is defined differently from the runs the folder "
+                f"holds ({shown}); runs of different definitions are never pooled: use "
+                "another --out folder"
+            )
     merged = dict(new)
     seen = {m["method"] for m in new["methods"]}
     merged["methods"] = new["methods"] + [
@@ -413,6 +436,53 @@ class BenchRun:
         )
 
 
+def bench_base(
+    base: RunSpec | None,
+) -> tuple[str, dict[str, Any], str, dict[str, Any], int, dict[str, Any]]:
+    """What a benchmark takes from its base run specification: ``(predictor, its params,
+    crowd, its params, seed, parameters)``.
+
+    The methods set everything else (rule, roles, learning), so a base that sets more is a
+    one-line error rather than silently overridden; its parameters are SI
+    (``units="si"``), as every method's.
+
+    Parameters
+    ----------
+    base : RunSpec, optional
+        None: the constant-velocity predictor, the replayed crowd, seed 0, no parameters.
+    """
+    from ..spec import RunSpec
+
+    if base is None:
+        return "constant_velocity", {}, "replay", {}, 0, {}
+    if not isinstance(base, RunSpec):
+        raise InputError(f"base must be a RunSpec, got {type(base).__name__}")
+    kept = RunSpec(
+        params=base.params,
+        predictor=base.predictor,
+        crowd=base.crowd,
+        seed=base.seed,
+        units=base.units,
+    )
+    extra = [
+        f
+        for f in RunSpec.__dataclass_fields__
+        if f != "units" and getattr(base, f) != getattr(kept, f)
+    ]
+    if extra:
+        raise InputError(
+            f"a benchmark's base run sets only its predictor, crowd, seed and parameters "
+            f"(the methods set the rest); drop {', '.join(extra)}"
+        )
+    if base.params and base.units != "si":
+        raise InputError("a benchmark's base parameters are SI: RunSpec(units='si', ...)")
+    predictor, predictor_params = base.role("predictor")
+    crowd, crowd_params = base.role("crowd")
+    if not isinstance(predictor, str) or not isinstance(crowd, str):
+        raise InputError("a benchmark's base predictor and crowd are registered names")
+    return predictor, predictor_params, crowd, crowd_params, base.seed, dict(base.params)
+
+
 def run_bench(
     out: str | Path,
     *,
@@ -422,29 +492,55 @@ def run_bench(
     grids: Mapping[str, Sequence[Any]] | None = None,
     shifts: Sequence[str] = ("nominal",),
     tuned: str | Path | None = "default",
-    predictor: str = "constant_velocity",
-    predictor_params: Mapping[str, Any] | None = None,
-    crowd: str = "replay",
-    crowd_params: Mapping[str, Any] | None = None,
+    base: RunSpec | None = None,
     data_root: str | None = None,
     executor: str = "batch",
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool | None = None,
     limit: int | None = None,
-    seed: int = 0,
-    base_params: Mapping[str, Any] | None = None,
 ) -> BenchRun:
     """Run the benchmark into ``out`` (resumable: finished episodes are skipped).
 
     Methods whose plugins are not installed are left out and reported (never silently).
-    ``executor="batch"`` (default) runs the (scenario, method) pairs the lockstep engine
-    supports many at once in this process, with the metrics of the per-episode loop, and
-    the others on a process pool of ``workers`` (see :mod:`conformal_control.sweep.batch`);
-    ``"process"``, ``"serial"`` and ``"dask"`` run one episode per task. ``shifts`` are
-    names of :data:`~conformal_control.bench.shifts.SHIFTS`; ``tuned`` the tuned values
-    (see the module docstring). ``bench.json`` in ``out`` records the benchmark's
-    configuration and condition.
+    ``bench.json`` in ``out`` records the benchmark's configuration and condition.
+
+    Parameters
+    ----------
+    out : path
+        The benchmark folder (reused to resume).
+    suite : str
+        A shipped suite (``conformal-control bench scenarios``).
+    split : {"dev", "test"} or None
+        None runs both.
+    methods : sequence of str
+        Method families (:data:`~conformal_control.bench.methods.FAMILIES`).
+    grids : mapping, optional
+        A family's settings to run instead of its tuned value or its default settings.
+    shifts : sequence of str
+        Names of :data:`~conformal_control.bench.shifts.SHIFTS`.
+    tuned : path, "default" or None
+        The tuned values (see the module docstring).
+    base : RunSpec, optional
+        What every method runs with (:func:`bench_base`): the predictor (a method may
+        replace it, e.g. the oracle) and its parameters, the crowd (replayed, or reacting
+        to the robot) and its parameters, the seed, and run parameters in SI (a method's
+        own win). Default: constant velocity, the replayed crowd, seed 0.
+    data_root : str, optional
+        The data folder.
+    executor : {"batch", "process", "serial", "dask"}
+        ``"batch"`` (default) runs the (scenario, method) pairs the lockstep engine
+        supports many at once in this process, with the metrics of the per-episode loop,
+        and the others on a process pool of ``workers`` (see
+        :mod:`conformal_control.sweep.batch`); the others run one episode per task.
+    workers : int, optional
+        Worker processes (default: the CPUs available).
+    scheduler : str, optional
+        A Dask scheduler's address (``executor="dask"``).
+    progress : bool, optional
+        A progress report (None: on a terminal).
+    limit : int, optional
+        Only the first ``limit`` scenarios of the split.
 
     Raises
     ------
@@ -453,6 +549,7 @@ def run_bench(
     """
     from ..sweep.runner import run_sweep
 
+    predictor, predictor_params, crowd, crowd_params, seed, base_params = bench_base(base)
     out = Path(out)
     if workers is not None and (int(workers) != workers or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
@@ -509,9 +606,10 @@ def run_bench(
             plot=RUN_FILES,
             summary_plot=False,
             progress=progress,
-            # the journal has every episode as it finishes; the tables (rewritten whole)
-            # about ten times over the run
-            table_every=max(50, len(configs) // 10),
+            # the journal has every episode as it finishes (reports read it); the tables,
+            # rewritten whole, three times over the run and at its end (ten times cost 7 %
+            # of a profiled run's main process)
+            table_every=max(200, len(configs) // 3),
         )
         wall = time.perf_counter() - t0
         description["wall_s"] = float(description.get("wall_s") or 0.0) + wall

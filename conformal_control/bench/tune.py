@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
+from ..spec import RunSpec
 from .methods import FAMILIES
 from .runner import DEFAULT_SUITE, read_rows, run_bench, write_json
 
@@ -153,14 +154,12 @@ def tune(
         grids=grids,
         shifts=("nominal",),
         tuned=None,
-        predictor=predictor,
+        base=RunSpec(params=dict(base_params or {}), predictor=predictor, seed=seed, units="si"),
         data_root=data_root,
         executor=executor,
         workers=workers,
         progress=progress,
         limit=limit,
-        seed=seed,
-        base_params=base_params,
     )
     rows = [r for r in read_rows(out) if r.get("shift", "nominal") == "nominal"]
     chosen: dict[str, Any] = {}

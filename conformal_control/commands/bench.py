@@ -351,6 +351,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
+    from ..spec import RunSpec
 
     if args.robots is not None:  # several robots: the multi-robot suite
         from ..bench.multi import run_command as run_multi_command
@@ -367,15 +368,18 @@ def _run(args: argparse.Namespace) -> int:
         grids=_grids(args.grid),
         shifts=shifts,
         tuned=args.tuned,
-        predictor=args.predictor or "constant_velocity",
-        crowd=args.crowd,
+        base=RunSpec(
+            params=key_values(args.set, "--set"),
+            predictor=args.predictor or "constant_velocity",
+            crowd=args.crowd,
+            units="si",
+        ),
         data_root=args.data_root,
         executor=_executor(args),
         workers=args.workers,
         scheduler=args.scheduler,
         progress=_progress(args.progress),
         limit=args.limit,
-        base_params=key_values(args.set, "--set"),
     )
     print(res.summary())
     return 0 if res.failed == 0 else 1

@@ -366,7 +366,29 @@ def scene_from_tracks(
     last_frame: int | None = None,
     **kwargs: Any,
 ) -> Scene:
-    """Build a :class:`Scene` from tracks, keeping ``history_frames`` before the start."""
+    """Build a :class:`Scene` from tracks, keeping ``history_frames`` before the start.
+
+    Parameters
+    ----------
+    tracks : Tracks
+        The recording (metres).
+    name : str
+        The scene's name.
+    start : ndarray of shape (2,)
+        Robot start position (m).
+    goals : ndarray of shape (G, 2)
+        Goals visited in order (m).
+    start_frame : int
+        The frame the robot starts at.
+    v_max : float
+        Robot speed bound (m/s).
+    history_frames : int
+        Frames kept before ``start_frame`` (the predictor's history).
+    last_frame : int, optional
+        The last frame kept (default: the recording's last).
+    **kwargs
+        Further fields of :class:`Scene` (``units``, ``defaults``, ``image``, ...).
+    """
     if len(tracks) == 0:
         raise ValueError(f"{tracks.source or name}: no agent tracks; nothing to replay")
     lo, hi = tracks.frame_range()

@@ -293,8 +293,20 @@ def read_tracks(
     time), so that many short episodes on one recording parse it once, and every file parsed
     is kept on disk as ``.npz`` (:mod:`~conformal_control.data.track_cache`: keyed by the
     file's content and the loaders' code), so that the next process reads it in
-    milliseconds. Treat the result as read-only: it is shared. ``rate``: rows per second of
-    an ETH/UCY file.
+    milliseconds. Treat the result as read-only: it is shared.
+
+    Parameters
+    ----------
+    kind : {"raw", "trajnet", "ethucy"}
+        The file's format.
+    path : path
+        The file.
+    m_per_px : float
+        Metres per pixel (SDD files are in pixels).
+    fps : float, optional
+        The recording's frame rate.
+    rate : float
+        Rows per second of an ETH/UCY file.
     """
     if kind not in ("raw", "trajnet", "ethucy"):
         raise ValueError(f"kind must be raw, trajnet or ethucy, got {kind!r}")

@@ -93,6 +93,19 @@ def crossing_tracks(
     The random draws of each pedestrian are taken in the order the generator has always
     used (spawn position, preferred speed, 2 normals per step, next arrival), then all
     walks are integrated together (:func:`_walks`).
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the pedestrian generator.
+    duration : float
+        Seconds of pedestrian data after the robot starts.
+    fps : float
+        Frame rate of the generated data.
+    rate : float
+        Arrivals per second in each of the three flows.
+    history : float
+        Seconds of data before the robot starts.
     """
     if not (duration > 0 and fps > 0 and rate >= 0 and history >= 0):
         raise ValueError("duration and fps must be > 0, rate and history >= 0")

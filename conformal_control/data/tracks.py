@@ -158,6 +158,19 @@ def check_frames(
     the file's grid ``first + k * step``; consecutive distinct frames are at most
     :data:`MAX_FRAME_GAP_S` seconds apart. Each failure is a one-line
     ``DataFormatError`` naming the file and line.
+
+    Parameters
+    ----------
+    frames : ndarray
+        The frame column.
+    fps : float
+        The file's frame rate (frames per second).
+    path : object
+        The file, as named in the errors.
+    lines : sequence of int, optional
+        The file's line number of each row (default: rows counted from 1).
+    step : int, optional
+        The file's frame step (every frame on ``first + k * step``).
     """
     from ..exceptions import DataFormatError
 

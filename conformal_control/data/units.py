@@ -165,7 +165,16 @@ def si_value(key: str, value: Any, unit: str | None, flag: str) -> Any:
     """A plugin parameter given with a unit suffix (``2m/s``, ``500ms``, ``20cm``), in SI;
     anything else unchanged.
 
-    ``unit`` is the parameter's documented SI unit (:func:`documented_unit`).
+    Parameters
+    ----------
+    key : str
+        The parameter's name (in the errors).
+    value : Any
+        The value as given (a string with a suffix is converted).
+    unit : str, optional
+        The parameter's documented SI unit (:func:`documented_unit`).
+    flag : str
+        The option it came with (in the errors), e.g. ``--predictor-param``.
 
     Raises
     ------

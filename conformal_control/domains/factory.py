@@ -175,6 +175,21 @@ def run_factory(
 
     The figures: ``l_avg`` (average defect fraction), ``speed_avg`` (average speed,
     the productivity), ``lambda_final`` and the monitor's guarantee figures.
+
+    Parameters
+    ----------
+    rule : UpdateRule
+        The update rule of the machine's speed lambda.
+    T : int
+        Steps.
+    p : int
+        Items made per step.
+    b : float
+        Slope of the defect rate q(lambda) = min(1, b lambda).
+    seed : int
+        Seed of the common random numbers.
+    lambda_safe : float, optional
+        A speed known to make no defect (0: the stopped machine), for the monitor.
     """
     env = FactoryEnvironment(T=T, p=p, seed=seed)
     loss = DefectFractionLoss(b=b)

@@ -251,6 +251,21 @@ def run_intervals(
     Figures: ``coverage`` (long-run fraction covered), ``miscoverage``, ``radius_median``
     and ``radius_mean`` over finite radii (m), ``share_infinite`` (whole-plane sets),
     ``share_empty``, and the monitor's guarantee figures.
+
+    Parameters
+    ----------
+    rule : UpdateRule
+        The update rule of the discs' lambda.
+    steps : list
+        The (frame, pedestrian) steps, from :func:`load_series`.
+    predictor : Predictor or str
+        Forecasts the next position (an instance or a registered name).
+    predictor_params : dict, optional
+        Its parameters, for a registered name.
+    window : int
+        Number of most recent scores used (the calibration window).
+    parametrisation : {"level", "radius"}
+        See the module docstring.
     """
     pred: Predictor = (
         registry.create("predictor", predictor, **(predictor_params or {}))

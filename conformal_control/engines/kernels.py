@@ -63,7 +63,19 @@ def pack(tracks: SparseTracks) -> np.ndarray:
 
 
 def slot_size(frames: int, agents: int, samples: int, present: int) -> int:
-    """Floats of :func:`pack`'s layout for these counts."""
+    """Floats of :func:`pack`'s layout for these counts.
+
+    Parameters
+    ----------
+    frames : int
+        Frames of the recording (the per-frame index has ``frames + 1`` entries).
+    agents : int
+        Agents of the recording (start, length and offset of each).
+    samples : int
+        Observations (one position, two floats, each).
+    present : int
+        Entries of the per-frame index of the agents present.
+    """
     return 2 * samples + 3 * agents + frames + 1 + present
 
 

@@ -100,6 +100,15 @@ def animation_frames(
 
     The animation plays in real time: one output frame every ``scene fps / fps`` run
     frames (at least 1).
+
+    Parameters
+    ----------
+    record : mapping
+        The run's animation record (its frame times ``t`` in s, the scene's ``fps``).
+    start, end : float, optional
+        The time window (s, on the record's ``t``; default: the whole run).
+    fps : float
+        Output frames per second.
     """
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be > 0, got {fps!r}")

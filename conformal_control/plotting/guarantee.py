@@ -39,6 +39,12 @@ def plot_guarantee(
         ``LoopResult.monitor`` of a finished run.
     path : path, optional
         Where to save the figure (PNG); the figure is returned either way.
+    title : str, optional
+        The figure's title.
+    lambda_unit : float
+        lambda_k is drawn divided by this (its SI value of the unit shown).
+    lambda_label : str
+        The label of lambda's axis.
     """
     from .run import SAVE_DPI, png_options, pyplot
 

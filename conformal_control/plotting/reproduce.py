@@ -104,6 +104,16 @@ def plot_paths_grid(
         Gives the image, the replayed pedestrians and start/goal.
     runs : list of dict
         ``label``, ``trajectory`` (dict of arrays: frame, x, y, d_min) and ``metrics``.
+    path : path
+        Where the figure is saved.
+    title : str
+        The figure's title.
+    dpi : int
+        Resolution of the saved figure.
+    margin : float
+        Metres shown beyond the paths, start and goals, above and below.
+    panel_width : float
+        Width of a panel (inches).
     """
     plt = pyplot()
     n = len(runs)
@@ -171,6 +181,21 @@ def plot_lambda_loss_rows(
     ``runs``: dicts with ``label``, ``learn``, ``epsilon`` and ``intervals`` (dict of
     arrays ``t``, ``lambda``, ``loss``). Three panels per line, each ``panel_size``
     inches; every axis is labelled with its unit. Returns the (saved and closed) figure.
+
+    Parameters
+    ----------
+    runs : sequence of dict
+        The rows, as above.
+    path : path
+        Where the figure is saved.
+    lam_unit : str
+        The unit lambda is shown in.
+    title : str
+        The figure's title.
+    dpi : int
+        Resolution of the saved figure.
+    panel_size : (float, float)
+        Width and height of a panel (inches).
     """
     plt = pyplot()
     n = len(runs)
@@ -227,6 +252,17 @@ def plot_lavg_vs_epsilon(
 
     ``points``: dicts with ``series`` (legend name), ``epsilon`` and ``l_avg``. Returns
     the (saved and closed) figure.
+
+    Parameters
+    ----------
+    points : sequence of dict
+        The points, as above.
+    path : path
+        Where the figure is saved.
+    title : str
+        The figure's title.
+    dpi : int
+        Resolution of the saved figure.
     """
     plt = pyplot()
     fig: Figure

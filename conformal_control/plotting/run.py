@@ -124,6 +124,23 @@ def plot_scene(
     ``image_dpi`` is the resolution the figure will be saved at (default: the larger of
     the figure's dpi and ``savefig.dpi``). ``legend=False`` leaves the legend out (a
     grid of panels that share one).
+
+    Parameters
+    ----------
+    ax : Axes
+        Where to draw.
+    scene : Scene
+        Gives the image, the replayed pedestrians and start/goal.
+    trajectory : dict of arrays
+        The run's trajectory (``frame``, ``x``, ``y``, ``d_min``).
+    show_image : bool
+        Draw the scene's reference image.
+    collision_distance : float, optional
+        Distance (m) below which a frame is marked as a collision (default: the scene's).
+    image_dpi : float, optional
+        The resolution the figure will be saved at.
+    legend : bool
+        Draw the legend.
     """
     if show_image and scene.image is not None and Path(scene.image).exists():
         img, (w_px, h_px) = reference_image(scene.image, _axes_pixels(ax, image_dpi))
@@ -173,7 +190,19 @@ def plot_scene(
 def plot_lambda_loss(
     ax_lam: Axes, ax_loss: Axes, intervals: list[dict[str, Any]], epsilon: float, lam_unit: str
 ) -> None:
-    """lambda_k and l_k per interval, with the target epsilon."""
+    """lambda_k and l_k per interval, with the target epsilon.
+
+    Parameters
+    ----------
+    ax_lam, ax_loss : Axes
+        Where lambda_k and l_k are drawn.
+    intervals : list of dict
+        The run's intervals (``t``, ``lambda``, ``loss``).
+    epsilon : float
+        The target average loss.
+    lam_unit : str
+        The unit lambda is shown in (axis label).
+    """
     scored = [iv for iv in intervals if iv.get("loss") is not None]
     t = np.array([iv["t"] for iv in scored], dtype=float)
     lam = np.array([iv["lambda"] for iv in scored], dtype=float)

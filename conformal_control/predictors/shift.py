@@ -77,27 +77,57 @@ def _mix(x: np.ndarray) -> np.ndarray:
     return out
 
 
+_MASK = (1 << 64) - 1
+
+
+def _mix_int(x: int) -> int:
+    """:func:`_mix` on one Python integer (the same bits, without numpy's per-call cost)."""
+    x = (x + 0x9E3779B97F4A7C15) & _MASK
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _MASK
+    return x ^ (x >> 31)
+
+
 def _hash(*keys: Any) -> np.ndarray:
-    """One uint64 per element of the broadcast ``keys`` (integers)."""
-    arrays = np.broadcast_arrays(*[_u64(k) for k in keys])
-    h = _mix(arrays[0].copy())
-    for k in arrays[1:]:
-        h = _mix(h ^ k)
-    return h
+    """One uint64 per element of the broadcast ``keys`` (integers).
+
+    The keys are folded in order, ``h = mix(h ^ key)``; leading scalar keys (a seed, a scene,
+    a frame) are folded on Python integers, the rest on the broadcast arrays."""
+    h: int | None = None
+    i = 0
+    while i < len(keys) and np.ndim(keys[i]) == 0:
+        k = int(keys[i]) & _MASK  # an int64's bit pattern, as _u64 reads it
+        h = _mix_int(k if h is None else h ^ k)
+        i += 1
+    if i == len(keys):
+        return np.array([0 if h is None else h], dtype=np.uint64)
+    arrays = np.broadcast_arrays(*[_u64(k) for k in keys[i:]])
+    if h is None:
+        out = _mix(arrays[0].copy())
+    else:
+        out = _mix(np.uint64(h) ^ arrays[0])
+    for a in arrays[1:]:
+        out = _mix(out ^ a)
+    return out
+
+
+def _uniform(h: np.ndarray) -> np.ndarray:
+    out: np.ndarray = (h >> np.uint64(11)).astype(np.float64) * 2.0**-53
+    return out
 
 
 def hash_uniform(*keys: Any) -> np.ndarray:
     """Uniform numbers in [0, 1), a deterministic function of the integer ``keys``
     (broadcast against each other): 53 bits of a SplitMix64 hash."""
-    out: np.ndarray = (_hash(*keys) >> np.uint64(11)).astype(np.float64) * 2.0**-53
-    return out
+    return _uniform(_hash(*keys))
 
 
 def hash_normal(*keys: Any) -> np.ndarray:
     """Standard normal numbers, a deterministic function of the integer ``keys`` (Box-Muller
-    on two hashed uniforms)."""
-    u1 = 1.0 - hash_uniform(*keys, 0)  # (0, 1]
-    u2 = hash_uniform(*keys, 1)
+    on two hashed uniforms: those of the keys followed by 0 and by 1)."""
+    h = _hash(*keys)
+    u1 = 1.0 - _uniform(_mix(h ^ np.uint64(0)))  # (0, 1]
+    u2 = _uniform(_mix(h ^ np.uint64(1)))
     out: np.ndarray = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
     return out
 

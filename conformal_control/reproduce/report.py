@@ -103,7 +103,25 @@ def plan(
     seed: int = 0,
     variants: Sequence[str] = tuple(VARIANTS),
 ) -> list[ReproRow]:
-    """Every run the targets need (``forms``: Table II, published variant, both forms)."""
+    """Every run the targets need (``forms``: Table II, published variant, both forms).
+
+    Parameters
+    ----------
+    targets : sequence of {"table1", "table2", "forms", "all"}
+        What to reproduce.
+    predictor : str
+        A registered predictor.
+    predictor_params : dict, optional
+        Its parameters.
+    data_root : str, optional
+        The data folder.
+    frames : int, optional
+        Simulate at most this many frames per run.
+    seed : int
+        The runs' seed.
+    variants : sequence of {"printed", "published"}
+        The parameter variants.
+    """
     out: list[ReproRow] = []
     kw: dict[str, Any] = {
         "predictor": predictor,
@@ -531,11 +549,36 @@ def reproduce(
 
     Parameters
     ----------
+    targets : sequence of {"table1", "table2", "forms", "all"}
+        What to reproduce: Table I (gates_1), Table II (nexus_4), the raw against the
+        TrajNet form of nexus_4.
+    out : path
+        The output folder (reused to resume: finished runs are skipped).
+    data_root : str, optional
+        The data folder (or its ``sdd/`` subfolder).
+    predictor : str
+        A registered predictor (the paper's: ``darts``).
+    predictor_params : dict, optional
+        Its parameters.
     executor : Executor or str
         Where the runs go (see :func:`~conformal_control.sweep.run_sweep`); ``"auto"``
         (default) runs them in this process when every run's predictor is a fast one
         (:attr:`~conformal_control.predictors.Predictor.fast`: a dozen episodes take about
         a second, less than starting worker processes), else on a process pool.
+    workers : int, optional
+        Worker processes (process pool, Dask LocalCluster).
+    scheduler : str, optional
+        A Dask scheduler's address.
+    frames : int, optional
+        Simulate at most this many frames per run (quick looks).
+    seed : int
+        The runs' seed.
+    figures : bool
+        Write the figures beside the tables.
+    progress : bool, optional
+        A progress report (None: on a terminal).
+    variants : sequence of {"printed", "published"}, optional
+        The parameter variants (default both).
 
     Returns
     -------

@@ -636,8 +636,25 @@ def set_reciprocity(
     hard_rows: str = "last",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
-    for a family that cannot have one); ``robot_margin`` (m) is added to the barrier's
-    collision distance for the robot rows."""
+    for a family that cannot have one), a
+    :class:`~conformal_control.cbf.reciprocal.Reciprocity`.
+
+    Parameters
+    ----------
+    policy : DecisionFamily
+        The robot's decision family; it needs a ``reciprocity`` attribute.
+    mode : {"reciprocal", "none", "ignore"}
+        Reciprocal rows, prediction (as a pedestrian), or no constraint.
+    lambda_scope : {"pedestrians", "robots", "both"}
+        Rows that get ``+ lambda`` (and agents the loss scores).
+    robot_margin : float
+        Added to the barrier's collision distance for the robot rows (m).
+    sidestep : float
+        Angle (rad) a reciprocal robot turns its nominal velocity by, away from another
+        robot ahead.
+    hard_rows : {"level", "last"}
+        How the ``lambda_search`` fallback treats the rows without slack.
+    """
     if not hasattr(policy, "reciprocity"):
         raise ValueError(
             f"decision family {type(policy).__name__} does not handle other robots "
@@ -669,6 +686,17 @@ def drive(
     interval; at each control instant each decides with its own lambda and the world
     applies all the decisions at once; at the next sampling time each scores its interval
     on the truth its own sensor reveals and updates its own lambda.
+
+    Parameters
+    ----------
+    world : MultiRobotWorld
+        The crowd and the robots.
+    steppers : sequence of ConformalStepper
+        One per robot, in the world's order.
+    broadcast : bool
+        Each robot broadcasts its decided velocity (and plan) to the others.
+    clock : callable
+        Gives the time (s) the robots' own work is measured with.
     """
     n = len(steppers)
     own = [0.0] * n

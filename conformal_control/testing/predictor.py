@@ -57,6 +57,16 @@ def make_query(
 
     Parameters
     ----------
+    n_agents : int
+        Agents in the query.
+    history : int
+        Observed steps per agent.
+    horizon : int
+        Steps to predict.
+    dt : float
+        Seconds between two steps.
+    seed : int
+        Seed of the starts, headings, speeds and noise.
     ground_truth : bool
         Attach the true (noise-free continued) future, for oracle-like predictors.
     """

@@ -179,3 +179,19 @@ def test_run_report_and_resume(tmp_path, data_root):
     page = write_multi_report(rows, tmp_path / "report")
     text = page.read_text()
     assert "Reciprocal against none" in text and "| 3 | nolearn | nominal |" in text
+
+
+def test_the_base_run_gives_predictor_seed_and_the_robots_information():
+    from conformal_control.bench.multi import multi_bench_base
+    from conformal_control.exceptions import InputError
+    from conformal_control.spec import Robots, RunSpec
+
+    assert multi_bench_base(None) == ("constant_velocity", 0, "plan", "pedestrians", {})
+    base = RunSpec(
+        predictor="oracle",
+        seed=3,
+        robots=Robots(information="position", lambda_scope="both", sidestep=0.0),
+    )
+    assert multi_bench_base(base) == ("oracle", 3, "position", "both", {"sidestep": 0.0})
+    with pytest.raises(InputError, match=r"drop learn, robots\.layout"):
+        multi_bench_base(RunSpec(learn=False, robots=Robots(layout="antipodal")))

@@ -133,3 +133,30 @@ def test_tune_run_report_end_to_end(tmp_path: Path, data_root: Path, capsys) -> 
     strata = (report / "strata.md").read_text()
     assert "### recording" in strata and "### density" in strata and "### speed" in strata
     assert "| delay-0.5s | `nolearn` |" in (report / "collisions.md").read_text()
+
+
+def test_the_base_run_gives_predictor_crowd_seed_and_si_parameters_only() -> None:
+    from conformal_control.bench.runner import bench_base
+    from conformal_control.exceptions import InputError
+    from conformal_control.spec import RunSpec
+
+    assert bench_base(None) == ("constant_velocity", {}, "replay", {}, 0, {})
+    base = RunSpec(
+        params={"K_rep": 0.3},
+        predictor=("constant_velocity", {"window": 3}),
+        crowd=("social_force", {"tau": 0.4}),
+        seed=7,
+        units="si",
+    )
+    assert bench_base(base) == (
+        "constant_velocity",
+        {"window": 3},
+        "social_force",
+        {"tau": 0.4},
+        7,
+        {"K_rep": 0.3},
+    )
+    with pytest.raises(InputError, match="drop rule, learn"):
+        bench_base(RunSpec(rule="pid", learn=False))
+    with pytest.raises(InputError, match="SI"):
+        bench_base(RunSpec(params={"K_rep": 0.3}))

@@ -197,3 +197,64 @@ def test_tune_refuses_families_without_a_grid(tmp_path):
     with pytest.raises(ValueError, match="unknown method 'fixd'"):
         tune(tmp_path / "t", families=["fixd"])
     assert not (tmp_path / "t").exists()
+
+
+def test_a_method_redefined_under_its_name_is_refused(tmp_path, data_root, capsys):
+    """A method of the same name with other parameters would pool two definitions."""
+    out = tmp_path / "b"
+    base = ["bench", "run", "--split", "dev", "--limit", "1", "--methods", "nolearn",
+            "--out", str(out), "--data-root", str(data_root), "--progress", "off"]  # fmt: skip
+    assert main(base) == 0
+    desc = json.loads((out / "bench.json").read_text())
+    (entry,) = desc["methods"]
+    entry["params"] = {**entry["params"], "eta": 3.0}  # as an older definition had it
+    (out / "bench.json").write_text(json.dumps(desc))
+    before = (out / "bench.json").read_text()
+    capsys.readouterr()
+    assert main(base) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "method nolearn is defined differently" in err and "params" in err
+    assert (out / "bench.json").read_text() == before
+
+
+def test_report_names_what_differs_between_pooled_runs(tmp_path: Path):
+    """Rows of two conditions in one folder (written by an older version, or by hand):
+    the report refuses them and names the configuration that differs."""
+    from conformal_control.bench.report import write_report
+
+    def row(crowd, k_rep):
+        return {"scenario": "s1", "method": "nolearn", "family": "nolearn", "status": "ok",
+                "success": True, "goal_reached": True, "n_collide": 0, "time_limit": 10.0,
+                "t_goal": 5.0, "crowd": crowd, "param.K_rep": k_rep, "seed": 0,
+                "d_min": 1.5, "wall_s": 0.1}  # fmt: skip
+
+    rows = [row("replay", 0.2), row("social_force", 0.2), row("replay", 0.3)]
+    with pytest.raises(ValueError) as info:
+        write_report(rows, tmp_path)
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert "crowd ('replay', 'social_force')" in msg and "param.K_rep (0.2, 0.3)" in msg
+    assert "d_min" not in msg and "wall_s" not in msg  # outcomes, not configuration
+
+
+def test_the_tuned_values_ship_with_the_package():
+    """`bench run` uses the dev-tuned values shipped for the default suite."""
+    from conformal_control.bench.runner import DEFAULT_SUITE, load_tuned
+    from conformal_control.bench.tune import DEFAULT_TUNED, RULE
+
+    tuned = load_tuned("default", DEFAULT_SUITE)
+    assert tuned is not None, "conformal_control/bench/tuned/crossings-v2.json is missing"
+    assert tuned.source == "shipped:conformal_control/bench/tuned/crossings-v2.json"
+    assert tuned.data["split"] == "dev" and tuned.data["rule"] == RULE
+    assert set(tuned.values) == set(DEFAULT_TUNED)
+    for fam, value in tuned.values.items():
+        assert value in FAMILIES[fam].tune
+        # the chosen setting is the one the rule picks from the stored candidates
+        cands = tuned.data["families"][fam]["candidates"]
+        best = min(
+            range(len(cands)),
+            key=lambda i: (-cands[i]["success"], cands[i]["collision_frames"], cands[i]["time"], i),
+        )
+        assert cands[best]["setting"] == value
+    assert load_tuned("default", "crossings-v1") is None  # nothing shipped for v1

@@ -252,6 +252,7 @@ def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
     tmp_path, data_root, shift, crowd, predictor
 ):
     from conformal_control.bench.runner import run_bench
+    from conformal_control.spec import RunSpec
 
     run = run_bench(
         tmp_path / "b",
@@ -261,7 +262,7 @@ def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
         grids={"mpc": [0.0]},
         shifts=[shift],
         tuned=None,
-        crowd=crowd,
+        base=RunSpec(crowd=crowd, units="si"),
         limit=1,
         executor="serial",
         data_root=str(data_root),

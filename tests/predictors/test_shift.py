@@ -251,3 +251,34 @@ def test_neutral_shift_equals_its_base_in_closed_loop(data_root):
     # and the shifts do change the runs
     delayed = run_batch(scenes, "delayed", predictor_params={"delay_s": 1.0}, max_frames=frames)
     assert sum(m["n_collide"] for m in delayed) > sum(m["n_collide"] for m in base)
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        (["--predictor", "delayed", "--predictor-param", "delay_s=-0.5"],
+         "delay_s must be a finite number >= 0, got -0.5"),
+        (["--predictor", "noisy", "--predictor-param", "sigma_m=-1"],
+         "sigma_m must be a finite number >= 0"),
+        (["--predictor", "recorded", "--predictor-param", "path={missing}"],
+         "missing column(s) step in the header 'frame,track_id,x,y'"),
+        (["--predictor", "recorded", "--predictor-param", "path={nan}"],
+         "nan.csv:2: non-finite value in '1,2,1,nan,4.0'"),
+    ],
+)  # fmt: skip
+def test_bad_shift_or_recorded_input_is_one_line_from_the_cli(
+    params, message, tmp_path, data_root, capsys
+):
+    """Through ``conformal-control run``: exit status 2 and one line, before any output."""
+    from conformal_control.cli import main
+
+    (tmp_path / "missing.csv").write_text("frame,track_id,x,y\n1,2,3.0,4.0\n")
+    (tmp_path / "nan.csv").write_text("frame,track_id,step,x,y\n1,2,1,nan,4.0\n")
+    argv = [p.format(missing=tmp_path / "missing.csv", nan=tmp_path / "nan.csv") for p in params]
+    rc = main([
+        "run", "--scene", "scenario:crossings-v2/ethucy-biwi_hotel-w006", "--frames", "10",
+        "--data-root", str(data_root), "--out", str(tmp_path / "run"), *argv,
+    ])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and message in err, err
+    assert "internal error" not in err

@@ -28,7 +28,19 @@ def make_executor(
     scheduler: str | None = None,
     **kwargs: Any,
 ) -> Executor:
-    """Build an executor by name: ``process`` (default), ``serial`` or ``dask``."""
+    """Build an executor by name: ``process`` (default), ``serial`` or ``dask``.
+
+    Parameters
+    ----------
+    name : {"process", "serial", "dask"}
+        The executor.
+    workers : int, optional
+        Worker processes (process pool, Dask LocalCluster); default: the CPUs available.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``dask`` only).
+    **kwargs
+        Further arguments of the executor's class.
+    """
     if name == "process":
         return ProcessExecutor(workers=workers, **kwargs)
     if name == "serial":
