@@ -428,7 +428,7 @@ class ConformalCBFController(
         if self._peer_ids.size and self._turn[1]:
             v_ref = sidestep(v_ref, state.x, self._peer_view(state), self._turn, self._robot_dc)
         res: FilterResult
-        if self._fused and self._ids.size:
+        if self._fused and self._ids.size and not self._special:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
                 x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
             )

@@ -58,6 +58,28 @@ def test_head_on_robots_pass_without_collision_and_symmetrically(information):
     assert np.abs(x[:, :, 1]).max() > 0.3
 
 
+@pytest.mark.parametrize("convention", ["surface", "centre"])
+def test_robot_rows_hold_with_a_pedestrian_in_view(convention):
+    # a pedestrian in view takes the controller's APF step; with the centre convention and
+    # a robot margin the robot rows must still be in the filter (they were dropped, and
+    # the interval's record failed, before the fix)
+    sc = free_scene()
+    pos = sc.positions.copy()
+    pos[:, 0] = [0.0, 3.0]
+    res = run_multi(
+        sc.replace(positions=pos),
+        record_animation=False,
+        max_frames=400,
+        starts=[(-8.0, 0.0), (8.0, 0.0)],
+        goals=[[(8.0, 0.0)], [(-8.0, 0.0)]],
+        params={"convention": convention},
+        units="si",
+    )
+    m = res.metrics
+    assert m.goal_rate == 1.0 and m.n_collide_robot_pairs == 0
+    assert m.d_min_robot > 2 * res.scene.robot_radius
+
+
 def test_without_side_step_exactly_head_on_robots_deadlock():
     # the classic jam the side-step convention resolves: both stop face to face
     starts, goals = [(-8.0, 0.0), (8.0, 0.0)], [[(8.0, 0.0)], [(-8.0, 0.0)]]
