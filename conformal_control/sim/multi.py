@@ -66,8 +66,7 @@ from ..results.multi_metrics import (
 )
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
-from ..spec import MAX_ROBOTS as SPEC_MAX_ROBOTS
-from ..spec import ROBOT_CHOICES, Robots, RunSpec
+from ..spec import MAX_ROBOTS, ROBOT_CHOICES, Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -86,9 +85,6 @@ __all__ = [
 
 #: Built-in layouts of :func:`robot_tasks`.
 LAYOUTS = ROBOT_CHOICES["layout"]
-
-#: Most robots in one run (the sensor and the metrics are quadratic in the robots).
-MAX_ROBOTS = SPEC_MAX_ROBOTS
 
 
 # ---------------------------------------------------------------------------- tasks

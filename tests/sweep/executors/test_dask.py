@@ -7,14 +7,12 @@ import io
 import json
 from pathlib import Path
 
-import pytest
+import distributed  # the sweep extra, installed by the README: a missing one fails
 
 from conformal_control.bench.runner import read_rows
 from conformal_control.cli import main
 from conformal_control.sweep.batch import run_chunked
 from conformal_control.sweep.executors.serial import SerialExecutor
-
-distributed = pytest.importorskip("distributed")  # the sweep extra, installed by the README
 
 #: one method without learning, one learning method, one whose fallback decides in Python
 #: (relax; these three batched), one the engine does not batch (cc_mpc: the sampling MPC)
