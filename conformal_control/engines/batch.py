@@ -227,8 +227,6 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         why = unsupported_crowd(crowd, dict(crowd_params or {}))
         if why is not None:
             return why
-        if run.record_animation or settings.get("record_animation"):
-            return "record_animation with a reactive crowd: the batch engine keeps no record of it"
     if settings.get("record_animation"):
         return "record_animation: the batch engine keeps no animation record"
     return None
@@ -1442,6 +1440,9 @@ def run_single(
     }
     if recorder:
         si = built[0].params.si
+        env = built[0].env
+        if isinstance(env, ReactiveEnvironment):  # the pedestrians the robot met, as the loop
+            recorder[0].scene = env.simulated_scene()
         result.animation = recorder[0].finish(
             result.trajectory,
             result.intervals,
