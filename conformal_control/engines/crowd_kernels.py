@@ -32,7 +32,7 @@ import numpy as np
 
 from ..cbf.pyhypot import c_hypot
 from ..crowds.crowd import ACTIVE, GONE, REPLAY
-from ..crowds.neighbors import _cell_pairs
+from ..crowds.neighbors import cell_pairs
 from ..crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 from ..jit import kernel
 from .kernels import d_min
@@ -276,7 +276,7 @@ def crowd_begin(
             all_vel[a_off + n + 1 + q, 1] = rec_vel[b, r, j, 1]
             all_rad[a_off + n + 1 + q] = body_r[b]
         pp = ped_pos[p0 : p0 + n]
-        ok, pr, pc, px_, py_ = _cell_pairs(pp, ap, nd[b], kmax[b] if model[b] == ORCA else -1)
+        ok, pr, pc, px_, py_ = cell_pairs(pp, ap, nd[b], kmax[b] if model[b] == ORCA else -1)
         if not ok:
             raise ValueError(
                 "a crowd's coordinates span too far for the cell search of the batch "
@@ -490,7 +490,24 @@ def dense_layout(positions: np.ndarray, lo: int, upto: int, n_frames: int) -> np
     layout with every column stored over frames ``lo .. lo + L - 1`` (``positions`` of
     shape ``(L, M, 2)``: the environment's buffer over those frames), room for every
     column present at every frame, and the frames up to ``upto`` indexed (the later ones
-    are written as the crowd walks, :func:`crowd_end`)."""
+    are written as the crowd walks, :func:`crowd_end`).
+
+    Parameters
+    ----------
+    positions : ndarray of shape (L, M, 2)
+        The environment's buffer over frames ``lo .. lo + L - 1`` (m).
+    lo : int
+        The first frame stored.
+    upto : int
+        The last frame known (the start frame).
+    n_frames : int
+        Frames of the scene.
+
+    Returns
+    -------
+    ndarray
+        The slot's floats.
+    """
     span, m = positions.shape[0], positions.shape[1]
     xy = np.full((m, span, 2), np.nan)
     known = upto - lo + 1

@@ -128,8 +128,19 @@ class CrowdSlots:
 
     # ------------------------------------------------------------------ slots
     def load(self, b: int, env: ReactiveEnvironment, last: int, lo: int) -> None:
-        """Slot ``b`` takes the crowd of ``env`` (reset: at the episode's start frame);
-        the episode runs to frame ``last``; its store holds frames ``lo`` onwards."""
+        """Slot ``b`` takes the crowd of ``env`` (reset: at the episode's start frame).
+
+        Parameters
+        ----------
+        b : int
+            The slot.
+        env : ReactiveEnvironment
+            The episode's environment, reset.
+        last : int
+            The episode's last frame.
+        lo : int
+            The first frame of the slot's store.
+        """
         crowd = env.crowd
         assert isinstance(crowd, Crowd)
         model = crowd.model_
@@ -218,8 +229,17 @@ class CrowdSlots:
         store: np.ndarray,
         where: np.ndarray,
     ) -> None:
-        """One control instant of the crowds of ``slots``, the robots at ``rp`` with
-        velocities ``rv`` (one row per slot)."""
+        """One control instant of the crowds of ``slots``.
+
+        Parameters
+        ----------
+        slots : ndarray of int
+            The slots.
+        rp, rv : ndarray of shape (len(slots), 2)
+            Their robots' positions (m) and velocities (m/s) at the instant's start.
+        store, where : ndarray
+            The engine's store and its slot table (the completed frames go there).
+        """
         start, col, pvel, pref, prad, out, rows, cols, dx, dy, avel, arad, paired = crowd_begin(
             slots, rp, rv,
             self.model, self.mixed, self.mixed_r, self.body_r, self.robot_r, self.substeps,
@@ -260,9 +280,21 @@ class CrowdSlots:
         self, slots: np.ndarray, pool: Any, v_start: np.ndarray, n_log0: np.ndarray
     ) -> None:
         """Walk the crowds of ``slots`` through the control instants their robots just
-        ran (``pool.step``; the robots' velocities at the interval's start ``v_start``,
-        one row per slot), finish the frame of an episode that ended within one, and
-        recompute the frame log's ``d_min`` from row ``n_log0`` on."""
+        ran, finish the frame of an episode that ended within one, and recompute the
+        frame log's ``d_min`` of the frames logged meanwhile.
+
+        Parameters
+        ----------
+        slots : ndarray of int
+            The slots.
+        pool : _Pool
+            The engine's slots (``step``, ``rec_x``, ``rec_v``, ``decay``, ``x``, ``done``,
+            ``store``, ``where``, ``log``, ``n_log``).
+        v_start : ndarray of shape (len(slots), 2)
+            The robots' velocities at the interval's start.
+        n_log0 : ndarray of int
+            The first frame-log row of the interval, per slot.
+        """
         p = pool
         steps = p.step[slots]
         rv = v_start.copy()
@@ -284,7 +316,17 @@ class CrowdSlots:
         self, b: int, env: ReactiveEnvironment, store: np.ndarray, where: np.ndarray
     ) -> None:
         """Copy slot ``b``'s simulated frames into its environment's buffer and set the
-        environment's crowd clock (its sensor, truth and measuring code read them)."""
+        environment's crowd clock (its sensor, truth and measuring code read them).
+
+        Parameters
+        ----------
+        b : int
+            The slot.
+        env : ReactiveEnvironment
+            Its environment.
+        store, where : ndarray
+            The engine's store and its slot table.
+        """
         o, _, m, n = (int(v) for v in where[b, :4])
         span = n // max(m, 1)
         lo, f0, f = int(self.lo[b]), int(self.f0[b]), int(self.frame[b])
