@@ -1,4 +1,4 @@
-"""Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
+"""Lockstep batch engine: many episodes of the flagship at once, the same metrics.
 
 :func:`run_episode`'s generic loop runs one episode as a chain of Python calls per control
 instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
@@ -24,7 +24,10 @@ checks every metric against :func:`run_episode`). The wall time of the control l
 the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
-:func:`run_episode`): replayed crowds; any registered predictor; the ``cbf`` family and the
+:func:`run_episode`): replayed crowds, and the reactive ``social_force``, ``orca`` and
+``mixed`` crowds without noise (:mod:`~conformal_control.engines.reactive`: each episode's
+crowd walks through the interval's control instants after its robot, one compiled call
+per instant for all of them); any registered predictor; the ``cbf`` family and the
 ``acp`` family (adaptive conformal prediction regions); the APF barrier; the exact 2-D
 filter with any registered fallback (``lambda_search``, ``brake`` and ``hold`` are decided
 by the compiled step; any other, e.g. ``relax``, by the episode's own fallback object on the
