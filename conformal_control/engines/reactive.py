@@ -70,6 +70,7 @@ def unsupported_crowd(crowd: str, params: dict[str, Any]) -> str | None:
 
 
 def _grown(arr: np.ndarray, shape: tuple[int, ...], fill: float = 0.0) -> np.ndarray:
+    """``arr`` with at least ``shape`` (the new entries ``fill``), grown geometrically."""
     if all(a >= s for a, s in zip(arr.shape, shape, strict=True)):
         return arr
     # geometric growth of the axes that grow (amortised over the scenes of a batch)
@@ -110,19 +111,19 @@ class CrowdSlots:
         self.sub = np.zeros(b, dtype=np.int64)
         self.n_left = np.zeros(b, dtype=np.int64)
         self.n_late = np.zeros(b, dtype=np.int64)
-        self.status = np.zeros((b, 0), dtype=np.int8)
-        self.pos = np.zeros((b, 0, 2))
-        self.vel = np.zeros((b, 0, 2))
-        self.switched = np.zeros((b, 0), dtype=np.int64)
-        self.wp_count = np.zeros((b, 0), dtype=np.int64)
-        self.exit = np.zeros((b, 0))
-        self.final = np.zeros((b, 0, 2))
-        self.v0 = np.zeros((b, 0))
-        self.vmax = np.zeros((b, 0))
-        self.wp_time = np.full((b, 0, 1), np.inf)
-        self.wp_pos = np.zeros((b, 0, 1, 2))
-        self.rec = np.zeros((b, 0, 0, 2))
-        self.rec_vel = np.zeros((b, 0, 0, 2))
+        self.status = np.zeros((0, 0), dtype=np.int8)
+        self.pos = np.zeros((0, 0, 2))
+        self.vel = np.zeros((0, 0, 2))
+        self.switched = np.zeros((0, 0), dtype=np.int64)
+        self.wp_count = np.zeros((0, 0), dtype=np.int64)
+        self.exit = np.zeros((0, 0))
+        self.final = np.zeros((0, 0, 2))
+        self.v0 = np.zeros((0, 0))
+        self.vmax = np.zeros((0, 0))
+        self.wp_time = np.full((0, 0, 1), np.inf)
+        self.wp_pos = np.zeros((0, 0, 1, 2))
+        self.rec = np.zeros((0, 0, 0, 2))
+        self.rec_vel = np.zeros((0, 0, 0, 2))
         #: the social force model of the slots (one run: the same parameters for all)
         self.sf: SocialForceModel | None = None
 
@@ -149,7 +150,7 @@ class CrowdSlots:
         f0 = sc.start_index
         span = min(last + 2, sc.n_frames) - f0
         w = crowd.wp_time_.shape[1]
-        nb = self.active.size
+        nb = b + 1  # rows of the slots used so far (slots are filled from 0 up)
         self.status = _grown(self.status, (nb, m))
         self.switched = _grown(self.switched, (nb, m))
         self.wp_count = _grown(self.wp_count, (nb, m))
