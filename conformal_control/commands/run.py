@@ -479,6 +479,11 @@ def _run(args: argparse.Namespace) -> int:
     from ..sim.episode import run_episode
     from ..spec import RunSpec
 
+    if not args.no_plot and args.robots is None and args.robots_file is None:
+        from ..plotting.jobs import prepare
+
+        # the figure process imports matplotlib on the other core while the episode runs
+        prepare(("conformal_control.plotting.guarantee", "conformal_control.plotting.distance"))
     log = logging.getLogger("conformal_control.run")
     if args.config:
         _apply_config(args)
