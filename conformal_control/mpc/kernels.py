@@ -34,7 +34,7 @@ import numpy as np
 
 from ..jit import kernel
 
-__all__ = ["evaluate", "evaluate_numpy"]
+__all__ = ["agent_rows", "evaluate", "evaluate_numpy"]
 
 jit = kernel(cache=True, nogil=True)
 
@@ -44,20 +44,27 @@ def _evaluate(
     pos: np.ndarray,
     cmds: np.ndarray,
     p0: np.ndarray,
-    pred: np.ndarray,
-    y0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
     radius: np.ndarray,
     goal: np.ndarray,
     weights: np.ndarray,
     last: np.ndarray,
     continuous: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # ex, ey (H, M): the agents' predicted positions at the end of each step; sx, sy: at
+    # its start. Agent-major rows and separate coordinates, and the closest approach chosen
+    # by selects rather than branches: the agent loop compiles to vector instructions
+    # (several times faster than the branching loop on (M, H, 2) arrays; the same numbers)
     n_plans, horizon = pos.shape[0], pos.shape[1]
-    n_agents = pred.shape[0]
+    n_agents = ex.shape[1]
     w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
     cost = np.zeros(n_plans)
     clear = np.full(n_plans, np.inf)
     viol = np.zeros(n_plans)
+    es = np.empty(n_agents)
     for n in range(n_plans):
         c = 0.0
         best = np.inf
@@ -78,31 +85,38 @@ def _evaluate(
             c += w_comf * ((vx - ux) * (vx - ux) + (vy - uy) * (vy - uy))
             ux = vx
             uy = vy
-            d2 = np.inf
-            for j in range(n_agents):
-                bx = px - pred[j, h, 0]
-                by = py - pred[j, h, 1]
-                e = bx * bx + by * by
-                if continuous:
-                    if h == 0:
-                        rx = ax - y0[j, 0]
-                        ry = ay - y0[j, 1]
-                    else:
-                        rx = ax - pred[j, h - 1, 0]
-                        ry = ay - pred[j, h - 1, 1]
+            if continuous:
+                for j in range(n_agents):
+                    bx = px - ex[h, j]
+                    by = py - ey[h, j]
+                    e = bx * bx + by * by  # at the step's end
+                    rx = ax - sx[h, j]
+                    ry = ay - sy[h, j]
                     dx = bx - rx
                     dy = by - ry
                     dd = dx * dx + dy * dy
-                    if dd > 0.0:
-                        s = -(rx * dx + ry * dy) / dd
-                        if 0.0 < s < 1.0:
-                            qx = rx + s * dx
-                            qy = ry + s * dy
-                            e = qx * qx + qy * qy
-                        elif s <= 0.0:
-                            e = min(e, rx * rx + ry * ry)
-                if e < d2:
-                    d2 = e
+                    # the closest approach at s in (0, 1); before the step (s <= 0) its
+                    # start; after it (s >= 1) or with no relative motion its end
+                    s = -(rx * dx + ry * dy) / (dd if dd > 0.0 else 1.0)
+                    qx = rx + s * dx
+                    qy = ry + s * dy
+                    within = qx * qx + qy * qy
+                    start = min(e, rx * rx + ry * ry)
+                    moving = dd > 0.0
+                    es[j] = (
+                        within
+                        if moving & (0.0 < s) & (s < 1.0)
+                        else (start if moving & (s <= 0.0) else e)
+                    )
+            else:
+                for j in range(n_agents):
+                    bx = px - ex[h, j]
+                    by = py - ey[h, j]
+                    es[j] = bx * bx + by * by
+            d2 = np.inf
+            for j in range(n_agents):
+                if es[j] < d2:
+                    d2 = es[j]
             if n_agents:
                 cl = math.sqrt(d2) - radius[n, h]
                 if cl < best:
@@ -163,12 +177,15 @@ def evaluate(
     if r.ndim == 1:
         r = np.broadcast_to(r, pos.shape[:2])
     c = np.ascontiguousarray
+    ex, ey, sx, sy = agent_rows(pred, y0)
     cost, clear, viol = _evaluate(
         c(pos, dtype=np.float64),
         c(cmds, dtype=np.float64),
         c(p0, dtype=np.float64),
-        c(pred, dtype=np.float64),
-        c(y0, dtype=np.float64),
+        ex,
+        ey,
+        sx,
+        sy,
         c(r),
         c(goal, dtype=np.float64),
         np.asarray(weights, dtype=np.float64),
@@ -176,6 +193,18 @@ def evaluate(
         bool(continuous),
     )
     return cost, clear, viol
+
+
+def agent_rows(
+    pred: np.ndarray, y0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's layout of the predictions: x and y of every agent at the end of each
+    step, and at its start (``y0`` for the first step), each of shape (H, M)."""
+    end = np.asarray(pred, dtype=np.float64).transpose(1, 0, 2)  # (H, M, 2)
+    first = np.asarray(y0, dtype=np.float64).reshape(1, -1, 2)
+    start = np.concatenate([first, end[:-1]], axis=0) if end.shape[0] else end
+    c = np.ascontiguousarray
+    return c(end[..., 0]), c(end[..., 1]), c(start[..., 0]), c(start[..., 1])
 
 
 def evaluate_numpy(
