@@ -245,8 +245,14 @@ def _discover() -> None:
     if _discovered:
         return
     _discovered = True
-    for role, name, target, dist, version in _entry_point_rows():
-        _add(PluginEntry(role, name, target, dist, version))
+    _add_rows(_entry_point_rows())
+
+
+def _add_rows(rows: list[tuple[str, str, str, str, str | None]]) -> None:
+    role_of = {group: role for role, group in ROLES.items()}
+    for group, name, target, dist, version in rows:
+        if group in role_of:
+            _add(PluginEntry(role_of[group], name, target, dist, version))
 
 
 #: The entry-point scan's cache file (in the package's cache folder; one per search path):
@@ -279,11 +285,11 @@ def _installed_fingerprint() -> str:
 
 
 def _entry_point_rows(use_cache: bool = True) -> list[tuple[str, str, str, str, str | None]]:
-    """``(role, name, target, distribution, version)`` of every entry point of our groups,
-    our own distribution's first in each role; from the cache file when the installed
-    distributions are those it was written for (:func:`_installed_fingerprint`), else from
-    a scan, which then rewrites the cache (best effort: a cache that cannot be read or
-    written is ignored)."""
+    """``(group, name, target, distribution, version)`` of every entry point of our
+    groups (:data:`ROLES`), our own distribution's first in each group; from the cache file
+    when the installed distributions are those it was written for
+    (:func:`_installed_fingerprint`), else from a scan, which then rewrites the cache (best
+    effort: a cache that cannot be read or written is ignored)."""
     import json
 
     path = None
@@ -291,12 +297,12 @@ def _entry_point_rows(use_cache: bool = True) -> list[tuple[str, str, str, str, 
     if use_cache:
         try:
             path = _cache_file()
-            key = _installed_fingerprint()
+            key = "\n".join([*ROLES.values(), _installed_fingerprint()])
             stored = json.loads(path.read_text())
             if stored.get("key") == key:
                 return [
-                    (str(r), str(n), str(t), str(d), None if v is None else str(v))
-                    for r, n, t, d, v in stored["rows"]
+                    (str(g), str(n), str(t), str(d), None if v is None else str(v))
+                    for g, n, t, d, v in stored["rows"]
                 ]
         except (OSError, ValueError, KeyError, TypeError):
             pass
@@ -349,13 +355,13 @@ def _scan_entry_points() -> list[tuple[str, str, str, str, str | None]]:
         return origin[key]
 
     rows: list[tuple[str, str, str, str, str | None]] = []
-    for role, group in ROLES.items():
+    for group in ROLES.values():
         ep: EntryPoint
         # our own plugins first: a third party cannot take over a core name
         eps = sorted(every.select(group=group), key=lambda e: dist_of(e)[0] != "conformal-control")
         for ep in eps:
             dist, version = dist_of(ep)
-            rows.append((role, ep.name, ep.value, dist, version))
+            rows.append((group, ep.name, ep.value, dist, version))
     return rows
 
 
@@ -370,8 +376,7 @@ def refresh() -> None:
     _clashes.clear()
     _discovered = True
     importlib.invalidate_caches()
-    for role, name, target, dist, version in _entry_point_rows(use_cache=False):
-        _add(PluginEntry(role, name, target, dist, version))
+    _add_rows(_entry_point_rows(use_cache=False))
 
 
 def register(
