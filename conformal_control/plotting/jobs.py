@@ -34,7 +34,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["CHILD_TIMEOUT_S", "FigureJob", "can_fork", "draw_all", "prepare"]
+__all__ = ["CHILD_TIMEOUT_S", "FigureJob", "can_fork", "draw_all", "prepare", "release"]
 
 #: Least time (s) the figure process is given after this process finished its share.
 CHILD_TIMEOUT_S = 120.0
@@ -89,10 +89,11 @@ def draw_all(jobs: Sequence[FigureJob], workers: int | None = None) -> str:
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
     prepared = _take_prepared()
-    if prepared is not None and jobs and (workers is None or workers > 1):
+    usable = jobs and (workers is None or workers > 1) and _cwd() == getattr(prepared, "cwd", None)
+    if prepared is not None and usable:
         if prepared.draw(jobs):
             return "forked"
-    elif prepared is not None:
+    elif prepared is not None:  # not wanted, or this process moved to another folder
         prepared.close()
     split = len(jobs) > 1 and (workers is None or workers > 1) and can_fork()
     if not split:
@@ -170,6 +171,7 @@ class _Prepared:
 
     def __init__(self, pid: int, jobs_fd: int, reply_fd: int):
         self.pid = pid
+        self.cwd = os.getcwd()  # the process's: relative paths of the jobs resolve there
         self.jobs_fd: int | None = jobs_fd  # write end: the pickled jobs, then EOF
         self.reply_fd: int | None = reply_fd  # read end: the pickled outcome
         self.reaped = False
@@ -255,6 +257,13 @@ class _Prepared:
 _PREPARED: _Prepared | None = None
 
 
+def _cwd() -> str | None:
+    try:
+        return os.getcwd()
+    except OSError:  # the folder was removed
+        return None
+
+
 def _take_prepared() -> _Prepared | None:
     global _PREPARED
     prepared, _PREPARED = _PREPARED, None
@@ -299,11 +308,13 @@ def prepare(imports: Sequence[str] = ()) -> bool:
     os.close(jobs_r)
     os.close(reply_w)
     _PREPARED = _Prepared(pid, jobs_w, reply_r)
-    atexit.register(_release)
+    atexit.register(release)
     return True
 
 
-def _release() -> None:
+def release() -> None:
+    """Let the figure process of :func:`prepare` go if no :func:`draw_all` used it (it
+    exits; called at exit too)."""
     prepared = _take_prepared()
     if prepared is not None:
         prepared.close()

@@ -190,7 +190,7 @@ def test_a_dead_prepared_process_is_reported_and_its_figures_drawn_here(
 def test_an_unused_prepared_process_is_released(forkable: None) -> None:
     assert jobs.prepare()
     child = jobs._PREPARED.pid  # type: ignore[union-attr]
-    jobs._release()  # what happens at exit when nothing was drawn
+    jobs.release()  # what happens at exit when nothing was drawn
     assert jobs._PREPARED is None
     with pytest.raises(ChildProcessError):
         os.waitpid(child, os.WNOHANG)
@@ -200,3 +200,20 @@ def test_no_prepared_process_where_forking_is_unsafe(monkeypatch: pytest.MonkeyP
     monkeypatch.setattr(jobs, "can_fork", lambda: False)
     assert not jobs.prepare()
     assert jobs._PREPARED is None
+
+
+def test_a_prepared_process_in_another_folder_is_not_used(
+    tmp_path: Path, forkable: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Jobs name files relative to this process's folder: a figure process forked in
+    another folder would write them elsewhere."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+    assert jobs.prepare()
+    child = jobs._PREPARED.pid  # type: ignore[union-attr]
+    monkeypatch.chdir(tmp_path / "b")
+    draw_all([(_figure, (Path("rel.png"), 1), {})])
+    assert (tmp_path / "b" / "rel.png").is_file() and not (tmp_path / "a" / "rel.png").exists()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)
