@@ -28,19 +28,21 @@ Written as plain loops for numba; :func:`evaluate_numpy` is the same arithmetic 
 
 from __future__ import annotations
 
+import itertools
 import math
+from typing import Any
 
 import numpy as np
 
 from ..jit import kernel
 
-__all__ = ["agent_rows", "evaluate", "evaluate_numpy"]
+__all__ = ["agent_rows", "evaluate", "evaluate_many", "evaluate_numpy"]
 
 jit = kernel(cache=True, nogil=True)
 
 
 @jit
-def _evaluate(
+def _evaluate_range(
     pos: np.ndarray,
     cmds: np.ndarray,
     p0: np.ndarray,
@@ -53,19 +55,27 @@ def _evaluate(
     weights: np.ndarray,
     last: np.ndarray,
     continuous: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n0: int,
+    n1: int,
+    a0: int,
+    a1: int,
+    cost: np.ndarray,
+    clear: np.ndarray,
+    viol: np.ndarray,
+) -> None:
+    """Plans ``n0:n1`` of ``pos``/``cmds``/``radius`` against agents ``a0:a1`` (columns of
+    ``ex``, ``ey``, ``sx``, ``sy``), written into ``cost``, ``clear``, ``viol`` at ``n0:n1``:
+    the body of :func:`_evaluate` and of :func:`_evaluate_many` (one body, so one plan's
+    numbers are the same whichever call evaluates it)."""
     # ex, ey (H, M): the agents' predicted positions at the end of each step; sx, sy: at
     # its start. Agent-major rows and separate coordinates, and the closest approach chosen
     # by selects rather than branches: the agent loop compiles to vector instructions
     # (several times faster than the branching loop on (M, H, 2) arrays; the same numbers)
-    n_plans, horizon = pos.shape[0], pos.shape[1]
-    n_agents = ex.shape[1]
+    horizon = pos.shape[1]
+    n_agents = a1 - a0
     w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
-    cost = np.zeros(n_plans)
-    clear = np.full(n_plans, np.inf)
-    viol = np.zeros(n_plans)
     es = np.empty(n_agents)
-    for n in range(n_plans):
+    for n in range(n0, n1):
         c = 0.0
         best = np.inf
         v = 0.0
@@ -87,11 +97,11 @@ def _evaluate(
             uy = vy
             if continuous:
                 for j in range(n_agents):
-                    bx = px - ex[h, j]
-                    by = py - ey[h, j]
+                    bx = px - ex[h, a0 + j]
+                    by = py - ey[h, a0 + j]
                     e = bx * bx + by * by  # at the step's end
-                    rx = ax - sx[h, j]
-                    ry = ay - sy[h, j]
+                    rx = ax - sx[h, a0 + j]
+                    ry = ay - sy[h, a0 + j]
                     dx = bx - rx
                     dy = by - ry
                     dd = dx * dx + dy * dy
@@ -110,8 +120,8 @@ def _evaluate(
                     )
             else:
                 for j in range(n_agents):
-                    bx = px - ex[h, j]
-                    by = py - ey[h, j]
+                    bx = px - ex[h, a0 + j]
+                    by = py - ey[h, a0 + j]
                     es[j] = bx * bx + by * by
             d2 = np.inf
             for j in range(n_agents):
@@ -128,6 +138,63 @@ def _evaluate(
         cost[n] = c
         clear[n] = best
         viol[n] = v
+
+
+@jit
+def _evaluate(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n_plans = pos.shape[0]
+    cost = np.zeros(n_plans)
+    clear = np.full(n_plans, np.inf)
+    viol = np.zeros(n_plans)
+    _evaluate_range(
+        pos, cmds, p0, ex, ey, sx, sy, radius, goal, weights, last, continuous,
+        0, n_plans, 0, ex.shape[1], cost, clear, viol,
+    )  # fmt: skip
+    return cost, clear, viol
+
+
+@jit
+def _evaluate_many(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: np.ndarray,
+    plans: np.ndarray,
+    agents: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Problem ``i`` is plans ``plans[i]:plans[i + 1]`` against agents ``agents[i]:agents[i
+    + 1]``, with its own ``p0[i]``, ``goal[i]``, ``weights[i]``, ``last[i]``,
+    ``continuous[i]``."""
+    n_plans = pos.shape[0]
+    cost = np.zeros(n_plans)
+    clear = np.full(n_plans, np.inf)
+    viol = np.zeros(n_plans)
+    for i in range(plans.shape[0] - 1):
+        _evaluate_range(
+            pos, cmds, p0[i], ex, ey, sx, sy, radius, goal[i], weights[i], last[i],
+            continuous[i], plans[i], plans[i + 1], agents[i], agents[i + 1], cost, clear, viol,
+        )  # fmt: skip
     return cost, clear, viol
 
 
@@ -193,6 +260,60 @@ def evaluate(
         bool(continuous),
     )
     return cost, clear, viol
+
+
+def evaluate_many(
+    problems: list[tuple[Any, ...]],
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`evaluate` of several problems in ONE compiled call (the lockstep episodes of a
+    batch: every episode's samples at once), each problem's numbers the same as
+    :func:`evaluate`'s on it alone (the same compiled body, plan by plan).
+
+    Parameters
+    ----------
+    problems : list of tuples
+        Each ``(pos, cmds, p0, pred, y0, radius, goal, weights, last, continuous)``, the
+        arguments of :func:`evaluate`; every ``pos`` with the same horizon H.
+
+    Returns
+    -------
+    list of (cost, clearance, violation)
+        One per problem, as :func:`evaluate` returns them.
+    """
+    if not problems:
+        return []
+    horizon = {int(np.shape(p[0])[1]) for p in problems}
+    if len(horizon) != 1:
+        raise ValueError(f"evaluate_many needs one horizon, got {sorted(horizon)}")
+    f64 = np.float64
+    pos = np.concatenate([np.asarray(p[0], dtype=f64) for p in problems])
+    cmds = np.concatenate([np.asarray(p[1], dtype=f64) for p in problems])
+    rows = [agent_rows(p[3], p[4]) for p in problems]
+    ex, ey, sx, sy = (np.ascontiguousarray(np.concatenate([r[k] for r in rows], axis=1))
+                      for k in range(4))  # fmt: skip
+    radius = np.concatenate(
+        [np.broadcast_to(np.asarray(p[5], dtype=f64), np.shape(p[0])[:2]) for p in problems]
+    )
+    sizes = np.array([np.shape(p[0])[0] for p in problems], dtype=np.int64)
+    plans = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    agents = np.concatenate([[0], np.cumsum([r[0].shape[1] for r in rows])]).astype(np.int64)
+    cost, clear, viol = _evaluate_many(
+        np.ascontiguousarray(pos),
+        np.ascontiguousarray(cmds),
+        np.array([np.asarray(p[2], dtype=f64) for p in problems]).reshape(-1, 2),
+        ex,
+        ey,
+        sx,
+        sy,
+        np.ascontiguousarray(radius),
+        np.array([np.asarray(p[6], dtype=f64) for p in problems]).reshape(-1, 2),
+        np.array([np.asarray(p[7], dtype=f64) for p in problems]).reshape(-1, 4),
+        np.array([np.asarray(p[8], dtype=f64) for p in problems]).reshape(-1, 2),
+        np.array([bool(p[9]) if len(p) > 9 else True for p in problems]),
+        plans,
+        agents,
+    )
+    return [(cost[a:b], clear[a:b], viol[a:b]) for a, b in itertools.pairwise(plans)]
 
 
 def agent_rows(
