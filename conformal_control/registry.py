@@ -263,10 +263,11 @@ ENTRY_POINT_CACHE = "entry-points.json"
 
 
 def _installed_fingerprint() -> str:
-    """What the entry-point scan depends on: every folder of ``sys.path`` with its time of
-    change and the names of its distributions' metadata folders. Installing, removing or
-    re-installing a distribution (``pip`` replaces its metadata folder) changes it; a
-    metadata file edited in place by hand does not (:func:`refresh` re-reads them)."""
+    """What the entry-point scan depends on: for every folder of ``sys.path``, the names and
+    times of change of its distributions' metadata folders. Installing, removing or
+    re-installing a distribution changes it (``pip`` writes a new metadata folder); other
+    files coming and going in a folder (a script's folder, the current folder) do not; a
+    metadata file edited in place by hand does not either (:func:`refresh` re-reads them)."""
     import os
     import sys
 
@@ -274,13 +275,16 @@ def _installed_fingerprint() -> str:
     for entry in sys.path:
         folder = entry or "."
         try:
-            stamp = os.stat(folder).st_mtime_ns
             with os.scandir(folder) as it:
-                names = sorted(e.name for e in it if e.name.endswith((".dist-info", ".egg-info")))
+                found = sorted(
+                    f"{e.name}:{e.stat().st_mtime_ns}"
+                    for e in it
+                    if e.name.endswith((".dist-info", ".egg-info"))
+                )
         except OSError:  # a zip file, a path hook, a missing folder: nothing to list
             parts.append(f"{entry}\0-")
             continue
-        parts.append(f"{entry}\0{os.path.abspath(folder)}\0{stamp}\0{','.join(names)}")
+        parts.append(f"{entry}\0{os.path.abspath(folder)}\0{','.join(found)}")
     return "\n".join(parts)
 
 
