@@ -32,7 +32,7 @@ cpu``: what a step costs when other jobs share the cores; every timed path runs 
 thread). Usage::
 
     python benchmarks/bench_mpc.py [--repeats 400] [--samples 500] [--horizon 12] [--agents 20]
-                                   [--clock wall|cpu]
+                                   [--clock wall|cpu] [--data-root DATA]
 """
 
 from __future__ import annotations
@@ -160,7 +160,13 @@ def time_lockstep(method: str = "cc_mpc", data_root: Any = None, repeats: int = 
     return best["lockstep"], best["alone"]
 
 
-def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: int = 400) -> list:
+def measure(
+    samples: int = 500,
+    horizon: int = 12,
+    agents: int = 20,
+    repeats: int = 400,
+    data_root: Any = None,
+) -> list:
     """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
     compile_now()  # timed compiled (see conformal_control.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
@@ -193,7 +199,7 @@ def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: in
     rows.append(("acp_mpc, unicycle", a, "mpc, unicycle", u, a / u))
     rows.append(("ecp_mpc, unicycle", e, "mpc, unicycle", u, e / u))
     rows.append(("mpc, unicycle", u, "cbf (exact2d) step", cbf, u / cbf))
-    lock, alone = time_lockstep()
+    lock, alone = time_lockstep(data_root=data_root)  # the ETH/UCY recordings
     rows.append(("cc_mpc planar, 13 scenarios in lockstep, per step (CPU)", lock,
                  "one scenario at a time", alone, alone / lock))  # fmt: skip
     return rows
@@ -206,10 +212,11 @@ def main() -> None:
     ap.add_argument("--horizon", type=int, default=12)
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--clock", choices=sorted(CLOCKS), default="wall")
+    ap.add_argument("--data-root", default=None, help="the data folder (the ETH/UCY recordings)")
     args = ap.parse_args()
     global clock
     clock = CLOCKS[args.clock]
-    rows = measure(args.samples, args.horizon, args.agents, args.repeats)
+    rows = measure(args.samples, args.horizon, args.agents, args.repeats, args.data_root)
     print(
         f"one control step, N = {args.samples} samples x H = {args.horizon} steps, "
         f"{args.agents} agents ({platform.processor() or platform.machine()}, "
