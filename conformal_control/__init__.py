@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         UpdateRule,
     )
     from .cbf.roles import Barrier, Dynamics, FilterResult, ReferenceController, SafetyFilter
-    from .cbf.stepwise import StepwiseCBF
+    from .cbf.stepwise import StepwiseCBF, Stream
     from .loop import ConformalLoop, IntervalLog, LoopResult
     from .monitor import GuaranteeMonitor
     from .predictors.base import Forecast, PredictionQuery, Predictor
@@ -52,6 +52,7 @@ _LAZY = {
     "RunSpec": "conformal_control.spec",
     "Parameters": "conformal_control.spec",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
+    "Stream": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
     "Forecast": "conformal_control.predictors.base",
@@ -83,6 +84,7 @@ __all__ = [
     "SafetyFilter",
     "SingleStepEnvironment",
     "StepwiseCBF",
+    "Stream",
     "UpdateRule",
     "__version__",
     "run",

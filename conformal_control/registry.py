@@ -49,6 +49,7 @@ __all__ = [
     "refresh",
     "register",
     "unregister",
+    "with_context",
 ]
 
 #: role -> entry-point group
@@ -410,24 +411,59 @@ def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> Non
     cls : type
         Its class.
     params : dict
-        The arguments to check against ``cls``'s constructor.
+        The arguments to check against ``cls``'s constructor: its parameters by name,
+        a :class:`~conformal_control.base.Settings` group's field as ``<group>__<field>``
+        (the group's own fields are checked when it is built), or a former flat name
+        the class still maps (``renamed_params``).
     """
     if not params:  # nothing to check (and a signature costs tens of microseconds)
         return
     import inspect
 
     sig = inspect.signature(cls)
-    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+    renamed: dict[str, str] = getattr(cls, "renamed_params", {})
+    if not renamed and any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
         return
-    known = [p for p in sig.parameters if p != "self"]
+    known = [
+        p.name for p in sig.parameters.values() if p.name != "self" and p.kind is not p.VAR_KEYWORD
+    ]
     for key in params:
-        if key not in known:
+        group, sep, _ = renamed.get(key, key).partition("__")
+        if not (key in known or (sep and group in known)):
             close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
             hint = f"; did you mean {close[0]!r}?" if close else ";"
             raise UnknownParameterError(
                 f"{role} {name!r} has no parameter {key!r}{hint} "
                 f"its parameters: {', '.join(known) or 'none'}"
             )
+
+
+def with_context(cls: type, given: dict[str, Any], context: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments to build ``cls`` with: the ``context`` values it takes (by
+    name, or ``<group>__<field>`` for a settings group it takes) that ``given`` does not
+    set, then ``given`` unchanged (so a caller's value always wins).
+
+    Parameters
+    ----------
+    cls : type
+        The plugin class.
+    given : dict
+        The caller's parameters (checked separately with :func:`check_params`).
+    context : dict
+        The values a run fixes for parameters the caller left out (``d_c``, the seed,
+        ``limits__v_max``, ...).
+    """
+    accepted = set(cls._param_names()) if hasattr(cls, "_param_names") else set()
+    renamed: dict[str, str] = getattr(cls, "renamed_params", {})
+    keys = {renamed.get(k, k) for k in given}
+    whole = {k for k in keys if "__" not in k}  # a group given as one object
+    out = {
+        k: v
+        for k, v in context.items()
+        if k.partition("__")[0] in accepted and k not in keys and k.partition("__")[0] not in whole
+    }
+    out.update(given)
+    return out
 
 
 def create(role: str, name: str, **params: Any) -> Any:

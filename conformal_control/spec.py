@@ -9,8 +9,9 @@ parameters is derived from it: :data:`PARAMETERS` (name -> (default, doc), what
 :class:`~conformal_control.data.units.UnitSystem` converts) and :data:`PLAUSIBLE_SI`
 (the SI range outside which a bare number is reported as suspicious).
 
-This module imports nothing of the package but the exceptions, so every floor of the
-house can read the table and the specification.
+This module imports nothing of the package but the exceptions and the generic core
+(:mod:`~conformal_control.base`), so every floor of the house can read the table and the
+specification.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
+from .base import expand_settings
 from .exceptions import InputError
 
 __all__ = [
@@ -732,6 +734,7 @@ class RunSpec:
         for role in ROLE_FIELDS:
             spec, params = self.role(role)
             if spec is None or isinstance(spec, str):
+                params = expand_settings(params)  # a settings group as its fields
                 out[role] = spec if not params else {"name": spec, "params": params}
             else:
                 get = getattr(spec, "get_params", None)

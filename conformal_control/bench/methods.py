@@ -272,10 +272,10 @@ class Family:
 #: 0.4 s, a plan every video frame (4 control instants), the least violating plan when none
 #: is safe.
 MPC_SEARCH: dict[str, Any] = {
-    "n_samples": 500,
-    "horizon": 12,
-    "dt_plan": 0.4,
-    "replan_every": 4,
+    "sampling__n_samples": 500,
+    "sampling__horizon": 12,
+    "sampling__dt_plan": 0.4,
+    "sampling__replan_every": 4,
     "fallback": "least_violation",
 }
 

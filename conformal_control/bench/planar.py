@@ -324,10 +324,10 @@ CBF_PARAMS: dict[str, float] = {
 #: published runs do (pedestrians replayed from a recording do not avoid a robot that
 #: stopped in their way).
 MPC_PARAMS: dict[str, Any] = {
-    "n_samples": 1200,
-    "horizon": 12,
-    "dt_plan": STEP_S,
-    "hold": 2,
+    "sampling__n_samples": 1200,
+    "sampling__horizon": 12,
+    "sampling__dt_plan": STEP_S,
+    "sampling__hold": 2,
     "fallback": "least_violation",
 }
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import DecisionFamily, Loss, Plugin, UpdateRule
+from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
@@ -89,13 +89,13 @@ class Flagship:
             "rule": self.rule,
         }
         out = {
-            role: {"name": self.names.get(role, type(obj).__name__), "params": obj.get_params()}
+            role: {"name": self.names.get(role, type(obj).__name__), "params": flat_params(obj)}
             for role, obj in roles.items()
         }
         parts = ("predictor", "constraint", "safety_filter", "reference")
         out["decision_family"] = {
             "name": self.names.get("family", type(self.policy).__name__),
-            "params": {k: v for k, v in self.policy.get_params().items() if k not in parts},
+            "params": {k: v for k, v in flat_params(self.policy).items() if k not in parts},
         }
         return out
 
@@ -403,13 +403,11 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             "reference": ref,
             "d_c": d_c,
             "margin": si["barrier_margin"],
-            "v_max": si["v_max"],
+            "limits__v_max": si["v_max"],
             "substeps": si["substeps"],
             "random_state": seed,
-            **(family_params or {}),
         }
-        accepted = set(fam_cls._param_names())
-        policy = fam_cls(**{k: v for k, v in plan_context.items() if k in accepted})
+        policy = fam_cls(**registry.with_context(fam_cls, dict(family_params or {}), plan_context))
     else:
         policy = fam_cls(
             pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {})

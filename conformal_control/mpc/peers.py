@@ -201,7 +201,7 @@ def peer_terms(
     d_r = float(policy.d_c) + float(rec.robot_margin)
     buffer = max(0.5 * d_r + 0.5 * (float(policy.margin) - lam_r), 0.0)
     h = positions.shape[1]
-    times = float(state.t) + float(policy.dt_plan) * np.arange(1, h + 1)
+    times = float(state.t) + float(policy.sampling.dt_plan) * np.arange(1, h + 1)
     own, peers = reference_paths(view, state.x, times, float(state.t))
     normal, offset = peer_lines(view, own, peers, buffer)
     c, v = peer_clearance(positions, normal, offset)
