@@ -573,6 +573,21 @@ def run_scenario(
     per step: at each step it receives the pedestrians with a history (their last
     ``HISTORY_SAMPLES`` positions), decides once (after the warm-up), and the interval is
     scored on the pedestrians' positions at the next time step.
+
+    Parameters
+    ----------
+    task : PlanarTask
+        The dataset's protocol (start pose, goal, steps, ...).
+    start_timestep : int
+        The recording's time step the scenario starts at.
+    method : PlanarMethod
+        The method (family, loss, rule).
+    predictor : str
+        ``recorded`` or a registered predictor.
+    data_root : str or Path, optional
+        The data folder.
+    seed : int
+        The family's random state.
     """
     from ..cbf.controller import ControlState
     from ..cbf.loss import CBFTruth
@@ -678,6 +693,23 @@ def run_planar(
     Writes ``OUT/config.json`` (the protocol, the methods, the predictors, the seed) and
     ``OUT/rows.jsonl`` (one row per scenario: its metrics, the family's counters, the
     per-step log); returns the rows.
+
+    Parameters
+    ----------
+    out : str or Path
+        The output folder (created).
+    methods : iterable of str, optional
+        Planar methods (None: all of :data:`PLANAR_METHODS`).
+    predictors : sequence of str
+        Predictors; ``recorded`` runs only on the datasets that have its file.
+    datasets : iterable of str, optional
+        ``eth``, ``hotel``, ``univ``, ``zara1``, ``zara2`` (None: all).
+    data_root : str or Path, optional
+        The data folder.
+    seed : int
+        The families' random state.
+    progress : callable, optional
+        Called with one line per scenario run.
 
     Raises
     ------
@@ -875,7 +907,22 @@ def run_command(
     data_root: str | None,
     datasets: str | None = None,
 ) -> int:
-    """``bench run --suite fcp-planar``: run, write the folder and print the table."""
+    """``bench run --suite fcp-planar``: run, write the folder and print the table.
+
+    Parameters
+    ----------
+    out : str
+        The output folder.
+    methods : str, optional
+        Comma-separated planar methods (None: all).
+    predictor : str, optional
+        Comma-separated predictors (None: ``recorded,constant_velocity``; ``recorded`` is
+        left out when not installed).
+    data_root : str, optional
+        The data folder.
+    datasets : str, optional
+        Comma-separated datasets (None: all five).
+    """
     from .. import registry
 
     preds = [p.strip() for p in (predictor or "recorded,constant_velocity").split(",") if p]

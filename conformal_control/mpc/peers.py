@@ -53,6 +53,18 @@ def reference_paths(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own and its peers' reference positions at ``times`` (s since the start).
 
+    Parameters
+    ----------
+    view : PeerView
+        What the robot knows of its K peers (positions, and by its ``information``
+        velocities or broadcast plans).
+    x_ego : ndarray
+        The robot's state (its first two numbers are its position, m).
+    times : ndarray of shape (H,)
+        The plan times (s since the start).
+    t_now : float
+        The time now (s since the start).
+
     Returns
     -------
     own : ndarray of shape (H, 2)
@@ -93,7 +105,20 @@ def peer_lines(
     view: PeerView, own: np.ndarray, peers: np.ndarray, buffer: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """The shared lines: unit normals ``(K, H, 2)`` pointing at each peer and offsets
-    ``(K, H)`` such that robot i's plan must keep ``normal . p <= offset``."""
+    ``(K, H)`` such that robot i's plan must keep ``normal . p <= offset``.
+
+    Parameters
+    ----------
+    view : PeerView
+        The peers; its ``shares`` (K,) place each line at that fraction of the way from
+        the robot's reference position to the peer's.
+    own : ndarray of shape (H, 2)
+        The robot's reference positions at the plan times (m).
+    peers : ndarray of shape (K, H, 2)
+        The peers' reference positions at the plan times (m).
+    buffer : float
+        Distance (m) the plan keeps on its side of each line.
+    """
     d = peers - own[None, :, :]
     dist = np.hypot(d[..., 0], d[..., 1])
     normal = d / np.maximum(dist, 1e-12)[..., None]
@@ -192,7 +217,28 @@ def peer_terms(
     """The candidate plans' clearance and intrusion with the peers' lines added (unchanged
     without peers): the buffer is half the robots' collision distance (the family's ``d_c``
     plus the reciprocity's robot margin) plus half the family's margin, minus half of
-    lambda when lambda applies to the robots."""
+    lambda when lambda applies to the robots.
+
+    Parameters
+    ----------
+    policy : SamplingMPC
+        The planning family (its ``reciprocity``, ``d_c``, ``margin`` and plan step).
+    state : ControlState
+        The control instant (its ``peers`` view, time and robot state).
+    lam : float
+        The lambda the plan is made with (m).
+    positions : ndarray of shape (N, H, 2)
+        The candidate plans' positions at plan steps 1..H (m).
+    clear : ndarray of shape (N,)
+        Their clearance against the pedestrians (m).
+    viol : ndarray of shape (N,)
+        Their summed intrusion into the pedestrians' safe distances (m).
+
+    Returns
+    -------
+    clear, viol : ndarrays of shape (N,)
+        With the peers' lines taken into account.
+    """
     rec = getattr(policy, "reciprocity", None)
     view = getattr(state, "peers", None)
     if rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0:
