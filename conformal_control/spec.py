@@ -235,8 +235,8 @@ PLAUSIBLE_SI: dict[str, tuple[float, float, str]] = {
 #: or None (the flagship's default).
 RoleValue = Any
 
-#: The roles of a run, in the order they are reported; ``rule`` is the ``update_rule``
-#: role, ``family`` the ``decision_family`` role, ``crowd`` the crowd model.
+#: The roles of a run, in the order they are reported: the registry's roles
+#: (:data:`conformal_control.registry.ROLES`), by the same names.
 ROLE_FIELDS: tuple[str, ...] = (
     "predictor",
     "barrier",
@@ -494,9 +494,9 @@ class RunSpec:
         the unit system ``units``; a string value may carry a unit suffix (``"18m"``).
     predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule, family, crowd
         Each role as a registered name, an instance (used as given, SI units),
-        ``(name, params)``, or None for the flagship's default. ``rule`` is the
-        ``update_rule`` role (its parameters in ``units``), ``family`` the
-        ``decision_family`` role, ``crowd`` the crowd model (``"replay"``: the recording).
+        ``(name, params)``, or None for the flagship's default: the registry's roles,
+        by the same names. The ``rule``'s parameters are in ``units``; the ``crowd`` is
+        also ``"replay"`` (the recording) or ``"mixed"``.
     units : {"scene", "si"}
         Unit system of ``params`` and of the rule's parameters.
     learn : bool

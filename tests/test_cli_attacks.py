@@ -52,7 +52,7 @@ TYPED = [
         ["--predictor", "constant_velocty"],
         ["unknown predictor 'constant_velocty'", "did you mean 'constant_velocity'"],
     ),
-    ("rule typo", ["--rule", "fixed_eat"], ["unknown update_rule 'fixed_eat'", "'fixed_eta'"]),
+    ("rule typo", ["--rule", "fixed_eat"], ["unknown rule 'fixed_eat'", "'fixed_eta'"]),
     ("rule param typo", ["--rule-param", "etta=1"], ["no parameter 'etta'", "'eta'"]),
     ("lambda-safe nan", ["--lambda-safe", "nan"], ["--lambda-safe", "finite"]),
     ("lambda-safe inf", ["--lambda-safe", "inf"], ["--lambda-safe", "finite"]),

@@ -473,13 +473,13 @@ def build_method(method: PlanarMethod, predictor: Any, seed: int = 0) -> tuple[A
         plant = Unicycle(**limits)
         params = {**MPC_PARAMS, "d_c": COLLISION_M, "substeps": 1, "random_state": seed, **fp}
         family = registry.create(
-            "decision_family", method.family, predictor=predictor, dynamics=plant, **params
+            "family", method.family, predictor=predictor, dynamics=plant, **params
         )
     loss_params = dict(method.loss_params)
     if method.loss == "cbf_gap":
         loss_params.setdefault("constraint", constraint)
     loss = registry.create("loss", method.loss, **loss_params)
-    rule = registry.create("update_rule", method.rule, **dict(method.rule_params))
+    rule = registry.create("rule", method.rule, **dict(method.rule_params))
     return family, plant, loss, rule
 
 

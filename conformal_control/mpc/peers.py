@@ -207,7 +207,7 @@ def with_robot_columns(record: Any, split: RobotSplit | None) -> Any:
 
 
 def peer_terms(
-    policy: Any,
+    family: Any,
     state: Any,
     lam: float,
     positions: np.ndarray,
@@ -221,7 +221,7 @@ def peer_terms(
 
     Parameters
     ----------
-    policy : SamplingMPC
+    family : SamplingMPC
         The planning family (its ``reciprocity``, ``d_c``, ``margin`` and plan step).
     state : ControlState
         The control instant (its ``peers`` view, time and robot state).
@@ -239,15 +239,15 @@ def peer_terms(
     clear, viol : ndarrays of shape (N,)
         With the peers' lines taken into account.
     """
-    rec = getattr(policy, "reciprocity", None)
+    rec = getattr(family, "reciprocity", None)
     view = getattr(state, "peers", None)
     if rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0:
         return clear, viol
     lam_r = float(lam) if rec.lambda_on_robots else 0.0
-    d_r = float(policy.d_c) + float(rec.robot_margin)
-    buffer = max(0.5 * d_r + 0.5 * (float(policy.margin) - lam_r), 0.0)
+    d_r = float(family.d_c) + float(rec.robot_margin)
+    buffer = max(0.5 * d_r + 0.5 * (float(family.margin) - lam_r), 0.0)
     h = positions.shape[1]
-    times = float(state.t) + float(policy.sampling.dt_plan) * np.arange(1, h + 1)
+    times = float(state.t) + float(family.sampling.dt_plan) * np.arange(1, h + 1)
     own, peers = reference_paths(view, state.x, times, float(state.t))
     normal, offset = peer_lines(view, own, peers, buffer)
     c, v = peer_clearance(positions, normal, offset)

@@ -164,13 +164,13 @@ class StepwiseMPC(StepwiseCBF):
         ref = reference if reference is not None else AttractiveField(K_att, v_max)
         policy: DecisionFamily[Any, Any, Any, Any]
         if isinstance(family, str):
-            cls = registry.get("decision_family", family)
+            cls = registry.get("family", family)
             if issubclass(cls, ConformalCBFController) or "dynamics" not in cls._param_names():
                 raise InputError(
                     f"StepwiseMPC runs a planning family (one taking a predictor and a plant, "
                     f"as mpc, acp_mpc, ecp_mpc do), not {family!r}; use StepwiseCBF for the CBF"
                 )
-            registry.check_params("decision_family", family, cls, dict(family_params or {}))
+            registry.check_params("family", family, cls, dict(family_params or {}))
             context = {
                 "predictor": pred,
                 "dynamics": plant,

@@ -61,7 +61,7 @@ def test_clone_and_flat_params_rebuild_the_same_family(cls):
 
 def test_the_registry_builds_a_family_from_deep_parameters():
     fam = registry.create(
-        "decision_family",
+        "family",
         "mpc",
         predictor=ConstantVelocityPredictor(),
         dynamics=VelocityTrackingDoubleIntegrator(10.0),
@@ -70,7 +70,7 @@ def test_the_registry_builds_a_family_from_deep_parameters():
     )
     assert fam.sampling == Sampling(n_samples=9) and fam.costs == Costs(w_goal=0.5)
     with pytest.raises(registry.UnknownParameterError, match="did you mean 'sampling'"):
-        registry.check_params("decision_family", "mpc", SamplingMPC, {"samplin__n": 1})
+        registry.check_params("family", "mpc", SamplingMPC, {"samplin__n": 1})
 
 
 @pytest.mark.parametrize(

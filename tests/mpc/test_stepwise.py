@@ -65,7 +65,7 @@ def test_stepwise_mpc_matches_the_replay_environment(crossing, family, rule, rul
     si = fl.params.si
     ctrl = StepwiseMPC(
         fl.predictor,
-        family=fl.policy,
+        family=fl.family,
         dynamics=fl.dynamics,
         loss=fl.loss,
         rule=fl.rule,
