@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/bench_batch.py [--seeds 1000] [--baseline 40] [--batch-size 128]
                                      [--data-root ../shared/data] [--cache DIR] [--no-suite]
-                                     [--scenarios N]
+                                     [--scenarios N] [--reactive N]
 
 1. ``crossing``: the built-in scene with seeds ``0 .. seeds-1`` (learning, the scene's
    defaults). The batch engine runs all of them in a fresh child process, the scenes
@@ -23,6 +23,10 @@ Usage::
    decided in Python; the first ``--scenarios-relax``): each scenario through the
    per-episode loop and through the batch engine, episodes per second, and the same
    comparison of the metrics.
+3. Reactive crowds (``social_force``, ``orca``; ``mixed`` from the command line) on the
+   first ``--reactive`` scenarios of the dev split with the ``conformal`` method (learning):
+   the per-episode loop against the batch engine, wall and CPU time, and the metrics
+   compared field by field (target: 8x faster).
 
 :func:`measure` returns the same figures as ``(name, value, unit, baseline, ratio)``
 rows (for ``benchmarks/run_all.py``).
@@ -249,7 +253,74 @@ def bench_suite(
     return {"n": n, "wall": bw, "cpu": bc, "base_wall": ew, "base_cpu": ec, "differing": differing}
 
 
+def bench_reactive(
+    args: argparse.Namespace, crowd: str, scenarios: int | None, method: str = "conformal"
+) -> dict[str, float]:
+    """Print and return the figures of a reactive crowd (``crowd``) on the suite's dev
+    split (the first ``scenarios``) with ``method``: the per-episode loop against the batch
+    engine, and the metrics compared field by field."""
+    from conformal_control.bench import load_scenario, load_suite
+    from conformal_control.bench.methods import expand_methods
+    from conformal_control.engines.batch import run_batch, supports
+    from conformal_control.jit import compile_now
+    from conformal_control.sim import run_episode
+
+    compile_now()
+    warnings.simplefilter("ignore")
+    suite = load_suite("crossings-v1")
+    dev = suite.scenarios_for("dev")[:scenarios]
+    kw = {**expand_methods([method])[0].run_kwargs(), "crowd": crowd}
+    assert supports(**kw) is None, supports(**kw)
+    print(f"\n== {suite.name} dev split, crowd {crowd}: {len(dev)} scenarios, method {method}")
+    scenes = [load_scenario(s, args.data_root) for s in dev]
+    frames = [s.max_frames for s in dev]
+    run_batch(scenes[:1], max_frames=frames[:1], **kw)  # warm
+    run_episode(scenes[0], max_frames=frames[0], record_animation=False, engine="loop", **kw)
+    w, c = time.perf_counter(), time.process_time()
+    ref = [
+        run_episode(s, max_frames=f, record_animation=False, engine="loop", **kw).metrics
+        for s, f in zip(scenes, frames, strict=True)
+    ]
+    ew, ec = time.perf_counter() - w, time.process_time() - c
+    w, c = time.perf_counter(), time.process_time()
+    got = run_batch(scenes, max_frames=frames, batch_size=args.batch_size, **kw)
+    bw, bc = time.perf_counter() - w, time.process_time() - c
+    n = len(dev)
+    differing = sum(
+        bool(same_metrics(r.as_dict(), g.as_dict())) for r, g in zip(ref, got, strict=True)
+    )
+    steps = sum(m.n_steps for m in ref)
+    print(f"per-episode loop: {_fmt(ew, ec)}  ({ec / steps * 1e6:6.1f} us CPU per control step)")
+    print(f"batch engine:     {_fmt(bw, bc)}  ({bc / steps * 1e6:6.1f} us CPU per control step)")
+    print(f"speed-up: {ew / bw:.1f}x wall, {ec / bc:.1f}x CPU (target 8x)")
+    print(
+        f"metrics differing: {differing} episodes of {n} (every field but wall_s, compared exactly)"
+    )
+    return {"n": n, "wall": bw, "cpu": bc, "base_wall": ew, "base_cpu": ec, "differing": differing}
+
+
 Figure = tuple[str, float, str, "float | None", "float | None"]
+
+
+def _reactive_rows(d: dict[str, float], crowd: str, method: str) -> list:
+    """Figures of :func:`bench_reactive` (run_all's dict form: the 8x target as a time)."""
+    name = f"batch crossings-v1 dev crowd {crowd} {method} {d['n']} scenarios"
+    rows: list = []
+    for kind in ("wall", "cpu"):
+        base, value = d[f"base_{kind}"], d[kind]
+        rows.append(
+            {
+                "section": "batch",
+                "name": f"{name} {'wall' if kind == 'wall' else 'CPU'}",
+                "value": float(value),
+                "unit": "s",
+                "target": float(base) / 8.0,
+                "ratios": [("the per-episode loop", float(base), "faster")],
+                "note": "target: 8x faster than the per-episode loop",
+            }
+        )
+    rows.append((f"{name} metrics differing", d["differing"], "episodes", d["n"], None))
+    return rows
 
 
 def measure(
@@ -261,13 +332,15 @@ def measure(
     data_root: str | Path | None = None,
     cache: str | None = None,
     suite: bool = True,
+    reactive: bool = True,
 ) -> list[Figure]:
     """The benchmark's figures as ``(name, value, unit, baseline, ratio)`` rows.
 
     ``ratio`` is ``baseline / value`` for times (the speed-up of the batch engine over
     the per-episode loop timed in the same run). ``quick`` caps the crossing seeds at
     200, times the per-episode loop on 10 of them and takes the first 40 scenarios of
-    the dev split (about a minute once the scene cache exists). The ``*_differing``
+    the dev split (about a minute once the scene cache exists); the reactive crowds run
+    on the first 40 scenarios of the dev split (every one without ``quick``). The ``*_differing``
     rows count episodes whose metrics differ from ``run_episode``'s (expected 0).
     """
     n = min(seeds, 200) if quick else seeds
@@ -306,6 +379,10 @@ def measure(
                 (f"{name} CPU", d["cpu"], "s", d["base_cpu"], d["base_cpu"] / d["cpu"]),
                 (f"{name} metrics differing", d["differing"], "episodes", d["n"], None),
             ]
+    if reactive:
+        for crowd in ("social_force", "orca"):
+            d = bench_reactive(args, crowd, 40 if quick else None)
+            out += _reactive_rows(d, crowd, "conformal")
     return out
 
 
@@ -321,6 +398,9 @@ def main() -> None:
     ap.add_argument("--scenarios", type=int, default=None, help="first N dev scenarios only")
     ap.add_argument("--scenarios-acp", type=int, default=40, help="dev scenarios with acp")
     ap.add_argument("--scenarios-relax", type=int, default=20, help="... with relax")
+    ap.add_argument(
+        "--reactive", type=int, default=40, help="dev scenarios with reactive crowds (0: none)"
+    )
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -331,6 +411,9 @@ def main() -> None:
         bench_suite(args)
         bench_suite(args, "acp", args.scenarios_acp)
         bench_suite(args, "fallback:relax", args.scenarios_relax)
+    if args.reactive:
+        for crowd in ("social_force", "orca", "mixed"):
+            bench_reactive(args, crowd, args.reactive)
 
 
 if __name__ == "__main__":

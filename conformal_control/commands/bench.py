@@ -160,7 +160,8 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         default=None,
         choices=("batch", "process", "serial", "dask"),
         help=(
-            "batch (default): the runs the lockstep engine supports (replayed crowd, "
+            "batch (default): the runs the lockstep engine supports (replayed or reactive "
+            "crowd, "
             "constant-velocity, oracle or another fast predictor, any update rule, gap or "
             "collision loss, exact 2-D filter with lambda_search/brake/hold: every method "
             "but fallback:relax and acp) many at once in this process, with the same "

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..jit import kernel
 
-__all__ = ["dense_neighbor_pairs", "neighbor_pairs"]
+__all__ = ["cell_pairs", "dense_neighbor_pairs", "neighbor_pairs"]
 
 jit = kernel(cache=True, nogil=True)
 
@@ -129,7 +129,7 @@ def neighbor_pairs(
     k = -1 if max_neighbors is None else int(max_neighbors)
     p = np.ascontiguousarray(pos, dtype=np.float64)
     a = np.ascontiguousarray(all_pos, dtype=np.float64)
-    ok, rows, cols, dx, dy = _cell_pairs(p, a, r, k)
+    ok, rows, cols, dx, dy = cell_pairs(p, a, r, k)
     if not ok:  # cell keys would overflow: coordinates absurdly far apart for this cut-off
         return dense_neighbor_pairs(pos, all_pos, max_dist, max_neighbors)
     return rows, cols, dx, dy
@@ -154,9 +154,13 @@ def _insertion_sort(key: np.ndarray, val: np.ndarray, c: int) -> None:
 
 
 @jit
-def _cell_pairs(
+def cell_pairs(
     pos: np.ndarray, all_pos: np.ndarray, r: float, k: int
 ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`neighbor_pairs`'s cell search, compiled (for compiled callers): ``(ok, rows,
+    cols, dx, dy)`` for a finite cut-off ``r`` and ``k`` nearest (-1: all); ``ok`` is
+    False (and the pairs empty) where the cell keys would overflow (the caller then
+    takes the dense search)."""
     n = pos.shape[0]
     m = all_pos.shape[0]
     r2 = r * r

@@ -1,4 +1,4 @@
-"""Lockstep batch engine: many replayed episodes of the flagship at once, the same metrics.
+"""Lockstep batch engine: many episodes of the flagship at once, the same metrics.
 
 :func:`run_episode`'s generic loop runs one episode as a chain of Python calls per control
 instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
@@ -24,7 +24,10 @@ checks every metric against :func:`run_episode`). The wall time of the control l
 the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
-:func:`run_episode`): replayed crowds; any registered predictor; the ``cbf`` family and the
+:func:`run_episode`): replayed crowds, and the reactive ``social_force``, ``orca`` and
+``mixed`` crowds without noise (:mod:`~conformal_control.engines.reactive`: each episode's
+crowd walks through the interval's control instants after its robot, one compiled call
+per instant for all of them); any registered predictor; the ``cbf`` family and the
 ``acp`` family (adaptive conformal prediction regions); the APF barrier; the exact 2-D
 filter with any registered fallback (``lambda_search``, ``brake`` and ``hold`` are decided
 by the compiled step; any other, e.g. ``relax``, by the episode's own fallback object on the
@@ -93,6 +96,7 @@ from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
+from ..crowds.crowd import Crowd
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
 from ..jit import compile_now
@@ -113,10 +117,13 @@ from ..results.measure import (
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
 from ..spec import RunSpec
+from ..world.reactive import ReactiveEnvironment
 from ..world.replay import FrameLog, ReplayEnvironment
 from . import kernels as bk
+from .crowd_kernels import dense_layout
 from .gap_kernels import BRAKE, HOLD, PYTHON, SEARCH, gap_maxima
 from .interval import run_interval
+from .reactive import MODELS, CrowdSlots, unsupported_crowd
 
 __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 
@@ -180,8 +187,10 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
     --------
     >>> supports(predictor="constant_velocity", learn=False) is None
     True
-    >>> supports(crowd="orca")
-    "crowd 'orca': the batch engine replays recorded crowds only"
+    >>> supports(crowd="orca", learn=False) is None
+    True
+    >>> supports(crowd="social_force", crowd_params={"noise": 0.1})
+    'crowd noise: the batch engine steps deterministic crowds only'
     """
     settings.pop("seeds", None)  # one per episode: not a setting of the run
     settings.pop("extra_config", None)
@@ -212,9 +221,13 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         return "a fallback instance: the batch engine builds one per episode, give it by name"
     if run.robots is not None:
         return "robots: the batch engine runs one robot per episode"
-    crowd = run.role_name("crowd")
+    crowd, crowd_params = run.role("crowd")
+    if not isinstance(crowd, str):
+        return "a crowd instance: the batch engine builds one per episode, give it by name"
     if crowd != "replay":
-        return f"crowd {crowd!r}: the batch engine replays recorded crowds only"
+        why = unsupported_crowd(crowd, dict(crowd_params or {}))
+        if why is not None:
+            return why
     if settings.get("record_animation"):
         return "record_animation: the batch engine keeps no animation record"
     return None
@@ -276,7 +289,13 @@ def _parts(fl: Flagship) -> _Parts:
         )
     if policy.reciprocity is not None:
         raise _NotRun("the decision family has robots' reciprocity")
-    env = _exact(fl.env, ReplayEnvironment, "environment")
+    env = fl.env
+    if type(env) is ReactiveEnvironment:
+        crowd = env.crowd
+        if type(crowd) is not Crowd:
+            raise _NotRun(f"the crowd is a {type(crowd).__name__}, not a Crowd")
+    else:
+        env = _exact(env, ReplayEnvironment, "environment")
     constraint = _exact(fl.constraint, ConformalConstraint, "constraint")
     barrier = _compiled(fl.barrier, APFBarrier, "barrier")
     filt = _compiled(fl.safety_filter, Exact2DSafetyFilter, "safety filter")
@@ -427,6 +446,8 @@ class _Pool:
     forced: np.ndarray  # bool (size,): a decision given for the paused step
     forced_v: np.ndarray  # (size, 3): that decision (v_x, v_y, lambda applied)
     paused: np.ndarray  # (3,): the paused step's nominal decision and lambda
+    reactive: np.ndarray  # bool (size,): a reactive crowd (engines.reactive)
+    mirror: np.ndarray  # bool (size,): its environment's buffer is read during the run
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -503,6 +524,8 @@ class _Pool:
         self.forced = np.zeros(b, dtype=bool)
         self.forced_v = np.zeros((b, 3))
         self.paused = np.zeros(3)
+        self.reactive = np.zeros(b, dtype=bool)
+        self.mirror = np.zeros(b, dtype=bool)
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -517,7 +540,12 @@ class _Pool:
     def load(self, b: int, tracks: SparseTracks) -> None:
         """Copy slot ``b``'s recording (sparse, :func:`~conformal_control.engines.kernels.pack`)
         into the store (compacting or growing it)."""
-        data = bk.pack(tracks)
+        counts = (tracks.n_frames, tracks.n_agents, tracks.xy.shape[0], tracks.frame_cols.size)
+        self.put(b, bk.pack(tracks), counts)
+
+    def put(self, b: int, data: np.ndarray, counts: tuple[int, int, int, int]) -> None:
+        """Copy slot ``b``'s recording laid out as :func:`~conformal_control.engines.kernels.pack`
+        lays it out, with ``counts`` = (frames, agents, samples, present), into the store."""
         n = data.size
         if self.used + n > self.store.size:
             self._compact()
@@ -528,13 +556,7 @@ class _Pool:
                 grown[: self.used] = self.store[: self.used]
                 self.store = grown
         self.store[self.used : self.used + n] = data
-        self.where[b] = (
-            self.used,
-            tracks.n_frames,
-            tracks.n_agents,
-            tracks.xy.shape[0],
-            tracks.frame_cols.size,
-        )
+        self.where[b] = (self.used, *counts)
         self.used += n
 
     def _compact(self) -> None:
@@ -604,6 +626,7 @@ class _Engine:
         self._squash: dict[float, Any] = {}  # loss scale -> the squashing of a loss with it
         self._own = False  # whether an episode predicts with its own predictor object
         self._acp = False  # whether an episode is of the acp family
+        self.crowds: CrowdSlots | None = None  # the reactive crowds, if any
         # the scores of an interval end, per slot (reset for the slots that end; reused
         # rather than allocated at every interval end)
         self._scores = (
@@ -650,9 +673,17 @@ class _Engine:
         if not (math.isfinite(k) and k > 0):
             raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
         pred = fl.predictor
+        reactive = isinstance(env, ReactiveEnvironment)
+        if isinstance(env, ReactiveEnvironment):
+            model = env.crowd.model_  # (built by the reset)
+            if type(model) not in MODELS.values():
+                raise _NotRun(f"the crowd model is a {type(model).__name__}")
         # the acp family predicts, scores its past errors and sorts them in its own
-        # begin_interval: its predictor is called through it
+        # begin_interval: its predictor is called through it; so is the oracle of a
+        # reactive crowd (whose future is not known: its query says so)
         code = _OWN if parts.acp is not None else _predictor_code(pred)
+        if reactive and code == bk.ORACLE:
+            code = _OWN
         window = getattr(pred, "window", 1) if code == bk.CONSTANT_VELOCITY else 1
         if int(window) != window or window < 1:
             raise PredictorError(
@@ -690,7 +721,20 @@ class _Engine:
         # the frames the episode reads: its history before the start, its frames, the last
         # interval's future (the oracle, the truth); the rest of a long scene stays out
         lo = sc.start_index - int(env.history_frames)
-        p.load(b, sc.tracks.clip(lo, last + tau + 2))
+        if reactive:  # every column over the episode's frames, filled as the crowd walks
+            assert isinstance(env, ReactiveEnvironment)
+            lo, hi = max(lo, 0), min(last + tau + 2, sc.n_frames)
+            m = sc.n_agents
+            data = dense_layout(env._buffer[lo:hi], lo, sc.start_index, sc.n_frames)
+            p.put(b, data, (sc.n_frames, m, m * (hi - lo), m * (hi - lo)))
+            if self.crowds is None:
+                self.crowds = CrowdSlots(p.size)
+            self.crowds.load(b, env, last, lo)
+        else:
+            p.load(b, sc.tracks.clip(lo, last + tau + 2))
+        p.reactive[b] = reactive
+        # whether the episode's own objects read the environment's buffer during the run
+        p.mirror[b] = reactive and (code == _OWN or parts.gap is None)
         p.x[b] = (*sc.start, 0.0, 0.0)
         p.t[b] = 0.0
         p.goal[b] = ep.goals[0]
@@ -855,6 +899,10 @@ class _Engine:
         plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
         todo = slots
+        walk = slots[p.reactive[slots]] if self.crowds is not None else slots[:0]
+        if walk.size:  # the robots' velocities at the start, the log rows before
+            v_start = p.x[walk, 2:4].copy()
+            n_log0 = p.n_log[walk].copy()
         while True:
             bad, paused = run_interval(
                 todo, p.x, p.t, p.step, p.n_ctrl, p.tau, p.done,
@@ -872,6 +920,14 @@ class _Engine:
                 break
             todo = todo[paused:]  # the paused slot decides, then runs on with the rest
             self._fall_back(int(todo[0]))
+        if walk.size and bad < 0:
+            crowds = self.crowds
+            assert crowds is not None
+            crowds.advance(walk, p, v_start, n_log0)
+            for b in walk[p.mirror[walk]].tolist():
+                ep = self.eps[b]
+                assert ep is not None and isinstance(ep.parts.env, ReactiveEnvironment)
+                crowds.mirror(b, ep.parts.env, p.store, p.where)
         if self._acp:
             for b in slots[p.acp[slots]].tolist():
                 self._capped(b)
@@ -1069,6 +1125,12 @@ class _Engine:
             filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2]
         if c[3]:
             filt.events_["lambda_search_vertex"] = c[3]
+        crowd_config: dict[str, Any] = {"crowd": "replay"}
+        if p.reactive[b]:  # the simulated crowd back to its environment, as it walked
+            assert self.crowds is not None and isinstance(env, ReactiveEnvironment)
+            self.crowds.mirror(b, env, p.store, p.where)
+            self.crowds.finish(b, env)
+            crowd_config = env.crowd_config()
         result = LoopResult(
             intervals=ep.intervals, lambda_final=float(p.lam[b]), monitor=ep.monitor
         )
@@ -1083,7 +1145,7 @@ class _Engine:
         config = episode_config(fl, ep.run, ep.lambda_safe)
         config["feasibility"] = jsonable(ep.floor.as_dict())
         config.update(self.extra_config or {})
-        config["crowd"] = {"crowd": "replay"}
+        config["crowd"] = crowd_config
         config["engine"] = "batch"
         return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
 
@@ -1191,6 +1253,8 @@ def iter_batch(
     settings.pop("max_frames", None)
     settings.pop("seed", None)
     run = as_run_spec(spec or settings.pop("predictor", None), params, **settings)
+    # the engine keeps no animation record of a batch: the specification says so
+    run = dataclasses.replace(run, record_animation=False)
     reason = supports(run)
     if reason is not None:
         raise ValueError(f"run_batch does not support this configuration: {reason}")
@@ -1210,8 +1274,6 @@ def iter_batch(
                 raise ValueError("max_frames / seeds have fewer values than scenes") from None
             yield i, scene, int(seed), None if mf is None else int(mf)
 
-    # the engine keeps no animation record of a batch: the specification says so
-    run = dataclasses.replace(run, record_animation=False)
     engine = _Engine(int(batch_size), output, run, extra_config)
     yield from engine.run(source())
 
@@ -1379,6 +1441,9 @@ def run_single(
     }
     if recorder:
         si = built[0].params.si
+        env = built[0].env
+        if isinstance(env, ReactiveEnvironment):  # the pedestrians the robot met, as the loop
+            recorder[0].scene = env.simulated_scene()
         result.animation = recorder[0].finish(
             result.trajectory,
             result.intervals,

@@ -4,7 +4,8 @@ With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the
 sweep are split in two:
 
 * a run is **batched** when :func:`~conformal_control.engines.batch.supports` accepts its
-  ``run_episode`` arguments (replayed crowd; the constant-velocity or oracle predictor, or
+  ``run_episode`` arguments (replayed crowd, or social force, ORCA or mixed without noise;
+  the constant-velocity or oracle predictor, or
   any predictor marked ``fast`` -- the engine calls the others in this process, one episode
   after another, while the pool predicts in parallel; any update rule given by name; APF
   barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;

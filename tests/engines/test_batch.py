@@ -166,7 +166,7 @@ def test_iter_batch_yields_indices_in_completion_order(crossings):
 @pytest.mark.parametrize(
     ("kwargs", "words"),
     [
-        ({"crowd": "orca"}, "replays recorded crowds"),
+        ({"crowd": "social_force", "crowd_params": {"noise": 0.1}}, "deterministic crowds"),
         ({"loss": "miscoverage"}, "loss 'miscoverage'"),
         ({"predictor": object()}, "predictor given as a object instance"),
         ({"fallback": "brake", "fallback_params": {"x": 1}}, "fallback parameters for 'brake'"),
@@ -184,8 +184,8 @@ def test_supports_names_the_reason(kwargs, words):
 
 def test_supported_configuration_and_clear_error(crossings):
     assert supports(predictor="oracle", learn=False, fallback="hold") is None
-    with pytest.raises(ValueError, match="does not support this configuration: crowd 'orca'"):
-        run_batch(crossings[:1], crowd="orca")
+    with pytest.raises(ValueError, match="does not support this configuration: crowd noise"):
+        run_batch(crossings[:1], crowd="social_force", crowd_params={"noise": 0.1})
     with pytest.raises(ValueError, match="batch_size must be a positive integer"):
         run_batch(crossings[:1], batch_size=0)
 
