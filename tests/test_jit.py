@@ -81,6 +81,13 @@ out["mpc"] = [
     for a in evaluate(pos, c2, np.zeros(2), pred, y0, radius, np.array([4.0, 1.0]),
                       (1.0, 10.0, 0.01, 0.3), np.array([0.2, -0.1]), cont)
 ]
+from conformal_control.sim.multi import run_multi
+for info in ("position", "velocity", "plan"):  # reciprocal robot rows (cbf.kernels_peers)
+    res = run_multi(scenes[0], robots=4, layout="antipodal", radius=3.0, center=(15.0, 8.0),
+                    information=info, max_frames=60, record_animation=False)
+    out[f"multi-{info}"] = [digest(res.track["robots"])] + [
+        result(r) for r in res.robots
+    ]
 out["compiled"] = jit.is_compiled()
 out["numba_imported"] = "numba" in sys.modules
 json.dump(out, open(sys.argv[1], "w"), sort_keys=True)

@@ -42,6 +42,7 @@ from .kernels2d import (
     smallest_lambda,
     solve_rows,
 )
+from .pyhypot import c_hypot
 
 __all__ = ["SEARCH_ALL", "apf_control_peers", "apf_rows_weighted", "lexicographic_search"]
 
@@ -120,7 +121,7 @@ def lexicographic_search(
     ms = 0
     hi = lam
     for j in range(m):
-        nrm = math.hypot(A[j, 0], A[j, 1])
+        nrm = c_hypot(A[j, 0], A[j, 1])
         if nrm == 0.0:
             continue
         top = -b[j] + nrm * radius
@@ -198,7 +199,7 @@ def apf_rows_weighted(
     for j in range(xp.shape[0]):
         dx0 = x0 - xp[j, 0]
         dx1 = x1 - xp[j, 1]
-        d = math.hypot(dx0, dx1)
+        d = c_hypot(dx0, dx1)
         extra = col[2, j]
         rho = (d - d_c if extra == 0.0 else d - (d_c + extra)) if surface else d
         r = min(max(rho, 0.0), rho0)
@@ -272,14 +273,14 @@ def apf_control_peers(
         pv[1, s, j, 1] = sj * peer_ref[k, 1] + (1.0 - sj) * own1
     prm = buf[: HEADER - 3]
     if turn[1] != 0.0 and m > npred:
-        sp = math.hypot(n0, n1)
-        if sp > 0.0 and math.hypot(vx, vy) < turn[4] * sp:  # side-step (held back)
+        sp = c_hypot(n0, n1)
+        if sp > 0.0 and c_hypot(vx, vy) < turn[4] * sp:  # side-step (held back)
             near = math.inf
             side = 0.0
             for k in range(m - npred):
                 rx = peer_pos[k, 0] - x0
                 ry = peer_pos[k, 1] - x1
-                d = math.hypot(rx, ry)
+                d = c_hypot(rx, ry)
                 if (
                     d < prm[2] + col[2, npred + k] + sp * turn[2]
                     and rx * n0 + ry * n1 > turn[3] * sp * d
