@@ -29,8 +29,16 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         SingleStepEnvironment,
         UpdateRule,
     )
-    from .cbf.roles import Barrier, Dynamics, FilterResult, ReferenceController, SafetyFilter
+    from .cbf.roles import (
+        Barrier,
+        Dynamics,
+        Fallback,
+        FilterResult,
+        ReferenceController,
+        SafetyFilter,
+    )
     from .cbf.stepwise import StepwiseCBF
+    from .crowds.base import CrowdModel
     from .loop import ConformalLoop, IntervalLog, LoopResult
     from .monitor import GuaranteeMonitor
     from .predictors.base import Forecast, PredictionQuery, Predictor
@@ -60,14 +68,18 @@ _LAZY = {
     "FilterResult": "conformal_control.cbf.roles",
     "ReferenceController": "conformal_control.cbf.roles",
     "Dynamics": "conformal_control.cbf.roles",
+    "Fallback": "conformal_control.cbf.roles",
+    "CrowdModel": "conformal_control.crowds.base",
 }
 
 __all__ = [
     "Barrier",
     "ConformalLoop",
+    "CrowdModel",
     "DecisionFamily",
     "Dynamics",
     "Environment",
+    "Fallback",
     "FilterResult",
     "Forecast",
     "GuaranteeMonitor",

@@ -416,7 +416,13 @@ def test_python_blocks_run_and_print_what_the_page_shows(
 #: Pages whose Python blocks run in order in one interpreter, as a reader types them (a
 #: block uses the classes earlier blocks defined); a block that prints shows its output in
 #: a text block right after it, and one that shows none prints nothing.
-SESSION_PAGES = ("docs/plugins.md", "docs/write-your-own-plugin.md", "docs/update-rules.md")
+SESSION_PAGES = (
+    "docs/plugins.md",
+    "docs/write-your-own-plugin.md",
+    "docs/update-rules.md",
+    "docs/crowds.md",
+    "docs/mpc.md",
+)
 
 #: Runs the blocks (JSON list on stdin) in ``__main__`` (so that the contract kit can pickle
 #: the classes they define), one stdout capture per block, calls of deprecated API from a
@@ -649,3 +655,46 @@ def test_the_data_page_explains_the_lookup_order_the_code_uses(
     assert printed == shown.group(1)
     order = [page.index(s) for s in ("--data-root DIR", "$CONFORMAL_CONTROL_DATA`", "per-user")]
     assert order == sorted(order)
+
+
+def _pages_with_python() -> list[str]:
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    return [
+        str(p.relative_to(ROOT))
+        for p in pages
+        if any(lang == "python" for _, lang, _, _ in code_blocks(p))
+    ]
+
+
+@pytest.mark.parametrize("page", _pages_with_python())
+def test_every_python_block_parses_and_its_package_imports_resolve(page: str) -> None:
+    """Blocks that are fragments (a cluster address, the reader's own policy) are not run,
+    but they parse, and every name they import from this package exists: a renamed module
+    or class fails here, not in a reader's session."""
+    import ast
+    import importlib
+    import importlib.util
+
+    for heading, lang, code, _ in code_blocks(ROOT / page):
+        if lang != "python":
+            continue
+        where = f"{page}: {heading}"
+        try:
+            tree = ast.parse(code)
+        except SyntaxError as exc:  # pragma: no cover - the assertion names the block
+            raise AssertionError(f"{where}: {exc}") from exc
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                "conformal_control"
+            ):
+                module = importlib.import_module(node.module or "")
+                for alias in node.names:
+                    assert (
+                        alias.name == "*"
+                        or hasattr(module, alias.name)
+                        or (importlib.util.find_spec(f"{node.module}.{alias.name}") is not None)
+                    ), f"{where}: {node.module} has no {alias.name}"
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if alias.name.startswith("conformal_control"):
+                        importlib.import_module(alias.name)

@@ -72,3 +72,17 @@ def test_public_names_resolve_lazily_and_are_listed():
     loaded = _loaded_after(code)
     assert "numpy" in loaded
     assert not {"torch", "darts"} & set(loaded), loaded
+
+
+def test_the_base_class_of_every_role_is_a_top_level_name():
+    # a plugin author subclasses ``cc.<Base>`` for any role, the crowd model and the
+    # fallback included, without knowing which module defines it
+    import conformal_control as cc
+    from conformal_control.testing import ROLE_BASES
+
+    missing = [
+        f"{role}: {base.__name__}"
+        for role, base in ROLE_BASES.items()
+        if getattr(cc, base.__name__, None) is not base or base.__name__ not in cc.__all__
+    ]
+    assert not missing, missing

@@ -37,12 +37,14 @@ def _fetch(args: argparse.Namespace) -> int:
     from ..data.paths import ENV_VAR, user_data_dir
     from ..progress import is_quiet
 
+    dest = args.dest if args.dest is not None else str(user_data_dir())
     if args.dry_run:
-        for item in plan(args.only, args.mirror):
+        items = list(plan(args.only, args.mirror))
+        print(f"would fetch {len(items)} file(s) into {dest} (paths below are relative to it):")
+        for item in items:
             source = item.url or "mirror only (pass --mirror DIR)"
             print(f"{item.path}  <- {source}" + (" (metres -> pixels)" if item.convert else ""))
         return 0
-    dest = args.dest if args.dest is not None else str(user_data_dir())
     check_writable(dest, "data folder")
     counts = fetch(
         dest, only=args.only, mirror=args.mirror, force=args.force, progress=not is_quiet()

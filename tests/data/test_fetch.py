@@ -91,6 +91,16 @@ def test_cli_dry_run(capsys) -> None:
     assert main(["fetch-data", "--dest", "x", "--only", "ethucy:zara1", "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "ethucy/zara1/test/crowds_zara01.txt" in out and "Trajectron" in out
+    # the folder the paths are relative to is named (the per-user folder when --dest is unset)
+    assert out.splitlines()[0].endswith("into x (paths below are relative to it):")
+
+
+def test_cli_dry_run_names_the_per_user_folder(capsys, monkeypatch, tmp_path: Path) -> None:
+    from conformal_control.data import paths
+
+    monkeypatch.setattr(paths, "user_data_dir", lambda: tmp_path / "cc-data")
+    assert main(["fetch-data", "--only", "ethucy:zara1", "--dry-run"]) == 0
+    assert f"into {tmp_path / 'cc-data'} " in capsys.readouterr().out
 
 
 # ---------------------------------------------------------------------- external/ (mirror only)
