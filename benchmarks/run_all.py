@@ -737,8 +737,8 @@ def sec_sweep_scale(args: argparse.Namespace) -> list[Figure]:
             "ms",
             target=None if args.quick else 1.2 * first,
             ratios=[("the first 10 %", first, "times")],
-            note=f"runs are stubs (a fixed record): validating, journaling, tables; {wall:.0f} s "
-            f"in all; target: within 20 % of the first 10 %; {probe}",
+            note=f"runs are stubs (a fixed record): validating, keys, journaling (fsync once a "
+            f"second), tables; {wall:.0f} s in all; target: within 20 % of the first 10 %; {probe}",
         )
     ]
 

@@ -1,10 +1,15 @@
 """The results of a sweep: an append-only journal and the tables made from it.
 
 ``results.jsonl`` is the source of truth: one JSON line per finished run (ok or failed),
-appended and fsync'ed the moment the run completes, so an interrupted sweep loses nothing
-it finished. ``results.csv`` (and ``results.parquet`` when pyarrow is installed) are one
-flat row per run key (the latest record of each key), rewritten from the journal through
-a uniquely named temporary file and an atomic rename.
+written to the file (handed to the operating system) the moment the run completes, so an
+interrupted or killed sweep loses nothing it finished. Making it durable against a crash of
+the machine itself (``fsync``) is up to the caller: :meth:`ResultsStore.append` syncs by
+default, and the sweep runner syncs once per burst of records (group commit, see
+:mod:`conformal_control.sweep.runner`).
+
+``results.csv`` (and ``results.parquet`` when pyarrow is installed) are one flat row per
+run key (the latest record of each key), rewritten from the journal through a uniquely
+named temporary file and an atomic rename.
 
 A journal line that cannot be read (torn by a crash or a full disk, not UTF-8, valid JSON
 that is not a run record: see :func:`record_problem`) is skipped, counted and reported once
@@ -266,9 +271,12 @@ class ResultsStore:
                 keys.add(key)
         return keys
 
-    def append(self, record: dict[str, Any]) -> None:
-        """Append one record and fsync it.
+    def append(self, record: dict[str, Any], *, sync: bool = True) -> None:
+        """Append one record and, with ``sync`` (default), fsync it.
 
+        The line reaches the operating system before this returns either way (it survives
+        the end of this process); ``sync=False`` leaves making it durable against a crash
+        of the machine to a later :meth:`sync` (which covers every line written before it).
         If the journal does not end with a newline (a line torn by a crash), one is
         written first, so the torn fragment stays a (skipped) line of its own.
         """
@@ -284,12 +292,16 @@ class ResultsStore:
                     torn = True
             fh.write(line)
             fh.flush()
-            os.fsync(fh.fileno())
+            if sync:
+                os.fsync(fh.fileno())
             after = os.fstat(fh.fileno())
         # keep the parsed journal current without reading it again (a sweep of thousands
         # of runs would otherwise re-parse it after every run): only if the cache held
         # the file exactly as it was before this line
         cache = self._cache
+        if cache is None and before.st_size == 0:  # a new journal: nothing to read back
+            cache = ((0, before.st_mtime_ns), [])
+            self.bad_lines_ = []
         if (
             cache is not None
             and not torn
@@ -300,6 +312,17 @@ class ResultsStore:
             self._cache = ((after.st_size, after.st_mtime_ns), cache[1])
         else:
             self._cache = None
+
+    def sync(self) -> None:
+        """Make every line appended so far durable (``fsync`` the journal), if it exists."""
+        try:
+            fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND)
+        except FileNotFoundError:
+            return
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
     # ------------------------------------------------------------------ tables
     def rows(

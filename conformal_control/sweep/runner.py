@@ -16,12 +16,25 @@ The tables are rewritten at the end and, during the sweep, at most every
 times over (``table_every=None``, the default): their cost stays a small fraction of the
 sweep, whatever its size (rewriting them after every run made a sweep quadratic in its
 number of runs).
+
+Every journal line is written (handed to the operating system) before the next outcome is
+taken, so a stopped or killed sweep loses nothing it finished. Its ``fsync`` -- durability
+against a crash of the machine itself -- is a group commit: a line is synced when the last
+sync is at least :data:`JOURNAL_SYNC_S` old, otherwise the next sync covers it, and the
+journal is synced before every table rewrite, at the end and when the sweep is stopped. A
+sweep whose runs take longer than that syncs every line, as before; a burst of results (the
+batch engine delivers hundreds at once) pays one ``fsync`` per second instead of one per
+run, whose latency is set by whatever else writes to the disk (0.1 ms on an idle disk, 3 to
+5 ms with other writers on it, more on network file systems). A crash of the machine can
+lose the lines written since the last sync (runs that finished within one second of it);
+a resumed sweep does those runs again.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -40,7 +53,10 @@ from .results import ResultsStore, atomic_write
 from .spec import RunConfig, SweepSpec
 from .worker import execute_run
 
-__all__ = ["TABLE_INTERVAL_S", "SweepInterrupted", "SweepReport", "run_sweep"]
+__all__ = ["JOURNAL_SYNC_S", "TABLE_INTERVAL_S", "SweepInterrupted", "SweepReport", "run_sweep"]
+
+#: Least time (s) between two ``fsync`` of the journal during a sweep (group commit).
+JOURNAL_SYNC_S = 1.0
 
 #: Least time (s) between two rewrites of the tables during a sweep (``table_every=None``).
 TABLE_INTERVAL_S = 30.0
@@ -314,6 +330,8 @@ def run_sweep(
                         left = [(c, k) for c, k in todo if k not in ran]
                         report.recovered.extend(_adopt_finished(store, left, guard))
                 with contextlib.suppress(SweepInterrupted, Exception):
+                    store.sync()
+                with contextlib.suppress(SweepInterrupted, Exception):
                     store.write_tables(parquet=parquet)
         report.rows = store.rows(keys, absolute=True)
         if summary_plot:
@@ -349,6 +367,7 @@ def _run(
     n_since_table = 0
     last_table = time.perf_counter()
     table_cost = 0.0
+    last_sync = -math.inf  # the first line is synced at once
     if batch and ex.distributed:
         from .batch import run_chunked
 
@@ -379,11 +398,15 @@ def _run(
             rec["run_dir"] = store.relative_run_dir(rec.get("run_dir"))
             rec["config"] = cfg.as_dict()
             rec["finished_at"] = time.time()
+            now = time.perf_counter()
+            sync = now - last_sync >= JOURNAL_SYNC_S
             with guard.critical():
-                store.append(rec)
+                store.append(rec, sync=sync)
                 report.ran.append(key)
                 if rec["status"] != "ok":
                     report.failed.append(key)
+            if sync:
+                last_sync = now
             bar.update(1)
             bar.set_postfix(failed=len(report.failed), refresh=False)
             n_since_table += 1
@@ -393,6 +416,8 @@ def _run(
                 if table_every is not None
                 else now - last_table >= max(TABLE_INTERVAL_S, TABLE_COST_RATIO * table_cost)
             ):
+                store.sync()  # the tables never run ahead of the durable journal
+                last_sync = now
                 store.write_tables(parquet=parquet)
                 last_table = time.perf_counter()
                 table_cost = last_table - now
@@ -402,6 +427,7 @@ def _run(
         if close is not None:  # stop the executor now, not when the generator is collected
             close()
         bar.close()
+    store.sync()
     store.write_tables(parquet=parquet)
 
 
@@ -448,6 +474,8 @@ def _adopt_finished(
             "finished_at": time.time(),
         }
         with guard.critical():
-            store.append(rec)
+            store.append(rec, sync=False)
         adopted.append(key)
+    if adopted:
+        store.sync()  # one fsync for them all
     return adopted
