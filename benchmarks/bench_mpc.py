@@ -10,6 +10,13 @@ plant, cost and clearance against M predicted agents, the choice (what
 * ``acp_mpc`` on the unicycle (its regions from 2,000 past errors per step),
 * ``ecp_mpc`` on the unicycle (egocentric regions of every candidate from 15 past times),
 
+the ETH/UCY planar protocol's 13 scenarios of ``cc_mpc`` (1,200 samples, H = 12) run in
+lockstep (``planar.run_scenarios``: every scenario's plans at a decision evaluated in one
+compiled call, ``mpc.batch.plan_all``) against the same scenarios one at a time
+(``planar.run_scenario``), per decided step (CPU time of this process: the two paths do the
+same work on one thread, and the machine's other jobs do not enter), with identical results
+(``tests/mpc/test_batch.py``),
+
 and, in the same run on the same inputs,
 
 * the **numpy reference** of the same step (the plant's rollout as a loop of ``step`` calls
@@ -25,12 +32,13 @@ cpu``: what a step costs when other jobs share the cores; every timed path runs 
 thread). Usage::
 
     python benchmarks/bench_mpc.py [--repeats 400] [--samples 500] [--horizon 12] [--agents 20]
-                                   [--clock wall|cpu]
+                                   [--clock wall|cpu] [--data-root DATA]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import time
@@ -129,7 +137,36 @@ def time_cbf(m: int, repeats: int) -> float:
     return float(np.median(times[20:]) * 1e3)
 
 
-def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: int = 400) -> list:
+def time_lockstep(method: str = "cc_mpc", data_root: Any = None, repeats: int = 2) -> tuple:
+    """CPU ms per decided step of the planar protocol's scenarios of ``method``, one at a
+    time and in lockstep (the better of ``repeats`` passes each, alternated)."""
+    from conformal_control.bench import planar
+
+    planar.warm_up_kernels()
+    m = planar.PLANAR_METHODS[method]
+    best = {"alone": math.inf, "lockstep": math.inf}
+    for _ in range(repeats):
+        for mode in best:
+            t0 = time.process_time()
+            steps = 0
+            for task in planar.TASKS.values():
+                starts = list(task.start_timesteps)
+                if mode == "alone":
+                    runs = [planar.run_scenario(task, s, m, data_root=data_root) for s in starts]
+                else:
+                    runs = planar.run_scenarios(task, starts, m, data_root=data_root)
+                steps += sum(bool(s["recorded"]) for r in runs for s in r.steps)
+            best[mode] = min(best[mode], (time.process_time() - t0) / steps * 1e3)
+    return best["lockstep"], best["alone"]
+
+
+def measure(
+    samples: int = 500,
+    horizon: int = 12,
+    agents: int = 20,
+    repeats: int = 400,
+    data_root: Any = None,
+) -> list:
     """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
     compile_now()  # timed compiled (see conformal_control.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
@@ -162,6 +199,9 @@ def measure(samples: int = 500, horizon: int = 12, agents: int = 20, repeats: in
     rows.append(("acp_mpc, unicycle", a, "mpc, unicycle", u, a / u))
     rows.append(("ecp_mpc, unicycle", e, "mpc, unicycle", u, e / u))
     rows.append(("mpc, unicycle", u, "cbf (exact2d) step", cbf, u / cbf))
+    lock, alone = time_lockstep(data_root=data_root)  # the ETH/UCY recordings
+    rows.append(("cc_mpc planar, 13 scenarios in lockstep, per step (CPU)", lock,
+                 "one scenario at a time", alone, alone / lock))  # fmt: skip
     return rows
 
 
@@ -172,10 +212,11 @@ def main() -> None:
     ap.add_argument("--horizon", type=int, default=12)
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--clock", choices=sorted(CLOCKS), default="wall")
+    ap.add_argument("--data-root", default=None, help="the data folder (the ETH/UCY recordings)")
     args = ap.parse_args()
     global clock
     clock = CLOCKS[args.clock]
-    rows = measure(args.samples, args.horizon, args.agents, args.repeats)
+    rows = measure(args.samples, args.horizon, args.agents, args.repeats, args.data_root)
     print(
         f"one control step, N = {args.samples} samples x H = {args.horizon} steps, "
         f"{args.agents} agents ({platform.processor() or platform.machine()}, "

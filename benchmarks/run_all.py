@@ -748,7 +748,7 @@ def sec_mpc(args: argparse.Namespace) -> list[Figure]:
     the numpy reference and the CBF step (``bench_mpc.measure``)."""
     import bench_mpc
 
-    rows = bench_mpc.measure(repeats=100 if args.quick else 400)
+    rows = bench_mpc.measure(repeats=100 if args.quick else 400, data_root=args.data_root)
     out = []
     for name, ms, base_name, base_ms, _ in rows:
         faster = base_ms > ms

@@ -126,9 +126,30 @@ def _global_options(parser: argparse.ArgumentParser, *, top: bool) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every registered subcommand."""
-    from .commands import load_all
+#: options the top-level parser takes before a command's name (see :func:`build_parser`)
+_TOP_OPTIONS = ("-q", "--quiet", "--verbose")
+
+
+def _command_of(argv: Sequence[str]) -> str | None:
+    """The command named by ``argv`` after the top-level ``-q``/``-v`` options, or None
+    (no command, ``--help``, ``--version``, anything else)."""
+    for arg in argv:
+        if arg in _TOP_OPTIONS or (arg.startswith("-v") and set(arg[1:]) == {"v"}):
+            continue
+        return None if arg.startswith("-") else arg
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser with every registered subcommand.
+
+    Given the command line, the parser holds only the command it names when that
+    command's module can be found by name (start-up: importing every command module and
+    building every parser is a tenth of a short ``run``); usage errors and help of that
+    command read the same either way. Without it, or for anything else (``--help``, an
+    unknown command), every command.
+    """
+    from .commands import load_all, load_command
 
     parser = ArgumentParser(
         prog="conformal-control",
@@ -138,7 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     _global_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
-    for name, (help_text, add_args, _) in sorted(load_all().items()):
+    wanted = None if argv is None else _command_of(argv)
+    table = (load_command(wanted) if wanted is not None else None) or load_all()
+    for name, (help_text, add_args, _) in sorted(table.items()):
         p = sub.add_parser(
             name, help=help_text, description=help_text, formatter_class=HelpFormatter
         )
@@ -221,8 +244,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .commands import COMMANDS
     from .exceptions import ConformalControlWarning
 
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors (already printed)

@@ -28,8 +28,11 @@ import difflib
 import importlib
 from dataclasses import dataclass, field
 from importlib import import_module
-from importlib.metadata import EntryPoint, entry_points
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from importlib.metadata import EntryPoint
 
 __all__ = [
     "ROLES",
@@ -242,9 +245,107 @@ def _discover() -> None:
     if _discovered:
         return
     _discovered = True
+    _add_rows(_entry_point_rows())
+
+
+def _add_rows(rows: list[tuple[str, str, str, str, str | None]]) -> None:
+    role_of = {group: role for role, group in ROLES.items()}
+    for group, name, target, dist, version in rows:
+        if group in role_of:
+            _add(PluginEntry(role_of[group], name, target, dist, version))
+
+
+#: The entry-point scan's cache file (in the package's cache folder; one per search path):
+#: every command starts with the registry, and ``importlib.metadata`` (its import, the scan
+#: of every installed distribution and the parsing of their metadata) is about a tenth of a
+#: short ``conformal-control run``.
+ENTRY_POINT_CACHE = "entry-points.json"
+
+
+def _installed_fingerprint() -> str:
+    """What the entry-point scan depends on: for every folder of ``sys.path``, the names and
+    times of change of its distributions' metadata folders. Installing, removing or
+    re-installing a distribution changes it (``pip`` writes a new metadata folder); other
+    files coming and going in a folder (a script's folder, the current folder) do not; a
+    metadata file edited in place by hand does not either (:func:`refresh` re-reads them)."""
+    import os
+    import sys
+
+    parts: list[str] = [sys.version]
+    for entry in sys.path:
+        folder = entry or "."
+        try:
+            with os.scandir(folder) as it:
+                found = sorted(
+                    f"{e.name}:{e.stat().st_mtime_ns}"
+                    for e in it
+                    if e.name.endswith((".dist-info", ".egg-info"))
+                )
+        except OSError:  # a zip file, a path hook, a missing folder: nothing to list
+            parts.append(f"{entry}\0-")
+            continue
+        parts.append(f"{entry}\0{os.path.abspath(folder)}\0{','.join(found)}")
+    return "\n".join(parts)
+
+
+def _entry_point_rows(use_cache: bool = True) -> list[tuple[str, str, str, str, str | None]]:
+    """``(group, name, target, distribution, version)`` of every entry point of our
+    groups (:data:`ROLES`), our own distribution's first in each group; from the cache file
+    when the installed distributions are those it was written for
+    (:func:`_installed_fingerprint`), else from a scan, which then rewrites the cache (best
+    effort: a cache that cannot be read or written is ignored)."""
+    import json
+
+    path = None
+    key = ""
+    if use_cache:
+        try:
+            path = _cache_file()
+            key = "\n".join([*ROLES.values(), _installed_fingerprint()])
+            stored = json.loads(path.read_text())
+            if stored.get("key") == key:
+                return [
+                    (str(g), str(n), str(t), str(d), None if v is None else str(v))
+                    for g, n, t, d, v in stored["rows"]
+                ]
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
+    rows = _scan_entry_points()
+    if path is not None:
+        import os
+
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        try:  # written whole then renamed: a reader never sees half a file
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps({"key": key, "rows": [list(r) for r in rows]}))
+            os.replace(tmp, path)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+    return rows
+
+
+def _cache_file() -> Path:
+    """The cache file, in the package's cache folder (``$CONFORMAL_CONTROL_CACHE``, else
+    ``~/.cache/conformal-control``, as :func:`conformal_control.predictors.cache.cache_dir`,
+    a higher layer than this module)."""
+    import os
+    import sys
+    import zlib
+
+    root = os.environ.get("CONFORMAL_CONTROL_CACHE")
+    base = Path(root).expanduser() if root else Path.home() / ".cache" / "conformal-control"
+    # one file per search path: a script's folder is the first entry of its sys.path, and
+    # scripts run from several folders must not overwrite each other's file
+    paths = zlib.crc32("\0".join(sys.path).encode())
+    return base / f"{ENTRY_POINT_CACHE.removesuffix('.json')}-{paths:08x}.json"
+
+
+def _scan_entry_points() -> list[tuple[str, str, str, str, str | None]]:
+    from importlib.metadata import entry_points
+
     # one scan of the installed distributions for every group, and each distribution's
     # metadata parsed once (not once per entry point and role: a large environment has
-    # hundreds of distributions, and this runs at the start of every command)
+    # hundreds of distributions)
     every = entry_points()
     origin: dict[int, tuple[str, str | None]] = {}
 
@@ -257,13 +358,15 @@ def _discover() -> None:
             origin[key] = (meta["Name"], meta["Version"])
         return origin[key]
 
-    for role, group in ROLES.items():
+    rows: list[tuple[str, str, str, str, str | None]] = []
+    for group in ROLES.values():
         ep: EntryPoint
         # our own plugins first: a third party cannot take over a core name
         eps = sorted(every.select(group=group), key=lambda e: dist_of(e)[0] != "conformal-control")
         for ep in eps:
             dist, version = dist_of(ep)
-            _add(PluginEntry(role, ep.name, ep.value, dist, version))
+            rows.append((group, ep.name, ep.value, dist, version))
+    return rows
 
 
 def refresh() -> None:
@@ -275,9 +378,9 @@ def refresh() -> None:
     for role in ROLES:
         _registry.setdefault(role, {}).clear()
     _clashes.clear()
-    _discovered = False
+    _discovered = True
     importlib.invalidate_caches()
-    _discover()
+    _add_rows(_entry_point_rows(use_cache=False))
 
 
 def register(

@@ -144,3 +144,63 @@ def test_lazy_and_direct_registration():
         registry.refresh()
     assert "_kit_lazy" not in registry.names("predictor")  # refresh drops runtime ones
     assert "constant_velocity" in registry.names("predictor")
+
+
+# ------------------------------------------------------------------ the entry-point cache
+CACHED_DISCOVERY = """
+import json, sys
+from conformal_control import registry
+rows = [[e.role, e.name, registry._target_text(e.target), e.origin, e.version]
+        for e in registry.entries()]
+print(json.dumps({"metadata": "importlib.metadata" in sys.modules, "rows": rows}))
+"""
+
+
+def _discover_in_a_process(cache: Path, extra_path: Path | None = None) -> dict:
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "CONFORMAL_CONTROL_CACHE": str(cache)}
+    if extra_path is not None:
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(extra_path), env.get("PYTHONPATH")]))
+    out = subprocess.run(
+        [sys.executable, "-c", CACHED_DISCOVERY], env=env, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_entry_points_are_read_from_the_cache_while_nothing_is_installed(tmp_path: Path) -> None:
+    first = _discover_in_a_process(tmp_path / "cache")
+    assert first["metadata"]  # scanned, and the cache written
+    assert len(list((tmp_path / "cache").glob("entry-points-*.json"))) == 1
+    second = _discover_in_a_process(tmp_path / "cache")
+    assert not second["metadata"]  # from the cache: importlib.metadata not even imported
+    assert second["rows"] == first["rows"]
+    assert ["predictor", "constant_velocity"] in [r[:2] for r in second["rows"]]
+
+
+def test_an_installed_distribution_invalidates_the_cache(tmp_path: Path) -> None:
+    site = tmp_path / "site"
+    site.mkdir()
+    before = _discover_in_a_process(tmp_path / "cache", site)
+    assert before["metadata"]
+    assert _discover_in_a_process(tmp_path / "cache", site)["rows"] == before["rows"]
+    info = site / "late_cc_plugin-0.1.dist-info"  # installed after the cache was written
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: late-cc-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[conformal_control.predictors]\nlate = x:Y\n")
+    after = _discover_in_a_process(tmp_path / "cache", site)
+    assert after["metadata"]  # scanned again
+    assert ["predictor", "late", "x:Y", "late-cc-plugin", "0.1"] in after["rows"]
+
+
+def test_an_unreadable_cache_is_ignored(tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    rows = _discover_in_a_process(cache)["rows"]
+    for f in cache.glob("entry-points-*.json"):
+        f.write_text("{not json")
+    again = _discover_in_a_process(cache)
+    assert again["metadata"] and again["rows"] == rows

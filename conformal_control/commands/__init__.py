@@ -31,6 +31,7 @@ __all__ = [
     "finite_float",
     "key_values",
     "load_all",
+    "load_command",
     "non_negative_int",
     "positive_int",
 ]
@@ -227,6 +228,24 @@ def check_writable(path: str | Path, what: str = "output folder") -> Path:
             f"cannot write the {what} {path}: {probe} is not writable ({exc.strerror or exc})"
         ) from None
     return path
+
+
+def load_command(
+    name: str,
+) -> dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Handler]] | None:
+    """Import only the module named like command ``name`` (``-`` read as ``_``) and return
+    a table holding just that command, or None when no such module registers it (then
+    :func:`load_all` is needed). A run of one command builds its parser alone: importing
+    every command module and building every parser is a tenth of a short ``run``."""
+    import importlib.util
+
+    module = f"{__name__}.{name.replace('-', '_')}"
+    if name.startswith(("_", ".")) or importlib.util.find_spec(module) is None:
+        return None
+    importlib.import_module(module)
+    if name not in COMMANDS:
+        return None
+    return {name: COMMANDS[name]}
 
 
 def load_all() -> dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Handler]]:

@@ -468,6 +468,23 @@ def _default_out(scene_name: str) -> Path:
 # ------------------------------------------------------------------------------ command
 @_run_args.handler
 def _run(args: argparse.Namespace) -> int:
+    if not args.no_plot and args.robots is None and args.robots_file is None:
+        # the run's modules first: the figure process inherits them (its jobs hold objects
+        # of their classes), then it imports matplotlib on the other core during the episode
+        from .. import data  # noqa: F401
+        from ..plotting.jobs import prepare, release
+        from ..results import rundir  # noqa: F401
+        from ..sim import episode  # noqa: F401
+
+        prepare(("conformal_control.plotting.guarantee", "conformal_control.plotting.distance"))
+        try:
+            return _run_prepared(args)
+        finally:
+            release()  # not used (an error before the figures): it goes now
+    return _run_prepared(args)
+
+
+def _run_prepared(args: argparse.Namespace) -> int:
     import logging
 
     from ..data import load_scene

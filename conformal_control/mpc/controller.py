@@ -63,7 +63,7 @@ from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 
-__all__ = ["FALLBACKS", "MPCIntervalRecord", "Plan", "SamplingMPC"]
+__all__ = ["FALLBACKS", "MPCIntervalRecord", "Plan", "PlanInputs", "SamplingMPC"]
 
 #: The fallbacks a sampling MPC knows (see the module docstring).
 FALLBACKS = ("brake", "least_violation")
@@ -90,6 +90,19 @@ class MPCIntervalRecord(CBFIntervalRecord):
     command: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     clearance: np.ndarray = field(default_factory=lambda: np.zeros(0))
     n_safe: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+@dataclass
+class PlanInputs:
+    """What :meth:`SamplingMPC.plan_begin` prepared: the state and lambda planned for, the
+    candidates (commands (N, H, 2), positions (N, H, 2)) and ``problem``, the arguments of
+    :func:`~conformal_control.mpc.kernels.evaluate` for them."""
+
+    state: Any
+    lam: float
+    commands: np.ndarray
+    positions: np.ndarray
+    problem: tuple[Any, ...]
 
 
 @dataclass
@@ -312,6 +325,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.n_nonfinite_predictions_ = 0
         self.forecast_info_: dict[str, Any] = {}
         self._warm: np.ndarray | None = None  # last plan's commands
+        self._next_plan: Plan | None = None  # made for the next decide (use_plan)
         self._warm_t = 0.0
         self._last_cmd = np.zeros(2)
         self._begin_empty(0.0)
@@ -452,6 +466,14 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     def plan(self, state: ControlState, lam: float) -> Plan:
         """Sample, roll out, check and choose (one planning step; counts included)."""
+        todo = self.plan_begin(state, lam)
+        return self.plan_end(todo, *evaluate(*todo.problem))
+
+    def plan_begin(self, state: ControlState, lam: float) -> PlanInputs:
+        """The first half of :meth:`plan`: the candidates sampled and rolled out, and the
+        arguments of their evaluation (:func:`~conformal_control.mpc.kernels.evaluate`),
+        which a batch of episodes evaluates in one call
+        (:func:`~conformal_control.mpc.kernels.evaluate_many`) before :meth:`plan_end`."""
         goal = np.asarray(state.goal, dtype=float)
         if goal.shape != (2,) or not np.isfinite(goal).all():
             raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
@@ -468,7 +490,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         else:
             pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
         weights = (self.w_goal, self.w_terminal, self.w_effort, self.w_comfort)
-        cost, clear, viol = evaluate(
+        problem = (
             pos,
             cmds,
             state.x[:2],
@@ -480,6 +502,26 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             self._last_cmd,
             bool(self.continuous),
         )
+        return PlanInputs(state, float(lam), cmds, pos, problem)
+
+    def plan_end(
+        self, todo: PlanInputs, cost: np.ndarray, clear: np.ndarray, viol: np.ndarray
+    ) -> Plan:
+        """The second half of :meth:`plan`: the plan chosen from the candidates' cost,
+        clearance and violation (counts included).
+
+        Parameters
+        ----------
+        todo : PlanInputs
+            What :meth:`plan_begin` prepared.
+        cost, clear, viol : ndarray of shape (N,)
+            :func:`~conformal_control.mpc.kernels.evaluate` of ``todo.problem``.
+
+        Returns
+        -------
+        Plan
+        """
+        state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
         clear, viol = peer_terms(self, state, lam, pos, clear, viol)
         safe = clear >= 0.0
         n_safe = int(safe.sum())
@@ -504,11 +546,21 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             n_safe=n_safe,
         )
 
+    def will_plan(self) -> bool:
+        """Whether the next :meth:`decide` plans (else it replays the current plan)."""
+        return self._plan is None or self._since >= int(self.replan_every)
+
+    def use_plan(self, plan: Plan) -> None:
+        """Have the next :meth:`decide` apply ``plan`` (made by :meth:`plan_begin` and
+        :meth:`plan_end` on its state and lambda) instead of planning itself."""
+        self._next_plan = plan
+
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
-        replan = self._plan is None or self._since >= int(self.replan_every)
+        replan = self.will_plan()
         if replan:
-            self._plan = plan = self.plan(state, lam)
+            ready, self._next_plan = self._next_plan, None
+            self._plan = plan = ready if ready is not None else self.plan(state, lam)
             self._plan_t = state.t
             self._since = 0
             self._warm, self._warm_t = plan.commands, state.t

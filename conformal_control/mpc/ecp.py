@@ -45,7 +45,7 @@ from ..cbf.roles import Dynamics, ReferenceController
 from ..jit import kernel
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
-from .controller import MPCIntervalRecord, Plan, SamplingMPC
+from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
 
@@ -358,9 +358,14 @@ class ECPMPC(SamplingMPC):
         out: np.ndarray = np.maximum(float(self.d_c) + float(self.margin) + infl, 0.0)
         return out
 
-    def plan(self, state: ControlState, lam: float) -> Plan:
+    def plan_begin(self, state: ControlState, lam: float) -> PlanInputs:
         self._last_q = None
-        out = super().plan(state, lam)
+        return super().plan_begin(state, lam)
+
+    def plan_end(
+        self, todo: PlanInputs, cost: np.ndarray, clear: np.ndarray, viol: np.ndarray
+    ) -> Plan:
+        out = super().plan_end(todo, cost, clear, viol)
         entry = self._past[-1] if self._past else None
         if entry is not None and entry["pos"] is None and self._last_q is not None:
             # the interval's first plan: its candidates and quantiles, scored later

@@ -12,6 +12,15 @@ other; the output is the same either way. A child that dies, is stopped (SIGSTOP
 debugger, a job-control stop) or takes far longer than this process's share (more than
 :data:`CHILD_TIMEOUT_S` seconds and ten times as long) is reported by a warning, killed, and
 its figures are then drawn here: a figure never hangs a run.
+
+A command that knows early that it will draw (``conformal-control run``) calls
+:func:`prepare` before its computation: the figure process is forked then and imports
+matplotlib (about half a second of CPU, what any matplotlib figure costs first) on the
+second core while this process computes; the next :func:`draw_all` hands it the jobs (they
+are pickled: the results they draw, not matplotlib objects) and waits for it, and the
+process draws them as :func:`draw_all` does (on two cores: it forks once more). The same
+figures, the same files; a figure process that dies or stops is handled as above (the
+figures are drawn here), an exception raised by a drawing function is raised here.
 """
 
 from __future__ import annotations
@@ -25,7 +34,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["CHILD_TIMEOUT_S", "FigureJob", "can_fork", "draw_all"]
+__all__ = ["CHILD_TIMEOUT_S", "FigureJob", "can_fork", "draw_all", "prepare", "release"]
 
 #: Least time (s) the figure process is given after this process finished its share.
 CHILD_TIMEOUT_S = 120.0
@@ -79,6 +88,13 @@ def draw_all(jobs: Sequence[FigureJob], workers: int | None = None) -> str:
     global _JOBS
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
+    prepared = _take_prepared()
+    usable = jobs and (workers is None or workers > 1) and _cwd() == getattr(prepared, "cwd", None)
+    if prepared is not None and usable:
+        if prepared.draw(jobs):
+            return "forked"
+    elif prepared is not None:  # not wanted, or this process moved to another folder
+        prepared.close()
     split = len(jobs) > 1 and (workers is None or workers > 1) and can_fork()
     if not split:
         for fn, args, kwargs in jobs:
@@ -147,3 +163,198 @@ def _wait_child(child: Any, pids: list[int], timeout: float) -> str | None:
                 if stopped
                 else f"took more than {timeout:.0f} s and was killed"
             )
+
+
+# ------------------------------------------------------------- the prepared figure process
+class _Prepared:
+    """A forked process that imported matplotlib and waits for one list of jobs."""
+
+    def __init__(self, pid: int, jobs_fd: int, reply_fd: int):
+        self.pid = pid
+        self.cwd = os.getcwd()  # the process's: relative paths of the jobs resolve there
+        self.jobs_fd: int | None = jobs_fd  # write end: the pickled jobs, then EOF
+        self.reply_fd: int | None = reply_fd  # read end: the pickled outcome
+        self.reaped = False
+
+    def close(self) -> None:
+        """Let the process go (EOF without jobs: it exits) and reap it."""
+        for name in ("jobs_fd", "reply_fd"):
+            fd = getattr(self, name)
+            if fd is not None:
+                setattr(self, name, None)
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        if not self.reaped:
+            self.reaped = True
+            with contextlib.suppress(OSError):
+                os.waitpid(self.pid, 0)
+
+    def kill(self) -> None:
+        import signal
+
+        with contextlib.suppress(OSError):
+            os.kill(self.pid, signal.SIGKILL)
+        self.close()
+
+    def draw(self, jobs: Sequence[FigureJob]) -> bool:
+        """Have the process draw ``jobs``; False (nothing drawn, the process gone) when they
+        cannot be pickled or the process died or stopped, with a warning for the latter."""
+        import pickle
+        import select
+
+        try:
+            data = pickle.dumps(list(jobs), protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception:  # a job holding a lambda, an open file...: drawn here
+            self.close()
+            return False
+        assert self.jobs_fd is not None and self.reply_fd is not None
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self.jobs_fd, view) :]
+        except OSError:  # the process is gone
+            self.kill()
+            warnings.warn(
+                "the figure process died; drawing the figures here", RuntimeWarning, stacklevel=3
+            )
+            return False
+        os.close(self.jobs_fd)
+        self.jobs_fd = None
+        deadline = time.monotonic() + CHILD_TIMEOUT_S
+        chunks: list[bytes] = []
+        problem = None
+        while True:
+            ready, _, _ = select.select([self.reply_fd], [], [], 0.2)
+            if ready:
+                chunk = os.read(self.reply_fd, 1 << 16)
+                if not chunk:
+                    break
+                chunks.append(chunk)
+                continue
+            if _state(self.pid) in ("T", "t"):
+                problem = f"was stopped (pid {self.pid})"
+            elif time.monotonic() > deadline:
+                problem = f"took more than {CHILD_TIMEOUT_S:.0f} s and was killed"
+            if problem is not None:
+                break
+        if problem is None:
+            self.close()
+            try:
+                status, payload = pickle.loads(b"".join(chunks))
+            except Exception:
+                problem = "died"
+            else:
+                if status == "error":
+                    raise payload
+                return True
+        self.kill()
+        warnings.warn(
+            f"the figure process {problem}; drawing its figures here", RuntimeWarning, stacklevel=3
+        )
+        return False
+
+
+_PREPARED: _Prepared | None = None
+
+
+def _cwd() -> str | None:
+    try:
+        return os.getcwd()
+    except OSError:  # the folder was removed
+        return None
+
+
+def _take_prepared() -> _Prepared | None:
+    global _PREPARED
+    prepared, _PREPARED = _PREPARED, None
+    return prepared
+
+
+def prepare(imports: Sequence[str] = ()) -> bool:
+    """Fork the figure process of the next :func:`draw_all` now (where :func:`can_fork`
+    allows it): it imports matplotlib, the drawing modules and ``imports`` while this
+    process goes on.
+
+    Parameters
+    ----------
+    imports : sequence of str
+        Modules the drawing functions live in (imported in the figure process now).
+
+    Returns
+    -------
+    bool
+        Whether a figure process is waiting (False: :func:`draw_all` works as without).
+    """
+    global _PREPARED
+    if _PREPARED is not None:
+        return True
+    if not can_fork():
+        return False
+    import atexit
+
+    import numpy  # noqa: F401 - both processes need it: imported once, before the fork
+
+    jobs_r, jobs_w = os.pipe()
+    reply_r, reply_w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the figure process: never returns into the caller's code
+        code = 1
+        try:
+            os.close(jobs_w)
+            os.close(reply_r)
+            code = _serve(jobs_r, reply_w, imports)
+        finally:
+            os._exit(code)
+    os.close(jobs_r)
+    os.close(reply_w)
+    _PREPARED = _Prepared(pid, jobs_w, reply_r)
+    atexit.register(release)
+    return True
+
+
+def release() -> None:
+    """Let the figure process of :func:`prepare` go if no :func:`draw_all` used it (it
+    exits; called at exit too)."""
+    prepared = _take_prepared()
+    if prepared is not None:
+        prepared.close()
+
+
+def _serve(jobs_fd: int, reply_fd: int, imports: Sequence[str]) -> int:
+    """The figure process: import, wait for the jobs, draw them, reply the outcome."""
+    import importlib
+    import pickle
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it closes the pipe
+    try:
+        from .run import pyplot
+
+        pyplot()
+        for name in imports:
+            importlib.import_module(name)
+    except Exception:  # drawn by the caller, which reports what fails there
+        pass
+    chunks: list[bytes] = []
+    while True:
+        chunk = os.read(jobs_fd, 1 << 16)
+        if not chunk:
+            break
+        chunks.append(chunk)
+    os.close(jobs_fd)
+    if not chunks:  # released without jobs
+        return 0
+    try:
+        draw_all(pickle.loads(b"".join(chunks)))
+        outcome: tuple[str, Any] = ("ok", None)
+    except Exception as exc:
+        outcome = ("error", exc)
+    try:
+        reply = pickle.dumps(outcome)
+    except Exception:  # an exception that cannot be pickled: its text
+        reply = pickle.dumps(("error", RuntimeError(f"{type(outcome[1]).__name__}: {outcome[1]}")))
+    view = memoryview(reply)
+    while view:
+        view = view[os.write(reply_fd, view) :]
+    os.close(reply_fd)
+    return 0

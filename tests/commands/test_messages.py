@@ -314,3 +314,37 @@ def test_every_data_root_option_names_the_three_places_in_order() -> None:
                 assert "fetch-data" in text, name
     for name in ("run", "params", "sweep", "reproduce", "eval-predictor", "bench run"):
         assert f"conformal-control {name}" in found, (name, found)
+
+
+# ------------------------------------------------------------------------------ start-up
+def _commands_of(parser) -> list[str]:
+    import argparse
+
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return sorted(sub.choices)
+
+
+def test_a_command_line_builds_the_parser_of_its_command_only() -> None:
+    every = _commands_of(build_parser())
+    assert {"run", "bench", "fetch-data", "scenes"} <= set(every)
+    assert _commands_of(build_parser(["run", "--scene", "nexus_4"])) == ["run"]
+    assert _commands_of(build_parser(["-q", "-vv", "bench", "run"])) == ["bench"]
+    # no module named like the command (fetch-data lives in commands/data.py), no command,
+    # help, version, a typo: every command
+    for argv in (["fetch-data"], [], ["--help"], ["--version"], ["runn"], ["-x", "run"]):
+        assert _commands_of(build_parser(argv)) == every, argv
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["run", "--no-such-option"], ["run", "--crowd", "nobody"], ["run", "--epsilon", "x"]],
+)
+def test_usage_errors_read_the_same_with_the_command_parser_alone(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit):
+        build_parser(argv).parse_args(argv)
+    alone = capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(argv)
+    assert capsys.readouterr().err == alone and alone.startswith("error: ")

@@ -136,3 +136,84 @@ def test_a_stopped_figure_process_does_not_hang_the_run(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith("forked ['a', 'b']"), res.stdout
     assert "was stopped" in res.stdout and "drawing its 1 figures here" in res.stdout
+
+
+# ------------------------------------------------------------- the prepared figure process
+def _unpicklable_jobs(folder: Path) -> list[jobs.FigureJob]:
+    folder.mkdir()
+    return [(lambda p: _figure(p, 0), (folder / "f0.png",), {})]
+
+
+def test_prepared_process_draws_the_same_files(tmp_path: Path, forkable: None) -> None:
+    assert draw_all(_jobs(tmp_path / "serial", 2), workers=1) == "serial"
+    assert jobs.prepare()
+    child = jobs._PREPARED.pid  # type: ignore[union-attr]
+    assert draw_all(_jobs(tmp_path / "prepared", 2)) == "forked"
+    for i in range(2):
+        a = (tmp_path / "serial" / f"f{i}.png").read_bytes()
+        assert (tmp_path / "prepared" / f"f{i}.png").read_bytes() == a
+    pids = {int((tmp_path / "prepared" / f"f{i}.pid").read_text()) for i in range(2)}
+    assert os.getpid() not in pids and child in pids  # drawn by the prepared process
+    assert jobs._PREPARED is None  # used once
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)  # and reaped
+
+
+def test_prepared_process_raises_a_drawing_error_here(tmp_path: Path, forkable: None) -> None:
+    assert jobs.prepare()
+    with pytest.raises(ValueError, match=r"cannot draw bad\.png"):
+        draw_all([(_raise, (tmp_path / "bad.png",), {})])
+
+
+def test_prepared_process_unpicklable_jobs_are_drawn_here(tmp_path: Path, forkable: None) -> None:
+    assert jobs.prepare()
+    child = jobs._PREPARED.pid  # type: ignore[union-attr]
+    draw_all(_unpicklable_jobs(tmp_path / "f"), workers=1)
+    assert int((tmp_path / "f" / "f0.pid").read_text()) == os.getpid()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)  # released and reaped
+
+
+def test_a_dead_prepared_process_is_reported_and_its_figures_drawn_here(
+    tmp_path: Path, forkable: None
+) -> None:
+    import signal
+
+    assert jobs.prepare()
+    os.kill(jobs._PREPARED.pid, signal.SIGKILL)  # type: ignore[union-attr]
+    with pytest.warns(RuntimeWarning, match="figure process died"):
+        draw_all(_jobs(tmp_path / "f", 2))
+    pids = {int((tmp_path / "f" / f"f{i}.pid").read_text()) for i in range(2)}
+    assert os.getpid() in pids
+
+
+def test_an_unused_prepared_process_is_released(forkable: None) -> None:
+    assert jobs.prepare()
+    child = jobs._PREPARED.pid  # type: ignore[union-attr]
+    jobs.release()  # what happens at exit when nothing was drawn
+    assert jobs._PREPARED is None
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)
+
+
+def test_no_prepared_process_where_forking_is_unsafe(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(jobs, "can_fork", lambda: False)
+    assert not jobs.prepare()
+    assert jobs._PREPARED is None
+
+
+def test_a_prepared_process_in_another_folder_is_not_used(
+    tmp_path: Path, forkable: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Jobs name files relative to this process's folder: a figure process forked in
+    another folder would write them elsewhere."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+    assert jobs.prepare()
+    child = jobs._PREPARED.pid  # type: ignore[union-attr]
+    monkeypatch.chdir(tmp_path / "b")
+    draw_all([(_figure, (Path("rel.png"), 1), {})])
+    assert (tmp_path / "b" / "rel.png").is_file() and not (tmp_path / "a" / "rel.png").exists()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)
