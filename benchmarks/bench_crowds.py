@@ -300,7 +300,8 @@ def bench_episodes(data_root: Path) -> None:
         comp = _wire(scene, params)
         env = make_environment_like(comp.env, crowd, cp)
         t0 = time.perf_counter()
-        res = ConformalLoop(env, comp.policy, comp.loss, comp.rule).run()
+        family = getattr(comp, "family", None) or comp.policy  # earlier layouts: policy
+        res = ConformalLoop(env, family, comp.loss, comp.rule).run()
         wall = time.perf_counter() - t0
         base = wall if base is None else base
         d = env.log.arrays()["d_min"]

@@ -57,7 +57,7 @@ from conformal_control.cbf import (
 from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.roles import Dynamics
 from conformal_control.jit import compile_now
-from conformal_control.mpc import ACPMPC, ECPMPC, SamplingMPC
+from conformal_control.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
 from conformal_control.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
@@ -171,11 +171,11 @@ def measure(
     compile_now()  # timed compiled (see conformal_control.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
     uni = Unicycle()
-    common = {"n_samples": samples, "horizon": horizon, "dt_plan": DT, "substeps": 1}
+    common = {"sampling": Sampling(n_samples=samples, horizon=horizon, dt_plan=DT), "substeps": 1}
     cv = ConstantVelocityPredictor
 
     def mpc(plant: Dynamics, cls: type = SamplingMPC, **kw: Any) -> Any:
-        return lambda: cls(cv(), plant, v_max=1.5, **common, **kw)
+        return lambda: cls(cv(), plant, limits=Limits(v_max=1.5), **common, **kw)
 
     def acp() -> ACPMPC:
         fam = ACPMPC(cv(), uni, **common, max_inflation=1.0)

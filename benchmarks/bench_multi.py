@@ -46,10 +46,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def single(scene) -> tuple[float, float, int]:
     """(CPU s, wall s, control instants) of the single-robot episode's loop."""
     fl = build_flagship(scene)
-    loop = ConformalLoop(fl.env, fl.policy, fl.loss, fl.rule)
+    loop = ConformalLoop(fl.env, fl.family, fl.loss, fl.rule)
     w0, c0 = time.perf_counter(), time.process_time()
     loop.run()
-    return time.process_time() - c0, time.perf_counter() - w0, fl.policy.n_steps_
+    return time.process_time() - c0, time.perf_counter() - w0, fl.family.n_steps_
 
 
 def lanes(scene, n: int) -> tuple[np.ndarray, list[np.ndarray]]:

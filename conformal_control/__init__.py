@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         ReferenceController,
         SafetyFilter,
     )
-    from .cbf.stepwise import StepwiseCBF
+    from .cbf.stepwise import StepwiseCBF, Stream
     from .crowds.base import CrowdModel
     from .loop import ConformalLoop, IntervalLog, LoopResult
     from .monitor import GuaranteeMonitor
@@ -60,6 +60,7 @@ _LAZY = {
     "RunSpec": "conformal_control.spec",
     "Parameters": "conformal_control.spec",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
+    "Stream": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
     "Forecast": "conformal_control.predictors.base",
@@ -95,6 +96,7 @@ __all__ = [
     "SafetyFilter",
     "SingleStepEnvironment",
     "StepwiseCBF",
+    "Stream",
     "UpdateRule",
     "__version__",
     "run",

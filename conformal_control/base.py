@@ -35,12 +35,14 @@ Sign convention (all of the toolkit): a *smaller* lambda is *more conservative*.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import inspect
 import math
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from typing import Any, ClassVar, Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, TypeVar
 
 __all__ = [
     "DecisionFamily",
@@ -49,9 +51,12 @@ __all__ = [
     "Loss",
     "LossFunction",
     "Plugin",
+    "Settings",
     "SingleStepEnvironment",
     "UpdateRule",
     "compiled_as",
+    "expand_settings",
+    "flat_params",
 ]
 
 ObsT = TypeVar("ObsT")
@@ -84,6 +89,55 @@ def _init_param_names(init: Callable[..., None]) -> tuple[str, ...]:
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Base of the small frozen groups of related parameters a plugin takes as one
+    argument (the sampling MPC's ``Sampling``, ``Costs`` and ``Limits``, ...).
+
+    A plugin stores the group as given; :meth:`Plugin.get_params` with ``deep=True``
+    reports its fields as ``<group>__<field>`` and :meth:`Plugin.set_params` (and the
+    plugin's constructor) take them in that form (``costs__w_goal=2.0``), so the
+    registry's ``(name, params)`` form, a run's ``config.json`` and sweeps address a
+    field of a group as plain data. Subclasses validate their fields in the plugin's
+    ``reset``, as every parameter is.
+    """
+
+    def get_params(self) -> dict[str, Any]:
+        """The fields of the group (name -> value)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def replace(self, **changes: Any) -> Settings:
+        """A copy with ``changes`` applied (unknown names raise ``ValueError``)."""
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise ValueError(
+                f"{type(self).__name__} has no field(s) {', '.join(unknown)}; "
+                f"its fields: {', '.join(sorted(known))}"
+            )
+        return dataclasses.replace(self, **changes)
+
+
+def flat_params(plugin: Any) -> dict[str, Any]:
+    """A plugin's parameters as plain data (for ``config.json``): each
+    :class:`Settings` group given as its ``<group>__<field>`` entries (see
+    :func:`expand_settings`), every other parameter as it is."""
+    return expand_settings(plugin.get_params())
+
+
+def expand_settings(params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` with each :class:`Settings` value replaced by its fields as
+    ``<name>__<field>`` entries (plain data a constructor, ``set_params`` and the
+    registry's ``(name, params)`` form take back)."""
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        if isinstance(value, Settings):
+            out.update({f"{key}__{k}": v for k, v in value.get_params().items()})
+        else:
+            out[key] = value
+    return out
+
+
 class Plugin:
     """Mixin giving every plugin ``get_params`` / ``set_params`` like scikit-learn estimators.
 
@@ -100,26 +154,93 @@ class Plugin:
     #: Name of this exact class's compiled counterpart in the compiled engine, or None.
     compiled_as: ClassVar[str | None] = None
 
+    #: Former flat constructor keywords now held by a :class:`Settings` group: old name
+    #: -> ``<group>__<field>``. Still accepted (by the constructor, :meth:`set_params`
+    #: and attribute reads) with a ``DeprecationWarning`` naming the new form.
+    renamed_params: ClassVar[dict[str, str]] = {}
+
     @classmethod
     def _param_names(cls) -> list[str]:
         return list(_init_param_names(cls.__init__))
 
-    def get_params(self) -> dict[str, Any]:
-        """Return the constructor parameters of this plugin (name -> value)."""
-        return {name: getattr(self, name) for name in self._param_names() if hasattr(self, name)}
+    def get_params(self, deep: bool = False) -> dict[str, Any]:
+        """Return the constructor parameters of this plugin (name -> value).
+
+        Parameters
+        ----------
+        deep : bool
+            Also report the fields of every :class:`Settings` group as
+            ``<group>__<field>`` (the form :meth:`set_params` takes).
+        """
+        out = {name: getattr(self, name) for name in self._param_names() if hasattr(self, name)}
+        if deep:
+            for name, value in list(out.items()):
+                if isinstance(value, Settings):
+                    out.update({f"{name}__{k}": v for k, v in value.get_params().items()})
+        return out
 
     def set_params(self, **params: Any) -> Plugin:
-        """Set constructor parameters by name (unknown names raise ``ValueError``)."""
+        """Set constructor parameters by name, a :class:`Settings` group's field as
+        ``<group>__<field>`` (unknown names raise ``ValueError``; a name of
+        :attr:`renamed_params` is mapped with a ``DeprecationWarning``)."""
         known = set(self._param_names())
-        unknown = sorted(set(params) - known)
-        if unknown:
-            raise ValueError(
-                f"{type(self).__name__} has no parameter(s) {', '.join(unknown)}; "
-                f"its parameters: {', '.join(sorted(known)) or 'none'}"
-            )
-        for name, value in params.items():
-            setattr(self, name, value)
+        for key, value in params.items():
+            key = self._renamed(key, stacklevel=3)
+            group, sep, field = key.partition("__")
+            if sep and group in known and isinstance(getattr(self, group, None), Settings):
+                setattr(self, group, getattr(self, group).replace(**{field: value}))
+            elif key in known:
+                setattr(self, key, value)
+            else:
+                raise ValueError(
+                    f"{type(self).__name__} has no parameter {key!r}; "
+                    f"its parameters: {', '.join(sorted(known)) or 'none'}"
+                )
         return self
+
+    def _renamed(self, key: str, stacklevel: int) -> str:
+        new = type(self).renamed_params.get(key)
+        if new is None:
+            return key
+        group, _, field = new.partition("__")
+        warnings.warn(
+            f"{type(self).__name__}({key}=...) is deprecated: give {group}="
+            f"{type(getattr(self, group, None)).__name__}({field}=...) or {new}=... "
+            f"(removed in 0.4)",
+            DeprecationWarning,
+            stacklevel=stacklevel + 1,
+        )
+        return new
+
+    def _set_grouped(self, extra: dict[str, Any]) -> None:
+        """Apply the constructor's extra keywords (call at the end of ``__init__``):
+        ``<group>__<field>`` entries, and former flat names (:attr:`renamed_params`)
+        with a ``DeprecationWarning``; anything else is a ``TypeError``, as Python's."""
+        for key in extra:
+            if key not in type(self).renamed_params and "__" not in key:
+                raise TypeError(
+                    f"{type(self).__name__}.__init__() got an unexpected keyword argument {key!r}"
+                )
+        known = set(self._param_names())
+        for key, value in extra.items():
+            key = self._renamed(key, stacklevel=4)
+            group, _, field = key.partition("__")
+            current = getattr(self, group, None) if group in known else None
+            if not isinstance(current, Settings):
+                raise TypeError(
+                    f"{type(self).__name__}.__init__() got an unexpected keyword argument {key!r}"
+                )
+            setattr(self, group, current.replace(**{field: value}))
+
+    if not TYPE_CHECKING:  # hidden from type checkers: a typo stays an error for them
+
+        def __getattr__(self, name: str) -> Any:
+            # only reached for a missing attribute: a former flat parameter reads its field
+            new = type(self).renamed_params.get(name)
+            if new is None:
+                raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+            group, _, field = self._renamed(name, stacklevel=2).partition("__")
+            return getattr(getattr(self, group), field)
 
     @classmethod
     def summary(cls) -> str:

@@ -261,6 +261,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("default", ConformalControlWarning)
+            # our deprecations (a former keyword in --family-param, a 0.2 role name) are
+            # the user's to see; other packages' are not
+            warnings.filterwarnings(
+                "default", category=DeprecationWarning, module=r"conformal_control(\.|$)"
+            )
             warnings.showwarning = _show_warning
             return COMMANDS[args.command][2](args)
     except KeyboardInterrupt:

@@ -8,20 +8,22 @@ instantiation, and :mod:`conformal_control.domains` for other decision problems 
 through the same loop). One interval, top to bottom::
 
     observation = env.sense()                      # sampling time k tau
-    policy.begin_interval(observation)             # the family plans (e.g. predicts)
+    family.begin_interval(observation)             # the family plans (e.g. predicts)
     for each control instant of I_k:
-        env.apply(policy.decide(env.state(), lam)) # decide with lambda_k
+        env.apply(family.decide(env.state(), lam)) # decide with lambda_k
     truth = env.reveal()                           # sampling time (k+1) tau
-    l_k = loss(policy.interval_record(), truth, lam)
+    l_k = loss(family.interval_record(), truth, lam)
     lam = rule.update(l_k)                         # lambda_{k+1}
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -176,13 +178,34 @@ def close_interval(
     return log, lam
 
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _policy_is_family(init: Callable[_P, _R]) -> Callable[_P, _R]:
+    """Accept 0.2's keyword ``policy=`` for the family, with a ``DeprecationWarning``."""
+
+    @functools.wraps(init)
+    def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        if "policy" in kwargs:
+            warnings.warn(
+                "the loop's keyword policy= is now family= (removed in 0.4)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            kwargs["family"] = kwargs.pop("policy")
+        return init(*args, **kwargs)
+
+    return wrapper
+
+
 class ConformalStepper:
     """The loop's body, one call at a time: for a world that is not an :class:`Environment`.
 
     :class:`ConformalLoop` drives a stepper from an environment; a user with their own
     simulator or robot drives it directly::
 
-        stepper = ConformalStepper(policy, loss, rule)
+        stepper = ConformalStepper(family, loss, rule)
         stepper.start()
         while running:
             stepper.begin_interval(observation)        # at a sampling time
@@ -193,8 +216,9 @@ class ConformalStepper:
 
     Parameters
     ----------
-    policy : DecisionFamily
-        The decision family D^lambda (e.g. the conformal CBF controller).
+    family : DecisionFamily
+        The decision family D^lambda (e.g. the conformal CBF controller). The keyword
+        ``policy=`` of 0.2 is still accepted, with a ``DeprecationWarning``.
     loss : Loss
         Scores an interval once its truth is revealed, with the lambda used during it.
     rule : UpdateRule
@@ -212,9 +236,10 @@ class ConformalStepper:
         Called with each :class:`IntervalLog` as soon as the interval is scored.
     """
 
+    @_policy_is_family
     def __init__(
         self,
-        policy: DecisionFamily[Any, Any, Any, Any],
+        family: DecisionFamily[Any, Any, Any, Any],
         loss: Loss[Any, Any],
         rule: UpdateRule,
         *,
@@ -224,7 +249,7 @@ class ConformalStepper:
         lambda_safe_proven: bool = False,
         on_interval: Callable[[IntervalLog], None] | None = None,
     ) -> None:
-        self.policy = policy
+        self.family = family
         self.loss = loss
         self.rule = rule
         self.learn = learn
@@ -233,9 +258,19 @@ class ConformalStepper:
         self.lambda_safe_proven = lambda_safe_proven
         self.on_interval = on_interval
 
+    @property
+    def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
+        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        warnings.warn(
+            "the loop's attribute policy is now family (removed in 0.4)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.family
+
     def start(self) -> float:
         """Reset the family and the rule; return lambda_1."""
-        self.policy.reset()
+        self.family.reset()
         self.monitor_ = GuaranteeMonitor.for_rule(
             self.rule,
             lambda_safe=self.lambda_safe,
@@ -259,7 +294,7 @@ class ConformalStepper:
         """Sampling time k tau: hand the observation to the family."""
         if self._open:
             raise RuntimeError("begin_interval() called twice without end_interval()")
-        self.policy.begin_interval(observation)
+        self.family.begin_interval(observation)
         self._n_steps = 0
         self._open = True
 
@@ -268,7 +303,7 @@ class ConformalStepper:
         if not self._open:
             raise RuntimeError("decide() called outside an interval (call begin_interval())")
         self._n_steps += 1
-        return self.policy.decide(state, self.lam_)
+        return self.family.decide(state, self.lam_)
 
     def end_interval(self, truth: Any) -> IntervalLog:
         """Sampling time (k+1) tau: score the interval on its truth, update lambda."""
@@ -283,7 +318,7 @@ class ConformalStepper:
             monitor=self.monitor_,
             learn=self.learn,
             loss=self.loss,
-            record=self.policy.interval_record(),
+            record=self.family.interval_record(),
             truth=truth,
         )
         self.intervals_.append(log)
@@ -299,14 +334,15 @@ class ConformalStepper:
 
 
 class ConformalLoop(ConformalStepper):
-    """Run a conformal decision policy in an environment.
+    """Run a conformal decision family in an environment.
 
     Parameters
     ----------
     env : Environment
         The world: sensor, plant, ground truth.
-    policy : DecisionFamily
-        The decision family D^lambda (e.g. the conformal CBF controller).
+    family : DecisionFamily
+        The decision family D^lambda (e.g. the conformal CBF controller). The keyword
+        ``policy=`` of 0.2 is still accepted, with a ``DeprecationWarning``.
     loss : Loss
         Scores an interval once its truth is revealed, with the lambda used during it.
     rule : UpdateRule
@@ -326,10 +362,11 @@ class ConformalLoop(ConformalStepper):
         Called with each :class:`IntervalLog` as soon as the interval is scored.
     """
 
+    @_policy_is_family
     def __init__(
         self,
         env: Environment[Any, Any, Any, Any],
-        policy: DecisionFamily[Any, Any, Any, Any],
+        family: DecisionFamily[Any, Any, Any, Any],
         loss: Loss[Any, Any],
         rule: UpdateRule,
         *,
@@ -340,7 +377,7 @@ class ConformalLoop(ConformalStepper):
         on_interval: Callable[[IntervalLog], None] | None = None,
     ) -> None:
         super().__init__(
-            policy,
+            family,
             loss,
             rule,
             learn=learn,

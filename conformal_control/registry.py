@@ -1,8 +1,16 @@
 """Plugins by name: registration, entry-point discovery, construction.
 
 Every role has an entry-point group named after it (``conformal_control.predictors``,
-``conformal_control.barriers``, ...). Our own core plugins are declared in our
-``pyproject.toml`` exactly like a third party would declare theirs, so
+``conformal_control.barriers``, ...; :data:`ROLES` maps each role to its group). A role's
+name is the one a run uses everywhere: the :class:`~conformal_control.spec.RunSpec`
+field, the ``config.json`` key and the command line's option (``rule`` / ``--rule``,
+``family`` / ``--family``, ``crowd`` / ``--crowd``). Three groups keep the names they were
+published under, since third-party plugins register under them: ``rule`` is
+``conformal_control.update_rules``, ``family`` is ``conformal_control.families`` and
+``crowd`` is ``conformal_control.crowd_models``. The role names of 0.2 (``update_rule``,
+``decision_family``, ``crowd_model``) are still accepted, with a ``DeprecationWarning``.
+Our own core plugins are declared in our ``pyproject.toml`` exactly like a third party
+would declare theirs, so
 ``conformal-control plugins`` lists both the same way. A plugin whose dependency is
 missing stays listed, marked unavailable, with the import error as its reason; asking for
 it raises :class:`PluginUnavailableError` instead of breaking ``import conformal_control``.
@@ -26,6 +34,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import warnings
 from dataclasses import dataclass, field
 from importlib import import_module
 from pathlib import Path
@@ -35,6 +44,7 @@ if TYPE_CHECKING:
     from importlib.metadata import EntryPoint
 
 __all__ = [
+    "RENAMED_ROLES",
     "ROLES",
     "Clash",
     "PluginEntry",
@@ -51,7 +61,9 @@ __all__ = [
     "names",
     "refresh",
     "register",
+    "role_name",
     "unregister",
+    "with_context",
 ]
 
 #: role -> entry-point group
@@ -61,11 +73,18 @@ ROLES: dict[str, str] = {
     "safety_filter": "conformal_control.safety_filters",
     "fallback": "conformal_control.fallbacks",
     "loss": "conformal_control.losses",
-    "update_rule": "conformal_control.update_rules",
+    "rule": "conformal_control.update_rules",
     "dynamics": "conformal_control.dynamics",
     "reference": "conformal_control.references",
-    "decision_family": "conformal_control.families",
-    "crowd_model": "conformal_control.crowd_models",
+    "family": "conformal_control.families",
+    "crowd": "conformal_control.crowd_models",
+}
+
+#: Role names of 0.2 -> the role's name now (accepted with a ``DeprecationWarning``).
+RENAMED_ROLES: dict[str, str] = {
+    "update_rule": "rule",
+    "decision_family": "family",
+    "crowd_model": "crowd",
 }
 
 
@@ -207,9 +226,33 @@ _clashes: list[Clash] = []
 _discovered = False
 
 
-def _check_role(role: str) -> None:
+def role_name(role: str) -> str:
+    """The role's name now: ``role`` itself, or for a role name of 0.2 (``update_rule``,
+    ``decision_family``, ``crowd_model``) its new name, with a ``DeprecationWarning``.
+
+    Raises
+    ------
+    ValueError
+        For a name that is no role.
+    """
+    new = RENAMED_ROLES.get(role)
+    if new is not None:
+        warnings.warn(
+            f"the plugin role {role!r} is now called {new!r} (as the run's field, "
+            f"config.json key and --{new} option); {role!r} is removed in 0.4",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        return new
     if role not in ROLES:
         raise ValueError(f"unknown plugin role {role!r}; roles: {', '.join(ROLES)}")
+    return role
+
+
+def _check_role(role: str) -> str:
+    if role in ROLES:  # the common case, without a call
+        return role
+    return role_name(role)
 
 
 def _target_text(target: str | type) -> str:
@@ -416,7 +459,7 @@ def register(
     class or str
         The class (decorator and class forms) or the target string.
     """
-    _check_role(role)
+    role = _check_role(role)
     _discover()
     if target is not None and not isinstance(target, (str, type)):
         raise TypeError(f"target must be a class or a 'module:Class' string, got {target!r}")
@@ -442,7 +485,7 @@ def register(
 
 def unregister(role: str, name: str) -> None:
     """Remove a plugin (mainly for tests)."""
-    _check_role(role)
+    role = _check_role(role)
     _discover()
     _registry[role].pop(name, None)
 
@@ -450,10 +493,9 @@ def unregister(role: str, name: str) -> None:
 def entries(role: str | None = None) -> list[PluginEntry]:
     """All registered plugins (of one role), sorted by role then name; unavailable included."""
     _discover()
-    roles = [role] if role is not None else list(ROLES)
+    roles = [_check_role(role)] if role is not None else list(ROLES)
     out: list[PluginEntry] = []
     for r in roles:
-        _check_role(r)
         out.extend(_registry[r][n] for n in sorted(_registry[r]))
     return out
 
@@ -471,14 +513,14 @@ def names(role: str) -> list[str]:
 
 def crowd_names() -> list[str]:
     """Every crowd a run can have: ``replay`` (the recording), each registered crowd model
-    (``crowd_model`` role: every pedestrian simulated), ``mixed`` (replayed until the robot
+    (``crowd`` role: every pedestrian simulated), ``mixed`` (replayed until the robot
     comes near, then simulated). The command line's choices come from here."""
-    return ["replay", *names("crowd_model"), "mixed"]
+    return ["replay", *names("crowd"), "mixed"]
 
 
 def entry(role: str, name: str) -> PluginEntry:
     """The registry entry ``role``/``name`` (:class:`UnknownPluginError` if there is none)."""
-    _check_role(role)
+    role = _check_role(role)
     _discover()
     try:
         return _registry[role][name]
@@ -513,24 +555,60 @@ def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> Non
     cls : type
         Its class.
     params : dict
-        The arguments to check against ``cls``'s constructor.
+        The arguments to check against ``cls``'s constructor: its parameters by name,
+        a :class:`~conformal_control.base.Settings` group's field as ``<group>__<field>``
+        (the group's own fields are checked when it is built), or a former flat name
+        the class still maps (``renamed_params``).
     """
     if not params:  # nothing to check (and a signature costs tens of microseconds)
         return
+    role = _check_role(role)
     import inspect
 
     sig = inspect.signature(cls)
-    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+    renamed: dict[str, str] = getattr(cls, "renamed_params", {})
+    if not renamed and any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
         return
-    known = [p for p in sig.parameters if p != "self"]
+    known = [
+        p.name for p in sig.parameters.values() if p.name != "self" and p.kind is not p.VAR_KEYWORD
+    ]
     for key in params:
-        if key not in known:
+        group, sep, _ = renamed.get(key, key).partition("__")
+        if not (key in known or (sep and group in known)):
             close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
             hint = f"; did you mean {close[0]!r}?" if close else ";"
             raise UnknownParameterError(
                 f"{role} {name!r} has no parameter {key!r}{hint} "
                 f"its parameters: {', '.join(known) or 'none'}"
             )
+
+
+def with_context(cls: type, given: dict[str, Any], context: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments to build ``cls`` with: the ``context`` values it takes (by
+    name, or ``<group>__<field>`` for a settings group it takes) that ``given`` does not
+    set, then ``given`` unchanged (so a caller's value always wins).
+
+    Parameters
+    ----------
+    cls : type
+        The plugin class.
+    given : dict
+        The caller's parameters (checked separately with :func:`check_params`).
+    context : dict
+        The values a run fixes for parameters the caller left out (``d_c``, the seed,
+        ``limits__v_max``, ...).
+    """
+    accepted = set(cls._param_names()) if hasattr(cls, "_param_names") else set()
+    renamed: dict[str, str] = getattr(cls, "renamed_params", {})
+    keys = {renamed.get(k, k) for k in given}
+    whole = {k for k in keys if "__" not in k}  # a group given as one object
+    out = {
+        k: v
+        for k, v in context.items()
+        if k.partition("__")[0] in accepted and k not in keys and k.partition("__")[0] not in whole
+    }
+    out.update(given)
+    return out
 
 
 def create(role: str, name: str, **params: Any) -> Any:
@@ -542,6 +620,7 @@ def create(role: str, name: str, **params: Any) -> Any:
         A parameter the plugin does not take (the message lists the valid ones and the
         closest match).
     """
+    role = _check_role(role)
     cls = get(role, name)
     check_params(role, name, cls, params)
     try:

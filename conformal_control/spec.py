@@ -9,8 +9,9 @@ parameters is derived from it: :data:`PARAMETERS` (name -> (default, doc), what
 :class:`~conformal_control.data.units.UnitSystem` converts) and :data:`PLAUSIBLE_SI`
 (the SI range outside which a bare number is reported as suspicious).
 
-This module imports nothing of the package but the exceptions, so every floor of the
-house can read the table and the specification.
+This module imports nothing of the package but the exceptions and the generic core
+(:mod:`~conformal_control.base`), so every floor of the house can read the table and the
+specification.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
+from .base import expand_settings
 from .exceptions import InputError
 
 __all__ = [
@@ -233,8 +235,8 @@ PLAUSIBLE_SI: dict[str, tuple[float, float, str]] = {
 #: or None (the flagship's default).
 RoleValue = Any
 
-#: The roles of a run, in the order they are reported; ``rule`` is the ``update_rule``
-#: role, ``family`` the ``decision_family`` role, ``crowd`` the crowd model.
+#: The roles of a run, in the order they are reported: the registry's roles
+#: (:data:`conformal_control.registry.ROLES`), by the same names.
 ROLE_FIELDS: tuple[str, ...] = (
     "predictor",
     "barrier",
@@ -492,9 +494,9 @@ class RunSpec:
         the unit system ``units``; a string value may carry a unit suffix (``"18m"``).
     predictor, barrier, safety_filter, fallback, reference, dynamics, loss, rule, family, crowd
         Each role as a registered name, an instance (used as given, SI units),
-        ``(name, params)``, or None for the flagship's default. ``rule`` is the
-        ``update_rule`` role (its parameters in ``units``), ``family`` the
-        ``decision_family`` role, ``crowd`` the crowd model (``"replay"``: the recording).
+        ``(name, params)``, or None for the flagship's default: the registry's roles,
+        by the same names. The ``rule``'s parameters are in ``units``; the ``crowd`` is
+        also ``"replay"`` (the recording) or ``"mixed"``.
     units : {"scene", "si"}
         Unit system of ``params`` and of the rule's parameters.
     learn : bool
@@ -732,6 +734,7 @@ class RunSpec:
         for role in ROLE_FIELDS:
             spec, params = self.role(role)
             if spec is None or isinstance(spec, str):
+                params = expand_settings(params)  # a settings group as its fields
                 out[role] = spec if not params else {"name": spec, "params": params}
             else:
                 get = getattr(spec, "get_params", None)

@@ -241,19 +241,6 @@ def test_no_private_name_is_imported_from_another_module() -> None:
 #: Compiled kernels (``@jit`` and friends) are exempt: their arguments are arrays by design.
 MAX_PARAMETERS = 15
 
-#: Functions over :data:`MAX_PARAMETERS` when the rule was written, with their counts then:
-#: a count may only fall, and a name leaves the list when it meets the rule (never add one;
-#: group parameters into a section of the run specification or an object instead).
-OVER_MAX_PARAMETERS: dict[str, int] = {
-    "conformal_control.cbf.stepwise.StepwiseCBF.__init__": 19,
-    "conformal_control.mpc.acp.ACPMPC.__init__": 22,
-    "conformal_control.mpc.controller.SamplingMPC.__init__": 20,
-    "conformal_control.mpc.ecp.ECPMPC.__init__": 22,
-    # landed on main together with the rule
-    "conformal_control.mpc.stepwise.StepwiseMPC.__init__": 23,
-}
-
-
 #: Decorators that compile a function into a kernel (``jit.kernel`` among them).
 KERNEL_DECORATORS = ("jit", "njit", "vectorize", "guvectorize", "kernel")
 
@@ -306,13 +293,9 @@ def parameter_counts() -> dict[str, int]:
 
 def test_no_function_takes_more_than_fifteen_parameters() -> None:
     counts = parameter_counts()
-    bad = [
-        f"{name}: {n} parameters"
-        for name, n in sorted(counts.items())
-        if n > MAX_PARAMETERS and n > OVER_MAX_PARAMETERS.get(name, MAX_PARAMETERS)
-    ]
-    assert not bad, f"more than {MAX_PARAMETERS} parameters:\n" + "\n".join(bad)
-    done = sorted(n for n in OVER_MAX_PARAMETERS if counts.get(n, 0) <= MAX_PARAMETERS)
-    assert not done, "take these off OVER_MAX_PARAMETERS (they meet the rule now): " + (
-        ", ".join(done)
+    bad = [f"{name}: {n} parameters" for name, n in sorted(counts.items()) if n > MAX_PARAMETERS]
+    assert not bad, (
+        f"more than {MAX_PARAMETERS} parameters (group related ones into a settings object, "
+        "conformal_control.base.Settings, or a section of the run specification):\n"
+        + "\n".join(bad)
     )

@@ -52,7 +52,7 @@ TYPED = [
         ["--predictor", "constant_velocty"],
         ["unknown predictor 'constant_velocty'", "did you mean 'constant_velocity'"],
     ),
-    ("rule typo", ["--rule", "fixed_eat"], ["unknown update_rule 'fixed_eat'", "'fixed_eta'"]),
+    ("rule typo", ["--rule", "fixed_eat"], ["unknown rule 'fixed_eat'", "'fixed_eta'"]),
     ("rule param typo", ["--rule-param", "etta=1"], ["no parameter 'etta'", "'eta'"]),
     ("lambda-safe nan", ["--lambda-safe", "nan"], ["--lambda-safe", "finite"]),
     ("lambda-safe inf", ["--lambda-safe", "inf"], ["--lambda-safe", "finite"]),
@@ -402,9 +402,9 @@ def test_weights_folder_with_a_pickle_runs_no_code(tmp_path: Path, capsys) -> No
 
 # ------------------------------------------------------------------------------ the step-wise API
 def _stepwise(**kw: object) -> object:
-    from conformal_control.cbf import StepwiseCBF
+    from conformal_control.cbf import StepwiseCBF, Stream
 
-    return StepwiseCBF("constant_velocity", tau=0.4, dt=0.1, **kw)
+    return StepwiseCBF("constant_velocity", stream=Stream(tau=0.4, dt=0.1), **kw)
 
 
 def _observed(*samples: tuple[list[object], list[list[float]], float]) -> None:

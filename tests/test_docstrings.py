@@ -13,9 +13,7 @@ generates is left out: its fields are the documentation (``#:`` comments or an
 A ``Parameters`` section lists nothing but parameters (prose after the entries reads as
 one more: the API reference's strict build fails on it).
 
-``UNDOCUMENTED`` lists the callables that did not meet the rule when the test was written:
-it may only shrink. A listed callable that now meets the rule fails the test until it is
-taken off the list, so the list stays true.
+The rule has no exceptions.
 """
 
 from __future__ import annotations
@@ -34,59 +32,6 @@ MIN_PARAMETERS = 4
 
 _SECTION = re.compile(r"^(?P<title>[A-Z][A-Za-z ]+)\n-{3,}[ \t]*$", re.M)
 _ENTRY = re.compile(r"^(?P<names>\*{0,2}[A-Za-z_][\w]*(?:\s*,\s*\*{0,2}[A-Za-z_][\w]*)*)\s*(?::|$)")
-
-#: Callables without a complete ``Parameters`` section when this test was written (a
-#: ratchet: take a name off when its docstring is done; never add one).
-UNDOCUMENTED: frozenset[str] = frozenset(
-    {
-        "conformal_control.bench.generator.nolearn_outcome",
-        "conformal_control.bench.generator.recording_scenarios",
-        "conformal_control.bench.multi.layout_tasks",
-        "conformal_control.bench.multi.make_multi_manifest",
-        "conformal_control.bench.multi.run_command",
-        "conformal_control.bench.planar.run_command",
-        "conformal_control.bench.planar.run_planar",
-        "conformal_control.bench.planar.run_scenario",
-        "conformal_control.bench.report.summarise",
-        "conformal_control.bench.report.write_report",
-        "conformal_control.bench.runner.bench_configs",
-        "conformal_control.bench.stats.paired_comparison",
-        "conformal_control.bench.tune.tune",
-        "conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf",
-        "conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf_record",
-        "conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf_record_peers",
-        "conformal_control.cbf.reciprocal.lexicographic_search",
-        "conformal_control.cbf.reciprocal.sidestep",
-        "conformal_control.cbf.rollouts.unicycle_rollout",
-        "conformal_control.commands.predictors.cached_weights",
-        "conformal_control.commands.predictors.train",
-        "conformal_control.commands.predictors.trainable_defaults",
-        "conformal_control.commands.predictors.weights_for_scene",
-        "conformal_control.crowds.neighbors.dense_neighbor_pairs",
-        "conformal_control.crowds.orca.ORCAModel.orca_lines",
-        "conformal_control.data.fetch.fetch",
-        "conformal_control.data.scenes.load_scene",
-        "conformal_control.export.foxglove.cylinder",
-        "conformal_control.export.foxglove.entity",
-        "conformal_control.export.foxglove.frame_transform",
-        "conformal_control.export.foxglove.line",
-        "conformal_control.export.foxglove.pose",
-        "conformal_control.export.foxglove.pose_in_frame",
-        "conformal_control.export.foxglove.sphere",
-        "conformal_control.export.foxglove.text",
-        "conformal_control.mpc.kernels.evaluate_numpy",
-        "conformal_control.mpc.peers.peer_lines",
-        "conformal_control.mpc.peers.peer_terms",
-        "conformal_control.mpc.peers.reference_paths",
-        "conformal_control.predictors.evaluation.dataset_windows",
-        "conformal_control.predictors.evaluation.evaluate_predictor",
-        "conformal_control.predictors.evaluation.resample_future",
-        "conformal_control.predictors.evaluation.resample_history",
-        "conformal_control.predictors.evaluation.training_windows",
-        "conformal_control.predictors.evaluation.windows_from_tracks",
-        "conformal_control.predictors.learned.synthetic_windows",
-    }
-)
 
 
 def _public_modules() -> Iterator[str]:
@@ -208,17 +153,8 @@ def test_the_section_parser_reads_numpy_entries() -> None:
 
 def test_every_public_function_with_four_parameters_documents_them() -> None:
     missing = _missing()
-    new = {k: v for k, v in missing.items() if k not in UNDOCUMENTED}
-    assert not new, "document the parameters (numpy style) of:\n" + "\n".join(
-        f"  {k}: {v}" for k, v in sorted(new.items())
-    )
-
-
-def test_the_list_of_undocumented_callables_only_shrinks() -> None:
-    missing = _missing()
-    done = sorted(UNDOCUMENTED - set(missing))
-    assert not done, "documented now: take these off UNDOCUMENTED:\n" + "\n".join(
-        f"  {k}" for k in done
+    assert not missing, "document the parameters (numpy style) of:\n" + "\n".join(
+        f"  {k}: {v}" for k, v in sorted(missing.items())
     )
 
 

@@ -507,7 +507,19 @@ def _r(x: float, nd: int = 3) -> float:
 def recording_scenarios(
     rec: Recording, split: str, data_root: Path, crit: Criterion
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """The recording's manifest entry and its scenarios (without nolearn outcomes)."""
+    """The recording's manifest entry and its scenarios (without nolearn outcomes).
+
+    Parameters
+    ----------
+    rec : Recording
+        The recording.
+    split : str
+        The split its scenarios belong to (``dev`` or ``test``).
+    data_root : Path
+        The data folder.
+    crit : Criterion
+        The crossing criterion (crossing length, speed, time limit, stride, ...).
+    """
     src = _load_source(rec, data_root, crit)
     length = float(crit.length_m[rec.source])
     step = crit.analysis_step
@@ -610,7 +622,30 @@ def nolearn_outcome(
     safety_filter: str = "exact2d",
     published: bool = True,
 ) -> dict[str, Any]:
-    """Run the suite's nolearn baseline on one scenario; the rounded outcome."""
+    """Run the suite's nolearn baseline on one scenario; the rounded outcome.
+
+    Parameters
+    ----------
+    scenario : dict
+        The scenario's manifest entry.
+    data_root : Path
+        The data folder.
+    predictor : str
+        The registered predictor the baseline runs with.
+    params : dict
+        Run parameters, in the scene's units (they win over the published ones).
+    safety_filter : str
+        The registered safety filter.
+    published : bool
+        Start from the paper's parameters recorded with the scene (as the v1 suites'
+        records were made), not the scene's defaults.
+
+    Returns
+    -------
+    dict
+        ``n_collide``, ``d_min`` (m), ``goal_reached``, ``t_goal`` (s), ``frames``,
+        ``n_fallback`` (lengths and times rounded).
+    """
     from ..sim.episode import run_episode
 
     sc = Scenario.from_dict(scenario)

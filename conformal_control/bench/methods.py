@@ -114,7 +114,7 @@ class Method:
     def requirements(self) -> dict[str, str]:
         """role -> registered name this method needs (to check availability)."""
         req = dict(self.roles)
-        req["update_rule"] = self.rule
+        req["rule"] = self.rule
         if self.predictor:
             req["predictor"] = self.predictor
         return req
@@ -130,6 +130,7 @@ class Method:
             "rule_params": dict(self.rule_params),
         }
         for role, name in self.roles.items():
+            # "decision_family": a method written by 0.2 (a stored bench.json)
             key = "family" if role == "decision_family" else role
             kw[key] = name
             if role != "fallback" and self.role_params.get(role):
@@ -272,10 +273,10 @@ class Family:
 #: 0.4 s, a plan every video frame (4 control instants), the least violating plan when none
 #: is safe.
 MPC_SEARCH: dict[str, Any] = {
-    "n_samples": 500,
-    "horizon": 12,
-    "dt_plan": 0.4,
-    "replan_every": 4,
+    "sampling__n_samples": 500,
+    "sampling__horizon": 12,
+    "sampling__dt_plan": 0.4,
+    "sampling__replan_every": 4,
     "fallback": "least_violation",
 }
 
@@ -378,20 +379,20 @@ _DECLARED: tuple[Family, ...] = (
         tune=(0.05, 0.1, 0.2),
         rule="aci",
         rule_params={"gamma": 0.005},
-        roles={"decision_family": "acp", "loss": "acp_miscoverage"},
+        roles={"family": "acp", "loss": "acp_miscoverage"},
     ),
     Family(
         "mpc",
         "sampling MPC, a fixed safe distance d_c + margin to the predictions, no learning",
-        setting="role_params.decision_family.margin",
+        setting="role_params.family.margin",
         label="margin={:g}m",
         meaning="margin (m)",
         settings=(0.0, 0.25, 0.5),
         tune=(0.0, 0.1, 0.25, 0.5, 1.0),
         reference=True,
         learn=False,
-        roles={"decision_family": "mpc"},
-        role_params={"decision_family": MPC_SEARCH},
+        roles={"family": "mpc"},
+        role_params={"family": MPC_SEARCH},
     ),
     Family(
         "cc_mpc",
@@ -403,8 +404,8 @@ _DECLARED: tuple[Family, ...] = (
         settings=(0.1,),
         tune=(0.05, 0.1, 0.2),
         params={"eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
-        roles={"decision_family": "mpc"},
-        role_params={"decision_family": MPC_SEARCH},
+        roles={"family": "mpc"},
+        role_params={"family": MPC_SEARCH},
     ),
     Family(
         "oracle_mpc",
@@ -412,8 +413,8 @@ _DECLARED: tuple[Family, ...] = (
         "learning: what perfect prediction gives the MPC",
         learn=False,
         predictor="oracle",
-        roles={"decision_family": "mpc"},
-        role_params={"decision_family": {**MPC_SEARCH, "margin": 0.0}},
+        roles={"family": "mpc"},
+        role_params={"family": {**MPC_SEARCH, "margin": 0.0}},
     ),
     Family(
         "acp_mpc",
@@ -425,8 +426,8 @@ _DECLARED: tuple[Family, ...] = (
         tune=(0.05, 0.1, 0.2),
         rule="aci",
         rule_params={"gamma": 0.02},
-        roles={"decision_family": "acp_mpc"},
-        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+        roles={"family": "acp_mpc"},
+        role_params={"family": {**MPC_SEARCH, "max_inflation": 1.0}},
     ),
     Family(
         "ecp_mpc",
@@ -438,8 +439,8 @@ _DECLARED: tuple[Family, ...] = (
         tune=(0.05, 0.1, 0.2),
         rule="aci",
         rule_params={"gamma": 0.02},
-        roles={"decision_family": "ecp_mpc"},
-        role_params={"decision_family": {**MPC_SEARCH, "max_inflation": 1.0}},
+        roles={"family": "ecp_mpc"},
+        role_params={"family": {**MPC_SEARCH, "max_inflation": 1.0}},
     ),
 )
 

@@ -132,7 +132,21 @@ def layout_tasks(
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Starts ``(M, 2)`` and goals (one ``(1, 2)`` array per robot), in metres, of a layout
     of :data:`LAYOUTS` about the crossing from ``start`` to ``goal`` (see the module
-    docstring); a one-line ``ValueError`` for a layout that cannot be made."""
+    docstring); a one-line ``ValueError`` for a layout that cannot be made.
+
+    Parameters
+    ----------
+    layout : {"swap", "cross", "lanes", "random"}
+        The layout.
+    n_robots : int
+        Robots M (2 to the fleet's maximum).
+    start, goal : (x, y)
+        The single-robot scenario's start and goal (m), apart.
+    spacing : float
+        Distance between neighbouring robots (m, > 0).
+    seed : int
+        Seed of the ``random`` layout.
+    """
     if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
         raise ValueError(f"the number of robots must be an integer, got {n_robots!r}")
     from ..sim.multi import MAX_ROBOTS
@@ -259,7 +273,21 @@ def make_multi_manifest(
 ) -> dict[str, Any]:
     """The manifest of a multi-robot suite derived from the crossing suite ``base``: per
     split and recording ``per_recording`` scenarios evenly spread over its windows, each
-    under every layout (entry seed: its index in the manifest)."""
+    under every layout (entry seed: its index in the manifest).
+
+    Parameters
+    ----------
+    base : str
+        The shipped single-robot crossing suite the scenarios come from.
+    per_recording : int
+        Scenarios per split and recording.
+    spacing : float
+        Distance between neighbouring robots of a layout (m).
+    time_factor : float
+        The episodes' time limit, as a multiple of the crossing time.
+    version : int
+        The suite's version, recorded in the manifest.
+    """
     suite = load_suite(base)
     entries: list[dict[str, Any]] = []
     for split in SPLITS:
@@ -955,7 +983,25 @@ def _ints(text: str, what: str) -> list[int]:
 
 
 def run_command(args: Any, default_suite: str, families: Sequence[str], grids: Any) -> int:
-    """``bench run --robots M``: the multi-robot benchmark into ``--out``."""
+    """``bench run --robots M``: the multi-robot benchmark into ``--out``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``bench run`` options (``--robots``, ``--suite``, ``--split``,
+        ``--shift``, ``--reciprocity``, ``--out``, ...).
+    default_suite : str
+        The single-robot default of ``--suite`` (it then means ``multi-crossings-v1``).
+    families : sequence of str
+        The methods to run.
+    grids : dict, optional
+        Settings per method (``--grid``), as for the single-robot benchmark.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when every episode ran.
+    """
     from ..spec import Robots, RunSpec
 
     robots = _ints(args.robots, "--robots")

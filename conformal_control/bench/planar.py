@@ -325,10 +325,10 @@ CBF_PARAMS: dict[str, float] = {
 #: published runs do (pedestrians replayed from a recording do not avoid a robot that
 #: stopped in their way).
 MPC_PARAMS: dict[str, Any] = {
-    "n_samples": 1200,
-    "horizon": 12,
-    "dt_plan": STEP_S,
-    "hold": 2,
+    "sampling__n_samples": 1200,
+    "sampling__horizon": 12,
+    "sampling__dt_plan": STEP_S,
+    "sampling__hold": 2,
     "fallback": "least_violation",
 }
 
@@ -474,13 +474,13 @@ def build_method(method: PlanarMethod, predictor: Any, seed: int = 0) -> tuple[A
         plant = Unicycle(**limits)
         params = {**MPC_PARAMS, "d_c": COLLISION_M, "substeps": 1, "random_state": seed, **fp}
         family = registry.create(
-            "decision_family", method.family, predictor=predictor, dynamics=plant, **params
+            "family", method.family, predictor=predictor, dynamics=plant, **params
         )
     loss_params = dict(method.loss_params)
     if method.loss == "cbf_gap":
         loss_params.setdefault("constraint", constraint)
     loss = registry.create("loss", method.loss, **loss_params)
-    rule = registry.create("update_rule", method.rule, **dict(method.rule_params))
+    rule = registry.create("rule", method.rule, **dict(method.rule_params))
     return family, plant, loss, rule
 
 
@@ -574,6 +574,21 @@ def run_scenario(
     per step: at each step it receives the pedestrians with a history (their last
     ``HISTORY_SAMPLES`` positions), decides once (after the warm-up), and the interval is
     scored on the pedestrians' positions at the next time step.
+
+    Parameters
+    ----------
+    task : PlanarTask
+        The dataset's protocol (start pose, goal, steps, ...).
+    start_timestep : int
+        The recording's time step the scenario starts at.
+    method : PlanarMethod
+        The method (family, loss, rule).
+    predictor : str
+        ``recorded`` or a registered predictor.
+    data_root : str or Path, optional
+        The data folder.
+    seed : int
+        The family's random state.
     """
     steps = _scenario(task, start_timestep, method, predictor, data_root=data_root, seed=seed)
     try:
@@ -772,6 +787,23 @@ def run_planar(
     ``OUT/rows.jsonl`` (one row per scenario: its metrics, the family's counters, the
     per-step log); returns the rows.
 
+    Parameters
+    ----------
+    out : str or Path
+        The output folder (created).
+    methods : iterable of str, optional
+        Planar methods (None: all of :data:`PLANAR_METHODS`).
+    predictors : sequence of str
+        Predictors; ``recorded`` runs only on the datasets that have its file.
+    datasets : iterable of str, optional
+        ``eth``, ``hotel``, ``univ``, ``zara1``, ``zara2`` (None: all).
+    data_root : str or Path, optional
+        The data folder.
+    seed : int
+        The families' random state.
+    progress : callable, optional
+        Called with one line per scenario run.
+
     Raises
     ------
     ValueError
@@ -968,7 +1000,22 @@ def run_command(
     data_root: str | None,
     datasets: str | None = None,
 ) -> int:
-    """``bench run --suite fcp-planar``: run, write the folder and print the table."""
+    """``bench run --suite fcp-planar``: run, write the folder and print the table.
+
+    Parameters
+    ----------
+    out : str
+        The output folder.
+    methods : str, optional
+        Comma-separated planar methods (None: all).
+    predictor : str, optional
+        Comma-separated predictors (None: ``recorded,constant_velocity``; ``recorded`` is
+        left out when not installed).
+    data_root : str, optional
+        The data folder.
+    datasets : str, optional
+        Comma-separated datasets (None: all five).
+    """
     from .. import registry
 
     preds = [p.strip() for p in (predictor or "recorded,constant_velocity").split(",") if p]

@@ -173,7 +173,19 @@ def summarise(
 ) -> list[MethodSummary]:
     """One :class:`MethodSummary` per method, in order of first appearance (rows of one
     shift); ``fixed``: the method every other is also paired with (the dev-tuned fixed
-    lambda)."""
+    lambda).
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        The benchmark's rows of one shift (failed ones counted, not summarised).
+    baseline : str
+        The method every other is paired with.
+    seed : int
+        Seed of the bootstrap.
+    fixed : str, optional
+        The method every other is also paired with.
+    """
     ok, failed = _ok_rows(rows)
     by_method: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in ok:
@@ -831,8 +843,14 @@ def write_report(
     ----------
     rows : sequence of mapping
         The benchmark's rows (:func:`~conformal_control.bench.runner.read_rows`).
+    out : str or Path
+        The report's folder (created).
     baseline : str
         The method every other is paired with.
+    title : str
+        The title of the Markdown pages.
+    seed : int
+        Seed of the bootstraps.
     bench : mapping, optional
         The folder's ``bench.json`` (its tuned values name the dev-tuned methods).
     tune_wall : float, optional

@@ -234,6 +234,10 @@ def bench_configs(
         The predictor every method uses (a method may replace it, e.g. the oracle).
     crowd, crowd_params :
         Replayed pedestrians or a reactive crowd (see ``run --crowd``).
+    data_root : str, optional
+        The data folder.
+    seed : int
+        The runs' seed.
     scenarios : iterable of str, optional
         Only these scenario ids.
     limit : int, optional

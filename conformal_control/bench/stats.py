@@ -123,6 +123,21 @@ def paired_comparison(
     """Wins / losses / ties and the paired bootstrap CI of the mean difference.
 
     ``method[i]`` and ``baseline[i]`` are the same scenario; pairs with a NaN are left out.
+
+    Parameters
+    ----------
+    method, baseline : sequence of float
+        The metric per scenario, same length.
+    metric : str
+        Its name (recorded).
+    lower_is_better : bool
+        Whether a smaller value wins.
+    confidence : float
+        Level of the bootstrap interval.
+    n_resamples : int
+        Bootstrap resamples.
+    seed : int
+        Seed of the bootstrap.
     """
     a = np.asarray(method, dtype=float)
     b = np.asarray(baseline, dtype=float)

@@ -133,6 +133,33 @@ def tune(
 ) -> TuneResult:
     """Run every family's tuning grid on ``split`` and write ``out/tuned.json``.
 
+    Parameters
+    ----------
+    out : str or Path
+        The folder of the tuning runs and ``tuned.json``.
+    suite : str
+        A shipped suite.
+    split : str
+        The split tuned on (``dev``).
+    families : sequence of str
+        Methods with a tuning grid.
+    predictor : str
+        The predictor every method uses.
+    data_root : str, optional
+        The data folder.
+    executor : {"batch", "process", "serial", "dask"}
+        As for :func:`~conformal_control.bench.runner.run_bench`.
+    workers : int, optional
+        Worker processes (default: the CPUs available).
+    progress : bool, optional
+        A progress report (None: on a terminal).
+    limit : int, optional
+        Only the first ``limit`` scenarios of the split.
+    seed : int
+        The runs' seed.
+    base_params : mapping, optional
+        Run parameters (SI) applied to every method.
+
     Raises
     ------
     ValueError

@@ -18,7 +18,7 @@ from .roles import (
     ReferenceController,
     SafetyFilter,
 )
-from .stepwise import StepwiseCBF
+from .stepwise import StepwiseCBF, Stream
 
 __all__ = [
     "APFBarrier",
@@ -46,6 +46,7 @@ __all__ = [
     "Relax",
     "SafetyFilter",
     "StepwiseCBF",
+    "Stream",
     "VelocityFilter",
     "VelocityTrackingDoubleIntegrator",
     "feasibility_floor",

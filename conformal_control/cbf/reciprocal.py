@@ -366,8 +366,27 @@ def sidestep(
     nominal: np.ndarray, x_ego: np.ndarray, view: PeerView, turn: np.ndarray, d_c: float
 ) -> np.ndarray:
     """The nominal velocity turned away from the nearest peer ahead when the robot is held
-    back (:meth:`Reciprocity.turn`'s parameters; ``x_ego`` the state (x, y, vx, vy);
-    ``d_c`` the robots' collision distance); as given otherwise."""
+    back; as given otherwise.
+
+    The robot is held back when its speed is below the slow fraction of the nominal
+    speed; a peer is ahead when it is closer than ``d_c`` plus the nominal speed times
+    the horizon and inside the cone around the nominal direction. The turn is away from
+    that peer's side.
+
+    Parameters
+    ----------
+    nominal : ndarray of shape (2,)
+        The nominal velocity (m/s).
+    x_ego : ndarray of shape (4,)
+        The robot's state (x, y, vx, vy): m, m/s.
+    view : PeerView
+        The peers' positions now (m).
+    turn : ndarray
+        :meth:`Reciprocity.turn`'s options: cosine and sine of the turn angle (both 0:
+        never turn), horizon (s), cosine of the cone's half-angle, slow fraction.
+    d_c : float
+        The robots' collision distance, centre to centre (m).
+    """
     c, s, horizon, cone, slow = (float(v) for v in turn[:5])
     n0, n1 = float(nominal[0]), float(nominal[1])
     sp = math.hypot(n0, n1)
@@ -404,6 +423,34 @@ def lexicographic_search(
     ``lambda' >= lam`` at which the rows with slack at ``lambda'`` and the hard rows at 0
     (``keep``) or ``max(0, lambda')`` are feasible, by bisection; rows with a zero
     gradient (an agent already overlapped: no velocity changes them) are left out.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``min_lambda``,
+        ``search_margin``, ``v_max`` and, when it has one, ``speed_sides``).
+    nominal : ndarray of shape (2,)
+        The nominal velocity (m/s).
+    A : ndarray of shape (R, 2)
+        The rows' velocity coefficients.
+    b : ndarray of shape (R,)
+        Their right-hand sides at lambda = 0 (the hard rows' already minus ``lam``).
+    hard : ndarray of bool, shape (R,)
+        Which rows have no slack (the robot rows).
+    lam : float
+        The lambda of the step (1/s); the search starts there.
+    keep : bool
+        Keep the hard rows at 0 (True: relaxed only when nothing else works) or relax
+        them with the others beyond 0 (False).
+
+    Returns
+    -------
+    v : ndarray of shape (2,)
+        The decision (m/s).
+    lambda_applied : float
+        The level reached (1/s).
+    relaxed : bool
+        Whether the hard rows were relaxed.
     """
     live = np.hypot(A[:, 0], A[:, 1]) > 0.0  # rows no velocity changes are left out
     if not live.all():

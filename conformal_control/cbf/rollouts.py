@@ -83,6 +83,25 @@ def unicycle_rollout(
     The heading's cosine and sine are carried along and rotated by each step's turn,
     whose half-angle cosines and sines are computed beforehand in one vectorised call
     (the loop itself is then arithmetic only).
+
+    Parameters
+    ----------
+    state : ndarray of shape (5,)
+        The start state (x, y, vx, vy, heading): m, m/s, rad.
+    v : ndarray of shape (N, H)
+        Forward speeds (m/s), already saturated.
+    w : ndarray of shape (N, H)
+        Turn rates (rad/s), already saturated.
+    dt : float
+        Step duration (s).
+    exact : bool
+        Integrate each step exactly along its arc (constant v and w over the step;
+        True) or by one Euler step (False).
+
+    Returns
+    -------
+    ndarray of shape (N, H, 5)
+        The state at the end of every step, heading wrapped to (-pi, pi].
     """
     half = 0.5 * dt * np.asarray(w, dtype=np.float64)
     out: np.ndarray = _unicycle_rollout(

@@ -5,7 +5,7 @@ agents' histories, the sampling times, the truth of each interval -- but from a 
 stream: you hand it every sensor sample with :meth:`StepwiseCBF.observe` and ask it for a
 velocity at every control instant with :meth:`StepwiseCBF.step`::
 
-    ctrl = StepwiseCBF(predictor="constant_velocity", epsilon=0.0, eta=0.5, tau=0.4, dt=0.1)
+    ctrl = StepwiseCBF("constant_velocity", epsilon=0.0, eta=0.5, stream=Stream(tau=0.4, dt=0.1))
     for k in range(n_samples):                    # sensor samples, every dt seconds
         ctrl.observe(ids, positions, t=k * dt)    # agents seen at this sample (m)
         for j in range(ctrl.substeps):            # control instants, every dt/substeps
@@ -43,13 +43,15 @@ never a silent repair):
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .. import registry
-from ..base import Loss, UpdateRule
+from ..base import Loss, Settings, UpdateRule
 from ..data.tracks import agent_ids
 from ..exceptions import InputError
 from ..loop import ConformalStepper, LoopResult
@@ -64,7 +66,90 @@ from .roles import Barrier, ReferenceController, SafetyFilter
 #: Tolerance on time grids, as a fraction of the grid's step.
 _GRID_TOL = 1e-6
 
-__all__ = ["StepwiseCBF"]
+__all__ = ["StepwiseCBF", "Stream"]
+
+
+@dataclass(frozen=True)
+class Stream(Settings):
+    """The timing and sensing of the stream a stepwise controller is fed.
+
+    Parameters
+    ----------
+    tau : float
+        Sampling period of sensor, predictor and lambda update (s); a whole number of
+        sensor samples.
+    dt : float
+        Sensor sample period (s, > 0).
+    substeps : int
+        Control instants per sensor sample (>= 1).
+    sensing_radius : float
+        Agents farther than this (m) at a sampling time are ignored until the next one.
+    history : int
+        Samples of history handed to the predictor (>= 1).
+    """
+
+    tau: float = 0.4
+    dt: float = 0.1
+    substeps: int = 4
+    sensing_radius: float = 10.0
+    history: int = 40
+
+    def check(self) -> int:
+        """Validate the fields (one-line errors naming the field); return the number
+        of sensor samples per interval (``tau / dt``)."""
+        from ..update_rules.base import check_positive
+
+        for name in ("tau", "dt", "sensing_radius"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+                raise InputError(f"{name} must be a finite number > 0, got {value!r}")
+            check_positive(name, float(value))
+        for name in ("substeps", "history"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        tau_samples = self.tau / self.dt
+        if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
+            raise ValueError(
+                f"tau ({self.tau} s) must be a whole number of samples of dt ({self.dt} s)"
+            )
+        return round(tau_samples)
+
+
+def stream_from(stream: Stream | None, legacy: dict[str, Any], owner: str) -> Stream:
+    """``stream`` (default ``Stream()``) with the former flat keywords in ``legacy``
+    (``tau=``, ``dt=``, ``substeps=``, ``sensing_radius=``, ``history=``) applied, each
+    with a ``DeprecationWarning``; they are removed from ``legacy``.
+
+    Parameters
+    ----------
+    stream : Stream or None
+        The caller's stream settings (None: the defaults).
+    legacy : dict
+        The constructor's extra keywords (modified: the stream's fields are taken out).
+    owner : str
+        The class named in the warning.
+    """
+    out = Stream() if stream is None else stream
+    old = {k: legacy.pop(k) for k in [k for k in legacy if k in Stream.__dataclass_fields__]}
+    if old:
+        given = ", ".join(f"{k}={v!r}" for k, v in old.items())
+        warnings.warn(
+            f"{owner}({', '.join(f'{k}=...' for k in old)}) is deprecated: give "
+            f"stream=Stream({given}) (removed in 0.4)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        out = Stream(**{**out.get_params(), **old})
+    return out
+
+
+def reject_unknown(owner: str, legacy: dict[str, Any]) -> None:
+    """A ``TypeError`` for keywords left in ``legacy``, as Python's own."""
+    if legacy:
+        raise TypeError(
+            f"{owner}.__init__() got an unexpected keyword argument {next(iter(legacy))!r}"
+        )
 
 
 class StepwiseCBF:
@@ -78,13 +163,10 @@ class StepwiseCBF:
         Target average loss, in (-1/2, 1/2).
     eta : float
         Learning rate of lambda (1/s); 0 keeps lambda fixed.
-    tau : float
-        Sampling period of sensor, predictor and lambda update (s); a whole number of
-        sensor samples.
-    dt : float
-        Sensor sample period (s).
-    substeps : int
-        Control instants per sensor sample.
+    stream : Stream, optional
+        Timing and sensing of the stream: ``tau`` (s), ``dt`` (s), ``substeps``,
+        ``sensing_radius`` (m), ``history`` (samples); default ``Stream()`` (0.4 s,
+        0.1 s, 4, 10 m, 40).
     a : float
         Slope of alpha(h) = a h (1/s).
     barrier : Barrier, optional
@@ -101,14 +183,13 @@ class StepwiseCBF:
         Default: the paper's gap loss on the same constraint with scale ``loss_scale``.
     v_max, K_att : float
         Speed bound (m/s) and attractive gain (1/s) of the defaults.
-    sensing_radius : float
-        Agents farther than this (m) at a sampling time are ignored until the next one.
-    history : int
-        Samples of history handed to the predictor.
     loss_scale : float
         c in s(r) = arctan(r / c) / pi (1/s).
     lambda_init : float
         lambda_1 (1/s).
+    **legacy
+        The former flat keywords ``tau``, ``dt``, ``substeps``, ``sensing_radius``,
+        ``history``: still accepted, with a ``DeprecationWarning`` (give ``stream=``).
     """
 
     def __init__(
@@ -117,9 +198,7 @@ class StepwiseCBF:
         *,
         epsilon: float = 0.0,
         eta: float = 1.0,
-        tau: float = 0.4,
-        dt: float = 0.1,
-        substeps: int = 4,
+        stream: Stream | None = None,
         a: float = 10.0,
         barrier: Barrier | None = None,
         d_c: float = 1.0,
@@ -129,17 +208,15 @@ class StepwiseCBF:
         loss: Loss[Any, Any] | None = None,
         v_max: float = 2.0,
         K_att: float = 1.0,
-        sensing_radius: float = 10.0,
-        history: int = 40,
         loss_scale: float = 1.0,
         lambda_init: float = 0.0,
+        **legacy: Any,
     ) -> None:
         from ..update_rules.base import check_epsilon, check_finite, check_positive
 
+        stream = stream_from(stream, legacy, "StepwiseCBF")
+        reject_unknown("StepwiseCBF", legacy)
         for name, value in (
-            ("tau", tau),
-            ("dt", dt),
-            ("sensing_radius", sensing_radius),
             ("a", a),
             ("d_c", d_c),
             ("v_max", v_max),
@@ -149,6 +226,7 @@ class StepwiseCBF:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
                 raise InputError(f"{name} must be a finite number > 0, got {value!r}")
             check_positive(name, value)
+        self.tau_samples = stream.check()
         if isinstance(eta, bool) or not isinstance(eta, (int, float, np.number)):
             raise InputError(f"eta must be a finite number >= 0, got {eta!r}")
         check_positive("eta", eta, allow_zero=True)
@@ -160,19 +238,12 @@ class StepwiseCBF:
             target = getattr(rule, "epsilon", None)
             if target is not None:
                 check_epsilon(target, bounds)
-        tau_samples = tau / dt
-        if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
-            raise ValueError(f"tau ({tau} s) must be a whole number of samples of dt ({dt} s)")
-        if int(substeps) != substeps or substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        if int(history) != history or history < 1:
-            raise ValueError(f"history must be a positive integer, got {history!r}")
-        self.dt = float(dt)
-        self.substeps = int(substeps)
+        self.stream = stream
+        self.dt = float(stream.dt)
+        self.substeps = int(stream.substeps)
         self.dt_control = self.dt / self.substeps
-        self.tau_samples = round(tau_samples)
-        self.sensing_radius = float(sensing_radius)
-        self.history = int(history)
+        self.sensing_radius = float(stream.sensing_radius)
+        self.history = int(stream.history)
         pred: Predictor = (
             registry.create("predictor", predictor) if isinstance(predictor, str) else predictor
         )

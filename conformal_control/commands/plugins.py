@@ -12,7 +12,12 @@ from . import command
 def _plugins_args(p: argparse.ArgumentParser) -> None:
     from .. import registry
 
-    p.add_argument("--role", choices=list(registry.ROLES), default=None, help="only this role")
+    p.add_argument(
+        "--role",
+        choices=[*registry.ROLES, *registry.RENAMED_ROLES],  # 0.2's names: deprecated
+        default=None,
+        help="only this role",
+    )
     p.add_argument(
         "--check",
         action="store_true",
@@ -29,7 +34,7 @@ def _truncate(text: str, width: int) -> str:
 def _plugins(args: argparse.Namespace) -> int:
     from .. import registry
 
-    roles = [args.role] if args.role else list(registry.ROLES)
+    roles = [registry.role_name(args.role)] if args.role else list(registry.ROLES)
     n_fail = n_plugins = n_unavailable = 0
     for role in roles:
         print(f"{role} ({registry.ROLES[role]}):")

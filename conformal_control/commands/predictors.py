@@ -36,6 +36,22 @@ def _common(p: argparse.ArgumentParser) -> None:
 def trainable_defaults(
     cls: type[Plugin], params: dict[str, Any], seed: int, obs: int, horizon: int
 ) -> None:
+    """Fill in ``params`` (in place) the training settings the predictor class takes and
+    the caller left out: ``random_state`` = ``seed``, ``obs``, ``horizon``.
+
+    Parameters
+    ----------
+    cls : type
+        The predictor class.
+    params : dict
+        Its constructor arguments (modified).
+    seed : int
+        The training's seed.
+    obs : int
+        Observed samples per window.
+    horizon : int
+        Predicted samples per window.
+    """
     names = cls._param_names()
     for key, value in (("random_state", seed), ("obs", obs), ("horizon", horizon)):
         if key in names:
@@ -93,7 +109,35 @@ def train(
     horizon: int = 12,
     command: list[str] | None = None,
 ) -> Path:
-    """Train predictor ``name`` on the training windows of ``dataset`` and save it to ``out``."""
+    """Train predictor ``name`` on the training windows of ``dataset`` and save it to ``out``.
+
+    Parameters
+    ----------
+    name : str
+        A registered trainable predictor (an ``InputError`` lists them otherwise).
+    dataset : str
+        ``ethucy:<scene>`` (trains on ``<scene>/train``) or an SDD scene (trains on all
+        of ETH/UCY); see :func:`~conformal_control.predictors.evaluation.training_windows`.
+    data_root : str, optional
+        The data folder; None: ``$CONFORMAL_CONTROL_DATA``, else the per-user data folder.
+    out : str or Path
+        The folder the model and its ``training.json`` are written to.
+    params : dict
+        The predictor's constructor arguments (``weights`` ignored).
+    seed : int
+        Its ``random_state`` (the training's seed) when it takes one.
+    obs : int
+        Observed samples per training window (0.4 s apart).
+    horizon : int
+        Predicted samples per training window (0.4 s apart).
+    command : list of str, optional
+        The command line recorded in ``training.json``.
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
     from .. import registry
     from ..exceptions import InputError
     from ..predictors.evaluation import training_windows
@@ -148,6 +192,29 @@ def cached_weights(
 
     ``ethucy:<scene>`` trains on ``<scene>/train`` (leave one scene out); any SDD dataset
     trains on all of ETH/UCY (one cached model for every SDD scene).
+
+    Parameters
+    ----------
+    name : str
+        A registered trainable predictor.
+    dataset : str
+        The data set the weights are for (``ethucy:<scene>`` or an SDD scene).
+    data_root : str, optional
+        The data folder; None: ``$CONFORMAL_CONTROL_DATA``, else the per-user data folder.
+    params : dict
+        The predictor's constructor arguments (``weights`` ignored).
+    seed : int
+        Its ``random_state`` (the training's seed) when it takes one.
+    obs : int
+        Observed samples per training window (0.4 s apart).
+    horizon : int
+        Predicted samples per training window (0.4 s apart).
+
+    Returns
+    -------
+    Path
+        The cache folder (under ``$CONFORMAL_CONTROL_CACHE/weights``, else
+        ``~/.cache/conformal-control/weights``), keyed on every constructor parameter.
     """
     if dataset.partition(":")[0] != "ethucy":
         dataset = "sdd:any"  # every SDD scene trains on all of ETH/UCY: one cached model
@@ -280,6 +347,28 @@ def weights_for_scene(
     built-in one, your own): trained on that scene's own pedestrian tracks before the
     start frame (:func:`scene_windows`), so no downloaded data is needed; too few
     windows is an error asking for ``weights=FOLDER``. Both are cached.
+
+    Parameters
+    ----------
+    name : str
+        A registered trainable predictor.
+    scene : Scene
+        The scene the run replays.
+    data_root : str, optional
+        The data folder; None: ``$CONFORMAL_CONTROL_DATA``, else the per-user data folder.
+    params : dict
+        The predictor's constructor arguments (``weights`` ignored).
+    seed : int
+        Its ``random_state`` (the training's seed) when it takes one.
+    obs : int
+        Observed samples per training window (0.4 s apart).
+    horizon : int
+        Predicted samples per training window (0.4 s apart).
+
+    Returns
+    -------
+    Path
+        The cached weights' folder.
     """
     from ..exceptions import InputError
     from ..progress import note

@@ -34,8 +34,6 @@ from . import (
 )
 
 _ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss", "family")
-#: the registry's name of a role when it differs from the option's
-_REGISTRY_ROLE = {"family": "decision_family"}
 #: options that are not part of a run's identity (not stored for --config)
 _NOT_STORED = ("out", "config", "argv", "command", "quiet", "verbose", "no_plot")
 
@@ -353,10 +351,10 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     from ..exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
     registry.entry("predictor", args.predictor)  # unknown names fail here, with a suggestion
-    registry.entry("update_rule", args.rule)
+    registry.entry("rule", args.rule)
     for role in _ROLES:
         if getattr(args, role):
-            registry.entry(_REGISTRY_ROLE.get(role, role), getattr(args, role))
+            registry.entry(role, getattr(args, role))
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
             f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
@@ -392,7 +390,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
                 stacklevel=2,
             )
     if args.lambda_safe is not None and not args.no_learning:
-        cls = registry.get("update_rule", args.rule)
+        cls = registry.get("rule", args.rule)
         kind = getattr(cls, "guarantee", "none")
         if kind != "identity":
             warnings.warn(
@@ -431,8 +429,8 @@ def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
 
     given = key_values(args.crowd_param, "--crowd-param")
     model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
-    known = model in registry.names("crowd_model")
-    classes: list[type] = [Crowd, *([registry.get("crowd_model", model)] if known else [])]
+    known = model in registry.names("crowd")
+    classes: list[type] = [Crowd, *([registry.get("crowd", model)] if known else [])]
     radius = given.pop("radius", None) if args.crowd == "mixed" else None
     items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
     pp = plugin_key_values(
@@ -539,9 +537,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
     rule_params = key_values(args.rule_param, "--rule-param")
     from .. import registry
 
-    registry.check_params(
-        "update_rule", args.rule, registry.get("update_rule", args.rule), rule_params
-    )
+    registry.check_params("rule", args.rule, registry.get("rule", args.rule), rule_params)
     given_predictor_params = _checked_predictor_params(args)
     crowd_params = _checked_crowd_params(args)
 

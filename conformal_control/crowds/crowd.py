@@ -44,8 +44,8 @@ __all__ = ["Crowd", "build_model", "model_names"]
 
 
 def model_names() -> list[str]:
-    """The registered crowd models (the ``crowd_model`` role: ``conformal-control plugins``)."""
-    return registry.names("crowd_model")
+    """The registered crowd models (the ``crowd`` role: ``conformal-control plugins``)."""
+    return registry.names("crowd")
 
 
 REPLAY, ACTIVE, GONE = 0, 1, 2
@@ -66,8 +66,8 @@ def build_model(model: CrowdModel | str, model_params: dict[str, Any] | None = N
             f"a crowd model must be a registered name ({', '.join(model_names())}) or a "
             f"CrowdModel instance, got {model!r}"
         )
-    cls = registry.get("crowd_model", model)  # an unknown name: the known ones, did you mean
-    registry.check_params("crowd_model", model, cls, params)
+    cls = registry.get("crowd", model)  # an unknown name: the known ones, did you mean
+    registry.check_params("crowd", model, cls, params)
     built: CrowdModel = cls(**params)
     return built
 

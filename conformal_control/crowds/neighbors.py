@@ -49,7 +49,27 @@ def dense_neighbor_pairs(
     max_dist: float,
     max_neighbors: int | None = None,
 ) -> Pairs:
-    """:func:`neighbor_pairs` by the dense ``N x M`` distance matrix (the reference)."""
+    """:func:`neighbor_pairs` by the dense ``N x M`` distance matrix (the reference).
+
+    Parameters
+    ----------
+    pos : ndarray of shape (N, 2)
+        Positions (m) of the agents whose neighbours are wanted.
+    all_pos : ndarray of shape (M, 2)
+        Every agent, ``pos`` first (M >= N); non-finite positions are nobody's
+        neighbour.
+    max_dist : float
+        Cut-off (m): a pair is in when its squared centre distance is below
+        ``max_dist ** 2``.
+    max_neighbors : int, optional
+        Keep the nearest this many per row (ties at the cut may keep a few more; None:
+        all).
+
+    Returns
+    -------
+    rows, cols, dx, dy : ndarrays of shape (P,)
+        The pairs (row-major order) and ``all_pos[cols] - pos[rows]`` (m).
+    """
     n = pos.shape[0]
     dx = all_pos[None, :, 0] - pos[:, 0:1]
     dy = all_pos[None, :, 1] - pos[:, 1:2]

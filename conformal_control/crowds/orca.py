@@ -133,6 +133,21 @@ class ORCAModel(CrowdModel):
         with fewer neighbours are padded with invalid lines). The permitted side of line
         ``k`` is to the left of ``direction`` (RVO2's convention:
         ``det(direction, point - v) <= 0``).
+
+        Parameters
+        ----------
+        pos, vel : ndarray of shape (N, 2)
+            The simulated pedestrians' positions (m) and velocities (m/s).
+        radius : ndarray of shape (N,)
+            Their radii (m).
+        other_pos, other_vel : ndarray of shape (O, 2)
+            The other agents' positions (m) and velocities (m/s): replayed pedestrians,
+            the robot; each takes ``other_responsibility`` of avoiding a pair, simulated
+            pedestrians half.
+        other_radius : ndarray of shape (O,)
+            Their radii (m).
+        dt : float
+            The simulation step (s): the cut-off time of a pair that already overlaps.
         """
         n = pos.shape[0]
         all_pos = np.concatenate([pos, other_pos])

@@ -226,6 +226,20 @@ def fetch(
     no ``mirror`` was given; they are fetched, or a clear error raised, when selected
     explicitly with ``only``). Raises :class:`ChecksumError` on a mismatch or an
     oversized download (the bad file is removed).
+
+    Parameters
+    ----------
+    dest : str or Path
+        The data folder files are written into (``sdd/``, ``ethucy/``, ``external/``).
+    only : iterable of str, optional
+        Select files: ``sdd``, ``ethucy``, ``external``, ``sdd:<scene>_<video>``,
+        ``ethucy:<scene>`` or ``external:<folder>`` (None: every file of the manifest).
+    mirror : str, optional
+        A base URL or folder to copy every file from instead of the upstream sources.
+    force : bool
+        Download again files that exist and match their checksum.
+    progress : bool
+        Show a progress bar.
     """
     from ..progress import progress as report
 

@@ -406,6 +406,33 @@ def load_scene(
     ``seed`` only matters for ``crossing``. ``scenario:<suite>/<id>`` (a scenario of a
     shipped benchmark suite) is read by :func:`conformal_control.data.catalog.load_scene`,
     which resolves every name (``conformal_control.data.load_scene`` is that one).
+
+    Parameters
+    ----------
+    name : str
+        ``crossing``, ``sdd:<scene>/video<N>[:trajnet]``, a paper scene name
+        (``nexus_4``, ...) or ``ethucy:<scene>``.
+    data_root : str or path, optional
+        The data folder; None: ``$CONFORMAL_CONTROL_DATA``, else the per-user data folder.
+    start : (x, y), optional
+        Robot start as fractions of the image's width and height (SDD; None: the
+        registry's).
+    goals : sequence of (x, y), optional
+        Goals visited in order, as fractions (SDD; None: the registry's).
+    start_frame : int, optional
+        The frame the robot starts at (None: the registry's).
+    v_max : float, optional
+        Robot speed bound (m/s; None: the registry's).
+    history_frames : int
+        Frames kept before ``start_frame`` (the predictor's history).
+    seed : int
+        Seed of the built-in ``crossing`` scene.
+    last_frame : int, optional
+        The last frame replayed (None: the recording's last).
+    start_m : (x, y), optional
+        Robot start in metres (replaces ``start``).
+    goals_m : sequence of (x, y), optional
+        Goals in metres (replace ``goals``).
     """
     if name.startswith("scenario:"):
         raise ValueError(

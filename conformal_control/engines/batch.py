@@ -147,8 +147,6 @@ KERNELS: dict[str, frozenset[str]] = {
 ANY_NAME_ROLES = ("predictor", "rule", "fallback")
 #: The fallbacks the compiled step decides itself.
 COMPILED_FALLBACKS = frozenset({"lambda_search", "brake", "hold"})
-#: The registry's name of a run's role.
-_REGISTRY_ROLE = {"family": "decision_family", "rule": "update_rule"}
 #: Losses the engine scores with their own code on the interval's record and truth (they
 #: read the ego's positions and the truth, not the filter's status strings).
 _RECORD_LOSSES = frozenset({"collision", "distance_shortfall", "acp_miscoverage"})
@@ -162,7 +160,7 @@ def _kernel_of(role: str, name: str) -> str | None:
     """The compiled counterpart the plugin registered as ``name`` declares (None: none,
     or no such plugin: the loop then says so)."""
     try:
-        return compiled_as(registry.get(_REGISTRY_ROLE.get(role, role), name))
+        return compiled_as(registry.get(role, name))
     except (ValueError, ImportError):
         return None
 
@@ -281,7 +279,7 @@ class _Parts:
 def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
-    policy = fl.policy
+    policy = fl.family
     if compiled_as(type(policy)) not in KERNELS["family"] or not isinstance(
         policy, ConformalCBFController
     ):
@@ -662,7 +660,7 @@ class _Engine:
         env, filt, ref = parts.env, parts.safety_filter, parts.reference
         dyn, bar = parts.dynamics, parts.barrier
         env.reset()
-        fl.policy.reset()
+        fl.family.reset()
         monitor = GuaranteeMonitor.for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
@@ -876,7 +874,7 @@ class _Engine:
         counters, sanitising, interpolation), copied into ``xp`` / ``vp``."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None  # b is live
-        env, policy = ep.parts.env, ep.fl.policy
+        env, policy = ep.parts.env, ep.fl.family
         n = int(p.n_agents[b])
         # the environment senses where the engine's robot is, at the engine's frame and time
         env._x = p.x[b].copy()
@@ -1101,7 +1099,7 @@ class _Engine:
         p, ep = self.pool, self.eps[b]
         assert ep is not None
         fl = ep.fl
-        sc, env, policy, filt = fl.scene, ep.parts.env, fl.policy, ep.parts.safety_filter
+        sc, env, policy, filt = fl.scene, ep.parts.env, fl.family, ep.parts.safety_filter
         n = int(p.n_log[b])
         rows = p.log[b, :n]
         env.log = FrameLog(
@@ -1399,7 +1397,7 @@ def run_single(
                 recorder.append(
                     AnimationRecorder(
                         fl.scene,
-                        fl.policy,
+                        fl.family,
                         fl.barrier,
                         fl.params.tau_frames,
                         si["substeps"],

@@ -61,7 +61,7 @@ def run_loop(
     if run.record_animation:
         recorder = AnimationRecorder(
             scene,
-            fl.policy,
+            fl.family,
             fl.barrier,
             fl.params.tau_frames,
             si["substeps"],
@@ -78,7 +78,7 @@ def run_loop(
     t0 = time.perf_counter()
     loop = ConformalLoop(
         fl.env,
-        fl.policy,
+        fl.family,
         fl.loss,
         fl.rule,
         learn=learn,

@@ -170,7 +170,7 @@ class CrowdCore:
             max_frames=max_frames,
             crowd=getattr(env0, "crowd", None),
         )
-        self.monitors = [ConformalStepper(fl.policy, fl.loss, fl.rule) for fl in self.fleet]
+        self.monitors = [ConformalStepper(fl.family, fl.loss, fl.rule) for fl in self.fleet]
         self.n_robots = n
 
     # ------------------------------------------------------------------ episode

@@ -117,12 +117,12 @@ class ConformalShield(
                 f"environment's ({w.tau_frames} frames, {w.substeps})"
             )
         self.filter = RecordingFilter(fl.safety_filter)
-        fl.policy.safety_filter = self.filter
+        fl.family.safety_filter = self.filter
         self.flagship = fl
-        self.controller = fl.policy
+        self.controller = fl.family
         self.constraint = fl.constraint
         self.active_tol = float(active_tol)
-        self.stepper = ConformalStepper(fl.policy, fl.loss, fl.rule, learn=learn)
+        self.stepper = ConformalStepper(fl.family, fl.loss, fl.rule, learn=learn)
         #: the last filtering problem (rows, lambda, result), the robot's state and the
         #: sensed agents' predicted positions and velocities at that instant
         self.last_: LastSolve | None = None

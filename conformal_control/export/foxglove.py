@@ -268,13 +268,34 @@ def yaw_quaternion(yaw: float) -> Json:
 
 
 def pose(x: float, y: float, z: float = 0.0, yaw: float = 0.0) -> Json:
+    """A Foxglove ``Pose``: a position and a rotation about the vertical axis.
+
+    Parameters
+    ----------
+    x, y, z : float
+        Position (m) in the message's frame.
+    yaw : float
+        Rotation about z (rad, counter-clockwise from the x axis).
+    """
     return {"position": {"x": x, "y": y, "z": z}, "orientation": yaw_quaternion(yaw)}
 
 
 def cylinder(
     x: float, y: float, diameter: float, height: float, rgba: tuple[float, float, float, float]
 ) -> Json:
-    """An upright cylinder standing on the ground at (x, y)."""
+    """An upright cylinder standing on the ground at (x, y).
+
+    Parameters
+    ----------
+    x, y : float
+        Centre of its base (m).
+    diameter : float
+        Its diameter (m).
+    height : float
+        Its height (m).
+    rgba : tuple of 4 floats
+        Red, green, blue and opacity, each in [0, 1].
+    """
     return {
         "pose": pose(x, y, height / 2.0),
         "size": {"x": diameter, "y": diameter, "z": height},
@@ -287,6 +308,19 @@ def cylinder(
 def sphere(
     x: float, y: float, diameter: float, rgba: tuple[float, float, float, float], z: float = 0.0
 ) -> Json:
+    """A sphere centred at (x, y, z).
+
+    Parameters
+    ----------
+    x, y : float
+        Its centre on the ground plane (m).
+    diameter : float
+        Its diameter (m).
+    rgba : tuple of 4 floats
+        Red, green, blue and opacity, each in [0, 1].
+    z : float
+        Height of its centre (m).
+    """
     return {
         "pose": pose(x, y, z),
         "size": {"x": diameter, "y": diameter, "z": diameter},
@@ -302,7 +336,21 @@ def line(
     loop: bool = False,
     z: float = 0.02,
 ) -> Json:
-    """A line strip (or a closed loop) on the ground, ``thickness`` in metres."""
+    """A line strip (or a closed loop) on the ground.
+
+    Parameters
+    ----------
+    points : list of (x, y)
+        Its vertices in order (m).
+    rgba : tuple of 4 floats
+        Red, green, blue and opacity, each in [0, 1].
+    thickness : float
+        Line width (m).
+    loop : bool
+        Close the strip (last vertex joined to the first).
+    z : float
+        Height of the line above the ground (m; a little above it, to be drawn over it).
+    """
     return {
         "type": 1 if loop else 0,
         "pose": pose(0.0, 0.0),
@@ -316,6 +364,17 @@ def line(
 
 
 def text(x: float, y: float, z: float, label: str, rgba: tuple[float, float, float, float]) -> Json:
+    """A label at (x, y, z), always facing the camera, 14 px high on screen.
+
+    Parameters
+    ----------
+    x, y, z : float
+        Its anchor (m).
+    label : str
+        The text shown.
+    rgba : tuple of 4 floats
+        Red, green, blue and opacity, each in [0, 1].
+    """
     return {
         "pose": pose(x, y, z),
         "billboard": True,
@@ -335,7 +394,25 @@ def entity(
     metadata: dict[str, str] | None = None,
     **primitives: list[Json],
 ) -> Json:
-    """A scene entity (every primitive array present, empty unless given)."""
+    """A scene entity (every primitive array present, empty unless given).
+
+    Parameters
+    ----------
+    ns : int
+        Its timestamp (ns).
+    frame_id : str
+        The frame its primitives are given in.
+    entity_id : str
+        Its id: an entity with the same id replaces the previous one.
+    frame_locked : bool
+        Whether it moves with its frame after the timestamp (Foxglove's
+        ``frame_locked``).
+    metadata : dict of str to str, optional
+        Key-value pairs shown with the entity (None: none).
+    **primitives : list of dict
+        Primitive arrays by kind: ``arrows``, ``cubes``, ``spheres``, ``cylinders``,
+        ``lines``, ``triangles``, ``texts``, ``models`` (another kind is a ``TypeError``).
+    """
     out: Json = {
         "timestamp": time(ns),
         "frame_id": frame_id,
@@ -357,6 +434,20 @@ def scene_update(entities: list[Json], deletions: list[Json] | None = None) -> J
 
 
 def frame_transform(ns: int, parent: str, child: str, x: float, y: float, yaw: float) -> Json:
+    """A Foxglove ``FrameTransform``: frame ``child`` placed in frame ``parent`` on the
+    ground plane.
+
+    Parameters
+    ----------
+    ns : int
+        Its timestamp (ns).
+    parent, child : str
+        The frame ids.
+    x, y : float
+        The child's origin in the parent frame (m).
+    yaw : float
+        The child's rotation about z (rad).
+    """
     return {
         "timestamp": time(ns),
         "parent_frame_id": parent,
@@ -367,4 +458,17 @@ def frame_transform(ns: int, parent: str, child: str, x: float, y: float, yaw: f
 
 
 def pose_in_frame(ns: int, frame_id: str, x: float, y: float, yaw: float) -> Json:
+    """A Foxglove ``PoseInFrame`` on the ground plane.
+
+    Parameters
+    ----------
+    ns : int
+        Its timestamp (ns).
+    frame_id : str
+        The frame the pose is given in.
+    x, y : float
+        Position (m).
+    yaw : float
+        Heading (rad, counter-clockwise from the x axis).
+    """
     return {"timestamp": time(ns), "frame_id": frame_id, "pose": pose(x, y, 0.0, yaw)}

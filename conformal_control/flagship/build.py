@@ -20,11 +20,12 @@ c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.Conforma
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import DecisionFamily, Loss, Plugin, UpdateRule
+from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params
 from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
@@ -66,7 +67,7 @@ class Flagship:
     env: ReplayEnvironment  # a ReactiveEnvironment for a reactive crowd
     # a ConformalCBFController (the compiled engine and the shield need one and check), or
     # a family that plans with the plant (the MPC families, a floor up): typed by duck
-    policy: Any
+    family: Any
     loss: Loss[Any, Any]
     rule: UpdateRule
     constraint: ConformalConstraint
@@ -76,6 +77,16 @@ class Flagship:
     reference: ReferenceController
     dynamics: Dynamics
     names: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def policy(self) -> Any:
+        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        warnings.warn(
+            "Flagship.policy is now Flagship.family (removed in 0.4)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.family
 
     def role_params(self) -> dict[str, dict[str, Any]]:
         """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
@@ -89,13 +100,13 @@ class Flagship:
             "rule": self.rule,
         }
         out = {
-            role: {"name": self.names.get(role, type(obj).__name__), "params": obj.get_params()}
+            role: {"name": self.names.get(role, type(obj).__name__), "params": flat_params(obj)}
             for role, obj in roles.items()
         }
         parts = ("predictor", "constraint", "safety_filter", "reference")
-        out["decision_family"] = {
-            "name": self.names.get("family", type(self.policy).__name__),
-            "params": {k: v for k, v in self.policy.get_params().items() if k not in parts},
+        out["family"] = {
+            "name": self.names.get("family", type(self.family).__name__),
+            "params": {k: v for k, v in flat_params(self.family).items() if k not in parts},
         }
         return out
 
@@ -173,7 +184,7 @@ def build_rule(
     lam_unit : float
         SI value of one unit of lambda as ``rule_params`` are typed (1 for SI).
     """
-    cls = registry.get("update_rule", name)
+    cls = registry.get("rule", name)
     accepted = set(cls._param_names())
     kwargs = {
         k: params.si[k]
@@ -181,7 +192,7 @@ def build_rule(
         if k in accepted
     }
     user = dict(rule_params or {})
-    registry.check_params("update_rule", name, cls, user)
+    registry.check_params("rule", name, cls, user)
     lam_params = set(getattr(cls, "lambda_params", ()))
     for k, v in user.items():
         if isinstance(v, str) and "," in v:  # a list from the command line: "0.1,1,10"
@@ -189,7 +200,7 @@ def build_rule(
         if k in lam_params and v is not None:
             v = [x * lam_unit for x in v] if isinstance(v, (list, tuple)) else v * lam_unit
         kwargs[k] = v
-    rule: UpdateRule = registry.create("update_rule", name, **kwargs)
+    rule: UpdateRule = registry.create("rule", name, **kwargs)
     return rule
 
 
@@ -334,7 +345,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     names["dynamics"] = role_name(dynamics, "velocity_tracking")
 
     fam_name = family or "cbf"
-    fam_cls = registry.get("decision_family", fam_name)
+    fam_cls = registry.get("family", fam_name)
     planning = not issubclass(fam_cls, ConformalCBFController)
     if planning and not _plans_with_a_plant(fam_cls):
         raise TypeError(
@@ -394,7 +405,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     names["rule"] = role_name(rule, "fixed_eta")
     names["crowd"] = crowd
 
-    registry.check_params("decision_family", fam_name, fam_cls, dict(family_params or {}))
+    registry.check_params("family", fam_name, fam_cls, dict(family_params or {}))
     policy: DecisionFamily[Any, Any, Any, Any]
     if planning:
         plan_context = {
@@ -403,13 +414,11 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             "reference": ref,
             "d_c": d_c,
             "margin": si["barrier_margin"],
-            "v_max": si["v_max"],
+            "limits__v_max": si["v_max"],
             "substeps": si["substeps"],
             "random_state": seed,
-            **(family_params or {}),
         }
-        accepted = set(fam_cls._param_names())
-        policy = fam_cls(**{k: v for k, v in plan_context.items() if k in accepted})
+        policy = fam_cls(**registry.with_context(fam_cls, dict(family_params or {}), plan_context))
     else:
         policy = fam_cls(
             pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {})
@@ -433,7 +442,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         scene=scene,
         params=resolved,
         env=env,
-        policy=policy,
+        family=policy,
         loss=loss_obj,
         rule=rule_obj,
         constraint=constraint,

@@ -15,6 +15,7 @@ from .acp import ACPMPC, ACPMPCIntervalRecord, PlanMiscoverageLoss
 from .controller import FALLBACKS, MPCIntervalRecord, Plan, SamplingMPC
 from .ecp import ECPMPC, ECPMPCIntervalRecord, EgocentricMiscoverageLoss
 from .kernels import evaluate
+from .settings import Costs, Limits, Sampling
 from .stepwise import StepwiseMPC
 
 __all__ = [
@@ -22,11 +23,14 @@ __all__ = [
     "ECPMPC",
     "FALLBACKS",
     "ACPMPCIntervalRecord",
+    "Costs",
     "ECPMPCIntervalRecord",
     "EgocentricMiscoverageLoss",
+    "Limits",
     "MPCIntervalRecord",
     "Plan",
     "PlanMiscoverageLoss",
+    "Sampling",
     "SamplingMPC",
     "StepwiseMPC",
     "evaluate",

@@ -50,6 +50,7 @@ from ..cbf.roles import Dynamics, ReferenceController
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, SamplingMPC
+from .settings import Costs, Limits, Sampling
 
 __all__ = ["ACPMPC", "ACPMPCIntervalRecord", "PlanMiscoverageLoss"]
 
@@ -85,15 +86,18 @@ class ACPMPC(SamplingMPC):
 
     Parameters
     ----------
-    predictor, dynamics, reference, n_samples, horizon, dt_plan, hold : see SamplingMPC
-    d_c, margin, v_max, a_max, w_goal, w_terminal, w_effort, w_comfort : see SamplingMPC
-    fallback, continuous, replan_every, substeps, random_state
+    predictor, dynamics, reference, sampling, d_c, margin, limits, costs
+        As for :class:`~conformal_control.mpc.controller.SamplingMPC`.
+    fallback, continuous, substeps, random_state
         As for :class:`~conformal_control.mpc.controller.SamplingMPC`.
     window : int
         Errors kept per plan step (the most recent ones) for the quantiles.
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions (lambda
         <= 0, or too few errors for the level).
+    **grouped
+        As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
+        or a former flat keyword with a ``DeprecationWarning``).
     """
 
     default_loss: ClassVar[str] = "plan_miscoverage"
@@ -106,50 +110,36 @@ class ACPMPC(SamplingMPC):
         predictor: Predictor,
         dynamics: Dynamics,
         reference: ReferenceController | None = None,
-        n_samples: int = 500,
-        horizon: int = 12,
-        dt_plan: float = 0.4,
-        hold: int = 2,
+        sampling: Sampling | None = None,
         d_c: float = 1.0,
         margin: float = 0.0,
-        v_max: float = 1.0,
-        a_max: float = 2.0,
-        w_goal: float = 1.0,
-        w_terminal: float = 10.0,
-        w_effort: float = 0.001,
-        w_comfort: float = 0.0,
+        limits: Limits | None = None,
+        costs: Costs | None = None,
         fallback: str = "brake",
         continuous: bool = True,
-        replan_every: int = 1,
         substeps: int = 4,
         random_state: int = 0,
         window: int = 2000,
         max_inflation: float = 2.0,
+        **grouped: Any,
     ) -> None:
+        self.window = window
+        self.max_inflation = max_inflation
         super().__init__(
             predictor,
             dynamics,
             reference,
-            n_samples,
-            horizon,
-            dt_plan,
-            hold,
+            sampling,
             d_c,
             margin,
-            v_max,
-            a_max,
-            w_goal,
-            w_terminal,
-            w_effort,
-            w_comfort,
+            limits,
+            costs,
             fallback,
             continuous,
-            replan_every,
             substeps,
             random_state,
+            **grouped,
         )
-        self.window = window
-        self.max_inflation = max_inflation
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
@@ -164,7 +154,7 @@ class ACPMPC(SamplingMPC):
             raise ValueError(
                 f"max_inflation must be a finite distance >= 0, got {self.max_inflation!r}"
             )
-        h = int(self.horizon)
+        h = int(self.sampling.horizon)
         self.scores_: list[deque[float]] = [deque(maxlen=int(self.window)) for _ in range(h)]
         self.n_scored_ = 0
         self.n_unscored_ = 0
@@ -194,7 +184,7 @@ class ACPMPC(SamplingMPC):
         for t_made, ids, pred, first in self._pending:
             h = first
             while h <= pred.shape[1]:
-                target = t_made + h * self.dt_plan
+                target = t_made + h * self.sampling.dt_plan
                 back = observation.t - target
                 if back < -1e-9:
                     break
@@ -237,11 +227,11 @@ class ACPMPC(SamplingMPC):
             self.scores_[h - 1].append(e)
         self._sorted = tuple(np.sort(np.fromiter(s, float)) for s in self.scores_)
         self._infl_lam = None
-        self._first_infl = np.zeros(int(self.horizon))
+        self._first_infl = np.zeros(int(self.sampling.horizon))
         self._first_set = False
         super().begin_interval(observation)
         if observation.n_agents:
-            times = self.dt_plan * np.arange(1, int(self.horizon) + 1)
+            times = self.sampling.dt_plan * np.arange(1, int(self.sampling.horizon) + 1)
             self._pending.append(
                 (
                     float(observation.t),

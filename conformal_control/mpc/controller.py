@@ -62,6 +62,7 @@ from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
+from .settings import Costs, Limits, Sampling, check_groups
 
 __all__ = ["FALLBACKS", "MPCIntervalRecord", "Plan", "PlanInputs", "SamplingMPC"]
 
@@ -147,37 +148,34 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         The plant model plans are rolled out with (the robot's own plant in a run).
     reference : ReferenceController, optional
         Seeds one sample with its command held (velocity commands only).
-    n_samples : int
-        Random command sequences per plan (>= 1; three seeds are added).
-    horizon : int
-        Plan steps H (>= 1).
-    dt_plan : float
-        Duration of a plan step (s, > 0).
-    hold : int
-        Plan steps each random command is held for (>= 1).
+    sampling : Sampling, optional
+        How plans are drawn: ``n_samples``, ``horizon``, ``dt_plan`` (s), ``hold``,
+        ``replan_every``; default ``Sampling()`` (500 samples, 12 steps of 0.4 s, each
+        random command held 2 steps, a plan at every control instant).
     d_c : float
         Collision distance between centres (m, >= 0): robot radius + agent radius.
     margin : float
         Fixed extra safe distance (m).
-    v_max : float
-        Speed bound of sampled velocity commands (m/s, > 0).
-    a_max : float
-        Bound of sampled acceleration commands (m/s^2, > 0).
-    w_goal, w_terminal, w_effort, w_comfort : float
-        Cost weights (>= 0): distance to the goal along the plan, at its end, control
-        effort, command changes.
+    limits : Limits, optional
+        ``v_max`` (m/s) and ``a_max`` (m/s^2), the bounds of the sampled commands;
+        default ``Limits()`` (1 m/s, 2 m/s^2).
+    costs : Costs, optional
+        The cost weights ``w_goal``, ``w_terminal``, ``w_effort``, ``w_comfort``;
+        default ``Costs()`` (1, 10, 0.001, 0).
     fallback : {"brake", "least_violation"}
         What is applied when no sample is safe.
     continuous : bool
         Check the safe distance over the whole of every plan step, robot and agents
         moving linearly within it (True), or at the steps' end points only (False, as
         the published sampling MPCs do); see :mod:`~conformal_control.mpc.kernels`.
-    replan_every : int
-        Control instants between plans (>= 1); in between the plan's commands are replayed.
     substeps : int
         Control instants per prediction sample (for the interval's record).
     random_state : int
         Seed of the sampler (reset at every episode).
+    **grouped
+        A group's field as ``<group>__<field>`` (``costs__w_goal=2.0``: the registry's
+        ``(name, params)`` form); the former flat keywords (``n_samples=``, ``w_goal=``,
+        ``v_max=``, ...) are still accepted with a ``DeprecationWarning``.
     """
 
     #: Names of the seeded samples, in order (reported by :meth:`plan`'s tests).
@@ -195,6 +193,14 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         "lambda_min": -1.0,
     }
 
+    #: The former flat keywords, now fields of ``sampling``, ``limits`` and ``costs``.
+    renamed_params: ClassVar[dict[str, str]] = {
+        **{k: f"sampling__{k}" for k in ("n_samples", "horizon", "dt_plan", "hold")},
+        "replan_every": "sampling__replan_every",
+        **{k: f"limits__{k}" for k in ("v_max", "a_max")},
+        **{k: f"costs__{k}" for k in ("w_goal", "w_terminal", "w_effort", "w_comfort")},
+    }
+
     #: How the robots the sensor reports are treated (set by a multi-robot run,
     #: :func:`~conformal_control.sim.multi.set_reciprocity`): reciprocal robots are kept on
     #: their side of shared lines (:mod:`~conformal_control.mpc.peers`); None predicts
@@ -206,44 +212,30 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         predictor: Predictor,
         dynamics: Dynamics,
         reference: ReferenceController | None = None,
-        n_samples: int = 500,
-        horizon: int = 12,
-        dt_plan: float = 0.4,
-        hold: int = 2,
+        sampling: Sampling | None = None,
         d_c: float = 1.0,
         margin: float = 0.0,
-        v_max: float = 1.0,
-        a_max: float = 2.0,
-        w_goal: float = 1.0,
-        w_terminal: float = 10.0,
-        w_effort: float = 0.001,
-        w_comfort: float = 0.0,
+        limits: Limits | None = None,
+        costs: Costs | None = None,
         fallback: str = "brake",
         continuous: bool = True,
-        replan_every: int = 1,
         substeps: int = 4,
         random_state: int = 0,
+        **grouped: Any,
     ) -> None:
         self.predictor = predictor
         self.dynamics = dynamics
         self.reference = reference
-        self.n_samples = n_samples
-        self.horizon = horizon
-        self.dt_plan = dt_plan
-        self.hold = hold
+        self.sampling = Sampling() if sampling is None else sampling
         self.d_c = d_c
         self.margin = margin
-        self.v_max = v_max
-        self.a_max = a_max
-        self.w_goal = w_goal
-        self.w_terminal = w_terminal
-        self.w_effort = w_effort
-        self.w_comfort = w_comfort
+        self.limits = Limits() if limits is None else limits
+        self.costs = Costs() if costs is None else costs
         self.fallback = fallback
         self.continuous = continuous
-        self.replan_every = replan_every
         self.substeps = substeps
         self.random_state = random_state
+        self._set_grouped(grouped)
 
     # ------------------------------------------------------------------ contract kit
     @classmethod
@@ -257,22 +249,16 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
                 "predictor": ConstantVelocityPredictor(),
                 "dynamics": VelocityTrackingDoubleIntegrator(K_acc=10.0),
                 "reference": AttractiveField(K_att=1.0),
-                "n_samples": 40,
-                "horizon": 6,
-                "dt_plan": 0.3,
-                "v_max": 1.5,
+                "sampling": Sampling(n_samples=40, horizon=6, dt_plan=0.3),
+                "limits": Limits(v_max=1.5),
                 "substeps": 2,
             },
             {
                 "predictor": ConstantVelocityPredictor(),
                 "dynamics": VelocityTrackingDoubleIntegrator(K_acc=10.0),
-                "n_samples": 25,
-                "horizon": 4,
-                "dt_plan": 0.5,
-                "hold": 1,
+                "sampling": Sampling(n_samples=25, horizon=4, dt_plan=0.5, hold=1, replan_every=3),
                 "fallback": "least_violation",
-                "replan_every": 3,
-                "w_comfort": 0.1,
+                "costs": Costs(w_comfort=0.1),
                 "substeps": 2,
             },
         ]
@@ -285,22 +271,14 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:
-        for name in ("n_samples", "horizon", "hold", "replan_every", "substeps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        positive = {"dt_plan": self.dt_plan, "v_max": self.v_max, "a_max": self.a_max}
-        for name, v in positive.items():
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        check_groups(self.sampling, self.costs, self.limits)
+        v = self.substeps
+        if isinstance(v, bool) or int(v) != v or v < 1:
+            raise ValueError(f"substeps must be a positive integer, got {v!r}")
         if not (math.isfinite(self.d_c) and self.d_c >= 0):
             raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
         if not math.isfinite(self.margin):
             raise ValueError(f"margin must be a finite distance, got {self.margin!r}")
-        for name in ("w_goal", "w_terminal", "w_effort", "w_comfort"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite weight >= 0, got {v!r}")
         if self.fallback not in FALLBACKS:
             raise ValueError(
                 f"fallback must be one of {', '.join(FALLBACKS)}, got {self.fallback!r}"
@@ -368,7 +346,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     def forecast_frames(self, observation: PredictionQuery) -> int:
         """Samples asked of the predictor: the interval plus the plan's horizon."""
-        ahead = math.ceil(self.horizon * self.dt_plan / observation.dt - 1e-9)
+        ahead = math.ceil(self.sampling.horizon * self.sampling.dt_plan / observation.dt - 1e-9)
         return int(observation.horizon) + max(ahead, 1)
 
     def begin_interval(self, observation: PredictionQuery) -> None:
@@ -416,7 +394,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -
         lambda, 0)``. Subclasses move the knob here."""
         r = max(float(self.d_c) + float(self.margin) - float(lam), 0.0)
-        return np.full(int(self.horizon), r)
+        return np.full(int(self.sampling.horizon), r)
 
     def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
         """Safe distance per plan and step (m), shape (N, H) or (H,): :meth:`safe_radius`
@@ -427,10 +405,10 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     # ------------------------------------------------------------------ planning
     def _seeds(self, state: ControlState, t_off: float) -> list[np.ndarray]:
         """Warm start, stop, reference (each a (H, 2) sequence)."""
-        h = int(self.horizon)
+        h = int(self.sampling.horizon)
         out = []
         if self._warm is not None:
-            shift = min(round((state.t - self._warm_t) / self.dt_plan), h)
+            shift = min(round((state.t - self._warm_t) / self.sampling.dt_plan), h)
             warm = np.concatenate([self._warm[shift:], np.repeat(self._warm[-1:], shift, 0)])
             out.append(warm)
         out.append(np.repeat(self._stop_command(state)[None], h, axis=0))
@@ -438,27 +416,29 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         if self.reference is not None and kind == "velocity":
             v = np.asarray(self.reference(state.x, state.t, state.goal), dtype=float)
             speed = math.hypot(v[0], v[1])
-            if speed > self.v_max:
-                v = v * (self.v_max / speed)
+            if speed > self.limits.v_max:
+                v = v * (self.limits.v_max / speed)
             out.append(np.repeat(v[None], h, axis=0))
         return out
 
     def _stop_command(self, state: ControlState) -> np.ndarray:
         if self.dynamics.command_kind != "acceleration":
             return np.zeros(2)
-        a = -np.asarray(self.dynamics.velocity(state.x), dtype=float) / self.dt_plan
+        a = -np.asarray(self.dynamics.velocity(state.x), dtype=float) / self.sampling.dt_plan
         norm = math.hypot(a[0], a[1])
-        return a * (self.a_max / norm) if norm > self.a_max else a
+        return a * (self.limits.a_max / norm) if norm > self.limits.a_max else a
 
     def sample_commands(self, state: ControlState, t_off: float) -> np.ndarray:
         """The candidate command sequences, shape (N + seeds, H, 2): the seeds first."""
         seeds = self._seeds(state, t_off)
-        radius = self.a_max if self.dynamics.command_kind == "acceleration" else self.v_max
+        radius = (
+            self.limits.a_max if self.dynamics.command_kind == "acceleration" else self.limits.v_max
+        )
         rand = sample_sequences(
             self._rng,
-            int(self.n_samples),
-            int(self.horizon),
-            int(self.hold),
+            int(self.sampling.n_samples),
+            int(self.sampling.horizon),
+            int(self.sampling.hold),
             box=self._box,
             radius=float(radius),
         )
@@ -479,17 +459,18 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
         t_off = float(state.t - self._t0)
         cmds = self.sample_commands(state, t_off)
-        states = self.dynamics.rollout(state.x, cmds, float(self.dt_plan))
+        states = self.dynamics.rollout(state.x, cmds, float(self.sampling.dt_plan))
         pos = np.ascontiguousarray(states[..., :2])
         self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
-        h = int(self.horizon)
+        h = int(self.sampling.horizon)
         if self._ids.size:
-            pred = self.predicted_at(t_off + self.dt_plan * np.arange(0, h + 1))
+            pred = self.predicted_at(t_off + self.sampling.dt_plan * np.arange(0, h + 1))
             y0, pred = pred[:, 0], pred[:, 1:]
             radius = self.plan_radius(lam, pos)
         else:
             pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
-        weights = (self.w_goal, self.w_terminal, self.w_effort, self.w_comfort)
+        c = self.costs
+        weights = (c.w_goal, c.w_terminal, c.w_effort, c.w_comfort)
         problem = (
             pos,
             cmds,
@@ -548,7 +529,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     def will_plan(self) -> bool:
         """Whether the next :meth:`decide` plans (else it replays the current plan)."""
-        return self._plan is None or self._since >= int(self.replan_every)
+        return self._plan is None or self._since >= int(self.sampling.replan_every)
 
     def use_plan(self, plan: Plan) -> None:
         """Have the next :meth:`decide` apply ``plan`` (made by :meth:`plan_begin` and
@@ -567,7 +548,10 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             j = 0
         else:
             plan = self._plan  # type: ignore[assignment]  # set above on the first instant
-            j = min(int((state.t - self._plan_t) / self.dt_plan + 1e-9), int(self.horizon) - 1)
+            j = min(
+                int((state.t - self._plan_t) / self.sampling.dt_plan + 1e-9),
+                int(self.sampling.horizon) - 1,
+            )
         self._since += 1
         cmd: np.ndarray = plan.commands[j].copy()
         self._last_cmd = cmd
@@ -590,7 +574,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         if self._plan is None:
             return None
         h = self._plan.positions.shape[0]
-        return self._plan_t + self.dt_plan * np.arange(1, h + 1), self._plan.positions
+        return self._plan_t + self.sampling.dt_plan * np.arange(1, h + 1), self._plan.positions
 
     def interval_record(self) -> MPCIntervalRecord:
         return with_robot_columns(self._record(), getattr(self, "_robots", None))  # type: ignore[no-any-return]

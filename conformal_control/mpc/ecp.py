@@ -46,6 +46,7 @@ from ..jit import kernel
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
+from .settings import Costs, Limits, Sampling
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
 
@@ -168,14 +169,17 @@ class ECPMPC(SamplingMPC):
 
     Parameters
     ----------
-    predictor, dynamics, reference, n_samples, horizon, dt_plan, hold : see SamplingMPC
-    d_c, margin, v_max, a_max, w_goal, w_terminal, w_effort, w_comfort : see SamplingMPC
-    fallback, continuous, replan_every, substeps, random_state
+    predictor, dynamics, reference, sampling, d_c, margin, limits, costs
+        As for :class:`~conformal_control.mpc.controller.SamplingMPC`.
+    fallback, continuous, substeps, random_state
         As for :class:`~conformal_control.mpc.controller.SamplingMPC`.
     calibration_size : int
         Past times whose scores calibrate each plan step (>= 1).
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions.
+    **grouped
+        As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
+        or a former flat keyword with a ``DeprecationWarning``).
     """
 
     default_loss: ClassVar[str] = "ego_miscoverage"
@@ -188,56 +192,43 @@ class ECPMPC(SamplingMPC):
         predictor: Predictor,
         dynamics: Dynamics,
         reference: ReferenceController | None = None,
-        n_samples: int = 500,
-        horizon: int = 12,
-        dt_plan: float = 0.4,
-        hold: int = 2,
+        sampling: Sampling | None = None,
         d_c: float = 1.0,
         margin: float = 0.0,
-        v_max: float = 1.0,
-        a_max: float = 2.0,
-        w_goal: float = 1.0,
-        w_terminal: float = 10.0,
-        w_effort: float = 0.001,
-        w_comfort: float = 0.0,
+        limits: Limits | None = None,
+        costs: Costs | None = None,
         fallback: str = "brake",
         continuous: bool = True,
-        replan_every: int = 1,
         substeps: int = 4,
         random_state: int = 0,
         calibration_size: int = 15,
         max_inflation: float = 2.0,
+        **grouped: Any,
     ) -> None:
+        self.calibration_size = calibration_size
+        self.max_inflation = max_inflation
         super().__init__(
             predictor,
             dynamics,
             reference,
-            n_samples,
-            horizon,
-            dt_plan,
-            hold,
+            sampling,
             d_c,
             margin,
-            v_max,
-            a_max,
-            w_goal,
-            w_terminal,
-            w_effort,
-            w_comfort,
+            limits,
+            costs,
             fallback,
             continuous,
-            replan_every,
             substeps,
             random_state,
+            **grouped,
         )
-        self.calibration_size = calibration_size
-        self.max_inflation = max_inflation
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         base = SamplingMPC._unit_test_params()[0]
         # the partner environment samples every 0.4 s: plan steps of one sampling period
-        return [{**base, "dt_plan": 0.4, "calibration_size": 4, "max_inflation": 1.0}]
+        sampling = base["sampling"].replace(dt_plan=0.4)
+        return [{**base, "sampling": sampling, "calibration_size": 4, "max_inflation": 1.0}]
 
     def reset(self) -> None:
         super().reset()
@@ -249,7 +240,7 @@ class ECPMPC(SamplingMPC):
                 f"max_inflation must be a finite distance >= 0, got {self.max_inflation!r}"
             )
         self._m = 0  # sampling periods per plan step (set at the first interval)
-        keep = int(self.horizon) * 64 + int(b) + 2
+        keep = int(self.sampling.horizon) * 64 + int(b) + 2
         # per sampling time: ids, observed positions, predictions at the plan steps,
         # the first plan's candidates (N, H, 2) and their quantiles (N, H)
         self._past: deque[dict[str, Any]] = deque(maxlen=keep)
@@ -264,11 +255,11 @@ class ECPMPC(SamplingMPC):
     # ------------------------------------------------------------------ sampling time
     def _steps_per_plan_step(self, observation: PredictionQuery) -> int:
         tau = float(observation.horizon) * float(observation.dt)
-        m = self.dt_plan / tau
+        m = self.sampling.dt_plan / tau
         if abs(m - round(m)) > 1e-6 or round(m) < 1:
             raise ValueError(
                 f"ecp_mpc needs plan steps of whole sampling periods: dt_plan = "
-                f"{self.dt_plan:g} s, sampling period {tau:g} s"
+                f"{self.sampling.dt_plan:g} s, sampling period {tau:g} s"
             )
         return round(m)
 
@@ -278,11 +269,11 @@ class ECPMPC(SamplingMPC):
             raise ValueError("the sampling period changed during the episode")
         self._m = m
         super().begin_interval(observation)
-        h = int(self.horizon)
+        h = int(self.sampling.horizon)
         ids = np.asarray(observation.ids).astype(np.int64)
         cur = np.asarray(observation.current, dtype=float)
         pred = (
-            self.predicted_at(self.dt_plan * np.arange(1, h + 1))
+            self.predicted_at(self.sampling.dt_plan * np.arange(1, h + 1))
             if ids.size
             else np.zeros((0, h, 2))
         )
@@ -302,7 +293,7 @@ class ECPMPC(SamplingMPC):
         past = self._past
         now = past[-1]
         out = []
-        for h in range(1, int(self.horizon) + 1):
+        for h in range(1, int(self.sampling.horizon) + 1):
             back = h * self._m
             if back >= len(past):
                 break
@@ -322,7 +313,7 @@ class ECPMPC(SamplingMPC):
     def _calibration(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The calibration pairs of every plan step (see :func:`egocentric_quantiles`)."""
         past = self._past
-        h_n, b_max = int(self.horizon), int(self.calibration_size)
+        h_n, b_max = int(self.sampling.horizon), int(self.calibration_size)
         pairs: list[list[tuple[np.ndarray, np.ndarray]]] = []
         width = 0
         for h in range(1, h_n + 1):

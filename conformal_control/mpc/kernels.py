@@ -340,7 +340,36 @@ def evaluate_numpy(
     last: np.ndarray,
     continuous: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`evaluate` in numpy (reference; allocates (N, H, M) arrays)."""
+    """:func:`evaluate` in numpy (reference; allocates (N, H, M) arrays).
+
+    Parameters
+    ----------
+    pos : ndarray of shape (N, H, 2)
+        Planned positions at the end of steps 1..H (m).
+    cmds : ndarray of shape (N, H, 2)
+        The commands of each step.
+    p0 : ndarray of shape (2,)
+        The robot's position now (the start of step 1).
+    pred : ndarray of shape (M, H, 2)
+        Predicted agent positions at the end of steps 1..H (m; finite).
+    y0 : ndarray of shape (M, 2)
+        Their predicted positions now.
+    radius : ndarray of shape (N, H) or (H,)
+        Safe centre distance at each step (m), per plan or shared by all plans.
+    goal : ndarray of shape (2,)
+        The goal (m).
+    weights : (w_goal, w_terminal, w_effort, w_comfort)
+        The cost weights.
+    last : ndarray of shape (2,)
+        The command applied last (for the comfort term).
+    continuous : bool
+        Check the whole of every step (True) or its end points only.
+
+    Returns
+    -------
+    cost, clearance, violation : ndarrays of shape (N,)
+        As :func:`evaluate`'s.
+    """
     w_goal, w_term, w_eff, w_comf = weights
     d2g = ((pos - goal) ** 2).sum(-1)
     cost = w_goal * d2g[:, :-1].sum(1) + w_term * d2g[:, -1]

@@ -53,6 +53,18 @@ def reference_paths(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own and its peers' reference positions at ``times`` (s since the start).
 
+    Parameters
+    ----------
+    view : PeerView
+        What the robot knows of its K peers (positions, and by its ``information``
+        velocities or broadcast plans).
+    x_ego : ndarray
+        The robot's state (its first two numbers are its position, m).
+    times : ndarray of shape (H,)
+        The plan times (s since the start).
+    t_now : float
+        The time now (s since the start).
+
     Returns
     -------
     own : ndarray of shape (H, 2)
@@ -93,7 +105,20 @@ def peer_lines(
     view: PeerView, own: np.ndarray, peers: np.ndarray, buffer: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """The shared lines: unit normals ``(K, H, 2)`` pointing at each peer and offsets
-    ``(K, H)`` such that robot i's plan must keep ``normal . p <= offset``."""
+    ``(K, H)`` such that robot i's plan must keep ``normal . p <= offset``.
+
+    Parameters
+    ----------
+    view : PeerView
+        The peers; its ``shares`` (K,) place each line at that fraction of the way from
+        the robot's reference position to the peer's.
+    own : ndarray of shape (H, 2)
+        The robot's reference positions at the plan times (m).
+    peers : ndarray of shape (K, H, 2)
+        The peers' reference positions at the plan times (m).
+    buffer : float
+        Distance (m) the plan keeps on its side of each line.
+    """
     d = peers - own[None, :, :]
     dist = np.hypot(d[..., 0], d[..., 1])
     normal = d / np.maximum(dist, 1e-12)[..., None]
@@ -182,7 +207,7 @@ def with_robot_columns(record: Any, split: RobotSplit | None) -> Any:
 
 
 def peer_terms(
-    policy: Any,
+    family: Any,
     state: Any,
     lam: float,
     positions: np.ndarray,
@@ -192,16 +217,37 @@ def peer_terms(
     """The candidate plans' clearance and intrusion with the peers' lines added (unchanged
     without peers): the buffer is half the robots' collision distance (the family's ``d_c``
     plus the reciprocity's robot margin) plus half the family's margin, minus half of
-    lambda when lambda applies to the robots."""
-    rec = getattr(policy, "reciprocity", None)
+    lambda when lambda applies to the robots.
+
+    Parameters
+    ----------
+    family : SamplingMPC
+        The planning family (its ``reciprocity``, ``d_c``, ``margin`` and plan step).
+    state : ControlState
+        The control instant (its ``peers`` view, time and robot state).
+    lam : float
+        The lambda the plan is made with (m).
+    positions : ndarray of shape (N, H, 2)
+        The candidate plans' positions at plan steps 1..H (m).
+    clear : ndarray of shape (N,)
+        Their clearance against the pedestrians (m).
+    viol : ndarray of shape (N,)
+        Their summed intrusion into the pedestrians' safe distances (m).
+
+    Returns
+    -------
+    clear, viol : ndarrays of shape (N,)
+        With the peers' lines taken into account.
+    """
+    rec = getattr(family, "reciprocity", None)
     view = getattr(state, "peers", None)
     if rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0:
         return clear, viol
     lam_r = float(lam) if rec.lambda_on_robots else 0.0
-    d_r = float(policy.d_c) + float(rec.robot_margin)
-    buffer = max(0.5 * d_r + 0.5 * (float(policy.margin) - lam_r), 0.0)
+    d_r = float(family.d_c) + float(rec.robot_margin)
+    buffer = max(0.5 * d_r + 0.5 * (float(family.margin) - lam_r), 0.0)
     h = positions.shape[1]
-    times = float(state.t) + float(policy.dt_plan) * np.arange(1, h + 1)
+    times = float(state.t) + float(family.sampling.dt_plan) * np.arange(1, h + 1)
     own, peers = reference_paths(view, state.x, times, float(state.t))
     normal, offset = peer_lines(view, own, peers, buffer)
     c, v = peer_clearance(positions, normal, offset)

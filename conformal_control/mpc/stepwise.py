@@ -4,7 +4,7 @@
 planning decision family (``mpc``, ``acp_mpc``, ``ecp_mpc``) in place of the CBF
 controller: the same calls, the same input contract, the same timing::
 
-    ctrl = StepwiseMPC(family="mpc", tau=0.4, dt=0.1, substeps=4)
+    ctrl = StepwiseMPC(family="mpc", stream=Stream(tau=0.4, dt=0.1, substeps=4))
     for k in range(n_samples):                    # sensor samples, every dt seconds
         ctrl.observe(ids, positions, t=k * dt)    # agents seen at this sample (m)
         for j in range(ctrl.substeps):            # control instants, every dt/substeps
@@ -24,6 +24,7 @@ sensed agents over the plan's horizon. The rule's ``epsilon``, ``eta`` and
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -33,7 +34,7 @@ from ..base import DecisionFamily, Loss, UpdateRule
 from ..cbf.controller import ConformalCBFController
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Dynamics, ReferenceController
-from ..cbf.stepwise import StepwiseCBF
+from ..cbf.stepwise import StepwiseCBF, Stream, reject_unknown, stream_from
 from ..exceptions import InputError
 from ..loop import ConformalStepper
 from ..predictors.base import Predictor
@@ -48,6 +49,18 @@ def _number(name: str, value: object) -> float:
     return check_finite(name, float(value))
 
 
+def _moved(legacy: dict[str, Any], name: str, new: str) -> Any:
+    """Pop a former keyword of :class:`StepwiseMPC` with a ``DeprecationWarning``."""
+    if name not in legacy:
+        return None
+    warnings.warn(
+        f"StepwiseMPC({name}=...) is deprecated: give {new} (removed in 0.4)",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return legacy.pop(name)
+
+
 class StepwiseMPC(StepwiseCBF):
     """A conformal sampling-MPC family driven by your own loop (SI units throughout).
 
@@ -55,18 +68,17 @@ class StepwiseMPC(StepwiseCBF):
     ----------
     predictor : Predictor or str
         A predictor instance or a registered name.
-    family : str or DecisionFamily
-        A registered planning family (``mpc``, ``acp_mpc``, ``ecp_mpc``), or an instance
-        of one (then ``family_params`` must be empty and its own settings apply).
-    family_params : dict, optional
-        The family's parameters (``n_samples``, ``horizon``, ``dt_plan``, ``margin``, ...).
-    dynamics : Dynamics or str
-        The plant the family plans with (a registered name or an instance).
-    dynamics_params : dict, optional
-        Parameters of a plant given by name.
+    family : str, (str, dict) or DecisionFamily
+        A registered planning family (``mpc``, ``acp_mpc``, ``ecp_mpc``), the registry's
+        ``(name, params)`` form (``("mpc", {"sampling": Sampling(n_samples=200)})`` or
+        ``("mpc", {"sampling__n_samples": 200})``), or an instance of one (then its own
+        settings apply).
+    dynamics : str, (str, dict) or Dynamics
+        The plant the family plans with: a registered name, ``(name, params)``, or an
+        instance.
     reference : ReferenceController, optional
         The reference the family seeds its samples with; default the attractive field
-        with ``K_att`` and ``v_max``.
+        with gain 1/s and ``v_max``.
     rule : UpdateRule, optional
         Default: the fixed-step rule with ``epsilon``, ``eta``, ``lambda_init``,
         ``lambda_min``, ``lambda_max``.
@@ -79,26 +91,30 @@ class StepwiseMPC(StepwiseCBF):
     lambda_init, lambda_max : float
         lambda_1 and the ceiling, in the family's unit (m for ``mpc``, a level for the
         others).
-    tau, dt, substeps, sensing_radius, history
-        As for :class:`~conformal_control.cbf.stepwise.StepwiseCBF`.
+    stream : Stream, optional
+        Timing and sensing of the stream, as for
+        :class:`~conformal_control.cbf.stepwise.StepwiseCBF`; its ``substeps`` are the
+        family's too.
     d_c : float
         Collision distance robot-agent, centre to centre (m).
-    margin : float
-        Extra distance the family keeps (m), unless ``family_params`` sets it.
-    v_max, K_att : float
-        Speed bound (m/s) and the default reference's gain (1/s).
+    v_max : float
+        Speed bound (m/s) of the sampled commands and of the default reference, unless
+        the family's params set ``limits``.
     seed : int
         The family's random state (its sampled plans).
+    **legacy
+        The former keywords, still accepted with a ``DeprecationWarning``: ``tau``,
+        ``dt``, ``substeps``, ``sensing_radius``, ``history`` (give ``stream=``),
+        ``family_params`` / ``dynamics_params`` (give ``(name, params)``), ``margin``
+        (a family parameter), ``K_att`` (give ``reference=``).
     """
 
     def __init__(
         self,
         predictor: Predictor | str = "constant_velocity",
         *,
-        family: str | DecisionFamily[Any, Any, Any, Any] = "mpc",
-        family_params: dict[str, Any] | None = None,
-        dynamics: Dynamics | str = "velocity_tracking",
-        dynamics_params: dict[str, Any] | None = None,
+        family: str | tuple[str, dict[str, Any]] | DecisionFamily[Any, Any, Any, Any] = "mpc",
+        dynamics: str | tuple[str, dict[str, Any]] | Dynamics = "velocity_tracking",
         reference: ReferenceController | None = None,
         rule: UpdateRule | None = None,
         loss: Loss[Any, Any] | None = None,
@@ -107,34 +123,33 @@ class StepwiseMPC(StepwiseCBF):
         lambda_init: float = 0.0,
         lambda_min: float | None = None,
         lambda_max: float = math.inf,
-        tau: float = 0.4,
-        dt: float = 0.1,
-        substeps: int = 4,
+        stream: Stream | None = None,
         d_c: float = 1.0,
-        margin: float = 0.0,
         v_max: float = 2.0,
-        K_att: float = 1.0,
-        sensing_radius: float = 10.0,
-        history: int = 40,
         seed: int = 0,
+        **legacy: Any,
     ) -> None:
-        for name, value in (
-            ("tau", tau),
-            ("dt", dt),
-            ("sensing_radius", sensing_radius),
-            ("v_max", v_max),
-            ("K_att", K_att),
-        ):
+        stream = stream_from(stream, legacy, "StepwiseMPC")
+        family_params = _moved(legacy, "family_params", "family=(name, params)")
+        dynamics_params = _moved(legacy, "dynamics_params", "dynamics=(name, params)")
+        if "margin" in legacy:
+            margin = _moved(legacy, "margin", "family=(name, {'margin': ...})")
+            family_params = {"margin": margin, **(family_params or {})}
+        K_att = 1.0
+        if "K_att" in legacy:
+            K_att = _moved(legacy, "K_att", "reference=AttractiveField(K_att=..., v_max=...)")
+        reject_unknown("StepwiseMPC", legacy)
+        if isinstance(family, tuple):
+            family, own = family
+            family_params = {**(family_params or {}), **dict(own)}
+        if isinstance(dynamics, tuple):
+            dynamics, own = dynamics
+            dynamics_params = {**(dynamics_params or {}), **dict(own)}
+        for name, value in (("v_max", v_max), ("K_att", K_att)):
             check_positive(name, _number(name, value))
         check_positive("d_c", _number("d_c", d_c), allow_zero=True)
-        _number("margin", margin)
-        tau_samples = tau / dt
-        if round(tau_samples) < 1 or abs(tau_samples - round(tau_samples)) > 1e-9:
-            raise ValueError(f"tau ({tau} s) must be a whole number of samples of dt ({dt} s)")
-        if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        if isinstance(history, bool) or int(history) != history or history < 1:
-            raise ValueError(f"history must be a positive integer, got {history!r}")
+        self.tau_samples = stream.check()
+        substeps = int(stream.substeps)
 
         pred: Predictor = (
             registry.create("predictor", predictor) if isinstance(predictor, str) else predictor
@@ -149,26 +164,23 @@ class StepwiseMPC(StepwiseCBF):
         ref = reference if reference is not None else AttractiveField(K_att, v_max)
         policy: DecisionFamily[Any, Any, Any, Any]
         if isinstance(family, str):
-            cls = registry.get("decision_family", family)
+            cls = registry.get("family", family)
             if issubclass(cls, ConformalCBFController) or "dynamics" not in cls._param_names():
                 raise InputError(
                     f"StepwiseMPC runs a planning family (one taking a predictor and a plant, "
                     f"as mpc, acp_mpc, ecp_mpc do), not {family!r}; use StepwiseCBF for the CBF"
                 )
-            registry.check_params("decision_family", family, cls, dict(family_params or {}))
+            registry.check_params("family", family, cls, dict(family_params or {}))
             context = {
                 "predictor": pred,
                 "dynamics": plant,
                 "reference": ref,
                 "d_c": d_c,
-                "margin": margin,
-                "v_max": v_max,
-                "substeps": int(substeps),
+                "limits__v_max": v_max,
+                "substeps": substeps,
                 "random_state": seed,
-                **(family_params or {}),
             }
-            accepted = set(cls._param_names())
-            policy = cls(**{k: v for k, v in context.items() if k in accepted})
+            policy = cls(**registry.with_context(cls, dict(family_params or {}), context))
         elif isinstance(family, DecisionFamily):
             if family_params:
                 raise ValueError(
@@ -216,12 +228,12 @@ class StepwiseMPC(StepwiseCBF):
             learn = True
 
         # the stream (StepwiseCBF's observe/step/finish read these)
-        self.dt = float(dt)
-        self.substeps = int(substeps)
+        self.stream = stream
+        self.dt = float(stream.dt)
+        self.substeps = substeps
         self.dt_control = self.dt / self.substeps
-        self.tau_samples = round(tau_samples)
-        self.sensing_radius = float(sensing_radius)
-        self.history = int(history)
+        self.sensing_radius = float(stream.sensing_radius)
+        self.history = int(stream.history)
         self.dynamics = plant
         self.planner = policy
         self.stepper = ConformalStepper(policy, loss, rule, learn=learn)

@@ -73,7 +73,30 @@ class Windows:
 def windows_from_tracks(
     tracks: Tracks, obs: int, horizon: int, step: int = 1, stride: int = 1
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Cut every run of ``obs + horizon`` samples ``step`` frames apart from each track."""
+    """Cut every run of ``obs + horizon`` samples ``step`` frames apart from each track.
+
+    A track is split where consecutive samples are not ``step`` frames apart or a position
+    is not finite; runs shorter than ``obs + horizon`` give no window.
+
+    Parameters
+    ----------
+    tracks : Tracks
+        The tracks (positions in metres).
+    obs : int
+        Observed samples per window (>= 1).
+    horizon : int
+        Future samples per window (>= 1).
+    step : int
+        Frames between consecutive samples of a run.
+    stride : int
+        Samples between the starts of consecutive windows of a run (1: every window).
+
+    Returns
+    -------
+    history : ndarray of shape (W, obs, 2)
+    future : ndarray of shape (W, horizon, 2)
+        The observed and the following positions (m) of each window (W may be 0).
+    """
     if obs < 1 or horizon < 1:
         raise ValueError(f"obs and horizon must be >= 1, got {obs}, {horizon}")
     length = obs + horizon
@@ -160,7 +183,23 @@ def dataset_windows(
     obs: int = 8,
     horizon: int = 12,
 ) -> Windows:
-    """Evaluation windows of ``dataset`` (``ethucy:<scene>`` test split, or an SDD scene)."""
+    """Evaluation windows of ``dataset`` (``ethucy:<scene>`` test split, or an SDD scene).
+
+    Parameters
+    ----------
+    dataset : str
+        ``ethucy:<scene>`` (its test split), or ``sdd:<scene>`` / a scene name (its tracks
+        at 30 fps taken every 12th frame, 0.4 s).
+    data_root : str or path, optional
+        The data folder (holding ``ethucy/`` and ``sdd/``); None:
+        ``$CONFORMAL_CONTROL_DATA``,
+        else the per-user data folder
+        (:func:`~conformal_control.data.paths.resolve_data_root`).
+    obs : int
+        Observed samples per window (0.4 s apart).
+    horizon : int
+        Predicted samples per window (0.4 s apart).
+    """
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
         return _ethucy_windows([(name, "test")], data_root, obs, horizon, dataset)
@@ -174,7 +213,24 @@ def training_windows(
     horizon: int = 12,
 ) -> Windows:
     """Training windows for ``dataset``: ``<scene>/train`` for ETH/UCY (leave one scene
-    out); all five ETH/UCY scenes (``*/test``, i.e. every scene once) for SDD targets."""
+    out); all five ETH/UCY scenes (``*/test``, i.e. every scene once) for SDD targets.
+
+    Parameters
+    ----------
+    dataset : str
+        The evaluation data set the training is for, named as for
+        :func:`dataset_windows`.
+    data_root : str or path, optional
+        The data folder (holding ``ethucy/`` and ``sdd/``); None:
+        ``$CONFORMAL_CONTROL_DATA``,
+        else the per-user data folder
+        (:func:`~conformal_control.data.paths.resolve_data_root`). Given the SDD folder
+        itself, ETH/UCY is read beside it.
+    obs : int
+        Observed samples per window (0.4 s apart).
+    horizon : int
+        Predicted samples per window (0.4 s apart).
+    """
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
         return _ethucy_windows([(name, "train")], data_root, obs, horizon, f"{dataset}/train")
@@ -189,7 +245,31 @@ def training_windows(
 def evaluate_predictor(
     predictor: Predictor, windows: Windows, batch: int = 4096, scene: str = ""
 ) -> dict[str, Any]:
-    """ADE/FDE (metres) of ``predictor`` over ``windows``, with merged forecast counters."""
+    """ADE/FDE (metres) of ``predictor`` over ``windows``, with merged forecast counters.
+
+    Parameters
+    ----------
+    predictor : Predictor
+        The predictor; asked for ``horizon`` samples at the windows' spacing (given the
+        true futures only if it declares ``requires_ground_truth``).
+    windows : Windows
+        Observed histories and true futures (at least one window).
+    batch : int
+        Windows per prediction query.
+    scene : str
+        The scene name the queries carry (default: the windows' source).
+
+    Returns
+    -------
+    dict
+        ``ade`` and ``fde`` (m), ``n`` (windows) and ``info`` (the forecasts' counters
+        summed, their per-reason counts merged, their messages listed).
+
+    Raises
+    ------
+    ValueError
+        No windows, predictions of the wrong shape, or non-finite predictions.
+    """
     n = len(windows)
     if n == 0:
         raise ValueError(f"no evaluation windows in {windows.source or 'the data'}")
@@ -241,6 +321,17 @@ def resample_history(history: np.ndarray, dt: float, model_dt: float, obs: int) 
 
     ``model_dt`` must be a whole multiple of ``dt`` (or equal). Returns (N, obs, 2), NaN
     where the history is missing or too short.
+
+    Parameters
+    ----------
+    history : ndarray of shape (N, T, 2)
+        Histories sampled every ``dt`` seconds, the last sample the current one (m).
+    dt : float
+        Their spacing (s).
+    model_dt : float
+        The spacing the model takes (s).
+    obs : int
+        Samples the model observes.
     """
     k = model_dt / dt
     kr = round(k)
@@ -261,6 +352,23 @@ def resample_future(
 
     Linear interpolation through the current position ``last`` (N, 2) and ``pred``
     (N, H, 2); beyond the model's horizon the last predicted velocity is held.
+
+    Parameters
+    ----------
+    pred : ndarray of shape (N, H, 2)
+        The model's predictions at ``model_dt, ..., H model_dt`` seconds (m).
+    last : ndarray of shape (N, 2)
+        The current positions (m), at time 0.
+    model_dt : float
+        The model's spacing (s).
+    dt : float
+        The spacing wanted (s).
+    horizon : int
+        Samples wanted.
+
+    Returns
+    -------
+    ndarray of shape (N, horizon, 2)
     """
     n, h, _ = pred.shape
     tm = model_dt * np.arange(h + 1)

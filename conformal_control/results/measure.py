@@ -57,7 +57,7 @@ def lambda_unit(fl: Flagship) -> tuple[float, str]:
     """How lambda is reported: (SI value of one reported unit, its name). The CBF families'
     lambda is a rate, reported in the scene's time unit (1/frame on SDD); a family that
     declares ``lambda_unit`` (the MPC families: metres, or a level) is reported in it."""
-    declared = getattr(fl.policy, "lambda_unit", None)
+    declared = getattr(fl.family, "lambda_unit", None)
     if isinstance(declared, str):
         return 1.0, declared
     return fl.scene.units.factor("lambda_init"), f"1/{fl.scene.units.time_name}"
@@ -233,7 +233,7 @@ def measure(
     lam_unit, lam_name = lambda_unit(fl)
     traj = env.log.arrays()
     updates = result.updates
-    n_steps = max(fl.policy.n_steps_, 1)
+    n_steps = max(fl.family.n_steps_, 1)
     mon = result.monitor
     guarantee = mon.summary() if learn else {}
     losses_applied = [iv.diagnostics.get("loss_applied", math.nan) for iv in updates]
@@ -253,7 +253,7 @@ def measure(
         }
         for iv in result.intervals
     ]
-    filt = fl.policy.stats()  # a CBF family's counters include its safety filter's
+    filt = fl.family.stats()  # a CBF family's counters include its safety filter's
     g = {
         k: guarantee.get(k)
         for k in (
@@ -309,7 +309,7 @@ def measure(
         n_scored=result.n_updates,
         n_intervals=len(result.intervals),
         n_unscored=len(result.intervals) - result.n_updates,
-        n_steps=fl.policy.n_steps_,
+        n_steps=fl.family.n_steps_,
         n_infeasible=int(filt.get("n_infeasible", 0)),
         n_fallback=int(filt.get("n_fallback", 0)),
         fallback_share=filt.get("n_fallback", 0) / n_steps,
@@ -322,9 +322,9 @@ def measure(
         lambda_floor=floor.lambda_floor / lam_unit,
         epsilon_floor=floor.epsilon_floor,
         epsilon_attainable=floor.attainable,
-        n_nonfinite_predictions=fl.policy.n_nonfinite_predictions_,
+        n_nonfinite_predictions=fl.family.n_nonfinite_predictions_,
         n_truth_missing=int(sum(iv.diagnostics.get("n_truth_missing", 0) for iv in updates)),
-        predictor_info=dict(fl.policy.forecast_info_),
+        predictor_info=dict(fl.family.forecast_info_),
         wall_s=wall,
         **collisions.figures(),
         collision_events=[e.as_dict() for e in collisions.events],

@@ -55,8 +55,8 @@ class AnimationRecorder:
     Parameters
     ----------
     scene : Scene
-    policy : ConformalCBFController
-        Read through its ``interval_record()`` after each interval.
+    family : ConformalCBFController
+        The decision family, read through its ``interval_record()`` after each interval.
     barrier : Barrier
         Used to evaluate the true barrier values per frame.
     tau_frames, substeps : int
@@ -68,14 +68,14 @@ class AnimationRecorder:
     def __init__(
         self,
         scene: Scene,
-        policy: Any,
+        family: Any,
         barrier: Barrier,
         tau_frames: int,
         substeps: int,
         sensing_radius: float,
     ) -> None:
         self.scene = scene
-        self.policy = policy
+        self.family = family
         self.barrier = barrier
         self.tau_frames = int(tau_frames)
         self.substeps = int(substeps)
@@ -85,7 +85,7 @@ class AnimationRecorder:
 
     def __call__(self, log: IntervalLog) -> None:
         """The loop's ``on_interval`` hook: keep the interval's predictions and status."""
-        rec = self.policy.interval_record()
+        rec = self.family.interval_record()
         codes = np.array([_STATUS.get(st, 2) for st in rec.status], dtype=np.int8)
         self.add_interval(rec.ids, rec.x_pred, codes)
 

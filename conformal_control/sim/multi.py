@@ -471,7 +471,7 @@ def run_multi(
     for fl, mode in zip(fleet, modes, strict=True):
         # robot rows keep two robot radii apart; the barrier was built for robot + agent
         set_reciprocity(
-            fl.policy,
+            fl.family,
             mode,
             lambda_scope,
             radii["robot_radius"] - radii["agent_radius"],
@@ -504,7 +504,7 @@ def run_multi(
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     steppers = [
         ConformalStepper(
-            fl.policy,
+            fl.family,
             fl.loss,
             fl.rule,
             learn=learn,
@@ -624,7 +624,7 @@ def robot_modes(n: int, reciprocity: str, ignoring: Sequence[int] = ()) -> list[
 
 
 def set_reciprocity(
-    policy: Any,
+    family: Any,
     mode: str,
     lambda_scope: str,
     robot_margin: float = 0.0,
@@ -637,7 +637,7 @@ def set_reciprocity(
 
     Parameters
     ----------
-    policy : DecisionFamily
+    family : DecisionFamily
         The robot's decision family; it needs a ``reciprocity`` attribute.
     mode : {"reciprocal", "none", "ignore"}
         Reciprocal rows, prediction (as a pedestrian), or no constraint.
@@ -651,14 +651,14 @@ def set_reciprocity(
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack.
     """
-    if not hasattr(policy, "reciprocity"):
+    if not hasattr(family, "reciprocity"):
         raise ValueError(
-            f"decision family {type(policy).__name__} does not handle other robots "
+            f"decision family {type(family).__name__} does not handle other robots "
             "(no reciprocity setting)"
         )
     rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep, hard_rows)
     rec.validate()
-    policy.reciprocity = rec
+    family.reciprocity = rec
 
 
 def drive(
@@ -713,7 +713,7 @@ def drive(
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
                 if broadcast:  # its command, and its plan's path if it plans ahead
-                    path = getattr(steppers[i].policy, "planned_path", None)
+                    path = getattr(steppers[i].family, "planned_path", None)
                     world.broadcast(i, cmds[i], None if path is None else path())
                 own[i] += clock() - t0
             world.apply(cmds)

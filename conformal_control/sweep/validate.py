@@ -79,9 +79,9 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
             cls = registry.get(role, name)
             registry.check_params(role, name, cls, dict(ep.get(f"{role}_params") or {}))
     if isinstance(ep.get("family"), str):
-        registry.get("decision_family", ep["family"])
+        registry.get("family", ep["family"])
     if isinstance(ep.get("rule"), str):
-        registry.get("update_rule", ep["rule"])
+        registry.get("rule", ep["rule"])
 
 
 def validate_runs(configs: Sequence[RunConfig]) -> None:

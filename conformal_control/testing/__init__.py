@@ -120,12 +120,12 @@ ROLE_BASES: dict[str, type] = {
     "safety_filter": SafetyFilter,
     "fallback": Fallback,
     "loss": Loss,
-    "update_rule": UpdateRule,
+    "rule": UpdateRule,
     "dynamics": Dynamics,
     "reference": ReferenceController,
     "environment": Environment,
-    "decision_family": DecisionFamily,
-    "crowd_model": CrowdModel,
+    "family": DecisionFamily,
+    "crowd": CrowdModel,
 }
 
 _CHECKS: dict[str, CheckList] = {
@@ -134,12 +134,12 @@ _CHECKS: dict[str, CheckList] = {
     "safety_filter": check_safety_filter,
     "fallback": check_fallback,
     "loss": check_loss,
-    "update_rule": check_update_rule,
+    "rule": check_update_rule,
     "dynamics": check_dynamics,
     "reference": check_reference_controller,
     "environment": check_environment,
-    "decision_family": check_decision_family,
-    "crowd_model": check_crowd_model,
+    "family": check_decision_family,
+    "crowd": check_crowd_model,
 }
 
 
@@ -157,6 +157,10 @@ def role_of(plugin: Any) -> str:
 
 def checks_for(role: str) -> CheckList:
     """The check list of ``role`` (roles without their own list get the common checks)."""
+    from ..registry import RENAMED_ROLES, role_name
+
+    if role in RENAMED_ROLES:
+        role = role_name(role)  # a role name of 0.2: its new name, with a warning
     if role in _CHECKS:
         return _CHECKS[role]
     return CheckList(

@@ -136,7 +136,7 @@ def check_crowd_model_no_mutation(model: CrowdModel) -> None:
 
 
 check_crowd_model = CheckList(
-    "crowd_model",
+    "crowd",
     [
         check_get_params_round_trip,
         check_repr,

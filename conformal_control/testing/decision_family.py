@@ -168,7 +168,7 @@ def _behaviour(family: AnyFamily) -> EpisodeTrace:
 
 #: Every decision-family check, in order.
 check_decision_family = CheckList(
-    "decision_family",
+    "family",
     [
         check_get_params_round_trip,
         check_repr,

@@ -187,7 +187,7 @@ def _behaviour(rule: UpdateRule) -> list[float]:
 
 #: Every update-rule check, in order.
 check_update_rule = CheckList(
-    "update_rule",
+    "rule",
     [
         check_get_params_round_trip,
         check_repr,

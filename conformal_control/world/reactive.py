@@ -238,7 +238,7 @@ def make_environment(
         model, radius = crowd, None
     own = set(Crowd._param_names()) - {"model", "model_params", "mixed_radius"}
     crowd_kw = {k: params.pop(k) for k in list(params) if k in own}
-    known_model = set(registry.get("crowd_model", model)._param_names())
+    known_model = set(registry.get("crowd", model)._param_names())
     unknown = sorted(set(params) - known_model)
     if unknown:
         raise ValueError(

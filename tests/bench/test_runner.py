@@ -36,9 +36,9 @@ def test_every_method_family_is_available_and_runs_one_scenario(data_root: Path)
     # the families really differ in what they run
     assert seen["oracle"].config["predictor"]["name"] == "oracle"
     assert seen["oracle_mpc"].config["predictor"]["name"] == "oracle"
-    assert seen["oracle_mpc"].config["decision_family"]["name"] == "mpc"
-    assert seen["acp"].config["decision_family"]["name"] == "acp"
-    assert seen["conformal"].config["decision_family"]["name"] == "cbf"
+    assert seen["oracle_mpc"].config["family"]["name"] == "mpc"
+    assert seen["acp"].config["family"]["name"] == "acp"
+    assert seen["conformal"].config["family"]["name"] == "cbf"
     assert seen["inflated"].config["barrier"]["params"]["d_c"] == pytest.approx(1.0 + 0.25)
     assert seen["fallback:relax"].config["fallback"] == "relax"
     assert seen["nolearn"].metrics["n_updates"] == 0 and seen["conformal"].metrics["n_updates"] > 0

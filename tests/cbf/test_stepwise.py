@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import StepwiseCBF
+from conformal_control.cbf import StepwiseCBF, Stream
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.sim import build_flagship, run_episode
 
@@ -73,15 +73,17 @@ def test_stepwise_matches_the_replay_environment(scene_name, crossing, nexus4) -
         "constant_velocity",
         epsilon=si["epsilon"],
         eta=si["eta"],
-        tau=fl.params.tau_frames / scene.fps,
-        dt=1.0 / scene.fps,
-        substeps=si["substeps"],
+        stream=Stream(
+            tau=fl.params.tau_frames / scene.fps,
+            dt=1.0 / scene.fps,
+            substeps=si["substeps"],
+            sensing_radius=si["sensing_radius"],
+            history=fl.params.history_frames,
+        ),
         a=si["a"],
         barrier=fl.barrier,
         safety_filter=fl.safety_filter,
         reference=fl.reference,
-        sensing_radius=si["sensing_radius"],
-        history=fl.params.history_frames,
         loss_scale=si["loss_scale"],
     )
     velocities, result = drive(fl.scene, fl, ctrl, frames)
@@ -96,7 +98,7 @@ def test_stepwise_matches_the_replay_environment(scene_name, crossing, nexus4) -
 
 
 def test_stepwise_refuses_a_step_before_the_sample() -> None:
-    ctrl = StepwiseCBF(dt=0.1, tau=0.2)
+    ctrl = StepwiseCBF(stream=Stream(dt=0.1, tau=0.2))
     ctrl.observe([1], [[3.0, 0.0]], t=0.0)
     ctrl.step(np.zeros(4), t=0.0, goal=np.array([10.0, 0.0]))
     for s in range(1, 8):
@@ -107,7 +109,10 @@ def test_stepwise_refuses_a_step_before_the_sample() -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"tau": 0.25, "dt": 0.1}, "whole number of samples"), ({"dt": -1.0}, "dt must be")],
+    [
+        ({"stream": Stream(tau=0.25, dt=0.1)}, "whole number of samples"),
+        ({"stream": Stream(dt=-1.0)}, "dt must be"),
+    ],
 )
 def test_stepwise_rejects_nonsense(kwargs, message) -> None:
     with pytest.raises(ValueError, match=message):
@@ -116,7 +121,9 @@ def test_stepwise_rejects_nonsense(kwargs, message) -> None:
 
 def test_finish_without_the_closing_sample_scores_what_was_observed() -> None:
     def drive(close: bool):
-        ctrl = StepwiseCBF("constant_velocity", epsilon=-0.1, eta=0.5, tau=0.4, dt=0.1)
+        ctrl = StepwiseCBF(
+            "constant_velocity", epsilon=-0.1, eta=0.5, stream=Stream(tau=0.4, dt=0.1)
+        )
         robot, goal, k = np.zeros(4), np.array([20.0, 0.0]), 0
         peds, ped_v = np.array([[10.0, -5.0], [14.0, 6.0]]), np.array([[0.0, 1.0], [0.0, -1.0]])
         while np.hypot(*(robot[:2] - goal)) > 0.5:
@@ -143,7 +150,9 @@ def test_finish_without_the_closing_sample_scores_what_was_observed() -> None:
 
 # ---------------------------------------------------------------------- input contract
 def _ctrl(**kw) -> StepwiseCBF:
-    return StepwiseCBF("constant_velocity", epsilon=-0.1, eta=0.5, tau=0.4, dt=0.1, **kw)
+    return StepwiseCBF(
+        "constant_velocity", epsilon=-0.1, eta=0.5, stream=Stream(tau=0.4, dt=0.1), **kw
+    )
 
 
 GOAL = np.array([20.0, 0.0])

@@ -89,7 +89,7 @@ def test_two_runs_are_identical_and_the_seed_drives_the_noise(
         ({"body_radius": float("inf")}, "body_radius"),
         ({"max_delay": "10"}, "max_delay"),
         ({"seed": 1.5}, "seed"),
-        ({"model": "boids"}, "unknown crowd_model .boids.; registered crowd_model plugins"),
+        ({"model": "boids"}, "unknown crowd .boids.; registered crowd plugins"),
         ({"model_params": {"A": 1.0, "B": 2.0}}, "no parameter"),
     ],
 )

@@ -89,7 +89,7 @@ def test_episodes_ending_within_a_frame_and_of_different_lengths(crossings, comp
     _, singles = compare_batch(
         crossings, max_frames=[5, 400, 37], crowd="orca", batch_size=3, output="results"
     )
-    ends = [s.steps["t"].size % s.config["decision_family"]["params"]["substeps"] for s in singles]
+    ends = [s.steps["t"].size % s.config["family"]["params"]["substeps"] for s in singles]
     assert any(s.metrics.goal_reached for s in singles)
     assert any(e != 0 for e in ends)  # an episode ended within a frame
 

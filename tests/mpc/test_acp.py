@@ -8,7 +8,7 @@ import numpy as np
 
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.loop import ConformalLoop
-from conformal_control.mpc import ACPMPC, PlanMiscoverageLoss
+from conformal_control.mpc import ACPMPC, Limits, PlanMiscoverageLoss, Sampling
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.update_rules import ACIRule
 
@@ -38,9 +38,7 @@ def family(**kw) -> ACPMPC:
     params = {
         "predictor": Frozen(),
         "dynamics": VelocityTrackingDoubleIntegrator(10.0),
-        "n_samples": 30,
-        "horizon": 4,
-        "dt_plan": DT,
+        "sampling": Sampling(n_samples=30, horizon=4, dt_plan=DT),
         "substeps": 1,
         "max_inflation": 5.0,
     }
@@ -105,7 +103,14 @@ def test_aci_drives_the_miscoverage_to_alpha_in_closed_loop():
     scene = crossing_scene(duration=40.0)
     dyn = VelocityTrackingDoubleIntegrator(K_acc=20.0)
     env = ReplayEnvironment(scene, dyn, tau_frames=4, substeps=1, history_frames=60)
-    fam = ACPMPC(Frozen(), dyn, n_samples=60, horizon=6, v_max=0.3, substeps=1, max_inflation=1.0)
+    fam = ACPMPC(
+        Frozen(),
+        dyn,
+        sampling=Sampling(n_samples=60, horizon=6),
+        limits=Limits(v_max=0.3),
+        substeps=1,
+        max_inflation=1.0,
+    )
     rule = ACIRule(alpha=0.2, gamma=0.05)
     result = ConformalLoop(env, fam, PlanMiscoverageLoss(), rule).run()
     assert result.n_updates > 50

@@ -15,7 +15,7 @@ from conformal_control.cbf.dynamics import (
     VelocityTrackingDoubleIntegrator,
 )
 from conformal_control.cbf.reference import AttractiveField
-from conformal_control.mpc import SamplingMPC
+from conformal_control.mpc import Costs, Limits, Sampling, SamplingMPC
 from conformal_control.mpc.kernels import evaluate, evaluate_numpy
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
@@ -36,10 +36,8 @@ def family(**kw) -> SamplingMPC:
         "predictor": ConstantVelocityPredictor(),
         "dynamics": VelocityTrackingDoubleIntegrator(K_acc=10.0),
         "reference": AttractiveField(K_att=1.0, v_max=1.5),
-        "n_samples": 200,
-        "horizon": 8,
-        "dt_plan": DT,
-        "v_max": 1.5,
+        "sampling": Sampling(n_samples=200, horizon=8, dt_plan=DT),
+        "limits": Limits(v_max=1.5),
         "substeps": 1,
     }
     params.update(kw)
@@ -101,7 +99,7 @@ def test_the_chosen_plan_meets_every_constraint_it_reports(seed):
             continue
         # recompute the plan's clearance from scratch with the numpy reference
         states = fam.dynamics.rollout(x, plan.commands[None], DT)
-        times = DT * np.arange(0, fam.horizon + 1)
+        times = DT * np.arange(0, fam.sampling.horizon + 1)
         pred = pos[:, None, :] + vel[:, None, :] * times[None, :, None]
         _, clear, _ = evaluate_numpy(
             states[..., :2],
@@ -119,7 +117,7 @@ def test_the_chosen_plan_meets_every_constraint_it_reports(seed):
         assert math.isclose(clear[0], plan.clearance, rel_tol=1e-9, abs_tol=1e-12)
         # and at a dense set of instants within the plan (linear motion between steps)
         p = np.concatenate([x[None, :2], states[0, :, :2]])
-        for h in range(fam.horizon):
+        for h in range(fam.sampling.horizon):
             for s in np.linspace(0, 1, 21):
                 robot = p[h] + s * (p[h + 1] - p[h])
                 agents = pred[:, h] + s * (pred[:, h + 1] - pred[:, h])
@@ -145,7 +143,11 @@ def test_deterministic_with_a_seed_and_different_across_seeds():
 
 
 def test_equals_a_brute_force_evaluation_on_a_tiny_case():
-    fam = family(n_samples=6, horizon=3, hold=1, w_effort=0.01, w_comfort=0.1, random_state=1)
+    fam = family(
+        sampling=Sampling(n_samples=6, horizon=3, dt_plan=DT, hold=1),
+        costs=Costs(w_effort=0.01, w_comfort=0.1),
+        random_state=1,
+    )
     pos = np.array([[2.0, 0.3], [1.0, -1.5]])
     vel = np.array([[-1.0, 0.0], [0.0, 1.0]])
     fam.begin_interval(query(pos, vel))
@@ -204,7 +206,7 @@ def test_no_safe_sample_is_a_counted_fallback(fallback):
 
 
 def test_brake_with_an_acceleration_command_stops_within_a_plan_step():
-    fam = family(dynamics=DoubleIntegrator(), a_max=5.0, reference=None)
+    fam = family(dynamics=DoubleIntegrator(), limits__a_max=5.0, reference=None)
     fam.begin_interval(query(np.array([[0.1, 0.0]]), np.zeros((1, 2))))
     u = fam.decide(state([0.0, 0.0, 1.0, -0.5]), 0.0)
     np.testing.assert_allclose(u, [-1.0 / DT, 0.5 / DT])
@@ -226,13 +228,14 @@ def test_unicycle_commands_stay_within_the_plants_limits():
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        ({"n_samples": 0}, "n_samples must be a positive integer"),
-        ({"horizon": 0}, "horizon must be a positive integer"),
-        ({"hold": 1.5}, "hold must be a positive integer"),
-        ({"dt_plan": -0.4}, "dt_plan must be a finite number > 0"),
-        ({"v_max": -1.0}, "v_max must be a finite number > 0"),
+        ({"sampling__n_samples": 0}, "n_samples must be a positive integer"),
+        ({"sampling__horizon": 0}, "horizon must be a positive integer"),
+        ({"sampling__hold": 1.5}, "hold must be a positive integer"),
+        ({"sampling__dt_plan": -0.4}, "dt_plan must be a finite number > 0"),
+        ({"limits__v_max": -1.0}, "v_max must be a finite number > 0"),
         ({"d_c": -1.0}, "d_c must be a finite distance >= 0"),
-        ({"w_goal": -1.0}, "w_goal must be a finite weight >= 0"),
+        ({"costs__w_goal": -1.0}, "w_goal must be a finite weight >= 0"),
+        ({"sampling": "fast"}, "sampling must be a Sampling"),
         ({"fallback": "pray"}, "fallback must be one of brake, least_violation"),
         ({"dynamics": Unicycle(v_max=-0.5)}, "need v_min <= 0 <= v_max"),
     ],

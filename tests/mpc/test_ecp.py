@@ -11,7 +11,7 @@ import pytest
 from conformal_control.cbf.controller import ControlState
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.loop import ConformalLoop
-from conformal_control.mpc import ECPMPC, EgocentricMiscoverageLoss
+from conformal_control.mpc import ECPMPC, EgocentricMiscoverageLoss, Limits, Sampling
 from conformal_control.mpc.ecp import egocentric_quantiles
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.update_rules import ACIRule
@@ -73,9 +73,7 @@ def family(**kw) -> ECPMPC:
     params = {
         "predictor": Frozen(),
         "dynamics": VelocityTrackingDoubleIntegrator(10.0),
-        "n_samples": 20,
-        "horizon": 3,
-        "dt_plan": DT,
+        "sampling": Sampling(n_samples=20, horizon=3, dt_plan=DT),
         "substeps": 1,
         "calibration_size": 4,
         "max_inflation": 3.0,
@@ -116,7 +114,7 @@ def test_a_smaller_lambda_gives_larger_regions():
 
 
 def test_plan_steps_must_be_whole_sampling_periods():
-    fam = family(dt_plan=0.5)
+    fam = family(sampling__dt_plan=0.5)
     with pytest.raises(ValueError, match="whole sampling periods") as info:
         fam.begin_interval(observation(0, np.array([1.0])))
     assert "\n" not in str(info.value)
@@ -129,7 +127,14 @@ def test_aci_drives_the_egocentric_miscoverage_to_alpha_in_closed_loop():
     scene = crossing_scene(duration=40.0)
     dyn = VelocityTrackingDoubleIntegrator(K_acc=20.0)
     env = ReplayEnvironment(scene, dyn, tau_frames=4, substeps=1, history_frames=20)
-    fam = ECPMPC(Frozen(), dyn, n_samples=40, horizon=5, v_max=0.3, substeps=1, max_inflation=1.0)
+    fam = ECPMPC(
+        Frozen(),
+        dyn,
+        sampling=Sampling(n_samples=40, horizon=5),
+        limits=Limits(v_max=0.3),
+        substeps=1,
+        max_inflation=1.0,
+    )
     result = ConformalLoop(env, fam, EgocentricMiscoverageLoss(), ACIRule(0.2, 0.05)).run()
     assert result.n_updates > 50
     assert abs(result.l_avg - 0.2) <= result.guarantee["long_run_bound"]

@@ -11,7 +11,7 @@ import pytest
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.reference import AttractiveField
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.mpc import SamplingMPC
+from conformal_control.mpc import Sampling, SamplingMPC
 from conformal_control.predictors.base import PredictionQuery, TruthUnavailableError
 from conformal_control.predictors.oracle import OraclePredictor
 from conformal_control.predictors.shift import DelayedPredictor
@@ -96,9 +96,7 @@ def test_the_mpc_plans_with_the_true_future_and_holds_agents_who_leave(scene):
         OraclePredictor(),
         VelocityTrackingDoubleIntegrator(K_acc=10.0),
         AttractiveField(K_att=1.0, v_max=2.0),
-        n_samples=20,
-        horizon=15,  # 6 s: past the end of the data for every agent
-        dt_plan=0.4,
+        sampling=Sampling(n_samples=20, horizon=15, dt_plan=0.4),  # 6 s: past the data's end
         substeps=2,
     )
     fam.reset()
@@ -130,7 +128,11 @@ def test_an_oracle_mpc_episode_runs_and_counts_the_held_agents():
         scene,
         predictor="oracle",
         family="mpc",
-        family_params={"n_samples": 60, "horizon": 10, "replan_every": 2},
+        family_params={
+            "sampling__n_samples": 60,
+            "sampling__horizon": 10,
+            "sampling__replan_every": 2,
+        },
         learn=False,
         record_animation=False,
     )

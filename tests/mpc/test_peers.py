@@ -14,6 +14,7 @@ from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
 from conformal_control.loop import ConformalStepper
 from conformal_control.mpc.controller import SamplingMPC
 from conformal_control.mpc.peers import peer_clearance, peer_lines, reference_paths
+from conformal_control.mpc.settings import Limits, Sampling
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 from conformal_control.sim.multi import drive
 from conformal_control.update_rules.fixed_eta import FixedEtaRule
@@ -83,11 +84,9 @@ def _run(mode, information, starts, goals):
             ConstantVelocityPredictor(),
             dyn,
             AttractiveField(K_att=1.0, v_max=1.0),
-            n_samples=150,
-            horizon=8,
-            dt_plan=0.3,
+            sampling=Sampling(n_samples=150, horizon=8, dt_plan=0.3),
             d_c=0.7,
-            v_max=1.0,
+            limits=Limits(v_max=1.0),
             substeps=2,
             random_state=i,
         )

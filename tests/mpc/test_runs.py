@@ -14,7 +14,7 @@ from conformal_control.bench.methods import expand_methods
 from conformal_control.data.synthetic import crossing_scene
 from conformal_control.sim.episode import run_episode
 
-FAST = {"n_samples": 60, "horizon": 6, "replan_every": 2}
+FAST = {"sampling__n_samples": 60, "sampling__horizon": 6, "sampling__replan_every": 2}
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +42,7 @@ def test_run_episode_runs_every_mpc_family(scene, family, rule, rule_params, uni
     )
     m = res.metrics
     assert res.config["engine"] == "loop"
-    assert res.config["decision_family"]["name"] == family
+    assert res.config["family"]["name"] == family
     assert m["n_steps"] > 0 and m["n_updates"] > 0
     assert m.unit("lambda_final") == unit
     # the family's own default loss and its counters reach the metrics
@@ -126,9 +126,9 @@ def test_cli_run_family_mpc(tmp_path, capsys):
                 "--family",
                 "mpc",
                 "--family-param",
-                "n_samples=40",
+                "sampling__n_samples=40",
                 "--family-param",
-                "horizon=5",
+                "sampling__horizon=5",
                 "--frames",
                 "40",
                 "--no-plot",
@@ -139,8 +139,8 @@ def test_cli_run_family_mpc(tmp_path, capsys):
         == 0
     )
     config = json.loads((out / "config.json").read_text())
-    assert config["decision_family"]["name"] == "mpc"
-    assert config["decision_family"]["params"]["n_samples"] == 40
+    assert config["family"]["name"] == "mpc"
+    assert config["family"]["params"]["sampling__n_samples"] == 40
 
 
 def test_cli_rejects_an_unknown_family_in_one_line(capsys):
@@ -156,7 +156,7 @@ def test_bench_methods_run_the_mpc_families(scene):
         kw = m.run_kwargs()
         kw["family_params"] = {**kw.get("family_params", {}), **FAST}
         res = run_episode(scene, max_frames=30, record_animation=False, **kw)
-        assert res.config["decision_family"]["name"] == kw["family"]
+        assert res.config["family"]["name"] == kw["family"]
         assert math.isfinite(res.metrics["lambda_final"])
 
 
@@ -167,12 +167,12 @@ def test_several_robots_run_the_mpc_family(tmp_path, capsys):
 
     out = tmp_path / "fleet"
     args = ["run", "--robots", "2", "--family", "mpc", "--frames", "150", "--no-plot"]
-    for kv in ("n_samples=60", "horizon=6", "replan_every=2"):
+    for kv in ("sampling__n_samples=60", "sampling__horizon=6", "sampling__replan_every=2"):
         args += ["--family-param", kv]
     assert main([*args, "--out", str(out)]) == 0
     config = json.loads((out / "config.json").read_text())
-    assert config["decision_family"]["name"] == "mpc"
-    assert config["decision_family"]["params"]["n_samples"] == 60
+    assert config["family"]["name"] == "mpc"
+    assert config["family"]["params"]["sampling__n_samples"] == 60
     assert config["reciprocity"]["modes"] == ["reciprocal", "reciprocal"]
     fleet = json.loads((out / "metrics.json").read_text())["fleet"]
     assert fleet["n_collide_robot_pairs"] == 0 and fleet["success_rate"] == 1.0
@@ -191,26 +191,31 @@ def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
             "scene": "crossing",
             "frames": 30,
             "family": "mpc",
-            "family_params": {"n_samples": 40, "replan_every": 2},
+            "family_params": {"sampling__n_samples": 40, "sampling__replan_every": 2},
             "units": "si",
         },
-        grid={"family_params.horizon": [4, 6], "epsilon": [0.05, 0.2]},
+        grid={"family_params.sampling__horizon": [4, 6], "epsilon": [0.05, 0.2]},
     )
     runs = spec.expand()
     assert len(runs) == 4
-    assert runs[0].episode["family_params"] == {"n_samples": 40, "replan_every": 2, "horizon": 4}
+    assert runs[0].episode["family_params"] == {
+        "sampling__n_samples": 40,
+        "sampling__replan_every": 2,
+        "sampling__horizon": 4,
+    }
     report = run_sweep(spec, tmp_path / "sw", "serial", plot=False, progress=False)
     assert not report.failed and len(report.ran) == 4
     with (tmp_path / "sw" / "results.csv").open() as fh:
         table = list(csv.DictReader(fh))
     assert {r["episode.family"] for r in table} == {"mpc"}
-    assert {json.loads(r["episode.family_params"])["horizon"] for r in table} == {4, 6}
+    assert {json.loads(r["episode.family_params"])["sampling__horizon"] for r in table} == {4, 6}
     assert {float(r["param.epsilon"]) for r in table} == {0.05, 0.2}
     for r in table:
         config = json.loads((tmp_path / "sw" / r["run_dir"] / "config.json").read_text())
-        fam = config["decision_family"]
-        assert fam["name"] == "mpc" and fam["params"]["n_samples"] == 40
-        assert fam["params"]["horizon"] == json.loads(r["episode.family_params"])["horizon"]
+        fam = config["family"]
+        assert fam["name"] == "mpc" and fam["params"]["sampling__n_samples"] == 40
+        given = json.loads(r["episode.family_params"])
+        assert fam["params"]["sampling__horizon"] == given["sampling__horizon"]
         assert config["engine"] == "loop" and float(r["n_steps"]) > 0
 
 
@@ -273,7 +278,7 @@ def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
     assert {r["status"] for r in rows} == {"ok"}
     for r in rows:
         config = json.loads((tmp_path / "b" / r["run_dir"] / "config.json").read_text())
-        assert config["decision_family"]["name"] == "mpc"
+        assert config["family"]["name"] == "mpc"
         assert config["predictor"]["name"] == predictor
         assert config["crowd"]["crowd"] == crowd
         if predictor == "delayed":

@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from conformal_control.cbf import Stream
 from conformal_control.mpc import SamplingMPC, StepwiseMPC
 from conformal_control.sim import build_flagship, run_episode
 
-FAST = {"n_samples": 60, "horizon": 6, "replan_every": 2}
+FAST = {"sampling__n_samples": 60, "sampling__horizon": 6, "sampling__replan_every": 2}
 
 
 def drive(scene, fl, ctrl: StepwiseMPC, max_frames: int):
@@ -64,15 +65,17 @@ def test_stepwise_mpc_matches_the_replay_environment(crossing, family, rule, rul
     si = fl.params.si
     ctrl = StepwiseMPC(
         fl.predictor,
-        family=fl.policy,
+        family=fl.family,
         dynamics=fl.dynamics,
         loss=fl.loss,
         rule=fl.rule,
-        tau=fl.params.tau_frames / crossing.fps,
-        dt=1.0 / crossing.fps,
-        substeps=si["substeps"],
-        sensing_radius=si["sensing_radius"],
-        history=fl.params.history_frames,
+        stream=Stream(
+            tau=fl.params.tau_frames / crossing.fps,
+            dt=1.0 / crossing.fps,
+            substeps=si["substeps"],
+            sensing_radius=si["sensing_radius"],
+            history=fl.params.history_frames,
+        ),
     )
     commands, result = drive(fl.scene, fl, ctrl, frames)
     np.testing.assert_allclose(commands, ref.steps["cmd"], rtol=0, atol=1e-12)
@@ -85,8 +88,8 @@ def test_stepwise_mpc_matches_the_replay_environment(crossing, family, rule, rul
 
 
 def test_built_by_name_with_the_family_defaults():
-    ctrl = StepwiseMPC(family="mpc", family_params=FAST, tau=0.4, dt=0.1)
-    assert isinstance(ctrl.planner, SamplingMPC) and ctrl.planner.n_samples == 60
+    ctrl = StepwiseMPC(family=("mpc", FAST), stream=Stream(tau=0.4, dt=0.1))
+    assert isinstance(ctrl.planner, SamplingMPC) and ctrl.planner.sampling.n_samples == 60
     rule = ctrl.stepper.rule
     assert (rule.epsilon, rule.eta, rule.lambda_min) == (0.1, 0.2, -1.0)
     assert type(ctrl.stepper.loss).__name__ == "DistanceShortfallLoss"
@@ -105,10 +108,8 @@ def test_built_by_name_with_the_family_defaults():
 
 def test_a_unicycle_takes_its_five_numbers():
     ctrl = StepwiseMPC(
-        family="mpc",
-        family_params=FAST,
-        dynamics="unicycle",
-        dynamics_params={"v_max": 1.5, "omega_max": 1.0},
+        family=("mpc", FAST),
+        dynamics=("unicycle", {"v_max": 1.5, "omega_max": 1.0}),
     )
     ctrl.observe([1], [[5.0, 2.0]], t=0.0)
     u = ctrl.step(np.zeros(5), t=0.0, goal=np.array([10.0, 0.0]))
@@ -122,10 +123,10 @@ def test_a_unicycle_takes_its_five_numbers():
     [
         ({"family": "cbf"}, "StepwiseMPC runs a planning family"),
         ({"family": "mcp"}, "mcp"),
-        ({"family_params": {"n_samples": 0}}, "n_samples"),
-        ({"tau": 0.25, "dt": 0.1}, "whole number of samples"),
+        ({"family": ("mpc", {"sampling__n_samples": 0})}, "n_samples"),
+        ({"stream": Stream(tau=0.25, dt=0.1)}, "whole number of samples"),
         ({"epsilon": 1.5}, "epsilon"),
-        ({"family_params": {"substeps": 2}}, "substeps"),
+        ({"family": ("mpc", {"substeps": 2})}, "substeps"),
         ({"v_max": float("nan")}, "v_max"),
     ],
 )

@@ -79,7 +79,7 @@ def _fleet(scene, starts, goals, seed=0, **params):
         sensing_radius=env.sensing_radius,
         history_frames=env.history_frames,
     )
-    steppers = [ConformalStepper(f.policy, f.loss, f.rule) for f in fleet]
+    steppers = [ConformalStepper(f.family, f.loss, f.rule) for f in fleet]
     return world, steppers, fleet
 
 
@@ -130,7 +130,7 @@ def test_no_communication_other_robots_internal_state_does_not_matter(crossing):
         # robot j gets another lambda (in its stepper and its rule) and another predictor
         steppers2[j].lam_ -= 7.0
         fleet2[j].rule.lambda_ = steppers2[j].lam_
-        fleet2[j].policy.predictor = ConstantVelocityPredictor(window=1)
+        fleet2[j].family.predictor = ConstantVelocityPredictor(window=1)
 
     perturbed, _ = _drive(world2, steppers2, perturb_at=3, perturb=perturb, replay=(j, base))
     assert perturbed.shape == base.shape

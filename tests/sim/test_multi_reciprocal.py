@@ -184,7 +184,7 @@ def _fleet(scene, starts, goals, information, **params):
         for i, (s, g) in enumerate(zip(starts, goals, strict=True))
     ]
     for f in fleet:
-        set_reciprocity(f.policy, "reciprocal", "pedestrians", 0.1)
+        set_reciprocity(f.family, "reciprocal", "pedestrians", 0.1)
     env = fleet[0].env
     world = MultiRobotWorld(
         fleet[0].scene,
@@ -197,7 +197,7 @@ def _fleet(scene, starts, goals, information, **params):
         history_frames=env.history_frames,
         information=information,
     )
-    return world, [ConformalStepper(f.policy, f.loss, f.rule) for f in fleet], fleet
+    return world, [ConformalStepper(f.family, f.loss, f.rule) for f in fleet], fleet
 
 
 def _drive(world, steppers, *, perturb=None, replay=None, intervals=30):
@@ -247,8 +247,8 @@ def test_no_robot_reads_another_robots_insides(crossing, information):
 
     def perturb():
         steppers[j].lam_ -= 5.0
-        fleet[j].policy.predictor = ConstantVelocityPredictor(window=1)
-        fleet[j].policy.reference.K_att *= 3.0
+        fleet[j].family.predictor = ConstantVelocityPredictor(window=1)
+        fleet[j].family.reference.K_att *= 3.0
 
     perturbed = _drive(world, steppers, perturb=perturb, replay=(j, base))
     others = [i for i in range(4) if i != j]

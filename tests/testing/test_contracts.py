@@ -126,7 +126,7 @@ def test_every_registered_plugin_is_available():
     unavailable = [(r, n, why) for r, n, cls, why in registered_plugins() if cls is None]
     assert not unavailable, unavailable
     roles = {role for role, *_ in registered_plugins()}
-    assert {"predictor", "barrier", "safety_filter", "loss", "update_rule", "dynamics"} <= roles
+    assert {"predictor", "barrier", "safety_filter", "loss", "rule", "dynamics"} <= roles
 
 
 class RuntimeCV(ConstantVelocityPredictor):
@@ -344,11 +344,13 @@ def test_role_bases_cover_registry_roles():
     assert set(registry.ROLES) <= set(ROLE_BASES)
     assert set(ROLE_BASES) - set(registry.ROLES) == {"environment"}
     assert ROLE_BASES["environment"] is Environment
-    assert ROLE_BASES["decision_family"] is DecisionFamily
+    assert ROLE_BASES["family"] is DecisionFamily
     assert checks_for("environment") is check_environment
-    assert checks_for("decision_family") is check_decision_family
+    assert checks_for("family") is check_decision_family
+    with pytest.warns(DeprecationWarning, match="'decision_family' is now called 'family'"):
+        assert checks_for("decision_family") is check_decision_family
     assert ROLE_BASES["barrier"] is Barrier and ROLE_BASES["safety_filter"] is SafetyFilter
-    assert ROLE_BASES["predictor"] is Predictor and ROLE_BASES["update_rule"] is UpdateRule
+    assert ROLE_BASES["predictor"] is Predictor and ROLE_BASES["rule"] is UpdateRule
     assert math.isfinite(CBFGapLoss.bounds[1])
 
 
@@ -766,11 +768,11 @@ def test_river_checks_run_for_every_role():
         "barrier",
         "safety_filter",
         "loss",
-        "update_rule",
+        "rule",
         "dynamics",
         "reference",
         "environment",
-        "decision_family",
+        "family",
         "no_such_role",
     ):
         names = {c.__name__ for c in checks_for(role)}

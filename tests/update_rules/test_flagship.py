@@ -50,7 +50,7 @@ def test_rule_params_are_converted_from_scene_units(nexus4) -> None:
 def test_unknown_rule_param_is_a_clear_error(crossing) -> None:
     with pytest.raises(ValueError, match="has no parameter"):
         run_episode(crossing, "constant_velocity", rule="pid", rule_params={"bogus": 1})
-    with pytest.raises(ValueError, match="unknown update_rule"):
+    with pytest.raises(ValueError, match="unknown rule"):
         run_episode(crossing, "constant_velocity", rule="nope")
 
 

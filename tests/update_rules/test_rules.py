@@ -34,10 +34,10 @@ LOSSES = [
 
 
 def test_all_rules_and_losses_are_registered() -> None:
-    assert set(RULES) <= set(registry.names("update_rule"))
+    assert set(RULES) <= set(registry.names("rule"))
     assert set(LOSSES) <= set(registry.names("loss"))
     for name in RULES:
-        rule = registry.create("update_rule", name)
+        rule = registry.create("rule", name)
         assert math.isfinite(rule.reset())
         assert rule.guarantee in ("identity", "step_identity", "long_run", "none")
 
@@ -49,7 +49,7 @@ def test_sign_convention_higher_loss_lower_lambda(name: str) -> None:
     history = rng.uniform(0, 1, size=20)
     outs = []
     for last in (0.0, 0.3, 1.0):
-        rule = registry.create("update_rule", name)
+        rule = registry.create("rule", name)
         rule.reset()
         for x in history:
             rule.update(x)
@@ -60,7 +60,7 @@ def test_sign_convention_higher_loss_lower_lambda(name: str) -> None:
 
 @pytest.mark.parametrize("name", RULES)
 def test_every_rule_clips(name: str) -> None:
-    rule = registry.create("update_rule", name, lambda_min=-0.2, lambda_max=0.3)
+    rule = registry.create("rule", name, lambda_min=-0.2, lambda_max=0.3)
     rule.reset()
     lams = [rule.update(1.0) for _ in range(300)] + [rule.update(-1.0) for _ in range(300)]
     assert min(lams) >= -0.2 and max(lams) <= 0.3
@@ -69,7 +69,7 @@ def test_every_rule_clips(name: str) -> None:
 
 @pytest.mark.parametrize("name", RULES)
 def test_rules_reject_non_finite_loss(name: str) -> None:
-    rule = registry.create("update_rule", name)
+    rule = registry.create("rule", name)
     rule.reset()
     with pytest.raises(ValueError, match="non-finite loss"):
         rule.update(math.inf)

@@ -213,6 +213,19 @@ class Exact2DSafetyFilter(VelocityFilter):
         *constraint.rows(x_ego, x_agents, v_agents), lam)`` (to round-off), without
         building the rows in Python. Predictions must be finite (the controller sanitises
         them); a non-finite row, lambda or nominal raises ``ValueError`` as ``solve`` does.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,) or more
+            The robot's position (m; its first two numbers).
+        x_agents : ndarray of shape (M, 2)
+            The agents' predicted positions (m).
+        v_agents : ndarray of shape (M, 2)
+            Their predicted velocities (m/s).
+        nominal : ndarray of shape (2,)
+            The nominal velocity (m/s).
+        lam : float
+            lambda (1/s).
         """
         n = x_agents.shape[0]
         if n > self._cap:
@@ -257,6 +270,24 @@ class Exact2DSafetyFilter(VelocityFilter):
         result code are in ``rec``), or the result of the ``brake`` / ``hold`` fallback
         (only the ego position and the code are then recorded). A step outside ``pv``
         raises ``IndexError``; non-finite input raises ``ValueError`` as :meth:`solve` does.
+
+        Parameters
+        ----------
+        x0, x1 : float
+            The robot's position (m).
+        n0, n1 : float
+            The nominal velocity (m/s).
+        lam : float
+            lambda (1/s).
+        pv : ndarray of shape (2, S, M, 2)
+            The interval's predictions at its control steps: positions (m) and
+            velocities (m/s) of its M sensed agents.
+        s : int
+            The control step within the interval.
+        rec : ndarray
+            The interval's record (one row per control step).
+        i : int
+            The row of ``rec`` this step writes.
         """
         code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec)
         if code == 0 or code == 1:  # unconstrained / optimal: one solve for optimal
@@ -291,6 +322,19 @@ class Exact2DSafetyFilter(VelocityFilter):
         (:func:`~conformal_control.cbf.kernels_peers.apf_control_peers`).
         Same results, counters and fallbacks as :meth:`step_apf_record`; a fallback
         decided in Python starts from the nominal velocity as given.
+
+        Parameters
+        ----------
+        x0, x1, n0, n1, lam, pv, s, rec, i
+            As for :meth:`step_apf_record` (``pv`` with columns for the peers after the
+            ``npred`` predicted ones).
+        rows : (ndarray of shape (3, N), int)
+            ``(col, npred)`` as above.
+        peers : tuple
+            ``(positions, references, own_x, own_y, turn, vx, vy)`` as above: the peers'
+            positions (K, 2) m and reference velocities (K, 2) m/s, the robot's own
+            reference velocity (m/s), :meth:`Reciprocity.turn`'s options and the robot's
+            velocity (m/s).
         """
         kernels_peers = self._kp
         col, npred = rows
