@@ -155,7 +155,12 @@ class ResultsStore:
         self.parquet_path = self.out_dir / "results.parquet"
         self.bad_lines_: list[tuple[int, str]] = []
         self._warned: set[tuple[int, str]] = set()
-        self._cache: tuple[tuple[int, int], list[dict[str, Any]]] | None = None
+        # the journal as last read: (size, mtime_ns), its records, the number of its lines
+        self._cache: tuple[tuple[int, int], list[dict[str, Any]], int] | None = None
+        # lines this store appended since, not parsed yet: bytes, which the garbage collector
+        # does not track (parsed records would make its full collections, whose cost grows
+        # with the objects alive, ever longer during a sweep)
+        self._unparsed: list[bytes] = []
         # flat row of a cached record, by id() (the cache holds the records alive)
         self._flat: dict[int, dict[str, Any]] = {}
 
@@ -174,11 +179,32 @@ class ResultsStore:
             return []
         stamp = (st.st_size, st.st_mtime_ns)
         if self._cache is not None and self._cache[0] == stamp:
-            return list(self._cache[1])
+            _, out, n_lines = self._cache
+            if self._unparsed:  # the lines appended since: line numbers n_lines + 1, ...
+                bad = self._parse(self._unparsed, n_lines + 1, out)
+                self._cache = (stamp, out, n_lines + len(self._unparsed))
+                self._unparsed = []
+                if bad:
+                    self.bad_lines_ = self.bad_lines_ + bad
+                    self._warn(bad)
+            return list(out)
         data = self.journal.read_bytes()
-        out: list[dict[str, Any]] = []
+        lines = data.split(b"\n")
+        out = []
+        bad = self._parse(lines, 1, out)
+        self.bad_lines_ = bad
+        self._warn(bad)
+        self._cache = (stamp, out, data.count(b"\n"))
+        self._unparsed = []
+        self._flat = {}
+        return list(out)
+
+    @staticmethod
+    def _parse(lines: list[bytes], first: int, out: list[dict[str, Any]]) -> list[tuple[int, str]]:
+        """Append the run records of ``lines`` (numbered from ``first``) to ``out``; return
+        the unreadable ones as (line number, reason)."""
         bad: list[tuple[int, str]] = []
-        for n, raw in enumerate(data.split(b"\n"), start=1):
+        for n, raw in enumerate(lines, start=first):
             if not raw.strip():
                 continue
             try:
@@ -199,14 +225,13 @@ class ResultsStore:
                 bad.append((n, f"not a run record: {why}"))
                 continue
             out.append(rec)
-        self.bad_lines_ = bad
+        return bad
+
+    def _warn(self, bad: list[tuple[int, str]]) -> None:
         new = [b for b in bad if b not in self._warned]
         if new:
             self._warned.update(new)
-            warnings.warn(JournalWarning(self.describe_bad_lines(new)), stacklevel=2)
-        self._cache = (stamp, out)
-        self._flat = {}
-        return list(out)
+            warnings.warn(JournalWarning(self.describe_bad_lines(new)), stacklevel=3)
 
     def describe_bad_lines(self, bad: list[tuple[int, str]] | None = None) -> str:
         """One sentence naming the skipped journal lines (all, or ``bad``)."""
@@ -300,7 +325,8 @@ class ResultsStore:
         # the file exactly as it was before this line
         cache = self._cache
         if cache is None and before.st_size == 0:  # a new journal: nothing to read back
-            cache = ((0, before.st_mtime_ns), [])
+            cache = ((0, before.st_mtime_ns), [], 0)
+            self._unparsed = []
             self.bad_lines_ = []
         if (
             cache is not None
@@ -308,10 +334,12 @@ class ResultsStore:
             and cache[0] == (before.st_size, before.st_mtime_ns)
             and after.st_size == before.st_size + len(line)
         ):
-            cache[1].append(json.loads(line))  # as read back: JSON types, not the caller's
-            self._cache = ((after.st_size, after.st_mtime_ns), cache[1])
+            # parsed when the records are next asked for: JSON types, not the caller's
+            self._unparsed.append(line[:-1])
+            self._cache = ((after.st_size, after.st_mtime_ns), cache[1], cache[2])
         else:
             self._cache = None
+            self._unparsed = []
 
     def sync(self) -> None:
         """Make every line appended so far durable (``fsync`` the journal), if it exists."""

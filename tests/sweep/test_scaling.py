@@ -7,6 +7,7 @@ policy under test is a time policy.
 
 from __future__ import annotations
 
+import gc
 import sys
 import time
 import types
@@ -118,6 +119,23 @@ def test_the_bookkeeping_of_a_run_does_not_grow_with_the_sweep(
     assert large["records_read"] <= 3 * 1500
     # fsync: a group commit (about one a second of stub runs), not one per run
     assert large["fsync"] < 1500 // 10
+
+
+def test_a_sweep_keeps_no_collected_object_per_run(tmp_path: Path) -> None:
+    """Objects the garbage collector tracks, kept per finished run, make its full
+    collections (whose cost grows with every tracked object alive) ever longer and more
+    frequent as a sweep goes on: the journal's records are kept as bytes until asked for."""
+    alive: dict[int, int] = {}
+
+    def tick(i: int) -> None:
+        if i in (100, 1100):
+            gc.collect()
+            alive[i] = len(gc.get_objects())
+
+    run_sweep(configs(1101), tmp_path, StubExecutor(tick), summary_plot=False, progress=False)
+    # 1,000 runs in between; parsed records kept in memory: about 5 per run
+    assert alive[1100] - alive[100] < 200, alive
+    assert len(ResultsStore(tmp_path).records()) == 1101
 
 
 def _table_rows_per_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, n: int) -> float:
