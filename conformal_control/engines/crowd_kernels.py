@@ -219,9 +219,9 @@ def crowd_begin(
             ped_vel[g, 1] = vel[b, j, 1]
             ped_rad[g] = body_r[b]
             cnt = wp_count[b, j]
-            k = 0
-            for w in range(wp_time.shape[2]):
-                k += wp_time[b, j, w] < t + la
+            k = 0  # waypoints recorded before t + la (their times increase; inf after cnt)
+            while k < cnt and wp_time[b, j, k] < t + la:
+                k += 1
             over = k >= cnt
             k = min(k, cnt - 1)
             tx = wp_pos[b, j, k, 0]
@@ -463,8 +463,9 @@ def _write_frame(
         if math.isfinite(x):
             store[cols + k] = j
             k += 1
-    for g in range(f + 1, n_frames + 1):
-        store[ptr + g] = k
+    # the frame's end (the later frames' entries are written with them; until then each
+    # reads as no agent: an end at or before its start)
+    store[ptr + f + 1] = k
 
 
 @jit
@@ -544,12 +545,13 @@ def sf_directions(
     avel: np.ndarray,
     lam: float,
     gamma: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per pair: ``t`` (the interaction direction), ``B`` and whether it is defined, and
-    the two arguments of ``arctan2`` giving the angle from ``t`` to ``e``
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair: the centre distance, ``t`` (the interaction direction), ``B`` and whether
+    it is defined, and the two arguments of ``arctan2`` giving the angle from ``t`` to ``e``
     (:meth:`SocialForceModel.pair_forces
     <conformal_control.crowds.social_force.SocialForceModel.pair_forces>`)."""
     n = dx.shape[0]
+    dists = np.empty(n)
     tx = np.empty(n)
     ty = np.empty(n)
     big_b = np.empty(n)
@@ -560,6 +562,7 @@ def sf_directions(
         rx = dx[q]
         ry = dy[q]
         dist = c_hypot(rx, ry)
+        dists[q] = dist
         inv = 1.0 / dist if dist > 0.0 else 0.0
         ex = rx * inv
         ey = ry * inv
@@ -578,13 +581,12 @@ def sf_directions(
         big_b[q] = gamma * dn
         ya[q] = x * ey - y * ex
         xa[q] = x * ex + y * ey
-    return tx, ty, big_b, ok, ya, xa
+    return dists, tx, ty, big_b, ok, ya, xa
 
 
 @jit
 def sf_exponents(
-    dx: np.ndarray,
-    dy: np.ndarray,
+    dist: np.ndarray,
     shift: np.ndarray,
     big_b: np.ndarray,
     ok: np.ndarray,
@@ -594,10 +596,10 @@ def sf_exponents(
 ) -> np.ndarray:
     """The arguments of the model's three exponentials, rows 0 (distance), 1 (braking),
     2 (turning), per pair."""
-    n = dx.shape[0]
+    n = dist.shape[0]
     out = np.empty((3, n))
     for q in range(n):
-        d = c_hypot(dx[q], dy[q]) + shift[q]
+        d = dist[q] + shift[q]
         d_eq = d if (d >= 0.0 or d != d) else 0.0  # np.maximum(d, 0.0)
         b = big_b[q]
         inv_b = 1.0 / b if ok[q] else 0.0
@@ -619,6 +621,7 @@ def sf_acceleration(
     rows: np.ndarray,
     dx: np.ndarray,
     dy: np.ndarray,
+    dists: np.ndarray,
     ri: np.ndarray,
     rj: np.ndarray,
     tx: np.ndarray,
@@ -648,7 +651,7 @@ def sf_acceleration(
         fx = brake * tx[q] - turn * ty[q]
         fy = brake * ty[q] + turn * tx[q]
         if stiffness > 0:
-            dist = c_hypot(dx[q], dy[q])
+            dist = dists[q]
             o = ri[q] + rj[q] - dist
             push = stiffness * (o if (o >= 0.0 or o != o) else 0.0)
             push = push / dist if dist > 0 else 0.0

@@ -254,14 +254,14 @@ class CrowdSlots:
         sf = self.sf
         if sf is not None and col.size and (self.model[slots] == SOCIAL_FORCE).any():
             # SocialForceModel.step's arithmetic on every slot's pedestrians and pairs
-            tx, ty, big_b, ok, ya, xa = sf_directions(
+            dist, tx, ty, big_b, ok, ya, xa = sf_directions(
                 dx, dy, rows, cols, pvel, avel, float(sf.lambda_importance), float(sf.gamma)
             )
             theta = np.arctan2(ya, xa)  # numpy's, as the model's
             ri, rj = prad[rows], arad[cols]
-            expo = np.exp(sf_exponents(dx, dy, ri - rj, big_b, ok, theta, sf.n, sf.n_prime))
+            expo = np.exp(sf_exponents(dist, ri - rj, big_b, ok, theta, sf.n, sf.n_prime))
             acc = sf_acceleration(
-                start, paired, pref, pvel, float(sf.tau), rows, dx, dy, ri, rj, tx, ty, ok,
+                start, paired, pref, pvel, float(sf.tau), rows, dx, dy, dist, ri, rj, tx, ty, ok,
                 theta, expo, float(sf.A), float(sf.contact_stiffness),
             )  # fmt: skip
             if (self.model[slots] == ORCA).any():
