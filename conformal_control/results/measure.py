@@ -314,7 +314,7 @@ def measure(
         n_fallback=int(filt.get("n_fallback", 0)),
         fallback_share=filt.get("n_fallback", 0) / n_steps,
         n_qp_solves=int(filt.get("n_solves", 0)),
-        n_lambda_clipped=fl.rule.n_clipped_,
+        n_lambda_clipped=mon.n_clipped,
         identity_residual=mon.identity_residual if learn else None,
         rule=fl.names["rule"],
         lambda_safe=lambda_safe,
