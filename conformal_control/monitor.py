@@ -431,8 +431,11 @@ class AgentMonitor:
     learn: bool = True
     min_intervals: int = 10
     entries: dict[int, GuaranteeMonitor] = field(default_factory=dict)
-    #: (key, loss) of every update, in order (the pooled running average).
-    sequence: list[tuple[int, float]] = field(default_factory=list)
+    #: (interval, key, loss) of every update, in order (the pooled running average);
+    #: the interval counts the calls of :meth:`update` from 0.
+    sequence: list[tuple[int, int, float]] = field(default_factory=list)
+    #: Calls of :meth:`update` so far (intervals closed).
+    n_intervals: int = 0
 
     def __post_init__(self) -> None:
         q = self.prior
@@ -445,6 +448,8 @@ class AgentMonitor:
                 f"{type(self.rule).__name__} has no lambda_init: it cannot start an agent's "
                 "entry at the prior, so lambda cannot be run per agent with it"
             )
+        if self.lambda_safe is not None and self.lambda_safe_source is None:
+            self.lambda_safe_source = "given"
         self.lambda_1 = float(self.rule.reset())  # validates the rule's parameters
         self.epsilon = float(self.rule.epsilon)
         self.kind: GuaranteeKind = self.rule.guarantee if self.learn else "none"
@@ -563,7 +568,8 @@ class AgentMonitor:
             else:
                 mon.observe(loss, mon.lam)
                 mon.set_lambda_next(mon.lam)
-            self.sequence.append((int(key), float(loss)))
+            self.sequence.append((self.n_intervals, int(key), float(loss)))
+        self.n_intervals += 1
 
     # -- figures ------------------------------------------------------------------------
     @property
@@ -574,7 +580,7 @@ class AgentMonitor:
     @property
     def average(self) -> float:
         """Pooled average loss over every (agent, interval) loss (nan before any)."""
-        return math.fsum(x for _, x in self.sequence) / self.n if self.n else math.nan
+        return math.fsum(x for _, _, x in self.sequence) / self.n if self.n else math.nan
 
     @property
     def n_agents(self) -> int:
@@ -676,9 +682,15 @@ class AgentMonitor:
             return "premise_untested"
         return "holds"
 
+    def history(self, key: int) -> tuple[np.ndarray, np.ndarray]:
+        """Agent ``key``'s updates: the intervals they closed (counted from 0) and the
+        lambda each was decided with, both of shape (n_key,)."""
+        ks = np.array([k for k, j, _ in self.sequence if j == key], dtype=np.int64)
+        return ks, np.asarray(self.entries[key].lambdas, dtype=float)
+
     def running_average(self) -> np.ndarray:
         """Pooled average loss after each update, shape (n,)."""
-        x = np.array([v for _, v in self.sequence], dtype=float)
+        x = np.array([v for _, _, v in self.sequence], dtype=float)
         return np.cumsum(x) / np.arange(1, x.size + 1) if x.size else x
 
     def summary(self) -> dict[str, Any]:
