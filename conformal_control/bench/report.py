@@ -833,7 +833,8 @@ def _grid(v: _ShiftView) -> list[MethodSummary]:
     fam = next((f for f in FAMILIES.values() if f.reference), None)
     if fam is None:
         return []
-    members = [s for s in v.summaries if s.family == fam.name]
+    # (a view drawn without its summaries, e.g. a figure test's, has no grid)
+    members = [s for s in getattr(v, "summaries", ()) if s.family == fam.name]
     return sorted(members, key=lambda s: _num(s.setting.split("=")[-1].rstrip("/s")))
 
 

@@ -60,3 +60,31 @@ def test_per_agent_with_a_loss_that_does_not_split_is_refused(crossings):
 
     with pytest.raises(ValueError, match="does not split by agent"):
         run_batch(crossings[:1], params={"lambda_per": "agent"}, loss="collision", max_frames=40)
+
+
+@pytest.fixture(scope="module")
+def suite_scenes(data_root):
+    from conformal_control.data.suites import load_suite
+
+    ids = [sc.id for sc in load_suite("crossings-v2").scenarios_for("dev")][:3]
+    return [load_scene(f"scenario:crossings-v2/{i}", str(data_root)) for i in ids]
+
+
+@pytest.mark.parametrize(
+    "family", ["conformal_agent", "conformal_agent_dtaci", "conformal_dtaci_floor"]
+)
+def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
+    """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
+    predictor called through the episode's own objects) on crossings-v2 scenarios."""
+    from conformal_control.bench.methods import expand_methods
+
+    kw = expand_methods([family])[0].run_kwargs()
+    kw["predictor"] = "delayed"
+    kw["predictor_params"] = {"delay_s": 0.5, "predictor": "constant_velocity"}
+    frames = [sc.meta["max_frames"] for sc in suite_scenes]
+    batched, singles = compare_batch(
+        suite_scenes, max_frames=frames, batch_size=2, output="results", **kw
+    )
+    if kw["params"].get("lambda_per") == "agent":
+        _same_agents(batched, singles)
+    assert all(s.metrics.n_updates > 0 for s in singles)
