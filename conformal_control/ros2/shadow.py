@@ -9,7 +9,7 @@ controller *would* have sent. Nothing is simulated.
 
 Timing. The controller needs samples on a grid ``t = k dt``: the grid starts at the first
 people message that has odometry before it (``t = 0``), ``dt`` is ``tau / n`` with ``n``
-the whole number nearest to ``tau`` over the people topic's median period (or the ``dt``
+the whole number nearest to ``tau`` over the people topic's mean period (or the ``dt``
 given), and each people message is placed in the grid slot nearest its stamp (its
 positions unchanged: stamp jitter under ``dt / 2`` is ignored). Counted in the result,
 never silent:
@@ -22,7 +22,8 @@ never silent:
 
 The robot's state at a control instant ``k dt + j dt / substeps`` is its odometry
 interpolated linearly at that time (position, velocity in the odometry's frame, heading
-for the body-frame command). The run covers the time where both topics have data.
+for the body-frame command). The run covers the time where both topics have data; the
+interval still open when it ends is not scored (its truth is not in the recording).
 
 Outputs (:meth:`ShadowResult.save`): ``commands.csv`` (one row per control instant),
 ``config.json`` (every setting, the bag, the counts), ``shadow_bag/`` (a ROS 2 bag:
@@ -187,10 +188,11 @@ def _cells(row: Sequence[Any]) -> list[str]:
 
 # ---------------------------------------------------------------------------- timing
 def _grid_dt(stamps: np.ndarray, tau: float) -> float:
-    """``tau / n``, ``n`` the whole number nearest ``tau`` over the median period."""
+    """``tau / n``, ``n`` the whole number nearest ``tau`` over the mean period (the span
+    over the number of gaps: stamp jitter averages out, a few dropouts barely move it)."""
     if stamps.size < 2:
         raise DataFormatError("the people topic has one message: no rate to run at")
-    period = float(np.median(np.diff(stamps))) / 1e9
+    period = float(stamps[-1] - stamps[0]) / (stamps.size - 1) / 1e9
     return tau / max(1, round(tau / period))
 
 
@@ -366,7 +368,7 @@ def shadow(
             now = int(ctrl.stats().get("n_fallback", 0))
             fallback[s] = int(now > n_fb)
             n_fb = now
-    result = ctrl.finish()
+    result = ctrl.result()  # the interval still open when the data ends is not scored
     c, s_ = np.cos(yaw), np.sin(yaw)
     body = np.stack([c * cmd[:, 0] + s_ * cmd[:, 1], -s_ * cmd[:, 0] + c * cmd[:, 1]], axis=1)
     commands = {
