@@ -1,6 +1,6 @@
 """ROS 2 without ROS: read a robot's bags, run shadow mode, write ROS 2-typed files.
 
-Needs the ``ros`` extra (``pip install 'conformal-control[ros]'``: :mod:`rosbags`, pure
+Needs the ``ros`` extra (``pip install 'conformal-control[ros]'``: ``rosbags``, pure
 Python); the modules import it on first use.
 
 * :func:`~conformal_control.ros2.bag.read_bag` -- the people and the odometry of a ROS 2

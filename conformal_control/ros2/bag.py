@@ -2,7 +2,7 @@
 
 :func:`read_bag` opens a ROS 2 bag -- a folder with ``metadata.yaml`` as ``ros2 bag
 record`` writes it, or a bare ``.mcap`` or ``.db3`` file, either storage -- with
-:mod:`rosbags` (no ROS installation) and returns a :class:`RecordedBag`:
+``rosbags`` (no ROS installation) and returns a :class:`RecordedBag`:
 
 * the **people** topic: ``people_msgs/msg/People`` (a person's id is their ``name``;
   ``position`` is used, ``velocity`` ignored: the predictor works from the positions'

@@ -1,10 +1,10 @@
 """The ROS 2 message types the toolkit reads and writes, without ROS installed.
 
-:func:`typestore` is a :mod:`rosbags` typestore of the standard messages (ROS 2 Humble's
+:func:`typestore` is a ``rosbags`` typestore of the standard messages (ROS 2 Humble's
 ``std_msgs``, ``geometry_msgs``, ``nav_msgs``, ``visualization_msgs``, ``tf2_msgs``, ...)
 with ``people_msgs`` added: its two messages are not in any ROS distribution's core set,
 so they are registered here from their ``.msg`` text (the ROS 2 ``people`` package's
-definitions, below) with :func:`rosbags.typesys.get_types_from_msg`. Reading a bag, the
+definitions, below) with ``rosbags.typesys.get_types_from_msg``. Reading a bag, the
 definitions the bag itself carries take precedence (``rosbags``' ``AnyReader``); this
 store serialises what we write and reads bags recorded without definitions.
 

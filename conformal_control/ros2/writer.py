@@ -4,11 +4,11 @@ A :class:`Recording` collects messages (topic, type, time, message object of the
 :func:`~conformal_control.ros2.types.typestore`) and writes them in time order:
 
 * :meth:`Recording.write_bag`: a rosbag2 folder -- ``metadata.yaml`` and one storage file,
-  MCAP (``ros2 bag record``'s default since Iron) or sqlite3 -- with :mod:`rosbags`'
+  MCAP (``ros2 bag record``'s default since Iron) or sqlite3 -- with ``rosbags``'
   writer, readable by ``ros2 bag play`` / ``ros2 bag info``;
 * :meth:`Recording.write_mcap`: one MCAP file (profile ``ros2``, ``ros2msg`` schemas,
   ``cdr`` messages, as in a bag's storage file) into an open binary file, with the
-  :mod:`mcap` writer; metadata records and attachments may be added (a bag folder has no
+  ``mcap`` writer; metadata records and attachments may be added (a bag folder has no
   place for them).
 
 Both serialise with the same typestore (CDR, the message definitions generated from it),
