@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.2.0.dev0"
+__version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
     from .api import run, shadow
