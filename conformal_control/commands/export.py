@@ -39,8 +39,8 @@ def _export_args(p: argparse.ArgumentParser) -> None:
 def _export(args: argparse.Namespace) -> int:
     from ..export import export_run, read_run
 
-    rec = read_run(args.run_dir)
-    out = export_run(args.run_dir, args.out, format=args.format, schema=args.schema)
+    rec = read_run(args.run_dir)  # read once, checked (one-line errors for a damaged folder)
+    out = export_run(rec, args.out, format=args.format, schema=args.schema)
     path = Path(out)
     files = [f for f in path.rglob("*") if f.is_file()] if path.is_dir() else [path]
     size = sum(f.stat().st_size for f in files)

@@ -9,13 +9,17 @@
 * :func:`~conformal_control.export.to_ros2.write_ros2_mcap` and
   :func:`~conformal_control.export.to_ros2.write_ros2_bag` -- the run as ROS 2 messages,
   one MCAP file (``--schema ros2``) or a bag folder (``--format ros2-bag``) (the ``ros``
-  extra).
+  extra);
+* :func:`~conformal_control.export.destination.safe_output` -- the one way every exporter
+  writes its file: never one of its inputs (a file of the run directory), never through a
+  link, never a device, through an exclusively created temporary file.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from .destination import safe_output
 from .reader import RobotTrack, RunRecord, read_run
 
 __all__ = [
@@ -26,6 +30,7 @@ __all__ = [
     "default_output",
     "export_run",
     "read_run",
+    "safe_output",
 ]
 
 #: format -> file suffix (a ``ros2-bag`` is a folder)
@@ -56,7 +61,7 @@ def default_output(run_dir: str | Path, format: str = "mcap", schema: str = "fox
 
 
 def export_run(
-    run_dir: str | Path,
+    run_dir: str | Path | RunRecord,
     out: str | Path | None = None,
     *,
     format: str = "mcap",
@@ -67,10 +72,13 @@ def export_run(
 
     Parameters
     ----------
-    run_dir : path
-        A run directory (``conformal-control run``, ``--robots`` included).
+    run_dir : path or RunRecord
+        A run directory (``conformal-control run``, ``--robots`` included), or the record
+        :func:`read_run` read from one.
     out : path, optional
-        The file (the folder, for ``ros2-bag``) to write; default :func:`default_output`.
+        The file (a new folder, for ``ros2-bag``) to write; default :func:`default_output`.
+        Never a file of the run directory (but an earlier export of the same format), a
+        link or a device (:mod:`conformal_control.export.destination`).
     format : {"mcap", "rerun", "ros2-bag"}
         The file format (``ros2-bag``: a bag folder as ``ros2 bag record`` writes it).
     schema : {"foxglove", "ros2"}
@@ -79,7 +87,7 @@ def export_run(
     Returns
     -------
     Path
-        The file (or folder) written.
+        The file written.
     """
     if format not in FORMATS:
         import difflib
@@ -93,7 +101,7 @@ def export_run(
         raise ValueError(f"unknown export schema {schema!r} (choose from {', '.join(SCHEMAS)})")
     if schema == "ros2" and format == "rerun":
         raise ValueError("--schema ros2 applies to --format mcap (or give --format ros2-bag)")
-    rec = read_run(run_dir)
+    rec = run_dir if isinstance(run_dir, RunRecord) else read_run(run_dir)
     target = Path(out) if out is not None else default_output(rec.path, format, schema)
     if format == "ros2-bag":
         from .to_ros2 import write_ros2_bag

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .destination import check_destination, safe_output
 from .reader import RunRecord, read_run
 
 __all__ = ["ros2_recording", "write_ros2_bag", "write_ros2_mcap"]
@@ -245,8 +246,9 @@ def write_ros2_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
     run : path or RunRecord
         A run directory or a record read by :func:`read_run`.
     out : path
-        The ``.mcap`` file to write (written whole to a temporary file in its folder, then
-        renamed: an interrupted export leaves no partial file).
+        The ``.mcap`` file to write (its folder is created), through
+        :func:`~conformal_control.export.destination.safe_output`: never a file of the run
+        directory but an earlier ``.mcap``, never a link or a device.
 
     Returns
     -------
@@ -259,7 +261,6 @@ def write_ros2_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
     recording = ros2_recording(rec)
     assert isinstance(recording, Recording)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "version": __version__,
         "kind": rec.kind,
@@ -269,22 +270,13 @@ def write_ros2_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
         "robots": " ".join(r.name for r in rec.robots),
         "scene_topics": "yes" if rec.has_scene else "no (no animation.npz)",
     }
-    with tempfile.NamedTemporaryFile(
-        dir=out.parent, prefix=f".{out.name}.", suffix=".partial", delete=False
-    ) as fh:
-        tmp = Path(fh.name)
-        try:
-            recording.write_mcap(
-                fh,
-                library=f"conformal-control {__version__}",
-                metadata={"conformal_control": meta},
-                attachments={"config.json": (rec.path / "config.json").read_bytes()},
-            )
-        except BaseException:
-            fh.close()
-            tmp.unlink(missing_ok=True)
-            raise
-    tmp.replace(out)
+    with safe_output(out, inputs=(rec.path,), suffix=".mcap") as fh:
+        recording.write_mcap(
+            fh,
+            library=f"conformal-control {__version__}",
+            metadata={"conformal_control": meta},
+            attachments={"config.json": rec.config_bytes},
+        )
     return out
 
 
@@ -317,6 +309,7 @@ def write_ros2_bag(run: str | Path | RunRecord, out: str | Path, *, storage: str
         raise OutputNotWritableError(
             f"{out} exists already: a bag is written into a new folder (give another --out)"
         )
+    check_destination(out, inputs=(rec.path,))
     recording = ros2_recording(rec)
     assert isinstance(recording, Recording)
     out.parent.mkdir(parents=True, exist_ok=True)
