@@ -19,13 +19,28 @@ import math
 import numpy as np
 
 from ..base import Plugin
-from .roles import Barrier
+from .roles import Barrier, EscapeRows
 
-__all__ = ["ConformalConstraint"]
+__all__ = ["EDGES", "ConformalConstraint"]
+
+
+#: The edge rule's settings: ``"escape"`` (the toolkit's default) or ``"paper"`` (the rows
+#: as published, Algorithm 1 read literally).
+EDGES = ("escape", "paper")
 
 
 class ConformalConstraint(Plugin):
     """``dh/dx . v + dh/dx_j . v_j + a h + lambda >= 0`` for a barrier ``h``.
+
+    The edge rule (``edge="escape"``, the default): the row of an agent already within
+    the collision distance is not a row like the others -- a barrier is flat or steep
+    there, and no lambda makes its row informative -- but an escape row
+    (:meth:`escape`): the safety filter neutralises the agent's row and takes its
+    decision among the commands that do not close in on it and move out of its disc at
+    ``escape_gain (d_c - d)`` where the speed set allows
+    (:meth:`~conformal_control.cbf.roles.SafetyFilter.solve_escaping`). ``edge="paper"``
+    keeps the published rows (then an overlapped agent's APF row has no gradient and
+    the filter's fallback decides, e.g. the nominal velocity at a raised lambda).
 
     Parameters
     ----------
@@ -33,16 +48,90 @@ class ConformalConstraint(Plugin):
         The pairwise barrier h (positions in metres).
     a : float
         Slope of alpha(h) = a h, in 1/s (> 0).
+    edge : {"escape", "paper"}
+        The edge rule (see above).
+    collision_distance : float, optional
+        Centre distance (m) below which an agent counts as already too close; default the
+        barrier's ``d_c`` (a barrier without one: the edge rule never applies).
+    escape_gain : float
+        Push gain of the escape rows (1/s, >= 0): move out of a disc entered by ``p``
+        metres at ``escape_gain * p`` m/s (a time constant of ``1 / escape_gain``).
     """
 
-    def __init__(self, barrier: Barrier, a: float = 1.0) -> None:
+    def __init__(
+        self,
+        barrier: Barrier,
+        a: float = 1.0,
+        edge: str = "escape",
+        collision_distance: float | None = None,
+        escape_gain: float = 1.0,
+    ) -> None:
         self.barrier = barrier
         self.a = a
+        self.edge = edge
+        self.collision_distance = collision_distance
+        self.escape_gain = escape_gain
 
     def validate(self) -> None:
-        """Raise ``ValueError`` for a nonsensical slope."""
+        """Raise ``ValueError`` for a nonsensical slope, edge rule or collision distance."""
         if not (isinstance(self.a, (int, float)) and math.isfinite(self.a) and self.a > 0):
             raise ValueError(f"a must be a finite number > 0, got {self.a!r}")
+        if self.edge not in EDGES:
+            raise ValueError(f"edge must be one of {EDGES}, got {self.edge!r}")
+        d = self.collision_distance
+        if d is not None and not (
+            isinstance(d, (int, float)) and not isinstance(d, bool) and math.isfinite(d) and d >= 0
+        ):
+            raise ValueError(f"collision_distance must be a finite number >= 0, got {d!r}")
+        g = self.escape_gain
+        number = isinstance(g, (int, float)) and not isinstance(g, bool)
+        if not (number and math.isfinite(g) and g >= 0):
+            raise ValueError(f"escape_gain must be a finite number >= 0, got {g!r}")
+
+    def edge_distance(self) -> float | None:
+        """The collision distance of the edge rule (m), or None when the rule is off
+        (``edge="paper"``, or no distance given and the barrier has no ``d_c``)."""
+        if self.edge != "escape":
+            return None
+        d = self.collision_distance
+        if d is None:
+            d = getattr(self.barrier, "d_c", None)
+        if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
+            return None
+        return float(d)
+
+    def edge_settings(self) -> tuple[float, float]:
+        """``(collision distance, push gain)`` of the edge rule as the compiled step takes
+        them (a negative distance: the rule is off)."""
+        d = self.edge_distance()
+        return (-1.0, 0.0) if d is None else (d, float(self.escape_gain))
+
+    def escape(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+    ) -> EscapeRows | None:
+        """The edge rule's rows for the agents within the collision distance, or None
+        when none is (or the rule is off).
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' (predicted) positions (m) and velocities (m/s), as for :meth:`rows`.
+        """
+        d_edge = self.edge_distance()
+        if d_edge is None or not len(x_agents):
+            return None
+        diff = np.subtract(x_ego[:2], x_agents, dtype=float)
+        d = np.hypot(diff[:, 0], diff[:, 1])
+        rows = np.flatnonzero(d < d_edge)
+        if not rows.size:
+            return None
+        out = rows[d[rows] > 0.0]
+        U = diff[out] / d[out, None]
+        c = -np.einsum("ij,ij->i", U, np.asarray(v_agents, dtype=float)[out])
+        push = float(self.escape_gain) * (d_edge - d[out])
+        return EscapeRows(rows.astype(np.int64), U, c, push)
 
     def rows(
         self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray

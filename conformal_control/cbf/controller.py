@@ -13,6 +13,7 @@ from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
+from .filters.base import VelocityFilter
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
@@ -26,7 +27,7 @@ from .reciprocal import (
 )
 from .records import CBFIntervalRecord, CBFTruth, ControlState
 from .reference import AttractiveField
-from .roles import FilterResult, ReferenceController, SafetyFilter
+from .roles import EscapeRows, FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
     "CBFIntervalRecord",
@@ -42,7 +43,8 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``), code
+#: 8 the edge rule deciding alone (``kernels2d.ESCAPED``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -52,6 +54,7 @@ _CODE_STATUS = (
     "",
     "",
     "lambda_search",
+    "escape",
 )
 
 
@@ -213,6 +216,7 @@ class ConformalCBFController(
         self.safety_filter.configure_apf(  # type: ignore[attr-defined]
             (K, rho0, d_c, delta, c.barrier.convention == "surface"),  # type: ignore[attr-defined]
             float(c.a),
+            c.edge_settings(),
         )
         return True
 
@@ -434,17 +438,51 @@ class ConformalCBFController(
             )
         else:
             A, b = self.constraint_rows(state, lam)
+            escape = self.escape_rows(state)
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
-            res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
-            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
-                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
+            res = self._solve(v_ref, A, b, self.slack(lam), escape)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def escape_rows(self, state: ControlState) -> EscapeRows | None:
+        """The edge rule's rows at this control instant: the predicted agents already
+        within the collision distance (:meth:`ConformalConstraint.escape
+        <conformal_control.cbf.constraint.ConformalConstraint.escape>`), or None."""
+        if not self._ids.size:
+            return None
+        s = state.step
+        return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
+
+    def _solve(
+        self,
+        v_ref: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        slack: float,
+        escape: EscapeRows | None,
+    ) -> FilterResult:
+        """The safety filter's decision on the rows, with the edge rule (``escape``) and,
+        with robots, the lambda search that keeps the rows without slack."""
+        f = self.safety_filter
+        hard = self._typed and bool(self._col[1].any())
+        if escape is None or not hard or not isinstance(f, VelocityFilter):
+            res = f.solve_escaping(v_ref, A, b, slack, escape)
+            if res.fallback == "lambda_search" and hard:
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
+        A, b = escape.neutralise(A, b, slack)
+        with f.escaping(v_ref, escape) as escaped:
+            if escaped is not None:
+                return escaped
+            res = f.solve(v_ref, A, b, slack)
+            if res.fallback == "lambda_search":
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
 
     def _with_robots(
         self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray

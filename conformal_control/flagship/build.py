@@ -325,7 +325,8 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             delta=si["delta"],
         )
     names["barrier"] = role_name(barrier, "apf")
-    constraint = ConformalConstraint(bar, a=si["a"])
+    # the edge rule on the true collision distance (barrier_margin is the barrier's only)
+    constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
     context["constraint"] = constraint
     context["scale"] = si["loss_scale"]
 

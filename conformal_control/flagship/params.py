@@ -298,7 +298,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention",)
+_TEXT_PARAMS = ("convention", "edge")
 
 
 def check_names(given: dict[str, Any]) -> None:
@@ -391,6 +391,8 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     for name in _TEXT_PARAMS:
         if not isinstance(merged[name], str):
             raise InputError(f"parameter {name} must be a name, got {merged[name]!r}")
+    if merged["edge"] not in ("escape", "paper"):
+        raise InputError(f"parameter edge must be 'escape' or 'paper', got {merged['edge']!r}")
     dims = {k: scene.units.unit_of(k) for k in PARAM_DIMENSIONS}
     return ResolvedParams(
         given=dict(given),
