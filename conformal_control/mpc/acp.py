@@ -116,6 +116,7 @@ class ACPMPC(SamplingMPC):
             The family's fixed extra safe distance (m).
         """
         return math.inf
+
     #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
     default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
