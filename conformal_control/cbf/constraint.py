@@ -21,7 +21,7 @@ import numpy as np
 from ..base import Plugin
 from .roles import Barrier, EscapeRows
 
-__all__ = ["EDGES", "ConformalConstraint"]
+__all__ = ["EDGES", "ConformalConstraint", "time_to_contact"]
 
 
 #: The edge rule's settings: ``"escape"`` (the toolkit's default) or ``"paper"`` (the rows
@@ -99,6 +99,32 @@ class ConformalConstraint(Plugin):
         if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
             return None
         return float(d)
+
+    def contact_distance(self) -> float:
+        """The collision distance (m) of :meth:`contact_times`: the edge rule's
+        (:meth:`edge_distance`), else the barrier's ``d_c``, else 0."""
+        d = self.edge_distance()
+        if d is None:
+            d = getattr(self.barrier, "d_c", None)
+        if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
+            return 0.0
+        return float(d)
+
+    def contact_times(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+    ) -> np.ndarray:
+        """Each agent's predicted time to contact (s): when, moving at its (predicted)
+        velocity, it would come within :meth:`contact_distance` of the robot standing at
+        ``x_ego``; 0 for an agent already that close, ``inf`` for one that never comes.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' (predicted) positions (m) and velocities (m/s).
+        """
+        return time_to_contact(x_ego, x_agents, v_agents, self.contact_distance())
 
     def edge_settings(self) -> tuple[float, float]:
         """``(collision distance, push gain)`` of the edge rule as the compiled step takes
@@ -188,3 +214,32 @@ class ConformalConstraint(Plugin):
         """
         h_max = self.barrier.upper_bound
         return -math.inf if h_max is None else -self.a * h_max
+
+
+def time_to_contact(
+    x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray, d_c: float
+) -> np.ndarray:
+    """When each agent, moving at its velocity, comes within ``d_c`` (centre distance) of
+    a robot standing at ``x_ego`` (s): the first root of ``|r + v t| = d_c``; 0 for an
+    agent already within ``d_c``, ``inf`` for one that never comes that close.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    x_agents, v_agents : ndarrays of shape (N, 2)
+        The agents' positions (m) and velocities (m/s).
+    d_c : float
+        The collision distance (m).
+    """
+    r = np.asarray(x_agents, dtype=float).reshape(-1, 2) - np.asarray(x_ego, dtype=float)[:2]
+    w = np.asarray(v_agents, dtype=float).reshape(-1, 2)
+    rr = np.einsum("ij,ij->i", r, r)
+    rw = np.einsum("ij,ij->i", r, w)
+    ww = np.einsum("ij,ij->i", w, w)
+    disc = rw * rw - ww * (rr - d_c * d_c)
+    out = np.full(r.shape[0], math.inf)
+    come = (rw < 0.0) & (disc >= 0.0) & (ww > 0.0)
+    out[come] = (-rw[come] - np.sqrt(disc[come])) / ww[come]
+    out[rr < d_c * d_c] = 0.0
+    return out

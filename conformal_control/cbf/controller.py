@@ -439,9 +439,11 @@ class ConformalCBFController(
         else:
             A, b = self.constraint_rows(state, lam)
             escape = self.escape_rows(state)
+            ttc = self.contact_times(state, A.shape[0])
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
-            res = self._solve(v_ref, A, b, self.slack(lam), escape)
+                ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
+            res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
@@ -458,6 +460,16 @@ class ConformalCBFController(
         s = state.step
         return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
 
+    def contact_times(self, state: ControlState, n: int) -> np.ndarray:
+        """The predicted times to contact (s) of the ``n`` predicted agents' rows at this
+        control instant (:meth:`ConformalConstraint.contact_times
+        <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`), for a
+        fallback that orders the rows by them."""
+        if not n or not self._ids.size:
+            return np.full(n, math.inf)
+        s = state.step
+        return self.constraint.contact_times(state.x[:2], self._xp[s], self._vp[s])
+
     def _solve(
         self,
         v_ref: np.ndarray,
@@ -465,18 +477,19 @@ class ConformalCBFController(
         b: np.ndarray,
         slack: float,
         escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
     ) -> FilterResult:
         """The safety filter's decision on the rows, with the edge rule (``escape``) and,
         with robots, the lambda search that keeps the rows without slack."""
         f = self.safety_filter
         hard = self._typed and bool(self._col[1].any())
         if escape is None or not hard or not isinstance(f, VelocityFilter):
-            res = f.solve_escaping(v_ref, A, b, slack, escape)
+            res = f.solve_escaping(v_ref, A, b, slack, escape, ttc)
             if res.fallback == "lambda_search" and hard:
                 res = self._keep_hard_rows(v_ref, A, b, slack, res)
             return res
         A, b = escape.neutralise(A, b, slack)
-        with f.escaping(v_ref, escape) as escaped:
+        with f.contact(ttc), f.escaping(v_ref, escape) as escaped:
             if escaped is not None:
                 return escaped
             res = f.solve(v_ref, A, b, slack)

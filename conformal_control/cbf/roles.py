@@ -197,6 +197,7 @@ class SafetyFilter(Plugin, ABC):
         b: np.ndarray,
         lam: float,
         escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
     ) -> FilterResult:
         """:meth:`solve` with the edge rule: no command closing in on an agent already
         within the collision distance (``escape``) when one that does not exists.
@@ -218,6 +219,9 @@ class SafetyFilter(Plugin, ABC):
             The conformal slack lambda (1/s).
         escape : EscapeRows or None
             The agents within the collision distance (None: none).
+        ttc : ndarray of shape (N,), optional
+            The rows' predicted times to contact (s), for a fallback that uses them
+            (:attr:`InfeasibleStep.ttc`); this default ignores them.
         """
         res = self.solve(nominal, A, b, lam)
         if escape is None or not escape.U.shape[0]:
@@ -259,6 +263,11 @@ class InfeasibleStep:
         The agents within the collision distance (their rows in ``A``, ``b`` already
         neutralised); the filter's primitives then work within the escape polygon, and
         the fallback's decision is projected onto it if it leaves it.
+    ttc : ndarray of shape (N,) or None
+        Each row's agent's predicted time to contact (s): when it would reach the
+        collision distance of the robot standing still (0 within it, ``inf`` if never),
+        when the family computed it (:meth:`ConformalConstraint.contact_times
+        <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`).
     """
 
     nominal: np.ndarray
@@ -269,6 +278,7 @@ class InfeasibleStep:
     lam_star: float | None = None
     v_star: np.ndarray | None = None
     escape: EscapeRows | None = None
+    ttc: np.ndarray | None = None
 
 
 class FilterPrimitives(Protocol):

@@ -87,7 +87,7 @@ from ..base import Loss, compiled_as
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier
-from ..cbf.constraint import ConformalConstraint
+from ..cbf.constraint import ConformalConstraint, time_to_contact
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
@@ -960,6 +960,13 @@ class _Engine:
             lam,
             p.last[b].copy(),
             escape=Exact2DSafetyFilter.escape_in(p.work, cap, int(p.poly_len[b]) // 5),
+            # (the collision distance Exact2DSafetyFilter.contact_times takes)
+            ttc=time_to_contact(
+                p.x[b, :2],
+                p.xp[b, int(p.step[b]), :n],
+                p.vp[b, int(p.step[b]), :n],
+                float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+            ),
         )
         res = ep.parts.safety_filter._fall_back(step)
         v = np.asarray(res.decision, dtype=float)

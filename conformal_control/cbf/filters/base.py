@@ -115,6 +115,7 @@ class VelocityFilter(SafetyFilter):
         self._base = (self._S, self._s, self._verts)
         self._hard: tuple[np.ndarray, np.ndarray] | None = None
         self._escaping: EscapeRows | None = None
+        self._ttc: np.ndarray | None = None  # the rows' times to contact (contact())
 
     def _polygon_changed(self) -> None:
         """Called when the speed set the primitives work in changes (a backend holding
@@ -289,7 +290,9 @@ class VelocityFilter(SafetyFilter):
                 self._fell_back = False
                 return FilterResult(v, "optimal", lam)
         last = self._last.copy()
-        step = InfeasibleStep(nominal, A, b, lam, last, lam_star, v_star, self._escaping)
+        step = InfeasibleStep(
+            nominal, A, b, lam, last, lam_star, v_star, self._escaping, self._ttc
+        )
         return self._fall_back(step)
 
     def _fall_back(self, step: InfeasibleStep) -> FilterResult:
@@ -372,6 +375,23 @@ class VelocityFilter(SafetyFilter):
         self._polygon_changed()
 
     @contextmanager
+    def contact(self, ttc: np.ndarray | None) -> Iterator[None]:
+        """Within this context an infeasible step hands ``ttc`` (the rows' predicted times
+        to contact, s) to the fallback (:attr:`InfeasibleStep.ttc
+        <conformal_control.cbf.roles.InfeasibleStep.ttc>`).
+
+        Parameters
+        ----------
+        ttc : ndarray of shape (N,) or None
+            One time per row of the next :meth:`solve` (None: none).
+        """
+        before, self._ttc = self._ttc, ttc
+        try:
+            yield
+        finally:
+            self._ttc = before
+
+    @contextmanager
     def escaping(self, nominal: np.ndarray, escape: EscapeRows) -> Iterator[FilterResult | None]:
         """Within this context the primitives, :meth:`solve` and every fallback work
         within the escape polygon of ``escape``; yields None, or the decision when the
@@ -414,6 +434,7 @@ class VelocityFilter(SafetyFilter):
         b: np.ndarray,
         lam: float,
         escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
     ) -> FilterResult:
         """:meth:`solve` with the edge rule (see :class:`~conformal_control.cbf.roles.EscapeRows`).
 
@@ -437,12 +458,16 @@ class VelocityFilter(SafetyFilter):
             The conformal slack lambda (1/s).
         escape : EscapeRows or None
             The agents within the collision distance (None: none).
+        ttc : ndarray of shape (N,), optional
+            The rows' predicted times to contact (s), handed to the fallback
+            (:meth:`contact`).
         """
-        if escape is None or not escape.rows.size:
-            return self.solve(nominal, A, b, lam)
-        nominal, A, b = self._checked(nominal, A, b)
-        A, b = escape.neutralise(A, b, lam)
-        with self.escaping(nominal, escape) as escaped:
-            if escaped is not None:
-                return escaped
-            return self.solve(nominal, A, b, lam)
+        with self.contact(ttc):
+            if escape is None or not escape.rows.size:
+                return self.solve(nominal, A, b, lam)
+            nominal, A, b = self._checked(nominal, A, b)
+            A, b = escape.neutralise(A, b, lam)
+            with self.escaping(nominal, escape) as escaped:
+                if escaped is not None:
+                    return escaped
+                return self.solve(nominal, A, b, lam)

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from ..constraint import time_to_contact
 from ..fallbacks import Brake, Hold, LambdaSearch
 from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep
 from .base import VelocityFilter
@@ -296,7 +297,8 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._count_escaped()
             self._last = v
             return FilterResult(v, "fallback", math.nan, "escape")
-        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
+        ttc = self.contact_times(x_ego, x_agents, v_agents) if code == k.INFEASIBLE else None
+        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam, ttc)
 
     def step_apf_record(
         self,
@@ -419,9 +421,13 @@ class Exact2DSafetyFilter(VelocityFilter):
                 self.count("hard_rows_relaxed")
             self._last = self._lastv
             return None
+        ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s])
+        return self._step_apf_fallback(
+            code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc
+        )
 
     def _step_record_rest(
         self,
@@ -456,9 +462,30 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._count_escaped()
             self._last = self._lastv
             return None
+        ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s])
+        return self._step_apf_fallback(
+            code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc
+        )
+
+    def contact_times(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+    ) -> np.ndarray:
+        """The agents' predicted times to contact (s) with the collision distance the
+        compiled step was configured with (the edge rule's, else the barrier's ``d_c``),
+        :func:`~conformal_control.cbf.constraint.time_to_contact`.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' predicted positions (m) and velocities (m/s).
+        """
+        d = float(self._prm[12]) if self._prm[12] >= 0 else float(self._prm[2])
+        return time_to_contact(x_ego, x_agents, v_agents, d)
 
     def _step_apf_fallback(
         self,
@@ -469,6 +496,7 @@ class Exact2DSafetyFilter(VelocityFilter):
         n: int,
         nominal: np.ndarray,
         lam: float,
+        ttc: np.ndarray | None = None,
     ) -> FilterResult:
         k = self._k
         if code == k.NONFINITE:
@@ -482,8 +510,9 @@ class Exact2DSafetyFilter(VelocityFilter):
             b = self._work[2 * cap : 2 * cap + n].copy()
             escape = self.escape_in(self._work, cap, self._ns)
             step = InfeasibleStep(
-                np.asarray(nominal, dtype=float), A, b, lam, self._last.copy(), escape=escape
-            )
+                np.asarray(nominal, dtype=float), A, b, lam, self._last.copy(), escape=escape,
+                ttc=ttc,
+            )  # fmt: skip
             return self._fall_back(step)
         self._count_search(code)
         v = np.array((v0, v1))
