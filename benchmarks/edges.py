@@ -121,7 +121,7 @@ def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> N
     print(f"\ndelay-0.5s: {len(chosen)} scenarios where conformal misses the goal and fixed reaches it")
     speed_by_bin: dict[int, list[float]] = defaultdict(list)
     total_by_bin: dict[int, list[float]] = defaultdict(list)
-    med, below, fb, paths, reach_ext = [], [], [], [], 0
+    med, low, below, fb, paths, reach_ext = [], [], [], [], [], 0
     for r in chosen:
         cfg = r["config"]
         unit = float(cfg["meta"].get("lambda_unit_si") or 1.0)
@@ -145,6 +145,7 @@ def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> N
             speed_by_bin[b].extend(toward[sel].tolist())
             total_by_bin[b].extend(total[sel].tolist())
         med.append(float(np.median(lams)))
+        low.append(float(lams.min()))
         below.append(bool((lams < floor).any()))
         fb.append(res.metrics.fallback_share)
         paths.append(res.metrics.path_length)
@@ -153,8 +154,11 @@ def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> N
     if not chosen:
         return
     print(f"fallback share (mean over the episodes): {np.mean(fb):.1%}")
-    print(f"lambda: median over episodes of their median {np.median(med):.1f}/s; "
-          f"below the feasibility floor in {np.mean(below):.0%} of the episodes")
+    print(
+        f"lambda: median over the episodes of their median {np.median(med):.1f}/s, of their "
+        f"lowest {np.median(low):.1f}/s; below the feasibility floor in "
+        f"{np.mean(below):.0%} of the episodes"
+    )
     print(f"path length: mean {np.mean(paths):.1f} m")
     if extend is not None:
         print(f"reach the goal given {extend:g} s: {reach_ext} of {len(chosen)}")

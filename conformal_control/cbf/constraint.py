@@ -111,11 +111,16 @@ class ConformalConstraint(Plugin):
         return float(d)
 
     def contact_times(
-        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+        self,
+        x_ego: np.ndarray,
+        x_agents: np.ndarray,
+        v_agents: np.ndarray,
+        v_ego: np.ndarray | None = None,
     ) -> np.ndarray:
         """Each agent's predicted time to contact (s): when, moving at its (predicted)
-        velocity, it would come within :meth:`contact_distance` of the robot standing at
-        ``x_ego``; 0 for an agent already that close, ``inf`` for one that never comes.
+        velocity, it would come within :meth:`contact_distance` of the robot at ``x_ego``
+        moving at ``v_ego`` (its nominal velocity; standing still if None); 0 for an agent
+        already that close, ``inf`` for one that never comes.
 
         Parameters
         ----------
@@ -123,8 +128,10 @@ class ConformalConstraint(Plugin):
             The robot's position (m).
         x_agents, v_agents : ndarrays of shape (N, 2)
             The agents' (predicted) positions (m) and velocities (m/s).
+        v_ego : ndarray of shape (2,), optional
+            The robot's velocity (m/s).
         """
-        return time_to_contact(x_ego, x_agents, v_agents, self.contact_distance())
+        return time_to_contact(x_ego, x_agents, v_agents, self.contact_distance(), v_ego)
 
     def edge_settings(self) -> tuple[float, float]:
         """``(collision distance, push gain)`` of the edge rule as the compiled step takes
@@ -217,10 +224,15 @@ class ConformalConstraint(Plugin):
 
 
 def time_to_contact(
-    x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray, d_c: float
+    x_ego: np.ndarray,
+    x_agents: np.ndarray,
+    v_agents: np.ndarray,
+    d_c: float,
+    v_ego: np.ndarray | None = None,
 ) -> np.ndarray:
     """When each agent, moving at its velocity, comes within ``d_c`` (centre distance) of
-    a robot standing at ``x_ego`` (s): the first root of ``|r + v t| = d_c``; 0 for an
+    the robot at ``x_ego`` moving at ``v_ego`` (s): the first root of ``|r + w t| = d_c``
+    with ``r`` the agent's position and ``w`` its velocity relative to the robot; 0 for an
     agent already within ``d_c``, ``inf`` for one that never comes that close.
 
     Parameters
@@ -231,9 +243,13 @@ def time_to_contact(
         The agents' positions (m) and velocities (m/s).
     d_c : float
         The collision distance (m).
+    v_ego : ndarray of shape (2,), optional
+        The robot's velocity (m/s); None: standing still.
     """
     r = np.asarray(x_agents, dtype=float).reshape(-1, 2) - np.asarray(x_ego, dtype=float)[:2]
     w = np.asarray(v_agents, dtype=float).reshape(-1, 2)
+    if v_ego is not None:
+        w = w - np.asarray(v_ego, dtype=float)[:2]
     rr = np.einsum("ij,ij->i", r, r)
     rw = np.einsum("ij,ij->i", r, w)
     ww = np.einsum("ij,ij->i", w, w)

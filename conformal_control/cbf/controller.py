@@ -439,7 +439,7 @@ class ConformalCBFController(
         else:
             A, b = self.constraint_rows(state, lam)
             escape = self.escape_rows(state)
-            ttc = self.contact_times(state, A.shape[0])
+            ttc = self.contact_times(state, A.shape[0], v_ref)
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
                 ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
@@ -460,15 +460,26 @@ class ConformalCBFController(
         s = state.step
         return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
 
-    def contact_times(self, state: ControlState, n: int) -> np.ndarray:
+    def contact_times(self, state: ControlState, n: int, v_ref: np.ndarray) -> np.ndarray:
         """The predicted times to contact (s) of the ``n`` predicted agents' rows at this
-        control instant (:meth:`ConformalConstraint.contact_times
+        control instant, the robot moving at its nominal velocity ``v_ref``
+        (:meth:`ConformalConstraint.contact_times
         <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`), for a
-        fallback that orders the rows by them."""
+        fallback that orders the rows by them.
+
+        Parameters
+        ----------
+        state : ControlState
+            The control instant.
+        n : int
+            The number of predicted agents' rows.
+        v_ref : ndarray of shape (2,)
+            The nominal velocity (m/s).
+        """
         if not n or not self._ids.size:
             return np.full(n, math.inf)
         s = state.step
-        return self.constraint.contact_times(state.x[:2], self._xp[s], self._vp[s])
+        return self.constraint.contact_times(state.x[:2], self._xp[s], self._vp[s], v_ref)
 
     def _solve(
         self,

@@ -158,8 +158,9 @@ class GoalAware(Fallback):
     """Meet the rows of the most imminent agents; among those commands, head for the goal.
 
     The rows are ordered by the agents' predicted time to contact
-    (:attr:`InfeasibleStep.ttc`: when each would reach the collision distance of a robot
-    standing still; rows without one, by how far standing still violates them). The
+    (:attr:`InfeasibleStep.ttc`: when each would reach the collision distance of the robot
+    moving at its nominal velocity; ties and rows without one, by how far standing still
+    violates them). The
     largest prefix of that order whose rows can all be met at the requested lambda is
     found by bisection on the projection's feasibility (monotone in the prefix); when even
     the most imminent row cannot be met there, lambda is raised for the prefix only, to

@@ -265,7 +265,8 @@ class InfeasibleStep:
         the fallback's decision is projected onto it if it leaves it.
     ttc : ndarray of shape (N,) or None
         Each row's agent's predicted time to contact (s): when it would reach the
-        collision distance of the robot standing still (0 within it, ``inf`` if never),
+        collision distance of the robot moving at its nominal velocity (0 within it,
+        ``inf`` if never),
         when the family computed it (:meth:`ConformalConstraint.contact_times
         <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`).
     """

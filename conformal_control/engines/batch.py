@@ -966,6 +966,7 @@ class _Engine:
                 p.xp[b, int(p.step[b]), :n],
                 p.vp[b, int(p.step[b]), :n],
                 float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+                np.array((n0, n1)),
             ),
         )
         res = ep.parts.safety_filter._fall_back(step)

@@ -545,10 +545,9 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         if closing is not None:  # the edge rule: never close in while another plan exists
             self.n_edge_ += 1
             allowed = closing <= 1e-9
-            if allowed.any():
-                safe &= allowed
-            else:  # none exists: the plan closing in slowest (then the cheapest)
+            if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
                 allowed = closing <= closing.min() + 1e-9
+            safe &= allowed
         n_safe = int(safe.sum())
         self.n_plans_ += 1
         if n_safe:

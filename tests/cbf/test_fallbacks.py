@@ -251,7 +251,7 @@ def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> N
         xp = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
         vp = -xp / r[:, None] * rng.uniform(0.0, 2.0, (n, 1)) + rng.normal(0, 0.3, (n, 2))
         A, b = con.rows(np.zeros(2), xp, vp)
-        ttc = con.contact_times(np.zeros(2), xp, vp)
+        ttc = con.contact_times(np.zeros(2), xp, vp, 2.0 * goal_dir)
         lam = float(rng.choice([-1.0, -3.0, -6.0]))
         f = make(backend, "goal_aware")
         res = f.solve_escaping(2.0 * goal_dir, A, b, lam, None, ttc)

@@ -297,7 +297,9 @@ class Exact2DSafetyFilter(VelocityFilter):
             self._count_escaped()
             self._last = v
             return FilterResult(v, "fallback", math.nan, "escape")
-        ttc = self.contact_times(x_ego, x_agents, v_agents) if code == k.INFEASIBLE else None
+        ttc = None
+        if code == k.INFEASIBLE:
+            ttc = self.contact_times(x_ego, x_agents, v_agents, nominal)
         return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam, ttc)
 
     def step_apf_record(
@@ -424,7 +426,9 @@ class Exact2DSafetyFilter(VelocityFilter):
         ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s])
+            ttc = self.contact_times(
+                np.array((x0, x1)), pv[0, s], pv[1, s], np.array((n0, n1))
+            )
         return self._step_apf_fallback(
             code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc
         )
@@ -465,17 +469,23 @@ class Exact2DSafetyFilter(VelocityFilter):
         ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s])
+            ttc = self.contact_times(
+                np.array((x0, x1)), pv[0, s], pv[1, s], np.array((n0, n1))
+            )
         return self._step_apf_fallback(
             code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc
         )
 
     def contact_times(
-        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+        self,
+        x_ego: np.ndarray,
+        x_agents: np.ndarray,
+        v_agents: np.ndarray,
+        v_ego: np.ndarray,
     ) -> np.ndarray:
         """The agents' predicted times to contact (s) with the collision distance the
         compiled step was configured with (the edge rule's, else the barrier's ``d_c``),
-        :func:`~conformal_control.cbf.constraint.time_to_contact`.
+        the robot moving at ``v_ego``, :func:`~conformal_control.cbf.constraint.time_to_contact`.
 
         Parameters
         ----------
@@ -483,9 +493,11 @@ class Exact2DSafetyFilter(VelocityFilter):
             The robot's position (m).
         x_agents, v_agents : ndarrays of shape (N, 2)
             The agents' predicted positions (m) and velocities (m/s).
+        v_ego : ndarray of shape (2,)
+            The robot's (nominal) velocity (m/s).
         """
         d = float(self._prm[12]) if self._prm[12] >= 0 else float(self._prm[2])
-        return time_to_contact(x_ego, x_agents, v_agents, d)
+        return time_to_contact(x_ego, x_agents, v_agents, d, v_ego)
 
     def _step_apf_fallback(
         self,
