@@ -1,4 +1,4 @@
-"""The benchmark at the edges (issue 30): collisions, fallback and the speed toward the goal by lambda.
+"""The benchmark at the edges (issue 30): collisions, fallback, speed toward the goal by lambda.
 
 Reads a ``bench run`` folder (its ``results.jsonl`` and the runs' ``metrics.json``) and
 prints, per shift and method: scenarios, success, reach, collision frames per scenario,
@@ -118,7 +118,10 @@ def rerun(cfg: dict[str, Any], data_root: str | None, seconds: float | None) -> 
 
 def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> None:
     chosen = missed(folder)
-    print(f"\ndelay-0.5s: {len(chosen)} scenarios where conformal misses the goal and fixed reaches it")
+    print(
+        f"\ndelay-0.5s: {len(chosen)} scenarios where conformal misses the goal and the "
+        "dev-tuned fixed lambda reaches it"
+    )
     speed_by_bin: dict[int, list[float]] = defaultdict(list)
     total_by_bin: dict[int, list[float]] = defaultdict(list)
     med, low, below, fb, paths, reach_ext = [], [], [], [], [], 0
@@ -166,8 +169,10 @@ def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> N
     print("|---|---:|---:|---:|")
     for b, (lo, hi) in enumerate(BINS):
         s = speed_by_bin[b]
-        name = f"{lo:g} ... {hi:g}" if math.isfinite(lo) and math.isfinite(hi) else (
-            f"above {lo:g}" if math.isfinite(lo) else f"below {hi:g}"
+        name = (
+            f"{lo:g} ... {hi:g}"
+            if math.isfinite(lo) and math.isfinite(hi)
+            else (f"above {lo:g}" if math.isfinite(lo) else f"below {hi:g}")
         )
         if s:
             print(f"| {name} | {len(s)} | {np.mean(s):+.2f} | {np.mean(total_by_bin[b]):.2f} |")

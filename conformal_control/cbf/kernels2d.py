@@ -796,6 +796,7 @@ def apf_step(
     prm: np.ndarray,
     poly: np.ndarray,
     work: np.ndarray,
+    off: np.ndarray,
 ) -> tuple[int, float, float, float, int]:
     """The fused control step for the APF barrier: rows, then :func:`filter_step`.
 
@@ -807,6 +808,12 @@ def apf_step(
     (:func:`edge_views`). The rows are left in A and b (those of the agents within the
     edge rule's distance ``prm`` ``edge`` neutralised, :func:`edge_prepare`); the step is
     taken within the escape polygon when one applies (:func:`edge_step`).
+
+    ``off`` is empty (one lambda for every row), or holds one offset per agent added to
+    its row's ``b`` (lambda run per agent: row j's slack is ``lam + off[j]``, ``lam`` the
+    smallest entry, so the lambda search raises every row alike). The offsets are added
+    before the edge rule neutralises its rows (``b_j = -lam``: met at every lambda >=
+    ``lam``, whatever the agent's own lambda).
     """
     m = xp.shape[0]
     cap = int(prm[11])
@@ -822,6 +829,9 @@ def apf_step(
     s = poly[2 * ns : 3 * ns]
     verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
     apf_rows(x0, x1, xp, vp, prm[0], prm[1], prm[2], prm[3], prm[4] != 0.0, prm[5], A, b)
+    if off.shape[0]:
+        for j in range(m):
+            b[j] += off[j]
     region = work[10 * cap + 3 * ns :]
     region[2] = -1.0  # no escape polygon (read by escape_guard)
     mode = -1
@@ -905,6 +915,7 @@ def apf_control(
     pv: np.ndarray,
     buf: np.ndarray,
     rec: np.ndarray,
+    off: np.ndarray,
 ) -> int:
     """:func:`apf_step` on step ``s`` of an interval's predictions, recorded: returns its code.
 
@@ -918,7 +929,7 @@ def apf_control(
     the decision (copied to the last decision too) and the lambda applied. Nothing is
     written for :data:`NONFINITE`, :data:`TOO_MANY` (more agents than ``buf`` was laid out
     for) or :data:`OUT_OF_RANGE` (``s`` is not a step of ``pv``); the caller makes sure
-    that ``i < rows``.
+    that ``i < rows``. ``off``: the per-agent offsets of :func:`apf_step` (empty: none).
     """
     cap = int(buf[11])
     if pv.shape[2] > cap:
@@ -929,6 +940,7 @@ def apf_control(
     o = HEADER + 5 * ns
     code, v0, v1, lam_used, _ = apf_step(
         x0, x1, pv[0, s], pv[1, s], n0, n1, lam, buf[: HEADER - 3], buf[HEADER:o], buf[o:],
+        off,
     )  # fmt: skip
     if code == NONFINITE:
         return code

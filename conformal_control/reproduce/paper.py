@@ -14,8 +14,9 @@ acts at almost every step and the robot never reaches its goal. So:
 All other parameters are the printed ones, in the paper's units (px, frames); the loss
 scale is 1 per frame. Algorithm 1 runs as published: the toolkit's edge rule (an agent
 already within the collision distance gets an escape row, ``edge="escape"``, the default
-elsewhere) is off: every run gets ``edge="paper"`` (:data:`PAPER_EDGE`). The published code's other defects (velocity scaling, gradient
-power, loss window, lambda x tau in the update, vanishing agents) are *not* reproduced.
+elsewhere) is off: every run gets ``edge="paper"`` (:data:`PAPER_EDGE`). The published
+code's other defects (velocity scaling, gradient power, loss window, lambda x tau in the
+update, vanishing agents) are *not* reproduced.
 """
 
 from __future__ import annotations

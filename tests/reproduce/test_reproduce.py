@@ -11,7 +11,6 @@ import pytest
 from conformal_control.cli import main
 from conformal_control.reproduce import PAPER_TABLES, auto_executor, plan
 
-
 #: ``conformal-control reproduce all --frames 90 --executor serial`` on SDD at 68fa01c (the
 #: commit before the edge rule), wall time and run folders left out
 PAPER_90 = Path(__file__).parent / "paper_90_frames"

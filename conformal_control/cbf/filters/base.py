@@ -290,9 +290,7 @@ class VelocityFilter(SafetyFilter):
                 self._fell_back = False
                 return FilterResult(v, "optimal", lam)
         last = self._last.copy()
-        step = InfeasibleStep(
-            nominal, A, b, lam, last, lam_star, v_star, self._escaping, self._ttc
-        )
+        step = InfeasibleStep(nominal, A, b, lam, last, lam_star, v_star, self._escaping, self._ttc)
         return self._fall_back(step)
 
     def _fall_back(self, step: InfeasibleStep) -> FilterResult:
