@@ -29,6 +29,7 @@ from conformal_control.cbf import (
     Exact2DSafetyFilter,
 )
 from conformal_control.cbf.filters.piqp import QPSafetyFilter
+from conformal_control.cbf.kernels2d import ESCAPE_WIDTH
 from conformal_control.cbf.reciprocal import PeerView, Reciprocity
 from conformal_control.cbf.roles import EscapeRows, FilterResult, SafetyFilter
 from conformal_control.cbf.speed import speed_polygon
@@ -95,9 +96,12 @@ def test_no_command_closes_in_on_a_pedestrian_within_the_collision_distance(
     ctrl.observe([1], ped[None], t=0.0)
     v = ctrl.step(np.zeros(4), t=0.0, goal=np.array([10.0, 0.0]))
     assert closing(v, np.zeros(2), ped, np.zeros(2)) <= TOL
-    # and it moves out at the push speed escape_gain (d_c - d), within the speed bound
+    # and it moves out at the push speed escape_gain (d_c - d), as far as the speed set
+    # allows (its support is at least v_max cos(pi/16); the push rows are loosened by
+    # ESCAPE_WIDTH v_max when they bind)
     push = ctrl.constraint.escape_gain * (D_C - np.hypot(*ped))
-    assert closing(v, np.zeros(2), ped, np.zeros(2)) <= -push + 1e-9
+    reach = V_MAX * (math.cos(math.pi / 16) - ESCAPE_WIDTH)
+    assert closing(v, np.zeros(2), ped, np.zeros(2)) <= -min(push, reach) + 1e-9
     assert np.hypot(*v) <= V_MAX * (1 + 1e-12)
 
 
