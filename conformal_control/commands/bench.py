@@ -183,6 +183,12 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     ru.add_argument(
         "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
     )
+    ru.add_argument(
+        "--seeds",
+        default=None,
+        help="fcp-planar only: comma-separated random states, each scenario once per seed "
+        "(default 0)",
+    )
     ru.add_argument("--out", required=True, help="benchmark folder")
     ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
     ru.add_argument(
@@ -348,7 +354,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
         from ..bench.planar import run_command
 
-        return run_command(args.out, args.methods, args.predictor, args.data_root, args.datasets)
+        return run_command(
+            args.out, args.methods, args.predictor, args.data_root, args.datasets, args.seeds
+        )
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts

@@ -307,17 +307,21 @@ class FCPMPC(SamplingMPC):
         ]
         self.envelope_: FunctionalEnvelope | None = self.envelope
         self._grid: FieldGrid | None = None if self.envelope is None else self.envelope.grid
-        self._anchors = (
-            np.zeros(0, dtype=np.int64)
-            if self._grid is None
-            else self._grid.anchors(int(self.constraint.n_anchors))
-        )
+        self._set_anchors()
         self._since_fit = 0
         self._first_seen = np.zeros((0, 2))
         self._scored = (np.zeros(0, dtype=np.int64), np.zeros(0))
         self._penalty: np.ndarray | None = None
         self.n_fits_ = 0
         self.n_fields_scored_ = 0
+
+    def _set_anchors(self) -> None:
+        """The grid points a realised field is scored at, and where they are (m)."""
+        if self._grid is None:
+            self._anchors, self._anchor_xy = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+        else:
+            self._anchors = self._grid.anchors(int(self.constraint.n_anchors))
+            self._anchor_xy = self._grid.points(self._anchors)
 
     def stats(self) -> dict[str, float]:
         return {
@@ -371,7 +375,9 @@ class FCPMPC(SamplingMPC):
             if back >= len(past):
                 break
             made = past[-1 - back]
-            _, i_now, i_made = np.intersect1d(now["ids"], made["ids"], return_indices=True)
+            _, i_now, i_made = np.intersect1d(
+                now["ids"], made["ids"], assume_unique=True, return_indices=True
+            )
             if i_now.size:
                 out.append((h, (made["pred"][i_made, h - 1], now["cur"][i_now])))
         return out
@@ -383,16 +389,14 @@ class FCPMPC(SamplingMPC):
         env = self.envelope_
         if env is None or not matured:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
-        at = env.grid.points(self._anchors)
+        at = self._anchor_xy
         steps, needed = [], []
         for h, (pred, obs) in matured:
             if h > env.horizon or env.steps[h - 1] is None:
                 continue
-            step = env.steps[h - 1]
-            assert step is not None
             residual = distance_field(pred, at) - distance_field(obs, at)
             steps.append(h)
-            needed.append(1.0 - step.scale_needed(self._anchors, residual))
+            needed.append(1.0 - env.scale_needed(h, self._anchors, residual))
         self.n_fields_scored_ += len(steps)
         return np.array(steps, dtype=np.int64), np.array(needed, dtype=float)
 
@@ -455,7 +459,7 @@ class FCPMPC(SamplingMPC):
         self._grid = FieldGrid.around(
             np.concatenate(pts), margin=float(cal.grid_margin), size=int(cal.grid_size)
         )
-        self._anchors = self._grid.anchors(int(self.constraint.n_anchors))
+        self._set_anchors()
         self._maybe_fit()
 
     def plan_begin(self, state: ControlState, lam: float) -> PlanInputs:

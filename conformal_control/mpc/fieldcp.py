@@ -331,14 +331,79 @@ class EnvelopeStep:
         residual : ndarray of shape (A,)
             A realised residual field there (m).
         """
-        idx = np.asarray(flat, dtype=np.int64)
-        c = np.asarray(residual, dtype=float) - self.mean[idx] - self.slack  # (A,)
-        lin, b = self.lin[:, idx], self.spread[:, idx]  # (K, A)
-        need = c[None, :] - lin
-        with np.errstate(divide="ignore", invalid="ignore"):
-            flat_b = np.where(need <= 0, -np.inf, np.inf)  # b = 0: any scale, or none
-            s = np.where(b > 0, need / np.where(b > 0, b, 1.0), flat_b)
-        return float(s.min(axis=0).max()) if idx.size else -math.inf
+        idx = np.ascontiguousarray(flat, dtype=np.int64)
+        res = np.ascontiguousarray(residual, dtype=np.float64)
+        lin, spread = np.ascontiguousarray(self.lin.T), np.ascontiguousarray(self.spread.T)
+        return float(_scale_needed(idx, res, self.mean, lin, spread, self.slack))
+
+
+@jit
+def _scale_needed(
+    idx: np.ndarray,
+    residual: np.ndarray,
+    mean: np.ndarray,
+    lin: np.ndarray,
+    spread: np.ndarray,
+    slack: float,
+) -> float:
+    """Per grid point the smallest multiplier s with max_k(lin + s spread) >= what the
+    residual needs (a component with spread 0 holds at any s or at none); the largest.
+    ``lin`` and ``spread`` of shape (G, K)."""
+    worst = -np.inf
+    for a in range(idx.shape[0]):
+        g = idx[a]
+        c = residual[a] - mean[g] - slack
+        best = np.inf
+        for k in range(lin.shape[1]):
+            need = c - lin[g, k]
+            b = spread[g, k]
+            if b > 0.0:
+                v = need / b
+            else:
+                v = -np.inf if need <= 0.0 else np.inf
+            if v < best:
+                best = v
+        if best > worst:
+            worst = best
+    return worst
+
+
+@jit
+def _envelope_at(
+    pos: np.ndarray,
+    geometry: np.ndarray,
+    mean: np.ndarray,
+    lin: np.ndarray,
+    spread: np.ndarray,
+    slack: np.ndarray,
+    has: np.ndarray,
+    scale: float,
+    outside: float,
+) -> np.ndarray:
+    """:meth:`FunctionalEnvelope.at` for every (plan, step): the nearest grid point as
+    :meth:`FieldGrid.cells` finds it, then the envelope's formula."""
+    cx, cy, side, size = geometry[0], geometry[1], geometry[2], int(geometry[3])
+    n1 = size - 1
+    n_plans, horizon = pos.shape[0], pos.shape[1]
+    out = np.empty((n_plans, horizon))
+    for n in range(n_plans):
+        for h in range(horizon):
+            if h >= has.shape[0] or not has[h]:
+                out[n, h] = outside
+                continue
+            u = (pos[n, h, 0] - cx + side / 2) / side * n1
+            v = (pos[n, h, 1] - cy + side / 2) / side * n1
+            if not ((u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n1)):
+                out[n, h] = outside
+                continue
+            g = int(np.rint(v)) * size + int(np.rint(u))
+            top = -np.inf
+            for k in range(lin.shape[2]):
+                val = lin[h, g, k] + scale * spread[h, g, k]
+                if val > top:
+                    top = val
+            out[n, h] = mean[h, g] + top + slack[h]
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -358,6 +423,54 @@ class FunctionalEnvelope:
     steps: tuple[EnvelopeStep | None, ...]
     miscoverage: float
 
+    def _stacked(self) -> tuple[np.ndarray, ...]:
+        """The steps' arrays stacked for the compiled lookup (built once)."""
+        got = self.__dict__.get("_stack")
+        if got is not None:
+            return got  # type: ignore[no-any-return]  # set below, a tuple of arrays
+        g = self.grid.n_points
+        real = [s for s in self.steps if s is not None]
+        k = max((s.weights.size for s in real), default=1)
+        h = len(self.steps)
+        # (H, G, K): a grid point's components side by side (the lookup reads them together)
+        mean, slack = np.zeros((h, g)), np.zeros(h)
+        lin, spread = np.full((h, g, k), -np.inf), np.zeros((h, g, k))
+        has = np.zeros(h, dtype=np.bool_)
+        for i, st in enumerate(self.steps):
+            if st is None:
+                continue
+            kk = st.weights.size
+            mean[i], slack[i], has[i] = st.mean, st.slack, True
+            lin[i, :, :kk], spread[i, :, :kk] = st.lin.T, st.spread.T
+        geometry = np.array([*self.grid.center, self.grid.side, float(self.grid.size)])
+        stack = (geometry, mean, lin, spread, slack, has)
+        object.__setattr__(self, "_stack", stack)
+        return stack
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "_stack"}
+
+    def scale_needed(self, step: int, flat: np.ndarray, residual: np.ndarray) -> float:
+        """:meth:`EnvelopeStep.scale_needed` of plan step ``step`` (1..H; ``-inf`` for a
+        step without an envelope: nothing to hold).
+
+        Parameters
+        ----------
+        step : int
+            Plan step, 1..H.
+        flat : int ndarray of shape (A,)
+            Grid points.
+        residual : ndarray of shape (A,)
+            A realised residual field there (m).
+        """
+        _, mean, lin, spread, slack, has = self._stacked()
+        h = int(step) - 1
+        if not 0 <= h < has.size or not has[h]:
+            return -math.inf
+        idx = np.ascontiguousarray(flat, dtype=np.int64)
+        res = np.ascontiguousarray(residual, dtype=np.float64)
+        return float(_scale_needed(idx, res, mean[h], lin[h], spread[h], float(slack[h])))
+
     @property
     def horizon(self) -> int:
         """Plan steps the envelope covers."""
@@ -376,17 +489,11 @@ class FunctionalEnvelope:
         outside : float
             The value outside the grid and for uncalibrated steps (m).
         """
-        pos = np.asarray(positions, dtype=float)
-        n, h = pos.shape[0], pos.shape[1]
-        out = np.full((n, h), float(outside))
-        flat, inside = self.grid.cells(pos)
-        for k in range(min(h, len(self.steps))):
-            step = self.steps[k]
-            if step is None:
-                continue
-            ok = inside[:, k]
-            if ok.any():
-                out[ok, k] = step.values(flat[ok, k], scale)
+        pos = np.ascontiguousarray(positions, dtype=np.float64)
+        geometry, mean, lin, spread, slack, has = self._stacked()
+        out: np.ndarray = _envelope_at(
+            pos, geometry, mean, lin, spread, slack, has, float(scale), float(outside)
+        )
         return out
 
 

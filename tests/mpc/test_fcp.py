@@ -4,6 +4,7 @@ constraint, scoring and errors."""
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from conformal_control.mpc import FCPMPC, FieldCalibration, FieldConstraint, Sam
 from conformal_control.mpc.fcp import FieldMiscoverageLoss
 from conformal_control.mpc.fieldcp import (
     FieldGrid,
+    FunctionalEnvelope,
     distance_field,
     fit_envelope,
     fit_envelope_step,
@@ -127,6 +129,25 @@ def test_calibration_level_and_coverage_against_brute_force():
     for i, ok in zip(cal, inside, strict=True):
         if ok and resid[i] <= step.slack:
             assert (fields[i] <= env + 1e-9).all()
+
+
+def test_compiled_lookup_equals_the_steps_values():
+    grid, fields = toy_fields()
+    step = fit_envelope_step(fields, 0.1, n_components=3, n_mixtures=2)
+    env = FunctionalEnvelope(grid=grid, steps=(step, None, step), miscoverage=0.1)
+    pos = np.random.default_rng(6).uniform(-4, 4, (30, 4, 2))  # some outside the grid
+    got = env.at(pos, scale=0.7, outside=-5.0)
+    flat, inside = grid.cells(pos)
+    for n in range(30):
+        for h in range(4):
+            if h in (1, 3) or not inside[n, h]:
+                assert got[n, h] == -5.0
+            else:
+                assert math.isclose(got[n, h], step.values(flat[n, h : h + 1], 0.7)[0])
+    assert pickle.loads(pickle.dumps(env)).at(pos, 0.7, -5.0).tolist() == got.tolist()
+    f = fields[0][grid.anchors(16)]
+    assert env.scale_needed(3, grid.anchors(16), f) == step.scale_needed(grid.anchors(16), f)
+    assert env.scale_needed(2, grid.anchors(16), f) == -math.inf
 
 
 def test_scale_needed_is_the_exact_threshold():
