@@ -24,6 +24,7 @@ them with their settings and tuning grids):
 ``acp``            adaptive conformal prediction regions (when registered)
 ``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
 ``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``cc_mpc_margin``  the same learning its distance from the forecast's clearance error
 ``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
@@ -405,6 +406,20 @@ _DECLARED: tuple[Family, ...] = (
         tune=(0.05, 0.1, 0.2),
         params={"eta": 0.2, "lambda_min": -1.0, "lambda_max": 1.0},
         roles={"family": "mpc"},
+        role_params={"family": MPC_SEARCH},
+    ),
+    Family(
+        "cc_mpc_margin",
+        "conformal controller (CDT) on the forecast's clearance error: sampling MPC, safe "
+        "distance d_c - lambda, fixed-eta rule on the margin miscoverage (lambda follows the "
+        "predictor's error near pedestrians)",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (rate of intervals whose clearance error exceeds the margin)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.1, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"family": "mpc", "loss": "margin_miscoverage"},
         role_params={"family": MPC_SEARCH},
     ),
     Family(

@@ -26,6 +26,7 @@ from .fcp import (
     FieldMiscoverageLoss,
 )
 from .kernels import evaluate
+from .margin import MarginMiscoverageLoss
 from .settings import Costs, Limits, Sampling
 from .soft import NegativeDistanceLoss, SoftRewardMPC
 from .stepwise import StepwiseMPC
@@ -45,6 +46,7 @@ __all__ = [
     "FieldMiscoverageLoss",
     "Limits",
     "MPCIntervalRecord",
+    "MarginMiscoverageLoss",
     "NegativeDistanceLoss",
     "Plan",
     "PlanMiscoverageLoss",
