@@ -126,6 +126,10 @@ class PlanarTask:
         m, m, rad.
     goal : (x, y)
         m.
+    part : (int, int) or None
+        The time steps (first, last) of the recording's part the scenarios are drawn from
+        (``fcp-planar-dense``'s dev or test part), None: the whole recording. An
+        offline-calibrated ``fcp_mpc`` calibrates once for the part (:func:`scenario_envelope`).
     """
 
     dataset: str
@@ -135,6 +139,7 @@ class PlanarTask:
     max_steps: int
     init_pose: tuple[float, float, float]
     goal: tuple[float, float]
+    part: tuple[int, int] | None = None
 
 
 #: The protocol's tasks, as published. univ: the published repository names the dataset
@@ -283,7 +288,8 @@ def recording(task: PlanarTask, data_root: str | Path | None = None) -> PlanarRe
 DEFINITIONS = ("published", "ours")
 #: How ``fcp_mpc`` is calibrated on the protocol (:mod:`~conformal_control.bench.planar_fcp`):
 #: every time step of the recording (the published runs'), or every time step outside the
-#: scenario's window (ours: the test window is not calibrated on).
+#: scenario's window (ours: the test window is not calibrated on; in the dense suite, the
+#: other part of the recording).
 CALIBRATIONS = ("recording", "held_out")
 
 
@@ -1004,20 +1010,30 @@ def scenario_envelope(
         _PREDICTIONS[key] = predictions_on(
             rec, _predictor(predictor, task, data_root), horizon, STEP_S, frame_of, task.dataset
         )
-    first = rec.sample(start_timestep, task.frame_offset)
+    from .planar_fcp import scenario_samples
+
+    horizon = int(MPC_PARAMS["sampling__horizon"])
+    last_sample = rec.positions.shape[0] - 1
+    if task.part is None:  # the scenario's own grid; held out: its window
+        first = rec.sample(start_timestep, task.frame_offset)
+        span = (first, min(first + min(int(task.max_steps), 200) - 1, last_sample))
+        lo, hi = scenario_samples(rec, first, task.max_steps)
+        window = (lo - horizon, hi)
+    else:  # the part's grid, one calibration for its scenarios; held out: the other part
+        span = (
+            rec.sample(task.part[0], task.frame_offset),
+            rec.sample(task.part[1], task.frame_offset),
+        )
+        span = (max(span[0], 0), min(span[1], last_sample))
+        window = (span[0] - horizon, span[1])
+    exclude = window if method.calibration == "held_out" else None
     cal = tuple(sorted(settings.get_params().items()))
-    ekey = (*key, first, task.max_steps, method.calibration, cal)
+    ekey = (*key, span, exclude, cal)
     if ekey not in _ENVELOPES:
-        if len(_ENVELOPES) >= 8:
+        if len(_ENVELOPES) >= 6:
             _ENVELOPES.pop(next(iter(_ENVELOPES)))
         _ENVELOPES[ekey] = calibrate(
-            rec,
-            _PREDICTIONS[key],
-            first,
-            task.max_steps,
-            [task.init_pose[:2], task.goal],
-            method.calibration,
-            settings,
+            rec, _PREDICTIONS[key], span, [task.init_pose[:2], task.goal], exclude, settings
         )
     return _ENVELOPES[ekey]
 
@@ -1209,6 +1225,7 @@ def protocol_dict(tasks: Mapping[str, PlanarTask] | None = None) -> dict[str, An
                 "max_steps": t.max_steps,
                 "init_pose": list(t.init_pose),
                 "goal": list(t.goal),
+                "part": None if t.part is None else list(t.part),
             }
             for k, t in task_map.items()
         },

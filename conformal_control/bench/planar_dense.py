@@ -156,6 +156,10 @@ def dense_tasks(split: str = "test") -> dict[str, PlanarTask]:
     out = {}
     for name, spec in load_manifest()["datasets"].items():
         starts = spec["dev"] + spec["test"] if split == "all" else spec[split]
+        b = int(spec["boundary_timestep"])
+        part: tuple[int, int] | None = None
+        if split != "all" and spec["dev"]:  # a dataset with two parts
+            part = (-(10**9), b - 1) if split == "dev" else (b, 10**9)
         if starts:
             out[name] = PlanarTask(
                 dataset=name,
@@ -165,6 +169,7 @@ def dense_tasks(split: str = "test") -> dict[str, PlanarTask]:
                 max_steps=int(spec["max_steps"]),
                 init_pose=(*(float(v) for v in spec["init_pose"]),),  # type: ignore[arg-type]
                 goal=(float(spec["goal"][0]), float(spec["goal"][1])),
+                part=part,
             )
     return out
 
@@ -302,6 +307,7 @@ def tasks_of(folder: str | Path) -> dict[str, PlanarTask]:
             max_steps=int(spec["max_steps"]),
             init_pose=(*(float(v) for v in spec["init_pose"]),),  # type: ignore[arg-type]
             goal=(float(spec["goal"][0]), float(spec["goal"][1])),
+            part=None if spec.get("part") is None else (int(spec["part"][0]), int(spec["part"][1])),
         )
     return out
 

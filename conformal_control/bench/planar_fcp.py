@@ -19,7 +19,11 @@ Two calibration sets (:data:`~conformal_control.bench.planar.CALIBRATIONS`):
 
 The published runs cache one calibration per dataset (their cache file's name has no
 scenario), so the second and third scenarios of a dataset reuse the first scenario's grid
-geometry under their own centre and side; here each scenario is calibrated on its own grid.
+geometry under their own centre and side; in ``fcp-planar`` each scenario is calibrated on
+its own grid. In ``fcp-planar-dense`` a task carries its part of the recording
+(:attr:`~conformal_control.bench.planar.PlanarTask.part`): one grid covers the part, one
+calibration serves all its scenarios, and ``held_out`` calibrates on the *other* part
+(test scenarios on the dev part and back, each without the plan's horizon at the boundary).
 """
 
 from __future__ import annotations
@@ -124,13 +128,12 @@ def scenario_samples(recording: Any, first: int, max_steps: int) -> tuple[int, i
 def calibrate(
     recording: Any,
     predictions: PlanarPredictions,
-    first: int,
-    max_steps: int,
+    span: tuple[int, int],
     corners: Sequence[Sequence[float]],
-    how: str,
+    exclude: tuple[int, int] | None,
     settings: FieldCalibration,
 ) -> FunctionalEnvelope:
-    """The envelopes of one scenario (see the module docstring).
+    """Envelopes on the grid covering ``span`` (see the module docstring).
 
     Parameters
     ----------
@@ -138,21 +141,18 @@ def calibrate(
         The scenario's recording.
     predictions : PlanarPredictions
         The run's predictor at every sample (:func:`predictions_on`).
-    first : int
-        The scenario's first sample.
-    max_steps : int
-        Its step limit.
+    span : (int, int)
+        First and last sample whose pedestrians (current and predicted) the grid covers.
     corners : sequence of (x, y)
         The robot's start and goal (m), inside the grid.
-    how : {"recording", "held_out"}
-        Which samples calibrate.
+    exclude : (int, int) or None
+        Prediction times left out of the calibration (inclusive), None: none.
     settings : FieldCalibration
         Grid size, margin, alpha, components, share, seed and slack.
     """
     horizon = predictions.forecasts[0].shape[1] if predictions.forecasts else 12
-    # the grid: the scenario's points over its first min(max_steps, 200) samples
     pts = [np.asarray(corners, dtype=float).reshape(-1, 2)]
-    for i in range(first, first + min(int(max_steps), 200)):
+    for i in range(span[0], span[1] + 1):
         got = predictions.at(i)
         if got is not None:
             cols, fc = got
@@ -161,11 +161,10 @@ def calibrate(
     grid = FieldGrid.around(
         np.concatenate(pts), margin=float(settings.grid_margin), size=int(settings.grid_size)
     )
-    lo, hi = scenario_samples(recording, first, max_steps)
     pairs: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(horizon)]
     rows = zip(predictions.samples, predictions.columns, predictions.forecasts, strict=True)
     for i, cols, fc in rows:
-        if how == "held_out" and lo - horizon <= i <= hi:
+        if exclude is not None and exclude[0] <= i <= exclude[1]:
             continue
         for h in range(1, horizon + 1):
             true = recording.at(int(i) + h, cols)

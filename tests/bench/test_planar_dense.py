@@ -125,3 +125,31 @@ def test_bench_run_and_report_on_the_dense_suite(tmp_path, data_root, capsys):
     printed = capsys.readouterr().out
     assert f"| univ | blind_mpc | constant_velocity | {len(starts)} |" in printed
     assert (out / "report" / "dense.csv").is_file()
+
+
+def test_fcp_calibrates_once_per_part_on_the_other_part(data_root):
+    import dataclasses
+
+    from conformal_control.bench.planar import PLANAR_METHODS, scenario_envelope
+
+    method = PLANAR_METHODS["fcp_mpc"]
+    method = dataclasses.replace(
+        method, family_params={**method.family_params, "calibration__grid_size": 16}
+    )
+    for split in ("test", "dev"):
+        task = dense_tasks(split)["zara1"]
+        first, second = task.start_timesteps[:2]
+        env = scenario_envelope(task, first, method, "constant_velocity", data_root)
+        assert scenario_envelope(task, second, method, "constant_velocity", data_root) is env
+        rec = planar.recording(task, data_root)
+        b = rec.sample(load_manifest()["datasets"]["zara1"]["boundary_timestep"], 0)
+        # the calibration times: the other part, without the 12 steps that reach across
+        times = range(1, b - 12) if split == "test" else range(b, rec.positions.shape[0])
+        for h in (1, 12):
+            n = sum(
+                1
+                for i in times
+                if rec.pedestrians(i).size
+                and np.isfinite(rec.at(i + h, rec.pedestrians(i))).all(axis=1).any()
+            )
+            assert env.steps[h - 1].n_fields == n
