@@ -421,6 +421,16 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             loss_params=_SHORTFALL,
         ),
         PlanarMethod(
+            "mpc_brake",
+            "mpc",
+            "mpc standing still when no sample is safe (the alternative to least_violation, "
+            "compared on the dense suite's dev part)",
+            False,
+            family_params={"fallback": "brake"},
+            loss="distance_shortfall",
+            loss_params=_SHORTFALL,
+        ),
+        PlanarMethod(
             "cc_mpc",
             "mpc",
             "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, "
@@ -536,9 +546,29 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
 }
 
 
+#: A shifted predictor on the protocol: ``<predictor>@delay-<seconds>s`` (the forecast of
+#: data that old used as current, :class:`~conformal_control.predictors.shift.DelayedPredictor`;
+#: a whole number of 0.4 s samples, at most 7).
+SHIFT_SEPARATOR = "@"
+
+
 def _predictor(name: str, task: PlanarTask, data_root: str | Path | None) -> TimedPredictor:
     from .. import registry
 
+    if SHIFT_SEPARATOR in name:
+        import re
+
+        from ..predictors.shift import DelayedPredictor
+
+        base, shift = name.split(SHIFT_SEPARATOR, 1)
+        match = re.fullmatch(r"delay-([0-9]*\.?[0-9]+)s", shift)
+        if match is None:
+            raise ValueError(
+                f"unknown planar predictor shift {shift!r} in {name!r}: use "
+                f"<predictor>{SHIFT_SEPARATOR}delay-<seconds>s"
+            )
+        inner = _predictor(base, task, data_root).predictor
+        return TimedPredictor(DelayedPredictor(inner, delay_s=float(match.group(1))))
     if name == "oracle":
         return TimedPredictor(RecordingOracle(recording(task, data_root)))
     if name == "recorded":
@@ -1040,8 +1070,13 @@ def scenario_envelope(
 
 # ------------------------------------------------------------------------------ suite
 def predictors_for(dataset: str, predictors: Sequence[str]) -> list[str]:
-    """The predictors run on a dataset: ``recorded`` only where its file exists."""
-    return [p for p in predictors if p != "recorded" or dataset in RECORDED_DATASETS]
+    """The predictors run on a dataset: ``recorded`` (and its shifts) only where its file
+    exists."""
+    return [
+        p
+        for p in predictors
+        if p.split(SHIFT_SEPARATOR)[0] != "recorded" or dataset in RECORDED_DATASETS
+    ]
 
 
 def run_planar(

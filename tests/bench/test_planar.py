@@ -325,3 +325,28 @@ def test_bench_run_and_report_on_the_planar_suite(tmp_path, data_root, capsys):
         in printed
     )
     assert (out / "report" / "planar.csv").is_file()
+
+
+def test_a_delayed_predictor_on_the_protocol(data_root):
+    from conformal_control.predictors.base import PredictionQuery
+    from conformal_control.predictors.shift import DelayedPredictor
+
+    task = TASKS["zara1"]
+    late = planar._predictor("constant_velocity@delay-0.8s", task, data_root)
+    assert isinstance(late.predictor, DelayedPredictor) and late.predictor.delay_s == 0.8
+    rec = planar.recording(task, data_root)
+    i = rec.sample(150, 0)
+    cols = rec.pedestrians(i)
+    q = PredictionQuery(rec.ids[cols], rec.history(i, cols), 0.4, 3, 0.0, 150, "zara1")
+    late.reset()
+    direct = DelayedPredictor("constant_velocity", delay_s=0.8)
+    direct.reset()
+    np.testing.assert_array_equal(late.predict(q).positions, direct.predict(q).positions)
+    assert planar.predictors_for("eth", ["recorded@delay-0.8s", "oracle"]) == [
+        "recorded@delay-0.8s",
+        "oracle",
+    ]
+    assert planar.predictors_for("univ", ["recorded@delay-0.8s"]) == []
+    with pytest.raises(ValueError, match="unknown planar predictor shift") as err:
+        planar._predictor("recorded@noise-1m", task, data_root)
+    assert "\n" not in str(err.value)
