@@ -651,8 +651,19 @@ RECORDED_DATASETS = ("eth", "hotel", "zara1")
 def build_method(
     method: PlanarMethod, predictor: Any, seed: int = 0, envelope: Any = None
 ) -> tuple[Any, Any, Any, Any]:
-    """``(family, plant, loss, rule)`` of a method on the protocol's robot (``envelope``:
-    an ``fcp_mpc`` method's calibrated envelopes, :func:`scenario_envelope`)."""
+    """``(family, plant, loss, rule)`` of a method on the protocol's robot.
+
+    Parameters
+    ----------
+    method : PlanarMethod
+        The method.
+    predictor : Predictor
+        The predictor its family plans with.
+    seed : int
+        The family's random state.
+    envelope : FunctionalEnvelope, optional
+        An ``fcp_mpc`` method's calibrated envelopes (:func:`scenario_envelope`).
+    """
     from .. import registry
     from ..cbf.barriers import APFBarrier
     from ..cbf.constraint import ConformalConstraint
