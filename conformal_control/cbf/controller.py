@@ -10,6 +10,7 @@ import numpy as np
 from ..base import DecisionFamily, Environment
 from ..data.synthetic import crossing_scene
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ..spec import parameter_info
 from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
@@ -181,8 +182,9 @@ class ConformalCBFController(
 
     def reset(self) -> None:
         self.constraint.validate()
-        if int(self.substeps) != self.substeps or self.substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        top = int(parameter_info("substeps").high)
+        if int(self.substeps) != self.substeps or not 1 <= self.substeps <= top:
+            raise ValueError(f"substeps must be an integer from 1 to {top}, got {self.substeps!r}")
         if self.reciprocity is not None:
             if not isinstance(self.reciprocity, Reciprocity):
                 raise ValueError(

@@ -70,6 +70,7 @@ from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ..spec import parameter_info
 from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
@@ -287,9 +288,9 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:
         check_groups(self.sampling, self.costs, self.limits)
-        v = self.substeps
-        if isinstance(v, bool) or int(v) != v or v < 1:
-            raise ValueError(f"substeps must be a positive integer, got {v!r}")
+        v, top = self.substeps, int(parameter_info("substeps").high)
+        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
+            raise ValueError(f"substeps must be an integer from 1 to {top}, got {v!r}")
         if not (math.isfinite(self.d_c) and self.d_c >= 0):
             raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
         if not (math.isfinite(self.margin) and self.margin >= 0):

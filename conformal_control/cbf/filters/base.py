@@ -33,6 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ... import registry
+from ...spec import parameter_info
 from ..fallbacks import resolve_fallback
 from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep, SafetyFilter
 from ..speed import speed_polygon
@@ -88,10 +89,13 @@ class VelocityFilter(SafetyFilter):
             raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
         if self.v_max <= 0:
             raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
+        top = int(parameter_info("speed_sides").high)
         if self.speed_sides != 0 and not (
-            int(self.speed_sides) == self.speed_sides and self.speed_sides >= 3
+            int(self.speed_sides) == self.speed_sides and 3 <= self.speed_sides <= top
         ):
-            raise ValueError(f"speed_sides must be 0 (box) or >= 3, got {self.speed_sides!r}")
+            raise ValueError(
+                f"speed_sides must be 0 (box) or from 3 to {top}, got {self.speed_sides!r}"
+            )
         try:
             self.fallback_ = resolve_fallback(self.fallback)
         except (TypeError, ValueError) as exc:
