@@ -418,14 +418,15 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     def lambda_ceiling(cls, margin: float) -> float:
         """lambda's default ceiling for a run with this ``margin`` (m): ``margin``, so the
         safe distance ``d_c + margin - lambda`` never falls below ``d_c``. A family whose
-        lambda is not a length taken off the safe distance returns ``inf``.
+        lambda is not a length taken off the safe distance (its :attr:`lambda_unit` is not
+        ``"m"``) returns ``inf`` (its own ``default_rule_params`` may bound it).
 
         Parameters
         ----------
         margin : float
             The family's fixed extra safe distance (m).
         """
-        return float(margin)
+        return float(margin) if cls.lambda_unit == "m" else math.inf
 
     def safe_radius(self, lam: float) -> np.ndarray:
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -

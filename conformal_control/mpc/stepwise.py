@@ -91,9 +91,10 @@ class StepwiseMPC(StepwiseCBF):
     lambda_init : float
         lambda_1, in the family's unit (m for ``mpc``, a level for the others).
     lambda_max : float, optional
-        The ceiling; default the family's (:meth:`SamplingMPC.lambda_ceiling
-        <conformal_control.mpc.controller.SamplingMPC.lambda_ceiling>`: ``margin`` for
-        ``mpc``, so the safe distance never falls below ``d_c``; none for the others).
+        The ceiling; default the family's: its ``default_rule_params`` ceiling, and at
+        most :meth:`SamplingMPC.lambda_ceiling
+        <conformal_control.mpc.controller.SamplingMPC.lambda_ceiling>` (``margin`` for
+        ``mpc``, whose lambda is a length: the safe distance never falls below ``d_c``).
     stream : Stream, optional
         Timing and sensing of the stream, as for
         :class:`~conformal_control.cbf.stepwise.StepwiseCBF`; its ``substeps`` are the
@@ -213,12 +214,12 @@ class StepwiseMPC(StepwiseCBF):
             step = _number("eta", defaults.get("eta", 1.0) if eta is None else eta)
             check_positive("eta", step, allow_zero=True)
             floor = defaults.get("lambda_min", -math.inf) if lambda_min is None else lambda_min
-            if lambda_max is None:  # the family's ceiling (mpc: the safe distance >= d_c)
+            if lambda_max is None:  # the family's (mpc: its ceiling, the safe distance >= d_c)
                 ceiling = getattr(policy, "lambda_ceiling", None)
                 margin = getattr(policy, "margin", 0.0)
-                lambda_max = math.inf
+                lambda_max = float(defaults.get("lambda_max", math.inf))
                 if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
-                    lambda_max = float(ceiling(float(margin)))
+                    lambda_max = min(lambda_max, float(ceiling(float(margin))))
             check_epsilon(eps, loss.bounds)
             from ..update_rules import FixedEtaRule
 
