@@ -38,7 +38,7 @@ from conformal_control.predictors import ConstantVelocityPredictor
 
 D_C = 1.0
 V_MAX = 2.0
-FALLBACKS = ("lambda_search", "relax", "brake", "hold")
+FALLBACKS = ("lambda_search", "relax", "brake", "hold", "goal_aware")
 #: closing speed tolerated as round-off (m/s)
 TOL = 1e-7
 
@@ -111,7 +111,7 @@ def test_paper_mode_keeps_the_published_behaviour(fallback) -> None:
     ctrl = stepwise(fallback, edge="paper")
     ctrl.observe([1], np.array([[0.3, 0.0]]), t=0.0)
     v = ctrl.step(np.zeros(4), t=0.0, goal=np.array([10.0, 0.0]))
-    expected = [2.0, 0.0] if fallback in ("lambda_search", "relax") else [0.0, 0.0]
+    expected = [0.0, 0.0] if fallback in ("brake", "hold") else [2.0, 0.0]
     np.testing.assert_allclose(v, expected, atol=1e-9)
 
 
