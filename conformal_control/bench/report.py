@@ -50,9 +50,10 @@ from typing import Any
 
 import numpy as np
 
+from ..plotting.jobs import FigureJob, draw_all
 from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
-from .stats import Estimate, PairedComparison, bootstrap_mean, paired_comparison
+from .stats import Estimate, PairedComparison, bootstrap_means, paired_comparisons
 
 __all__ = ["MethodSummary", "canonical_order", "summarise", "write_report"]
 
@@ -149,20 +150,23 @@ def _ok_rows(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict[str, Any]], l
     return ok, failed
 
 
-def _paired(
-    mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]], seed: int
-) -> dict[str, PairedComparison]:
+def _paired_args(
+    mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]]
+) -> list[tuple[list[float], list[float], str, bool]]:
+    """The :func:`~conformal_control.bench.stats.paired_comparisons` arguments of the
+    paired columns (in the order of :data:`PAIRED`)."""
     common = [r for r in mrows if str(r["scenario"]) in base]
-    out = {}
+    out = []
     for col, metric, _, lower in COLUMNS:
         if col not in PAIRED:
             continue
-        out[col] = paired_comparison(
-            [_num(r.get(metric)) for r in common],
-            [_num(base[str(r["scenario"])].get(metric)) for r in common],
-            metric=metric,
-            lower_is_better=lower,
-            seed=seed,
+        out.append(
+            (
+                [_num(r.get(metric)) for r in common],
+                [_num(base[str(r["scenario"])].get(metric)) for r in common],
+                metric,
+                lower,
+            )
         )
     return out
 
@@ -177,13 +181,12 @@ def _shares(mrows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
-def _row_key(row: Mapping[str, Any]) -> tuple[str, str, str, str]:
-    return (
-        str(row.get("shift") or "nominal"),
-        str(row.get("method")),
-        str(row.get("scenario")),
-        json.dumps(row, sort_keys=True, default=str),
-    )
+def _head(row: Mapping[str, Any]) -> tuple[str, str, str]:
+    return (str(row.get("shift") or "nominal"), str(row.get("method")), str(row.get("scenario")))
+
+
+def _content(row: Mapping[str, Any]) -> str:
+    return json.dumps(row, sort_keys=True, default=str)
 
 
 def canonical_order(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -195,7 +198,21 @@ def canonical_order(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]
     rows : iterable of mapping
         Benchmark rows, in any order.
     """
-    return sorted(rows, key=_row_key)
+    rows = list(rows)
+    heads = [_head(r) for r in rows]
+    order = sorted(range(len(rows)), key=heads.__getitem__)
+    # only rows whose shift, method and scenario tie need their whole content (serialising
+    # every row was most of the sort): the same order as sorting by all four keys at once
+    out: list[Mapping[str, Any]] = []
+    i = 0
+    while i < len(order):
+        j = i + 1
+        while j < len(order) and heads[order[j]] == heads[order[i]]:
+            j += 1
+        group = [rows[k] for k in order[i:j]]
+        out += sorted(group, key=_content) if len(group) > 1 else group
+        i = j
+    return out
 
 
 def summarise(
@@ -229,14 +246,28 @@ def summarise(
         failed_count[str(r.get("method"))] += 1
     base = {str(r["scenario"]): r for r in by_method.get(baseline, [])}
     ref = {str(r["scenario"]): r for r in by_method.get(fixed, [])} if fixed else {}
+    # every interval of the shift in one pass (the same numbers as one call each)
+    cols = [col for col, _, _, _ in COLUMNS]
+    paired_cols = [col for col in cols if col in PAIRED]
+    samples: list[list[float]] = []
+    pairs: list[tuple[list[float], list[float], str, bool]] = []
+    for method, mrows in by_method.items():
+        samples += [[_num(r.get(metric)) for r in mrows] for _, metric, _, _ in COLUMNS]
+        if method != baseline and base:
+            pairs += _paired_args(mrows, base)
+        if method != fixed and ref:
+            pairs += _paired_args(mrows, ref)
+    estimates = iter(bootstrap_means(samples, seed=seed))
+    comparisons = iter(paired_comparisons(pairs, seed=seed))
     out = []
     for method, mrows in by_method.items():
-        est = {
-            col: bootstrap_mean([_num(r.get(metric)) for r in mrows], seed=seed)
-            for col, metric, _, _ in COLUMNS
-        }
-        paired = _paired(mrows, base, seed) if method != baseline and base else {}
-        paired_fixed = _paired(mrows, ref, seed) if method != fixed and ref else None
+        est = {col: next(estimates) for col in cols}
+        paired: dict[str, PairedComparison] = {}
+        if method != baseline and base:
+            paired = {col: next(comparisons) for col in paired_cols}
+        paired_fixed = None
+        if method != fixed and ref:
+            paired_fixed = {col: next(comparisons) for col in paired_cols}
         first = mrows[0]
         out.append(
             MethodSummary(
@@ -488,6 +519,9 @@ def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> N
     ]
     for v in views:
         srows = by_shift[v.shift]
+        by_method: dict[Any, list[dict[str, Any]]] = defaultdict(list)
+        for r in srows:
+            by_method[r["method"]].append(r)
         scen: dict[str, dict[str, Any]] = {}
         for r in srows:
             scen.setdefault(str(r["scenario"]), r)
@@ -525,8 +559,8 @@ def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> N
                 n_g = sum(1 for k in group_of if group_of[k] == g)
                 for m in names:
                     sel = [
-                        r for r in srows
-                        if r["method"] == m and group_of.get(str(r["scenario"])) == g
+                        r for r in by_method.get(m, ())
+                        if group_of.get(str(r["scenario"])) == g
                     ]  # fmt: skip
                     if not sel:
                         cells.append("-")
@@ -723,23 +757,42 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bool:
-    import matplotlib
+#: The curves of ``success_vs_epsilon.png``: (family, epsilons, their estimates).
+_Curve = tuple[str, list[float], list[Estimate]]
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
 
+def _epsilon_curves(
+    rows: list[dict[str, Any]], seed: int
+) -> tuple[list[_Curve], float | None] | None:
+    """The success rate against epsilon per epsilon family (nominal shift) and
+    ``nolearn``'s rate; None when no row has an epsilon setting."""
     fams: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         setting = str(r.get("setting") or "")
         if setting.startswith("eps=") and r["shift"] == "nominal":
             fams[str(r.get("family"))][float(setting[4:])].append(_num(r.get("success")))
     if not fams:
-        return False
-    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+        return None
+    curves = []
     for fam, by_eps in sorted(fams.items()):
         eps = sorted(by_eps)
-        est = [bootstrap_mean(by_eps[e], seed=seed) for e in eps]
+        curves.append((fam, eps, bootstrap_means([by_eps[e] for e in eps], seed=seed)))
+    base = [
+        _num(r.get("success"))
+        for r in rows
+        if r.get("method") == "nolearn" and r["shift"] == "nominal"
+    ]
+    return curves, (float(np.nanmean(base)) if base else None)
+
+
+def _success_vs_epsilon(curves: list[_Curve], base: float | None, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    for fam, eps, est in curves:
         ax.errorbar(
             eps,
             [100 * e.mean for e in est],
@@ -748,13 +801,8 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
             capsize=3,
             label=fam,
         )
-    base = [
-        _num(r.get("success"))
-        for r in rows
-        if r.get("method") == "nolearn" and r["shift"] == "nominal"
-    ]
-    if base:
-        ax.axhline(100 * float(np.nanmean(base)), color="0.4", ls=":", label="nolearn")
+    if base is not None:
+        ax.axhline(100 * base, color="0.4", ls=":", label="nolearn")
     ax.set_xlabel("epsilon (target average loss)")
     ax.set_ylabel("success rate (%)")
     ax.set_title("Success against epsilon, nominal predictor (95 % CIs)")
@@ -763,7 +811,6 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    return True
 
 
 # ------------------------------------------------------------------ targets
@@ -1138,10 +1185,15 @@ def write_report(
     )
     if _agents(views, ok, out):
         files["agents.md"] = out / "agents.md"
+    jobs: list[FigureJob] = []
     for v in views:
         name = "frontier.png" if len(views) == 1 else f"frontier-{v.shift}.png"
         files[name] = out / name
-        _frontier(v, files[name], f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)")
-    if _success_vs_epsilon(ok, out / "success_vs_epsilon.png", seed):
+        title_v = f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)"
+        jobs.append((_frontier, (v, files[name], title_v), {}))
+    curves = _epsilon_curves(ok, seed)
+    if curves is not None:
         files["success_vs_epsilon.png"] = out / "success_vs_epsilon.png"
+        jobs.append((_success_vs_epsilon, (*curves, files["success_vs_epsilon.png"]), {}))
+    draw_all(jobs)  # a third of a second each: split between two cores where possible
     return files

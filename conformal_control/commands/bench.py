@@ -441,6 +441,10 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
+    from ..plotting.jobs import prepare
+
+    # the figure process imports matplotlib on the other core while the rows are read
+    prepare(("conformal_control.bench.report",))
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None
