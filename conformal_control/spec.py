@@ -187,7 +187,8 @@ class Parameters:
     edge: str = _p(
         "escape",
         "edge rule: 'escape' (never close in on an agent already within the collision "
-        "distance) or 'paper' (the rows as published)",
+        "distance; the CBF's lambda floored at 0.8 x -a h_max unless lambda_min is set) or "
+        "'paper' (Algorithm 1 as published)",
         kind="text",
     )
     delta: float | None = _p(

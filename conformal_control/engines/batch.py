@@ -1116,7 +1116,7 @@ class _Engine:
                 p.x[b, :2],
                 p.xp[b, int(p.step[b]), :n],
                 p.vp[b, int(p.step[b]), :n],
-                float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+                float(max(p.prm[b, 12], p.prm[b, 2])),
                 np.array((n0, n1)),
             ),
         )
