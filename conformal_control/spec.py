@@ -322,6 +322,7 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "information": ("position", "velocity", "plan"),
     "lambda_scope": ("pedestrians", "robots", "both"),
     "hard_rows": ("level", "last"),
+    "coordination": ("none", "yield"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -340,6 +341,8 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "ignoring",
     "sidestep",
     "hard_rows",
+    "peer_horizon",
+    "coordination",
 )
 
 
@@ -396,6 +399,13 @@ class Robots:
         velocity by.
     hard_rows : {"last", "level"}
         How the lambda search treats the rows lambda is not the slack of.
+    peer_horizon : float, optional
+        Planning families (MPC): how far ahead (s) a robot's plan keeps to the lines it
+        shares with the other robots; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
+        robots gave way broadcasts it, and its partners take the whole of each pair's
+        constraint at the next instant.
 
     Raises
     ------
@@ -419,6 +429,8 @@ class Robots:
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
+    peer_horizon: float | None = None
+    coordination: str = "none"
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -455,6 +467,9 @@ class Robots:
         k = self.sidestep
         if not (_is_real(k) and 0.0 <= k <= math.pi / 2):
             raise _spec_error(f"robots sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        p = self.peer_horizon
+        if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
+            raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
 
     @property
     def scope(self) -> str:

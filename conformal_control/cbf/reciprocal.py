@@ -93,12 +93,14 @@ from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
 __all__ = [
+    "COORDINATION",
     "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
     "RECIPROCITY",
     "SIDESTEP_CONE",
     "SIDESTEP_HORIZON",
+    "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
     "check_peer_view",
@@ -124,6 +126,14 @@ LAMBDA_SCOPES = ROBOT_CHOICES["lambda_scope"]
 
 #: How the lambda search treats the rows without slack (:class:`Reciprocity`).
 HARD_ROWS = ROBOT_CHOICES["hard_rows"]
+
+#: How robots coordinate beyond their shares (:class:`Reciprocity`): ``"yield"``, a robot
+#: whose robot rows gave way broadcasts it and its partners take the whole pair.
+COORDINATION = ROBOT_CHOICES["coordination"]
+
+#: A robot keeps broadcasting that it yields for this long (s) after its robot rows last
+#: gave way (so that its partners' shares do not flip at every control instant).
+YIELD_HOLD_S = 0.5
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -157,6 +167,14 @@ class Reciprocity(Plugin):
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack (see the module
         docstring).
+    peer_horizon : float, optional
+        Planners that look ahead (the MPC family, :mod:`~conformal_control.mpc.peers`):
+        how far ahead (s, > 0) the peers' lines bind their plans; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"``: when the robot's rows about the other robots give way, it broadcasts
+        that it yields (for :data:`YIELD_HOLD_S` seconds), and the world hands both robots
+        of each of its pairs the yielding shares
+        (:class:`~conformal_control.world.multi.MultiRobotWorld`); needs broadcast plans.
     """
 
     def __init__(
@@ -166,12 +184,16 @@ class Reciprocity(Plugin):
         robot_margin: float = 0.0,
         sidestep: float = 0.3,
         hard_rows: str = "last",
+        peer_horizon: float | None = None,
+        coordination: str = "none",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
         self.robot_margin = robot_margin
         self.sidestep = sidestep
         self.hard_rows = hard_rows
+        self.peer_horizon = peer_horizon
+        self.coordination = coordination
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -189,6 +211,15 @@ class Reciprocity(Plugin):
         if self.hard_rows not in HARD_ROWS:
             raise ValueError(
                 f"hard_rows must be one of {', '.join(HARD_ROWS)}, got {self.hard_rows!r}"
+            )
+        p = self.peer_horizon
+        if p is not None and not (
+            isinstance(p, (int, float)) and not isinstance(p, bool) and math.isfinite(p) and p > 0
+        ):
+            raise ValueError(f"peer_horizon must be a duration > 0 (s) or None, got {p!r}")
+        if self.coordination not in COORDINATION:
+            raise ValueError(
+                f"coordination must be one of {', '.join(COORDINATION)}, got {self.coordination!r}"
             )
 
     def turn(self) -> np.ndarray:
@@ -255,6 +286,10 @@ class PeerView:
         with times in seconds since the start (H,) and positions (H, 2); None entries for
         peers that broadcast a velocity only. Planners that look ahead (the MPC family)
         read it.
+    own_plan : tuple of (ndarray, ndarray) or None
+        With ``"plan"``, the path this robot broadcast itself (what its peers read of it),
+        so that both robots of a pair reason from the same two paths; None when it has
+        broadcast none.
     """
 
     ids: np.ndarray
@@ -264,6 +299,7 @@ class PeerView:
     reference: np.ndarray | None = None
     own_reference: np.ndarray | None = None
     plans: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+    own_plan: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n_peers(self) -> int:
