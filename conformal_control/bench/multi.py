@@ -934,7 +934,9 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
             k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
             keyed.setdefault(k, {})[_arm(r)] = r
         by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
-        for (n, method, shift, _), pair in keyed.items():
+        # pairs in the order of their entries, not of the rows: the resampled ratio's CI
+        # is a function of the set of rows (a pool stores them as episodes finish)
+        for (n, method, shift, _), pair in sorted(keyed.items(), key=lambda kv: str(kv[0])):
             if "none" not in pair:
                 continue
             for arm, r in pair.items():
@@ -989,7 +991,8 @@ def _solo_table(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
         k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
         keyed.setdefault(k, {})[_arm(r)] = r
     by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
-    for (n, method, shift, _), arms in keyed.items():
+    # pairs in the order of their entries (the CIs are a function of the set of rows)
+    for (n, method, shift, _), arms in sorted(keyed.items(), key=lambda kv: str(kv[0])):
         if "solo" not in arms:
             continue
         for arm, r in arms.items():
