@@ -307,13 +307,22 @@ def test_fleet_metrics_recomputed_from_the_run_directory(tmp_path, crossing):
     assert pairs == fleet["n_collide_robot_pairs"] > 0
     # robot-pedestrian collision frames from the scene's pedestrians
     peds = sc.positions[sc.start_index : sc.start_index + f]
-    ped_frames = 0
+    ped_frames = near = 0
     for k in range(f):
         p = peds[k][np.isfinite(peds[k, :, 0])]
         for i in range(n):
             if act[k, i] and p.size and np.hypot(*(p - x[k, i]).T).min() < sc.collision_distance:
                 ped_frames += 1
+                # another robot (under way or parked) within 2.5 m of the hit robot
+                near += any(math.dist(x[k, i], x[k, j]) < 2.5 for j in range(n) if j != i)
     assert ped_frames == fleet["n_collide_pedestrian"] > 0
+    assert near == fleet["n_collide_pedestrian_robot_near"] > 0
+    assert fleet["n_collide_pedestrian_avoidable"] == sum(
+        json.loads((out / "robots" / f"robot_{i:02d}" / "metrics.json").read_text())[
+            "n_collide_avoidable"
+        ]
+        for i in range(n)
+    )
     # goals and makespan: a robot stops being under way when it reaches its goal (the
     # world ends before its time limit only when every robot has); it got there within
     # one frame after its last frame under way
