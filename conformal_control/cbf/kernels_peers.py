@@ -44,11 +44,24 @@ from .kernels2d import (
 )
 from .pyhypot import c_hypot
 
-__all__ = ["SEARCH_ALL", "apf_control_peers", "apf_rows_weighted", "lexicographic_search"]
+__all__ = [
+    "PEDESTRIANS_GAVE_WAY",
+    "ROBOTS_GAVE_WAY",
+    "SEARCH_ALL",
+    "apf_control_peers",
+    "apf_rows_weighted",
+    "lexicographic_search",
+    "priority_search",
+]
 
 #: Result code of :func:`apf_control_peers`: the search had to give the rows without
 #: slack some too (the common level ended above 0).
 SEARCH_ALL = 7
+
+#: Result codes of :func:`priority_search`: only the robot rows gave way; the pedestrians'
+#: rows gave way too (their level was raised).
+ROBOTS_GAVE_WAY = 8
+PEDESTRIANS_GAVE_WAY = 9
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -172,6 +185,130 @@ def lexicographic_search(
         else:
             lo = mid
     return (SEARCHED if keep or hi <= 0.0 else SEARCH_ALL), v0, v1, hi, solves
+
+
+@jit
+def _feasible_priority(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    base: np.ndarray,
+    robot: np.ndarray,
+    sigma: float,
+    delta: float,
+    S: np.ndarray,
+    s: np.ndarray,
+    radius: float,
+    G: np.ndarray,
+    h: np.ndarray,
+    rhs: np.ndarray,
+) -> tuple[bool, float, float]:
+    """The projection with the robot rows at ``base + sigma``, the others at ``base +
+    delta`` (rows with a zero gradient left out)."""
+    for j in range(A.shape[0]):
+        if A[j, 0] == 0.0 and A[j, 1] == 0.0:
+            rhs[j] = math.inf
+        else:
+            rhs[j] = base[j] + (sigma if robot[j] != 0.0 else delta)
+    return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+
+
+@jit
+def priority_search(
+    n0: float,
+    n1: float,
+    A: np.ndarray,
+    b: np.ndarray,
+    robot: np.ndarray,
+    lam: float,
+    S: np.ndarray,
+    s: np.ndarray,
+    verts: np.ndarray,
+    radius: float,
+    margin_rel: float,
+    G: np.ndarray,
+    h: np.ndarray,
+    rhs: np.ndarray,
+    Ak: np.ndarray,
+    bk: np.ndarray,
+    base: np.ndarray,
+) -> tuple[int, float, float, float, int]:
+    """The fallback of an infeasible step with the pedestrians' rows given way last
+    (``robot`` != 0: a robot row; every row's base is ``b + lam``, the rows without slack
+    holding ``- lam`` in ``b``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
+
+    The pedestrians' rows alone first: the smallest level ``delta >= 0`` at which they
+    can be met; with them there, the smallest ``sigma >= 0`` added to the robot rows,
+    bracketed by 0 and the level that meets them anywhere in the speed disc, bisected to
+    the filter's margin; the projection there. Rows with a zero gradient are left out.
+    :data:`ROBOTS_GAVE_WAY` when only robot rows were relaxed, :data:`PEDESTRIANS_GAVE_WAY`
+    when the pedestrians' level was raised (robot rows relaxed or not), :data:`SEARCHED`
+    when neither was needed after all (round-off). ``base`` is scratch (length >= rows).
+    The compiled twin of :func:`~conformal_control.cbf.reciprocal.priority_search`.
+    """
+    m = A.shape[0]
+    mp = 0
+    top = 0.0
+    for j in range(m):
+        base[j] = b[j] + lam
+        nrm = c_hypot(A[j, 0], A[j, 1])
+        if nrm == 0.0:
+            continue
+        if robot[j] != 0.0:
+            t = -base[j] + nrm * radius
+            if t > top:
+                top = t
+        else:
+            G[mp, 0] = A[j, 0]
+            G[mp, 1] = A[j, 1]
+            h[mp] = base[j]
+            mp += 1
+    solves = 0
+    delta = 0.0
+    raised = False
+    if mp:
+        star, _, _ = smallest_lambda(G[:mp], h[:mp].copy(), S, s, verts, radius, Ak, bk)
+        solves += 1
+        pad = lambda_margin(abs(star), A, base[:m], radius, margin_rel)
+        if star + pad > 0.0:
+            delta = max(star, 0.0) + pad
+            raised = star > 0.0
+    margin = lambda_margin(max(top, delta), A, base[:m], radius, margin_rel)
+    hi = top + margin
+    ok, v0, v1 = _feasible_priority(
+        n0, n1, A, base, robot, hi, delta, S, s, radius, G, h, rhs
+    )  # fmt: skip
+    solves += 1
+    if not ok:  # round-off at the pedestrians' level: every row relaxed together
+        star, w0, w1 = smallest_lambda(A, base[:m].copy(), S, s, verts, radius, Ak, bk)
+        floor = max(0.0, star)
+        used = floor + lambda_margin(floor, A, base[:m], radius, margin_rel)
+        for j in range(m):
+            rhs[j] = base[j] + used
+        ok, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
+        if ok:
+            return PEDESTRIANS_GAVE_WAY, v0, v1, lam + used, solves + 2
+        return PEDESTRIANS_GAVE_WAY, w0, w1, lam + floor, solves + 2
+    ok, w0, w1 = _feasible_priority(
+        n0, n1, A, base, robot, 0.0, delta, S, s, radius, G, h, rhs
+    )  # fmt: skip
+    solves += 1
+    if ok:
+        return (PEDESTRIANS_GAVE_WAY if raised else SEARCHED), w0, w1, lam + delta, solves
+    lo = 0.0
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        ok, w0, w1 = _feasible_priority(
+            n0, n1, A, base, robot, mid, delta, S, s, radius, G, h, rhs
+        )  # fmt: skip
+        solves += 1
+        if ok:
+            hi, v0, v1 = mid, w0, w1
+        else:
+            lo = mid
+    return (PEDESTRIANS_GAVE_WAY if raised else ROBOTS_GAVE_WAY), v0, v1, lam + delta, solves
 
 
 @jit

@@ -108,6 +108,7 @@ __all__ = [
     "lexicographic_search",
     "pair_shares",
     "peer_rows",
+    "priority_search",
     "reference_velocities",
     "sidestep",
 ]
@@ -532,3 +533,101 @@ def lexicographic_search(
         else:
             lo = mid
     return v, hi, not keep and hi > 0.0
+
+
+def priority_search(
+    solver: Any,
+    nominal: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    robot: np.ndarray,
+    lam: float,
+) -> tuple[np.ndarray, float, bool, bool]:
+    """The ``lambda_search`` fallback with the pedestrians' rows given way last
+    (``priority="pedestrians"``): ``(v, lambda_applied, robot rows relaxed, pedestrian
+    rows relaxed)``.
+
+    Every row's base is ``A v + b + lam >= 0`` (rows without slack already hold ``- lam``
+    in ``b``). First the pedestrians' rows (``~robot``) alone: the smallest level
+    ``delta >= 0`` added to them at which they can be met (0 when they can at the base);
+    then, with them at that level (plus the solver's margin when raised), the smallest
+    ``sigma >= 0`` added to the robot rows, by bisection on the projection's feasibility
+    (monotone in ``sigma``; at the top every robot row holds anywhere in the speed disc);
+    the projection there. Rows with a zero gradient (an agent already overlapped: no
+    velocity changes them) are left out. The generic path's twin of
+    :func:`~conformal_control.cbf.kernels_peers.priority_search`.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``min_lambda``,
+        ``search_margin``, ``v_max`` and, when it has one, ``speed_sides``).
+    nominal : ndarray of shape (2,)
+        The nominal velocity (m/s).
+    A : ndarray of shape (R, 2)
+        The rows' velocity coefficients.
+    b : ndarray of shape (R,)
+        Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
+    robot : ndarray of bool, shape (R,)
+        Which rows are about robots (they give way first).
+    lam : float
+        The lambda of the step (1/s).
+
+    Returns
+    -------
+    v : ndarray of shape (2,)
+        The decision (m/s).
+    lambda_applied : float
+        ``lam`` plus the pedestrians' level (1/s).
+    robots_relaxed, pedestrians_relaxed : bool
+        Whether ``sigma > 0``, ``delta > 0``.
+    """
+    live = np.hypot(A[:, 0], A[:, 1]) > 0.0
+    robot = np.asarray(robot, dtype=bool)
+    if not live.all():
+        A, b, robot = A[live], b[live], robot[live]
+    base = b + lam
+    ped = ~robot
+    delta = 0.0
+    raised = False
+    if ped.any():
+        star, _ = solver.min_lambda(A[ped], base[ped])
+        pad = float(solver.search_margin(abs(float(star)), A, base))
+        if star + pad > 0.0:  # met at the base only within round-off, or not at all
+            delta = max(float(star), 0.0) + pad
+            raised = star > 0.0
+
+    def at(sigma: float) -> np.ndarray | None:
+        out: np.ndarray | None = solver.project(nominal, A, base + np.where(robot, sigma, delta))
+        return out
+
+    sides = getattr(solver, "speed_sides", None)
+    if isinstance(sides, int):  # the disc around the filter's speed polygon
+        reach = speed_polygon(sides, float(solver.v_max))[3]
+    else:
+        reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
+    top = (-base + np.hypot(A[:, 0], A[:, 1]) * reach)[robot]
+    margin = float(solver.search_margin(max(float(top.max(initial=0.0)), delta), A, base))
+    hi = max(float(top.max(initial=0.0)), 0.0) + margin
+    v = at(hi)
+    if v is None:  # round-off at the pedestrians' level: every row relaxed together
+        star, v_star = solver.min_lambda(A, base)
+        floor = max(0.0, float(star))
+        used = floor + float(solver.search_margin(floor, A, base))
+        w = solver.project(nominal, A, base + used)
+        out = np.asarray(v_star, float) if w is None else w
+        return out, lam + (floor if w is None else used), bool(robot.any()), True
+    w = at(0.0)
+    if w is not None:
+        return w, lam + delta, False, raised
+    lo = 0.0
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        w = at(mid)
+        if w is not None:
+            hi, v = mid, w
+        else:
+            lo = mid
+    return v, lam + delta, True, raised

@@ -251,3 +251,80 @@ def test_sidestep_turns_away_from_the_robot_ahead_only_when_held_back():
     np.testing.assert_allclose(math.atan2(left[1], left[0]), 0.3)
     np.testing.assert_array_equal(sidestep(n, stopped, behind, turn, 0.8), n)
     np.testing.assert_array_equal(sidestep(n, moving, ahead_left, turn, 0.8), n)
+
+
+# -------------------------------------------------------------------- priority search
+def _squeeze(rng, n_ped=3, n_rob=2):
+    """Rows of a robot at the origin among pedestrians and robots close around it."""
+    from conformal_control.cbf.constraint import ConformalConstraint
+
+    c = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=3.0, d_c=0.7), a=2.0)
+    ang = rng.uniform(0, 2 * np.pi, n_ped + n_rob)
+    dist = rng.uniform(0.8, 1.6, n_ped + n_rob)
+    pos = np.c_[np.cos(ang), np.sin(ang)] * dist[:, None]
+    vel = -pos * rng.uniform(0.5, 2.0, (n_ped + n_rob, 1))  # all walking at the robot
+    A, b = c.rows(np.zeros(2), pos, vel)
+    robot = np.r_[np.zeros(n_ped, bool), np.ones(n_rob, bool)]
+    return A, b, robot
+
+
+def test_the_priority_search_keeps_the_pedestrians_rows_and_relaxes_the_robots_least():
+    from conformal_control.cbf.reciprocal import priority_search
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    rng = np.random.default_rng(3)
+    seen = {"robots": 0, "pedestrians": 0}
+    for _ in range(300):
+        A, b, robot = _squeeze(rng)
+        lam = float(rng.uniform(-3, 1))
+        nominal = rng.uniform(-2, 2, 2)
+        if f.project(nominal, A, b + lam) is not None:
+            continue  # feasible: no fallback
+        v, used, rob, ped = priority_search(f, nominal, A, b, robot, lam)
+        slack = A @ v + b
+        ped_alone, _ = f.min_lambda(A[~robot], b[~robot])
+        if ped_alone < lam - 1e-6:  # the pedestrians' rows can be met at lam: they are
+            assert not ped and used == pytest.approx(lam, abs=1e-6)
+            assert slack[~robot].min() + lam >= -1e-7
+            assert rob  # what was infeasible was the robot rows
+            seen["robots"] += 1
+            # relaxed least: a smaller level on the robot rows is infeasible
+            sigma = -(slack[robot] + lam).min()
+            assert sigma > 0
+            lower = b + lam + np.where(robot, 0.98 * sigma, 0.0)
+            assert f.project(nominal, A, lower) is None
+        elif ped_alone > lam + 1e-6:  # they cannot: raised by the least possible level
+            assert ped and used == pytest.approx(ped_alone, abs=1e-6)
+            assert slack[~robot].min() + used >= -1e-7
+            seen["pedestrians"] += 1
+    assert seen["robots"] > 10 and seen["pedestrians"] > 10
+
+
+def test_the_compiled_priority_search_equals_the_generic_one():
+    from conformal_control.cbf import kernels_peers as kp
+    from conformal_control.cbf.reciprocal import priority_search
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    rng = np.random.default_rng(4)
+    n = 0
+    for _ in range(200):
+        A, b, robot = _squeeze(rng)
+        lam = float(rng.uniform(-3, 1))
+        nominal = rng.uniform(-2, 2, 2)
+        if f.project(nominal, A, b + lam) is not None:
+            continue
+        v, used, rob, ped = priority_search(f, nominal, A, b, robot, lam)
+        m = A.shape[0]
+        f._buffers(m)
+        code, v0, v1, used_c, _ = kp.priority_search(
+            float(nominal[0]), float(nominal[1]), np.ascontiguousarray(A), b.copy(),
+            robot.astype(float), lam, f._S, f._s, f._verts, f._radius, f.lambda_margin,
+            f._G, f._h, np.zeros(m), np.zeros((m, 2)), np.zeros(m), np.zeros(m),
+        )  # fmt: skip
+        np.testing.assert_allclose([v0, v1], v, atol=1e-9)
+        assert used_c == pytest.approx(used, abs=1e-9)
+        assert code == (kp.PEDESTRIANS_GAVE_WAY if ped else kp.ROBOTS_GAVE_WAY)
+        n += 1
+    assert n > 20
