@@ -323,6 +323,7 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "lambda_scope": ("pedestrians", "robots", "both"),
     "hard_rows": ("level", "last"),
     "coordination": ("none", "yield"),
+    "priority": ("pedestrians", "robots"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -343,6 +344,7 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "hard_rows",
     "peer_horizon",
     "coordination",
+    "priority",
 )
 
 
@@ -406,6 +408,10 @@ class Robots:
         ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
         robots gave way broadcasts it, and its partners take the whole of each pair's
         constraint at the next instant.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
+        the robot rows as ``hard_rows`` says).
 
     Raises
     ------
@@ -431,6 +437,7 @@ class Robots:
     hard_rows: str = "last"
     peer_horizon: float | None = None
     coordination: str = "none"
+    priority: str = "robots"
 
     def __post_init__(self) -> None:
         n = self.robots

@@ -83,6 +83,11 @@ LAYOUTS = ("swap", "cross", "lanes", "random")
 #: fleet's pedestrian contacts are compared with).
 RECIPROCITY_OPTIONS = ("solo", "none", "reciprocal")
 
+#: The robots section's settings a benchmark's base run may give the reciprocal runs besides
+#: ``information`` and ``lambda_scope`` (recorded in each row's ``options`` when not the
+#: defaults).
+RECIPROCAL_OPTIONS = ("sidestep", "hard_rows", "peer_horizon", "coordination", "priority")
+
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
 DEFAULT_RECIPROCITY = RECIPROCITY_OPTIONS
 
@@ -627,7 +632,7 @@ def multi_bench_base(
     kept = RunSpec(predictor=base.predictor, seed=base.seed, robots=base.robots)
     extra = [f for f in RunSpec.__dataclass_fields__ if getattr(base, f) != getattr(kept, f)]
     default = Robots()
-    taken = ("information", "lambda_scope", "sidestep", "hard_rows", "peer_horizon", "coordination")
+    taken = ("information", "lambda_scope", *RECIPROCAL_OPTIONS)
     extra += [
         f"robots.{f}"
         for f in Robots.__dataclass_fields__
@@ -636,16 +641,15 @@ def multi_bench_base(
     if extra:
         raise InputError(
             "the multi-robot benchmark's base run sets only its predictor, seed and the "
-            "robots' information, lambda_scope, sidestep, hard_rows, peer_horizon and "
-            "coordination (the "
-            f"suite and the methods set the rest); drop {', '.join(extra)}"
+            f"robots' {', '.join(taken)} (the suite and the methods set the rest); drop "
+            f"{', '.join(extra)}"
         )
     predictor, params = base.role("predictor")
     if not isinstance(predictor, str) or params:
         raise InputError("the multi-robot benchmark's predictor is a registered name")
     options = {
         k: getattr(section, k)
-        for k in ("sidestep", "hard_rows", "peer_horizon", "coordination")
+        for k in RECIPROCAL_OPTIONS
         if getattr(section, k) != getattr(default, k)
     }
     # a section without a lambda scope: the reciprocal runs' default
@@ -697,7 +701,7 @@ def run_multi_bench(
         What every run takes (:func:`multi_bench_base`): the predictor (a method may
         replace it) and the seed; its robots section (:class:`~conformal_control.spec.Robots`)
         the reciprocal runs' ``information``, ``lambda_scope`` (see
-        :mod:`conformal_control.cbf.reciprocal`), ``sidestep`` and ``hard_rows`` (these two
+        :mod:`conformal_control.cbf.reciprocal`) and :data:`RECIPROCAL_OPTIONS` (these
         recorded in each row, ``options``, and key when not the defaults). Default:
         constant velocity, seed 0, the section's defaults.
     data_root : str, optional

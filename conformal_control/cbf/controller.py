@@ -17,10 +17,12 @@ from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
+    YIELD_HOLD_S,
     Reciprocity,
     check_peer_view,
     lexicographic_search,
     peer_rows,
+    priority_search,
     reference_velocities,
     sidestep,
 )
@@ -42,7 +44,8 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too, codes 8 and 9 the priority
+#: search that relaxed the robot rows, the pedestrians' (``kernels_peers``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -51,6 +54,8 @@ _CODE_STATUS = (
     "lambda_search",
     "",
     "",
+    "lambda_search",
+    "lambda_search",
     "lambda_search",
 )
 
@@ -194,6 +199,8 @@ class ConformalCBFController(
         self.reference.reset()
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
+        self._yield_until = -math.inf  # broadcast that it yields until then (s)
+        self._t_now = 0.0
         self._fused = self._fused_apf()
         self._pv = np.zeros((2, 0, 0, 2))
         self.forecast_info_: dict[str, Any] = {}
@@ -421,6 +428,7 @@ class ConformalCBFController(
         return lam
 
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        self._t_now = float(state.t)
         if self._fast:
             return self._decide_compiled(state, lam)
         x_ego = state.x[:2]
@@ -437,14 +445,29 @@ class ConformalCBFController(
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
-            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
-                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
+            if res.fallback == "lambda_search" and self._typed:
+                if self._peer_ids.size and self._turn[6]:  # robot rows give way first
+                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res, True)
+                elif self._col[1].any():
+                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
+            if res.status == "fallback" and self._peer_ids.size:
+                self._yield_until = state.t + YIELD_HOLD_S
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def yielding(self) -> bool:
+        """Whether this robot says it yields to the other robots: its reciprocity's
+        ``coordination="yield"``, and a decision with robot rows within the last
+        :data:`~conformal_control.cbf.reciprocal.YIELD_HOLD_S` seconds fell back (not every
+        row could be met; :mod:`~conformal_control.cbf.reciprocal`)."""
+        rec = self.reciprocity
+        return bool(
+            rec is not None and rec.coordination == "yield" and self._t_now < self._yield_until
+        )
 
     def _with_robots(
         self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray
@@ -467,13 +490,28 @@ class ConformalCBFController(
         return np.concatenate([A, Ar]), np.concatenate([b, br])
 
     def _keep_hard_rows(
-        self, v_ref: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float, res: FilterResult
+        self,
+        v_ref: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        lam: float,
+        res: FilterResult,
+        first: bool = False,
     ) -> FilterResult:
         """The lambda search again, keeping the rows without slack
-        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`)."""
+        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`), or with ``first``
+        giving way with the robot rows first
+        (:func:`~conformal_control.cbf.reciprocal.priority_search`)."""
         f = self.safety_filter
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
+        if first:
+            robot = np.zeros(A.shape[0], dtype=bool)
+            robot[self._ids.size :] = True
+            v, used, rob, ped = priority_search(f, v_ref, A, b, robot, lam)
+            if rob or ped:
+                f.count("pedestrian_rows_relaxed" if ped else "robot_rows_relaxed")  # type: ignore[attr-defined]
+            return FilterResult(v, "fallback", used, "lambda_search")
         keep = self._turn[5] != 0.0
         v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam, keep)
         if relaxed:
@@ -498,6 +536,8 @@ class ConformalCBFController(
         res: FilterResult | None
         if self._special:
             res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
+            if self._peer_ids.size and (self._rc[i] > 1 or res is not None):  # fell back
+                self._yield_until = state.t + YIELD_HOLD_S
         else:
             res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
                 x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i

@@ -447,12 +447,20 @@ def apf_control_peers(
     apf_rows_weighted(x0, x1, pv[0, s], pv[1, s], col, lam, prm, A, b)
     search = prm[9] != 0.0
     hard = col[1, :m]
-    lexicographic = search and hard.any()
+    first = turn[6] != 0.0 and m > npred  # robot rows give way first (priority_search)
+    lexicographic = search and (hard.any() or first)
     code, v0, v1, lam_used, _ = filter_step(
         n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8],
         search and not lexicographic, prm[10], G, h, rhs, Ak, bk,
     )  # fmt: skip
-    if lexicographic and code == INFEASIBLE:
+    if first and code == INFEASIBLE and search:
+        robot = np.zeros(m)
+        robot[npred:] = 1.0
+        code, v0, v1, lam_used, _ = priority_search(
+            n0, n1, A, b, robot, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak, bk,
+            np.empty(m),
+        )  # fmt: skip
+    elif lexicographic and code == INFEASIBLE:
         code, v0, v1, lam_used, _ = lexicographic_search(
             n0, n1, A, b, hard, lam, turn[5] != 0.0, S, sv, verts, prm[6], prm[10], G, h, rhs,
             Ak, bk,

@@ -97,6 +97,7 @@ __all__ = [
     "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
+    "PRIORITIES",
     "RECIPROCITY",
     "SIDESTEP_CONE",
     "SIDESTEP_HORIZON",
@@ -127,6 +128,9 @@ LAMBDA_SCOPES = ROBOT_CHOICES["lambda_scope"]
 
 #: How the lambda search treats the rows without slack (:class:`Reciprocity`).
 HARD_ROWS = ROBOT_CHOICES["hard_rows"]
+
+#: The rows kept longest when not every row can be met (:class:`Reciprocity`).
+PRIORITIES = ROBOT_CHOICES["priority"]
 
 #: How robots coordinate beyond their shares (:class:`Reciprocity`): ``"yield"``, a robot
 #: whose robot rows gave way broadcasts it and its partners take the whole pair.
@@ -176,6 +180,11 @@ class Reciprocity(Plugin):
         that it yields (for :data:`YIELD_HOLD_S` seconds), and the world hands both robots
         of each of its pairs the yielding shares
         (:class:`~conformal_control.world.multi.MultiRobotWorld`); needs broadcast plans.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first, :func:`priority_search`) or ``"robots"`` (the
+        pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
+        :func:`lexicographic_search`).
     """
 
     def __init__(
@@ -187,6 +196,7 @@ class Reciprocity(Plugin):
         hard_rows: str = "last",
         peer_horizon: float | None = None,
         coordination: str = "none",
+        priority: str = "robots",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -195,6 +205,7 @@ class Reciprocity(Plugin):
         self.hard_rows = hard_rows
         self.peer_horizon = peer_horizon
         self.coordination = coordination
+        self.priority = priority
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -222,14 +233,20 @@ class Reciprocity(Plugin):
             raise ValueError(
                 f"coordination must be one of {', '.join(COORDINATION)}, got {self.coordination!r}"
             )
+        if self.priority not in PRIORITIES:
+            raise ValueError(
+                f"priority must be one of {', '.join(PRIORITIES)}, got {self.priority!r}"
+            )
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
-        the cosine of the cone, the slow fraction (zeros: never turn), and 1 when the hard
-        rows are relaxed last (:attr:`hard_rows`)."""
+        the cosine of the cone, the slow fraction (zeros: never turn), 1 when the hard
+        rows are relaxed last (:attr:`hard_rows`) and 1 when the robot rows give way first
+        (:attr:`priority` ``"pedestrians"``)."""
         keep = float(self.hard_rows == "last")
+        first = float(self.priority == "pedestrians")
         if not self.sidestep:
-            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep])
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first])
         k = float(self.sidestep)
         return np.array(
             [
@@ -239,6 +256,7 @@ class Reciprocity(Plugin):
                 math.cos(SIDESTEP_CONE),
                 SIDESTEP_SLOW,
                 keep,
+                first,
             ]
         )
 

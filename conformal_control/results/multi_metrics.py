@@ -101,7 +101,7 @@ def robot_contacts(
     robot_radius: float,
     t_deadlock: float | None = None,
     *,
-    d_min_pedestrian: Sequence[float] | None = None,
+    d_min_pedestrian: Sequence[float] | np.ndarray | None = None,
     collision_distance: float | None = None,
 ) -> RobotContacts:
     """:class:`RobotContacts` from a robot's per-frame distance to the nearest other robot

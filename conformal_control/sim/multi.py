@@ -423,6 +423,8 @@ def run_multi(
           How the lambda search treats the rows lambda is not the slack of.
         - ``peer_horizon`` (float, optional):
           Planning families: how far ahead (s) the peers' lines bind a plan.
+        - ``priority`` ({"pedestrians", "robots"}):
+          The rows kept longest when not every row can be met.
         - ``coordination`` ({"none", "yield"}):
           ``"yield"``: a robot whose robot rows gave way says so, and its partners take
           the whole pair (needs ``information="plan"``).
@@ -445,6 +447,7 @@ def run_multi(
     lambda_scope, weights, ignoring = section.scope, section.weights, section.ignoring
     sidestep, hard_rows = section.sidestep, section.hard_rows
     peer_horizon, coordination = section.peer_horizon, section.coordination
+    priority = section.priority
     if coordination != "none" and information != "plan":
         raise ValueError(
             f"robots coordination={coordination!r} needs information='plan' (robots tell "
@@ -490,6 +493,7 @@ def run_multi(
             hard_rows,
             peer_horizon,
             coordination,
+            priority,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -620,6 +624,7 @@ def run_multi(
         "hard_rows": hard_rows,
         "peer_horizon": peer_horizon,
         "coordination": coordination,
+        "priority": priority,
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -653,6 +658,7 @@ def set_reciprocity(
     hard_rows: str = "last",
     peer_horizon: float | None = None,
     coordination: str = "none",
+    priority: str = "robots",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -677,6 +683,8 @@ def set_reciprocity(
         Planning families: how far ahead (s) the peers' lines bind a plan (None: all of it).
     coordination : {"none", "yield"}
         Whether a robot whose robot rows gave way broadcasts that it yields.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met.
     """
     if not hasattr(family, "reciprocity"):
         raise ValueError(
@@ -684,7 +692,14 @@ def set_reciprocity(
             "(no reciprocity setting)"
         )
     rec = Reciprocity(
-        mode, lambda_scope, robot_margin, sidestep, hard_rows, peer_horizon, coordination
+        mode,
+        lambda_scope,
+        robot_margin,
+        sidestep,
+        hard_rows,
+        peer_horizon,
+        coordination,
+        priority,
     )
     rec.validate()
     family.reciprocity = rec

@@ -149,7 +149,14 @@ def _controller(
         Exact2DSafetyFilter(v_max=1.5, compiled_step=compiled),
         AttractiveField(K_att=1.0, v_max=1.5),
         substeps=2,
-        reciprocity=Reciprocity(mode, scope, margin, sidestep, hard),
+        reciprocity=Reciprocity(
+            mode,
+            scope,
+            margin,
+            sidestep,
+            "last" if hard == "first" else hard,
+            priority="pedestrians" if hard == "first" else "robots",
+        ),
     )
 
 
@@ -165,11 +172,12 @@ def _query(rng, n_ped, n_rob):
     )
 
 
-@pytest.mark.parametrize("hard", ["level", "last"])
+@pytest.mark.parametrize("hard", ["level", "last", "first"])  # first: priority pedestrians
 @pytest.mark.parametrize("scope", ["pedestrians", "robots", "both"])
 @pytest.mark.parametrize("info", INFORMATION)
 def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard):
     rng = np.random.default_rng(3)
+    searched = 0
     for trial in range(6):
         q = _query(rng, n_ped=3, n_rob=2)
         fast = _controller(True, scope=scope, hard=hard)
@@ -195,12 +203,15 @@ def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard
             a, b = fast.decide(state, lam), slow.decide(state, lam)
             np.testing.assert_allclose(a, b, atol=1e-9, err_msg=f"trial {trial} step {step}")
         ra, rb = fast.interval_record(), slow.interval_record()
+        assert ra.status == rb.status
+        searched += ra.status.count("lambda_search")
         np.testing.assert_allclose(ra.lam_applied, rb.lam_applied, atol=1e-9)
         np.testing.assert_allclose(ra.x_pred, rb.x_pred, atol=1e-12)
         np.testing.assert_allclose(ra.v_pred, rb.v_pred, atol=1e-12)
         np.testing.assert_array_equal(ra.share, rb.share)
         np.testing.assert_array_equal(ra.scored, rb.scored)
         assert ra.scored.tolist() == [scope != "robots"] * 3 + [scope != "pedestrians"] * 2
+    assert searched > 0  # the searches were compared, not only the projections
 
 
 def test_robots_are_not_handed_to_the_predictor():

@@ -356,11 +356,18 @@ class Exact2DSafetyFilter(VelocityFilter):
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
-        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL):
+        gave_way = (kernels_peers.ROBOTS_GAVE_WAY, kernels_peers.PEDESTRIANS_GAVE_WAY)
+        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL, *gave_way):
             self.n_solves_ += 3
-            self._count_search(k.SEARCHED if code == kernels_peers.SEARCH_ALL else code)
+            self._count_search(code if code in (k.SEARCHED, k.SEARCH_VERTEX) else k.SEARCHED)
             if code == kernels_peers.SEARCH_ALL:
                 self.count("hard_rows_relaxed")
+            elif code in gave_way:  # the priority search (kernels_peers.priority_search)
+                self.count(
+                    "robot_rows_relaxed"
+                    if code == kernels_peers.ROBOTS_GAVE_WAY
+                    else "pedestrian_rows_relaxed"
+                )
             self._last = self._lastv
             return None
         if code == k.INFEASIBLE:
