@@ -326,7 +326,7 @@ def test_the_compiled_priority_search_equals_the_generic_one():
         nominal = rng.uniform(-2, 2, 2)
         if f.project(nominal, A, b + lam) is not None:
             continue
-        v, used, rob, ped = priority_search(f, nominal, A, b, robot, lam)
+        v, used, _rob, ped = priority_search(f, nominal, A, b, robot, lam)
         m = A.shape[0]
         f._buffers(m)
         code, v0, v1, used_c, _ = kp.priority_search(
