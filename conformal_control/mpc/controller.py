@@ -515,6 +515,9 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             line_clear, line_viol = lines
             kept = clear >= 0.0  # the pedestrians' safe distances hold
             clear = np.minimum(clear, line_clear)
+            if self.reciprocity.priority != "pedestrians":  # type: ignore[union-attr]
+                # one problem: no order between the lines and the pedestrians
+                viol, line_viol, lines = viol + line_viol, np.zeros_like(viol), None
         safe = clear >= 0.0
         n_safe = int(safe.sum())
         self.n_plans_ += 1

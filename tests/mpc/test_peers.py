@@ -123,7 +123,7 @@ def test_the_lines_give_way_before_the_pedestrians():
         AttractiveField(K_att=1.0, v_max=1.0), sampling=Sampling(n_samples=3, horizon=2),
         d_c=0.7, fallback="least_violation",
     )  # fmt: skip
-    mpc.reciprocity = Reciprocity("reciprocal")
+    mpc.reciprocity = Reciprocity("reciprocal", priority="pedestrians")
     mpc.reset()
 
     class State:
@@ -143,6 +143,10 @@ def test_the_lines_give_way_before_the_pedestrians():
     assert plan.status == "least_violation" and plan.cost == 2.0  # C: least pedestrian
     plan = mpc.plan_end(todo, cost, np.array([-0.1, -0.3, -0.1]), np.array([0.1, 0.3, 0.1]))
     assert plan.cost == 2.0  # A and C tie on the pedestrian: C crosses the line less
+    # priority "robots": one problem, no order -- the least summed intrusion (B)
+    mpc.reciprocity = Reciprocity("reciprocal", priority="robots")
+    plan = mpc.plan_end(todo, cost, np.array([0.2, -0.3, -0.1]), np.array([0.0, 0.3, 0.1]))
+    assert plan.status == "least_violation" and plan.cost == 1.0
 
 
 def test_clearance_is_the_smallest_margin_to_the_lines():
