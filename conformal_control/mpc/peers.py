@@ -38,11 +38,12 @@ would not hold the peer to.
 **Priority.** :func:`peer_terms` keeps the lines apart from the pedestrians' safe
 distances so that the family can give way in order (:meth:`SamplingMPC.plan_end
 <conformal_control.mpc.controller.SamplingMPC.plan_end>`; the reciprocity's
-``priority="pedestrians"``): a plan meeting both; else, the lines give way first -- among the plans that keep the pedestrians' safe distances,
-the one intruding least over the lines (then the cheapest), with ``status="peer_yield"``;
-only when no plan keeps the pedestrians' safe distances does the family's fallback decide,
-and ``least_violation`` then ranks the plans by their intrusion into the pedestrians' safe
-distances first, over the lines second. With ``priority="robots"`` the lines and the safe
+``priority="pedestrians"``): a plan meeting both; else, the lines give way first --
+among the plans that keep the pedestrians' safe distances, the one intruding least over
+the lines (then the cheapest), with ``status="peer_yield"``; only when no plan keeps the
+pedestrians' safe distances does the family's fallback decide, and ``least_violation``
+then ranks the plans by their intrusion into the pedestrians' safe distances first, over
+the lines second. With ``priority="robots"`` the lines and the safe
 distances are one problem (a plan meeting both, else the fallback on their summed
 intrusion).
 """
