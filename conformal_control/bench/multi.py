@@ -86,7 +86,14 @@ RECIPROCITY_OPTIONS = ("solo", "none", "reciprocal")
 #: The robots section's settings a benchmark's base run may give the reciprocal runs besides
 #: ``information`` and ``lambda_scope`` (recorded in each row's ``options`` when not the
 #: defaults).
-RECIPROCAL_OPTIONS = ("sidestep", "hard_rows", "peer_horizon", "coordination", "priority")
+RECIPROCAL_OPTIONS = (
+    "sidestep",
+    "hard_rows",
+    "peer_horizon",
+    "coordination",
+    "priority",
+    "floor",
+)
 
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
 DEFAULT_RECIPROCITY = RECIPROCITY_OPTIONS

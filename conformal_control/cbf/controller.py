@@ -21,8 +21,9 @@ from .reciprocal import (
     Reciprocity,
     check_peer_view,
     lexicographic_search,
+    overlap_rows,
     peer_rows,
-    priority_search,
+    priority_relax,
     reference_velocities,
     sidestep,
 )
@@ -44,8 +45,9 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too, codes 8 and 9 the priority
-#: search that relaxed the robot rows, the pedestrians' (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too, codes 8 to 10 the priority
+#: search that relaxed the robot rows, the pedestrians', the robot rows past their floors
+#: (``kernels_peers``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -54,6 +56,7 @@ _CODE_STATUS = (
     "lambda_search",
     "",
     "",
+    "lambda_search",
     "lambda_search",
     "lambda_search",
     "lambda_search",
@@ -230,11 +233,14 @@ class ConformalCBFController(
         rows (:meth:`Exact2DSafetyFilter.step_apf_record`), except with robots (their hard
         and reciprocal rows are built by the generic path for such a fallback)."""
         f, c = self.safety_filter, self.constraint
+        rec = self.reciprocity
         return (
             type(c) is ConformalConstraint
             and type(c.barrier) is APFBarrier
             and isinstance(f, Exact2DSafetyFilter)
-            and (f.fused or (f.compiled_step is True and self.reciprocity is None))
+            and (f.fused or (f.compiled_step is True and rec is None))
+            # the robot rows given way row by row: an LP per infeasible step, in Python
+            and not (rec is not None and rec.mode == "reciprocal" and rec.priority == "pedestrians")
         )
 
     def stats(self) -> dict[str, float]:
@@ -447,7 +453,7 @@ class ConformalCBFController(
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
             if res.fallback == "lambda_search" and self._typed:
                 if self._peer_ids.size and self._turn[6]:  # robot rows give way first
-                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res, True)
+                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res, True, x_ego)
                 elif self._col[1].any():
                     res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
             if res.status == "fallback" and self._peer_ids.size:
@@ -483,6 +489,9 @@ class ConformalCBFController(
         view = self._peer_view(state)
         self._col[0, n:] = view.shares
         Ar, br = peer_rows(self._robot_constraint, state.x[:2], view)
+        if self._turn[6]:  # priority pedestrians: robots in contact part (floored rows)
+            c = self._robot_constraint
+            Ar, br, _ = overlap_rows(state.x[:2], view, self._robot_dc, float(c.a), Ar, br)
         if hard[n:].any():
             br = np.where(hard[n:], br - sl, br)
         self._rec_px.append(np.array(view.positions, dtype=float))
@@ -497,20 +506,27 @@ class ConformalCBFController(
         lam: float,
         res: FilterResult,
         first: bool = False,
+        x_ego: np.ndarray | None = None,
     ) -> FilterResult:
         """The lambda search again, keeping the rows without slack
         (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`), or with ``first``
-        giving way with the robot rows first
-        (:func:`~conformal_control.cbf.reciprocal.priority_search`)."""
+        giving way with the robot rows first, row by row
+        (:func:`~conformal_control.cbf.reciprocal.priority_relax`; ``x_ego`` the robot's
+        position, for the floors)."""
         f = self.safety_filter
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
         if first:
+            n = self._ids.size
             robot = np.zeros(A.shape[0], dtype=bool)
-            robot[self._ids.size :] = True
-            v, used, rob, ped = priority_search(f, v_ref, A, b, robot, lam)
-            if rob or ped:
-                f.count("pedestrian_rows_relaxed" if ped else "robot_rows_relaxed")  # type: ignore[attr-defined]
+            robot[n:] = True
+            near = np.zeros(A.shape[0], dtype=bool)
+            if self._turn[7] >= 0.0:  # the non-closing floor of the robots near contact
+                rel = self._rec_px[-1] - x_ego
+                near[n:] = np.hypot(rel[:, 0], rel[:, 1]) < self._robot_dc + self._turn[7]
+            v, used, gave_way = priority_relax(f, v_ref, A, b, robot, lam, near)
+            if gave_way:
+                f.count(f"{gave_way[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
             return FilterResult(v, "fallback", used, "lambda_search")
         keep = self._turn[5] != 0.0
         v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam, keep)

@@ -47,6 +47,7 @@ from .pyhypot import c_hypot
 __all__ = [
     "PEDESTRIANS_GAVE_WAY",
     "ROBOTS_GAVE_WAY",
+    "ROBOT_FLOORS_GAVE_WAY",
     "SEARCH_ALL",
     "apf_control_peers",
     "apf_rows_weighted",
@@ -58,10 +59,12 @@ __all__ = [
 #: slack some too (the common level ended above 0).
 SEARCH_ALL = 7
 
-#: Result codes of :func:`priority_search`: only the robot rows gave way; the pedestrians'
-#: rows gave way too (their level was raised).
+#: Result codes of :func:`priority_search`: only the robot rows gave way (no further than
+#: their floors); the pedestrians' rows gave way too (their level was raised); the robot
+#: rows gave way past their non-closing floors.
 ROBOTS_GAVE_WAY = 8
 PEDESTRIANS_GAVE_WAY = 9
+ROBOT_FLOORS_GAVE_WAY = 10
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -194,7 +197,9 @@ def _feasible_priority(
     A: np.ndarray,
     base: np.ndarray,
     robot: np.ndarray,
-    sigma: float,
+    cap: np.ndarray,
+    level: float,
+    level_a: float,
     delta: float,
     S: np.ndarray,
     s: np.ndarray,
@@ -203,13 +208,16 @@ def _feasible_priority(
     h: np.ndarray,
     rhs: np.ndarray,
 ) -> tuple[bool, float, float]:
-    """The projection with the robot rows at ``base + sigma``, the others at ``base +
-    delta`` (rows with a zero gradient left out)."""
+    """The projection with the robot rows at ``base + min(level, cap) + max(0, level -
+    level_a)``, the others at ``base + delta`` (rows with a zero gradient left out)."""
+    beyond = max(0.0, level - level_a)
     for j in range(A.shape[0]):
         if A[j, 0] == 0.0 and A[j, 1] == 0.0:
             rhs[j] = math.inf
+        elif robot[j] != 0.0:
+            rhs[j] = base[j] + min(level, cap[j]) + beyond
         else:
-            rhs[j] = base[j] + (sigma if robot[j] != 0.0 else delta)
+            rhs[j] = base[j] + delta
     return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
 
 
@@ -220,6 +228,7 @@ def priority_search(
     A: np.ndarray,
     b: np.ndarray,
     robot: np.ndarray,
+    floor: np.ndarray,
     lam: float,
     S: np.ndarray,
     s: np.ndarray,
@@ -232,32 +241,38 @@ def priority_search(
     Ak: np.ndarray,
     bk: np.ndarray,
     base: np.ndarray,
+    cap: np.ndarray,
 ) -> tuple[int, float, float, float, int]:
     """The fallback of an infeasible step with the pedestrians' rows given way last
-    (``robot`` != 0: a robot row; every row's base is ``b + lam``, the rows without slack
+    (``robot`` != 0: a robot row; ``floor`` != 0: a robot row that keeps the non-closing
+    floor in the first tier; every row's base is ``b + lam``, the rows without slack
     holding ``- lam`` in ``b``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
 
-    The pedestrians' rows alone first: the smallest level ``delta >= 0`` at which they
-    can be met; with them there, the smallest ``sigma >= 0`` added to the robot rows,
-    bracketed by 0 and the level that meets them anywhere in the speed disc, bisected to
-    the filter's margin; the projection there. Rows with a zero gradient are left out.
-    :data:`ROBOTS_GAVE_WAY` when only robot rows were relaxed, :data:`PEDESTRIANS_GAVE_WAY`
-    when the pedestrians' level was raised (robot rows relaxed or not), :data:`SEARCHED`
-    when neither was needed after all (round-off). ``base`` is scratch (length >= rows).
-    The compiled twin of :func:`~conformal_control.cbf.reciprocal.priority_search`.
+    The search of :func:`~conformal_control.cbf.reciprocal.priority_search` (its compiled
+    twin): the pedestrians' level first, then the robot rows' level in two tiers
+    (relaxed down to their floor, then past it), bisected to the filter's margin; the
+    projection there. :data:`ROBOTS_GAVE_WAY`, :data:`ROBOT_FLOORS_GAVE_WAY` or
+    :data:`PEDESTRIANS_GAVE_WAY` for the last class that gave way, :data:`SEARCHED` when
+    none had to after all (round-off). ``base`` and ``cap`` are scratch (length >= rows).
     """
     m = A.shape[0]
     mp = 0
-    top = 0.0
+    level_a = 0.0
+    level_b = 0.0
     for j in range(m):
         base[j] = b[j] + lam
+        cap[j] = math.inf
         nrm = c_hypot(A[j, 0], A[j, 1])
         if nrm == 0.0:
             continue
         if robot[j] != 0.0:
             t = -base[j] + nrm * radius
-            if t > top:
-                top = t
+            if floor[j] != 0.0:
+                cap[j] = max(0.0, -base[j])
+                if t - cap[j] > level_b:
+                    level_b = t - cap[j]
+            if min(t, cap[j]) > level_a:
+                level_a = min(t, cap[j])
         else:
             G[mp, 0] = A[j, 0]
             G[mp, 1] = A[j, 1]
@@ -273,24 +288,24 @@ def priority_search(
         if star + pad > 0.0:
             delta = max(star, 0.0) + pad
             raised = star > 0.0
-    margin = lambda_margin(max(top, delta), A, base[:m], radius, margin_rel)
-    hi = top + margin
+    margin = lambda_margin(max(level_a + level_b, delta), A, base[:m], radius, margin_rel)
+    hi = level_a + level_b + margin
     ok, v0, v1 = _feasible_priority(
-        n0, n1, A, base, robot, hi, delta, S, s, radius, G, h, rhs
+        n0, n1, A, base, robot, cap, hi, level_a, delta, S, s, radius, G, h, rhs
     )  # fmt: skip
     solves += 1
     if not ok:  # round-off at the pedestrians' level: every row relaxed together
         star, w0, w1 = smallest_lambda(A, base[:m].copy(), S, s, verts, radius, Ak, bk)
-        floor = max(0.0, star)
-        used = floor + lambda_margin(floor, A, base[:m], radius, margin_rel)
+        low = max(0.0, star)
+        used = low + lambda_margin(low, A, base[:m], radius, margin_rel)
         for j in range(m):
             rhs[j] = base[j] + used
         ok, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
         if ok:
             return PEDESTRIANS_GAVE_WAY, v0, v1, lam + used, solves + 2
-        return PEDESTRIANS_GAVE_WAY, w0, w1, lam + floor, solves + 2
+        return PEDESTRIANS_GAVE_WAY, w0, w1, lam + low, solves + 2
     ok, w0, w1 = _feasible_priority(
-        n0, n1, A, base, robot, 0.0, delta, S, s, radius, G, h, rhs
+        n0, n1, A, base, robot, cap, 0.0, level_a, delta, S, s, radius, G, h, rhs
     )  # fmt: skip
     solves += 1
     if ok:
@@ -301,14 +316,20 @@ def priority_search(
             break
         mid = 0.5 * (lo + hi)
         ok, w0, w1 = _feasible_priority(
-            n0, n1, A, base, robot, mid, delta, S, s, radius, G, h, rhs
+            n0, n1, A, base, robot, cap, mid, level_a, delta, S, s, radius, G, h, rhs
         )  # fmt: skip
         solves += 1
         if ok:
             hi, v0, v1 = mid, w0, w1
         else:
             lo = mid
-    return (PEDESTRIANS_GAVE_WAY if raised else ROBOTS_GAVE_WAY), v0, v1, lam + delta, solves
+    if raised:
+        code = PEDESTRIANS_GAVE_WAY
+    elif hi > level_a:
+        code = ROBOT_FLOORS_GAVE_WAY
+    else:
+        code = ROBOTS_GAVE_WAY
+    return code, v0, v1, lam + delta, solves
 
 
 @jit
@@ -456,9 +477,15 @@ def apf_control_peers(
     if first and code == INFEASIBLE and search:
         robot = np.zeros(m)
         robot[npred:] = 1.0
+        floor = np.zeros(m)
+        if turn[7] >= 0.0:  # the non-closing floor of the robots near contact
+            for k in range(m - npred):
+                d = c_hypot(peer_pos[k, 0] - x0, peer_pos[k, 1] - x1)
+                if d < prm[2] + col[2, npred + k] + turn[7]:
+                    floor[npred + k] = 1.0
         code, v0, v1, lam_used, _ = priority_search(
-            n0, n1, A, b, robot, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak, bk,
-            np.empty(m),
+            n0, n1, A, b, robot, floor, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak,
+            bk, np.empty(m), np.empty(m),
         )  # fmt: skip
     elif lexicographic and code == INFEASIBLE:
         code, v0, v1, lam_used, _ = lexicographic_search(

@@ -94,6 +94,7 @@ from .speed import speed_polygon
 
 __all__ = [
     "COORDINATION",
+    "FLOOR_WEIGHT",
     "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
@@ -107,8 +108,10 @@ __all__ = [
     "check_peer_view",
     "grown_constraint",
     "lexicographic_search",
+    "overlap_rows",
     "pair_shares",
     "peer_rows",
+    "priority_relax",
     "priority_search",
     "reference_velocities",
     "sidestep",
@@ -185,6 +188,11 @@ class Reciprocity(Plugin):
         rows give way first, :func:`priority_search`) or ``"robots"`` (the
         pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
         :func:`lexicographic_search`).
+    floor : float, optional
+        With ``priority="pedestrians"``: within this distance (m) beyond the robots'
+        collision distance, a robot row gives way no further than the non-closing row
+        (the robot does not move toward that robot) unless the pedestrians' rows need
+        more (:func:`priority_search`); None: no floor.
     """
 
     def __init__(
@@ -197,6 +205,7 @@ class Reciprocity(Plugin):
         peer_horizon: float | None = None,
         coordination: str = "none",
         priority: str = "robots",
+        floor: float | None = None,
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -206,6 +215,7 @@ class Reciprocity(Plugin):
         self.peer_horizon = peer_horizon
         self.coordination = coordination
         self.priority = priority
+        self.floor = floor
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -237,16 +247,22 @@ class Reciprocity(Plugin):
             raise ValueError(
                 f"priority must be one of {', '.join(PRIORITIES)}, got {self.priority!r}"
             )
+        f = self.floor
+        if f is not None and not (
+            isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f >= 0
+        ):
+            raise ValueError(f"floor must be a distance >= 0 (m) or None, got {f!r}")
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
         the cosine of the cone, the slow fraction (zeros: never turn), 1 when the hard
-        rows are relaxed last (:attr:`hard_rows`) and 1 when the robot rows give way first
-        (:attr:`priority` ``"pedestrians"``)."""
+        rows are relaxed last (:attr:`hard_rows`), 1 when the robot rows give way first
+        (:attr:`priority` ``"pedestrians"``) and :attr:`floor` (-1 for None)."""
         keep = float(self.hard_rows == "last")
         first = float(self.priority == "pedestrians")
+        floor = -1.0 if self.floor is None else float(self.floor)
         if not self.sidestep:
-            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first])
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first, floor])
         k = float(self.sidestep)
         return np.array(
             [
@@ -257,6 +273,7 @@ class Reciprocity(Plugin):
                 SIDESTEP_SLOW,
                 keep,
                 first,
+                floor,
             ]
         )
 
@@ -560,20 +577,30 @@ def priority_search(
     b: np.ndarray,
     robot: np.ndarray,
     lam: float,
-) -> tuple[np.ndarray, float, bool, bool]:
+    floor: np.ndarray | None = None,
+) -> tuple[np.ndarray, float, str]:
     """The ``lambda_search`` fallback with the pedestrians' rows given way last
-    (``priority="pedestrians"``): ``(v, lambda_applied, robot rows relaxed, pedestrian
-    rows relaxed)``.
+    (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
 
     Every row's base is ``A v + b + lam >= 0`` (rows without slack already hold ``- lam``
     in ``b``). First the pedestrians' rows (``~robot``) alone: the smallest level
-    ``delta >= 0`` added to them at which they can be met (0 when they can at the base);
-    then, with them at that level (plus the solver's margin when raised), the smallest
-    ``sigma >= 0`` added to the robot rows, by bisection on the projection's feasibility
-    (monotone in ``sigma``; at the top every robot row holds anywhere in the speed disc);
-    the projection there. Rows with a zero gradient (an agent already overlapped: no
-    velocity changes them) are left out. The generic path's twin of
-    :func:`~conformal_control.cbf.kernels_peers.priority_search`.
+    ``delta >= 0`` added to them at which they can be met (0 when they can at the base).
+    With them there, the robot rows give way, in two tiers, at the smallest level ``L >=
+    0`` (by bisection on the projection's feasibility, which is monotone in ``L``):
+
+    1. up to ``L_A``, each robot row is relaxed by ``min(L, cap_j)``: a row with a
+       ``floor`` (a robot near contact) no further than the *non-closing* row (``cap_j =
+       max(0, -(b_j + lam))``: its right-hand side 0, i.e. the robot does not move toward
+       that robot; met by both robots of a pair, their distance does not fall), the
+       others without limit;
+    2. beyond ``L_A`` (only when the pedestrians' rows and the non-closing rows cannot be
+       met together), the floored rows are relaxed past their floor by ``L - L_A``.
+
+    The projection at that level. Rows with a zero gradient (an agent already overlapped:
+    no velocity changes them) are left out. ``gave_way`` names the last class that gave
+    way: ``""`` (none after all: round-off), ``"robots"``, ``"robot_floors"`` or
+    ``"pedestrians"`` (their level raised; the robot rows then as the search found). The
+    generic path's twin of :func:`~conformal_control.cbf.kernels_peers.priority_search`.
 
     Parameters
     ----------
@@ -590,6 +617,8 @@ def priority_search(
         Which rows are about robots (they give way first).
     lam : float
         The lambda of the step (1/s).
+    floor : ndarray of bool, shape (R,), optional
+        Which robot rows keep the non-closing floor in the first tier (default none).
 
     Returns
     -------
@@ -597,13 +626,14 @@ def priority_search(
         The decision (m/s).
     lambda_applied : float
         ``lam`` plus the pedestrians' level (1/s).
-    robots_relaxed, pedestrians_relaxed : bool
-        Whether ``sigma > 0``, ``delta > 0``.
+    gave_way : str
+        ``""``, ``"robots"``, ``"robot_floors"`` or ``"pedestrians"``.
     """
     live = np.hypot(A[:, 0], A[:, 1]) > 0.0
     robot = np.asarray(robot, dtype=bool)
+    floor = np.zeros_like(robot) if floor is None else np.asarray(floor, dtype=bool) & robot
     if not live.all():
-        A, b, robot = A[live], b[live], robot[live]
+        A, b, robot, floor = A[live], b[live], robot[live], floor[live]
     base = b + lam
     ped = ~robot
     delta = 0.0
@@ -614,30 +644,41 @@ def priority_search(
         if star + pad > 0.0:  # met at the base only within round-off, or not at all
             delta = max(float(star), 0.0) + pad
             raised = star > 0.0
-
-    def at(sigma: float) -> np.ndarray | None:
-        out: np.ndarray | None = solver.project(nominal, A, base + np.where(robot, sigma, delta))
-        return out
-
     sides = getattr(solver, "speed_sides", None)
     if isinstance(sides, int):  # the disc around the filter's speed polygon
         reach = speed_polygon(sides, float(solver.v_max))[3]
     else:
         reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
-    top = (-base + np.hypot(A[:, 0], A[:, 1]) * reach)[robot]
-    margin = float(solver.search_margin(max(float(top.max(initial=0.0)), delta), A, base))
-    hi = max(float(top.max(initial=0.0)), 0.0) + margin
+    top = -base + np.hypot(A[:, 0], A[:, 1]) * reach  # a row holds anywhere beyond it
+    cap = np.where(floor, np.maximum(0.0, -base), np.inf)
+    level_a = float(np.minimum(top, cap)[robot].max(initial=0.0))
+    level_b = float(np.maximum(top - cap, 0.0)[floor].max(initial=0.0))
+    margin = float(solver.search_margin(max(level_a + level_b, delta), A, base))
+
+    def at(level: float) -> np.ndarray | None:
+        relax = np.minimum(level, cap) + max(0.0, level - level_a)
+        out: np.ndarray | None = solver.project(nominal, A, base + np.where(robot, relax, delta))
+        return out
+
+    def named(level: float) -> str:
+        if raised:
+            return "pedestrians"
+        if level <= 0.0:
+            return ""
+        return "robot_floors" if level > level_a else "robots"
+
+    hi = level_a + level_b + margin
     v = at(hi)
     if v is None:  # round-off at the pedestrians' level: every row relaxed together
         star, v_star = solver.min_lambda(A, base)
-        floor = max(0.0, float(star))
-        used = floor + float(solver.search_margin(floor, A, base))
+        floor_lam = max(0.0, float(star))
+        used = floor_lam + float(solver.search_margin(floor_lam, A, base))
         w = solver.project(nominal, A, base + used)
         out = np.asarray(v_star, float) if w is None else w
-        return out, lam + (floor if w is None else used), bool(robot.any()), True
+        return out, lam + (floor_lam if w is None else used), "pedestrians"
     w = at(0.0)
     if w is not None:
-        return w, lam + delta, False, raised
+        return w, lam + delta, named(0.0)
     lo = 0.0
     for _ in range(MAX_BISECTIONS):
         if hi - lo <= margin:
@@ -648,4 +689,186 @@ def priority_search(
             hi, v = mid, w
         else:
             lo = mid
-    return v, lam + delta, True, raised
+    return v, lam + delta, named(hi)
+
+
+#: Cost of relaxing a floored robot row past its floor, per unit, relative to relaxing a
+#: robot row down to it (:func:`priority_relax`): the floors give way only when nothing
+#: else lets the pedestrians' rows hold.
+FLOOR_WEIGHT = 1e3
+
+
+def priority_relax(
+    solver: Any,
+    nominal: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    robot: np.ndarray,
+    lam: float,
+    floor: np.ndarray | None = None,
+) -> tuple[np.ndarray, float, str]:
+    """The fallback with the pedestrians' rows given way last, robot row by robot row
+    (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
+
+    Every row's base is ``A v + b + lam >= 0`` (rows without slack already hold ``- lam``
+    in ``b``). First the pedestrians' rows (``~robot``) alone: the smallest level
+    ``delta >= 0`` added to them at which they can be met (0 when they can at the base).
+    With them there (hard), each robot row ``j`` gets its own slack: the smallest
+    weighted sum ``sum_j (s_j + FLOOR_WEIGHT t_j)`` (rows normalised to unit gradient, so
+    slacks are speeds) with ``A_j v + base_j + s_j + t_j >= 0``, ``0 <= s_j <= cap_j`` for
+    a row with a ``floor`` (a robot near contact: ``cap_j = max(0, -base_j)``, the
+    *non-closing* row -- the robot does not move toward that robot, so a pair that both
+    keep it does not get closer) and ``t_j = 0`` for the others (an LP, HiGHS' dual
+    simplex: a vertex, so rows that need no slack keep none); then the velocity closest to
+    the nominal at that relaxation (plus the solver's margin on the relaxed rows), or the
+    LP's own velocity should that projection fail. Only the robot rows in conflict with
+    the pedestrians' (and with each other) give way, not every robot row at once; a
+    floored row gives way past not closing in only when the pedestrians' rows need it.
+    Rows with a zero gradient are left out.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``min_lambda``,
+        ``search_margin``, and its speed polygon).
+    nominal : ndarray of shape (2,)
+        The nominal velocity (m/s).
+    A : ndarray of shape (R, 2)
+        The rows' velocity coefficients.
+    b : ndarray of shape (R,)
+        Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
+    robot : ndarray of bool, shape (R,)
+        Which rows are about robots (they give way first).
+    lam : float
+        The lambda of the step (1/s).
+    floor : ndarray of bool, shape (R,), optional
+        Which robot rows keep the non-closing floor (default none).
+
+    Returns
+    -------
+    v : ndarray of shape (2,)
+        The decision (m/s).
+    lambda_applied : float
+        ``lam`` plus the pedestrians' level (1/s).
+    gave_way : str
+        The last class that gave way: ``""`` (none, round-off), ``"robots"``,
+        ``"robot_floors"`` or ``"pedestrians"``.
+    """
+    from scipy.optimize import linprog  # only this fallback needs it
+
+    robot = np.asarray(robot, dtype=bool)
+    floor = np.zeros_like(robot) if floor is None else np.asarray(floor, dtype=bool) & robot
+    nrm = np.hypot(A[:, 0], A[:, 1])
+    live = nrm > 0.0
+    if not live.all():
+        A, b, robot, floor, nrm = A[live], b[live], robot[live], floor[live], nrm[live]
+    base = b + lam
+    ped = ~robot
+    delta = 0.0
+    raised = False
+    if ped.any():
+        star, _ = solver.min_lambda(A[ped], base[ped])
+        pad = float(solver.search_margin(abs(float(star)), A, base))
+        if star + pad > 0.0:  # met at the base only within round-off, or not at all
+            delta = max(float(star), 0.0) + pad
+            raised = star > 0.0
+    S, s_poly, _, radius = speed_polygon(int(getattr(solver, "speed_sides", 16)), solver.v_max)
+    # robot rows that could bind somewhere in the disc around the speed set
+    rows = np.flatnonzero(robot & (base < nrm * radius))
+    slack = np.zeros(A.shape[0])
+    v_lp: np.ndarray | None = None
+    if rows.size:
+        k = rows.size
+        fl = floor[rows]
+        kf = int(fl.sum())
+        An, rn = A[rows] / nrm[rows, None], base[rows] / nrm[rows]
+        pa = np.flatnonzero(ped)
+        npd, ns = pa.size, S.shape[0]
+        n_var = 2 + k + kf
+        A_ub = np.zeros((k + npd + ns, n_var))
+        A_ub[:k, :2] = -An
+        A_ub[:k, 2 : 2 + k] = -np.eye(k)
+        A_ub[np.flatnonzero(fl), 2 + k + np.arange(kf)] = -1.0
+        A_ub[k : k + npd, :2] = -A[pa] / nrm[pa, None]
+        A_ub[k + npd :, :2] = S
+        b_ub = np.concatenate([rn, (base[pa] + delta) / nrm[pa], s_poly])
+        cap = np.where(fl, np.maximum(0.0, -rn), np.inf)
+        bounds = [(None, None), (None, None)]
+        bounds += [(0.0, None if math.isinf(c) else float(c)) for c in cap]
+        bounds += [(0.0, None)] * kf
+        cost = np.concatenate([[0.0, 0.0], np.ones(k), np.full(kf, FLOOR_WEIGHT)])
+        lp = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs-ds")
+        if lp.status == 0:
+            x = lp.x
+            v_lp = np.asarray(x[:2], dtype=float)
+            extra = np.zeros(k)
+            extra[fl] = np.maximum(x[2 + k :], 0.0)
+            slack[rows] = (np.maximum(x[2 : 2 + k], 0.0) + extra) * nrm[rows]
+            broke = bool((extra > 1e-12).any())
+        else:  # pragma: no cover - feasible by construction (robot rows unbounded)
+            slack[rows] = np.maximum(0.0, -(A[rows] @ np.zeros(2) + base[rows]))
+            broke = bool(floor[rows].any())
+    else:
+        broke = False
+    relaxed = slack > 0.0
+    if relaxed.any():
+        slack = np.where(relaxed, slack + float(solver.search_margin(slack.max(), A, base)), 0.0)
+    rhs = base + np.where(robot, slack, delta)
+    v = solver.project(nominal, A, rhs)
+    if v is None:
+        if v_lp is None:  # round-off at the pedestrians' level: every row together
+            star, v_star = solver.min_lambda(A, base)
+            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "pedestrians"
+        v = v_lp
+    if raised:
+        gave_way = "pedestrians"
+    elif broke:
+        gave_way = "robot_floors"
+    else:
+        gave_way = "robots" if relaxed.any() else ""
+    return np.asarray(v, dtype=float), lam + delta, gave_way
+
+
+def overlap_rows(
+    x_ego: np.ndarray,
+    view: PeerView,
+    d_c: float,
+    a: float,
+    A: np.ndarray,
+    b: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The robot rows with a row for each peer already within the robots' collision
+    distance: ``(A, b, overlapped)``.
+
+    There the barrier has no gradient (no velocity changes its row, which would be left
+    out of every search and keep the two robots in contact); its row becomes ``-u . v +
+    s_ij a (d - d_c) >= 0`` with ``u`` the unit vector toward the peer: robot i moves away
+    from it at its share of ``a`` times the overlap (two robots that both comply separate),
+    a row that :func:`priority_relax` floors at not closing in. A peer at the very same
+    position is left as it is (no direction to part in).
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    view : PeerView
+        Its peers (positions, shares).
+    d_c : float
+        The robots' collision distance, centre to centre (m).
+    a : float
+        The constraint's slope (1/s).
+    A : ndarray of shape (K, 2)
+        The robot rows (:func:`peer_rows`).
+    b : ndarray of shape (K,)
+        Their right-hand sides.
+    """
+    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    inside = (d < d_c) & (d > 0.0)
+    if not inside.any():
+        return A, b, inside
+    A = np.array(A, dtype=float)
+    b = np.array(b, dtype=float)
+    A[inside] = -rel[inside] / d[inside, None]
+    b[inside] = view.shares[inside] * a * (d[inside] - d_c)
+    return A, b, inside

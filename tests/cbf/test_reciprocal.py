@@ -292,7 +292,8 @@ def test_the_priority_search_keeps_the_pedestrians_rows_and_relaxes_the_robots_l
         nominal = rng.uniform(-2, 2, 2)
         if f.project(nominal, A, b + lam) is not None:
             continue  # feasible: no fallback
-        v, used, rob, ped = priority_search(f, nominal, A, b, robot, lam)
+        v, used, gave_way = priority_search(f, nominal, A, b, robot, lam)
+        rob, ped = gave_way == "robots", gave_way == "pedestrians"
         slack = A @ v + b
         ped_alone, _ = f.min_lambda(A[~robot], b[~robot])
         if ped_alone < lam - 1e-6:  # the pedestrians' rows can be met at lam: they are
@@ -320,22 +321,55 @@ def test_the_compiled_priority_search_equals_the_generic_one():
     f.reset()
     rng = np.random.default_rng(4)
     n = 0
+    seen = set()
     for _ in range(200):
         A, b, robot = _squeeze(rng)
         lam = float(rng.uniform(-3, 1))
         nominal = rng.uniform(-2, 2, 2)
         if f.project(nominal, A, b + lam) is not None:
             continue
-        v, used, _rob, ped = priority_search(f, nominal, A, b, robot, lam)
+        floor = robot & (rng.uniform(size=robot.size) < 0.5)
+        v, used, gave_way = priority_search(f, nominal, A, b, robot, lam, floor)
         m = A.shape[0]
         f._buffers(m)
         code, v0, v1, used_c, _ = kp.priority_search(
             float(nominal[0]), float(nominal[1]), np.ascontiguousarray(A), b.copy(),
-            robot.astype(float), lam, f._S, f._s, f._verts, f._radius, f.lambda_margin,
-            f._G, f._h, np.zeros(m), np.zeros((m, 2)), np.zeros(m), np.zeros(m),
+            robot.astype(float), floor.astype(float), lam, f._S, f._s, f._verts, f._radius,
+            f.lambda_margin, f._G, f._h, np.zeros(m), np.zeros((m, 2)), np.zeros(m),
+            np.zeros(m), np.zeros(m),
         )  # fmt: skip
         np.testing.assert_allclose([v0, v1], v, atol=1e-9)
         assert used_c == pytest.approx(used, abs=1e-9)
-        assert code == (kp.PEDESTRIANS_GAVE_WAY if ped else kp.ROBOTS_GAVE_WAY)
+        codes = {
+            "robots": kp.ROBOTS_GAVE_WAY,
+            "robot_floors": kp.ROBOT_FLOORS_GAVE_WAY,
+            "pedestrians": kp.PEDESTRIANS_GAVE_WAY,
+        }
+        assert code == codes[gave_way]
+        seen.add(gave_way)
         n += 1
-    assert n > 20
+    assert n > 20 and seen == {"robots", "robot_floors", "pedestrians"}
+
+
+def test_a_floored_robot_row_gives_way_no_further_than_not_closing_in():
+    # a robot between a pedestrian ahead walking at it and a robot behind closing in:
+    # without a floor the robot row gives way entirely (the robot backs into the other
+    # robot); with the floor it gives way only down to "do not move toward that robot",
+    # so it stands (or moves sideways) -- and the pedestrian's row still holds
+    from conformal_control.cbf.reciprocal import priority_search
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    c = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=3.0, d_c=0.7), a=2.0)
+    pos = np.array([[1.0, 0.0], [-0.9, 0.0]])  # pedestrian ahead, robot behind
+    vel = np.array([[-0.6, 0.0], [1.0, 0.0]])
+    A, b = c.rows(np.zeros(2), pos, vel)
+    robot = np.array([False, True])
+    nominal = np.array([1.5, 0.0])
+    assert f.project(nominal, A, b) is None
+    v, _, gave_way = priority_search(f, nominal, A, b, robot, 0.0)
+    assert gave_way == "robots" and v[0] < -0.05  # backs toward the robot behind
+    v, _, gave_way = priority_search(f, nominal, A, b, robot, 0.0, robot)
+    assert gave_way == "robots"
+    assert v[0] >= -1e-9  # never toward the robot behind
+    assert A[0] @ v + b[0] >= -1e-9  # the pedestrian's row holds
