@@ -345,7 +345,6 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "peer_horizon",
     "coordination",
     "priority",
-    "floor",
 )
 
 
@@ -413,10 +412,6 @@ class Robots:
         The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
         rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
         the robot rows as ``hard_rows`` says).
-    floor : float, optional
-        With ``priority="pedestrians"``: within this distance (m) beyond the robots'
-        collision distance a robot row gives way no further than not moving toward that
-        robot, unless the pedestrians' rows need more; None: no floor.
 
     Raises
     ------
@@ -443,7 +438,6 @@ class Robots:
     peer_horizon: float | None = None
     coordination: str = "none"
     priority: str = "robots"
-    floor: float | None = None
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -483,9 +477,6 @@ class Robots:
         p = self.peer_horizon
         if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
             raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
-        f = self.floor
-        if f is not None and not (_is_real(f) and math.isfinite(f) and f >= 0):
-            raise _spec_error(f"robots floor must be a distance >= 0 (m), got {f!r}")
 
     @property
     def scope(self) -> str:

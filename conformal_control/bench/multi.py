@@ -92,7 +92,6 @@ RECIPROCAL_OPTIONS = (
     "peer_horizon",
     "coordination",
     "priority",
-    "floor",
 )
 
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.

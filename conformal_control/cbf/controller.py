@@ -17,11 +17,14 @@ from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
+    FLOOR_ROW,
+    PEDESTRIAN_ROW,
+    ROBOT_ROW,
     YIELD_HOLD_S,
     Reciprocity,
     check_peer_view,
+    floor_rows,
     lexicographic_search,
-    overlap_rows,
     peer_rows,
     priority_relax,
     reference_velocities,
@@ -453,7 +456,7 @@ class ConformalCBFController(
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
             if res.fallback == "lambda_search" and self._typed:
                 if self._peer_ids.size and self._turn[6]:  # robot rows give way first
-                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res, True, x_ego)
+                    res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res, True)
                 elif self._col[1].any():
                     res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
             if res.status == "fallback" and self._peer_ids.size:
@@ -489,11 +492,12 @@ class ConformalCBFController(
         view = self._peer_view(state)
         self._col[0, n:] = view.shares
         Ar, br = peer_rows(self._robot_constraint, state.x[:2], view)
-        if self._turn[6]:  # priority pedestrians: robots in contact part (floored rows)
-            c = self._robot_constraint
-            Ar, br, _ = overlap_rows(state.x[:2], view, self._robot_dc, float(c.a), Ar, br)
         if hard[n:].any():
             br = np.where(hard[n:], br - sl, br)
+        if self._turn[6]:  # priority pedestrians: the robots' floor rows (no slack)
+            a = float(self._robot_constraint.a)
+            Af, bf = floor_rows(state.x[:2], view, self._robot_dc, a)
+            Ar, br = np.concatenate([Ar, Af]), np.concatenate([br, bf - sl])
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))
         return np.concatenate([A, Ar]), np.concatenate([b, br])
@@ -506,25 +510,20 @@ class ConformalCBFController(
         lam: float,
         res: FilterResult,
         first: bool = False,
-        x_ego: np.ndarray | None = None,
     ) -> FilterResult:
         """The lambda search again, keeping the rows without slack
         (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`), or with ``first``
         giving way with the robot rows first, row by row
-        (:func:`~conformal_control.cbf.reciprocal.priority_relax`; ``x_ego`` the robot's
-        position, for the floors)."""
+        (:func:`~conformal_control.cbf.reciprocal.priority_relax`)."""
         f = self.safety_filter
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
-        if first:
-            n = self._ids.size
-            robot = np.zeros(A.shape[0], dtype=bool)
-            robot[n:] = True
-            near = np.zeros(A.shape[0], dtype=bool)
-            if self._turn[7] >= 0.0:  # the non-closing floor of the robots near contact
-                rel = self._rec_px[-1] - x_ego
-                near[n:] = np.hypot(rel[:, 0], rel[:, 1]) < self._robot_dc + self._turn[7]
-            v, used, gave_way = priority_relax(f, v_ref, A, b, robot, lam, near)
+        if first:  # rows: predicted agents, robots' barrier rows, their floor rows
+            n, k = self._ids.size, self._peer_ids.size
+            kind = np.full(A.shape[0], FLOOR_ROW)
+            kind[:n] = PEDESTRIAN_ROW
+            kind[n : n + k] = ROBOT_ROW
+            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam)
             if gave_way:
                 f.count(f"{gave_way[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
             return FilterResult(v, "fallback", used, "lambda_search")

@@ -94,21 +94,23 @@ from .speed import speed_polygon
 
 __all__ = [
     "COORDINATION",
-    "FLOOR_WEIGHT",
+    "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
+    "PEDESTRIAN_ROW",
     "PRIORITIES",
     "RECIPROCITY",
+    "ROBOT_ROW",
     "SIDESTEP_CONE",
     "SIDESTEP_HORIZON",
     "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
     "check_peer_view",
+    "floor_rows",
     "grown_constraint",
     "lexicographic_search",
-    "overlap_rows",
     "pair_shares",
     "peer_rows",
     "priority_relax",
@@ -188,11 +190,6 @@ class Reciprocity(Plugin):
         rows give way first, :func:`priority_search`) or ``"robots"`` (the
         pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
         :func:`lexicographic_search`).
-    floor : float, optional
-        With ``priority="pedestrians"``: within this distance (m) beyond the robots'
-        collision distance, a robot row gives way no further than the non-closing row
-        (the robot does not move toward that robot) unless the pedestrians' rows need
-        more (:func:`priority_search`); None: no floor.
     """
 
     def __init__(
@@ -205,7 +202,6 @@ class Reciprocity(Plugin):
         peer_horizon: float | None = None,
         coordination: str = "none",
         priority: str = "robots",
-        floor: float | None = None,
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -215,7 +211,6 @@ class Reciprocity(Plugin):
         self.peer_horizon = peer_horizon
         self.coordination = coordination
         self.priority = priority
-        self.floor = floor
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -247,22 +242,16 @@ class Reciprocity(Plugin):
             raise ValueError(
                 f"priority must be one of {', '.join(PRIORITIES)}, got {self.priority!r}"
             )
-        f = self.floor
-        if f is not None and not (
-            isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f >= 0
-        ):
-            raise ValueError(f"floor must be a distance >= 0 (m) or None, got {f!r}")
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
         the cosine of the cone, the slow fraction (zeros: never turn), 1 when the hard
-        rows are relaxed last (:attr:`hard_rows`), 1 when the robot rows give way first
-        (:attr:`priority` ``"pedestrians"``) and :attr:`floor` (-1 for None)."""
+        rows are relaxed last (:attr:`hard_rows`) and 1 when the robot rows give way first
+        (:attr:`priority` ``"pedestrians"``)."""
         keep = float(self.hard_rows == "last")
         first = float(self.priority == "pedestrians")
-        floor = -1.0 if self.floor is None else float(self.floor)
         if not self.sidestep:
-            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first, floor])
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first])
         k = float(self.sidestep)
         return np.array(
             [
@@ -273,7 +262,6 @@ class Reciprocity(Plugin):
                 SIDESTEP_SLOW,
                 keep,
                 first,
-                floor,
             ]
         )
 
@@ -692,10 +680,117 @@ def priority_search(
     return v, lam + delta, named(hi)
 
 
-#: Cost of relaxing a floored robot row past its floor, per unit, relative to relaxing a
-#: robot row down to it (:func:`priority_relax`): the floors give way only when nothing
-#: else lets the pedestrians' rows hold.
-FLOOR_WEIGHT = 1e3
+def _robot_slacks(
+    A: np.ndarray,
+    base: np.ndarray,
+    nrm: np.ndarray,
+    fixed: np.ndarray,
+    fixed_rhs: np.ndarray,
+    rows: np.ndarray,
+    cap: np.ndarray,
+    S: np.ndarray,
+    s_poly: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The least summed slack of the robot rows ``rows`` (normalised to unit gradient:
+    speeds), each at most ``cap`` (normalised, ``inf``: no bound), with the rows ``fixed``
+    held at ``fixed_rhs`` and the speed polygon: ``(v, slack per row of A)``, or None when
+    infeasible (an LP, HiGHS' dual simplex: a vertex, so rows that need no slack get
+    none)."""
+    from scipy.optimize import linprog  # only the priority fallback needs it
+
+    k, fx = rows.size, np.flatnonzero(fixed)
+    nf, ns = fx.size, S.shape[0]
+    A_ub = np.zeros((k + nf + ns, 2 + k))
+    A_ub[:k, :2] = -A[rows] / nrm[rows, None]
+    A_ub[:k, 2:] = -np.eye(k)
+    A_ub[k : k + nf, :2] = -A[fx] / nrm[fx, None]
+    A_ub[k + nf :, :2] = S
+    b_ub = np.concatenate([base[rows] / nrm[rows], fixed_rhs[fx] / nrm[fx], s_poly])
+    bounds = [(None, None), (None, None)]
+    bounds += [(0.0, None if math.isinf(c) else float(c)) for c in cap]
+    cost = np.concatenate([[0.0, 0.0], np.ones(k)])
+    lp = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs-ds")
+    if lp.status != 0:
+        return None
+    slack = np.zeros(A.shape[0])
+    slack[rows] = np.maximum(lp.x[2:], 0.0) * nrm[rows]
+    return np.asarray(lp.x[:2], dtype=float), slack
+
+
+def _level(
+    A: np.ndarray,
+    base: np.ndarray,
+    nrm: np.ndarray,
+    raised: np.ndarray,
+    held: np.ndarray,
+    held_rhs: np.ndarray,
+    S: np.ndarray,
+    s_poly: np.ndarray,
+) -> float | None:
+    """The smallest level ``delta`` added to the rows ``raised`` at which they can be met
+    with the rows ``held`` at ``held_rhs`` in the speed polygon (an LP; None when the held
+    rows cannot be met at all)."""
+    from scipy.optimize import linprog  # only the priority fallback needs it
+
+    r, h = np.flatnonzero(raised), np.flatnonzero(held)
+    ns = S.shape[0]
+    A_ub = np.zeros((r.size + h.size + ns, 3))
+    A_ub[: r.size, :2] = -A[r] / nrm[r, None]
+    A_ub[: r.size, 2] = -1.0 / nrm[r]
+    A_ub[r.size : r.size + h.size, :2] = -A[h] / nrm[h, None]
+    A_ub[r.size + h.size :, :2] = S
+    b_ub = np.concatenate([base[r] / nrm[r], held_rhs[h] / nrm[h], s_poly])
+    lp = linprog(
+        [0.0, 0.0, 1.0],
+        A_ub=A_ub,
+        b_ub=b_ub,
+        bounds=[(None, None), (None, None), (None, None)],
+        method="highs-ds",
+    )
+    return float(lp.x[2]) if lp.status == 0 else None
+
+
+#: Kinds of the rows handed to :func:`priority_relax`: a pedestrian's (predicted agent's)
+#: row, a robot's barrier row, a robot's floor row (:func:`floor_rows`).
+PEDESTRIAN_ROW, ROBOT_ROW, FLOOR_ROW = 0, 1, 2
+
+
+def floor_rows(
+    x_ego: np.ndarray, view: PeerView, d_c: float, a: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robots' *floor* rows: for each peer, ``-u . v + s_ij a (d - d_c) >= 0`` with
+    ``u`` the unit vector toward it, ``d`` the distance and ``s_ij`` the robot's share.
+
+    The reciprocal rows of the plain distance barrier ``d - d_c`` (no partner's velocity,
+    no comfort margin): robot i may close in on j at its share of ``a (d - d_c)``; when both
+    robots of a pair keep theirs, ``d`` never falls below ``d_c`` (and a pair already in
+    contact parts). Far apart they allow much; near contact they forbid closing in.
+    :func:`priority_relax` keeps them after the robots' barrier rows have given way.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    view : PeerView
+        Its peers (positions, shares).
+    d_c : float
+        The robots' collision distance, centre to centre (m).
+    a : float
+        The slope (1/s).
+
+    Returns
+    -------
+    A : ndarray of shape (K, 2)
+    b : ndarray of shape (K,)
+        Peers at the very same position get a zero row (no direction to part in).
+    """
+    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    A = np.zeros_like(rel)
+    ok = d > 0.0
+    A[ok] = -rel[ok] / d[ok, None]
+    b = np.where(ok, np.asarray(view.shares, dtype=float) * a * (d - d_c), 0.0)
+    return A, b
 
 
 def priority_relax(
@@ -703,28 +798,31 @@ def priority_relax(
     nominal: np.ndarray,
     A: np.ndarray,
     b: np.ndarray,
-    robot: np.ndarray,
+    kind: np.ndarray,
     lam: float,
-    floor: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, str]:
-    """The fallback with the pedestrians' rows given way last, robot row by robot row
+    """The fallback with the pedestrians' rows given way after the robots' barrier rows
     (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
 
-    Every row's base is ``A v + b + lam >= 0`` (rows without slack already hold ``- lam``
-    in ``b``). First the pedestrians' rows (``~robot``) alone: the smallest level
-    ``delta >= 0`` added to them at which they can be met (0 when they can at the base).
-    With them there (hard), each robot row ``j`` gets its own slack: the smallest
-    weighted sum ``sum_j (s_j + FLOOR_WEIGHT t_j)`` (rows normalised to unit gradient, so
-    slacks are speeds) with ``A_j v + base_j + s_j + t_j >= 0``, ``0 <= s_j <= cap_j`` for
-    a row with a ``floor`` (a robot near contact: ``cap_j = max(0, -base_j)``, the
-    *non-closing* row -- the robot does not move toward that robot, so a pair that both
-    keep it does not get closer) and ``t_j = 0`` for the others (an LP, HiGHS' dual
-    simplex: a vertex, so rows that need no slack keep none); then the velocity closest to
-    the nominal at that relaxation (plus the solver's margin on the relaxed rows), or the
-    LP's own velocity should that projection fail. Only the robot rows in conflict with
-    the pedestrians' (and with each other) give way, not every robot row at once; a
-    floored row gives way past not closing in only when the pedestrians' rows need it.
-    Rows with a zero gradient are left out.
+    ``kind`` says what each row is (:data:`PEDESTRIAN_ROW`, :data:`ROBOT_ROW`,
+    :data:`FLOOR_ROW`). Every row's base is ``A v + b + lam >= 0`` (rows without slack
+    already hold ``- lam`` in ``b``). The rows give way in this order, each stage only when
+    the one before cannot make them feasible:
+
+    1. ``"robots"``: the robots' barrier rows, each with its own slack (the least summed
+       slack, rows normalised to unit gradient so that slacks are speeds; an LP, HiGHS'
+       dual simplex, whose vertex leaves the rows that need none without), the
+       pedestrians' rows at ``lam`` and the floor rows held;
+    2. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
+       which they can be met with the floor rows (another LP), then stage 1 there;
+    3. ``"robot_floors"``: when the floor rows cannot be met with the pedestrians' at any
+       level (robots hemmed in after a contact), the pedestrians' rows at the smallest
+       level at which they can be met alone, the floor rows given way as stage 1 gives
+       the barrier rows (which are left out).
+
+    The decision is the velocity closest to the nominal at that relaxation (plus the
+    solver's margin on the relaxed rows), or the LP's own velocity should that
+    projection fail. Rows with a zero gradient are left out.
 
     Parameters
     ----------
@@ -737,12 +835,10 @@ def priority_relax(
         The rows' velocity coefficients.
     b : ndarray of shape (R,)
         Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
-    robot : ndarray of bool, shape (R,)
-        Which rows are about robots (they give way first).
+    kind : ndarray of int, shape (R,)
+        Each row's kind.
     lam : float
         The lambda of the step (1/s).
-    floor : ndarray of bool, shape (R,), optional
-        Which robot rows keep the non-closing floor (default none).
 
     Returns
     -------
@@ -751,124 +847,51 @@ def priority_relax(
     lambda_applied : float
         ``lam`` plus the pedestrians' level (1/s).
     gave_way : str
-        The last class that gave way: ``""`` (none, round-off), ``"robots"``,
-        ``"robot_floors"`` or ``"pedestrians"``.
+        The last stage that gave way: ``""`` (none: round-off), ``"robots"``,
+        ``"pedestrians"`` or ``"robot_floors"``.
     """
-    from scipy.optimize import linprog  # only this fallback needs it
-
-    robot = np.asarray(robot, dtype=bool)
-    floor = np.zeros_like(robot) if floor is None else np.asarray(floor, dtype=bool) & robot
+    kind = np.asarray(kind)
     nrm = np.hypot(A[:, 0], A[:, 1])
     live = nrm > 0.0
     if not live.all():
-        A, b, robot, floor, nrm = A[live], b[live], robot[live], floor[live], nrm[live]
+        A, b, kind, nrm = A[live], b[live], kind[live], nrm[live]
     base = b + lam
-    ped = ~robot
-    delta = 0.0
-    raised = False
-    if ped.any():
-        star, _ = solver.min_lambda(A[ped], base[ped])
-        pad = float(solver.search_margin(abs(float(star)), A, base))
-        if star + pad > 0.0:  # met at the base only within round-off, or not at all
-            delta = max(float(star), 0.0) + pad
-            raised = star > 0.0
+    ped, rob, flo = kind == PEDESTRIAN_ROW, kind == ROBOT_ROW, kind == FLOOR_ROW
     S, s_poly, _, radius = speed_polygon(int(getattr(solver, "speed_sides", 16)), solver.v_max)
-    # robot rows that could bind somewhere in the disc around the speed set
-    rows = np.flatnonzero(robot & (base < nrm * radius))
-    slack = np.zeros(A.shape[0])
-    v_lp: np.ndarray | None = None
-    if rows.size:
-        k = rows.size
-        fl = floor[rows]
-        kf = int(fl.sum())
-        An, rn = A[rows] / nrm[rows, None], base[rows] / nrm[rows]
-        pa = np.flatnonzero(ped)
-        npd, ns = pa.size, S.shape[0]
-        n_var = 2 + k + kf
-        A_ub = np.zeros((k + npd + ns, n_var))
-        A_ub[:k, :2] = -An
-        A_ub[:k, 2 : 2 + k] = -np.eye(k)
-        A_ub[np.flatnonzero(fl), 2 + k + np.arange(kf)] = -1.0
-        A_ub[k : k + npd, :2] = -A[pa] / nrm[pa, None]
-        A_ub[k + npd :, :2] = S
-        b_ub = np.concatenate([rn, (base[pa] + delta) / nrm[pa], s_poly])
-        cap = np.where(fl, np.maximum(0.0, -rn), np.inf)
-        bounds = [(None, None), (None, None)]
-        bounds += [(0.0, None if math.isinf(c) else float(c)) for c in cap]
-        bounds += [(0.0, None)] * kf
-        cost = np.concatenate([[0.0, 0.0], np.ones(k), np.full(kf, FLOOR_WEIGHT)])
-        lp = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs-ds")
-        if lp.status == 0:
-            x = lp.x
-            v_lp = np.asarray(x[:2], dtype=float)
-            extra = np.zeros(k)
-            extra[fl] = np.maximum(x[2 + k :], 0.0)
-            slack[rows] = (np.maximum(x[2 : 2 + k], 0.0) + extra) * nrm[rows]
-            broke = bool((extra > 1e-12).any())
-        else:  # pragma: no cover - feasible by construction (robot rows unbounded)
-            slack[rows] = np.maximum(0.0, -(A[rows] @ np.zeros(2) + base[rows]))
-            broke = bool(floor[rows].any())
-    else:
-        broke = False
+    could_bind = base < nrm * radius  # else met anywhere in the speed disc
+    rows = np.flatnonzero(rob & could_bind)
+    unbounded = np.full(rows.size, np.inf)
+    held = ped | flo
+    gave_way, delta = "robots", 0.0
+    found = _robot_slacks(A, base, nrm, held, base, rows, unbounded, S, s_poly)
+    if found is None:
+        level = _level(A, base, nrm, ped, flo, base, S, s_poly) if ped.any() else None
+        if level is not None:  # 2. the pedestrians' level with the floors held
+            gave_way = "pedestrians"
+            delta = max(level, 0.0)
+        else:  # 3. the floors give way too: the pedestrians' level alone
+            gave_way = "robot_floors"
+            rows, held = np.flatnonzero(flo & could_bind), ped
+            unbounded = np.full(rows.size, np.inf)
+            star, _ = solver.min_lambda(A[ped], base[ped])
+            delta = max(float(star), 0.0)
+        delta += float(solver.search_margin(abs(delta), A, base))
+        fixed_rhs = base + np.where(ped, delta, 0.0)
+        found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, unbounded, S, s_poly)
+    v_lp, slack = found if found is not None else (None, np.zeros(A.shape[0]))
     relaxed = slack > 0.0
     if relaxed.any():
         slack = np.where(relaxed, slack + float(solver.search_margin(slack.max(), A, base)), 0.0)
-    rhs = base + np.where(robot, slack, delta)
-    v = solver.project(nominal, A, rhs)
+    if gave_way != "robot_floors":
+        keep = slack  # the barrier rows' slacks; floors at 0
+    else:  # the barrier rows left out, the floors with their slacks
+        keep = np.where(rob, np.inf, slack)
+    v = solver.project(nominal, A, base + np.where(ped, delta, keep))
     if v is None:
-        if v_lp is None:  # round-off at the pedestrians' level: every row together
+        if v_lp is None:  # round-off: every row relaxed together
             star, v_star = solver.min_lambda(A, base)
-            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "pedestrians"
+            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "robot_floors"
         v = v_lp
-    if raised:
-        gave_way = "pedestrians"
-    elif broke:
-        gave_way = "robot_floors"
-    else:
-        gave_way = "robots" if relaxed.any() else ""
+    if gave_way == "robots" and not relaxed.any():
+        gave_way = ""
     return np.asarray(v, dtype=float), lam + delta, gave_way
-
-
-def overlap_rows(
-    x_ego: np.ndarray,
-    view: PeerView,
-    d_c: float,
-    a: float,
-    A: np.ndarray,
-    b: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The robot rows with a row for each peer already within the robots' collision
-    distance: ``(A, b, overlapped)``.
-
-    There the barrier has no gradient (no velocity changes its row, which would be left
-    out of every search and keep the two robots in contact); its row becomes ``-u . v +
-    s_ij a (d - d_c) >= 0`` with ``u`` the unit vector toward the peer: robot i moves away
-    from it at its share of ``a`` times the overlap (two robots that both comply separate),
-    a row that :func:`priority_relax` floors at not closing in. A peer at the very same
-    position is left as it is (no direction to part in).
-
-    Parameters
-    ----------
-    x_ego : ndarray of shape (2,)
-        The robot's position (m).
-    view : PeerView
-        Its peers (positions, shares).
-    d_c : float
-        The robots' collision distance, centre to centre (m).
-    a : float
-        The constraint's slope (1/s).
-    A : ndarray of shape (K, 2)
-        The robot rows (:func:`peer_rows`).
-    b : ndarray of shape (K,)
-        Their right-hand sides.
-    """
-    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
-    d = np.hypot(rel[:, 0], rel[:, 1])
-    inside = (d < d_c) & (d > 0.0)
-    if not inside.any():
-        return A, b, inside
-    A = np.array(A, dtype=float)
-    b = np.array(b, dtype=float)
-    A[inside] = -rel[inside] / d[inside, None]
-    b[inside] = view.shares[inside] * a * (d[inside] - d_c)
-    return A, b, inside

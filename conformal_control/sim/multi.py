@@ -425,9 +425,6 @@ def run_multi(
           Planning families: how far ahead (s) the peers' lines bind a plan.
         - ``priority`` ({"pedestrians", "robots"}):
           The rows kept longest when not every row can be met.
-        - ``floor`` (float, optional):
-          Within this distance (m) beyond contact a robot row gives way no further than
-          non-closing, unless the pedestrians need more.
         - ``coordination`` ({"none", "yield"}):
           ``"yield"``: a robot whose robot rows gave way says so, and its partners take
           the whole pair (needs ``information="plan"``).
@@ -450,7 +447,7 @@ def run_multi(
     lambda_scope, weights, ignoring = section.scope, section.weights, section.ignoring
     sidestep, hard_rows = section.sidestep, section.hard_rows
     peer_horizon, coordination = section.peer_horizon, section.coordination
-    priority, floor = section.priority, section.floor
+    priority = section.priority
     if coordination != "none" and information != "plan":
         raise ValueError(
             f"robots coordination={coordination!r} needs information='plan' (robots tell "
@@ -497,7 +494,6 @@ def run_multi(
             peer_horizon,
             coordination,
             priority,
-            floor,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -629,7 +625,6 @@ def run_multi(
         "peer_horizon": peer_horizon,
         "coordination": coordination,
         "priority": priority,
-        "floor": floor,
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -664,7 +659,6 @@ def set_reciprocity(
     peer_horizon: float | None = None,
     coordination: str = "none",
     priority: str = "robots",
-    floor: float | None = None,
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -691,9 +685,6 @@ def set_reciprocity(
         Whether a robot whose robot rows gave way broadcasts that it yields.
     priority : {"pedestrians", "robots"}
         The rows kept longest when not every row can be met.
-    floor : float, optional
-        Within this distance (m) beyond contact, robot rows give way no further than
-        non-closing unless the pedestrians need more.
     """
     if not hasattr(family, "reciprocity"):
         raise ValueError(
@@ -709,7 +700,6 @@ def set_reciprocity(
         peer_horizon,
         coordination,
         priority,
-        floor,
     )
     rec.validate()
     family.reciprocity = rec
