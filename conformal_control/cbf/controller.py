@@ -48,9 +48,7 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too, codes 8 to 10 the priority
-#: search that relaxed the robot rows, the pedestrians', the robot rows past their floors
-#: (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -59,9 +57,6 @@ _CODE_STATUS = (
     "lambda_search",
     "",
     "",
-    "lambda_search",
-    "lambda_search",
-    "lambda_search",
     "lambda_search",
 )
 

@@ -44,27 +44,11 @@ from .kernels2d import (
 )
 from .pyhypot import c_hypot
 
-__all__ = [
-    "PEDESTRIANS_GAVE_WAY",
-    "ROBOTS_GAVE_WAY",
-    "ROBOT_FLOORS_GAVE_WAY",
-    "SEARCH_ALL",
-    "apf_control_peers",
-    "apf_rows_weighted",
-    "lexicographic_search",
-    "priority_search",
-]
+__all__ = ["SEARCH_ALL", "apf_control_peers", "apf_rows_weighted", "lexicographic_search"]
 
 #: Result code of :func:`apf_control_peers`: the search had to give the rows without
 #: slack some too (the common level ended above 0).
 SEARCH_ALL = 7
-
-#: Result codes of :func:`priority_search`: only the robot rows gave way (no further than
-#: their floors); the pedestrians' rows gave way too (their level was raised); the robot
-#: rows gave way past their non-closing floors.
-ROBOTS_GAVE_WAY = 8
-PEDESTRIANS_GAVE_WAY = 9
-ROBOT_FLOORS_GAVE_WAY = 10
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -188,148 +172,6 @@ def lexicographic_search(
         else:
             lo = mid
     return (SEARCHED if keep or hi <= 0.0 else SEARCH_ALL), v0, v1, hi, solves
-
-
-@jit
-def _feasible_priority(
-    n0: float,
-    n1: float,
-    A: np.ndarray,
-    base: np.ndarray,
-    robot: np.ndarray,
-    cap: np.ndarray,
-    level: float,
-    level_a: float,
-    delta: float,
-    S: np.ndarray,
-    s: np.ndarray,
-    radius: float,
-    G: np.ndarray,
-    h: np.ndarray,
-    rhs: np.ndarray,
-) -> tuple[bool, float, float]:
-    """The projection with the robot rows at ``base + min(level, cap) + max(0, level -
-    level_a)``, the others at ``base + delta`` (rows with a zero gradient left out)."""
-    beyond = max(0.0, level - level_a)
-    for j in range(A.shape[0]):
-        if A[j, 0] == 0.0 and A[j, 1] == 0.0:
-            rhs[j] = math.inf
-        elif robot[j] != 0.0:
-            rhs[j] = base[j] + min(level, cap[j]) + beyond
-        else:
-            rhs[j] = base[j] + delta
-    return solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
-
-
-@jit
-def priority_search(
-    n0: float,
-    n1: float,
-    A: np.ndarray,
-    b: np.ndarray,
-    robot: np.ndarray,
-    floor: np.ndarray,
-    lam: float,
-    S: np.ndarray,
-    s: np.ndarray,
-    verts: np.ndarray,
-    radius: float,
-    margin_rel: float,
-    G: np.ndarray,
-    h: np.ndarray,
-    rhs: np.ndarray,
-    Ak: np.ndarray,
-    bk: np.ndarray,
-    base: np.ndarray,
-    cap: np.ndarray,
-) -> tuple[int, float, float, float, int]:
-    """The fallback of an infeasible step with the pedestrians' rows given way last
-    (``robot`` != 0: a robot row; ``floor`` != 0: a robot row that keeps the non-closing
-    floor in the first tier; every row's base is ``b + lam``, the rows without slack
-    holding ``- lam`` in ``b``): ``(code, v_x, v_y, lambda_applied, n_solves)``.
-
-    The search of :func:`~conformal_control.cbf.reciprocal.priority_search` (its compiled
-    twin): the pedestrians' level first, then the robot rows' level in two tiers
-    (relaxed down to their floor, then past it), bisected to the filter's margin; the
-    projection there. :data:`ROBOTS_GAVE_WAY`, :data:`ROBOT_FLOORS_GAVE_WAY` or
-    :data:`PEDESTRIANS_GAVE_WAY` for the last class that gave way, :data:`SEARCHED` when
-    none had to after all (round-off). ``base`` and ``cap`` are scratch (length >= rows).
-    """
-    m = A.shape[0]
-    mp = 0
-    level_a = 0.0
-    level_b = 0.0
-    for j in range(m):
-        base[j] = b[j] + lam
-        cap[j] = math.inf
-        nrm = c_hypot(A[j, 0], A[j, 1])
-        if nrm == 0.0:
-            continue
-        if robot[j] != 0.0:
-            t = -base[j] + nrm * radius
-            if floor[j] != 0.0:
-                cap[j] = max(0.0, -base[j])
-                if t - cap[j] > level_b:
-                    level_b = t - cap[j]
-            if min(t, cap[j]) > level_a:
-                level_a = min(t, cap[j])
-        else:
-            G[mp, 0] = A[j, 0]
-            G[mp, 1] = A[j, 1]
-            h[mp] = base[j]
-            mp += 1
-    solves = 0
-    delta = 0.0
-    raised = False
-    if mp:
-        star, _, _ = smallest_lambda(G[:mp], h[:mp].copy(), S, s, verts, radius, Ak, bk)
-        solves += 1
-        pad = lambda_margin(abs(star), A, base[:m], radius, margin_rel)
-        if star + pad > 0.0:
-            delta = max(star, 0.0) + pad
-            raised = star > 0.0
-    margin = lambda_margin(max(level_a + level_b, delta), A, base[:m], radius, margin_rel)
-    hi = level_a + level_b + margin
-    ok, v0, v1 = _feasible_priority(
-        n0, n1, A, base, robot, cap, hi, level_a, delta, S, s, radius, G, h, rhs
-    )  # fmt: skip
-    solves += 1
-    if not ok:  # round-off at the pedestrians' level: every row relaxed together
-        star, w0, w1 = smallest_lambda(A, base[:m].copy(), S, s, verts, radius, Ak, bk)
-        low = max(0.0, star)
-        used = low + lambda_margin(low, A, base[:m], radius, margin_rel)
-        for j in range(m):
-            rhs[j] = base[j] + used
-        ok, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
-        if ok:
-            return PEDESTRIANS_GAVE_WAY, v0, v1, lam + used, solves + 2
-        return PEDESTRIANS_GAVE_WAY, w0, w1, lam + low, solves + 2
-    ok, w0, w1 = _feasible_priority(
-        n0, n1, A, base, robot, cap, 0.0, level_a, delta, S, s, radius, G, h, rhs
-    )  # fmt: skip
-    solves += 1
-    if ok:
-        return (PEDESTRIANS_GAVE_WAY if raised else SEARCHED), w0, w1, lam + delta, solves
-    lo = 0.0
-    for _ in range(MAX_BISECTIONS):
-        if hi - lo <= margin:
-            break
-        mid = 0.5 * (lo + hi)
-        ok, w0, w1 = _feasible_priority(
-            n0, n1, A, base, robot, cap, mid, level_a, delta, S, s, radius, G, h, rhs
-        )  # fmt: skip
-        solves += 1
-        if ok:
-            hi, v0, v1 = mid, w0, w1
-        else:
-            lo = mid
-    if raised:
-        code = PEDESTRIANS_GAVE_WAY
-    elif hi > level_a:
-        code = ROBOT_FLOORS_GAVE_WAY
-    else:
-        code = ROBOTS_GAVE_WAY
-    return code, v0, v1, lam + delta, solves
 
 
 @jit
@@ -468,26 +310,12 @@ def apf_control_peers(
     apf_rows_weighted(x0, x1, pv[0, s], pv[1, s], col, lam, prm, A, b)
     search = prm[9] != 0.0
     hard = col[1, :m]
-    first = turn[6] != 0.0 and m > npred  # robot rows give way first (priority_search)
-    lexicographic = search and (hard.any() or first)
+    lexicographic = search and hard.any()
     code, v0, v1, lam_used, _ = filter_step(
         n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8],
         search and not lexicographic, prm[10], G, h, rhs, Ak, bk,
     )  # fmt: skip
-    if first and code == INFEASIBLE and search:
-        robot = np.zeros(m)
-        robot[npred:] = 1.0
-        floor = np.zeros(m)
-        if turn[7] >= 0.0:  # the non-closing floor of the robots near contact
-            for k in range(m - npred):
-                d = c_hypot(peer_pos[k, 0] - x0, peer_pos[k, 1] - x1)
-                if d < prm[2] + col[2, npred + k] + turn[7]:
-                    floor[npred + k] = 1.0
-        code, v0, v1, lam_used, _ = priority_search(
-            n0, n1, A, b, robot, floor, lam, S, sv, verts, prm[6], prm[10], G, h, rhs, Ak,
-            bk, np.empty(m), np.empty(m),
-        )  # fmt: skip
-    elif lexicographic and code == INFEASIBLE:
+    if lexicographic and code == INFEASIBLE:
         code, v0, v1, lam_used, _ = lexicographic_search(
             n0, n1, A, b, hard, lam, turn[5] != 0.0, S, sv, verts, prm[6], prm[10], G, h, rhs,
             Ak, bk,

@@ -114,7 +114,6 @@ __all__ = [
     "pair_shares",
     "peer_rows",
     "priority_relax",
-    "priority_search",
     "reference_velocities",
     "sidestep",
 ]
@@ -187,7 +186,7 @@ class Reciprocity(Plugin):
         (:class:`~conformal_control.world.multi.MultiRobotWorld`); needs broadcast plans.
     priority : {"pedestrians", "robots"}
         The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
-        rows give way first, :func:`priority_search`) or ``"robots"`` (the
+        rows give way first, :func:`priority_relax`) or ``"robots"`` (the
         pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
         :func:`lexicographic_search`).
     """
@@ -556,128 +555,6 @@ def lexicographic_search(
         else:
             lo = mid
     return v, hi, not keep and hi > 0.0
-
-
-def priority_search(
-    solver: Any,
-    nominal: np.ndarray,
-    A: np.ndarray,
-    b: np.ndarray,
-    robot: np.ndarray,
-    lam: float,
-    floor: np.ndarray | None = None,
-) -> tuple[np.ndarray, float, str]:
-    """The ``lambda_search`` fallback with the pedestrians' rows given way last
-    (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
-
-    Every row's base is ``A v + b + lam >= 0`` (rows without slack already hold ``- lam``
-    in ``b``). First the pedestrians' rows (``~robot``) alone: the smallest level
-    ``delta >= 0`` added to them at which they can be met (0 when they can at the base).
-    With them there, the robot rows give way, in two tiers, at the smallest level ``L >=
-    0`` (by bisection on the projection's feasibility, which is monotone in ``L``):
-
-    1. up to ``L_A``, each robot row is relaxed by ``min(L, cap_j)``: a row with a
-       ``floor`` (a robot near contact) no further than the *non-closing* row (``cap_j =
-       max(0, -(b_j + lam))``: its right-hand side 0, i.e. the robot does not move toward
-       that robot; met by both robots of a pair, their distance does not fall), the
-       others without limit;
-    2. beyond ``L_A`` (only when the pedestrians' rows and the non-closing rows cannot be
-       met together), the floored rows are relaxed past their floor by ``L - L_A``.
-
-    The projection at that level. Rows with a zero gradient (an agent already overlapped:
-    no velocity changes them) are left out. ``gave_way`` names the last class that gave
-    way: ``""`` (none after all: round-off), ``"robots"``, ``"robot_floors"`` or
-    ``"pedestrians"`` (their level raised; the robot rows then as the search found). The
-    generic path's twin of :func:`~conformal_control.cbf.kernels_peers.priority_search`.
-
-    Parameters
-    ----------
-    solver : SafetyFilter
-        The filter whose primitives are used (``project``, ``min_lambda``,
-        ``search_margin``, ``v_max`` and, when it has one, ``speed_sides``).
-    nominal : ndarray of shape (2,)
-        The nominal velocity (m/s).
-    A : ndarray of shape (R, 2)
-        The rows' velocity coefficients.
-    b : ndarray of shape (R,)
-        Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
-    robot : ndarray of bool, shape (R,)
-        Which rows are about robots (they give way first).
-    lam : float
-        The lambda of the step (1/s).
-    floor : ndarray of bool, shape (R,), optional
-        Which robot rows keep the non-closing floor in the first tier (default none).
-
-    Returns
-    -------
-    v : ndarray of shape (2,)
-        The decision (m/s).
-    lambda_applied : float
-        ``lam`` plus the pedestrians' level (1/s).
-    gave_way : str
-        ``""``, ``"robots"``, ``"robot_floors"`` or ``"pedestrians"``.
-    """
-    live = np.hypot(A[:, 0], A[:, 1]) > 0.0
-    robot = np.asarray(robot, dtype=bool)
-    floor = np.zeros_like(robot) if floor is None else np.asarray(floor, dtype=bool) & robot
-    if not live.all():
-        A, b, robot, floor = A[live], b[live], robot[live], floor[live]
-    base = b + lam
-    ped = ~robot
-    delta = 0.0
-    raised = False
-    if ped.any():
-        star, _ = solver.min_lambda(A[ped], base[ped])
-        pad = float(solver.search_margin(abs(float(star)), A, base))
-        if star + pad > 0.0:  # met at the base only within round-off, or not at all
-            delta = max(float(star), 0.0) + pad
-            raised = star > 0.0
-    sides = getattr(solver, "speed_sides", None)
-    if isinstance(sides, int):  # the disc around the filter's speed polygon
-        reach = speed_polygon(sides, float(solver.v_max))[3]
-    else:
-        reach = 2.0 * float(solver.v_max)  # |v| <= 2 v_max on any polygon of 3+ sides
-    top = -base + np.hypot(A[:, 0], A[:, 1]) * reach  # a row holds anywhere beyond it
-    cap = np.where(floor, np.maximum(0.0, -base), np.inf)
-    level_a = float(np.minimum(top, cap)[robot].max(initial=0.0))
-    level_b = float(np.maximum(top - cap, 0.0)[floor].max(initial=0.0))
-    margin = float(solver.search_margin(max(level_a + level_b, delta), A, base))
-
-    def at(level: float) -> np.ndarray | None:
-        relax = np.minimum(level, cap) + max(0.0, level - level_a)
-        out: np.ndarray | None = solver.project(nominal, A, base + np.where(robot, relax, delta))
-        return out
-
-    def named(level: float) -> str:
-        if raised:
-            return "pedestrians"
-        if level <= 0.0:
-            return ""
-        return "robot_floors" if level > level_a else "robots"
-
-    hi = level_a + level_b + margin
-    v = at(hi)
-    if v is None:  # round-off at the pedestrians' level: every row relaxed together
-        star, v_star = solver.min_lambda(A, base)
-        floor_lam = max(0.0, float(star))
-        used = floor_lam + float(solver.search_margin(floor_lam, A, base))
-        w = solver.project(nominal, A, base + used)
-        out = np.asarray(v_star, float) if w is None else w
-        return out, lam + (floor_lam if w is None else used), "pedestrians"
-    w = at(0.0)
-    if w is not None:
-        return w, lam + delta, named(0.0)
-    lo = 0.0
-    for _ in range(MAX_BISECTIONS):
-        if hi - lo <= margin:
-            break
-        mid = 0.5 * (lo + hi)
-        w = at(mid)
-        if w is not None:
-            hi, v = mid, w
-        else:
-            lo = mid
-    return v, lam + delta, named(hi)
 
 
 def _robot_slacks(

@@ -356,18 +356,11 @@ class Exact2DSafetyFilter(VelocityFilter):
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
-        gave_way = {
-            kernels_peers.ROBOTS_GAVE_WAY: "robot_rows_relaxed",
-            kernels_peers.ROBOT_FLOORS_GAVE_WAY: "robot_floor_rows_relaxed",
-            kernels_peers.PEDESTRIANS_GAVE_WAY: "pedestrian_rows_relaxed",
-        }
-        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL, *gave_way):
+        if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL):
             self.n_solves_ += 3
-            self._count_search(code if code in (k.SEARCHED, k.SEARCH_VERTEX) else k.SEARCHED)
+            self._count_search(k.SEARCHED if code == kernels_peers.SEARCH_ALL else code)
             if code == kernels_peers.SEARCH_ALL:
                 self.count("hard_rows_relaxed")
-            elif code in gave_way:  # the priority search (kernels_peers.priority_search)
-                self.count(gave_way[code])
             self._last = self._lastv
             return None
         if code == k.INFEASIBLE:
