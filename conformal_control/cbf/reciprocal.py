@@ -734,7 +734,7 @@ def priority_relax(
         A, b, kind, nrm = A[live], b[live], kind[live], nrm[live]
     base = b + lam
     ped, rob, flo = kind == PEDESTRIAN_ROW, kind == ROBOT_ROW, kind == FLOOR_ROW
-    S, s_poly, _, radius = speed_polygon(int(getattr(solver, "speed_sides", 16)), solver.v_max)
+    S, s_poly, radius = solver.speed_set()  # the escape polygon under the edge rule
     could_bind = base < nrm * radius  # else met anywhere in the speed disc
     rows = np.flatnonzero(rob & could_bind)
     unbounded = np.full(rows.size, np.inf)
