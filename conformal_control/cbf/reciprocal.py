@@ -705,7 +705,8 @@ def priority_relax(
     ----------
     solver : SafetyFilter
         The filter whose primitives are used (``project``, ``min_lambda``,
-        ``search_margin``, and its speed polygon).
+        ``search_margin`` and ``speed_set``: the LPs work in the speed set the
+        filter works in, the escape polygon under the edge rule).
     nominal : ndarray of shape (2,)
         The nominal velocity (m/s).
     A : ndarray of shape (R, 2)
