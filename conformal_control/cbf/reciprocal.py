@@ -557,6 +557,19 @@ def lexicographic_search(
     return v, hi, not keep and hi > 0.0
 
 
+def _vertices(G: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Every pairwise intersection of the lines ``G_i . v = g_i`` (parallel pairs left
+    out), shape (P, 2)."""
+    i, j = np.triu_indices(G.shape[0], k=1)
+    det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
+    ok = np.abs(det) > 1e-12
+    i, j, det = i[ok], j[ok], det[ok]
+    x = (g[i] * G[j, 1] - G[i, 1] * g[j]) / det
+    y = (G[i, 0] * g[j] - g[i] * G[j, 0]) / det
+    out: np.ndarray = np.stack([x, y], axis=1)
+    return out
+
+
 def _robot_slacks(
     A: np.ndarray,
     base: np.ndarray,
@@ -564,67 +577,78 @@ def _robot_slacks(
     fixed: np.ndarray,
     fixed_rhs: np.ndarray,
     rows: np.ndarray,
-    cap: np.ndarray,
     S: np.ndarray,
     s_poly: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The least summed slack of the robot rows ``rows`` (normalised to unit gradient:
-    speeds), each at most ``cap`` (normalised, ``inf``: no bound), with the rows ``fixed``
-    held at ``fixed_rhs`` and the speed polygon: ``(v, slack per row of A)``, or None when
-    infeasible (an LP, HiGHS' dual simplex: a vertex, so rows that need no slack get
-    none)."""
-    from scipy.optimize import linprog  # only the priority fallback needs it
+    speeds) with the rows ``fixed`` held at ``fixed_rhs`` and the speed set ``S v <=
+    s_poly``: ``(v, slack per row of A)``, or None when the held rows cannot be met.
 
-    k, fx = rows.size, np.flatnonzero(fixed)
-    nf, ns = fx.size, S.shape[0]
-    A_ub = np.zeros((k + nf + ns, 2 + k))
-    A_ub[:k, :2] = -A[rows] / nrm[rows, None]
-    A_ub[:k, 2:] = -np.eye(k)
-    A_ub[k : k + nf, :2] = -A[fx] / nrm[fx, None]
-    A_ub[k + nf :, :2] = S
-    b_ub = np.concatenate([base[rows] / nrm[rows], fixed_rhs[fx] / nrm[fx], s_poly])
-    bounds = [(None, None), (None, None)]
-    bounds += [(0.0, None if math.isinf(c) else float(c)) for c in cap]
-    cost = np.concatenate([[0.0, 0.0], np.ones(k)])
-    lp = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs-ds")
-    if lp.status != 0:
+    The summed slack is a convex piecewise-linear function of the velocity, so its
+    minimum over the polygon the held rows and the speed set cut out is at a vertex of
+    the arrangement of their lines and the robot rows' lines: every pairwise intersection
+    is tried (a few hundred points in the plane; exact, and much faster than a
+    general LP solver here). Among minima the one keeping most rows without slack wins,
+    so rows that need none get none."""
+    fx = np.flatnonzero(fixed)
+    An, rn = A[rows] / nrm[rows, None], base[rows] / nrm[rows]
+    Fn, fn = A[fx] / nrm[fx, None], fixed_rhs[fx] / nrm[fx]
+    G = np.concatenate([-An, -Fn, S])
+    g = np.concatenate([rn, fn, s_poly])
+    pts = _vertices(G, g)
+    if not pts.size:
         return None
+    tol = 1e-9 * (1.0 + float(np.abs(g).max(initial=0.0)))
+    ok = (pts @ S.T <= s_poly + tol).all(axis=1)
+    if fx.size:
+        ok &= (pts @ Fn.T + fn >= -tol).all(axis=1)
+    pts = pts[ok]
+    if not pts.size:
+        return None
+    short = np.maximum(0.0, -(pts @ An.T + rn))  # (P, k) per row
+    total = short.sum(axis=1)
+    best = total <= total.min() + tol
+    pick = np.flatnonzero(best)[np.argmin((short[best] > tol).sum(axis=1))]
+    v = pts[pick]
     slack = np.zeros(A.shape[0])
-    slack[rows] = np.maximum(lp.x[2:], 0.0) * nrm[rows]
-    return np.asarray(lp.x[:2], dtype=float), slack
+    slack[rows] = np.where(short[pick] > tol, short[pick], 0.0) * nrm[rows]
+    return np.asarray(v, dtype=float), slack
 
 
 def _level(
+    solver: Any,
     A: np.ndarray,
     base: np.ndarray,
     nrm: np.ndarray,
     raised: np.ndarray,
     held: np.ndarray,
-    held_rhs: np.ndarray,
     S: np.ndarray,
     s_poly: np.ndarray,
+    radius: float,
 ) -> float | None:
     """The smallest level ``delta`` added to the rows ``raised`` at which they can be met
-    with the rows ``held`` at ``held_rhs`` in the speed polygon (an LP; None when the held
-    rows cannot be met at all)."""
-    from scipy.optimize import linprog  # only the priority fallback needs it
-
-    r, h = np.flatnonzero(raised), np.flatnonzero(held)
-    ns = S.shape[0]
-    A_ub = np.zeros((r.size + h.size + ns, 3))
-    A_ub[: r.size, :2] = -A[r] / nrm[r, None]
-    A_ub[: r.size, 2] = -1.0 / nrm[r]
-    A_ub[r.size : r.size + h.size, :2] = -A[h] / nrm[h, None]
-    A_ub[r.size + h.size :, :2] = S
-    b_ub = np.concatenate([base[r] / nrm[r], held_rhs[h] / nrm[h], s_poly])
-    lp = linprog(
-        [0.0, 0.0, 1.0],
-        A_ub=A_ub,
-        b_ub=b_ub,
-        bounds=[(None, None), (None, None), (None, None)],
-        method="highs-ds",
-    )
-    return float(lp.x[2]) if lp.status == 0 else None
+    with the rows ``held`` (at ``base``) in the speed set; None when the held rows cannot
+    be met at all. By bisection on the solver's exact projection (feasibility is
+    monotone in ``delta``), to its search margin."""
+    keep = raised | held
+    Ak, bk, up = A[keep], base[keep], raised[keep]
+    nominal = np.zeros(2)
+    if _robot_slacks(Ak, bk, nrm[keep], ~up, bk, np.zeros(0, dtype=np.int64), S, s_poly) is None:
+        return None
+    lo = float((-(bk + nrm[keep] * radius))[up].max(initial=0.0))  # below: infeasible
+    hi = float((-bk + nrm[keep] * radius)[up].max(initial=0.0))  # above: each row anywhere
+    margin = float(solver.search_margin(max(abs(lo), abs(hi)), Ak, bk))
+    if solver.project(nominal, Ak, bk + np.where(up, lo, 0.0)) is not None:
+        return lo
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        if solver.project(nominal, Ak, bk + np.where(up, mid, 0.0)) is not None:
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 
 #: Kinds of the rows handed to :func:`priority_relax`: a pedestrian's (predicted agent's)
@@ -687,11 +711,12 @@ def priority_relax(
     the one before cannot make them feasible:
 
     1. ``"robots"``: the robots' barrier rows, each with its own slack (the least summed
-       slack, rows normalised to unit gradient so that slacks are speeds; an LP, HiGHS'
-       dual simplex, whose vertex leaves the rows that need none without), the
+       slack, rows normalised to unit gradient so that slacks are speeds; exact, at a
+       vertex of the rows' arrangement that leaves the rows that need none without), the
        pedestrians' rows at ``lam`` and the floor rows held;
     2. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
-       which they can be met with the floor rows (another LP), then stage 1 there;
+       which they can be met with the floor rows (bisection on the exact projection),
+       then stage 1 there;
     3. ``"robot_floors"``: when the floor rows cannot be met with the pedestrians' at any
        level (robots hemmed in after a contact), the pedestrians' rows at the smallest
        level at which they can be met alone, the floor rows given way as stage 1 gives
@@ -738,24 +763,22 @@ def priority_relax(
     S, s_poly, radius = solver.speed_set()  # the escape polygon under the edge rule
     could_bind = base < nrm * radius  # else met anywhere in the speed disc
     rows = np.flatnonzero(rob & could_bind)
-    unbounded = np.full(rows.size, np.inf)
     held = ped | flo
     gave_way, delta = "robots", 0.0
-    found = _robot_slacks(A, base, nrm, held, base, rows, unbounded, S, s_poly)
+    found = _robot_slacks(A, base, nrm, held, base, rows, S, s_poly)
     if found is None:
-        level = _level(A, base, nrm, ped, flo, base, S, s_poly) if ped.any() else None
+        level = _level(solver, A, base, nrm, ped, flo, S, s_poly, radius) if ped.any() else None
         if level is not None:  # 2. the pedestrians' level with the floors held
             gave_way = "pedestrians"
             delta = max(level, 0.0)
         else:  # 3. the floors give way too: the pedestrians' level alone
             gave_way = "robot_floors"
             rows, held = np.flatnonzero(flo & could_bind), ped
-            unbounded = np.full(rows.size, np.inf)
             star, _ = solver.min_lambda(A[ped], base[ped])
             delta = max(float(star), 0.0)
         delta += float(solver.search_margin(abs(delta), A, base))
         fixed_rhs = base + np.where(ped, delta, 0.0)
-        found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, unbounded, S, s_poly)
+        found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, S, s_poly)
     v_lp, slack = found if found is not None else (None, np.zeros(A.shape[0]))
     relaxed = slack > 0.0
     if relaxed.any():

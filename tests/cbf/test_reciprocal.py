@@ -333,3 +333,39 @@ def test_floor_rows_keep_a_pair_apart_when_both_keep_them():
         u = (x[1] - x[0]) / d
         rate = u @ (v[1] - v[0])  # d/dt of the distance
         assert rate >= -2.0 * (d - 0.8) - 1e-9
+
+
+def test_the_robot_rows_least_slack_is_the_lp_optimum():
+    # the vertex enumeration of priority_relax's stage 1 against a linear program solver
+    from scipy.optimize import linprog
+
+    from conformal_control.cbf.reciprocal import _robot_slacks
+    from conformal_control.cbf.speed import speed_polygon
+
+    S, s_poly, _, _ = speed_polygon(16, 2.0)
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(200):
+        A, b, kind = _squeeze(rng)
+        base = b + float(rng.uniform(-2, 1))
+        nrm = np.hypot(A[:, 0], A[:, 1])
+        rows, fixed = np.flatnonzero(kind == 1), kind != 1
+        found = _robot_slacks(A, base, nrm, fixed, base, rows, S, s_poly)
+        k, fx = rows.size, np.flatnonzero(fixed)
+        A_ub = np.zeros((k + fx.size + S.shape[0], 2 + k))
+        A_ub[:k, :2], A_ub[:k, 2:] = -A[rows] / nrm[rows, None], -np.eye(k)
+        A_ub[k : k + fx.size, :2] = -A[fx] / nrm[fx, None]
+        A_ub[k + fx.size :, :2] = S
+        b_ub = np.r_[base[rows] / nrm[rows], base[fx] / nrm[fx], s_poly]
+        lp = linprog(np.r_[0, 0, np.ones(k)], A_ub=A_ub, b_ub=b_ub,
+                     bounds=[(None, None)] * 2 + [(0, None)] * k, method="highs")  # fmt: skip
+        assert (found is None) == (lp.status == 2)
+        if found is None:
+            continue
+        v, slack = found
+        assert (slack[rows] / nrm[rows]).sum() == pytest.approx(lp.fun, abs=1e-7)
+        assert (S @ v <= s_poly + 1e-9).all() and (A[fx] @ v + base[fx] >= -1e-9).all()
+        np.testing.assert_allclose(np.maximum(0, -(A[rows] @ v + base[rows])), slack[rows],
+                                   atol=1e-9)  # fmt: skip
+        checked += 1
+    assert checked > 15
