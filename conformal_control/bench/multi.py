@@ -988,14 +988,18 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
                     "deadlocked_difference": dl.difference,
                 }
             )
-    return {"fleet": fleet, "paired": paired, "solo": _solo_table(rows)}
+    solo = _solo_table(rows)
+    for rec in sorted({str(r.get("recording", "-")) for r in rows}):
+        part = [r for r in rows if str(r.get("recording", "-")) == rec]
+        solo += [{**t, "recording": rec} for t in _solo_table(part)]
+    return {"fleet": fleet, "paired": paired, "solo": solo}
 
 
 def _solo_table(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Every fleet arm against its robots run alone, paired by entry: pedestrian frames
     (all, avoidable, with another robot near) summed over the pairs, their ratio to the solo
     runs' with a paired bootstrap CI, and the differences of goal rate and deadlocked
-    robots (fleet minus solo)."""
+    robots (fleet minus solo); ``recording`` is ``"all"``."""
     keyed: dict[tuple[Any, ...], dict[str, Mapping[str, Any]]] = {}
     for r in rows:
         k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
@@ -1027,6 +1031,7 @@ def _solo_table(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
         )
         out.append(
             {
+                "recording": "all",
                 "robots": n,
                 "method": method,
                 "shift": shift,
@@ -1110,9 +1115,13 @@ def write_multi_report(
         "fleet / solo pedestrian frames with its paired bootstrap CI; differences are fleet "
         "minus solo.",
         "",
-        _md(tables["solo"], solo_cols)
+        _md([r for r in tables["solo"] if r["recording"] == "all"], solo_cols)
         if tables["solo"]
         else "(no solo runs: add `solo` to `--reciprocity`)",
+        "",
+        "### Per recording",
+        "",
+        _md([r for r in tables["solo"] if r["recording"] != "all"], ("recording", *solo_cols)),
         "",
         "## Reciprocal against none (paired by entry)",
         "",
