@@ -381,6 +381,8 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "information": ("position", "velocity", "plan"),
     "lambda_scope": ("pedestrians", "robots", "both"),
     "hard_rows": ("level", "last"),
+    "coordination": ("none", "yield"),
+    "priority": ("pedestrians", "robots"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -399,6 +401,9 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "ignoring",
     "sidestep",
     "hard_rows",
+    "peer_horizon",
+    "coordination",
+    "priority",
 )
 
 
@@ -455,6 +460,17 @@ class Robots:
         velocity by.
     hard_rows : {"last", "level"}
         How the lambda search treats the rows lambda is not the slack of.
+    peer_horizon : float, optional
+        Planning families (MPC): how far ahead (s) a robot's plan keeps to the lines it
+        shares with the other robots; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
+        robots gave way broadcasts it, and its partners take the whole of each pair's
+        constraint at the next instant.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
+        the robot rows as ``hard_rows`` says).
 
     Raises
     ------
@@ -478,6 +494,9 @@ class Robots:
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
+    peer_horizon: float | None = None
+    coordination: str = "none"
+    priority: str = "robots"
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -514,6 +533,9 @@ class Robots:
         k = self.sidestep
         if not (_is_real(k) and 0.0 <= k <= math.pi / 2):
             raise _spec_error(f"robots sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        p = self.peer_horizon
+        if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
+            raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
 
     @property
     def scope(self) -> str:

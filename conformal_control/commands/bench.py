@@ -202,9 +202,10 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--reciprocity",
-        default="none,reciprocal",
-        metavar="none,reciprocal",
-        help="with --robots: how the robots treat each other (default both, paired)",
+        default="solo,none,reciprocal",
+        metavar="solo,none,reciprocal",
+        help="with --robots: how the robots treat each other (default all three, paired by "
+        "entry; solo: each robot alone on its own task, the fleet's baseline)",
     )
     ru.add_argument(
         "--information",
