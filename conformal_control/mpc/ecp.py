@@ -175,6 +175,8 @@ class ECPMPC(SamplingMPC):
         Past times whose scores calibrate each plan step (>= 1).
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions.
+    edge : {"escape", "paper"}
+        The edge rule of :class:`~conformal_control.mpc.controller.SamplingMPC`.
     **grouped
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
@@ -182,6 +184,19 @@ class ECPMPC(SamplingMPC):
 
     default_loss: ClassVar[str] = "ego_miscoverage"
     lambda_unit: ClassVar[str] = "level"
+
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """``inf``: lambda is a level here, the safe distance is never below ``d_c +
+        margin`` whatever it is.
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return math.inf
+
     #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
     default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
@@ -201,6 +216,7 @@ class ECPMPC(SamplingMPC):
         random_state: int = 0,
         calibration_size: int = 15,
         max_inflation: float = 2.0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.calibration_size = calibration_size
@@ -218,6 +234,7 @@ class ECPMPC(SamplingMPC):
             continuous,
             substeps,
             random_state,
+            edge,
             **grouped,
         )
 
