@@ -97,6 +97,7 @@ def run_episode(
           ``config["engine"]`` says which ran.
     """
     run = as_run_spec(spec, params, **settings)
+    scene = run.on_scene(scene)
     if run.engine != "loop":
         compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:
