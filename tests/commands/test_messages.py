@@ -271,6 +271,34 @@ def test_below_the_floor_the_missed_goal_is_blamed_on_the_fallback(crossing) -> 
     assert cc.run(crossing, epsilon=-0.2).metrics["goal_reached"]
 
 
+def test_the_floor_advice_knows_the_lambda_min_given(nexus4) -> None:
+    """The issue: `--param a=1 --param lambda_min=-5` failed and the warning advised
+    clipping lambda with lambda_min, already given. A lambda_min at or below the floor is
+    named as the reason, with the bound that works; one above it is not advised again."""
+    from conformal_control.exceptions import FeasibilityWarning
+
+    def warned(**params: float) -> tuple[list[str], cc.EpisodeResult]:
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            res = cc.run(nexus4, params={"a": 1, **params}, units="scene")
+        texts = [str(w.message) for w in rec if issubclass(w.category, FeasibilityWarning)]
+        texts += [str(w.message) for w in rec if w.category is GoalNotReachedWarning]
+        return texts, res
+
+    texts, res = warned(lambda_min=-5)
+    assert not res.metrics["goal_reached"] and len(texts) == 2, texts
+    for text in texts:
+        assert "lambda_min=-5 1/frame is at or below the floor (-0.5 1/frame)" in text
+        assert text.endswith("set lambda_min above -0.5 1/frame, or raise epsilon or a")
+    texts, res = warned(lambda_min=-0.45)  # the advice works
+    assert res.metrics["goal_reached"] and res.metrics["fallback_share"] == 0
+    assert len(texts) == 1 and texts[0].endswith(
+        "lambda_min=-0.45 1/frame keeps lambda above that floor, so l_avg cannot come down "
+        "to epsilon"
+    )
+    assert res.metrics["l_avg"] > res.metrics["epsilon"]
+
+
 # ------------------------------------------------------------------------------ progress
 def test_animate_writes_lines_not_carriage_returns_into_a_log(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
