@@ -206,7 +206,7 @@ def _run_parser() -> argparse.ArgumentParser:
     suppressed (a parsed namespace holds only what was given), errors raised rather than
     printed."""
     parser = argparse.ArgumentParser(
-        prog="conformal-control run", add_help=False, exit_on_error=False
+        prog="conformal-control run", add_help=False, exit_on_error=False, allow_abbrev=False
     )
     _run_args(parser)
     parser.add_argument("-q", "--quiet", action="store_true")

@@ -70,6 +70,62 @@ def test_a_wrong_choice_is_named_by_what_it_is(
     assert error_line(capsys) == expected
 
 
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (
+            ["run", "--epsilo", "-0.1"],
+            "error: unknown option '--epsilo'; did you mean '--epsilon'? (see "
+            "`conformal-control run --help`)",
+        ),
+        (
+            ["run", "--strat=0.1,0.5"],
+            "error: unknown option '--strat'; did you mean '--start'? (see "
+            "`conformal-control run --help`)",
+        ),
+        (
+            ["bench", "run", "--shfit", "nominal", "--out", "x"],
+            "error: unknown option '--shfit'; did you mean '--shift'? (see "
+            "`conformal-control bench run --help`)",
+        ),
+    ],
+    ids=["abbreviation", "with =", "nested command"],
+)
+def test_an_unknown_flag_is_never_abbreviated_and_gets_a_suggestion(
+    argv: list[str], expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The issue: `--epsilo -0.1` was silently read as `--epsilon` (argparse's
+    abbreviations), and typo'd flags got no suggestion while typo'd names did."""
+    assert main(argv) == EXIT_ERROR
+    assert error_line(capsys) == expected
+
+
+def test_no_parser_of_the_cli_or_its_scripts_abbreviates() -> None:
+    import argparse
+
+    parser = build_parser()
+    stack: list[argparse.ArgumentParser] = [parser]
+    n = 0
+    while stack:
+        p = stack.pop()
+        assert p.allow_abbrev is False, p.prog
+        n += 1
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack += list(action.choices.values())
+    assert n >= 20
+    scripts = [
+        p
+        for d in ("conformal_control", "examples", "benchmarks", "plugins")
+        for p in (ROOT / d).rglob("*.py")
+        if "argparse.ArgumentParser(" in p.read_text()
+    ]
+    assert scripts
+    for path in scripts:
+        for call in re.findall(r"argparse\.ArgumentParser\((.*?)\)\n", path.read_text(), re.S):
+            assert "allow_abbrev=False" in call, path
+
+
 def test_no_choice_error_calls_an_option_value_a_command(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
