@@ -28,6 +28,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 from .base import DecisionFamily, Environment, Loss, UpdateRule
+from .exceptions import ConformalControlDeprecationWarning
 from .monitor import GuaranteeMonitor
 
 __all__ = [
@@ -190,7 +191,7 @@ def _policy_is_family(init: Callable[_P, _R]) -> Callable[_P, _R]:
         if "policy" in kwargs:
             warnings.warn(
                 "the loop's keyword policy= is now family= (removed in 0.4)",
-                DeprecationWarning,
+                ConformalControlDeprecationWarning,
                 stacklevel=2,
             )
             kwargs["family"] = kwargs.pop("policy")
@@ -263,7 +264,7 @@ class ConformalStepper:
         """Deprecated name of :attr:`family` (removed in 0.4)."""
         warnings.warn(
             "the loop's attribute policy is now family (removed in 0.4)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .base import expand_settings
-from .exceptions import InputError
+from .exceptions import ConformalControlDeprecationWarning, InputError
 
 __all__ = [
     "OPTION_FIELDS",
@@ -653,7 +653,7 @@ class RunSpec:
         warnings.warn(
             f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
             "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=4,
         )
         object.__setattr__(self, "fallback", next(iter(given.values())))

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
+from ..exceptions import ConformalControlDeprecationWarning
 from . import (
     add_data_root,
     check_writable,
@@ -517,7 +518,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
             )
         warnings.warn(
             f"--param fallback={old_way} is --fallback {old_way} since 0.3",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         args.fallback = old_way
