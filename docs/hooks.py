@@ -173,7 +173,8 @@ def api_page(module: str) -> str:
 
 
 def api_nav(package: str) -> list[dict[str, Any]]:
-    """Navigation of a package: its page, its modules, its subpackages as sections."""
+    """Navigation of a package: its page, its modules, its subpackages as sections, every
+    entry named by its full dotted path (as its page's title and the module index)."""
     modules = public_modules()
     depth = package.count(".") + 1
     items: list[dict[str, Any]] = [{package: api_page(package)}]
@@ -182,7 +183,7 @@ def api_nav(package: str) -> list[dict[str, Any]]:
             if _is_package(m):
                 items.append({m: api_nav(m)})
             else:
-                items.append({m.rsplit(".", 1)[1]: api_page(m)})
+                items.append({m: api_page(m)})
     return items
 
 

@@ -796,3 +796,25 @@ def test_no_python_block_reads_a_name_nothing_defines(page: str) -> None:
             continue
         missing, known = _undefined(code, known)
         assert not missing, f"{page}: {heading}: {sorted(missing)} defined nowhere"
+
+
+def test_the_api_navigation_names_every_module_one_way() -> None:
+    """Every entry and section of the API reference's navigation is the full dotted path of
+    its module (the issue: sections were dotted, modules short)."""
+    hooks = _hooks()
+    seen = []
+
+    def walk(items: list) -> None:
+        for item in items:
+            ((label, target),) = item.items()
+            if isinstance(target, list):
+                assert label == next(iter(target[0])), label  # the section is its package
+                walk(target)
+            else:
+                module = target.removeprefix("api/").removesuffix(".md")
+                module = module.removesuffix("/index").replace("/", ".")
+                assert label == module, (label, target)
+                seen.append(label)
+
+    walk(hooks.api_nav("conformal_control"))
+    assert sorted(seen) == hooks.public_modules()

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from .destination import safe_output
 from .reader import RobotTrack, RunRecord, read_run
@@ -25,7 +26,11 @@ FORMATS = {"mcap": ".mcap", "rerun": ".rrd"}
 
 
 def export_run(
-    run_dir: str | Path | RunRecord, out: str | Path | None = None, *, format: str = "mcap"
+    run_dir: str | Path | RunRecord,
+    out: str | Path | None = None,
+    *,
+    format: str = "mcap",
+    start_time: Any = None,
 ) -> Path:
     """Write a run directory as an MCAP file (Foxglove) or a Rerun recording.
 
@@ -39,6 +44,10 @@ def export_run(
         file of the run directory (but an earlier export of the same format), a link or
         a device (:mod:`conformal_control.export.destination`).
     format : {"mcap", "rerun"}
+    start_time : datetime or str, optional
+        The date and time the run's ``t = 0`` is shown at (ISO 8601, e.g.
+        ``"2026-05-04T09:30:00Z"``; without a time zone, UTC); None: the Unix epoch in an
+        MCAP file (the same run, the same file), the time since the start in Rerun's.
 
     Returns
     -------
@@ -58,7 +67,7 @@ def export_run(
     if format == "mcap":
         from .to_mcap import write_mcap
 
-        return write_mcap(rec, target)
+        return write_mcap(rec, target, start_time=start_time)
     from .to_rerun import write_rerun
 
-    return write_rerun(rec, target)
+    return write_rerun(rec, target, start_time=start_time)
