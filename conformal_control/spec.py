@@ -170,6 +170,17 @@ class Parameters:
         -math.inf, "clip lambda from below (1/time) against wind-up", dimension=_RATE
     )
     lambda_max: float = _p(math.inf, "clip lambda from above (1/time)", dimension=_RATE)
+    lambda_per: str = _p(
+        "run",
+        "'run': one lambda for the run; 'agent': one per agent, each learned from its own loss",
+        kind="text",
+    )
+    lambda_prior: float = _p(
+        0.5,
+        "per agent: quantile of the current lambdas a new agent starts at, in [0, 1]",
+        low=0.0,
+        high=1.0,
+    )
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )

@@ -18,6 +18,9 @@ them with their settings and tuning grids):
 ``conformal_pid``  conformal PID control (Angelopoulos et al. 2023) on the gap loss
 ``conformal_dtaci`` DtACI experts (Gibbs & Candes 2022) on the gap loss
 ``conformal_aci``  ACI's rule on the collision loss (target: a collision rate per interval)
+``conformal_agent`` a lambda per pedestrian, each its own fixed-eta rule on its own gap loss
+``conformal_agent_dtaci`` a lambda per pedestrian, each its own DtACI experts
+``conformal_dtaci_floor`` DtACI experts with a lambda floor (the floor tuned)
 ``oracle``         the true future as prediction, lambda = 0 (the paper's gt/noLearn)
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
 ``fallback:*``     ``conformal`` with another fallback (``brake``, ``relax``)
@@ -280,6 +283,14 @@ MPC_SEARCH: dict[str, Any] = {
     "fallback": "least_violation",
 }
 
+#: The DtACI experts' learning rates on the crossing suites (1/s).
+DTACI_GAMMAS = (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA)
+#: The floor of every pedestrian's lambda in the per-pedestrian families (1/s): chosen on
+#: the dev split (docs/benchmark.md: per-agent floors -25 to -40/s under the nominal,
+#: delayed and noisy predictors), above the feasibility floor -a h_max = -50/s where a far
+#: pedestrian's row alone makes the step infeasible.
+AGENT_FLOOR = -30.0
+
 _DECLARED: tuple[Family, ...] = (
     Family("nolearn", "lambda = 0, no learning (pred/noLearn)", learn=False),
     Family(
@@ -324,7 +335,42 @@ _DECLARED: tuple[Family, ...] = (
         settings=(-0.1,),
         tune=(-0.2, -0.1, -0.05),
         rule="dtaci",
-        rule_params={"gammas": (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA), "sigma": 0.01},
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+    ),
+    Family(
+        "conformal_agent",
+        "a lambda per pedestrian (its row's slack), each its own fixed-eta rule on its own "
+        "gap loss, floored at -30/s",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's target)",
+        settings=(-0.05,),
+        tune=(-0.2, -0.15, -0.1, -0.05, 0.0),
+        params={"eta": ETA, "lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+    ),
+    Family(
+        "conformal_agent_dtaci",
+        "a lambda per pedestrian, each its own DtACI experts on its own gap loss, floored at -30/s",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's target)",
+        settings=(-0.05,),
+        tune=(-0.2, -0.1, -0.05, 0.0),
+        params={"lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+        rule="dtaci",
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+    ),
+    Family(
+        "conformal_dtaci_floor",
+        "DtACI experts on the gap loss (eps = -0.05) with a lambda floor",
+        setting="params.lambda_min",
+        label="floor={:g}/s",
+        meaning="lambda floor (1/s)",
+        settings=(-40.0,),
+        tune=(-20.0, -30.0, -40.0, -50.0),
+        params={"epsilon": -0.05},
+        rule="dtaci",
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
     ),
     Family(
         "conformal_aci",

@@ -262,6 +262,10 @@ class ConformalCBFController(
         # the compiled step's interval: it records into _rec itself (see _record)
         self._fast = False
         self._n = 0
+        # lambda per agent: the array last given, its smallest entry and the rows' offsets
+        self._lam_src: np.ndarray | None = None
+        self._lam_ref = 0.0
+        self._lam_off = np.zeros(0)
 
     def _record(self, rows: int) -> None:
         """A fresh record for the compiled step (``kernels2d.apf_control``'s layout) of
@@ -420,9 +424,43 @@ class ConformalCBFController(
         """The slack handed to the safety filter for ``lam``: ``lam`` itself (Algorithm 1)."""
         return lam
 
+    def lambda_keys(self) -> np.ndarray | None:
+        """The interval's sensed agents (``record.ids``, the query's order): lambda run per
+        agent gives row j its own slack lambda_j. None for a subclass that moves the knob
+        elsewhere (``constraint_rows`` or ``slack`` overridden, e.g. ACP's regions)."""
+        me = type(self)
+        if (
+            me.constraint_rows is not ConformalCBFController.constraint_rows
+            or me.slack is not ConformalCBFController.slack
+        ):
+            return None
+        return self._query_ids
+
+    def _per_agent(self, lam: np.ndarray) -> tuple[float, np.ndarray]:
+        """lambda per agent as (the smallest entry, each row's offset above it): row j's
+        slack is ``lam_j = ref + off_j``; the filter and its fallbacks see the scalar
+        ``ref`` (the lambda search raises every row alike). Exactly 0 offset for the
+        smallest entry, so one agent is the scalar path bit for bit."""
+        if lam is self._lam_src:
+            return self._lam_ref, self._lam_off
+        if self._typed:
+            raise ValueError("lambda per agent is not supported with several robots")
+        if lam.shape != self._query_ids.shape:
+            raise ValueError(
+                f"lambda per agent has shape {lam.shape}; the interval has "
+                f"{self._query_ids.size} agents (lambda_keys())"
+            )
+        ref = float(lam.min()) if lam.size else 0.0
+        self._lam_src, self._lam_ref = lam, ref
+        self._lam_off = np.ascontiguousarray(lam - ref, dtype=np.float64)
+        return ref, self._lam_off
+
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        off: np.ndarray | None = None
+        if isinstance(lam, np.ndarray):  # lambda per agent: one entry per lambda_keys()
+            lam, off = self._per_agent(lam)
         if self._fast:
-            return self._decide_compiled(state, lam)
+            return self._decide_compiled(state, lam, off)
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         if self._peer_ids.size and self._turn[1]:
@@ -430,10 +468,12 @@ class ConformalCBFController(
         res: FilterResult
         if self._fused and self._ids.size and not self._special:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
-                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
+                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam, off
             )
         else:
             A, b = self.constraint_rows(state, lam)
+            if off is not None and b.size:
+                b = b + off
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
             res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
@@ -480,8 +520,11 @@ class ConformalCBFController(
             f.count("hard_rows_relaxed")  # type: ignore[attr-defined]
         return FilterResult(v, "fallback", used, "lambda_search")
 
-    def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
-        """:meth:`decide` through the compiled step, which writes the record itself."""
+    def _decide_compiled(
+        self, state: ControlState, lam: float, off: np.ndarray | None = None
+    ) -> np.ndarray:
+        """:meth:`decide` through the compiled step, which writes the record itself
+        (``off``: the rows' offsets of lambda run per agent)."""
         i = self._n
         if i == self._rows:
             self._record(2 * i)
@@ -500,7 +543,7 @@ class ConformalCBFController(
             res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
         else:
             res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
-                x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
+                x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, off
             )
         self._n = i + 1
         self.n_steps_ += 1

@@ -447,6 +447,7 @@ def apf_step(
     prm: np.ndarray,
     poly: np.ndarray,
     work: np.ndarray,
+    off: np.ndarray,
 ) -> tuple[int, float, float, float, int]:
     """The fused control step for the APF barrier: rows, then :func:`filter_step`.
 
@@ -455,6 +456,10 @@ def apf_step(
     :data:`PARAMS`; ``poly`` the speed polygon, flat: ``S`` (sides x 2), ``s``, vertices
     (sides x 2); ``work`` the buffers, flat (:func:`work_size`): A (capacity x 2), b, rhs,
     Ak (capacity x 2), bk, G (capacity + sides, 2), h. The rows are left in A and b.
+
+    ``off`` is empty (one lambda for every row), or holds one offset per agent added to
+    its row's ``b`` (lambda run per agent: row j's slack is ``lam + off[j]``, ``lam`` the
+    smallest entry, so the lambda search raises every row alike).
     """
     m = xp.shape[0]
     cap = int(prm[11])
@@ -470,6 +475,9 @@ def apf_step(
     s = poly[2 * ns : 3 * ns]
     verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
     apf_rows(x0, x1, xp, vp, prm[0], prm[1], prm[2], prm[3], prm[4] != 0.0, prm[5], A, b)
+    if off.shape[0]:
+        for j in range(m):
+            b[j] += off[j]
     return filter_step(
         n0, n1, A, b, lam, S, s, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0, prm[10],
         G, h, rhs, Ak, bk,
@@ -496,6 +504,7 @@ def apf_control(
     pv: np.ndarray,
     buf: np.ndarray,
     rec: np.ndarray,
+    off: np.ndarray,
 ) -> int:
     """:func:`apf_step` on step ``s`` of an interval's predictions, recorded: returns its code.
 
@@ -509,7 +518,7 @@ def apf_control(
     the decision (copied to the last decision too) and the lambda applied. Nothing is
     written for :data:`NONFINITE`, :data:`TOO_MANY` (more agents than ``buf`` was laid out
     for) or :data:`OUT_OF_RANGE` (``s`` is not a step of ``pv``); the caller makes sure
-    that ``i < rows``.
+    that ``i < rows``. ``off``: the per-agent offsets of :func:`apf_step` (empty: none).
     """
     cap = int(buf[11])
     if pv.shape[2] > cap:
@@ -520,7 +529,7 @@ def apf_control(
     o = HEADER + 5 * ns
     code, v0, v1, lam_used, _ = apf_step(
         x0, x1, pv[0, s], pv[1, s], n0, n1, lam, buf[: HEADER - 3], buf[HEADER:o],
-        buf[o : o + 10 * cap + 3 * ns],
+        buf[o : o + 10 * cap + 3 * ns], off,
     )  # fmt: skip
     if code == NONFINITE:
         return code

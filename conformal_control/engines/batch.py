@@ -100,8 +100,15 @@ from ..crowds.crowd import Crowd
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
 from ..jit import compile_now
-from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
-from ..monitor import GuaranteeMonitor
+from ..loop import (
+    IntervalLog,
+    IntervalScore,
+    LoopResult,
+    check_per_agent,
+    close_agent_interval,
+    close_interval,
+)
+from ..monitor import AgentMonitor, GuaranteeMonitor
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -354,7 +361,7 @@ class _Episode:
     run: RunSpec  # the episode's own: its seed and time limit
     fl: Flagship
     parts: _Parts  # fl's roles as the classes the engine runs
-    monitor: GuaranteeMonitor
+    monitor: GuaranteeMonitor | AgentMonitor
     learn: bool
     seed: int
     max_frames: int | None
@@ -363,6 +370,9 @@ class _Episode:
     goals: np.ndarray
     intervals: list[IntervalLog] = field(default_factory=list)
     n_sensed: list[int] = field(default_factory=list)
+    # lambda run per agent: the interval's agents (keys) and their lambdas
+    keys: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lams: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class _Pool:
@@ -448,6 +458,8 @@ class _Pool:
     paused: np.ndarray  # (3,): the paused step's nominal decision and lambda
     reactive: np.ndarray  # bool (size,): a reactive crowd (engines.reactive)
     mirror: np.ndarray  # bool (size,): its environment's buffer is read during the run
+    vec: np.ndarray  # bool (size,): lambda run per agent
+    lam_off: np.ndarray  # (size, cap): per agent, its lambda minus the slot's lam (vec)
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -526,6 +538,8 @@ class _Pool:
         self.paused = np.zeros(3)
         self.reactive = np.zeros(b, dtype=bool)
         self.mirror = np.zeros(b, dtype=bool)
+        self.vec = np.zeros(b, dtype=bool)
+        self.lam_off = np.zeros((b, 0))
 
     @staticmethod
     def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -600,6 +614,7 @@ class _Pool:
             if agents > self.cap:
                 self.cap = max(agents, 2 * self.cap, 16)
                 self.xp, self.vp = g(self.xp, 2, self.cap), g(self.vp, 2, self.cap)
+                self.lam_off = g(self.lam_off, 1, self.cap)
                 self.prm[:, 11] = self.cap
             if sides > self.sides:
                 self.sides = sides
@@ -660,14 +675,24 @@ class _Engine:
         env, filt, ref = parts.env, parts.safety_filter, parts.reference
         dyn, bar = parts.dynamics, parts.barrier
         env.reset()
+        vec = fl.params.si["lambda_per"] == "agent"
+        if vec:  # as ConformalStepper.start, and its begin_interval for the acp family
+            check_per_agent(fl.family, fl.loss)
+            if parts.acp is not None:
+                raise ValueError(
+                    f"{type(fl.family).__name__}.lambda_keys() gave None after "
+                    "begin_interval: lambda cannot be run per agent with this family"
+                )
         fl.family.reset()
-        monitor = GuaranteeMonitor.for_rule(
+        monitor: GuaranteeMonitor | AgentMonitor
+        monitor = (AgentMonitor if vec else GuaranteeMonitor).for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
             lambda_safe_source=run.lambda_safe_source,
             premise_proven=False,
             bounds=parts.loss.bounds,
             learn=learn,
+            **({"prior": fl.params.si["lambda_prior"]} if vec else {}),
         )
         k = float(dyn.K_acc)
         if not (math.isfinite(k) and k > 0):
@@ -750,6 +775,7 @@ class _Engine:
         p.k_acc[b] = k
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
+        p.vec[b] = vec
         if parts.gap is not None:
             p.scale[b] = parts.gap.scale
             self._squash.setdefault(float(parts.gap.scale), parts.gap.squash)
@@ -813,6 +839,13 @@ class _Engine:
             ep = self.eps[b]
             assert ep is not None  # slots are live
             ep.n_sensed.append(m)
+            if p.vec[b]:  # each sensed agent's lambda (a new one's at the prior)
+                assert isinstance(ep.monitor, AgentMonitor)
+                ep.keys = np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :m]], np.int64)
+                ep.lams = ep.monitor.values(ep.keys)
+                ref = float(ep.lams.min()) if m else 0.0  # the family's smallest entry
+                p.lam[b] = ref
+                p.lam_off[b, :m] = ep.lams - ref
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
         if self._acp:  # the acp family's begin_interval runs at every sampling time
             regions = p.acp[slots]
@@ -915,6 +948,7 @@ class _Engine:
                 p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
                 p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
                 p.acp, p.acp_dc, p.acp_delta, p.acp_h, p.forced, p.forced_v, p.paused,
+                p.vec, p.lam_off,
             )  # fmt: skip
             if paused < 0 or bad >= 0:
                 break
@@ -983,11 +1017,15 @@ class _Engine:
         n_pairs[slots] = 0
         loss[slots] = np.nan
         applied[slots] = np.nan
+        agent_top = np.zeros(0)  # per agent of each scored slot (lambda run per agent)
+        where: dict[int, int] = {}  # scored slot -> its agents' offset in agent_top
         if scored.size:
             counts = p.n_agents[scored]
             offsets = np.zeros(scored.size, dtype=np.int64)
             if scored.size > 1:
                 np.cumsum(counts[:-1], out=offsets[1:])
+            agent_top = np.full(int(counts.sum()), -np.inf)
+            where = dict(zip(scored.tolist(), offsets.tolist(), strict=True))
             frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
             truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
             bk.gather_windows(
@@ -996,6 +1034,7 @@ class _Engine:
             gap_maxima(
                 scored, offsets, p.n_agents, p.step, truth, p.dt_frame, p.substeps, p.rec_x,
                 p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
+                p.vec, p.lam_off, agent_top,
             )  # fmt: skip
             for scale, squash in self._squash.items():
                 # one loss scale in the engine: every scored slot has it
@@ -1011,6 +1050,21 @@ class _Engine:
             s = int(p.step[b])
             pairs = int(n_pairs[b])
             gap = ep.parts.gap
+            if isinstance(ep.monitor, AgentMonitor):
+                log, lam = self._end_per_agent(b, ep, where.get(b), agent_top, pairs)
+                ep.intervals.append(log)
+                p.lam[b] = lam
+                extreme = [lam, *ep.monitor.current().tolist()]
+                for x in extreme:
+                    if not (math.isfinite(x) and abs(x) <= LAMBDA_LIMIT):
+                        check_lambda(x, ep.fl, log.k)  # raises
+                if self.on_interval is not None:
+                    self.on_interval(log)
+                if p.done[b]:
+                    finished.append(b)
+                else:
+                    p.need_begin[b] = True
+                continue
             score: IntervalScore | None = None
             record = revealed = None
             if gap is None:  # the loss object on the interval's record and truth
@@ -1051,6 +1105,41 @@ class _Engine:
             else:
                 p.need_begin[b] = True
         return finished
+
+    def _end_per_agent(
+        self, b: int, ep: _Episode, o: int | None, agent_top: np.ndarray, pairs: int
+    ) -> tuple[IntervalLog, float]:
+        """Slot ``b``'s interval end with lambda run per agent: each agent's gap loss from
+        its largest gap (``agent_top[o:]``, the compiled gap loss), or the loss object's
+        components on the interval's record and truth; then each agent's update
+        (:func:`~conformal_control.loop.close_agent_interval`)."""
+        p = self.pool
+        assert isinstance(ep.monitor, AgentMonitor)
+        s, n = int(p.step[b]), int(p.n_agents[b])
+        gap = ep.parts.gap
+        k = len(ep.intervals)
+        if gap is None:  # the loss object on the interval's record and truth
+            return close_agent_interval(
+                k, ep.keys, ep.lams, s, monitor=ep.monitor, loss=ep.parts.loss,
+                record=self._record(b), truth=self._truth(b),
+            )  # fmt: skip
+        top = np.full(n, np.nan)
+        if o is not None:
+            got = agent_top[o : o + n]
+            top = np.where(np.isfinite(got), got, np.nan)
+        comp = gap.keyed(ep.keys, top, ep.lams)
+        diagnostics: dict[str, float] = {}
+        if pairs and np.isfinite(comp.values).any():
+            top_b, applied_b = self._scores[0][b], self._scores[1][b]
+            diagnostics = {
+                "loss_applied": float(gap.squash(applied_b)),
+                "max_gap": float(top_b),
+                "n_pairs": pairs,
+                "n_truth_missing": s * n - pairs,
+            }
+        return close_agent_interval(
+            k, ep.keys, ep.lams, s, monitor=ep.monitor, components=comp, diagnostics=diagnostics
+        )
 
     def _record(self, b: int) -> CBFIntervalRecord:
         """Slot ``b``'s interval as the controller's ``interval_record`` gives it, without

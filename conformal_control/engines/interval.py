@@ -105,6 +105,9 @@ def run_interval(
     forced: np.ndarray,
     forced_v: np.ndarray,
     paused: np.ndarray,
+    # lambda run per agent: per slot, whether, and each agent's offset above lam[b]
+    vec: np.ndarray,
+    lam_off: np.ndarray,
 ) -> tuple[int, int]:
     """Run the control instants of the current interval of each slot ``b`` in ``slots``
     (at least one, then until ``step[b] >= n_ctrl[b]`` or ``done[b]``); returns -1, or the
@@ -142,6 +145,9 @@ def run_interval(
     slots after it are not run. The caller decides, sets ``forced[b]`` and ``forced_v[b]``
     = (v_x, v_y, lambda applied), and calls again from that slot: the step then applies
     the given decision.
+
+    With lambda run per agent (``vec[b]``), agent a's row has the slack ``lam[b] +
+    lam_off[b, a]`` (:func:`apf_step`'s offsets; ``lam[b]`` is the smallest entry).
     """
     for i in range(slots.shape[0]):
         b: int = slots[i]  # an annotation only: no bytecode, numba types it from slots
@@ -160,6 +166,7 @@ def run_interval(
         regions = acp[b]
         if regions:
             la = 0.0
+        off = lam_off[b, :n] if vec[b] else lam_off[b, :0]
         if step[b] == 0:  # the interval's control instants, as ReplayEnvironment says
             n_ctrl[b] = max(min(tau[b], last_frame[b] - fi[b]), 0) * sub
         while True:
@@ -187,7 +194,7 @@ def run_interval(
                     p[2] = acp_dc[b, hh]
                     p[3] = acp_delta[b, hh]
                 code, v0, v1, lam_used, solves = apf_step(
-                    x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work
+                    x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work, off
                 )
                 if code == NONFINITE:
                     return b, -1

@@ -27,6 +27,7 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..base import LAMBDA_PER
 from ..data.scene import Scene
 from ..exceptions import InputError, SuspiciousValueWarning
 from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI
@@ -298,7 +299,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention",)
+_TEXT_PARAMS = ("convention", "lambda_per")
 
 
 def check_names(given: dict[str, Any]) -> None:
@@ -391,6 +392,14 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     for name in _TEXT_PARAMS:
         if not isinstance(merged[name], str):
             raise InputError(f"parameter {name} must be a name, got {merged[name]!r}")
+    if merged["lambda_per"] not in LAMBDA_PER:
+        raise InputError(
+            f"parameter lambda_per must be one of {', '.join(LAMBDA_PER)}, "
+            f"got {merged['lambda_per']!r}"
+        )
+    q = merged["lambda_prior"]
+    if not (isinstance(q, (int, float)) and 0.0 <= q <= 1.0):
+        raise InputError(f"parameter lambda_prior must be a quantile in [0, 1], got {q!r}")
     dims = {k: scene.units.unit_of(k) for k in PARAM_DIMENSIONS}
     return ResolvedParams(
         given=dict(given),

@@ -328,6 +328,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self._plan: Plan | None = None
         self._plan_t = 0.0
         self._since = 0
+        self._aoff: np.ndarray | None = None  # lambda per agent: safe-distance offsets
         self._rec: dict[str, list[Any]] = {
             k: [] for k in ("x", "v", "cmd", "lam", "status", "clear", "safe")
         }
@@ -396,6 +397,37 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         r = max(float(self.d_c) + float(self.margin) - float(lam), 0.0)
         return np.full(int(self.sampling.horizon), r)
 
+    def lambda_keys(self) -> np.ndarray | None:
+        """The interval's predicted agents (``record.ids``): lambda run per agent gives
+        agent j the safe distance ``max(d_c + margin - lambda_j, 0)``. None for a family
+        that moves the knob elsewhere (``safe_radius`` or ``plan_radius`` overridden)."""
+        me = type(self)
+        if (
+            me.safe_radius is not SamplingMPC.safe_radius
+            or me.plan_radius is not SamplingMPC.plan_radius
+        ):
+            return None
+        return self._ids
+
+    def _per_agent(self, lam: Any) -> float:
+        """lambda as one number for the shared radius: an array per agent becomes its
+        smallest entry (the largest safe distance), each agent's safe distance kept as an
+        offset from it (exactly 0 for that entry: one agent is the scalar path)."""
+        if not isinstance(lam, np.ndarray):
+            self._aoff = None
+            return float(lam)
+        if getattr(self, "_robots", None) is not None:
+            raise ValueError("lambda per agent is not supported with several robots")
+        if lam.shape != self._ids.shape:
+            raise ValueError(
+                f"lambda per agent has shape {lam.shape}; the interval has "
+                f"{self._ids.size} agents (lambda_keys())"
+            )
+        ref = float(lam.min()) if lam.size else 0.0
+        base = float(self.d_c) + float(self.margin)
+        self._aoff = np.maximum(base - lam, 0.0) - max(base - ref, 0.0)
+        return ref
+
     def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
         """Safe distance per plan and step (m), shape (N, H) or (H,): :meth:`safe_radius`
         shared by every plan (a family whose regions depend on where the robot would be
@@ -454,6 +486,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         arguments of their evaluation (:func:`~conformal_control.mpc.kernels.evaluate`),
         which a batch of episodes evaluates in one call
         (:func:`~conformal_control.mpc.kernels.evaluate_many`) before :meth:`plan_end`."""
+        lam = self._per_agent(lam)
         goal = np.asarray(state.goal, dtype=float)
         if goal.shape != (2,) or not np.isfinite(goal).all():
             raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
@@ -471,7 +504,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
         c = self.costs
         weights = (c.w_goal, c.w_terminal, c.w_effort, c.w_comfort)
-        problem = (
+        problem: tuple[Any, ...] = (
             pos,
             cmds,
             state.x[:2],
@@ -483,6 +516,8 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             self._last_cmd,
             bool(self.continuous),
         )
+        if self._aoff is not None and self._ids.size:
+            problem = (*problem, self._aoff)
         return PlanInputs(state, float(lam), cmds, pos, problem)
 
     def plan_end(
@@ -538,6 +573,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        lam = self._per_agent(lam)  # an array when lambda is run per agent (lambda_keys)
         replan = self.will_plan()
         if replan:
             ready, self._next_plan = self._next_plan, None

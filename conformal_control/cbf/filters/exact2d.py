@@ -207,6 +207,7 @@ class Exact2DSafetyFilter(VelocityFilter):
         v_agents: np.ndarray,
         nominal: np.ndarray,
         lam: float,
+        offsets: np.ndarray | None = None,
     ) -> FilterResult:
         """One compiled control step with the APF barrier's rows (:meth:`configure_apf`):
         the same decision, status, lambda and counters as ``solve(nominal,
@@ -226,6 +227,9 @@ class Exact2DSafetyFilter(VelocityFilter):
             The nominal velocity (m/s).
         lam : float
             lambda (1/s).
+        offsets : ndarray of shape (M,), optional
+            Per agent, added to its row's ``b`` (lambda run per agent: row j's slack is
+            ``lam + offsets[j]``); None: every row's slack is ``lam``.
         """
         n = x_agents.shape[0]
         if n > self._cap:
@@ -233,7 +237,7 @@ class Exact2DSafetyFilter(VelocityFilter):
         k = self._k
         code, v0, v1, lam_used, solves = k.apf_step(
             x_ego[0], x_ego[1], x_agents, v_agents, nominal[0], nominal[1], lam,
-            self._prm, self._poly, self._work,
+            self._prm, self._poly, self._work, _no_offsets(offsets),
         )  # fmt: skip
         self.n_solves_ += solves
         if code == 0:  # unconstrained
@@ -258,6 +262,7 @@ class Exact2DSafetyFilter(VelocityFilter):
         s: int,
         rec: np.ndarray,
         i: int,
+        offsets: np.ndarray | None = None,
     ) -> FilterResult | None:
         """:meth:`step_apf` for the controller, recorded by the compiled step itself.
 
@@ -288,14 +293,17 @@ class Exact2DSafetyFilter(VelocityFilter):
             The interval's record (one row per control step).
         i : int
             The row of ``rec`` this step writes.
+        offsets : ndarray of shape (M,), optional
+            Per agent, added to its row's ``b`` (see :meth:`step_apf`).
         """
-        code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec)
+        off = _no_offsets(offsets)
+        code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec, off)
         if code == 0 or code == 1:  # unconstrained / optimal: one solve for optimal
             self.n_solves_ += code
             self._last = self._lastv
             self._fell_back = False
             return None
-        return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i)
+        return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i, off)
 
     def step_apf_record_peers(
         self,
@@ -379,14 +387,15 @@ class Exact2DSafetyFilter(VelocityFilter):
         s: int,
         rec: np.ndarray,
         i: int,
+        off: np.ndarray,
     ) -> FilterResult | None:
         k = self._k
         if code == k.TOO_MANY:
             self._buffers(pv.shape[2])
-            return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i)
+            return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i, off)
         if code == k.OUT_OF_RANGE:
             if -pv.shape[1] <= s < 0:  # counted from the end, as numpy indexing does
-                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i)
+                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i, off)
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
@@ -434,3 +443,14 @@ class Exact2DSafetyFilter(VelocityFilter):
         if code == self._k.SEARCH_VERTEX:
             self.count("lambda_search_vertex")
         self._fell_back = True
+
+
+#: No per-agent offsets (one lambda for every row): what the compiled step is given then.
+_NO_OFFSETS = np.zeros(0)
+
+
+def _no_offsets(offsets: np.ndarray | None) -> np.ndarray:
+    """The compiled step's ``off`` argument: ``offsets`` as float64, or no offsets."""
+    if offsets is None:
+        return _NO_OFFSETS
+    return np.ascontiguousarray(offsets, dtype=np.float64)
