@@ -44,7 +44,10 @@ def _docs_build_module():
     return module
 
 
-code_blocks = _docs_build_module().code_blocks
+_DOCS_BUILD = _docs_build_module()
+code_blocks = _DOCS_BUILD.code_blocks
+#: Pages run block after block, in order, by the docs build's tests (their outputs too).
+RUN_IN_ORDER = {ROOT / p for p in _DOCS_BUILD.MIXED_PAGES}
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 #: Sessions whose output depends on the machine, checked by the test named beside them.
@@ -108,6 +111,8 @@ def _output_blocks() -> list[tuple[str, str, list[str]]]:
     """(where, command, lines shown) of every output block."""
     out = []
     for page in PAGES:
+        if page in RUN_IN_ORDER:
+            continue
         for heading, lang, code, shown in code_blocks(page):
             if lang != "bash" or shown is None or "generated:" in shown:
                 continue
@@ -122,6 +127,8 @@ def _sessions() -> list[tuple[str, str, list[str]]]:
     """(where, command, lines shown) of every ``$ conformal-control`` line of a page."""
     out = []
     for page in PAGES:
+        if page in RUN_IN_ORDER:
+            continue
         for heading, lang, code, _ in code_blocks(page):
             if lang not in ("text", "console") or not code.startswith("$ conformal-control"):
                 continue
@@ -240,3 +247,25 @@ def test_figures_in_prose_are_what_the_command_prints(
     text = (ROOT / page).read_text()
     assert " ".join(sentence.split()) in " ".join(text.split()), f"{page} no longer says it"
     _assert_shown(page, command, lines, printed(command), ordered=False)
+
+
+def _summary(text: str) -> str | None:
+    """A page's summary at its top (an ``!!! abstract "In short"`` block), if it has one."""
+    m = re.search(r'^!!! abstract "In short"\n((?:    .*\n|\n)+)', text, re.M)
+    return m.group(1) if m else None
+
+
+def test_a_page_summary_quotes_the_page() -> None:
+    """The summary at the top of a long page states the page's own figures: every number
+    with a decimal point in it is found in the rest of the page."""
+    pages = [p for p in PAGES if _summary(p.read_text()) is not None]
+    assert ROOT / "docs/benchmark.md" in pages
+    for page in pages:
+        text = page.read_text()
+        summary = _summary(text)
+        assert summary is not None
+        rest = text.replace(summary, "")
+        figures = re.findall(r"\d+\.\d+", summary)
+        assert len(figures) >= 5, page
+        for figure in figures:
+            assert figure in rest, f"{page.name}: the summary's {figure} is nowhere else"
