@@ -184,6 +184,12 @@ class Parameters:
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )
+    edge: str = _p(
+        "escape",
+        "edge rule: 'escape' (never close in on an agent already within the collision "
+        "distance) or 'paper' (the rows as published)",
+        kind="text",
+    )
     delta: float | None = _p(
         None,
         "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)",
@@ -192,14 +198,21 @@ class Parameters:
         closed=(False, False),
     )
     speed_sides: int = _p(
-        16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
+        16,
+        "sides of the inscribed speed polygon (0 = box; else 3 to 1024)",
+        kind="int",
+        low=0.0,
+        high=1024.0,
     )
-    substeps: int = _p(4, "QP solves (control instants) per data frame", kind="int", low=1.0)
+    substeps: int = _p(
+        4, "QP solves (control instants) per data frame (1 to 100)", kind="int", low=1.0, high=100.0
+    )
     history: int | None = _p(
         None,
-        "frames of history handed to the predictor; default 4 s of frames",
+        "frames of history handed to the predictor; default 4 s of frames (at most 100000)",
         kind="int",
         low=1.0,
+        high=100_000.0,
     )
     v_max: float | None = _p(None, "robot speed bound (m/s)", **_POSITIVE)
     barrier_margin: float = _p(
@@ -321,7 +334,41 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
         return value["name"], dict(params)
     if value is None or isinstance(value, str):
         return value, {}
+    if isinstance(value, (bool, numbers.Number, bytes, list, set, frozenset)):
+        raise _spec_error(
+            f"role {name} must be a registered name, (name, params) or an instance, got "
+            f"{_short(value)}"
+        )
     return value, {}  # an instance: checked against the role's base class when built
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, cut to a length a one-line error can show."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxstring = r.maxother = 60
+    return r.repr(value)
+
+
+def _check_stored_param(where: str, name: str, value: Any) -> None:
+    """A controller parameter read from a file: a finite number (lambda_min may be -inf,
+    lambda_max +inf), a short text with a unit (``"18m"``) or None (the scene's default)."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, str)):
+        raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+    if isinstance(value, str):
+        if len(value) > 64:
+            raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+        return
+    v = float(value)
+    if math.isnan(v) or (
+        math.isinf(v)
+        and not (name == "lambda_min" and v < 0)
+        and not (name == "lambda_max" and v > 0)
+    ):
+        raise _spec_error(f"{where}: parameter {name} must be finite, got {value!r}")
 
 
 #: The most robots one run drives.
@@ -586,6 +633,11 @@ class RunSpec:
             raise _spec_error(f"engine must be 'auto', 'loop' or 'batch', got {self.engine!r}")
         if self.max_frames is not None and self.max_frames < 1:
             raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
+        if not 0 <= self.seed < 2**63:
+            raise _spec_error(f"seed must be an integer in [0, 2**63), got {self.seed!r}")
+        ls = self.lambda_safe
+        if ls is not None and not math.isfinite(ls):
+            raise _spec_error(f"lambda_safe must be finite, got {ls!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))
         if self.robots is not None and not isinstance(self.robots, Robots):
@@ -838,6 +890,13 @@ class RunSpec:
                     k: float(v) if isinstance(v, str) and v in _INFINITE_TEXT else v
                     for k, v in value.items()
                 }
+                for k, v in value.items():
+                    _check_stored_param(where, str(k), v)
+            if key in ROLE_FIELDS and not (value is None or isinstance(value, (str, dict, list))):
+                raise _spec_error(
+                    f"{where}: {key} must be a registered name or {{'name': ..., 'params': "
+                    f"{{...}}}}, got {_short(value)}"
+                )
             if key == "robots" and value is not None:
                 if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
                     raise _spec_error(
@@ -859,3 +918,8 @@ class RunSpec:
             return cls(**kw)
         except TypeError as exc:  # pragma: no cover - the keys were checked above
             raise _spec_error(f"{where}: {exc}") from None
+        except InputError as exc:
+            message = str(exc)
+            if message.startswith(where):
+                raise
+            raise _spec_error(f"{where}: {message}") from None
