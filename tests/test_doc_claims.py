@@ -86,6 +86,13 @@ PROSE: list[tuple[str, str, str, list[str]]] = [
         ["constant_velocity ethucy:zara1: ADE 0.516 m FDE 1.078 m..."],
     ),
     (
+        "README.md",
+        "Predicting each other instead\n(`--reciprocity none`) they touch in 4 pair-frames.",
+        "run --scene sdd:nexus/video3 --start 0.05,0.5 --goal 0.95,0.5 --robots 10 "
+        "--reciprocity none",
+        ["n_collide_robot_pairs 4"],
+    ),
+    (
         "docs/getting-started.md",
         "It reaches its goal in 8.3 s without a collision\nframe, and the average loss (−0.234)",
         "run --scene nexus_4",

@@ -45,3 +45,23 @@ def test_a_policy_snippet_runs_and_prints_what_the_page_shows(
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == shown.strip()
+
+
+def test_the_monitor_of_an_unshielded_environment_never_changes_the_action() -> None:
+    """An environment without a shield applies the policy's action as it is: its monitor's
+    filter returns the action even next to an agent within the collision distance (the
+    filters' edge rule would brake there, freezing unshielded robots in contact: the
+    parallel snippet's robots stopped for good)."""
+    import numpy as np
+
+    from conformal_control.cbf.roles import EscapeRows
+    from conformal_control.envs.roles import MonitorFilter
+
+    f = MonitorFilter()
+    f.reset()
+    toward = np.array([1.5, 0.0])  # straight at an agent 0.5 m ahead, inside d_c
+    escape = EscapeRows(np.array([0]), np.array([[-1.0, 0.0]]), np.zeros(1), np.ones(1))
+    A, b = np.array([[-2.0, 0.0]]), np.array([-1.0])
+    res = f.solve_escaping(toward, A, b, 0.0, escape)
+    np.testing.assert_array_equal(res.decision, toward)
+    assert res.status == "fallback" and res.fallback == "unfiltered"  # recorded, not applied
