@@ -16,7 +16,6 @@ robot's ROS 2 bag instead: the commands it would have sent.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +37,8 @@ def run(
     params: dict[str, Any] | None = None,
     units: str | None = None,
     data_root: str | Path | None = None,
-    start: Sequence[float] | None = None,
-    goal: Sequence[float] | None = None,
+    start: Any = None,
+    goal: Any = None,
     **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on a scene and return the result.
@@ -48,7 +47,7 @@ def run(
     ----------
     scene : str or Scene
         A registered scene name (``conformal-control scenes``), e.g. ``"crossing"`` (built
-        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``; or a
+        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``, ``"ethucy:crowds_zara01"``; or a
         :class:`~conformal_control.data.scene.Scene`.
     spec : RunSpec, optional
         The run (:class:`~conformal_control.spec.RunSpec`); the arguments below are
@@ -62,11 +61,15 @@ def run(
         scene's unit system is not SI.
     data_root : path, optional
         Data folder for scenes read from data (default ``$CONFORMAL_CONTROL_DATA``).
-    start, goal : (fx, fy), optional
-        For ``sdd:`` scenes: start and goal as image fractions.
+    start, goal : position, optional
+        The robot's start and goal (``goal`` may be a list of waypoints) as fractions of
+        the scene's frame (``(0.05, 0.5)``: the image on SDD scenes, the walkable box on
+        ETH/UCY ones) or with a unit (``"3.2m,1.0m"``, ``"120px,300px"``); see
+        :mod:`~conformal_control.data.positions`. None: the scene's own task.
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``predictor`` (an instance or a
+        <conformal_control.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
+        (the task in metres, as numbers), ``predictor`` (an instance or a
         registered name; default ``"constant_velocity"``), ``learn`` (False keeps lambda
         fixed: the noLearn baseline), ``seed`` (of the built-in scene and of named plugins
         with a ``random_state``), ``max_frames``, ``barrier``, ``safety_filter``,
@@ -100,8 +103,19 @@ def run(
     _refuse_robots(base, settings)
     seed = int(settings.get("seed", base.seed))
     if isinstance(scene, str):
-        goals = None if goal is None else [tuple(goal)]
-        scene = load_scene(scene, data_root, start=start, goals=goals, seed=seed)
+        scene = load_scene(scene, data_root, start=start, goals=goal, seed=seed)
+    elif start is not None or goal is not None:
+        import numpy as np
+
+        from .data.positions import parse_positions, scene_position
+
+        changes: dict[str, Any] = {}
+        if start is not None:
+            changes["start"] = scene_position(scene, start, "start")
+        if goal is not None:
+            goals = [scene_position(scene, g, "goal") for g in parse_positions(goal, "goal")]
+            changes["goals"] = np.array(goals)
+        scene = scene.replace(**changes)
     given = dict(base.params)
     given.update(params or {})
     for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 __all__ = [
     "CacheWarning",
+    "ConformalControlDeprecationWarning",
     "ConformalControlError",
     "ConformalControlWarning",
     "DataFetchError",
@@ -44,6 +45,13 @@ __all__ = [
 # ------------------------------------------------------------------------------ warnings
 class ConformalControlWarning(UserWarning):
     """Base class of every warning the project emits."""
+
+
+class ConformalControlDeprecationWarning(DeprecationWarning):
+    """A way of an earlier version that still works (a renamed keyword, role or option),
+    with its replacement and the version it goes in. A :class:`DeprecationWarning`, so
+    every filter of those applies; its own class lets a test suite turn the project's
+    deprecations (and no other package's) into errors."""
 
 
 class FeasibilityWarning(ConformalControlWarning):

@@ -638,11 +638,9 @@ class TimedPredictor(Predictor):
 
 def _recorded_params(task: PlanarTask, data_root: str | Path | None) -> dict[str, Any]:
     """Arguments of the ``recorded`` predictor for a task's Trajectron++ file."""
-    from ..data.paths import resolve_data_root
+    from ..data.paths import external_root
 
-    path = (
-        resolve_data_root(data_root) / "external" / "trajectron-ethucy" / f"{task.dataset}.csv.gz"
-    )
+    path = external_root(data_root) / "trajectron-ethucy" / f"{task.dataset}.csv.gz"
     return {"path": str(path), "step_s": STEP_S, "frames_per_step": float(FRAMES_PER_STEP)}
 
 

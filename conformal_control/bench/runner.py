@@ -542,7 +542,8 @@ def run_bench(
     scheduler : str, optional
         A Dask scheduler's address (``executor="dask"``).
     progress : bool, optional
-        A progress report (None: on a terminal).
+        False: no progress report; otherwise a bar on a terminal, periodic lines where
+        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
 

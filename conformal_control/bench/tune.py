@@ -152,7 +152,8 @@ def tune(
     workers : int, optional
         Worker processes (default: the CPUs available).
     progress : bool, optional
-        A progress report (None: on a terminal).
+        False: no progress report; otherwise a bar on a terminal, periodic lines where
+        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
     seed : int

@@ -53,7 +53,7 @@ import numpy as np
 from .. import registry
 from ..base import Loss, Settings, UpdateRule
 from ..data.tracks import agent_ids
-from ..exceptions import InputError
+from ..exceptions import ConformalControlDeprecationWarning, InputError
 from ..loop import ConformalStepper, LoopResult
 from ..predictors.base import PredictionQuery, Predictor
 from .barriers import APFBarrier
@@ -137,7 +137,7 @@ def stream_from(stream: Stream | None, legacy: dict[str, Any], owner: str) -> St
         warnings.warn(
             f"{owner}({', '.join(f'{k}=...' for k in old)}) is deprecated: give "
             f"stream=Stream({given}) (removed in 0.4)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=3,
         )
         out = Stream(**{**out.get_params(), **old})

@@ -93,7 +93,13 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     tu.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     tu.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
     tu.add_argument("--out", required=True, help="tuning folder (runs and tuned.json)")
-    tu.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    tu.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
 
     ru = sub.add_parser(
         "run",
@@ -192,7 +198,13 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         "(default 0)",
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
-    ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    ru.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
     ru.add_argument(
         "--robots",
         default=None,

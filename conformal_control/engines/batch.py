@@ -1499,7 +1499,7 @@ def iter_batch(
                 mf, seed = next(frames), next(seed_values)
             except StopIteration:
                 raise ValueError("max_frames / seeds have fewer values than scenes") from None
-            yield i, scene, int(seed), None if mf is None else int(mf)
+            yield i, run.on_scene(scene), int(seed), None if mf is None else int(mf)
 
     engine = _Engine(int(batch_size), output, run, extra_config)
     yield from engine.run(source())

@@ -36,6 +36,7 @@ from ..cbf.loss import CBFGapLoss
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
+from ..exceptions import ConformalControlDeprecationWarning
 from ..predictors.base import Predictor
 from ..spec import RunSpec
 from ..update_rules import FixedEtaRule
@@ -85,7 +86,7 @@ class Flagship:
         """Deprecated name of :attr:`family` (removed in 0.4)."""
         warnings.warn(
             "Flagship.policy is now Flagship.family (removed in 0.4)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family

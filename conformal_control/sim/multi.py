@@ -191,8 +191,8 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
 
     The file holds ``{"units": "m", "robots": [{"start": [x, y], "goals": [[x, y], ...]},
     ...]}``; with ``"units": "fraction"`` the coordinates are fractions of the scene's
-    width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
-    stand for a single goal.
+    frame, its image or its walkable box (as ``--start`` and ``--goal``). A robot's
+    ``"goal": [x, y]`` may stand for a single goal.
     """
     import difflib
 
@@ -232,11 +232,14 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
-    scale = np.ones(2)
-    if units == "fraction":
-        if scene.extent is None:
-            raise ValueError(f"scene {scene.name} has no extent: use units 'm'")
-        scale = np.asarray(scene.extent, dtype=float)
+    origin, scale = np.zeros(2), np.ones(2)
+    if units == "fraction":  # of the scene's frame: its image, or its walkable box (ETH/UCY)
+        from ..data.positions import scene_frame
+
+        frame = scene_frame(scene)
+        if frame is None:
+            raise ValueError(f"scene {scene.name} has no frame for fractions: use units 'm'")
+        origin, scale = frame
     starts, goals = [], []
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
@@ -266,8 +269,8 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
                 f"robots file {p}: robot {i} has a fraction outside [0, 1] (units "
                 '"fraction" are fractions of the scene\'s width and height)'
             )
-        starts.append(st * scale)
-        goals.append(g * scale)
+        starts.append(origin + st * scale)
+        goals.append(origin + g * scale)
     first = np.array(starts)
     gap = 2.0 * float(scene.robot_radius)
     for i in range(len(first)):
@@ -472,6 +475,7 @@ def run_multi(
         if robots is not None:
             settings["robots"] = robots
         run = RunSpec.from_settings(settings.pop("params", None), **settings)
+    scene = run.on_scene(scene)  # the run's task (start_m, goals_m) is robot 0's
     section = run.robots or Robots()
     robots, starts, goals = section.robots, section.starts, section.goals
     layout, radius, center = section.layout, section.radius, section.center

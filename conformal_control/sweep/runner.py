@@ -37,7 +37,6 @@ import json
 import math
 import os
 import signal
-import sys
 import threading
 import time
 import traceback
@@ -199,12 +198,32 @@ class _NoBar:
         pass
 
 
-def _progress(total: int, initial: int, enabled: bool | None) -> Any:
-    if not (sys.stderr.isatty() if enabled is None else enabled):
-        return _NoBar()
-    from tqdm.auto import tqdm
+class _Report:
+    """The sweep's progress (:func:`conformal_control.progress.progress`): a bar on a
+    terminal, and where the output is redirected (a log file, ``nohup``, CI) a line every
+    10 s with the runs done, the time so far and the time left; no thread either way."""
 
-    return tqdm(total=total, initial=initial, unit="run", desc="sweep", dynamic_ncols=True)
+    def __init__(self, total: int, initial: int) -> None:
+        from ..progress import progress
+
+        self._report = progress(total, "sweep", "runs", initial=initial)
+
+    def update(self, n: int = 1) -> None:
+        self._report.update(n)
+
+    def set_postfix(self, failed: int = 0, refresh: bool = False) -> None:
+        self._report.set_postfix(f"{failed} failed" if failed else "")
+
+    def close(self) -> None:
+        self._report.close()
+
+
+def _progress(total: int, initial: int, enabled: bool | None) -> Any:
+    """The sweep's report: off with ``enabled=False`` (or ``--quiet``), else a bar on a
+    terminal and periodic lines elsewhere (:class:`_Report`)."""
+    if enabled is False:
+        return _NoBar()
+    return _Report(total, initial)
 
 
 def run_sweep(
@@ -257,7 +276,8 @@ def run_sweep(
         Check every configuration before any run starts (default). False lets invalid
         runs start and be recorded as failed.
     progress : bool, optional
-        Show a tqdm bar (runs done / total, ETA); default: when stderr is a terminal.
+        False: no report. Otherwise (default) a bar on a terminal, and a line every 10 s
+        where stderr is redirected (runs done / total, time so far and left).
     table_every : int or None
         Rewrite the CSV/Parquet tables after every N completed runs (always at the end);
         None (default): by time, see the module docstring.
