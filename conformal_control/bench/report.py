@@ -1082,6 +1082,7 @@ def write_report(
     seed: int = 0,
     bench: Mapping[str, Any] | None = None,
     tune_wall: float | None = None,
+    notice: str | None = None,
 ) -> dict[str, Path]:
     """Write the report (see the module docstring) into ``out``; return the files.
 
@@ -1101,6 +1102,9 @@ def write_report(
         The folder's ``bench.json`` (its tuned values name the dev-tuned methods).
     tune_wall : float, optional
         Seconds ``bench tune`` took (for the run-time target).
+    notice : str, optional
+        The first line of every page (a folder with unfinished episodes:
+        :func:`~conformal_control.bench.runner.incomplete_notice`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -1144,4 +1148,8 @@ def write_report(
         _frontier(v, files[name], f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)")
     if _success_vs_epsilon(ok, out / "success_vs_epsilon.png", seed):
         files["success_vs_epsilon.png"] = out / "success_vs_epsilon.png"
+    if notice:  # an incomplete folder says so on the first line of every page
+        for path in files.values():
+            if path.suffix == ".md" and path.exists():
+                path.write_text(f"{notice}\n\n{path.read_text()}")
     return files

@@ -429,11 +429,21 @@ class BenchRun:
     failed: int
     unavailable: dict[str, str]
     wall_s: float
+    #: episodes the infrastructure lost (not failures of a method; a rerun finishes them)
+    unfinished: int = 0
+    #: what failed, one line per distinct reason
+    infrastructure: tuple[str, ...] = ()
 
     def summary(self) -> str:
         extra = ""
         if self.unavailable:
             extra = "; methods left out (plugin unavailable): " + ", ".join(self.unavailable)
+        if self.unfinished:
+            why = self.infrastructure[0] if self.infrastructure else "the executor failed"
+            extra += (
+                f"; {self.unfinished} left unfinished, not failed: the infrastructure failed "
+                f"({why}); run the same command again to finish them before `bench report`"
+            )
         return (
             f"{self.n_runs} episodes: {self.skipped} already done, {self.ran} ran "
             f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}{extra}"
@@ -632,6 +642,51 @@ def run_bench(
         failed=len(rep.failed),
         unavailable=unavailable,
         wall_s=wall,
+        unfinished=len(rep.unfinished),
+        infrastructure=tuple(rep.infrastructure),
+    )
+
+
+def unfinished_episodes(out: str | Path) -> tuple[int, int]:
+    """``(planned, unfinished)``: the episodes the folder's last ``bench run`` (or ``bench
+    tune``) planned (its ``sweep.json``), and how many of them have no record in the
+    journal (left unfinished by a lost scheduler or worker, or a stopped run). A failed
+    episode has its record: it is data, not unfinished.
+
+    Parameters
+    ----------
+    out : str or Path
+        The benchmark folder.
+    """
+    from ..sweep.results import ResultsStore
+
+    out = Path(out)
+    try:
+        planned = json.loads((out / "sweep.json").read_text()).get("runs") or []
+        keys = {str(r["key"]) for r in planned if isinstance(r, dict) and "key" in r}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return 0, 0  # no plan to compare with
+    done = set(ResultsStore(out).latest())
+    return len(keys), len(keys - done)
+
+
+def incomplete_notice(planned: int, unfinished: int, command: str = "bench run") -> str | None:
+    """The first line of a report over a folder with unfinished episodes (None if none).
+
+    Parameters
+    ----------
+    planned, unfinished : int
+        From :func:`unfinished_episodes`.
+    command : str
+        The command that finishes them.
+    """
+    if not unfinished:
+        return None
+    return (
+        f"**INCOMPLETE: {unfinished:,} of the {planned:,} episodes of this folder's last "
+        f"`{command}` have not finished** (the infrastructure lost them, or the run was "
+        f"stopped): every figure below is over the {planned - unfinished:,} that did, not "
+        f"the benchmark; rerun the same `{command}` to finish them."
     )
 
 
