@@ -52,7 +52,7 @@ import numpy as np
 
 from ..data.suites import SPLITS, TAIL_S, Scenario, load_suite
 from .methods import Method, available
-from .runner import load_tuned, plan_methods
+from .runner import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
@@ -669,7 +669,10 @@ def run_multi_bench(
     ms = suite if Path(suite).suffix == ".json" else None
     loaded = load_multi_suite(path=ms) if ms else load_multi_suite(suite)
     suite_path = str(ms or _manifest_dir() / f"{suite}.json")
-    chosen = plan_methods(methods, load_tuned(tuned, loaded.base), grids)
+    tuned_values = load_tuned(tuned, loaded.base)
+    if tuned_values is not None:
+        check_tuned_split(tuned_values, split)
+    chosen = plan_methods(methods, tuned_values, grids)
     shift_objs = [get_shift(s) for s in shifts]
     missing = {m.name: why for m in chosen if (why := available(m)) is not None}
     if missing:
@@ -1085,8 +1088,6 @@ def multi_unfinished(folder: str | Path) -> tuple[int, int]:
 
 def report_command(folder: str | Path, out: str | Path | None) -> int:
     """``bench report`` of a multi-robot folder: ``multi_report.md`` (printed)."""
-    from .runner import incomplete_notice
-
     rows = read_multi_rows(folder)
     dest = Path(out) if out else Path(folder) / "report"
     notice = incomplete_notice(*multi_unfinished(folder), command="bench run --robots")

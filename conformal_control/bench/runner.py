@@ -149,12 +149,44 @@ def load_tuned(tuned: str | Path | None, suite: str) -> Tuned | None:
         raise ValueError(f"{path}: not a `bench tune` result (no 'families')")
     if data.get("suite") != suite:
         raise ValueError(f"{path}: tuned on suite {data.get('suite')!r}, this run is on {suite!r}")
+    if not isinstance(data.get("split"), str) or not data["split"]:
+        raise ValueError(
+            f"{path}: does not say which split its values were tuned on (no 'split'); a report "
+            "labels tuned methods by it: tune again with `bench tune`"
+        )
     values = {}
     for fam, entry in data["families"].items():
         if not isinstance(entry, dict) or "setting" not in entry:
             raise ValueError(f"{path}: family {fam!r} has no 'setting'")
         values[fam] = entry["setting"]
     return Tuned(values, source, hashlib.sha256(raw).hexdigest(), data)
+
+
+def check_tuned_split(tuned: Tuned, split: str | None) -> None:
+    """Warn (:class:`~conformal_control.exceptions.TunedOnReportedSplitWarning`) when the
+    split a run reports is the one the tuned values were chosen on (or None: every split).
+
+    Parameters
+    ----------
+    tuned : Tuned
+        The tuned values (:func:`load_tuned`), whose file says its split.
+    split : str or None
+        The split the run reports.
+    """
+    import warnings
+
+    from ..exceptions import TunedOnReportedSplitWarning
+
+    chosen_on = str(tuned.data.get("split"))
+    if split is None or split == chosen_on:
+        reported = "every split" if split is None else f"the {split} split"
+        warnings.warn(
+            f"the tuned values ({tuned.source}) were chosen on the {chosen_on} split and this "
+            f"run reports {reported}: the tuned methods are not held out there (the report "
+            f"labels them 'tuned on {chosen_on}')",
+            TunedOnReportedSplitWarning,
+            stacklevel=3,
+        )
 
 
 def plan_methods(
@@ -610,6 +642,8 @@ def run_bench(
     t0 = time.perf_counter()
     with _BenchLock(out):
         description = _merged_description(out, description)
+        if tuned_values is not None:  # once the folder took the run
+            check_tuned_split(tuned_values, split)
         write_json(out / "bench.json", description)
         rep = run_sweep(
             configs,

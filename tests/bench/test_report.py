@@ -90,3 +90,17 @@ def test_a_report_is_a_function_of_the_set_of_rows(tmp_path) -> None:
         if path.suffix in (".md", ".csv"):
             assert path.read_bytes() == second[name].read_bytes(), name
     assert [s.method for s in summarise(data)] == [s.method for s in summarise(shuffled)]
+
+
+@pytest.mark.parametrize("split", ["dev", "test"])
+def test_the_tuned_label_comes_from_the_tuned_file(tmp_path, split) -> None:
+    """The report printed "(tuned on dev)" whatever split the values were tuned on."""
+    bench = {"tuned": {"split": split, "values": {"conformal": -0.1}}}
+    files = write_report(rows(), tmp_path, title="toy", bench=bench)
+    md = files["leaderboard.md"].read_text()
+    assert f"| `conformal[eps=-0.1]` (tuned on {split}) |" in md
+    other = "test" if split == "dev" else "dev"
+    assert f"tuned on {other}" not in md
+    with files["leaderboard.csv"].open() as fh:
+        roles = {r["method"]: r["role"] for r in csv.DictReader(fh)}
+    assert roles["conformal[eps=-0.1]"] == f"tuned on {split}"
