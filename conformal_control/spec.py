@@ -184,6 +184,12 @@ class Parameters:
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )
+    edge: str = _p(
+        "escape",
+        "edge rule: 'escape' (never close in on an agent already within the collision "
+        "distance) or 'paper' (the rows as published)",
+        kind="text",
+    )
     delta: float | None = _p(
         None,
         "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)",

@@ -274,6 +274,7 @@ class ACPController(ConformalCBFController):
             self.safety_filter.configure_apf(  # type: ignore[attr-defined]
                 (K, rho0, d_c, delta, barrier.convention == "surface"),  # type: ignore[attr-defined]
                 float(self.constraint.a),
+                self.constraint.edge_settings(),  # the edge rule on the true d_c
             )
             self._apf_c = c
         return super().decide(state, self.slack(lam))

@@ -14,6 +14,7 @@ from ..spec import parameter_info
 from .barriers import APFBarrier
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
+from .filters.base import VelocityFilter
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
@@ -27,7 +28,7 @@ from .reciprocal import (
 )
 from .records import CBFIntervalRecord, CBFTruth, ControlState
 from .reference import AttractiveField
-from .roles import FilterResult, ReferenceController, SafetyFilter
+from .roles import EscapeRows, FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
     "CBFIntervalRecord",
@@ -43,7 +44,8 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``), code
+#: 8 the edge rule deciding alone (``kernels2d.ESCAPED``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -53,6 +55,7 @@ _CODE_STATUS = (
     "",
     "",
     "lambda_search",
+    "escape",
 )
 
 
@@ -215,6 +218,7 @@ class ConformalCBFController(
         self.safety_filter.configure_apf(  # type: ignore[attr-defined]
             (K, rho0, d_c, delta, c.barrier.convention == "surface"),  # type: ignore[attr-defined]
             float(c.a),
+            c.edge_settings(),
         )
         return True
 
@@ -476,17 +480,75 @@ class ConformalCBFController(
             A, b = self.constraint_rows(state, lam)
             if off is not None and b.size:
                 b = b + off
+            escape = self.escape_rows(state)
+            ttc = self.contact_times(state, A.shape[0], v_ref)
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
-            res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
-            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
-                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
+                ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
+            res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def escape_rows(self, state: ControlState) -> EscapeRows | None:
+        """The edge rule's rows at this control instant: the predicted agents already
+        within the collision distance (:meth:`ConformalConstraint.escape
+        <conformal_control.cbf.constraint.ConformalConstraint.escape>`), or None."""
+        if not self._ids.size:
+            return None
+        s = state.step
+        return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
+
+    def contact_times(self, state: ControlState, n: int, v_ref: np.ndarray) -> np.ndarray:
+        """The predicted times to contact (s) of the ``n`` predicted agents' rows at this
+        control instant, the robot moving at its nominal velocity ``v_ref``
+        (:meth:`ConformalConstraint.contact_times
+        <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`), for a
+        fallback that orders the rows by them.
+
+        Parameters
+        ----------
+        state : ControlState
+            The control instant.
+        n : int
+            The number of predicted agents' rows.
+        v_ref : ndarray of shape (2,)
+            The nominal velocity (m/s).
+        """
+        if not n or not self._ids.size:
+            return np.full(n, math.inf)
+        s = state.step
+        return self.constraint.contact_times(state.x[:2], self._xp[s], self._vp[s], v_ref)
+
+    def _solve(
+        self,
+        v_ref: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        slack: float,
+        escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
+    ) -> FilterResult:
+        """The safety filter's decision on the rows, with the edge rule (``escape``) and,
+        with robots, the lambda search that keeps the rows without slack."""
+        f = self.safety_filter
+        hard = self._typed and bool(self._col[1].any())
+        if escape is None or not hard or not isinstance(f, VelocityFilter):
+            res = f.solve_escaping(v_ref, A, b, slack, escape, ttc)
+            if res.fallback == "lambda_search" and hard:
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
+        A, b = escape.neutralise(A, b, slack)
+        with f.contact(ttc), f.escaping(v_ref, escape) as escaped:
+            if escaped is not None:
+                return escaped
+            res = f.solve(v_ref, A, b, slack)
+            if res.fallback == "lambda_search":
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
 
     def _with_robots(
         self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray

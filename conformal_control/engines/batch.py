@@ -87,7 +87,7 @@ from ..base import Loss, compiled_as
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier
-from ..cbf.constraint import ConformalConstraint
+from ..cbf.constraint import ConformalConstraint, time_to_contact
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
@@ -426,7 +426,8 @@ class _Pool:
     need_begin: np.ndarray  # bool (size,)
     prm: np.ndarray  # (size, len(kernels2d.PARAMS))
     poly: np.ndarray  # (size, 5 * sides): the speed polygon
-    counts: np.ndarray  # int64 (size, 5): solves, infeasible, fallback, vertex, steps
+    counts: np.ndarray  # int64 (size, 7): solves, infeasible, fallback, vertex, steps, escape,
+    # escape_projected
     sensed: np.ndarray  # int64 (size, columns)
     xp: np.ndarray  # (size, steps, cap, 2): predicted positions
     vp: np.ndarray  # (size, steps, cap, 2): predicted velocities
@@ -505,7 +506,7 @@ class _Pool:
         self.need_begin = np.zeros(b, dtype=bool)
         self.prm = np.zeros((b, len(kernels2d.PARAMS)))
         self.poly = np.zeros((b, 0))
-        self.counts = np.zeros((b, 5), dtype=np.int64)
+        self.counts = np.zeros((b, 7), dtype=np.int64)
         self.sensed = np.zeros((b, 0), dtype=np.int64)
         self.xp = np.zeros((b, 0, 0, 2))
         self.vp = np.zeros((b, 0, 0, 2))
@@ -819,6 +820,7 @@ class _Engine:
             fallback_kernel == "lambda_search",
             filt.lambda_margin,
             p.cap,
+            *fl.constraint.edge_settings(),
         )
         self.eps[b] = ep
         bk.log_frames(np.array([b]), p.store, p.where, p.fi, p.x, p.t, p.log, p.n_log)
@@ -991,6 +993,15 @@ class _Engine:
             p.work[2 * cap : 2 * cap + n].copy(),
             lam,
             p.last[b].copy(),
+            escape=Exact2DSafetyFilter.escape_in(p.work, cap, int(p.poly_len[b]) // 5),
+            # (the collision distance Exact2DSafetyFilter.contact_times takes)
+            ttc=time_to_contact(
+                p.x[b, :2],
+                p.xp[b, int(p.step[b]), :n],
+                p.vp[b, int(p.step[b]), :n],
+                float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+                np.array((n0, n1)),
+            ),
         )
         res = ep.parts.safety_filter._fall_back(step)
         v = np.asarray(res.decision, dtype=float)
@@ -1210,10 +1221,14 @@ class _Engine:
         filt.n_infeasible_ += c[1]
         filt.n_fallback_ += c[2]
         name = filt.fallback_.name
-        if c[2]:
-            filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2]
+        if c[2] - c[5]:
+            filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2] - c[5]
+        if c[5]:  # steps the edge rule decided alone
+            filt.fallback_counts_["escape"] = filt.fallback_counts_.get("escape", 0) + c[5]
         if c[3]:
             filt.events_["lambda_search_vertex"] = c[3]
+        if c[6]:  # brake / hold decisions moved into the edge rule's escape polygon
+            filt.events_["escape_projected"] = filt.events_.get("escape_projected", 0) + c[6]
         crowd_config: dict[str, Any] = {"crowd": "replay"}
         if p.reactive[b]:  # the simulated crowd back to its environment, as it walked
             assert self.crowds is not None and isinstance(env, ReactiveEnvironment)

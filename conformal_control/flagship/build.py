@@ -20,6 +20,7 @@ c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.Conforma
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -325,7 +326,8 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             delta=si["delta"],
         )
     names["barrier"] = role_name(barrier, "apf")
-    constraint = ConformalConstraint(bar, a=si["a"])
+    # the edge rule on the true collision distance (barrier_margin is the barrier's only)
+    constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
     context["constraint"] = constraint
     context["scale"] = si["loss_scale"]
 
@@ -368,6 +370,13 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
         # defaults apply unless the run gave them
         fam_defaults = dict(getattr(fam_cls, "default_rule_params", {}))
+        ceiling = getattr(fam_cls, "lambda_ceiling", None)
+        margin = dict(family_params or {}).get("margin", si["barrier_margin"])
+        if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
+            # lambda never pushes the safe distance below d_c (SamplingMPC.lambda_ceiling)
+            top = float(ceiling(float(margin)))
+            if math.isfinite(top):
+                fam_defaults.setdefault("lambda_max", top)
         own = {k: v for k, v in fam_defaults.items() if k not in resolved.given}
         if own:
             # the run's parameters are these (config.json, metrics): lambda's unit is the

@@ -299,7 +299,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention", "lambda_per")
+_TEXT_PARAMS = ("convention", "lambda_per", "edge")
 
 
 def check_names(given: dict[str, Any]) -> None:
@@ -400,6 +400,8 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     for name in _TEXT_PARAMS:
         if not isinstance(merged[name], str):
             raise InputError(f"parameter {name} must be a name, got {merged[name]!r}")
+    if merged["edge"] not in ("escape", "paper"):
+        raise InputError(f"parameter edge must be 'escape' or 'paper', got {merged['edge']!r}")
     if merged["lambda_per"] not in LAMBDA_PER:
         raise InputError(
             f"parameter lambda_per must be one of {', '.join(LAMBDA_PER)}, "

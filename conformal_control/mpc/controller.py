@@ -23,6 +23,17 @@ the collision distance ``d_c`` plus the fixed ``margin``. Subclasses move the kn
 elsewhere by overriding :meth:`SamplingMPC.safe_radius` (the ``acp_mpc`` family:
 conformal regions per plan step).
 
+**The edge rule** (``edge="escape"``, the default): when a sensed agent is already within
+``d_c`` of the robot, no plan whose first step closes in on it (its predicted distance
+at the first plan step below the distance now) is chosen while one that does not
+exists -- neither among the safe samples nor by the fallback; when none exists, the plan
+closing in slowest is. Counted as ``n_edge`` (plans made with an agent within ``d_c``).
+``edge="paper"`` leaves the choice to the safe set and the fallback alone.
+
+**lambda's ceiling.** lambda never pushes the safe distance below ``d_c``: a run's rule
+gets ``lambda_max = margin`` unless it gives one (:meth:`SamplingMPC.lambda_ceiling`),
+and a negative ``margin`` is refused.
+
 **Infeasibility.** When no sample is safe the step is *infeasible*: it is counted
 (``n_infeasible``) and the ``fallback`` decides, also counted (``n_fallback_<name>``):
 
@@ -156,7 +167,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     d_c : float
         Collision distance between centres (m, >= 0): robot radius + agent radius.
     margin : float
-        Fixed extra safe distance (m).
+        Fixed extra safe distance (m, >= 0); also lambda's default ceiling.
     limits : Limits, optional
         ``v_max`` (m/s) and ``a_max`` (m/s^2), the bounds of the sampled commands;
         default ``Limits()`` (1 m/s, 2 m/s^2).
@@ -173,6 +184,8 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         Control instants per prediction sample (for the interval's record).
     random_state : int
         Seed of the sampler (reset at every episode).
+    edge : {"escape", "paper"}
+        The edge rule (see the module docstring).
     **grouped
         A group's field as ``<group>__<field>`` (``costs__w_goal=2.0``: the registry's
         ``(name, params)`` form); the former flat keywords (``n_samples=``, ``w_goal=``,
@@ -222,6 +235,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         continuous: bool = True,
         substeps: int = 4,
         random_state: int = 0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.predictor = predictor
@@ -236,6 +250,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.continuous = continuous
         self.substeps = substeps
         self.random_state = random_state
+        self.edge = edge
         self._set_grouped(grouped)
 
     # ------------------------------------------------------------------ contract kit
@@ -278,8 +293,13 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             raise ValueError(f"substeps must be an integer from 1 to {top}, got {v!r}")
         if not (math.isfinite(self.d_c) and self.d_c >= 0):
             raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
-        if not math.isfinite(self.margin):
-            raise ValueError(f"margin must be a finite distance, got {self.margin!r}")
+        if not (math.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(
+                f"margin must be a finite distance >= 0 (a negative one puts the safe "
+                f"distance inside the collision distance d_c), got {self.margin!r}"
+            )
+        if self.edge not in ("escape", "paper"):
+            raise ValueError(f"edge must be 'escape' or 'paper', got {self.edge!r}")
         if self.fallback not in FALLBACKS:
             raise ValueError(
                 f"fallback must be one of {', '.join(FALLBACKS)}, got {self.fallback!r}"
@@ -300,6 +320,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.n_steps_ = 0
         self.n_plans_ = 0
         self.n_infeasible_ = 0
+        self.n_edge_ = 0
         self.n_fallback_: dict[str, int] = dict.fromkeys(FALLBACKS, 0)
         self.n_nonfinite_predictions_ = 0
         self.forecast_info_: dict[str, Any] = {}
@@ -314,6 +335,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             "n_steps": self.n_steps_,
             "n_plans": self.n_plans_,
             "n_infeasible": self.n_infeasible_,
+            "n_edge": self.n_edge_,
             "n_fallback": sum(self.n_fallback_.values()),
             **{f"n_fallback_{k}": v for k, v in self.n_fallback_.items()},
             "n_nonfinite_predictions": self.n_nonfinite_predictions_,
@@ -392,6 +414,20 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         return out
 
     # ------------------------------------------------------------------ the knob
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """lambda's default ceiling for a run with this ``margin`` (m): ``margin``, so the
+        safe distance ``d_c + margin - lambda`` never falls below ``d_c``. A family whose
+        lambda is not a length taken off the safe distance (its :attr:`lambda_unit` is not
+        ``"m"``) returns ``inf`` (its own ``default_rule_params`` may bound it).
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return float(margin) if cls.lambda_unit == "m" else math.inf
+
     def safe_radius(self, lam: float) -> np.ndarray:
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -
         lambda, 0)``. Subclasses move the knob here."""
@@ -541,6 +577,14 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
         clear, viol = peer_terms(self, state, lam, pos, clear, viol)
         safe = clear >= 0.0
+        closing = self.edge_closing(todo)
+        allowed: np.ndarray | None = None
+        if closing is not None:  # the edge rule: never close in while another plan exists
+            self.n_edge_ += 1
+            allowed = closing <= 1e-9
+            if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
+                allowed = closing <= closing.min() + 1e-9
+            safe &= allowed
         n_safe = int(safe.sum())
         self.n_plans_ += 1
         if n_safe:
@@ -550,10 +594,15 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             self.n_infeasible_ += 1
             self.n_fallback_[self.fallback] += 1
             status = self.fallback
+            stop = 1 if self._warm is not None else 0  # the stop seed
             if self.fallback == "least_violation":  # least total intrusion, then cheapest
-                i = int(np.lexsort((cost, viol))[0])
-            else:  # brake: the stop seed (index 1 with a warm start, else 0)
-                i = 1 if self._warm is not None else 0
+                order = np.lexsort((cost, viol))
+                i = int(order[0] if allowed is None else order[allowed[order]][0])
+            elif allowed is None or allowed[stop]:  # brake: the stop seed
+                i = stop
+            else:  # brake would close in: the allowed plan intruding least
+                order = np.lexsort((cost, viol))
+                i = int(order[allowed[order]][0])
         return Plan(
             commands=cmds[i].copy(),
             positions=pos[i].copy(),
@@ -562,6 +611,29 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             status=status,
             n_safe=n_safe,
         )
+
+    def edge_closing(self, todo: PlanInputs) -> np.ndarray | None:
+        """The edge rule's measure of each candidate: the fastest rate (m/s) at which its
+        first step closes in on an agent already within ``d_c`` (the predicted distance at
+        the first plan step against the distance now); None when no agent is that close
+        (or ``edge="paper"``).
+
+        Parameters
+        ----------
+        todo : PlanInputs
+            What :meth:`plan_begin` prepared.
+        """
+        if self.edge != "escape" or not self._ids.size:
+            return None
+        pos, _, x, pred, y0 = todo.problem[:5]
+        d0 = np.hypot(*(np.asarray(x, dtype=float)[None, :2] - y0).T)
+        near = d0 < float(self.d_c)
+        if not near.any():
+            return None
+        gap = pos[:, 0, None, :] - pred[None, near, 0, :]  # (N, K, 2) at the first step
+        d1 = np.hypot(gap[..., 0], gap[..., 1])
+        out: np.ndarray = ((d0[near][None, :] - d1) / float(self.sampling.dt_plan)).max(axis=1)
+        return out
 
     def will_plan(self) -> bool:
         """Whether the next :meth:`decide` plans (else it replays the current plan)."""
