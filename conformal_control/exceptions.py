@@ -98,6 +98,12 @@ class SuspiciousValueWarning(ConformalControlWarning):
     pixels that is under a metre); the message suggests the explicit unit suffix."""
 
 
+class TunedOnReportedSplitWarning(ConformalControlWarning):
+    """A benchmark reports figures on the split its tuned values were chosen on (``bench
+    tune --split test`` then ``bench run --split test``): the tuned methods are not held
+    out there."""
+
+
 # ------------------------------------------------------------------------------ errors
 class ConformalControlError(Exception):
     """Base class of the project's user-facing errors (one-sentence messages)."""

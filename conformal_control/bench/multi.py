@@ -53,7 +53,7 @@ import numpy as np
 from ..data.suites import SPLITS, TAIL_S, Scenario, load_suite
 from ..results.multi_metrics import ROBOT_NEAR_M
 from .methods import Method, available
-from .runner import load_tuned, plan_methods
+from .runner import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
@@ -605,11 +605,22 @@ class MultiBenchRun:
     ran: int
     failed: int
     wall_s: float
+    #: fleet episodes a lost worker took with it (not failures; a rerun finishes them)
+    unfinished: int = 0
+    #: what failed, one line per distinct reason
+    infrastructure: tuple[str, ...] = ()
 
     def summary(self) -> str:
+        extra = ""
+        if self.unfinished:
+            why = self.infrastructure[0] if self.infrastructure else "a worker failed"
+            extra = (
+                f"; {self.unfinished} left unfinished, not failed: the infrastructure failed "
+                f"({why}); run the same command again to finish them before `bench report`"
+            )
         return (
             f"{self.n_runs} fleet episodes: {self.skipped} already done, {self.ran} ran "
-            f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}"
+            f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}{extra}"
         )
 
 
@@ -726,7 +737,10 @@ def run_multi_bench(
     ms = suite if Path(suite).suffix == ".json" else None
     loaded = load_multi_suite(path=ms) if ms else load_multi_suite(suite)
     suite_path = str(ms or _manifest_dir() / f"{suite}.json")
-    chosen = plan_methods(methods, load_tuned(tuned, loaded.base), grids)
+    tuned_values = load_tuned(tuned, loaded.base)
+    if tuned_values is not None:
+        check_tuned_split(tuned_values, split)
+    chosen = plan_methods(methods, tuned_values, grids)
     shift_objs = [get_shift(s) for s in shifts]
     missing = {m.name: why for m in chosen if (why := available(m)) is not None}
     if missing:
@@ -768,6 +782,8 @@ def run_multi_bench(
                 "tuned": tuned,
                 "seed": seed,
                 "limit": limit,
+                # what this run plans: a report tells an incomplete folder by it
+                "keys": [r.key for r in runs],
             },
             indent=2,
             default=str,
@@ -779,8 +795,16 @@ def run_multi_bench(
     todo = [r for r in runs if r.key not in done]
     t0 = time.perf_counter()
     n_failed = 0
+    unfinished: list[str] = []
+    reasons: list[str] = []
     with journal.open("a") as fh:
         for row in _execute(todo, suite_path, data_root, workers):
+            if isinstance(row, BaseException):  # a worker lost: not a failure of the run
+                why = " ".join(f"{type(row).__name__}: {row}".split())[:200]
+                if why not in reasons:
+                    reasons.append(why)
+                unfinished.append("")
+                continue
             fh.write(json.dumps(row, default=_plain) + "\n")
             fh.flush()
             n_failed += row["status"] != "ok"
@@ -790,9 +814,11 @@ def run_multi_bench(
         out_dir=out,
         n_runs=len(runs),
         skipped=len(runs) - len(todo),
-        ran=len(todo),
+        ran=len(todo) - len(unfinished),
         failed=n_failed,
         wall_s=time.perf_counter() - t0,
+        unfinished=len(unfinished),
+        infrastructure=tuple(reasons),
     )
 
 
@@ -815,7 +841,9 @@ def _progress_line(row: Mapping[str, Any]) -> str:
 
 def _execute(
     runs: Sequence[MultiRun], suite_path: str, data_root: str | None, workers: int | None
-) -> Iterable[dict[str, Any]]:
+) -> Iterable[dict[str, Any] | BaseException]:
+    """Each run's row as it finishes; the exception instead, for a run the pool lost (a
+    worker killed): the run itself catches its own errors (:func:`_run_one`)."""
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n <= 1 or len(runs) <= 1:
         for r in runs:
@@ -828,7 +856,10 @@ def _execute(
     with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
         futures = [pool.submit(_run_one, r, suite_path, data_root) for r in runs]
         for f in as_completed(futures):
-            yield f.result()
+            try:
+                yield f.result()
+            except Exception as exc:  # BrokenProcessPool: the machinery, not the run
+                yield exc
 
 
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
@@ -1073,9 +1104,14 @@ def _md(rows: Sequence[Mapping[str, Any]], cols: Sequence[str]) -> str:
 
 
 def write_multi_report(
-    rows: Sequence[Mapping[str, Any]], out: str | Path, *, title: str = "Multi-robot benchmark"
+    rows: Sequence[Mapping[str, Any]],
+    out: str | Path,
+    *,
+    title: str = "Multi-robot benchmark",
+    notice: str | None = None,
 ) -> Path:
-    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page."""
+    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page
+    (``notice``: its first line, for a folder with unfinished episodes)."""
     tables = multi_tables(rows)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -1097,6 +1133,7 @@ def write_multi_report(
     )  # fmt: skip
     splits = sorted({str(r["split"]) for r in rows})
     text = [
+        *([notice, ""] if notice else []),
         f"# {title}",
         "",
         f"{len(rows)} fleet episodes ({', '.join(splits)}). Means per episode with 95 % "
@@ -1209,14 +1246,35 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
         progress=None if args.progress == "off" else print,
     )
     print(res.summary())
-    return 0 if res.failed == 0 else 1
+    return 0 if res.failed == 0 and not res.unfinished else 1
+
+
+def multi_unfinished(folder: str | Path) -> tuple[int, int]:
+    """``(planned, unfinished)`` fleet episodes of the folder's last ``bench run --robots``:
+    those its ``bench.json`` lists without any record in the journal.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The multi-robot benchmark folder.
+    """
+    try:
+        keys = json.loads((Path(folder) / "bench.json").read_text()).get("keys") or []
+    except (OSError, ValueError, AttributeError):
+        return 0, 0
+    done = {r["key"] for r in _read_jsonl(Path(folder) / "results.jsonl")}
+    planned = {str(k) for k in keys}
+    return len(planned), len(planned - done)
 
 
 def report_command(folder: str | Path, out: str | Path | None) -> int:
     """``bench report`` of a multi-robot folder: ``multi_report.md`` (printed)."""
     rows = read_multi_rows(folder)
     dest = Path(out) if out else Path(folder) / "report"
-    page = write_multi_report(rows, dest, title=f"Multi-robot benchmark: {Path(folder).name}")
+    notice = incomplete_notice(*multi_unfinished(folder), command="bench run --robots")
+    page = write_multi_report(
+        rows, dest, title=f"Multi-robot benchmark: {Path(folder).name}", notice=notice
+    )
     print(page.read_text())
     print(f"wrote {page} and {page.with_suffix('.json')}")
     return 0

@@ -6,7 +6,8 @@ method) and writes, per predictor shift:
 * ``leaderboard.md`` / ``leaderboard.csv`` -- per method: success, reached and collision
   rates, collision frames, avoidable collision frames, time to goal, d_min, ... as means over
   scenarios with bootstrap 95 % CIs; the avoidable share of the collision frames; paired
-  comparisons with ``nolearn`` AND with the fixed lambda tuned on dev on the same scenarios;
+  comparisons with ``nolearn`` AND with the tuned fixed lambda on the same scenarios (the
+  tuned methods are labelled with the split their file says they were tuned on);
   and, where the folder ran a reference family's whole grid (``fixed``), the setting
   re-tuned on the reported split by the tuning rule, labelled as a reference that peeks at
   it;
@@ -55,7 +56,14 @@ from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_means, paired_comparisons
 
-__all__ = ["MethodSummary", "canonical_order", "summarise", "write_report"]
+__all__ = [
+    "MethodSummary",
+    "canonical_order",
+    "summarise",
+    "tuned_label",
+    "tuned_split",
+    "write_report",
+]
 
 #: (column, row metric, is a rate, lower is better) of the leaderboard.
 COLUMNS: tuple[tuple[str, str, bool, bool], ...] = (
@@ -306,9 +314,42 @@ class _ShiftView:
     shift: str
     summaries: list[MethodSummary]
     shown: list[MethodSummary]
-    fixed: str | None  # the dev-tuned fixed lambda's method name
+    fixed: str | None  # the tuned fixed lambda's method name
     reference: str | None  # the re-tuned reference's method name
     n_scenarios: int
+    tuned_label: str = "tuned on dev"  # from the tuned file (:func:`tuned_label`)
+
+
+def tuned_split(bench: Mapping[str, Any] | None) -> str | None:
+    """The split the folder's tuned values were chosen on, as their file says (``bench.json``
+    records it from ``tuned.json``); None if it does not say.
+
+    Parameters
+    ----------
+    bench : mapping, optional
+        The folder's ``bench.json``.
+    """
+    split = ((bench or {}).get("tuned") or {}).get("split")
+    return str(split) if split else None
+
+
+def tuned_label(bench: Mapping[str, Any] | None) -> str:
+    """How the report labels the tuned methods: ``tuned on <split>`` from the tuned file
+    (never assumed: a test-tuned file is labelled so).
+
+    Parameters
+    ----------
+    bench : mapping, optional
+        The folder's ``bench.json``.
+    """
+    split = tuned_split(bench)
+    return f"tuned on {split}" if split else "tuned (split not recorded)"
+
+
+def _tuned_short(bench: Mapping[str, Any] | None) -> str:
+    """``dev-tuned``, ``test-tuned``...: the label's short form."""
+    split = tuned_split(bench)
+    return f"{split}-tuned" if split else "tuned"
 
 
 def _tuned_names(bench: Mapping[str, Any] | None) -> dict[str, str]:
@@ -355,7 +396,7 @@ def _view(
     for s in summaries:
         fam = FAMILIES.get(s.family)
         if s.method == fixed or s.method == tuned.get(s.family):
-            s.label = "tuned on dev"
+            s.label = tuned_label(bench)
         if fam is not None and fam.reference and s.family in tuned and s.method != fixed:
             continue  # the grid's other members: in the CSV only
         shown.append(s)
@@ -364,7 +405,7 @@ def _view(
         ref_copy = MethodSummary(**{**ref.__dict__, "label": REFERENCE})
         shown.append(ref_copy)
     n_scen = len({str(r.get("scenario")) for r in rows})
-    return _ShiftView(shift, summaries, shown, fixed, reference, n_scen)
+    return _ShiftView(shift, summaries, shown, fixed, reference, n_scen, tuned_label(bench))
 
 
 # ------------------------------------------------------------------ markdown
@@ -381,7 +422,9 @@ def _leaderboard_md(views: list[_ShiftView], baseline: str, title: str) -> str:
         "collision frames that a point robot with the speed bound could have avoided from "
         "where the robot was when the pedestrian was first sensed (pop-ins excluded; see "
         "the Benchmark page). Paired comparisons on the same scenarios: with "
-        f"`{baseline}`, and with the fixed lambda tuned on dev.",
+        f"`{baseline}`, and with the fixed lambda "
+        + (views[0].tuned_label if views else "tuned on dev")
+        + ".",
         "",
     ]
     for v in views:
@@ -435,7 +478,7 @@ def _leaderboard_csv(path: Path, views: list[_ShiftView]) -> None:
     rows = []
     for v in views:
         for s in v.summaries:
-            role = "tuned on dev" if s.label == "tuned on dev" else ""
+            role = s.label if s.label == v.tuned_label else ""
             if s.method == v.reference:
                 role = (role + "; " if role else "") + REFERENCE
             row: list[Any] = [v.shift, s.method, s.family, s.setting, role, s.n, s.n_failed]
@@ -687,7 +730,14 @@ def _collisions(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) 
 
 # ------------------------------------------------------------------ figures
 #: How the figures label the tuned methods and the reference.
-_SHORT = {"tuned on dev": " (dev-tuned)", REFERENCE: " (re-tuned here: reference)"}
+_SHORT = {REFERENCE: " (re-tuned here: reference)"}
+
+
+def _short_label(label: str) -> str:
+    """`` (dev-tuned)`` for ``tuned on dev`` (any split), the reference's, or ``""``."""
+    if label.startswith("tuned on "):
+        return f" ({label.removeprefix('tuned on ')}-tuned)"
+    return _SHORT.get(label, "")
 
 
 def _frontier(v: _ShiftView, path: Path, title: str) -> None:
@@ -716,7 +766,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
             color=f"C{i % 10}",
             capsize=3,
             lw=1.0,
-            label=s.method + _SHORT.get(s.label, "") + (" *" if on_front else ""),
+            label=s.method + _short_label(s.label) + (" *" if on_front else ""),
         )
     fp = sorted(((-p[0], p[1]) for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
     if len(fp) > 1:
@@ -851,7 +901,8 @@ def _targets(
             fewer = dc.high < 0
             not_lower = ds.mean >= 0 and ds.high >= 0
             lines.append(
-                f"- `delay-0.5s`: `{conf}` against the dev-tuned `{v.fixed}`: collision frames "
+                f"- `delay-0.5s`: `{conf}` against the {_tuned_short(bench)} `{v.fixed}`: "
+                "collision frames "
                 f"{dc.format(3)} (fewer, CI below 0: {'met' if fewer else 'NOT met'}), "
                 f"success {ds.format(3, percent=True)} (not lower: "
                 f"{'met' if not_lower else 'NOT met'})."
@@ -915,7 +966,7 @@ def _no_regret(
         "the shift), positive when the method did better (collision frames: fewer).",
         "",
     ]
-    header = ["shift", "method", "dev-tuned", "dominated by"]
+    header = ["shift", "method", _tuned_short(bench), "dominated by"]
     for f in ("success", "reached", "collision frames"):
         header += [f, f"regret {f}", f"best {f}", f"vs re-tuned {f}"]
     table: list[list[Any]] = []
@@ -938,7 +989,7 @@ def _no_regret(
         for x in c:
             fg, rg, bg, tg = x.figures, x.regret, x.best, x.to_reference
             dom = ", ".join(f"`{m}`" for m in x.dominated_by) or "none"
-            name = f"`{x.method}`" + (" (dev-tuned)" if x.method in tuned else "")
+            name = f"`{x.method}`" + (f" ({_tuned_short(bench)})" if x.method in tuned else "")
             vs = (
                 f"{100 * tg['success']:+.1f}, {100 * tg['reached']:+.1f}, "
                 f"{tg['collision frames']:+.2f}"
@@ -1007,7 +1058,8 @@ def _issue_targets(
     some = any(c.met for c in checks)
     lines += [
         "",
-        f"- Some dev-tuned adaptive method meets them all: {'met' if some else 'NOT met'}.",
+        f"- Some {_tuned_short(bench)} adaptive method meets them all: "
+        f"{'met' if some else 'NOT met'}.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -1129,6 +1181,7 @@ def write_report(
     seed: int = 0,
     bench: Mapping[str, Any] | None = None,
     tune_wall: float | None = None,
+    notice: str | None = None,
 ) -> dict[str, Path]:
     """Write the report (see the module docstring) into ``out``; return the files.
 
@@ -1148,6 +1201,9 @@ def write_report(
         The folder's ``bench.json`` (its tuned values name the dev-tuned methods).
     tune_wall : float, optional
         Seconds ``bench tune`` took (for the run-time target).
+    notice : str, optional
+        The first line of every page (a folder with unfinished episodes:
+        :func:`~conformal_control.bench.runner.incomplete_notice`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -1196,4 +1252,8 @@ def write_report(
         files["success_vs_epsilon.png"] = out / "success_vs_epsilon.png"
         jobs.append((_success_vs_epsilon, (*curves, files["success_vs_epsilon.png"]), {}))
     draw_all(jobs)  # a third of a second each: split between two cores where possible
+    if notice:  # an incomplete folder says so on the first line of every page
+        for path in files.values():
+            if path.suffix == ".md" and path.exists():
+                path.write_text(f"{notice}\n\n{path.read_text()}")
     return files

@@ -21,7 +21,7 @@ from typing import Any
 from .. import __version__
 from ..spec import RunSpec
 from .methods import FAMILIES
-from .runner import DEFAULT_SUITE, read_rows, run_bench, write_json
+from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
 
 __all__ = ["DEFAULT_TUNED", "RULE", "TuneResult", "choose", "tune"]
 
@@ -189,6 +189,11 @@ def tune(
         progress=progress,
         limit=limit,
     )
+    if run.unfinished:  # choosing on the episodes that came back would be another rule
+        raise BenchFolderError(
+            f"{run.unfinished} tuning episodes were left unfinished ({run.infrastructure[0]}); "
+            f"run the same `bench tune` again to finish them: no tuned.json was written"
+        )
     rows = [r for r in read_rows(out) if r.get("shift", "nominal") == "nominal"]
     chosen: dict[str, Any] = {}
     entries: dict[str, Any] = {}

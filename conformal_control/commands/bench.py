@@ -419,7 +419,7 @@ def _run(args: argparse.Namespace) -> int:
         limit=args.limit,
     )
     print(res.summary())
-    return 0 if res.failed == 0 else 1
+    return 0 if res.failed == 0 and not res.unfinished else 1
 
 
 def _executor(args: argparse.Namespace) -> str:
@@ -428,6 +428,10 @@ def _executor(args: argparse.Namespace) -> str:
 
     if args.scheduler is None:
         return str(args.executor or "batch")
+    if not args.scheduler.strip():  # "" used to start a local cluster without a word
+        raise InputError(
+            "--scheduler is empty: give the scheduler's address (tcp://host:8786), or leave it out"
+        )
     if args.executor not in (None, "dask"):
         raise InputError(f"--scheduler runs on a Dask cluster: drop --executor {args.executor}")
     return "dask"
@@ -438,7 +442,7 @@ def _report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..bench.report import write_report
-    from ..bench.runner import read_bench, read_rows
+    from ..bench.runner import incomplete_notice, read_bench, read_rows, unfinished_episodes
 
     folder = Path(args.folder)
     from ..bench.planar import is_planar_folder, report_command
@@ -467,8 +471,15 @@ def _report(args: argparse.Namespace) -> int:
         tune_wall = float(json.loads(path.read_text())["wall_s"])
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"
+    notice = incomplete_notice(*unfinished_episodes(folder))
     files = write_report(
-        rows, out, baseline=args.baseline, title=title, bench=bench, tune_wall=tune_wall
+        rows,
+        out,
+        baseline=args.baseline,
+        title=title,
+        bench=bench,
+        tune_wall=tune_wall,
+        notice=notice,
     )
     print((out / "leaderboard.md").read_text())
     print((out / "targets.md").read_text())

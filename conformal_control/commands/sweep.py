@@ -152,7 +152,7 @@ def _sweep(args: argparse.Namespace) -> int:
                 f"failed {row['key']} ({row['label'] or row['scene']}): {row['error']}",
                 file=sys.stderr,
             )
-    return 1 if report.failed else 0
+    return 1 if report.failed or report.unfinished else 0
 
 
 def _show_warning(

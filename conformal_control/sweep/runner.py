@@ -39,7 +39,6 @@ import os
 import signal
 import threading
 import time
-import traceback
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +103,12 @@ class SweepReport:
         interrupted sweep's finished runs, or the run directories a resumed sweep found).
     interrupted : bool
         The sweep was stopped by a signal before every run finished.
+    unfinished : list of str
+        Keys whose run never came back because the machinery failed (a Dask scheduler or
+        worker lost, a pool's worker killed): they are not failures of the run, are not
+        journaled, and a rerun of the same command runs them.
+    infrastructure : list of str
+        What failed (one line per distinct reason), for :attr:`unfinished`.
     """
 
     out_dir: Path
@@ -119,6 +124,8 @@ class SweepReport:
     notes: list[str] = field(default_factory=list)
     recovered: list[str] = field(default_factory=list)
     interrupted: bool = False
+    unfinished: list[str] = field(default_factory=list)
+    infrastructure: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         recovered = (
@@ -129,7 +136,22 @@ class SweepReport:
         return (
             f"{len(self.keys)} runs: {len(self.skipped)} already done, {recovered}"
             f"{len(self.ran)} ran ({len(self.failed)} failed) in {self.wall_s:.1f} s on "
-            f"{self.executor}; results in {self.out_dir}"
+            f"{self.executor}; results in {self.out_dir}" + self.unfinished_note()
+        )
+
+    def unfinished_note(self) -> str:
+        """``; N left unfinished ...`` when the machinery lost runs, else ``""``."""
+        if not self.unfinished:
+            return ""
+        why = self.infrastructure[0] if self.infrastructure else "the executor failed"
+        more = (
+            f" (and {len(self.infrastructure) - 1} other reasons)"
+            if len(self.infrastructure) > 1
+            else ""
+        )
+        return (
+            f"; {len(self.unfinished)} left unfinished, not failed: the infrastructure "
+            f"failed ({why}{more}); run the same command again to finish them"
         )
 
 
@@ -404,17 +426,17 @@ def _run(
         for i, outcome in outcomes:
             cfg, key = todo[i]
             rec: dict[str, Any]
-            if isinstance(outcome, BaseException):  # the machinery failed, not the run
-                rec = {
-                    "key": key,
-                    "status": "failed",
-                    "run_dir": None,
-                    "metrics": {},
-                    "error": f"{type(outcome).__name__}: {outcome}",
-                    "traceback": "".join(traceback.format_exception(outcome)),
-                }
-            else:
-                rec = dict(outcome)
+            if isinstance(outcome, BaseException):
+                # the machinery failed, not the run (a run's own error comes back as a
+                # record): left unfinished, never journaled as a failure of the method,
+                # and run again by a rerun of the same command
+                reason = _one_line(outcome)
+                if reason not in report.infrastructure:
+                    report.infrastructure.append(reason)
+                report.unfinished.append(key)
+                bar.update(1)
+                continue
+            rec = dict(outcome)
             rec["run_dir"] = store.relative_run_dir(rec.get("run_dir"))
             rec["config"] = cfg.as_dict()
             rec["finished_at"] = time.time()
@@ -449,6 +471,12 @@ def _run(
         bar.close()
     store.sync()
     store.write_tables(parquet=parquet)
+
+
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` of an infrastructure error, on one line and short."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= 200 else text[:200] + "..."
 
 
 def _adopt_finished(

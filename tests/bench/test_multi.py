@@ -280,3 +280,38 @@ def test_the_paired_reduction_does_not_depend_on_the_order_of_the_rows():
     for seed in range(3):
         order = np.random.default_rng(seed).permutation(len(rows))
         assert multi_tables([rows[i] for i in order])["paired"] == first
+
+
+def test_a_worker_killed_leaves_fleet_episodes_unfinished_not_failed(
+    tmp_path, data_root, monkeypatch, capsys
+):
+    """A pool worker killed used to end the command (BrokenProcessPool); its episodes are
+    now left unfinished, the summary says so, and the report says so on its first line."""
+    import conformal_control.bench.multi as multi
+
+    monkeypatch.setattr(multi, "_run_one", _dies_when_reciprocal)
+    out = tmp_path / "bench"
+    kw = dict(robots=(3,), split="test", limit=2, methods=("nolearn",), data_root=str(data_root))
+    res = run_multi_bench(out, workers=2, **kw)
+    assert res.failed == 0 and res.unfinished >= 1
+    assert "left unfinished, not failed" in res.summary()
+    assert "BrokenProcessPool" in res.summary()
+    planned, unfinished = multi.multi_unfinished(out)
+    assert planned == res.n_runs and unfinished == res.unfinished
+    assert multi.report_command(out, tmp_path / "report") == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith(f"**INCOMPLETE: {unfinished} of the {planned} episodes")
+
+
+def _dies_when_reciprocal(run, suite_path, data_root):
+    """A stand-in for a fleet episode whose worker dies on the reciprocal runs."""
+    import os
+
+    if run.reciprocity == "reciprocal":
+        os._exit(3)  # the worker dies with this run
+    return {
+        **_row(run.entry.id, run.reciprocity, 0, 1.0, robots=run.n_robots),
+        "key": run.key,
+        "status": "ok",
+        "elapsed_s": 0.0,
+    }

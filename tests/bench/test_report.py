@@ -110,3 +110,17 @@ def test_canonical_order_is_the_sort_by_every_key() -> None:
                 json.dumps(r, sort_keys=True, default=str))  # fmt: skip
 
     assert canonical_order(shuffled) == sorted(shuffled, key=full)
+
+
+@pytest.mark.parametrize("split", ["dev", "test"])
+def test_the_tuned_label_comes_from_the_tuned_file(tmp_path, split) -> None:
+    """The report printed "(tuned on dev)" whatever split the values were tuned on."""
+    bench = {"tuned": {"split": split, "values": {"conformal": -0.1}}}
+    files = write_report(rows(), tmp_path, title="toy", bench=bench)
+    md = files["leaderboard.md"].read_text()
+    assert f"| `conformal[eps=-0.1]` (tuned on {split}) |" in md
+    other = "test" if split == "dev" else "dev"
+    assert f"tuned on {other}" not in md
+    with files["leaderboard.csv"].open() as fh:
+        roles = {r["method"]: r["role"] for r in csv.DictReader(fh)}
+    assert roles["conformal[eps=-0.1]"] == f"tuned on {split}"
