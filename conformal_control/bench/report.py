@@ -1091,9 +1091,10 @@ def _agents(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> b
         "",
         "Agents with at least 10 losses (checked one by one), pooled over the scenarios: "
         "the distribution of their average loss minus epsilon (the fixed-step identity "
-        "makes it (lambda_j,1 - lambda_j,end) / (eta K_j) exactly), and how many meet "
-        "their own bound where the run had one (Theorem 2 with lambda_safe, or a long-run "
-        "bound). Episodes whose run folder is missing are counted apart.",
+        "makes it (lambda_j,1 - lambda_j,end) / (eta K_j) exactly while lambda_j is not "
+        "clipped; a floor that binds keeps the agent's loss above epsilon meanwhile), and "
+        "how many meet their own bound where the run had one (Theorem 2 with lambda_safe, "
+        "or a long-run bound). Episodes whose run folder is missing are counted apart.",
         "",
         "| shift | method | episodes | agents checked | median | 90th percentile | "
         "largest | within 0.01 of epsilon | bound met |",

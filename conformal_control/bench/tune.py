@@ -26,7 +26,7 @@ from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write
 __all__ = ["DEFAULT_TUNED", "RULE", "TuneResult", "choose", "tune"]
 
 #: The families ``bench tune`` tunes by default (those ``bench run`` runs by default).
-DEFAULT_TUNED = ("fixed", "conformal", "acp", "inflated")
+DEFAULT_TUNED = ("fixed", "conformal", "acp", "inflated", "conformal_dtaci_floor")
 
 #: The one rule that picks a family's setting.
 RULE = (

@@ -86,7 +86,10 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     tu.add_argument(
         "--methods",
         default=None,
-        help="comma-separated families to tune (default: fixed,conformal,acp,inflated)",
+        help=(
+            "comma-separated families to tune (default: fixed,conformal,acp,inflated,"
+            "conformal_dtaci_floor)"
+        ),
     )
     add_data_root(tu)
     tu.add_argument("--executor", default="batch", choices=("batch", "process", "serial", "dask"))
@@ -118,7 +121,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help=(
             "comma-separated method families, or 'all' (default: nolearn,fixed,conformal,"
-            "acp,inflated; see `bench methods`)"
+            "acp,inflated,conformal_dtaci_floor; see `bench methods`)"
         ),
     )
     ru.add_argument(
