@@ -16,10 +16,10 @@ robot's ROS 2 bag instead: the commands it would have sent.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .exceptions import InputError
 from .results.episode import EpisodeResult
 from .ros2.shadow import shadow
 from .spec import RunSpec
@@ -37,8 +37,8 @@ def run(
     params: dict[str, Any] | None = None,
     units: str | None = None,
     data_root: str | Path | None = None,
-    start: Sequence[float] | None = None,
-    goal: Sequence[float] | None = None,
+    start: Any = None,
+    goal: Any = None,
     **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on a scene and return the result.
@@ -47,7 +47,7 @@ def run(
     ----------
     scene : str or Scene
         A registered scene name (``conformal-control scenes``), e.g. ``"crossing"`` (built
-        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``; or a
+        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``, ``"ethucy:crowds_zara01"``; or a
         :class:`~conformal_control.data.scene.Scene`.
     spec : RunSpec, optional
         The run (:class:`~conformal_control.spec.RunSpec`); the arguments below are
@@ -61,11 +61,15 @@ def run(
         scene's unit system is not SI.
     data_root : path, optional
         Data folder for scenes read from data (default ``$CONFORMAL_CONTROL_DATA``).
-    start, goal : (fx, fy), optional
-        For ``sdd:`` scenes: start and goal as image fractions.
+    start, goal : position, optional
+        The robot's start and goal (``goal`` may be a list of waypoints) as fractions of
+        the scene's frame (``(0.05, 0.5)``: the image on SDD scenes, the walkable box on
+        ETH/UCY ones) or with a unit (``"3.2m,1.0m"``, ``"120px,300px"``); see
+        :mod:`~conformal_control.data.positions`. None: the scene's own task.
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``predictor`` (an instance or a
+        <conformal_control.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
+        (the task in metres, as numbers), ``predictor`` (an instance or a
         registered name; default ``"constant_velocity"``), ``learn`` (False keeps lambda
         fixed: the noLearn baseline), ``seed`` (of the built-in scene and of named plugins
         with a ``random_state``), ``max_frames``, ``barrier``, ``safety_filter``,
@@ -79,6 +83,13 @@ def run(
     EpisodeResult
         ``.metrics`` (with units), ``.intervals``, ``.trajectory``, ``.config``,
         ``.plot()``, ``.save(dir)``.
+
+    Raises
+    ------
+    InputError
+        For what one robot's run cannot honour: a robots section (``robots=3``,
+        ``starts``/``goals``, a spec read from a multi-robot ``config.json``; run several
+        with :func:`conformal_control.sim.run_multi`), checked before the scene is loaded.
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
@@ -87,10 +98,24 @@ def run(
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
     base = spec if spec is not None else RunSpec()
+    if not isinstance(base, RunSpec):
+        raise InputError(f"spec must be a RunSpec, got {type(base).__name__}")
+    _refuse_robots(base, settings)
     seed = int(settings.get("seed", base.seed))
     if isinstance(scene, str):
-        goals = None if goal is None else [tuple(goal)]
-        scene = load_scene(scene, data_root, start=start, goals=goals, seed=seed)
+        scene = load_scene(scene, data_root, start=start, goals=goal, seed=seed)
+    elif start is not None or goal is not None:
+        import numpy as np
+
+        from .data.positions import parse_positions, scene_position
+
+        changes: dict[str, Any] = {}
+        if start is not None:
+            changes["start"] = scene_position(scene, start, "start")
+        if goal is not None:
+            goals = [scene_position(scene, g, "goal") for g in parse_positions(goal, "goal")]
+            changes["goals"] = np.array(goals)
+        scene = scene.replace(**changes)
     given = dict(base.params)
     given.update(params or {})
     for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):
@@ -114,6 +139,30 @@ def run(
             units = "si"
     settings["units"] = units
     return run_episode(scene, base, given, on_interval=on_interval, **settings)
+
+
+def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
+    """One robot runs here: a robots section (in ``spec`` or the keywords) is refused, never
+    dropped (``run("crossing", robots=3)`` used to run one robot without a word)."""
+    from .spec import ROBOT_FIELDS
+
+    given = [k for k in ROBOT_FIELDS if k in settings]
+    if spec.robots is None and not given:
+        return
+    import reprlib
+
+    short = reprlib.Repr()
+    short.maxstring, short.maxother = 30, 30
+    what = (
+        ", ".join(f"{k}={short.repr(settings[k])}" for k in given)
+        if given
+        else f"a robots section (robots={spec.robots.robots if spec.robots else None})"
+    )
+    raise InputError(
+        f"run() drives one robot and cannot honour {what}: run several with "
+        "conformal_control.sim.run_multi(scene, ...) with the same arguments, or "
+        "`conformal-control run --robots M`"
+    )
 
 
 def _check_keywords(kwargs: dict[str, Any]) -> None:

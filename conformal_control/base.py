@@ -44,6 +44,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, TypeVar
 
+from .exceptions import ConformalControlDeprecationWarning
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -241,7 +243,7 @@ class Plugin:
             f"{type(self).__name__}({key}=...) is deprecated: give {group}="
             f"{type(getattr(self, group, None)).__name__}({field}=...) or {new}=... "
             f"(removed in 0.4)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=stacklevel + 1,
         )
         return new

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .base import expand_settings
-from .exceptions import InputError
+from .exceptions import ConformalControlDeprecationWarning, InputError
 
 __all__ = [
     "OPTION_FIELDS",
@@ -184,6 +184,13 @@ class Parameters:
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )
+    edge: str = _p(
+        "escape",
+        "edge rule: 'escape' (never close in on an agent already within the collision "
+        "distance; the CBF's lambda floored at 0.8 x -a h_max unless lambda_min is set) or "
+        "'paper' (Algorithm 1 as published)",
+        kind="text",
+    )
     delta: float | None = _p(
         None,
         "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)",
@@ -192,14 +199,21 @@ class Parameters:
         closed=(False, False),
     )
     speed_sides: int = _p(
-        16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
+        16,
+        "sides of the inscribed speed polygon (0 = box; else 3 to 1024)",
+        kind="int",
+        low=0.0,
+        high=1024.0,
     )
-    substeps: int = _p(4, "QP solves (control instants) per data frame", kind="int", low=1.0)
+    substeps: int = _p(
+        4, "QP solves (control instants) per data frame (1 to 100)", kind="int", low=1.0, high=100.0
+    )
     history: int | None = _p(
         None,
-        "frames of history handed to the predictor; default 4 s of frames",
+        "frames of history handed to the predictor; default 4 s of frames (at most 100000)",
         kind="int",
         low=1.0,
+        high=100_000.0,
     )
     v_max: float | None = _p(None, "robot speed bound (m/s)", **_POSITIVE)
     barrier_margin: float = _p(
@@ -270,6 +284,8 @@ OPTION_FIELDS: tuple[str, ...] = (
     "lambda_safe_source",
     "record_animation",
     "engine",
+    "start_m",
+    "goals_m",
 )
 _ROLE_DEFAULTS: dict[str, Any] = {
     "predictor": "constant_velocity",
@@ -319,7 +335,41 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
         return value["name"], dict(params)
     if value is None or isinstance(value, str):
         return value, {}
+    if isinstance(value, (bool, numbers.Number, bytes, list, set, frozenset)):
+        raise _spec_error(
+            f"role {name} must be a registered name, (name, params) or an instance, got "
+            f"{_short(value)}"
+        )
     return value, {}  # an instance: checked against the role's base class when built
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, cut to a length a one-line error can show."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxstring = r.maxother = 60
+    return r.repr(value)
+
+
+def _check_stored_param(where: str, name: str, value: Any) -> None:
+    """A controller parameter read from a file: a finite number (lambda_min may be -inf,
+    lambda_max +inf), a short text with a unit (``"18m"``) or None (the scene's default)."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, str)):
+        raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+    if isinstance(value, str):
+        if len(value) > 64:
+            raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+        return
+    v = float(value)
+    if math.isnan(v) or (
+        math.isinf(v)
+        and not (name == "lambda_min" and v < 0)
+        and not (name == "lambda_max" and v > 0)
+    ):
+        raise _spec_error(f"{where}: parameter {name} must be finite, got {value!r}")
 
 
 #: The most robots one run drives.
@@ -333,6 +383,8 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "information": ("position", "velocity", "plan"),
     "lambda_scope": ("pedestrians", "robots", "both"),
     "hard_rows": ("level", "last"),
+    "coordination": ("none", "yield"),
+    "priority": ("pedestrians", "robots"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -351,6 +403,9 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "ignoring",
     "sidestep",
     "hard_rows",
+    "peer_horizon",
+    "coordination",
+    "priority",
 )
 
 
@@ -407,6 +462,17 @@ class Robots:
         velocity by.
     hard_rows : {"last", "level"}
         How the lambda search treats the rows lambda is not the slack of.
+    peer_horizon : float, optional
+        Planning families (MPC): how far ahead (s) a robot's plan keeps to the lines it
+        shares with the other robots; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
+        robots gave way broadcasts it, and its partners take the whole of each pair's
+        constraint at the next instant.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
+        the robot rows as ``hard_rows`` says).
 
     Raises
     ------
@@ -430,6 +496,9 @@ class Robots:
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
+    peer_horizon: float | None = None
+    coordination: str = "none"
+    priority: str = "robots"
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -466,6 +535,9 @@ class Robots:
         k = self.sidestep
         if not (_is_real(k) and 0.0 <= k <= math.pi / 2):
             raise _spec_error(f"robots sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        p = self.peer_horizon
+        if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
+            raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
 
     @property
     def scope(self) -> str:
@@ -525,6 +597,12 @@ class RunSpec:
         Keep the compact record ``conformal-control animate`` renders.
     engine : {"auto", "loop", "batch"}
         The backend (:mod:`conformal_control.engines`).
+    start_m : (x, y), optional
+        The robot's start in metres, replacing the scene's (:meth:`on_scene`); None: the
+        scene's own.
+    goals_m : sequence of (x, y), optional
+        The goals visited in order, in metres (one ``(x, y)`` for a single goal); None: the
+        scene's own.
     robots : Robots, optional
         Several robots in the crowd (:func:`conformal_control.sim.multi.run_multi`).
 
@@ -549,6 +627,8 @@ class RunSpec:
     lambda_safe_source: str | None = None
     record_animation: bool = True
     engine: str = "auto"
+    start_m: Any = None
+    goals_m: Any = None
     robots: Robots | None = None
 
     def __post_init__(self) -> None:
@@ -576,10 +656,60 @@ class RunSpec:
             raise _spec_error(f"engine must be 'auto', 'loop' or 'batch', got {self.engine!r}")
         if self.max_frames is not None and self.max_frames < 1:
             raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
+        if not 0 <= self.seed < 2**63:
+            raise _spec_error(f"seed must be an integer in [0, 2**63), got {self.seed!r}")
+        ls = self.lambda_safe
+        if ls is not None and not math.isfinite(ls):
+            raise _spec_error(f"lambda_safe must be finite, got {ls!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))
         if self.robots is not None and not isinstance(self.robots, Robots):
             raise _spec_error(f"robots must be a Robots section, got {self.robots!r}")
+        self._check_task()
+
+    def _check_task(self) -> None:
+        """``start_m`` as a pair of floats, ``goals_m`` as a tuple of pairs (metres)."""
+        if self.start_m is not None:
+            xy = _real_list(self.start_m)
+            if xy is None or len(xy) != 2:
+                raise _spec_error(
+                    f"start_m must be two finite numbers [x, y] (m), got {self.start_m!r}"
+                )
+            object.__setattr__(self, "start_m", tuple(xy))
+        if self.goals_m is not None:
+            flat = _real_list(self.goals_m)
+            items: list[list[float] | None] | None = [flat] if flat is not None else None
+            if items is None and not isinstance(self.goals_m, (str, bytes, dict)):
+                try:
+                    items = [_real_list(g) for g in self.goals_m]
+                except TypeError:
+                    items = None
+            if not items or any(g is None or len(g) != 2 for g in items):
+                raise _spec_error(
+                    "goals_m must be [x, y] or a list of [x, y] finite numbers (m), got "
+                    f"{self.goals_m!r}"
+                )
+            object.__setattr__(self, "goals_m", tuple(tuple(g) for g in items if g is not None))
+
+    def on_scene(self, scene: Any) -> Any:
+        """``scene`` with this run's task (``start_m``, ``goals_m``) in place of its own; the
+        scene itself when neither is given.
+
+        Parameters
+        ----------
+        scene : Scene
+            The scene the run is on.
+        """
+        if self.start_m is None and self.goals_m is None:
+            return scene
+        import numpy as np
+
+        changes: dict[str, Any] = {}
+        if self.start_m is not None:
+            changes["start"] = np.array(self.start_m, dtype=float)
+        if self.goals_m is not None:
+            changes["goals"] = np.array(self.goals_m, dtype=float).reshape(-1, 2)
+        return scene.replace(meta={**scene.meta, "task": "run specification"}, **changes)
 
     def _fallback_one_way(self) -> None:
         """The fallback is a role (``fallback=``): a ``fallback`` among the parameters or
@@ -609,7 +739,7 @@ class RunSpec:
         warnings.warn(
             f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
             "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=4,
         )
         object.__setattr__(self, "fallback", next(iter(given.values())))
@@ -783,6 +913,13 @@ class RunSpec:
                     k: float(v) if isinstance(v, str) and v in _INFINITE_TEXT else v
                     for k, v in value.items()
                 }
+                for k, v in value.items():
+                    _check_stored_param(where, str(k), v)
+            if key in ROLE_FIELDS and not (value is None or isinstance(value, (str, dict, list))):
+                raise _spec_error(
+                    f"{where}: {key} must be a registered name or {{'name': ..., 'params': "
+                    f"{{...}}}}, got {_short(value)}"
+                )
             if key == "robots" and value is not None:
                 if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
                     raise _spec_error(
@@ -804,3 +941,8 @@ class RunSpec:
             return cls(**kw)
         except TypeError as exc:  # pragma: no cover - the keys were checked above
             raise _spec_error(f"{where}: {exc}") from None
+        except InputError as exc:
+            message = str(exc)
+            if message.startswith(where):
+                raise
+            raise _spec_error(f"{where}: {message}") from None

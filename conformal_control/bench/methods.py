@@ -27,9 +27,11 @@ them with their settings and tuning grids):
 ``acp``            adaptive conformal prediction regions (when registered)
 ``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
 ``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``cc_mpc_margin``  the same learning its distance from the forecast's clearance error
 ``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
+``fcp_mpc``        the sampling MPC against conformalized distance fields (online calibration)
 
 The MPC families are not in the default method set (``--methods mpc,cc_mpc,...``).
 """
@@ -454,6 +456,20 @@ _DECLARED: tuple[Family, ...] = (
         role_params={"family": MPC_SEARCH},
     ),
     Family(
+        "cc_mpc_margin",
+        "conformal controller (CDT) on the forecast's clearance error: sampling MPC, safe "
+        "distance d_c - lambda, fixed-eta rule on the margin miscoverage (lambda follows the "
+        "predictor's error near pedestrians)",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (rate of intervals whose clearance error exceeds the margin)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.1, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"family": "mpc", "loss": "margin_miscoverage"},
+        role_params={"family": MPC_SEARCH},
+    ),
+    Family(
         "oracle_mpc",
         "sampling MPC planning with the true future (oracle predictor), margin 0, no "
         "learning: what perfect prediction gives the MPC",
@@ -474,6 +490,27 @@ _DECLARED: tuple[Family, ...] = (
         rule_params={"gamma": 0.02},
         roles={"family": "acp_mpc"},
         role_params={"family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    ),
+    Family(
+        "fcp_mpc",
+        "sampling MPC against conformalized distance fields (FCP-MPC, hard), calibrated "
+        "online from the episode's past, with the published adaptation of the envelope",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (rate of fields exceeding the envelope)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.05, "lambda_init": 0.0, "lambda_min": -4.0, "lambda_max": 0.8},
+        roles={"family": "fcp_mpc", "loss": "field_miscoverage"},
+        role_params={
+            "family": {
+                **MPC_SEARCH,
+                "continuous": True,
+                "calibration__grid_size": 64,
+                "calibration__min_pairs": 12,
+                "calibration__refit_every": 10,
+            }
+        },
     ),
     Family(
         "ecp_mpc",

@@ -76,7 +76,7 @@ from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .constraint import ConformalConstraint
 from .controller import CBFIntervalRecord, ConformalCBFController, ControlState
 from .loss import CBFTruth
-from .roles import ReferenceController, SafetyFilter
+from .roles import EscapeRows, ReferenceController, SafetyFilter
 
 __all__ = ["ACPController", "ACPIntervalRecord", "ACPMiscoverageLoss", "region_radii"]
 
@@ -274,6 +274,7 @@ class ACPController(ConformalCBFController):
             self.safety_filter.configure_apf(  # type: ignore[attr-defined]
                 (K, rho0, d_c, delta, barrier.convention == "surface"),  # type: ignore[attr-defined]
                 float(self.constraint.a),
+                self.constraint.edge_settings(),  # the edge rule on the true d_c
             )
             self._apf_c = c
         return super().decide(state, self.slack(lam))
@@ -291,7 +292,10 @@ class ACPController(ConformalCBFController):
         if con is None:
             barrier = copy.copy(self.constraint.barrier)
             barrier.d_c = self._d_c + c  # type: ignore[attr-defined]
-            con = ConformalConstraint(barrier, self.constraint.a)
+            base = self.constraint
+            con = ConformalConstraint(
+                barrier, base.a, edge=base.edge, escape_gain=base.escape_gain
+            )  # the edge rule within the inflated d_c (the rows are flat there)
             self._constraints[c] = con
         return con
 
@@ -303,6 +307,18 @@ class ACPController(ConformalCBFController):
         self.n_capped_ += int(self._capped[h])
         con = self._inflated(float(infl[h]))
         return con.rows(state.x[:2], self._xp[state.step], self._vp[state.step])
+
+    def escape_rows(self, state: ControlState) -> EscapeRows | None:
+        """The edge rule on the inflated constraint of this instant (its rows are flat
+        within the inflated ``d_c``), as the compiled step applies it; the inflation is
+        the one :meth:`constraint_rows` computed for this instant."""
+        if not self._ids.size:
+            return None
+        infl = self._infl
+        h = min(state.step // int(self.substeps), infl.size - 1)
+        con = self._inflated(float(infl[h]))
+        s = state.step
+        return con.escape(state.x[:2], self._xp[s], self._vp[s])
 
     def slack(self, lam: float) -> float:
         """lambda is the regions' level, not a slack: the rows get 0."""

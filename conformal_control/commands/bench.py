@@ -96,7 +96,13 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     tu.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     tu.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
     tu.add_argument("--out", required=True, help="tuning folder (runs and tuned.json)")
-    tu.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    tu.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
 
     ru = sub.add_parser(
         "run",
@@ -184,10 +190,24 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
-        "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
+        "--datasets",
+        default=None,
+        help="fcp-planar(-dense) only: comma-separated datasets (default all)",
+    )
+    ru.add_argument(
+        "--seeds",
+        default=None,
+        help="fcp-planar(-dense) only: comma-separated random states, each scenario once per seed "
+        "(default 0)",
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
-    ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    ru.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
     ru.add_argument(
         "--robots",
         default=None,
@@ -197,9 +217,10 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--reciprocity",
-        default="none,reciprocal",
-        metavar="none,reciprocal",
-        help="with --robots: how the robots treat each other (default both, paired)",
+        default="solo,none,reciprocal",
+        metavar="solo,none,reciprocal",
+        help="with --robots: how the robots treat each other (default all three, paired by "
+        "entry; solo: each robot alone on its own task, the fleet's baseline)",
     )
     ru.add_argument(
         "--information",
@@ -348,10 +369,25 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.suite == "fcp-planar-dense":  # the planar protocol, a start every 20 steps
+        from ..bench.planar_dense import run_command as run_dense
+
+        split = "test" if args.split is None else args.split
+        return run_dense(
+            args.out,
+            args.methods,
+            args.predictor,
+            args.data_root,
+            args.datasets,
+            args.seeds,
+            split,
+        )
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
         from ..bench.planar import run_command
 
-        return run_command(args.out, args.methods, args.predictor, args.data_root, args.datasets)
+        return run_command(
+            args.out, args.methods, args.predictor, args.data_root, args.datasets, args.seeds
+        )
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
@@ -386,7 +422,7 @@ def _run(args: argparse.Namespace) -> int:
         limit=args.limit,
     )
     print(res.summary())
-    return 0 if res.failed == 0 else 1
+    return 0 if res.failed == 0 and not res.unfinished else 1
 
 
 def _executor(args: argparse.Namespace) -> str:
@@ -395,6 +431,10 @@ def _executor(args: argparse.Namespace) -> str:
 
     if args.scheduler is None:
         return str(args.executor or "batch")
+    if not args.scheduler.strip():  # "" used to start a local cluster without a word
+        raise InputError(
+            "--scheduler is empty: give the scheduler's address (tcp://host:8786), or leave it out"
+        )
     if args.executor not in (None, "dask"):
         raise InputError(f"--scheduler runs on a Dask cluster: drop --executor {args.executor}")
     return "dask"
@@ -405,11 +445,15 @@ def _report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..bench.report import write_report
-    from ..bench.runner import read_bench, read_rows
+    from ..bench.runner import incomplete_notice, read_bench, read_rows, unfinished_episodes
 
     folder = Path(args.folder)
     from ..bench.planar import is_planar_folder, report_command
+    from ..bench.planar_dense import is_dense_folder
+    from ..bench.planar_dense import report_command as dense_report_command
 
+    if is_dense_folder(folder):
+        return dense_report_command(args.folder, args.out)
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
     from ..bench.multi import is_multi_folder
@@ -417,6 +461,10 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
+    from ..plotting.jobs import prepare
+
+    # the figure process imports matplotlib on the other core while the rows are read
+    prepare(("conformal_control.bench.report",))
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None
@@ -426,8 +474,15 @@ def _report(args: argparse.Namespace) -> int:
         tune_wall = float(json.loads(path.read_text())["wall_s"])
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"
+    notice = incomplete_notice(*unfinished_episodes(folder))
     files = write_report(
-        rows, out, baseline=args.baseline, title=title, bench=bench, tune_wall=tune_wall
+        rows,
+        out,
+        baseline=args.baseline,
+        title=title,
+        bench=bench,
+        tune_wall=tune_wall,
+        notice=notice,
     )
     print((out / "leaderboard.md").read_text())
     print((out / "targets.md").read_text())

@@ -25,7 +25,16 @@ import math
 
 import numpy as np
 
-from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
+from ..cbf.kernels2d import (
+    ESCAPED,
+    INFEASIBLE,
+    NONFINITE,
+    OPTIMAL,
+    SEARCH_VERTEX,
+    UNCONSTRAINED,
+    apf_step,
+    escape_guard,
+)
 from ..cbf.pyhypot import py_hypot
 from ..jit import kernel
 from .gap_kernels import HOLD, PYTHON
@@ -124,7 +133,8 @@ def run_interval(
     (layout of :func:`apf_step`): ``lam[b]``, the ``n_agents[b]`` sensed agents'
     predictions ``xp[b, step]`` / ``vp[b, step]``, ``prm[b]``, ``poly[b, :poly_len[b]]``,
     the fallback code ``fallback[b]`` and the previous decision ``last[b]``; ``counts[b]``
-    gets (solves, infeasible, fallback, lambda-search vertex, control instants). The
+    gets (solves, infeasible, fallback, lambda-search vertex, control instants, edge rule
+    deciding alone, brake / hold moved into its escape polygon). The
     plant: ``dt[b]``, ``decay[b] = exp(-K dt)``, ``gain[b] = -expm1(-K dt)``, ``k_acc[b]
     = K``. The interval's record: ``rec_x`` (ego position), ``rec_v`` (decision),
     ``rec_lam`` (lambda applied, NaN for brake / hold), ``rec_code`` (:data:`FREE`,
@@ -226,6 +236,18 @@ def run_interval(
                     else:
                         v0 = 0.0
                         v1 = 0.0
+                    # within the edge rule's escape polygon, if the step had one
+                    ns = pl.shape[0] // 5
+                    moved, v0, v1 = escape_guard(
+                        v0, v1, work[10 * int(p[11]) + 3 * ns :], int(p[11]), p[6]
+                    )
+                    if moved:
+                        counts[b, 6] += 1
+            elif code == ESCAPED:  # the edge rule decided alone
+                counts[b, 1] += 1
+                counts[b, 2] += 1
+                counts[b, 5] += 1
+                applied = math.nan
             else:  # lambda search (the projection at lambda* + margin, or the LP's vertex)
                 counts[b, 1] += 1
                 counts[b, 2] += 1

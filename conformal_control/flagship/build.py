@@ -20,6 +20,7 @@ c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.Conforma
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,10 +31,12 @@ from ..cbf.barriers import APFBarrier
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
+from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
 from ..cbf.loss import CBFGapLoss
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
+from ..exceptions import ConformalControlDeprecationWarning
 from ..predictors.base import Predictor
 from ..spec import RunSpec
 from ..update_rules import FixedEtaRule
@@ -83,7 +86,7 @@ class Flagship:
         """Deprecated name of :attr:`family` (removed in 0.4)."""
         warnings.warn(
             "Flagship.policy is now Flagship.family (removed in 0.4)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family
@@ -325,7 +328,8 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             delta=si["delta"],
         )
     names["barrier"] = role_name(barrier, "apf")
-    constraint = ConformalConstraint(bar, a=si["a"])
+    # the edge rule on the true collision distance (barrier_margin is the barrier's only)
+    constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
     context["constraint"] = constraint
     context["scale"] = si["loss_scale"]
 
@@ -364,10 +368,33 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     names["loss"] = role_name(loss, default_loss)
 
     rule_resolved = resolved
+    if not planning and "lambda_min" not in resolved.given and si["edge"] == "escape":
+        # the CBF's default lambda floor (issue 30): a share of the feasibility floor
+        floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        if si["lambda_min"] < floor <= si["lambda_max"]:
+            in_scene = floor / scene.units.factor("lambda_min")
+            resolved = dataclasses.replace(
+                resolved,
+                si={**si, "lambda_min": floor},
+                scene_units={**resolved.scene_units, "lambda_min": in_scene},
+                notes=[
+                    *resolved.notes,
+                    f"lambda_min: {in_scene:g}, the default floor "
+                    f"({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)",
+                ],
+            )
+            rule_resolved = resolved
     if planning:
         # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
         # defaults apply unless the run gave them
         fam_defaults = dict(getattr(fam_cls, "default_rule_params", {}))
+        ceiling = getattr(fam_cls, "lambda_ceiling", None)
+        margin = dict(family_params or {}).get("margin", si["barrier_margin"])
+        if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
+            # lambda never pushes the safe distance below d_c (SamplingMPC.lambda_ceiling)
+            top = float(ceiling(float(margin)))
+            if math.isfinite(top):
+                fam_defaults.setdefault("lambda_max", top)
         own = {k: v for k, v in fam_defaults.items() if k not in resolved.given}
         if own:
             # the run's parameters are these (config.json, metrics): lambda's unit is the

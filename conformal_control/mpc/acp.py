@@ -95,6 +95,8 @@ class ACPMPC(SamplingMPC):
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions (lambda
         <= 0, or too few errors for the level).
+    edge : {"escape", "paper"}
+        The edge rule of :class:`~conformal_control.mpc.controller.SamplingMPC`.
     **grouped
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
@@ -102,6 +104,19 @@ class ACPMPC(SamplingMPC):
 
     default_loss: ClassVar[str] = "plan_miscoverage"
     lambda_unit: ClassVar[str] = "level"
+
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """``inf``: lambda is a level here, the safe distance is never below ``d_c +
+        margin`` whatever it is.
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return math.inf
+
     #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
     default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
@@ -121,6 +136,7 @@ class ACPMPC(SamplingMPC):
         random_state: int = 0,
         window: int = 2000,
         max_inflation: float = 2.0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.window = window
@@ -138,6 +154,7 @@ class ACPMPC(SamplingMPC):
             continuous,
             substeps,
             random_state,
+            edge,
             **grouped,
         )
 

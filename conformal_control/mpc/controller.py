@@ -23,6 +23,17 @@ the collision distance ``d_c`` plus the fixed ``margin``. Subclasses move the kn
 elsewhere by overriding :meth:`SamplingMPC.safe_radius` (the ``acp_mpc`` family:
 conformal regions per plan step).
 
+**The edge rule** (``edge="escape"``, the default): when a sensed agent is already within
+``d_c`` of the robot, no plan whose first step closes in on it (its predicted distance
+at the first plan step below the distance now) is chosen while one that does not
+exists -- neither among the safe samples nor by the fallback; when none exists, the plan
+closing in slowest is. Counted as ``n_edge`` (plans made with an agent within ``d_c``).
+``edge="paper"`` leaves the choice to the safe set and the fallback alone.
+
+**lambda's ceiling.** lambda never pushes the safe distance below ``d_c``: a run's rule
+gets ``lambda_max = margin`` unless it gives one (:meth:`SamplingMPC.lambda_ceiling`),
+and a negative ``margin`` is refused.
+
 **Infeasibility.** When no sample is safe the step is *infeasible*: it is counted
 (``n_infeasible``) and the ``fallback`` decides, also counted (``n_fallback_<name>``):
 
@@ -56,9 +67,10 @@ import numpy as np
 from ..base import DecisionFamily
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
-from ..cbf.reciprocal import Reciprocity
+from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ..spec import parameter_info
 from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
@@ -121,7 +133,9 @@ class Plan:
     cost : float
     status : str
         ``"optimal"`` (the cheapest safe sample), ``"unconstrained"`` (nobody sensed:
-        the cheapest sample) or the fallback's name.
+        the cheapest sample), ``"peer_yield"`` (no sample meets every robot peer's line
+        too: the one keeping the pedestrians' safe distances that intrudes least over the
+        lines, :mod:`~conformal_control.mpc.peers`) or the fallback's name.
     n_safe : int
         Number of safe samples.
     """
@@ -155,7 +169,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     d_c : float
         Collision distance between centres (m, >= 0): robot radius + agent radius.
     margin : float
-        Fixed extra safe distance (m).
+        Fixed extra safe distance (m, >= 0); also lambda's default ceiling.
     limits : Limits, optional
         ``v_max`` (m/s) and ``a_max`` (m/s^2), the bounds of the sampled commands;
         default ``Limits()`` (1 m/s, 2 m/s^2).
@@ -172,6 +186,8 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         Control instants per prediction sample (for the interval's record).
     random_state : int
         Seed of the sampler (reset at every episode).
+    edge : {"escape", "paper"}
+        The edge rule (see the module docstring).
     **grouped
         A group's field as ``<group>__<field>`` (``costs__w_goal=2.0``: the registry's
         ``(name, params)`` form); the former flat keywords (``n_samples=``, ``w_goal=``,
@@ -221,6 +237,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         continuous: bool = True,
         substeps: int = 4,
         random_state: int = 0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.predictor = predictor
@@ -235,6 +252,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.continuous = continuous
         self.substeps = substeps
         self.random_state = random_state
+        self.edge = edge
         self._set_grouped(grouped)
 
     # ------------------------------------------------------------------ contract kit
@@ -272,13 +290,18 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:
         check_groups(self.sampling, self.costs, self.limits)
-        v = self.substeps
-        if isinstance(v, bool) or int(v) != v or v < 1:
-            raise ValueError(f"substeps must be a positive integer, got {v!r}")
+        v, top = self.substeps, int(parameter_info("substeps").high)
+        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
+            raise ValueError(f"substeps must be an integer from 1 to {top}, got {v!r}")
         if not (math.isfinite(self.d_c) and self.d_c >= 0):
             raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
-        if not math.isfinite(self.margin):
-            raise ValueError(f"margin must be a finite distance, got {self.margin!r}")
+        if not (math.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(
+                f"margin must be a finite distance >= 0 (a negative one puts the safe "
+                f"distance inside the collision distance d_c), got {self.margin!r}"
+            )
+        if self.edge not in ("escape", "paper"):
+            raise ValueError(f"edge must be 'escape' or 'paper', got {self.edge!r}")
         if self.fallback not in FALLBACKS:
             raise ValueError(
                 f"fallback must be one of {', '.join(FALLBACKS)}, got {self.fallback!r}"
@@ -299,7 +322,11 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self.n_steps_ = 0
         self.n_plans_ = 0
         self.n_infeasible_ = 0
+        self.n_edge_ = 0
         self.n_fallback_: dict[str, int] = dict.fromkeys(FALLBACKS, 0)
+        self.n_peer_yield_ = 0
+        self._yield_until = -math.inf
+        self._t_now = 0.0
         self.n_nonfinite_predictions_ = 0
         self.forecast_info_: dict[str, Any] = {}
         self._warm: np.ndarray | None = None  # last plan's commands
@@ -313,8 +340,10 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             "n_steps": self.n_steps_,
             "n_plans": self.n_plans_,
             "n_infeasible": self.n_infeasible_,
+            "n_edge": self.n_edge_,
             "n_fallback": sum(self.n_fallback_.values()),
             **{f"n_fallback_{k}": v for k, v in self.n_fallback_.items()},
+            "n_peer_yield": self.n_peer_yield_,
             "n_nonfinite_predictions": self.n_nonfinite_predictions_,
         }
 
@@ -391,6 +420,20 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         return out
 
     # ------------------------------------------------------------------ the knob
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """lambda's default ceiling for a run with this ``margin`` (m): ``margin``, so the
+        safe distance ``d_c + margin - lambda`` never falls below ``d_c``. A family whose
+        lambda is not a length taken off the safe distance (its :attr:`lambda_unit` is not
+        ``"m"``) returns ``inf`` (its own ``default_rule_params`` may bound it).
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return float(margin) if cls.lambda_unit == "m" else math.inf
+
     def safe_radius(self, lam: float) -> np.ndarray:
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -
         lambda, 0)``. Subclasses move the knob here."""
@@ -538,21 +581,52 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         Plan
         """
         state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
-        clear, viol = peer_terms(self, state, lam, pos, clear, viol)
+        lines = peer_terms(self, state, lam, pos)  # robot peers' lines (mpc/peers.py)
+        line_viol = np.zeros_like(viol)
+        if lines is not None:
+            line_clear, line_viol = lines
+            kept = clear >= 0.0  # the pedestrians' safe distances hold
+            clear = np.minimum(clear, line_clear)
+            if self.reciprocity.priority != "pedestrians":  # type: ignore[union-attr]
+                # one problem: no order between the lines and the pedestrians
+                viol, line_viol, lines = viol + line_viol, np.zeros_like(viol), None
         safe = clear >= 0.0
+        closing = self.edge_closing(todo)
+        allowed: np.ndarray | None = None
+        if closing is not None:  # the edge rule: never close in while another plan exists
+            self.n_edge_ += 1
+            allowed = closing <= 1e-9
+            if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
+                allowed = closing <= closing.min() + 1e-9
+            safe &= allowed
+            if lines is not None:
+                kept &= allowed
         n_safe = int(safe.sum())
         self.n_plans_ += 1
         if n_safe:
             i = int(np.argmin(np.where(safe, cost, np.inf)))
             status = "optimal" if self._ids.size else "unconstrained"
+        elif lines is not None and kept.any():  # the lines give way before the pedestrians
+            self.n_peer_yield_ += 1
+            self._yield_until = state.t + YIELD_HOLD_S
+            i = int(np.lexsort((cost, np.where(kept, line_viol, np.inf)))[0])
+            status = "peer_yield"
         else:
             self.n_infeasible_ += 1
             self.n_fallback_[self.fallback] += 1
+            if lines is not None:  # squeezed: the lines are given way too
+                self._yield_until = state.t + YIELD_HOLD_S
             status = self.fallback
-            if self.fallback == "least_violation":  # least total intrusion, then cheapest
-                i = int(np.lexsort((cost, viol))[0])
-            else:  # brake: the stop seed (index 1 with a warm start, else 0)
-                i = 1 if self._warm is not None else 0
+            stop = 1 if self._warm is not None else 0  # the stop seed
+            # least intrusion into the pedestrians' safe distances, then over the peers'
+            # lines (priority "pedestrians"), then cheapest
+            order = np.lexsort((cost, line_viol, viol))
+            if self.fallback == "least_violation":
+                i = int(order[0] if allowed is None else order[allowed[order]][0])
+            elif allowed is None or allowed[stop]:  # brake: the stop seed
+                i = stop
+            else:  # brake would close in: the allowed plan intruding least
+                i = int(order[allowed[order]][0])
         return Plan(
             commands=cmds[i].copy(),
             positions=pos[i].copy(),
@@ -561,6 +635,29 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
             status=status,
             n_safe=n_safe,
         )
+
+    def edge_closing(self, todo: PlanInputs) -> np.ndarray | None:
+        """The edge rule's measure of each candidate: the fastest rate (m/s) at which its
+        first step closes in on an agent already within ``d_c`` (the predicted distance at
+        the first plan step against the distance now); None when no agent is that close
+        (or ``edge="paper"``).
+
+        Parameters
+        ----------
+        todo : PlanInputs
+            What :meth:`plan_begin` prepared.
+        """
+        if self.edge != "escape" or not self._ids.size:
+            return None
+        pos, _, x, pred, y0 = todo.problem[:5]
+        d0 = np.hypot(*(np.asarray(x, dtype=float)[None, :2] - y0).T)
+        near = d0 < float(self.d_c)
+        if not near.any():
+            return None
+        gap = pos[:, 0, None, :] - pred[None, near, 0, :]  # (N, K, 2) at the first step
+        d1 = np.hypot(gap[..., 0], gap[..., 1])
+        out: np.ndarray = ((d0[near][None, :] - d1) / float(self.sampling.dt_plan)).max(axis=1)
+        return out
 
     def will_plan(self) -> bool:
         """Whether the next :meth:`decide` plans (else it replays the current plan)."""
@@ -573,6 +670,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        self._t_now = float(state.t)
         lam = self._per_agent(lam)  # an array when lambda is run per agent (lambda_keys)
         replan = self.will_plan()
         if replan:
@@ -591,7 +689,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         self._since += 1
         cmd: np.ndarray = plan.commands[j].copy()
         self._last_cmd = cmd
-        ok = plan.status in ("optimal", "unconstrained")
+        ok = plan.status in ("optimal", "unconstrained", "peer_yield")
         rec = self._rec
         rec["x"].append(np.array(state.x[:2], dtype=float))
         vel = cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
@@ -603,6 +701,16 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         rec["safe"].append(plan.n_safe if replan else -1)
         self.n_steps_ += 1
         return cmd
+
+    def yielding(self) -> bool:
+        """Whether this robot says it yields to its peers (its reciprocity's
+        ``coordination="yield"``, and a plan within the last
+        :data:`~conformal_control.cbf.reciprocal.YIELD_HOLD_S` seconds gave way on the
+        peers' lines or fell back)."""
+        rec = self.reciprocity
+        return bool(
+            rec is not None and rec.coordination == "yield" and self._t_now < self._yield_until
+        )
 
     def planned_path(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The current plan as ``(times (H,) s since the start, positions (H, 2) m)``: what

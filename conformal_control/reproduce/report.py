@@ -28,7 +28,7 @@ import numpy as np
 
 from ..sweep import RunConfig, run_sweep
 from ..sweep.executors import Executor
-from .paper import PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
+from .paper import PAPER_EDGE, PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
 
 __all__ = [
     "IDENTITY_TOL",
@@ -79,7 +79,7 @@ def _config(
     seed: int,
     label: str,
 ) -> RunConfig:
-    params = {**table.base, **row.params, "a": variant_a(table, variant)}
+    params = {**table.base, **row.params, "a": variant_a(table, variant), **PAPER_EDGE}
     return RunConfig(
         scene=scene,
         predictor="oracle" if row.oracle else predictor,

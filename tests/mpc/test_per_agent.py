@@ -106,7 +106,8 @@ def test_each_agent_gets_its_own_safe_distance_in_the_kernel():
 def test_two_agents_learn_their_own_distance():
     # agent 1 walks away from the robot's path, agent 2 circles close to it
     scene = _scene({1: _straight((4.0, 4.0), (0.0, 0.3)), 2: _circling((5.0, -0.5), 1.2, 1.0)})
-    res = _run(scene, lambda_per="agent")
+    # (lambda_max: the default ceiling, margin = 0, would stop lambda at 0; issue 30)
+    res = _run(scene, lambda_per="agent", lambda_max=1.0)
     mon = res.loop.monitor
     assert mon.entries[1].n > 5 and mon.entries[2].n > 5
     # the far agent's shortfall is 0: its lambda only grows (a smaller safe distance)
