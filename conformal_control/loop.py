@@ -168,7 +168,7 @@ def close_interval(
     log = IntervalLog(k=k, lam=lam, loss=score.loss, n_steps=n_steps, diagnostics=score.diagnostics)
     if score.loss is not None:
         if learn:
-            if rule.uses_loss_function:
+            if rule.capabilities.uses_loss_function:
                 rule.set_loss_function(score.loss_at)
             lam = monitor.update(score.loss)
         else:

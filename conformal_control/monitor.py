@@ -152,7 +152,7 @@ class GuaranteeMonitor:
             eta=rule.step if learn else None,
             lambda_safe=lambda_safe,
             bounds=bounds,
-            kind=rule.guarantee if learn else "none",
+            kind=rule.capabilities.guarantee if learn else "none",
             rule=rule if learn else None,
             lambda_safe_source=lambda_safe_source,
             premise_proven=premise_proven,

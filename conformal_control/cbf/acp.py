@@ -108,7 +108,7 @@ class ACPIntervalRecord(CBFIntervalRecord):
     inflation: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-class ACPController(ConformalCBFController):
+class ACPController(ConformalCBFController, compiled="acp"):
     """Adaptive conformal prediction regions (Dixit et al. 2023) inflating a CBF barrier.
 
     lambda is the miscoverage level of the regions (see the module docstring); run it
@@ -125,9 +125,6 @@ class ACPController(ConformalCBFController):
         Largest inflation handed to the barrier (m, >= 0), for infinite regions (lambda
         <= 0, or fewer errors than the level needs at the start of an episode).
     """
-
-    #: the compiled engine runs this class as compiled code (the inflated compiled step)
-    compiled_as = "acp"
 
     def __init__(
         self,
@@ -319,7 +316,7 @@ class ACPController(ConformalCBFController):
         )
 
 
-class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
+class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth], compiled="acp_miscoverage"):
     """Miscoverage of the acp regions: the fraction of (agent, step) pairs of the interval
     whose true position fell outside its region.
 
@@ -332,8 +329,6 @@ class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
     """
 
     bounds = (0.0, 1.0)
-    #: the compiled engine scores it with this class's own code (on the engine's record)
-    compiled_as = "acp_miscoverage"
 
     def __init__(self) -> None:
         pass

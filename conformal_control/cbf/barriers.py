@@ -14,7 +14,17 @@ __all__ = ["APFBarrier"]
 _CONVENTIONS = ("surface", "centre")
 
 
-class APFBarrier(Barrier):
+class APFBarrier(
+    Barrier,
+    compiled="apf",
+    run_values={
+        "d_c": "barrier_distance",
+        "K_rep": "K_rep",
+        "rho0": "rho0",
+        "convention": "convention",
+        "delta": "delta",
+    },
+):
     """Artificial-potential-field barrier (Singletary et al. 2021), as in the paper.
 
     With the repulsive potential ``U(rho) = K_rep/2 (1/rho - 1/rho0)^2`` for
@@ -48,9 +58,6 @@ class APFBarrier(Barrier):
     delta : float, optional
         Offset; defaults to 1/2 ("surface") or 1/(1 + U(d_c)) ("centre").
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "apf"
 
     def __init__(
         self,

@@ -78,7 +78,15 @@ def merge_forecast_info(total: dict[str, Any], info: dict[str, Any]) -> None:
 
 
 class ConformalCBFController(
-    DecisionFamily[PredictionQuery, ControlState, np.ndarray, CBFIntervalRecord]
+    DecisionFamily[PredictionQuery, ControlState, np.ndarray, CBFIntervalRecord],
+    compiled="cbf",
+    run_values={
+        "predictor": "predictor",
+        "constraint": "constraint",
+        "safety_filter": "safety_filter",
+        "reference": "reference",
+        "substeps": "substeps",
+    },
 ):
     """Conformal CBF controller (Huriot & Sibai, Algorithm 1).
 
@@ -134,9 +142,6 @@ class ConformalCBFController(
     does not comply). The compiled step handles these rows too
     (:meth:`Exact2DSafetyFilter.step_apf_record_peers`).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "cbf"
 
     def __init__(
         self,

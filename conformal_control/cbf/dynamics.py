@@ -76,7 +76,9 @@ class DoubleIntegrator(Dynamics):
         return np.concatenate([x, v], axis=2)
 
 
-class VelocityTrackingDoubleIntegrator(Dynamics):
+class VelocityTrackingDoubleIntegrator(
+    Dynamics, compiled="velocity_tracking", run_values={"K_acc": "K_acc"}
+):
     """Double integrator under the tracking law u = -K_acc (v - v_cmd).
 
     The command is the desired velocity ``v_cmd`` (the QP's safe velocity), held over the
@@ -91,9 +93,6 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
     K_acc : float
         Tracking gain in 1/s (> 0).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "velocity_tracking"
 
     state_dim = 4
 
@@ -132,7 +131,7 @@ def _wrap(theta: np.ndarray | float) -> np.ndarray:
     return out
 
 
-class Unicycle(Dynamics):
+class Unicycle(Dynamics, run_values={"v_max": "v_max"}):
     """Unicycle (differential-drive) robot: command (v, omega), heading in the state.
 
     The state is ``(x, y, vx, vy, theta)``: position (m), world-frame velocity

@@ -16,7 +16,11 @@ from .records import CBFIntervalRecord, CBFTruth
 __all__ = ["CBFGapLoss", "CBFTruth"]
 
 
-class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class CBFGapLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="cbf_gap",
+    run_values={"constraint": "constraint", "scale": "loss_scale"},
+):
     """l_k = max over sensed agents j and control instants t of s(gap_j(t) + lambda_k).
 
     gap_j(t) = [dh^/dx_i . v_i + dh^/dx_j . v^_j + a h^] - [dh/dx_i . v_i + dh/dx_j . v_j + a h],
@@ -43,9 +47,6 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
     scale : float
         Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "cbf_gap"
 
     bounds = (-0.5, 0.5)
 

@@ -11,7 +11,11 @@ from .roles import ReferenceController
 __all__ = ["AttractiveField"]
 
 
-class AttractiveField(ReferenceController):
+class AttractiveField(
+    ReferenceController,
+    compiled="attractive_field",
+    run_values={"K_att": "K_att", "v_max": "v_max"},
+):
     """Attractive potential toward a goal: v_ref = -K_att (X - X_goal), speed-saturated.
 
     The goal is supplied by the environment at each control instant (it owns the task and
@@ -24,9 +28,6 @@ class AttractiveField(ReferenceController):
     v_max : float
         Speed saturation in m/s.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "attractive_field"
 
     def __init__(self, K_att: float = 30.0, v_max: float = 2.0) -> None:
         self.K_att = K_att

@@ -42,7 +42,11 @@ def min_distances(record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
     return d
 
 
-class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class CollisionLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="collision",
+    run_values={"d_c": "collision_distance"},
+):
     """l_k = 1 if the ego came closer than ``d_c`` to a sensed agent during I_k, else 0.
 
     Parameters
@@ -50,9 +54,6 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
     d_c : float
         Collision distance between centres (m); the paper's 0.5 m + 0.5 m.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "collision"
 
     bounds = (0.0, 1.0)
 
@@ -81,7 +82,11 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
         return {"d_min": float(np.nanmin(d)), "n_truth_missing": int((~np.isfinite(d)).sum())}
 
 
-class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class DistanceShortfallLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="distance_shortfall",
+    run_values={"d_c": "collision_distance", "d_safe": "safe_distance"},
+):
     """l_k = clip((d_safe - d_min,k) / (d_safe - d_c), 0, 1): how far inside the margin.
 
     0 when the ego kept at least ``d_safe`` from every sensed agent during I_k, 1 at or
@@ -96,9 +101,6 @@ class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
     d_c : float
         Collision distance (m), >= 0.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "distance_shortfall"
 
     bounds = (0.0, 1.0)
 

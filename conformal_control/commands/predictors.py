@@ -1,7 +1,7 @@
 """``conformal-control eval-predictor`` and ``train-predictor``.
 
-A *trainable* predictor class sets ``trainable = True``, accepts a ``weights`` constructor
-argument (a folder written by its ``save``), and implements
+A *trainable* predictor class declares ``trainable=True`` (its capabilities), accepts a
+``weights`` constructor argument (a folder written by its ``save``), and implements
 ``fit(history, future, dt) -> self`` on windows of (N, obs, 2) / (N, horizon, 2) and
 ``save(folder)``.
 """
@@ -144,7 +144,7 @@ def train(
     from ..progress import note
 
     cls = registry.get("predictor", name)
-    if not getattr(cls, "trainable", False):
+    if not cls.capabilities.trainable:
         trainable = [n for n in registry.names("predictor") if _is_trainable(n)]
         raise InputError(
             f"predictor {name!r} is not trainable; the trainable ones are "
@@ -162,7 +162,7 @@ def _is_trainable(name: str) -> bool:
     from .. import registry
 
     try:
-        return bool(getattr(registry.get("predictor", name), "trainable", False))
+        return bool(registry.get("predictor", name).capabilities.trainable)
     except ImportError:
         return False
 
@@ -458,11 +458,11 @@ def _eval(args: argparse.Namespace) -> int:
     params = key_values(args.param, "--param")
     cls = registry.get("predictor", args.predictor)
     registry.check_params("predictor", args.predictor, cls, params)
-    if getattr(cls, "trainable", False):
+    if cls.capabilities.trainable:
         trainable_defaults(cls, params, args.seed, args.obs, args.horizon)
     elif "random_state" in cls._param_names():
         params.setdefault("random_state", args.seed)
-    if getattr(cls, "trainable", False) and params.get("weights") is None:
+    if cls.capabilities.trainable and params.get("weights") is None:
         params["weights"] = str(
             cached_weights(
                 args.predictor,

@@ -391,7 +391,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
             )
     if args.lambda_safe is not None and not args.no_learning:
         cls = registry.get("rule", args.rule)
-        kind = getattr(cls, "guarantee", "none")
+        kind = cls.capabilities.guarantee
         if kind != "identity":
             warnings.warn(
                 IgnoredOptionWarning(
@@ -449,7 +449,7 @@ def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) 
     from .predictors import trainable_defaults, weights_for_scene
 
     cls = registry.get("predictor", args.predictor)
-    if getattr(cls, "trainable", False) and pp.get("weights") is None:
+    if cls.capabilities.trainable and pp.get("weights") is None:
         trainable_defaults(cls, pp, args.seed, 8, 12)
         train_params = {k: v for k, v in pp.items() if k != "weights"}
         pp["weights"] = str(

@@ -83,7 +83,7 @@ from typing import Any, TypeVar, cast
 import numpy as np
 
 from .. import registry
-from ..base import Loss, compiled_as
+from ..base import Loss, Plugin
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier
@@ -130,8 +130,8 @@ __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 _T = TypeVar("_T")
 
 #: What the engine compiles, per role of a run: the compiled counterparts it has kernels
-#: for. A plugin runs compiled when its class declares one of them (``compiled_as``, see
-#: :func:`~conformal_control.base.compiled_as`); the role's default (None) always does.
+#: for. A plugin runs compiled when its class declares one of them (``capabilities.compiled``, see
+#: :class:`~conformal_control.base.Capabilities`); the role's default (None) always does.
 KERNELS: dict[str, frozenset[str]] = {
     "barrier": frozenset({"apf"}),
     "safety_filter": frozenset({"exact2d"}),
@@ -156,11 +156,17 @@ _FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}  # else PYT
 _PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
 
 
+def _compiled_name(cls: type) -> str | None:
+    """The compiled form ``cls`` declares (its ``capabilities.compiled``; None for a class
+    that is no plugin)."""
+    return cls.capabilities.compiled if issubclass(cls, Plugin) else None
+
+
 def _kernel_of(role: str, name: str) -> str | None:
     """The compiled counterpart the plugin registered as ``name`` declares (None: none,
     or no such plugin: the loop then says so)."""
     try:
-        return compiled_as(registry.get(role, name))
+        return _compiled_name(registry.get(role, name))
     except (ValueError, ImportError):
         return None
 
@@ -251,10 +257,10 @@ def _exact(obj: object, cls: type[_T], role: str) -> _T:
 
 def _compiled(obj: object, cls: type[_T], role: str) -> _T:
     """``obj`` if its class declares the compiled counterpart ``cls`` declares (its own
-    ``compiled_as``, see :func:`~conformal_control.base.compiled_as`), else
+    ``capabilities.compiled``), else
     :class:`_NotRun`."""
-    kernel = compiled_as(cls)
-    if kernel is None or compiled_as(type(obj)) != kernel:
+    kernel = _compiled_name(cls)
+    if kernel is None or _compiled_name(type(obj)) != kernel:
         raise _NotRun(
             f"the {role} is a {type(obj).__name__}, which does not declare the compiled "
             f"counterpart {kernel!r}"
@@ -280,7 +286,7 @@ def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
     policy = fl.family
-    if compiled_as(type(policy)) not in KERNELS["family"] or not isinstance(
+    if _compiled_name(type(policy)) not in KERNELS["family"] or not isinstance(
         policy, ConformalCBFController
     ):
         raise _NotRun(
@@ -302,7 +308,7 @@ def _parts(fl: Flagship) -> _Parts:
     reference = _compiled(fl.reference, AttractiveField, "reference")
     dynamics = _compiled(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
     loss = fl.loss
-    kernel = compiled_as(type(loss))
+    kernel = _compiled_name(type(loss))
     gap = cast(CBFGapLoss, loss) if kernel == "cbf_gap" else None
     if gap is None and kernel not in _RECORD_LOSSES:
         shown = ", ".join(sorted(KERNELS["loss"]))
@@ -314,19 +320,19 @@ def _parts(fl: Flagship) -> _Parts:
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
-    if not isinstance(fallback, str) and compiled_as(type(fallback)) in COMPILED_FALLBACKS:
+    if not isinstance(fallback, str) and _compiled_name(type(fallback)) in COMPILED_FALLBACKS:
         # (a fallback decided in Python is the episode's own object, parameters and all)
         raise _NotRun("the compiled fallbacks run as registered, not as a configured instance")
     acp = policy if isinstance(policy, ACPController) else None
-    if (acp is not None) != (compiled_as(type(policy)) == "acp"):
+    if (acp is not None) != (_compiled_name(type(policy)) == "acp"):
         raise _NotRun(f"the decision family {type(policy).__name__} is not the class it declares")
     return _Parts(env, barrier, filt, reference, dynamics, loss, gap, acp)
 
 
 def _predictor_code(pred: object) -> int:
     """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
-    that ``pred``'s class declares (``compiled_as``), else ``_OWN``."""
-    return _PREDICTORS.get(compiled_as(type(pred)) or "", _OWN)
+    that ``pred``'s class declares (``capabilities.compiled``), else ``_OWN``."""
+    return _PREDICTORS.get(_compiled_name(type(pred)) or "", _OWN)
 
 
 class _GapLossAt:
@@ -776,7 +782,7 @@ class _Engine:
         poly = np.concatenate([S.ravel(), s, verts.ravel()])
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
-        fallback_kernel = compiled_as(type(filt.fallback_))
+        fallback_kernel = _compiled_name(type(filt.fallback_))
         p.fallback[b] = _FALLBACKS.get(fallback_kernel or "", PYTHON)
         p.forced[b] = False
         p.acp[b] = parts.acp is not None

@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -78,7 +78,13 @@ class ACPMPCIntervalRecord(MPCIntervalRecord):
     inflation: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-class ACPMPC(SamplingMPC):
+class ACPMPC(
+    SamplingMPC,
+    default_loss="plan_miscoverage",
+    lambda_unit="level",
+    # with the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02
+    default_rule_params={"epsilon": 0.1, "eta": 0.02},
+):
     """Sampling MPC avoiding adaptive conformal prediction regions (Dixit et al. 2023).
 
     lambda is the regions' miscoverage level (see the module docstring); run it with the
@@ -99,11 +105,6 @@ class ACPMPC(SamplingMPC):
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
     """
-
-    default_loss: ClassVar[str] = "plan_miscoverage"
-    lambda_unit: ClassVar[str] = "level"
-    #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
-    default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
     def __init__(
         self,

@@ -134,7 +134,27 @@ class Plan:
     n_safe: int
 
 
-class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCIntervalRecord]):
+class SamplingMPC(
+    DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCIntervalRecord],
+    # the loss of a run that gives none (the CDT conformal controller's); lambda is a length
+    # (how much closer than d_c + margin the robot may come); the rule's target, step and
+    # floor when a run gives none (the scene's are the CBF's): a distance shortfall of 0.1
+    # on average, lambda moving by at most 0.2 m per update and never asking for more than
+    # 1 m beyond d_c + margin (against wind-up)
+    default_loss="distance_shortfall",
+    lambda_unit="m",
+    default_rule_params={"epsilon": 0.1, "eta": 0.2, "lambda_min": -1.0},
+    run_values={
+        "predictor": "predictor",
+        "dynamics": "dynamics",
+        "reference": "reference",
+        "d_c": "collision_distance",
+        "margin": "barrier_margin",
+        "limits__v_max": "v_max",
+        "substeps": "substeps",
+        "random_state": "seed",
+    },
+):
     """Sampling-based MPC whose safe distance to the predicted agents is set by lambda.
 
     See the module docstring for the algorithm, the knob and the fallbacks. Every length
@@ -180,18 +200,6 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     #: Names of the seeded samples, in order (reported by :meth:`plan`'s tests).
     SEEDS: ClassVar[tuple[str, ...]] = ("warm_start", "stop", "reference")
-    #: The loss a run uses when none is given (the CDT conformal controller's).
-    default_loss: ClassVar[str] = "distance_shortfall"
-    #: lambda is a length (how much closer than ``d_c + margin`` the robot may come).
-    lambda_unit: ClassVar[str] = "m"
-    #: The rule's target, step and floor when a run gives none (the scene's are the CBF's):
-    #: a distance shortfall of 0.1 on average, lambda moving by at most 0.2 m per update and
-    #: never asking for more than 1 m beyond ``d_c + margin`` (against wind-up).
-    default_rule_params: ClassVar[dict[str, float]] = {
-        "epsilon": 0.1,
-        "eta": 0.2,
-        "lambda_min": -1.0,
-    }
 
     #: The former flat keywords, now fields of ``sampling``, ``limits`` and ``costs``.
     renamed_params: ClassVar[dict[str, str]] = {

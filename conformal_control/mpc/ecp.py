@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -161,7 +161,13 @@ class ECPMPCIntervalRecord(MPCIntervalRecord):
     ego_missed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
-class ECPMPC(SamplingMPC):
+class ECPMPC(
+    SamplingMPC,
+    default_loss="ego_miscoverage",
+    lambda_unit="level",
+    # with the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02
+    default_rule_params={"epsilon": 0.1, "eta": 0.02},
+):
     """Sampling MPC with egocentric conformal regions (ECP-MPC, Shin et al. 2025).
 
     See the module docstring. Run it with the ``aci`` rule (``epsilon = alpha``) and the
@@ -181,11 +187,6 @@ class ECPMPC(SamplingMPC):
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
     """
-
-    default_loss: ClassVar[str] = "ego_miscoverage"
-    lambda_unit: ClassVar[str] = "level"
-    #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
-    default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
     def __init__(
         self,

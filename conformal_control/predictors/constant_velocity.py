@@ -22,7 +22,7 @@ def trailing_valid(history: np.ndarray) -> np.ndarray:
     return n
 
 
-class ConstantVelocityPredictor(Predictor):
+class ConstantVelocityPredictor(Predictor, compiled="constant_velocity", batchable=True):
     """Extrapolate each agent at its recent average velocity.
 
     The velocity is the displacement over the last ``window`` sample intervals divided by
@@ -35,11 +35,6 @@ class ConstantVelocityPredictor(Predictor):
     window : int
         Number of sample intervals the velocity is averaged over (>= 1).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "constant_velocity"
-
-    fast = True
 
     def __init__(self, window: int = 5) -> None:
         self.window = window

@@ -202,7 +202,8 @@ def _restart_rows(
     return out, n_stale, n_unseen
 
 
-class ShiftedPredictor(Predictor):
+# batchable: the wrappers cost microseconds (a slow wrapped predictor stays slow)
+class ShiftedPredictor(Predictor, batchable=True):
     """Base of the predictor shifts: a wrapped predictor, built by :meth:`reset`.
 
     Attributes
@@ -213,8 +214,6 @@ class ShiftedPredictor(Predictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    fast = True  # the wrappers cost microseconds; a slow wrapped predictor stays slow
 
     predictor: Any
     predictor_params: dict[str, Any] | None
@@ -342,7 +341,7 @@ class DelayedPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, out)
 
 
-class NoisyPredictor(ShiftedPredictor):
+class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
     """A predictor whose forecasts carry a Gaussian position error of ``sigma_m`` per axis.
 
     One draw per agent and sampling time displaces the agent's whole forecast (every
@@ -448,7 +447,7 @@ class ScaledPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, Forecast(pos, fc.covariance, dict(fc.info)))
 
 
-class DropoutPredictor(ShiftedPredictor):
+class DropoutPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
     """A predictor whose agents' detections go missing (probability p, duration_s at a time).
 
     Time (the scene's frame number x the sample spacing) is cut into blocks of

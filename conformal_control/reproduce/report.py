@@ -525,7 +525,7 @@ def auto_executor(configs: Sequence[RunConfig]) -> str:
     ``"process"``."""
     from .. import registry
 
-    fast = all(getattr(registry.get("predictor", c.predictor), "fast", False) for c in configs)
+    fast = all(registry.get("predictor", c.predictor).capabilities.batchable for c in configs)
     return "serial" if fast else "process"
 
 

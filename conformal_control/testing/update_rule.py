@@ -13,6 +13,7 @@ import numpy as np
 from ..base import UpdateRule
 from ._core import CheckList, ContractError, clone, expect, plugin_label
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -191,6 +192,7 @@ check_update_rule = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_update_rule_value,
         check_update_rule_monotone,
         check_update_rule_above_target_not_less_conservative,

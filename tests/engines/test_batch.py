@@ -194,18 +194,16 @@ def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     """Capability, not a list of names: a subclass inherits no declaration (it may compute
     something else); one that declares the compiled counterpart runs compiled."""
     from conformal_control import registry
-    from conformal_control.base import compiled_as
     from conformal_control.cbf.barriers import APFBarrier
 
     class Tweaked(APFBarrier):
         """An APF barrier computing something else."""
 
-    class Same(APFBarrier):
+    class Same(APFBarrier, compiled="apf"):
         """An APF barrier under another name."""
 
-        compiled_as = "apf"
-
-    assert compiled_as(APFBarrier) == "apf" and compiled_as(Tweaked) is None
+    assert APFBarrier.capabilities.compiled == "apf" and Tweaked.capabilities.compiled is None
+    assert Tweaked.capabilities.run_values == APFBarrier.capabilities.run_values  # inherited
     registry.register("barrier", "tweaked_apf", Tweaked)
     registry.register("barrier", "same_apf", Same)
     try:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -38,7 +38,10 @@ from ..speed import speed_polygon
 __all__ = ["VelocityFilter"]
 
 
-class VelocityFilter(SafetyFilter):
+class VelocityFilter(
+    SafetyFilter,
+    run_values={"v_max": "v_max", "fallback": "fallback", "speed_sides": "speed_sides"},
+):
     """Base of the velocity safety filters (see the module docstring for the problem).
 
     Parameters
@@ -59,10 +62,6 @@ class VelocityFilter(SafetyFilter):
     the fallback, a solver failure to a counted last resort. NaN or infinite input (or
     finite values so large, ~1e308, that the residuals overflow) is a ``ValueError``.
     """
-
-    #: Compute lambda* first when the previous decision fell back (skips a solve that
-    #: would report infeasibility slowly; worth it for iterative solvers).
-    probe_floor_first: ClassVar[bool] = False
 
     def __init__(
         self, v_max: float = 2.0, fallback: str | Fallback = "lambda_search", speed_sides: int = 16
@@ -264,7 +263,7 @@ class VelocityFilter(SafetyFilter):
             return FilterResult(nominal, "unconstrained", lam)
         lam_star = v_star = None
         feasible = True
-        if self.probe_floor_first and self._fell_back and A.shape[0]:
+        if self.capabilities.probe_floor_first and self._fell_back and A.shape[0]:
             # infeasibility tends to persist: find the floor first, skip a doomed solve
             lam_star, v_star = self.min_lambda(A, b)
             feasible = lam >= lam_star + self.search_margin(lam_star, A, b)

@@ -30,7 +30,7 @@ from .base import VelocityFilter
 __all__ = ["Exact2DSafetyFilter"]
 
 
-class Exact2DSafetyFilter(VelocityFilter):
+class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
     """min ||v - v_ref||^2  s.t.  A v + b + lambda >= 0,  v in the speed polygon  (exact 2-D).
 
     The problem, the fast path, the fallbacks and the counters are those of
@@ -54,9 +54,6 @@ class Exact2DSafetyFilter(VelocityFilter):
         Let the controller fuse barrier, rows and this filter into one compiled call when
         the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "exact2d"
 
     def __init__(
         self,

@@ -49,7 +49,7 @@ def test_shipped_weights_are_reproducible(tmp_path):
 
 def test_registered_and_trainable():
     cls = registry.get("predictor", "sklearn")
-    assert cls is SklearnPredictor and cls.trainable
+    assert cls is SklearnPredictor and cls.capabilities.trainable
 
 
 def test_ridge_learns_walks_and_round_trips(tmp_path):
