@@ -58,8 +58,11 @@ __all__ = [
     "Settings",
     "SingleStepEnvironment",
     "UpdateRule",
+    "declared_test_params",
     "expand_settings",
+    "first_test_instance",
     "flat_params",
+    "param_names",
 ]
 
 ObsT = TypeVar("ObsT")
@@ -260,6 +263,47 @@ class Settings:
         return dataclasses.replace(self, **changes)
 
 
+def param_names(cls: type) -> list[str]:
+    """The named parameters of a class's ``__init__`` (a plugin's: those
+    :meth:`Plugin.get_params` reports).
+
+    Parameters
+    ----------
+    cls : type
+        The class.
+    """
+    return list(_init_param_names(cls.__init__))  # type: ignore[misc]  # the class's own
+
+
+_T = TypeVar("_T")
+
+
+def first_test_instance(cls: type[_T]) -> _T:
+    """The first instance a class declares for the contract kit (``cls(**params)`` of the
+    first entry of its ``_unit_test_params()`` classmethod, the kit's hook; ``cls()``
+    without one): the partner a plugin's own checks are run with.
+
+    Parameters
+    ----------
+    cls : type
+        A plugin or environment class.
+    """
+    return cls(**declared_test_params(cls)[0])
+
+
+def declared_test_params(cls: type) -> list[dict[str, Any]]:
+    """The constructor kwargs a class declares for the contract kit: what its
+    ``_unit_test_params()`` classmethod (the kit's hook) returns, ``[{}]`` without one.
+
+    Parameters
+    ----------
+    cls : type
+        A plugin or environment class.
+    """
+    hook = getattr(cls, "_unit_test_params", None)
+    return [{}] if hook is None else list(hook())
+
+
 def flat_params(plugin: Any) -> dict[str, Any]:
     """A plugin's parameters as plain data (for ``config.json``): each
     :class:`Settings` group given as its ``<group>__<field>`` entries (see
@@ -341,7 +385,7 @@ class Plugin:
 
     @classmethod
     def _param_names(cls) -> list[str]:
-        return list(_init_param_names(cls.__init__))
+        return param_names(cls)
 
     def get_params(self, deep: bool = False) -> dict[str, Any]:
         """Return the constructor parameters of this plugin (name -> value).

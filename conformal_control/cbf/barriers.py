@@ -3,13 +3,42 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ..base import CompiledForm
 from .roles import Barrier
 
-__all__ = ["APFBarrier"]
+__all__ = ["APFBarrier", "APFForm"]
+
+
+@dataclass(frozen=True)
+class APFForm(CompiledForm):
+    """The APF barrier as the compiled step reads it (validated constants).
+
+    Attributes
+    ----------
+    K_rep : float
+        Repulsion gain (> 0).
+    rho0 : float
+        Influence distance (m, > 0).
+    d_c : float
+        Collision distance (m, >= 0).
+    delta : float
+        The offset used (:attr:`APFBarrier.effective_delta`).
+    surface : bool
+        Whether distances are measured between surfaces (``convention="surface"``).
+    """
+
+    kernel = "apf"
+    K_rep: float
+    rho0: float
+    d_c: float
+    delta: float
+    surface: bool
+
 
 _CONVENTIONS = ("surface", "centre")
 
@@ -89,6 +118,12 @@ class APFBarrier(
         if self.convention not in _CONVENTIONS:
             raise ValueError(f"convention must be one of {_CONVENTIONS}, got {self.convention!r}")
         return K, rho0, d_c, self.effective_delta
+
+    def compiled_state(self) -> APFForm:
+        """The barrier's constants for the compiled step (validated: ``ValueError`` for a
+        bad parameter, as :meth:`evaluate` raises)."""
+        K, rho0, d_c, delta = self._checked()
+        return APFForm(K, rho0, d_c, delta, self.convention == "surface")
 
     def potential(self, rho: float) -> float:
         """U(rho) (dimensionless); infinite for rho <= 0."""

@@ -3,12 +3,31 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..base import CompiledForm
 from .roles import ReferenceController
 
-__all__ = ["AttractiveField"]
+__all__ = ["AttractiveField", "AttractiveFieldForm"]
+
+
+@dataclass(frozen=True)
+class AttractiveFieldForm(CompiledForm):
+    """The attractive field as the compiled step reads it.
+
+    Attributes
+    ----------
+    K_att : float
+        Gain (1/s).
+    v_max : float
+        Speed cap of the reference (m/s).
+    """
+
+    kernel = "attractive_field"
+    K_att: float
+    v_max: float
 
 
 class AttractiveField(
@@ -38,6 +57,10 @@ class AttractiveField(
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+    def compiled_state(self) -> AttractiveFieldForm:
+        """The gain and the speed cap, as the compiled step reads them."""
+        return AttractiveFieldForm(self.K_att, self.v_max)
 
     def __call__(self, state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
         v: np.ndarray = -self.K_att * (

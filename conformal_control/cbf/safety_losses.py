@@ -24,7 +24,7 @@ from ..base import Loss
 from ..losses import check_lambda
 from .controller import CBFIntervalRecord
 from .interp import interpolate_at_substeps
-from .loss import CBFGapLoss, CBFTruth
+from .loss import CBFTruth, gap_test_inputs
 
 __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]
 
@@ -62,7 +62,7 @@ class CollisionLoss(
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         check_lambda(lam)
@@ -110,7 +110,7 @@ class DistanceShortfallLoss(
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         check_lambda(lam)

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..base import Plugin
+from ..base import Plugin, param_names
 from . import add_data_root, check_writable, command, command_line, key_values
 
 
@@ -52,7 +52,7 @@ def trainable_defaults(
     horizon : int
         Predicted samples per window.
     """
-    names = cls._param_names()
+    names = param_names(cls)
     for key, value in (("random_state", seed), ("obs", obs), ("horizon", horizon)):
         if key in names:
             params.setdefault(key, value)
@@ -460,7 +460,7 @@ def _eval(args: argparse.Namespace) -> int:
     registry.check_params("predictor", args.predictor, cls, params)
     if cls.capabilities.trainable:
         trainable_defaults(cls, params, args.seed, args.obs, args.horizon)
-    elif "random_state" in cls._param_names():
+    elif "random_state" in param_names(cls):
         params.setdefault("random_state", args.seed)
     if cls.capabilities.trainable and params.get("weights") is None:
         params["weights"] = str(

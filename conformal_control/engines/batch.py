@@ -102,6 +102,7 @@ from ..flagship.build import Flagship, build_flagship
 from ..jit import compile_now
 from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
 from ..monitor import GuaranteeMonitor
+from ..predictors.constant_velocity import ConstantVelocityForm
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -118,7 +119,7 @@ from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
 from ..spec import RunSpec
 from ..world.reactive import ReactiveEnvironment
-from ..world.replay import FrameLog, ReplayEnvironment
+from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk
 from .crowd_kernels import dense_layout
 from .gap_kernels import BRAKE, HOLD, PYTHON, SEARCH, gap_maxima
@@ -534,7 +535,7 @@ class _Pool:
         self.mirror = np.zeros(b, dtype=bool)
 
     @staticmethod
-    def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
+    def grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
         if arr.shape[axis] >= n:
             return arr
         shape = list(arr.shape)
@@ -581,12 +582,12 @@ class _Pool:
     def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
         """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
         if goals.shape[0] > self.goals.shape[1]:
-            self.goals = self._grown(self.goals, 1, goals.shape[0])
+            self.goals = self.grown(self.goals, 1, goals.shape[0])
         self.goals[b, : goals.shape[0]] = goals
         self.n_goals[b] = goals.shape[0]
         self.n_st[b] = 0
         if self.keep and instants > self.st_t.shape[1]:
-            g = self._grown
+            g = self.grown
             self.st_t = g(self.st_t, 1, instants)
             self.st_x, self.st_cmd = g(self.st_x, 1, instants), g(self.st_cmd, 1, instants)
 
@@ -595,7 +596,7 @@ class _Pool:
     ) -> None:
         """Room for ``steps`` control instants per interval, ``agents`` sensed agents,
         ``columns`` agents in a recording, ``frames`` logged frames, ``sides`` polygon sides."""
-        g = self._grown
+        g = self.grown
         if steps > self.xp.shape[1]:
             self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
             self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
@@ -675,9 +676,9 @@ class _Engine:
             bounds=parts.loss.bounds,
             learn=learn,
         )
-        k = float(dyn.K_acc)
-        if not (math.isfinite(k) and k > 0):
-            raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
+        # each compiled part as its compiled form (validated constants), never its attributes
+        k = dyn.compiled_state().K_acc
+        apf, ref_form, filt_form = bar.compiled_state(), ref.compiled_state(), filt.compiled_state()
         pred = fl.predictor
         reactive = isinstance(env, ReactiveEnvironment)
         if isinstance(env, ReactiveEnvironment):
@@ -690,7 +691,15 @@ class _Engine:
         code = _OWN if parts.acp is not None else _predictor_code(pred)
         if reactive and code == bk.ORACLE:
             code = _OWN
-        window = getattr(pred, "window", 1) if code == bk.CONSTANT_VELOCITY else 1
+        window: Any = 1
+        if code == bk.CONSTANT_VELOCITY:
+            form = pred.compiled_state()
+            if not isinstance(form, ConstantVelocityForm):
+                raise _NotRun(
+                    f"the predictor {type(pred).__name__} declares constant_velocity but hands "
+                    f"no ConstantVelocityForm"
+                )
+            window = form.window
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -714,7 +723,7 @@ class _Engine:
         last = sc.n_frames - 1
         if max_frames is not None:
             last = min(last, sc.start_index + int(max_frames))
-        S, s, verts, radius = speed_polygon(int(filt.speed_sides), float(filt.v_max))
+        S, s, verts, radius = speed_polygon(int(filt_form.speed_sides), float(filt_form.v_max))
         p.ensure(
             steps=tau * substeps,
             agents=1,
@@ -731,7 +740,9 @@ class _Engine:
             assert isinstance(env, ReactiveEnvironment)
             lo, hi = max(lo, 0), min(last + tau + 2, sc.n_frames)
             m = sc.n_agents
-            data = dense_layout(env._buffer[lo:hi], lo, sc.start_index, sc.n_frames)
+            buffer = env.compiled_state().buffer
+            assert buffer is not None  # a reactive environment holds its crowd's positions
+            data = dense_layout(buffer[lo:hi], lo, sc.start_index, sc.n_frames)
             p.put(b, data, (sc.n_frames, m, m * (hi - lo), m * (hi - lo)))
             if self.crowds is None:
                 self.crowds = CrowdSlots(p.size)
@@ -747,8 +758,8 @@ class _Engine:
         p.goal_idx[b] = 0
         p.goal_radius[b] = sc.goal_radius
         p.t_goal[b] = math.nan
-        p.neg_k_att[b] = -ref.K_att
-        p.v_ref_max[b] = ref.v_max
+        p.neg_k_att[b] = -ref_form.K_att
+        p.v_ref_max[b] = ref_form.v_max
         p.dt[b] = dt
         p.dt_frame[b] = dt_frame
         p.decay[b] = math.exp(-k * dt)
@@ -757,8 +768,9 @@ class _Engine:
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
         if parts.gap is not None:
-            p.scale[b] = parts.gap.scale
-            self._squash.setdefault(float(parts.gap.scale), parts.gap.squash)
+            gap = parts.gap.compiled_state()
+            p.scale[b] = gap.scale
+            self._squash.setdefault(float(gap.scale), gap.squash)
         else:  # scored by the loss object (see end)
             p.scale[b] = math.nan
         p.last[b] = 0.0
@@ -782,22 +794,22 @@ class _Engine:
         poly = np.concatenate([S.ravel(), s, verts.ravel()])
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
-        fallback_kernel = _compiled_name(type(filt.fallback_))
+        fallback_kernel = filt_form.fallback
         p.fallback[b] = _FALLBACKS.get(fallback_kernel or "", PYTHON)
         p.forced[b] = False
         p.acp[b] = parts.acp is not None
         p.prm[b] = (
-            float(bar.K_rep),
-            float(bar.rho0),
-            float(bar.d_c),
-            bar.effective_delta,
-            bar.convention == "surface",
+            apf.K_rep,
+            apf.rho0,
+            apf.d_c,
+            apf.delta,
+            apf.surface,
             float(fl.constraint.a),
             radius,
-            not filt.speed_sides,
-            filt.v_max,
+            not filt_form.speed_sides,
+            filt_form.v_max,
             fallback_kernel == "lambda_search",
-            filt.lambda_margin,
+            filt_form.lambda_margin,
             p.cap,
         )
         self.eps[b] = ep
@@ -850,17 +862,15 @@ class _Engine:
         assert ep is not None and ep.parts.acp is not None  # b is a live acp slot
         if not p.n_agents[b]:  # no agent: no row, the controller computes no region
             return
-        acp = ep.parts.acp
-        infl = acp._inflation(float(p.lam[b]))
-        H = infl.size
+        forms = ep.parts.acp.region_barriers(float(p.lam[b]))
+        H = len(forms)
         if H > p.acp_dc.shape[1]:
-            p.acp_dc = p._grown(p.acp_dc, 1, H)
-            p.acp_delta = p._grown(p.acp_delta, 1, H)
+            p.acp_dc = p.grown(p.acp_dc, 1, H)
+            p.acp_delta = p.grown(p.acp_delta, 1, H)
         p.acp_h[b] = H
-        for h in range(H):
-            _, _, d_c, delta = acp._inflated(float(infl[h])).barrier._checked()  # type: ignore[attr-defined]
-            p.acp_dc[b, h] = d_c
-            p.acp_delta[b, h] = delta
+        for h, form in enumerate(forms):
+            p.acp_dc[b, h] = form.d_c
+            p.acp_delta[b, h] = form.delta
 
     def _capped(self, b: int) -> None:
         """Count slot ``b``'s control instants whose region was capped (the acp family's
@@ -870,7 +880,7 @@ class _Engine:
         s = int(p.step[b])
         if not p.n_agents[b] or not s:
             return
-        capped = ep.parts.acp._capped
+        capped = ep.parts.acp.compiled_state().capped
         h = np.minimum(np.arange(s) // int(p.substeps[b]), capped.size - 1)
         ep.parts.acp.n_capped_ += int(capped[h].sum())
 
@@ -883,19 +893,20 @@ class _Engine:
         env, policy = ep.parts.env, ep.fl.family
         n = int(p.n_agents[b])
         # the environment senses where the engine's robot is, at the engine's frame and time
-        env._x = p.x[b].copy()
-        env._fi = int(p.fi[b])
-        env._t = float(p.t[b])
+        env.from_compiled(ReplayCursor(x=p.x[b].copy(), frame=int(p.fi[b]), t=float(p.t[b])))
         query = env.sense()
-        if not np.array_equal(env._sensed, p.sensed[b, :n]):  # both are the same range test
+        sensed = env.compiled_state().sensed
+        assert sensed is not None  # an environment's cursor always holds what it sensed
+        if not np.array_equal(sensed, p.sensed[b, :n]):  # both are the same range test
             raise RuntimeError(
                 f"run_batch: the sensor and the engine disagree on the agents sensed in "
                 f"episode {ep.index} at frame {query.frame}; use run_episode"
             )
         policy.begin_interval(query)
-        s = int(policy._xp.shape[0])
-        p.xp[b, :s, :n] = policy._xp
-        p.vp[b, :s, :n] = policy._vp
+        form = policy.compiled_state()
+        s = int(form.xp.shape[0])
+        p.xp[b, :s, :n] = form.xp
+        p.vp[b, :s, :n] = form.vp
 
     # ------------------------------------------------------------------ control instants
     def control(self, slots: np.ndarray) -> None:
@@ -964,7 +975,7 @@ class _Engine:
             lam,
             p.last[b].copy(),
         )
-        res = ep.parts.safety_filter._fall_back(step)
+        res = ep.parts.safety_filter.fall_back(step)
         v = np.asarray(res.decision, dtype=float)
         p.forced_v[b] = (v[0], v[1], res.lambda_applied)
         p.forced[b] = True
@@ -1075,11 +1086,12 @@ class _Engine:
         }
         acp = ep.parts.acp
         if acp is not None:  # what its regions were made of (ACPController.interval_record)
+            form = acp.compiled_state()
             return ACPIntervalRecord(
                 **fields,
-                pred_samples=acp._pred.copy(),
-                sorted_scores=acp._sorted,
-                inflation=acp._infl.copy(),
+                pred_samples=form.pred_samples.copy(),
+                sorted_scores=form.sorted_scores,
+                inflation=form.inflation.copy(),
             )
         return CBFIntervalRecord(**fields)
 
@@ -1088,11 +1100,14 @@ class _Engine:
         state of the interval: its start frame, the agents sensed then, its steps."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None
-        env = ep.parts.env
-        env._k_start = int(p.k_start[b])
-        env._sensed = p.sensed[b, : int(p.n_agents[b])].copy()
-        env._step = int(p.step[b])
-        return env.reveal()
+        ep.parts.env.from_compiled(
+            ReplayCursor(
+                k_start=int(p.k_start[b]),
+                sensed=p.sensed[b, : int(p.n_agents[b])].copy(),
+                step=int(p.step[b]),
+            )
+        )
+        return ep.parts.env.reveal()
 
     # ------------------------------------------------------------------ episode end
     def finish(self, b: int) -> tuple[int, EpisodeResult | EpisodeMetrics]:

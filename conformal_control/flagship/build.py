@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params
+from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params, param_names
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
@@ -110,7 +110,7 @@ class Flagship:
 def _plans_with_a_plant(cls: type) -> bool:
     """Whether a decision family is built from a predictor and the robot's plant (the
     MPC families: ``predictor=``, ``dynamics=``)."""
-    names = set(getattr(cls, "_param_names", lambda: [])())
+    names = set(param_names(cls))
     return {"predictor", "dynamics"} <= names
 
 

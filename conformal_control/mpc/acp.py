@@ -144,7 +144,7 @@ class ACPMPC(
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        base = SamplingMPC._unit_test_params()
+        base = super()._unit_test_params()
         return [{**base[0], "window": 50, "max_inflation": 1.0}, base[1]]
 
     def reset(self) -> None:

@@ -53,7 +53,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import DecisionFamily
+from ..base import DecisionFamily, first_test_instance
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import Reciprocity
@@ -275,7 +275,7 @@ class SamplingMPC(
     def _unit_test_environment(cls) -> Any:
         from ..world.replay import ReplayEnvironment
 
-        return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
+        return first_test_instance(ReplayEnvironment)
 
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:

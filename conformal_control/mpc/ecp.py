@@ -226,7 +226,7 @@ class ECPMPC(
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        base = SamplingMPC._unit_test_params()[0]
+        base = super()._unit_test_params()[0]
         # the partner environment samples every 0.4 s: plan steps of one sampling period
         sampling = base["sampling"].replace(dt_plan=0.4)
         return [{**base, "sampling": sampling, "calibration_size": 4, "max_inflation": 1.0}]

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from .. import registry
-from ..base import DecisionFamily, Loss, UpdateRule
+from ..base import DecisionFamily, Loss, UpdateRule, param_names
 from ..cbf.controller import ConformalCBFController
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Dynamics, ReferenceController
@@ -177,7 +177,7 @@ class StepwiseMPC(StepwiseCBF):
         policy: DecisionFamily[Any, Any, Any, Any]
         if isinstance(family, str):
             cls = registry.get("family", family)
-            if issubclass(cls, ConformalCBFController) or "dynamics" not in cls._param_names():
+            if issubclass(cls, ConformalCBFController) or "dynamics" not in param_names(cls):
                 raise InputError(
                     f"StepwiseMPC runs a planning family (one taking a predictor and a plant, "
                     f"as mpc, acp_mpc, ecp_mpc do), not {family!r}; use StepwiseCBF for the CBF"

@@ -276,6 +276,18 @@ class VelocityFilter(
         step = InfeasibleStep(nominal, A, b, lam, self._last.copy(), lam_star, v_star)
         return self._fall_back(step)
 
+    def fall_back(self, step: InfeasibleStep) -> FilterResult:
+        """An infeasible step decided by the filter's fallback, counted as the filter's own
+        (the hand-over of a step solved elsewhere: the compiled engine's step pauses an
+        episode whose fallback decides in Python and hands its rows over here).
+
+        Parameters
+        ----------
+        step : InfeasibleStep
+            The step's nominal decision, rows, lambda and previous decision.
+        """
+        return self._fall_back(step)
+
     def _fall_back(self, step: InfeasibleStep) -> FilterResult:
         """Count the infeasible decision and let the fallback decide."""
         self.n_infeasible_ += 1
