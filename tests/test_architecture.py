@@ -299,3 +299,33 @@ def test_no_function_takes_more_than_fifteen_parameters() -> None:
         "conformal_control.base.Settings, or a section of the run specification):\n"
         + "\n".join(bad)
     )
+
+
+def _house():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_house", PKG.parent / "benchmarks" / "house.py"
+    )
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_no_import_circles_even_through_typing_only_imports() -> None:
+    """An annotation-only import (``if TYPE_CHECKING:``) closing a circle still ties two
+    modules' designs together: none either."""
+    circles = _house().typing_circles(sorted(PKG.rglob("*.py")))
+    assert not circles, f"import circles through typing-only imports: {circles}"
+
+
+def test_no_engine_reads_another_objects_private_attributes() -> None:
+    """The engines read plugins through their declared interface (compiled forms,
+    cursors, public methods); the whole package reads at most 15 private attributes of
+    other objects (library internals and the contract kit's hooks, listed by
+    ``python benchmarks/house.py --detail``)."""
+    reads = _house().private_reads(sorted(PKG.rglob("*.py")))
+    engines = [r for r in reads if r[0].startswith("conformal_control.engines")]
+    assert not engines, f"private reads in the engines: {engines}"
+    assert len(reads) <= 15, "private reads of other objects:\n" + "\n".join(map(str, reads))
