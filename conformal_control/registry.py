@@ -86,6 +86,9 @@ RENAMED_ROLES: dict[str, str] = {
     "crowd_model": "crowd",
 }
 
+#: An entry point as the registry reads it: ``(group, name, target, distribution, version)``.
+Row = tuple[str, str, str, str, str | None]
+
 
 class PluginUnavailableError(ImportError):
     """A registered plugin cannot be loaded (typically a missing optional dependency)."""
@@ -290,7 +293,7 @@ def _discover() -> None:
     _add_rows(_entry_point_rows())
 
 
-def _add_rows(rows: list[tuple[str, str, str, str, str | None]]) -> None:
+def _add_rows(rows: list[Row]) -> None:
     role_of = {group: role for role, group in ROLES.items()}
     for group, name, target, dist, version in rows:
         if group in role_of:
@@ -301,41 +304,158 @@ def _add_rows(rows: list[tuple[str, str, str, str, str | None]]) -> None:
 #: every command starts with the registry, and ``importlib.metadata`` (its import, the scan
 #: of every installed distribution and the parsing of their metadata) is about a tenth of a
 #: short ``conformal-control run``.
+#:
+#: The cache is a hint, never a source of code. Each row names the metadata folder of the
+#: installed distribution that declared it (``<site>/<dist>-<version>.dist-info``); a row
+#: is used only when that folder is one of the installed distributions' metadata folders
+#: on ``sys.path`` and its ``entry_points.txt`` declares exactly the cached rows (and the
+#: distribution's name and version match the folder's). One failed row discards the whole
+#: cache and the entry points are scanned again. A tampered cache can therefore point a
+#: name only at a target an installed distribution declares under that very name, which
+#: is what a scan would find; at worst it hides a third-party distribution's plugins until
+#: the next scan (our own distribution's rows must be there). We chose this over a signed
+#: cache: a signing key would sit in the same user-writable folder as the cache, so whoever
+#: can replace the cache could read the key, whereas the installed metadata is exactly what
+#: an uncached scan trusts. Checking costs the reading of the few ``entry_points.txt``
+#: files that declare our groups (well under a millisecond), not ``importlib.metadata``.
+#: The file is still written ``0600`` (its folder, when we create it, ``0700``).
 ENTRY_POINT_CACHE = "entry-points.json"
 
+#: Cache format (rows of ``(group, name, target, distribution, version, metadata folder)``).
+_CACHE_FORMAT = 2
 
-def _installed_fingerprint() -> str:
-    """What the entry-point scan depends on: for every folder of ``sys.path``, the names and
+#: The largest ``entry_points.txt`` read while checking the cache (bytes).
+_MAX_ENTRY_POINTS_FILE = 1 << 20
+
+
+def _metadata_folders() -> tuple[str, set[str]]:
+    """What the entry-point scan depends on, and the metadata folders it may read.
+
+    The first value is the fingerprint: for every folder of ``sys.path``, the names and
     times of change of its distributions' metadata folders. Installing, removing or
     re-installing a distribution changes it (``pip`` writes a new metadata folder); other
     files coming and going in a folder (a script's folder, the current folder) do not; a
-    metadata file edited in place by hand does not either (:func:`refresh` re-reads them)."""
+    metadata file edited in place by hand does not either (:func:`refresh` re-reads them).
+    The second is the set of those metadata folders (absolute paths)."""
     import os
     import sys
 
     parts: list[str] = [sys.version]
+    folders: set[str] = set()
     for entry in sys.path:
         folder = entry or "."
         try:
             with os.scandir(folder) as it:
                 found = sorted(
-                    f"{e.name}:{e.stat().st_mtime_ns}"
+                    (e.name, e.stat().st_mtime_ns)
                     for e in it
                     if e.name.endswith((".dist-info", ".egg-info"))
                 )
         except OSError:  # a zip file, a path hook, a missing folder: nothing to list
             parts.append(f"{entry}\0-")
             continue
-        parts.append(f"{entry}\0{os.path.abspath(folder)}\0{','.join(found)}")
-    return "\n".join(parts)
+        absolute = os.path.abspath(folder)
+        folders.update(os.path.join(absolute, name) for name, _ in found)
+        listed = ",".join(f"{name}:{mtime}" for name, mtime in found)
+        parts.append(f"{entry}\0{absolute}\0{listed}")
+    return "\n".join(parts), folders
 
 
-def _entry_point_rows(use_cache: bool = True) -> list[tuple[str, str, str, str, str | None]]:
+def _installed_fingerprint() -> str:
+    """The fingerprint of :func:`_metadata_folders`."""
+    return _metadata_folders()[0]
+
+
+def _normalized(name: str) -> str:
+    """A distribution name as in its metadata folder's name (PEP 503, ``_`` for runs)."""
+    import re
+
+    return re.sub(r"[-_.]+", "_", name).lower()
+
+
+def _declared(folder: str) -> set[tuple[str, str, str]] | None:
+    """``(group, name, target)`` of our groups declared by ``folder/entry_points.txt``
+    (None if it cannot be read); parsed as ``importlib.metadata`` does (sections, then
+    ``name = value`` lines, ``#`` and ``;`` comments)."""
+    import os
+
+    path = os.path.join(folder, "entry_points.txt")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(_MAX_ENTRY_POINTS_FILE + 1)
+    except OSError:
+        return None
+    if len(data) > _MAX_ENTRY_POINTS_FILE:
+        return None
+    groups = set(ROLES.values())
+    out: set[tuple[str, str, str]] = set()
+    section = None
+    for raw in data.decode("utf-8", "replace").splitlines():
+        line = raw.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("[") and line.endswith("]"):
+            section = line[1:-1].strip()
+            continue
+        if section in groups and "=" in line:
+            name, _, value = line.partition("=")
+            out.add((section, name.strip(), value.strip()))
+    return out
+
+
+def _folder_name(folder: str) -> tuple[str, str]:
+    """A metadata folder's distribution name and version (``""`` if the name has none)."""
+    import os
+
+    stem = os.path.basename(folder).removesuffix(".dist-info").removesuffix(".egg-info")
+    name, _, version = stem.partition("-")
+    return name, version
+
+
+def _checked_rows(stored: Any, folders: set[str]) -> list[Row] | None:
+    """The cached rows if every one is declared by an installed distribution (see
+    :data:`ENTRY_POINT_CACHE`), our own distribution's first in each group; else None."""
+    if not isinstance(stored, list):
+        return None
+    order = {group: i for i, group in enumerate(ROLES.values())}
+    by_folder: dict[str, set[tuple[str, str, str]]] = {}
+    rows: list[Row] = []
+    for row in stored:
+        if not (isinstance(row, list) and len(row) == 6):
+            return None
+        g, n, t, d, v, folder = row
+        if not all(isinstance(x, str) for x in (g, n, t, d, folder)):
+            return None
+        if not (v is None or isinstance(v, str)) or g not in order or folder not in folders:
+            return None
+        dist_part, version_part = _folder_name(folder)
+        if _normalized(dist_part) != _normalized(d):
+            return None
+        if folder.endswith(".dist-info") and version_part and v != version_part:
+            return None
+        key = (g, n, t)
+        if key in by_folder.setdefault(folder, set()):
+            return None
+        by_folder[folder].add(key)
+        rows.append((g, n, t, d, v))
+    for folder, cached in by_folder.items():
+        if _declared(folder) != cached:
+            return None
+    own = {f for f in folders if _normalized(_folder_name(f)[0]) == "conformal_control"}
+    if own and not own & set(by_folder):  # our own rows may not be dropped
+        if any(_declared(folder) for folder in own):
+            return None
+    rows.sort(key=lambda r: (order[r[0]], r[3] != "conformal-control"))  # stable
+    return rows
+
+
+def _entry_point_rows(use_cache: bool = True) -> list[Row]:
     """``(group, name, target, distribution, version)`` of every entry point of our
     groups (:data:`ROLES`), our own distribution's first in each group; from the cache file
-    when the installed distributions are those it was written for
-    (:func:`_installed_fingerprint`), else from a scan, which then rewrites the cache (best
-    effort: a cache that cannot be read or written is ignored)."""
+    when the installed distributions are those it was written for (:func:`_metadata_folders`)
+    and every row is declared by one of them (:data:`ENTRY_POINT_CACHE`), else from a scan,
+    which then rewrites the cache (best effort: a cache that cannot be read or written is
+    ignored)."""
     import json
 
     path = None
@@ -343,27 +463,40 @@ def _entry_point_rows(use_cache: bool = True) -> list[tuple[str, str, str, str, 
     if use_cache:
         try:
             path = _cache_file()
-            key = "\n".join([*ROLES.values(), _installed_fingerprint()])
+            fingerprint, folders = _metadata_folders()
+            key = "\n".join([*ROLES.values(), fingerprint])
             stored = json.loads(path.read_text())
-            if stored.get("key") == key:
-                return [
-                    (str(g), str(n), str(t), str(d), None if v is None else str(v))
-                    for g, n, t, d, v in stored["rows"]
-                ]
-        except (OSError, ValueError, KeyError, TypeError):
+            if stored.get("format") == _CACHE_FORMAT and stored.get("key") == key:
+                checked = _checked_rows(stored.get("rows"), folders)
+                if checked is not None:
+                    return checked
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
-    rows = _scan_entry_points()
-    if path is not None:
-        import os
-
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-        try:  # written whole then renamed: a reader never sees half a file
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps({"key": key, "rows": [list(r) for r in rows]}))
-            os.replace(tmp, path)
-        except OSError:
-            tmp.unlink(missing_ok=True)
+    scanned = _scan_entry_points()
+    rows = [r[:5] for r in scanned]
+    if path is not None and all(r[5] is not None for r in scanned):
+        _write_cache(
+            path, {"format": _CACHE_FORMAT, "key": key, "rows": [list(r) for r in scanned]}
+        )
     return rows
+
+
+def _write_cache(path: Path, content: dict[str, Any]) -> None:
+    """Write the cache file ``0600`` (its folder ``0700`` when created here), whole then
+    renamed: a reader never sees half a file. Best effort: an error leaves no file."""
+    import json
+    import os
+    import secrets
+
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(json.dumps(content))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
 
 
 def _cache_file() -> Path:
@@ -382,32 +515,40 @@ def _cache_file() -> Path:
     return base / f"{ENTRY_POINT_CACHE.removesuffix('.json')}-{paths:08x}.json"
 
 
-def _scan_entry_points() -> list[tuple[str, str, str, str, str | None]]:
+def _scan_entry_points() -> list[tuple[str, str, str, str, str | None, str | None]]:
+    """Every entry point of our groups, with the metadata folder of the distribution
+    declaring it (None when the distribution is not a folder on disk: such a scan is not
+    cached)."""
+    import os
     from importlib.metadata import entry_points
 
     # one scan of the installed distributions for every group, and each distribution's
     # metadata parsed once (not once per entry point and role: a large environment has
     # hundreds of distributions)
     every = entry_points()
-    origin: dict[int, tuple[str, str | None]] = {}
+    origin: dict[int, tuple[str, str | None, str | None]] = {}
 
-    def dist_of(ep: EntryPoint) -> tuple[str, str | None]:
+    def dist_of(ep: EntryPoint) -> tuple[str, str | None, str | None]:
         if ep.dist is None:
-            return "unknown", None
+            return "unknown", None, None
         key = id(ep.dist)
         if key not in origin:
             meta = ep.dist.metadata
-            origin[key] = (meta["Name"], meta["Version"])
+            # importlib.metadata has no public name for the metadata folder of a
+            # distribution on disk (PathDistribution._path); without it, no cache
+            folder = getattr(ep.dist, "_path", None)
+            where = os.path.abspath(folder) if isinstance(folder, (str, os.PathLike)) else None
+            origin[key] = (meta["Name"], meta["Version"], where)
         return origin[key]
 
-    rows: list[tuple[str, str, str, str, str | None]] = []
+    rows: list[tuple[str, str, str, str, str | None, str | None]] = []
     for group in ROLES.values():
         ep: EntryPoint
         # our own plugins first: a third party cannot take over a core name
         eps = sorted(every.select(group=group), key=lambda e: dist_of(e)[0] != "conformal-control")
         for ep in eps:
-            dist, version = dist_of(ep)
-            rows.append((group, ep.name, ep.value, dist, version))
+            dist, version, folder = dist_of(ep)
+            rows.append((group, ep.name, ep.value, dist, version, folder))
     return rows
 
 

@@ -136,3 +136,22 @@ def straight():
 @pytest.fixture
 def run_stopped_robot():
     return _run_stopped_robot
+
+
+@pytest.fixture
+def error_line(capsys: pytest.CaptureFixture[str]):
+    """Read stderr, which must be exactly one line, one sentence, ``error: ...``; returns it
+    (the check of ``tests/test_cli_attacks.py``, for the attack files beside it)."""
+    import re
+
+    def read() -> str:
+        err = capsys.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert len(lines) == 1, f"expected one line on stderr, got:\n{err}"
+        line = lines[0]
+        assert line.startswith("error: "), line
+        assert "Traceback" not in err and "internal error" not in line, line
+        assert not re.search(r"[.!?] +[A-Z][a-z]", line.removeprefix("error: ")), line
+        return line
+
+    return read

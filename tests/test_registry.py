@@ -204,3 +204,115 @@ def test_an_unreadable_cache_is_ignored(tmp_path: Path) -> None:
         f.write_text("{not json")
     again = _discover_in_a_process(cache)
     assert again["metadata"] and again["rows"] == rows
+
+
+# ------------------------------------------------------------------ a cache is a hint, never code
+def _cache_rows(cache: Path) -> tuple[Path, dict]:
+    import json
+
+    (path,) = cache.glob("entry-points-*.json")
+    return path, json.loads(path.read_text())
+
+
+def _tamper(cache: Path, edit) -> None:
+    import json
+
+    path, stored = _cache_rows(cache)
+    edit(stored["rows"])
+    path.write_text(json.dumps(stored))
+
+
+def _retarget_constant_velocity(rows: list) -> None:
+    for row in rows:
+        if row[1] == "constant_velocity":
+            row[2] = "subprocess:Popen"
+
+
+def test_a_tampered_cache_row_is_never_loaded(tmp_path: Path) -> None:
+    """A cache pointing a core name at ``subprocess:Popen`` used to be obeyed (the command
+    ran); now the row is checked against the installed distribution and the cache is
+    scanned again."""
+    cache = tmp_path / "cache"
+    first = _discover_in_a_process(cache)
+    _tamper(cache, _retarget_constant_velocity)
+    again = _discover_in_a_process(cache)
+    assert again["metadata"]  # the cache was refused: scanned again
+    assert again["rows"] == first["rows"]
+    assert ["subprocess:Popen"] not in [r[2:3] for r in again["rows"]]
+    _, stored = _cache_rows(cache)  # and rewritten from the scan
+    assert "subprocess:Popen" not in [r[2] for r in stored["rows"]]
+    assert not _discover_in_a_process(cache)["metadata"]  # the rewritten cache is used
+
+
+def _point_at_a_folder_not_installed(tmp_path: Path):
+    """A metadata folder made by an attacker outside sys.path, declaring the bad row."""
+    info = tmp_path / "evil" / "conformal_control-0.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "entry_points.txt").write_text(
+        "[conformal_control.predictors]\nconstant_velocity = subprocess:Popen\n"
+    )
+
+    def edit(rows: list) -> None:
+        for row in rows:
+            if row[1] == "constant_velocity":
+                row[2], row[4], row[5] = "subprocess:Popen", "0.0", str(info)
+
+    return edit
+
+
+def _add_undeclared_row(rows: list) -> None:
+    rows.append(["conformal_control.predictors", "extra", "subprocess:Popen", *rows[0][3:]])
+
+
+def _drop_core_rows(rows: list) -> None:
+    rows[:] = [r for r in rows if r[3] != "conformal-control"]
+
+
+def _credit_another_distribution(rows: list) -> None:
+    rows[0][3] = "other-dist"
+
+
+def _wrong_version(rows: list) -> None:
+    row = next(r for r in rows if r[5].endswith(".dist-info") and r[3] != "conformal-control")
+    row[4] = "9.9"
+
+
+def _duplicate_row(rows: list) -> None:
+    rows.append(list(rows[0]))
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda tmp: _add_undeclared_row,
+        lambda tmp: _drop_core_rows,
+        lambda tmp: _credit_another_distribution,
+        lambda tmp: _wrong_version,
+        lambda tmp: _duplicate_row,
+        _point_at_a_folder_not_installed,
+    ],
+    ids=[
+        "row no distribution declares",
+        "core rows dropped",
+        "row credited to another distribution",
+        "wrong version",
+        "duplicated row",
+        "row from a folder not installed",
+    ],
+)
+def test_a_cache_that_disagrees_with_the_installed_metadata_is_refused(
+    edit, tmp_path: Path
+) -> None:
+    cache = tmp_path / "cache"
+    first = _discover_in_a_process(cache)
+    _tamper(cache, edit(tmp_path))
+    again = _discover_in_a_process(cache)
+    assert again["metadata"] and again["rows"] == first["rows"]
+
+
+def test_the_cache_file_is_private(tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    _discover_in_a_process(cache)
+    path, _ = _cache_rows(cache)
+    assert path.stat().st_mode & 0o777 == 0o600
+    assert cache.stat().st_mode & 0o777 == 0o700

@@ -854,7 +854,9 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
             k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
             keyed.setdefault(k, {})[r["reciprocity"]] = r
         by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
-        for (n, method, shift, _), pair in keyed.items():
+        # pairs in the order of their entries, not of the rows: the resampled ratio's CI
+        # is a function of the set of rows (a pool stores them as episodes finish)
+        for (n, method, shift, _), pair in sorted(keyed.items(), key=lambda kv: str(kv[0])):
             if "none" in pair and "reciprocal" in pair:
                 by.setdefault((n, method, shift), []).append((pair["reciprocal"], pair["none"]))
         for (n, method, shift), pairs in sorted(by.items()):

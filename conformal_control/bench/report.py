@@ -20,6 +20,13 @@ method) and writes, per predictor shift:
 * ``targets.md`` -- the benchmark's targets, met or not, with the figures;
 * ``success_vs_epsilon.png`` -- success rate against epsilon for the epsilon families.
 
+A report is a pure function of the SET of rows and the seed: the rows are sorted (by shift,
+method, scenario, then their whole content) before anything is computed, methods are listed
+in a fixed order (the baseline, then by family, then by name), and the bootstrap resamples
+sorted values (:func:`~conformal_control.bench.stats.bootstrap_mean`); shuffling
+``results.jsonl``, or two runs finishing their episodes in another order, give the same
+files.
+
 Rows of different conditions (crowd, run parameters, ...) are never pooled: a folder holds
 one (``bench run`` refuses to mix them), and a report of rows with two runs of one method on
 one scenario under one shift is refused.
@@ -41,7 +48,7 @@ import numpy as np
 from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_mean, paired_comparison
 
-__all__ = ["MethodSummary", "summarise", "write_report"]
+__all__ = ["MethodSummary", "canonical_order", "summarise", "write_report"]
 
 #: (column, row metric, is a rate, lower is better) of the leaderboard.
 COLUMNS: tuple[tuple[str, str, bool, bool], ...] = (
@@ -164,6 +171,27 @@ def _shares(mrows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
+def _row_key(row: Mapping[str, Any]) -> tuple[str, str, str, str]:
+    return (
+        str(row.get("shift") or "nominal"),
+        str(row.get("method")),
+        str(row.get("scenario")),
+        json.dumps(row, sort_keys=True, default=str),
+    )
+
+
+def canonical_order(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """``rows`` sorted by shift, method, scenario, then their whole content: what a
+    report computes from them no longer depends on the order they were stored in.
+
+    Parameters
+    ----------
+    rows : iterable of mapping
+        Benchmark rows, in any order.
+    """
+    return sorted(rows, key=_row_key)
+
+
 def summarise(
     rows: Sequence[Mapping[str, Any]],
     *,
@@ -171,9 +199,9 @@ def summarise(
     seed: int = 0,
     fixed: str | None = None,
 ) -> list[MethodSummary]:
-    """One :class:`MethodSummary` per method, in order of first appearance (rows of one
-    shift); ``fixed``: the method every other is also paired with (the dev-tuned fixed
-    lambda).
+    """One :class:`MethodSummary` per method, by method name (rows of one shift; their
+    order does not matter); ``fixed``: the method every other is also paired with (the
+    dev-tuned fixed lambda).
 
     Parameters
     ----------
@@ -186,7 +214,7 @@ def summarise(
     fixed : str, optional
         The method every other is also paired with.
     """
-    ok, failed = _ok_rows(rows)
+    ok, failed = _ok_rows(canonical_order(rows))
     by_method: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in ok:
         by_method[str(r["method"])].append(r)
@@ -283,7 +311,9 @@ def _view(
             value, _ = choose(ok, ref_family.name, grid)
             reference = ref_family.method(value).name
     rank = {name: i for i, name in enumerate(FAMILIES)}
-    summaries.sort(key=lambda s: (s.method != baseline, rank.get(s.family, len(rank))))
+    summaries.sort(
+        key=lambda s: (s.method != baseline, rank.get(s.family, len(rank)), s.family, s.method)
+    )
     shown = []
     for s in summaries:
         fam = FAMILIES.get(s.family)
@@ -858,6 +888,7 @@ def write_report(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    rows = canonical_order(rows)
     ok, _ = _ok_rows(rows)
     if not ok:
         raise ValueError("no successful episode in the results: nothing to report")

@@ -2,7 +2,10 @@
 
 Every figure of a leaderboard is an average over scenarios; its uncertainty is the
 sampling uncertainty of the scenario set, estimated with the percentile bootstrap over
-scenarios (``scipy.stats.bootstrap``, seeded). A comparison of two methods uses the
+scenarios (``scipy.stats.bootstrap``, seeded). The values are sorted before they are
+resampled, so an interval is a function of the multiset of values and the seed alone,
+never of the order the rows were stored in (a process pool stores them in the order its
+episodes finish). A comparison of two methods uses the
 scenarios both ran (paired): wins / losses / ties per scenario and a paired bootstrap CI of
 the mean difference.
 """
@@ -58,6 +61,9 @@ def bootstrap_mean(
 ) -> Estimate:
     """Mean of ``values`` with a percentile-bootstrap CI (NaNs are left out and not counted).
 
+    The finite values are sorted before resampling: the interval depends on the values
+    and the seed, not on their order.
+
     Parameters
     ----------
     values : sequence of float
@@ -69,8 +75,8 @@ def bootstrap_mean(
     seed : int
         Seed of the resampling (results are reproducible).
     """
-    x = np.asarray(values, dtype=float)
-    x = x[np.isfinite(x)]
+    x = np.asarray(values, dtype=float).ravel()
+    x = np.sort(x[np.isfinite(x)])  # the resamples index the sorted values: order-free
     n = int(x.size)
     if n == 0:
         return Estimate(math.nan, math.nan, math.nan, 0)

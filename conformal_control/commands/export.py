@@ -27,8 +27,8 @@ def _export_args(p: argparse.ArgumentParser) -> None:
 def _export(args: argparse.Namespace) -> int:
     from ..export import export_run, read_run
 
-    rec = read_run(args.run_dir)
-    out = export_run(args.run_dir, args.out, format=args.format)
+    rec = read_run(args.run_dir)  # read once, checked (one-line errors for a damaged folder)
+    out = export_run(rec, args.out, format=args.format)
     size = Path(out).stat().st_size
     robots = ", ".join(r.name for r in rec.robots)
     frames = max(r.trajectory["t"].size for r in rec.robots)

@@ -47,6 +47,7 @@ import numpy as np
 
 from .. import __version__
 from . import foxglove as fg
+from .destination import safe_output
 from .reader import RunRecord, read_run
 
 __all__ = ["write_mcap"]
@@ -271,7 +272,9 @@ def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
     ----------
     run : path or RunRecord
     out : path
-        The ``.mcap`` file to write (its folder is created).
+        The ``.mcap`` file to write (its folder is created), through
+        :func:`~conformal_control.export.destination.safe_output`: never a file of the run
+        directory but an earlier ``.mcap``, never a link or a device.
 
     Returns
     -------
@@ -284,9 +287,7 @@ def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
         raise ImportError("export --format mcap needs the mcap package: pip install mcap") from exc
     rec = run if isinstance(run, RunRecord) else read_run(run)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".partial")
-    with tmp.open("wb") as fh:
+    with safe_output(out, inputs=(rec.path,), suffix=".mcap") as fh:
         writer = Writer(fh, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"conformal-control {__version__}")
         o = _Out(writer)
@@ -308,10 +309,12 @@ def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
                 "scene_topics": "yes" if rec.has_scene else "no (no animation.npz)",
             },
         )
-        cfg = (rec.path / "config.json").read_bytes()
         writer.add_attachment(
-            create_time=0, log_time=0, name="config.json", media_type="application/json", data=cfg
+            create_time=0,
+            log_time=0,
+            name="config.json",
+            media_type="application/json",
+            data=rec.config_bytes,
         )
         writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish is unannotated
-    tmp.replace(out)
     return out

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from .destination import safe_output_path
 from .reader import RunRecord, read_run
 
 __all__ = ["write_rerun"]
@@ -177,7 +178,9 @@ def write_rerun(run: str | Path | RunRecord, out: str | Path) -> Path:
     ----------
     run : path or RunRecord
     out : path
-        The ``.rrd`` file to write (its folder is created).
+        The ``.rrd`` file to write (its folder is created), through
+        :func:`~conformal_control.export.destination.safe_output_path`: never a file of
+        the run directory but an earlier ``.rrd``, never a link or a device.
 
     Returns
     -------
@@ -187,15 +190,16 @@ def write_rerun(run: str | Path | RunRecord, out: str | Path) -> Path:
     rr = _import_rerun()
     record = run if isinstance(run, RunRecord) else read_run(run)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".partial")
-    rec = rr.RecordingStream("conformal-control", recording_id=f"{record.scene}:{record.path.name}")
-    rec.save(tmp)
-    _map(rr, rec, record)
-    _plots(rr, rec, record)
-    if record.has_scene:
-        _world(rr, rec, record)
-    rec.flush()
-    rec.disconnect()
-    tmp.replace(out)
+    # Rerun's save opens a path itself: it writes into a private folder, whose file
+    # safe_output_path copies into an exclusively created one beside ``out``
+    with safe_output_path(out, inputs=(record.path,), suffix=".rrd") as staged:
+        rid = f"{record.scene}:{record.path.name}"
+        rec = rr.RecordingStream("conformal-control", recording_id=rid)
+        rec.save(staged)
+        _map(rr, rec, record)
+        _plots(rr, rec, record)
+        if record.has_scene:
+            _world(rr, rec, record)
+        rec.flush()
+        rec.disconnect()
     return out

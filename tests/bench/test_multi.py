@@ -195,3 +195,14 @@ def test_the_base_run_gives_predictor_seed_and_the_robots_information():
     assert multi_bench_base(base) == ("oracle", 3, "position", "both", {"sidestep": 0.0})
     with pytest.raises(InputError, match=r"drop learn, robots\.layout"):
         multi_bench_base(RunSpec(learn=False, robots=Robots(layout="antipodal")))
+
+
+def test_the_paired_reduction_does_not_depend_on_the_order_of_the_rows():
+    rows = []
+    for k, (none, rec) in enumerate([(10, 0), (0, 3), (30, 4), (20, 0), (5, 5), (8, 1)]):
+        rows.append(_row(f"e{k}", "none", none, 0.8))
+        rows.append(_row(f"e{k}", "reciprocal", rec, 1.0))
+    first = multi_tables(rows)["paired"]
+    for seed in range(3):
+        order = np.random.default_rng(seed).permutation(len(rows))
+        assert multi_tables([rows[i] for i in order])["paired"] == first

@@ -71,3 +71,22 @@ def test_write_report_files(tmp_path) -> None:
     assert (tmp_path / "success_vs_epsilon.png").exists()
     with pytest.raises(ValueError, match="no successful episode"):
         write_report([{"method": "x", "status": "failed"}], tmp_path / "empty")
+
+
+def test_a_report_is_a_function_of_the_set_of_rows(tmp_path) -> None:
+    """Shuffling the rows (as a process pool stores them, in the order episodes finish)
+    used to change the intervals and the order of methods in every table."""
+    data = rows()
+    data += [  # a third method, so the order of methods can matter
+        {**r, "method": "acp[alpha=0.1]", "family": "acp", "setting": "x", "n_collide": 1}
+        for r in data
+        if r.get("method") == "nolearn" and "n_collide" in r
+    ]
+    first = write_report(data, tmp_path / "a", title="toy")
+    rng = np.random.default_rng(7)
+    shuffled = [data[i] for i in rng.permutation(len(data))]
+    second = write_report(shuffled, tmp_path / "b", title="toy")
+    for name, path in first.items():
+        if path.suffix in (".md", ".csv"):
+            assert path.read_bytes() == second[name].read_bytes(), name
+    assert [s.method for s in summarise(data)] == [s.method for s in summarise(shuffled)]

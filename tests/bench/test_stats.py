@@ -49,3 +49,16 @@ def test_paired_comparison_counts_and_ci() -> None:
     assert strong.wins == 100 and strong.difference.high < 0
     with pytest.raises(ValueError, match="same shape"):
         paired_comparison([1.0], [1.0, 2.0])
+
+
+def test_the_interval_does_not_depend_on_the_order_of_the_values() -> None:
+    """The bootstrap resampled the values in the order given: shuffling a results file's
+    lines moved the intervals (209 cells of leaderboard.csv)."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=37)
+    first = bootstrap_mean(x, seed=0)
+    for _ in range(5):
+        assert bootstrap_mean(rng.permutation(x), seed=0) == first
+    pc = paired_comparison(x, x[::-1] + 0.1, seed=0)
+    order = rng.permutation(x.size)
+    assert paired_comparison(x[order], (x[::-1] + 0.1)[order], seed=0) == pc

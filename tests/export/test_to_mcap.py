@@ -171,13 +171,17 @@ def test_run_without_animation_exports_the_robot_only(single_run, tmp_path, caps
     assert set(topics) == {"/tf", "/robot/pose", "/robot/state", "/robot/conformal", "/scene/map"}
 
 
+IV = "k,t,lambda,loss,loss_applied,max_gap,n_sensed,n_steps"
+TR = "frame,t,x,y,vx,vy,d_min"
+
+
 @pytest.mark.parametrize(
     "damage, message",
     [
         (lambda d: (d / "trajectory.csv").unlink(), "trajectory.csv not found"),
         (lambda d: (d / "config.json").unlink(), "not a run directory"),
-        (lambda d: (d / "intervals.csv").write_text("k,t,lambda\n1,2\n"), "line 2: 2 cells"),
-        (lambda d: (d / "trajectory.csv").write_text("frame,t\nx,1\n"), "column frame"),
+        (lambda d: (d / "intervals.csv").write_text(f"{IV}\n1,2\n"), "line 2: 2 cells"),
+        (lambda d: (d / "trajectory.csv").write_text(f"{TR}\nx,1,0,0,0,0,1\n"), "column frame"),
     ],
 )
 def test_incomplete_or_damaged_run_directories_fail_in_one_line(

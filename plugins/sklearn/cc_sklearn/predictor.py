@@ -12,6 +12,13 @@ scikit-learn classes listed in :data:`TRUSTED_TYPES`, and refuses a file that na
 other type. Nothing is unpickled: a weights folder from a replayed configuration, a sweep
 spec or the cache cannot run code. Folders of older versions (``model.joblib``, a pickle)
 are refused with a message saying to train again.
+
+The registry's entry-point cache cannot run code either: the plugin is found as
+``sklearn`` through an entry point, and a cached row is used only when the installed
+distribution's ``entry_points.txt`` declares exactly it (``conformal_control.registry``
+checks every row against the installed metadata rather than signing the cache, whose key
+would sit beside it in the user's folder); a cache pointing ``sklearn`` elsewhere is
+discarded and the entry points are scanned again.
 """
 
 from __future__ import annotations
