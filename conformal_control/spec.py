@@ -73,13 +73,6 @@ class ParamInfo:
     closed: tuple[bool, bool] = (True, True)
     plausible: tuple[float, float, str] | None = None
 
-    @property
-    def range_text(self) -> str:
-        """The range as a reader writes it, e.g. ``(0, inf)`` or ``[1, inf)``."""
-        lo = "[" if self.closed[0] and math.isfinite(self.low) else "("
-        hi = "]" if self.closed[1] and math.isfinite(self.high) else ")"
-        return f"{lo}{self.low:g}, {self.high:g}{hi}"
-
 
 def _p(default: Any, doc: str, **info: Any) -> Any:
     """A table entry: ``default`` (None: from the scene) and its :class:`ParamInfo`."""

@@ -304,9 +304,7 @@ def test_no_function_takes_more_than_fifteen_parameters() -> None:
 def _house():
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(
-        "_house", PKG.parent / "benchmarks" / "house.py"
-    )
+    spec = importlib.util.spec_from_file_location("_house", PKG.parent / "benchmarks" / "house.py")
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

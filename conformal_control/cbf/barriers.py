@@ -63,7 +63,7 @@ class APFBarrier(
 
     * ``"surface"`` (default, what the published code ran): ``rho = d - d_c``, the gap
       between the two discs; ``delta = 1/2``. Then h is in (-1/2, 1/2] and ``h >= 0``
-      means the gap is at least ``safe_gap`` > 0.
+      means the gap is at least ``1 / (sqrt(2 (1/delta - 1) / K_rep) + 1/rho0)`` > 0.
     * ``"centre"`` (the paper's formula read literally): ``rho = d`` and
       ``delta = 1/(1 + U(d_c))`` so that h = 0 exactly at the collision distance.
 
@@ -145,14 +145,6 @@ class APFBarrier(
     @property
     def upper_bound(self) -> float:
         return 1.0 - self.effective_delta
-
-    @property
-    def safe_gap(self) -> float:
-        """Distance variable rho at which h = 0 (for "surface": the disc gap)."""
-        delta = self.effective_delta
-        if not 0 < delta < 1:
-            return math.nan
-        return 1.0 / (math.sqrt(2.0 * (1.0 / delta - 1.0) / self.K_rep) + 1.0 / self.rho0)
 
     # ------------------------------------------------------------------ API
     def evaluate(

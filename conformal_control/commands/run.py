@@ -196,18 +196,35 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 
 # ------------------------------------------------------------------------------ replay
-def _run_parser() -> argparse.ArgumentParser:
-    """The command's own parser: the options :func:`_run_args` declares, every default
-    suppressed (a parsed namespace holds only what was given), errors raised rather than
-    printed."""
-    parser = argparse.ArgumentParser(
-        prog="conformal-control run", add_help=False, exit_on_error=False
-    )
+class _OptionsParser(argparse.ArgumentParser):
+    """The command's own options, every default suppressed (a parsed namespace holds only
+    what was given), errors raised rather than printed, each option recorded by its
+    destination: ``options[dest] = (flag, action)`` (``action`` as given to
+    ``add_argument``: ``"store_true"``, ``"append"``, ... or None)."""
+
+    def __init__(self) -> None:
+        super().__init__(prog="conformal-control run", add_help=False, exit_on_error=False)
+        self.options: dict[str, tuple[str, str | None]] = {}
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        kwargs["default"] = argparse.SUPPRESS
+        action = super().add_argument(*args, **kwargs)
+        if action.option_strings:
+            kind = kwargs.get("action")
+            self.options[action.dest] = (action.option_strings[-1], kind)
+        return action
+
+    def add_argument_group(self, *args: Any, **kwargs: Any) -> Any:
+        return self  # a group only shapes the help, which this parser never prints
+
+
+def _run_parser() -> _OptionsParser:
+    """The command's own parser (:class:`_OptionsParser`): the options :func:`_run_args`
+    declares, and ``-q`` / ``-v``."""
+    parser = _OptionsParser()
     _run_args(parser)
     parser.add_argument("-q", "--quiet", action="store_true")
     parser.add_argument("-v", "--verbose", action="count")
-    for action in parser._actions:
-        action.default = argparse.SUPPRESS
     return parser
 
 
@@ -262,24 +279,24 @@ def _replayed_options(stored: dict[str, Any], path: Path) -> dict[str, Any]:
     from ..exceptions import IgnoredOptionWarning, InputError
 
     parser = _run_parser()
-    actions = {a.dest: a for a in parser._actions if a.option_strings and a.dest not in _NOT_STORED}
+    options = {k: v for k, v in parser.options.items() if k not in _NOT_STORED}
     applied: dict[str, Any] = {}
     skipped = []
     for key, value in stored.items():
-        action = actions.get(key)
-        if action is None:
+        option = options.get(key)
+        if option is None:
             skipped.append(key)
             continue
         if value is None:
             continue
-        flag = action.option_strings[-1]
+        flag, kind = option
         where = f"--config {path}: {key}"
-        if isinstance(action, argparse._StoreTrueAction):
+        if kind == "store_true":
             if not isinstance(value, bool):
                 raise InputError(f"{where} must be true or false, got {value!r}")
             tokens = [flag] if value else []
         else:
-            items = value if isinstance(action, argparse._AppendAction) else [value]
+            items = value if kind == "append" else [value]
             if not isinstance(items, list):
                 raise InputError(f"{where} must be a list, got {value!r}")
             tokens = []

@@ -363,7 +363,9 @@ def check_capabilities(plugin: Any) -> None:
             f"expected run_values[{argument!r}] to be a documented run value, got {value!r} "
             f"(one of {', '.join(RUN_VALUES)})",
         )
-    form = plugin.compiled_state() if hasattr(plugin, "compiled_state") else None
+    # a declared form is the one handed over (a subclass that does not declare its
+    # parent's form inherits compiled_state, unused: it is not run compiled)
+    form = plugin.compiled_state() if caps.compiled and hasattr(plugin, "compiled_state") else None
     if form is not None:
         expect(
             isinstance(form, CompiledForm),
