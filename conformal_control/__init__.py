@@ -17,10 +17,10 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.2.0.dev0"
+__version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
-    from .api import run
+    from .api import run, shadow
     from .base import (
         DecisionFamily,
         Environment,
@@ -57,6 +57,7 @@ _LAZY = {
     "LoopResult": "conformal_control.loop",
     "GuaranteeMonitor": "conformal_control.monitor",
     "run": "conformal_control.api",
+    "shadow": "conformal_control.api",
     "RunSpec": "conformal_control.spec",
     "Parameters": "conformal_control.spec",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
@@ -100,6 +101,7 @@ __all__ = [
     "UpdateRule",
     "__version__",
     "run",
+    "shadow",
 ]
 
 

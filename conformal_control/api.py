@@ -9,6 +9,9 @@ system when the scene's own is not SI: ``units="si"`` (metres, seconds) or
 ``units="scene"`` (the paper's pixels and frames for SDD scenes). On SI scenes (the
 built-in ``crossing``) both mean the same. Everything else is
 :func:`conformal_control.sim.run_episode`.
+
+:func:`shadow` (:func:`conformal_control.ros2.shadow.shadow`) runs the controller over a
+robot's ROS 2 bag instead: the commands it would have sent.
 """
 
 from __future__ import annotations
@@ -18,9 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from .results.episode import EpisodeResult
+from .ros2.shadow import shadow
 from .spec import RunSpec
 
-__all__ = ["run"]
+__all__ = ["run", "shadow"]
 
 
 def run(

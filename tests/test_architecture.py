@@ -168,6 +168,7 @@ LAYERS: dict[str, int] = {
     # the backends of the loop, then running episodes
     "engines": 9,
     "sim": 10,
+    "ros2": 10,
     # many episodes, environments for RL, the paper's tables
     "sweep": 11,
     "envs": 11,

@@ -468,6 +468,57 @@ def test_session_pages_run_and_print_what_they_show(
             assert out.rstrip() == shown.rstrip(), where
 
 
+#: Pages whose shell and Python blocks run in order, as a reader types them in an empty
+#: folder of a checkout (``.venv`` and ``examples`` linked in): each bash block in a shell,
+#: the Python blocks in one interpreter (as :data:`SESSION_PAGES`); a block followed by a
+#: text block prints exactly that, and a Python block that shows none prints nothing.
+MIXED_PAGES = ("docs/robot-logs.md",)
+
+
+def _shell(code: str) -> str:
+    """A bash block as a Python block of the session: run it, print its output."""
+    return (
+        "import subprocess as _sp\n"
+        f"_p = _sp.run(['bash', '-euo', 'pipefail', '-c', {code!r}], capture_output=True, "
+        "text=True)\n"
+        "print(_p.stdout, end='')\n"
+        "assert _p.returncode == 0, _p.stderr[-3000:]\n"
+    )
+
+
+@pytest.mark.parametrize("page", MIXED_PAGES)
+def test_mixed_pages_run_in_order_and_print_what_they_show(
+    page: str, tmp_path: Path, data_root: Path
+) -> None:
+    blocks = [
+        (h, lang, c, shown)
+        for h, lang, c, shown in code_blocks(ROOT / page)
+        if lang in ("bash", "python")
+    ]
+    assert {lang for _, lang, _, _ in blocks} == {"bash", "python"}, page
+    (tmp_path / ".venv").symlink_to(Path(sys.prefix), target_is_directory=True)
+    (tmp_path / "examples").symlink_to(ROOT / "examples", target_is_directory=True)
+    env = {**os.environ, "CONFORMAL_CONTROL_DATA": str(data_root), "MPLBACKEND": "Agg"}
+    codes = [_shell(c) if lang == "bash" else c for _, lang, c, _ in blocks]
+    proc = subprocess.run(
+        [sys.executable, "-c", _SESSION],
+        input=json.dumps(codes),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    printed = json.loads(proc.stdout.strip().splitlines()[-1])
+    for (heading, lang, _, shown), out in zip(blocks, printed, strict=True):
+        where = f"{page}: {heading} ({lang})"
+        if shown is not None:
+            assert out.rstrip() == shown.rstrip(), where
+        elif lang == "python":
+            assert out == "", f"{where}: prints {out[:200]!r} but shows no output"
+
+
 def test_plugin_pages_use_the_public_api_and_show_no_stale_version() -> None:
     """Every name the plugin snippets import exists and is not deprecated (importing it
     warns of nothing); no sample output carries a hard-coded version: the

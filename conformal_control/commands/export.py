@@ -13,13 +13,25 @@ def _export_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by `run`")
     p.add_argument(
         "--format",
-        choices=("mcap", "rerun"),
+        choices=("mcap", "rerun", "ros2-bag"),
         default="mcap",
         help="mcap: for Foxglove (and any MCAP reader); rerun: a .rrd recording (needs the "
-        "rerun extra: pip install 'conformal-control[rerun]')",
+        "rerun extra: pip install 'conformal-control[rerun]'); ros2-bag: a ROS 2 bag folder "
+        "of ROS 2 messages, as ros2 bag record writes it (needs the ros extra)",
     )
     p.add_argument(
-        "--out", default=None, help="output file (default RUN_DIR/run.mcap or RUN_DIR/run.rrd)"
+        "--schema",
+        choices=("foxglove", "ros2"),
+        default="foxglove",
+        help="for --format mcap: Foxglove's JSON schemas (default), or ROS 2 messages "
+        "(geometry_msgs, std_msgs, visualization_msgs; needs the ros extra) for ros2 bag "
+        "play, rqt and ROS-typed panels",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        help="output file (default RUN_DIR/run.mcap, RUN_DIR/run_ros2.mcap with --schema "
+        "ros2, RUN_DIR/run.rrd) or, for ros2-bag, a new folder (default RUN_DIR/run_ros2_bag)",
     )
 
 
@@ -28,8 +40,10 @@ def _export(args: argparse.Namespace) -> int:
     from ..export import export_run, read_run
 
     rec = read_run(args.run_dir)  # read once, checked (one-line errors for a damaged folder)
-    out = export_run(rec, args.out, format=args.format)
-    size = Path(out).stat().st_size
+    out = export_run(rec, args.out, format=args.format, schema=args.schema)
+    path = Path(out)
+    files = [f for f in path.rglob("*") if f.is_file()] if path.is_dir() else [path]
+    size = sum(f.stat().st_size for f in files)
     robots = ", ".join(r.name for r in rec.robots)
     frames = max(r.trajectory["t"].size for r in rec.robots)
     print(f"{rec.scene}: {robots}, {frames} frames -> {out} ({size / 1e3:.0f} kB)")

@@ -48,8 +48,8 @@ def error_line(capsys: pytest.CaptureFixture[str]) -> str:
         ),
         (
             ["export", "runs/x", "--format", "rrd"],
-            "error: unknown format 'rrd'; choose from mcap, rerun (see `conformal-control "
-            "export --help`)",
+            "error: unknown format 'rrd'; choose from mcap, rerun, ros2-bag (see "
+            "`conformal-control export --help`)",
         ),
         (
             ["reproduce", "tabel1"],
