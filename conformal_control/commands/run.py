@@ -215,6 +215,8 @@ class _OptionsParser(argparse.ArgumentParser):
         return action
 
     def add_argument_group(self, *args: Any, **kwargs: Any) -> Any:
+        if "options" not in vars(self):  # argparse's own groups, made by its __init__
+            return super().add_argument_group(*args, **kwargs)
         return self  # a group only shapes the help, which this parser never prints
 
 
@@ -461,9 +463,9 @@ def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
 def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) -> dict[str, Any]:
     """The predictor's arguments: a trainable predictor (lstm, sklearn) without ``weights``
     gets cached weights (see
-    :func:`~conformal_control.commands.predictors.weights_for_scene`)."""
+    :func:`~conformal_control.predictors.training.weights_for_scene`)."""
     from .. import registry
-    from .predictors import trainable_defaults, weights_for_scene
+    from ..predictors.training import trainable_defaults, weights_for_scene
 
     cls = registry.get("predictor", args.predictor)
     if cls.capabilities.trainable and pp.get("weights") is None:
