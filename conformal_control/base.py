@@ -185,7 +185,7 @@ CAPABILITY_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Ca
 
 #: Class attributes of 0.3 now held by :class:`Capabilities`: old name -> field. A class
 #: that still sets one in its body has it folded in, with a ``DeprecationWarning``
-#: (read until 2027-06-30).
+#: (removed in 0.4, not before 2027-06-30).
 FORMER_FLAGS: Mapping[str, str] = types.MappingProxyType(
     {
         "compiled_as": "compiled",
@@ -363,7 +363,7 @@ class Plugin:
                 continue
             warnings.warn(
                 f"{cls.__name__}.{old} = ... is deprecated: declare class "
-                f"{cls.__name__}(..., {new}={value!r}) (read until 2027-06-30)",
+                f"{cls.__name__}(..., {new}={value!r}) (removed in 0.4, not before 2027-06-30)",
                 DeprecationWarning,
                 stacklevel=3,
             )
@@ -430,7 +430,7 @@ class Plugin:
         warnings.warn(
             f"{type(self).__name__}({key}=...) is deprecated: give {group}="
             f"{type(getattr(self, group, None)).__name__}({field}=...) or {new}=... "
-            f"(removed in 0.4)",
+            f"(removed in 0.4, not before 2027-06-30)",
             DeprecationWarning,
             stacklevel=stacklevel + 1,
         )

@@ -189,7 +189,7 @@ def _policy_is_family(init: Callable[_P, _R]) -> Callable[_P, _R]:
     def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> _R:
         if "policy" in kwargs:
             warnings.warn(
-                "the loop's keyword policy= is now family= (removed in 0.4)",
+                "the loop's keyword policy= is now family= (removed in 0.4, not before 2027-06-30)",
                 DeprecationWarning,
                 stacklevel=2,
             )
@@ -260,9 +260,9 @@ class ConformalStepper:
 
     @property
     def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
-        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
-            "the loop's attribute policy is now family (removed in 0.4)",
+            "the loop's attribute policy is now family (removed in 0.4, not before 2027-06-30)",
             DeprecationWarning,
             stacklevel=2,
         )

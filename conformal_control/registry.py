@@ -241,7 +241,8 @@ def role_name(role: str) -> str:
     if new is not None:
         warnings.warn(
             f"the plugin role {role!r} is now called {new!r} (as the run's field, "
-            f"config.json key and --{new} option); {role!r} is removed in 0.4",
+            f"config.json key and --{new} option); {role!r} is "
+            "removed in 0.4, not before 2027-06-30",
             DeprecationWarning,
             stacklevel=3,
         )

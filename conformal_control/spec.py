@@ -592,7 +592,8 @@ class RunSpec:
             )
         warnings.warn(
             f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
-            "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
+            "since 0.3: give fallback=NAME (on the command line --fallback NAME; the other "
+            "ways are removed in 0.4, not before 2027-06-30)",
             DeprecationWarning,
             stacklevel=4,
         )

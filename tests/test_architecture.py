@@ -328,3 +328,28 @@ def test_no_engine_reads_another_objects_private_attributes() -> None:
     engines = [r for r in reads if r[0].startswith("conformal_control.engines")]
     assert not engines, f"private reads in the engines: {engines}"
     assert len(reads) <= 15, "private reads of other objects:\n" + "\n".join(map(str, reads))
+
+
+def test_every_deprecation_names_its_removal_date() -> None:
+    """A deprecated name is kept with a date: every ``DeprecationWarning`` the package
+    raises says when the old way goes (0.4, not before 2027-06-30)."""
+    undated = []
+    for path in sorted(PKG.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (
+                isinstance(node, ast.Call)
+                and ast.unparse(node.func) in ("warnings.warn", "warn")
+                and any(
+                    isinstance(a, ast.Name) and a.id == "DeprecationWarning"
+                    for a in [*node.args[1:], *(k.value for k in node.keywords)]
+                )
+            ):
+                continue
+            text = "".join(
+                n.value
+                for n in ast.walk(node.args[0])
+                if isinstance(n, ast.Constant) and isinstance(n.value, str)
+            )
+            if "not before 2027-06-30" not in text:
+                undated.append(f"{module_name(path)}:{node.lineno}")
+    assert not undated, "deprecations without a removal date: " + ", ".join(undated)

@@ -530,7 +530,8 @@ def _run_prepared(args: argparse.Namespace) -> int:
                 "--fallback NAME only"
             )
         warnings.warn(
-            f"--param fallback={old_way} is --fallback {old_way} since 0.3",
+            f"--param fallback={old_way} is --fallback {old_way} since 0.3 ("
+            "removed in 0.4, not before 2027-06-30)",
             DeprecationWarning,
             stacklevel=2,
         )

@@ -76,9 +76,9 @@ class Flagship:
 
     @property
     def policy(self) -> Any:
-        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
-            "Flagship.policy is now Flagship.family (removed in 0.4)",
+            "Flagship.policy is now Flagship.family (removed in 0.4, not before 2027-06-30)",
             DeprecationWarning,
             stacklevel=2,
         )

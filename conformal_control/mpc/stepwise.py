@@ -55,7 +55,8 @@ def _moved(legacy: dict[str, Any], name: str, new: str) -> Any:
     if name not in legacy:
         return None
     warnings.warn(
-        f"StepwiseMPC({name}=...) is deprecated: give {new} (removed in 0.4)",
+        f"StepwiseMPC({name}=...) is deprecated: give {new} "
+        "(removed in 0.4, not before 2027-06-30)",
         DeprecationWarning,
         stacklevel=3,
     )
