@@ -26,7 +26,13 @@ Figures:
 * lines of ``sim/``, and of the whole package.
 
 ``--path`` follows a call path instead (:func:`follow`): the CLI's ``run`` from its
-arguments to the first update of lambda, traced call by call.
+arguments to the first update of lambda, traced call by call (``sys.setprofile``; code run
+while a module is being imported is left out). The *path* is the chain of modules on the
+stack at that update (consecutive frames of one module count once); the path **enters** a
+module when a function of the path calls into it (the path's own modules included); a
+call from the path into a module of a lower floor that returns before the update is one
+**return to a higher layer** (the path went down for a detour and climbed back). Calls
+made inside a detour are the detour's business and are not counted.
 """
 
 from __future__ import annotations
@@ -300,6 +306,84 @@ def typing_circles(files: list[Path]) -> list[list[str]]:
     return _sccs(g)
 
 
+def follow(argv: list[str]) -> dict[str, Any]:
+    """The call path of ``conformal-control ARGV`` up to the first update of lambda (a call
+    of ``update`` in ``update_rules/``): the path's modules, the modules it enters, its
+    returns to a higher layer (see the module docstring), the detours by module pair.
+
+    Parameters
+    ----------
+    argv : list of str
+        The command line after ``conformal-control`` (the command runs in this process).
+    """
+    import sys
+
+    layers = _layers()
+    pkg = str(PKG)
+
+    def layer(module: str) -> int:
+        return layers.get(_unit(module), 99)
+
+    calls: list[list[Any]] = []  # [module stack, returned, entry (a module's first frame)]
+    active: list[int] = []
+    state: dict[str, Any] = {"spine": None, "importing": 0}
+
+    def profile(frame: Any, event: str, arg: Any) -> None:
+        if event not in ("call", "return"):
+            return
+        code = frame.f_code
+        if not code.co_filename.startswith(pkg):
+            return
+        if code.co_name == "<module>":  # an import: not the run's path
+            state["importing"] += 1 if event == "call" else -1
+            return
+        if state["importing"]:
+            return
+        if event == "return":
+            if active:
+                calls[active.pop()][1] = True
+            return
+        module = module_name(Path(code.co_filename))
+        stack = calls[active[-1]][0] if active else ()
+        entry = not (stack and stack[-1] == module)
+        ms = stack + (module,) if entry else stack
+        if code.co_name == "update" and f"{PKG.name}/update_rules/" in code.co_filename:
+            state["spine"] = ms
+            sys.setprofile(None)
+            return
+        calls.append([ms, False, entry])
+        active.append(len(calls) - 1)
+
+    from conformal_control.cli import main as cli_main
+
+    sys.setprofile(profile)
+    try:
+        cli_main(argv)
+    finally:
+        sys.setprofile(None)
+    spine = state["spine"]
+    if spine is None:
+        raise RuntimeError("the command never updated lambda")
+    entered = set(spine)
+    pairs: dict[tuple[str, str], int] = {}
+    for ms, returned, entry in calls:
+        if len(ms) < 2 or not returned or not entry or spine[: len(ms) - 1] != ms[:-1]:
+            continue  # a call inside a detour, or the path itself
+        caller, callee = ms[-2], ms[-1]
+        entered.add(callee)
+        if layer(callee) < layer(caller):
+            pairs[(caller, callee)] = pairs.get((caller, callee), 0) + 1
+    return {
+        "path (modules on the stack at the update)": list(spine),
+        "files entered": len(entered),
+        "returns to a higher layer": sum(pairs.values()),
+        "_detail": {
+            "entered": sorted(entered),
+            "returns": [f"{n:3d}  {a} <- {b}" for (a, b), n in sorted(pairs.items())],
+        },
+    }
+
+
 def measure() -> dict[str, Any]:
     layers = _layers()
     files = sorted(PKG.rglob("*.py"))
@@ -384,8 +468,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print JSON")
     ap.add_argument("--detail", action="store_true", help="list the offending imports")
+    ap.add_argument(
+        "--path",
+        nargs=argparse.REMAINDER,
+        metavar="ARGV",
+        help="follow the call path of `conformal-control ARGV` to the first lambda update "
+        "instead (e.g. --path run --scene nexus_4 --epsilon -0.1 --no-plot --out DIR -q)",
+    )
     args = ap.parse_args()
-    m = measure()
+    m = follow(args.path) if args.path else measure()
     detail = m.pop("_detail")
     if args.json:
         print(json.dumps({**m, **({"detail": detail} if args.detail else {})}, indent=1))

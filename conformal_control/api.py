@@ -38,7 +38,10 @@ def run(
     units: str | None = None,
     data_root: str | Path | None = None,
     start: Sequence[float] | None = None,
-    goal: Sequence[float] | None = None,
+    goal: Sequence[float] | Sequence[Sequence[float]] | None = None,
+    start_frame: int | None = None,
+    progress: bool = False,
+    extra_config: dict[str, Any] | None = None,
     **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on a scene and return the result.
@@ -62,17 +65,27 @@ def run(
     data_root : path, optional
         Data folder for scenes read from data (default ``$CONFORMAL_CONTROL_DATA``).
     start, goal : (fx, fy), optional
-        For ``sdd:`` scenes: start and goal as image fractions.
+        For ``sdd:`` scenes: start and goal as image fractions (``goal`` may be a list of
+        waypoints).
+    start_frame : int, optional
+        The video frame the robot starts at (default: the scene's).
+    progress : bool
+        Show the episode's progress in frames (a bar on a terminal, lines in a log).
+    extra_config : dict, optional
+        Merged into the result's configuration (``config.json``): what the caller wants
+        recorded beside the run (the command line records its options).
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``predictor`` (an instance or a
-        registered name; default ``"constant_velocity"``), ``learn`` (False keeps lambda
-        fixed: the noLearn baseline), ``seed`` (of the built-in scene and of named plugins
-        with a ``random_state``), ``max_frames``, ``barrier``, ``safety_filter``,
-        ``fallback``, ``reference``, ``dynamics``, ``loss``, ``rule`` (instances or
-        names) and their ``*_params``, ``lambda_safe``, ``record_animation``, ``engine``
-        (``"auto"``: the compiled engine where it applies, ``"loop"``: the generic
-        per-instant loop); and ``on_interval`` (a callback per interval).
+        <conformal_control.spec.RunSpec.from_settings>`): ``predictor`` (an instance or
+        a registered name; default ``"constant_velocity"``; a trainable predictor given
+        by name without ``weights`` is trained on the scene's data first, or its cached
+        weights are used), ``learn`` (False keeps lambda fixed: the noLearn baseline),
+        ``seed`` (of the built-in scene and of the plugins declaring it, ``run_values``),
+        ``max_frames``, ``barrier``, ``safety_filter``, ``fallback``, ``reference``,
+        ``dynamics``, ``loss``, ``rule`` (instances or names) and their ``*_params``,
+        ``lambda_safe``, ``record_animation``, ``engine`` (``"auto"``: the compiled
+        engine where it applies, ``"loop"``: the generic per-instant loop); and
+        ``on_interval`` (a callback per interval).
 
     Returns
     -------
@@ -82,15 +95,19 @@ def run(
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
+    from .predictors.training import with_weights
     from .sim.episode import run_episode
 
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
     base = spec if spec is not None else RunSpec()
     seed = int(settings.get("seed", base.seed))
+    _check_plugins(RunSpec.from_settings(None, base=base, **settings))
     if isinstance(scene, str):
-        goals = None if goal is None else [tuple(goal)]
-        scene = load_scene(scene, data_root, start=start, goals=goals, seed=seed)
+        goals = None if goal is None else _goals(goal)
+        scene = load_scene(
+            scene, data_root, start=start, goals=goals, start_frame=start_frame, seed=seed
+        )
     given = dict(base.params)
     given.update(params or {})
     for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):
@@ -113,7 +130,50 @@ def run(
         else:
             units = "si"
     settings["units"] = units
-    return run_episode(scene, base, given, on_interval=on_interval, **settings)
+    run_spec = RunSpec.from_settings(given, base=base, **settings)
+    run_spec = with_weights(run_spec, scene, None if data_root is None else str(data_root))
+    if not progress:
+        return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
+    from .progress import progress as progress_bar
+
+    total = scene.n_frames - 1 - scene.start_index
+    if run_spec.max_frames is not None:
+        total = min(total, run_spec.max_frames)
+    substeps = int(run_spec.params.get("substeps", scene.defaults.get("substeps", 1)))
+    bar = progress_bar(total, f"run {scene.name} [{run_spec.role_name('predictor')}]", "frames")
+    steps = [0]  # control steps so far; the bar advances in whole frames
+
+    def advance(iv: Any) -> None:
+        before = -(-steps[0] // substeps)
+        steps[0] += iv.n_steps
+        if iv.l_avg is not None:
+            bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
+        bar.update(-(-steps[0] // substeps) - before)
+        if on_interval is not None:
+            on_interval(iv)
+
+    with bar:
+        return run_episode(scene, run_spec, on_interval=advance, extra_config=extra_config)
+
+
+def _goals(goal: Any) -> list[tuple[float, float]]:
+    """One goal ``(fx, fy)`` or a list of waypoints, as a list of pairs."""
+    first = goal[0]
+    if isinstance(first, (int, float)):
+        return [(float(goal[0]), float(goal[1]))]
+    return [tuple(g) for g in goal]
+
+
+def _check_plugins(run: RunSpec) -> None:
+    """Every role given by name is a registered plugin (an unknown name fails here, before
+    the scene is loaded, with a did-you-mean)."""
+    from . import registry
+
+    roles = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
+    for role in (*roles, "family"):
+        name = run.role(role)[0]
+        if isinstance(name, str):
+            registry.entry(role, name)
 
 
 def _check_keywords(kwargs: dict[str, Any]) -> None:

@@ -369,11 +369,6 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     from .. import registry
     from ..exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
-    registry.entry("predictor", args.predictor)  # unknown names fail here, with a suggestion
-    registry.entry("rule", args.rule)
-    for role in _ROLES:
-        if getattr(args, role):
-            registry.entry(role, getattr(args, role))
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
             f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
@@ -460,23 +455,6 @@ def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
     return pp
 
 
-def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) -> dict[str, Any]:
-    """The predictor's arguments: a trainable predictor (lstm, sklearn) without ``weights``
-    gets cached weights (see
-    :func:`~conformal_control.predictors.training.weights_for_scene`)."""
-    from .. import registry
-    from ..predictors.training import trainable_defaults, weights_for_scene
-
-    cls = registry.get("predictor", args.predictor)
-    if cls.capabilities.trainable and pp.get("weights") is None:
-        trainable_defaults(cls, pp, args.seed, 8, 12)
-        train_params = {k: v for k, v in pp.items() if k != "weights"}
-        pp["weights"] = str(
-            weights_for_scene(args.predictor, scene, args.data_root, train_params, args.seed)
-        )
-    return pp
-
-
 def _default_out(scene_name: str) -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in scene_name)
     return Path("runs") / f"{safe}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
@@ -502,15 +480,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_prepared(args: argparse.Namespace) -> int:
+    """The command: its options as a :class:`~conformal_control.spec.RunSpec`, the run by
+    :func:`conformal_control.run`, the run directory."""
     import logging
 
-    from ..data import load_scene
-    from ..data.paths import resolve_data_root
-    from ..exceptions import SuspiciousValueWarning
-    from ..flagship.params import check_names, resolve_params
-    from ..progress import progress
+    from ..api import run
     from ..results.rundir import write_run_dir
-    from ..sim.episode import run_episode
     from ..spec import RunSpec
 
     log = logging.getLogger("conformal_control.run")
@@ -536,7 +511,6 @@ def _run_prepared(args: argparse.Namespace) -> int:
             stacklevel=2,
         )
         args.fallback = old_way
-    check_names(params)
     _check_options(args, params)
     roles: dict[str, Any] = {}
     for role in _ROLES:
@@ -555,63 +529,10 @@ def _run_prepared(args: argparse.Namespace) -> int:
             whole = name == "tau" and isinstance(value, float) and value.is_integer()
             params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
-    from .. import registry
-
-    registry.check_params("rule", args.rule, registry.get("rule", args.rule), rule_params)
-    given_predictor_params = _checked_predictor_params(args)
-    crowd_params = _checked_crowd_params(args)
-
-    scene = load_scene(
-        args.scene,
-        args.data_root,
-        start=args.start,
-        goals=args.goal,
-        start_frame=args.start_frame,
-        seed=args.seed,
-    )
-    log.info(
-        "scene %s: %d agents, %d frames at %g fps",
-        scene.name,
-        scene.n_agents,
-        scene.n_frames,
-        scene.fps,
-    )
-    check = dict(params)
-    if args.no_learning:
-        check.setdefault("eta", 0.0)
-    with warnings.catch_warnings():  # checked here; the run reports them (once)
-        warnings.simplefilter("ignore", SuspiciousValueWarning)
-        resolved = resolve_params(scene, check)
-    for text in resolved.notes:
-        log.info("unit conversion: %s", text)
-    log.debug("parameters in SI: %s", resolved.si)
-    predictor_params = _predictor_params(args, scene, given_predictor_params)
-    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
-        return _run_multi(args, scene, params, roles, rule_params, predictor_params, out)
-    log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
-
-    data_root = None
-    if args.scene != "crossing":
-        data_root = str(resolve_data_root(args.data_root).resolve())
-    substeps = int(resolved.si["substeps"])
-    total = scene.n_frames - 1 - scene.start_index
-    if args.frames is not None:
-        total = min(total, args.frames)
-    bar = progress(total, f"run {scene.name} [{args.predictor}]", "frames")
-
-    steps = [0]  # control steps so far; the bar advances in whole frames
-
-    def on_interval(iv: Any) -> None:
-        before = -(-steps[0] // substeps)
-        steps[0] += iv.n_steps
-        if iv.l_avg is not None:
-            bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
-        bar.update(-(-steps[0] // substeps) - before)
-
     spec = RunSpec.from_settings(
         params,
         predictor=args.predictor,
-        predictor_params=predictor_params,
+        predictor_params=_checked_predictor_params(args),
         learn=not args.no_learning,
         max_frames=args.frames,
         seed=args.seed,
@@ -620,25 +541,41 @@ def _run_prepared(args: argparse.Namespace) -> int:
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         crowd=args.crowd,
-        crowd_params=crowd_params,
+        crowd_params=_checked_crowd_params(args),
         **roles,
     )
-    with bar:
-        result = run_episode(
-            scene,
-            spec,
-            extra_config={
-                "command": command_line(args),
-                "data_root": data_root,
-                "cli": _stored_options(args, data_root),
-            },
-            on_interval=on_interval,
-        )
+    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
+        return _run_multi(args, spec, out)
+
+    data_root = _data_root(args)
+    result = run(
+        args.scene,
+        spec,
+        data_root=args.data_root,
+        start=args.start,
+        goal=args.goal,
+        start_frame=args.start_frame,
+        progress=True,
+        extra_config={
+            "command": command_line(args),
+            "data_root": data_root,
+            "cli": _stored_options(args, data_root),
+        },
+    )
     log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)
     print(result.metrics.format())
     print(f"results written to {out}")
     return 0
+
+
+def _data_root(args: argparse.Namespace) -> str | None:
+    """The data folder of a run from data (absolute; None for the built-in scene)."""
+    if args.scene == "crossing":
+        return None
+    from ..data.paths import resolve_data_root
+
+    return str(resolve_data_root(args.data_root).resolve())
 
 
 # ------------------------------------------------------------------ several robots (--robots)
@@ -699,19 +636,23 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _run_multi(
-    args: argparse.Namespace,
-    scene: Any,
-    params: dict[str, Any],
-    roles: dict[str, Any],
-    rule_params: dict[str, Any],
-    predictor_params: dict[str, Any],
-    out: Path | None = None,
-) -> int:
-    """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
+def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
+    """``run --robots``: the run's specification (as ``_run_prepared`` built it) with the
+    robots' tasks, by :func:`~conformal_control.sim.multi.run_multi`."""
+    from ..data import load_scene
+    from ..predictors.training import with_weights
     from ..sim.multi import load_robots_file, run_multi
 
-    roles = dict(roles)
+    scene = load_scene(
+        args.scene,
+        args.data_root,
+        start=args.start,
+        goals=args.goal,
+        start_frame=args.start_frame,
+        seed=args.seed,
+    )
+    data_root = _data_root(args)
+    spec = with_weights(spec, scene, args.data_root)
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:
         if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
@@ -732,50 +673,23 @@ def _run_multi(
             "radius": args.radius,
             "center": center,
         }
-    data_root = None
-    if args.scene != "crossing":
-        from ..data.paths import resolve_data_root
-
-        data_root = str(resolve_data_root(args.data_root).resolve())
     stored = _stored_options(args, data_root)  # what `run --config` replays
     if args.robots_file is not None:
         stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
     result = run_multi(
         scene,
+        spec,
         **tasks,
-        predictor=args.predictor,
-        params=params,
-        learn=not args.no_learning,
-        max_frames=args.frames,
-        seed=args.seed,
-        predictor_params=predictor_params,
-        rule=args.rule,
-        rule_params=rule_params,
-        lambda_safe=args.lambda_safe,
-        fallback=args.fallback,
         sensor_history=args.sensor_history,
         reciprocity=args.reciprocity,
         information=args.information,
         lambda_scope=args.lambda_scope,
-        crowd=args.crowd,
-        crowd_params=_checked_crowd_params(args),
         extra_config={
             "command": command_line(args),
             "data_root": data_root,
             "cli": stored,
         },
-        **roles,
     )
-    if out is None:
-        out = (
-            Path(args.out)
-            if args.out
-            else Path("runs")
-            / (
-                f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
-                f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
-            )
-        )
     out = result.save(out)
     print(result.summary_table())
     print(result.metrics.format())

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..base import Plugin, param_names
+from ..spec import RunSpec
 
 __all__ = [
     "MIN_SCENE_WINDOWS",
@@ -28,6 +29,7 @@ __all__ = [
     "train",
     "trainable_defaults",
     "weights_for_scene",
+    "with_weights",
 ]
 
 #: fewest windows of a scene's own tracks a learned predictor is trained on
@@ -57,11 +59,12 @@ def trainable_defaults(
     """
     from ..spec import RunContext
 
+    for key, value in RunContext(seed=seed).arguments(cls).items():
+        params.setdefault(key, value)
     names = param_names(cls)
     for key, value in (("obs", obs), ("horizon", horizon)):
         if key in names:
             params.setdefault(key, value)
-    params.update(RunContext(seed=seed).arguments(cls, params))
 
 
 def _fit_and_save(
@@ -408,7 +411,19 @@ def weights_for_scene(
 def evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 256) -> dict[str, Any]:
     """:func:`~conformal_control.predictors.evaluation.evaluate_predictor` in chunks of
     windows with a progress report; ADE/FDE weighted by chunk size, counters summed
-    (predictions are per window, so the figures equal one call on all windows)."""
+    (predictions are per window, so the figures equal one call on all windows).
+
+    Parameters
+    ----------
+    predictor : Predictor
+        The predictor evaluated.
+    win : Windows
+        The evaluation windows.
+    desc : str
+        What the progress report calls the evaluation.
+    chunk : int
+        Windows per call.
+    """
     import numpy as np
 
     from ..predictors.evaluation import Windows, evaluate_predictor
@@ -435,3 +450,32 @@ def evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 256
                         merged[reason] = merged.get(reason, 0) + c
             bar.update(e - s)
     return {"ade": ade / n, "fde": fde / n, "n": n, "info": info}
+
+
+def with_weights(run: RunSpec, scene: Any, data_root: str | None) -> RunSpec:
+    """``run`` with weights for a trainable predictor given by name without them: its
+    training settings filled in and the weights trained on the scene's data (or found in
+    the cache, :func:`weights_for_scene`); any other run unchanged.
+
+    Parameters
+    ----------
+    run : RunSpec
+        The run.
+    scene : Scene
+        Its scene (trained on its own tracks when its data has no split of its own).
+    data_root : str, optional
+        The data folder.
+    """
+    name, pp = run.role("predictor")
+    if not isinstance(name, str):
+        return run
+    from .. import registry
+
+    cls = registry.get("predictor", name)
+    if not cls.capabilities.trainable or pp.get("weights") is not None:
+        return run
+    pp = dict(pp)
+    trainable_defaults(cls, pp, run.seed, 8, 12)
+    train_params = {k: v for k, v in pp.items() if k != "weights"}
+    pp["weights"] = str(weights_for_scene(name, scene, data_root, train_params, run.seed))
+    return RunSpec.from_settings(None, base=run, predictor=name, predictor_params=pp)
