@@ -346,7 +346,7 @@ def follow(argv: list[str]) -> dict[str, Any]:
         module = module_name(Path(code.co_filename))
         stack = calls[active[-1]][0] if active else ()
         entry = not (stack and stack[-1] == module)
-        ms = stack + (module,) if entry else stack
+        ms = (*stack, module) if entry else stack
         if code.co_name == "update" and f"{PKG.name}/update_rules/" in code.co_filename:
             state["spine"] = ms
             sys.setprofile(None)

@@ -102,7 +102,7 @@ def run(
     on_interval = settings.pop("on_interval", None)
     base = spec if spec is not None else RunSpec()
     seed = int(settings.get("seed", base.seed))
-    _check_plugins(RunSpec.from_settings(None, base=base, **settings))
+    _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
     if isinstance(scene, str):
         goals = None if goal is None else _goals(goal)
         scene = load_scene(
@@ -169,9 +169,10 @@ def _check_plugins(run: RunSpec) -> None:
     the scene is loaded, with a did-you-mean)."""
     from . import registry
 
-    roles = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
-    for role in (*roles, "family"):
-        name = run.role(role)[0]
+    roles = run.roles()
+    order = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
+    for role in (*order, "family"):
+        name = roles[role][0]
         if isinstance(name, str):
             registry.entry(role, name)
 

@@ -612,6 +612,11 @@ class RunSpec:
             raise KeyError(name)
         return _role_parts(name, getattr(self, name))
 
+    def roles(self) -> dict[str, tuple[Any, dict[str, Any]]]:
+        """Every role as :meth:`role` gives it: role -> (name or instance or None, its
+        params)."""
+        return {name: _role_parts(name, getattr(self, name)) for name in ROLE_FIELDS}
+
     def role_name(self, name: str) -> str | None:
         """The registered name of a role (an instance: its class name; None: default)."""
         spec, _ = self.role(name)

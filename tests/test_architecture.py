@@ -353,3 +353,20 @@ def test_every_deprecation_names_its_removal_date() -> None:
             if "not before 2027-06-30" not in text:
                 undated.append(f"{module_name(path)}:{node.lineno}")
     assert not undated, "deprecations without a removal date: " + ", ".join(undated)
+
+
+def test_the_architecture_page_shows_the_floors_of_this_test() -> None:
+    """The floors tables of docs/architecture.md and CONTRIBUTING.md are LAYERS (every unit
+    on its floor, no other)."""
+    import re
+
+    for page in ("docs/architecture.md", "CONTRIBUTING.md"):
+        shown: dict[str, int] = {}
+        for line in (PKG.parent / page).read_text().splitlines():
+            m = re.match(r"^\s*\| (\d+) \| (.*) \|$", line)
+            if m:
+                # the units are the backticked names outside parentheses
+                units = re.sub(r"\([^)]*\)", "", m.group(2))
+                for name in re.findall(r"`(\w+)`", units):
+                    shown[name] = int(m.group(1))
+        assert shown == LAYERS, page

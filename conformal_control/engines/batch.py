@@ -86,14 +86,14 @@ from .. import registry
 from ..base import Loss, Plugin
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
-from ..cbf.barriers import APFBarrier
+from ..cbf.barriers import APFBarrier, APFForm
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
-from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
-from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
+from ..cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
+from ..cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
-from ..cbf.reference import AttractiveField
+from ..cbf.reference import AttractiveField, AttractiveFieldForm
 from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
 from ..crowds.crowd import Crowd
@@ -206,8 +206,9 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         run = as_run_spec(spec, **settings)
     except TypeError as exc:
         return str(exc)
+    roles = run.roles()
     for role in (*ANY_NAME_ROLES, *KERNELS):
-        name, params = run.role(role)
+        name, params = roles[role]
         if name is not None and not isinstance(name, str):
             return (
                 f"{role} given as a {type(name).__name__} instance: the batch engine builds "
@@ -221,14 +222,14 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
                 f"fallback parameters for {name!r}: the batch engine runs the compiled "
                 "fallbacks as registered"
             )
-    filter_params = run.role("safety_filter")[1]
+    filter_params = roles["safety_filter"][1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
     if not isinstance(filter_params.get("fallback"), (str, type(None))):
         return "a fallback instance: the batch engine builds one per episode, give it by name"
     if run.robots is not None:
         return "robots: the batch engine runs one robot per episode"
-    crowd, crowd_params = run.role("crowd")
+    crowd, crowd_params = roles["crowd"]
     if not isinstance(crowd, str):
         return "a crowd instance: the batch engine builds one per episode, give it by name"
     if crowd != "replay":
@@ -328,6 +329,16 @@ def _parts(fl: Flagship) -> _Parts:
     if (acp is not None) != (_compiled_name(type(policy)) == "acp"):
         raise _NotRun(f"the decision family {type(policy).__name__} is not the class it declares")
     return _Parts(env, barrier, filt, reference, dynamics, loss, gap, acp)
+
+
+def _form(forms: dict[str, Any], role: str, cls: type[_T]) -> _T:
+    """The compiled form of ``role`` among ``forms`` (the flagship's
+    :meth:`~conformal_control.flagship.build.Flagship.compiled_forms`), as the kernel it
+    declares reads it; :class:`_NotRun` if the part hands another."""
+    form = forms.get(role)
+    if not isinstance(form, cls):
+        raise _NotRun(f"the {role} declares {cls.kernel!r} but hands no {cls.__name__}")  # type: ignore[attr-defined]
+    return form
 
 
 def _predictor_code(pred: object) -> int:
@@ -664,10 +675,8 @@ class _Engine:
         warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
         # the timing), the family (validates; resets predictor, filter, reference), the rule
-        env, filt, ref = parts.env, parts.safety_filter, parts.reference
-        dyn, bar = parts.dynamics, parts.barrier
-        env.reset()
-        fl.family.reset()
+        env = parts.env
+        fl.reset()
         monitor = GuaranteeMonitor.for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
@@ -677,8 +686,11 @@ class _Engine:
             learn=learn,
         )
         # each compiled part as its compiled form (validated constants), never its attributes
-        k = dyn.compiled_state().K_acc
-        apf, ref_form, filt_form = bar.compiled_state(), ref.compiled_state(), filt.compiled_state()
+        forms = fl.compiled_forms()
+        apf = _form(forms, "barrier", APFForm)
+        filt_form = _form(forms, "safety_filter", Exact2DForm)
+        ref_form = _form(forms, "reference", AttractiveFieldForm)
+        k = _form(forms, "dynamics", VelocityTrackingForm).K_acc
         pred = fl.predictor
         reactive = isinstance(env, ReactiveEnvironment)
         if isinstance(env, ReactiveEnvironment):
@@ -693,13 +705,7 @@ class _Engine:
             code = _OWN
         window: Any = 1
         if code == bk.CONSTANT_VELOCITY:
-            form = pred.compiled_state()
-            if not isinstance(form, ConstantVelocityForm):
-                raise _NotRun(
-                    f"the predictor {type(pred).__name__} declares constant_velocity but hands "
-                    f"no ConstantVelocityForm"
-                )
-            window = form.window
+            window = _form(forms, "predictor", ConstantVelocityForm).window
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -768,7 +774,7 @@ class _Engine:
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
         if parts.gap is not None:
-            gap = parts.gap.compiled_state()
+            gap = _form(forms, "loss", GapLossForm)
             p.scale[b] = gap.scale
             self._squash.setdefault(float(gap.scale), gap.squash)
         else:  # scored by the loss object (see end)

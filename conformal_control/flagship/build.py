@@ -25,7 +25,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params, param_names
+from ..base import (
+    CompiledForm,
+    DecisionFamily,
+    Loss,
+    Plugin,
+    UpdateRule,
+    flat_params,
+    param_names,
+)
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
@@ -83,6 +91,26 @@ class Flagship:
             stacklevel=2,
         )
         return self.family
+
+    def reset(self) -> None:
+        """What a run does first: reset the environment (validates the scene and the
+        timing), then the decision family (validates; resets its predictor, filter and
+        reference)."""
+        self.env.reset()
+        self.family.reset()
+
+    def compiled_forms(self) -> dict[str, CompiledForm | None]:
+        """The compiled form of each part, as the compiled engine reads it: role ->
+        ``compiled_state()`` (None for a part that hands none); after :meth:`reset`."""
+        parts = {
+            "predictor": self.predictor,
+            "barrier": self.barrier,
+            "safety_filter": self.safety_filter,
+            "reference": self.reference,
+            "dynamics": self.dynamics,
+            "loss": self.loss,
+        }
+        return {role: part.compiled_state() for role, part in parts.items()}
 
     def role_params(self) -> dict[str, dict[str, Any]]:
         """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
