@@ -16,13 +16,14 @@ robot's ROS 2 bag instead: the commands it would have sent.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from .results.episode import EpisodeResult
 from .ros2.shadow import shadow
-from .spec import RunSpec
+from .spec import PARAMETERS, RunSpec
 
 __all__ = ["run", "shadow"]
 
@@ -130,8 +131,18 @@ def run(
         else:
             units = "si"
     settings["units"] = units
+    log = logging.getLogger("conformal_control.run")
+    log.info(
+        "scene %s: %d agents, %d frames at %g fps",
+        scene.name,
+        scene.n_agents,
+        scene.n_frames,
+        scene.fps,
+    )
     run_spec = RunSpec.from_settings(given, base=base, **settings)
     run_spec = with_weights(run_spec, scene, None if data_root is None else str(data_root))
+    name, pp = run_spec.role("predictor")
+    log.info("predictor %s with %s; rule %s", name, pp, run_spec.role_name("rule"))
     if not progress:
         return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
     from .progress import progress as progress_bar
@@ -139,7 +150,9 @@ def run(
     total = scene.n_frames - 1 - scene.start_index
     if run_spec.max_frames is not None:
         total = min(total, run_spec.max_frames)
-    substeps = int(run_spec.params.get("substeps", scene.defaults.get("substeps", 1)))
+    # control instants per frame: the run's, else the scene's, else the table's default
+    default = scene.defaults.get("substeps", PARAMETERS["substeps"][0])
+    substeps = int(run_spec.params.get("substeps", default))
     bar = progress_bar(total, f"run {scene.name} [{run_spec.role_name('predictor')}]", "frames")
     steps = [0]  # control steps so far; the bar advances in whole frames
 

@@ -642,6 +642,7 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     from ..data import load_scene
     from ..predictors.training import with_weights
     from ..sim.multi import load_robots_file, run_multi
+    from ..spec import RunSpec
 
     scene = load_scene(
         args.scene,
@@ -676,14 +677,18 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     stored = _stored_options(args, data_root)  # what `run --config` replays
     if args.robots_file is not None:
         stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
-    result = run_multi(
-        scene,
-        spec,
+    spec = RunSpec.from_settings(
+        None,
+        base=spec,
         **tasks,
         sensor_history=args.sensor_history,
         reciprocity=args.reciprocity,
         information=args.information,
         lambda_scope=args.lambda_scope,
+    )
+    result = run_multi(
+        scene,
+        spec,
         extra_config={
             "command": command_line(args),
             "data_root": data_root,
