@@ -32,7 +32,13 @@ cpu``: what a step costs when other jobs share the cores; every timed path runs 
 thread). Usage::
 
     python benchmarks/bench_mpc.py [--repeats 400] [--samples 500] [--horizon 12] [--agents 20]
-                                   [--clock wall|cpu] [--data-root DATA]
+                                   [--clock wall|cpu] [--data-root DATA] [--planar]
+
+``--planar`` instead times, in one run on the CPU clock, the unicycle MPC's step at the
+planar protocol's budget (1,200 samples x 12 steps, ``--agents`` pedestrians) and each planar
+method's CPU time per decided step over the first scenario of every dataset (everything the
+protocol's loop does for the method -- predictions, the conformal bookkeeping, the plan, the
+loss and rule -- divided by the decided steps), with their ratio to that step.
 """
 
 from __future__ import annotations
@@ -160,6 +166,29 @@ def time_lockstep(method: str = "cc_mpc", data_root: Any = None, repeats: int = 
     return best["lockstep"], best["alone"]
 
 
+#: The planar methods timed per decided step (``--planar``).
+PLANAR_TIMED = ("mpc", "cc_mpc", "cc_mpc_pub", "acp_mpc", "ecp_mpc", "fcp_mpc_hard_pub")
+
+
+def time_planar(method: str, data_root: Any = None) -> float:
+    """CPU ms per decided step of a planar method over the first scenario of every dataset
+    (constant-velocity predictions; an ``fcp_mpc`` method's offline calibration done before
+    the clock starts): everything the protocol's loop does, divided by its decided steps."""
+    from conformal_control.bench import planar
+
+    m = planar.PLANAR_METHODS[method]
+    spent, steps = 0.0, 0
+    for task in planar.TASKS.values():
+        start = task.start_timesteps[0]
+        if m.calibration is not None:
+            planar.scenario_envelope(task, start, m, "constant_velocity", data_root)
+        t0 = time.process_time()
+        res = planar.run_scenario(task, start, m, "constant_velocity", data_root=data_root)
+        spent += time.process_time() - t0
+        steps += sum(bool(s["recorded"]) for s in res.steps)
+    return spent / steps * 1e3
+
+
 def measure(
     samples: int = 500,
     horizon: int = 12,
@@ -205,6 +234,24 @@ def measure(
     return rows
 
 
+def measure_planar(agents: int = 20, repeats: int = 400, data_root: Any = None) -> list:
+    """Rows: the unicycle MPC's step at the planar budget (1,200 samples x 12 steps,
+    ``agents`` pedestrians), then each planar method's CPU ms per decided step against it."""
+    compile_now()
+    uni = Unicycle(v_min=-0.8, v_max=0.8, omega_max=0.7, integrator="euler")
+    budget = Sampling(n_samples=1200, horizon=12, dt_plan=DT)
+
+    def make() -> SamplingMPC:
+        return SamplingMPC(ConstantVelocityPredictor(), uni, sampling=budget, substeps=1)
+
+    step = time_steps(make, uni, agents, repeats)
+    rows = [("mpc step, 1,200 x 12, unicycle", step, "target", 2.0, step / 2.0)]
+    for name in PLANAR_TIMED:
+        ms = time_planar(name, data_root)
+        rows.append((f"planar {name} per decided step", ms, "mpc step", step, ms / step))
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=400)
@@ -213,9 +260,29 @@ def main() -> None:
     ap.add_argument("--agents", type=int, default=20)
     ap.add_argument("--clock", choices=sorted(CLOCKS), default="wall")
     ap.add_argument("--data-root", default=None, help="the data folder (the ETH/UCY recordings)")
+    ap.add_argument(
+        "--planar",
+        action="store_true",
+        help="time the planar protocol's methods per decided step (CPU) against the MPC step "
+        "at their budget (1,200 x 12), both in this run",
+    )
     args = ap.parse_args()
     global clock
     clock = CLOCKS[args.clock]
+    if args.planar:
+        clock = CLOCKS["cpu"]
+        rows = measure_planar(args.agents, args.repeats, args.data_root)
+        print(
+            f"planar protocol per decided step against the MPC step at 1,200 x 12, "
+            f"{args.agents} agents (CPU clock, load average {os.getloadavg()[0]:.1f})"
+        )
+        for name, ms, base, base_ms, ratio in rows:
+            print(f"  {name:40s} {ms:8.3f} ms   {base:10s} {base_ms:8.3f} ms   ratio {ratio:6.2f}")
+        step = rows[0][1]
+        print(f"target MPC step <= 2 ms: {'met' if step <= 2.0 else 'NOT met'} ({step:.3f} ms)")
+        worst = max(r[4] for r in rows[1:])
+        print(f"target planar <= 1.5x the step: worst ratio {worst:.2f}")
+        return
     rows = measure(args.samples, args.horizon, args.agents, args.repeats, args.data_root)
     print(
         f"one control step, N = {args.samples} samples x H = {args.horizon} steps, "

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .exceptions import InputError
 from .results.episode import EpisodeResult
 from .ros2.shadow import shadow
 from .spec import PARAMETERS, RunSpec
@@ -93,6 +94,13 @@ def run(
     EpisodeResult
         ``.metrics`` (with units), ``.intervals``, ``.trajectory``, ``.config``,
         ``.plot()``, ``.save(dir)``.
+
+    Raises
+    ------
+    InputError
+        For what one robot's run cannot honour: a robots section (``robots=3``,
+        ``starts``/``goals``, a spec read from a multi-robot ``config.json``; run several
+        with :func:`conformal_control.sim.run_multi`), checked before the scene is loaded.
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
@@ -102,6 +110,9 @@ def run(
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
     base = spec if spec is not None else RunSpec()
+    if not isinstance(base, RunSpec):
+        raise InputError(f"spec must be a RunSpec, got {type(base).__name__}")
+    _refuse_robots(base, settings)
     seed = int(settings.get("seed", base.seed))
     _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
     if isinstance(scene, str):
@@ -188,6 +199,30 @@ def _check_plugins(run: RunSpec) -> None:
         name = roles[role][0]
         if isinstance(name, str):
             registry.entry(role, name)
+
+
+def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
+    """One robot runs here: a robots section (in ``spec`` or the keywords) is refused, never
+    dropped (``run("crossing", robots=3)`` used to run one robot without a word)."""
+    from .spec import ROBOT_FIELDS
+
+    given = [k for k in ROBOT_FIELDS if k in settings]
+    if spec.robots is None and not given:
+        return
+    import reprlib
+
+    short = reprlib.Repr()
+    short.maxstring, short.maxother = 30, 30
+    what = (
+        ", ".join(f"{k}={short.repr(settings[k])}" for k in given)
+        if given
+        else f"a robots section (robots={spec.robots.robots if spec.robots else None})"
+    )
+    raise InputError(
+        f"run() drives one robot and cannot honour {what}: run several with "
+        "conformal_control.sim.run_multi(scene, ...) with the same arguments, or "
+        "`conformal-control run --robots M`"
+    )
 
 
 def _check_keywords(kwargs: dict[str, Any]) -> None:

@@ -46,12 +46,16 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, TypeVar
 
+if TYPE_CHECKING:
+    import numpy as np
+
 __all__ = [
     "Capabilities",
     "CompiledForm",
     "DecisionFamily",
     "Environment",
     "GuaranteeKind",
+    "KeyedLosses",
     "Loss",
     "LossFunction",
     "Plugin",
@@ -79,6 +83,36 @@ GuaranteeKind = Literal["identity", "step_identity", "long_run", "none"]
 
 #: An interval's loss as a function of lambda (``None``: no loss for that interval).
 LossFunction = Callable[[float], "float | None"]
+
+#: What a loop may run lambda as: ``"run"`` (one lambda for the whole run, the paper's) or
+#: ``"agent"`` (one entry per agent, each learned from that agent's own loss; see
+#: :class:`~conformal_control.monitor.AgentMonitor`).
+LAMBDA_PER: tuple[str, ...] = ("run", "agent")
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyedLosses:
+    """An interval's loss split by key (by agent): what lambda's vector form learns from.
+
+    Returned by :meth:`Loss.components`. Key ``i``'s loss is its own term of the
+    interval's loss, evaluated with its own entry of lambda (for the CBF gap loss,
+    ``s(max_t gap_i(t) + lambda_i)``); the interval's loss at that lambda is the
+    largest of them.
+
+    Attributes
+    ----------
+    keys : ndarray of shape (n,)
+        The keys scored this interval (agent ids, int64).
+    values : ndarray of shape (n,)
+        Key ``i``'s loss; NaN where the key has no loss this interval (no truth).
+    at : callable or None
+        ``at(i, lam)``: key ``i``'s loss re-evaluated at another lambda (for rules with
+        ``uses_loss_function``); None when the loss cannot re-evaluate it.
+    """
+
+    keys: np.ndarray
+    values: np.ndarray
+    at: Callable[[int, float], float | None] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -557,7 +591,18 @@ class DecisionFamily(Plugin, ABC, Generic[ObsT, StateT, DecisionT, RecordT]):
 
     @abstractmethod
     def decide(self, state: StateT, lam: float) -> DecisionT:
-        """Decision D^lam(state) at the current control instant."""
+        """Decision D^lam(state) at the current control instant.
+
+        With lambda run per agent (a loop with ``lambda_per="agent"``, for a family whose
+        :meth:`lambda_keys` gives keys) ``lam`` is an array instead: one entry per key of
+        :meth:`lambda_keys`, in that order.
+        """
+
+    def lambda_keys(self) -> np.ndarray | None:
+        """The keys of lambda's entries for the current interval (valid after
+        :meth:`begin_interval`), in the order :meth:`decide` takes them: agent ids
+        (int64). None (the default): the family takes one lambda only."""
+        return None
 
     @abstractmethod
     def interval_record(self) -> RecordT:
@@ -582,9 +627,19 @@ class Loss(Plugin, ABC, Generic[RecordT, TruthT]):
     def __call__(self, record: RecordT, truth: TruthT, lam: float) -> float | None:
         """Loss l_k of interval k evaluated with the conformal variable ``lam``."""
 
-    def diagnostics(self, record: RecordT, truth: TruthT, lam: float) -> dict[str, float]:
-        """Extra per-interval figures to log beside the loss (optional)."""
+    def diagnostics(self, record: RecordT, truth: TruthT, lam: Any) -> dict[str, float]:
+        """Extra per-interval figures to log beside the loss (optional); ``lam`` as for
+        :meth:`components` (an array when lambda is run per agent)."""
         return {}
+
+    def components(self, record: RecordT, truth: TruthT, lam: Any) -> KeyedLosses | None:
+        """The interval's loss split by key (agent), each key's term with its own lambda.
+
+        ``lam`` is a float, or an array with one entry per key of the record (the family's
+        :meth:`DecisionFamily.lambda_keys`, in that order). None (the default): the loss
+        is not a function of per-key terms, and lambda cannot be run per agent with it.
+        """
+        return None
 
 
 class UpdateRule(Plugin, ABC):

@@ -251,6 +251,17 @@ def _configure_logging(verbose: int) -> None:
     logger.propagate = False
 
 
+#: The longest error message printed (characters): a value read from a file (a scene
+#: name, a cell) may be megabytes long, and a one-line error stays a line.
+MAX_ERROR_CHARS = 2000
+
+
+def _cut(text: str) -> str:
+    if len(text) <= MAX_ERROR_CHARS:
+        return text
+    return f"{text[:MAX_ERROR_CHARS]}... ({len(text) - MAX_ERROR_CHARS} characters cut)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``conformal-control`` script."""
     from . import progress
@@ -300,12 +311,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         if message is None:
             print(
-                f"error: internal error ({type(exc).__name__}: {exc}); this is a bug, please "
-                "report it with the command line (rerun with -v to see the traceback)",
+                f"error: internal error ({type(exc).__name__}: {_cut(str(exc))}); this is a "
+                "bug, please report it with the command line (rerun with -v to see the "
+                "traceback)",
                 file=sys.stderr,
             )
             return EXIT_BUG
-        print(f"error: {' '.join(message.split())}", file=sys.stderr)
+        print(f"error: {_cut(' '.join(message.split()))}", file=sys.stderr)
         return EXIT_ERROR
     finally:
         warnings.showwarning = old_show

@@ -1,4 +1,5 @@
-"""Result files written safely: atomically, with normal permissions, errors naming the path.
+"""Files written safely (atomically, with normal permissions, errors naming the path) and
+read safely (a size cap, no FIFO or device, a gzip file's decompressed size capped).
 
 Every metrics, config, trajectory and table file is written to a unique temporary name in
 its own folder and renamed over the target (:func:`os.replace`, atomic on POSIX and
@@ -10,6 +11,13 @@ like any file ``open(..., "w")`` creates (``tempfile.mkstemp`` would make it ``0
 An :class:`OSError` while writing (no space left, permission denied, read-only folder)
 becomes an :class:`~conformal_control.exceptions.OutputNotWritableError` whose message
 names the file and the reason.
+
+Every reader of a file a user names (``--config``, ``--robots-file``, recorded predictions,
+data files) goes through :func:`read_limited`: a FIFO, a device or a folder is refused
+before it is opened (reading ``/dev/zero`` ran until memory ran out; a FIFO hung), the
+file's bytes are capped (the cap is stated in the error), and a gzip file is decompressed
+with a cap on its decompressed size (a 204 KB gzip file held gigabytes of zeros), a corrupt
+one being a one-line error.
 
 It imports nothing from the package but :mod:`conformal_control.exceptions` (layer 1).
 """
@@ -25,7 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .exceptions import ConformalControlError, OutputNotWritableError
+from .exceptions import ConformalControlError, DataFormatError, OutputNotWritableError
 
 __all__ = [
     "TMP_PREFIX",
@@ -35,6 +43,7 @@ __all__ = [
     "atomic_write_json",
     "atomic_write_text",
     "is_temp_name",
+    "read_limited",
     "write_error",
 ]
 
@@ -120,3 +129,95 @@ def atomic_write_json(
         Further arguments of :func:`json.dumps` (e.g. ``default``, ``sort_keys``).
     """
     atomic_write_text(path, json.dumps(obj, indent=indent, **kwargs) + "\n")
+
+
+def _size_text(n: int) -> str:
+    return f"{n / 2**20:g} MiB" if n >= 2**20 else f"{n / 2**10:g} KiB"
+
+
+def read_limited(
+    path: str | os.PathLike[str], cap: int, *, what: str = "file", gzip_ok: bool = False
+) -> bytes:
+    """The bytes of the regular file ``path``, at most ``cap`` of them.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (a link to a regular file is followed).
+    cap : int
+        The most bytes read; with ``gzip_ok``, the most bytes decompressed.
+    what : str
+        What the file is, for the messages (``"--config file"``).
+    gzip_ok : bool
+        Decompress a gzip file (recognised by its magic bytes).
+
+    Returns
+    -------
+    bytes
+        The file's (decompressed) content.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    DataFormatError
+        Not a regular file (a folder, a FIFO, a device), larger than ``cap`` (the message
+        states the cap), or a corrupt gzip file; one line naming the file.
+    """
+    import stat
+    import zlib
+
+    p = os.fspath(path)
+
+    def refuse_special(mode: int) -> None:
+        if stat.S_ISREG(mode):
+            return
+        kind = (
+            "a folder"
+            if stat.S_ISDIR(mode)
+            else "a FIFO"
+            if stat.S_ISFIFO(mode)
+            else "a device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "not a regular file"
+        )
+        raise DataFormatError(f"{what} {p} is {kind}, not a file that can be read")
+
+    try:
+        refuse_special(os.stat(p).st_mode)  # before opening: opening a device may act
+        # without blocking (a FIFO swapped in meanwhile is seen by fstat, not waited on)
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} not found: {p}") from None
+    except OSError as exc:
+        if isinstance(exc, ConformalControlError):
+            raise
+        raise DataFormatError(f"{what} {p} cannot be read: {exc.strerror or exc}") from None
+    too_big = DataFormatError(f"{what} {p} is larger than {_size_text(cap)}, the most read")
+    try:
+        with os.fdopen(fd, "rb") as fh:
+            refuse_special(os.fstat(fh.fileno()).st_mode)
+            head = fh.read(2)
+            if gzip_ok and head == b"\x1f\x8b":
+                import gzip
+
+                fh.seek(0)
+                with gzip.GzipFile(fileobj=fh) as gz:
+                    data = gz.read(cap + 1)
+                if len(data) > cap:
+                    raise DataFormatError(
+                        f"{what} {p} decompresses to more than {_size_text(cap)}, the most read"
+                    )
+                return data
+            data = head + fh.read(cap + 1 - len(head))
+    except (zlib.error, EOFError) as exc:
+        raise DataFormatError(f"{what} {p} is not a valid gzip file ({exc})") from None
+    except OSError as exc:
+        if isinstance(exc, ConformalControlError):
+            raise
+        if exc.__class__.__name__ == "BadGzipFile":
+            raise DataFormatError(f"{what} {p} is not a valid gzip file ({exc})") from None
+        raise DataFormatError(f"{what} {p} cannot be read: {exc.strerror or exc}") from None
+    if len(data) > cap:
+        raise too_big
+    return data

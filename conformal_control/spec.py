@@ -73,6 +73,13 @@ class ParamInfo:
     closed: tuple[bool, bool] = (True, True)
     plausible: tuple[float, float, str] | None = None
 
+    @property
+    def range_text(self) -> str:
+        """The range as a reader writes it, e.g. ``(0, inf)`` or ``[1, inf)``."""
+        lo = "[" if self.closed[0] and math.isfinite(self.low) else "("
+        hi = "]" if self.closed[1] and math.isfinite(self.high) else ")"
+        return f"{lo}{self.low:g}, {self.high:g}{hi}"
+
 
 def _p(default: Any, doc: str, **info: Any) -> Any:
     """A table entry: ``default`` (None: from the scene) and its :class:`ParamInfo`."""
@@ -165,8 +172,25 @@ class Parameters:
         -math.inf, "clip lambda from below (1/time) against wind-up", dimension=_RATE
     )
     lambda_max: float = _p(math.inf, "clip lambda from above (1/time)", dimension=_RATE)
+    lambda_per: str = _p(
+        "run",
+        "'run': one lambda for the run; 'agent': one per agent, each learned from its own loss",
+        kind="text",
+    )
+    lambda_prior: float = _p(
+        0.5,
+        "per agent: quantile of the current lambdas a new agent starts at, in [0, 1]",
+        low=0.0,
+        high=1.0,
+    )
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
+    )
+    edge: str = _p(
+        "escape",
+        "edge rule: 'escape' (never close in on an agent already within the collision "
+        "distance) or 'paper' (the rows as published)",
+        kind="text",
     )
     delta: float | None = _p(
         None,
@@ -176,14 +200,21 @@ class Parameters:
         closed=(False, False),
     )
     speed_sides: int = _p(
-        16, "sides of the inscribed speed polygon (0 = box)", kind="int", **_NON_NEGATIVE
+        16,
+        "sides of the inscribed speed polygon (0 = box; else 3 to 1024)",
+        kind="int",
+        low=0.0,
+        high=1024.0,
     )
-    substeps: int = _p(4, "QP solves (control instants) per data frame", kind="int", low=1.0)
+    substeps: int = _p(
+        4, "QP solves (control instants) per data frame (1 to 100)", kind="int", low=1.0, high=100.0
+    )
     history: int | None = _p(
         None,
-        "frames of history handed to the predictor; default 4 s of frames",
+        "frames of history handed to the predictor; default 4 s of frames (at most 100000)",
         kind="int",
         low=1.0,
+        high=100_000.0,
     )
     v_max: float | None = _p(None, "robot speed bound (m/s)", **_POSITIVE)
     barrier_margin: float = _p(
@@ -303,7 +334,41 @@ def _role_parts(name: str, value: RoleValue) -> tuple[Any, dict[str, Any]]:
         return value["name"], dict(params)
     if value is None or isinstance(value, str):
         return value, {}
+    if isinstance(value, (bool, numbers.Number, bytes, list, set, frozenset)):
+        raise _spec_error(
+            f"role {name} must be a registered name, (name, params) or an instance, got "
+            f"{_short(value)}"
+        )
     return value, {}  # an instance: checked against the role's base class when built
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, cut to a length a one-line error can show."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxstring = r.maxother = 60
+    return r.repr(value)
+
+
+def _check_stored_param(where: str, name: str, value: Any) -> None:
+    """A controller parameter read from a file: a finite number (lambda_min may be -inf,
+    lambda_max +inf), a short text with a unit (``"18m"``) or None (the scene's default)."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, str)):
+        raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+    if isinstance(value, str):
+        if len(value) > 64:
+            raise _spec_error(f"{where}: parameter {name} must be a number, got {_short(value)}")
+        return
+    v = float(value)
+    if math.isnan(v) or (
+        math.isinf(v)
+        and not (name == "lambda_min" and v < 0)
+        and not (name == "lambda_max" and v > 0)
+    ):
+        raise _spec_error(f"{where}: parameter {name} must be finite, got {value!r}")
 
 
 #: The most robots one run drives.
@@ -560,6 +625,11 @@ class RunSpec:
             raise _spec_error(f"engine must be 'auto', 'loop' or 'batch', got {self.engine!r}")
         if self.max_frames is not None and self.max_frames < 1:
             raise _spec_error(f"max_frames must be >= 1, got {self.max_frames!r}")
+        if not 0 <= self.seed < 2**63:
+            raise _spec_error(f"seed must be an integer in [0, 2**63), got {self.seed!r}")
+        ls = self.lambda_safe
+        if ls is not None and not math.isfinite(ls):
+            raise _spec_error(f"lambda_safe must be finite, got {ls!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))
         if self.robots is not None and not isinstance(self.robots, Robots):
@@ -773,6 +843,13 @@ class RunSpec:
                     k: float(v) if isinstance(v, str) and v in _INFINITE_TEXT else v
                     for k, v in value.items()
                 }
+                for k, v in value.items():
+                    _check_stored_param(where, str(k), v)
+            if key in ROLE_FIELDS and not (value is None or isinstance(value, (str, dict, list))):
+                raise _spec_error(
+                    f"{where}: {key} must be a registered name or {{'name': ..., 'params': "
+                    f"{{...}}}}, got {_short(value)}"
+                )
             if key == "robots" and value is not None:
                 if not isinstance(value, dict) or set(value) - set(ROBOT_FIELDS):
                     raise _spec_error(
@@ -794,6 +871,11 @@ class RunSpec:
             return cls(**kw)
         except TypeError as exc:  # pragma: no cover - the keys were checked above
             raise _spec_error(f"{where}: {exc}") from None
+        except InputError as exc:
+            message = str(exc)
+            if message.startswith(where):
+                raise
+            raise _spec_error(f"{where}: {message}") from None
 
 
 # ---------------------------------------------------------------------- the run context

@@ -141,3 +141,34 @@ def test_the_fallback_parameter_of_the_command_line_is_the_role(tmp_path) -> Non
     for m in metrics:
         m.pop("wall_s")
     assert metrics[0] == metrics[1]
+
+
+# ------------------------------------------------------------------ values read from a file
+@pytest.mark.parametrize(
+    ("data", "words"),
+    [
+        ({"predictor": 5}, "predictor must be a registered name"),
+        ({"rule": True}, "rule must be a registered name"),
+        ({"params": {"epsilon": float("nan")}}, "parameter epsilon must be finite, got nan"),
+        ({"params": {"eta": float("inf")}}, "parameter eta must be finite"),
+        ({"params": {"lambda_max": float("-inf")}}, "parameter lambda_max must be finite"),
+        ({"params": {"tau": [1]}}, "parameter tau must be a number"),
+        ({"params": {"tau": True}}, "parameter tau must be a number"),
+        ({"seed": -3}, "seed must be an integer in [0, 2**63), got -3"),
+        ({"lambda_safe": float("nan")}, "lambda_safe must be finite"),
+    ],
+)
+def test_from_dict_refuses_what_fails_later_with_one_input_error(data: dict, words: str) -> None:
+    """These passed ``from_dict`` and failed later as TypeError or ValueError."""
+    from conformal_control.exceptions import InputError
+
+    with pytest.raises(InputError) as info:
+        RunSpec.from_dict(data, where="config.json")
+    assert words in str(info.value) and str(info.value).startswith("config.json")
+
+
+def test_from_dict_keeps_what_config_json_writes() -> None:
+    spec = RunSpec(params={"lambda_min": -math.inf, "tau": "0.4s", "eta": 2.0}, seed=7)
+    back = RunSpec.from_dict(json.loads(json.dumps(spec.as_dict())))
+    assert back.params["lambda_min"] == -math.inf and back.params["tau"] == "0.4s"
+    assert back.seed == 7

@@ -18,15 +18,20 @@ them with their settings and tuning grids):
 ``conformal_pid``  conformal PID control (Angelopoulos et al. 2023) on the gap loss
 ``conformal_dtaci`` DtACI experts (Gibbs & Candes 2022) on the gap loss
 ``conformal_aci``  ACI's rule on the collision loss (target: a collision rate per interval)
+``conformal_agent`` a lambda per pedestrian, each its own fixed-eta rule on its own gap loss
+``conformal_agent_dtaci`` a lambda per pedestrian, each its own DtACI experts
+``conformal_dtaci_floor`` DtACI experts with a lambda floor (the floor tuned)
 ``oracle``         the true future as prediction, lambda = 0 (the paper's gt/noLearn)
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
 ``fallback:*``     ``conformal`` with another fallback (``brake``, ``relax``)
 ``acp``            adaptive conformal prediction regions (when registered)
 ``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
 ``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
+``cc_mpc_margin``  the same learning its distance from the forecast's clearance error
 ``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
+``fcp_mpc``        the sampling MPC against conformalized distance fields (online calibration)
 
 The MPC families are not in the default method set (``--methods mpc,cc_mpc,...``).
 """
@@ -280,6 +285,14 @@ MPC_SEARCH: dict[str, Any] = {
     "fallback": "least_violation",
 }
 
+#: The DtACI experts' learning rates on the crossing suites (1/s).
+DTACI_GAMMAS = (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA)
+#: The floor of every pedestrian's lambda in the per-pedestrian families (1/s): chosen on
+#: the dev split (docs/benchmark.md: per-agent floors -25 to -40/s under the nominal,
+#: delayed and noisy predictors), above the feasibility floor -a h_max = -50/s where a far
+#: pedestrian's row alone makes the step infeasible.
+AGENT_FLOOR = -30.0
+
 _DECLARED: tuple[Family, ...] = (
     Family("nolearn", "lambda = 0, no learning (pred/noLearn)", learn=False),
     Family(
@@ -324,7 +337,42 @@ _DECLARED: tuple[Family, ...] = (
         settings=(-0.1,),
         tune=(-0.2, -0.1, -0.05),
         rule="dtaci",
-        rule_params={"gammas": (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA), "sigma": 0.01},
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+    ),
+    Family(
+        "conformal_agent",
+        "a lambda per pedestrian (its row's slack), each its own fixed-eta rule on its own "
+        "gap loss, floored at -30/s",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's target)",
+        settings=(-0.05,),
+        tune=(-0.2, -0.15, -0.1, -0.05, 0.0),
+        params={"eta": ETA, "lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+    ),
+    Family(
+        "conformal_agent_dtaci",
+        "a lambda per pedestrian, each its own DtACI experts on its own gap loss, floored at -30/s",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's target)",
+        settings=(-0.05,),
+        tune=(-0.2, -0.1, -0.05, 0.0),
+        params={"lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+        rule="dtaci",
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+    ),
+    Family(
+        "conformal_dtaci_floor",
+        "DtACI experts on the gap loss (eps = -0.05) with a lambda floor",
+        setting="params.lambda_min",
+        label="floor={:g}/s",
+        meaning="lambda floor (1/s)",
+        settings=(-40.0,),
+        tune=(-20.0, -30.0, -40.0, -50.0),
+        params={"epsilon": -0.05},
+        rule="dtaci",
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
     ),
     Family(
         "conformal_aci",
@@ -408,6 +456,20 @@ _DECLARED: tuple[Family, ...] = (
         role_params={"family": MPC_SEARCH},
     ),
     Family(
+        "cc_mpc_margin",
+        "conformal controller (CDT) on the forecast's clearance error: sampling MPC, safe "
+        "distance d_c - lambda, fixed-eta rule on the margin miscoverage (lambda follows the "
+        "predictor's error near pedestrians)",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (rate of intervals whose clearance error exceeds the margin)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.1, "lambda_min": -1.0, "lambda_max": 1.0},
+        roles={"family": "mpc", "loss": "margin_miscoverage"},
+        role_params={"family": MPC_SEARCH},
+    ),
+    Family(
         "oracle_mpc",
         "sampling MPC planning with the true future (oracle predictor), margin 0, no "
         "learning: what perfect prediction gives the MPC",
@@ -428,6 +490,27 @@ _DECLARED: tuple[Family, ...] = (
         rule_params={"gamma": 0.02},
         roles={"family": "acp_mpc"},
         role_params={"family": {**MPC_SEARCH, "max_inflation": 1.0}},
+    ),
+    Family(
+        "fcp_mpc",
+        "sampling MPC against conformalized distance fields (FCP-MPC, hard), calibrated "
+        "online from the episode's past, with the published adaptation of the envelope",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (rate of fields exceeding the envelope)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.05, "lambda_init": 0.0, "lambda_min": -4.0, "lambda_max": 0.8},
+        roles={"family": "fcp_mpc", "loss": "field_miscoverage"},
+        role_params={
+            "family": {
+                **MPC_SEARCH,
+                "continuous": True,
+                "calibration__grid_size": 64,
+                "calibration__min_pairs": 12,
+                "calibration__refit_every": 10,
+            }
+        },
     ),
     Family(
         "ecp_mpc",

@@ -126,6 +126,10 @@ class PlanarTask:
         m, m, rad.
     goal : (x, y)
         m.
+    part : (int, int) or None
+        The time steps (first, last) of the recording's part the scenarios are drawn from
+        (``fcp-planar-dense``'s dev or test part), None: the whole recording. An
+        offline-calibrated ``fcp_mpc`` calibrates once for the part (:func:`scenario_envelope`).
     """
 
     dataset: str
@@ -135,6 +139,7 @@ class PlanarTask:
     max_steps: int
     init_pose: tuple[float, float, float]
     goal: tuple[float, float]
+    part: tuple[int, int] | None = None
 
 
 #: The protocol's tasks, as published. univ: the published repository names the dataset
@@ -278,6 +283,16 @@ def recording(task: PlanarTask, data_root: str | Path | None = None) -> PlanarRe
 
 
 # ------------------------------------------------------------------------------ methods
+#: How a method's row is defined: by the published code ("published", the row's name
+#: follows the published method) or by us ("ours").
+DEFINITIONS = ("published", "ours")
+#: How ``fcp_mpc`` is calibrated on the protocol (:mod:`~conformal_control.bench.planar_fcp`):
+#: every time step of the recording (the published runs'), or every time step outside the
+#: scenario's window (ours: the test window is not calibrated on; in the dense suite, the
+#: other part of the recording).
+CALIBRATIONS = ("recording", "held_out")
+
+
 @dataclass(frozen=True)
 class PlanarMethod:
     """One of our methods on the protocol: a decision family with its loss and rule.
@@ -285,7 +300,7 @@ class PlanarMethod:
     Attributes
     ----------
     name : str
-    family : {"cbf", "mpc", "acp_mpc", "ecp_mpc"}
+    family : {"cbf", "mpc", "acp_mpc", "ecp_mpc", "fcp_mpc", "soft_mpc"}
     description : str
     learn : bool
     family_params : mapping
@@ -293,6 +308,16 @@ class PlanarMethod:
     loss, rule : str
         Registered names.
     loss_params, rule_params : mapping
+    definition : {"published", "ours"}
+        Whether the row follows a published method's definition (then ``published`` names
+        the published table's row) or is ours.
+    published : str or None
+        The published row a ``published`` definition reproduces.
+    predictor : str or None
+        A predictor replacing the run's (``oracle``: the recording's true future).
+    calibration : {"recording", "held_out"} or None
+        How an ``fcp_mpc`` method's envelopes are calibrated (None: online, from the
+        episode's own past).
     """
 
     name: str
@@ -304,6 +329,18 @@ class PlanarMethod:
     loss_params: Mapping[str, Any] = field(default_factory=dict)
     rule: str = "fixed_eta"
     rule_params: Mapping[str, Any] = field(default_factory=dict)
+    definition: str = "ours"
+    published: str | None = None
+    predictor: str | None = None
+    calibration: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.definition not in DEFINITIONS:
+            raise ValueError(f"definition must be one of {DEFINITIONS}, got {self.definition!r}")
+        if self.calibration is not None and self.calibration not in CALIBRATIONS:
+            raise ValueError(
+                f"calibration must be one of {CALIBRATIONS} or None, got {self.calibration!r}"
+            )
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -321,9 +358,9 @@ CBF_PARAMS: dict[str, float] = {
 }
 #: The MPC's search: the published runs' budget (1,200 sampled sequences, 12 steps of
 #: 0.4 s, commands held for 2 steps). With no safe sample our MPCs take the plan that
-#: intrudes least (``least_violation``); ``cc_mpc_brake`` stands still instead, as the
-#: published runs do (pedestrians replayed from a recording do not avoid a robot that
-#: stopped in their way).
+#: intrudes least (``least_violation``) and check the safe distance over whole plan steps;
+#: the rows of a published definition stand still (``brake``, the published runs' velocity
+#: 0) and check step ends only (:data:`PUBLISHED_SEARCH`).
 MPC_PARAMS: dict[str, Any] = {
     "sampling__n_samples": 1200,
     "sampling__horizon": 12,
@@ -331,6 +368,13 @@ MPC_PARAMS: dict[str, Any] = {
     "sampling__hold": 2,
     "fallback": "least_violation",
 }
+#: What a published definition changes in :data:`MPC_PARAMS`.
+PUBLISHED_SEARCH: dict[str, Any] = {"fallback": "brake", "continuous": False}
+_SHORTFALL = {"d_safe": 2.0, "d_c": COLLISION_M}
+_CC_RULE = {"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": COLLISION_M}
+#: FCP-MPC's published adaptation (``CPOnlineAdapter``): target 0.1, step 0.05, the radii's
+#: multiplier in [0.2, 5] (lambda = 1 - multiplier), starting at 1.
+_FCP_RULE = {"epsilon": 0.1, "eta": 0.05, "lambda_init": 0.0, "lambda_min": -4.0, "lambda_max": 0.8}
 
 PLANAR_METHODS: dict[str, PlanarMethod] = {
     m.name: m
@@ -343,12 +387,48 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             rule_params={"epsilon": -0.1, "eta": 2.0},
         ),
         PlanarMethod(
+            "cbf_oracle",
+            "cbf",
+            "conformal CBF family planning with the recording's true future, lambda = 0",
+            False,
+            predictor="oracle",
+        ),
+        PlanarMethod(
             "mpc",
             "mpc",
             "sampling MPC, safe distance d_c (lambda = 0), no learning",
             False,
             loss="distance_shortfall",
-            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
+            loss_params=_SHORTFALL,
+        ),
+        PlanarMethod(
+            "oracle_mpc",
+            "mpc",
+            "sampling MPC planning with the recording's true future, safe distance d_c, no "
+            "learning: what perfect prediction gives this planner",
+            False,
+            loss="distance_shortfall",
+            loss_params=_SHORTFALL,
+            predictor="oracle",
+        ),
+        PlanarMethod(
+            "blind_mpc",
+            "mpc",
+            "sampling MPC with safe distance 0: a robot that ignores the pedestrians",
+            False,
+            family_params={"d_c": 0.0},
+            loss="distance_shortfall",
+            loss_params=_SHORTFALL,
+        ),
+        PlanarMethod(
+            "mpc_brake",
+            "mpc",
+            "mpc standing still when no sample is safe (the alternative to least_violation, "
+            "compared on the dense suite's dev part)",
+            False,
+            family_params={"fallback": "brake"},
+            loss="distance_shortfall",
+            loss_params=_SHORTFALL,
         ),
         PlanarMethod(
             "cc_mpc",
@@ -356,8 +436,8 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             "conformal controller (CDT): sampling MPC, safe distance d_c - lambda, "
             "fixed-eta rule on the distance shortfall below 2 m, eps = 0.1",
             loss="distance_shortfall",
-            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
-            rule_params={"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": COLLISION_M},
+            loss_params=_SHORTFALL,
+            rule_params=_CC_RULE,
         ),
         PlanarMethod(
             "cc_mpc_brake",
@@ -365,8 +445,8 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             "cc_mpc standing still when no sample is safe (the published runs' fallback)",
             family_params={"fallback": "brake"},
             loss="distance_shortfall",
-            loss_params={"d_safe": 2.0, "d_c": COLLISION_M},
-            rule_params={"epsilon": 0.1, "eta": 0.5, "lambda_min": -2.0, "lambda_max": COLLISION_M},
+            loss_params=_SHORTFALL,
+            rule_params=_CC_RULE,
         ),
         PlanarMethod(
             "acp_mpc",
@@ -386,18 +466,148 @@ PLANAR_METHODS: dict[str, PlanarMethod] = {
             rule="aci",
             rule_params={"alpha": 0.1, "gamma": 0.02},
         ),
+        PlanarMethod(
+            "fcp_mpc",
+            "fcp_mpc",
+            "conformalized distance fields, hard constraint, calibrated on the recording "
+            "outside the scenario's window, with the published online adaptation of the "
+            "radii (alpha = 0.1, step 0.05)",
+            family_params={"calibration__slack": "upper", "continuous": True},
+            loss="field_miscoverage",
+            rule_params=_FCP_RULE,
+            calibration="held_out",
+        ),
+        # ---- the published definitions (the published table's rows)
+        PlanarMethod(
+            "acp_mpc_pub",
+            "acp_mpc",
+            "ACP-MPC as published: ACI alpha = 0.2, gamma = 0.05, velocity 0 when no plan is "
+            "safe, step ends checked",
+            family_params=PUBLISHED_SEARCH,
+            loss="plan_miscoverage",
+            rule="aci",
+            rule_params={"alpha": 0.2, "gamma": 0.05},
+            definition="published",
+            published="ACP-MPC",
+        ),
+        PlanarMethod(
+            "cc_mpc_pub",
+            "soft_mpc",
+            "CC-MPC as published: no safe distance, a reward of weight -lambda per metre "
+            "of predicted distance, fixed-eta rule on -d_min (eps = -2 m, eta = 5000)",
+            family_params={"continuous": False},
+            loss="negative_distance",
+            rule_params={"epsilon": -2.0, "eta": 5000.0, "lambda_init": -1.0, "lambda_max": -0.01},
+            definition="published",
+            published="CC-MPC",
+        ),
+        PlanarMethod(
+            "ecp_mpc_pub",
+            "ecp_mpc",
+            "ECP-MPC as published: ACI alpha = 0.1, gamma = 0.02, 15 calibration times, "
+            "velocity 0 when no plan is safe, step ends checked",
+            family_params={**PUBLISHED_SEARCH, "calibration_size": 15},
+            loss="ego_miscoverage",
+            rule="aci",
+            rule_params={"alpha": 0.1, "gamma": 0.02},
+            definition="published",
+            published="ECP-MPC",
+        ),
+        PlanarMethod(
+            "fcp_mpc_hard_pub",
+            "fcp_mpc",
+            "FCP-MPC (hard) as published: envelopes calibrated offline on the recording "
+            "(alpha = 0.1), not adapted, velocity 0 when no plan is safe, step ends checked",
+            False,
+            family_params={**PUBLISHED_SEARCH, "calibration__slack": "published"},
+            loss="field_miscoverage",
+            calibration="recording",
+            definition="published",
+            published="FCP-MPC (hard)",
+        ),
+        PlanarMethod(
+            "fcp_mpc_soft_pub",
+            "fcp_mpc",
+            "FCP-MPC (soft) as published: the same envelopes as a penalty (w_safety = 100), "
+            "not adapted",
+            False,
+            family_params={
+                **PUBLISHED_SEARCH,
+                "calibration__slack": "published",
+                "constraint__mode": "soft",
+                "constraint__w_safety": 100.0,
+            },
+            loss="field_miscoverage",
+            calibration="recording",
+            definition="published",
+            published="FCP-MPC (soft)",
+        ),
     )
 }
+
+
+#: A shifted predictor on the protocol: ``<predictor>@delay-<seconds>s`` (the forecast of
+#: data that old used as current, :class:`~conformal_control.predictors.shift.DelayedPredictor`;
+#: a whole number of 0.4 s samples, at most 7).
+SHIFT_SEPARATOR = "@"
 
 
 def _predictor(name: str, task: PlanarTask, data_root: str | Path | None) -> TimedPredictor:
     from .. import registry
 
+    if SHIFT_SEPARATOR in name:
+        import re
+
+        from ..predictors.shift import DelayedPredictor
+
+        base, shift = name.split(SHIFT_SEPARATOR, 1)
+        match = re.fullmatch(r"delay-([0-9]*\.?[0-9]+)s", shift)
+        if match is None:
+            raise ValueError(
+                f"unknown planar predictor shift {shift!r} in {name!r}: use "
+                f"<predictor>{SHIFT_SEPARATOR}delay-<seconds>s"
+            )
+        inner = _predictor(base, task, data_root).predictor
+        return TimedPredictor(DelayedPredictor(inner, delay_s=float(match.group(1))))
+    if name == "oracle":
+        return TimedPredictor(RecordingOracle(recording(task, data_root)))
     if name == "recorded":
         inner = registry.create("predictor", "recorded", **_recorded_params(task, data_root))
     else:
         inner = registry.create("predictor", name)
     return TimedPredictor(inner)
+
+
+class RecordingOracle(Predictor):
+    """The recording's true future as the prediction (the oracle rows).
+
+    A query's ``frame`` is the recording's sample (frame / 10); the forecast of a
+    pedestrian is its recorded positions at the next ``horizon`` samples, NaN where it is
+    not in the recording (the families hold the last known position there, counted).
+
+    Parameters
+    ----------
+    recording : PlanarRecording
+        The recording the protocol replays.
+    """
+
+    def __init__(self, recording: PlanarRecording) -> None:
+        self.recording = recording
+
+    def reset(self) -> None:
+        rec = self.recording
+        self._column = {int(pid): c for c, pid in enumerate(rec.ids.tolist())}
+
+    def predict(self, query: PredictionQuery) -> Forecast:
+        if not hasattr(self, "_column"):
+            self.reset()
+        rec = self.recording
+        i = int(query.frame) - rec.first
+        cols = np.array([self._column[int(pid)] for pid in query.ids], dtype=np.int64)
+        out = np.full((cols.size, int(query.horizon), 2), np.nan)
+        for k in range(int(query.horizon)):
+            out[:, k] = rec.at(i + k + 1, cols)
+        return Forecast(out)
 
 
 class TimedPredictor(Predictor):
@@ -438,8 +648,22 @@ def _recorded_params(task: PlanarTask, data_root: str | Path | None) -> dict[str
 RECORDED_DATASETS = ("eth", "hotel", "zara1")
 
 
-def build_method(method: PlanarMethod, predictor: Any, seed: int = 0) -> tuple[Any, Any, Any, Any]:
-    """``(family, plant, loss, rule)`` of a method on the protocol's robot."""
+def build_method(
+    method: PlanarMethod, predictor: Any, seed: int = 0, envelope: Any = None
+) -> tuple[Any, Any, Any, Any]:
+    """``(family, plant, loss, rule)`` of a method on the protocol's robot.
+
+    Parameters
+    ----------
+    method : PlanarMethod
+        The method.
+    predictor : Predictor
+        The predictor its family plans with.
+    seed : int
+        The family's random state.
+    envelope : FunctionalEnvelope, optional
+        An ``fcp_mpc`` method's calibrated envelopes (:func:`scenario_envelope`).
+    """
     from .. import registry
     from ..cbf.barriers import APFBarrier
     from ..cbf.constraint import ConformalConstraint
@@ -473,6 +697,8 @@ def build_method(method: PlanarMethod, predictor: Any, seed: int = 0) -> tuple[A
     else:
         plant = Unicycle(**limits)
         params = {**MPC_PARAMS, "d_c": COLLISION_M, "substeps": 1, "random_state": seed, **fp}
+        if envelope is not None:
+            params["envelope"] = envelope
         family = registry.create(
             "family", method.family, predictor=predictor, dynamics=plant, **params
         )
@@ -683,8 +909,12 @@ def _scenario(
     from ..loop import ConformalStepper
 
     rec = recording(task, data_root)
+    predictor = method.predictor or predictor
     pred = _predictor(predictor, task, data_root)
-    family, plant, loss, rule = build_method(method, pred, seed)
+    envelope = None
+    if method.calibration is not None:
+        envelope = scenario_envelope(task, start_timestep, method, predictor, data_root)
+    family, plant, loss, rule = build_method(method, pred, seed, envelope)
     stepper = ConformalStepper(family, loss, rule, learn=method.learn)
     stepper.start()
     x = plant.initial_state(np.array(task.init_pose[:2]), task.init_pose[2])
@@ -765,10 +995,99 @@ def _scenario(
     return out
 
 
+# ------------------------------------------------------------------------------ fcp_mpc
+_PREDICTIONS: dict[tuple[str, ...], Any] = {}
+_ENVELOPES: dict[tuple[Any, ...], Any] = {}
+
+
+def method_calibration(method: PlanarMethod) -> Any:
+    """The :class:`~conformal_control.mpc.fcp.FieldCalibration` of an ``fcp_mpc`` method
+    (its ``calibration__*`` parameters over the published defaults)."""
+    from ..mpc.fcp import FieldCalibration
+
+    pre = "calibration__"
+    given = {k[len(pre) :]: v for k, v in method.family_params.items() if k.startswith(pre)}
+    return FieldCalibration(**given)
+
+
+def scenario_envelope(
+    task: PlanarTask,
+    start_timestep: int,
+    method: PlanarMethod,
+    predictor: str,
+    data_root: str | Path | None = None,
+) -> Any:
+    """The envelopes an ``fcp_mpc`` method plans with in a scenario, calibrated offline on
+    the recording with the scenario's predictor (:mod:`~conformal_control.bench.planar_fcp`;
+    cached in the process: the seeds of a scenario share them).
+
+    Parameters
+    ----------
+    task : PlanarTask
+        The dataset's protocol.
+    start_timestep : int
+        The scenario's start.
+    method : PlanarMethod
+        An ``fcp_mpc`` method with a ``calibration``.
+    predictor : str
+        The predictor the scenario runs with.
+    data_root : str or Path, optional
+        The data folder.
+    """
+    from .planar_fcp import calibrate, predictions_on
+
+    if method.calibration is None:
+        raise ValueError(f"method {method.name!r} is calibrated online, not offline")
+    settings = method_calibration(method)
+    rec = recording(task, data_root)
+    key = (task.dataset, task.recording, predictor, str(data_root))
+    if key not in _PREDICTIONS:
+        horizon = int(MPC_PARAMS["sampling__horizon"])
+
+        def frame_of(i: int) -> int:
+            return i + rec.first  # the query's frame: the recording's sample index
+
+        _PREDICTIONS.clear()  # one recording's at a time (they hold every forecast)
+        _PREDICTIONS[key] = predictions_on(
+            rec, _predictor(predictor, task, data_root), horizon, STEP_S, frame_of, task.dataset
+        )
+    from .planar_fcp import scenario_samples
+
+    horizon = int(MPC_PARAMS["sampling__horizon"])
+    last_sample = rec.positions.shape[0] - 1
+    if task.part is None:  # the scenario's own grid; held out: its window
+        first = rec.sample(start_timestep, task.frame_offset)
+        span = (first, min(first + min(int(task.max_steps), 200) - 1, last_sample))
+        lo, hi = scenario_samples(rec, first, task.max_steps)
+        window = (lo - horizon, hi)
+    else:  # the part's grid, one calibration for its scenarios; held out: the other part
+        span = (
+            rec.sample(task.part[0], task.frame_offset),
+            rec.sample(task.part[1], task.frame_offset),
+        )
+        span = (max(span[0], 0), min(span[1], last_sample))
+        window = (span[0] - horizon, span[1])
+    exclude = window if method.calibration == "held_out" else None
+    cal = tuple(sorted(settings.get_params().items()))
+    ekey = (*key, span, exclude, cal)
+    if ekey not in _ENVELOPES:
+        if len(_ENVELOPES) >= 6:
+            _ENVELOPES.pop(next(iter(_ENVELOPES)))
+        _ENVELOPES[ekey] = calibrate(
+            rec, _PREDICTIONS[key], span, [task.init_pose[:2], task.goal], exclude, settings
+        )
+    return _ENVELOPES[ekey]
+
+
 # ------------------------------------------------------------------------------ suite
 def predictors_for(dataset: str, predictors: Sequence[str]) -> list[str]:
-    """The predictors run on a dataset: ``recorded`` only where its file exists."""
-    return [p for p in predictors if p != "recorded" or dataset in RECORDED_DATASETS]
+    """The predictors run on a dataset: ``recorded`` (and its shifts) only where its file
+    exists."""
+    return [
+        p
+        for p in predictors
+        if p.split(SHIFT_SEPARATOR)[0] != "recorded" or dataset in RECORDED_DATASETS
+    ]
 
 
 def run_planar(
@@ -779,13 +1098,17 @@ def run_planar(
     datasets: Iterable[str] | None = None,
     data_root: str | Path | None = None,
     seed: int = 0,
+    seeds: Sequence[int] | None = None,
+    tasks: Mapping[str, PlanarTask] | None = None,
+    suite: str = SUITE,
     progress: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """Run the suite: every dataset's scenarios x methods x predictors.
+    """Run the suite: every dataset's scenarios x methods x predictors x seeds.
 
-    Writes ``OUT/config.json`` (the protocol, the methods, the predictors, the seed) and
-    ``OUT/rows.jsonl`` (one row per scenario: its metrics, the family's counters, the
-    per-step log); returns the rows.
+    Writes ``OUT/config.json`` (the protocol, the methods, the predictors, the seeds) and
+    ``OUT/rows.jsonl`` (one row per scenario and seed: its metrics, the family's counters,
+    the per-step log); returns the rows. A method with its own predictor (the oracle rows)
+    runs once per dataset, under that predictor's name.
 
     Parameters
     ----------
@@ -800,69 +1123,88 @@ def run_planar(
     data_root : str or Path, optional
         The data folder.
     seed : int
-        The families' random state.
+        The families' random state (with ``seeds`` None).
+    seeds : sequence of int, optional
+        Several random states: every scenario runs once per seed.
+    tasks : mapping, optional
+        The datasets' tasks (default :data:`TASKS`, the published 13 scenarios; the dense
+        suite's, :mod:`~conformal_control.bench.planar_dense`).
+    suite : str
+        The suite's name (``config.json``).
     progress : callable, optional
         Called with one line per scenario run.
 
     Raises
     ------
     ValueError
-        For an unknown method or dataset (the message lists the known ones).
+        For an unknown method or dataset (the message lists the known ones), or no seed.
     """
+    task_map = dict(TASKS if tasks is None else tasks)
     names = list(methods or PLANAR_METHODS)
     unknown = [m for m in names if m not in PLANAR_METHODS]
     if unknown:
         raise ValueError(
             f"unknown planar method(s) {', '.join(unknown)}; known: {', '.join(PLANAR_METHODS)}"
         )
-    sets = list(datasets or TASKS)
-    bad = [d for d in sets if d not in TASKS]
+    sets = list(datasets or task_map)
+    bad = [d for d in sets if d not in task_map]
     if bad:
-        raise ValueError(f"unknown dataset(s) {', '.join(bad)}; known: {', '.join(TASKS)}")
+        raise ValueError(f"unknown dataset(s) {', '.join(bad)}; known: {', '.join(task_map)}")
+    seed_list = [int(seed)] if seeds is None else [int(s) for s in seeds]
+    if not seed_list:
+        raise ValueError("give at least one seed")
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     warm_up_kernels()
     config = {
-        "suite": SUITE,
-        "protocol": protocol_dict(),
+        "suite": suite,
+        "protocol": protocol_dict(task_map),
         "methods": [PLANAR_METHODS[m].as_dict() for m in names],
         "predictors": list(predictors),
         "datasets": sets,
-        "seed": seed,
+        "seed": seed_list[0],
+        "seeds": seed_list,
     }
     (folder / "config.json").write_text(json.dumps(config, indent=1, default=str) + "\n")
     rows = []
     tmp = folder / "rows.jsonl.part"
     with tmp.open("w") as fh:
         for ds in sets:
-            task = TASKS[ds]
+            task = task_map[ds]
             for pred in predictors_for(ds, predictors):
                 for name in names:
-                    for start in task.start_timesteps:
-                        res = run_scenario(
-                            task, start, PLANAR_METHODS[name], pred, data_root=data_root, seed=seed
-                        )
-                        row = {
-                            "dataset": ds,
-                            "method": name,
-                            "predictor": pred,
-                            "start_timestep": start,
-                            "ended": res.ended,
-                            "goal_step": res.goal_step,
-                            **res.metrics(),
-                            "stats": res.stats,
-                            "steps": res.steps,
-                        }
-                        rows.append(row)
-                        fh.write(json.dumps(row, default=float) + "\n")
-                        if progress is not None:
-                            m = res.metrics()
-                            progress(
-                                f"{ds} {start} {name} ({pred}): collision "
-                                f"{m['collision_rate']:.3f}, infeasible "
-                                f"{m['infeasible_rate']:.3f}, steps {m['steps_to_goal']:.0f}, "
-                                f"{m['ctrl_time_ms']:.2f} ms"
+                    method = PLANAR_METHODS[name]
+                    if method.predictor is not None and pred != predictors_for(ds, predictors)[0]:
+                        continue  # its own predictor: once per dataset
+                    label = method.predictor or pred
+                    for sd in seed_list:
+                        for start in task.start_timesteps:
+                            res = run_scenario(
+                                task, start, method, pred, data_root=data_root, seed=sd
                             )
+                            row = {
+                                "dataset": ds,
+                                "method": name,
+                                "predictor": label,
+                                "seed": sd,
+                                "start_timestep": start,
+                                "ended": res.ended,
+                                "goal_step": res.goal_step,
+                                **res.metrics(),
+                                "stats": res.stats,
+                                "steps": res.steps,
+                            }
+                            rows.append(row)
+                            fh.write(json.dumps(row, default=float) + "\n")
+                            fh.flush()
+                            if progress is not None:
+                                m = res.metrics()
+                                progress(
+                                    f"{ds} {start} {name} ({label}, seed {sd}): collision "
+                                    f"{m['collision_rate']:.3f}, infeasible "
+                                    f"{m['infeasible_rate']:.3f}, steps "
+                                    f"{m['steps_to_goal']:.0f}, {m['ctrl_time_ms']:.2f} ms"
+                                )
     tmp.replace(folder / "rows.jsonl")
     return rows
 
@@ -909,8 +1251,10 @@ def is_planar_folder(folder: str | Path) -> bool:
         return False
 
 
-def protocol_dict() -> dict[str, Any]:
-    """The protocol as data (written beside every result)."""
+def protocol_dict(tasks: Mapping[str, PlanarTask] | None = None) -> dict[str, Any]:
+    """The protocol as data (written beside every result), with ``tasks`` (default
+    :data:`TASKS`)."""
+    task_map = TASKS if tasks is None else tasks
     return {
         "time_step_s": STEP_S,
         "frames_per_step": FRAMES_PER_STEP,
@@ -927,8 +1271,9 @@ def protocol_dict() -> dict[str, Any]:
                 "max_steps": t.max_steps,
                 "init_pose": list(t.init_pose),
                 "goal": list(t.goal),
+                "part": None if t.part is None else list(t.part),
             }
-            for k, t in TASKS.items()
+            for k, t in task_map.items()
         },
         "metrics": dict(METRICS),
     }
@@ -942,25 +1287,60 @@ def _fmt(v: Any, nd: int = 3) -> str:
     return "--" if not math.isfinite(float(v)) else f"{float(v):.{nd}f}"
 
 
-def planar_table(rows: Sequence[Mapping[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+def seed_summary(rows: Sequence[Mapping[str, Any]], max_steps: int) -> dict[str, Any]:
+    """A method's figures on a dataset over seeds: :func:`dataset_metrics` per seed, their
+    mean, and each metric's smallest and largest seed value (``<metric>_min``,
+    ``<metric>_max``); ``n_reached`` and ``n_scenarios`` summed over seeds."""
+    by_seed: dict[int, list[Mapping[str, Any]]] = {}
+    for r in rows:
+        by_seed.setdefault(int(r.get("seed", 0)), []).append(r)
+    per = [dataset_metrics(rs, max_steps) for _, rs in sorted(by_seed.items())]
+    out: dict[str, Any] = {"n_seeds": len(per)}
+    for key in ("collision_rate", "infeasible_rate", "steps_to_goal", "ctrl_time_ms"):
+        vals = [float(m[key]) for m in per if math.isfinite(float(m[key]))]
+        out[key] = float(np.mean(vals)) if vals else math.nan
+        out[f"{key}_min"] = min(vals) if vals else math.nan
+        out[f"{key}_max"] = max(vals) if vals else math.nan
+    out["n_reached"] = sum(int(m["n_reached"]) for m in per)
+    out["n_scenarios"] = sum(int(m["n_scenarios"]) for m in per)
+    steps = out["steps_to_goal"]
+    out["timeout"] = bool(math.isfinite(steps) and steps >= max_steps - 0.5)
+    return out
+
+
+def _spread(m: Mapping[str, Any], key: str, nd: int) -> str:
+    """``mean`` or, over several seeds, ``mean (min-max)``."""
+    text = _fmt(m[key], nd)
+    if m.get("n_seeds", 1) > 1 and math.isfinite(float(m[key])):
+        text += f" ({_fmt(m[f'{key}_min'], nd)}-{_fmt(m[f'{key}_max'], nd)})"
+    return text
+
+
+def planar_table(
+    rows: Sequence[Mapping[str, Any]], tasks: Mapping[str, PlanarTask] | None = None
+) -> tuple[str, list[dict[str, Any]]]:
     """Markdown table of our rows beside the published ones, and its rows as dicts.
 
-    Per dataset: the published methods, then ours (method, predictor), with collision
-    rate, infeasible rate, steps to goal ("timeout" when no scenario reached the goal;
-    reached/run beside ours) and ms per step.
+    Per dataset: the published table's rows, then ours (method, predictor) with collision
+    rate, goals reached (over scenarios and seeds), infeasible rate, steps to goal
+    ("timeout" when no scenario reached the goal) and ms per step; over several seeds each
+    figure is the seeds' mean with their range. ``definition`` says whether a row follows
+    a published method's definition or is ours.
     """
+    task_map = TASKS if tasks is None else tasks
     lines = [
-        "| dataset | method | predictor | collision rate | infeasible rate | steps to goal "
-        "| reached | ms/step | source |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| dataset | method | definition | predictor | collision rate | reached | "
+        "infeasible rate | steps to goal | ms/step | seeds | source |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     table: list[dict[str, Any]] = []
-    for ds, task in TASKS.items():
-        for name, (col, inf, steps, ms) in PUBLISHED[ds].items():
+    for ds, task in task_map.items():
+        for name, (col, inf, steps, ms) in PUBLISHED.get(ds, {}).items():
             table.append(
                 {
                     "dataset": ds,
                     "method": name,
+                    "definition": "published",
                     "predictor": "Trajectron++",
                     "collision_rate": col,
                     "infeasible_rate": inf,
@@ -971,23 +1351,34 @@ def planar_table(rows: Sequence[Mapping[str, Any]]) -> tuple[str, list[dict[str,
                 }
             )
             lines.append(
-                f"| {ds} | {name} | Trajectron++ | {_fmt(col)} | {_fmt(inf)} | "
-                f"{steps if isinstance(steps, str) else f'{steps:.1f}'} | | {ms:.2f} | published |"
+                f"| {ds} | {name} | published | Trajectron++ | {_fmt(col)} | | {_fmt(inf)} | "
+                f"{steps if isinstance(steps, str) else f'{steps:.1f}'} | {ms:.2f} | | published |"
             )
         groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
         for r in rows:
             if r["dataset"] == ds:
                 groups.setdefault((str(r["method"]), str(r["predictor"])), []).append(r)
         for (method, pred), rs in groups.items():
-            m = dataset_metrics(rs, task.max_steps)
-            steps_s = "timeout" if m["timeout"] else _fmt(m["steps_to_goal"], 1)
+            m = seed_summary(rs, task.max_steps)
+            known = PLANAR_METHODS.get(method)
+            definition = known.definition if known is not None else "ours"
+            label = f"{method} ({known.published})" if known and known.published else method
+            steps_s = "timeout" if m["timeout"] else _spread(m, "steps_to_goal", 1)
             table.append(
-                {"dataset": ds, "method": method, "predictor": pred, **m, "source": "ours"}
+                {
+                    "dataset": ds,
+                    "method": method,
+                    "definition": definition,
+                    "predictor": pred,
+                    **m,
+                    "source": "ours",
+                }
             )
             lines.append(
-                f"| {ds} | **{method}** | {pred} | {_fmt(m['collision_rate'])} | "
-                f"{_fmt(m['infeasible_rate'])} | {steps_s} | {m['n_reached']}/{m['n_scenarios']} | "
-                f"{_fmt(m['ctrl_time_ms'], 2)} | ours |"
+                f"| {ds} | **{label}** | {definition} | {pred} | "
+                f"{_spread(m, 'collision_rate', 3)} | {m['n_reached']}/{m['n_scenarios']} | "
+                f"{_spread(m, 'infeasible_rate', 3)} | {steps_s} | "
+                f"{_fmt(m['ctrl_time_ms'], 2)} | {m['n_seeds']} | ours |"
             )
     return "\n".join(lines) + "\n", table
 
@@ -999,6 +1390,7 @@ def run_command(
     predictor: str | None,
     data_root: str | None,
     datasets: str | None = None,
+    seeds: str | None = None,
 ) -> int:
     """``bench run --suite fcp-planar``: run, write the folder and print the table.
 
@@ -1015,8 +1407,15 @@ def run_command(
         The data folder.
     datasets : str, optional
         Comma-separated datasets (None: all five).
+    seeds : str, optional
+        Comma-separated random states (None: 0).
     """
     from .. import registry
+
+    try:
+        seed_list = [int(v) for v in (seeds or "0").split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"--seeds takes comma-separated integers, got {seeds!r}") from None
 
     preds = [p.strip() for p in (predictor or "recorded,constant_velocity").split(",") if p]
     if "recorded" in preds and "recorded" not in registry.names("predictor"):
@@ -1028,6 +1427,7 @@ def run_command(
         predictors=preds,
         datasets=[d.strip() for d in datasets.split(",") if d.strip()] if datasets else None,
         data_root=data_root,
+        seeds=seed_list,
         progress=lambda line: print(line, flush=True),
     )
     write_planar_report(rows, Path(out) / "report")
@@ -1056,14 +1456,22 @@ def write_planar_report(rows: Sequence[Mapping[str, Any]], out: str | Path) -> d
     keys = [
         "dataset",
         "method",
+        "definition",
         "predictor",
         "source",
+        "n_seeds",
         "collision_rate",
-        "infeasible_rate",
-        "steps_to_goal",
-        "timeout",
+        "collision_rate_min",
+        "collision_rate_max",
         "n_reached",
         "n_scenarios",
+        "infeasible_rate",
+        "infeasible_rate_min",
+        "infeasible_rate_max",
+        "steps_to_goal",
+        "steps_to_goal_min",
+        "steps_to_goal_max",
+        "timeout",
         "ctrl_time_ms",
     ]
     with path.open("w", newline="") as fh:

@@ -18,6 +18,11 @@ method) and writes, per predictor shift:
   unavoidable, pop-in and at-fault frames, who closed on whom, penetration;
 * ``per_scene.md`` / ``per_scene.csv`` -- per recording and method (all shifts);
 * ``targets.md`` -- the benchmark's targets, met or not, with the figures;
+* ``no_regret.md`` / ``no_regret.csv`` -- per shift, each adaptive method against the whole
+  fixed-lambda grid the folder ran: dominated or not, regret to the best fixed lambda in
+  hindsight, difference to the re-tuned one (:mod:`~conformal_control.bench.regret`);
+* ``agents.md`` -- lambda run per agent: the distribution over agents of their average
+  loss against epsilon and their bounds (from each run's ``metrics.json``);
 * ``success_vs_epsilon.png`` -- success rate against epsilon for the epsilon families.
 
 A report is a pure function of the SET of rows and the seed: the rows are sorted (by shift,
@@ -45,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_mean, paired_comparison
 
@@ -681,6 +687,12 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     fp = sorted(((-p[0], p[1]) for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
     if len(fp) > 1:
         ax.plot([100 * p[0] for p in fp], [p[1] for p in fp], "--", color="0.5", lw=1)
+    grid = _grid(v)
+    if len(grid) > 1:  # the whole fixed-lambda grid as a curve, in the order of its settings
+        settings = ", ".join(s.setting.split("=")[-1] for s in grid)
+        ax.plot([100 * s.estimates[xcol].mean for s in grid],
+                [s.estimates[ycol].mean for s in grid], "-", marker=".", color="0.3", lw=1.2,
+                alpha=0.6, zorder=0, label=f"{grid[0].family} grid: {settings}")  # fmt: skip
     ax.set_xlabel("goal reached in time (% of scenarios)", fontsize=11)
     ax.set_ylabel("collision frames per scenario", fontsize=11)
     ax.set_title(title, fontsize=12)
@@ -813,6 +825,210 @@ def _targets(
     return "\n".join(lines) + "\n"
 
 
+# ------------------------------------------------------------------ no regret
+def _grid(v: _ShiftView) -> list[MethodSummary]:
+    """The reference family's members that ran under this shift, by setting."""
+    from .methods import FAMILIES
+
+    fam = next((f for f in FAMILIES.values() if f.reference), None)
+    if fam is None:
+        return []
+    # (a view drawn without its summaries, e.g. a figure test's, has no grid)
+    members = [s for s in getattr(v, "summaries", ()) if s.family == fam.name]
+    return sorted(members, key=lambda s: _num(s.setting.split("=")[-1].rstrip("/s")))
+
+
+def _adaptive(v: _ShiftView) -> list[str]:
+    """The shown methods whose family learns lambda (the grid's own family aside)."""
+    from .methods import FAMILIES
+
+    out = []
+    for s in v.shown:
+        fam = FAMILIES.get(s.family)
+        if fam is not None and fam.learn and not fam.reference and s.method not in out:
+            out.append(s.method)
+    return out
+
+
+def _no_regret(
+    views: list[_ShiftView], out: Path, bench: Mapping[str, Any] | None
+) -> dict[str, list[GridComparison]]:
+    """Write ``no_regret.md`` / ``.csv``; return the comparisons per shift."""
+    tuned = set(_tuned_names(bench).values())
+    comps: dict[str, list[GridComparison]] = {}
+    md = [
+        "# Adaptive methods against every fixed lambda",
+        "",
+        "Per shift, each adaptive method against the whole fixed-lambda grid this folder ran "
+        "(means over the same scenarios). *Dominated by*: grid members at least as good on "
+        "success, reached and collision frames, and better on one. *Regret*: the best grid "
+        "member on that figure minus the method (collision frames: the method minus the "
+        "best), positive when the grid did better; the best member is named. *Re-tuned*: "
+        "the method minus the grid member the tuning rule picks on this split (which knows "
+        "the shift), positive when the method did better (collision frames: fewer).",
+        "",
+    ]
+    header = ["shift", "method", "dev-tuned", "dominated by"]
+    for f in ("success", "reached", "collision frames"):
+        header += [f, f"regret {f}", f"best {f}", f"vs re-tuned {f}"]
+    table: list[list[Any]] = []
+    for v in views:
+        grid = [s.method for s in _grid(v)]
+        comps[v.shift] = c = compare_with_grid(
+            v.shift, v.summaries, grid, _adaptive(v), v.reference
+        )
+        if not c:
+            continue
+        md += [
+            f"## Shift `{v.shift}` ({v.n_scenarios} scenarios, {len(grid)} fixed settings; "
+            f"re-tuned: `{v.reference}`)",
+            "",
+            "| method | success | reached | collision frames | dominated by | regret success "
+            "| regret reached | regret collision frames | vs re-tuned (success, reached, "
+            "collision frames) |",
+            "|---|---:|---:|---:|---|---|---|---|---|",
+        ]
+        for x in c:
+            fg, rg, bg, tg = x.figures, x.regret, x.best, x.to_reference
+            dom = ", ".join(f"`{m}`" for m in x.dominated_by) or "none"
+            name = f"`{x.method}`" + (" (dev-tuned)" if x.method in tuned else "")
+            vs = (
+                f"{100 * tg['success']:+.1f}, {100 * tg['reached']:+.1f}, "
+                f"{tg['collision frames']:+.2f}"
+                if tg
+                else "-"
+            )
+            md.append(
+                f"| {name} | {100 * fg['success']:.1f} % | {100 * fg['reached']:.1f} % | "
+                f"{fg['collision frames']:.2f} | {dom} | {100 * rg['success']:+.1f} "
+                f"(`{bg['success']}`) | {100 * rg['reached']:+.1f} (`{bg['reached']}`) | "
+                f"{rg['collision frames']:+.2f} (`{bg['collision frames']}`) | {vs} |"
+            )
+            row: list[Any] = [v.shift, x.method, x.method in tuned, ";".join(x.dominated_by)]
+            for fig in ("success", "reached", "collision frames"):
+                row += [fg[fig], rg.get(fig), bg.get(fig), tg.get(fig)]
+            table.append(row)
+        md.append("")
+    _write_csv(out / "no_regret.csv", header, table)
+    (out / "no_regret.md").write_text("\n".join(md) + "\n")
+    return comps
+
+
+def _issue_targets(
+    views: list[_ShiftView],
+    comps: Mapping[str, list[GridComparison]],
+    bench: Mapping[str, Any] | None,
+) -> str:
+    """The per-agent issue's targets (:func:`~conformal_control.bench.regret.issue_targets`)
+    for the dev-tuned adaptive methods."""
+    tuned = set(_tuned_names(bench).values())
+    methods = [m for v in views for m in _adaptive(v) if m in tuned]
+    methods = list(dict.fromkeys(methods))
+    if not methods:
+        return ""
+    checks = issue_targets({v.shift: v.summaries for v in views}, comps, methods)
+    lines = [
+        "",
+        "## Adaptation without the reach penalty",
+        "",
+        "Under `delay-0.5s` and `noise-0.25m`: at most 50 % of `nolearn`'s collision frames, "
+        "the goal reached in time within 5 points of `nolearn`, dominated by no fixed lambda "
+        "of the grid; under `nominal`: success within 2 points of `nolearn`'s.",
+        "",
+        "| method | delay-0.5s (collision share, reached, dominated) | noise-0.25m (same) | "
+        "nominal success | all met |",
+        "|---|---|---|---|---|",
+    ]
+    for c in checks:
+        cells = []
+        for sh in ("delay-0.5s", "noise-0.25m"):
+            x = c.shifts.get(sh)
+            cells.append(
+                "not run"
+                if x is None
+                else f"{100 * x[0]:.0f} %, {x[1]:+.1f} pts, {'dominated' if x[2] else 'not'}: "
+                f"{'met' if x[3] else 'NOT met'}"
+            )
+        nom = (
+            "not run"
+            if c.nominal is None
+            else f"{c.nominal[0]:+.1f} pts: {'met' if c.nominal[1] else 'NOT met'}"
+        )
+        lines.append(
+            f"| `{c.method}` | {cells[0]} | {cells[1]} | {nom} | {'met' if c.met else 'NOT met'} |"
+        )
+    some = any(c.met for c in checks)
+    lines += [
+        "",
+        f"- Some dev-tuned adaptive method meets them all: {'met' if some else 'NOT met'}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------ agents
+def _agent_data(row: Mapping[str, Any]) -> dict[str, Any] | None:
+    """A row's per-agent figures (from its run's ``metrics.json``), None if unknown."""
+    rd = row.get("run_dir")
+    if not rd:
+        return None
+    try:
+        data = json.loads((Path(str(rd)) / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    agents = data.get("agents")
+    return agents if isinstance(agents, dict) else None
+
+
+def _agents(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> bool:
+    """Write ``agents.md`` for the methods run with lambda per agent; False if none."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        if _num(r.get("n_agents")) >= 0:
+            groups[(r["shift"], str(r["method"]))].append(r)
+    if not groups:
+        return False
+    md = [
+        "# lambda per agent: each agent's average loss",
+        "",
+        "Agents with at least 10 losses (checked one by one), pooled over the scenarios: "
+        "the distribution of their average loss minus epsilon (the fixed-step identity "
+        "makes it (lambda_j,1 - lambda_j,end) / (eta K_j) exactly), and how many meet "
+        "their own bound where the run had one (Theorem 2 with lambda_safe, or a long-run "
+        "bound). Episodes whose run folder is missing are counted apart.",
+        "",
+        "| shift | method | episodes | agents checked | median | 90th percentile | "
+        "largest | within 0.01 of epsilon | bound met |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for (shift, method), g in sorted(groups.items()):
+        gaps: list[float] = []
+        met = with_bound = missing = 0
+        for r in g:
+            data = _agent_data(r)
+            if data is None:
+                missing += 1
+                continue
+            eps = _num(r.get("epsilon"))
+            for avg, b in zip(data.get("l_avg", []), data.get("bound", []), strict=False):
+                gaps.append(_num(avg) - eps)
+                if b is not None:
+                    with_bound += 1
+                    met += int(_num(avg) <= _num(b) + 1e-12)
+        x = np.asarray(gaps, dtype=float)
+        if x.size:
+            cells = (
+                f"{np.median(x):+.4f} | {np.quantile(x, 0.9):+.4f} | {x.max():+.4f} | "
+                f"{100 * np.mean(x <= 0.01):.0f} %"
+            )
+        else:
+            cells = "- | - | - | -"
+        bound = f"{met} of {with_bound}" if with_bound else "no bound (no lambda_safe)"
+        note = f" ({missing} without run folder)" if missing else ""
+        md.append(f"| {shift} | `{method}` | {len(g)}{note} | {x.size} | {cells} | {bound} |")
+    (out / "agents.md").write_text("\n".join(md) + "\n")
+    return True
+
+
 # ------------------------------------------------------------------ entry point
 #: Row keys that describe a run's configuration (the sweep's flat rows: the run's own
 #: fields, its ``meta``, and its ``episode.*``, ``predictor_params.*``, ``param.*``).
@@ -915,7 +1131,13 @@ def write_report(
     _per_scene(ok, out)
     _strata(views, ok, out)
     totals = _collisions(views, ok, out)
-    files["targets.md"].write_text(_targets(views, totals, bench, tune_wall))
+    comparisons = _no_regret(views, out, bench)
+    files["no_regret.md"], files["no_regret.csv"] = out / "no_regret.md", out / "no_regret.csv"
+    files["targets.md"].write_text(
+        _targets(views, totals, bench, tune_wall) + _issue_targets(views, comparisons, bench)
+    )
+    if _agents(views, ok, out):
+        files["agents.md"] = out / "agents.md"
     for v in views:
         name = "frontier.png" if len(views) == 1 else f"frontier-{v.shift}.png"
         files[name] = out / name

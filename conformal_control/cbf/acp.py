@@ -291,6 +291,7 @@ class ACPController(ConformalCBFController, compiled="acp"):
             self.safety_filter.configure_apf(  # type: ignore[attr-defined]
                 (form.K_rep, form.rho0, form.d_c, form.delta, form.surface),
                 float(self.constraint.a),
+                self.constraint.edge_settings(),  # the edge rule on the true d_c
             )
             self._apf_c = c
         return super().decide(state, self.slack(lam))

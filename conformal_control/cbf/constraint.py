@@ -19,13 +19,28 @@ import math
 import numpy as np
 
 from ..base import Plugin
-from .roles import Barrier
+from .roles import Barrier, EscapeRows
 
-__all__ = ["ConformalConstraint"]
+__all__ = ["EDGES", "ConformalConstraint", "time_to_contact"]
+
+
+#: The edge rule's settings: ``"escape"`` (the toolkit's default) or ``"paper"`` (the rows
+#: as published, Algorithm 1 read literally).
+EDGES = ("escape", "paper")
 
 
 class ConformalConstraint(Plugin):
     """``dh/dx . v + dh/dx_j . v_j + a h + lambda >= 0`` for a barrier ``h``.
+
+    The edge rule (``edge="escape"``, the default): the row of an agent already within
+    the collision distance is not a row like the others -- a barrier is flat or steep
+    there, and no lambda makes its row informative -- but an escape row
+    (:meth:`escape`): the safety filter neutralises the agent's row and takes its
+    decision among the commands that do not close in on it and move out of its disc at
+    ``escape_gain (d_c - d)`` where the speed set allows
+    (:meth:`~conformal_control.cbf.roles.SafetyFilter.solve_escaping`). ``edge="paper"``
+    keeps the published rows (then an overlapped agent's APF row has no gradient and
+    the filter's fallback decides, e.g. the nominal velocity at a raised lambda).
 
     Parameters
     ----------
@@ -33,16 +48,125 @@ class ConformalConstraint(Plugin):
         The pairwise barrier h (positions in metres).
     a : float
         Slope of alpha(h) = a h, in 1/s (> 0).
+    edge : {"escape", "paper"}
+        The edge rule (see above).
+    collision_distance : float, optional
+        Centre distance (m) below which an agent counts as already too close; default the
+        barrier's ``d_c`` (a barrier without one: the edge rule never applies).
+    escape_gain : float
+        Push gain of the escape rows (1/s, >= 0): move out of a disc entered by ``p``
+        metres at ``escape_gain * p`` m/s (a time constant of ``1 / escape_gain``). The
+        default, 5/s, was chosen on the benchmark's dev split among 1, 5 and 20/s (see the
+        Benchmark page, "At the edges").
     """
 
-    def __init__(self, barrier: Barrier, a: float = 1.0) -> None:
+    def __init__(
+        self,
+        barrier: Barrier,
+        a: float = 1.0,
+        edge: str = "escape",
+        collision_distance: float | None = None,
+        escape_gain: float = 5.0,
+    ) -> None:
         self.barrier = barrier
         self.a = a
+        self.edge = edge
+        self.collision_distance = collision_distance
+        self.escape_gain = escape_gain
 
     def validate(self) -> None:
-        """Raise ``ValueError`` for a nonsensical slope."""
+        """Raise ``ValueError`` for a nonsensical slope, edge rule or collision distance."""
         if not (isinstance(self.a, (int, float)) and math.isfinite(self.a) and self.a > 0):
             raise ValueError(f"a must be a finite number > 0, got {self.a!r}")
+        if self.edge not in EDGES:
+            raise ValueError(f"edge must be one of {EDGES}, got {self.edge!r}")
+        d = self.collision_distance
+        if d is not None and not (
+            isinstance(d, (int, float)) and not isinstance(d, bool) and math.isfinite(d) and d >= 0
+        ):
+            raise ValueError(f"collision_distance must be a finite number >= 0, got {d!r}")
+        g = self.escape_gain
+        number = isinstance(g, (int, float)) and not isinstance(g, bool)
+        if not (number and math.isfinite(g) and g >= 0):
+            raise ValueError(f"escape_gain must be a finite number >= 0, got {g!r}")
+
+    def edge_distance(self) -> float | None:
+        """The collision distance of the edge rule (m), or None when the rule is off
+        (``edge="paper"``, or no distance given and the barrier has no ``d_c``)."""
+        if self.edge != "escape":
+            return None
+        d = self.collision_distance
+        if d is None:
+            d = getattr(self.barrier, "d_c", None)
+        if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
+            return None
+        return float(d)
+
+    def contact_distance(self) -> float:
+        """The collision distance (m) of :meth:`contact_times`: the edge rule's
+        (:meth:`edge_distance`), else the barrier's ``d_c``, else 0."""
+        d = self.edge_distance()
+        if d is None:
+            d = getattr(self.barrier, "d_c", None)
+        if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
+            return 0.0
+        return float(d)
+
+    def contact_times(
+        self,
+        x_ego: np.ndarray,
+        x_agents: np.ndarray,
+        v_agents: np.ndarray,
+        v_ego: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Each agent's predicted time to contact (s): when, moving at its (predicted)
+        velocity, it would come within :meth:`contact_distance` of the robot at ``x_ego``
+        moving at ``v_ego`` (its nominal velocity; standing still if None); 0 for an agent
+        already that close, ``inf`` for one that never comes.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' (predicted) positions (m) and velocities (m/s).
+        v_ego : ndarray of shape (2,), optional
+            The robot's velocity (m/s).
+        """
+        return time_to_contact(x_ego, x_agents, v_agents, self.contact_distance(), v_ego)
+
+    def edge_settings(self) -> tuple[float, float]:
+        """``(collision distance, push gain)`` of the edge rule as the compiled step takes
+        them (a negative distance: the rule is off)."""
+        d = self.edge_distance()
+        return (-1.0, 0.0) if d is None else (d, float(self.escape_gain))
+
+    def escape(
+        self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
+    ) -> EscapeRows | None:
+        """The edge rule's rows for the agents within the collision distance, or None
+        when none is (or the rule is off).
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' (predicted) positions (m) and velocities (m/s), as for :meth:`rows`.
+        """
+        d_edge = self.edge_distance()
+        if d_edge is None or not len(x_agents):
+            return None
+        diff = np.subtract(x_ego[:2], x_agents, dtype=float)
+        d = np.hypot(diff[:, 0], diff[:, 1])
+        rows = np.flatnonzero(d < d_edge)
+        if not rows.size:
+            return None
+        out = rows[d[rows] > 0.0]
+        U = diff[out] / d[out, None]
+        c = -np.einsum("ij,ij->i", U, np.asarray(v_agents, dtype=float)[out])
+        push = float(self.escape_gain) * (d_edge - d[out])
+        return EscapeRows(rows.astype(np.int64), U, c, push)
 
     def rows(
         self, x_ego: np.ndarray, x_agents: np.ndarray, v_agents: np.ndarray
@@ -99,3 +223,41 @@ class ConformalConstraint(Plugin):
         """
         h_max = self.barrier.upper_bound
         return -math.inf if h_max is None else -self.a * h_max
+
+
+def time_to_contact(
+    x_ego: np.ndarray,
+    x_agents: np.ndarray,
+    v_agents: np.ndarray,
+    d_c: float,
+    v_ego: np.ndarray | None = None,
+) -> np.ndarray:
+    """When each agent, moving at its velocity, comes within ``d_c`` (centre distance) of
+    the robot at ``x_ego`` moving at ``v_ego`` (s): the first root of ``|r + w t| = d_c``
+    with ``r`` the agent's position and ``w`` its velocity relative to the robot; 0 for an
+    agent already within ``d_c``, ``inf`` for one that never comes that close.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    x_agents, v_agents : ndarrays of shape (N, 2)
+        The agents' positions (m) and velocities (m/s).
+    d_c : float
+        The collision distance (m).
+    v_ego : ndarray of shape (2,), optional
+        The robot's velocity (m/s); None: standing still.
+    """
+    r = np.asarray(x_agents, dtype=float).reshape(-1, 2) - np.asarray(x_ego, dtype=float)[:2]
+    w = np.asarray(v_agents, dtype=float).reshape(-1, 2)
+    if v_ego is not None:
+        w = w - np.asarray(v_ego, dtype=float)[:2]
+    rr = np.einsum("ij,ij->i", r, r)
+    rw = np.einsum("ij,ij->i", r, w)
+    ww = np.einsum("ij,ij->i", w, w)
+    disc = rw * rw - ww * (rr - d_c * d_c)
+    out = np.full(r.shape[0], math.inf)
+    come = (rw < 0.0) & (disc >= 0.0) & (ww > 0.0)
+    out[come] = (-rw[come] - np.sqrt(disc[come])) / ww[come]
+    out[rr < d_c * d_c] = 0.0
+    return out

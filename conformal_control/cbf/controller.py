@@ -11,9 +11,11 @@ import numpy as np
 from ..base import CompiledForm, DecisionFamily, Environment, first_test_instance
 from ..data.synthetic import crossing_scene
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ..spec import parameter_info
 from .barriers import APFBarrier, APFForm
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
+from .filters.base import VelocityFilter
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
@@ -27,7 +29,7 @@ from .reciprocal import (
 )
 from .records import CBFIntervalRecord, CBFTruth, ControlState
 from .reference import AttractiveField
-from .roles import FilterResult, ReferenceController, SafetyFilter
+from .roles import EscapeRows, FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
     "CBFIntervalForm",
@@ -44,7 +46,8 @@ MAX_MESSAGES = 50
 
 #: Status recorded for the result codes of the compiled step (``kernels2d``); code 2 (an
 #: infeasible step the Python fallback decided) records the fallback's own name; code 7 is
-#: the lexicographic search that had to relax the hard rows too (``kernels_peers``).
+#: the lexicographic search that had to relax the hard rows too (``kernels_peers``), code
+#: 8 the edge rule deciding alone (``kernels2d.ESCAPED``).
 _CODE_STATUS = (
     "unconstrained",
     "optimal",
@@ -54,6 +57,7 @@ _CODE_STATUS = (
     "",
     "",
     "lambda_search",
+    "escape",
 )
 
 
@@ -202,8 +206,9 @@ class ConformalCBFController(
 
     def reset(self) -> None:
         self.constraint.validate()
-        if int(self.substeps) != self.substeps or self.substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        top = int(parameter_info("substeps").high)
+        if int(self.substeps) != self.substeps or not 1 <= self.substeps <= top:
+            raise ValueError(f"substeps must be an integer from 1 to {top}, got {self.substeps!r}")
         if self.reciprocity is not None:
             if not isinstance(self.reciprocity, Reciprocity):
                 raise ValueError(
@@ -236,7 +241,9 @@ class ConformalCBFController(
         form = c.barrier.compiled_state()
         assert isinstance(form, APFForm)  # an APFBarrier (_apf_parts)
         self.safety_filter.configure_apf(  # type: ignore[attr-defined]
-            (form.K_rep, form.rho0, form.d_c, form.delta, form.surface), float(c.a)
+            (form.K_rep, form.rho0, form.d_c, form.delta, form.surface),
+            float(c.a),
+            c.edge_settings(),
         )
         return True
 
@@ -286,6 +293,10 @@ class ConformalCBFController(
         # the compiled step's interval: it records into _rec itself (see _record)
         self._fast = False
         self._n = 0
+        # lambda per agent: the array last given, its smallest entry and the rows' offsets
+        self._lam_src: np.ndarray | None = None
+        self._lam_ref = 0.0
+        self._lam_off = np.zeros(0)
 
     def _record(self, rows: int) -> None:
         """A fresh record for the compiled step (``kernels2d.apf_control``'s layout) of
@@ -444,9 +455,43 @@ class ConformalCBFController(
         """The slack handed to the safety filter for ``lam``: ``lam`` itself (Algorithm 1)."""
         return lam
 
+    def lambda_keys(self) -> np.ndarray | None:
+        """The interval's sensed agents (``record.ids``, the query's order): lambda run per
+        agent gives row j its own slack lambda_j. None for a subclass that moves the knob
+        elsewhere (``constraint_rows`` or ``slack`` overridden, e.g. ACP's regions)."""
+        me = type(self)
+        if (
+            me.constraint_rows is not ConformalCBFController.constraint_rows
+            or me.slack is not ConformalCBFController.slack
+        ):
+            return None
+        return self._query_ids
+
+    def _per_agent(self, lam: np.ndarray) -> tuple[float, np.ndarray]:
+        """lambda per agent as (the smallest entry, each row's offset above it): row j's
+        slack is ``lam_j = ref + off_j``; the filter and its fallbacks see the scalar
+        ``ref`` (the lambda search raises every row alike). Exactly 0 offset for the
+        smallest entry, so one agent is the scalar path bit for bit."""
+        if lam is self._lam_src:
+            return self._lam_ref, self._lam_off
+        if self._typed:
+            raise ValueError("lambda per agent is not supported with several robots")
+        if lam.shape != self._query_ids.shape:
+            raise ValueError(
+                f"lambda per agent has shape {lam.shape}; the interval has "
+                f"{self._query_ids.size} agents (lambda_keys())"
+            )
+        ref = float(lam.min()) if lam.size else 0.0
+        self._lam_src, self._lam_ref = lam, ref
+        self._lam_off = np.ascontiguousarray(lam - ref, dtype=np.float64)
+        return ref, self._lam_off
+
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        off: np.ndarray | None = None
+        if isinstance(lam, np.ndarray):  # lambda per agent: one entry per lambda_keys()
+            lam, off = self._per_agent(lam)
         if self._fast:
-            return self._decide_compiled(state, lam)
+            return self._decide_compiled(state, lam, off)
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         if self._peer_ids.size and self._turn[1]:
@@ -454,21 +499,81 @@ class ConformalCBFController(
         res: FilterResult
         if self._fused and self._ids.size and not self._special:
             res = self.safety_filter.step_apf(  # type: ignore[attr-defined]
-                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam
+                x_ego, self._xp[state.step], self._vp[state.step], v_ref, lam, off
             )
         else:
             A, b = self.constraint_rows(state, lam)
+            if off is not None and b.size:
+                b = b + off
+            escape = self.escape_rows(state)
+            ttc = self.contact_times(state, A.shape[0], v_ref)
             if self._typed:
                 A, b = self._with_robots(state, lam, A, b)
-            res = self.safety_filter.solve(v_ref, A, b, self.slack(lam))
-            if res.fallback == "lambda_search" and self._typed and self._col[1].any():
-                res = self._keep_hard_rows(v_ref, A, b, self.slack(lam), res)
+                ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
+            res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def escape_rows(self, state: ControlState) -> EscapeRows | None:
+        """The edge rule's rows at this control instant: the predicted agents already
+        within the collision distance (:meth:`ConformalConstraint.escape
+        <conformal_control.cbf.constraint.ConformalConstraint.escape>`), or None."""
+        if not self._ids.size:
+            return None
+        s = state.step
+        return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
+
+    def contact_times(self, state: ControlState, n: int, v_ref: np.ndarray) -> np.ndarray:
+        """The predicted times to contact (s) of the ``n`` predicted agents' rows at this
+        control instant, the robot moving at its nominal velocity ``v_ref``
+        (:meth:`ConformalConstraint.contact_times
+        <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`), for a
+        fallback that orders the rows by them.
+
+        Parameters
+        ----------
+        state : ControlState
+            The control instant.
+        n : int
+            The number of predicted agents' rows.
+        v_ref : ndarray of shape (2,)
+            The nominal velocity (m/s).
+        """
+        if not n or not self._ids.size:
+            return np.full(n, math.inf)
+        s = state.step
+        return self.constraint.contact_times(state.x[:2], self._xp[s], self._vp[s], v_ref)
+
+    def _solve(
+        self,
+        v_ref: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        slack: float,
+        escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
+    ) -> FilterResult:
+        """The safety filter's decision on the rows, with the edge rule (``escape``) and,
+        with robots, the lambda search that keeps the rows without slack."""
+        f = self.safety_filter
+        hard = self._typed and bool(self._col[1].any())
+        if escape is None or not hard or not isinstance(f, VelocityFilter):
+            res = f.solve_escaping(v_ref, A, b, slack, escape, ttc)
+            if res.fallback == "lambda_search" and hard:
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
+        A, b = escape.neutralise(A, b, slack)
+        with f.contact(ttc), f.escaping(v_ref, escape) as escaped:
+            if escaped is not None:
+                return escaped
+            res = f.solve(v_ref, A, b, slack)
+            if res.fallback == "lambda_search":
+                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+            return res
 
     def _with_robots(
         self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray
@@ -504,8 +609,11 @@ class ConformalCBFController(
             f.count("hard_rows_relaxed")  # type: ignore[attr-defined]
         return FilterResult(v, "fallback", used, "lambda_search")
 
-    def _decide_compiled(self, state: ControlState, lam: float) -> np.ndarray:
-        """:meth:`decide` through the compiled step, which writes the record itself."""
+    def _decide_compiled(
+        self, state: ControlState, lam: float, off: np.ndarray | None = None
+    ) -> np.ndarray:
+        """:meth:`decide` through the compiled step, which writes the record itself
+        (``off``: the rows' offsets of lambda run per agent)."""
         i = self._n
         if i == self._rows:
             self._record(2 * i)
@@ -524,7 +632,7 @@ class ConformalCBFController(
             res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
         else:
             res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
-                x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i
+                x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, off
             )
         self._n = i + 1
         self.n_steps_ += 1

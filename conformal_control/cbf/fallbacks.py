@@ -12,7 +12,15 @@ registered name (``fallback="relax"``).
                    there; only the rows that must be relaxed are (per-row lambda)
 ``brake``          zero velocity (meets the rows at no particular lambda)
 ``hold``           the previous decision again
+``goal_aware``     the rows of the most imminent agents (smallest predicted time to
+                   contact), as many as can be met at lambda, and among the commands
+                   meeting them the one that makes the most progress toward the goal
 ================  =====================================================================
+
+Within the edge rule's escape polygon (an agent already within the collision distance,
+:class:`~conformal_control.cbf.roles.EscapeRows`) every fallback decides among the
+commands of that polygon: the filter's primitives work in it, and a decision leaving it is
+projected onto it.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ import numpy as np
 from .. import registry
 from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
 
-__all__ = ["Brake", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
+__all__ = ["Brake", "GoalAware", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
 
 
 class LambdaSearch(Fallback, compiled="lambda_search"):
@@ -135,6 +143,78 @@ class Hold(Fallback, compiled="hold"):
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
         return FilterResult(np.array(step.previous, dtype=float), "fallback", math.nan, self.name)
+
+
+class GoalAware(Fallback):
+    """Meet the rows of the most imminent agents; among those commands, head for the goal.
+
+    The rows are ordered by the agents' predicted time to contact
+    (:attr:`InfeasibleStep.ttc`: when each would reach the collision distance of the robot
+    moving at its nominal velocity; ties and rows without one, by how far standing still
+    violates them). The
+    largest prefix of that order whose rows can all be met at the requested lambda is
+    found by bisection on the projection's feasibility (monotone in the prefix); when even
+    the most imminent row cannot be met there, lambda is raised for the prefix only, to
+    that row's smallest feasible lambda (plus the solver's margin). The decision is the
+    command meeting the prefix that makes the most progress toward the goal: the
+    projection onto its rows of a point 1 km/s along the nominal velocity (the reference
+    points at the goal; with a zero nominal, the projection of 0). The other rows --
+    agents that are not imminent -- are not met, which is what "fallback" means here:
+    where the published fallbacks return the nominal velocity at a raised lambda
+    (``lambda_search``) or retreat from everyone (small lambda), this keeps the robot
+    moving toward its goal around the agents about to reach it.
+
+    :attr:`FilterResult.row_lambda` is, per row, the lambda that row satisfies at the
+    decision; ``lambda_applied`` its maximum.
+    """
+
+    name = "goal_aware"
+
+    #: Speed (m/s) of the point along the nominal velocity that is projected: far beyond
+    #: any speed set, so the projection is the most progress along it.
+    REACH = 1000.0
+
+    def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
+        A, b, lam = step.A, step.b, step.lam
+        m = A.shape[0]
+        nominal = np.asarray(step.nominal, dtype=float)
+        speed = float(np.hypot(nominal[0], nominal[1]))
+        target = nominal * (self.REACH / speed) if speed > 0.0 else np.zeros(2)
+        ttc = step.ttc
+        if ttc is None or np.shape(ttc) != (m,):
+            ttc = np.full(m, math.inf)
+        order = np.lexsort((b, np.asarray(ttc, dtype=float)))
+
+        def at(k: int, level: float) -> np.ndarray | None:
+            idx = order[:k]
+            out: np.ndarray | None = solver.project(target, A[idx], b[idx] + level)
+            return out
+
+        level = lam
+        v = at(1, level) if m else solver.project(target, A, b + lam)
+        if v is None:  # the most imminent row alone: its own smallest lambda
+            first = order[:1]
+            star, _ = solver.min_lambda(A[first], b[first])
+            level = max(lam, float(star))
+            level += solver.search_margin(level, A[first], b[first])
+            v = at(1, level)
+            if v is None:  # (round-off) the row at ten times the margin
+                level += 9.0 * solver.search_margin(level, A[first], b[first])
+                v = at(1, level)
+        if v is None:  # the row cannot be met at all within the speed set: brake
+            return FilterResult(np.zeros(2), "fallback", math.nan, self.name)
+        lo, hi = 1, m  # at(lo) feasible; find the largest feasible prefix
+        best = v
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            w = at(mid, level)
+            if w is None:
+                hi = mid - 1
+            else:
+                lo, best = mid, w
+        row_lambda = np.maximum(-(A @ best + b), level) if m else np.zeros(0)
+        applied = float(row_lambda.max()) if m else lam
+        return FilterResult(best, "fallback", applied, self.name, row_lambda)
 
 
 def resolve_fallback(fallback: str | Fallback) -> Fallback:

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from .kernels2d import (
+    ESCAPE_POLYGON,
     HEADER,
     INFEASIBLE,
     NONFINITE,
@@ -36,9 +37,13 @@ from .kernels2d import (
     RECORD_FIELDS,
     SEARCHED,
     TOO_MANY,
+    edge_prepare,
+    edge_step,
+    edge_views,
     filter_step,
     jit,
     lambda_margin,
+    meets_sides,
     smallest_lambda,
     solve_rows,
 )
@@ -146,11 +151,22 @@ def lexicographic_search(
     ok, v0, v1 = _feasible_at(n0, n1, A, b, hard, lam, hi + margin, keep, S, s, radius, G, h, rhs)
     solves += 1
     if not ok:  # the rows without slack cannot be met (keep), or round-off: all together
-        star, w0, w1 = smallest_lambda(A, b, S, s, verts, radius, Ak, bk)
-        floor = max(lam, star)
-        used = floor + lambda_margin(floor, A, b, radius, margin_rel)
+        # (the rows with a zero gradient left out here too, as the generic path does)
+        ml = 0
         for j in range(m):
-            rhs[j] = b[j] + used
+            if A[j, 0] != 0.0 or A[j, 1] != 0.0:
+                G[ml, 0] = A[j, 0]
+                G[ml, 1] = A[j, 1]
+                h[ml] = b[j]
+                ml += 1
+        star, w0, w1 = smallest_lambda(G[:ml], h[:ml].copy(), S, s, verts, radius, Ak, bk)
+        floor = max(lam, star)
+        used = floor + lambda_margin(floor, G[:ml], h[:ml], radius, margin_rel)
+        for j in range(m):
+            if A[j, 0] == 0.0 and A[j, 1] == 0.0:
+                rhs[j] = math.inf
+            else:
+                rhs[j] = b[j] + used
         ok, v0, v1 = solve_rows(n0, n1, A, rhs, S, s, radius, G, h)
         if ok:
             return SEARCH_ALL, v0, v1, used, solves + 2
@@ -296,7 +312,7 @@ def apf_control_peers(
     ns = int(buf[HEADER - 3])
     o = HEADER + 5 * ns
     poly = buf[HEADER:o]
-    work = buf[o : o + 10 * cap + 3 * ns]
+    work = buf[o:]
     A = work[0 : 2 * m].reshape((m, 2))
     b = work[2 * cap : 2 * cap + m]
     rhs = work[3 * cap : 3 * cap + m]
@@ -311,8 +327,29 @@ def apf_control_peers(
     search = prm[9] != 0.0
     hard = col[1, :m]
     lexicographic = search and hard.any()
+    # the edge rule on the predicted agents (kernels2d.edge_prepare): within the escape
+    # polygon, or decided by it alone
+    region = work[10 * cap + 3 * ns :]
+    region[2] = -1.0
+    v_max = prm[8]
+    mode = -1
+    if prm[12] >= 0.0 and npred:
+        mode, nsq, nvq, e0, e1 = edge_prepare(
+            x0, x1, pv[0, s, :npred], pv[1, s, :npred], prm[12], prm[13], lam, A, b, S, sv,
+            verts, prm[6], region, cap,
+        )  # fmt: skip
+        if mode >= 0:
+            if mode != ESCAPE_POLYGON:
+                code, v0, v1, lam_used, _ = edge_step(
+                    n0, n1, A, b, lam, prm, mode, ns, nsq, nvq, e0, e1, region, cap, rhs, Ak, bk
+                )
+                return _record_peers(code, x0, x1, v0, v1, lam_used, i, buf, rec)
+            ES, es, ev, _, G, h = edge_views(region, cap, ns)[5:11]
+            if not meets_sides(n0, n1, ES, es, ns, nsq):
+                v_max = math.nan  # never unconstrained
+            S, sv, verts = ES[:nsq], es[:nsq], ev[:nvq]
     code, v0, v1, lam_used, _ = filter_step(
-        n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8],
+        n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, v_max,
         search and not lexicographic, prm[10], G, h, rhs, Ak, bk,
     )  # fmt: skip
     if lexicographic and code == INFEASIBLE:
@@ -320,6 +357,22 @@ def apf_control_peers(
             n0, n1, A, b, hard, lam, turn[5] != 0.0, S, sv, verts, prm[6], prm[10], G, h, rhs,
             Ak, bk,
         )  # fmt: skip
+    return _record_peers(code, x0, x1, v0, v1, lam_used, i, buf, rec)
+
+
+@jit
+def _record_peers(
+    code: int,
+    x0: float,
+    x1: float,
+    v0: float,
+    v1: float,
+    lam_used: float,
+    i: int,
+    buf: np.ndarray,
+    rec: np.ndarray,
+) -> int:
+    """Record a step of :func:`apf_control_peers` (``apf_control``'s record); its code."""
     if code == NONFINITE:
         return code
     rows = rec.shape[0] // RECORD_FIELDS

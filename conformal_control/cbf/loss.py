@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm, Loss
+from ..base import CompiledForm, KeyedLosses, Loss
 from .constraint import ConformalConstraint
 from .interp import interpolate_at_substeps
 from .reciprocal import grown_constraint
@@ -140,6 +140,10 @@ class CBFGapLoss(
         return gap
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
+        if np.ndim(lam):  # one lambda per agent: the largest of the agents' terms
+            comp = self.components(record, truth, lam)
+            ok = np.isfinite(comp.values)
+            return float(comp.values[ok].max()) if ok.any() else None
         if math.isnan(lam):
             raise ValueError("the loss needs a lambda that is a number, got nan")
         gap = self.gaps(record, truth)
@@ -147,20 +151,85 @@ class CBFGapLoss(
             return None
         return float(self.squash(np.nanmax(gap) + lam))
 
-    def diagnostics(
-        self, record: CBFIntervalRecord, truth: CBFTruth, lam: float
-    ) -> dict[str, float]:
+    def _columns(self, record: CBFIntervalRecord, lam: Any) -> np.ndarray:
+        """lambda per record column (an array per agent, or a number for every agent)."""
+        n = record.ids.size
+        lam_arr = np.asarray(lam, dtype=float)
+        if lam_arr.ndim == 0:
+            lam_arr = np.full(n, float(lam_arr))
+        if lam_arr.shape != (n,):
+            raise ValueError(
+                f"lambda per agent has shape {lam_arr.shape}; the record has {n} agents"
+            )
+        if np.isnan(lam_arr).any():
+            raise ValueError("the loss needs a lambda that is a number, got nan")
+        return lam_arr
+
+    def components(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> KeyedLosses:
+        """The loss per scored agent j: l_j = s(max_t gap_j(t) + lambda_j), NaN for an
+        agent without truth; the interval's loss is their largest (``lam`` a number or
+        an array with one entry per record agent, ``record.ids``'s order)."""
+        lam_arr = self._columns(record, lam)
+        gap = self.gaps(record, truth)
+        keys = np.asarray(record.ids, dtype=np.int64)
+        if record.scored is not None:
+            scored = np.asarray(record.scored, dtype=bool)
+            keys, lam_arr = keys[scored], lam_arr[scored]
+        top = np.full(keys.size, np.nan)
+        has = np.isfinite(gap).any(axis=0) if gap.size else np.zeros(keys.size, dtype=bool)
+        if has.any():
+            top[has] = np.nanmax(gap[:, has], axis=0)
+        return self.keyed(keys, top, lam_arr)
+
+    def keyed(self, keys: np.ndarray, top: np.ndarray, lam: np.ndarray) -> KeyedLosses:
+        """The agents' losses from their largest gaps: l_j = s(top_j + lambda_j), NaN where
+        ``top_j`` is (an agent without truth); what :meth:`components` returns, for an
+        engine that computed the gaps itself.
+
+        Parameters
+        ----------
+        keys : ndarray of shape (n,)
+            The agents.
+        top : ndarray of shape (n,)
+            Each agent's largest gap (1/s; NaN: none).
+        lam : ndarray of shape (n,)
+            Each agent's lambda (1/s).
+        """
+        values = np.asarray(self.squash(top + lam), dtype=float)
+        return KeyedLosses(keys, values, _AgentGapAt(self, top))
+
+    def diagnostics(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> dict[str, float]:
         gap = self.gaps(record, truth)
         if gap.size == 0 or not np.isfinite(gap).any():
             return {}
-        lam_applied = np.where(np.isfinite(record.lam_applied), record.lam_applied, lam)
-        applied = float(self.squash(np.nanmax(gap + lam_applied[:, None])))
+        if np.ndim(lam):  # per agent: each row's lambda is the applied one plus its offset
+            lam_arr = self._columns(record, lam)
+            ref = float(lam_arr.min())
+            off = lam_arr - ref
+            if record.scored is not None:
+                off = off[np.asarray(record.scored, dtype=bool)]
+            la = np.where(np.isfinite(record.lam_applied), record.lam_applied, ref)
+            applied = float(self.squash(np.nanmax(gap + (la[:, None] + off[None, :]))))
+        else:
+            lam_applied = np.where(np.isfinite(record.lam_applied), record.lam_applied, lam)
+            applied = float(self.squash(np.nanmax(gap + lam_applied[:, None])))
         return {
             "loss_applied": applied,
             "max_gap": float(np.nanmax(gap)),
             "n_pairs": int(np.isfinite(gap).sum()),
             "n_truth_missing": int((~np.isfinite(gap)).sum()),
         }
+
+
+class _AgentGapAt:
+    """Agent i's gap loss at another lambda: s(max_t gap_i(t) + lambda) (picklable)."""
+
+    def __init__(self, loss: CBFGapLoss, top: np.ndarray) -> None:
+        self.loss, self.top = loss, top
+
+    def __call__(self, i: int, lam: float) -> float | None:
+        top = float(self.top[i])
+        return None if math.isnan(top) else float(self.loss.squash(top + lam))
 
 
 def gap_test_inputs() -> list[tuple[CBFIntervalRecord, CBFTruth]]:

@@ -16,6 +16,7 @@ small abstract base class; implementations are plugins found by name
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar, Literal, Protocol
@@ -28,6 +29,7 @@ __all__ = [
     "Barrier",
     "CommandKind",
     "Dynamics",
+    "EscapeRows",
     "Fallback",
     "FilterPrimitives",
     "FilterResult",
@@ -109,6 +111,62 @@ class FilterResult:
     row_lambda: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class EscapeRows:
+    """The edge rule's input: the agents already within the collision distance.
+
+    Built by :meth:`~conformal_control.cbf.constraint.ConformalConstraint.escape` from the
+    same positions and velocities as the rows; a safety filter handed them
+    (:meth:`SafetyFilter.solve_escaping`) neutralises the agents' own rows (``A_j = 0``,
+    ``b_j = -lambda``: met at every lambda the filter may apply, so they never raise the
+    lambda the other rows share) and takes its decision within the escape polygon: the
+    commands that do not close in on any of them (``U v + c >= 0``) and move out of their
+    discs at ``push`` as far as the speed set allows
+    (:func:`~conformal_control.cbf.kernels2d.escape_polygon`).
+
+    Attributes
+    ----------
+    rows : ndarray of int64, shape (n,)
+        The rows (agents) within the collision distance.
+    U : ndarray of shape (k, 2)
+        Unit vectors from each of them to the robot (k <= n: an agent at the robot's very
+        position has none).
+    c : ndarray of shape (k,)
+        ``-U . v_agent``: the distance grows at ``U v + c`` for the command ``v`` (m/s).
+    push : ndarray of shape (k,)
+        Speed (m/s, >= 0) at which to move out of each disc, ``a (d_c - d)``.
+    """
+
+    rows: np.ndarray
+    U: np.ndarray
+    c: np.ndarray
+    push: np.ndarray
+
+    def closing(self, v: np.ndarray) -> np.ndarray:
+        """Closing speed (m/s) of the command ``v`` toward each agent: ``-(U v + c)``."""
+        out: np.ndarray = -(self.U @ np.asarray(v, dtype=float) + self.c)
+        return out
+
+    def neutralise(self, A: np.ndarray, b: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the rows with those of :attr:`rows` neutralised: ``A_j = 0``, ``b_j =
+        -lam`` (met at every lambda >= ``lam``).
+
+        Parameters
+        ----------
+        A : ndarray of shape (N, 2)
+            The rows' velocity coefficients.
+        b : ndarray of shape (N,)
+            Their constant terms.
+        lam : float
+            The lambda of the step (1/s).
+        """
+        A = np.array(A, dtype=float)
+        b = np.array(b, dtype=float)
+        A[self.rows] = 0.0
+        b[self.rows] = -lam
+        return A, b
+
+
 class SafetyFilter(Plugin, ABC):
     """Minimally modify a nominal velocity so that the conformal constraints hold.
 
@@ -131,6 +189,48 @@ class SafetyFilter(Plugin, ABC):
         lam : float
             The conformal slack lambda (1/s).
         """
+
+    def solve_escaping(
+        self,
+        nominal: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        lam: float,
+        escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
+    ) -> FilterResult:
+        """:meth:`solve` with the edge rule: no command closing in on an agent already
+        within the collision distance (``escape``) when one that does not exists.
+
+        This default, for a filter that knows nothing of the rule, solves without it and
+        brakes (zero velocity, which closes in on no standing agent) when the decision
+        closes in on one of them; :class:`~conformal_control.cbf.filters.base.VelocityFilter`
+        takes the decision within the escape polygon instead.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        escape : EscapeRows or None
+            The agents within the collision distance (None: none).
+        ttc : ndarray of shape (N,), optional
+            The rows' predicted times to contact (s), for a fallback that uses them
+            (:attr:`InfeasibleStep.ttc`); this default ignores them.
+        """
+        res = self.solve(nominal, A, b, lam)
+        if escape is None or not escape.U.shape[0]:
+            return res
+        # closing in no faster than braking does (not at all on a standing agent)
+        allowed = np.maximum(-escape.c, 0.0) + 1e-12 * max(1.0, float(np.abs(escape.c).max()))
+        if not (escape.closing(res.decision) > allowed).any():
+            return res
+        return FilterResult(np.zeros(2), "fallback", math.nan, "escape")
 
     def reset(self) -> None:
         """Reset counters and warm-start state (validate parameters here)."""
@@ -159,6 +259,16 @@ class InfeasibleStep:
     lam_star, v_star : float and ndarray, or None
         The smallest feasible lambda and a velocity attaining it, when the filter already
         computed them to detect the infeasibility.
+    escape : EscapeRows or None
+        The agents within the collision distance (their rows in ``A``, ``b`` already
+        neutralised); the filter's primitives then work within the escape polygon, and
+        the fallback's decision is projected onto it if it leaves it.
+    ttc : ndarray of shape (N,) or None
+        Each row's agent's predicted time to contact (s): when it would reach the
+        collision distance of the robot moving at its nominal velocity (0 within it,
+        ``inf`` if never),
+        when the family computed it (:meth:`ConformalConstraint.contact_times
+        <conformal_control.cbf.constraint.ConformalConstraint.contact_times>`).
     """
 
     nominal: np.ndarray
@@ -168,6 +278,8 @@ class InfeasibleStep:
     previous: np.ndarray
     lam_star: float | None = None
     v_star: np.ndarray | None = None
+    escape: EscapeRows | None = None
+    ttc: np.ndarray | None = None
 
 
 class FilterPrimitives(Protocol):

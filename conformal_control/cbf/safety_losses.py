@@ -17,10 +17,11 @@ the view) are left out and counted; an interval without any scored pair has no l
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
-from ..base import Loss
+from ..base import KeyedLosses, Loss
 from ..losses import check_lambda
 from .controller import CBFIntervalRecord
 from .interp import interpolate_at_substeps
@@ -123,3 +124,23 @@ class DistanceShortfallLoss(
             return None
         shortfall = (self.d_safe - float(np.nanmin(d))) / (self.d_safe - self.d_c)
         return float(min(max(shortfall, 0.0), 1.0))
+
+    def components(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> KeyedLosses:
+        """Each scored agent's shortfall (its own nearest approach; NaN without truth):
+        the interval's loss is their largest. ``lam`` enters only through the decisions."""
+        for x in np.ravel(np.asarray(lam, dtype=float)).tolist():
+            check_lambda(x)
+        keys = np.asarray(record.ids, dtype=np.int64)
+        if record.scored is not None:
+            keys = keys[np.asarray(record.scored, dtype=bool)]
+        d = min_distances(record, truth)
+        near = np.full(keys.size, np.nan)
+        has = np.isfinite(d).any(axis=0) if d.size else np.zeros(keys.size, dtype=bool)
+        if has.any():
+            near[has] = np.nanmin(d[:, has], axis=0)
+        values = np.clip((self.d_safe - near) / (self.d_safe - self.d_c), 0.0, 1.0)
+        return KeyedLosses(keys, values, lambda i, _lam: _finite_or_none(values[i]))
+
+
+def _finite_or_none(x: float) -> float | None:
+    return None if math.isnan(x) else float(x)

@@ -181,7 +181,15 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument("--limit", type=positive_int, default=None, help="only the first N scenarios")
     ru.add_argument(
-        "--datasets", default=None, help="fcp-planar only: comma-separated datasets (default all)"
+        "--datasets",
+        default=None,
+        help="fcp-planar(-dense) only: comma-separated datasets (default all)",
+    )
+    ru.add_argument(
+        "--seeds",
+        default=None,
+        help="fcp-planar(-dense) only: comma-separated random states, each scenario once per seed "
+        "(default 0)",
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
     ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
@@ -345,10 +353,25 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.suite == "fcp-planar-dense":  # the planar protocol, a start every 20 steps
+        from ..bench.planar_dense import run_command as run_dense
+
+        split = "test" if args.split is None else args.split
+        return run_dense(
+            args.out,
+            args.methods,
+            args.predictor,
+            args.data_root,
+            args.datasets,
+            args.seeds,
+            split,
+        )
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
         from ..bench.planar import run_command
 
-        return run_command(args.out, args.methods, args.predictor, args.data_root, args.datasets)
+        return run_command(
+            args.out, args.methods, args.predictor, args.data_root, args.datasets, args.seeds
+        )
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
@@ -406,7 +429,11 @@ def _report(args: argparse.Namespace) -> int:
 
     folder = Path(args.folder)
     from ..bench.planar import is_planar_folder, report_command
+    from ..bench.planar_dense import is_dense_folder
+    from ..bench.planar_dense import report_command as dense_report_command
 
+    if is_dense_folder(folder):
+        return dense_report_command(args.folder, args.out)
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
     from ..bench.multi import is_multi_folder

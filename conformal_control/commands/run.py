@@ -328,17 +328,29 @@ def _replayed_options(stored: dict[str, Any], path: Path) -> dict[str, Any]:
     return applied
 
 
+#: The largest ``--config`` file read (bytes): a run's ``config.json`` is a few kB.
+MAX_CONFIG_BYTES = 16 << 20
+
+
 def _apply_config(args: argparse.Namespace) -> None:
     """Fill ``args`` from a run's config.json; options given explicitly win."""
     from ..exceptions import InputError
+    from ..fileio import read_limited
 
     path = Path(args.config).expanduser()
     if path.is_dir():
         path = path / "config.json"
     try:
-        cfg = json.loads(path.read_text())
+        # capped, never a FIFO or a device (/dev/zero read until memory ran out)
+        raw = read_limited(path, MAX_CONFIG_BYTES, what="--config file")
     except FileNotFoundError:
         raise InputError(f"--config {args.config}: no such file") from None
+    try:
+        cfg = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(
+            f"--config {path}: not a text file (not UTF-8), not a run's config"
+        ) from None
     except json.JSONDecodeError as exc:
         raise InputError(
             f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})"

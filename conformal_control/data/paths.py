@@ -29,6 +29,8 @@ __all__ = [
 ]
 
 ENV_VAR = "CONFORMAL_CONTROL_DATA"
+#: The largest data file read (bytes): SDD's largest annotations file is about 40 MB.
+MAX_DATA_FILE_BYTES = 512 << 20
 #: the download command (into the per-user data folder unless --dest is given)
 FETCH_HINT = "conformal-control fetch-data"
 _APP = "conformal-control"
@@ -62,15 +64,19 @@ def _where(path: Path) -> str:
     """Which of the three places a missing path is in, and the other two."""
     env = os.environ.get(ENV_VAR)
     user = user_data_dir()
-    try:
-        under_user = path.resolve().is_relative_to(user.resolve())
-        under_env = (
-            env is not None
-            and env != ""
-            and path.resolve().is_relative_to(Path(env).expanduser().resolve())
-        )
-    except (OSError, RuntimeError):  # pragma: no cover - an unresolvable path
-        under_user = under_env = False
+
+    def under(folder: Path) -> bool:
+        # as written first (a folder that cannot be resolved, e.g. a link loop, is still
+        # where the path came from), then resolved
+        if Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder)):
+            return True
+        try:
+            return path.resolve().is_relative_to(folder.resolve())
+        except (OSError, RuntimeError):  # an unresolvable path (a link loop)
+            return False
+
+    under_user = under(user)
+    under_env = env is not None and env != "" and under(Path(env).expanduser())
     if under_env:
         origin = f"the data folder is ${ENV_VAR}={env}"
     elif under_user and not env:
@@ -113,7 +119,22 @@ def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
     DataNotFoundError
         If a file stands where the folder should be.
     """
+    if data_root is not None and not os.fspath(data_root).strip():
+        raise DataNotFoundError(
+            "--data-root is empty (data_root= in Python); give the data folder, or leave it "
+            f"out to use ${ENV_VAR} or the per-user data folder"
+        )
     root, origin = data_root_origin(data_root)
+    try:
+        os.stat(root)
+    except OSError as exc:
+        import errno
+
+        if exc.errno == errno.ELOOP:
+            raise DataNotFoundError(
+                f"the data root {root} ({origin}) is a loop of symbolic links; point it at "
+                "the data folder itself"
+            ) from None
     if root.exists() and not root.is_dir():
         raise DataNotFoundError(
             f"the data root {root} ({origin}) is a file; pass the data folder (the one "
@@ -140,3 +161,20 @@ def sdd_root(data_root: str | os.PathLike[str] | None = None) -> Path:
 def ethucy_root(data_root: str | os.PathLike[str] | None = None) -> Path:
     """The ETH/UCY folder: the root itself if it holds the scenes, else ``root/ethucy``."""
     return _subdir(resolve_data_root(data_root), "ethucy", ("eth", "hotel", "univ", "zara1"))
+
+
+def read_data_text(path: str | os.PathLike[str], what: str = "data file") -> str:
+    """The text of a data file, read through
+    :func:`~conformal_control.fileio.read_limited`: a regular file of at most
+    :data:`MAX_DATA_FILE_BYTES` (a FIFO or a device is refused, not read).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    what : str
+        What it is, for the messages.
+    """
+    from ..fileio import read_limited
+
+    return read_limited(path, MAX_DATA_FILE_BYTES, what=what).decode("utf-8", "replace")

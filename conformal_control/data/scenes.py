@@ -484,11 +484,18 @@ def load_scene(
         scene_name = base if not form else f"{base}:{form}"
     else:
         import difflib
+        import reprlib
 
-        close = difflib.get_close_matches(base, scene_names(), n=1, cutoff=0.6)
+        close = (
+            difflib.get_close_matches(base, scene_names(), n=1, cutoff=0.6)
+            if len(base) <= 100
+            else []
+        )
         hint = f" did you mean {close[0]!r}?" if close else ""
+        short = reprlib.Repr()
+        short.maxstring = 80  # a name read from a file may be megabytes long
         raise InputError(
-            f"unknown scene {name!r};{hint} known: {', '.join(scene_names())}, or "
+            f"unknown scene {short.repr(name)};{hint} known: {', '.join(scene_names())}, or "
             "sdd:<scene>/video<N>[:trajnet] or ethucy:<recording> (see `conformal-control scenes`)"
         )
     vid = sdd_video(sdd_scene, video, data_root)

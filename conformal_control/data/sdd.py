@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from ..exceptions import DataFormatError, InputError
-from .paths import missing, sdd_root
+from .paths import missing, read_data_text, sdd_root
 from .tracks import Tracks, check_frames, file_agent_ids
 
 __all__ = [
@@ -110,7 +110,8 @@ def load_scales(root: Path) -> dict[tuple[str, int], float]:
         raise missing(path, "SDD pixel scales (estimated_scales.yaml)")
     try:
         # libyaml's safe loader when PyYAML has it (the same documents, ten times faster)
-        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        text = read_data_text(path, "SDD scales file")
+        data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except yaml.YAMLError as exc:
         raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
     except RecursionError:
@@ -191,26 +192,25 @@ def read_annotations(
     numbers: list[list[str]] = []
     tags: list[str] = []
     linenos: list[int] = []
-    with path.open() as fh:
-        for lineno, line in enumerate(fh, start=1):
-            parts = line.split()
-            if not parts:
-                continue
-            if len(parts) != _N_FIELDS:
-                raise DataFormatError(
-                    f"{path}:{lineno}: expected {_N_FIELDS} space-separated fields "
-                    f"(track_id xmin ymin xmax ymax frame lost occluded generated label), got "
-                    f"{len(parts)}; the file is malformed or truncated"
-                )
-            tag = parts[9]
-            if len(tag) < 3 or tag[0] != '"' or tag[-1] != '"':
-                raise DataFormatError(
-                    f"{path}:{lineno}: the label {tag} is not a quoted name such as "
-                    '"Pedestrian"; the file is malformed or truncated'
-                )
-            numbers.append(parts[:9])
-            tags.append(tag)
-            linenos.append(lineno)
+    for lineno, line in enumerate(read_data_text(path, "SDD annotations").splitlines(), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != _N_FIELDS:
+            raise DataFormatError(
+                f"{path}:{lineno}: expected {_N_FIELDS} space-separated fields "
+                f"(track_id xmin ymin xmax ymax frame lost occluded generated label), got "
+                f"{len(parts)}; the file is malformed or truncated"
+            )
+        tag = parts[9]
+        if len(tag) < 3 or tag[0] != '"' or tag[-1] != '"':
+            raise DataFormatError(
+                f"{path}:{lineno}: the label {tag} is not a quoted name such as "
+                '"Pedestrian"; the file is malformed or truncated'
+            )
+        numbers.append(parts[:9])
+        tags.append(tag)
+        linenos.append(lineno)
     if not numbers:
         raise DataFormatError(f"{path}: no {label} rows (the file is empty); nothing to simulate")
     try:

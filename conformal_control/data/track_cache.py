@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from ..fileio import read_limited
+from .paths import MAX_DATA_FILE_BYTES
 from .tracks import Tracks
 
 __all__ = ["CACHE_ENV_VAR", "SWITCH_ENV_VAR", "cached_tracks", "tracks_cache_dir"]
@@ -121,7 +123,8 @@ def cached_tracks(
     if os.environ.get(SWITCH_ENV_VAR, "1").strip() == "0":
         return read()
     try:
-        data = Path(path).read_bytes()
+        # capped, no FIFO or device (its errors are the reader's own, one line)
+        data = read_limited(path, MAX_DATA_FILE_BYTES, what="data file")
     except OSError:
         return read()  # the reader raises its own clear error
     entry = tracks_cache_dir() / f"{_key(kind, data, args)}.npz"

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DataFormatError
-from .paths import missing
+from .paths import missing, read_data_text
 from .sdd import SDD_FPS
 from .tracks import Tracks, check_frames, file_agent_ids
 
@@ -32,21 +32,20 @@ TRAJNET_STEP = 12  # frames between TrajNet samples (2.5 fps at 30 fps)
 def _parse(path: Path, m_per_px: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     rows = []
     lines: list[int] = []
-    with path.open() as fh:
-        for lineno, line in enumerate(fh, start=1):
-            parts = line.split()
-            if not parts:
-                continue
-            if len(parts) != 4:
-                raise DataFormatError(
-                    f"{path}:{lineno}: expected 4 fields (frame track_id x_px y_px), got "
-                    f"{len(parts)}; the file is malformed or truncated"
-                )
-            try:
-                rows.append([float(p) for p in parts])
-            except ValueError as exc:
-                raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
-            lines.append(lineno)
+    for lineno, line in enumerate(read_data_text(path, "TrajNet file").splitlines(), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != 4:
+            raise DataFormatError(
+                f"{path}:{lineno}: expected 4 fields (frame track_id x_px y_px), got "
+                f"{len(parts)}; the file is malformed or truncated"
+            )
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError as exc:
+            raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+        lines.append(lineno)
     if not rows:
         raise DataFormatError(f"{path}: no rows")
     arr = np.array(rows)

@@ -87,7 +87,7 @@ from ..base import Loss, Plugin
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier, APFForm
-from ..cbf.constraint import ConformalConstraint
+from ..cbf.constraint import ConformalConstraint, time_to_contact
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
 from ..cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
 from ..cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
@@ -100,8 +100,15 @@ from ..crowds.crowd import Crowd
 from ..data.scene import Scene, SparseTracks
 from ..flagship.build import Flagship, build_flagship
 from ..jit import compile_now
-from ..loop import IntervalLog, IntervalScore, LoopResult, close_interval
-from ..monitor import GuaranteeMonitor
+from ..loop import (
+    IntervalLog,
+    IntervalScore,
+    LoopResult,
+    check_per_agent,
+    close_agent_interval,
+    close_interval,
+)
+from ..monitor import AgentMonitor, GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityForm
 from ..results.episode import EpisodeResult
 from ..results.measure import (
@@ -372,7 +379,7 @@ class _Episode:
     run: RunSpec  # the episode's own: its seed and time limit
     fl: Flagship
     parts: _Parts  # fl's roles as the classes the engine runs
-    monitor: GuaranteeMonitor
+    monitor: GuaranteeMonitor | AgentMonitor
     learn: bool
     seed: int
     max_frames: int | None
@@ -381,6 +388,9 @@ class _Episode:
     goals: np.ndarray
     intervals: list[IntervalLog] = field(default_factory=list)
     n_sensed: list[int] = field(default_factory=list)
+    # lambda run per agent: the interval's agents (keys) and their lambdas
+    keys: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lams: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class _Pool:
@@ -434,7 +444,8 @@ class _Pool:
     need_begin: np.ndarray  # bool (size,)
     prm: np.ndarray  # (size, len(kernels2d.PARAMS))
     poly: np.ndarray  # (size, 5 * sides): the speed polygon
-    counts: np.ndarray  # int64 (size, 5): solves, infeasible, fallback, vertex, steps
+    counts: np.ndarray  # int64 (size, 7): solves, infeasible, fallback, vertex, steps, escape,
+    # escape_projected
     sensed: np.ndarray  # int64 (size, columns)
     xp: np.ndarray  # (size, steps, cap, 2): predicted positions
     vp: np.ndarray  # (size, steps, cap, 2): predicted velocities
@@ -466,6 +477,8 @@ class _Pool:
     paused: np.ndarray  # (3,): the paused step's nominal decision and lambda
     reactive: np.ndarray  # bool (size,): a reactive crowd (engines.reactive)
     mirror: np.ndarray  # bool (size,): its environment's buffer is read during the run
+    vec: np.ndarray  # bool (size,): lambda run per agent
+    lam_off: np.ndarray  # (size, cap): per agent, its lambda minus the slot's lam (vec)
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -511,7 +524,7 @@ class _Pool:
         self.need_begin = np.zeros(b, dtype=bool)
         self.prm = np.zeros((b, len(kernels2d.PARAMS)))
         self.poly = np.zeros((b, 0))
-        self.counts = np.zeros((b, 5), dtype=np.int64)
+        self.counts = np.zeros((b, 7), dtype=np.int64)
         self.sensed = np.zeros((b, 0), dtype=np.int64)
         self.xp = np.zeros((b, 0, 0, 2))
         self.vp = np.zeros((b, 0, 0, 2))
@@ -544,6 +557,8 @@ class _Pool:
         self.paused = np.zeros(3)
         self.reactive = np.zeros(b, dtype=bool)
         self.mirror = np.zeros(b, dtype=bool)
+        self.vec = np.zeros(b, dtype=bool)
+        self.lam_off = np.zeros((b, 0))
 
     @staticmethod
     def grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -618,6 +633,7 @@ class _Pool:
             if agents > self.cap:
                 self.cap = max(agents, 2 * self.cap, 16)
                 self.xp, self.vp = g(self.xp, 2, self.cap), g(self.vp, 2, self.cap)
+                self.lam_off = g(self.lam_off, 1, self.cap)
                 self.prm[:, 11] = self.cap
             if sides > self.sides:
                 self.sides = sides
@@ -676,14 +692,25 @@ class _Engine:
         # what ConformalLoop.run does first: reset the environment (validates the scene and
         # the timing), the family (validates; resets predictor, filter, reference), the rule
         env = parts.env
-        fl.reset()
-        monitor = GuaranteeMonitor.for_rule(
+        env.reset()
+        vec = fl.params.si["lambda_per"] == "agent"
+        if vec:  # as ConformalStepper.start, and its begin_interval for the acp family
+            check_per_agent(fl.family, fl.loss)
+            if parts.acp is not None:
+                raise ValueError(
+                    f"{type(fl.family).__name__}.lambda_keys() gave None after "
+                    "begin_interval: lambda cannot be run per agent with this family"
+                )
+        fl.family.reset()
+        monitor: GuaranteeMonitor | AgentMonitor
+        monitor = (AgentMonitor if vec else GuaranteeMonitor).for_rule(
             fl.rule,
             lambda_safe=lam_safe_si,
             lambda_safe_source=run.lambda_safe_source,
             premise_proven=False,
             bounds=parts.loss.bounds,
             learn=learn,
+            **({"prior": fl.params.si["lambda_prior"]} if vec else {}),
         )
         # each compiled part as its compiled form (validated constants), never its attributes
         forms = fl.compiled_forms()
@@ -773,6 +800,7 @@ class _Engine:
         p.k_acc[b] = k
         p.radius[b] = env.sensing_radius
         p.lam[b] = monitor.lambda_1
+        p.vec[b] = vec
         if parts.gap is not None:
             gap = _form(forms, "loss", GapLossForm)
             p.scale[b] = gap.scale
@@ -817,6 +845,7 @@ class _Engine:
             fallback_kernel == "lambda_search",
             filt_form.lambda_margin,
             p.cap,
+            *fl.constraint.edge_settings(),
         )
         self.eps[b] = ep
         bk.log_frames(np.array([b]), p.store, p.where, p.fi, p.x, p.t, p.log, p.n_log)
@@ -837,6 +866,13 @@ class _Engine:
             ep = self.eps[b]
             assert ep is not None  # slots are live
             ep.n_sensed.append(m)
+            if p.vec[b]:  # each sensed agent's lambda (a new one's at the prior)
+                assert isinstance(ep.monitor, AgentMonitor)
+                ep.keys = np.asarray(ep.parts.env.scene.agent_ids[p.sensed[b, :m]], np.int64)
+                ep.lams = ep.monitor.values(ep.keys)
+                ref = float(ep.lams.min()) if m else 0.0  # the family's smallest entry
+                p.lam[b] = ref
+                p.lam_off[b, :m] = ep.lams - ref
         predicted = slots[n > 0]  # the controller asks its predictor only about agents
         if self._acp:  # the acp family's begin_interval runs at every sampling time
             regions = p.acp[slots]
@@ -938,6 +974,7 @@ class _Engine:
                 p.store, p.where, p.substeps, p.fi, p.last_frame, p.log, p.n_log,
                 p.keep, p.st_t, p.st_x, p.st_cmd, p.n_st,
                 p.acp, p.acp_dc, p.acp_delta, p.acp_h, p.forced, p.forced_v, p.paused,
+                p.vec, p.lam_off,
             )  # fmt: skip
             if paused < 0 or bad >= 0:
                 break
@@ -980,6 +1017,15 @@ class _Engine:
             p.work[2 * cap : 2 * cap + n].copy(),
             lam,
             p.last[b].copy(),
+            escape=Exact2DSafetyFilter.escape_in(p.work, cap, int(p.poly_len[b]) // 5),
+            # (the collision distance Exact2DSafetyFilter.contact_times takes)
+            ttc=time_to_contact(
+                p.x[b, :2],
+                p.xp[b, int(p.step[b]), :n],
+                p.vp[b, int(p.step[b]), :n],
+                float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+                np.array((n0, n1)),
+            ),
         )
         res = ep.parts.safety_filter.fall_back(step)
         v = np.asarray(res.decision, dtype=float)
@@ -1006,11 +1052,15 @@ class _Engine:
         n_pairs[slots] = 0
         loss[slots] = np.nan
         applied[slots] = np.nan
+        agent_top = np.zeros(0)  # per agent of each scored slot (lambda run per agent)
+        where: dict[int, int] = {}  # scored slot -> its agents' offset in agent_top
         if scored.size:
             counts = p.n_agents[scored]
             offsets = np.zeros(scored.size, dtype=np.int64)
             if scored.size > 1:
                 np.cumsum(counts[:-1], out=offsets[1:])
+            agent_top = np.full(int(counts.sum()), -np.inf)
+            where = dict(zip(scored.tolist(), offsets.tolist(), strict=True))
             frames = -(-p.step[scored] // p.substeps[scored])  # frames the interval ran
             truth = np.empty((int(counts.sum()), int(frames.max()) + 1, 2))
             bk.gather_windows(
@@ -1019,6 +1069,7 @@ class _Engine:
             gap_maxima(
                 scored, offsets, p.n_agents, p.step, truth, p.dt_frame, p.substeps, p.rec_x,
                 p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
+                p.vec, p.lam_off, agent_top,
             )  # fmt: skip
             for scale, squash in self._squash.items():
                 # one loss scale in the engine: every scored slot has it
@@ -1034,6 +1085,21 @@ class _Engine:
             s = int(p.step[b])
             pairs = int(n_pairs[b])
             gap = ep.parts.gap
+            if isinstance(ep.monitor, AgentMonitor):
+                log, lam = self._end_per_agent(b, ep, where.get(b), agent_top, pairs)
+                ep.intervals.append(log)
+                p.lam[b] = lam
+                extreme = [lam, *ep.monitor.current().tolist()]
+                for x in extreme:
+                    if not (math.isfinite(x) and abs(x) <= LAMBDA_LIMIT):
+                        check_lambda(x, ep.fl, log.k)  # raises
+                if self.on_interval is not None:
+                    self.on_interval(log)
+                if p.done[b]:
+                    finished.append(b)
+                else:
+                    p.need_begin[b] = True
+                continue
             score: IntervalScore | None = None
             record = revealed = None
             if gap is None:  # the loss object on the interval's record and truth
@@ -1074,6 +1140,41 @@ class _Engine:
             else:
                 p.need_begin[b] = True
         return finished
+
+    def _end_per_agent(
+        self, b: int, ep: _Episode, o: int | None, agent_top: np.ndarray, pairs: int
+    ) -> tuple[IntervalLog, float]:
+        """Slot ``b``'s interval end with lambda run per agent: each agent's gap loss from
+        its largest gap (``agent_top[o:]``, the compiled gap loss), or the loss object's
+        components on the interval's record and truth; then each agent's update
+        (:func:`~conformal_control.loop.close_agent_interval`)."""
+        p = self.pool
+        assert isinstance(ep.monitor, AgentMonitor)
+        s, n = int(p.step[b]), int(p.n_agents[b])
+        gap = ep.parts.gap
+        k = len(ep.intervals)
+        if gap is None:  # the loss object on the interval's record and truth
+            return close_agent_interval(
+                k, ep.keys, ep.lams, s, monitor=ep.monitor, loss=ep.parts.loss,
+                record=self._record(b), truth=self._truth(b),
+            )  # fmt: skip
+        top = np.full(n, np.nan)
+        if o is not None:
+            got = agent_top[o : o + n]
+            top = np.where(np.isfinite(got), got, np.nan)
+        comp = gap.keyed(ep.keys, top, ep.lams)
+        diagnostics: dict[str, float] = {}
+        if pairs and np.isfinite(comp.values).any():
+            top_b, applied_b = self._scores[0][b], self._scores[1][b]
+            diagnostics = {
+                "loss_applied": float(gap.squash(applied_b)),
+                "max_gap": float(top_b),
+                "n_pairs": pairs,
+                "n_truth_missing": s * n - pairs,
+            }
+        return close_agent_interval(
+            k, ep.keys, ep.lams, s, monitor=ep.monitor, components=comp, diagnostics=diagnostics
+        )
 
     def _record(self, b: int) -> CBFIntervalRecord:
         """Slot ``b``'s interval as the controller's ``interval_record`` gives it, without
@@ -1148,10 +1249,14 @@ class _Engine:
         filt.n_infeasible_ += c[1]
         filt.n_fallback_ += c[2]
         name = filt.fallback_.name
-        if c[2]:
-            filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2]
+        if c[2] - c[5]:
+            filt.fallback_counts_[name] = filt.fallback_counts_.get(name, 0) + c[2] - c[5]
+        if c[5]:  # steps the edge rule decided alone
+            filt.fallback_counts_["escape"] = filt.fallback_counts_.get("escape", 0) + c[5]
         if c[3]:
             filt.events_["lambda_search_vertex"] = c[3]
+        if c[6]:  # brake / hold decisions moved into the edge rule's escape polygon
+            filt.events_["escape_projected"] = filt.events_.get("escape_projected", 0) + c[6]
         crowd_config: dict[str, Any] = {"crowd": "replay"}
         if p.reactive[b]:  # the simulated crowd back to its environment, as it walked
             assert self.crowds is not None and isinstance(env, ReactiveEnvironment)

@@ -111,6 +111,9 @@ def _gap_maxima_numpy(
     top: np.ndarray,
     top_applied: np.ndarray,
     n_pairs: np.ndarray,
+    vec: np.ndarray,
+    lam_off: np.ndarray,
+    agent_top: np.ndarray,
 ) -> None:
     """:func:`gap_maxima`'s interpreted form: each slot's (instant, agent) pairs as arrays
     (the same IEEE operations pair by pair, so the same numbers; the maxima of the same
@@ -125,6 +128,8 @@ def _gap_maxima_numpy(
         top[b] = -math.inf
         top_applied[b] = -math.inf
         n_pairs[b] = 0
+        if vec[b]:
+            agent_top[o : o + n] = -math.inf
         if n == 0 or s == 0:
             continue
         k = np.arange(s)
@@ -156,7 +161,13 @@ def _gap_maxima_numpy(
             )  # fmt: skip
             gap = pred - _apf_values(ex, ey, evx, evy, tx, ty, tvx, tvy, p)
             g = gap[ok]
-            g_applied = (gap + la)[ok]
+            if vec[b]:  # each agent's row: the lambda applied plus its offset
+                g_applied = (gap + (la[None, :] + lam_off[b, :n, None]))[ok]
+                per = np.where(ok, gap, -math.inf)
+                per = np.where(np.isnan(per), -math.inf, per)
+                agent_top[o : o + n] = per.max(axis=1)
+            else:
+                g_applied = (gap + la)[ok]
             # the loop's `>` never takes a NaN
             if g.size and not np.isnan(g).all():
                 top[b] = float(np.nanmax(g))
@@ -184,6 +195,9 @@ def gap_maxima(
     top: np.ndarray,
     top_applied: np.ndarray,
     n_pairs: np.ndarray,
+    vec: np.ndarray,
+    lam_off: np.ndarray,
+    agent_top: np.ndarray,
 ) -> None:
     """The gap loss's maxima for the interval that ends now, per slot.
 
@@ -196,6 +210,10 @@ def gap_maxima(
     position and decision), pairs without truth are left out. Writes the largest gap
     ``top[b]``, the largest gap plus the lambda applied (``lam[b]`` where brake / hold
     applied none) ``top_applied[b]`` and the number of pairs with a truth ``n_pairs[b]``.
+
+    With lambda run per agent (``vec[b]``) agent a's row had the lambda applied plus
+    ``lam_off[b, a]``, and agent a's largest gap goes to ``agent_top[offsets[i] + a]``
+    (-inf without a pair).
     """
     for i in range(slots.shape[0]):
         b = slots[i]
@@ -206,6 +224,10 @@ def gap_maxima(
         best = -math.inf
         best_applied = -math.inf
         count = 0
+        per = vec[b]
+        if per:
+            for a in range(n_agents[b]):
+                agent_top[o + a] = -math.inf
         for k in range(step[b]):
             j = k // sub
             frac = (k % sub) / sub
@@ -240,8 +262,14 @@ def gap_maxima(
                 count += 1
                 if gap > best:
                     best = gap
-                if gap + la > best_applied:
-                    best_applied = gap + la
+                if per:
+                    if gap > agent_top[o + a]:
+                        agent_top[o + a] = gap
+                    v = gap + (la + lam_off[b, a])
+                else:
+                    v = gap + la
+                if v > best_applied:
+                    best_applied = v
         top[b] = best
         top_applied[b] = best_applied
         n_pairs[b] = count

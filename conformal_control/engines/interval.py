@@ -25,7 +25,16 @@ import math
 
 import numpy as np
 
-from ..cbf.kernels2d import INFEASIBLE, NONFINITE, OPTIMAL, SEARCH_VERTEX, UNCONSTRAINED, apf_step
+from ..cbf.kernels2d import (
+    ESCAPED,
+    INFEASIBLE,
+    NONFINITE,
+    OPTIMAL,
+    SEARCH_VERTEX,
+    UNCONSTRAINED,
+    apf_step,
+    escape_guard,
+)
 from ..cbf.pyhypot import py_hypot
 from ..jit import kernel
 from .gap_kernels import HOLD, PYTHON
@@ -105,6 +114,9 @@ def run_interval(
     forced: np.ndarray,
     forced_v: np.ndarray,
     paused: np.ndarray,
+    # lambda run per agent: per slot, whether, and each agent's offset above lam[b]
+    vec: np.ndarray,
+    lam_off: np.ndarray,
 ) -> tuple[int, int]:
     """Run the control instants of the current interval of each slot ``b`` in ``slots``
     (at least one, then until ``step[b] >= n_ctrl[b]`` or ``done[b]``); returns -1, or the
@@ -121,7 +133,8 @@ def run_interval(
     (layout of :func:`apf_step`): ``lam[b]``, the ``n_agents[b]`` sensed agents'
     predictions ``xp[b, step]`` / ``vp[b, step]``, ``prm[b]``, ``poly[b, :poly_len[b]]``,
     the fallback code ``fallback[b]`` and the previous decision ``last[b]``; ``counts[b]``
-    gets (solves, infeasible, fallback, lambda-search vertex, control instants). The
+    gets (solves, infeasible, fallback, lambda-search vertex, control instants, edge rule
+    deciding alone, brake / hold moved into its escape polygon). The
     plant: ``dt[b]``, ``decay[b] = exp(-K dt)``, ``gain[b] = -expm1(-K dt)``, ``k_acc[b]
     = K``. The interval's record: ``rec_x`` (ego position), ``rec_v`` (decision),
     ``rec_lam`` (lambda applied, NaN for brake / hold), ``rec_code`` (:data:`FREE`,
@@ -142,6 +155,9 @@ def run_interval(
     slots after it are not run. The caller decides, sets ``forced[b]`` and ``forced_v[b]``
     = (v_x, v_y, lambda applied), and calls again from that slot: the step then applies
     the given decision.
+
+    With lambda run per agent (``vec[b]``), agent a's row has the slack ``lam[b] +
+    lam_off[b, a]`` (:func:`apf_step`'s offsets; ``lam[b]`` is the smallest entry).
     """
     for i in range(slots.shape[0]):
         b: int = slots[i]  # an annotation only: no bytecode, numba types it from slots
@@ -160,6 +176,7 @@ def run_interval(
         regions = acp[b]
         if regions:
             la = 0.0
+        off = lam_off[b, :n] if vec[b] else lam_off[b, :0]
         if step[b] == 0:  # the interval's control instants, as ReplayEnvironment says
             n_ctrl[b] = max(min(tau[b], last_frame[b] - fi[b]), 0) * sub
         while True:
@@ -187,7 +204,7 @@ def run_interval(
                     p[2] = acp_dc[b, hh]
                     p[3] = acp_delta[b, hh]
                 code, v0, v1, lam_used, solves = apf_step(
-                    x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work
+                    x0, x1, xp[b, s, :n], vp[b, s, :n], n0, n1, la, p, pl, work, off
                 )
                 if code == NONFINITE:
                     return b, -1
@@ -219,6 +236,18 @@ def run_interval(
                     else:
                         v0 = 0.0
                         v1 = 0.0
+                    # within the edge rule's escape polygon, if the step had one
+                    ns = pl.shape[0] // 5
+                    moved, v0, v1 = escape_guard(
+                        v0, v1, work[10 * int(p[11]) + 3 * ns :], int(p[11]), p[6]
+                    )
+                    if moved:
+                        counts[b, 6] += 1
+            elif code == ESCAPED:  # the edge rule decided alone
+                counts[b, 1] += 1
+                counts[b, 2] += 1
+                counts[b, 5] += 1
+                applied = math.nan
             else:  # lambda search (the projection at lambda* + margin, or the LP's vertex)
                 counts[b, 1] += 1
                 counts[b, 2] += 1

@@ -69,7 +69,7 @@ def run_loop(
         )
 
     def hooks(log: IntervalLog) -> None:
-        check_lambda(loop.lam, fl, log.k)
+        check_lambda(loop.lam_extreme, fl, log.k)
         if recorder is not None:
             recorder(log)
         if on_interval is not None:
@@ -85,6 +85,8 @@ def run_loop(
         lambda_safe=lam_safe_si,
         lambda_safe_source=run.lambda_safe_source,
         on_interval=hooks,
+        lambda_per=si["lambda_per"],
+        lambda_prior=si["lambda_prior"],
     )
     result = loop.run()
     wall = time.perf_counter() - t0

@@ -20,6 +20,7 @@ typed in the scene's units (see :func:`build_rule`).
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -91,13 +92,6 @@ class Flagship:
             stacklevel=2,
         )
         return self.family
-
-    def reset(self) -> None:
-        """What a run does first: reset the environment (validates the scene and the
-        timing), then the decision family (validates; resets its predictor, filter and
-        reference)."""
-        self.env.reset()
-        self.family.reset()
 
     def compiled_forms(self) -> dict[str, CompiledForm | None]:
         """The compiled form of each part, as the compiled engine reads it: role ->
@@ -342,7 +336,8 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     if bar is None:
         bar = _create("barrier", "apf", None, context)
     names["barrier"] = role_name(barrier, "apf")
-    constraint = ConformalConstraint(bar, a=si["a"])
+    # the edge rule on the true collision distance (barrier_margin is the barrier's only)
+    constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
     context = context.replace(constraint=constraint)
 
     filt = _resolve("safety_filter", safety_filter, safety_filter_params, context, SafetyFilter)
@@ -382,6 +377,13 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
         # defaults apply unless the run gave them
         fam_defaults = dict(fam_cls.capabilities.default_rule_params)
+        ceiling = getattr(fam_cls, "lambda_ceiling", None)
+        margin = dict(family_params or {}).get("margin", si["barrier_margin"])
+        if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
+            # lambda never pushes the safe distance below d_c (SamplingMPC.lambda_ceiling)
+            top = float(ceiling(float(margin)))
+            if math.isfinite(top):
+                fam_defaults.setdefault("lambda_max", top)
         own = {k: v for k, v in fam_defaults.items() if k not in resolved.given}
         if own:
             # the run's parameters are these (config.json, metrics): lambda's unit is the

@@ -28,9 +28,10 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..base import LAMBDA_PER
 from ..data.scene import Scene
 from ..exceptions import InputError, SuspiciousValueWarning
-from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI
+from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI, parameter_info
 from ..update_rules.base import check_epsilon
 
 __all__ = [
@@ -299,7 +300,7 @@ def _positive(si: dict[str, Any], name: str, allow_zero: bool = False) -> None:
 
 
 #: parameters whose value is a string (every other one is numeric)
-_TEXT_PARAMS = ("convention",)
+_TEXT_PARAMS = ("convention", "lambda_per", "edge")
 
 
 def check_names(given: dict[str, Any]) -> None:
@@ -363,16 +364,16 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     _positive(si, "eta", allow_zero=True)
     _positive(si, "barrier_margin", allow_zero=True)
     check_epsilon(si["epsilon"])
+    # whole-number parameters in their table's range, before anything is allocated with
+    # them (substeps=1e8 asked for 95 GiB; speed_sides=1e8 ran for minutes)
     for name in ("substeps", "history"):
         v = merged[name]
-        if not (isinstance(v, int) and v >= 1):
-            raise InputError(f"parameter {name} must be a positive integer, got {v!r}")
-    if (
-        not isinstance(merged["speed_sides"], int)
-        or merged["speed_sides"] in (1, 2)
-        or (merged["speed_sides"] < 0)
-    ):
-        raise InputError(f"speed_sides must be 0 or an integer >= 3, got {merged['speed_sides']!r}")
+        info = parameter_info(name)
+        if not (isinstance(v, int) and info.low <= v <= info.high):
+            raise InputError(f"parameter {name} must be an integer in {info.range_text}, got {v!r}")
+    sides, top = merged["speed_sides"], int(parameter_info("speed_sides").high)
+    if not isinstance(sides, int) or sides in (1, 2) or not 0 <= sides <= top:
+        raise InputError(f"speed_sides must be 0 or an integer from 3 to {top}, got {sides!r}")
     tau_frames_f = si["tau"] * scene.fps
     tau_frames = round(tau_frames_f)
     if tau_frames < 1 or abs(tau_frames - tau_frames_f) > 1e-6:
@@ -381,6 +382,14 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
         v = si[name]
         if not isinstance(v, (int, float)) or math.isnan(v):
             raise InputError(f"parameter {name} must be a number, got {v!r}")
+    if not math.isfinite(si["lambda_init"]):
+        raise InputError(f"parameter lambda_init must be finite, got {si['lambda_init']!r}")
+    if si["lambda_min"] == math.inf or si["lambda_max"] == -math.inf:
+        bad = "lambda_min" if si["lambda_min"] == math.inf else "lambda_max"
+        raise InputError(
+            f"parameter {bad} must be finite or the open end ({'-' if bad == 'lambda_min' else ''}"
+            f"inf), got {si[bad]!r}: lambda would have no finite value left"
+        )
     if si["lambda_min"] > si["lambda_max"]:
         raise InputError("lambda_min must not exceed lambda_max")
     delta = si["delta"]
@@ -394,6 +403,16 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     for name in _TEXT_PARAMS:
         if not isinstance(merged[name], str):
             raise InputError(f"parameter {name} must be a name, got {merged[name]!r}")
+    if merged["edge"] not in ("escape", "paper"):
+        raise InputError(f"parameter edge must be 'escape' or 'paper', got {merged['edge']!r}")
+    if merged["lambda_per"] not in LAMBDA_PER:
+        raise InputError(
+            f"parameter lambda_per must be one of {', '.join(LAMBDA_PER)}, "
+            f"got {merged['lambda_per']!r}"
+        )
+    q = merged["lambda_prior"]
+    if not (isinstance(q, (int, float)) and 0.0 <= q <= 1.0):
+        raise InputError(f"parameter lambda_prior must be a quantile in [0, 1], got {q!r}")
     dims = {k: scene.units.unit_of(k) for k in PARAM_DIMENSIONS}
     return ResolvedParams(
         given=dict(given),

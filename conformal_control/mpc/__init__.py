@@ -8,30 +8,51 @@
                    (Dixit et al. 2023), lambda = their miscoverage level
 ``ecp_mpc``        :class:`ECPMPC`: egocentric conformal regions per candidate position
                    (Shin et al. 2025), lambda = their miscoverage level
+``fcp_mpc``        :class:`FCPMPC`: conformalized distance fields (FCP-MPC 2026), hard
+                   or soft, lambda = 1 - the multiplier of the envelope's radii
+``soft_mpc``       :class:`SoftRewardMPC`: no safe distance, a reward ``-lambda`` per metre
+                   of distance to the predictions (the published CC-MPC)
 =================  ===============================================================
 """
 
 from .acp import ACPMPC, ACPMPCIntervalRecord, PlanMiscoverageLoss
 from .controller import FALLBACKS, MPCIntervalRecord, Plan, SamplingMPC
 from .ecp import ECPMPC, ECPMPCIntervalRecord, EgocentricMiscoverageLoss
+from .fcp import (
+    FCPMPC,
+    FCPMPCIntervalRecord,
+    FieldCalibration,
+    FieldConstraint,
+    FieldMiscoverageLoss,
+)
 from .kernels import evaluate
+from .margin import MarginMiscoverageLoss
 from .settings import Costs, Limits, Sampling
+from .soft import NegativeDistanceLoss, SoftRewardMPC
 from .stepwise import StepwiseMPC
 
 __all__ = [
     "ACPMPC",
     "ECPMPC",
     "FALLBACKS",
+    "FCPMPC",
     "ACPMPCIntervalRecord",
     "Costs",
     "ECPMPCIntervalRecord",
     "EgocentricMiscoverageLoss",
+    "FCPMPCIntervalRecord",
+    "FieldCalibration",
+    "FieldConstraint",
+    "FieldMiscoverageLoss",
     "Limits",
     "MPCIntervalRecord",
+    "MarginMiscoverageLoss",
+    "NegativeDistanceLoss",
     "Plan",
     "PlanMiscoverageLoss",
     "Sampling",
     "SamplingMPC",
+    "SoftRewardMPC",
     "StepwiseMPC",
     "evaluate",
 ]

@@ -101,10 +101,24 @@ class ACPMPC(
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions (lambda
         <= 0, or too few errors for the level).
+    edge : {"escape", "paper"}
+        The edge rule of :class:`~conformal_control.mpc.controller.SamplingMPC`.
     **grouped
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
     """
+
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """``inf``: lambda is a level here, the safe distance is never below ``d_c +
+        margin`` whatever it is.
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return math.inf
 
     def __init__(
         self,
@@ -122,6 +136,7 @@ class ACPMPC(
         random_state: int = 0,
         window: int = 2000,
         max_inflation: float = 2.0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.window = window
@@ -139,6 +154,7 @@ class ACPMPC(
             continuous,
             substeps,
             random_state,
+            edge,
             **grouped,
         )
 

@@ -23,6 +23,17 @@ the collision distance ``d_c`` plus the fixed ``margin``. Subclasses move the kn
 elsewhere by overriding :meth:`SamplingMPC.safe_radius` (the ``acp_mpc`` family:
 conformal regions per plan step).
 
+**The edge rule** (``edge="escape"``, the default): when a sensed agent is already within
+``d_c`` of the robot, no plan whose first step closes in on it (its predicted distance
+at the first plan step below the distance now) is chosen while one that does not
+exists -- neither among the safe samples nor by the fallback; when none exists, the plan
+closing in slowest is. Counted as ``n_edge`` (plans made with an agent within ``d_c``).
+``edge="paper"`` leaves the choice to the safe set and the fallback alone.
+
+**lambda's ceiling.** lambda never pushes the safe distance below ``d_c``: a run's rule
+gets ``lambda_max = margin`` unless it gives one (:meth:`SamplingMPC.lambda_ceiling`),
+and a negative ``margin`` is refused.
+
 **Infeasibility.** When no sample is safe the step is *infeasible*: it is counted
 (``n_infeasible``) and the ``fallback`` decides, also counted (``n_fallback_<name>``):
 
@@ -59,6 +70,7 @@ from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ..spec import parameter_info
 from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
@@ -175,7 +187,7 @@ class SamplingMPC(
     d_c : float
         Collision distance between centres (m, >= 0): robot radius + agent radius.
     margin : float
-        Fixed extra safe distance (m).
+        Fixed extra safe distance (m, >= 0); also lambda's default ceiling.
     limits : Limits, optional
         ``v_max`` (m/s) and ``a_max`` (m/s^2), the bounds of the sampled commands;
         default ``Limits()`` (1 m/s, 2 m/s^2).
@@ -192,6 +204,8 @@ class SamplingMPC(
         Control instants per prediction sample (for the interval's record).
     random_state : int
         Seed of the sampler (reset at every episode).
+    edge : {"escape", "paper"}
+        The edge rule (see the module docstring).
     **grouped
         A group's field as ``<group>__<field>`` (``costs__w_goal=2.0``: the registry's
         ``(name, params)`` form); the former flat keywords (``n_samples=``, ``w_goal=``,
@@ -229,6 +243,7 @@ class SamplingMPC(
         continuous: bool = True,
         substeps: int = 4,
         random_state: int = 0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.predictor = predictor
@@ -243,6 +258,7 @@ class SamplingMPC(
         self.continuous = continuous
         self.substeps = substeps
         self.random_state = random_state
+        self.edge = edge
         self._set_grouped(grouped)
 
     # ------------------------------------------------------------------ contract kit
@@ -280,13 +296,18 @@ class SamplingMPC(
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:
         check_groups(self.sampling, self.costs, self.limits)
-        v = self.substeps
-        if isinstance(v, bool) or int(v) != v or v < 1:
-            raise ValueError(f"substeps must be a positive integer, got {v!r}")
+        v, top = self.substeps, int(parameter_info("substeps").high)
+        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
+            raise ValueError(f"substeps must be an integer from 1 to {top}, got {v!r}")
         if not (math.isfinite(self.d_c) and self.d_c >= 0):
             raise ValueError(f"d_c must be a finite distance >= 0, got {self.d_c!r}")
-        if not math.isfinite(self.margin):
-            raise ValueError(f"margin must be a finite distance, got {self.margin!r}")
+        if not (math.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(
+                f"margin must be a finite distance >= 0 (a negative one puts the safe "
+                f"distance inside the collision distance d_c), got {self.margin!r}"
+            )
+        if self.edge not in ("escape", "paper"):
+            raise ValueError(f"edge must be 'escape' or 'paper', got {self.edge!r}")
         if self.fallback not in FALLBACKS:
             raise ValueError(
                 f"fallback must be one of {', '.join(FALLBACKS)}, got {self.fallback!r}"
@@ -307,6 +328,7 @@ class SamplingMPC(
         self.n_steps_ = 0
         self.n_plans_ = 0
         self.n_infeasible_ = 0
+        self.n_edge_ = 0
         self.n_fallback_: dict[str, int] = dict.fromkeys(FALLBACKS, 0)
         self.n_nonfinite_predictions_ = 0
         self.forecast_info_: dict[str, Any] = {}
@@ -321,6 +343,7 @@ class SamplingMPC(
             "n_steps": self.n_steps_,
             "n_plans": self.n_plans_,
             "n_infeasible": self.n_infeasible_,
+            "n_edge": self.n_edge_,
             "n_fallback": sum(self.n_fallback_.values()),
             **{f"n_fallback_{k}": v for k, v in self.n_fallback_.items()},
             "n_nonfinite_predictions": self.n_nonfinite_predictions_,
@@ -336,6 +359,7 @@ class SamplingMPC(
         self._plan: Plan | None = None
         self._plan_t = 0.0
         self._since = 0
+        self._aoff: np.ndarray | None = None  # lambda per agent: safe-distance offsets
         self._rec: dict[str, list[Any]] = {
             k: [] for k in ("x", "v", "cmd", "lam", "status", "clear", "safe")
         }
@@ -398,11 +422,56 @@ class SamplingMPC(
         return out
 
     # ------------------------------------------------------------------ the knob
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """lambda's default ceiling for a run with this ``margin`` (m): ``margin``, so the
+        safe distance ``d_c + margin - lambda`` never falls below ``d_c``. A family whose
+        lambda is not a length taken off the safe distance (its ``lambda_unit`` is not
+        ``"m"``) returns ``inf`` (its own ``default_rule_params`` may bound it).
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return float(margin) if cls.capabilities.lambda_unit == "m" else math.inf
+
     def safe_radius(self, lam: float) -> np.ndarray:
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -
         lambda, 0)``. Subclasses move the knob here."""
         r = max(float(self.d_c) + float(self.margin) - float(lam), 0.0)
         return np.full(int(self.sampling.horizon), r)
+
+    def lambda_keys(self) -> np.ndarray | None:
+        """The interval's predicted agents (``record.ids``): lambda run per agent gives
+        agent j the safe distance ``max(d_c + margin - lambda_j, 0)``. None for a family
+        that moves the knob elsewhere (``safe_radius`` or ``plan_radius`` overridden)."""
+        me = type(self)
+        if (
+            me.safe_radius is not SamplingMPC.safe_radius
+            or me.plan_radius is not SamplingMPC.plan_radius
+        ):
+            return None
+        return self._ids
+
+    def _per_agent(self, lam: Any) -> float:
+        """lambda as one number for the shared radius: an array per agent becomes its
+        smallest entry (the largest safe distance), each agent's safe distance kept as an
+        offset from it (exactly 0 for that entry: one agent is the scalar path)."""
+        if not isinstance(lam, np.ndarray):
+            self._aoff = None
+            return float(lam)
+        if getattr(self, "_robots", None) is not None:
+            raise ValueError("lambda per agent is not supported with several robots")
+        if lam.shape != self._ids.shape:
+            raise ValueError(
+                f"lambda per agent has shape {lam.shape}; the interval has "
+                f"{self._ids.size} agents (lambda_keys())"
+            )
+        ref = float(lam.min()) if lam.size else 0.0
+        base = float(self.d_c) + float(self.margin)
+        self._aoff = np.maximum(base - lam, 0.0) - max(base - ref, 0.0)
+        return ref
 
     def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
         """Safe distance per plan and step (m), shape (N, H) or (H,): :meth:`safe_radius`
@@ -462,6 +531,7 @@ class SamplingMPC(
         arguments of their evaluation (:func:`~conformal_control.mpc.kernels.evaluate`),
         which a batch of episodes evaluates in one call
         (:func:`~conformal_control.mpc.kernels.evaluate_many`) before :meth:`plan_end`."""
+        lam = self._per_agent(lam)
         goal = np.asarray(state.goal, dtype=float)
         if goal.shape != (2,) or not np.isfinite(goal).all():
             raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
@@ -479,7 +549,7 @@ class SamplingMPC(
             pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
         c = self.costs
         weights = (c.w_goal, c.w_terminal, c.w_effort, c.w_comfort)
-        problem = (
+        problem: tuple[Any, ...] = (
             pos,
             cmds,
             state.x[:2],
@@ -491,6 +561,8 @@ class SamplingMPC(
             self._last_cmd,
             bool(self.continuous),
         )
+        if self._aoff is not None and self._ids.size:
+            problem = (*problem, self._aoff)
         return PlanInputs(state, float(lam), cmds, pos, problem)
 
     def plan_end(
@@ -513,6 +585,14 @@ class SamplingMPC(
         state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
         clear, viol = peer_terms(self, state, lam, pos, clear, viol)
         safe = clear >= 0.0
+        closing = self.edge_closing(todo)
+        allowed: np.ndarray | None = None
+        if closing is not None:  # the edge rule: never close in while another plan exists
+            self.n_edge_ += 1
+            allowed = closing <= 1e-9
+            if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
+                allowed = closing <= closing.min() + 1e-9
+            safe &= allowed
         n_safe = int(safe.sum())
         self.n_plans_ += 1
         if n_safe:
@@ -522,10 +602,15 @@ class SamplingMPC(
             self.n_infeasible_ += 1
             self.n_fallback_[self.fallback] += 1
             status = self.fallback
+            stop = 1 if self._warm is not None else 0  # the stop seed
             if self.fallback == "least_violation":  # least total intrusion, then cheapest
-                i = int(np.lexsort((cost, viol))[0])
-            else:  # brake: the stop seed (index 1 with a warm start, else 0)
-                i = 1 if self._warm is not None else 0
+                order = np.lexsort((cost, viol))
+                i = int(order[0] if allowed is None else order[allowed[order]][0])
+            elif allowed is None or allowed[stop]:  # brake: the stop seed
+                i = stop
+            else:  # brake would close in: the allowed plan intruding least
+                order = np.lexsort((cost, viol))
+                i = int(order[allowed[order]][0])
         return Plan(
             commands=cmds[i].copy(),
             positions=pos[i].copy(),
@@ -534,6 +619,29 @@ class SamplingMPC(
             status=status,
             n_safe=n_safe,
         )
+
+    def edge_closing(self, todo: PlanInputs) -> np.ndarray | None:
+        """The edge rule's measure of each candidate: the fastest rate (m/s) at which its
+        first step closes in on an agent already within ``d_c`` (the predicted distance at
+        the first plan step against the distance now); None when no agent is that close
+        (or ``edge="paper"``).
+
+        Parameters
+        ----------
+        todo : PlanInputs
+            What :meth:`plan_begin` prepared.
+        """
+        if self.edge != "escape" or not self._ids.size:
+            return None
+        pos, _, x, pred, y0 = todo.problem[:5]
+        d0 = np.hypot(*(np.asarray(x, dtype=float)[None, :2] - y0).T)
+        near = d0 < float(self.d_c)
+        if not near.any():
+            return None
+        gap = pos[:, 0, None, :] - pred[None, near, 0, :]  # (N, K, 2) at the first step
+        d1 = np.hypot(gap[..., 0], gap[..., 1])
+        out: np.ndarray = ((d0[near][None, :] - d1) / float(self.sampling.dt_plan)).max(axis=1)
+        return out
 
     def will_plan(self) -> bool:
         """Whether the next :meth:`decide` plans (else it replays the current plan)."""
@@ -546,6 +654,7 @@ class SamplingMPC(
 
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        lam = self._per_agent(lam)  # an array when lambda is run per agent (lambda_keys)
         replan = self.will_plan()
         if replan:
             ready, self._next_plan = self._next_plan, None

@@ -46,6 +46,7 @@ from ..jit import kernel
 from ..losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
+from .fieldcp import distance_field
 from .settings import Costs, Limits, Sampling
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
@@ -139,12 +140,9 @@ def egocentric_quantiles(
 
 
 def _min_dist(x: np.ndarray, agents: np.ndarray) -> np.ndarray:
-    """Distance from each row of ``x`` (N, 2) to the nearest of ``agents`` (M, 2)."""
-    if agents.shape[0] == 0:
-        return np.full(x.shape[0], np.inf)
-    d2 = ((x[:, None, :] - agents[None, :, :]) ** 2).sum(-1)
-    out: np.ndarray = np.sqrt(d2.min(axis=1))
-    return out
+    """Distance from each row of ``x`` (N, 2) to the nearest of ``agents`` (M, 2), compiled
+    (:func:`~conformal_control.mpc.fieldcp.distance_field`; ``inf`` without agents)."""
+    return distance_field(agents, x)
 
 
 @dataclass
@@ -183,10 +181,24 @@ class ECPMPC(
         Past times whose scores calibrate each plan step (>= 1).
     max_inflation : float
         Largest inflation of the safe distance (m, >= 0), for unbounded regions.
+    edge : {"escape", "paper"}
+        The edge rule of :class:`~conformal_control.mpc.controller.SamplingMPC`.
     **grouped
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         or a former flat keyword with a ``DeprecationWarning``).
     """
+
+    @classmethod
+    def lambda_ceiling(cls, margin: float) -> float:
+        """``inf``: lambda is a level here, the safe distance is never below ``d_c +
+        margin`` whatever it is.
+
+        Parameters
+        ----------
+        margin : float
+            The family's fixed extra safe distance (m).
+        """
+        return math.inf
 
     def __init__(
         self,
@@ -204,6 +216,7 @@ class ECPMPC(
         random_state: int = 0,
         calibration_size: int = 15,
         max_inflation: float = 2.0,
+        edge: str = "escape",
         **grouped: Any,
     ) -> None:
         self.calibration_size = calibration_size
@@ -221,6 +234,7 @@ class ECPMPC(
             continuous,
             substeps,
             random_state,
+            edge,
             **grouped,
         )
 
@@ -285,9 +299,15 @@ class ECPMPC(
 
     def _pair(self, obs: dict[str, Any], made: dict[str, Any], h: int) -> tuple[Any, Any]:
         """Observed positions at ``obs`` and the step-h predictions of ``made`` for the
-        pedestrians in both."""
-        _, i_obs, i_pred = np.intersect1d(obs["ids"], made["ids"], return_indices=True)
-        return obs["cur"][i_obs], made["pred"][i_pred, h - 1]
+        pedestrians in both (computed once per pair of sampling times: ``obs`` keeps them,
+        both entries being final once made)."""
+        memo: dict[int, tuple[Any, Any]] = obs.setdefault("pairs", {})
+        if h not in memo:
+            _, i_obs, i_pred = np.intersect1d(
+                obs["ids"], made["ids"], assume_unique=True, return_indices=True
+            )
+            memo[h] = (obs["cur"][i_obs], made["pred"][i_pred, h - 1])
+        return memo[h]
 
     def _score_plans(self) -> np.ndarray:
         """Misses of the candidates planned h plan steps ago, scored against now."""

@@ -62,11 +62,14 @@ def _evaluate_range(
     cost: np.ndarray,
     clear: np.ndarray,
     viol: np.ndarray,
+    aoff: np.ndarray,
 ) -> None:
     """Plans ``n0:n1`` of ``pos``/``cmds``/``radius`` against agents ``a0:a1`` (columns of
     ``ex``, ``ey``, ``sx``, ``sy``), written into ``cost``, ``clear``, ``viol`` at ``n0:n1``:
     the body of :func:`_evaluate` and of :func:`_evaluate_many` (one body, so one plan's
-    numbers are the same whichever call evaluates it)."""
+    numbers are the same whichever call evaluates it). ``aoff`` is empty, or holds one
+    number per agent (columns ``a0:a1``) added to the safe distance of that agent only
+    (lambda run per agent)."""
     # ex, ey (H, M): the agents' predicted positions at the end of each step; sx, sy: at
     # its start. Agent-major rows and separate coordinates, and the closest approach chosen
     # by selects rather than branches: the agent loop compiles to vector instructions
@@ -127,7 +130,17 @@ def _evaluate_range(
             for j in range(n_agents):
                 if es[j] < d2:
                     d2 = es[j]
-            if n_agents:
+            if n_agents and aoff.shape[0]:  # each agent its own safe distance
+                cl = np.inf
+                for j in range(n_agents):
+                    cj = math.sqrt(es[j]) - (radius[n, h] + aoff[a0 + j])
+                    if cj < cl:
+                        cl = cj
+                if cl < best:
+                    best = cl
+                if cl < 0.0:
+                    v -= cl
+            elif n_agents:
                 cl = math.sqrt(d2) - radius[n, h]
                 if cl < best:
                     best = cl
@@ -154,6 +167,7 @@ def _evaluate(
     weights: np.ndarray,
     last: np.ndarray,
     continuous: bool,
+    aoff: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n_plans = pos.shape[0]
     cost = np.zeros(n_plans)
@@ -161,7 +175,7 @@ def _evaluate(
     viol = np.zeros(n_plans)
     _evaluate_range(
         pos, cmds, p0, ex, ey, sx, sy, radius, goal, weights, last, continuous,
-        0, n_plans, 0, ex.shape[1], cost, clear, viol,
+        0, n_plans, 0, ex.shape[1], cost, clear, viol, aoff,
     )  # fmt: skip
     return cost, clear, viol
 
@@ -182,10 +196,11 @@ def _evaluate_many(
     continuous: np.ndarray,
     plans: np.ndarray,
     agents: np.ndarray,
+    aoff: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Problem ``i`` is plans ``plans[i]:plans[i + 1]`` against agents ``agents[i]:agents[i
     + 1]``, with its own ``p0[i]``, ``goal[i]``, ``weights[i]``, ``last[i]``,
-    ``continuous[i]``."""
+    ``continuous[i]``; ``aoff`` is empty or one number per agent of every problem."""
     n_plans = pos.shape[0]
     cost = np.zeros(n_plans)
     clear = np.full(n_plans, np.inf)
@@ -194,6 +209,7 @@ def _evaluate_many(
         _evaluate_range(
             pos, cmds, p0[i], ex, ey, sx, sy, radius, goal[i], weights[i], last[i],
             continuous[i], plans[i], plans[i + 1], agents[i], agents[i + 1], cost, clear, viol,
+            aoff,
         )  # fmt: skip
     return cost, clear, viol
 
@@ -209,6 +225,7 @@ def evaluate(
     weights: tuple[float, float, float, float],
     last: np.ndarray,
     continuous: bool = True,
+    offsets: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cost, clearance (m) and violation (m) of every plan.
 
@@ -232,6 +249,9 @@ def evaluate(
         The command applied last (for the comfort term).
     continuous : bool
         Check the whole of every step (True) or its end points only.
+    offsets : ndarray of shape (M,), optional
+        Added to the safe distance of each agent (m; lambda run per agent: agent j's
+        safe distance is ``radius + offsets[j]``); None: ``radius`` for every agent.
 
     Returns
     -------
@@ -258,8 +278,16 @@ def evaluate(
         np.asarray(weights, dtype=np.float64),
         c(last, dtype=np.float64),
         bool(continuous),
+        _offsets(offsets),
     )
     return cost, clear, viol
+
+
+def _offsets(offsets: Any) -> np.ndarray:
+    """The kernels' ``aoff``: the agents' safe-distance offsets as float64, or empty."""
+    if offsets is None:
+        return np.zeros(0)
+    return np.ascontiguousarray(offsets, dtype=np.float64).ravel()
 
 
 def evaluate_many(
@@ -272,8 +300,9 @@ def evaluate_many(
     Parameters
     ----------
     problems : list of tuples
-        Each ``(pos, cmds, p0, pred, y0, radius, goal, weights, last, continuous)``, the
-        arguments of :func:`evaluate`; every ``pos`` with the same horizon H.
+        Each ``(pos, cmds, p0, pred, y0, radius, goal, weights, last, continuous[,
+        offsets])``, the arguments of :func:`evaluate`; every ``pos`` with the same
+        horizon H.
 
     Returns
     -------
@@ -297,6 +326,10 @@ def evaluate_many(
     sizes = np.array([np.shape(p[0])[0] for p in problems], dtype=np.int64)
     plans = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     agents = np.concatenate([[0], np.cumsum([r[0].shape[1] for r in rows])]).astype(np.int64)
+    offs = [_offsets(p[10] if len(p) > 10 else None) for p in problems]
+    if any(o.size for o in offs):  # per agent for every problem (0 where it has none)
+        offs = [o if o.size else np.zeros(r[0].shape[1]) for o, r in zip(offs, rows, strict=True)]
+    aoff = np.concatenate(offs) if offs else np.zeros(0)
     cost, clear, viol = _evaluate_many(
         np.ascontiguousarray(pos),
         np.ascontiguousarray(cmds),
@@ -312,6 +345,7 @@ def evaluate_many(
         np.array([bool(p[9]) if len(p) > 9 else True for p in problems]),
         plans,
         agents,
+        aoff,
     )
     return [(cost[a:b], clear[a:b], viol[a:b]) for a, b in itertools.pairwise(plans)]
 

@@ -11,11 +11,21 @@ deep parameters (``family.get_params(deep=True)["sampling__n_samples"]``,
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from ..base import Settings
 
-__all__ = ["Costs", "Limits", "Sampling", "check_groups"]
+__all__ = [
+    "MAX_HORIZON",
+    "MAX_PLAN_POINTS",
+    "MAX_REPLAN_EVERY",
+    "MAX_SAMPLES",
+    "Costs",
+    "Limits",
+    "Sampling",
+    "check_groups",
+]
 
 
 @dataclass(frozen=True)
@@ -25,16 +35,20 @@ class Sampling(Settings):
     Parameters
     ----------
     n_samples : int
-        Random command sequences per plan (>= 1; the family adds its seeds).
+        Random command sequences per plan (1 to :data:`MAX_SAMPLES`; the family adds its
+        seeds).
     horizon : int
-        Plan steps H (>= 1).
+        Plan steps H (1 to :data:`MAX_HORIZON`).
     dt_plan : float
         Duration of a plan step (s, > 0).
     hold : int
-        Plan steps each random command is held for (>= 1).
+        Plan steps each random command is held for (1 to ``horizon``).
     replan_every : int
-        Control instants between plans (>= 1); in between, the plan's commands are
-        replayed.
+        Control instants between plans (1 to :data:`MAX_REPLAN_EVERY`); in between, the
+        plan's commands are replayed.
+
+    Every plan holds ``n_samples x horizon`` points (at most :data:`MAX_PLAN_POINTS`):
+    the ranges are checked when the family is reset, before anything is allocated.
     """
 
     n_samples: int = 500
@@ -84,9 +98,21 @@ class Limits(Settings):
     a_max: float = 2.0
 
 
-def _positive_int(name: str, v: object) -> None:
-    if isinstance(v, bool) or int(v) != v or v < 1:  # type: ignore[call-overload, operator]
-        raise ValueError(f"{name} must be a positive integer, got {v!r}")
+#: The plausible ranges of the sampling sizes: a plan of 100,000 samples over 12 steps
+#: takes seconds per control instant already; more is a typo, not a setting
+#: (``n_samples=1e9`` asked for 44.7 GiB, ``horizon=100000`` ran for minutes).
+MAX_SAMPLES = 100_000
+MAX_HORIZON = 1_000
+MAX_REPLAN_EVERY = 100_000
+#: The most points (samples x steps) one plan holds: 16 MB per coordinate array.
+MAX_PLAN_POINTS = 2_000_000
+
+
+def _positive_int(name: str, v: object, high: int | None = None) -> None:
+    ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+    if not ok or int(v) != v or v < 1 or (high is not None and v > high):  # type: ignore[call-overload, operator]
+        bound = "a positive integer" if high is None else f"an integer from 1 to {high:,}"
+        raise ValueError(f"{name} must be {bound}, got {v!r}")
 
 
 def check_groups(sampling: object, costs: object, limits: object) -> None:
@@ -111,8 +137,15 @@ def check_groups(sampling: object, costs: object, limits: object) -> None:
     assert isinstance(sampling, Sampling)
     assert isinstance(costs, Costs)
     assert isinstance(limits, Limits)
-    for name in ("n_samples", "horizon", "hold", "replan_every"):
-        _positive_int(name, getattr(sampling, name))
+    _positive_int("n_samples", sampling.n_samples, MAX_SAMPLES)
+    _positive_int("horizon", sampling.horizon, MAX_HORIZON)
+    _positive_int("hold", sampling.hold, int(sampling.horizon))
+    _positive_int("replan_every", sampling.replan_every, MAX_REPLAN_EVERY)
+    if sampling.n_samples * sampling.horizon > MAX_PLAN_POINTS:
+        raise ValueError(
+            f"n_samples x horizon must be at most {MAX_PLAN_POINTS:,} plan points, got "
+            f"{sampling.n_samples:,} x {sampling.horizon:,}"
+        )
     positive = {"dt_plan": sampling.dt_plan, "v_max": limits.v_max, "a_max": limits.a_max}
     for name, v in positive.items():
         if not (math.isfinite(v) and v > 0):

@@ -90,9 +90,13 @@ class StepwiseMPC(StepwiseCBF):
     epsilon, eta, lambda_min : float, optional
         The rule's target, step and floor; default the family's (for ``mpc``: 0.1, 0.2 m,
         -1 m). ``epsilon`` lies strictly inside the loss's range.
-    lambda_init, lambda_max : float
-        lambda_1 and the ceiling, in the family's unit (m for ``mpc``, a level for the
-        others).
+    lambda_init : float
+        lambda_1, in the family's unit (m for ``mpc``, a level for the others).
+    lambda_max : float, optional
+        The ceiling; default the family's: its ``default_rule_params`` ceiling, and at
+        most :meth:`SamplingMPC.lambda_ceiling
+        <conformal_control.mpc.controller.SamplingMPC.lambda_ceiling>` (``margin`` for
+        ``mpc``, whose lambda is a length: the safe distance never falls below ``d_c``).
     stream : Stream, optional
         Timing and sensing of the stream, as for
         :class:`~conformal_control.cbf.stepwise.StepwiseCBF`; its ``substeps`` are the
@@ -124,7 +128,7 @@ class StepwiseMPC(StepwiseCBF):
         eta: float | None = None,
         lambda_init: float = 0.0,
         lambda_min: float | None = None,
-        lambda_max: float = math.inf,
+        lambda_max: float | None = None,
         stream: Stream | None = None,
         d_c: float = 1.0,
         v_max: float = 2.0,
@@ -211,6 +215,12 @@ class StepwiseMPC(StepwiseCBF):
             step = _number("eta", defaults.get("eta", 1.0) if eta is None else eta)
             check_positive("eta", step, allow_zero=True)
             floor = defaults.get("lambda_min", -math.inf) if lambda_min is None else lambda_min
+            if lambda_max is None:  # the family's (mpc: its ceiling, the safe distance >= d_c)
+                ceiling = getattr(policy, "lambda_ceiling", None)
+                margin = getattr(policy, "margin", 0.0)
+                lambda_max = float(defaults.get("lambda_max", math.inf))
+                if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
+                    lambda_max = min(lambda_max, float(ceiling(float(margin))))
             check_epsilon(eps, loss.bounds)
             from ..update_rules import FixedEtaRule
 

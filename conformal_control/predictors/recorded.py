@@ -22,14 +22,18 @@ Counted fallbacks (``Forecast.info``): an agent without a forecast at that issue
 no forecast issued yet) is predicted by ``fallback_predictor`` (constant velocity by default;
 ``n_missing``); missing steps of a forecast are skipped (``n_missing_steps``); an agent
 whose current position is not finite gets NaN (``n_nonfinite_current``). A file with a
-missing column, a non-numeric or non-finite value, a step < 1 or a duplicated
-(frame, track_id, step) is refused with a one-line error naming the file and the line.
+missing column, a non-numeric or non-finite value, a step < 1 or above :data:`MAX_STEP`, a
+frame or track id beyond 2^53, or a duplicated (frame, track_id, step) is refused with a
+one-line error naming the file and the line (never echoing the file's contents: a path
+given by mistake, or by a replayed configuration, may name any file). The file is read
+through :func:`~conformal_control.fileio.read_limited`: a regular file of at most
+:data:`MAX_FILE_BYTES` (decompressed, for a gzip file; a corrupt gzip file is a one-line
+error), never a FIFO or a device. Each issue frame's forecasts are an array of its own
+agents by its own longest step, so memory follows the file's rows.
 """
 
 from __future__ import annotations
 
-import gzip
-import io
 import itertools
 import math
 import os
@@ -40,13 +44,29 @@ from typing import Any
 
 import numpy as np
 
+from ..exceptions import DataFormatError
+from ..fileio import read_limited
 from .base import Forecast, PredictionQuery, Predictor
 from .shift import resolve_predictor
 
-__all__ = ["COLUMNS", "RecordedPredictions", "RecordedPredictor", "read_predictions"]
+__all__ = [
+    "COLUMNS",
+    "MAX_FILE_BYTES",
+    "MAX_STEP",
+    "RecordedPredictions",
+    "RecordedPredictor",
+    "read_predictions",
+]
 
 #: The columns a predictions file must have.
 COLUMNS = ("frame", "track_id", "step", "x", "y")
+#: The largest predictions file read (bytes, decompressed): the published Trajectron++
+#: files are about 2 MB each.
+MAX_FILE_BYTES = 128 << 20
+#: The longest forecast (steps ahead) a file may hold: 12 for the published files.
+MAX_STEP = 1000
+#: Frame numbers and track ids are read as doubles: beyond 2^53 they are no longer exact.
+_MAX_EXACT = float(2**53)
 
 
 @dataclass(frozen=True)
@@ -73,42 +93,36 @@ class RecordedPredictions:
     n_rows: int
 
 
-def _open_text(path: Path) -> io.TextIOBase:
-    with path.open("rb") as fh:
-        magic = fh.read(2)
-    if magic == b"\x1f\x8b":
-        return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8")
-    return io.TextIOWrapper(path.open("rb"), encoding="utf-8")
-
-
 def read_predictions(path: str | os.PathLike[str]) -> RecordedPredictions:
     """Read and index a predictions file (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A CSV file ``frame,track_id,step,x,y`` (plain or gzip-compressed).
 
     Raises
     ------
     FileNotFoundError
         No such file.
     ValueError
-        A malformed file (the message names the file, and the line where it applies).
+        A malformed, oversized or unreadable file (a
+        :class:`~conformal_control.exceptions.DataFormatError`; the message names the file,
+        and the line where it applies).
     """
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"predictions file not found: {p}")
-    with _open_text(p) as fh:
-        try:
-            header = fh.readline()
-            text = fh.read()
-        except (OSError, EOFError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{p}: cannot read it ({type(exc).__name__}: {exc})") from exc
+    raw = read_limited(p, MAX_FILE_BYTES, what="predictions file", gzip_ok=True)
+    text = raw.decode("utf-8", "replace")
+    header, _, body = text.partition("\n")
     names = [h.strip() for h in header.strip().split(",")]
     absent = [c for c in COLUMNS if c not in names]
     if absent:
-        raise ValueError(
-            f"{p}: missing column(s) {', '.join(absent)} in the header {header.strip()!r}; "
-            f"expected {','.join(COLUMNS)}"
+        raise DataFormatError(
+            f"{p}: missing column(s) {', '.join(absent)}: its first line must be a header "
+            f"naming the columns {','.join(COLUMNS)} (is it a predictions file?)"
         )
     cols = [names.index(c) for c in COLUMNS]
-    lines = text.splitlines()
+    lines = body.splitlines()
     data = np.empty((len(lines), len(COLUMNS)))
     n = 0
     for lineno, line in enumerate(lines, start=2):
@@ -118,22 +132,34 @@ def read_predictions(path: str | os.PathLike[str]) -> RecordedPredictions:
         try:
             row = [float(parts[c]) for c in cols]
         except (IndexError, ValueError):
-            raise ValueError(
-                f"{p}:{lineno}: expected numbers in columns {','.join(COLUMNS)}, got {line!r}"
+            raise DataFormatError(
+                f"{p}:{lineno}: expected numbers in columns {','.join(COLUMNS)}"
             ) from None
         if not all(math.isfinite(v) for v in row):
-            raise ValueError(f"{p}:{lineno}: non-finite value in {line!r}")
+            raise DataFormatError(f"{p}:{lineno}: non-finite value")
         data[n] = row
         n += 1
     data = data[:n]
     if n == 0:
-        raise ValueError(f"{p}: no prediction rows")
+        raise DataFormatError(f"{p}: no prediction rows")
     ints = data[:, :3]
     bad = np.flatnonzero((ints != np.round(ints)).any(axis=1) | (data[:, 2] < 1))
     if bad.size:
-        raise ValueError(
+        raise DataFormatError(
             f"{p}: row {int(bad[0]) + 1}: frame and track_id must be integers and step an "
             f"integer >= 1, got {data[bad[0], :3].tolist()}"
+        )
+    big = np.flatnonzero((np.abs(data[:, :2]) > _MAX_EXACT).any(axis=1))
+    if big.size:
+        raise DataFormatError(
+            f"{p}: row {int(big[0]) + 1}: frame and track_id must lie within +-2^53 (they "
+            f"are not exact beyond), got {data[big[0], :2].tolist()}"
+        )
+    long = np.flatnonzero(data[:, 2] > MAX_STEP)
+    if long.size:
+        raise DataFormatError(
+            f"{p}: row {int(long[0]) + 1}: step {data[long[0], 2]:.0f} is beyond {MAX_STEP}, "
+            "the longest forecast read"
         )
     frame, tid, step = (data[:, i].astype(np.int64) for i in range(3))
     order = np.lexsort((step, tid, frame))
@@ -141,17 +167,18 @@ def read_predictions(path: str | os.PathLike[str]) -> RecordedPredictions:
     dup = (np.diff(frame) == 0) & (np.diff(tid) == 0) & (np.diff(step) == 0)
     if dup.any():
         i = int(np.flatnonzero(dup)[0])
-        raise ValueError(
+        raise DataFormatError(
             f"{p}: duplicated prediction for frame {frame[i]}, track_id {tid[i]}, step {step[i]}"
         )
-    s_max = int(step.max())
     frames, starts = np.unique(frame, return_index=True)
     bounds = [*starts.tolist(), frame.size]
     ids_out: list[np.ndarray] = []
     pts_out: list[np.ndarray] = []
     for a, b in itertools.pairwise(bounds):
         agents, where = np.unique(tid[a:b], return_inverse=True)
-        pts = np.full((agents.size, s_max, 2), np.nan)
+        # this issue frame's own longest step: memory follows the rows (one far step
+        # in one forecast used to widen every frame's array)
+        pts = np.full((agents.size, int(step[a:b].max()), 2), np.nan)
         pts[where, step[a:b] - 1] = xy[a:b]
         ids_out.append(agents)
         pts_out.append(pts)

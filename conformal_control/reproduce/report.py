@@ -28,7 +28,7 @@ import numpy as np
 
 from ..sweep import RunConfig, run_sweep
 from ..sweep.executors import Executor
-from .paper import PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
+from .paper import PAPER_EDGE, PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
 
 __all__ = [
     "IDENTITY_TOL",
@@ -79,7 +79,7 @@ def _config(
     seed: int,
     label: str,
 ) -> RunConfig:
-    params = {**table.base, **row.params, "a": variant_a(table, variant)}
+    params = {**table.base, **row.params, "a": variant_a(table, variant), **PAPER_EDGE}
     return RunConfig(
         scene=scene,
         predictor="oracle" if row.oracle else predictor,
@@ -563,7 +563,7 @@ def reproduce(
     executor : Executor or str
         Where the runs go (see :func:`~conformal_control.sweep.run_sweep`); ``"auto"``
         (default) runs them in this process when every run's predictor is a fast one
-        (:attr:`~conformal_control.predictors.Predictor.fast`: a dozen episodes take about
+        (capabilities' ``batchable``: a dozen episodes take about
         a second, less than starting worker processes), else on a process pool.
     workers : int, optional
         Worker processes (process pool, Dask LocalCluster).

@@ -315,7 +315,8 @@ def measure(
         n_fallback=int(filt.get("n_fallback", 0)),
         fallback_share=filt.get("n_fallback", 0) / n_steps,
         n_qp_solves=int(filt.get("n_solves", 0)),
-        n_lambda_clipped=fl.rule.n_clipped_,
+        n_lambda_clipped=mon.n_clipped,
+        **(_agent_figures(guarantee) if "agent_n" in guarantee else {}),
         identity_residual=mon.identity_residual if learn else None,
         rule=fl.names["rule"],
         lambda_safe=lambda_safe,
@@ -331,6 +332,24 @@ def measure(
         collision_events=[e.as_dict() for e in collisions.events],
     )
     return metrics, intervals, traj
+
+
+def _agent_figures(guarantee: dict[str, Any]) -> dict[str, Any]:
+    """The metrics of lambda run per agent, from the monitor's summary."""
+    avg = np.asarray(guarantee["agent_l_avg"], dtype=float)
+    return {
+        "n_agents": guarantee["n_agents"],
+        "n_agents_checked": guarantee["n_agents_checked"],
+        "n_agents_bound_met": guarantee["n_agents_bound_met"],
+        "agent_l_avg_median": float(np.median(avg)) if avg.size else None,
+        "agent_l_avg_max": float(avg.max()) if avg.size else None,
+        "agents": {
+            "min_intervals": guarantee["agent_min_intervals"],
+            "n": list(guarantee["agent_n"]),
+            "l_avg": list(guarantee["agent_l_avg"]),
+            "bound": list(guarantee["agent_bound"]),
+        },
+    }
 
 
 def _nanmean(values: list[float]) -> float | None:

@@ -169,6 +169,17 @@ class EpisodeMetrics(MetricsTable):
     theorem2_assumption: bool | None = _m("-", "lambda_1 >= lambda_safe - eta (and clipping)")
     long_run_bound: float | None = _m("-", "the rule's bound on |mean loss - epsilon|")
     long_run_holds: bool | None = _m("-", "|mean loss - epsilon| <= long_run_bound")
+    # -- lambda per agent (lambda_per="agent"; None otherwise) ------------------------
+    n_agents: int | None = _m("-", "agents with a loss (lambda per agent)")
+    n_agents_checked: int | None = _m(
+        "-", "of those, agents with >= 10 losses (checked one by one)"
+    )
+    n_agents_bound_met: int | None = _m("-", "checked agents whose average meets their bound")
+    agent_l_avg_median: float | None = _m(
+        "-", "median over the checked agents of their average loss"
+    )
+    agent_l_avg_max: float | None = _m("-", "largest average loss of a checked agent")
+    agents: dict[str, Any] | None = _m("-", "per checked agent: losses, average loss, bound")  # noqa: RUF009 (a field)
     # -- feasibility floor ------------------------------------------------------------
     lambda_floor: float | None = _m("lambda", "-a h_max: below it a far agent's row fails")
     epsilon_floor: float | None = _m("-", "s(lambda_floor): targets at or below are unattainable")
@@ -182,7 +193,7 @@ class EpisodeMetrics(MetricsTable):
     units: dict[str, str] | None = _m("-", "unit of each metric")  # noqa: RUF009 (a field)
 
     NON_SCALAR: ClassVar[frozenset[str]] = frozenset(
-        {"predictor_info", "units", "collision_events"}
+        {"predictor_info", "units", "collision_events", "agents"}
     )
     #: What ``conformal-control run`` prints.
     SUMMARY: ClassVar[tuple[str, ...]] = (

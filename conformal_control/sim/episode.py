@@ -15,6 +15,7 @@ from typing import Any
 from ..data.scene import Scene
 from ..engines.batch import as_run_spec, run_single
 from ..engines.loop import run_loop
+from ..exceptions import InputError
 from ..flagship.build import RoleSpec, build_flagship
 from ..loop import IntervalLog
 from ..results.episode import EpisodeResult
@@ -95,8 +96,22 @@ def run_episode(
           runs the configuration, else the loop. Both give the same result (metrics but
           ``wall_s``, intervals, trajectory, steps, animation record, to the last bit);
           ``config["engine"]`` says which ran.
+
+    Raises
+    ------
+    InputError
+        For a run with a robots section (``robots=3``, ``starts=``, a
+        :class:`~conformal_control.spec.RunSpec` read from a multi-robot ``config.json``):
+        one robot runs here, several with :func:`~conformal_control.sim.multi.run_multi`.
     """
     run = as_run_spec(spec, params, **settings)
+    if run.robots is not None:  # one robot here: never drop the section silently
+        given = run.robots.robots
+        what = f"robots={given}" if given is not None else "a robots section"
+        raise InputError(
+            f"the run has {what}, and run() / run_episode drive one robot: run several with "
+            "conformal_control.sim.run_multi(scene, spec) or `conformal-control run --robots`"
+        )
     if run.engine != "loop":
         compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:

@@ -163,6 +163,28 @@ def as_tasks(starts: Any, goals: Any) -> tuple[np.ndarray, list[np.ndarray]]:
     return s, tasks
 
 
+#: The largest robots file read (bytes): twenty robots take a few hundred bytes.
+MAX_ROBOTS_FILE_BYTES = 1 << 20
+#: The largest coordinate of a robots file (m, or a fraction): 1000 km.
+MAX_COORDINATE = 1e6
+
+
+def _json_point(value: Any) -> bool:
+    """Whether ``value`` is ``[x, y]`` of JSON numbers (not booleans, not text) within
+    :data:`MAX_COORDINATE`."""
+    return (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(
+            isinstance(v, (int, float))
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+            and abs(v) <= MAX_COORDINATE
+            for v in value
+        )
+    )
+
+
 def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[np.ndarray]]:
     """Starts and goals (m) from a JSON file.
 
@@ -174,12 +196,17 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     import difflib
 
     from ..exceptions import InputError
+    from ..fileio import read_limited
 
     p = Path(path)
     try:
-        spec = json.loads(p.read_text())
+        # capped, never a FIFO or a device (/dev/zero read until memory ran out)
+        raw = read_limited(p, MAX_ROBOTS_FILE_BYTES, what="robots file")
+        spec = json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise FileNotFoundError(f"robots file {p} does not exist") from None
+    except UnicodeDecodeError:
+        raise InputError(f"robots file {p} is not a text file (not UTF-8)") from None
     except json.JSONDecodeError as exc:
         raise ValueError(
             f"robots file {p} is not valid JSON ({exc.msg}, line {exc.lineno})"
@@ -216,6 +243,12 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
         no_unknown(r, ("start", "goals", "goal"), f"in robot {i}")
         if "goals" in r and "goal" in r:
             raise InputError(f'robots file {p}: robot {i} has both "goal" and "goals"; give one')
+        listed = r["goals"] if "goals" in r else [r["goal"]]
+        if not isinstance(listed, list) or not all(_json_point(q) for q in [r["start"], *listed]):
+            raise InputError(
+                f"robots file {p}: robot {i} has a start or goal that is not two numbers "
+                f"[x, y] within {MAX_COORDINATE:g} (JSON numbers: not text, not true/false)"
+            )
         try:
             st = np.asarray(r["start"], dtype=float).reshape(2)
             g = np.asarray(r["goals"] if "goals" in r else [r["goal"]], dtype=float).reshape(-1, 2)

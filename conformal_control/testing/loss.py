@@ -29,6 +29,7 @@ __all__ = [
     "LAMBDAS",
     "check_loss",
     "check_loss_bounds_declared",
+    "check_loss_components",
     "check_loss_deterministic",
     "check_loss_diagnostics",
     "check_loss_nan_lambda",
@@ -171,6 +172,52 @@ def check_loss_diagnostics(loss: Loss[Any, Any]) -> None:
         expect(not bad, lf, f"expected diagnostics of str -> number, got {bad!r}")
 
 
+def check_loss_components(loss: Loss[Any, Any]) -> None:
+    """A loss that splits by agent (``components``): at one lambda for every agent, the
+    largest agent term is the loss itself (None when no agent has one); an array of equal
+    entries gives the same terms as the number; and agent i's term depends on its own
+    entry only. A loss without ``components`` is not checked."""
+    lf = clone(loss)
+    if type(lf).components is Loss.components:
+        return
+    for i, (record, truth) in enumerate(loss_inputs(lf)):
+        keys = getattr(record, "ids", None)
+        if keys is None:
+            return
+        n = len(keys)
+        for lam in (-1.0, 0.0, 0.5):
+            comp = lf.components(record, truth, lam)
+            expect(comp is not None, lf, f"expected components() on input #{i}, got None")
+            assert comp is not None
+            vals = np.asarray(comp.values, dtype=float)
+            ok = np.isfinite(vals)
+            whole = _call(lf, record, truth, lam, i)
+            expect(
+                (whole is None and not ok.any()) or (ok.any() and whole == vals[ok].max()),
+                lf,
+                f"expected the largest agent term {vals[ok].max() if ok.any() else None!r} to "
+                f"be the loss {whole!r} (input #{i}, lambda={lam:g})",
+            )
+            same = np.asarray(lf.components(record, truth, np.full(n, lam)).values)
+            expect(
+                np.array_equal(same, vals, equal_nan=True),
+                lf,
+                f"expected an array of equal lambdas to give the terms of the number "
+                f"(input #{i}, lambda={lam:g})",
+            )
+            if n >= 2:
+                moved = np.full(n, lam)
+                moved[0] = lam - 1.0
+                other = np.asarray(lf.components(record, truth, moved).values)
+                rest = np.asarray(comp.keys) != keys[0]
+                expect(
+                    np.array_equal(other[rest], vals[rest], equal_nan=True),
+                    lf,
+                    f"expected moving agent {keys[0]}'s lambda to change its own term only "
+                    f"(input #{i})",
+                )
+
+
 @sample_behaviour.register(Loss)
 def _behaviour(loss: Loss[Any, Any]) -> list[float | None]:
     """Values on ``_unit_test_inputs()`` at every lambda of :data:`LAMBDAS` (pickling check)."""
@@ -191,6 +238,7 @@ check_loss = CheckList(
         check_loss_deterministic,
         check_loss_nan_lambda,
         check_loss_diagnostics,
+        check_loss_components,
         check_pickle_round_trip,
         check_docstring_parameters,
         check_no_mutable_defaults,

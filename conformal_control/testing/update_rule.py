@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from ..base import UpdateRule
+from ..monitor import AgentMonitor
 from ._core import CheckList, ContractError, clone, expect, plugin_label
 from .common import (
     check_capabilities,
@@ -29,6 +30,7 @@ __all__ = [
     "check_update_rule_monotone",
     "check_update_rule_nan_loss",
     "check_update_rule_params_unchanged",
+    "check_update_rule_per_agent",
     "check_update_rule_reset",
     "check_update_rule_value",
     "loss_sequence",
@@ -180,6 +182,42 @@ def check_update_rule_nan_loss(rule: UpdateRule) -> None:
     )
 
 
+def check_update_rule_per_agent(rule: UpdateRule) -> None:
+    """Run per agent (:class:`~conformal_control.monitor.AgentMonitor`: a copy of the rule
+    per agent), one agent's lambdas are the rule's own bit for bit, and each of two agents
+    fed in turn follows the rule on its own losses only (no agent moves another's
+    lambda). A rule without ``lambda_init`` cannot run per agent and is not checked."""
+    if "lambda_init" not in rule.get_params():
+        return
+    losses = loss_sequence(24, seed=8)
+    scalar = _run(clone(rule), losses)
+    mon = AgentMonitor.for_rule(clone(rule))
+    one = [float(mon.values([7])[0])]
+    for loss in losses:
+        mon.update([7], [loss])
+        one.append(float(mon.values([7])[0]))
+    expect(
+        one == scalar,
+        rule,
+        f"expected one agent run per agent to follow the rule bit for bit; lambdas {one[:4]} "
+        f"... but the rule gives {scalar[:4]} ...",
+    )
+    mon = AgentMonitor.for_rule(clone(rule))
+    mon.values([1, 2])  # both start at the rule's lambda_1
+    seen: dict[int, list[float]] = {1: [], 2: []}
+    for i, loss in enumerate(losses):
+        key = 1 if i % 3 else 2
+        mon.update([key], [loss])
+        seen[key].append(loss)
+    for key, own in seen.items():
+        expect(
+            float(mon.values([key])[0]) == _run(clone(rule), own)[-1],
+            rule,
+            f"expected agent {key}'s lambda to be the rule's on its own {len(own)} losses "
+            "(two agents fed in turn)",
+        )
+
+
 @sample_behaviour.register(UpdateRule)
 def _behaviour(rule: UpdateRule) -> list[float]:
     """lambda_1 and the lambdas after 20 sample losses (for the pickling check)."""
@@ -200,6 +238,7 @@ check_update_rule = CheckList(
         check_update_rule_reset,
         check_update_rule_params_unchanged,
         check_update_rule_nan_loss,
+        check_update_rule_per_agent,
         check_pickle_round_trip,
         check_docstring_parameters,
         check_no_mutable_defaults,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -164,19 +165,100 @@ def test_the_table_prints_our_rows_beside_the_published_ones():
     ours = [r for r in table if r["source"] == "ours"]
     assert len(ours) == 1 and ours[0]["collision_rate"] == 0.01
     assert (
-        "| hotel | **cc_mpc** | constant_velocity | 0.010 | 0.100 | 70.0 | 1/1 | 2.00 | ours |"
-        in text
+        "| hotel | **cc_mpc** | ours | constant_velocity | 0.010 | 1/1 | 0.100 | 70.0 | 2.00 | 1 "
+        "| ours |" in text
     )
-    assert "| hotel | ECP-MPC | Trajectron++ | 0.020 | 0.213 | 85.7 | | 50.16 | published |" in text
+    assert (
+        "| hotel | ECP-MPC | published | Trajectron++ | 0.020 | | 0.213 | 85.7 | 50.16 | | "
+        "published |" in text
+    )
+
+
+def test_several_seeds_show_their_mean_and_range():
+    base = {
+        "dataset": "zara1",
+        "method": "fcp_mpc_hard_pub",
+        "predictor": "recorded",
+        "n_recorded": 50,
+        "infeasible_rate": 0.1,
+        "ctrl_time_ms": 2.0,
+    }
+    rows = [
+        {**base, "seed": sd, "collision_rate": c, "steps_to_goal": st, "reached": st < 100}
+        for sd, c, st in ((0, 0.02, 60.0), (0, 0.04, 100.0), (1, 0.10, 80.0), (1, 0.0, 70.0))
+    ]
+    text, table = planar_table(rows)
+    ours = next(r for r in table if r["source"] == "ours")
+    assert ours["n_seeds"] == 2 and ours["n_reached"] == 3 and ours["n_scenarios"] == 4
+    assert math.isclose(ours["collision_rate"], (0.03 + 0.05) / 2)
+    assert (ours["collision_rate_min"], ours["collision_rate_max"]) == (0.03, 0.05)
+    assert (
+        "| zara1 | **fcp_mpc_hard_pub (FCP-MPC (hard))** | published | recorded | "
+        "0.040 (0.030-0.050) | 3/4 | 0.100 (0.100-0.100) | 77.5 (75.0-80.0) | 2.00 | 2 | ours |"
+    ) in text
+
+
+def small_grid(method: planar.PlanarMethod) -> planar.PlanarMethod:
+    """An offline-calibrated fcp_mpc method on a 24 x 24 grid (a fast calibration)."""
+    if method.calibration is None:
+        return method
+    return dataclasses.replace(
+        method, family_params={**method.family_params, "calibration__grid_size": 24}
+    )
 
 
 @pytest.mark.parametrize("name", list(PLANAR_METHODS))
 def test_every_method_runs_a_scenario_of_the_real_protocol(name, data_root):
     task = TASKS["hotel"]
-    res = run_scenario(task, task.start_timesteps[0], PLANAR_METHODS[name], data_root=data_root)
+    method = small_grid(PLANAR_METHODS[name])
+    res = run_scenario(task, task.start_timesteps[0], method, data_root=data_root)
     m = res.metrics()
     assert m["n_recorded"] > 0 and 0.0 <= m["collision_rate"] <= 1.0
     assert all(s["count"] == k for k, s in enumerate(res.steps))
+    if method.family in ("mpc", "acp_mpc", "ecp_mpc", "fcp_mpc", "soft_mpc"):
+        assert res.stats["n_plans"] == m["n_recorded"]
+
+
+def test_the_oracle_predicts_the_recorded_future(data_root):
+    task = TASKS["zara1"]
+    rec = planar.recording(task, data_root)
+    oracle = planar.RecordingOracle(rec)
+    oracle.reset()
+    i = rec.sample(150, task.frame_offset)
+    cols = rec.pedestrians(i)
+    from conformal_control.predictors.base import PredictionQuery
+
+    query = PredictionQuery(
+        ids=rec.ids[cols], history=rec.history(i, cols), dt=0.4, horizon=12, t=0.0,
+        frame=150 + task.frame_offset // 10, scene="zara1",
+    )  # fmt: skip
+    got = oracle.predict(query).positions
+    want = rec.positions[i + 1 : i + 13][:, cols].transpose(1, 0, 2)
+    np.testing.assert_array_equal(got, want)
+    assert np.isfinite(got).any() and np.isnan(got).any()  # some leave within 4.8 s
+
+
+def test_offline_calibration_leaves_the_scenario_window_out(data_root):
+    task = TASKS["zara1"]
+    pub = small_grid(PLANAR_METHODS["fcp_mpc_hard_pub"])
+    ours = small_grid(PLANAR_METHODS["fcp_mpc"])
+    full = planar.scenario_envelope(task, 100, pub, "constant_velocity", data_root)
+    held = planar.scenario_envelope(task, 100, ours, "constant_velocity", data_root)
+    rec = planar.recording(task, data_root)
+    from conformal_control.bench.planar_fcp import scenario_samples
+
+    lo, hi = scenario_samples(rec, rec.sample(100, task.frame_offset), task.max_steps)
+    assert hi - lo + 1 >= task.max_steps
+    n_full = [s.n_fields for s in full.steps]
+    n_held = [s.n_fields for s in held.steps]
+    # the window's samples (and the horizon before it) are the only difference
+    window = [
+        sum(1 for i in range(lo - 12, hi + 1) if rec.pedestrians(i).size and
+            np.isfinite(rec.at(i + h, rec.pedestrians(i))).all(axis=1).any())
+        for h in range(1, 13)
+    ]  # fmt: skip
+    assert [a - b for a, b in zip(n_full, n_held, strict=True)] == window
+    assert full.grid == held.grid and full.grid.size == 24
 
 
 def test_the_mpc_plans_against_the_recorded_csv_values_at_sample_times(data_root):
@@ -237,6 +319,34 @@ def test_bench_run_and_report_on_the_planar_suite(tmp_path, data_root, capsys):
     capsys.readouterr()
     assert main(["bench", "report", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "| hotel | **mpc** | constant_velocity |" in printed
-    assert "| hotel | CC-MPC | Trajectron++ | 0.049 | N/A | 99.3 | | 1.48 | published |" in printed
+    assert "| hotel | **mpc** | ours | constant_velocity |" in printed
+    assert (
+        "| hotel | CC-MPC | published | Trajectron++ | 0.049 | | N/A | 99.3 | 1.48 | | published |"
+        in printed
+    )
     assert (out / "report" / "planar.csv").is_file()
+
+
+def test_a_delayed_predictor_on_the_protocol(data_root):
+    from conformal_control.predictors.base import PredictionQuery
+    from conformal_control.predictors.shift import DelayedPredictor
+
+    task = TASKS["zara1"]
+    late = planar._predictor("constant_velocity@delay-0.8s", task, data_root)
+    assert isinstance(late.predictor, DelayedPredictor) and late.predictor.delay_s == 0.8
+    rec = planar.recording(task, data_root)
+    i = rec.sample(150, 0)
+    cols = rec.pedestrians(i)
+    q = PredictionQuery(rec.ids[cols], rec.history(i, cols), 0.4, 3, 0.0, 150, "zara1")
+    late.reset()
+    direct = DelayedPredictor("constant_velocity", delay_s=0.8)
+    direct.reset()
+    np.testing.assert_array_equal(late.predict(q).positions, direct.predict(q).positions)
+    assert planar.predictors_for("eth", ["recorded@delay-0.8s", "oracle"]) == [
+        "recorded@delay-0.8s",
+        "oracle",
+    ]
+    assert planar.predictors_for("univ", ["recorded@delay-0.8s"]) == []
+    with pytest.raises(ValueError, match="unknown planar predictor shift") as err:
+        planar._predictor("recorded@noise-1m", task, data_root)
+    assert "\n" not in str(err.value)

@@ -247,7 +247,8 @@ def test_the_tuned_values_ship_with_the_package():
     assert tuned is not None, "conformal_control/bench/tuned/crossings-v2.json is missing"
     assert tuned.source == "shipped:conformal_control/bench/tuned/crossings-v2.json"
     assert tuned.data["split"] == "dev" and tuned.data["rule"] == RULE
-    assert set(tuned.values) == set(DEFAULT_TUNED)
+    # the default families, and families tuned since with `bench tune --methods`
+    assert set(DEFAULT_TUNED) <= set(tuned.values)
     for fam, value in tuned.values.items():
         assert value in FAMILIES[fam].tune
         # the chosen setting is the one the rule picks from the stored candidates

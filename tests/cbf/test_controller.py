@@ -58,7 +58,9 @@ class PreviousFusedPath:
         K, rho0, d_c, delta = barrier._checked()
         self.filter.reset()
         self.filter.configure_apf(
-            (K, rho0, d_c, delta, barrier.convention == "surface"), ctrl.constraint.a
+            (K, rho0, d_c, delta, barrier.convention == "surface"),
+            ctrl.constraint.a,
+            ctrl.constraint.edge_settings(),  # the edge rule as the controller has it
         )
 
     def begin_interval(self, q: PredictionQuery) -> None:

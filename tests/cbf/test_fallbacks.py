@@ -219,3 +219,75 @@ def test_lambda_search_instance_equals_name(backend) -> None:
     by_obj = make(backend, LambdaSearch()).solve(np.array([1.0, 0.0]), A, b, 0.0)
     np.testing.assert_array_equal(by_name.decision, by_obj.decision)
     assert by_name.lambda_applied == by_obj.lambda_applied
+
+
+# ------------------------------------------------------------------ goal_aware
+def _lp_feasible(A: np.ndarray, rhs: np.ndarray, S: np.ndarray, s: np.ndarray) -> bool:
+    """Whether some v meets A v + rhs >= 0 and S v <= s (scipy's LP, a reference)."""
+    res = linprog(
+        [0.0, 0.0],
+        A_ub=np.vstack([-A, S]) if A.size else S,
+        b_ub=np.concatenate([rhs, s]) if A.size else s,
+        bounds=[(None, None)] * 2,
+    )
+    return bool(res.status == 0)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> None:
+    from conformal_control.cbf import ConformalConstraint
+    from conformal_control.cbf.barriers import APFBarrier
+    from conformal_control.cbf.speed import speed_polygon
+
+    con = ConformalConstraint(APFBarrier(K_rep=1.0, rho0=10.0, d_c=1.0), a=10.0)
+    S, s, _, _ = speed_polygon(16, 2.0)
+    rng = np.random.default_rng(4)
+    goal_dir = np.array([1.0, 0.0])
+    seen = 0
+    for _ in range(60):
+        n = int(rng.integers(2, 6))
+        ang = rng.uniform(-np.pi, np.pi, n)
+        r = rng.uniform(1.1, 4.0, n)
+        xp = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+        vp = -xp / r[:, None] * rng.uniform(0.0, 2.0, (n, 1)) + rng.normal(0, 0.3, (n, 2))
+        A, b = con.rows(np.zeros(2), xp, vp)
+        ttc = con.contact_times(np.zeros(2), xp, vp, 2.0 * goal_dir)
+        lam = float(rng.choice([-1.0, -3.0, -6.0]))
+        f = make(backend, "goal_aware")
+        res = f.solve_escaping(2.0 * goal_dir, A, b, lam, None, ttc)
+        if res.status != "fallback":
+            continue
+        seen += 1
+        assert res.fallback == "goal_aware" and f.stats()["n_fallback_goal_aware"] == 1
+        v = res.decision
+        order = np.lexsort((b, ttc))
+        level = float(res.row_lambda[order[0]])
+        assert level >= lam - 1e-12
+        # the rows it meets at that level are a prefix of the time-to-contact order ...
+        met = A @ v + b + level >= -1e-7
+        k = int(np.argmin(met[order])) if not met[order].all() else n
+        assert met[order[:k]].all() and k >= 1
+        # ... the longest one that can be met (the next row would make it infeasible) ...
+        if k < n:
+            idx = order[: k + 1]
+            assert not _lp_feasible(A[idx], b[idx] + level - 1e-6, S, s)
+        # ... and no command meeting it makes more progress toward the goal
+        idx = order[:k]
+        best = linprog(
+            -goal_dir, A_ub=np.vstack([-A[idx], S]), b_ub=np.concatenate([b[idx] + level, s]),
+            bounds=[(None, None)] * 2,
+        )  # fmt: skip
+        assert best.status == 0 and v @ goal_dir >= -best.fun - 1e-6
+        assert np.hypot(*v) <= 2.0 + 1e-9
+    assert seen >= 10
+
+
+def test_time_to_contact() -> None:
+    from conformal_control.cbf.constraint import time_to_contact
+
+    x = np.zeros(2)
+    xp = np.array([[3.0, 0.0], [3.0, 0.0], [0.5, 0.0], [3.0, 2.0], [-3.0, 0.0]])
+    vp = np.array([[-1.0, 0.0], [1.0, 0.0], [0.0, 0.0], [-1.0, 0.0], [0.0, 0.0]])
+    t = time_to_contact(x, xp, vp, 1.0)
+    assert t[0] == pytest.approx(2.0)  # 3 m away at 1 m/s: the 1 m disc in 2 s
+    assert t[1] == math.inf and t[2] == 0.0 and t[3] == math.inf and t[4] == math.inf

@@ -228,9 +228,9 @@ def test_unicycle_commands_stay_within_the_plants_limits():
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        ({"sampling__n_samples": 0}, "n_samples must be a positive integer"),
-        ({"sampling__horizon": 0}, "horizon must be a positive integer"),
-        ({"sampling__hold": 1.5}, "hold must be a positive integer"),
+        ({"sampling__n_samples": 0}, "n_samples must be an integer from 1 to 100,000"),
+        ({"sampling__horizon": 0}, "horizon must be an integer from 1 to 1,000"),
+        ({"sampling__hold": 1.5}, "hold must be an integer from 1 to 8"),
         ({"sampling__dt_plan": -0.4}, "dt_plan must be a finite number > 0"),
         ({"limits__v_max": -1.0}, "v_max must be a finite number > 0"),
         ({"d_c": -1.0}, "d_c must be a finite distance >= 0"),

@@ -261,9 +261,9 @@ def test_neutral_shift_equals_its_base_in_closed_loop(data_root):
         (["--predictor", "noisy", "--predictor-param", "sigma_m=-1"],
          "sigma_m must be a finite number >= 0"),
         (["--predictor", "recorded", "--predictor-param", "path={missing}"],
-         "missing column(s) step in the header 'frame,track_id,x,y'"),
+         "missing column(s) step: its first line must be a header"),
         (["--predictor", "recorded", "--predictor-param", "path={nan}"],
-         "nan.csv:2: non-finite value in '1,2,1,nan,4.0'"),
+         "nan.csv:2: non-finite value"),
     ],
 )  # fmt: skip
 def test_bad_shift_or_recorded_input_is_one_line_from_the_cli(

@@ -11,6 +11,10 @@ import pytest
 from conformal_control.cli import main
 from conformal_control.reproduce import PAPER_TABLES, auto_executor, plan
 
+#: ``conformal-control reproduce all --frames 90 --executor serial`` on SDD at 68fa01c (the
+#: commit before the edge rule), wall time and run folders left out
+PAPER_90 = Path(__file__).parent / "paper_90_frames"
+
 
 def read(path: Path) -> list[dict[str, str]]:
     with path.open() as fh:
@@ -95,6 +99,15 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["identity_ok"] and summary["oracle_ok"] and summary["failed"] == 0
     assert summary["max_abs_lavg_minus_eps_eta100"] is not None
+    # the paper stays the paper: Algorithm 1 as published (edge="paper", issue 30), the
+    # tables equal, cell for cell, those of 68fa01c (before the edge rule), wall time and
+    # run folders aside (their run keys hash the configuration, which now says edge)
+    for name in ("table1", "table2", "forms"):
+        ours = [
+            {k: v for k, v in r.items() if k not in ("wall_s", "run_key", "run_dir")}
+            for r in read(out / f"{name}.csv")
+        ]
+        assert ours == read(PAPER_90 / f"{name}.csv"), name
     # a rerun reuses every run and draws the figures
     assert main(["reproduce", "table2", *argv[2:], "--executor", "serial"]) == 0
     assert "14 runs (14 reused, 0 ran" in capsys.readouterr().out

@@ -157,3 +157,37 @@ def test_the_command_line_options_reach_the_robots_section_and_replay(tmp_path):
     cfg4 = json.loads((fourth / "config.json").read_text())
     assert cfg4["spec"]["robots"]["lambda_scope"] is None
     assert cfg4["reciprocity"]["lambda_scope"] == "both"
+
+
+# ------------------------------------------------------------------ one robot refuses a fleet
+@pytest.mark.parametrize(
+    ("settings", "words"),
+    [
+        ({"robots": 3}, "cannot honour robots=3"),
+        ({"robots": 3, "starts": [[0, 0]], "goals": "zzz"}, "starts=[[0, 0]], goals='zzz'"),
+        ({"reciprocity": "none"}, "cannot honour reciprocity='none'"),
+    ],
+)
+def test_the_public_run_refuses_a_robots_section(settings: dict, words: str) -> None:
+    """``cc.run("crossing", robots=3)`` ran one robot, without a word."""
+    import conformal_control as cc
+
+    with pytest.raises(InputError, match="run\\(\\) drives one robot") as info:
+        cc.run("crossing", max_frames=5, **settings)
+    assert words in str(info.value) and "run_multi" in str(info.value)
+
+
+def test_a_spec_read_from_a_multi_robot_config_is_not_run_as_one_robot(tmp_path) -> None:
+    import conformal_control as cc
+    from conformal_control.data import load_scene
+    from conformal_control.sim import run_episode
+
+    res = run_multi(load_scene("crossing", seed=0), 2, max_frames=5)
+    spec = RunSpec.from_dict(res.config["spec"])
+    assert spec.robots is not None and spec.robots.robots == 2
+    with pytest.raises(InputError, match=r"a robots section \(robots=2\)"):
+        cc.run("crossing", spec)
+    with pytest.raises(InputError, match="robots=2"):
+        run_episode(load_scene("crossing", seed=0), spec)
+    again = run_multi(load_scene("crossing", seed=0), spec, max_frames=5)
+    assert len(again.robots) == 2

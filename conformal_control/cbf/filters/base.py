@@ -25,14 +25,17 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from ... import registry
+from ...spec import parameter_info
 from ..fallbacks import resolve_fallback
-from ..roles import Fallback, FilterResult, InfeasibleStep, SafetyFilter
+from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep, SafetyFilter
 from ..speed import speed_polygon
 
 __all__ = ["VelocityFilter"]
@@ -85,10 +88,13 @@ class VelocityFilter(
             raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
         if self.v_max <= 0:
             raise ValueError(f"v_max must be a finite number > 0, got {self.v_max!r}")
+        top = int(parameter_info("speed_sides").high)
         if self.speed_sides != 0 and not (
-            int(self.speed_sides) == self.speed_sides and self.speed_sides >= 3
+            int(self.speed_sides) == self.speed_sides and 3 <= self.speed_sides <= top
         ):
-            raise ValueError(f"speed_sides must be 0 (box) or >= 3, got {self.speed_sides!r}")
+            raise ValueError(
+                f"speed_sides must be 0 (box) or from 3 to {top}, got {self.speed_sides!r}"
+            )
         try:
             self.fallback_ = resolve_fallback(self.fallback)
         except (TypeError, ValueError) as exc:
@@ -107,6 +113,16 @@ class VelocityFilter(
         self.fallback_counts_: dict[str, int] = {}
         self.events_: dict[str, int] = {}
         self._setup()
+        # the speed set the primitives work in: this polygon, or an escape polygon
+        # (solve_escaping) whose rows beyond the speed set's are _hard
+        self._base = (self._S, self._s, self._verts)
+        self._hard: tuple[np.ndarray, np.ndarray] | None = None
+        self._escaping: EscapeRows | None = None
+        self._ttc: np.ndarray | None = None  # the rows' times to contact (contact())
+
+    def _polygon_changed(self) -> None:
+        """Called when the speed set the primitives work in changes (a backend holding
+        solver set-ups built on it drops them)."""
 
     def _setup(self) -> None:
         """Backend set-up (solver objects, buffers), called at the end of :meth:`reset`."""
@@ -118,7 +134,7 @@ class VelocityFilter(
             "n_fallback": self.n_fallback_,
             "n_solver_failure": self.n_solver_failure_,
         }
-        for name in dict.fromkeys((*registry.names("fallback"), self.fallback_.name)):
+        for name in dict.fromkeys((*registry.names("fallback"), self.fallback_.name, "escape")):
             out[f"n_fallback_{name}"] = self.fallback_counts_.get(name, 0)
         for event, n in self.events_.items():
             out[f"n_{event}"] = n
@@ -211,7 +227,10 @@ class VelocityFilter(
 
     # ------------------------------------------------------------------ API
     def _admissible(self, v: np.ndarray) -> bool:
-        """Whether v meets the speed bound itself (the disc for the polygon)."""
+        """Whether v meets the speed bound itself (the disc for the polygon) and, within an
+        escape polygon, its rows."""
+        if self._hard is not None and not self._meets_hard(v):
+            return False
         if self._box:
             return bool(abs(v[0]) <= self.v_max and abs(v[1]) <= self.v_max)
         return bool(v[0] * v[0] + v[1] * v[1] <= self.v_max * self.v_max * (1.0 + 1e-12))
@@ -273,7 +292,8 @@ class VelocityFilter(
                 self._last = v
                 self._fell_back = False
                 return FilterResult(v, "optimal", lam)
-        step = InfeasibleStep(nominal, A, b, lam, self._last.copy(), lam_star, v_star)
+        last = self._last.copy()
+        step = InfeasibleStep(nominal, A, b, lam, last, lam_star, v_star, self._escaping, self._ttc)
         return self._fall_back(step)
 
     def fall_back(self, step: InfeasibleStep) -> FilterResult:
@@ -289,12 +309,178 @@ class VelocityFilter(
         return self._fall_back(step)
 
     def _fall_back(self, step: InfeasibleStep) -> FilterResult:
-        """Count the infeasible decision and let the fallback decide."""
+        """Count the infeasible decision and let the fallback decide (within the escape
+        polygon when ``step.escape`` gives one: a decision leaving it is projected onto
+        it, counted as ``n_escape_projected``)."""
         self.n_infeasible_ += 1
         self.n_fallback_ += 1
         name = self.fallback_.name
         self.fallback_counts_[name] = self.fallback_counts_.get(name, 0) + 1
+        if step.escape is not None and self._hard is None:
+            # a step handed over by a compiled path: enter its escape polygon here
+            escaped = self._enter_escape(step.nominal, step.escape)
+            if escaped is not None:
+                self._last = escaped.decision
+                self._fell_back = True
+                return escaped
+            try:
+                return self._fall_back(step)
+            finally:
+                self._leave_escape()
         res = self.fallback_.decide(step, self)
+        if self._hard is not None and not self._meets_hard(res.decision):
+            self.count("escape_projected")
+            v = self.project(np.asarray(res.decision, dtype=float), np.zeros((0, 2)), np.zeros(0))
+            decision = np.zeros(2) if v is None else v
+            res = FilterResult(decision, res.status, math.nan, res.fallback)
         self._last = np.asarray(res.decision, dtype=float)
         self._fell_back = True
         return res
+
+    # ------------------------------------------------------------------ the edge rule
+    def _meets_hard(self, v: np.ndarray) -> bool:
+        """Whether v meets the escape polygon's rows (to round-off)."""
+        assert self._hard is not None
+        G, h = self._hard
+        v = np.asarray(v, dtype=float)
+        return bool((G @ v - h <= 1e-13 * np.maximum(1.0, np.abs(h))).all())
+
+    def _enter_escape(self, nominal: np.ndarray, escape: EscapeRows) -> FilterResult | None:
+        """Make the escape polygon of ``escape`` the speed set of the primitives
+        (:func:`~conformal_control.cbf.kernels2d.escape_polygon`); or, when the rule
+        decides alone (no non-closing command, or a degenerate polygon), return that
+        decision (status ``"fallback"``, fallback ``"escape"``)."""
+        from .. import kernels2d as k2
+
+        S, s, verts = self._base
+        k = escape.U.shape[0]
+        ns, nv = S.shape[0], verts.shape[0]
+        r = max(ns, nv) + 2 * k
+        ES, es = np.zeros((r, 2)), np.zeros(r)
+        ev, ev2 = np.zeros((r, 2)), np.zeros((2 * r, 2))
+        mode, nsq, nvq, v0, v1 = k2.escape_polygon(
+            np.ascontiguousarray(escape.U, dtype=float),
+            np.ascontiguousarray(escape.c, dtype=float),
+            np.ascontiguousarray(escape.push, dtype=float),
+            k, S, s, verts, self._radius, ES, es, ev, ev2, np.zeros(k),
+        )  # fmt: skip
+        if mode == k2.ESCAPE_MINIMAX:
+            return FilterResult(np.array((v0, v1)), "fallback", math.nan, "escape")
+        if mode == k2.ESCAPE_DEGENERATE:
+            _, w0, w1 = k2.project(
+                float(nominal[0]), float(nominal[1]), ES[:nsq].copy(), es[:nsq].copy(),
+                nsq, k2.REL_TOL * self._radius,
+            )  # fmt: skip
+            return FilterResult(np.array((w0, w1)), "fallback", math.nan, "escape")
+        self._S = np.ascontiguousarray(ES[:nsq])
+        self._s = np.ascontiguousarray(es[:nsq])
+        self._verts = np.ascontiguousarray(ev[:nvq])
+        self._hard = (self._S[ns:], self._s[ns:])
+        self._escaping = escape
+        self._polygon_changed()
+        return None
+
+    def _leave_escape(self) -> None:
+        """Back to the speed set itself."""
+        self._S, self._s, self._verts = self._base
+        self._hard = None
+        self._escaping = None
+        self._polygon_changed()
+
+    @contextmanager
+    def contact(self, ttc: np.ndarray | None) -> Iterator[None]:
+        """Within this context an infeasible step hands ``ttc`` (the rows' predicted times
+        to contact, s) to the fallback (:attr:`InfeasibleStep.ttc
+        <conformal_control.cbf.roles.InfeasibleStep.ttc>`).
+
+        Parameters
+        ----------
+        ttc : ndarray of shape (N,) or None
+            One time per row of the next :meth:`solve` (None: none).
+        """
+        before, self._ttc = self._ttc, ttc
+        try:
+            yield
+        finally:
+            self._ttc = before
+
+    @contextmanager
+    def escaping(self, nominal: np.ndarray, escape: EscapeRows) -> Iterator[FilterResult | None]:
+        """Within this context the primitives, :meth:`solve` and every fallback work
+        within the escape polygon of ``escape``; yields None, or the decision when the
+        edge rule decides alone (no command that does not close in exists, or the
+        polygon is degenerate; counted as a fallback ``"escape"``). The rows of the
+        agents in ``escape.rows`` must be neutralised
+        (:meth:`~conformal_control.cbf.roles.EscapeRows.neutralise`).
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        escape : EscapeRows
+            The agents within the collision distance.
+        """
+        if not escape.U.shape[0]:
+            yield None
+            return
+        if not math.isfinite(float(escape.U.sum() + escape.c.sum() + escape.push.sum())):
+            raise ValueError(f"{type(self).__name__} received non-finite escape rows")
+        escaped = self._enter_escape(np.asarray(nominal, dtype=float), escape)
+        if escaped is not None:
+            self.n_solves_ += 1
+            self.n_infeasible_ += 1
+            self.n_fallback_ += 1
+            self.fallback_counts_["escape"] = self.fallback_counts_.get("escape", 0) + 1
+            self._last = escaped.decision
+            self._fell_back = True
+            yield escaped
+            return
+        try:
+            yield None
+        finally:
+            self._leave_escape()
+
+    def solve_escaping(
+        self,
+        nominal: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        lam: float,
+        escape: EscapeRows | None,
+        ttc: np.ndarray | None = None,
+    ) -> FilterResult:
+        """:meth:`solve` with the edge rule (see :class:`~conformal_control.cbf.roles.EscapeRows`).
+
+        The rows of the agents within the collision distance are neutralised and the
+        decision -- the projection, the unconstrained fast path and every fallback's -- is
+        taken within the escape polygon (:meth:`escaping`): no command closing in on them
+        when one that does not exists; moving out of their discs as fast as
+        ``escape.push`` asks where the speed set allows
+        (:func:`~conformal_control.cbf.kernels2d.escape_polygon`). Without such agents
+        this is :meth:`solve`.
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent: ``A v + b + lam >= 0``.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        escape : EscapeRows or None
+            The agents within the collision distance (None: none).
+        ttc : ndarray of shape (N,), optional
+            The rows' predicted times to contact (s), handed to the fallback
+            (:meth:`contact`).
+        """
+        with self.contact(ttc):
+            if escape is None or not escape.rows.size:
+                return self.solve(nominal, A, b, lam)
+            nominal, A, b = self._checked(nominal, A, b)
+            A, b = escape.neutralise(A, b, lam)
+            with self.escaping(nominal, escape) as escaped:
+                if escaped is not None:
+                    return escaped
+                return self.solve(nominal, A, b, lam)

@@ -25,8 +25,9 @@ from typing import Any
 import numpy as np
 
 from ...base import CompiledForm
+from ..constraint import time_to_contact
 from ..fallbacks import Brake, Hold, LambdaSearch, resolve_fallback
-from ..roles import Fallback, FilterResult, InfeasibleStep
+from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep
 from .base import VelocityFilter
 
 __all__ = ["Exact2DForm", "Exact2DSafetyFilter"]
@@ -104,9 +105,11 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         self._kp = kernels_peers
         self._S = np.ascontiguousarray(self._S)
         self._verts = np.ascontiguousarray(self._verts)
+        self._ns = self._S.shape[0]  # sides of the speed set (an escape polygon has more)
         poly = np.concatenate([self._S.ravel(), self._s, self._verts.ravel()])
         head = np.zeros(self._k.HEADER)
         head[6:11] = (self._radius, self._box, self.v_max, 0.0, self.lambda_margin)
+        head[12:14] = (-1.0, 0.0)  # the edge rule: off until configure_apf sets it
         head[self._k.HEADER - 3] = self._S.shape[0]
         # one flat buffer (parameters, polygon, work vector: kernels2d.apf_control's
         # layout) with views for apf_step and the fallbacks
@@ -147,7 +150,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
 
     def _views(self) -> None:
         """The parameters, polygon, work vector and last decision as views of ``_buf``."""
-        k, ns, buf = self._k, self._S.shape[0], self._buf
+        k, ns, buf = self._k, self._ns, self._buf
         self._prm = buf[: len(k.PARAMS)]
         self._lastv = buf[k.HEADER - 2 : k.HEADER]
         self._poly = buf[k.HEADER : k.HEADER + 5 * ns]
@@ -157,7 +160,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         if m <= self._cap:
             return
         cap = max(m, 2 * self._cap, 16)
-        ns = self._S.shape[0]
+        ns = self._ns
         self._G = np.zeros((cap + ns, 2))
         self._h = np.zeros(cap + ns)
         self._Ak = np.zeros((cap, 2))
@@ -177,6 +180,9 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
     # ------------------------------------------------------------------ primitives
     def project(self, nominal: np.ndarray, A: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
         self._buffers(A.shape[0])
+        if self._G.shape[0] < A.shape[0] + self._S.shape[0]:  # an escape polygon's sides
+            self._G = np.zeros((A.shape[0] + self._S.shape[0], 2))
+            self._h = np.zeros(self._G.shape[0])
         self.n_solves_ += 1
         ok, v0, v1 = self._k.solve_rows(
             float(nominal[0]),
@@ -224,11 +230,52 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         return self._fused
 
     def configure_apf(
-        self, barrier_params: tuple[float, float, float, float, bool], a: float
+        self,
+        barrier_params: tuple[float, float, float, float, bool],
+        a: float,
+        edge: tuple[float, float] = (-1.0, 0.0),
     ) -> None:
-        """Set the APF barrier ``(K_rep, rho0, d_c, delta, surface)`` and the slope ``a`` that
-        :meth:`step_apf` builds its rows from (the controller does, at ``reset``)."""
+        """Set the APF barrier ``(K_rep, rho0, d_c, delta, surface)``, the slope ``a`` that
+        :meth:`step_apf` builds its rows from and the edge rule ``(collision distance,
+        push gain)`` (the controller does, at ``reset``).
+
+        Parameters
+        ----------
+        barrier_params : tuple
+            ``(K_rep, rho0, d_c, delta, surface)`` of the APF barrier.
+        a : float
+            Slope of alpha(h) = a h (1/s).
+        edge : (float, float)
+            The edge rule's collision distance (m, centre to centre; negative: the rule is
+            off) and push gain (1/s), :meth:`ConformalConstraint.edge_settings
+            <conformal_control.cbf.constraint.ConformalConstraint.edge_settings>`.
+        """
         self._prm[:6] = (*barrier_params, a)
+        self._prm[12:14] = edge
+
+    @staticmethod
+    def escape_in(work: np.ndarray, cap: int, ns: int) -> EscapeRows | None:
+        """The escape rows the compiled step left in its work vector ``work`` (laid out for
+        ``cap`` agents and ``ns`` polygon sides), or None when no agent was within the
+        edge rule's distance.
+
+        Parameters
+        ----------
+        work : ndarray
+            The compiled step's work vector.
+        cap : int
+            The agents it is laid out for.
+        ns : int
+            The sides of the speed polygon.
+        """
+        from .. import kernels2d as k2
+
+        region = work[10 * cap + 3 * ns :]
+        n, k = int(region[0]), int(region[1])
+        if region[2] < 0 or not n:
+            return None
+        idx, U, c, push = k2.edge_views(region, cap, ns)[:4]
+        return EscapeRows(idx[:n].astype(np.int64), U[:k].copy(), c[:k].copy(), push[:k].copy())
 
     def step_apf(
         self,
@@ -237,6 +284,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         v_agents: np.ndarray,
         nominal: np.ndarray,
         lam: float,
+        offsets: np.ndarray | None = None,
     ) -> FilterResult:
         """One compiled control step with the APF barrier's rows (:meth:`configure_apf`):
         the same decision, status, lambda and counters as ``solve(nominal,
@@ -256,6 +304,9 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             The nominal velocity (m/s).
         lam : float
             lambda (1/s).
+        offsets : ndarray of shape (M,), optional
+            Per agent, added to its row's ``b`` (lambda run per agent: row j's slack is
+            ``lam + offsets[j]``); None: every row's slack is ``lam``.
         """
         n = x_agents.shape[0]
         if n > self._cap:
@@ -263,7 +314,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         k = self._k
         code, v0, v1, lam_used, solves = k.apf_step(
             x_ego[0], x_ego[1], x_agents, v_agents, nominal[0], nominal[1], lam,
-            self._prm, self._poly, self._work,
+            self._prm, self._poly, self._work, _no_offsets(offsets),
         )  # fmt: skip
         self.n_solves_ += solves
         if code == 0:  # unconstrained
@@ -275,7 +326,15 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             self._last = v
             self._fell_back = False
             return FilterResult(v, "optimal", lam)
-        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam)
+        if code == k.ESCAPED:
+            v = np.array((v0, v1))
+            self._count_escaped()
+            self._last = v
+            return FilterResult(v, "fallback", math.nan, "escape")
+        ttc = None
+        if code == k.INFEASIBLE:
+            ttc = self.contact_times(x_ego, x_agents, v_agents, nominal)
+        return self._step_apf_fallback(code, v0, v1, lam_used, n, nominal, lam, ttc)
 
     def step_apf_record(
         self,
@@ -288,6 +347,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         s: int,
         rec: np.ndarray,
         i: int,
+        offsets: np.ndarray | None = None,
     ) -> FilterResult | None:
         """:meth:`step_apf` for the controller, recorded by the compiled step itself.
 
@@ -318,14 +378,17 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             The interval's record (one row per control step).
         i : int
             The row of ``rec`` this step writes.
+        offsets : ndarray of shape (M,), optional
+            Per agent, added to its row's ``b`` (see :meth:`step_apf`).
         """
-        code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec)
+        off = _no_offsets(offsets)
+        code = self._k.apf_control(x0, x1, n0, n1, lam, s, i, pv, self._buf, rec, off)
         if code == 0 or code == 1:  # unconstrained / optimal: one solve for optimal
             self.n_solves_ += code
             self._last = self._lastv
             self._fell_back = False
             return None
-        return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i)
+        return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i, off)
 
     def step_apf_record_peers(
         self,
@@ -386,6 +449,11 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
+        if code == k.ESCAPED:
+            self.n_solves_ += 1
+            self._count_escaped()
+            self._last = self._lastv
+            return None
         if code in (k.SEARCHED, k.SEARCH_VERTEX, kernels_peers.SEARCH_ALL):
             self.n_solves_ += 3
             self._count_search(k.SEARCHED if code == kernels_peers.SEARCH_ALL else code)
@@ -393,9 +461,11 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
                 self.count("hard_rows_relaxed")
             self._last = self._lastv
             return None
+        ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s], np.array((n0, n1)))
+        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc)
 
     def _step_record_rest(
         self,
@@ -409,14 +479,15 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         s: int,
         rec: np.ndarray,
         i: int,
+        off: np.ndarray,
     ) -> FilterResult | None:
         k = self._k
         if code == k.TOO_MANY:
             self._buffers(pv.shape[2])
-            return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i)
+            return self.step_apf_record(x0, x1, n0, n1, lam, pv, s, rec, i, off)
         if code == k.OUT_OF_RANGE:
             if -pv.shape[1] <= s < 0:  # counted from the end, as numpy indexing does
-                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i)
+                return self.step_apf_record(x0, x1, n0, n1, lam, pv, s + pv.shape[1], rec, i, off)
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
             )
@@ -425,9 +496,39 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             self._count_search(code)
             self._last = self._lastv
             return None
+        if code == k.ESCAPED:
+            self.n_solves_ += 1
+            self._count_escaped()
+            self._last = self._lastv
+            return None
+        ttc = None
         if code == k.INFEASIBLE:
             self.n_solves_ += 1
-        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam)
+            ttc = self.contact_times(np.array((x0, x1)), pv[0, s], pv[1, s], np.array((n0, n1)))
+        return self._step_apf_fallback(code, n0, n1, lam, pv.shape[2], np.array((n0, n1)), lam, ttc)
+
+    def contact_times(
+        self,
+        x_ego: np.ndarray,
+        x_agents: np.ndarray,
+        v_agents: np.ndarray,
+        v_ego: np.ndarray,
+    ) -> np.ndarray:
+        """The agents' predicted times to contact (s) with the collision distance the
+        compiled step was configured with (the edge rule's, else the barrier's ``d_c``),
+        the robot moving at ``v_ego``, :func:`~conformal_control.cbf.constraint.time_to_contact`.
+
+        Parameters
+        ----------
+        x_ego : ndarray of shape (2,)
+            The robot's position (m).
+        x_agents, v_agents : ndarrays of shape (N, 2)
+            The agents' predicted positions (m) and velocities (m/s).
+        v_ego : ndarray of shape (2,)
+            The robot's (nominal) velocity (m/s).
+        """
+        d = float(self._prm[12]) if self._prm[12] >= 0 else float(self._prm[2])
+        return time_to_contact(x_ego, x_agents, v_agents, d, v_ego)
 
     def _step_apf_fallback(
         self,
@@ -438,6 +539,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         n: int,
         nominal: np.ndarray,
         lam: float,
+        ttc: np.ndarray | None = None,
     ) -> FilterResult:
         k = self._k
         if code == k.NONFINITE:
@@ -449,12 +551,23 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             cap = self._cap
             A = self._work[: 2 * n].reshape(n, 2).copy()
             b = self._work[2 * cap : 2 * cap + n].copy()
-            step = InfeasibleStep(np.asarray(nominal, dtype=float), A, b, lam, self._last.copy())
+            escape = self.escape_in(self._work, cap, self._ns)
+            step = InfeasibleStep(
+                np.asarray(nominal, dtype=float), A, b, lam, self._last.copy(), escape=escape,
+                ttc=ttc,
+            )  # fmt: skip
             return self._fall_back(step)
         self._count_search(code)
         v = np.array((v0, v1))
         self._last = v
         return FilterResult(v, "fallback", lam_used, "lambda_search")
+
+    def _count_escaped(self) -> None:
+        """Count a step the compiled edge rule decided alone (it fell back)."""
+        self.n_infeasible_ += 1
+        self.n_fallback_ += 1
+        self.fallback_counts_["escape"] = self.fallback_counts_.get("escape", 0) + 1
+        self._fell_back = True
 
     def _count_search(self, code: int) -> None:
         """Count a step the compiled lambda search decided (it fell back)."""
@@ -464,3 +577,14 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         if code == self._k.SEARCH_VERTEX:
             self.count("lambda_search_vertex")
         self._fell_back = True
+
+
+#: No per-agent offsets (one lambda for every row): what the compiled step is given then.
+_NO_OFFSETS = np.zeros(0)
+
+
+def _no_offsets(offsets: np.ndarray | None) -> np.ndarray:
+    """The compiled step's ``off`` argument: ``offsets`` as float64, or no offsets."""
+    if offsets is None:
+        return _NO_OFFSETS
+    return np.ascontiguousarray(offsets, dtype=np.float64)

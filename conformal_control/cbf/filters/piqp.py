@@ -94,6 +94,11 @@ class QPSafetyFilter(VelocityFilter, probe_floor_first=True):
         self._lp_solver: piqp.DenseSolver | None = None
         self._lp_shape: int | None = None
 
+    def _polygon_changed(self) -> None:
+        # the set-ups hold the speed set's rows: built afresh on the next solve
+        self._qp_solver = None
+        self._lp_solver = None
+
     def __getstate__(self) -> dict[str, Any]:
         # piqp solvers cannot be pickled: drop them, they are rebuilt on the next solve
         state = self.__dict__.copy()

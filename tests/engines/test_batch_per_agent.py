@@ -1,0 +1,90 @@
+"""lambda run per agent on the batch engine: run_episode's episodes, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conformal_control.data import load_scene
+
+
+@pytest.fixture(scope="module")
+def crossings():
+    return [load_scene("crossing", seed=s) for s in range(3)]
+
+
+def _same_agents(batched, singles):
+    """Every interval's agents, their lambdas and their losses are the loop's."""
+    for b, s in zip(batched, singles, strict=True):
+        ib, il = b.loop.intervals, s.loop.intervals
+        assert len(ib) == len(il)
+        for x, y in zip(ib, il, strict=True):
+            assert np.array_equal(x.keys, y.keys)
+            assert np.array_equal(x.lams, y.lams)
+            assert np.array_equal(x.agent_losses, y.agent_losses, equal_nan=True)
+        assert b.loop.monitor.summary() == s.loop.monitor.summary()
+
+
+@pytest.mark.parametrize(
+    ("rule", "extra"),
+    [
+        ("fixed_eta", {}),  # the compiled predictor and fallback
+        ("dtaci", {"predictor": "delayed", "predictor_params": {"delay_s": 0.5}}),
+        ("fixed_eta", {"fallback": "relax", "params": {"epsilon": -0.3}}),  # Python fallback
+    ],
+)
+def test_per_agent_matches_run_episode(crossings, compare_batch, rule, extra):
+    params = {"lambda_per": "agent", "epsilon": -0.05, "lambda_prior": 0.3}
+    params.update(extra.pop("params", {}))
+    batched, singles = compare_batch(
+        crossings,
+        seeds=[0, 1, 2],
+        output="results",
+        rule=rule,
+        params=params,
+        max_frames=[200, 160, 240],
+        batch_size=2,
+        **extra,
+    )
+    _same_agents(batched, singles)
+    mons = [s.loop.monitor for s in singles]
+    assert all(m.n_agents > 3 for m in mons)
+    # agents' lambdas differ within an episode (it is not one lambda repeated)
+    assert all(np.ptp(m.current()) > 1e-3 for m in mons)
+    if "fallback" in extra:
+        assert sum(s.metrics.n_fallback for s in singles) > 0
+
+
+def test_per_agent_with_a_loss_that_does_not_split_is_refused(crossings):
+    from conformal_control.engines.batch import run_batch
+
+    with pytest.raises(ValueError, match="does not split by agent"):
+        run_batch(crossings[:1], params={"lambda_per": "agent"}, loss="collision", max_frames=40)
+
+
+@pytest.fixture(scope="module")
+def suite_scenes(data_root):
+    from conformal_control.data.suites import load_suite
+
+    ids = [sc.id for sc in load_suite("crossings-v2").scenarios_for("dev")][:3]
+    return [load_scene(f"scenario:crossings-v2/{i}", str(data_root)) for i in ids]
+
+
+@pytest.mark.parametrize(
+    "family", ["conformal_agent", "conformal_agent_dtaci", "conformal_dtaci_floor"]
+)
+def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
+    """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
+    predictor called through the episode's own objects) on crossings-v2 scenarios."""
+    from conformal_control.bench.methods import expand_methods
+
+    kw = expand_methods([family])[0].run_kwargs()
+    kw["predictor"] = "delayed"
+    kw["predictor_params"] = {"delay_s": 0.5, "predictor": "constant_velocity"}
+    frames = [sc.meta["max_frames"] for sc in suite_scenes]
+    batched, singles = compare_batch(
+        suite_scenes, max_frames=frames, batch_size=2, output="results", **kw
+    )
+    if kw["params"].get("lambda_per") == "agent":
+        _same_agents(batched, singles)
+    assert all(s.metrics.n_updates > 0 for s in singles)
