@@ -78,7 +78,7 @@ def child(run_dir: str, n_frames: int, out: str, dpi: int) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--frames", type=int, nargs="+", default=[50, 200, 800])
     ap.add_argument("--format", choices=("gif", "mp4"), default="gif")
     ap.add_argument("--dpi", type=int, default=80, help="80 = the CLI default (768 x 346 px)")

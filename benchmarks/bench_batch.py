@@ -387,7 +387,7 @@ def measure(
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--seeds", type=int, default=1000)
     ap.add_argument("--baseline", type=int, default=40, help="seeds timed per episode")
     ap.add_argument("--batch-size", type=int, default=128)

@@ -19,7 +19,7 @@ from conformal_control.testing import checks_for, instances
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     parser.add_argument("--role", choices=list(registry.ROLES), default=None)
     args = parser.parse_args()
     total_t = total_n = 0.0

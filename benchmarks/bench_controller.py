@@ -244,7 +244,7 @@ PAPER_A10 = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     parser.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--repeats", type=int, default=3000)
     parser.add_argument("--no-episode", action="store_true")

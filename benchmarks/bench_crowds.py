@@ -481,7 +481,7 @@ def main() -> None:
         model, n, method, steps = sys.argv[2], int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
         print(json.dumps(scale_child(model, n, method, steps)))
         return
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     parser.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--scale-only", action="store_true", help="only the scale table")

@@ -15,7 +15,7 @@ import time
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--scene", default="nexus_4")
     ap.add_argument("--frames", type=int, default=40, help="simulated frames (short window)")

@@ -253,7 +253,7 @@ def measure_planar(agents: int = 20, repeats: int = 400, data_root: Any = None) 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--repeats", type=int, default=400)
     ap.add_argument("--samples", type=int, default=500)
     ap.add_argument("--horizon", type=int, default=12)

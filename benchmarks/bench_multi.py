@@ -63,7 +63,7 @@ def lanes(scene, n: int) -> tuple[np.ndarray, list[np.ndarray]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--scene", default="nexus_4")
     ap.add_argument("--robots", type=int, default=20)

@@ -60,7 +60,7 @@ def timed(scene, **kw) -> tuple[float, float, int, object]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--robots", type=int, default=10)
     ap.add_argument("--repeat", type=int, default=3)

@@ -17,7 +17,7 @@ from conformal_control.sweep import SweepSpec, run_sweep
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = argparse.ArgumentParser(description=__doc__, allow_abbrev=False)
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--runs", type=int, default=16, help="grid size (seeds x epsilons)")
     ap.add_argument("--workers", type=int, default=2)

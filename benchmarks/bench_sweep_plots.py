@@ -50,7 +50,7 @@ def measure(runs: int, frames: int, repeat: int) -> tuple[int, dict[str, float]]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = argparse.ArgumentParser(description=__doc__, allow_abbrev=False)
     ap.add_argument("--runs", type=int, default=12, help="grid size (epsilons x seeds)")
     ap.add_argument("--frames", type=int, default=100, help="frames simulated per run")
     ap.add_argument("--repeat", type=int, default=2, help="best of N")

@@ -173,7 +173,7 @@ def time_darts(windows: np.ndarray, horizon: int) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=None, help="folder holding sdd/ (default: ours)")
     ap.add_argument("--scene", default="nexus_4")
     ap.add_argument("--windows", type=int, default=500, help="windows for var and OLS")

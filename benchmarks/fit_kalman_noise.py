@@ -64,7 +64,7 @@ def _pooled(parts: dict[str, Windows]) -> Windows:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--scene", default="eth", help="use <scene>/train")
     ap.add_argument("--windows", type=int, default=3000, help="at most this many per file")

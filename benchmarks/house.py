@@ -465,7 +465,7 @@ def measure() -> dict[str, Any]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--json", action="store_true", help="print JSON")
     ap.add_argument("--detail", action="store_true", help="list the offending imports")
     ap.add_argument(

@@ -29,7 +29,7 @@ ROWS: list[tuple[str, str, list[str]]] = [
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", nargs="*", default=None, help="labels to run (default all)")

@@ -43,7 +43,10 @@ as goals, never asserted. Sections (``--only`` picks some):
   one episode per task on a 2-worker process pool for the first scenarios (target 120 s);
 * ``crowds``     -- one social-force / ORCA step at 100 to 5,000 pedestrians, the cell
   neighbour search against the dense one (``bench_crowds.measure_scale``);
-* ``shift``      -- ``bench run --shift all`` when the command has it (target 15 min);
+* ``shift``      -- ``bench run --shift all`` when the command has it (target 15 min), then
+  ``bench report`` on its 14,040 rows (target 10 s) against reading the rows alone;
+* ``report``     -- ``bench report`` on ``--report-folder PATH`` (the same figure on a
+  folder at hand; not run without it);
 * ``mpc``        -- one sampling-MPC step, N = 500, H = 12, 20 pedestrians (target 2 ms),
   against its numpy reference and the CBF step (``bench_mpc.measure``);
 * ``scene``      -- a 100,000-frame scene of 9,000 passers-by: the memory it holds, the peak
@@ -776,6 +779,7 @@ def sec_shift(args: argparse.Namespace) -> list[Figure] | str:
     with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
         extra = ["--shift", shifts] + (["--limit", "10"] if args.quick else [])
         wall, n, line = _bench_run(args, Path(tmp) / "shift", extra)
+        report = _report_figures(Path(tmp) / "shift", "shift", repeats=1 if args.quick else 3)
     return [
         figure(
             "shift",
@@ -784,8 +788,43 @@ def sec_shift(args: argparse.Namespace) -> list[Figure] | str:
             "s",
             target=None if args.quick else 15 * 60.0,
             note=f"{line}; {n} episodes",
+        ),
+        *report,
+    ]
+
+
+def _report_figures(folder: Path, section: str, repeats: int) -> list[Figure]:
+    """``conformal-control bench report`` on a benchmark folder (subprocess, its own output
+    folder), against reading the folder's rows alone in a fresh process (the floor of any
+    report: Python, the imports and the journal's JSON), timed in the same run."""
+    from conformal_control.bench.runner import read_rows
+
+    n_rows = len(read_rows(folder))
+    with tempfile.TemporaryDirectory(prefix="cc-run-all-report-") as tmp:
+        cmd = [*_cli(), "bench", "report", str(folder), "--out", str(Path(tmp) / "report")]
+        wall, cpu = time_command(cmd, repeats)
+    read = f"from conformal_control.bench.runner import read_rows; read_rows({str(folder)!r})"
+    r_wall, r_cpu = time_command([sys.executable, "-c", read], repeats)
+    return [
+        figure(
+            section,
+            f"bench report on {n_rows:,} rows",
+            wall,
+            "s",
+            target=10.0 if n_rows >= 14_000 else None,
+            ratios=[("reading the rows alone (fresh process)", r_wall, "times")],
+            note=f"median of {repeats}; CPU {cpu:.1f} s (the command and its figure "
+            f"processes), reading alone {r_cpu:.1f} s; every table and figure of the report",
         )
     ]
+
+
+def sec_report(args: argparse.Namespace) -> list[Figure] | str:
+    """``bench report`` on the benchmark folder ``--report-folder`` (the shift section
+    times it on its own 14,040 rows)."""
+    if args.report_folder is None:
+        return "not run: needs --report-folder (the shift section times the report on its rows)"
+    return _report_figures(args.report_folder, "report", repeats=1 if args.quick else 3)
 
 
 #: key -> (title, function); a function returns its figures, or a sentence saying why
@@ -805,6 +844,7 @@ SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str
     "mpc": ("Sampling MPC: one control step", sec_mpc),
     "scene": ("Scenes stored sparsely: a 100,000-frame scene", sec_scene),
     "sweep_scale": ("Sweeps at 100,000 runs: the bookkeeping's throughput", sec_sweep_scale),
+    "report": ("bench report on a given folder", sec_report),
 }
 
 
@@ -913,7 +953,7 @@ def write_docs(path: Path, block: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--quick", action="store_true", help="fewer repetitions (noisier)")
     ap.add_argument("--data-root", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--only", nargs="+", choices=list(SECTIONS), default=None)
@@ -925,6 +965,12 @@ def main(argv: list[str] | None = None) -> int:
         help="sections not run (the page says so)",
     )
     ap.add_argument("--write-docs", type=Path, default=None, metavar="PATH")
+    ap.add_argument(
+        "--report-folder",
+        type=Path,
+        default=None,
+        help="a `bench run` folder the report section times `bench report` on",
+    )
     args = ap.parse_args(argv)
     if args.write_docs is not None and args.only is not None:
         ap.error("--write-docs rewrites the whole section: run every section (no --only)")

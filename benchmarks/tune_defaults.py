@@ -104,7 +104,7 @@ def grid_methods(k_reps, slopes, epsilons, lambdas) -> list[Method]:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     p.add_argument("--stage", choices=("barrier", "learning", "grid"), required=True)
     p.add_argument("--out", required=True)
     p.add_argument("--data-root", default=None)

@@ -17,7 +17,6 @@ robot's ROS 2 bag instead: the commands it would have sent.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,8 +38,8 @@ def run(
     params: dict[str, Any] | None = None,
     units: str | None = None,
     data_root: str | Path | None = None,
-    start: Sequence[float] | None = None,
-    goal: Sequence[float] | Sequence[Sequence[float]] | None = None,
+    start: Any = None,
+    goal: Any = None,
     start_frame: int | None = None,
     progress: bool = False,
     extra_config: dict[str, Any] | None = None,
@@ -52,7 +51,7 @@ def run(
     ----------
     scene : str or Scene
         A registered scene name (``conformal-control scenes``), e.g. ``"crossing"`` (built
-        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``; or a
+        in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``, ``"ethucy:crowds_zara01"``; or a
         :class:`~conformal_control.data.scene.Scene`.
     spec : RunSpec, optional
         The run (:class:`~conformal_control.spec.RunSpec`); the arguments below are
@@ -66,9 +65,11 @@ def run(
         scene's unit system is not SI.
     data_root : path, optional
         Data folder for scenes read from data (default ``$CONFORMAL_CONTROL_DATA``).
-    start, goal : (fx, fy), optional
-        For ``sdd:`` scenes: start and goal as image fractions (``goal`` may be a list of
-        waypoints).
+    start, goal : position, optional
+        The robot's start and goal (``goal`` may be a list of waypoints) as fractions of
+        the scene's frame (``(0.05, 0.5)``: the image on SDD scenes, the walkable box on
+        ETH/UCY ones) or with a unit (``"3.2m,1.0m"``, ``"120px,300px"``); see
+        :mod:`~conformal_control.data.positions`. None: the scene's own task.
     start_frame : int, optional
         The video frame the robot starts at (default: the scene's).
     progress : bool
@@ -78,16 +79,17 @@ def run(
         recorded beside the run (the command line records its options).
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``predictor`` (an instance or
-        a registered name; default ``"constant_velocity"``; a trainable predictor given
-        by name without ``weights`` is trained on the scene's data first, or its cached
-        weights are used), ``learn`` (False keeps lambda fixed: the noLearn baseline),
-        ``seed`` (of the built-in scene and of the plugins declaring it, ``run_values``),
-        ``max_frames``, ``barrier``, ``safety_filter``, ``fallback``, ``reference``,
-        ``dynamics``, ``loss``, ``rule`` (instances or names) and their ``*_params``,
-        ``lambda_safe``, ``record_animation``, ``engine`` (``"auto"``: the compiled
-        engine where it applies, ``"loop"``: the generic per-instant loop); and
-        ``on_interval`` (a callback per interval).
+        <conformal_control.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
+        (the task in metres, as numbers), ``predictor`` (an instance or a registered
+        name; default ``"constant_velocity"``; a trainable predictor given by name without
+        ``weights`` is trained on the scene's data first, or its cached weights are used),
+        ``learn`` (False keeps lambda fixed: the noLearn baseline), ``seed`` (of the
+        built-in scene and of the plugins declaring it, ``run_values``), ``max_frames``,
+        ``barrier``, ``safety_filter``, ``fallback``, ``reference``, ``dynamics``,
+        ``loss``, ``rule`` (instances or names) and their ``*_params``, ``lambda_safe``,
+        ``record_animation``, ``engine`` (``"auto"``: the compiled engine where it
+        applies, ``"loop"``: the generic per-instant loop); and ``on_interval`` (a
+        callback per interval).
 
     Returns
     -------
@@ -116,10 +118,21 @@ def run(
     seed = int(settings.get("seed", base.seed))
     _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
     if isinstance(scene, str):
-        goals = None if goal is None else _goals(goal)
         scene = load_scene(
-            scene, data_root, start=start, goals=goals, start_frame=start_frame, seed=seed
+            scene, data_root, start=start, goals=goal, start_frame=start_frame, seed=seed
         )
+    elif start is not None or goal is not None:
+        import numpy as np
+
+        from .data.positions import parse_positions, scene_position
+
+        changes: dict[str, Any] = {}
+        if start is not None:
+            changes["start"] = scene_position(scene, start, "start")
+        if goal is not None:
+            goals = [scene_position(scene, g, "goal") for g in parse_positions(goal, "goal")]
+            changes["goals"] = np.array(goals)
+        scene = scene.replace(**changes)
     given = dict(base.params)
     given.update(params or {})
     for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):
@@ -178,14 +191,6 @@ def run(
 
     with bar:
         return run_episode(scene, run_spec, on_interval=advance, extra_config=extra_config)
-
-
-def _goals(goal: Any) -> list[tuple[float, float]]:
-    """One goal ``(fx, fy)`` or a list of waypoints, as a list of pairs."""
-    first = goal[0]
-    if isinstance(first, (int, float)):
-        return [(float(goal[0]), float(goal[1]))]
-    return [tuple(g) for g in goal]
 
 
 def _check_plugins(run: RunSpec) -> None:

@@ -46,6 +46,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, TypeVar
 
+from .exceptions import ConformalControlDeprecationWarning
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -218,7 +220,7 @@ class Capabilities:
 CAPABILITY_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Capabilities))
 
 #: Class attributes of 0.3 now held by :class:`Capabilities`: old name -> field. A class
-#: that still sets one in its body has it folded in, with a ``DeprecationWarning``
+#: that still sets one in its body has it folded in, with a deprecation warning
 #: (removed in 0.4, not before 2027-06-30).
 FORMER_FLAGS: Mapping[str, str] = types.MappingProxyType(
     {
@@ -398,7 +400,7 @@ class Plugin:
             warnings.warn(
                 f"{cls.__name__}.{old} = ... is deprecated: declare class "
                 f"{cls.__name__}(..., {new}={value!r}) (removed in 0.4, not before 2027-06-30)",
-                DeprecationWarning,
+                ConformalControlDeprecationWarning,
                 stacklevel=3,
             )
             own[new] = value
@@ -465,7 +467,7 @@ class Plugin:
             f"{type(self).__name__}({key}=...) is deprecated: give {group}="
             f"{type(getattr(self, group, None)).__name__}({field}=...) or {new}=... "
             f"(removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=stacklevel + 1,
         )
         return new

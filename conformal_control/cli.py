@@ -85,7 +85,55 @@ _CHOICE = re.compile(r"^argument [^:]+: (unknown .*?)(?: \[(one of .*)\])?$", re
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with one-line errors (``error: ...``); a value that is not one of the
     choices is named by what it is (``unknown crowd 'socialforce'; did you mean
-    'social_force'?``), with the closest choice or the list of choices."""
+    'social_force'?``), with the closest choice or the list of choices; an unknown option
+    gets the closest option of its command (``unknown option '--epsilo'; did you mean
+    '--epsilon'?``). Options are never abbreviated (``allow_abbrev=False``): ``--epsilo``
+    is not read as ``--epsilon``, so a typo cannot silently set another option."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(  # type: ignore[override]  # typeshed's overloads; same behaviour
+        self, args: Sequence[str] | None = None, namespace: Any = None
+    ) -> tuple[Any, list[str]]:
+        self._argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def _commands(self, argv: Sequence[str]) -> list[tuple[str, argparse.ArgumentParser]]:
+        """The (sub)commands ``argv`` names, outermost first (``bench``, then ``run``)."""
+        out: list[tuple[str, argparse.ArgumentParser]] = []
+        parser: argparse.ArgumentParser = self
+        while True:
+            subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+            name = next((a for a in argv if subs and a in subs[0].choices), None)
+            if name is None:
+                return out
+            parser = subs[0].choices[name]
+            out.append((name, parser))
+
+    def _options_for(self, argv: Sequence[str]) -> list[str]:
+        """The option strings of this parser and of the commands ``argv`` names."""
+        parsers = [self, *(p for _, p in self._commands(argv))]
+        return [o for p in parsers for a in p._actions for o in a.option_strings]
+
+    def _unknown_options(self, message: str) -> str | None:
+        """``unknown option '--epsilo'; did you mean '--epsilon'?`` for argparse's
+        ``unrecognized arguments: ...``, or None when no option is among them."""
+        import difflib
+
+        if not message.startswith("unrecognized arguments: "):
+            return None
+        argv = getattr(self, "_argv", [])
+        flags = [a.partition("=")[0] for a in argv if a.startswith("--") and a not in ("--",)]
+        known = set(self._options_for(argv))
+        unknown = [f for f in flags if f not in known and f in message]
+        if not unknown:
+            return None
+        flag = unknown[0]
+        close = difflib.get_close_matches(flag, sorted(known), n=1, cutoff=0.7)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        return f"unknown option {flag!r}{hint}"
 
     def _check_value(self, action: argparse.Action, value: Any) -> None:
         choices = action.choices
@@ -106,6 +154,11 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         see = f"see `{self.prog} --help`"
+        unknown = self._unknown_options(message)
+        if unknown is not None:
+            names = [n for n, _ in self._commands(getattr(self, "_argv", []))]
+            command = " ".join([self.prog, *names])
+            self.exit(EXIT_ERROR, f"error: {unknown} (see `{command} --help`)\n")
         m = _CHOICE.match(message)
         if m:
             message = m[1]

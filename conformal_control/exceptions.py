@@ -25,6 +25,7 @@ from __future__ import annotations
 
 __all__ = [
     "CacheWarning",
+    "ConformalControlDeprecationWarning",
     "ConformalControlError",
     "ConformalControlWarning",
     "DataFetchError",
@@ -44,6 +45,13 @@ __all__ = [
 # ------------------------------------------------------------------------------ warnings
 class ConformalControlWarning(UserWarning):
     """Base class of every warning the project emits."""
+
+
+class ConformalControlDeprecationWarning(DeprecationWarning):
+    """A way of an earlier version that still works (a renamed keyword, role or option),
+    with its replacement and the version it goes in. A :class:`DeprecationWarning`, so
+    every filter of those applies; its own class lets a test suite turn the project's
+    deprecations (and no other package's) into errors."""
 
 
 class FeasibilityWarning(ConformalControlWarning):
@@ -88,6 +96,12 @@ class CacheWarning(ConformalControlWarning):
 class SuspiciousValueWarning(ConformalControlWarning):
     """A parameter value is implausible in the unit it was read in (e.g. a length typed in
     pixels that is under a metre); the message suggests the explicit unit suffix."""
+
+
+class TunedOnReportedSplitWarning(ConformalControlWarning):
+    """A benchmark reports figures on the split its tuned values were chosen on (``bench
+    tune --split test`` then ``bench run --split test``): the tuned methods are not held
+    out there."""
 
 
 # ------------------------------------------------------------------------------ errors

@@ -35,6 +35,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 from .base import LAMBDA_PER, DecisionFamily, Environment, KeyedLosses, Loss, UpdateRule
+from .exceptions import ConformalControlDeprecationWarning
 from .monitor import AgentMonitor, GuaranteeMonitor
 
 __all__ = [
@@ -293,7 +294,7 @@ def _policy_is_family(init: Callable[_P, _R]) -> Callable[_P, _R]:
         if "policy" in kwargs:
             warnings.warn(
                 "the loop's keyword policy= is now family= (removed in 0.4, not before 2027-06-30)",
-                DeprecationWarning,
+                ConformalControlDeprecationWarning,
                 stacklevel=2,
             )
             kwargs["family"] = kwargs.pop("policy")
@@ -377,7 +378,7 @@ class ConformalStepper:
         """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
             "the loop's attribute policy is now family (removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family

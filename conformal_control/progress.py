@@ -1,11 +1,12 @@
 """Progress feedback for anything that can take more than a couple of seconds.
 
-One helper, :func:`progress`, used by episodes (frames), darts fits, training epochs and
-predictor evaluation. On a terminal it is a :mod:`tqdm` bar; when stderr is not a terminal
-(a log file, CI, a notebook's captured output) it prints plain lines instead, because
-tqdm's carriage-return updates turn into one unreadable line there: the first line once
-the work has taken ``delay`` seconds, then one every ``every`` seconds, and a last line
-when it ends. Work that finishes within ``delay`` prints nothing in either mode.
+One helper, :func:`progress`, used by episodes (frames), darts fits, training epochs,
+predictor evaluation, sweeps and the benchmark (runs). On a terminal it is a :mod:`tqdm`
+bar; when stderr is not a terminal (a log file, CI, a notebook's captured output) it prints
+plain lines instead, because tqdm's carriage-return updates turn into one unreadable line
+there: the first line once the work has taken ``delay`` seconds, then one every ``every``
+seconds (with the time left at the pace so far), and a last line when it ends. Work that
+finishes within ``delay`` prints nothing in either mode.
 
 :func:`note` prints a one-line message about what is happening (e.g. which data a
 predictor is being trained on). Both are silenced by :func:`set_quiet` (the CLI's
@@ -107,6 +108,9 @@ class Progress:
         Keep the finished bar on screen (terminal mode).
     stream : TextIO, optional
         Where the report goes (default ``sys.stderr``).
+    initial : float
+        Units already done (a resumed sweep); the time left is estimated from the units
+        done since.
     """
 
     def __init__(
@@ -119,13 +123,15 @@ class Progress:
         every: float | None = None,
         leave: bool = False,
         stream: TextIO | None = None,
+        initial: float = 0,
     ) -> None:
         self.total = total
         self.desc = desc
         self.unit = unit
         self.delay = DELAY if delay is None else delay
         self.every = EVERY if every is None else every
-        self.n = 0.0
+        self.n = float(initial)
+        self.initial = float(initial)
         self.postfix = ""
         self._stream = stream if stream is not None else sys.stderr
         self._mode = _mode(self._stream)
@@ -144,6 +150,7 @@ class Progress:
                 leave=leave,
                 file=self._stream,
                 dynamic_ncols=True,
+                initial=initial,
             )
             _bars.append(self._bar)
 
@@ -158,7 +165,15 @@ class Progress:
             return f"{self.desc}: done, {self.n:.0f} {self.unit} in {self.elapsed:.1f} s{tail}"
         count = f"{self.n:.0f}" if self.total is None else f"{self.n:.0f}/{self.total:.0f}"
         pct = f" ({100.0 * self.n / self.total:.0f}%)" if self.total else ""
-        return f"{self.desc}: {count} {self.unit}{pct}, {self.elapsed:.1f} s{tail}"
+        return f"{self.desc}: {count} {self.unit}{pct}, {self.elapsed:.1f} s{self._left()}{tail}"
+
+    def _left(self) -> str:
+        """``, about N s left`` from the pace so far (nothing before a unit is done)."""
+        done = self.n - self.initial
+        if not self.total or done <= 0 or self.n >= self.total:
+            return ""
+        left = self.elapsed / done * (self.total - self.n)
+        return f", about {left:.0f} s left" if left < 90 else f", about {left / 60:.0f} min left"
 
     def _maybe_print(self) -> None:
         now = time.monotonic()
@@ -215,6 +230,7 @@ def progress(
     delay: float | None = None,
     every: float | None = None,
     leave: bool = False,
+    initial: float = 0,
 ) -> Progress:
     """A progress report over ``total`` units (None if unknown).
 
@@ -232,8 +248,10 @@ def progress(
         :data:`EVERY`.
     leave : bool
         Keep the finished bar on screen (terminal mode).
+    initial : float
+        Units already done (a resumed sweep).
     """
-    return Progress(total, desc, unit, delay=delay, every=every, leave=leave)
+    return Progress(total, desc, unit, delay=delay, every=every, leave=leave, initial=initial)
 
 
 def track(

@@ -40,6 +40,8 @@ from importlib import import_module
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .exceptions import ConformalControlDeprecationWarning
+
 if TYPE_CHECKING:
     from importlib.metadata import EntryPoint
 
@@ -243,7 +245,7 @@ def role_name(role: str) -> str:
             f"the plugin role {role!r} is now called {new!r} (as the run's field, "
             f"config.json key and --{new} option); {role!r} is "
             "removed in 0.4, not before 2027-06-30",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=3,
         )
         return new

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .base import expand_settings
-from .exceptions import InputError
+from .exceptions import ConformalControlDeprecationWarning, InputError
 
 __all__ = [
     "OPTION_FIELDS",
@@ -189,7 +189,8 @@ class Parameters:
     edge: str = _p(
         "escape",
         "edge rule: 'escape' (never close in on an agent already within the collision "
-        "distance) or 'paper' (the rows as published)",
+        "distance; the CBF's lambda floored at 0.8 x -a h_max unless lambda_min is set) or "
+        "'paper' (Algorithm 1 as published)",
         kind="text",
     )
     delta: float | None = _p(
@@ -285,6 +286,8 @@ OPTION_FIELDS: tuple[str, ...] = (
     "lambda_safe_source",
     "record_animation",
     "engine",
+    "start_m",
+    "goals_m",
 )
 _ROLE_DEFAULTS: dict[str, Any] = {
     "predictor": "constant_velocity",
@@ -382,6 +385,8 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "information": ("position", "velocity", "plan"),
     "lambda_scope": ("pedestrians", "robots", "both"),
     "hard_rows": ("level", "last"),
+    "coordination": ("none", "yield"),
+    "priority": ("pedestrians", "robots"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -400,6 +405,9 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "ignoring",
     "sidestep",
     "hard_rows",
+    "peer_horizon",
+    "coordination",
+    "priority",
 )
 
 
@@ -456,6 +464,17 @@ class Robots:
         velocity by.
     hard_rows : {"last", "level"}
         How the lambda search treats the rows lambda is not the slack of.
+    peer_horizon : float, optional
+        Planning families (MPC): how far ahead (s) a robot's plan keeps to the lines it
+        shares with the other robots; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
+        robots gave way broadcasts it, and its partners take the whole of each pair's
+        constraint at the next instant.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
+        the robot rows as ``hard_rows`` says).
 
     Raises
     ------
@@ -479,6 +498,9 @@ class Robots:
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
+    peer_horizon: float | None = None
+    coordination: str = "none"
+    priority: str = "robots"
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -515,6 +537,9 @@ class Robots:
         k = self.sidestep
         if not (_is_real(k) and 0.0 <= k <= math.pi / 2):
             raise _spec_error(f"robots sidestep must be an angle in [0, pi/2] (rad), got {k!r}")
+        p = self.peer_horizon
+        if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
+            raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
 
     @property
     def scope(self) -> str:
@@ -574,6 +599,12 @@ class RunSpec:
         Keep the compact record ``conformal-control animate`` renders.
     engine : {"auto", "loop", "batch"}
         The backend (:mod:`conformal_control.engines`).
+    start_m : (x, y), optional
+        The robot's start in metres, replacing the scene's (:meth:`on_scene`); None: the
+        scene's own.
+    goals_m : sequence of (x, y), optional
+        The goals visited in order, in metres (one ``(x, y)`` for a single goal); None: the
+        scene's own.
     robots : Robots, optional
         Several robots in the crowd (:func:`conformal_control.sim.multi.run_multi`).
 
@@ -598,6 +629,8 @@ class RunSpec:
     lambda_safe_source: str | None = None
     record_animation: bool = True
     engine: str = "auto"
+    start_m: Any = None
+    goals_m: Any = None
     robots: Robots | None = None
 
     def __post_init__(self) -> None:
@@ -634,6 +667,51 @@ class RunSpec:
             _role_parts(role, getattr(self, role))
         if self.robots is not None and not isinstance(self.robots, Robots):
             raise _spec_error(f"robots must be a Robots section, got {self.robots!r}")
+        self._check_task()
+
+    def _check_task(self) -> None:
+        """``start_m`` as a pair of floats, ``goals_m`` as a tuple of pairs (metres)."""
+        if self.start_m is not None:
+            xy = _real_list(self.start_m)
+            if xy is None or len(xy) != 2:
+                raise _spec_error(
+                    f"start_m must be two finite numbers [x, y] (m), got {self.start_m!r}"
+                )
+            object.__setattr__(self, "start_m", tuple(xy))
+        if self.goals_m is not None:
+            flat = _real_list(self.goals_m)
+            items: list[list[float] | None] | None = [flat] if flat is not None else None
+            if items is None and not isinstance(self.goals_m, (str, bytes, dict)):
+                try:
+                    items = [_real_list(g) for g in self.goals_m]
+                except TypeError:
+                    items = None
+            if not items or any(g is None or len(g) != 2 for g in items):
+                raise _spec_error(
+                    "goals_m must be [x, y] or a list of [x, y] finite numbers (m), got "
+                    f"{self.goals_m!r}"
+                )
+            object.__setattr__(self, "goals_m", tuple(tuple(g) for g in items if g is not None))
+
+    def on_scene(self, scene: Any) -> Any:
+        """``scene`` with this run's task (``start_m``, ``goals_m``) in place of its own; the
+        scene itself when neither is given.
+
+        Parameters
+        ----------
+        scene : Scene
+            The scene the run is on.
+        """
+        if self.start_m is None and self.goals_m is None:
+            return scene
+        import numpy as np
+
+        changes: dict[str, Any] = {}
+        if self.start_m is not None:
+            changes["start"] = np.array(self.start_m, dtype=float)
+        if self.goals_m is not None:
+            changes["goals"] = np.array(self.goals_m, dtype=float).reshape(-1, 2)
+        return scene.replace(meta={**scene.meta, "task": "run specification"}, **changes)
 
     def _fallback_one_way(self) -> None:
         """The fallback is a role (``fallback=``): a ``fallback`` among the parameters or
@@ -664,7 +742,7 @@ class RunSpec:
             f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
             "since 0.3: give fallback=NAME (on the command line --fallback NAME; the other "
             "ways are removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=4,
         )
         object.__setattr__(self, "fallback", next(iter(given.values())))

@@ -6,6 +6,13 @@
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
   argparse parsers of ``conformal_control.commands``.
+* **Outputs of commands**, run at build time: ``<!-- generated:run-demo -->`` (and
+  ``run-nexus_4``), ``<!-- generated:run ARGS -->`` (``$ conformal-control run ARGS`` and
+  what it prints), ``<!-- generated:runs NAME -->`` (a table of runs, :data:`RUN_TABLES`,
+  with a check of what the page says about them), ``<!-- generated:command ARGS -->``,
+  ``<!-- generated:ethucy-tasks -->``. An output that needs data the build cannot find is a
+  warning (:func:`missing_output`), so ``mkdocs build --strict`` fails instead of
+  publishing a page without it.
 * **API reference**: one page per public module of the package (``api/<dotted/path>.md``,
   packages at ``api/<dotted/path>/index.md``), found by walking the source tree at build time
   so that new modules appear on their own; the navigation and the module index
@@ -166,7 +173,8 @@ def api_page(module: str) -> str:
 
 
 def api_nav(package: str) -> list[dict[str, Any]]:
-    """Navigation of a package: its page, its modules, its subpackages as sections."""
+    """Navigation of a package: its page, its modules, its subpackages as sections, every
+    entry named by its full dotted path (as its page's title and the module index)."""
     modules = public_modules()
     depth = package.count(".") + 1
     items: list[dict[str, Any]] = [{package: api_page(package)}]
@@ -175,7 +183,7 @@ def api_nav(package: str) -> list[dict[str, Any]]:
             if _is_package(m):
                 items.append({m: api_nav(m)})
             else:
-                items.append({m.rsplit(".", 1)[1]: api_page(m)})
+                items.append({m: api_page(m)})
     return items
 
 
@@ -469,31 +477,165 @@ def cli_reference() -> str:
 
 
 # ---------------------------------------------------------------------------- runs
-def cli_run_output(*args: str) -> str:
-    """What ``conformal-control run ARGS`` prints, run now (so the page shows this version).
+def missing_output(what: str, reason: str) -> str:
+    """A generated output that cannot be made (its data is missing): a warning, which
+    ``mkdocs build --strict`` (the docs' configuration) turns into a failed build, and a
+    placeholder saying so in a non-strict build (``mkdocs serve``)."""
+    log.warning(
+        "%s was not generated: %s; build the docs with the data (set CONFORMAL_CONTROL_DATA, "
+        "or run `conformal-control fetch-data`)",
+        what,
+        reason,
+    )
+    return f"(not generated when this page was built: {reason}; see Data)"
 
-    SDD scenes read the data where every command does (``$CONFORMAL_CONTROL_DATA``, else
-    the per-user data folder; the docs test sets the variable); without data the block
-    says so instead of failing the build.
-    """
+
+def _scene_missing(args: tuple[str, ...]) -> str | None:
+    """Why the scene ``run ARGS`` names cannot be loaded for want of data, else None."""
+    from conformal_control.data import load_scene
+    from conformal_control.data.paths import DataNotFoundError
+
+    if "--scene" not in args:
+        return None
+    try:
+        load_scene(args[args.index("--scene") + 1])
+    except DataNotFoundError as exc:
+        return str(exc)
+    return None
+
+
+def _run_cli(args: tuple[str, ...]) -> tuple[str, str]:
+    """(stdout, stderr) of ``conformal-control run ARGS --no-plot --quiet`` in a temporary
+    run directory (shown as ``runs/<scene>-<time>``); a failed run fails the build."""
     import contextlib
     import io
     import tempfile
 
     from conformal_control.cli import main
-    from conformal_control.data.paths import sdd_root
 
     argv = ["run", *args, "--no-plot", "--quiet"]
-    if "--scene" in args and not (sdd_root() / "annotations").is_dir():
-        return "(the SDD data was not found when this page was built: see Data)"
     with tempfile.TemporaryDirectory() as tmp:
         out, err = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = main([*argv, "--out", f"{tmp}/run"])
         if code != 0:
-            raise RuntimeError(f"conformal-control {' '.join(argv)} failed: {err.getvalue()}")
-        text = out.getvalue().replace(f"{tmp}/run", "runs/<scene>-<time>")
-    return text.rstrip() + (("\n" + err.getvalue().rstrip()) if err.getvalue() else "")
+            raise PluginError(f"conformal-control {' '.join(argv)} failed: {err.getvalue()}")
+        return out.getvalue().replace(f"{tmp}/run", "runs/<scene>-<time>"), err.getvalue()
+
+
+def cli_run_output(*args: str) -> str:
+    """What ``conformal-control run ARGS`` prints, run now (so the page shows this version):
+    its warnings first, as a terminal shows them (they are printed before the metrics),
+    then the metrics.
+
+    Scenes from data read it where every command does (``$CONFORMAL_CONTROL_DATA``, else
+    the per-user data folder; the docs test sets the variable); without it the block says
+    so and the strict build fails (:func:`missing_output`).
+    """
+    why = _scene_missing(args)
+    if why is not None:
+        return missing_output(f"the output of `conformal-control run {' '.join(args)}`", why)
+    out, err = _run_cli(args)
+    return (err.rstrip() + "\n" if err.strip() else "") + out.rstrip()
+
+
+def _metrics_of(text: str) -> dict[str, str]:
+    """The ``name value`` lines ``run`` prints, as a dict of their texts."""
+    return {
+        parts[0]: " ".join(parts[1:])
+        for line in text.splitlines()
+        if len(parts := line.split()) >= 2 and re.fullmatch(r"[a-z_0-9]+", parts[0])
+    }
+
+
+#: Tables of runs a page shows, by name: (the ``run`` arguments of each row, the metrics
+#: shown, a check of what the page's prose says about them: a message when it no longer
+#: holds, which fails the strict build).
+RUN_TABLES: dict[str, tuple[list[str], list[str], Any]] = {
+    "nexus_4-variants": (
+        [
+            "--scene nexus_4",
+            "--scene nexus_4 --no-learning",
+            "--scene nexus_4 --predictor oracle --no-learning",
+            "--scene nexus_4 --predictor var",
+            "--scene nexus_4 --epsilon -0.1 --eta 0.1 --tau 8",
+            "--scene nexus_4 --param rho0=15m --param tau=0.4s",
+        ],
+        ["success", "t_goal", "d_min", "n_qp_solves", "lambda_final"],
+        lambda rows: next(
+            (
+                f"Getting started says lambda changes nothing on nexus_4, but `run {args}` "
+                f"solved {m['n_qp_solves']} QPs"
+                for args, m in rows[:4]
+                if m["n_qp_solves"] != "0"
+                or (m["t_goal"], m["d_min"]) != (rows[0][1]["t_goal"], rows[0][1]["d_min"])
+            ),
+            None,
+        ),
+    ),
+}
+
+
+def run_table(name: str) -> str:
+    """A table of what each run of ``RUN_TABLES[name]`` prints (selected metrics), run
+    now; without the data the table says so and the strict build fails."""
+    import shlex
+
+    runs, shown, check = RUN_TABLES[name]
+    rows = []
+    for line in runs:
+        args = tuple(shlex.split(line))
+        why = _scene_missing(args)
+        if why is not None:
+            return missing_output(f"the table of runs {name!r}", why)
+        rows.append((line, _metrics_of(_run_cli(args)[0])))
+    problem = check(rows)
+    if problem is not None:
+        log.warning("%s", problem)
+    head = ["`conformal-control run ...`", *shown]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for line, m in rows:
+        out.append(f"| `{line}` | " + " | ".join(m.get(k, "-") for k in shown) + " |")
+    return "\n".join(out)
+
+
+def ethucy_tasks() -> str:
+    """Every ETH/UCY recording: its walkable box, its default task and what the default run
+    gives (run now); without the data the table says so and the strict build fails."""
+    import warnings
+
+    import numpy as np
+
+    import conformal_control as cc
+    from conformal_control.data import load_scene
+    from conformal_control.data.ethucy import ETHUCY_RECORDINGS
+    from conformal_control.data.paths import DataNotFoundError
+
+    rows = [
+        "| scene | walkable box x (m) | y (m) | default start (m) | goal (m) | start frame | "
+        "success | t_goal | n_collide | d_min |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+
+    def pt(xy: Any) -> str:
+        return f"({xy[0]:.1f}, {xy[1]:.1f})"
+
+    for rec in ETHUCY_RECORDINGS:
+        try:
+            scene = load_scene(f"ethucy:{rec}")
+        except DataNotFoundError as exc:
+            return missing_output("the table of ETH/UCY default tasks", str(exc))
+        lo, hi = (np.asarray(c) for c in scene.meta["walkable_box"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = cc.run(scene, record_animation=False).metrics
+        t_goal = "-" if m["t_goal"] is None else f"{m['t_goal']:.2f} s"
+        rows.append(
+            f"| `ethucy:{rec}` | {lo[0]:.1f} to {hi[0]:.1f} | {lo[1]:.1f} to {hi[1]:.1f} | "
+            f"{pt(scene.start)} | {pt(scene.goals[-1])} | {scene.start_frame} | "
+            f"{str(m['success']).lower()} | {t_goal} | {m['n_collide']} | {m['d_min']:.2f} m |"
+        )
+    return "\n".join(rows)
 
 
 # ---------------------------------------------------------------------------- plugins
@@ -625,9 +767,21 @@ def cli_output(command: str) -> str:
     return f"$ conformal-control {command}\n{out.getvalue().rstrip()}"
 
 
+def run_output(args: str) -> str:
+    """``$ conformal-control run ARGS`` and what it prints (:func:`cli_run_output`)."""
+    import shlex
+
+    return f"$ conformal-control run {args}\n" + cli_run_output(*shlex.split(args))
+
+
 #: ``<!-- generated:KIND ARGUMENT -->`` markers taking an argument.
-_ARG_MARKER = re.compile(r"<!-- generated:(fields|command) (.+?) -->")
-_ARG_GENERATORS = {"fields": fields_table, "command": cli_output}
+_ARG_MARKER = re.compile(r"<!-- generated:(fields|command|run|runs) (.+?) -->")
+_ARG_GENERATORS = {
+    "fields": fields_table,
+    "command": cli_output,
+    "run": run_output,
+    "runs": run_table,
+}
 
 
 GENERATORS = {
@@ -638,6 +792,7 @@ GENERATORS = {
     "<!-- generated:run-nexus_4 -->": lambda: cli_run_output("--scene", "nexus_4"),
     "<!-- generated:roles -->": roles_table,
     "<!-- generated:run-values -->": run_values_table,
+    "<!-- generated:ethucy-tasks -->": ethucy_tasks,
 }
 
 

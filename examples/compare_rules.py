@@ -48,7 +48,7 @@ def _fmt(v: Any, nd: int = 3) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--scene", default="nexus_4")
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--epsilons", type=float, nargs="+", default=[-0.25, 0.0, 0.2])

@@ -39,7 +39,7 @@ def rules() -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--T", type=int, default=500)
     ap.add_argument("--p", type=int, default=10)

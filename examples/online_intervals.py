@@ -51,7 +51,7 @@ def worst_window_coverage(losses: np.ndarray, window: int = 500) -> float:
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--scenes", nargs="+", default=["zara1", "eth"])
     ap.add_argument("--max-steps", type=int, default=None)
     ap.add_argument("--predictor", default="constant_velocity")

@@ -72,7 +72,11 @@ TYPED = [
     ("start on the built-in scene", ["--start", "0.1,0.5"], ["fixed start"]),
     ("start not two numbers", ["--start", "0.1"], ["--start", "fx,fy"]),
     ("huge eta overflows lambda", ["--eta", "1e300/s"], ["lambda overflowed", "smaller eta"]),
-    ("unknown option", ["--epsilonn", "0.1"], ["unrecognized arguments: --epsilonn"]),
+    (
+        "unknown option",
+        ["--epsilonn", "0.1"],
+        ["unknown option '--epsilonn'; did you mean '--epsilon'?"],
+    ),
 ]
 
 

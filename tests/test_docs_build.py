@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from conformal_control.data.ethucy import ETHUCY_RECORDINGS
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -134,8 +136,69 @@ def test_mkdocs_build_strict(site: Path) -> None:
         assert f"conformal-control {name}" in cli, name
     started = (site / "getting-started/index.html").read_text()
     assert "generated:run" not in started
-    assert started.count("results written to") == 2  # the demo and nexus_4, run at build time
+    # the demo, nexus_4 and nexus_4 with a = 1, run at build time with the data
+    assert started.count("results written to") == 3
     assert (site / "assets/demo.png").is_file()
+
+
+def test_generated_outputs_are_there_when_built_with_the_data(site: Path) -> None:
+    """Every generated block of a page that needs the data holds what the commands print
+    (the build reads the data where a user's commands do): no placeholder anywhere."""
+    for page in _pages(site):
+        html = page.read_text()
+        assert "not generated when this page was built" not in html, page
+    started = (site / "getting-started/index.html").read_text()
+    rows = _table_rows(started, "conformal-control run ...", "success", "t_goal")
+    assert len(rows) == 6 and all(r[1] == "true" and r[2].endswith(" s") for r in rows), rows
+    assert "keeps lambda above that floor" in started
+    text = re.sub(r"<[^>]+>", "", started)
+    assert re.search(r"\$ conformal-control run --scene nexus_4 --param a=1", text)
+    data = (site / "data/index.html").read_text()
+    rows = _table_rows(data, "scene", "walkable box x (m)", "y (m)")
+    assert [r[0] for r in rows] == [f"ethucy:{r}" for r in ETHUCY_RECORDINGS], rows
+    assert all(r[9].endswith(" m") for r in rows), rows
+
+
+def _hooks():
+    """``docs/hooks.py``, as mkdocs loads it."""
+    spec = importlib.util.spec_from_file_location("_docs_hooks", ROOT / "docs" / "hooks.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize(
+    "generate",
+    [
+        lambda h: h.cli_run_output("--scene", "nexus_4"),
+        lambda h: h.run_output("--scene sdd:nexus/video3 --start 0.05,0.5 --goal 0.95,0.5"),
+        lambda h: h.run_table("nexus_4-variants"),
+        lambda h: h.ethucy_tasks(),
+    ],
+    ids=["run-nexus_4", "run ARGS", "runs NAME", "ethucy-tasks"],
+)
+def test_a_generated_output_without_its_data_fails_the_strict_build(
+    generate, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Built as a new user builds it, without the data: each generated output that needs it
+    logs a warning on mkdocs' logger, which ``mkdocs build --strict`` counts and aborts on
+    (the issue: the page said the data was missing and the strict build passed)."""
+    import logging
+
+    from mkdocs.utils import CountHandler
+
+    hooks = _hooks()
+    monkeypatch.setenv("CONFORMAL_CONTROL_DATA", str(tmp_path / "no-data"))
+    counter = CountHandler()  # what mkdocs' strict mode counts (mkdocs.commands.build)
+    counter.setLevel(logging.WARNING)
+    logging.getLogger("mkdocs").addHandler(counter)
+    try:
+        text = generate(hooks)
+    finally:
+        logging.getLogger("mkdocs").removeHandler(counter)
+    assert "not generated when this page was built" in text and "not found" in text
+    assert counter.get_counts() == [("WARNING", 1)]
 
 
 def _table_rows(html: str, *header: str) -> list[list[str]]:
@@ -749,3 +812,60 @@ def test_every_python_block_parses_and_its_package_imports_resolve(page: str) ->
                 for alias in node.names:
                     if alias.name.startswith("conformal_control"):
                         importlib.import_module(alias.name)
+
+
+def _undefined(code: str, known: set[str]) -> tuple[set[str], set[str]]:
+    """(names ``code`` reads that it, the blocks before it and the builtins never define;
+    the names defined so far)."""
+    import ast
+    import builtins
+
+    tree = ast.parse(code)
+    defined = set(known)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, (ast.Store, ast.Del)):
+            defined.add(node.id)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defined.add(node.name)
+        elif isinstance(node, ast.arg):
+            defined.add(node.arg)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            defined |= {(a.asname or a.name).split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ExceptHandler) and node.name:
+            defined.add(node.name)
+    used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+    return used - defined - set(dir(builtins)), defined
+
+
+@pytest.mark.parametrize("page", _pages_with_python())
+def test_no_python_block_reads_a_name_nothing_defines(page: str) -> None:
+    """A reader copying a block (after the blocks before it on the page) has every name it
+    uses: the issue's shield and PettingZoo snippets called a `my_policy` no block defined."""
+    known: set[str] = set()
+    for heading, lang, code, _ in code_blocks(ROOT / page):
+        if lang != "python":
+            continue
+        missing, known = _undefined(code, known)
+        assert not missing, f"{page}: {heading}: {sorted(missing)} defined nowhere"
+
+
+def test_the_api_navigation_names_every_module_one_way() -> None:
+    """Every entry and section of the API reference's navigation is the full dotted path of
+    its module (the issue: sections were dotted, modules short)."""
+    hooks = _hooks()
+    seen = []
+
+    def walk(items: list) -> None:
+        for item in items:
+            ((label, target),) = item.items()
+            if isinstance(target, list):
+                assert label == next(iter(target[0])), label  # the section is its package
+                walk(target)
+            else:
+                module = target.removeprefix("api/").removesuffix(".md")
+                module = module.removesuffix("/index").replace("/", ".")
+                assert label == module, (label, target)
+                seen.append(label)
+
+    walk(hooks.api_nav("conformal_control"))
+    assert sorted(seen) == hooks.public_modules()

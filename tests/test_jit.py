@@ -57,6 +57,12 @@ out["oracle-loss"] = [
     {k: repr(v) for k, v in m.as_dict().items() if k != "wall_s"}
     for m in run_batch(scenes, "oracle", loss="distance_shortfall")
 ]
+for shift, prm in (("dropout", {"p": 0.3}), ("noisy", {"sigma_m": 0.25}),
+                   ("delayed", {"delay_s": 0.5})):  # the shifts' compiled prediction
+    out[f"shift-{shift}"] = [
+        {k: repr(v) for k, v in m.as_dict().items() if k != "wall_s"}
+        for m in run_batch(scenes, shift, predictor_params=prm, seeds=[5, 6, 7])
+    ]
 out["orca"] = result(run_episode(scenes[2], "constant_velocity", crowd="orca", max_frames=50))
 out["social_force"] = result(run_episode(scenes[1], "constant_velocity", crowd="social_force",
                                          max_frames=50))

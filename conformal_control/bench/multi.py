@@ -51,8 +51,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..data.suites import SPLITS, TAIL_S, Scenario, load_suite
+from ..results.multi_metrics import ROBOT_NEAR_M
 from .methods import Method, available
-from .runner import load_tuned, plan_methods
+from .runner import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
@@ -77,8 +78,24 @@ __all__ = [
 #: Layouts of a multi-robot entry (see the module docstring).
 LAYOUTS = ("swap", "cross", "lanes", "random")
 
-#: How a robot treats the others in a benchmark run: the option values of ``--reciprocity``.
-RECIPROCITY_OPTIONS = ("none", "reciprocal")
+#: How a robot treats the others in a benchmark run: the option values of ``--reciprocity``
+#: (``"solo"``: no fleet at all -- each robot run alone on its own task, the baseline a
+#: fleet's pedestrian contacts are compared with).
+RECIPROCITY_OPTIONS = ("solo", "none", "reciprocal")
+
+#: The robots section's settings a benchmark's base run may give the reciprocal runs besides
+#: ``information`` and ``lambda_scope`` (recorded in each row's ``options`` when not the
+#: defaults).
+RECIPROCAL_OPTIONS = (
+    "sidestep",
+    "hard_rows",
+    "peer_horizon",
+    "coordination",
+    "priority",
+)
+
+#: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
+DEFAULT_RECIPROCITY = RECIPROCITY_OPTIONS
 
 #: Metrics of a fleet kept in a row (FleetMetrics names).
 FLEET_COLUMNS = (
@@ -86,6 +103,8 @@ FLEET_COLUMNS = (
     "goal_rate",
     "success_rate",
     "n_collide_pedestrian",
+    "n_collide_pedestrian_avoidable",
+    "n_collide_pedestrian_robot_near",
     "n_robots_hit_pedestrian",
     "n_collide_robot_pairs",
     "n_robots_hit_robot",
@@ -462,6 +481,11 @@ def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str,
         base, starts, goals = entry_tasks(suite, e, run.n_robots)
         scene = entry_scene(base, suite.time_factor, data_root)
         kw = dict(run.settings)
+        if run.reciprocity == "solo":
+            row.update(_solo(scene, starts, goals, run.seed, kw))
+            row["status"] = "ok"
+            row["elapsed_s"] = time.perf_counter() - t0
+            return row
         res = run_multi(
             scene,
             starts=starts,
@@ -482,6 +506,48 @@ def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str,
         row["error"] = f"{type(exc).__name__}: {exc}"
     row["elapsed_s"] = time.perf_counter() - t0
     return row
+
+
+def _solo(
+    scene: Any, starts: np.ndarray, goals: Sequence[np.ndarray], seed: int, kw: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The fleet's figures with every robot run alone on its own task (robot ``i`` with
+    seed ``seed + i``, as in the fleet): pedestrian frames and deadlocks summed, the goal
+    rate over the robots, no robot pair (:func:`~conformal_control.results.multi_metrics.
+    fleet_metrics` of the single-robot runs)."""
+    from ..results.multi_metrics import fleet_metrics
+    from ..sim.multi import run_multi
+
+    robots, contacts = [], []
+    frames, wall, cpu = 0, 0.0, 0.0
+    for i in range(starts.shape[0]):
+        res = run_multi(
+            scene,
+            starts=starts[i : i + 1],
+            goals=[goals[i]],
+            max_frames=scene.meta["max_frames"],
+            seed=seed + i,
+            record_animation=False,
+            **kw,
+        )
+        (r,) = res.robots
+        robots.append(r.metrics)
+        contacts.append(r.contacts)
+        frames = max(frames, int(res.metrics.frames))
+        wall += res.metrics.wall_s
+        cpu += res.metrics.cpu_s
+    m = fleet_metrics(
+        robots,
+        contacts,
+        robot_track=np.zeros((0, len(robots), 2)),
+        active=np.zeros((0, len(robots)), dtype=bool),
+        robot_radius=float(scene.robot_radius),
+        frames=frames,
+        wall_s=wall,
+        lam_unit_name=robots[0].unit("lambda_final"),
+        cpu_s=cpu,
+    )
+    return {k: m[k] for k in FLEET_COLUMNS}
 
 
 def _runs(
@@ -514,7 +580,7 @@ def _runs(
         for rec in reciprocity:
             recip = rec == "reciprocal"
             info = information if recip else "-"
-            scope = lambda_scope if recip else "both"
+            scope = lambda_scope if recip else ("both" if rec == "none" else "-")
             opts = _options_label(options) if recip else ""
             key = _key(e, n, m, shift, rec, info, scope, opts)
             kw = m.run_kwargs(predictor)
@@ -539,11 +605,22 @@ class MultiBenchRun:
     ran: int
     failed: int
     wall_s: float
+    #: fleet episodes a lost worker took with it (not failures; a rerun finishes them)
+    unfinished: int = 0
+    #: what failed, one line per distinct reason
+    infrastructure: tuple[str, ...] = ()
 
     def summary(self) -> str:
+        extra = ""
+        if self.unfinished:
+            why = self.infrastructure[0] if self.infrastructure else "a worker failed"
+            extra = (
+                f"; {self.unfinished} left unfinished, not failed: the infrastructure failed "
+                f"({why}); run the same command again to finish them before `bench report`"
+            )
         return (
             f"{self.n_runs} fleet episodes: {self.skipped} already done, {self.ran} ran "
-            f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}"
+            f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}{extra}"
         )
 
 
@@ -572,7 +649,7 @@ def multi_bench_base(
     kept = RunSpec(predictor=base.predictor, seed=base.seed, robots=base.robots)
     extra = [f for f in RunSpec.__dataclass_fields__ if getattr(base, f) != getattr(kept, f)]
     default = Robots()
-    taken = ("information", "lambda_scope", "sidestep", "hard_rows")
+    taken = ("information", "lambda_scope", *RECIPROCAL_OPTIONS)
     extra += [
         f"robots.{f}"
         for f in Robots.__dataclass_fields__
@@ -581,15 +658,15 @@ def multi_bench_base(
     if extra:
         raise InputError(
             "the multi-robot benchmark's base run sets only its predictor, seed and the "
-            "robots' information, lambda_scope, sidestep and hard_rows (the suite and the "
-            f"methods set the rest); drop {', '.join(extra)}"
+            f"robots' {', '.join(taken)} (the suite and the methods set the rest); drop "
+            f"{', '.join(extra)}"
         )
     predictor, params = base.role("predictor")
     if not isinstance(predictor, str) or params:
         raise InputError("the multi-robot benchmark's predictor is a registered name")
     options = {
         k: getattr(section, k)
-        for k in ("sidestep", "hard_rows")
+        for k in RECIPROCAL_OPTIONS
         if getattr(section, k) != getattr(default, k)
     }
     # a section without a lambda scope: the reciprocal runs' default
@@ -607,7 +684,7 @@ def run_multi_bench(
     grids: Mapping[str, Sequence[Any]] | None = None,
     shifts: Sequence[str] = ("nominal",),
     tuned: str | None = "default",
-    reciprocity: Sequence[str] = RECIPROCITY_OPTIONS,
+    reciprocity: Sequence[str] = DEFAULT_RECIPROCITY,
     base: RunSpec | None = None,
     data_root: str | None = None,
     workers: int | None = None,
@@ -632,14 +709,16 @@ def run_multi_bench(
     shifts : sequence of str
         Predictor shifts of :mod:`conformal_control.bench.shifts` (entries a shift does
         not cover are left out of it).
-    reciprocity : sequence of {"none", "reciprocal"}
+    reciprocity : sequence of {"solo", "none", "reciprocal"}
         How the robots treat each other (``"none"``: predicted like pedestrians, lambda on
-        every row: the behaviour without reciprocity).
+        every row: the behaviour without reciprocity; ``"solo"``: each robot alone on its
+        own task, the baseline of the report's fleet-against-solo table). Default: all
+        three.
     base : RunSpec, optional
         What every run takes (:func:`multi_bench_base`): the predictor (a method may
         replace it) and the seed; its robots section (:class:`~conformal_control.spec.Robots`)
         the reciprocal runs' ``information``, ``lambda_scope`` (see
-        :mod:`conformal_control.cbf.reciprocal`), ``sidestep`` and ``hard_rows`` (these two
+        :mod:`conformal_control.cbf.reciprocal`) and :data:`RECIPROCAL_OPTIONS` (these
         recorded in each row, ``options``, and key when not the defaults). Default:
         constant velocity, seed 0, the section's defaults.
     data_root : str, optional
@@ -658,7 +737,10 @@ def run_multi_bench(
     ms = suite if Path(suite).suffix == ".json" else None
     loaded = load_multi_suite(path=ms) if ms else load_multi_suite(suite)
     suite_path = str(ms or _manifest_dir() / f"{suite}.json")
-    chosen = plan_methods(methods, load_tuned(tuned, loaded.base), grids)
+    tuned_values = load_tuned(tuned, loaded.base)
+    if tuned_values is not None:
+        check_tuned_split(tuned_values, split)
+    chosen = plan_methods(methods, tuned_values, grids)
     shift_objs = [get_shift(s) for s in shifts]
     missing = {m.name: why for m in chosen if (why := available(m)) is not None}
     if missing:
@@ -700,6 +782,8 @@ def run_multi_bench(
                 "tuned": tuned,
                 "seed": seed,
                 "limit": limit,
+                # what this run plans: a report tells an incomplete folder by it
+                "keys": [r.key for r in runs],
             },
             indent=2,
             default=str,
@@ -711,8 +795,16 @@ def run_multi_bench(
     todo = [r for r in runs if r.key not in done]
     t0 = time.perf_counter()
     n_failed = 0
+    unfinished: list[str] = []
+    reasons: list[str] = []
     with journal.open("a") as fh:
         for row in _execute(todo, suite_path, data_root, workers):
+            if isinstance(row, BaseException):  # a worker lost: not a failure of the run
+                why = " ".join(f"{type(row).__name__}: {row}".split())[:200]
+                if why not in reasons:
+                    reasons.append(why)
+                unfinished.append("")
+                continue
             fh.write(json.dumps(row, default=_plain) + "\n")
             fh.flush()
             n_failed += row["status"] != "ok"
@@ -722,9 +814,11 @@ def run_multi_bench(
         out_dir=out,
         n_runs=len(runs),
         skipped=len(runs) - len(todo),
-        ran=len(todo),
+        ran=len(todo) - len(unfinished),
         failed=n_failed,
         wall_s=time.perf_counter() - t0,
+        unfinished=len(unfinished),
+        infrastructure=tuple(reasons),
     )
 
 
@@ -747,7 +841,9 @@ def _progress_line(row: Mapping[str, Any]) -> str:
 
 def _execute(
     runs: Sequence[MultiRun], suite_path: str, data_root: str | None, workers: int | None
-) -> Iterable[dict[str, Any]]:
+) -> Iterable[dict[str, Any] | BaseException]:
+    """Each run's row as it finishes; the exception instead, for a run the pool lost (a
+    worker killed): the run itself catches its own errors (:func:`_run_one`)."""
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n <= 1 or len(runs) <= 1:
         for r in runs:
@@ -760,7 +856,10 @@ def _execute(
     with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
         futures = [pool.submit(_run_one, r, suite_path, data_root) for r in runs]
         for f in as_completed(futures):
-            yield f.result()
+            try:
+                yield f.result()
+            except Exception as exc:  # BrokenProcessPool: the machinery, not the run
+                yield exc
 
 
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
@@ -803,21 +902,39 @@ def _est(values: Iterable[float | None]) -> Estimate:
     return bootstrap_mean(v)
 
 
+def _sum_ratio_ci(
+    a: np.ndarray, b: np.ndarray, n_resamples: int = 2000, seed: int = 0
+) -> tuple[float, float, float]:
+    """``sum(a) / sum(b)`` and its paired percentile bootstrap CI over the pairs (NaN when
+    ``b`` sums to 0)."""
+    if b.sum() == 0:
+        return math.nan, math.nan, math.nan
+    point = a.sum() / b.sum()
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, a.size, size=(n_resamples, a.size))
+    sa, sb = a[idx].sum(1), b[idx].sum(1)
+    ok = sb > 0
+    ratio = sa[ok] / sb[ok]
+    lo, hi = np.percentile(ratio, [2.5, 97.5]) if ratio.size else (math.nan, math.nan)
+    return float(point), float(lo), float(hi)
+
+
 def _ratio_ci(
     a: np.ndarray, b: np.ndarray, n_resamples: int = 2000, seed: int = 0
 ) -> tuple[float, float, float]:
     """``1 - sum(a) / sum(b)`` (the reduction of a against b) and its paired percentile
     bootstrap CI over the pairs."""
-    if b.sum() == 0:
-        return math.nan, math.nan, math.nan
-    point = 1.0 - a.sum() / b.sum()
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, a.size, size=(n_resamples, a.size))
-    sa, sb = a[idx].sum(1), b[idx].sum(1)
-    ok = sb > 0
-    red = 1.0 - sa[ok] / sb[ok]
-    lo, hi = np.percentile(red, [2.5, 97.5]) if red.size else (math.nan, math.nan)
-    return float(point), float(lo), float(hi)
+    point, lo, hi = _sum_ratio_ci(a, b, n_resamples, seed)
+    return 1.0 - point, 1.0 - hi, 1.0 - lo
+
+
+def _arm(row: Mapping[str, Any]) -> str:
+    """A row's arm: its reciprocity, with the reciprocal options when not the defaults."""
+    return f"{row['reciprocity']}{row.get('options') or ''}"
+
+
+def _total(rows: Iterable[Mapping[str, Any]], key: str) -> float:
+    return float(sum(float(r.get(key) or 0.0) for r in rows))
 
 
 def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, Any]]]:
@@ -825,7 +942,7 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
     ``paired`` (reciprocal against none, per robots and method; per layout too)."""
     groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
     for r in rows:
-        key = (r["robots"], r["method"], r.get("shift", "nominal"), r["reciprocity"])
+        key = (r["robots"], r["method"], r.get("shift", "nominal"), _arm(r))
         groups.setdefault(key, []).append(r)
     fleet = []
     for (n, method, shift, rec), rs in sorted(groups.items()):
@@ -840,6 +957,10 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
                 "robot_pair_frames": _est(r["n_collide_robot_pairs"] for r in rs),
                 "episodes_robot_collision": _est(float(r["n_collide_robot_pairs"] > 0) for r in rs),
                 "pedestrian_frames": _est(r["n_collide_pedestrian"] for r in rs),
+                "pedestrian_frames_total": _total(rs, "n_collide_pedestrian"),
+                "avoidable_total": _total(rs, "n_collide_pedestrian_avoidable"),
+                "robot_near_total": _total(rs, "n_collide_pedestrian_robot_near"),
+                "robot_pair_frames_total": _total(rs, "n_collide_robot_pairs"),
                 "makespan_s": _est(r["makespan"] for r in rs),
                 "deadlocked": _est(r["n_deadlocked"] for r in rs),
                 "cpu_s": _est(r["cpu_s"] for r in rs),
@@ -852,14 +973,17 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
             if layout is not None and r["layout"] != layout:
                 continue
             k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
-            keyed.setdefault(k, {})[r["reciprocity"]] = r
+            keyed.setdefault(k, {})[_arm(r)] = r
         by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
         # pairs in the order of their entries, not of the rows: the resampled ratio's CI
         # is a function of the set of rows (a pool stores them as episodes finish)
         for (n, method, shift, _), pair in sorted(keyed.items(), key=lambda kv: str(kv[0])):
-            if "none" in pair and "reciprocal" in pair:
-                by.setdefault((n, method, shift), []).append((pair["reciprocal"], pair["none"]))
-        for (n, method, shift), pairs in sorted(by.items()):
+            if "none" not in pair:
+                continue
+            for arm, r in pair.items():
+                if r["reciprocity"] == "reciprocal":
+                    by.setdefault((n, method, shift, arm), []).append((r, pair["none"]))
+        for (n, method, shift, arm), pairs in sorted(by.items()):
             rec = np.array([float(a["n_collide_robot_pairs"]) for a, _ in pairs])
             non = np.array([float(b["n_collide_robot_pairs"]) for _, b in pairs])
             red = _ratio_ci(rec, non)
@@ -885,6 +1009,7 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
                     "robots": n,
                     "method": method,
                     "shift": shift,
+                    "reciprocity": arm,
                     "pairs": len(pairs),
                     "robot_pair_frames_none": float(non.sum()),
                     "robot_pair_frames_reciprocal": float(rec.sum()),
@@ -894,15 +1019,78 @@ def multi_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, list[dict[str, 
                     "deadlocked_difference": dl.difference,
                 }
             )
-    return {"fleet": fleet, "paired": paired}
+    solo = _solo_table(rows)
+    for rec in sorted({str(r.get("recording", "-")) for r in rows}):
+        part = [r for r in rows if str(r.get("recording", "-")) == rec]
+        solo += [{**t, "recording": rec} for t in _solo_table(part)]
+    return {"fleet": fleet, "paired": paired, "solo": solo}
 
 
-def _fmt(v: Any) -> str:
+def _solo_table(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Every fleet arm against its robots run alone, paired by entry: pedestrian frames
+    (all, avoidable, with another robot near) summed over the pairs, their ratio to the solo
+    runs' with a paired bootstrap CI, and the differences of goal rate and deadlocked
+    robots (fleet minus solo); ``recording`` is ``"all"``."""
+    keyed: dict[tuple[Any, ...], dict[str, Mapping[str, Any]]] = {}
+    for r in rows:
+        k = (r["robots"], r["method"], r.get("shift", "nominal"), r["entry"])
+        keyed.setdefault(k, {})[_arm(r)] = r
+    by: dict[tuple[Any, ...], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
+    # pairs in the order of their entries (the CIs are a function of the set of rows)
+    for (n, method, shift, _), arms in sorted(keyed.items(), key=lambda kv: str(kv[0])):
+        if "solo" not in arms:
+            continue
+        for arm, r in arms.items():
+            if arm != "solo":
+                by.setdefault((n, method, shift, arm), []).append((r, arms["solo"]))
+    out = []
+    for (n, method, shift, arm), pairs in sorted(by.items()):
+        fleet = [a for a, _ in pairs]
+        solo = [b for _, b in pairs]
+        ped_f = np.array([float(a["n_collide_pedestrian"]) for a in fleet])
+        ped_s = np.array([float(b["n_collide_pedestrian"]) for b in solo])
+        goal = paired_comparison(
+            [a["goal_rate"] for a in fleet],
+            [b["goal_rate"] for b in solo],
+            metric="goal_rate",
+            lower_is_better=False,
+        )
+        dl = paired_comparison(
+            [a["n_deadlocked"] for a in fleet],
+            [b["n_deadlocked"] for b in solo],
+            metric="deadlocked",
+        )
+        out.append(
+            {
+                "recording": "all",
+                "robots": n,
+                "method": method,
+                "shift": shift,
+                "reciprocity": arm,
+                "pairs": len(pairs),
+                "pedestrian_frames_solo": float(ped_s.sum()),
+                "avoidable_solo": _total(solo, "n_collide_pedestrian_avoidable"),
+                "pedestrian_frames_fleet": float(ped_f.sum()),
+                "avoidable_fleet": _total(fleet, "n_collide_pedestrian_avoidable"),
+                "robot_near_fleet": _total(fleet, "n_collide_pedestrian_robot_near"),
+                "ratio": _sum_ratio_ci(ped_f, ped_s),
+                "robot_pair_frames_fleet": _total(fleet, "n_collide_robot_pairs"),
+                "goal_rate_solo": float(np.mean([b["goal_rate"] for b in solo])),
+                "goal_rate_difference": goal.difference,
+                "deadlocked_difference": dl.difference,
+            }
+        )
+    return out
+
+
+def _fmt(v: Any, col: str = "") -> str:
     if isinstance(v, Estimate):
         return v.format()
     if isinstance(v, tuple) and len(v) == 3:
         if math.isnan(v[0]):
             return "-"
+        if col == "ratio":
+            return f"{v[0]:.2f}x [{v[1]:.2f}, {v[2]:.2f}]"
         return f"{100 * v[0]:.1f} % [{100 * v[1]:.1f}, {100 * v[2]:.1f}]"
     if isinstance(v, float):
         return f"{v:g}"
@@ -911,28 +1099,41 @@ def _fmt(v: Any) -> str:
 
 def _md(rows: Sequence[Mapping[str, Any]], cols: Sequence[str]) -> str:
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(_fmt(r[c]) for c in cols) + " |" for r in rows]
+    lines += ["| " + " | ".join(_fmt(r[c], c) for c in cols) + " |" for r in rows]
     return "\n".join(lines)
 
 
 def write_multi_report(
-    rows: Sequence[Mapping[str, Any]], out: str | Path, *, title: str = "Multi-robot benchmark"
+    rows: Sequence[Mapping[str, Any]],
+    out: str | Path,
+    *,
+    title: str = "Multi-robot benchmark",
+    notice: str | None = None,
 ) -> Path:
-    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page."""
+    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page
+    (``notice``: its first line, for a folder with unfinished episodes)."""
     tables = multi_tables(rows)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fleet_cols = (
         "robots", "method", "shift", "reciprocity", "episodes", "goal_rate", "robot_pair_frames",
-        "episodes_robot_collision", "pedestrian_frames", "makespan_s", "deadlocked",
+        "episodes_robot_collision", "pedestrian_frames", "pedestrian_frames_total",
+        "avoidable_total", "robot_near_total", "makespan_s", "deadlocked",
+    )  # fmt: skip
+    solo_cols = (
+        "robots", "method", "shift", "reciprocity", "pairs", "pedestrian_frames_solo",
+        "avoidable_solo", "pedestrian_frames_fleet", "avoidable_fleet", "robot_near_fleet",
+        "ratio", "robot_pair_frames_fleet", "goal_rate_solo", "goal_rate_difference",
+        "deadlocked_difference",
     )  # fmt: skip
     paired_cols = (
-        "layout", "robots", "method", "shift", "pairs", "robot_pair_frames_none",
+        "layout", "robots", "method", "shift", "reciprocity", "pairs", "robot_pair_frames_none",
         "robot_pair_frames_reciprocal", "reduction", "goal_rate_difference",
         "pedestrian_frames_difference", "deadlocked_difference",
     )  # fmt: skip
     splits = sorted({str(r["split"]) for r in rows})
     text = [
+        *([notice, ""] if notice else []),
         f"# {title}",
         "",
         f"{len(rows)} fleet episodes ({', '.join(splits)}). Means per episode with 95 % "
@@ -941,6 +1142,23 @@ def write_multi_report(
         "## Fleets",
         "",
         _md(tables["fleet"], fleet_cols),
+        "",
+        "## Fleets against their robots alone (paired by entry)",
+        "",
+        "`solo`: each robot of the entry run alone on its own task. Pedestrian frames summed "
+        "over the pairs: all, `avoidable` (events a point robot with the same speed bound "
+        "could have avoided since first sensing the pedestrian; pop-ins never), and "
+        f"`robot_near` (another robot within {ROBOT_NEAR_M:g} m of the hit robot); `ratio`: "
+        "fleet / solo pedestrian frames with its paired bootstrap CI; differences are fleet "
+        "minus solo.",
+        "",
+        _md([r for r in tables["solo"] if r["recording"] == "all"], solo_cols)
+        if tables["solo"]
+        else "(no solo runs: add `solo` to `--reciprocity`)",
+        "",
+        "### Per recording",
+        "",
+        _md([r for r in tables["solo"] if r["recording"] != "all"], ("recording", *solo_cols)),
         "",
         "## Reciprocal against none (paired by entry)",
         "",
@@ -1028,14 +1246,35 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
         progress=None if args.progress == "off" else print,
     )
     print(res.summary())
-    return 0 if res.failed == 0 else 1
+    return 0 if res.failed == 0 and not res.unfinished else 1
+
+
+def multi_unfinished(folder: str | Path) -> tuple[int, int]:
+    """``(planned, unfinished)`` fleet episodes of the folder's last ``bench run --robots``:
+    those its ``bench.json`` lists without any record in the journal.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The multi-robot benchmark folder.
+    """
+    try:
+        keys = json.loads((Path(folder) / "bench.json").read_text()).get("keys") or []
+    except (OSError, ValueError, AttributeError):
+        return 0, 0
+    done = {r["key"] for r in _read_jsonl(Path(folder) / "results.jsonl")}
+    planned = {str(k) for k in keys}
+    return len(planned), len(planned - done)
 
 
 def report_command(folder: str | Path, out: str | Path | None) -> int:
     """``bench report`` of a multi-robot folder: ``multi_report.md`` (printed)."""
     rows = read_multi_rows(folder)
     dest = Path(out) if out else Path(folder) / "report"
-    page = write_multi_report(rows, dest, title=f"Multi-robot benchmark: {Path(folder).name}")
+    notice = incomplete_notice(*multi_unfinished(folder), command="bench run --robots")
+    page = write_multi_report(
+        rows, dest, title=f"Multi-robot benchmark: {Path(folder).name}", notice=notice
+    )
     print(page.read_text())
     print(f"wrote {page} and {page.with_suffix('.json')}")
     return 0

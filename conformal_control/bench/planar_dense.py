@@ -207,7 +207,8 @@ def dense_report(
 ) -> tuple[str, list[dict[str, Any]]]:
     """Per dataset and method: every metric's mean over scenarios with its bootstrap 95 %
     interval; each method paired with ``baseline`` (the fixed-margin MPC) and with
-    ``reference`` (the oracle) over the scenarios both ran. Returns the markdown and the
+    ``reference`` (the oracle) over the scenarios both ran. With several datasets, the
+    same over all their scenarios pooled (dataset ``all``). Returns the markdown and the
     rows.
 
     Parameters
@@ -219,7 +220,13 @@ def dense_report(
     reference : str
         The oracle row (how far each method trails it).
     """
-    data = per_scenario(rows)
+    data: dict[tuple[str, str, str], dict[Any, dict[str, float]]] = dict(per_scenario(rows))
+    pooled: dict[tuple[str, str, str], dict[Any, dict[str, float]]] = {}
+    for (ds, method, pred), by_start in data.items():
+        into = pooled.setdefault(("all", method, pred), {})
+        into.update({(ds, start): v for start, v in by_start.items()})
+    if len({k[0] for k in data}) > 1:
+        data.update(pooled)
     lines = [
         "| dataset | method | predictor | scenarios | collision rate | reached | "
         "infeasible rate | steps to goal |",
@@ -273,8 +280,8 @@ def dense_report(
 
 
 def _any_predictor(
-    data: Mapping[tuple[str, str, str], dict[int, dict[str, float]]], ds: str, method: str
-) -> dict[int, dict[str, float]] | None:
+    data: Mapping[tuple[str, str, str], dict[Any, dict[str, float]]], ds: str, method: str
+) -> dict[Any, dict[str, float]] | None:
     """A method's scenarios under whatever predictor it ran (the oracle's own)."""
     for (d, m, _), v in data.items():
         if d == ds and m == method:

@@ -6,7 +6,8 @@ method) and writes, per predictor shift:
 * ``leaderboard.md`` / ``leaderboard.csv`` -- per method: success, reached and collision
   rates, collision frames, avoidable collision frames, time to goal, d_min, ... as means over
   scenarios with bootstrap 95 % CIs; the avoidable share of the collision frames; paired
-  comparisons with ``nolearn`` AND with the fixed lambda tuned on dev on the same scenarios;
+  comparisons with ``nolearn`` AND with the tuned fixed lambda on the same scenarios (the
+  tuned methods are labelled with the split their file says they were tuned on);
   and, where the folder ran a reference family's whole grid (``fixed``), the setting
   re-tuned on the reported split by the tuning rule, labelled as a reference that peeks at
   it;
@@ -50,11 +51,19 @@ from typing import Any
 
 import numpy as np
 
+from ..plotting.jobs import FigureJob, draw_all
 from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
-from .stats import Estimate, PairedComparison, bootstrap_mean, paired_comparison
+from .stats import Estimate, PairedComparison, bootstrap_means, paired_comparisons
 
-__all__ = ["MethodSummary", "canonical_order", "summarise", "write_report"]
+__all__ = [
+    "MethodSummary",
+    "canonical_order",
+    "summarise",
+    "tuned_label",
+    "tuned_split",
+    "write_report",
+]
 
 #: (column, row metric, is a rate, lower is better) of the leaderboard.
 COLUMNS: tuple[tuple[str, str, bool, bool], ...] = (
@@ -149,20 +158,23 @@ def _ok_rows(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict[str, Any]], l
     return ok, failed
 
 
-def _paired(
-    mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]], seed: int
-) -> dict[str, PairedComparison]:
+def _paired_args(
+    mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]]
+) -> list[tuple[list[float], list[float], str, bool]]:
+    """The :func:`~conformal_control.bench.stats.paired_comparisons` arguments of the
+    paired columns (in the order of :data:`PAIRED`)."""
     common = [r for r in mrows if str(r["scenario"]) in base]
-    out = {}
+    out = []
     for col, metric, _, lower in COLUMNS:
         if col not in PAIRED:
             continue
-        out[col] = paired_comparison(
-            [_num(r.get(metric)) for r in common],
-            [_num(base[str(r["scenario"])].get(metric)) for r in common],
-            metric=metric,
-            lower_is_better=lower,
-            seed=seed,
+        out.append(
+            (
+                [_num(r.get(metric)) for r in common],
+                [_num(base[str(r["scenario"])].get(metric)) for r in common],
+                metric,
+                lower,
+            )
         )
     return out
 
@@ -177,13 +189,12 @@ def _shares(mrows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
-def _row_key(row: Mapping[str, Any]) -> tuple[str, str, str, str]:
-    return (
-        str(row.get("shift") or "nominal"),
-        str(row.get("method")),
-        str(row.get("scenario")),
-        json.dumps(row, sort_keys=True, default=str),
-    )
+def _head(row: Mapping[str, Any]) -> tuple[str, str, str]:
+    return (str(row.get("shift") or "nominal"), str(row.get("method")), str(row.get("scenario")))
+
+
+def _content(row: Mapping[str, Any]) -> str:
+    return json.dumps(row, sort_keys=True, default=str)
 
 
 def canonical_order(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -195,7 +206,21 @@ def canonical_order(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]
     rows : iterable of mapping
         Benchmark rows, in any order.
     """
-    return sorted(rows, key=_row_key)
+    rows = list(rows)
+    heads = [_head(r) for r in rows]
+    order = sorted(range(len(rows)), key=heads.__getitem__)
+    # only rows whose shift, method and scenario tie need their whole content (serialising
+    # every row was most of the sort): the same order as sorting by all four keys at once
+    out: list[Mapping[str, Any]] = []
+    i = 0
+    while i < len(order):
+        j = i + 1
+        while j < len(order) and heads[order[j]] == heads[order[i]]:
+            j += 1
+        group = [rows[k] for k in order[i:j]]
+        out += sorted(group, key=_content) if len(group) > 1 else group
+        i = j
+    return out
 
 
 def summarise(
@@ -229,14 +254,28 @@ def summarise(
         failed_count[str(r.get("method"))] += 1
     base = {str(r["scenario"]): r for r in by_method.get(baseline, [])}
     ref = {str(r["scenario"]): r for r in by_method.get(fixed, [])} if fixed else {}
+    # every interval of the shift in one pass (the same numbers as one call each)
+    cols = [col for col, _, _, _ in COLUMNS]
+    paired_cols = [col for col in cols if col in PAIRED]
+    samples: list[list[float]] = []
+    pairs: list[tuple[list[float], list[float], str, bool]] = []
+    for method, mrows in by_method.items():
+        samples += [[_num(r.get(metric)) for r in mrows] for _, metric, _, _ in COLUMNS]
+        if method != baseline and base:
+            pairs += _paired_args(mrows, base)
+        if method != fixed and ref:
+            pairs += _paired_args(mrows, ref)
+    estimates = iter(bootstrap_means(samples, seed=seed))
+    comparisons = iter(paired_comparisons(pairs, seed=seed))
     out = []
     for method, mrows in by_method.items():
-        est = {
-            col: bootstrap_mean([_num(r.get(metric)) for r in mrows], seed=seed)
-            for col, metric, _, _ in COLUMNS
-        }
-        paired = _paired(mrows, base, seed) if method != baseline and base else {}
-        paired_fixed = _paired(mrows, ref, seed) if method != fixed and ref else None
+        est = {col: next(estimates) for col in cols}
+        paired: dict[str, PairedComparison] = {}
+        if method != baseline and base:
+            paired = {col: next(comparisons) for col in paired_cols}
+        paired_fixed = None
+        if method != fixed and ref:
+            paired_fixed = {col: next(comparisons) for col in paired_cols}
         first = mrows[0]
         out.append(
             MethodSummary(
@@ -275,9 +314,42 @@ class _ShiftView:
     shift: str
     summaries: list[MethodSummary]
     shown: list[MethodSummary]
-    fixed: str | None  # the dev-tuned fixed lambda's method name
+    fixed: str | None  # the tuned fixed lambda's method name
     reference: str | None  # the re-tuned reference's method name
     n_scenarios: int
+    tuned_label: str = "tuned on dev"  # from the tuned file (:func:`tuned_label`)
+
+
+def tuned_split(bench: Mapping[str, Any] | None) -> str | None:
+    """The split the folder's tuned values were chosen on, as their file says (``bench.json``
+    records it from ``tuned.json``); None if it does not say.
+
+    Parameters
+    ----------
+    bench : mapping, optional
+        The folder's ``bench.json``.
+    """
+    split = ((bench or {}).get("tuned") or {}).get("split")
+    return str(split) if split else None
+
+
+def tuned_label(bench: Mapping[str, Any] | None) -> str:
+    """How the report labels the tuned methods: ``tuned on <split>`` from the tuned file
+    (never assumed: a test-tuned file is labelled so).
+
+    Parameters
+    ----------
+    bench : mapping, optional
+        The folder's ``bench.json``.
+    """
+    split = tuned_split(bench)
+    return f"tuned on {split}" if split else "tuned (split not recorded)"
+
+
+def _tuned_short(bench: Mapping[str, Any] | None) -> str:
+    """``dev-tuned``, ``test-tuned``...: the label's short form."""
+    split = tuned_split(bench)
+    return f"{split}-tuned" if split else "tuned"
 
 
 def _tuned_names(bench: Mapping[str, Any] | None) -> dict[str, str]:
@@ -324,7 +396,7 @@ def _view(
     for s in summaries:
         fam = FAMILIES.get(s.family)
         if s.method == fixed or s.method == tuned.get(s.family):
-            s.label = "tuned on dev"
+            s.label = tuned_label(bench)
         if fam is not None and fam.reference and s.family in tuned and s.method != fixed:
             continue  # the grid's other members: in the CSV only
         shown.append(s)
@@ -333,7 +405,7 @@ def _view(
         ref_copy = MethodSummary(**{**ref.__dict__, "label": REFERENCE})
         shown.append(ref_copy)
     n_scen = len({str(r.get("scenario")) for r in rows})
-    return _ShiftView(shift, summaries, shown, fixed, reference, n_scen)
+    return _ShiftView(shift, summaries, shown, fixed, reference, n_scen, tuned_label(bench))
 
 
 # ------------------------------------------------------------------ markdown
@@ -350,7 +422,9 @@ def _leaderboard_md(views: list[_ShiftView], baseline: str, title: str) -> str:
         "collision frames that a point robot with the speed bound could have avoided from "
         "where the robot was when the pedestrian was first sensed (pop-ins excluded; see "
         "the Benchmark page). Paired comparisons on the same scenarios: with "
-        f"`{baseline}`, and with the fixed lambda tuned on dev.",
+        f"`{baseline}`, and with the fixed lambda "
+        + (views[0].tuned_label if views else "tuned on dev")
+        + ".",
         "",
     ]
     for v in views:
@@ -404,7 +478,7 @@ def _leaderboard_csv(path: Path, views: list[_ShiftView]) -> None:
     rows = []
     for v in views:
         for s in v.summaries:
-            role = "tuned on dev" if s.label == "tuned on dev" else ""
+            role = s.label if s.label == v.tuned_label else ""
             if s.method == v.reference:
                 role = (role + "; " if role else "") + REFERENCE
             row: list[Any] = [v.shift, s.method, s.family, s.setting, role, s.n, s.n_failed]
@@ -488,6 +562,9 @@ def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> N
     ]
     for v in views:
         srows = by_shift[v.shift]
+        by_method: dict[Any, list[dict[str, Any]]] = defaultdict(list)
+        for r in srows:
+            by_method[r["method"]].append(r)
         scen: dict[str, dict[str, Any]] = {}
         for r in srows:
             scen.setdefault(str(r["scenario"]), r)
@@ -525,8 +602,8 @@ def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> N
                 n_g = sum(1 for k in group_of if group_of[k] == g)
                 for m in names:
                     sel = [
-                        r for r in srows
-                        if r["method"] == m and group_of.get(str(r["scenario"])) == g
+                        r for r in by_method.get(m, ())
+                        if group_of.get(str(r["scenario"])) == g
                     ]  # fmt: skip
                     if not sel:
                         cells.append("-")
@@ -653,7 +730,14 @@ def _collisions(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) 
 
 # ------------------------------------------------------------------ figures
 #: How the figures label the tuned methods and the reference.
-_SHORT = {"tuned on dev": " (dev-tuned)", REFERENCE: " (re-tuned here: reference)"}
+_SHORT = {REFERENCE: " (re-tuned here: reference)"}
+
+
+def _short_label(label: str) -> str:
+    """`` (dev-tuned)`` for ``tuned on dev`` (any split), the reference's, or ``""``."""
+    if label.startswith("tuned on "):
+        return f" ({label.removeprefix('tuned on ')}-tuned)"
+    return _SHORT.get(label, "")
 
 
 def _frontier(v: _ShiftView, path: Path, title: str) -> None:
@@ -682,7 +766,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
             color=f"C{i % 10}",
             capsize=3,
             lw=1.0,
-            label=s.method + _SHORT.get(s.label, "") + (" *" if on_front else ""),
+            label=s.method + _short_label(s.label) + (" *" if on_front else ""),
         )
     fp = sorted(((-p[0], p[1]) for p, f in zip(pts, front, strict=True) if f), key=lambda p: p[0])
     if len(fp) > 1:
@@ -723,23 +807,42 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bool:
-    import matplotlib
+#: The curves of ``success_vs_epsilon.png``: (family, epsilons, their estimates).
+_Curve = tuple[str, list[float], list[Estimate]]
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
 
+def _epsilon_curves(
+    rows: list[dict[str, Any]], seed: int
+) -> tuple[list[_Curve], float | None] | None:
+    """The success rate against epsilon per epsilon family (nominal shift) and
+    ``nolearn``'s rate; None when no row has an epsilon setting."""
     fams: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         setting = str(r.get("setting") or "")
         if setting.startswith("eps=") and r["shift"] == "nominal":
             fams[str(r.get("family"))][float(setting[4:])].append(_num(r.get("success")))
     if not fams:
-        return False
-    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+        return None
+    curves = []
     for fam, by_eps in sorted(fams.items()):
         eps = sorted(by_eps)
-        est = [bootstrap_mean(by_eps[e], seed=seed) for e in eps]
+        curves.append((fam, eps, bootstrap_means([by_eps[e] for e in eps], seed=seed)))
+    base = [
+        _num(r.get("success"))
+        for r in rows
+        if r.get("method") == "nolearn" and r["shift"] == "nominal"
+    ]
+    return curves, (float(np.nanmean(base)) if base else None)
+
+
+def _success_vs_epsilon(curves: list[_Curve], base: float | None, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    for fam, eps, est in curves:
         ax.errorbar(
             eps,
             [100 * e.mean for e in est],
@@ -748,13 +851,8 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
             capsize=3,
             label=fam,
         )
-    base = [
-        _num(r.get("success"))
-        for r in rows
-        if r.get("method") == "nolearn" and r["shift"] == "nominal"
-    ]
-    if base:
-        ax.axhline(100 * float(np.nanmean(base)), color="0.4", ls=":", label="nolearn")
+    if base is not None:
+        ax.axhline(100 * base, color="0.4", ls=":", label="nolearn")
     ax.set_xlabel("epsilon (target average loss)")
     ax.set_ylabel("success rate (%)")
     ax.set_title("Success against epsilon, nominal predictor (95 % CIs)")
@@ -763,7 +861,6 @@ def _success_vs_epsilon(rows: list[dict[str, Any]], path: Path, seed: int) -> bo
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    return True
 
 
 # ------------------------------------------------------------------ targets
@@ -804,7 +901,8 @@ def _targets(
             fewer = dc.high < 0
             not_lower = ds.mean >= 0 and ds.high >= 0
             lines.append(
-                f"- `delay-0.5s`: `{conf}` against the dev-tuned `{v.fixed}`: collision frames "
+                f"- `delay-0.5s`: `{conf}` against the {_tuned_short(bench)} `{v.fixed}`: "
+                "collision frames "
                 f"{dc.format(3)} (fewer, CI below 0: {'met' if fewer else 'NOT met'}), "
                 f"success {ds.format(3, percent=True)} (not lower: "
                 f"{'met' if not_lower else 'NOT met'})."
@@ -868,7 +966,7 @@ def _no_regret(
         "the shift), positive when the method did better (collision frames: fewer).",
         "",
     ]
-    header = ["shift", "method", "dev-tuned", "dominated by"]
+    header = ["shift", "method", _tuned_short(bench), "dominated by"]
     for f in ("success", "reached", "collision frames"):
         header += [f, f"regret {f}", f"best {f}", f"vs re-tuned {f}"]
     table: list[list[Any]] = []
@@ -891,7 +989,7 @@ def _no_regret(
         for x in c:
             fg, rg, bg, tg = x.figures, x.regret, x.best, x.to_reference
             dom = ", ".join(f"`{m}`" for m in x.dominated_by) or "none"
-            name = f"`{x.method}`" + (" (dev-tuned)" if x.method in tuned else "")
+            name = f"`{x.method}`" + (f" ({_tuned_short(bench)})" if x.method in tuned else "")
             vs = (
                 f"{100 * tg['success']:+.1f}, {100 * tg['reached']:+.1f}, "
                 f"{tg['collision frames']:+.2f}"
@@ -960,7 +1058,8 @@ def _issue_targets(
     some = any(c.met for c in checks)
     lines += [
         "",
-        f"- Some dev-tuned adaptive method meets them all: {'met' if some else 'NOT met'}.",
+        f"- Some {_tuned_short(bench)} adaptive method meets them all: "
+        f"{'met' if some else 'NOT met'}.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -992,9 +1091,10 @@ def _agents(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> b
         "",
         "Agents with at least 10 losses (checked one by one), pooled over the scenarios: "
         "the distribution of their average loss minus epsilon (the fixed-step identity "
-        "makes it (lambda_j,1 - lambda_j,end) / (eta K_j) exactly), and how many meet "
-        "their own bound where the run had one (Theorem 2 with lambda_safe, or a long-run "
-        "bound). Episodes whose run folder is missing are counted apart.",
+        "makes it (lambda_j,1 - lambda_j,end) / (eta K_j) exactly while lambda_j is not "
+        "clipped; a floor that binds keeps the agent's loss above epsilon meanwhile), and "
+        "how many meet their own bound where the run had one (Theorem 2 with lambda_safe, "
+        "or a long-run bound). Episodes whose run folder is missing are counted apart.",
         "",
         "| shift | method | episodes | agents checked | median | 90th percentile | "
         "largest | within 0.01 of epsilon | bound met |",
@@ -1082,6 +1182,7 @@ def write_report(
     seed: int = 0,
     bench: Mapping[str, Any] | None = None,
     tune_wall: float | None = None,
+    notice: str | None = None,
 ) -> dict[str, Path]:
     """Write the report (see the module docstring) into ``out``; return the files.
 
@@ -1101,6 +1202,9 @@ def write_report(
         The folder's ``bench.json`` (its tuned values name the dev-tuned methods).
     tune_wall : float, optional
         Seconds ``bench tune`` took (for the run-time target).
+    notice : str, optional
+        The first line of every page (a folder with unfinished episodes:
+        :func:`~conformal_control.bench.runner.incomplete_notice`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -1138,10 +1242,19 @@ def write_report(
     )
     if _agents(views, ok, out):
         files["agents.md"] = out / "agents.md"
+    jobs: list[FigureJob] = []
     for v in views:
         name = "frontier.png" if len(views) == 1 else f"frontier-{v.shift}.png"
         files[name] = out / name
-        _frontier(v, files[name], f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)")
-    if _success_vs_epsilon(ok, out / "success_vs_epsilon.png", seed):
+        title_v = f"{title}: shift {v.shift} ({v.n_scenarios} scenarios)"
+        jobs.append((_frontier, (v, files[name], title_v), {}))
+    curves = _epsilon_curves(ok, seed)
+    if curves is not None:
         files["success_vs_epsilon.png"] = out / "success_vs_epsilon.png"
+        jobs.append((_success_vs_epsilon, (*curves, files["success_vs_epsilon.png"]), {}))
+    draw_all(jobs)  # a third of a second each: split between two cores where possible
+    if notice:  # an incomplete folder says so on the first line of every page
+        for path in files.values():
+            if path.suffix == ".md" and path.exists():
+                path.write_text(f"{notice}\n\n{path.read_text()}")
     return files

@@ -149,12 +149,44 @@ def load_tuned(tuned: str | Path | None, suite: str) -> Tuned | None:
         raise ValueError(f"{path}: not a `bench tune` result (no 'families')")
     if data.get("suite") != suite:
         raise ValueError(f"{path}: tuned on suite {data.get('suite')!r}, this run is on {suite!r}")
+    if not isinstance(data.get("split"), str) or not data["split"]:
+        raise ValueError(
+            f"{path}: does not say which split its values were tuned on (no 'split'); a report "
+            "labels tuned methods by it: tune again with `bench tune`"
+        )
     values = {}
     for fam, entry in data["families"].items():
         if not isinstance(entry, dict) or "setting" not in entry:
             raise ValueError(f"{path}: family {fam!r} has no 'setting'")
         values[fam] = entry["setting"]
     return Tuned(values, source, hashlib.sha256(raw).hexdigest(), data)
+
+
+def check_tuned_split(tuned: Tuned, split: str | None) -> None:
+    """Warn (:class:`~conformal_control.exceptions.TunedOnReportedSplitWarning`) when the
+    split a run reports is the one the tuned values were chosen on (or None: every split).
+
+    Parameters
+    ----------
+    tuned : Tuned
+        The tuned values (:func:`load_tuned`), whose file says its split.
+    split : str or None
+        The split the run reports.
+    """
+    import warnings
+
+    from ..exceptions import TunedOnReportedSplitWarning
+
+    chosen_on = str(tuned.data.get("split"))
+    if split is None or split == chosen_on:
+        reported = "every split" if split is None else f"the {split} split"
+        warnings.warn(
+            f"the tuned values ({tuned.source}) were chosen on the {chosen_on} split and this "
+            f"run reports {reported}: the tuned methods are not held out there (the report "
+            f"labels them 'tuned on {chosen_on}')",
+            TunedOnReportedSplitWarning,
+            stacklevel=3,
+        )
 
 
 def plan_methods(
@@ -429,11 +461,21 @@ class BenchRun:
     failed: int
     unavailable: dict[str, str]
     wall_s: float
+    #: episodes the infrastructure lost (not failures of a method; a rerun finishes them)
+    unfinished: int = 0
+    #: what failed, one line per distinct reason
+    infrastructure: tuple[str, ...] = ()
 
     def summary(self) -> str:
         extra = ""
         if self.unavailable:
             extra = "; methods left out (plugin unavailable): " + ", ".join(self.unavailable)
+        if self.unfinished:
+            why = self.infrastructure[0] if self.infrastructure else "the executor failed"
+            extra += (
+                f"; {self.unfinished} left unfinished, not failed: the infrastructure failed "
+                f"({why}); run the same command again to finish them before `bench report`"
+            )
         return (
             f"{self.n_runs} episodes: {self.skipped} already done, {self.ran} ran "
             f"({self.failed} failed) in {self.wall_s:.1f} s; results in {self.out_dir}{extra}"
@@ -542,7 +584,8 @@ def run_bench(
     scheduler : str, optional
         A Dask scheduler's address (``executor="dask"``).
     progress : bool, optional
-        A progress report (None: on a terminal).
+        False: no progress report; otherwise a bar on a terminal, periodic lines where
+        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
 
@@ -600,6 +643,8 @@ def run_bench(
     t0 = time.perf_counter()
     with _BenchLock(out):
         description = _merged_description(out, description)
+        if tuned_values is not None:  # once the folder took the run
+            check_tuned_split(tuned_values, split)
         write_json(out / "bench.json", description)
         rep = run_sweep(
             configs,
@@ -632,6 +677,51 @@ def run_bench(
         failed=len(rep.failed),
         unavailable=unavailable,
         wall_s=wall,
+        unfinished=len(rep.unfinished),
+        infrastructure=tuple(rep.infrastructure),
+    )
+
+
+def unfinished_episodes(out: str | Path) -> tuple[int, int]:
+    """``(planned, unfinished)``: the episodes the folder's last ``bench run`` (or ``bench
+    tune``) planned (its ``sweep.json``), and how many of them have no record in the
+    journal (left unfinished by a lost scheduler or worker, or a stopped run). A failed
+    episode has its record: it is data, not unfinished.
+
+    Parameters
+    ----------
+    out : str or Path
+        The benchmark folder.
+    """
+    from ..sweep.results import ResultsStore
+
+    out = Path(out)
+    try:
+        planned = json.loads((out / "sweep.json").read_text()).get("runs") or []
+        keys = {str(r["key"]) for r in planned if isinstance(r, dict) and "key" in r}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return 0, 0  # no plan to compare with
+    done = set(ResultsStore(out).latest())
+    return len(keys), len(keys - done)
+
+
+def incomplete_notice(planned: int, unfinished: int, command: str = "bench run") -> str | None:
+    """The first line of a report over a folder with unfinished episodes (None if none).
+
+    Parameters
+    ----------
+    planned, unfinished : int
+        From :func:`unfinished_episodes`.
+    command : str
+        The command that finishes them.
+    """
+    if not unfinished:
+        return None
+    return (
+        f"**INCOMPLETE: {unfinished:,} of the {planned:,} episodes of this folder's last "
+        f"`{command}` have not finished** (the infrastructure lost them, or the run was "
+        f"stopped): every figure below is over the {planned - unfinished:,} that did, not "
+        f"the benchmark; rerun the same `{command}` to finish them."
     )
 
 

@@ -21,12 +21,12 @@ from typing import Any
 from .. import __version__
 from ..spec import RunSpec
 from .methods import FAMILIES
-from .runner import DEFAULT_SUITE, read_rows, run_bench, write_json
+from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
 
 __all__ = ["DEFAULT_TUNED", "RULE", "TuneResult", "choose", "tune"]
 
 #: The families ``bench tune`` tunes by default (those ``bench run`` runs by default).
-DEFAULT_TUNED = ("fixed", "conformal", "acp", "inflated")
+DEFAULT_TUNED = ("fixed", "conformal", "acp", "inflated", "conformal_dtaci_floor")
 
 #: The one rule that picks a family's setting.
 RULE = (
@@ -152,7 +152,8 @@ def tune(
     workers : int, optional
         Worker processes (default: the CPUs available).
     progress : bool, optional
-        A progress report (None: on a terminal).
+        False: no progress report; otherwise a bar on a terminal, periodic lines where
+        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
     seed : int
@@ -188,6 +189,11 @@ def tune(
         progress=progress,
         limit=limit,
     )
+    if run.unfinished:  # choosing on the episodes that came back would be another rule
+        raise BenchFolderError(
+            f"{run.unfinished} tuning episodes were left unfinished ({run.infrastructure[0]}); "
+            f"run the same `bench tune` again to finish them: no tuned.json was written"
+        )
     rows = [r for r in read_rows(out) if r.get("shift", "nominal") == "nominal"]
     chosen: dict[str, Any] = {}
     entries: dict[str, Any] = {}

@@ -76,7 +76,7 @@ from .barriers import APFForm
 from .constraint import ConformalConstraint
 from .controller import CBFIntervalForm, CBFIntervalRecord, ConformalCBFController, ControlState
 from .loss import CBFTruth
-from .roles import ReferenceController, SafetyFilter
+from .roles import EscapeRows, ReferenceController, SafetyFilter
 
 __all__ = [
     "ACPController",
@@ -340,7 +340,10 @@ class ACPController(ConformalCBFController, compiled="acp"):
         if con is None:
             barrier = copy.copy(self.constraint.barrier)
             barrier.d_c = self._d_c + c  # type: ignore[attr-defined]
-            con = ConformalConstraint(barrier, self.constraint.a)
+            base = self.constraint
+            con = ConformalConstraint(
+                barrier, base.a, edge=base.edge, escape_gain=base.escape_gain
+            )  # the edge rule within the inflated d_c (the rows are flat there)
             self._constraints[c] = con
         return con
 
@@ -352,6 +355,18 @@ class ACPController(ConformalCBFController, compiled="acp"):
         self.n_capped_ += int(self._capped[h])
         con = self._inflated(float(infl[h]))
         return con.rows(state.x[:2], self._xp[state.step], self._vp[state.step])
+
+    def escape_rows(self, state: ControlState) -> EscapeRows | None:
+        """The edge rule on the inflated constraint of this instant (its rows are flat
+        within the inflated ``d_c``), as the compiled step applies it; the inflation is
+        the one :meth:`constraint_rows` computed for this instant."""
+        if not self._ids.size:
+            return None
+        infl = self._infl
+        h = min(state.step // int(self.substeps), infl.size - 1)
+        con = self._inflated(float(infl[h]))
+        s = state.step
+        return con.escape(state.x[:2], self._xp[s], self._vp[s])
 
     def slack(self, lam: float) -> float:
         """lambda is the regions' level, not a slack: the rows get 0."""

@@ -91,16 +91,18 @@ class ConformalConstraint(Plugin):
             raise ValueError(f"escape_gain must be a finite number >= 0, got {g!r}")
 
     def edge_distance(self) -> float | None:
-        """The collision distance of the edge rule (m), or None when the rule is off
-        (``edge="paper"``, or no distance given and the barrier has no ``d_c``)."""
+        """The distance of the edge rule (m), or None when the rule is off (``edge="paper"``,
+        or no distance given and the barrier has no ``d_c``): the collision distance, or the
+        barrier's own ``d_c`` when that is larger (a barrier inflated by a margin is flat
+        within its ``d_c``: its rows say nothing there either)."""
         if self.edge != "escape":
             return None
-        d = self.collision_distance
-        if d is None:
-            d = getattr(self.barrier, "d_c", None)
-        if d is None or isinstance(d, bool) or not isinstance(d, (int, float)):
-            return None
-        return float(d)
+        found = [
+            float(d)
+            for d in (self.collision_distance, getattr(self.barrier, "d_c", None))
+            if isinstance(d, (int, float)) and not isinstance(d, bool)
+        ]
+        return max(found) if found else None
 
     def contact_distance(self) -> float:
         """The collision distance (m) of :meth:`contact_times`: the edge rule's

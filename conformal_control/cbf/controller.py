@@ -20,10 +20,16 @@ from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
+    FLOOR_ROW,
+    PEDESTRIAN_ROW,
+    ROBOT_ROW,
+    YIELD_HOLD_S,
     Reciprocity,
     check_peer_view,
+    floor_rows,
     lexicographic_search,
     peer_rows,
+    priority_relax,
     reference_velocities,
     sidestep,
 )
@@ -223,6 +229,8 @@ class ConformalCBFController(
         self.reference.reset()
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
+        self._yield_until = -math.inf  # broadcast that it yields until then (s)
+        self._t_now = 0.0
         self._fused = self._fused_apf()
         self._pv = np.zeros((2, 0, 0, 2))
         self.forecast_info_: dict[str, Any] = {}
@@ -254,11 +262,14 @@ class ConformalCBFController(
         rows (:meth:`Exact2DSafetyFilter.step_apf_record`), except with robots (their hard
         and reciprocal rows are built by the generic path for such a fallback)."""
         f, c = self.safety_filter, self.constraint
+        rec = self.reciprocity
         return (
             type(c) is ConformalConstraint
             and type(c.barrier) is APFBarrier
             and isinstance(f, Exact2DSafetyFilter)
-            and (f.fused or (f.compiled_step is True and self.reciprocity is None))
+            and (f.fused or (f.compiled_step is True and rec is None))
+            # the robot rows given way row by row: an LP per infeasible step, in Python
+            and not (rec is not None and rec.mode == "reciprocal" and rec.priority == "pedestrians")
         )
 
     def stats(self) -> dict[str, float]:
@@ -487,6 +498,7 @@ class ConformalCBFController(
         return ref, self._lam_off
 
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        self._t_now = float(state.t)
         off: np.ndarray | None = None
         if isinstance(lam, np.ndarray):  # lambda per agent: one entry per lambda_keys()
             lam, off = self._per_agent(lam)
@@ -511,12 +523,24 @@ class ConformalCBFController(
                 A, b = self._with_robots(state, lam, A, b)
                 ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
             res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
+            if res.status == "fallback" and self._peer_ids.size:
+                self._yield_until = state.t + YIELD_HOLD_S
         self._rec_x.append(x_ego.copy())
         self._rec_v.append(res.decision)
         self._rec_lam.append(res.lambda_applied)
         self._rec_status.append(res.status if res.fallback is None else res.fallback)
         self.n_steps_ += 1
         return res.decision
+
+    def yielding(self) -> bool:
+        """Whether this robot says it yields to the other robots: its reciprocity's
+        ``coordination="yield"``, and a decision with robot rows within the last
+        :data:`~conformal_control.cbf.reciprocal.YIELD_HOLD_S` seconds fell back (not every
+        row could be met; :mod:`~conformal_control.cbf.reciprocal`)."""
+        rec = self.reciprocity
+        return bool(
+            rec is not None and rec.coordination == "yield" and self._t_now < self._yield_until
+        )
 
     def escape_rows(self, state: ControlState) -> EscapeRows | None:
         """The edge rule's rows at this control instant: the predicted agents already
@@ -558,13 +582,15 @@ class ConformalCBFController(
         ttc: np.ndarray | None = None,
     ) -> FilterResult:
         """The safety filter's decision on the rows, with the edge rule (``escape``) and,
-        with robots, the lambda search that keeps the rows without slack."""
+        with robots, the lambda search that keeps the rows without slack, or (priority
+        ``"pedestrians"``) that gives way with the robot rows first."""
         f = self.safety_filter
-        hard = self._typed and bool(self._col[1].any())
+        first = bool(self._typed and self._peer_ids.size and self._turn[6])
+        hard = first or (self._typed and bool(self._col[1].any()))
         if escape is None or not hard or not isinstance(f, VelocityFilter):
             res = f.solve_escaping(v_ref, A, b, slack, escape, ttc)
             if res.fallback == "lambda_search" and hard:
-                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+                res = self._keep_hard_rows(v_ref, A, b, slack, res, first)
             return res
         A, b = escape.neutralise(A, b, slack)
         with f.contact(ttc), f.escaping(v_ref, escape) as escaped:
@@ -572,7 +598,7 @@ class ConformalCBFController(
                 return escaped
             res = f.solve(v_ref, A, b, slack)
             if res.fallback == "lambda_search":
-                res = self._keep_hard_rows(v_ref, A, b, slack, res)
+                res = self._keep_hard_rows(v_ref, A, b, slack, res, first)
             return res
 
     def _with_robots(
@@ -591,18 +617,39 @@ class ConformalCBFController(
         Ar, br = peer_rows(self._robot_constraint, state.x[:2], view)
         if hard[n:].any():
             br = np.where(hard[n:], br - sl, br)
+        if self._turn[6]:  # priority pedestrians: the robots' floor rows (no slack)
+            a = float(self._robot_constraint.a)
+            Af, bf = floor_rows(state.x[:2], view, self._robot_dc, a)
+            Ar, br = np.concatenate([Ar, Af]), np.concatenate([br, bf - sl])
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))
         return np.concatenate([A, Ar]), np.concatenate([b, br])
 
     def _keep_hard_rows(
-        self, v_ref: np.ndarray, A: np.ndarray, b: np.ndarray, lam: float, res: FilterResult
+        self,
+        v_ref: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        lam: float,
+        res: FilterResult,
+        first: bool = False,
     ) -> FilterResult:
         """The lambda search again, keeping the rows without slack
-        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`)."""
+        (:func:`~conformal_control.cbf.reciprocal.lexicographic_search`), or with ``first``
+        giving way with the robot rows first, row by row
+        (:func:`~conformal_control.cbf.reciprocal.priority_relax`)."""
         f = self.safety_filter
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
+        if first:  # rows: predicted agents, robots' barrier rows, their floor rows
+            n, k = self._ids.size, self._peer_ids.size
+            kind = np.full(A.shape[0], FLOOR_ROW)
+            kind[:n] = PEDESTRIAN_ROW
+            kind[n : n + k] = ROBOT_ROW
+            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam)
+            if gave_way:
+                f.count(f"{gave_way[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
+            return FilterResult(v, "fallback", used, "lambda_search")
         keep = self._turn[5] != 0.0
         v, used, relaxed = lexicographic_search(f, v_ref, A, b, self._col[1] != 0.0, lam, keep)
         if relaxed:
@@ -630,6 +677,8 @@ class ConformalCBFController(
         res: FilterResult | None
         if self._special:
             res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
+            if self._peer_ids.size and (self._rc[i] > 1 or res is not None):  # fell back
+                self._yield_until = state.t + YIELD_HOLD_S
         else:
             res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
                 x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, off

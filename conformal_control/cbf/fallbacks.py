@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .. import registry
+from .reciprocal import lexicographic_search
 from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
 
 __all__ = ["Brake", "GoalAware", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
@@ -159,10 +160,18 @@ class GoalAware(Fallback):
     command meeting the prefix that makes the most progress toward the goal: the
     projection onto its rows of a point 1 km/s along the nominal velocity (the reference
     points at the goal; with a zero nominal, the projection of 0). The other rows --
-    agents that are not imminent -- are not met, which is what "fallback" means here:
-    where the published fallbacks return the nominal velocity at a raised lambda
-    (``lambda_search``) or retreat from everyone (small lambda), this keeps the robot
-    moving toward its goal around the agents about to reach it.
+    agents that are not imminent -- are, with ``rest="relaxed"`` (default), met at the
+    smallest common lambda the prefix allows (the lexicographic search of
+    :func:`~conformal_control.cbf.reciprocal.lexicographic_search`, the prefix kept at its
+    level), the projection then taken there; with ``rest="dropped"``, not met at all.
+    Where ``lambda_search`` raises every row alike and returns the command closest to the
+    nominal there, this keeps the most imminent agents' rows as they are and heads for the
+    goal.
+
+    Parameters
+    ----------
+    rest : {"relaxed", "dropped"}
+        What becomes of the rows after the prefix.
 
     :attr:`FilterResult.row_lambda` is, per row, the lambda that row satisfies at the
     decision; ``lambda_applied`` its maximum.
@@ -173,6 +182,17 @@ class GoalAware(Fallback):
     #: Speed (m/s) of the point along the nominal velocity that is projected: far beyond
     #: any speed set, so the projection is the most progress along it.
     REACH = 1000.0
+
+    def __init__(self, rest: str = "relaxed") -> None:
+        self.rest = rest
+
+    @classmethod
+    def _unit_test_params(cls) -> list[dict[str, Any]]:
+        return [{}, {"rest": "dropped"}]
+
+    def reset(self) -> None:
+        if self.rest not in ("relaxed", "dropped"):
+            raise ValueError(f"rest must be 'relaxed' or 'dropped', got {self.rest!r}")
 
     def decide(self, step: InfeasibleStep, solver: FilterPrimitives) -> FilterResult:
         A, b, lam = step.A, step.b, step.lam
@@ -212,6 +232,13 @@ class GoalAware(Fallback):
                 hi = mid - 1
             else:
                 lo, best = mid, w
+        if lo < m and self.rest == "relaxed":
+            # the other rows at the smallest common lambda the prefix (at `level`) allows
+            hard = np.zeros(m, dtype=bool)
+            hard[order[:lo]] = True
+            w, _, _ = lexicographic_search(solver, target, A, b, hard, level, keep=True)
+            if w is not None and np.all(np.isfinite(w)):
+                best = np.asarray(w, dtype=float)
         row_lambda = np.maximum(-(A @ best + b), level) if m else np.zeros(0)
         applied = float(row_lambda.max()) if m else lam
         return FilterResult(best, "fallback", applied, self.name, row_lambda)

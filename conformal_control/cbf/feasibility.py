@@ -18,7 +18,14 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-__all__ = ["FeasibilityFloor", "feasibility_floor"]
+__all__ = ["DEFAULT_FLOOR_SHARE", "FeasibilityFloor", "default_lambda_min", "feasibility_floor"]
+
+#: The CBF family's default ``lambda_min`` as a share of the feasibility floor
+#: ``-a h_max``: lambda never sinks to where a far agent's row fails and the fallback
+#: decides (issue 30). Chosen on the benchmark's dev split (crossings-v2, ``conformal``
+#: under ``nominal`` and ``delay-0.5s``): the share with the highest success rate among
+#: 1, 0.9, 0.8 and 0.7 (see the Benchmark page, "At the edges").
+DEFAULT_FLOOR_SHARE = 0.8
 
 
 @dataclass(frozen=True)
@@ -66,3 +73,19 @@ def feasibility_floor(a: float, h_max: float, epsilon: float, scale: float) -> F
     lam_floor = -a * h_max
     eps_floor = math.atan(lam_floor / scale) / math.pi
     return FeasibilityFloor(lam_floor, eps_floor, float(epsilon), bool(epsilon > eps_floor))
+
+
+def default_lambda_min(a: float, h_max: float | None) -> float:
+    """The CBF family's default lambda floor (1/s): :data:`DEFAULT_FLOOR_SHARE` times the
+    feasibility floor ``-a h_max``; ``-inf`` for a barrier unbounded above (no floor).
+
+    Parameters
+    ----------
+    a : float
+        alpha slope (1/s).
+    h_max : float or None
+        Supremum of the barrier (``barrier.upper_bound``).
+    """
+    if h_max is None or not math.isfinite(h_max):
+        return -math.inf
+    return -DEFAULT_FLOOR_SHARE * a * h_max

@@ -628,8 +628,8 @@ def escape_rows(
 
 #: Layout of the parameter vector of :func:`apf_step`.
 #: ``edge``: the collision distance of the edge rule (m, centre to centre; negative: the
-#: rule is off, the paper's rows), ``edge_gain`` its push gain (1/s), see
-#: :func:`edge_prepare`.
+#: rule is off, the paper's rows; the rule applies within the larger of it and ``d_c``),
+#: ``edge_gain`` its push gain (1/s), see :func:`edge_prepare`.
 PARAMS = ("K_rep", "rho0", "d_c", "delta", "surface", "a", "radius", "box", "v_max", "search",
           "margin", "capacity", "edge", "edge_gain")  # fmt: skip
 
@@ -839,10 +839,11 @@ def apf_step(
     nvq = 0
     e0 = 0.0
     e1 = 0.0
-    if prm[12] >= 0.0:
+    if prm[12] >= 0.0:  # (the barrier's own d_c when larger: it is flat within it)
         mode, nsq, nvq, e0, e1 = edge_prepare(
-            x0, x1, xp, vp, prm[12], prm[13], lam, A, b, S, s, verts, prm[6], region, cap
-        )
+            x0, x1, xp, vp, max(prm[12], prm[2]), prm[13], lam, A, b, S, s, verts, prm[6],
+            region, cap,
+        )  # fmt: skip
     if mode < 0:
         return filter_step(
             n0, n1, A, b, lam, S, s, verts, prm[6], prm[7] != 0.0, prm[8], prm[9] != 0.0,

@@ -93,19 +93,27 @@ from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
 __all__ = [
+    "COORDINATION",
+    "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
     "LAMBDA_SCOPES",
+    "PEDESTRIAN_ROW",
+    "PRIORITIES",
     "RECIPROCITY",
+    "ROBOT_ROW",
     "SIDESTEP_CONE",
     "SIDESTEP_HORIZON",
+    "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
     "check_peer_view",
+    "floor_rows",
     "grown_constraint",
     "lexicographic_search",
     "pair_shares",
     "peer_rows",
+    "priority_relax",
     "reference_velocities",
     "sidestep",
 ]
@@ -124,6 +132,17 @@ LAMBDA_SCOPES = ROBOT_CHOICES["lambda_scope"]
 
 #: How the lambda search treats the rows without slack (:class:`Reciprocity`).
 HARD_ROWS = ROBOT_CHOICES["hard_rows"]
+
+#: The rows kept longest when not every row can be met (:class:`Reciprocity`).
+PRIORITIES = ROBOT_CHOICES["priority"]
+
+#: How robots coordinate beyond their shares (:class:`Reciprocity`): ``"yield"``, a robot
+#: whose robot rows gave way broadcasts it and its partners take the whole pair.
+COORDINATION = ROBOT_CHOICES["coordination"]
+
+#: A robot keeps broadcasting that it yields for this long (s) after its robot rows last
+#: gave way (so that its partners' shares do not flip at every control instant).
+YIELD_HOLD_S = 0.5
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -157,6 +176,19 @@ class Reciprocity(Plugin):
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack (see the module
         docstring).
+    peer_horizon : float, optional
+        Planners that look ahead (the MPC family, :mod:`~conformal_control.mpc.peers`):
+        how far ahead (s, > 0) the peers' lines bind their plans; None: the whole plan.
+    coordination : {"none", "yield"}
+        ``"yield"``: when the robot's rows about the other robots give way, it broadcasts
+        that it yields (for :data:`YIELD_HOLD_S` seconds), and the world hands both robots
+        of each of its pairs the yielding shares
+        (:class:`~conformal_control.world.multi.MultiRobotWorld`); needs broadcast plans.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
+        rows give way first, :func:`priority_relax`) or ``"robots"`` (the
+        pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
+        :func:`lexicographic_search`).
     """
 
     def __init__(
@@ -166,12 +198,18 @@ class Reciprocity(Plugin):
         robot_margin: float = 0.0,
         sidestep: float = 0.3,
         hard_rows: str = "last",
+        peer_horizon: float | None = None,
+        coordination: str = "none",
+        priority: str = "robots",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
         self.robot_margin = robot_margin
         self.sidestep = sidestep
         self.hard_rows = hard_rows
+        self.peer_horizon = peer_horizon
+        self.coordination = coordination
+        self.priority = priority
 
     def validate(self) -> None:
         """Raise ``ValueError`` for an unknown mode or scope."""
@@ -190,14 +228,29 @@ class Reciprocity(Plugin):
             raise ValueError(
                 f"hard_rows must be one of {', '.join(HARD_ROWS)}, got {self.hard_rows!r}"
             )
+        p = self.peer_horizon
+        if p is not None and not (
+            isinstance(p, (int, float)) and not isinstance(p, bool) and math.isfinite(p) and p > 0
+        ):
+            raise ValueError(f"peer_horizon must be a duration > 0 (s) or None, got {p!r}")
+        if self.coordination not in COORDINATION:
+            raise ValueError(
+                f"coordination must be one of {', '.join(COORDINATION)}, got {self.coordination!r}"
+            )
+        if self.priority not in PRIORITIES:
+            raise ValueError(
+                f"priority must be one of {', '.join(PRIORITIES)}, got {self.priority!r}"
+            )
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
-        the cosine of the cone, the slow fraction (zeros: never turn), and 1 when the hard
-        rows are relaxed last (:attr:`hard_rows`)."""
+        the cosine of the cone, the slow fraction (zeros: never turn), 1 when the hard
+        rows are relaxed last (:attr:`hard_rows`) and 1 when the robot rows give way first
+        (:attr:`priority` ``"pedestrians"``)."""
         keep = float(self.hard_rows == "last")
+        first = float(self.priority == "pedestrians")
         if not self.sidestep:
-            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep])
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, keep, first])
         k = float(self.sidestep)
         return np.array(
             [
@@ -207,6 +260,7 @@ class Reciprocity(Plugin):
                 math.cos(SIDESTEP_CONE),
                 SIDESTEP_SLOW,
                 keep,
+                first,
             ]
         )
 
@@ -255,6 +309,10 @@ class PeerView:
         with times in seconds since the start (H,) and positions (H, 2); None entries for
         peers that broadcast a velocity only. Planners that look ahead (the MPC family)
         read it.
+    own_plan : tuple of (ndarray, ndarray) or None
+        With ``"plan"``, the path this robot broadcast itself (what its peers read of it),
+        so that both robots of a pair reason from the same two paths; None when it has
+        broadcast none.
     """
 
     ids: np.ndarray
@@ -264,6 +322,7 @@ class PeerView:
     reference: np.ndarray | None = None
     own_reference: np.ndarray | None = None
     plans: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+    own_plan: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n_peers(self) -> int:
@@ -496,3 +555,244 @@ def lexicographic_search(
         else:
             lo = mid
     return v, hi, not keep and hi > 0.0
+
+
+def _vertices(G: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Every pairwise intersection of the lines ``G_i . v = g_i`` (parallel pairs left
+    out), shape (P, 2)."""
+    i, j = np.triu_indices(G.shape[0], k=1)
+    det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
+    ok = np.abs(det) > 1e-12
+    i, j, det = i[ok], j[ok], det[ok]
+    x = (g[i] * G[j, 1] - G[i, 1] * g[j]) / det
+    y = (G[i, 0] * g[j] - g[i] * G[j, 0]) / det
+    out: np.ndarray = np.stack([x, y], axis=1)
+    return out
+
+
+def _robot_slacks(
+    A: np.ndarray,
+    base: np.ndarray,
+    nrm: np.ndarray,
+    fixed: np.ndarray,
+    fixed_rhs: np.ndarray,
+    rows: np.ndarray,
+    S: np.ndarray,
+    s_poly: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The least summed slack of the robot rows ``rows`` (normalised to unit gradient:
+    speeds) with the rows ``fixed`` held at ``fixed_rhs`` and the speed set ``S v <=
+    s_poly``: ``(v, slack per row of A)``, or None when the held rows cannot be met.
+
+    The summed slack is a convex piecewise-linear function of the velocity, so its
+    minimum over the polygon the held rows and the speed set cut out is at a vertex of
+    the arrangement of their lines and the robot rows' lines: every pairwise intersection
+    is tried (a few hundred points in the plane; exact, and much faster than a
+    general LP solver here). Among minima the one keeping most rows without slack wins,
+    so rows that need none get none."""
+    fx = np.flatnonzero(fixed)
+    An, rn = A[rows] / nrm[rows, None], base[rows] / nrm[rows]
+    Fn, fn = A[fx] / nrm[fx, None], fixed_rhs[fx] / nrm[fx]
+    G = np.concatenate([-An, -Fn, S])
+    g = np.concatenate([rn, fn, s_poly])
+    pts = _vertices(G, g)
+    if not pts.size:
+        return None
+    tol = 1e-9 * (1.0 + float(np.abs(g).max(initial=0.0)))
+    ok = (pts @ S.T <= s_poly + tol).all(axis=1)
+    if fx.size:
+        ok &= (pts @ Fn.T + fn >= -tol).all(axis=1)
+    pts = pts[ok]
+    if not pts.size:
+        return None
+    short = np.maximum(0.0, -(pts @ An.T + rn))  # (P, k) per row
+    total = short.sum(axis=1)
+    best = total <= total.min() + tol
+    pick = np.flatnonzero(best)[np.argmin((short[best] > tol).sum(axis=1))]
+    v = pts[pick]
+    slack = np.zeros(A.shape[0])
+    slack[rows] = np.where(short[pick] > tol, short[pick], 0.0) * nrm[rows]
+    return np.asarray(v, dtype=float), slack
+
+
+def _level(
+    solver: Any,
+    A: np.ndarray,
+    base: np.ndarray,
+    nrm: np.ndarray,
+    raised: np.ndarray,
+    held: np.ndarray,
+    S: np.ndarray,
+    s_poly: np.ndarray,
+    radius: float,
+) -> float | None:
+    """The smallest level ``delta`` added to the rows ``raised`` at which they can be met
+    with the rows ``held`` (at ``base``) in the speed set; None when the held rows cannot
+    be met at all. By bisection on the solver's exact projection (feasibility is
+    monotone in ``delta``), to its search margin."""
+    keep = raised | held
+    Ak, bk, up = A[keep], base[keep], raised[keep]
+    nominal = np.zeros(2)
+    if _robot_slacks(Ak, bk, nrm[keep], ~up, bk, np.zeros(0, dtype=np.int64), S, s_poly) is None:
+        return None
+    lo = float((-(bk + nrm[keep] * radius))[up].max(initial=0.0))  # below: infeasible
+    hi = float((-bk + nrm[keep] * radius)[up].max(initial=0.0))  # above: each row anywhere
+    margin = float(solver.search_margin(max(abs(lo), abs(hi)), Ak, bk))
+    if solver.project(nominal, Ak, bk + np.where(up, lo, 0.0)) is not None:
+        return lo
+    for _ in range(MAX_BISECTIONS):
+        if hi - lo <= margin:
+            break
+        mid = 0.5 * (lo + hi)
+        if solver.project(nominal, Ak, bk + np.where(up, mid, 0.0)) is not None:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+#: Kinds of the rows handed to :func:`priority_relax`: a pedestrian's (predicted agent's)
+#: row, a robot's barrier row, a robot's floor row (:func:`floor_rows`).
+PEDESTRIAN_ROW, ROBOT_ROW, FLOOR_ROW = 0, 1, 2
+
+
+def floor_rows(
+    x_ego: np.ndarray, view: PeerView, d_c: float, a: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robots' *floor* rows: for each peer, ``-u . v + s_ij a (d - d_c) >= 0`` with
+    ``u`` the unit vector toward it, ``d`` the distance and ``s_ij`` the robot's share.
+
+    The reciprocal rows of the plain distance barrier ``d - d_c`` (no partner's velocity,
+    no comfort margin): robot i may close in on j at its share of ``a (d - d_c)``; when both
+    robots of a pair keep theirs, ``d`` never falls below ``d_c`` (and a pair already in
+    contact parts). Far apart they allow much; near contact they forbid closing in.
+    :func:`priority_relax` keeps them after the robots' barrier rows have given way.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    view : PeerView
+        Its peers (positions, shares).
+    d_c : float
+        The robots' collision distance, centre to centre (m).
+    a : float
+        The slope (1/s).
+
+    Returns
+    -------
+    A : ndarray of shape (K, 2)
+    b : ndarray of shape (K,)
+        Peers at the very same position get a zero row (no direction to part in).
+    """
+    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    A = np.zeros_like(rel)
+    ok = d > 0.0
+    A[ok] = -rel[ok] / d[ok, None]
+    b = np.where(ok, np.asarray(view.shares, dtype=float) * a * (d - d_c), 0.0)
+    return A, b
+
+
+def priority_relax(
+    solver: Any,
+    nominal: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    kind: np.ndarray,
+    lam: float,
+) -> tuple[np.ndarray, float, str]:
+    """The fallback with the pedestrians' rows given way after the robots' barrier rows
+    (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
+
+    ``kind`` says what each row is (:data:`PEDESTRIAN_ROW`, :data:`ROBOT_ROW`,
+    :data:`FLOOR_ROW`). Every row's base is ``A v + b + lam >= 0`` (rows without slack
+    already hold ``- lam`` in ``b``). The rows give way in this order, each stage only when
+    the one before cannot make them feasible:
+
+    1. ``"robots"``: the robots' barrier rows, each with its own slack (the least summed
+       slack, rows normalised to unit gradient so that slacks are speeds; exact, at a
+       vertex of the rows' arrangement that leaves the rows that need none without), the
+       pedestrians' rows at ``lam`` and the floor rows held;
+    2. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
+       which they can be met with the floor rows (bisection on the exact projection),
+       then stage 1 there;
+    3. ``"robot_floors"``: when the floor rows cannot be met with the pedestrians' at any
+       level (robots hemmed in after a contact), the pedestrians' rows at the smallest
+       level at which they can be met alone, the floor rows given way as stage 1 gives
+       the barrier rows (which are left out).
+
+    The decision is the velocity closest to the nominal at that relaxation (plus the
+    solver's margin on the relaxed rows), or the LP's own velocity should that
+    projection fail. Rows with a zero gradient are left out.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``min_lambda``,
+        ``search_margin`` and ``speed_set``: the LPs work in the speed set the
+        filter works in, the escape polygon under the edge rule).
+    nominal : ndarray of shape (2,)
+        The nominal velocity (m/s).
+    A : ndarray of shape (R, 2)
+        The rows' velocity coefficients.
+    b : ndarray of shape (R,)
+        Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
+    kind : ndarray of int, shape (R,)
+        Each row's kind.
+    lam : float
+        The lambda of the step (1/s).
+
+    Returns
+    -------
+    v : ndarray of shape (2,)
+        The decision (m/s).
+    lambda_applied : float
+        ``lam`` plus the pedestrians' level (1/s).
+    gave_way : str
+        The last stage that gave way: ``""`` (none: round-off), ``"robots"``,
+        ``"pedestrians"`` or ``"robot_floors"``.
+    """
+    kind = np.asarray(kind)
+    nrm = np.hypot(A[:, 0], A[:, 1])
+    live = nrm > 0.0
+    if not live.all():
+        A, b, kind, nrm = A[live], b[live], kind[live], nrm[live]
+    base = b + lam
+    ped, rob, flo = kind == PEDESTRIAN_ROW, kind == ROBOT_ROW, kind == FLOOR_ROW
+    S, s_poly, radius = solver.speed_set()  # the escape polygon under the edge rule
+    could_bind = base < nrm * radius  # else met anywhere in the speed disc
+    rows = np.flatnonzero(rob & could_bind)
+    held = ped | flo
+    gave_way, delta = "robots", 0.0
+    found = _robot_slacks(A, base, nrm, held, base, rows, S, s_poly)
+    if found is None:
+        level = _level(solver, A, base, nrm, ped, flo, S, s_poly, radius) if ped.any() else None
+        if level is not None:  # 2. the pedestrians' level with the floors held
+            gave_way = "pedestrians"
+            delta = max(level, 0.0)
+        else:  # 3. the floors give way too: the pedestrians' level alone
+            gave_way = "robot_floors"
+            rows, held = np.flatnonzero(flo & could_bind), ped
+            star, _ = solver.min_lambda(A[ped], base[ped])
+            delta = max(float(star), 0.0)
+        delta += float(solver.search_margin(abs(delta), A, base))
+        fixed_rhs = base + np.where(ped, delta, 0.0)
+        found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, S, s_poly)
+    v_lp, slack = found if found is not None else (None, np.zeros(A.shape[0]))
+    relaxed = slack > 0.0
+    if relaxed.any():
+        slack = np.where(relaxed, slack + float(solver.search_margin(slack.max(), A, base)), 0.0)
+    if gave_way != "robot_floors":
+        keep = slack  # the barrier rows' slacks; floors at 0
+    else:  # the barrier rows left out, the floors with their slacks
+        keep = np.where(rob, np.inf, slack)
+    v = solver.project(nominal, A, base + np.where(ped, delta, keep))
+    if v is None:
+        if v_lp is None:  # round-off: every row relaxed together
+            star, v_star = solver.min_lambda(A, base)
+            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "robot_floors"
+        v = v_lp
+    if gave_way == "robots" and not relaxed.any():
+        gave_way = ""
+    return np.asarray(v, dtype=float), lam + delta, gave_way

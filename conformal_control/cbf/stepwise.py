@@ -53,7 +53,7 @@ import numpy as np
 from .. import registry
 from ..base import Loss, Settings, UpdateRule
 from ..data.tracks import agent_ids
-from ..exceptions import InputError
+from ..exceptions import ConformalControlDeprecationWarning, InputError
 from ..loop import ConformalStepper, LoopResult
 from ..predictors.base import PredictionQuery, Predictor
 from .barriers import APFBarrier
@@ -137,7 +137,7 @@ def stream_from(stream: Stream | None, legacy: dict[str, Any], owner: str) -> St
         warnings.warn(
             f"{owner}({', '.join(f'{k}=...' for k in old)}) is deprecated: give "
             f"stream=Stream({given}) (removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=3,
         )
         out = Stream(**{**out.get_params(), **old})
@@ -178,7 +178,9 @@ class StepwiseCBF:
     reference : ReferenceController, optional
         Default: the attractive field with ``K_att`` and ``v_max``.
     rule : UpdateRule, optional
-        Default: the fixed-step rule with ``epsilon``, ``eta``, ``lambda_init``.
+        Default: the fixed-step rule with ``epsilon``, ``eta``, ``lambda_init`` and the
+        CBF's default lambda floor (:func:`~conformal_control.cbf.feasibility.default_lambda_min`:
+        0.8 times ``-a h_max``, -4/s with the defaults); give a rule to widen it.
     loss : Loss, optional
         Default: the paper's gap loss on the same constraint with scale ``loss_scale``.
     v_max, K_att : float
@@ -261,8 +263,16 @@ class StepwiseCBF:
         )
         if rule is None:
             from ..update_rules import FixedEtaRule
+            from .feasibility import default_lambda_min
 
-            rule = FixedEtaRule(epsilon=epsilon, eta=eta, lambda_init=lambda_init)
+            # lambda never sinks below the default floor (a share of -a h_max, issue 30)
+            floor = default_lambda_min(float(a), barrier.upper_bound)
+            rule = FixedEtaRule(
+                epsilon=epsilon,
+                eta=eta,
+                lambda_init=lambda_init,
+                lambda_min=min(floor, float(lambda_init)),
+            )
         loss = loss if loss is not None else CBFGapLoss(self.constraint, scale=loss_scale)
         self.stepper = ConformalStepper(self.controller, loss, rule, learn=eta > 0)
         self.stepper.start()

@@ -86,14 +86,23 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     tu.add_argument(
         "--methods",
         default=None,
-        help="comma-separated families to tune (default: fixed,conformal,acp,inflated)",
+        help=(
+            "comma-separated families to tune (default: fixed,conformal,acp,inflated,"
+            "conformal_dtaci_floor)"
+        ),
     )
     add_data_root(tu)
     tu.add_argument("--executor", default="batch", choices=("batch", "process", "serial", "dask"))
     tu.add_argument("-j", "--workers", type=int, default=None, help="worker processes")
     tu.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
     tu.add_argument("--out", required=True, help="tuning folder (runs and tuned.json)")
-    tu.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    tu.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
 
     ru = sub.add_parser(
         "run",
@@ -112,7 +121,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help=(
             "comma-separated method families, or 'all' (default: nolearn,fixed,conformal,"
-            "acp,inflated; see `bench methods`)"
+            "acp,inflated,conformal_dtaci_floor; see `bench methods`)"
         ),
     )
     ru.add_argument(
@@ -192,7 +201,13 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         "(default 0)",
     )
     ru.add_argument("--out", required=True, help="benchmark folder")
-    ru.add_argument("--progress", choices=("on", "off"), default=None, help="progress bar")
+    ru.add_argument(
+        "--progress",
+        choices=("on", "off"),
+        default=None,
+        help="progress on stderr (a bar on a terminal, a line every 10 s with the time left "
+        "when redirected)",
+    )
     ru.add_argument(
         "--robots",
         default=None,
@@ -202,9 +217,10 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     )
     ru.add_argument(
         "--reciprocity",
-        default="none,reciprocal",
-        metavar="none,reciprocal",
-        help="with --robots: how the robots treat each other (default both, paired)",
+        default="solo,none,reciprocal",
+        metavar="solo,none,reciprocal",
+        help="with --robots: how the robots treat each other (default all three, paired by "
+        "entry; solo: each robot alone on its own task, the fleet's baseline)",
     )
     ru.add_argument(
         "--information",
@@ -406,7 +422,7 @@ def _run(args: argparse.Namespace) -> int:
         limit=args.limit,
     )
     print(res.summary())
-    return 0 if res.failed == 0 else 1
+    return 0 if res.failed == 0 and not res.unfinished else 1
 
 
 def _executor(args: argparse.Namespace) -> str:
@@ -415,6 +431,10 @@ def _executor(args: argparse.Namespace) -> str:
 
     if args.scheduler is None:
         return str(args.executor or "batch")
+    if not args.scheduler.strip():  # "" used to start a local cluster without a word
+        raise InputError(
+            "--scheduler is empty: give the scheduler's address (tcp://host:8786), or leave it out"
+        )
     if args.executor not in (None, "dask"):
         raise InputError(f"--scheduler runs on a Dask cluster: drop --executor {args.executor}")
     return "dask"
@@ -425,7 +445,7 @@ def _report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..bench.report import write_report
-    from ..bench.runner import read_bench, read_rows
+    from ..bench.runner import incomplete_notice, read_bench, read_rows, unfinished_episodes
 
     folder = Path(args.folder)
     from ..bench.planar import is_planar_folder, report_command
@@ -441,6 +461,10 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
+    from ..plotting.jobs import prepare
+
+    # the figure process imports matplotlib on the other core while the rows are read
+    prepare(("conformal_control.bench.report",))
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None
@@ -450,8 +474,15 @@ def _report(args: argparse.Namespace) -> int:
         tune_wall = float(json.loads(path.read_text())["wall_s"])
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"
+    notice = incomplete_notice(*unfinished_episodes(folder))
     files = write_report(
-        rows, out, baseline=args.baseline, title=title, bench=bench, tune_wall=tune_wall
+        rows,
+        out,
+        baseline=args.baseline,
+        title=title,
+        bench=bench,
+        tune_wall=tune_wall,
+        notice=notice,
     )
     print((out / "leaderboard.md").read_text())
     print((out / "targets.md").read_text())

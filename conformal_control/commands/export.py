@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from . import command
 
@@ -33,6 +34,14 @@ def _export_args(p: argparse.ArgumentParser) -> None:
         help="output file (default RUN_DIR/run.mcap, RUN_DIR/run_ros2.mcap with --schema "
         "ros2, RUN_DIR/run.rrd) or, for ros2-bag, a new folder (default RUN_DIR/run_ros2_bag)",
     )
+    p.add_argument(
+        "--start-time",
+        default=None,
+        metavar="ISO8601",
+        help="date and time the run's first frame is shown at, e.g. 2026-05-04T09:30:00Z "
+        "(no time zone: UTC; `now`: this moment); unset: MCAP shows the run from the Unix "
+        "epoch (1970-01-01, the same file for the same run), Rerun as time since the start",
+    )
 
 
 @_export_args.handler
@@ -40,7 +49,16 @@ def _export(args: argparse.Namespace) -> int:
     from ..export import export_run, read_run
 
     rec = read_run(args.run_dir)  # read once, checked (one-line errors for a damaged folder)
-    out = export_run(rec, args.out, format=args.format, schema=args.schema)
+    start: Any = args.start_time
+    if start is not None and start.strip().lower() == "now":
+        import datetime
+
+        start = datetime.datetime.now(datetime.timezone.utc)
+    if start is not None:
+        from ..export.to_mcap import start_time_ns
+
+        start_time_ns(start)  # a bad date is one line, before anything is written
+    out = export_run(rec, args.out, format=args.format, schema=args.schema, start_time=start)
     path = Path(out)
     files = [f for f in path.rglob("*") if f.is_file()] if path.is_dir() else [path]
     size = sum(f.stat().st_size for f in files)

@@ -24,7 +24,17 @@ def _scenes(args: argparse.Namespace) -> int:
             f"{s.name:<15} SDD {s.sdd_scene}/video{s.video} ({s.source}); start {s.start} -> "
             f"{goals}; frame {s.start_frame}; v_max {s.v_max} m/s {s.note}"
         )
-    print("sdd:<scene>/video<N>  any SDD video with raw annotations (--start/--goal fractions)")
+    from ..data.ethucy import ETHUCY_RECORDINGS
+
+    print(
+        "sdd:<scene>/video<N>  any SDD video with raw annotations (--start/--goal: fractions "
+        "of its image, or metres 3.2m,1.0m)"
+    )
+    print(
+        f"ethucy:<recording>    an ETH/UCY recording ({', '.join(ETHUCY_RECORDINGS)}; the "
+        "splits eth, hotel, zara1, zara2 name theirs); default task: across its walkable box "
+        "(--start/--goal: fractions of the box, or metres)"
+    )
     return 0
 
 

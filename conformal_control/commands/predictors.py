@@ -19,8 +19,26 @@ from ..spec import RunContext
 from . import add_data_root, check_writable, command, command_line, key_values
 
 
+def _dataset(text: str) -> str:
+    """argparse type: a data set's one name (aliases resolved by the data catalog)."""
+    from ..data.catalog import dataset_name
+    from ..exceptions import InputError
+
+    try:
+        return dataset_name(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dataset", required=True, help="ethucy:<scene> or sdd:<scene> / nexus_4")
+    p.add_argument(
+        "--dataset",
+        required=True,
+        type=_dataset,
+        help="ethucy:<split> (eth, hotel, univ, zara1, zara2: leave-one-out; a recording's "
+        "name, ethucy:crowds_zara01, is its split), or an SDD scene (sdd:<scene>/video<N>, "
+        "nexus_4)",
+    )
     add_data_root(p)
     p.add_argument("--obs", type=int, default=8, help="observed samples (0.4 s apart)")
     p.add_argument("--horizon", type=int, default=12, help="predicted samples (0.4 s apart)")

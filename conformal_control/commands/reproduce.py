@@ -49,7 +49,8 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
         "--progress",
         choices=("auto", "on", "off"),
         default="auto",
-        help="progress bar on stderr (auto: when it is a terminal)",
+        help="progress on stderr (auto, on: a bar on a terminal, a line every 10 s with the "
+        "time left when redirected)",
     )
 
 

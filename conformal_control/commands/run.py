@@ -14,12 +14,12 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
-import math
 import warnings
 from pathlib import Path
 from typing import Any
 
 from .. import registry
+from ..exceptions import ConformalControlDeprecationWarning
 from . import (
     add_data_root,
     check_writable,
@@ -38,14 +38,17 @@ _ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss", "family")
 _NOT_STORED = ("out", "config", "argv", "command", "quiet", "verbose", "no_plot")
 
 
-def _pair(text: str) -> tuple[float, float]:
+def _position(text: str) -> str:
+    """argparse type: a position as :mod:`~conformal_control.data.positions` reads it
+    (``fx,fy`` fractions, ``3.2m,1.0m``, ``120px,300px``), kept as typed (the scene
+    converts it; ``config.json`` stores it as given)."""
+    from ..data.positions import parse_position
+    from ..exceptions import InputError
+
     try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected two numbers 'fx,fy', got {text!r}") from None
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise argparse.ArgumentTypeError(f"expected two finite numbers 'fx,fy', got {text!r}")
-    return a, b
+        return str(parse_position(text, "the position"))
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 @command("run", "run the conformal CBF controller on a scene and write a run directory")
@@ -54,7 +57,8 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         "--scene",
         default="crossing",
         help="crossing (built-in, no data needed), a paper scene (nexus_4, gates_1, ...), "
-        "or sdd:<scene>/video<N> (needs --start and --goal)",
+        "sdd:<scene>/video<N> (needs --start and --goal) or ethucy:<recording> "
+        "(crowds_zara01, ...; see `conformal-control scenes`)",
     )
     add_data_root(p)
     p.add_argument(
@@ -174,16 +178,18 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--start",
-        type=_pair,
+        type=_position,
         default=None,
-        help="start as image fractions fx,fy (sdd: scenes; paper scenes: their own)",
+        help="start as fractions fx,fy of the scene (SDD: its image; ETH/UCY: its walkable "
+        "box), or in metres 3.2m,1.0m, or pixels 120px,300px (unset: the scene's own; sdd: "
+        "scenes need one)",
     )
     p.add_argument(
         "--goal",
-        type=_pair,
+        type=_position,
         action="append",
         default=None,
-        help="goal as image fractions fx,fy (repeat for waypoints)",
+        help="goal, as --start (repeat for waypoints)",
     )
     p.add_argument(
         "--start-frame",
@@ -203,7 +209,9 @@ class _OptionsParser(argparse.ArgumentParser):
     ``add_argument``: ``"store_true"``, ``"append"``, ... or None)."""
 
     def __init__(self) -> None:
-        super().__init__(prog="conformal-control run", add_help=False, exit_on_error=False)
+        super().__init__(
+            prog="conformal-control run", add_help=False, exit_on_error=False, allow_abbrev=False
+        )
         self.options: dict[str, tuple[str, str | None]] = {}
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
@@ -384,7 +392,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
             f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
-            "width and height), e.g. --start 0.05,0.5 --goal 0.95,0.5"
+            "width and height, or metres: 3.2m,1.0m), e.g. --start 0.05,0.5 --goal 0.95,0.5"
         )
     for name in ("epsilon", "eta", "tau"):
         flag = getattr(args, name)
@@ -519,7 +527,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
         warnings.warn(
             f"--param fallback={old_way} is --fallback {old_way} since 0.3 ("
             "removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         args.fallback = old_way
@@ -609,7 +617,10 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--radius", type=float, default=None, help="antipodal circle radius (m)")
     g.add_argument(
-        "--center", type=_pair, default=None, help="antipodal circle centre, image fractions fx,fy"
+        "--center",
+        type=_position,
+        default=None,
+        help="antipodal circle centre, as --start (fractions fx,fy or metres 3.2m,1.0m)",
     )
     g.add_argument(
         "--robots-file",
@@ -677,9 +688,9 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     else:
         center = None
         if args.center is not None:
-            if scene.extent is None:
-                raise ValueError(f"scene {scene.name} has no extent: --center needs one")
-            center = (args.center[0] * scene.extent[0], args.center[1] * scene.extent[1])
+            from ..data.positions import scene_position
+
+            center = tuple(scene_position(scene, args.center, "--center").tolist())
         tasks = {
             "robots": args.robots,
             "layout": args.robot_layout,

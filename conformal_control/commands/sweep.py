@@ -84,7 +84,8 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
         "--progress",
         choices=("auto", "on", "off"),
         default="auto",
-        help="progress bar on stderr (auto: when it is a terminal)",
+        help="progress on stderr (auto, on: a bar on a terminal, a line every 10 s with the "
+        "time left when redirected)",
     )
 
 
@@ -151,7 +152,7 @@ def _sweep(args: argparse.Namespace) -> int:
                 f"failed {row['key']} ({row['label'] or row['scene']}): {row['error']}",
                 file=sys.stderr,
             )
-    return 1 if report.failed else 0
+    return 1 if report.failed or report.unfinished else 0
 
 
 def _show_warning(

@@ -94,7 +94,9 @@ def _select(files: list[dict[str, Any]], only: Iterable[str] | None) -> list[dic
     """
     if not only:
         return files
-    only = list(only)
+    from .catalog import fetch_selector  # names and their aliases are resolved there
+
+    only = [fetch_selector(sel) for sel in only]
     for sel in only:
         if not any(_matches(e["path"], sel) for e in files):
             raise ValueError(f"--only {sel!r} matches no file of the manifest")

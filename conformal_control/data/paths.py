@@ -9,6 +9,9 @@ The data folder (the one holding ``sdd/`` and ``ethucy/``) is, in this order:
    Support/conformal-control``, on Windows ``%LOCALAPPDATA%\\conformal-control``), which is
    where ``conformal-control fetch-data`` puts its downloads when no ``--dest`` is given.
 
+The root may also be any part of the data folder (its ``sdd/`` or ``ethucy/`` folder, or a
+folder inside one): every loader finds its own part from there (:func:`data_part`).
+
 A missing file is a :class:`DataNotFoundError` that names the path, which of the three
 places it came from, and the other two.
 """
@@ -20,9 +23,12 @@ from pathlib import Path
 
 __all__ = [
     "ENV_VAR",
+    "PART_MARKERS",
     "DataNotFoundError",
+    "data_part",
     "data_root_origin",
     "ethucy_root",
+    "external_root",
     "resolve_data_root",
     "sdd_root",
     "user_data_dir",
@@ -143,24 +149,68 @@ def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
     return root
 
 
-def _subdir(root: Path, name: str, markers: tuple[str, ...]) -> Path:
-    if any((root / m).exists() for m in markers):
-        return root
-    return root / name
+#: What each part of the data folder holds (the names that recognise it).
+PART_MARKERS: dict[str, tuple[str, ...]] = {
+    "sdd": ("annotations", "trajnet_pixels", "estimated_scales.yaml"),
+    "ethucy": ("eth", "hotel", "univ", "zara1", "zara2"),
+    "external": ("trajectron-ethucy", "fcp-planar"),
+}
+#: How many folders up from the given root a part of the data folder is looked for
+#: (``sdd/annotations/nexus/video4`` is four below the data folder).
+_LEVELS = 4
+
+
+def _holds(folder: Path, kind: str) -> bool:
+    return any((folder / m).exists() for m in PART_MARKERS[kind])
+
+
+def data_part(kind: str, data_root: str | os.PathLike[str] | None = None) -> Path:
+    """The folder of one part of the data (``"sdd"``, ``"ethucy"`` or ``"external"``),
+    whatever part of the data folder the root names: the data folder itself, one of its
+    parts (the SDD folder, the ETH/UCY folder: the others are beside it), or a folder
+    inside one (``ethucy/zara1``, ``sdd/annotations``).
+
+    Looking up from the root (at most four folders up), the first folder that is
+    ``kind``'s own (it holds its files, whatever its name) or holds ``kind/``, or is
+    another part (then ``kind`` is beside it), decides; with none, ``root/kind`` (whose
+    absence the loaders report).
+
+    Parameters
+    ----------
+    kind : {"sdd", "ethucy", "external"}
+        The part.
+    data_root : path, optional
+        As :func:`resolve_data_root` takes it.
+    """
+    if kind not in PART_MARKERS:
+        raise ValueError(f"kind must be one of {', '.join(PART_MARKERS)}, got {kind!r}")
+    root = resolve_data_root(data_root)
+    for folder in [root, *root.parents][: _LEVELS + 1]:
+        if _holds(folder, kind):
+            return folder
+        if (folder / kind).is_dir():
+            return folder / kind
+        if any(_holds(folder, other) for other in PART_MARKERS if other != kind):
+            return folder.parent / kind
+    return root / kind
 
 
 def sdd_root(data_root: str | os.PathLike[str] | None = None) -> Path:
-    """The SDD folder: the root itself if it holds SDD files, else ``root/sdd``."""
-    return _subdir(
-        resolve_data_root(data_root),
-        "sdd",
-        ("annotations", "trajnet_pixels", "estimated_scales.yaml"),
-    )
+    """The SDD folder (:func:`data_part`): the root itself if it holds SDD files, else
+    ``sdd/`` of the data folder the root is or is part of."""
+    return data_part("sdd", data_root)
 
 
 def ethucy_root(data_root: str | os.PathLike[str] | None = None) -> Path:
-    """The ETH/UCY folder: the root itself if it holds the scenes, else ``root/ethucy``."""
-    return _subdir(resolve_data_root(data_root), "ethucy", ("eth", "hotel", "univ", "zara1"))
+    """The ETH/UCY folder (:func:`data_part`): the root itself if it holds the scenes,
+    else ``ethucy/`` of the data folder the root is or is part of."""
+    return data_part("ethucy", data_root)
+
+
+def external_root(data_root: str | os.PathLike[str] | None = None) -> Path:
+    """The folder of the external files (:func:`data_part`): ``external/`` of the data
+    folder the root is or is part of."""
+    return data_part("external", data_root)
 
 
 def read_data_text(path: str | os.PathLike[str], what: str = "data file") -> str:

@@ -15,11 +15,21 @@ Scene names accepted by :func:`load_scene` and ``conformal-control run --scene``
 * ``ethucy:<recording>`` - a full ETH/UCY recording (``biwi_eth``, ``biwi_hotel``,
   ``students001``, ``students003``, ``crowds_zara01``, ``crowds_zara02``), interpolated
   from 2.5 to 30 fps (:func:`conformal_control.data.ethucy.read_ethucy`). These
-  recordings are in world metres without an image: ``start_m`` and ``goals_m`` give start
-  and goals in metres (required). ``ethucy:<recording>:corrected`` replays the recording on
+  recordings are in world metres without an image; their frame is the **walkable box**
+  (:func:`walkable_box`: the box holding the middle 95 % of the recorded positions along
+  each axis), and their **default task** crosses it along its longer side, from 5 % to
+  95 % of that side on the box's middle line (:data:`ETHUCY_TASK`), starting one history
+  window (120 frames, 4 s) after the recording's first frame.
+  ``ethucy:<recording>:corrected`` replays the recording on
   its original clock: biwi_eth's rows are 0.667 s apart, not the literature's 0.4 s
   (:data:`conformal_control.data.ethucy.ETHUCY_ORIGINAL_RATE`); the other recordings are the
-  same in both forms. The corrected biwi_eth scene is named ``biwi_eth:corrected``.
+  same in both forms. The corrected biwi_eth scene is named ``biwi_eth:corrected``. The
+  names of the leave-one-out splits (``ethucy:zara1``, ...) are aliases of their recording,
+  resolved by :mod:`~conformal_control.data.catalog`.
+
+Starts and goals are positions as :mod:`~conformal_control.data.positions` reads them:
+fractions of the scene's frame (the image on SDD, the walkable box on ETH/UCY), metres
+(``"3.2m,1.0m"``) or pixels (``"120px,300px"``, SDD).
 
 Parameters of SDD scenes are typed in the paper's units (px, frames; see
 :mod:`conformal_control.data.units`). ETH/UCY scenes are typed in metres and frames of
@@ -53,6 +63,7 @@ from .ethucy import (
     ethucy_recording,
     read_ethucy,
 )
+from .positions import Position, parse_position, parse_positions, to_metres
 from .scene import Scene, scene_from_tracks
 from .sdd import SDD_FPS, read_annotations, sdd_video
 from .synthetic import crossing_scene
@@ -67,15 +78,18 @@ __all__ = [
     "CROWD_K_REP_SI",
     "ETHUCY_DEFAULTS",
     "ETHUCY_PUBLISHED",
+    "ETHUCY_TASK",
     "PAPER_SCENES",
     "REFERENCE_M_PER_PX",
     "TABLE_I",
     "TABLE_II",
+    "WALKABLE_QUANTILE",
     "SceneSpec",
     "crowd_defaults",
     "load_scene",
     "read_tracks",
     "scene_names",
+    "walkable_box",
 ]
 
 #: Parameters printed in the paper's Table I (gates_1), paper units.
@@ -326,39 +340,116 @@ def _metres(value: Any, what: str) -> np.ndarray:
     return arr
 
 
+#: Share of a recording's positions left outside its walkable box on each side of each axis
+#: (:func:`walkable_box`): a few stray samples (a pedestrian at the edge of the camera's
+#: view) do not stretch the box.
+WALKABLE_QUANTILE = 0.025
+#: The default task on an ETH/UCY recording, as fractions of its walkable box along its
+#: longer side and across it: start at 5 %, goal at 95 %, on the middle line.
+ETHUCY_TASK: tuple[tuple[float, float], tuple[float, float]] = ((0.05, 0.5), (0.95, 0.5))
+
+
+def walkable_box(tracks: Tracks, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) corners in metres of a recording's walkable box: along each axis, the
+    :data:`WALKABLE_QUANTILE` and ``1 - WALKABLE_QUANTILE`` quantiles of every recorded
+    position (the box holding the middle 95 % of them).
+
+    Parameters
+    ----------
+    tracks : Tracks
+        The recording (metres).
+    every : int
+        Frames between two recorded samples (12 for ETH/UCY's 2.5 rows per second
+        interpolated to 30 fps): the box is taken over the recorded positions only, not
+        the interpolated ones.
+    """
+    xy = np.concatenate([p[f % every == 0] for f, p in tracks.tracks.values()])
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if xy.shape[0] == 0:
+        raise ValueError(f"{tracks.source}: no finite position; no walkable box")
+    lo = np.quantile(xy, WALKABLE_QUANTILE, axis=0)
+    hi = np.quantile(xy, 1.0 - WALKABLE_QUANTILE, axis=0)
+    return lo, hi
+
+
+def _default_task(lo: np.ndarray, hi: np.ndarray) -> tuple[Position, Position]:
+    """:data:`ETHUCY_TASK` on a box: along its longer side (x on a tie)."""
+    (s_along, s_across), (g_along, g_across) = ETHUCY_TASK
+    if hi[0] - lo[0] >= hi[1] - lo[1]:
+        return Position(s_along, s_across), Position(g_along, g_across)
+    return Position(s_across, s_along), Position(g_across, g_along)
+
+
+def _task(
+    start: Any,
+    goals: Any,
+    start_m: Any,
+    goals_m: Any,
+    default: tuple[Any, Any],
+    *,
+    frame: tuple[np.ndarray, np.ndarray],
+    m_per_px: float | None,
+    scene: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Start (2,) and goals (G, 2) in metres: metres given as ``start_m`` / ``goals_m``,
+    else positions as typed (:mod:`~conformal_control.data.positions`), else ``default``."""
+    if start_m is not None:
+        s_m = _metres(start_m, "start_m")[0]
+    else:
+        pos = parse_position(start if start is not None else default[0], "start")
+        s_m = to_metres(pos, frame=frame, m_per_px=m_per_px, scene=scene, what="start")
+    if goals_m is not None:
+        g_m = _metres(goals_m, "goals_m")
+    else:
+        given = parse_positions(goals if goals is not None else default[1], "goal")
+        g_m = np.array(
+            [to_metres(p, frame=frame, m_per_px=m_per_px, scene=scene, what="goal") for p in given]
+        )
+    return s_m, g_m
+
+
 def _ethucy_scene(
     name: str,
     data_root: str | os.PathLike[str] | None,
     *,
+    start: Any,
+    goals: Any,
     start_m: Any,
     goals_m: Any,
     start_frame: int | None,
     v_max: float | None,
     history_frames: int,
     last_frame: int | None,
-    fractions_given: bool,
 ) -> Scene:
     m = _ETHUCY_RE.match(name)
     if not m or m["stem"] not in ETHUCY_RECORDINGS:
-        raise ValueError(
+        raise InputError(
             f"bad ETH/UCY scene name {name!r}; expected ethucy:<recording> with a recording "
             f"among {', '.join(ETHUCY_RECORDINGS)}"
         )
-    if fractions_given:
-        raise ValueError(
-            f"{name} has no image: give start_m and goals_m in metres, not image fractions"
-        )
-    if start_m is None or goals_m is None:
-        raise ValueError(f"{name} needs start_m and goals_m (metres): it has no default task")
     path = ethucy_recording(m["stem"], data_root)
     rate = ETHUCY_ORIGINAL_RATE.get(m["stem"], ETHUCY_FPS) if m["corrected"] else ETHUCY_FPS
     tracks = read_tracks("ethucy", path, fps=ETHUCY_SCENE_FPS, rate=rate)
+    lo, hi = walkable_box(tracks, every=round(ETHUCY_SCENE_FPS / rate))
+    scene_name = m["stem"] + (":corrected" if rate != ETHUCY_FPS else "")
+    start_xy, goals_xy = _task(
+        start,
+        goals,
+        start_m,
+        goals_m,
+        _default_task(lo, hi),
+        frame=(lo, hi - lo),
+        m_per_px=None,
+        scene=scene_name,
+    )
     scene = scene_from_tracks(
         tracks,
-        name=m["stem"] + (":corrected" if rate != ETHUCY_FPS else ""),
-        start=_metres(start_m, "start_m")[0],
-        goals=_metres(goals_m, "goals_m"),
-        start_frame=int(start_frame if start_frame is not None else history_frames),
+        name=scene_name,
+        start=start_xy,
+        goals=goals_xy,
+        start_frame=int(
+            start_frame if start_frame is not None else tracks.frame_range()[0] + history_frames
+        ),
         v_max=float(v_max if v_max is not None else 4.0),
         history_frames=history_frames,
         last_frame=last_frame,
@@ -370,25 +461,19 @@ def _ethucy_scene(
             "ethucy_recording": m["stem"],
             "ethucy_scene": ETHUCY_RECORDINGS[m["stem"]],
             "ethucy_rate": rate,
+            "walkable_box": [lo.tolist(), hi.tolist()],
         }
     )
     scene.meta["published_params"] = dict(ETHUCY_PUBLISHED)
     return scene
 
 
-def _fractions(value: Any, what: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float).reshape(-1, 2)
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0) or np.any(arr > 1):
-        raise ValueError(f"{what} must be image fractions in [0, 1], got {value!r}")
-    return arr
-
-
 def load_scene(
     name: str,
     data_root: str | os.PathLike[str] | None = None,
     *,
-    start: Sequence[float] | None = None,
-    goals: Sequence[Sequence[float]] | None = None,
+    start: Any = None,
+    goals: Any = None,
     start_frame: int | None = None,
     v_max: float | None = None,
     history_frames: int = 120,
@@ -399,9 +484,10 @@ def load_scene(
 ) -> Scene:
     """Build a scene by name (see the module docstring for the accepted names).
 
-    ``start`` and ``goals`` are fractions of the image's width and height (SDD scenes);
-    they override the registry's values. ``start_m`` and ``goals_m`` give them in metres
-    instead (ETH/UCY scenes need them; on SDD scenes they replace the fractions).
+    ``start`` and ``goals`` replace the scene's task: fractions of its frame (the image on
+    SDD scenes, the walkable box on ETH/UCY ones), or with a unit, ``"3.2m,1.0m"`` or
+    ``"120px,300px"`` (:mod:`~conformal_control.data.positions`). ``start_m`` and
+    ``goals_m`` give them as numbers in metres.
     ``last_frame`` ends the replayed data early (a smaller scene for a short episode).
     ``seed`` only matters for ``crossing``. ``scenario:<suite>/<id>`` (a scenario of a
     shipped benchmark suite) is read by :func:`conformal_control.data.catalog.load_scene`,
@@ -414,11 +500,11 @@ def load_scene(
         (``nexus_4``, ...) or ``ethucy:<scene>``.
     data_root : str or path, optional
         The data folder; None: ``$CONFORMAL_CONTROL_DATA``, else the per-user data folder.
-    start : (x, y), optional
-        Robot start as fractions of the image's width and height (SDD; None: the
-        registry's).
-    goals : sequence of (x, y), optional
-        Goals visited in order, as fractions (SDD; None: the registry's).
+    start : position, optional
+        Robot start: ``(fx, fy)`` fractions of the scene's frame, ``"3.2m,1.0m"`` metres or
+        ``"120px,300px"`` pixels (None: the scene's own).
+    goals : position or sequence of positions, optional
+        Goals visited in order, as ``start`` (None: the scene's own).
     start_frame : int, optional
         The frame the robot starts at (None: the registry's).
     v_max : float, optional
@@ -446,13 +532,14 @@ def load_scene(
         return _ethucy_scene(
             name,
             data_root,
+            start=start,
+            goals=goals,
             start_m=start_m,
             goals_m=goals_m,
             start_frame=start_frame,
             v_max=v_max,
             history_frames=history_frames,
             last_frame=last_frame,
-            fractions_given=start is not None or goals is not None,
         )
     base, _, form = name.partition(":")
     spec: SceneSpec | None = None
@@ -513,19 +600,22 @@ def load_scene(
         )
     extent = (size_px[0] * vid.m_per_px, size_px[1] * vid.m_per_px)
     wh = np.array(extent)
-    if start_m is not None:
-        start_frac = _metres(start_m, "start_m")[0] / wh
-    else:
-        start_frac = _fractions(start if start is not None else spec_start, "start")[0]
-    if goals_m is not None:
-        goal_frac = _metres(goals_m, "goals_m") / wh
-    else:
-        goal_frac = _fractions(goals if goals is not None else spec_goals, "goals")
+    start_xy, goals_xy = _task(
+        start,
+        goals,
+        start_m,
+        goals_m,
+        (Position(*spec_start), [Position(*g) for g in spec_goals]),
+        frame=(np.zeros(2), wh),
+        m_per_px=vid.m_per_px,
+        scene=scene_name,
+    )
+    start_frac, goal_frac = start_xy / wh, goals_xy / wh
     scene = scene_from_tracks(
         tracks,
         name=scene_name,
-        start=_metres(start_m, "start_m")[0] if start_m is not None else start_frac * wh,
-        goals=_metres(goals_m, "goals_m") if goals_m is not None else goal_frac * wh,
+        start=start_xy,
+        goals=goals_xy,
         start_frame=int(start_frame if start_frame is not None else spec_frame),
         v_max=float(v_max if v_max is not None else spec_vmax),
         history_frames=history_frames,

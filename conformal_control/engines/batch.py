@@ -110,6 +110,7 @@ from ..loop import (
 )
 from ..monitor import AgentMonitor, GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityForm
+from ..predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -162,6 +163,8 @@ _RECORD_LOSSES = frozenset({"collision", "distance_shortfall", "acp_miscoverage"
 _OWN = -1
 _FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}  # else PYTHON
 _PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
+#: The predictor shifts the compiled prediction applies (to a compiled predictor).
+_SHIFTS = {"delayed": bk.DELAYED, "noisy": bk.NOISY, "scaled": bk.SCALED, "dropout": bk.DROPOUT}
 
 
 def _compiled_name(cls: type) -> str | None:
@@ -354,6 +357,71 @@ def _predictor_code(pred: object) -> int:
     return _PREDICTORS.get(_compiled_name(type(pred)) or "", _OWN)
 
 
+def _window_of(form: object) -> Any:
+    """The constant-velocity predictor's window, read from its compiled form (as given:
+    checked by the caller); :class:`_NotRun` if the predictor hands no such form."""
+    if not isinstance(form, ConstantVelocityForm):
+        raise _NotRun("the predictor declares 'constant_velocity' but hands no form of it")
+    return form.window
+
+
+def _valid_window(window: Any) -> bool:
+    return bool(int(window) == window and window >= 1)
+
+
+def _prediction(
+    pred: Plugin, form: object, dt_frame: float, history: int, ids: np.ndarray
+) -> tuple[int, int, ShiftForm | None, Any]:
+    """How the compiled prediction runs ``pred`` (whose compiled form is ``form``): (the
+    predictor code, the shift code, the shift's form, the constant-velocity window, 1 for
+    another predictor). A predictor shift (:mod:`~conformal_control.predictors.shift`) of
+    a compiled predictor runs compiled with it (the wrapped predictor read through its own
+    compiled form); one that returns the wrapped forecast itself is that predictor; one
+    the compiled form would not follow exactly where the wrapper raises or reads what the
+    kernel does not hold (a delay beyond the history, a bad window, agent ids that are not
+    integers) is called as it is (``_OWN``)."""
+    kernel = _compiled_name(type(pred)) or ""
+    if kernel not in _SHIFTS:
+        code = _predictor_code(pred)
+        return code, bk.NO_SHIFT, None, _window_of(form) if code == bk.CONSTANT_VELOCITY else 1
+    if not isinstance(form, ShiftForm) or form.kernel != kernel:
+        raise _NotRun(f"the predictor declares {kernel!r} but hands no form of that shift")
+    base = form.base
+    code = _predictor_code(base)
+    own = (_OWN, bk.NO_SHIFT, None, 1)
+    window: Any = 1
+    if code == bk.CONSTANT_VELOCITY:
+        window = _window_of(base.compiled_state())
+        if not _valid_window(window):
+            return own
+    if code == _OWN:
+        return own
+    if isinstance(form, DelayedForm):
+        k = form.samples(dt_frame)
+        if k == 0:  # the wrapped forecast itself
+            return code, bk.NO_SHIFT, None, window
+        if k >= history:  # the wrapper refuses it (its error, at its first prediction)
+            return own
+    elif form.neutral:
+        return code, bk.NO_SHIFT, None, window
+    if kernel in ("noisy", "dropout") and not np.issubdtype(ids.dtype, np.integer):
+        return own
+    return code, _SHIFTS[kernel], form, window
+
+
+def _info_keys(code: int, shift: int, form: ShiftForm | None) -> tuple[str, ...]:
+    """The keys of the controller's ``forecast_info_`` a compiled prediction fills, in the
+    order the predictor (and its shift) first report them."""
+    base = ("n_short_history",) if code == bk.CONSTANT_VELOCITY else ()
+    if shift == bk.DELAYED:
+        return (*base, "n_stale", "n_unseen")
+    if shift == bk.DROPOUT:
+        return (*base, "n_dropped", "n_stale", "n_unseen")
+    if shift == bk.SCALED and isinstance(form, ScaledForm) and form.scale == 0.0:
+        return ()  # frozen: the wrapped predictor is not asked
+    return base
+
+
 class _GapLossAt:
     """The gap loss of an interval as a function of lambda: ``s(max_gap + lambda)``, as
     :meth:`CBFGapLoss.__call__ <conformal_control.cbf.loss.CBFGapLoss.__call__>` computes it
@@ -391,6 +459,8 @@ class _Episode:
     # lambda run per agent: the interval's agents (keys) and their lambdas
     keys: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     lams: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # the keys of the forecast counters a compiled prediction fills (see _info_keys)
+    info_keys: tuple[str, ...] = ()
 
 
 class _Pool:
@@ -479,6 +549,16 @@ class _Pool:
     mirror: np.ndarray  # bool (size,): its environment's buffer is read during the run
     vec: np.ndarray  # bool (size,): lambda run per agent
     lam_off: np.ndarray  # (size, cap): per agent, its lambda minus the slot's lam (vec)
+    shift: np.ndarray  # int64 (size,): the predictor shift (kernels' NO_SHIFT, DELAYED, ...)
+    shift_k: np.ndarray  # int64 (size,): a delay in frames
+    shift_x: np.ndarray  # (size, 2): the scale, or dropout's probability and block length
+    noise_sigma: np.ndarray  # (size,): the noisy shift's standard deviation (m)
+    seeds: np.ndarray  # int64 (size,): the shift's seed
+    scene_keys: np.ndarray  # int64 (size,): its key of the scene's name
+    first_frame: np.ndarray  # int64 (size,): the scene's first frame number
+    agent_id: np.ndarray  # int64 (size, columns): the id of each agent of the recording
+    noise: np.ndarray  # (size, cap, 2): each sensed agent's noisy displacement
+    shift_counts: np.ndarray  # int64 (size, 3): stale, unseen, dropped (totals)
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -559,6 +639,16 @@ class _Pool:
         self.mirror = np.zeros(b, dtype=bool)
         self.vec = np.zeros(b, dtype=bool)
         self.lam_off = np.zeros((b, 0))
+        self.shift = np.zeros(b, dtype=np.int64)
+        self.shift_k = np.zeros(b, dtype=np.int64)
+        self.shift_x = np.zeros((b, 2))
+        self.noise_sigma = np.zeros(b)
+        self.seeds = np.zeros(b, dtype=np.int64)
+        self.scene_keys = np.zeros(b, dtype=np.int64)
+        self.first_frame = np.zeros(b, dtype=np.int64)
+        self.agent_id = np.zeros((b, 0), dtype=np.int64)
+        self.noise = np.zeros((b, 0, 2))
+        self.shift_counts = np.zeros((b, 3), dtype=np.int64)
 
     @staticmethod
     def grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -634,6 +724,7 @@ class _Pool:
                 self.cap = max(agents, 2 * self.cap, 16)
                 self.xp, self.vp = g(self.xp, 2, self.cap), g(self.vp, 2, self.cap)
                 self.lam_off = g(self.lam_off, 1, self.cap)
+                self.noise = g(self.noise, 1, self.cap)
                 self.prm[:, 11] = self.cap
             if sides > self.sides:
                 self.sides = sides
@@ -641,6 +732,7 @@ class _Pool:
             self.work = np.zeros(kernels2d.work_size(self.cap, self.sides))
         if columns > self.sensed.shape[1]:
             self.sensed = g(self.sensed, 1, columns)
+            self.agent_id = g(self.agent_id, 1, columns)
         if frames > self.log.shape[1]:
             self.log = g(self.log, 1, frames)
 
@@ -727,12 +819,13 @@ class _Engine:
         # the acp family predicts, scores its past errors and sorts them in its own
         # begin_interval: its predictor is called through it; so is the oracle of a
         # reactive crowd (whose future is not known: its query says so)
-        code = _OWN if parts.acp is not None else _predictor_code(pred)
-        if reactive and code == bk.ORACLE:
-            code = _OWN
-        window: Any = 1
-        if code == bk.CONSTANT_VELOCITY:
-            window = _form(forms, "predictor", ConstantVelocityForm).window
+        dt_frame = 1.0 / sc.fps
+        ids = np.asarray(sc.agent_ids)
+        code, shift, form, window = _prediction(
+            pred, forms.get("predictor"), dt_frame, int(env.history_frames), ids
+        )
+        if parts.acp is not None or (reactive and code == bk.ORACLE):
+            code, shift, form, window = _OWN, bk.NO_SHIFT, None, 1
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -750,6 +843,7 @@ class _Engine:
             lambda_safe=lambda_safe,
             floor=floor,
             goals=np.asarray(sc.goals, dtype=float),
+            info_keys=_info_keys(code, shift, form),
         )
         p = self.pool
         substeps, tau = int(env.substeps), int(env.tau_frames)
@@ -764,7 +858,6 @@ class _Engine:
             frames=last - sc.start_index + 1,
             sides=S.shape[0],
         )
-        dt_frame = 1.0 / sc.fps
         dt = dt_frame / substeps
         # the frames the episode reads: its history before the start, its frames, the last
         # interval's future (the oracle, the truth); the rest of a long scene stays out
@@ -818,6 +911,20 @@ class _Engine:
         self._own = self._own or code == _OWN
         self._acp = self._acp or parts.acp is not None
         p.window[b] = int(window)
+        p.shift[b] = shift
+        p.shift_k[b] = form.samples(dt_frame) if isinstance(form, DelayedForm) else 0
+        p.shift_x[b] = (
+            (form.scale, 0.0)
+            if isinstance(form, ScaledForm)
+            else (getattr(form, "p", 0.0), getattr(form, "duration_s", 1.0))
+        )
+        p.noise_sigma[b] = getattr(form, "sigma_m", 0.0)
+        p.seeds[b] = getattr(form, "seed", 0)
+        p.scene_keys[b] = scene_key(sc.name)
+        p.first_frame[b] = sc.first_frame
+        if shift in (bk.NOISY, bk.DROPOUT):
+            p.agent_id[b, : ids.size] = ids
+        p.shift_counts[b] = 0
         p.n_log[b] = 0
         p.wall[b] = 0.0
         p.n_predicted[b] = p.n_short_total[b] = p.n_bad_total[b] = 0
@@ -886,14 +993,33 @@ class _Engine:
                 self._predict_own(b)
             predicted = predicted[~own]
         if predicted.size:
+            noisy = predicted[p.shift[predicted] == bk.NOISY]
+            if noisy.size:
+                self._noise(noisy)
             bk.predict_interpolate(
                 predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
                 p.history, p.tau, p.substeps, p.dt_frame, p.samples, p.xp, p.vp, p.n_short,
-                p.n_bad,
+                p.n_bad, p.shift, p.shift_k, p.shift_x, p.seeds, p.scene_keys, p.first_frame,
+                p.agent_id, p.noise, p.shift_counts,
             )  # fmt: skip
             p.n_predicted[predicted] += 1
             p.n_bad_total[predicted] += p.n_bad[predicted]
             p.n_short_total[predicted] += p.n_short[predicted]
+
+    def _noise(self, slots: np.ndarray) -> None:
+        """The ``noisy`` shift's displacement of each sensed agent of ``slots`` at this
+        sampling time, drawn for all of them at once as the predictor draws its own
+        (:func:`~conformal_control.predictors.shift.noise_offsets`)."""
+        p = self.pool
+        n = p.n_agents[slots]
+        m = int(n.max())
+        i, a = np.nonzero(np.arange(m)[None, :] < n[:, None])  # (slot, agent), slot-major
+        rows = slots[i]
+        ids = p.agent_id[rows, p.sensed[rows, a]]
+        frames = p.first_frame[rows] + p.fi[rows]
+        p.noise[rows, a] = noise_offsets(
+            p.noise_sigma[rows], p.seeds[rows], p.scene_keys[rows], frames, ids
+        )
 
     def _regions(self, b: int) -> None:
         """Slot ``b``'s barrier at each horizon step of the interval (the acp family:
@@ -1023,7 +1149,7 @@ class _Engine:
                 p.x[b, :2],
                 p.xp[b, int(p.step[b]), :n],
                 p.vp[b, int(p.step[b]), :n],
-                float(p.prm[b, 12] if p.prm[b, 12] >= 0 else p.prm[b, 2]),
+                float(max(p.prm[b, 12], p.prm[b, 2])),
                 np.array((n0, n1)),
             ),
         )
@@ -1242,8 +1368,14 @@ class _Engine:
         policy.n_steps_ = c[4]
         if p.predictor[b] != _OWN:  # (an own predictor's are the controller's already)
             policy.n_nonfinite_predictions_ = int(p.n_bad_total[b])
-        if p.n_predicted[b] and p.predictor[b] == bk.CONSTANT_VELOCITY:
-            policy.forecast_info_ = {"n_short_history": int(p.n_short_total[b])}
+        if p.n_predicted[b] and ep.info_keys:
+            totals = {
+                "n_short_history": int(p.n_short_total[b]),
+                "n_stale": int(p.shift_counts[b, 0]),
+                "n_unseen": int(p.shift_counts[b, 1]),
+                "n_dropped": int(p.shift_counts[b, 2]),
+            }
+            policy.forecast_info_ = {key: totals[key] for key in ep.info_keys}
         # the compiled step's counts, added to those a fallback decided in Python counted
         filt.n_solves_ += c[0]
         filt.n_infeasible_ += c[1]
@@ -1404,7 +1536,7 @@ def iter_batch(
                 mf, seed = next(frames), next(seed_values)
             except StopIteration:
                 raise ValueError("max_frames / seeds have fewer values than scenes") from None
-            yield i, scene, int(seed), None if mf is None else int(mf)
+            yield i, run.on_scene(scene), int(seed), None if mf is None else int(mf)
 
     engine = _Engine(int(batch_size), output, run, extra_config)
     yield from engine.run(source())

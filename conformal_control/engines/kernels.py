@@ -33,9 +33,15 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CONSTANT_VELOCITY",
+    "DELAYED",
+    "DROPOUT",
+    "NOISY",
+    "NO_SHIFT",
     "ORACLE",
+    "SCALED",
     "count_sensed",
     "d_min",
+    "dropout_draw",
     "frame_range",
     "gather_windows",
     "log_frames",
@@ -203,6 +209,77 @@ def log_frames(
 
 #: Predictor codes of :func:`predict_interpolate`.
 CONSTANT_VELOCITY, ORACLE = 0, 1
+#: Shift codes of :func:`predict_interpolate` (:mod:`conformal_control.predictors.shift`):
+#: none, ``delayed``, ``noisy``, ``scaled``, ``dropout``.
+NO_SHIFT, DELAYED, NOISY, SCALED, DROPOUT = 0, 1, 2, 3, 4
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+
+
+def _dropout_draw_python(seed: int, scene: int, agent: int, block: int) -> float:
+    from ..predictors.shift import hash_uniform
+
+    return float(hash_uniform(seed, scene, agent, block, 2)[0])
+
+
+@kernel(cache=True, nogil=True, inline="always")
+def _mix(x: np.uint64) -> np.uint64:
+    """SplitMix64's finaliser (wrapping uint64 arithmetic), as
+    :func:`~conformal_control.predictors.shift.hash_uniform` folds its keys."""
+    x = x + _GOLDEN
+    x = (x ^ (x >> _S30)) * _M1
+    x = (x ^ (x >> _S27)) * _M2
+    out: np.uint64 = x ^ (x >> _S31)
+    return out
+
+
+@kernel(cache=True, nogil=True, inline="always", python=_dropout_draw_python)
+def dropout_draw(seed: int, scene: int, agent: int, block: int) -> float:
+    """``hash_uniform(seed, scene, agent, block, 2)``: the uniform number
+    :meth:`DropoutPredictor.missing <conformal_control.predictors.shift.DropoutPredictor.missing>`
+    draws for an agent and a block (the same 53 bits of the same hash of the keys' int64
+    bit patterns).
+
+    Parameters
+    ----------
+    seed, scene, agent, block : int
+        The keys (the predictor's seed, the scene's key, the agent's id, the block).
+    """
+    h = _mix(np.uint64(seed))
+    h = _mix(h ^ np.uint64(scene))
+    h = _mix(h ^ np.uint64(agent))
+    h = _mix(h ^ np.uint64(block))
+    h = _mix(h ^ np.uint64(2))
+    return float(h >> _S11) * 2.0**-53
+
+
+@jit
+def _seen(
+    store: np.ndarray,
+    where: np.ndarray,
+    b: int,
+    g: int,
+    j: int,
+    dropout: bool,
+    seed: int,
+    scene: int,
+    agent: int,
+    first: int,
+    dt: float,
+    dur: float,
+    p: float,
+) -> tuple[float, float]:
+    """Agent ``j``'s sample at frame ``g`` as its predictor sees it: the recording's, NaN
+    where a ``dropout`` shift removed the detection (its block drawn missing)."""
+    gx, gy = sample(store, where, b, g, j)
+    if dropout and math.isfinite(gx) and math.isfinite(gy):
+        block = math.floor(float(first + g) * dt / dur + 1e-9)
+        if dropout_draw(seed, scene, agent, block) < p:
+            return math.nan, math.nan
+    return gx, gy
 
 
 @jit
@@ -224,6 +301,15 @@ def predict_interpolate(
     vp: np.ndarray,
     n_short: np.ndarray,
     n_bad: np.ndarray,
+    shift: np.ndarray,
+    shift_k: np.ndarray,
+    shift_x: np.ndarray,
+    seeds: np.ndarray,
+    scene_keys: np.ndarray,
+    first_frame: np.ndarray,
+    agent_id: np.ndarray,
+    noise: np.ndarray,
+    shift_counts: np.ndarray,
 ) -> None:
     """The controller's predictions at a sampling time, for each slot ``b``: its sensed
     agents' forecast over ``tau[b]`` frames, sanitised and interpolated at the interval's
@@ -233,9 +319,28 @@ def predict_interpolate(
     :class:`~conformal_control.predictors.constant_velocity.ConstantVelocityPredictor`
     with ``window[b]`` on the last ``history[b]`` frames (``n_short[b]``: agents predicted
     to stand still for want of a second sample), or the recording's future
-    (:class:`~conformal_control.predictors.oracle.OraclePredictor`). As the controller does,
-    the current positions are prepended, non-finite samples are replaced by the last
-    finite one (``n_bad[b]``: agents concerned;
+    (:class:`~conformal_control.predictors.oracle.OraclePredictor`), under the episode's
+    predictor shift (``shift[b]``, :mod:`~conformal_control.predictors.shift`, with the
+    same arithmetic and the same fallbacks):
+
+    * ``DELAYED`` by ``shift_k[b]`` frames: the forecast made at frame ``f - k`` from the
+      history up to it (an agent not seen then: from its last earlier sample, counted
+      ``shift_counts[b, 0]`` (stale), or standing at its first sample of the history,
+      ``shift_counts[b, 1]`` (unseen)), used as current; the oracle's is the recording
+      from frame ``f - k + 1``;
+    * ``NOISY``: the forecast displaced by ``noise[b, a]`` (the agent's draw, computed
+      by the caller with the predictor's own hash);
+    * ``SCALED`` by ``shift_x[b, 0]``: the displacement from the current position scaled
+      (0: every agent stands where it is, the wrapped predictor not asked);
+    * ``DROPOUT`` with probability ``shift_x[b, 0]`` in blocks of ``shift_x[b, 1]``
+      seconds (seed ``seeds[b]``, scene key ``scene_keys[b]``, the agents' ids
+      ``agent_id[b]``, frame numbers from ``first_frame[b]``): missing samples removed
+      from the history; an agent whose current detection is missing
+      (``shift_counts[b, 2]``) is predicted from its last detection (stale) or stands at
+      its first sample (unseen).
+
+    As the controller does, the current positions are prepended, non-finite samples are
+    replaced by the last finite one (``n_bad[b]``: agents concerned;
     :func:`~conformal_control.cbf.interp.forward_fill`) and the samples are interpolated
     (:func:`~conformal_control.cbf.interp.interpolate_at_substeps`). ``samples`` is a
     buffer of at least ``tau + 1`` rows.
@@ -247,48 +352,100 @@ def predict_interpolate(
         dt = dt_frame[b]
         horizon = tau[b]
         sub = substeps[b]
+        kind = shift[b]
+        delay = shift_k[b] if kind == DELAYED else 0
+        dropout = kind == DROPOUT
+        lo = f - history[b] + 1  # the history window's first frame
         short = 0
         bad = 0
         for a in range(n_agents[b]):
             j = sensed[b, a]
+            agent = agent_id[b, j]
             cx, cy = sample(store, where, b, f, j)
             samples[0, 0] = cx
             samples[0, 1] = cy
-            if predictor[b] == CONSTANT_VELOCITY:
-                # trailing run of finite samples in the history window (frames f-H+1 .. f),
-                # counted up to window + 1 (longer runs give the same k)
-                run = 0
-                for back in range(min(history[b], window[b] + 1)):
-                    g = f - back
-                    if g < 0 or g >= n_frames:
-                        break
-                    gx, gy = sample(store, where, b, g, j)
-                    if not (math.isfinite(gx) and math.isfinite(gy)):
-                        break
-                    run += 1
-                k = min(run - 1, window[b])
-                if k < 0:
-                    k = 0
-                vx = 0.0
-                vy = 0.0
-                if k > 0:
-                    kx, ky = sample(store, where, b, f - k, j)
-                    vx = (cx - kx) / (k * dt)
-                    vy = (cy - ky) / (k * dt)
-                else:
-                    short += 1
+            frozen = kind == SCALED and shift_x[b, 0] == 0.0
+            if frozen:  # every agent stands where it is: the predictor is not asked
                 for h in range(horizon):
-                    lead = (h + 1.0) * dt
-                    samples[h + 1, 0] = cx + vx * lead
-                    samples[h + 1, 1] = cy + vy * lead
+                    samples[h + 1, 0] = cx
+                    samples[h + 1, 1] = cy
             else:
-                for h in range(horizon):
-                    g = f + 1 + h
-                    if g < n_frames:
-                        samples[h + 1, 0], samples[h + 1, 1] = sample(store, where, b, g, j)
+                # the frame the predictor takes for current, and its sample there
+                fc = f - delay
+                ax, ay = _seen(store, where, b, fc, j, dropout, seeds[b], scene_keys[b],
+                               agent, first_frame[b], dt, shift_x[b, 1], shift_x[b, 0])  # fmt: skip
+                unseen = False
+                cut = not (math.isfinite(ax) and math.isfinite(ay))
+                if cut and (delay > 0 or dropout):  # not seen at fc: cut or dropped
+                    if dropout:
+                        shift_counts[b, 2] += 1
+                    g = fc - 1
+                    while g >= lo:
+                        ax, ay = _seen(store, where, b, g, j, dropout, seeds[b], scene_keys[b],
+                                       agent, first_frame[b], dt, shift_x[b, 1],
+                                       shift_x[b, 0])  # fmt: skip
+                        if math.isfinite(ax) and math.isfinite(ay):
+                            break
+                        g -= 1
+                    if g >= lo:  # its last sample before: taken for current
+                        fc = g
+                        shift_counts[b, 0] += 1
+                    else:  # none: it stands at its first sample of the history
+                        unseen = True
+                        shift_counts[b, 1] += 1
+                        for g in range(lo, f + 1):
+                            ax, ay = sample(store, where, b, g, j)
+                            if math.isfinite(ax) and math.isfinite(ay):
+                                break
+                if predictor[b] == CONSTANT_VELOCITY:
+                    # trailing run of finite samples in the history window up to fc
+                    # (frames lo .. fc), counted up to window + 1 (longer runs give the
+                    # same k)
+                    run = 1
+                    if not unseen:
+                        run = 0
+                        for back in range(min(fc - lo + 1, window[b] + 1)):
+                            g = fc - back
+                            if g < 0 or g >= n_frames:
+                                break
+                            gx, gy = _seen(store, where, b, g, j, dropout, seeds[b],
+                                           scene_keys[b], agent, first_frame[b], dt,
+                                           shift_x[b, 1], shift_x[b, 0])  # fmt: skip
+                            if not (math.isfinite(gx) and math.isfinite(gy)):
+                                break
+                            run += 1
+                    k = min(run - 1, window[b])
+                    if k < 0:
+                        k = 0
+                    vx = 0.0
+                    vy = 0.0
+                    if k > 0:
+                        kx, ky = sample(store, where, b, fc - k, j)
+                        vx = (ax - kx) / (k * dt)
+                        vy = (ay - ky) / (k * dt)
                     else:
-                        samples[h + 1, 0] = math.nan
-                        samples[h + 1, 1] = math.nan
+                        short += 1
+                    for h in range(horizon):
+                        lead = (h + 1.0) * dt
+                        samples[h + 1, 0] = ax + vx * lead
+                        samples[h + 1, 1] = ay + vy * lead
+                else:  # the recording's future of the frame taken for current
+                    for h in range(horizon):
+                        g = f - delay + 1 + h
+                        if g < n_frames:
+                            samples[h + 1, 0], samples[h + 1, 1] = sample(store, where, b, g, j)
+                        else:
+                            samples[h + 1, 0] = math.nan
+                            samples[h + 1, 1] = math.nan
+                if kind == NOISY:
+                    for h in range(horizon):
+                        samples[h + 1, 0] = samples[h + 1, 0] + noise[b, a, 0]
+                        samples[h + 1, 1] = samples[h + 1, 1] + noise[b, a, 1]
+                elif kind == SCALED:
+                    s = shift_x[b, 0]
+                    for h in range(horizon):
+                        samples[h + 1, 0] = cx + s * (samples[h + 1, 0] - cx)
+                        samples[h + 1, 1] = cy + s * (samples[h + 1, 1] - cy)
             had_bad = False
             for h in range(1, horizon + 1):
                 if not (math.isfinite(samples[h, 0]) and math.isfinite(samples[h, 1])):

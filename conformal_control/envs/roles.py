@@ -91,6 +91,36 @@ class MonitorFilter(SafetyFilter):
         self.last_ = LastSolve(v, A, b, lam, res)
         return res
 
+    def solve_escaping(
+        self,
+        nominal: np.ndarray,
+        A: np.ndarray,
+        b: np.ndarray,
+        lam: float,
+        escape: Any,
+        ttc: np.ndarray | None = None,
+    ) -> FilterResult:
+        """:meth:`solve`: the monitor changes nothing, not even next to an agent within the
+        collision distance (the edge rule is a safety filter's; the environment applies the
+        policy's action as it is, and a shield filters it).
+
+        Parameters
+        ----------
+        nominal : ndarray of shape (2,)
+            The reference decision (m/s).
+        A : ndarray of shape (N, 2)
+            One constraint row per agent.
+        b : ndarray of shape (N,)
+            The rows' constant terms.
+        lam : float
+            The conformal slack lambda (1/s).
+        escape : EscapeRows or None
+            The agents within the collision distance (not used).
+        ttc : ndarray of shape (N,), optional
+            The rows' times to contact (not used).
+        """
+        return self.solve(nominal, A, b, lam)
+
     def stats(self) -> dict[str, float]:
         return {"n_solves": self.n_solves_, "n_violations": self.n_violations_}
 

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from .destination import safe_output
 from .reader import RobotTrack, RunRecord, read_run
@@ -66,6 +67,7 @@ def export_run(
     *,
     format: str = "mcap",
     schema: str = "foxglove",
+    start_time: Any = None,
 ) -> Path:
     """Write a run directory as an MCAP file (Foxglove's schemas or ROS 2 messages), a
     ROS 2 bag folder or a Rerun recording.
@@ -83,6 +85,11 @@ def export_run(
         The file format (``ros2-bag``: a bag folder as ``ros2 bag record`` writes it).
     schema : {"foxglove", "ros2"}
         For ``mcap``: Foxglove's JSON schemas, or ROS 2 messages (the ``ros`` extra).
+    start_time : datetime or str, optional
+        The date and time the run's ``t = 0`` is shown at (ISO 8601, e.g.
+        ``"2026-05-04T09:30:00Z"``; without a time zone, UTC); None: the Unix epoch in an
+        MCAP file (the same run, the same file), the time since the start in Rerun's. Not
+        for the ROS 2 forms (their stamps start at the epoch).
 
     Returns
     -------
@@ -101,6 +108,11 @@ def export_run(
         raise ValueError(f"unknown export schema {schema!r} (choose from {', '.join(SCHEMAS)})")
     if schema == "ros2" and format == "rerun":
         raise ValueError("--schema ros2 applies to --format mcap (or give --format ros2-bag)")
+    if start_time is not None and (schema == "ros2" or format == "ros2-bag"):
+        raise ValueError(
+            "--start-time applies to --format mcap with Foxglove's schemas and to --format "
+            "rerun; the ROS 2 exports are stamped from the Unix epoch"
+        )
     rec = run_dir if isinstance(run_dir, RunRecord) else read_run(run_dir)
     target = Path(out) if out is not None else default_output(rec.path, format, schema)
     if format == "ros2-bag":
@@ -114,7 +126,7 @@ def export_run(
     if format == "mcap":
         from .to_mcap import write_mcap
 
-        return write_mcap(rec, target)
+        return write_mcap(rec, target, start_time=start_time)
     from .to_rerun import write_rerun
 
-    return write_rerun(rec, target)
+    return write_rerun(rec, target, start_time=start_time)

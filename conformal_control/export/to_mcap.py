@@ -2,9 +2,10 @@
 
 Every message is JSON with a JSON Schema (Foxglove's schemas for what the 3D panel draws,
 flat schemas of our own for what the Plot panel plots), logged at the simulation time of
-what it shows: nanoseconds since the start of the run (the run's ``t = 0`` is the Unix
-epoch, as Foxglove shows it; nothing in the file depends on when it was written, so the
-same run gives the same file). Topics, for a single robot (``<r>`` = ``robot``) or for each
+what it shows: nanoseconds since the start of the run, on the Unix epoch by default (the
+run's ``t = 0`` shows as 1970-01-01 00:00:00 UTC; nothing in the file depends on when it
+was written, so the same run gives the same file) or from the date and time given with
+``--start-time`` (``start_time=``). Topics, for a single robot (``<r>`` = ``robot``) or for each
 robot of a ``--robots`` run (``<r>`` = ``robot_0``, ``robot_1``, ...):
 
 =========================  ==========================  ======================================
@@ -38,6 +39,7 @@ unit. Lengths are metres, times seconds, lambda in the scene's units as in the C
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
 from pathlib import Path
@@ -46,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..exceptions import InputError
 from . import foxglove as fg
 from .destination import safe_output
 from .reader import RunRecord, read_run
@@ -63,11 +66,6 @@ PATH = (0.2, 0.2, 0.2, 0.6)
 RING = (0.2, 0.6, 0.9, 0.5)
 STATUS_RGBA = {0: GREEN, 1: ORANGE, 2: RED}
 ROBOT_HEIGHT, PED_HEIGHT = 0.6, 1.7
-
-
-def _ns(t: float) -> int:
-    """Simulation time (s since the start) as integer nanoseconds."""
-    return round(t * 1e9)
 
 
 def _num(v: float) -> float | None:
@@ -95,12 +93,18 @@ class _Out:
     """The MCAP writer with one JSON channel per topic; messages are buffered and written
     in time order by :meth:`flush` (a topic's messages keep their order)."""
 
-    def __init__(self, writer: Any) -> None:
+    def __init__(self, writer: Any, origin_ns: int = 0) -> None:
         self.writer = writer
+        self.origin_ns = origin_ns
         self.schemas: dict[str, int] = {}
         self.channels: dict[str, int] = {}
         self.sequence: dict[str, int] = {}
         self.buffer: list[tuple[int, int, int, bytes]] = []
+
+    def ns(self, t: float) -> int:
+        """Simulation time (s since the start) as integer nanoseconds on the file's clock
+        (:func:`write_mcap`'s ``start_time``; the Unix epoch by default)."""
+        return self.origin_ns + round(t * 1e9)
 
     def channel(self, topic: str, schema: dict[str, Any], metadata: dict[str, str]) -> None:
         name = schema["title"]
@@ -138,7 +142,7 @@ def _robot_topics(out: _Out, rec: RunRecord) -> None:
         yaw = _headings(tr["vx"], tr["vy"])
         for i in range(tr["t"].size):
             t = float(tr["t"][i])
-            ns = _ns(t)
+            ns = out.ns(t)
             x, y = float(tr["x"][i]), float(tr["y"][i])
             out.write("/tf", ns, fg.frame_transform(ns, "world", r.name, x, y, float(yaw[i])))
             out.write(f"/{r.name}/pose", ns, fg.pose_in_frame(ns, "world", x, y, float(yaw[i])))
@@ -169,7 +173,7 @@ def _robot_topics(out: _Out, rec: RunRecord) -> None:
             for key in ("n_sensed", "n_steps"):
                 msg[key] = int(iv[key][j])
             msg["epsilon"] = _num(rec.epsilon)
-            out.write(f"/{r.name}/conformal", _ns(t), msg)
+            out.write(f"/{r.name}/conformal", out.ns(t), msg)
 
 
 def _scene_topics(out: _Out, rec: RunRecord) -> None:
@@ -182,7 +186,7 @@ def _scene_topics(out: _Out, rec: RunRecord) -> None:
     sensed_from = [(t, set(cols.tolist())) for t, cols, _ in rec.predictions]
     s = 0
     for f, t in enumerate(rec.frame_t.tolist()):
-        ns = _ns(t)
+        ns = out.ns(t)
         entities = []
         for m, r in enumerate(rec.robots):
             if rec.kind == "single":
@@ -225,7 +229,7 @@ def _scene_topics(out: _Out, rec: RunRecord) -> None:
     if rec.kind == "single":
         out.channel("/scene/predictions", fg.SCENE_UPDATE, {})
         for t, _cols, pred in rec.predictions:
-            ns = _ns(t)
+            ns = out.ns(t)
             lines = []
             for path in pred:
                 ok = np.isfinite(path[:, 0])
@@ -246,7 +250,7 @@ def _map_topic(out: _Out, rec: RunRecord) -> None:
         x0, y0 = (float(v) for v in rec.starts[m])
         entities.append(
             fg.entity(
-                0,
+                out.ns(0.0),
                 "world",
                 f"{r.name}/map",
                 lines=[fg.line(path, PATH, thickness=0.04, z=0.01)]
@@ -262,10 +266,46 @@ def _map_topic(out: _Out, rec: RunRecord) -> None:
                 texts=[fg.text(gx, gy, 0.5, f"goal {r.name}", BLUE) for gx, gy in goals.tolist()],
             )
         )
-    out.write("/scene/map", 0, fg.scene_update(entities))
+    out.write("/scene/map", out.ns(0.0), fg.scene_update(entities))
 
 
-def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
+def start_time_ns(start_time: datetime.datetime | str | None) -> int:
+    """Nanoseconds since the Unix epoch of a run's ``t = 0`` on an exported file's clock:
+    0 for None (the epoch: the same run, the same file), else the date and time given (an
+    ISO 8601 text, ``2026-05-04T09:30:00Z``, or a ``datetime``; without a time zone, UTC).
+
+    Parameters
+    ----------
+    start_time : datetime, str or None
+        When the run's first frame is shown to have happened.
+
+    Raises
+    ------
+    InputError
+        For a text that is no ISO 8601 date and time.
+    """
+    if start_time is None:
+        return 0
+    if isinstance(start_time, str):
+        try:
+            start_time = datetime.datetime.fromisoformat(start_time.replace("Z", "+00:00"))
+        except ValueError:
+            raise InputError(
+                f"start time {start_time!r} is not an ISO 8601 date and time, e.g. "
+                "2026-05-04T09:30:00Z"
+            ) from None
+    if start_time.tzinfo is None:
+        start_time = start_time.replace(tzinfo=datetime.timezone.utc)
+    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+    return (start_time - epoch) // datetime.timedelta(microseconds=1) * 1000
+
+
+def write_mcap(
+    run: str | Path | RunRecord,
+    out: str | Path,
+    *,
+    start_time: datetime.datetime | str | None = None,
+) -> Path:
     """Write a run directory (or a record read by :func:`read_run`) as an MCAP file.
 
     Parameters
@@ -275,6 +315,9 @@ def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
         The ``.mcap`` file to write (its folder is created), through
         :func:`~conformal_control.export.destination.safe_output`: never a file of the run
         directory but an earlier ``.mcap``, never a link or a device.
+    start_time : datetime or str, optional
+        The date and time the run's ``t = 0`` is shown at (:func:`start_time_ns`); None:
+        the Unix epoch, so the file does not depend on when it was written.
 
     Returns
     -------
@@ -290,7 +333,7 @@ def write_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
     with safe_output(out, inputs=(rec.path,), suffix=".mcap") as fh:
         writer = Writer(fh, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"conformal-control {__version__}")
-        o = _Out(writer)
+        o = _Out(writer, start_time_ns(start_time))
         o.channel("/tf", fg.FRAME_TRANSFORM, {})
         _map_topic(o, rec)
         _robot_topics(o, rec)

@@ -39,6 +39,7 @@ import numpy as np
 
 from .destination import safe_output_path
 from .reader import RunRecord, read_run
+from .to_mcap import start_time_ns
 
 __all__ = ["write_rerun"]
 
@@ -57,32 +58,37 @@ def _import_rerun() -> Any:
     return rr
 
 
-def _time(rr: Any, t: np.ndarray) -> Any:
+def _time(rr: Any, t: np.ndarray, origin: int | None) -> Any:
     """The ``time`` column: seconds since the start, rounded to whole nanoseconds (as in the
-    MCAP export; Rerun would truncate a float)."""
+    MCAP export; Rerun would truncate a float); a timestamp from ``origin`` (ns since the
+    epoch, :func:`write_rerun`'s ``start_time``) when one is given."""
     ns = np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+    if origin is not None:
+        return rr.TimeColumn("time", timestamp=(origin + ns).astype("datetime64[ns]"))
     return rr.TimeColumn("time", duration=ns.astype("timedelta64[ns]"))
 
 
-def _scalars(rr: Any, rec: Any, path: str, t: np.ndarray, values: np.ndarray) -> None:
+def _scalars(
+    rr: Any, rec: Any, path: str, t: np.ndarray, values: np.ndarray, origin: int | None
+) -> None:
     keep = np.isfinite(values)
     if keep.any():
         rec.send_columns(
             path,
-            indexes=[_time(rr, t[keep])],
+            indexes=[_time(rr, t[keep], origin)],
             columns=rr.Scalars.columns(scalars=values[keep]),
         )
 
 
-def _plots(rr: Any, rec: Any, run: RunRecord) -> None:
+def _plots(rr: Any, rec: Any, run: RunRecord, origin: int | None) -> None:
     for r in run.robots:
         iv, tr = r.intervals, r.trajectory
         base = f"plots/{r.name}"
-        _scalars(rr, rec, f"{base}/lambda", iv["t"], iv["lambda"])
-        _scalars(rr, rec, f"{base}/loss", iv["t"], iv["loss"])
-        _scalars(rr, rec, f"{base}/epsilon", iv["t"], np.full(iv["t"].size, run.epsilon))
-        _scalars(rr, rec, f"{base}/d_min", tr["t"], tr["d_min"])
-        _scalars(rr, rec, f"{base}/speed", tr["t"], np.hypot(tr["vx"], tr["vy"]))
+        _scalars(rr, rec, f"{base}/lambda", iv["t"], iv["lambda"], origin)
+        _scalars(rr, rec, f"{base}/loss", iv["t"], iv["loss"], origin)
+        _scalars(rr, rec, f"{base}/epsilon", iv["t"], np.full(iv["t"].size, run.epsilon), origin)
+        _scalars(rr, rec, f"{base}/d_min", tr["t"], tr["d_min"], origin)
+        _scalars(rr, rec, f"{base}/speed", tr["t"], np.hypot(tr["vx"], tr["vy"]), origin)
 
 
 def _map(rr: Any, rec: Any, run: RunRecord) -> None:
@@ -102,11 +108,11 @@ def _map(rr: Any, rec: Any, run: RunRecord) -> None:
             )
 
 
-def _world(rr: Any, rec: Any, run: RunRecord) -> None:
+def _world(rr: Any, rec: Any, run: RunRecord, origin: int | None) -> None:
     assert run.frame_t is not None and run.robots_xy is not None and run.peds is not None
     t = run.frame_t
     n = t.size
-    time = [_time(rr, t)]
+    time = [_time(rr, t, origin)]
     for m, r in enumerate(run.robots):
         if run.kind == "single":
             codes = r.status if r.status is not None else np.zeros(n, dtype=np.int8)
@@ -164,14 +170,14 @@ def _world(rr: Any, rec: Any, run: RunRecord) -> None:
             times.append(tk)
         rec.send_columns(
             "world/predictions",
-            indexes=[_time(rr, np.array(times))],
+            indexes=[_time(rr, np.array(times), origin)],
             columns=rr.LineStrips2D.columns(strips=strips, colors=[SENSED] * len(strips)).partition(
                 counts
             ),
         )
 
 
-def write_rerun(run: str | Path | RunRecord, out: str | Path) -> Path:
+def write_rerun(run: str | Path | RunRecord, out: str | Path, *, start_time: Any = None) -> Path:
     """Write a run directory (or a record read by :func:`read_run`) as a ``.rrd`` file.
 
     Parameters
@@ -181,6 +187,10 @@ def write_rerun(run: str | Path | RunRecord, out: str | Path) -> Path:
         The ``.rrd`` file to write (its folder is created), through
         :func:`~conformal_control.export.destination.safe_output_path`: never a file of
         the run directory but an earlier ``.rrd``, never a link or a device.
+    start_time : datetime or str, optional
+        The date and time the run's ``t = 0`` is shown at (the ``time`` timeline is then a
+        timestamp; :func:`~conformal_control.export.to_mcap.start_time_ns`); None: the
+        time since the start (a duration).
 
     Returns
     -------
@@ -197,9 +207,10 @@ def write_rerun(run: str | Path | RunRecord, out: str | Path) -> Path:
         rec = rr.RecordingStream("conformal-control", recording_id=rid)
         rec.save(staged)
         _map(rr, rec, record)
-        _plots(rr, rec, record)
+        origin = None if start_time is None else start_time_ns(start_time)
+        _plots(rr, rec, record, origin)
         if record.has_scene:
-            _world(rr, rec, record)
+            _world(rr, rec, record, origin)
         rec.flush()
         rec.disconnect()
     return out

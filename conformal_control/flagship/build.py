@@ -37,8 +37,10 @@ from ..base import (
 )
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
+from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
+from ..exceptions import ConformalControlDeprecationWarning
 from ..predictors.base import Predictor
 from ..spec import RunContext, RunSpec
 from ..update_rules import FixedEtaRule
@@ -88,7 +90,7 @@ class Flagship:
         """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
             "Flagship.policy is now Flagship.family (removed in 0.4, not before 2027-06-30)",
-            DeprecationWarning,
+            ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family
@@ -373,6 +375,22 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     names["loss"] = role_name(loss, default_loss)
 
     rule_resolved = resolved
+    if not planning and "lambda_min" not in resolved.given and si["edge"] == "escape":
+        # the CBF's default lambda floor (issue 30): a share of the feasibility floor
+        floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        if si["lambda_min"] < floor <= si["lambda_max"]:
+            in_scene = floor / scene.units.factor("lambda_min")
+            resolved = dataclasses.replace(
+                resolved,
+                si={**si, "lambda_min": floor},
+                scene_units={**resolved.scene_units, "lambda_min": in_scene},
+                notes=[
+                    *resolved.notes,
+                    f"lambda_min: {in_scene:g}, the default floor "
+                    f"({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)",
+                ],
+            )
+            rule_resolved = resolved
     if planning:
         # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
         # defaults apply unless the run gave them

@@ -67,7 +67,7 @@ import numpy as np
 from ..base import DecisionFamily, first_test_instance
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
-from ..cbf.reciprocal import Reciprocity
+from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
 from ..predictors.base import Forecast, PredictionQuery, Predictor
 from ..spec import parameter_info
@@ -133,7 +133,9 @@ class Plan:
     cost : float
     status : str
         ``"optimal"`` (the cheapest safe sample), ``"unconstrained"`` (nobody sensed:
-        the cheapest sample) or the fallback's name.
+        the cheapest sample), ``"peer_yield"`` (no sample meets every robot peer's line
+        too: the one keeping the pedestrians' safe distances that intrudes least over the
+        lines, :mod:`~conformal_control.mpc.peers`) or the fallback's name.
     n_safe : int
         Number of safe samples.
     """
@@ -330,6 +332,9 @@ class SamplingMPC(
         self.n_infeasible_ = 0
         self.n_edge_ = 0
         self.n_fallback_: dict[str, int] = dict.fromkeys(FALLBACKS, 0)
+        self.n_peer_yield_ = 0
+        self._yield_until = -math.inf
+        self._t_now = 0.0
         self.n_nonfinite_predictions_ = 0
         self.forecast_info_: dict[str, Any] = {}
         self._warm: np.ndarray | None = None  # last plan's commands
@@ -346,6 +351,7 @@ class SamplingMPC(
             "n_edge": self.n_edge_,
             "n_fallback": sum(self.n_fallback_.values()),
             **{f"n_fallback_{k}": v for k, v in self.n_fallback_.items()},
+            "n_peer_yield": self.n_peer_yield_,
             "n_nonfinite_predictions": self.n_nonfinite_predictions_,
         }
 
@@ -583,7 +589,15 @@ class SamplingMPC(
         Plan
         """
         state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
-        clear, viol = peer_terms(self, state, lam, pos, clear, viol)
+        lines = peer_terms(self, state, lam, pos)  # robot peers' lines (mpc/peers.py)
+        line_viol = np.zeros_like(viol)
+        if lines is not None:
+            line_clear, line_viol = lines
+            kept = clear >= 0.0  # the pedestrians' safe distances hold
+            clear = np.minimum(clear, line_clear)
+            if self.reciprocity.priority != "pedestrians":  # type: ignore[union-attr]
+                # one problem: no order between the lines and the pedestrians
+                viol, line_viol, lines = viol + line_viol, np.zeros_like(viol), None
         safe = clear >= 0.0
         closing = self.edge_closing(todo)
         allowed: np.ndarray | None = None
@@ -593,23 +607,33 @@ class SamplingMPC(
             if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
                 allowed = closing <= closing.min() + 1e-9
             safe &= allowed
+            if lines is not None:
+                kept &= allowed
         n_safe = int(safe.sum())
         self.n_plans_ += 1
         if n_safe:
             i = int(np.argmin(np.where(safe, cost, np.inf)))
             status = "optimal" if self._ids.size else "unconstrained"
+        elif lines is not None and kept.any():  # the lines give way before the pedestrians
+            self.n_peer_yield_ += 1
+            self._yield_until = state.t + YIELD_HOLD_S
+            i = int(np.lexsort((cost, np.where(kept, line_viol, np.inf)))[0])
+            status = "peer_yield"
         else:
             self.n_infeasible_ += 1
             self.n_fallback_[self.fallback] += 1
+            if lines is not None:  # squeezed: the lines are given way too
+                self._yield_until = state.t + YIELD_HOLD_S
             status = self.fallback
             stop = 1 if self._warm is not None else 0  # the stop seed
-            if self.fallback == "least_violation":  # least total intrusion, then cheapest
-                order = np.lexsort((cost, viol))
+            # least intrusion into the pedestrians' safe distances, then over the peers'
+            # lines (priority "pedestrians"), then cheapest
+            order = np.lexsort((cost, line_viol, viol))
+            if self.fallback == "least_violation":
                 i = int(order[0] if allowed is None else order[allowed[order]][0])
             elif allowed is None or allowed[stop]:  # brake: the stop seed
                 i = stop
             else:  # brake would close in: the allowed plan intruding least
-                order = np.lexsort((cost, viol))
                 i = int(order[allowed[order]][0])
         return Plan(
             commands=cmds[i].copy(),
@@ -654,6 +678,7 @@ class SamplingMPC(
 
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
+        self._t_now = float(state.t)
         lam = self._per_agent(lam)  # an array when lambda is run per agent (lambda_keys)
         replan = self.will_plan()
         if replan:
@@ -672,7 +697,7 @@ class SamplingMPC(
         self._since += 1
         cmd: np.ndarray = plan.commands[j].copy()
         self._last_cmd = cmd
-        ok = plan.status in ("optimal", "unconstrained")
+        ok = plan.status in ("optimal", "unconstrained", "peer_yield")
         rec = self._rec
         rec["x"].append(np.array(state.x[:2], dtype=float))
         vel = cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
@@ -684,6 +709,16 @@ class SamplingMPC(
         rec["safe"].append(plan.n_safe if replan else -1)
         self.n_steps_ += 1
         return cmd
+
+    def yielding(self) -> bool:
+        """Whether this robot says it yields to its peers (its reciprocity's
+        ``coordination="yield"``, and a plan within the last
+        :data:`~conformal_control.cbf.reciprocal.YIELD_HOLD_S` seconds gave way on the
+        peers' lines or fell back)."""
+        rec = self.reciprocity
+        return bool(
+            rec is not None and rec.coordination == "yield" and self._t_now < self._yield_until
+        )
 
     def planned_path(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The current plan as ``(times (H,) s since the start, positions (H, 2) m)``: what

@@ -71,7 +71,6 @@ from .fieldcp import (
     FieldGrid,
     FunctionalEnvelope,
     check_calibration,
-    distance_field,
     fit_envelope,
     step_distances,
 )
@@ -365,16 +364,20 @@ class FCPMPC(
     def _matured(self) -> list[tuple[int, tuple[np.ndarray, np.ndarray]]]:
         """``(h, (predicted, observed))`` of every plan step whose prediction is for now."""
         past, now = self._past, self._past[-1]
+        order = np.argsort(now["ids"], kind="stable")
+        sorted_ids = now["ids"][order]
         out = []
         for h in range(1, int(self.sampling.horizon) + 1):
             back = h * self._m
             if back >= len(past):
                 break
             made = past[-1 - back]
-            _, i_now, i_made = np.intersect1d(
-                now["ids"], made["ids"], assume_unique=True, return_indices=True
-            )
-            if i_now.size:
+            if not (sorted_ids.size and made["ids"].size):
+                continue
+            k = np.minimum(np.searchsorted(sorted_ids, made["ids"]), sorted_ids.size - 1)
+            i_made = np.flatnonzero(sorted_ids[k] == made["ids"])
+            if i_made.size:
+                i_now = order[k[i_made]]
                 out.append((h, (made["pred"][i_made, h - 1], now["cur"][i_now])))
         return out
 
@@ -385,16 +388,14 @@ class FCPMPC(
         env = self.envelope_
         if env is None or not matured:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
-        at = self._anchor_xy
-        steps, needed = [], []
-        for h, (pred, obs) in matured:
-            if h > env.horizon or env.steps[h - 1] is None:
-                continue
-            residual = distance_field(pred, at) - distance_field(obs, at)
-            steps.append(h)
-            needed.append(1.0 - env.scale_needed(h, self._anchors, residual))
-        self.n_fields_scored_ += len(steps)
-        return np.array(steps, dtype=np.int64), np.array(needed, dtype=float)
+        fields = [
+            (h, pred, obs)
+            for h, (pred, obs) in matured
+            if h <= env.horizon and env.steps[h - 1] is not None
+        ]
+        needed = 1.0 - env.scales_needed(fields, self._anchors, self._anchor_xy)
+        self.n_fields_scored_ += len(fields)
+        return np.array([f[0] for f in fields], dtype=np.int64), needed
 
     def _maybe_fit(self) -> None:
         cal = self.calibration

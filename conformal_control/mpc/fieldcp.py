@@ -369,6 +369,44 @@ def _scale_needed(
 
 
 @jit
+def _scales_needed(
+    steps: np.ndarray,
+    bounds: np.ndarray,
+    pred: np.ndarray,
+    obs: np.ndarray,
+    idx: np.ndarray,
+    at: np.ndarray,
+    mean: np.ndarray,
+    lin: np.ndarray,
+    spread: np.ndarray,
+    slack: np.ndarray,
+) -> np.ndarray:
+    """:meth:`FunctionalEnvelope.scales_needed` in one pass: field ``i`` is step
+    ``steps[i]``'s pairs ``pred[bounds[i]:bounds[i + 1]]`` / ``obs[...]``."""
+    out = np.empty(steps.shape[0])
+    res = np.empty(idx.shape[0])
+    for i in range(steps.shape[0]):
+        h = steps[i] - 1
+        for a in range(idx.shape[0]):
+            dp = np.inf
+            do = np.inf
+            for j in range(bounds[i], bounds[i + 1]):
+                ex = at[a, 0] - pred[j, 0]
+                ey = at[a, 1] - pred[j, 1]
+                e = ex * ex + ey * ey
+                if e < dp:
+                    dp = e
+                ex = at[a, 0] - obs[j, 0]
+                ey = at[a, 1] - obs[j, 1]
+                e = ex * ex + ey * ey
+                if e < do:
+                    do = e
+            res[a] = math.sqrt(dp) - math.sqrt(do)
+        out[i] = _scale_needed(idx, res, mean[h], lin[h], spread[h], slack[h])
+    return out
+
+
+@jit
 def _envelope_at(
     pos: np.ndarray,
     geometry: np.ndarray,
@@ -470,6 +508,50 @@ class FunctionalEnvelope:
         idx = np.ascontiguousarray(flat, dtype=np.int64)
         res = np.ascontiguousarray(residual, dtype=np.float64)
         return float(_scale_needed(idx, res, mean[h], lin[h], spread[h], float(slack[h])))
+
+    def scales_needed(
+        self,
+        fields: Sequence[tuple[int, np.ndarray, np.ndarray]],
+        flat: np.ndarray,
+        at: np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`scale_needed` of several realised fields at once (one compiled call): each
+        field given by its plan step (1..H, with an envelope) and its ``(predicted,
+        observed)`` positions, evaluated at the grid points ``flat`` (positions ``at``).
+
+        Parameters
+        ----------
+        fields : sequence of (int, ndarray (M, 2), ndarray (M, 2))
+            Plan step, predicted and observed positions of the same pedestrians (m).
+        flat : int ndarray of shape (A,)
+            Grid points.
+        at : ndarray of shape (A, 2)
+            Their positions (m).
+        """
+        if not fields:
+            return np.zeros(0)
+        _, mean, lin, spread, slack, has = self._stacked()
+        steps = np.array([h for h, _, _ in fields], dtype=np.int64)
+        if ((steps < 1) | (steps > has.size)).any() or not has[steps - 1].all():
+            raise ValueError("every field's plan step needs an envelope")
+        sizes = [np.asarray(p).reshape(-1, 2).shape[0] for _, p, _ in fields]
+        bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        c = np.ascontiguousarray
+        pred = c(np.concatenate([np.asarray(p, float).reshape(-1, 2) for _, p, _ in fields]))
+        obs = c(np.concatenate([np.asarray(o, float).reshape(-1, 2) for _, _, o in fields]))
+        out: np.ndarray = _scales_needed(
+            steps,
+            bounds,
+            pred,
+            obs,
+            c(flat, dtype=np.int64),
+            c(at, dtype=np.float64),
+            mean,
+            lin,
+            spread,
+            slack,
+        )
+        return out
 
     @property
     def horizon(self) -> int:

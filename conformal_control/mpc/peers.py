@@ -19,11 +19,33 @@ robots know of each other (the ``information`` of the world's
 * ``"velocity"``: the positions now moved on at the velocities now;
 * ``"plan"``: the paths the robots broadcast at the previous control instant
   (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`), interpolated at the
-  plan times (the last point held); the velocity rule for a robot without one.
+  plan times (the last point held); the velocity rule for a robot without one. A robot
+  reads its **own** broadcast path too (:attr:`PeerView.own_plan
+  <conformal_control.cbf.reciprocal.PeerView.own_plan>`), not an extrapolation of its
+  position: its peer reads that same path of it.
 
-Both robots of a pair compute the same two reference positions (symmetric information),
-hence the same line. ``buffer`` is half the robots' collision distance, plus half the
-family's margin, minus half of lambda where the conformal scope puts lambda on the robots.
+Both robots of a pair compute the same two reference positions from the same shared
+information, hence the same line (a test checks it for every information option).
+``buffer`` is half the robots' collision distance, plus half the family's margin, minus
+half of lambda where the conformal scope puts lambda on the robots.
+
+**Near horizon.** The lines bind only the plan steps within the reciprocity's
+``peer_horizon`` seconds of now (:class:`~conformal_control.cbf.reciprocal.Reciprocity`):
+a broadcast plan is redone at every replanning, so its far end says little about where
+the peer will be, and lines drawn there only forbid plans that the next replanning
+would not hold the peer to.
+
+**Priority.** :func:`peer_terms` keeps the lines apart from the pedestrians' safe
+distances so that the family can give way in order (:meth:`SamplingMPC.plan_end
+<conformal_control.mpc.controller.SamplingMPC.plan_end>`; the reciprocity's
+``priority="pedestrians"``): a plan meeting both; else, the lines give way first --
+among the plans that keep the pedestrians' safe distances, the one intruding least over
+the lines (then the cheapest), with ``status="peer_yield"``; only when no plan keeps the
+pedestrians' safe distances does the family's fallback decide, and ``least_violation``
+then ranks the plans by their intrusion into the pedestrians' safe distances first, over
+the lines second. With ``priority="robots"`` the lines and the safe
+distances are one problem (a plan meeting both, else the fallback on their summed
+intrusion).
 """
 
 from __future__ import annotations
@@ -39,6 +61,7 @@ from ..predictors.base import PredictionQuery
 
 __all__ = [
     "RobotSplit",
+    "near_steps",
     "peer_clearance",
     "peer_lines",
     "peer_terms",
@@ -81,8 +104,10 @@ def reference_paths(
     ref = np.asarray(view.reference, dtype=float)
     own = x[None, :] + dt[:, None] * own_v[None, :]
     peers = pos[:, None, :] + dt[None, :, None] * ref[:, None, :]
-    if view.information == "plan" and view.plans is not None:
-        for k, path in enumerate(view.plans):
+    if view.information == "plan":
+        if view.own_plan is not None:  # what the peers read of this robot
+            own = _along(view.own_plan, times, x)
+        for k, path in enumerate(view.plans or ()):
             if path is not None:
                 peers[k] = _along(path, times, pos[k])
     return own, peers
@@ -206,18 +231,32 @@ def with_robot_columns(record: Any, split: RobotSplit | None) -> Any:
     return dataclasses.replace(record, ids=split.ids, x_pred=xp, v_pred=vp, scored=split.scored)
 
 
+def near_steps(dt_plan: float, horizon: int, peer_horizon: float | None) -> int:
+    """How many plan steps (from the first) the peers' lines bind: those at most
+    ``peer_horizon`` seconds ahead (at least one; every step for None).
+
+    Parameters
+    ----------
+    dt_plan : float
+        The plan step (s).
+    horizon : int
+        Plan steps.
+    peer_horizon : float, optional
+        The near horizon (s).
+    """
+    if peer_horizon is None or not np.isfinite(peer_horizon):
+        return int(horizon)
+    return int(min(max(np.floor(float(peer_horizon) / float(dt_plan) + 1e-9), 1), horizon))
+
+
 def peer_terms(
-    family: Any,
-    state: Any,
-    lam: float,
-    positions: np.ndarray,
-    clear: np.ndarray,
-    viol: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The candidate plans' clearance and intrusion with the peers' lines added (unchanged
-    without peers): the buffer is half the robots' collision distance (the family's ``d_c``
-    plus the reciprocity's robot margin) plus half the family's margin, minus half of
-    lambda when lambda applies to the robots.
+    family: Any, state: Any, lam: float, positions: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The candidate plans' clearance to the peers' lines and their intrusion over them
+    (None without peers): the buffer is half the robots' collision distance (the family's
+    ``d_c`` plus the reciprocity's robot margin) plus half the family's margin, minus half
+    of lambda when lambda applies to the robots; only the steps within the reciprocity's
+    ``peer_horizon`` count (:func:`near_steps`).
 
     Parameters
     ----------
@@ -229,28 +268,24 @@ def peer_terms(
         The lambda the plan is made with (m).
     positions : ndarray of shape (N, H, 2)
         The candidate plans' positions at plan steps 1..H (m).
-    clear : ndarray of shape (N,)
-        Their clearance against the pedestrians (m).
-    viol : ndarray of shape (N,)
-        Their summed intrusion into the pedestrians' safe distances (m).
 
     Returns
     -------
-    clear, viol : ndarrays of shape (N,)
-        With the peers' lines taken into account.
+    clear, viol : ndarrays of shape (N,), or None
+        Per candidate, its smallest margin to the lines (m; < 0 crosses one) and its
+        summed intrusion over them (m).
     """
     rec = getattr(family, "reciprocity", None)
     view = getattr(state, "peers", None)
     if rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0:
-        return clear, viol
+        return None
     lam_r = float(lam) if rec.lambda_on_robots else 0.0
     d_r = float(family.d_c) + float(rec.robot_margin)
     buffer = max(0.5 * d_r + 0.5 * (float(family.margin) - lam_r), 0.0)
-    h = positions.shape[1]
-    times = float(state.t) + float(family.sampling.dt_plan) * np.arange(1, h + 1)
+    dt_plan = float(family.sampling.dt_plan)
+    h = near_steps(dt_plan, positions.shape[1], rec.peer_horizon)
+    near = positions[:, :h]
+    times = float(state.t) + dt_plan * np.arange(1, h + 1)
     own, peers = reference_paths(view, state.x, times, float(state.t))
     normal, offset = peer_lines(view, own, peers, buffer)
-    c, v = peer_clearance(positions, normal, offset)
-    out_clear: np.ndarray = np.minimum(clear, c)
-    out_viol: np.ndarray = viol + v
-    return out_clear, out_viol
+    return peer_clearance(near, normal, offset)

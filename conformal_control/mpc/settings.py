@@ -32,6 +32,9 @@ __all__ = [
 class Sampling(Settings):
     """How plans are drawn and how often they are made.
 
+    Every plan holds ``n_samples x horizon`` points (at most :data:`MAX_PLAN_POINTS`):
+    the ranges below are checked when the family is reset, before anything is allocated.
+
     Parameters
     ----------
     n_samples : int
@@ -46,9 +49,6 @@ class Sampling(Settings):
     replan_every : int
         Control instants between plans (1 to :data:`MAX_REPLAN_EVERY`); in between, the
         plan's commands are replayed.
-
-    Every plan holds ``n_samples x horizon`` points (at most :data:`MAX_PLAN_POINTS`):
-    the ranges are checked when the family is reset, before anything is allocated.
     """
 
     n_samples: int = 500

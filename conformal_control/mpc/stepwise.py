@@ -35,7 +35,7 @@ from ..cbf.controller import ConformalCBFController
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Dynamics, ReferenceController
 from ..cbf.stepwise import StepwiseCBF, Stream, reject_unknown, stream_from
-from ..exceptions import InputError
+from ..exceptions import ConformalControlDeprecationWarning, InputError
 from ..loop import ConformalStepper
 from ..predictors.base import Predictor
 from ..spec import RunContext
@@ -57,7 +57,7 @@ def _moved(legacy: dict[str, Any], name: str, new: str) -> Any:
     warnings.warn(
         f"StepwiseMPC({name}=...) is deprecated: give {new} "
         "(removed in 0.4, not before 2027-06-30)",
-        DeprecationWarning,
+        ConformalControlDeprecationWarning,
         stacklevel=3,
     )
     return legacy.pop(name)

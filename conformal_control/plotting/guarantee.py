@@ -231,11 +231,20 @@ def plot_agent_guarantee(
     note = f"lambda per agent, guarantee per agent: {monitor.kind}" + (
         f", largest identity residual {res:.1e}" if res is not None else ""
     )
+    clipped = [k for k, m in monitor.entries.items() if m.n_clipped]
+    if clipped:  # a clipped agent's identity no longer holds: its loss stayed above epsilon
+        sel = np.isin(per["key"], clipped)
+        ax.scatter(per["n"][sel], per["l_avg"][sel], s=60, facecolors="none", edgecolors="C3",
+                   label=f"lambda clipped at some update ({int(sel.sum())})")  # fmt: skip
     ax.set_title(title or note, fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="best")
     for i, key in enumerate(per["key"].tolist()):
         ks, lams = monitor.history(int(key))
         ax_l.plot(ks + 1, lams / lambda_unit, lw=0.8, color=f"C{i % 10}", marker=".", ms=2)
+    floor = monitor.rule.lambda_min
+    if np.isfinite(floor):
+        ax_l.axhline(floor / lambda_unit, color="0.4", ls=":", lw=1, label="lambda_min (floor)")
+        ax_l.legend(fontsize=7, loc="best")
     ax_l.set_xlabel("interval k")
     ax_l.set_ylabel(f"{lambda_label} (one line per agent)")
     if path is not None:

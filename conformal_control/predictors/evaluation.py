@@ -7,9 +7,12 @@ and predicts the next ``horizon``. ADE is the mean over windows and steps of the
 Euclidean error, FDE the mean error at the last step, both in metres.
 
 Datasets are named ``ethucy:<scene>`` (leave-one-scene-out: evaluated on
-``<scene>/test``; learned predictors train on ``<scene>/train``) or ``sdd:<scene>`` /
-a paper scene name such as ``nexus_4`` (the scene's tracks at 30 fps, taken every 12th
-frame; learned predictors train on all of ETH/UCY, a different data set).
+``<scene>/test``; learned predictors train on ``<scene>/train``; a recording's name,
+``ethucy:crowds_zara01``, stands for its split, see
+:func:`~conformal_control.data.catalog.dataset_name`) or an SDD scene,
+``sdd:<scene>/video<N>`` or a paper scene name such as ``nexus_4`` (the scene's tracks at
+30 fps, taken every 12th frame; learned predictors train on all of ETH/UCY, a different
+data set).
 """
 
 from __future__ import annotations
@@ -22,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from ..data.ethucy import ETHUCY_FPS, ETHUCY_SCENES, ethucy_files, read_ethucy
-from ..data.paths import ethucy_root, resolve_data_root
 from ..data.tracks import Tracks
 from .base import PredictionQuery, Predictor
 
@@ -129,12 +131,13 @@ def _concat(
 
 
 def _parse_dataset(dataset: str) -> tuple[str, str]:
-    kind, sep, name = dataset.partition(":")
-    if not sep:
-        return "sdd", dataset
-    if kind not in ("ethucy", "sdd"):
-        raise ValueError(f"unknown dataset kind {kind!r} in {dataset!r}; use ethucy:<scene>")
-    return kind, name
+    """("ethucy", split) or ("sdd", scene name), aliases resolved by the data catalog."""
+    from ..data.catalog import dataset_name
+
+    name = dataset_name(dataset)
+    if name.startswith("ethucy:"):
+        return "ethucy", name[len("ethucy:") :]
+    return "sdd", name
 
 
 def _ethucy_windows(
@@ -202,7 +205,7 @@ def dataset_windows(
     """
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
-        return _ethucy_windows([(name, "test")], data_root, obs, horizon, dataset)
+        return _ethucy_windows([(name, "test")], data_root, obs, horizon, f"ethucy:{name}")
     return _sdd_windows(name, data_root, obs, horizon)
 
 
@@ -233,10 +236,7 @@ def training_windows(
     """
     kind, name = _parse_dataset(dataset)
     if kind == "ethucy":
-        return _ethucy_windows([(name, "train")], data_root, obs, horizon, f"{dataset}/train")
-    root = resolve_data_root(data_root)
-    if not ethucy_root(root).is_dir() and root.name == "sdd":
-        data_root = root.parent  # given the SDD folder: ETH/UCY sits beside it
+        return _ethucy_windows([(name, "train")], data_root, obs, horizon, f"ethucy:{name}/train")
     return _ethucy_windows(
         [(s, "test") for s in ETHUCY_SCENES], data_root, obs, horizon, "ethucy:all"
     )

@@ -287,9 +287,13 @@ class RecordedPredictor(Predictor, batchable=True):
                 spec = spec["file"]
         p = Path(str(spec)).expanduser()
         if not p.is_absolute() and not p.exists():
-            from ..data.paths import resolve_data_root
+            from ..data.paths import PART_MARKERS, data_part, resolve_data_root
 
-            p = resolve_data_root(self.data_root) / p
+            part, *rest = p.parts
+            if part in PART_MARKERS and rest:  # external/...: wherever that part is
+                p = data_part(part, self.data_root).joinpath(*rest)
+            else:
+                p = resolve_data_root(self.data_root) / p
         return p, step_s, per_step
 
     def predictions(self, scene: str) -> RecordedPredictions:

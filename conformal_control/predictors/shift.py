@@ -40,20 +40,28 @@ from __future__ import annotations
 import math
 import zlib
 from collections.abc import Callable, Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
+from ..base import CompiledForm
 from .base import Forecast, PredictionQuery, Predictor
 
 __all__ = [
+    "DelayedForm",
     "DelayedPredictor",
+    "DropoutForm",
     "DropoutPredictor",
+    "NoisyForm",
     "NoisyPredictor",
+    "ScaledForm",
     "ScaledPredictor",
+    "ShiftForm",
     "ShiftedPredictor",
     "hash_normal",
     "hash_uniform",
+    "noise_offsets",
 ]
 
 # ------------------------------------------------------------------ counter-based draws
@@ -202,6 +210,140 @@ def _restart_rows(
     return out, n_stale, n_unseen
 
 
+# ------------------------------------------------------------------ compiled forms
+@dataclass(frozen=True)
+class ShiftForm(CompiledForm):
+    """A predictor shift as the compiled engine runs it (:meth:`ShiftedPredictor.compiled_state`):
+    the kernel of the shift, its constants (validated) and the wrapped predictor, built
+    (the engine runs the shift compiled when it compiles that predictor too, and calls
+    the wrapper itself otherwise).
+
+    Attributes
+    ----------
+    base : Predictor
+        The wrapped predictor.
+    """
+
+    kernel: ClassVar[str] = ""
+    base: Predictor
+
+    @property
+    def neutral(self) -> bool:
+        """Whether the shift returns the wrapped predictor's forecast itself."""
+        return False
+
+
+@dataclass(frozen=True)
+class DelayedForm(ShiftForm):
+    """:class:`DelayedPredictor` as the compiled engine runs it.
+
+    Attributes
+    ----------
+    delay_s : float
+        The delay in seconds (>= 0).
+    """
+
+    kernel: ClassVar[str] = "delayed"
+    delay_s: float = 0.0
+
+    @property
+    def neutral(self) -> bool:
+        return self.delay_s == 0.0
+
+    def samples(self, dt: float) -> int:
+        """The delay in whole samples of spacing ``dt``, as the predictor rounds it.
+
+        Parameters
+        ----------
+        dt : float
+            The spacing of the samples (s).
+        """
+        return round(self.delay_s / float(dt))
+
+
+@dataclass(frozen=True)
+class NoisyForm(ShiftForm):
+    """:class:`NoisyPredictor` as the compiled engine runs it.
+
+    Attributes
+    ----------
+    sigma_m : float
+        Standard deviation of the position error per axis (m, >= 0).
+    seed : int
+        Seed of the draws.
+    """
+
+    kernel: ClassVar[str] = "noisy"
+    sigma_m: float = 0.0
+    seed: int = 0
+
+    @property
+    def neutral(self) -> bool:
+        return self.sigma_m == 0.0
+
+
+@dataclass(frozen=True)
+class ScaledForm(ShiftForm):
+    """:class:`ScaledPredictor` as the compiled engine runs it.
+
+    Attributes
+    ----------
+    scale : float
+        Factor on the predicted displacement (>= 0).
+    """
+
+    kernel: ClassVar[str] = "scaled"
+    scale: float = 1.0
+
+    @property
+    def neutral(self) -> bool:
+        return self.scale == 1.0
+
+
+@dataclass(frozen=True)
+class DropoutForm(ShiftForm):
+    """:class:`DropoutPredictor` as the compiled engine runs it.
+
+    Attributes
+    ----------
+    p : float
+        Probability that an agent's detections are missing during a block.
+    duration_s : float
+        Length of a block (s, > 0).
+    seed : int
+        Seed of the draws.
+    """
+
+    kernel: ClassVar[str] = "dropout"
+    p: float = 0.0
+    duration_s: float = 1.0
+    seed: int = 0
+
+    @property
+    def neutral(self) -> bool:
+        return self.p == 0.0
+
+
+def noise_offsets(
+    sigma: np.ndarray, seeds: np.ndarray, scenes: np.ndarray, frames: np.ndarray, ids: np.ndarray
+) -> np.ndarray:
+    """The position errors :class:`NoisyPredictor` adds, for many agents at once: row i
+    is agent ``ids[i]``'s at frame ``frames[i]`` of the scene keyed ``scenes[i]``, with
+    seed ``seeds[i]`` and standard deviation ``sigma[i]`` -- the same numbers as the
+    predictor's own call on that agent (the hash folds the same keys in the same order).
+
+    Parameters
+    ----------
+    sigma : ndarray of shape (N,)
+        Standard deviations (m).
+    seeds, scenes, frames, ids : ndarray of shape (N,)
+        The keys of the draws (integers).
+    """
+    key = (seeds[:, None], scenes[:, None], frames[:, None], ids[:, None], np.arange(2))
+    out: np.ndarray = sigma[:, None] * hash_normal(*key)
+    return out
+
+
 # batchable: the wrappers cost microseconds (a slow wrapped predictor stays slow)
 class ShiftedPredictor(Predictor, batchable=True):
     """Base of the predictor shifts: a wrapped predictor, built by :meth:`reset`.
@@ -245,7 +387,8 @@ class ShiftedPredictor(Predictor, batchable=True):
         return fc
 
 
-class DelayedPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its DelayedForm) compiled (not inherited)
+class DelayedPredictor(ShiftedPredictor, compiled="delayed"):
     """A predictor fed data ``delay_s`` old, its forecast used as current (not compensated).
 
     At a sampling time t the wrapped predictor sees the histories up to t - delay_s (the
@@ -280,6 +423,10 @@ class DelayedPredictor(ShiftedPredictor):
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{"delay_s": 0.8}, {"delay_s": 0.0}, {"predictor": "var", "delay_s": 0.4}]
+
+    def compiled_state(self) -> DelayedForm:
+        """This shift as the compiled engine runs it (after :meth:`reset`)."""
+        return DelayedForm(self._base(), _number(self.delay_s, "delay_s"))
 
     def _check(self) -> None:
         _number(self.delay_s, "delay_s")
@@ -341,7 +488,8 @@ class DelayedPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, out)
 
 
-class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
+# compiled: the engine runs this class (its NoisyForm) compiled (not inherited)
+class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}, compiled="noisy"):
     """A predictor whose forecasts carry a Gaussian position error of ``sigma_m`` per axis.
 
     One draw per agent and sampling time displaces the agent's whole forecast (every
@@ -379,6 +527,11 @@ class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{"sigma_m": 0.25, "random_state": 0}, {"sigma_m": 0.0}]
 
+    def compiled_state(self) -> NoisyForm:
+        """This shift as the compiled engine runs it (after :meth:`reset`)."""
+        sigma = _number(self.sigma_m, "sigma_m")
+        return NoisyForm(self._base(), sigma, int(self.random_state or 0))
+
     def _check(self) -> None:
         _number(self.sigma_m, "sigma_m")
 
@@ -396,7 +549,8 @@ class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
         return Forecast(pos, fc.covariance, dict(fc.info))
 
 
-class ScaledPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its ScaledForm) compiled (not inherited)
+class ScaledPredictor(ShiftedPredictor, compiled="scaled"):
     """A predictor whose predicted displacements are scaled by ``scale`` (0 = frozen).
 
     The forecast is ``current + scale * (forecast - current)``: ``scale = 0`` predicts
@@ -428,6 +582,10 @@ class ScaledPredictor(ShiftedPredictor):
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"scale": 2.0}]
 
+    def compiled_state(self) -> ScaledForm:
+        """This shift as the compiled engine runs it (after :meth:`reset`)."""
+        return ScaledForm(self._base(), _number(self.scale, "scale"))
+
     def _check(self) -> None:
         _number(self.scale, "scale")
 
@@ -447,7 +605,8 @@ class ScaledPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, Forecast(pos, fc.covariance, dict(fc.info)))
 
 
-class DropoutPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
+# compiled: the engine runs this class (its DropoutForm) compiled (not inherited)
+class DropoutPredictor(ShiftedPredictor, run_values={"random_state": "seed"}, compiled="dropout"):
     """A predictor whose agents' detections go missing (probability p, duration_s at a time).
 
     Time (the scene's frame number x the sample spacing) is cut into blocks of
@@ -491,6 +650,12 @@ class DropoutPredictor(ShiftedPredictor, run_values={"random_state": "seed"}):
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{"p": 0.5, "duration_s": 0.8, "random_state": 1}, {"p": 0.0}]
+
+    def compiled_state(self) -> DropoutForm:
+        """This shift as the compiled engine runs it (after :meth:`reset`)."""
+        self._check()
+        p, duration = float(self.p), float(self.duration_s)
+        return DropoutForm(self._base(), p, duration, int(self.random_state or 0))
 
     def _check(self) -> None:
         _number(self.p, "p", high=1.0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import warnings
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -77,21 +78,53 @@ def lambda_safe_values(
 # ---------------------------------------------------------------------- warnings
 # What makes a run probably not the one that was meant is reported with warnings.warn
 # (conformal_control.exceptions); the CLI prints each as one line.
+def _clip_advice(fl: Flagship, floor: Any) -> tuple[str, bool | None]:
+    """What to do about lambda sinking below the floor, given the run's ``lambda_min``:
+    (advice, whether lambda_min keeps lambda above the floor; None when not given)."""
+    unit = f"1/{fl.scene.units.time_name}"
+    lam_unit = fl.scene.units.factor("lambda_init")
+    lam_floor = floor.lambda_floor / lam_unit
+    lam_min = float(fl.params.si.get("lambda_min", -math.inf))
+    if not math.isfinite(lam_min):
+        return "raise epsilon or a, or clip lambda with lambda_min above the floor", None
+    given = lam_min / lam_unit
+    if lam_min > floor.lambda_floor:
+        return (
+            f"lambda_min={given:g} {unit} keeps lambda above that floor, so l_avg cannot "
+            "come down to epsilon",
+            True,
+        )
+    return (
+        f"lambda_min={given:g} {unit} is at or below the floor ({lam_floor:g} {unit}), so it "
+        f"does not keep lambda above it: set lambda_min above {lam_floor:g} {unit}, or raise "
+        "epsilon or a",
+        False,
+    )
+
+
 def warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
     """epsilon at or below the feasibility floor (known before the first step)."""
     if floor.attainable or not learn:
         return
     unit = f"1/{fl.scene.units.time_name}"
     lam_unit = fl.scene.units.factor("lambda_init")
+    advice, _ = _clip_advice(fl, floor)
     warnings.warn(
         FeasibilityWarning(
             f"epsilon={floor.epsilon:g} is not attainable: it is at or below the feasibility "
             f"floor s(-a*h_max)={floor.epsilon_floor:.4f} (lambda_floor="
             f"{floor.lambda_floor / lam_unit:g} {unit}), below which a far agent's constraint "
-            "fails and the fallback decides; raise epsilon or a, or clip lambda with lambda_min"
+            f"fails and the fallback decides; {advice}"
         ),
         stacklevel=4,  # the caller of run_episode (through run_loop)
     )
+
+
+@dataclass(frozen=True)
+class _Floor:
+    """The feasibility floor's lambda (SI), as :func:`_clip_advice` reads it."""
+
+    lambda_floor: float
 
 
 #: share of control instants decided by the fallback from which a missed goal is blamed on it
@@ -171,11 +204,16 @@ def warn_after_run(
         )
         return
     share = float(metrics["fallback_share"] or 0.0)
+    clipped: bool | None = None
     if learn and metrics["epsilon_attainable"] is False:
+        lam_unit = scene.units.factor("lambda_init")
+        floor = _Floor(float(metrics["lambda_floor"]) * lam_unit)
+        clip, clipped = _clip_advice(fl, floor)
+    if learn and metrics["epsilon_attainable"] is False and not clipped:
         advice = (
             f"epsilon={si['epsilon']:g} is below the feasibility floor, so lambda sank below "
             f"it and the fallback decided at {share:.0%} of the control instants (see the "
-            "warning before the run): raise epsilon or a, or clip lambda with lambda_min"
+            f"warning before the run): {clip}"
         )
     elif share >= FALLBACK_SHARE_WARN:
         advice = (

@@ -13,6 +13,12 @@ until it reaches its last goal or the run ends):
 * robot-robot collision frame: centre distance to another robot < 2 robot radii;
 * fleet robot-robot *pair-frames*: pairs (i < j) in contact in a frame while at least one
   of the two is under way, each pair counted once (not once per robot);
+* a robot-pedestrian collision frame is **robot-nearby** when another robot (under way or
+  parked at its goal) is within :data:`ROBOT_NEAR_M` of the hit robot in that frame (the
+  fleet's spacing: a contact the other robots may have pushed it into), and **avoidable**
+  as for one robot (:mod:`~conformal_control.results.collisions`: a point robot with the
+  same speed bound could have kept away from that pedestrian since first sensing it;
+  pop-ins never count as avoidable);
 * **makespan**: the time the last robot reached its goal (None when one never did);
 * **deadlock** (:class:`DeadlockRule`): a robot under way whose *remaining path* (distance
   to its current goal plus the legs after it) has not fallen below its smallest value so
@@ -36,6 +42,7 @@ from .metrics import EpisodeMetrics, MetricsTable, plain
 from .metrics import metric as _m
 
 __all__ = [
+    "ROBOT_NEAR_M",
     "DeadlockRule",
     "FleetMetrics",
     "RobotContacts",
@@ -44,6 +51,11 @@ __all__ = [
     "remaining_paths",
     "robot_contacts",
 ]
+
+
+#: Distance (m) within which another robot makes a pedestrian contact "robot-nearby" (the
+#: multi-robot benchmark's spacing between neighbouring robots).
+ROBOT_NEAR_M = 2.5
 
 
 @dataclass(frozen=True)
@@ -76,24 +88,56 @@ class RobotContacts:
     any_robot_collision: bool = _m("-", "at least one robot-robot collision frame", False)
     d_min_robot: float | None = _m("m", "smallest centre distance to another robot")
     t_deadlock: float | None = _m("s", "first time it had made no progress for a while")
+    n_collide_pedestrian_robot_near: int = _m(
+        "-", "pedestrian collision frames with another robot within ROBOT_NEAR_M", 0
+    )
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
 def robot_contacts(
-    d_min_robot: Sequence[float], robot_radius: float, t_deadlock: float | None = None
+    d_min_robot: Sequence[float],
+    robot_radius: float,
+    t_deadlock: float | None = None,
+    *,
+    d_min_pedestrian: Sequence[float] | np.ndarray | None = None,
+    collision_distance: float | None = None,
 ) -> RobotContacts:
     """:class:`RobotContacts` from a robot's per-frame distance to the nearest other robot
-    (and the time it deadlocked, :func:`deadlocks`)."""
+    (and the time it deadlocked, :func:`deadlocks`).
+
+    Parameters
+    ----------
+    d_min_robot : sequence of float
+        Per logged frame, the centre distance to the nearest other robot (m; NaN alone).
+    robot_radius : float
+        The robots' radius (m).
+    t_deadlock : float, optional
+        When it deadlocked (s).
+    d_min_pedestrian : sequence of float, optional
+        Per logged frame (the same frames), the centre distance to the nearest pedestrian
+        (m; NaN: none present): with ``collision_distance``, the robot's pedestrian
+        collision frames, of which those with another robot within :data:`ROBOT_NEAR_M`
+        are counted.
+    collision_distance : float, optional
+        The robot-pedestrian collision distance (m).
+    """
     d = np.asarray(d_min_robot, dtype=float)
+    near = 0
     with np.errstate(invalid="ignore"):
         n = int(np.sum(d < 2.0 * robot_radius))
+        if d_min_pedestrian is not None and collision_distance is not None:
+            p = np.asarray(d_min_pedestrian, dtype=float)
+            if p.shape != d.shape:
+                raise ValueError(f"d_min_pedestrian has {p.size} frames but d_min_robot {d.size}")
+            near = int(np.sum((p < collision_distance) & (d < ROBOT_NEAR_M)))
     return RobotContacts(
         n_collide_robot=n,
         any_robot_collision=n > 0,
         d_min_robot=float(np.nanmin(d)) if np.isfinite(d).any() else None,
         t_deadlock=t_deadlock,
+        n_collide_pedestrian_robot_near=near,
     )
 
 
@@ -176,6 +220,12 @@ class FleetMetrics(MetricsTable):
     n_success: int = _m("-", "robots with their goal and no collision of either kind", 0)
     success_rate: float = _m("-", "n_success / n_robots", 0.0)
     n_collide_pedestrian: int = _m("-", "robot-pedestrian collision frames, summed over robots", 0)
+    n_collide_pedestrian_avoidable: int = _m(
+        "-", "of them, frames of avoidable events (no pop-in), summed over robots", 0
+    )
+    n_collide_pedestrian_robot_near: int = _m(
+        "-", "of them, frames with another robot within ROBOT_NEAR_M of the hit robot", 0
+    )
     n_robots_hit_pedestrian: int = _m("-", "robots with a robot-pedestrian collision frame", 0)
     n_collide_robot_pairs: int = _m("-", "robot-robot collision pair-frames (each pair once)", 0)
     n_robots_hit_robot: int = _m("-", "robots with a robot-robot collision frame", 0)
@@ -204,6 +254,8 @@ class FleetMetrics(MetricsTable):
         "goal_rate",
         "success_rate",
         "n_collide_pedestrian",
+        "n_collide_pedestrian_avoidable",
+        "n_collide_pedestrian_robot_near",
         "n_robots_hit_pedestrian",
         "n_collide_robot_pairs",
         "n_robots_hit_robot",
@@ -286,6 +338,10 @@ def fleet_metrics(
         n_success=int(sum(success)),
         success_rate=sum(success) / n if n else 0.0,
         n_collide_pedestrian=int(sum(m.n_collide for m in robots)),
+        n_collide_pedestrian_avoidable=int(sum(m.n_collide_avoidable for m in robots)),
+        n_collide_pedestrian_robot_near=int(
+            sum(c.n_collide_pedestrian_robot_near for c in contacts)
+        ),
         n_robots_hit_pedestrian=int(sum(m.n_collide > 0 for m in robots)),
         n_collide_robot_pairs=pairs,
         n_robots_hit_robot=int(sum(c.n_collide_robot > 0 for c in contacts)),

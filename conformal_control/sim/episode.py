@@ -112,6 +112,7 @@ def run_episode(
             f"the run has {what}, and run() / run_episode drive one robot: run several with "
             "conformal_control.sim.run_multi(scene, spec) or `conformal-control run --robots`"
         )
+    scene = run.on_scene(scene)
     if run.engine != "loop":
         compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:

@@ -190,8 +190,8 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
 
     The file holds ``{"units": "m", "robots": [{"start": [x, y], "goals": [[x, y], ...]},
     ...]}``; with ``"units": "fraction"`` the coordinates are fractions of the scene's
-    width and height (as ``--start`` and ``--goal``). A robot's ``"goal": [x, y]`` may
-    stand for a single goal.
+    frame, its image or its walkable box (as ``--start`` and ``--goal``). A robot's
+    ``"goal": [x, y]`` may stand for a single goal.
     """
     import difflib
 
@@ -231,11 +231,14 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     units = spec.get("units", "m")
     if units not in ("m", "fraction"):
         raise ValueError(f'robots file {p}: "units" must be "m" or "fraction", got {units!r}')
-    scale = np.ones(2)
-    if units == "fraction":
-        if scene.extent is None:
-            raise ValueError(f"scene {scene.name} has no extent: use units 'm'")
-        scale = np.asarray(scene.extent, dtype=float)
+    origin, scale = np.zeros(2), np.ones(2)
+    if units == "fraction":  # of the scene's frame: its image, or its walkable box (ETH/UCY)
+        from ..data.positions import scene_frame
+
+        frame = scene_frame(scene)
+        if frame is None:
+            raise ValueError(f"scene {scene.name} has no frame for fractions: use units 'm'")
+        origin, scale = frame
     starts, goals = [], []
     for i, r in enumerate(robots):
         if not isinstance(r, dict) or "start" not in r or not ("goals" in r or "goal" in r):
@@ -265,8 +268,8 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
                 f"robots file {p}: robot {i} has a fraction outside [0, 1] (units "
                 '"fraction" are fractions of the scene\'s width and height)'
             )
-        starts.append(st * scale)
-        goals.append(g * scale)
+        starts.append(origin + st * scale)
+        goals.append(origin + g * scale)
     first = np.array(starts)
     gap = 2.0 * float(scene.robot_radius)
     for i in range(len(first)):
@@ -410,6 +413,13 @@ def run_multi(
           Angle (rad) a reciprocal robot held back by another turns its nominal velocity by.
         - ``hard_rows`` ({"last", "level"}):
           How the lambda search treats the rows lambda is not the slack of.
+        - ``peer_horizon`` (float, optional):
+          Planning families: how far ahead (s) the peers' lines bind a plan.
+        - ``priority`` ({"pedestrians", "robots"}):
+          The rows kept longest when not every row can be met.
+        - ``coordination`` ({"none", "yield"}):
+          ``"yield"``: a robot whose robot rows gave way says so, and its partners take
+          the whole pair (needs ``information="plan"``).
 
     Returns
     -------
@@ -421,6 +431,7 @@ def run_multi(
         if robots is not None:
             settings["robots"] = robots
         run = RunSpec.from_settings(settings.pop("params", None), **settings)
+    scene = run.on_scene(scene)  # the run's task (start_m, goals_m) is robot 0's
     section = run.robots or Robots()
     robots, starts, goals = section.robots, section.starts, section.goals
     layout, radius, center = section.layout, section.radius, section.center
@@ -428,6 +439,13 @@ def run_multi(
     reciprocity, information = section.reciprocity, section.information
     lambda_scope, weights, ignoring = section.scope, section.weights, section.ignoring
     sidestep, hard_rows = section.sidestep, section.hard_rows
+    peer_horizon, coordination = section.peer_horizon, section.coordination
+    priority = section.priority
+    if coordination != "none" and information != "plan":
+        raise ValueError(
+            f"robots coordination={coordination!r} needs information='plan' (robots tell "
+            f"each other that they yield), got information={information!r}"
+        )
     learn, seed, max_frames = run.learn, run.seed, run.max_frames
     if starts is not None or goals is not None:
         if robots is not None and np.asarray(starts).reshape(-1, 2).shape[0] != robots:
@@ -466,6 +484,9 @@ def run_multi(
             radii["robot_radius"] - radii["agent_radius"],
             sidestep,
             hard_rows,
+            peer_horizon,
+            coordination,
+            priority,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -520,7 +541,13 @@ def run_multi(
         m, intervals, traj = measure(
             view, st.result(), learn, lambda_safe, floor, own[i], world.pedestrians()
         )
-        contacts = robot_contacts(rec.d_min_robot, run_scene.robot_radius, stuck[i])
+        contacts = robot_contacts(
+            rec.d_min_robot,
+            run_scene.robot_radius,
+            stuck[i],
+            d_min_pedestrian=traj["d_min"],
+            collision_distance=run_scene.collision_distance,
+        )
         m = dataclasses.replace(
             m, success=bool(m.goal_reached and m.n_collide == 0 and contacts.n_collide_robot == 0)
         )
@@ -588,6 +615,9 @@ def run_multi(
         "ignoring": [int(i) for i in ignoring],
         "sidestep": float(sidestep),
         "hard_rows": hard_rows,
+        "peer_horizon": peer_horizon,
+        "coordination": coordination,
+        "priority": priority,
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -619,6 +649,9 @@ def set_reciprocity(
     robot_margin: float = 0.0,
     sidestep: float = 0.3,
     hard_rows: str = "last",
+    peer_horizon: float | None = None,
+    coordination: str = "none",
+    priority: str = "robots",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -639,13 +672,28 @@ def set_reciprocity(
         robot ahead.
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack.
+    peer_horizon : float, optional
+        Planning families: how far ahead (s) the peers' lines bind a plan (None: all of it).
+    coordination : {"none", "yield"}
+        Whether a robot whose robot rows gave way broadcasts that it yields.
+    priority : {"pedestrians", "robots"}
+        The rows kept longest when not every row can be met.
     """
     if not hasattr(family, "reciprocity"):
         raise ValueError(
             f"decision family {type(family).__name__} does not handle other robots "
             "(no reciprocity setting)"
         )
-    rec = Reciprocity(mode, lambda_scope, robot_margin, sidestep, hard_rows)
+    rec = Reciprocity(
+        mode,
+        lambda_scope,
+        robot_margin,
+        sidestep,
+        hard_rows,
+        peer_horizon,
+        coordination,
+        priority,
+    )
     rec.validate()
     family.reciprocity = rec
 
@@ -662,7 +710,8 @@ def drive(
     learning.
 
     With ``broadcast`` each robot broadcasts the velocity it decided and, for a family that
-    plans ahead (``planned_path``), its plan's path
+    plans ahead (``planned_path``), its plan's path, and for a family that can yield
+    (``yielding``), whether it does
     (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: seen by the others
     at the next control instant).
 
@@ -701,9 +750,16 @@ def drive(
                     continue
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
-                if broadcast:  # its command, and its plan's path if it plans ahead
-                    path = getattr(steppers[i].family, "planned_path", None)
-                    world.broadcast(i, cmds[i], None if path is None else path())
+                if broadcast:  # its command, its plan's path if it plans ahead, its yield
+                    fam = steppers[i].family
+                    path = getattr(fam, "planned_path", None)
+                    yields = getattr(fam, "yielding", None)
+                    world.broadcast(
+                        i,
+                        cmds[i],
+                        None if path is None else path(),
+                        yielding=False if yields is None else bool(yields()),
+                    )
                 own[i] += clock() - t0
             world.apply(cmds)
             if world.done:

@@ -363,6 +363,7 @@ class ResultsStore:
         latest = self.latest()
         order = list(keys) if keys is not None else list(latest)
         out: list[dict[str, Any]] = []
+        runs: str | None = None  # <folder>/runs resolved once (a plain run_dir's parent)
         for k in order:
             rec = latest.get(k)
             if rec is None:
@@ -372,7 +373,14 @@ class ResultsStore:
                 flat = self._flat[id(rec)] = flatten_record(rec)
             row = dict(flat)
             rd = row["run_dir"]
-            if rd and absolute:
+            if rd and absolute and isinstance(rd, str) and _PLAIN_RUN_DIR.fullmatch(rd):
+                # "runs/<name>" (what every sweep records): resolving the folder once and
+                # checking the name alone gives what resolving the whole path would
+                if runs is None:
+                    runs = str((self.out_dir / "runs").resolve())
+                name = os.path.join(runs, rd[5:])
+                row["run_dir"] = os.path.realpath(name) if os.path.islink(name) else name
+            elif rd and absolute:
                 path = self.run_path(rd)
                 assert path is not None  # run_path only gives None for an empty run_dir
                 row["run_dir"] = str(path.resolve())

@@ -37,10 +37,8 @@ import json
 import math
 import os
 import signal
-import sys
 import threading
 import time
-import traceback
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,6 +103,12 @@ class SweepReport:
         interrupted sweep's finished runs, or the run directories a resumed sweep found).
     interrupted : bool
         The sweep was stopped by a signal before every run finished.
+    unfinished : list of str
+        Keys whose run never came back because the machinery failed (a Dask scheduler or
+        worker lost, a pool's worker killed): they are not failures of the run, are not
+        journaled, and a rerun of the same command runs them.
+    infrastructure : list of str
+        What failed (one line per distinct reason), for :attr:`unfinished`.
     """
 
     out_dir: Path
@@ -120,6 +124,8 @@ class SweepReport:
     notes: list[str] = field(default_factory=list)
     recovered: list[str] = field(default_factory=list)
     interrupted: bool = False
+    unfinished: list[str] = field(default_factory=list)
+    infrastructure: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         recovered = (
@@ -130,7 +136,22 @@ class SweepReport:
         return (
             f"{len(self.keys)} runs: {len(self.skipped)} already done, {recovered}"
             f"{len(self.ran)} ran ({len(self.failed)} failed) in {self.wall_s:.1f} s on "
-            f"{self.executor}; results in {self.out_dir}"
+            f"{self.executor}; results in {self.out_dir}" + self.unfinished_note()
+        )
+
+    def unfinished_note(self) -> str:
+        """``; N left unfinished ...`` when the machinery lost runs, else ``""``."""
+        if not self.unfinished:
+            return ""
+        why = self.infrastructure[0] if self.infrastructure else "the executor failed"
+        more = (
+            f" (and {len(self.infrastructure) - 1} other reasons)"
+            if len(self.infrastructure) > 1
+            else ""
+        )
+        return (
+            f"; {len(self.unfinished)} left unfinished, not failed: the infrastructure "
+            f"failed ({why}{more}); run the same command again to finish them"
         )
 
 
@@ -199,12 +220,32 @@ class _NoBar:
         pass
 
 
-def _progress(total: int, initial: int, enabled: bool | None) -> Any:
-    if not (sys.stderr.isatty() if enabled is None else enabled):
-        return _NoBar()
-    from tqdm.auto import tqdm
+class _Report:
+    """The sweep's progress (:func:`conformal_control.progress.progress`): a bar on a
+    terminal, and where the output is redirected (a log file, ``nohup``, CI) a line every
+    10 s with the runs done, the time so far and the time left; no thread either way."""
 
-    return tqdm(total=total, initial=initial, unit="run", desc="sweep", dynamic_ncols=True)
+    def __init__(self, total: int, initial: int) -> None:
+        from ..progress import progress
+
+        self._report = progress(total, "sweep", "runs", initial=initial)
+
+    def update(self, n: int = 1) -> None:
+        self._report.update(n)
+
+    def set_postfix(self, failed: int = 0, refresh: bool = False) -> None:
+        self._report.set_postfix(f"{failed} failed" if failed else "")
+
+    def close(self) -> None:
+        self._report.close()
+
+
+def _progress(total: int, initial: int, enabled: bool | None) -> Any:
+    """The sweep's report: off with ``enabled=False`` (or ``--quiet``), else a bar on a
+    terminal and periodic lines elsewhere (:class:`_Report`)."""
+    if enabled is False:
+        return _NoBar()
+    return _Report(total, initial)
 
 
 def run_sweep(
@@ -257,7 +298,8 @@ def run_sweep(
         Check every configuration before any run starts (default). False lets invalid
         runs start and be recorded as failed.
     progress : bool, optional
-        Show a tqdm bar (runs done / total, ETA); default: when stderr is a terminal.
+        False: no report. Otherwise (default) a bar on a terminal, and a line every 10 s
+        where stderr is redirected (runs done / total, time so far and left).
     table_every : int or None
         Rewrite the CSV/Parquet tables after every N completed runs (always at the end);
         None (default): by time, see the module docstring.
@@ -384,17 +426,17 @@ def _run(
         for i, outcome in outcomes:
             cfg, key = todo[i]
             rec: dict[str, Any]
-            if isinstance(outcome, BaseException):  # the machinery failed, not the run
-                rec = {
-                    "key": key,
-                    "status": "failed",
-                    "run_dir": None,
-                    "metrics": {},
-                    "error": f"{type(outcome).__name__}: {outcome}",
-                    "traceback": "".join(traceback.format_exception(outcome)),
-                }
-            else:
-                rec = dict(outcome)
+            if isinstance(outcome, BaseException):
+                # the machinery failed, not the run (a run's own error comes back as a
+                # record): left unfinished, never journaled as a failure of the method,
+                # and run again by a rerun of the same command
+                reason = _one_line(outcome)
+                if reason not in report.infrastructure:
+                    report.infrastructure.append(reason)
+                report.unfinished.append(key)
+                bar.update(1)
+                continue
+            rec = dict(outcome)
             rec["run_dir"] = store.relative_run_dir(rec.get("run_dir"))
             rec["config"] = cfg.as_dict()
             rec["finished_at"] = time.time()
@@ -429,6 +471,12 @@ def _run(
         bar.close()
     store.sync()
     store.write_tables(parquet=parquet)
+
+
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` of an infrastructure error, on one line and short."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= 200 else text[:200] + "..."
 
 
 def _adopt_finished(

@@ -30,6 +30,14 @@ positions now and robot ``i``'s share of each pair, plus, by option,
   the plans of the same instant, whatever the order robots decide in); zero velocity
   before the first broadcast and once a robot has stopped at its goal.
 
+**Yielding** (``"plan"`` only: it is communication). A robot may broadcast, with its plan,
+that it *yields*: its rows about the other robots gave way at its last decision (it is
+squeezed, :mod:`~conformal_control.cbf.reciprocal`). At the next control instant the
+shares of its pairs are then recomputed from the broadcast flags, the same way for both
+robots of a pair: a yielding robot's share of a pair with a robot that does not yield is
+0 and its partner's 1 (the partner takes the whole pair constraint); two yielding robots,
+or two that do not, keep the fleet's shares. The two shares of a pair still add up to 1.
+
 Nothing else about another robot is ever handed out: not its lambda, predictor, goal,
 reference or command (except as the broadcast plan).
 
@@ -284,6 +292,8 @@ class MultiRobotWorld:
         self._next_v = np.zeros((r, 2))
         self._paths: list[tuple[np.ndarray, np.ndarray] | None] = [None] * r
         self._next_paths: list[tuple[np.ndarray, np.ndarray] | None] = [None] * r
+        self._yield = np.zeros(r, dtype=bool)  # broadcast yielding flags, as of now
+        self._next_yield = np.zeros(r, dtype=bool)
         # pedestrians: the recording, or a buffer the crowd fills as it is simulated
         if self.crowd is None:
             self._peds = sc.positions
@@ -380,6 +390,22 @@ class MultiRobotWorld:
             peers=peers,
         )
 
+    def yielding(self) -> np.ndarray:
+        """The yielding flags the robots broadcast at the last control instant, shape (R,)
+        (a copy; all False without ``information="plan"``)."""
+        out: np.ndarray = self._yield.copy()
+        return out
+
+    def _yield_shares(self, i: int, robots: np.ndarray, shares: np.ndarray) -> np.ndarray:
+        """Robot ``i``'s shares of its pairs with ``robots`` given the broadcast yielding
+        flags (see the module docstring): ``shares`` itself when no flag changes them."""
+        me = bool(self._yield[i])
+        them = self._yield.take(robots)
+        if not me and not them.any():
+            return shares
+        out: np.ndarray = np.where(them == me, shares, 0.0 if me else 1.0)
+        return out
+
     def _peer_view(self, i: int, robots: np.ndarray) -> PeerView:
         """What robot ``i`` knows now of ``robots`` (the robots it sensed at the sampling
         time), by the information option (their ids and shares computed once per
@@ -397,9 +423,11 @@ class MultiRobotWorld:
         self, i: int, robots: np.ndarray, ids: np.ndarray, shares: np.ndarray
     ) -> PeerView:
         info = self.information or "position"
+        if info == "plan":
+            shares = self._yield_shares(i, robots, shares)
         sub = self._x.take(robots, axis=0)  # a copy: positions and velocities now
         ref = own = None
-        plans = None
+        plans = own_plan = None
         if info == "velocity":
             ref = sub[:, 2:]
             own = self._x[i, 2:].copy()
@@ -407,22 +435,27 @@ class MultiRobotWorld:
             ref = self._plan_v.take(robots, axis=0)
             own = self._plan_v[i].copy()
             plans = tuple(self._paths[int(j)] for j in robots)
-        return PeerView(ids, sub[:, :2], shares, info, ref, own, plans)
+            own_plan = self._paths[i]
+        return PeerView(ids, sub[:, :2], shares, info, ref, own, plans, own_plan)
 
     def broadcast(
         self,
         i: int,
         velocity: np.ndarray,
         path: tuple[np.ndarray, np.ndarray] | None = None,
+        *,
+        yielding: bool = False,
     ) -> None:
         """Robot ``i`` broadcasts its plan: the velocity it intends (m/s) and, optionally,
-        its planned path ``(times (H,) s since the start, positions (H, 2) m)``. The
-        others see it from the next control instant on (``information="plan"``)."""
+        its planned path ``(times (H,) s since the start, positions (H, 2) m)`` and whether
+        it yields (see the module docstring). The others see it from the next control
+        instant on (``information="plan"``)."""
         v = np.asarray(velocity, dtype=float).reshape(-1)
         if v.shape != (2,) or not np.isfinite(v).all():
             raise ValueError(f"a broadcast velocity is a finite (vx, vy), got {velocity!r}")
         self._next_v[i] = v
         self._next_paths[i] = path
+        self._next_yield[i] = bool(yielding)
 
     # ------------------------------------------------------------------ logging
     def _log_frame(self) -> None:
@@ -661,6 +694,7 @@ class MultiRobotWorld:
             self._plan_v[:] = self._next_v
             done, nxt = self._done, self._next_paths
             self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
+            self._yield[:] = self._next_yield & ~done
         if self._n_instants % self.substeps == 0:
             self._fi += 1
             self._robot_pos[self._fi] = self._x[:, :2]

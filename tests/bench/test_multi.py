@@ -128,7 +128,7 @@ def test_bad_manifests_are_one_line_errors(tmp_path):
         load_multi_suite(path=f)
 
 
-def _row(entry, rec, pairs, goal, ped=0, layout="swap", robots=5):
+def _row(entry, rec, pairs, goal, ped=0, layout="swap", robots=5, avoidable=0, near=0):
     return {
         "key": f"{entry}|{rec}",
         "entry": entry,
@@ -138,9 +138,12 @@ def _row(entry, rec, pairs, goal, ped=0, layout="swap", robots=5):
         "method": "nolearn",
         "shift": "nominal",
         "reciprocity": rec,
+        "recording": "ethucy:students001" if entry == "e2" else "ethucy:biwi_eth",
         "goal_rate": goal,
         "n_collide_robot_pairs": pairs,
         "n_collide_pedestrian": ped,
+        "n_collide_pedestrian_avoidable": avoidable,
+        "n_collide_pedestrian_robot_near": near,
         "makespan": 10.0,
         "n_deadlocked": 0,
         "cpu_s": 1.0,
@@ -164,21 +167,92 @@ def test_the_paired_reduction_is_computed_from_the_pairs():
     assert fleet["reciprocal"]["episodes_robot_collision"].mean == pytest.approx(0.25)
 
 
+def test_fleets_are_compared_with_their_robots_alone():
+    # fleet / solo pedestrian frames summed over the pairs, per arm; an entry without its
+    # solo run is left out; the differences are fleet minus solo
+    rows = []
+    for k, (solo, none, rec) in enumerate([(10, 12, 30), (0, 0, 5), (20, 18, 25)]):
+        rows.append(_row(f"e{k}", "solo", 0, 1.0, ped=solo, avoidable=solo // 2))
+        rows.append(_row(f"e{k}", "none", 2, 0.8, ped=none, near=none // 2))
+        rows.append(_row(f"e{k}", "reciprocal", 0, 0.9, ped=rec, avoidable=rec, near=rec))
+    rows.append(_row("e9", "reciprocal", 0, 0.9, ped=1000))  # no solo run: not paired
+    by = {r["reciprocity"]: r for r in multi_tables(rows)["solo"] if r["recording"] == "all"}
+    assert set(by) == {"none", "reciprocal"}
+    rec = by["reciprocal"]
+    assert rec["pairs"] == 3 and rec["pedestrian_frames_solo"] == 30
+    assert rec["pedestrian_frames_fleet"] == 60 and rec["avoidable_fleet"] == 60
+    assert rec["avoidable_solo"] == 15 and rec["robot_near_fleet"] == 60
+    point, lo, hi = rec["ratio"]
+    assert point == pytest.approx(2.0) and lo <= point <= hi
+    assert rec["goal_rate_difference"].mean == pytest.approx(-0.1)
+    assert by["none"]["ratio"][0] == pytest.approx(1.0)
+    assert by["none"]["robot_pair_frames_fleet"] == 6 and by["none"]["robot_near_fleet"] == 15
+    # the rows' order does not move an interval
+    again = {
+        r["reciprocity"]: r for r in multi_tables(rows[::-1])["solo"] if r["recording"] == "all"
+    }
+    assert again["reciprocal"]["ratio"] == rec["ratio"]
+    per = [r for r in multi_tables(rows)["solo"] if r["recording"] == "ethucy:students001"]
+    (s1,) = [r for r in per if r["reciprocity"] == "reciprocal"]
+    assert s1["pedestrian_frames_fleet"] == 25 and s1["pedestrian_frames_solo"] == 20
+
+
 def test_run_report_and_resume(tmp_path, data_root):
     out = tmp_path / "bench"
     kw = dict(robots=(3,), split="test", limit=1, methods=("nolearn",), data_root=str(data_root))
     first = run_multi_bench(out, workers=1, **kw)
-    assert first.ran == 2 and first.failed == 0
+    assert first.ran == 3 and first.failed == 0
     again = run_multi_bench(out, workers=1, **kw)
-    assert again.skipped == 2 and again.ran == 0
+    assert again.skipped == 3 and again.ran == 0
     assert is_multi_folder(out)
     rows = read_multi_rows(out)
-    assert {r["reciprocity"] for r in rows} == {"none", "reciprocal"}
+    assert {r["reciprocity"] for r in rows} == {"solo", "none", "reciprocal"}
     for r in rows:
         assert r["robots"] == 3 and 0.0 <= r["goal_rate"] <= 1.0
+        assert r["n_collide_pedestrian_avoidable"] <= r["n_collide_pedestrian"]
+        assert r["n_collide_pedestrian_robot_near"] <= r["n_collide_pedestrian"]
+    (solo,) = [r for r in rows if r["reciprocity"] == "solo"]
+    assert solo["n_collide_robot_pairs"] == 0 and solo["n_collide_pedestrian_robot_near"] == 0
     page = write_multi_report(rows, tmp_path / "report")
     text = page.read_text()
     assert "Reciprocal against none" in text and "| 3 | nolearn | nominal |" in text
+    assert "Fleets against their robots alone" in text and "| solo |" in text
+
+
+def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
+    # the solo arm's figures, recomputed from the run directories of each robot of the
+    # entry run alone on its own task (run_multi with that one task, saved)
+    from conformal_control.bench.multi import entry_scene
+    from conformal_control.bench.runner import plan_methods
+    from conformal_control.sim.multi import run_multi
+
+    out = tmp_path / "bench"
+    res = run_multi_bench(
+        out, robots=(3,), split="test", limit=1, methods=("nolearn",), reciprocity=("solo",),
+        data_root=str(data_root), workers=1,
+    )  # fmt: skip
+    assert res.ran == 1
+    (row,) = read_multi_rows(out)
+    suite = load_multi_suite()
+    entry = suite.entries_for("test")[0]
+    base, starts, goals = entry_tasks(suite, entry, 3)
+    scene = entry_scene(base, suite.time_factor, str(data_root))
+    (method,) = plan_methods(["nolearn"])
+    ped, reached, avoidable = 0, 0, 0
+    for i in range(3):
+        run = run_multi(
+            scene, starts=starts[i : i + 1], goals=[goals[i]], max_frames=scene.meta["max_frames"],
+            seed=i, **method.run_kwargs(),
+        )  # fmt: skip
+        d = run.save(tmp_path / f"robot{i}") / "robots" / "robot_00"
+        traj = np.genfromtxt(d / "trajectory.csv", delimiter=",", names=True)
+        ped += int(np.sum(traj["d_min"] < scene.collision_distance))
+        m = json.loads((d / "metrics.json").read_text())
+        reached += bool(m["goal_reached"])
+        avoidable += m["n_collide_avoidable"]
+    assert row["n_collide_pedestrian"] == ped
+    assert row["n_collide_pedestrian_avoidable"] == avoidable
+    assert row["goal_rate"] == pytest.approx(reached / 3)
 
 
 def test_the_base_run_gives_predictor_seed_and_the_robots_information():
@@ -206,3 +280,38 @@ def test_the_paired_reduction_does_not_depend_on_the_order_of_the_rows():
     for seed in range(3):
         order = np.random.default_rng(seed).permutation(len(rows))
         assert multi_tables([rows[i] for i in order])["paired"] == first
+
+
+def test_a_worker_killed_leaves_fleet_episodes_unfinished_not_failed(
+    tmp_path, data_root, monkeypatch, capsys
+):
+    """A pool worker killed used to end the command (BrokenProcessPool); its episodes are
+    now left unfinished, the summary says so, and the report says so on its first line."""
+    import conformal_control.bench.multi as multi
+
+    monkeypatch.setattr(multi, "_run_one", _dies_when_reciprocal)
+    out = tmp_path / "bench"
+    kw = dict(robots=(3,), split="test", limit=2, methods=("nolearn",), data_root=str(data_root))
+    res = run_multi_bench(out, workers=2, **kw)
+    assert res.failed == 0 and res.unfinished >= 1
+    assert "left unfinished, not failed" in res.summary()
+    assert "BrokenProcessPool" in res.summary()
+    planned, unfinished = multi.multi_unfinished(out)
+    assert planned == res.n_runs and unfinished == res.unfinished
+    assert multi.report_command(out, tmp_path / "report") == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith(f"**INCOMPLETE: {unfinished} of the {planned} episodes")
+
+
+def _dies_when_reciprocal(run, suite_path, data_root):
+    """A stand-in for a fleet episode whose worker dies on the reciprocal runs."""
+    import os
+
+    if run.reciprocity == "reciprocal":
+        os._exit(3)  # the worker dies with this run
+    return {
+        **_row(run.entry.id, run.reciprocity, 0, 1.0, robots=run.n_robots),
+        "key": run.key,
+        "status": "ok",
+        "elapsed_s": 0.0,
+    }

@@ -153,3 +153,31 @@ def test_fcp_calibrates_once_per_part_on_the_other_part(data_root):
                 and np.isfinite(rec.at(i + h, rec.pedestrians(i))).all(axis=1).any()
             )
             assert env.steps[h - 1].n_fields == n
+
+
+def test_the_report_pools_every_datasets_scenarios():
+    rows = [
+        {
+            "dataset": ds,
+            "method": m,
+            "predictor": "constant_velocity",
+            "seed": 0,
+            "start_timestep": st,
+            "n_recorded": 40,
+            "collision_rate": c,
+            "infeasible_rate": 0.0,
+            "steps_to_goal": 50.0,
+            "reached": True,
+        }
+        for ds, st, m, c in (
+            ("eth", 20, "mpc", 0.1),
+            ("hotel", 20, "mpc", 0.3),  # the same start time step in another dataset
+            ("eth", 20, "cc_mpc", 0.0),
+            ("hotel", 20, "cc_mpc", 0.1),
+        )
+    ]
+    text, table = dense_report(rows)
+    pooled = {r["method"]: r for r in table if r["dataset"] == "all"}
+    assert pooled["mpc"]["n"] == 2 and np.isclose(pooled["mpc"]["collision_rate"], 0.2)
+    assert np.isclose(pooled["cc_mpc"]["collision_rate"], 0.05)
+    assert "| all | cc_mpc | constant_velocity | mpc | collision_rate | 2/0/0 |" in text

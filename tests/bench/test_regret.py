@@ -111,6 +111,7 @@ def _rows() -> list[dict]:
 def test_the_report_writes_the_no_regret_tables_and_the_targets(tmp_path):
     bench = {
         "tuned": {
+            "split": "dev",
             "values": {"fixed": -10.0, "conformal_agent": -0.05, "conformal": -0.05},
         }
     }

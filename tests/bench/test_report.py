@@ -90,3 +90,37 @@ def test_a_report_is_a_function_of_the_set_of_rows(tmp_path) -> None:
         if path.suffix in (".md", ".csv"):
             assert path.read_bytes() == second[name].read_bytes(), name
     assert [s.method for s in summarise(data)] == [s.method for s in summarise(shuffled)]
+
+
+def test_canonical_order_is_the_sort_by_every_key() -> None:
+    """The order sorts by shift, method and scenario and serialises only rows that tie on
+    them: it must equal sorting every row by all four keys."""
+    import json
+
+    from conformal_control.bench.report import canonical_order
+
+    data = rows()
+    data += [{**r, "n_collide": 7, "shift": "delay-0.5s"} for r in data[:6]]
+    data += [{**r, "wall_s": 0.5} for r in data[:4]] + [dict(data[1])]  # ties, a duplicate
+    rng = np.random.default_rng(2)
+    shuffled = [data[i] for i in rng.permutation(len(data))]
+
+    def full(r):
+        return (str(r.get("shift") or "nominal"), str(r.get("method")), str(r.get("scenario")),
+                json.dumps(r, sort_keys=True, default=str))  # fmt: skip
+
+    assert canonical_order(shuffled) == sorted(shuffled, key=full)
+
+
+@pytest.mark.parametrize("split", ["dev", "test"])
+def test_the_tuned_label_comes_from_the_tuned_file(tmp_path, split) -> None:
+    """The report printed "(tuned on dev)" whatever split the values were tuned on."""
+    bench = {"tuned": {"split": split, "values": {"conformal": -0.1}}}
+    files = write_report(rows(), tmp_path, title="toy", bench=bench)
+    md = files["leaderboard.md"].read_text()
+    assert f"| `conformal[eps=-0.1]` (tuned on {split}) |" in md
+    other = "test" if split == "dev" else "dev"
+    assert f"tuned on {other}" not in md
+    with files["leaderboard.csv"].open() as fh:
+        roles = {r["method"]: r["role"] for r in csv.DictReader(fh)}
+    assert roles["conformal[eps=-0.1]"] == f"tuned on {split}"

@@ -160,3 +160,44 @@ def test_the_base_run_gives_predictor_crowd_seed_and_si_parameters_only() -> Non
         bench_base(RunSpec(rule="pid", learn=False))
     with pytest.raises(InputError, match="SI"):
         bench_base(RunSpec(params={"K_rep": 0.3}))
+
+
+def _tuned_file(tmp_path, split):
+    import json
+
+    data = {"suite": "crossings-v2", "families": {"fixed": {"setting": -5}}}
+    if split is not None:
+        data["split"] = split
+    path = tmp_path / f"tuned-{split}.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_a_tuned_file_must_say_its_split(tmp_path) -> None:
+    from conformal_control.bench.runner import load_tuned
+
+    with pytest.raises(ValueError, match="does not say which split its values were tuned on"):
+        load_tuned(_tuned_file(tmp_path, None), "crossings-v2")
+    assert load_tuned(_tuned_file(tmp_path, "test"), "crossings-v2").data["split"] == "test"
+
+
+@pytest.mark.parametrize(
+    ("tuned_on", "reported", "warned"),
+    [("test", "test", True), ("dev", None, True), ("dev", "test", False), ("test", "dev", False)],
+)
+def test_bench_run_warns_when_the_tuned_split_is_reported(
+    tmp_path, tuned_on, reported, warned
+) -> None:
+    import warnings
+
+    from conformal_control.bench.runner import check_tuned_split, load_tuned
+    from conformal_control.exceptions import TunedOnReportedSplitWarning
+
+    tuned = load_tuned(_tuned_file(tmp_path, tuned_on), "crossings-v2")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        check_tuned_split(tuned, reported)
+    got = [w for w in seen if issubclass(w.category, TunedOnReportedSplitWarning)]
+    assert bool(got) == warned
+    if warned:
+        assert f"chosen on the {tuned_on} split" in str(got[0].message)

@@ -164,7 +164,9 @@ def test_runs_of_another_condition_are_refused(tmp_path, data_root, capsys):
     before = (out / "bench.json").read_text()
     capsys.readouterr()
     other = tmp_path / "tuned.json"
-    other.write_text('{"suite": "crossings-v2", "families": {"fixed": {"setting": -7.0}}}')
+    other.write_text(
+        '{"suite": "crossings-v2", "split": "dev", "families": {"fixed": {"setting": -7.0}}}'
+    )
     for extra in (["--crowd", "social_force"], ["--set", "K_rep=0.3"], ["--tuned", str(other)]):
         rc = main(base + extra)
         err = capsys.readouterr().err

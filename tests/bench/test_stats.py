@@ -62,3 +62,64 @@ def test_the_interval_does_not_depend_on_the_order_of_the_values() -> None:
     pc = paired_comparison(x, x[::-1] + 0.1, seed=0)
     order = rng.permutation(x.size)
     assert paired_comparison(x[order], (x[::-1] + 0.1)[order], seed=0) == pc
+
+
+def _scipy_bootstrap(values, *, confidence=0.95, n_resamples=2000, seed=0):
+    """The interval exactly as ``scipy.stats.bootstrap`` gives it (the reference)."""
+    from scipy.stats import bootstrap
+
+    x = np.asarray(values, dtype=float)
+    x = np.sort(x[np.isfinite(x)])
+    res = bootstrap(
+        (x,),
+        np.mean,
+        confidence_level=confidence,
+        n_resamples=n_resamples,
+        method="percentile",
+        random_state=np.random.default_rng(seed),
+        vectorized=True,
+    )
+    return float(x.mean()), float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def test_the_batched_bootstrap_is_scipys_to_the_bit() -> None:
+    """``bootstrap_means`` draws the indices once per size and sums integer-valued samples
+    through their counts: every bound must still be exactly scipy's (rates, counts, large
+    counts beyond the exact-sum shortcut, floats, NaNs; samples of shared and lone sizes)."""
+    from conformal_control.bench.stats import bootstrap_means
+
+    rng = np.random.default_rng(11)
+    samples: list[np.ndarray] = []
+    for n in (2, 7, 40, 40, 40, 40, 131, 131, 131, 300):
+        samples += [
+            rng.integers(0, 2, n).astype(float),  # a rate
+            rng.integers(0, 60, n).astype(float),  # frame counts
+            rng.normal(3.0, 2.0, n),  # seconds, metres
+            np.round(rng.normal(0.0, 10.0, n)) / 4,  # quarters: not integers
+        ]
+    samples.append(rng.integers(0, 2, 40) * 2.0**50)  # integer, beyond the exact-sum shortcut
+    with_nan = rng.integers(0, 9, 60).astype(float)
+    with_nan[::7] = np.nan
+    samples.append(with_nan)
+    for seed, confidence, n_resamples in ((0, 0.95, 2000), (5, 0.9, 333)):
+        got = bootstrap_means(samples, seed=seed, confidence=confidence, n_resamples=n_resamples)
+        for x, e in zip(samples, got, strict=True):
+            ref = _scipy_bootstrap(x, seed=seed, confidence=confidence, n_resamples=n_resamples)
+            assert (e.mean, e.low, e.high) == ref
+            assert e == bootstrap_mean(x, seed=seed, confidence=confidence, n_resamples=n_resamples)
+
+
+def test_batched_paired_comparisons_equal_one_at_a_time() -> None:
+    from conformal_control.bench.stats import paired_comparisons
+
+    rng = np.random.default_rng(4)
+    pairs = []
+    for i in range(6):
+        a = rng.integers(0, 5, 80).astype(float)
+        b = rng.normal(2.0, 1.0, 80) if i % 2 else rng.integers(0, 5, 80).astype(float)
+        pairs.append((a, b, f"m{i}", bool(i % 3)))
+    got = paired_comparisons(pairs, seed=3)
+    for (a, b, metric, lower), pc in zip(pairs, got, strict=True):
+        assert pc == paired_comparison(a, b, metric=metric, lower_is_better=lower, seed=3)
+    with pytest.raises(ValueError, match="same shape"):
+        paired_comparisons([([1.0], [1.0, 2.0], "x", True)])

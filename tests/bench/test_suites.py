@@ -162,7 +162,8 @@ def test_scenario_runs_and_its_collisions_match_the_raw_annotations(suite, sdd_d
     res = run_episode(
         scene,
         "constant_velocity",
-        scene.meta["published_params"],  # the parameters the suite's record was made with
+        # the parameters the suite's record was made with (the edge rule pinned off)
+        {**scene.meta["published_params"], **suite.manifest["nolearn"]["params"]},
         units="scene",
         learn=False,
         max_frames=sc.max_frames,
@@ -272,16 +273,19 @@ def test_v2_replays_biwi_eth_on_its_original_clock(data_root) -> None:
 
 
 def test_v2_nolearn_record_is_the_benchmark_nolearn(data_root) -> None:
-    """v2 records the nolearn outcome with the scenes' defaults: bench run's nolearn."""
+    """v2 records the nolearn outcome with the scenes' defaults: bench run's nolearn, with
+    the edge rule pinned off as the record is (issue 30)."""
     from conformal_control.bench.methods import expand_methods
 
     v2 = load_suite("crossings-v2")
     sc = next(s for s in v2.scenarios_for("test") if s.nolearn and s.nolearn["n_collide"] > 0)
     (m,) = expand_methods(["nolearn"])
+    kw = m.run_kwargs()
+    kw["params"] = {**kw.get("params", {}), **v2.manifest["nolearn"]["params"]}
+    assert kw["params"]["edge"] == "paper"
     res = run_episode(
-        load_scenario(sc, data_root), **m.run_kwargs(), max_frames=sc.max_frames,
-        record_animation=False,
-    )  # fmt: skip
+        load_scenario(sc, data_root), **kw, max_frames=sc.max_frames, record_animation=False
+    )
     assert res.metrics["n_collide"] == sc.nolearn["n_collide"]
     assert round(res.metrics["d_min"], 3) == sc.nolearn["d_min"]
 

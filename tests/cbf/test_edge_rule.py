@@ -38,7 +38,7 @@ from conformal_control.predictors import ConstantVelocityPredictor
 
 D_C = 1.0
 V_MAX = 2.0
-FALLBACKS = ("lambda_search", "relax", "brake", "hold")
+FALLBACKS = ("lambda_search", "relax", "brake", "hold", "goal_aware")
 #: closing speed tolerated as round-off (m/s)
 TOL = 1e-7
 
@@ -111,7 +111,7 @@ def test_paper_mode_keeps_the_published_behaviour(fallback) -> None:
     ctrl = stepwise(fallback, edge="paper")
     ctrl.observe([1], np.array([[0.3, 0.0]]), t=0.0)
     v = ctrl.step(np.zeros(4), t=0.0, goal=np.array([10.0, 0.0]))
-    expected = [2.0, 0.0] if fallback in ("lambda_search", "relax") else [0.0, 0.0]
+    expected = [0.0, 0.0] if fallback in ("brake", "hold") else [2.0, 0.0]
     np.testing.assert_allclose(v, expected, atol=1e-9)
 
 
@@ -333,3 +333,28 @@ def test_filter_counts_the_rule_deciding_alone() -> None:
         res = f.step_apf(x, xp, vp, np.array([1.0, 0.0]), 0.0)
     assert res.fallback == "escape" and math.isnan(res.lambda_applied)
     assert f.stats()["n_fallback_escape"] == 1
+
+
+# ------------------------------------------------------------------------------ lambda's floor
+def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
+    from conformal_control.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.data import load_scene
+    from conformal_control.exceptions import InputError
+    from conformal_control.flagship.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    fl = build_flagship(scene, {"a": 4.0}, units="si")
+    floor = -fl.constraint.a * fl.barrier.upper_bound  # the feasibility floor, -a h_max
+    assert fl.rule.lambda_min == pytest.approx(DEFAULT_FLOOR_SHARE * floor)
+    # widened by the user; none in paper mode (Algorithm 1 as published)
+    assert build_flagship(scene, {"lambda_min": -100.0}, units="si").rule.lambda_min == -100.0
+    assert build_flagship(scene, {"edge": "paper"}, units="si").rule.lambda_min == -math.inf
+    with pytest.raises(InputError, match="lambda_min must not exceed lambda_max") as info:
+        build_flagship(scene, {"lambda_min": 1.0, "lambda_max": 0.0}, units="si")
+    assert "\n" not in str(info.value)
+    with pytest.raises(InputError, match="edge must be") as info:
+        build_flagship(scene, {"edge": "off"}, units="si")
+    assert "\n" not in str(info.value)
+    # the step-wise controller's default rule too (a = 10/s, h_max = 1/2)
+    ctrl = StepwiseCBF(epsilon=-0.1, eta=0.5)
+    assert ctrl.stepper.rule.lambda_min == pytest.approx(-DEFAULT_FLOOR_SHARE * 10.0 * 0.5)

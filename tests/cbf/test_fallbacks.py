@@ -18,6 +18,7 @@ from conformal_control.cbf import (
     QPSafetyFilter,
     Relax,
 )
+from conformal_control.cbf.fallbacks import GoalAware
 from conformal_control.testing import check_fallback
 
 BACKENDS = [QPSafetyFilter, Exact2DSafetyFilter]
@@ -253,7 +254,7 @@ def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> N
         A, b = con.rows(np.zeros(2), xp, vp)
         ttc = con.contact_times(np.zeros(2), xp, vp, 2.0 * goal_dir)
         lam = float(rng.choice([-1.0, -3.0, -6.0]))
-        f = make(backend, "goal_aware")
+        f = make(backend, GoalAware(rest="dropped"))
         res = f.solve_escaping(2.0 * goal_dir, A, b, lam, None, ttc)
         if res.status != "fallback":
             continue
@@ -279,6 +280,28 @@ def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> N
         )  # fmt: skip
         assert best.status == 0 and v @ goal_dir >= -best.fun - 1e-6
         assert np.hypot(*v) <= 2.0 + 1e-9
+        # rest="relaxed": the same prefix at the same level, the other rows at the
+        # smallest common lambda that allows (an LP in (v, t) as the reference)
+        g = make(backend, "goal_aware")
+        res2 = g.solve_escaping(2.0 * goal_dir, A, b, lam, None, ttc)
+        w = res2.decision
+        assert (A[idx] @ w + b[idx] + level >= -1e-7).all()
+        if k < n:
+            rest = order[k:]
+            top = float(res2.row_lambda[rest].max())
+            lp = linprog(
+                [0.0, 0.0, 1.0],
+                A_ub=np.vstack(
+                    [
+                        np.column_stack([-A[idx], np.zeros(k)]),
+                        np.column_stack([-A[rest], -np.ones(n - k)]),
+                        np.column_stack([S, np.zeros(len(S))]),
+                    ]
+                ),
+                b_ub=np.concatenate([b[idx] + level, b[rest], s]),
+                bounds=[(None, None)] * 2 + [(level, None)],
+            )
+            assert lp.status == 0 and top <= lp.x[2] + 1e-5
     assert seen >= 10
 
 

@@ -170,6 +170,7 @@ def _query(rng, n_ped, n_rob):
 @pytest.mark.parametrize("info", INFORMATION)
 def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard):
     rng = np.random.default_rng(3)
+    searched = 0
     for trial in range(6):
         q = _query(rng, n_ped=3, n_rob=2)
         fast = _controller(True, scope=scope, hard=hard)
@@ -195,12 +196,15 @@ def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard
             a, b = fast.decide(state, lam), slow.decide(state, lam)
             np.testing.assert_allclose(a, b, atol=1e-9, err_msg=f"trial {trial} step {step}")
         ra, rb = fast.interval_record(), slow.interval_record()
+        assert ra.status == rb.status
+        searched += ra.status.count("lambda_search")
         np.testing.assert_allclose(ra.lam_applied, rb.lam_applied, atol=1e-9)
         np.testing.assert_allclose(ra.x_pred, rb.x_pred, atol=1e-12)
         np.testing.assert_allclose(ra.v_pred, rb.v_pred, atol=1e-12)
         np.testing.assert_array_equal(ra.share, rb.share)
         np.testing.assert_array_equal(ra.scored, rb.scored)
         assert ra.scored.tolist() == [scope != "robots"] * 3 + [scope != "pedestrians"] * 2
+    assert searched > 0  # the searches were compared, not only the projections
 
 
 def test_robots_are_not_handed_to_the_predictor():
@@ -251,3 +255,117 @@ def test_sidestep_turns_away_from_the_robot_ahead_only_when_held_back():
     np.testing.assert_allclose(math.atan2(left[1], left[0]), 0.3)
     np.testing.assert_array_equal(sidestep(n, stopped, behind, turn, 0.8), n)
     np.testing.assert_array_equal(sidestep(n, moving, ahead_left, turn, 0.8), n)
+
+
+# -------------------------------------------------------------------- priority: pedestrians
+def _squeeze(rng, n_ped=3, n_rob=2):
+    """Rows of a robot at the origin among pedestrians and robots close around it, walking
+    at it: the pedestrians' rows, the robots' barrier rows and their floor rows."""
+    from conformal_control.cbf.reciprocal import floor_rows
+
+    c = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=3.0, d_c=0.7), a=2.0)
+    ang = rng.uniform(0, 2 * np.pi, n_ped + n_rob)
+    dist = rng.uniform(0.8, 1.6, n_ped + n_rob)
+    pos = np.c_[np.cos(ang), np.sin(ang)] * dist[:, None]
+    vel = -pos * rng.uniform(0.5, 2.0, (n_ped + n_rob, 1))
+    A, b = c.rows(np.zeros(2), pos, vel)
+    view = PeerView(np.arange(n_rob), pos[n_ped:], np.full(n_rob, 0.5), "position")
+    Af, bf = floor_rows(np.zeros(2), view, 0.8, 2.0)
+    kind = np.r_[np.zeros(n_ped, int), np.ones(n_rob, int), np.full(n_rob, 2)]
+    return np.r_[A, Af], np.r_[b, bf], kind
+
+
+def test_the_priority_order_robots_then_pedestrians_then_floors():
+    from conformal_control.cbf.reciprocal import priority_relax
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    rng = np.random.default_rng(3)
+    seen = {"robots": 0, "pedestrians": 0}
+    for _ in range(300):
+        A, b, kind = _squeeze(rng)
+        lam = float(rng.uniform(-3, 1))
+        nominal = rng.uniform(-2, 2, 2)
+        b = np.where(kind == 2, b - lam, b)  # the floors get no lambda (as the controller)
+        if f.project(nominal, A, b + lam) is not None:
+            continue  # feasible: no fallback
+        v, used, gave_way = priority_relax(f, nominal, A, b, kind, lam)
+        ped, rob, flo = kind == 0, kind == 1, kind == 2
+        b = np.where(flo, b + lam, b)
+        row = A @ v + b
+        off = np.where(rob, np.inf, 0.0)  # the barrier rows left out
+        if f.project(nominal, A, b + np.where(ped, lam, off)) is not None:
+            # 1. the pedestrians' rows and the floors can be met as they are: they are;
+            # only robot barrier rows gave way
+            assert gave_way == "robots" and used == pytest.approx(lam)
+            assert row[ped].min() + lam >= -1e-7 and row[flo].min() >= -1e-7
+            assert (row[rob] + lam < -1e-9).any()  # (their base is b + lam here)
+            seen["robots"] += 1
+        else:
+            # 2. the pedestrians' level, the least with the floors held: a hair lower no
+            # velocity meets them and the floors (the barrier rows left out)
+            assert gave_way == "pedestrians" and used > lam
+            assert row[ped].min() + used >= -1e-7 and row[flo].min() >= -1e-7
+            lower = b + np.where(ped, used - 1e-4 * (1 + abs(used)), off)
+            assert f.project(nominal, A, lower) is None
+            seen["pedestrians"] += 1
+    assert seen["robots"] >= 5 and seen["pedestrians"] >= 5
+
+
+def test_floor_rows_keep_a_pair_apart_when_both_keep_them():
+    from conformal_control.cbf.reciprocal import floor_rows
+
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        x = rng.uniform(-2, 2, (2, 2))
+        s = float(rng.uniform(0.1, 0.9))
+        views = [
+            PeerView(np.array([1]), x[[1]], np.array([s]), "position"),
+            PeerView(np.array([0]), x[[0]], np.array([1 - s]), "position"),
+        ]
+        (a0, b0), (a1, b1) = (floor_rows(x[i], views[i], 0.8, 2.0) for i in range(2))
+        d = float(np.hypot(*(x[1] - x[0])))
+        # any velocities meeting both rows: the distance falls at most at 2 (d - d_c)
+        v = rng.uniform(-2, 2, (2, 2))
+        v[0] -= a0[0] * min(0.0, a0[0] @ v[0] + b0[0])
+        v[1] -= a1[0] * min(0.0, a1[0] @ v[1] + b1[0])
+        assert a0[0] @ v[0] + b0[0] >= -1e-9 and a1[0] @ v[1] + b1[0] >= -1e-9
+        u = (x[1] - x[0]) / d
+        rate = u @ (v[1] - v[0])  # d/dt of the distance
+        assert rate >= -2.0 * (d - 0.8) - 1e-9
+
+
+def test_the_robot_rows_least_slack_is_the_lp_optimum():
+    # the vertex enumeration of priority_relax's stage 1 against a linear program solver
+    from scipy.optimize import linprog
+
+    from conformal_control.cbf.reciprocal import _robot_slacks
+    from conformal_control.cbf.speed import speed_polygon
+
+    S, s_poly, _, _ = speed_polygon(16, 2.0)
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(200):
+        A, b, kind = _squeeze(rng)
+        base = b + float(rng.uniform(-2, 1))
+        nrm = np.hypot(A[:, 0], A[:, 1])
+        rows, fixed = np.flatnonzero(kind == 1), kind != 1
+        found = _robot_slacks(A, base, nrm, fixed, base, rows, S, s_poly)
+        k, fx = rows.size, np.flatnonzero(fixed)
+        A_ub = np.zeros((k + fx.size + S.shape[0], 2 + k))
+        A_ub[:k, :2], A_ub[:k, 2:] = -A[rows] / nrm[rows, None], -np.eye(k)
+        A_ub[k : k + fx.size, :2] = -A[fx] / nrm[fx, None]
+        A_ub[k + fx.size :, :2] = S
+        b_ub = np.r_[base[rows] / nrm[rows], base[fx] / nrm[fx], s_poly]
+        lp = linprog(np.r_[0, 0, np.ones(k)], A_ub=A_ub, b_ub=b_ub,
+                     bounds=[(None, None)] * 2 + [(0, None)] * k, method="highs")  # fmt: skip
+        assert (found is None) == (lp.status == 2)
+        if found is None:
+            continue
+        v, slack = found
+        assert (slack[rows] / nrm[rows]).sum() == pytest.approx(lp.fun, abs=1e-7)
+        assert (S @ v <= s_poly + 1e-9).all() and (A[fx] @ v + base[fx] >= -1e-9).all()
+        np.testing.assert_allclose(np.maximum(0, -(A[rows] @ v + base[rows])), slack[rows],
+                                   atol=1e-9)  # fmt: skip
+        checked += 1
+    assert checked > 15

@@ -295,6 +295,11 @@ def test_lstm_on_the_builtin_scene_needs_no_downloaded_data(
     err = capsys.readouterr().err
     assert "training lstm on" in err
     assert "crossing's own pedestrian tracks in the 12 s before the start frame" in err
+    # the line Getting started shows, up to the cache path (which is the user's)
+    page = (Path(__file__).resolve().parents[2] / "docs/getting-started.md").read_text()
+    shown = page.split("$ conformal-control run --predictor lstm\n", 1)[1].split(" -> ")[0]
+    line = next(ln for ln in err.splitlines() if ln.startswith("training lstm"))
+    assert line.startswith(shown), (line, shown)
     weights = json.loads((tmp_path / "r" / "config.json").read_text())["predictor"]["params"]
     info = json.loads((Path(weights["weights"]) / "training.json").read_text())
     assert info["dataset"] == "scene:crossing" and info["n_windows"] >= 64

@@ -70,6 +70,62 @@ def test_a_wrong_choice_is_named_by_what_it_is(
     assert error_line(capsys) == expected
 
 
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (
+            ["run", "--epsilo", "-0.1"],
+            "error: unknown option '--epsilo'; did you mean '--epsilon'? (see "
+            "`conformal-control run --help`)",
+        ),
+        (
+            ["run", "--strat=0.1,0.5"],
+            "error: unknown option '--strat'; did you mean '--start'? (see "
+            "`conformal-control run --help`)",
+        ),
+        (
+            ["bench", "run", "--shfit", "nominal", "--out", "x"],
+            "error: unknown option '--shfit'; did you mean '--shift'? (see "
+            "`conformal-control bench run --help`)",
+        ),
+    ],
+    ids=["abbreviation", "with =", "nested command"],
+)
+def test_an_unknown_flag_is_never_abbreviated_and_gets_a_suggestion(
+    argv: list[str], expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The issue: `--epsilo -0.1` was silently read as `--epsilon` (argparse's
+    abbreviations), and typo'd flags got no suggestion while typo'd names did."""
+    assert main(argv) == EXIT_ERROR
+    assert error_line(capsys) == expected
+
+
+def test_no_parser_of_the_cli_or_its_scripts_abbreviates() -> None:
+    import argparse
+
+    parser = build_parser()
+    stack: list[argparse.ArgumentParser] = [parser]
+    n = 0
+    while stack:
+        p = stack.pop()
+        assert p.allow_abbrev is False, p.prog
+        n += 1
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack += list(action.choices.values())
+    assert n >= 20
+    scripts = [
+        p
+        for d in ("conformal_control", "examples", "benchmarks", "plugins")
+        for p in (ROOT / d).rglob("*.py")
+        if "argparse.ArgumentParser(" in p.read_text()
+    ]
+    assert scripts
+    for path in scripts:
+        for call in re.findall(r"argparse\.ArgumentParser\((.*?)\)\n", path.read_text(), re.S):
+            assert "allow_abbrev=False" in call, path
+
+
 def test_no_choice_error_calls_an_option_value_a_command(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -269,6 +325,34 @@ def test_below_the_floor_the_missed_goal_is_blamed_on_the_fallback(crossing) -> 
     assert res.metrics["lambda_final"] < res.metrics["lambda_floor"]  # "lambda sank below it"
     # the advice works: epsilon above the floor reaches the goal
     assert cc.run(crossing, epsilon=-0.2).metrics["goal_reached"]
+
+
+def test_the_floor_advice_knows_the_lambda_min_given(nexus4) -> None:
+    """The issue: `--param a=1 --param lambda_min=-5` failed and the warning advised
+    clipping lambda with lambda_min, already given. A lambda_min at or below the floor is
+    named as the reason, with the bound that works; one above it is not advised again."""
+    from conformal_control.exceptions import FeasibilityWarning
+
+    def warned(**params: float) -> tuple[list[str], cc.EpisodeResult]:
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            res = cc.run(nexus4, params={"a": 1, **params}, units="scene")
+        texts = [str(w.message) for w in rec if issubclass(w.category, FeasibilityWarning)]
+        texts += [str(w.message) for w in rec if w.category is GoalNotReachedWarning]
+        return texts, res
+
+    texts, res = warned(lambda_min=-5)
+    assert not res.metrics["goal_reached"] and len(texts) == 2, texts
+    for text in texts:
+        assert "lambda_min=-5 1/frame is at or below the floor (-0.5 1/frame)" in text
+        assert text.endswith("set lambda_min above -0.5 1/frame, or raise epsilon or a")
+    texts, res = warned(lambda_min=-0.45)  # the advice works
+    assert res.metrics["goal_reached"] and res.metrics["fallback_share"] == 0
+    assert len(texts) == 1 and texts[0].endswith(
+        "lambda_min=-0.45 1/frame keeps lambda above that floor, so l_avg cannot come down "
+        "to epsilon"
+    )
+    assert res.metrics["l_avg"] > res.metrics["epsilon"]
 
 
 # ------------------------------------------------------------------------------ progress

@@ -201,3 +201,58 @@ def test_collisions_counted_with_the_resolved_radii(nexus4, tmp_path: Path) -> N
     assert res.animation is not None
     assert float(res.animation["collision_distance"]) == pytest.approx(d_c)
     assert nexus4.collision_distance == pytest.approx(1.0)  # caller's scene untouched
+
+
+def test_every_ethucy_recording_runs_from_the_command_line(
+    data_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The issue's first hour: `run --scene ethucy:crowds_zara01` had no default task, no
+    option took metres, a robots file and ``cc.run(start_m=...)`` were refused. Now: the
+    default task, metres with their unit on the command line, a robots file in metres,
+    and the same task from Python (``start=``, ``start_m=``, ``RunSpec.start_m``)."""
+    import numpy as np
+
+    import conformal_control as cc
+    from conformal_control.data import load_scene
+    from conformal_control.data.ethucy import ETHUCY_RECORDINGS
+
+    base = ["--data-root", str(data_root), "--frames", "20", "-q", "--no-plot"]
+    for rec in ETHUCY_RECORDINGS:
+        out = tmp_path / rec
+        assert main(["run", "--scene", f"ethucy:{rec}", *base, "--out", str(out)]) == 0, rec
+        scene = json.loads((out / "config.json").read_text())["scene"]
+        default = load_scene(f"ethucy:{rec}", data_root)
+        np.testing.assert_allclose(scene["start_m"], default.start)
+    out = tmp_path / "metres"
+    argv = ["run", "--scene", "ethucy:crowds_zara01", "--start", "1m,5m", "--goal", "14m,5m"]
+    assert main([*argv, *base, "--out", str(out)]) == 0
+    scene = json.loads((out / "config.json").read_text())["scene"]
+    assert scene["start_m"] == [1.0, 5.0] and scene["goals_m"] == [[14.0, 5.0]]
+    robots = tmp_path / "robots.json"
+    robots.write_text(
+        json.dumps(
+            {
+                "units": "m",
+                "robots": [
+                    {"start": [1, 5], "goal": [14, 5]},
+                    {"start": [14, 6.5], "goal": [1, 6.5]},
+                ],
+            }
+        )
+    )
+    out = tmp_path / "fleet"
+    argv = ["run", "--scene", "ethucy:crowds_zara01", "--robots-file", str(robots)]
+    assert main([*argv, *base, "--out", str(out)]) == 0
+    fleet = json.loads((out / "config.json").read_text())
+    assert [r["start_m"] for r in fleet["robots"]] == [[1.0, 5.0], [14.0, 6.5]]
+    capsys.readouterr()
+    runs = [
+        cc.run("ethucy:zara1", data_root=data_root, start="1m,5m", goal="14m,5m"),
+        cc.run("ethucy:zara1", data_root=data_root, start_m=(1, 5), goals_m=[(14, 5)]),
+        cc.run("ethucy:zara1", cc.RunSpec(start_m=(1, 5), goals_m=(14, 5)), data_root=data_root),
+    ]
+    for res in runs:
+        assert res.config["scene"]["start_m"] == [1.0, 5.0]
+        assert res.config["scene"]["goals_m"] == [[14.0, 5.0]]
+    assert runs[1].metrics["t_goal"] == runs[0].metrics["t_goal"] == runs[2].metrics["t_goal"]
+    assert cc.RunSpec.from_dict(runs[2].config["spec"]).start_m == (1.0, 5.0)

@@ -128,8 +128,13 @@ def test_any_sdd_video_by_name(sdd_dir: Path) -> None:
     )
     w, h = scene.extent
     np.testing.assert_allclose(scene.start, [0.05 * w, 0.5 * h])
-    with pytest.raises(ValueError, match="image fractions"):
+    with pytest.raises(ValueError, match=r"fractions of the scene's width and height.*1\.5m"):
         load_scene("sdd:quad/video2", sdd_dir, start=(1.5, 0.5))
+    # metres and pixels of the image, typed with their unit
+    px = scene.meta["m_per_px"]
+    other = load_scene("sdd:quad/video2", sdd_dir, start="3.5m,10m", goals=["100px,200px"])
+    np.testing.assert_allclose(other.start, [3.5, 10.0])
+    np.testing.assert_allclose(other.goals, [[100 * px, 200 * px]])
 
 
 def test_builtin_scene_is_seeded() -> None:

@@ -112,3 +112,28 @@ def test_fetch_data_with_dest_says_how_to_use_it(
     out = capsys.readouterr().out
     assert f"--data-root {dest} or {ENV_VAR}={dest}" in out
     assert not user_dir.exists()
+
+
+@pytest.mark.parametrize(
+    "part", ["", "sdd", "ethucy", "ethucy/zara1", "ethucy/zara1/test", "sdd/annotations"]
+)
+def test_the_data_root_may_be_any_part_of_the_data_folder(
+    data_root: Path, part: str, tmp_path: Path
+) -> None:
+    """Given the data folder or any folder of it (the SDD folder, the ETH/UCY folder, a
+    split, the annotations), every loader finds its own part: the issue's ETH/UCY commands
+    looked for ``sdd/ethucy/zara1/test`` when the root was the SDD folder."""
+    from conformal_control.data.paths import data_part, ethucy_root, sdd_root
+    from conformal_control.predictors.evaluation import dataset_windows, training_windows
+
+    root = data_root / part
+    assert sdd_root(root) == data_root / "sdd"
+    assert ethucy_root(root) == data_root / "ethucy"
+    assert data_part("external", root) == data_root / "external"
+    assert load_scene("ethucy:zara1", root, last_frame=300).n_agents > 0
+    assert load_scene("nexus_4", root).name == "nexus_4"
+    assert len(dataset_windows("ethucy:hotel", root)) > 0
+    assert len(training_windows("nexus_4", root)) > 0
+    # an SDD folder of another name is the SDD folder all the same (its own files)
+    (tmp_path / "drone").symlink_to(data_root / "sdd")
+    assert sdd_root(tmp_path / "drone") == tmp_path / "drone"

@@ -73,14 +73,42 @@ def test_ethucy_scene_in_metres_and_frames(data_root: Path) -> None:
     assert ETHUCY_DEFAULTS["a"] == pytest.approx(CROWD_A_SI / 30)
     assert scene.meta["published_params"] == ETHUCY_PUBLISHED
     assert ETHUCY_PUBLISHED["a"] == 10.0 and ETHUCY_PUBLISHED["K_rep"] == pytest.approx(0.064)
-    with pytest.raises(ValueError, match="needs start_m and goals_m"):
-        load_scene("ethucy:crowds_zara01", data_root)
-    with pytest.raises(ValueError, match="no image"):
-        load_scene("ethucy:crowds_zara01", data_root, start=(0.1, 0.1), goals=[(0.9, 0.9)])
-    with pytest.raises(ValueError, match="bad ETH/UCY scene name"):
+    with pytest.raises(ValueError, match=r"unknown ETH/UCY recording 'ethucy:atlantis'"):
         load_scene("ethucy:atlantis", data_root, start_m=(0, 0), goals_m=[(1, 1)])
+    with pytest.raises(ValueError, match="no image; give metres"):
+        load_scene("ethucy:crowds_zara01", data_root, start="10px,10px")
     with pytest.raises(ValueError, match="unknown ETH/UCY recording"):
         ethucy_recording("atlantis", data_root)
+
+
+@pytest.mark.parametrize(("name", "along"), [("ethucy:crowds_zara01", 0), ("ethucy:biwi_hotel", 1)])
+def test_an_ethucy_recording_has_a_default_task_across_its_walkable_box(
+    data_root: Path, name: str, along: int
+) -> None:
+    """No task given: the documented rule, from 5 % to 95 % of the walkable box's longer
+    side on its middle line, one history window after the recording's first frame; the box
+    holds the middle 95 % of the file's own positions along each axis (counted here from
+    the file, without the loader)."""
+    scene = load_scene(name, data_root)
+    lo, hi = (np.array(c) for c in scene.meta["walkable_box"])
+    size = hi - lo
+    assert int(np.argmax(size)) == along
+    frac_start, frac_goal = np.array([0.05, 0.5]), np.array([0.95, 0.5])
+    if along == 1:
+        frac_start, frac_goal = frac_start[::-1], frac_goal[::-1]
+    np.testing.assert_allclose(scene.start, lo + frac_start * size)
+    np.testing.assert_allclose(scene.goals, [lo + frac_goal * size])
+    stem = name.partition(":")[2]
+    raw = np.loadtxt(next((data_root / "ethucy").glob(f"*/test/{stem}.txt")))
+    for axis in (0, 1):
+        inside = np.mean((raw[:, 2 + axis] >= lo[axis]) & (raw[:, 2 + axis] <= hi[axis]))
+        assert 0.93 <= inside <= 0.97, (axis, inside)
+    first = int(raw[:, 0].min()) // 10 * 12  # rows every 10 video frames, 12 frames per row
+    assert scene.start_frame == first + 120
+    # fractions are of the same box, metres are metres
+    other = load_scene(name, data_root, start=(0.25, 0.25), goals=["1.5m,2.5m", (1.0, 1.0)])
+    np.testing.assert_allclose(other.start, lo + 0.25 * size)
+    np.testing.assert_allclose(other.goals, [[1.5, 2.5], hi])
 
 
 def test_trajnet_form_of_any_video_and_metre_positions(sdd_dir: Path) -> None:

@@ -197,3 +197,36 @@ def test_incomplete_or_damaged_run_directories_fail_in_one_line(
 def test_unknown_format_is_refused_with_a_suggestion(single_run):
     with pytest.raises(ValueError, match="did you mean 'mcap'"):
         export_run(single_run, format="mcp")
+
+
+def test_start_time_puts_the_run_on_a_date(single_run, tmp_path, capsys):
+    """The issue: an exported run started at 1970-01-01. `--start-time` (``start_time=``)
+    shows its first frame at the date given: every log time and every timestamp inside the
+    messages moves by the same offset; without it the file stays the same for the same run."""
+    from conformal_control.cli import EXIT_ERROR, main
+
+    plain, _ = _read(export_run(single_run, tmp_path / "plain.mcap"))
+    out = tmp_path / "dated.mcap"
+    assert (
+        main(["export", str(single_run), "--out", str(out), "--start-time", "2026-05-04T09:30:00Z"])
+        == 0
+    )
+    dated, _ = _read(out)
+    offset = 1_777_887_000 * 10**9  # 2026-05-04T09:30:00Z, seconds since the epoch
+    assert set(dated) == set(plain)
+    for topic in plain:
+        assert [m[0] - offset for m in dated[topic]] == [m[0] for m in plain[topic]], topic
+    stamp = dated["/tf"][5][3]["timestamp"]
+    assert stamp["sec"] * 10**9 + stamp["nsec"] == plain["/tf"][5][0] + offset
+    assert (
+        export_run(single_run, tmp_path / "again.mcap").read_bytes()
+        == (tmp_path / "plain.mcap").read_bytes()
+    )
+    capsys.readouterr()
+    argv = ["export", str(single_run), "--out", str(tmp_path / "x.mcap"), "--start-time", "May 4"]
+    assert main(argv) == EXIT_ERROR
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "error: start time 'May 4' is not an ISO 8601 date and time, e.g. 2026-05-04T09:30:00Z"
+    )
+    assert not (tmp_path / "x.mcap").exists()

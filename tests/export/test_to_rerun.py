@@ -70,3 +70,17 @@ def test_multi_robot_run(multi_run, read_csv):
         assert f"/world/robot_{i}" in ent
     frames = np.load(multi_run / "animation.npz")["t"].size
     assert len(ent["/world/pedestrians"]["time"]) == frames
+
+
+def test_start_time_makes_the_timeline_a_date(single_run, tmp_path):
+    plain = _columns(export_run(single_run, tmp_path / "plain.rrd", format="rerun"))
+    dated = _columns(
+        export_run(
+            single_run, tmp_path / "dated.rrd", format="rerun", start_time="2026-05-04T09:30:00"
+        )
+    )
+    offset = 1_777_887_000 * 10**9
+    lam, lam_dated = plain["/plots/robot/lambda"], dated["/plots/robot/lambda"]
+    assert [t.value + offset for t in lam["time"]] == [
+        np.datetime64(t, "ns").astype(np.int64) for t in lam_dated["time"]
+    ]

@@ -86,18 +86,24 @@ def test_plan_all_decides_as_each_family_alone(replan_every: int) -> None:
 
     def families() -> list[SamplingMPC]:
         cv = ConstantVelocityPredictor
-        common: dict[str, Any] = {"horizon": 5, "dt_plan": 0.4, "substeps": 1}
+        common: dict[str, Any] = {"sampling__horizon": 5, "sampling__dt_plan": 0.4, "substeps": 1}
         out: list[SamplingMPC] = [
-            SamplingMPC(cv(), Unicycle(), n_samples=60, replan_every=replan_every, **common),
+            SamplingMPC(
+                cv(),
+                Unicycle(),
+                sampling__n_samples=60,
+                sampling__replan_every=replan_every,
+                **common,
+            ),
             SamplingMPC(
                 cv(),
                 VelocityTrackingDoubleIntegrator(K_acc=20.0),
-                n_samples=30,
+                sampling__n_samples=30,
                 fallback="least_violation",
                 random_state=4,
                 **common,
             ),
-            ECPMPC(cv(), Unicycle(), n_samples=40, calibration_size=3, **common),
+            ECPMPC(cv(), Unicycle(), sampling__n_samples=40, calibration_size=3, **common),
         ]
         for f in out:
             f.reset()

@@ -148,6 +148,17 @@ def test_compiled_lookup_equals_the_steps_values():
     f = fields[0][grid.anchors(16)]
     assert env.scale_needed(3, grid.anchors(16), f) == step.scale_needed(grid.anchors(16), f)
     assert env.scale_needed(2, grid.anchors(16), f) == -math.inf
+    # several realised fields in one compiled pass, as one by one
+    rng = np.random.default_rng(7)
+    anchors = grid.anchors(16)
+    at = grid.points(anchors)
+    fields_ = [(h, rng.normal(0, 2, (m, 2)), rng.normal(0, 2, (m, 2))) for h, m in ((1, 3), (3, 1))]
+    got_many = env.scales_needed(fields_, anchors, at)
+    for (h, p, o), g in zip(fields_, got_many, strict=True):
+        r = distance_field(p, at) - distance_field(o, at)
+        assert g == env.scale_needed(h, anchors, r)
+    with pytest.raises(ValueError, match="needs an envelope"):
+        env.scales_needed([(2, p, o)], anchors, at)
 
 
 def test_scale_needed_is_the_exact_threshold():

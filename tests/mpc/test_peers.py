@@ -13,7 +13,13 @@ from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
 from conformal_control.loop import ConformalStepper
 from conformal_control.mpc.controller import SamplingMPC
-from conformal_control.mpc.peers import peer_clearance, peer_lines, reference_paths
+from conformal_control.mpc.peers import (
+    near_steps,
+    peer_clearance,
+    peer_lines,
+    peer_terms,
+    reference_paths,
+)
 from conformal_control.mpc.settings import Limits, Sampling
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 from conformal_control.sim.multi import drive
@@ -46,6 +52,101 @@ def test_the_two_robots_lines_coincide_and_their_sides_are_apart(information):
         # a point meeting robot 0's line and one meeting robot 1's are 2 buffers apart at
         # least along the normal: o0 + o1 = -2 buffer
         np.testing.assert_allclose(o0 + o1, -0.8, atol=1e-9)
+
+
+def _path(rng, t0, h=7, dt=0.4):
+    return t0 + dt * np.arange(1, h + 1), rng.uniform(-3, 3, (h, 2))
+
+
+def test_with_broadcast_plans_both_robots_draw_the_same_lines():
+    # each robot reads the other's broadcast path *and its own*: the two robots' lines are
+    # one line (before, a robot extrapolated its own position at its broadcast velocity
+    # while its peer read its broadcast path, so the two lines differed)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        x = rng.uniform(-3, 3, (2, 4))
+        paths = [_path(rng, -0.1), _path(rng, -0.1)]
+        v = rng.uniform(-1, 1, (2, 2))
+        s_ij = float(rng.uniform(0.2, 0.8))
+        times = paths[0][0][:6]  # the paths' own times
+        lines = []
+        for me, other, share in ((0, 1, s_ij), (1, 0, 1.0 - s_ij)):
+            view = PeerView(
+                np.array([other]), x[[other], :2], np.array([share]), "plan",
+                v[[other]], v[me].copy(), (paths[other],), paths[me],
+            )  # fmt: skip
+            own, peers = reference_paths(view, x[me], times, 0.0)
+            np.testing.assert_allclose(peers[0], paths[other][1][:6])
+            np.testing.assert_allclose(own, paths[me][1][:6])
+            lines.append(peer_lines(view, own, peers, 0.4))
+        (n0, o0), (n1, o1) = lines
+        np.testing.assert_allclose(n0, -n1, atol=1e-12)
+        np.testing.assert_allclose(o0 + o1, -0.8, atol=1e-9)
+
+
+def test_the_lines_bind_only_the_near_horizon():
+    assert near_steps(0.4, 12, None) == 12
+    assert near_steps(0.4, 12, 1.2) == 3
+    assert near_steps(0.4, 12, 0.1) == 1  # at least the first step
+    assert near_steps(0.4, 12, 100.0) == 12
+
+    class Fam:
+        d_c, margin = 0.7, 0.0
+        sampling = Sampling(n_samples=10, horizon=4, dt_plan=0.5)
+
+    class State:
+        t = 0.0
+        x = np.zeros(4)
+        peers = PeerView(np.array([7]), np.array([[3.0, 0.0]]), np.array([0.5]), "position")
+
+    # a plan crossing the line (x = 1.5 - 0.35) only at its last step
+    plan = np.array([[[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [2.0, 0.0]]])
+    fam = Fam()
+    fam.reciprocity = Reciprocity("reciprocal")
+    clear, viol = peer_terms(fam, State(), 0.0, plan)
+    assert clear[0] < 0 and viol[0] > 0
+    fam.reciprocity = Reciprocity("reciprocal", peer_horizon=1.5)
+    clear, viol = peer_terms(fam, State(), 0.0, plan)
+    np.testing.assert_allclose(clear, [1.15 - 1.0])
+    assert viol[0] == 0.0
+    with pytest.raises(ValueError, match="peer_horizon"):
+        Reciprocity("reciprocal", peer_horizon=0.0).validate()
+
+
+def test_the_lines_give_way_before_the_pedestrians():
+    # three candidate plans: A crosses the peer's line and keeps the pedestrian's safe
+    # distance, B keeps the line and enters the pedestrian's, C does both a little.
+    # Pedestrians first: A ("peer_yield"); with every plan intruding on the pedestrian,
+    # least_violation ranks the pedestrian's intrusion first
+    mpc = SamplingMPC(
+        ConstantVelocityPredictor(), VelocityTrackingDoubleIntegrator(K_acc=10.0),
+        AttractiveField(K_att=1.0, v_max=1.0), sampling=Sampling(n_samples=3, horizon=2),
+        d_c=0.7, fallback="least_violation",
+    )  # fmt: skip
+    mpc.reciprocity = Reciprocity("reciprocal", priority="pedestrians")
+    mpc.reset()
+
+    class State:
+        t = 0.0
+        x = np.zeros(4)
+        peers = PeerView(np.array([7]), np.array([[3.0, 0.0]]), np.array([0.5]), "position")
+
+    from conformal_control.mpc.controller import PlanInputs
+
+    pos = np.array([[[1.6, 0.0], [1.6, 0.0]], [[0.0, 0.0], [0.0, 0.0]], [[1.3, 0.0], [1.3, 0.0]]])
+    todo = PlanInputs(State(), 0.0, np.zeros((3, 2, 2)), pos, ())
+    cost = np.array([3.0, 1.0, 2.0])
+    plan = mpc.plan_end(todo, cost, np.array([0.2, -0.3, -0.1]), np.array([0.0, 0.3, 0.1]))
+    assert plan.status == "peer_yield" and plan.cost == 3.0
+    assert mpc.stats()["n_peer_yield"] == 1 and mpc.stats()["n_infeasible"] == 0
+    plan = mpc.plan_end(todo, cost, np.array([-0.2, -0.3, -0.1]), np.array([0.2, 0.3, 0.1]))
+    assert plan.status == "least_violation" and plan.cost == 2.0  # C: least pedestrian
+    plan = mpc.plan_end(todo, cost, np.array([-0.1, -0.3, -0.1]), np.array([0.1, 0.3, 0.1]))
+    assert plan.cost == 2.0  # A and C tie on the pedestrian: C crosses the line less
+    # priority "robots": one problem, no order -- the least summed intrusion (B)
+    mpc.reciprocity = Reciprocity("reciprocal", priority="robots")
+    plan = mpc.plan_end(todo, cost, np.array([0.2, -0.3, -0.1]), np.array([0.0, 0.3, 0.1]))
+    assert plan.status == "least_violation" and plan.cost == 1.0
 
 
 def test_clearance_is_the_smallest_margin_to_the_lines():

@@ -147,6 +147,32 @@ def test_guarantee_plot_keeps_bounds_in_the_loss_range():
     plt.close(fig)
 
 
+def test_guarantee_plot_per_agent():
+    """lambda per agent: one point per agent (hollow under 10 losses), each agent's bound,
+    the clipped agents ringed, one lambda line per agent and the floor."""
+    from conformal_control.monitor import AgentMonitor
+    from conformal_control.plotting import plot_guarantee
+    from conformal_control.update_rules import FixedEtaRule
+
+    rule = FixedEtaRule(epsilon=0.0, eta=1.0, lambda_min=-0.3)
+    m = AgentMonitor.for_rule(rule, lambda_safe=-0.2)
+    rng = np.random.default_rng(0)
+    for k in range(30):
+        keys = [1, 2] if k < 25 else [1, 2, 3]
+        m.values(keys)  # agent 3 gets an entry (at the prior) when it first appears
+        losses = np.where(np.array(keys) == 2, 0.45, rng.uniform(-0.01, 0.01, len(keys)))
+        m.update(keys, losses)
+    fig = plot_guarantee(m)
+    ax, ax_l = fig.axes[:2]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "agent, >= 10 losses (2)" in labels and "agent, fewer losses (1)" in labels
+    assert any(x.startswith("each agent's bound") for x in labels)
+    assert "lambda clipped at some update (1)" in labels  # agent 2, pushed to the floor
+    assert len(ax_l.get_lines()) == 4  # three agents and the floor
+    assert ax_l.get_lines()[-1].get_ydata()[0] == -0.3
+    plt.close(fig)
+
+
 def _sweep_rows():
     return [
         {

@@ -82,7 +82,7 @@ def test_eval_predictor_cli_writes_csv(tmp_path, data_root, capsys):
 
 
 def test_unknown_dataset_is_clear():
-    with pytest.raises(ValueError, match="unknown ETH/UCY scene"):
+    with pytest.raises(ValueError, match=r"unknown ETH/UCY recording 'ethucy:nowhere'"):
         dataset_windows("ethucy:nowhere")
 
 

@@ -97,7 +97,7 @@ def test_zero_distance_and_overlap_fall_back_without_crashing() -> None:
     f = 200
     pos = np.full((f, 1, 2), np.nan)
     pos[:, 0] = [0.0, 0.0]  # a pedestrian standing exactly on the robot's start
-    res = run_episode(tiny_scene(pos), "constant_velocity", {"fallback": "lambda_search"})
+    res = run_episode(tiny_scene(pos), "constant_velocity", fallback="lambda_search")
     m = res.metrics
     assert m["n_fallback"] > 0 and m["n_fallback"] == m["n_infeasible"]
     assert np.isfinite(res.trajectory["x"]).all()

@@ -95,8 +95,8 @@ def test_crossing(seed):
 def test_fallback_heavy(crossing, fallback):
     # lambda far below the feasibility floor (a large negative lambda_init, no learning):
     # the fallback decides on many instants
-    params = {"a": 2.0, "epsilon": 0.1, "lambda_init": -50.0, "fallback": fallback}
-    fast, loop = _both(crossing, "oracle", params, learn=False, max_frames=150)
+    params = {"a": 2.0, "epsilon": 0.1, "lambda_init": -50.0}
+    fast, loop = _both(crossing, "oracle", params, fallback=fallback, learn=False, max_frames=150)
     assert loop.metrics["n_fallback"] > 20
     assert (fast.animation["status"] == 2).any()
 

@@ -308,3 +308,18 @@ def test_cli_resume_with_a_wrong_schema_journal_line(tmp_path: Path, capsys) -> 
     cap = capsys.readouterr()
     assert "3 already done, 0 ran" in cap.out
     assert "line 4 (not a run record: 'config' is a str)" in cap.err
+
+
+def test_absolute_run_dirs_resolve_links_like_pathlib(tmp_path: Path) -> None:
+    """Plain run dirs are resolved by resolving ``runs`` once: a run folder that is a
+    symbolic link must still come out resolved, as ``Path.resolve`` gives it."""
+    store = ResultsStore(tmp_path / "sw")
+    (store.out_dir / "runs").mkdir()
+    (tmp_path / "real").mkdir()
+    (store.out_dir / "runs" / "l-1").symlink_to(tmp_path / "real")
+    (store.out_dir / "runs" / "p-1").mkdir()
+    for key in ("l-1", "p-1", "gone-1"):
+        store.append({**rec(key, status="ok"), "run_dir": f"runs/{key}"})
+    got = [r["run_dir"] for r in store.rows(absolute=True)]
+    want = [str((store.out_dir / "runs" / k).resolve()) for k in ("l-1", "p-1", "gone-1")]
+    assert got == want and got[0] == str((tmp_path / "real").resolve())

@@ -390,3 +390,25 @@ def test_cli_refuses_a_huge_grid_in_one_line(tmp_path: Path, capsys) -> None:
     code = main([*argv, "--grid", f"seed={values}", "--grid", f"frames={values}"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "1,002,001 runs" in err[0], err
+
+
+def test_progress_is_reported_in_lines_when_the_output_is_redirected(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The issue: `bench tune` with its output redirected printed nothing for a minute (the
+    bar was for terminals only). Redirected (here: captured), a sweep prints a line per
+    period with the runs done and the time left, and a last line; no carriage return."""
+    import conformal_control.progress as progress_mod
+
+    monkeypatch.setattr(progress_mod, "DELAY", 0.0)
+    monkeypatch.setattr(progress_mod, "EVERY", 0.0)
+    monkeypatch.delenv("CONFORMAL_CONTROL_PROGRESS", raising=False)
+    spec = SweepSpec(base={"scene": "crossing", "frames": 10}, grid={"epsilon": [-0.2, 0, 0.2]})
+    run_sweep(spec, tmp_path / "s", "serial", plot=False, summary_plot=False)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("sweep:")]
+    assert "\r" not in err
+    assert lines[0].startswith("sweep: 1/3 runs (33%), ") and lines[0].endswith(" s left")
+    assert lines[-1].startswith("sweep: done, 3 runs in ")
+    run_sweep(spec, tmp_path / "t", "serial", plot=False, summary_plot=False, progress=False)
+    assert "sweep:" not in capsys.readouterr().err

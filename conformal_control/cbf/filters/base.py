@@ -337,6 +337,13 @@ class VelocityFilter(
         self._fell_back = True
         return res
 
+    def speed_set(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """The speed set the primitives work in now: half-planes ``S v <= s`` (the speed
+        polygon, or within :meth:`escaping` the escape polygon) and the radius of a disc
+        containing the speed polygon (read by fallbacks that solve their own programs,
+        e.g. :func:`~conformal_control.cbf.reciprocal.priority_relax`)."""
+        return self._S, self._s, float(self._radius)
+
     # ------------------------------------------------------------------ the edge rule
     def _meets_hard(self, v: np.ndarray) -> bool:
         """Whether v meets the escape polygon's rows (to round-off)."""

@@ -514,8 +514,8 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         v_agents: np.ndarray,
         v_ego: np.ndarray,
     ) -> np.ndarray:
-        """The agents' predicted times to contact (s) with the collision distance the
-        compiled step was configured with (the edge rule's, else the barrier's ``d_c``),
+        """The agents' predicted times to contact (s) with the distance the compiled step
+        was configured with (the larger of the edge rule's and the barrier's ``d_c``),
         the robot moving at ``v_ego``, :func:`~conformal_control.cbf.constraint.time_to_contact`.
 
         Parameters
@@ -527,7 +527,7 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         v_ego : ndarray of shape (2,)
             The robot's (nominal) velocity (m/s).
         """
-        d = float(self._prm[12]) if self._prm[12] >= 0 else float(self._prm[2])
+        d = float(max(self._prm[12], self._prm[2]))
         return time_to_contact(x_ego, x_agents, v_agents, d, v_ego)
 
     def _step_apf_fallback(

@@ -10,9 +10,52 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from ...exceptions import ConformalControlError, InputError
 from .base import Executor, Outcome
 
-__all__ = ["DaskExecutor"]
+__all__ = ["CONNECT_TIMEOUT_S", "DaskExecutor", "SchedulerUnreachableError"]
+
+#: How long connecting to a scheduler may take, in all (s). ``distributed``'s own default
+#: (30 s per attempt) took 91 s on a refused port while its message said 30 s.
+CONNECT_TIMEOUT_S = 30.0
+
+
+class SchedulerUnreachableError(ConformalControlError, ConnectionError):
+    """The Dask scheduler given cannot be reached (one line: the address and why)."""
+
+
+def _reachable(address: str, timeout: float) -> None:
+    """Refuse at once a scheduler whose port refuses connections or whose host is unknown
+    (``distributed`` would retry until its timeout); a plain TCP connection, closed."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme not in ("tcp", "tls"):
+        return  # another transport (inproc, ucx): left to distributed
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        raise InputError(
+            f"--scheduler {address!r} is not an address such as tcp://host:8786"
+        ) from None
+    if not host:
+        raise InputError(f"--scheduler {address!r} is not an address such as tcp://host:8786")
+    try:
+        with socket.create_connection((host, port or 8786), timeout=timeout):
+            pass
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        if isinstance(exc, TimeoutError):
+            why = f"no answer within {timeout:g} s"
+        raise SchedulerUnreachableError(
+            f"cannot reach the Dask scheduler at {address}: {why} (is it running? start one "
+            "with `dask scheduler`, or leave --scheduler out for a local cluster)"
+        ) from None
+
+
+#: The loggers ``distributed`` configures at import (and tornado's, under it).
+_LOGGERS = ("distributed", "distributed.client", "distributed.gc", "tornado", "tornado.application")
 
 
 def _distributed() -> Any:
@@ -22,6 +65,13 @@ def _distributed() -> Any:
         raise ImportError(
             "the dask executor needs dask.distributed: pip install 'conformal-control[sweep]'"
         ) from exc
+    from ...progress import is_quiet
+
+    if is_quiet():  # -q: a lost scheduler is one line of the sweep's summary, not a traceback
+        import logging
+
+        for name in _LOGGERS:
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     return distributed
 
 
@@ -61,9 +111,21 @@ class DaskExecutor(Executor):
     @property
     def client(self) -> Any:
         if self._client is None:
+            if self.scheduler is not None and not str(self.scheduler).strip():
+                raise InputError(
+                    "--scheduler is empty: give the scheduler's address (tcp://host:8786), or "
+                    "leave --scheduler out to start a local cluster"
+                )
             d = _distributed()
             if self.scheduler:
-                self._client = d.Client(self.scheduler)
+                _reachable(str(self.scheduler), CONNECT_TIMEOUT_S)
+                try:
+                    self._client = d.Client(self.scheduler, timeout=CONNECT_TIMEOUT_S)
+                except OSError as exc:
+                    raise SchedulerUnreachableError(
+                        f"cannot connect to the Dask scheduler at {self.scheduler} within "
+                        f"{CONNECT_TIMEOUT_S:g} s ({exc})"
+                    ) from None
             else:
                 self._cluster = d.LocalCluster(
                     n_workers=self.workers,

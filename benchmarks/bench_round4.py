@@ -1,0 +1,155 @@
+"""Round 4 of the speed work (issue 37): what an episode costs under a predictor shift, in
+a fleet and with a sampling-MPC family, each against the plain single-robot CBF episode
+timed in the same run.
+
+Usage::
+
+    python benchmarks/bench_round4.py [--data-root ../shared/data] [--only shift mpc fleet]
+
+Every figure is the time per episode of ``bench run`` on the first test scenarios, run in
+this process with one worker (``workers=1``: the process pool and the in-process batch
+engine use one core alike), after a warm-up run that loads the compiled kernels; wall time
+(``time.perf_counter``) and this process's CPU time with its children's.
+
+* ``shift``: ``delay-0.5s`` against ``nominal`` (40 scenarios x ``nolearn``, ``conformal``),
+  and the same shift with its wrapper called in Python per episode and interval (the
+  engine before it compiled the shifts) -- target 1.3x nominal;
+* ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios) -- target 5x;
+* ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal) against a
+  single-robot episode -- target 3x.
+
+:func:`measure` returns the figures as dicts (``benchmarks/run_all.py``'s form).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import resource
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cpu() -> float:
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple[float, float, int]:
+    """(wall, CPU, episodes) of the better of ``repeats`` ``run_bench`` calls into fresh
+    folders (one worker)."""
+    from conformal_control.bench.runner import run_bench
+
+    best: tuple[float, float, int] | None = None
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory(prefix="cc-round4-") as tmp, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            c0, t0 = _cpu(), time.perf_counter()
+            run = run_bench(
+                Path(tmp) / "b", data_root=data_root, limit=limit, workers=1, progress=False, **kw
+            )
+            wall, cpu = time.perf_counter() - t0, _cpu() - c0
+        if run.failed:
+            raise RuntimeError(f"{run.failed} episodes failed ({kw})")
+        got = (wall, cpu, run.ran)
+        if best is None or got[0] < best[0]:
+            best = got
+    assert best is not None
+    return best
+
+
+@contextlib.contextmanager
+def python_shifts() -> Iterator[None]:
+    """The batch engine with the shifts' wrappers called per episode (as before they ran
+    compiled): the predictor is then the episode's own object."""
+    from conformal_control.engines import batch
+
+    saved = dict(batch._SHIFTS)
+    batch._SHIFTS.clear()
+    try:
+        yield
+    finally:
+        batch._SHIFTS.update(saved)
+
+
+def _fig(section: str, name: str, value: float, unit: str, **kw: Any) -> dict[str, Any]:
+    return {
+        "section": section,
+        "name": name,
+        "value": value,
+        "unit": unit,
+        "target": kw.get("target"),
+        "ratios": kw.get("ratios", []),
+        "note": kw.get("note", ""),
+    }
+
+
+def measure_shift(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
+    limit, repeats = (10, 1) if quick else (40, 3)
+    kw = {"methods": ("nolearn", "conformal")}
+    time_bench(data_root, 2, shifts=("delay-0.5s",), **kw)  # warm-up: kernels loaded
+    nom = time_bench(data_root, limit, repeats, shifts=("nominal",), **kw)
+    delay = time_bench(data_root, limit, repeats, shifts=("delay-0.5s",), **kw)
+    with python_shifts():
+        before = time_bench(data_root, limit, repeats, shifts=("delay-0.5s",), **kw)
+    per = [w / n for w, _, n in (nom, delay, before)]
+    cpu = [c / n for _, c, n in (nom, delay, before)]
+    note = (
+        f"{delay[2]} episodes ({limit} test scenarios x nolearn, conformal), one worker, best "
+        f"of {repeats}; CPU per episode {cpu[1] * 1e3:.1f} ms against {cpu[0] * 1e3:.1f} ms "
+        f"nominal ({cpu[1] / cpu[0]:.2f}x), {cpu[2] * 1e3:.1f} ms with the wrapper in Python "
+        "per episode"
+    )
+    return [
+        _fig(
+            "shift",
+            "delay-0.5s episode (shift compiled)",
+            per[1],
+            "ms",
+            note=note,
+            ratios=[
+                ("a nominal episode", per[0], "times"),
+                ("the wrapper called in Python (as before)", per[2], "faster"),
+            ],
+        ),
+    ]
+
+
+def measure(
+    data_root: str, quick: bool = False, only: tuple[str, ...] = ()
+) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    if not only or "shift" in only:
+        out += measure_shift(data_root, quick)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    default = os.environ.get("CONFORMAL_CONTROL_DATA", str(ROOT.parent / "shared" / "data"))
+    ap.add_argument("--data-root", default=default)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only", nargs="+", default=[])
+    args = ap.parse_args()
+    print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    for f in measure(args.data_root, args.quick, tuple(args.only)):
+        ratios = "; ".join(
+            f"{f['value'] / b if k == 'times' else b / f['value']:.2f}x "
+            f"{'of' if k == 'times' else 'faster than'} {n} ({b * 1e3:.1f} ms)"
+            for n, b, k in f["ratios"]
+        )
+        print(f"{f['name']}: {f['value'] * 1e3:.1f} ms per episode; {ratios}\n  {f['note']}")
+    print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
