@@ -363,7 +363,7 @@ def test_the_architecture_page_shows_the_floors_of_this_test() -> None:
     for page in ("docs/architecture.md", "CONTRIBUTING.md"):
         shown: dict[str, int] = {}
         for line in (PKG.parent / page).read_text().splitlines():
-            m = re.match(r"^\s*\| (\d+) \| (.*) \|$", line)
+            m = re.match(r"^\s*\| (-?\d+) \| (.*) \|$", line)
             if m:
                 # the units are the backticked names outside parentheses
                 units = re.sub(r"\([^)]*\)", "", m.group(2))

@@ -117,6 +117,95 @@ class ORCAModel(CrowdModel):
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
             raise ValueError(f"max_neighbors must be an integer >= 0, got {k!r}")
 
+    def orca_lines(
+        self,
+        pos: np.ndarray,
+        vel: np.ndarray,
+        radius: np.ndarray,
+        other_pos: np.ndarray,
+        other_vel: np.ndarray,
+        other_radius: np.ndarray,
+        dt: float,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ORCA half-planes of each simulated pedestrian.
+
+        Returns ``point`` and ``direction`` of shape (N, K, 2) and ``valid`` (N, K) (rows
+        with fewer neighbours are padded with invalid lines). The permitted side of line
+        ``k`` is to the left of ``direction`` (RVO2's convention:
+        ``det(direction, point - v) <= 0``).
+
+        Parameters
+        ----------
+        pos, vel : ndarray of shape (N, 2)
+            The simulated pedestrians' positions (m) and velocities (m/s).
+        radius : ndarray of shape (N,)
+            Their radii (m).
+        other_pos, other_vel : ndarray of shape (O, 2)
+            The other agents' positions (m) and velocities (m/s): replayed pedestrians,
+            the robot; each takes ``other_responsibility`` of avoiding a pair, simulated
+            pedestrians half.
+        other_radius : ndarray of shape (O,)
+            Their radii (m).
+        dt : float
+            The simulation step (s): the cut-off time of a pair that already overlaps.
+        """
+        n = pos.shape[0]
+        all_pos = np.concatenate([pos, other_pos])
+        all_vel = np.concatenate([vel, other_vel])
+        all_rad = np.concatenate([radius, other_radius])
+        kmax = int(self.max_neighbors)
+        rows, cols, px, py = neighbor_pairs(pos, all_pos, self.neighbor_dist, kmax)
+        # slot of each pair within its row; ties at the cut beyond max_neighbors dropped
+        start = np.searchsorted(rows, np.arange(n))
+        slot = np.arange(rows.size) - start[rows]
+        keep = slot < kmax
+        if not keep.all():
+            rows, cols, px, py, slot = rows[keep], cols[keep], px[keep], py[keep], slot[keep]
+        k = int(slot.max()) + 1 if slot.size else 0
+        point = np.zeros((n, k, 2))
+        direction = np.zeros((n, k, 2))
+        direction[..., 0] = 1.0
+        valid = np.zeros((n, k), dtype=bool)
+        if not rows.size:
+            return point, direction, valid
+        vix, viy = vel[rows, 0], vel[rows, 1]
+        rvx = vix - all_vel[cols, 0]  # relative velocity v_i - v_j
+        rvy = viy - all_vel[cols, 1]
+        r = radius[rows] + all_rad[cols]
+        share = np.where(cols < n, 0.5, float(self.other_responsibility))
+        dist_sq = px * px + py * py
+        r_sq = r * r
+        collide = dist_sq <= r_sq
+        # cut-off circle: of the time horizon, or of one time step when overlapping
+        inv_t = np.where(collide, 1.0 / dt, 1.0 / self.time_horizon)
+        wx, wy = rvx - inv_t * px, rvy - inv_t * py
+        w_sq = wx * wx + wy * wy
+        dot = wx * px + wy * py
+        on_circle = collide | ((dot < 0) & (dot * dot > r_sq * w_sq))
+        w_len = np.sqrt(w_sq)
+        ok = ~on_circle | (w_len > 0)
+        inv_w = np.divide(1.0, w_len, out=np.zeros_like(w_len), where=w_len > 0)
+        uwx, uwy = wx * inv_w, wy * inv_w
+        # legs (where not on the circle)
+        leg = np.sqrt(np.maximum(dist_sq - r_sq, 0.0))
+        inv_d = np.divide(1.0, dist_sq, out=np.zeros_like(dist_sq), where=dist_sq > 0)
+        side = np.where((px * wy - py * wx) > 0, 1.0, -1.0)  # left leg: +1, right leg: -1
+        ldx = (px * leg - side * py * r) * inv_d * side
+        ldy = (side * px * r + py * leg) * inv_d * side
+        proj = rvx * ldx + rvy * ldy
+        c_mag = r * inv_t - w_len
+        dx_ = np.where(on_circle, uwy, ldx)
+        dy_ = np.where(on_circle, -uwx, ldy)
+        ux = np.where(on_circle, c_mag * uwx, proj * ldx - rvx)
+        uy = np.where(on_circle, c_mag * uwy, proj * ldy - rvy)
+        rows, slot = rows[ok], slot[ok]
+        point[rows, slot, 0] = (vix + share * ux)[ok]
+        point[rows, slot, 1] = (viy + share * uy)[ok]
+        direction[rows, slot, 0] = dx_[ok]
+        direction[rows, slot, 1] = dy_[ok]
+        valid[rows, slot] = True
+        return point, direction, valid
+
     def step(
         self,
         pos: np.ndarray,

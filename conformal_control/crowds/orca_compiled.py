@@ -1,7 +1,7 @@
 """ORCA's half-planes and linear programs, compiled: one pass over the pedestrians.
 
-The half-planes (their numpy form is the tests' reference, ``tests/crowds/orca_reference.py``)
-and :func:`~conformal_control.crowds.orca.solve_orca_lp` are, in numpy, vectorised: readable, and
+:meth:`ORCAModel.orca_lines <conformal_control.crowds.orca.ORCAModel.orca_lines>` and
+:func:`~conformal_control.crowds.orca.solve_orca_lp` are vectorised numpy: readable, and
 fast for thousands of pedestrians, but each is a few dozen numpy calls, which is most of a
 step for a hundred (0.6 of 0.75 ms on the shared 2-core machine). The functions below do
 the same arithmetic per pedestrian in scalar loops compiled with numba (``cache=True``, as

@@ -446,10 +446,20 @@ class MultiRobotWorld:
         *,
         yielding: bool = False,
     ) -> None:
-        """Robot ``i`` broadcasts its plan: the velocity it intends (m/s) and, optionally,
-        its planned path ``(times (H,) s since the start, positions (H, 2) m)`` and whether
-        it yields (see the module docstring). The others see it from the next control
-        instant on (``information="plan"``)."""
+        """Robot ``i`` broadcasts its plan; the others see it from the next control instant
+        on (``information="plan"``).
+
+        Parameters
+        ----------
+        i : int
+            The robot.
+        velocity : array of shape (2,)
+            The velocity it intends (m/s).
+        path : (times, positions), optional
+            Its planned path: times (H,) in s since the start, positions (H, 2) in m.
+        yielding : bool
+            Whether it yields (see the module docstring).
+        """
         v = np.asarray(velocity, dtype=float).reshape(-1)
         if v.shape != (2,) or not np.isfinite(v).all():
             raise ValueError(f"a broadcast velocity is a finite (vx, vy), got {velocity!r}")
