@@ -1114,14 +1114,14 @@ def write_multi_report(
 
     Parameters
     ----------
-    rows : sequence of mappings
-        The benchmark's result rows.
-    out : path
-        The folder written (created if missing).
+    rows : sequence of mapping
+        The multi-robot benchmark's rows (one per fleet episode, solo arms included).
+    out : str or Path
+        The report folder (created if missing).
     title : str
         The page's title.
     notice : str, optional
-        The page's first line (for a folder with unfinished episodes).
+        The page's first line, for a folder with unfinished episodes.
     """
     tables = multi_tables(rows)
     out = Path(out)

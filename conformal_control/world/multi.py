@@ -446,19 +446,19 @@ class MultiRobotWorld:
         *,
         yielding: bool = False,
     ) -> None:
-        """Robot ``i`` broadcasts its plan; the others see it from the next control instant
-        on (``information="plan"``).
+        """Robot ``i`` broadcasts its plan (see the module docstring); the others see it
+        from the next control instant on (``information="plan"``).
 
         Parameters
         ----------
         i : int
-            The robot.
-        velocity : array of shape (2,)
+            The robot's index.
+        velocity : array (2,)
             The velocity it intends (m/s).
-        path : (times, positions), optional
-            Its planned path: times (H,) in s since the start, positions (H, 2) in m.
+        path : (times (H,), positions (H, 2)), optional
+            Its planned path: times in s since the start, positions in m.
         yielding : bool
-            Whether it yields (see the module docstring).
+            Whether it yields to the others.
         """
         v = np.asarray(velocity, dtype=float).reshape(-1)
         if v.shape != (2,) or not np.isfinite(v).all():
