@@ -81,7 +81,7 @@ def _slow_predictor(name: Any) -> str | None:
         return f"predictor {name!r}: {exc}"
     if fast:
         return None
-    return f"predictor {name!r} is not marked fast: its runs predict in parallel on the pool"
+    return f"predictor {name!r} is not declared batchable: its runs predict in parallel on the pool"
 
 
 def _group_key(cfg: dict[str, Any]) -> str:
