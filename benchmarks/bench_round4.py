@@ -134,7 +134,7 @@ def measure(
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     default = os.environ.get("CONFORMAL_CONTROL_DATA", str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--data-root", default=default)
     ap.add_argument("--quick", action="store_true")

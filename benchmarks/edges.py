@@ -181,7 +181,7 @@ def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> N
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("folder", type=Path)
     ap.add_argument("--lambda-table", action="store_true")
     ap.add_argument("--extend", type=float, default=None)

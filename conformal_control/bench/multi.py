@@ -1110,8 +1110,19 @@ def write_multi_report(
     title: str = "Multi-robot benchmark",
     notice: str | None = None,
 ) -> Path:
-    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page
-    (``notice``: its first line, for a folder with unfinished episodes)."""
+    """Write ``multi_report.md`` (and the tables as JSON) into ``out``; return the page.
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        The multi-robot benchmark's rows (one per fleet episode, solo arms included).
+    out : str or Path
+        The report folder (created if missing).
+    title : str
+        The page's title.
+    notice : str, optional
+        The page's first line, for a folder with unfinished episodes.
+    """
     tables = multi_tables(rows)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

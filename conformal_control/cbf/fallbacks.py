@@ -175,15 +175,13 @@ class GoalAware(Fallback):
     level), the projection then taken there; with ``rest="dropped"``, not met at all.
     Where ``lambda_search`` raises every row alike and returns the command closest to the
     nominal there, this keeps the most imminent agents' rows as they are and heads for the
-    goal.
+    goal. :attr:`FilterResult.row_lambda` is, per row, the lambda that row satisfies at
+    the decision; ``lambda_applied`` its maximum.
 
     Parameters
     ----------
     rest : {"relaxed", "dropped"}
         What becomes of the rows after the prefix.
-
-    :attr:`FilterResult.row_lambda` is, per row, the lambda that row satisfies at the
-    decision; ``lambda_applied`` its maximum.
     """
 
     name = "goal_aware"

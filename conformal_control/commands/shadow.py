@@ -52,8 +52,9 @@ def _shadow_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--family",
         default="cbf",
-        choices=("cbf", "mpc", "acp_mpc", "ecp_mpc"),
-        help="the conformal CBF controller (default) or a sampling-MPC family",
+        help="the conformal CBF controller (cbf, default) or any registered planning family "
+        "(mpc, acp_mpc, ecp_mpc, fcp_mpc, soft_mpc or a plugin's; `conformal-control plugins` "
+        "lists them)",
     )
     p.add_argument("--predictor", default="constant_velocity", help="registered predictor name")
     p.add_argument(

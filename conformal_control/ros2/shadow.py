@@ -2,8 +2,9 @@
 
 :func:`shadow` reads a robot's ROS 2 bag (:func:`~conformal_control.ros2.bag.read_bag`),
 feeds its people to a step-wise controller -- :class:`~conformal_control.cbf.StepwiseCBF`
-(``family="cbf"``) or :class:`~conformal_control.mpc.StepwiseMPC` (``mpc``, ``acp_mpc``,
-``ecp_mpc``) -- as a live node would, and asks it for a command at every control instant,
+(``family="cbf"``) or :class:`~conformal_control.mpc.StepwiseMPC` (any registered
+planning family: ``mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``, ``soft_mpc``, a
+plugin's) -- as a live node would, and asks it for a command at every control instant,
 with the robot's **recorded** state: the robot moves as it did, the commands are what the
 controller *would* have sent. Nothing is simulated.
 
@@ -276,8 +277,9 @@ def shadow(
         ``nav_msgs/msg/Odometry`` topic.
     family : str
         ``cbf`` (:class:`~conformal_control.cbf.StepwiseCBF`) or a planning family
-        (``mpc``, ``acp_mpc``, ``ecp_mpc``: :class:`~conformal_control.mpc.StepwiseMPC`
-        with its velocity plant).
+        (any registered one -- ``mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``,
+        ``soft_mpc``, a plugin's: :class:`~conformal_control.mpc.StepwiseMPC` with its
+        velocity plant).
     predictor : str or Predictor
         A registered predictor name or an instance.
     params : dict, optional

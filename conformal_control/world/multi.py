@@ -455,10 +455,20 @@ class MultiRobotWorld:
         *,
         yielding: bool = False,
     ) -> None:
-        """Robot ``i`` broadcasts its plan: the velocity it intends (m/s) and, optionally,
-        its planned path ``(times (H,) s since the start, positions (H, 2) m)`` and whether
-        it yields (see the module docstring). The others see it from the next control
-        instant on (``information="plan"``)."""
+        """Robot ``i`` broadcasts its plan (see the module docstring); the others see it
+        from the next control instant on (``information="plan"``).
+
+        Parameters
+        ----------
+        i : int
+            The robot's index.
+        velocity : array (2,)
+            The velocity it intends (m/s).
+        path : (times (H,), positions (H, 2)), optional
+            Its planned path: times in s since the start, positions in m.
+        yielding : bool
+            Whether it yields to the others.
+        """
         v = np.asarray(velocity, dtype=float).reshape(-1)
         if v.shape != (2,) or not np.isfinite(v).all():
             raise ValueError(f"a broadcast velocity is a finite (vx, vy), got {velocity!r}")

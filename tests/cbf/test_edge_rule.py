@@ -198,8 +198,10 @@ def test_every_fallback_and_backend_keeps_the_edge_rule(case, fallback) -> None:
     escape = CONSTRAINT.escape(x, xp, vp)
     assert escape is not None
     results = []
+    # the agents' predicted times to contact, as the fused step hands them to goal_aware
+    ttc = fused(fallback).contact_times(x, xp, vp, nominal)
     for f in filters(fallback):
-        res = f.solve_escaping(nominal, A, b, lam, escape)
+        res = f.solve_escaping(nominal, A, b, lam, escape, ttc)
         check_edge(res, escape)
         results.append(res)
     # the fused compiled step: the same rows built in the kernel, the same decision

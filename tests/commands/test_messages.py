@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 import warnings
 from pathlib import Path
@@ -314,8 +315,8 @@ def test_run_keywords_get_a_did_you_mean(kwargs: dict, words: str) -> None:
 # ------------------------------------------------------------------------------ advice
 @pytest.mark.filterwarnings("ignore::conformal_control.exceptions.FeasibilityWarning")
 def test_below_the_floor_the_missed_goal_is_blamed_on_the_fallback(crossing) -> None:
-    with pytest.warns(GoalNotReachedWarning) as rec:
-        res = cc.run(crossing, epsilon=-0.45)
+    with pytest.warns(GoalNotReachedWarning) as rec:  # the default lambda floor opened
+        res = cc.run(crossing, epsilon=-0.45, params={"lambda_min": -math.inf})
     text = str(next(w.message for w in rec if w.category is GoalNotReachedWarning))
     share = res.metrics["fallback_share"]
     assert not res.metrics["goal_reached"] and share > 0.25

@@ -140,6 +140,8 @@ def test_unattainable_epsilon_is_reported(tmp_path: Path, sdd_dir: Path, capsys)
         "4",
         "--param",
         "a=1",
+        "--param",
+        "lambda_min=-inf",  # the default lambda floor opened: lambda may sink below the floor
         "--frames",
         "120",
         "--out",

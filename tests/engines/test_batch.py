@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -66,7 +67,7 @@ def test_relax_fallback_matches_run_episode(crossings, compare_batch):
         output="results",
         fallback="relax",
         fallback_params={"weights": "inverse_gradient"},
-        params={"epsilon": -0.3},
+        params={"epsilon": -0.3, "lambda_min": -math.inf},  # below the default floor
         max_frames=[240, 200, 160, 240],
     )
     assert all(s.metrics.n_fallback > 20 for s in singles)

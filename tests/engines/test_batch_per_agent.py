@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -30,7 +32,8 @@ def _same_agents(batched, singles):
     [
         ("fixed_eta", {}),  # the compiled predictor and fallback
         ("dtaci", {"predictor": "delayed", "predictor_params": {"delay_s": 0.5}}),
-        ("fixed_eta", {"fallback": "relax", "params": {"epsilon": -0.3}}),  # Python fallback
+        # Python fallback: below the default lambda floor
+        ("fixed_eta", {"fallback": "relax", "params": {"epsilon": -0.3, "lambda_min": -math.inf}}),
     ],
 )
 def test_per_agent_matches_run_episode(crossings, compare_batch, rule, extra):

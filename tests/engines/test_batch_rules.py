@@ -27,7 +27,8 @@ def crossings():
 
 
 RULES = {
-    "pid": ({"epsilon": -0.1, "eta": ETA}, {"K_I": ETA / 2, "C_sat": 1.0}),
+    # the default lambda floor opened: lambda moves freely (else two of the three sit on it)
+    "pid": ({"epsilon": -0.1, "eta": ETA, "lambda_min": -math.inf}, {"K_I": ETA / 2, "C_sat": 1.0}),
     "dtaci": ({"epsilon": -0.1}, {"gammas": (3.0, 9.0, 30.0, 90.0), "sigma": 0.01}),
     "decaying_eta": ({"epsilon": -0.1, "eta": ETA}, {"power": 0.5}),
     "aci": ({}, {"alpha": 0.1, "gamma": ETA, "lambda_init": 0.0}),

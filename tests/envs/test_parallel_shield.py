@@ -84,7 +84,9 @@ def test_the_example_script_shows_the_shield_at_work():
 
     path = Path(__file__).resolve().parents[2] / "examples" / "parallel_shield.py"
     ns = runpy.run_path(str(path), run_name="example")
-    robot_off, _, goals_off, _ = ns["episode"](ns["scripted"], False)
-    robot_on, _, goals_on, modified = ns["episode"](ns["scripted"], True)
+    robot_off, ped_off, goals_off, _ = ns["episode"](ns["scripted"], False)
+    robot_on, ped_on, goals_on, modified = ns["episode"](ns["scripted"], True)
     assert robot_off > 0 and robot_on == 0 and modified > 0
-    assert goals_on == goals_off == 6
+    assert ped_on < ped_off
+    # the page's table: since the edge rule one scripted robot misses its goal in time
+    assert goals_off == 6 and goals_on == 5

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -84,8 +86,10 @@ def test_animate_bad_input(tmp_path, capsys):
 def test_animation_record_content(crossing):
     from conformal_control.sim.episode import run_episode
 
-    # epsilon below the feasibility floor: the fallback runs, and the record shows it
-    res = run_episode(crossing, "constant_velocity", {"epsilon": -0.3}, max_frames=80)
+    # epsilon below the feasibility floor and the default lambda floor opened: the fallback
+    # runs, and the record shows it
+    params = {"epsilon": -0.3, "lambda_min": -math.inf}
+    res = run_episode(crossing, "constant_velocity", params, max_frames=80)
     rec = res.animation
     assert res.metrics["n_fallback"] > 0
     assert set(np.unique(rec["status"])) <= {0, 1, 2} and (rec["status"] == 2).any()

@@ -124,6 +124,24 @@ def test_an_mpc_family_runs_in_shadow(tmp_path: Path, rb) -> None:
     assert res.config["family"] == "mpc"
 
 
+@pytest.mark.parametrize("family", ["fcp_mpc", "soft_mpc"])
+def test_every_registered_planning_family_runs_in_shadow(
+    tmp_path: Path, rb, family: str, capsys, error_line
+) -> None:
+    """The command took only cbf, mpc, acp_mpc and ecp_mpc (a list written by hand)."""
+    from conformal_control.cli import main
+
+    bag = rb.recording(seconds=2.0).write_bag(tmp_path / "b")
+    out = tmp_path / "out"
+    assert main(["shadow", str(bag), "--goal", "10,0", "--family", family, "--out", str(out)]) == 0
+    assert json.loads((out / "config.json").read_text())["family"] == family
+    capsys.readouterr()
+    # a family that does not plan is refused in one line
+    out = tmp_path / "acp"
+    assert main(["shadow", str(bag), "--goal", "10,0", "--family", "acp", "--out", str(out)]) == 2
+    assert "StepwiseMPC runs a planning family" in error_line()
+
+
 def test_outputs_read_back_equal_to_commands_csv(tmp_path: Path, simple_bag: Path, capsys) -> None:
     """The command line writes commands.csv, config.json, the bag and the plots; the bag's
     messages (read with rosbags, and decoded again with mcap-ros2-support) are the CSV's

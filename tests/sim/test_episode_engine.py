@@ -94,9 +94,8 @@ def test_crossing(seed):
 @pytest.mark.parametrize("fallback", ["lambda_search", "brake", "hold"])
 def test_fallback_heavy(crossing, fallback):
     # lambda far below the feasibility floor (a large negative lambda_init, no learning,
-    # lambda_min set below it so that the CBF's default floor does not lift it): the
-    # fallback decides on many instants
-    params = {"a": 2.0, "epsilon": 0.1, "lambda_init": -50.0, "lambda_min": -100.0}
+    # the default lambda floor opened): the fallback decides on many instants
+    params = {"a": 2.0, "epsilon": 0.1, "lambda_init": -50.0, "lambda_min": -math.inf}
     fast, loop = _both(crossing, "oracle", params, fallback=fallback, learn=False, max_frames=150)
     assert loop.metrics["n_fallback"] > 20
     assert (fast.animation["status"] == 2).any()

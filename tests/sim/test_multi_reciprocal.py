@@ -268,9 +268,9 @@ def test_reciprocal_runs_are_deterministic_with_a_seed(crossing):
 
 # -------------------------------------------------------------------- fleet metrics
 def test_fleet_metrics_recomputed_from_the_run_directory(tmp_path, crossing):
-    # ten robots through the centre, four of which ignore the others: robot contacts,
-    # pedestrian contacts and deadlocks to count (three ignoring robots touch no other
-    # robot since the CBF's default lambda floor)
+    # ten robots through the centre, four of which ignore the others (with three, the
+    # others now keep clear of them): robot contacts, pedestrian contacts and deadlocks to
+    # count
     res = run_multi(
         crossing,
         robots=10,
