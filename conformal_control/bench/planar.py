@@ -78,6 +78,7 @@ __all__ = [
     "ScenarioResult",
     "dataset_metrics",
     "planar_table",
+    "reusable_rows",
     "run_planar",
     "run_scenario",
     "run_scenarios",
@@ -1101,6 +1102,7 @@ def run_planar(
     tasks: Mapping[str, PlanarTask] | None = None,
     suite: str = SUITE,
     progress: Callable[[str], None] | None = None,
+    resume: bool = True,
 ) -> list[dict[str, Any]]:
     """Run the suite: every dataset's scenarios x methods x predictors x seeds.
 
@@ -1108,6 +1110,11 @@ def run_planar(
     ``OUT/rows.jsonl`` (one row per scenario and seed: its metrics, the family's counters,
     the per-step log); returns the rows. A method with its own predictor (the oracle rows)
     runs once per dataset, under that predictor's name.
+
+    Resumable, like ``bench run``: the rows a previous run into ``OUT`` finished
+    (``rows.jsonl``, or ``rows.jsonl.part`` of a stopped run) are kept and not run again
+    when that run's ``config.json`` has the same protocol and the same definition of the
+    row's method (:func:`reusable_rows`); every other row runs.
 
     Parameters
     ----------
@@ -1131,7 +1138,9 @@ def run_planar(
     suite : str
         The suite's name (``config.json``).
     progress : callable, optional
-        Called with one line per scenario run.
+        Called with one line per scenario run (and one saying how many rows were kept).
+    resume : bool
+        Keep the rows a previous run into ``OUT`` finished (default); False runs all.
 
     Raises
     ------
@@ -1164,6 +1173,9 @@ def run_planar(
         "seed": seed_list[0],
         "seeds": seed_list,
     }
+    kept = reusable_rows(folder, config) if resume else {}
+    if kept and progress is not None:
+        progress(f"resuming: {len(kept)} rows of a previous run into {folder} kept")
     (folder / "config.json").write_text(json.dumps(config, indent=1, default=str) + "\n")
     rows = []
     tmp = folder / "rows.jsonl.part"
@@ -1178,6 +1190,11 @@ def run_planar(
                     label = method.predictor or pred
                     for sd in seed_list:
                         for start in task.start_timesteps:
+                            done = kept.get((ds, name, label, sd, int(start)))
+                            if done is not None:  # finished by a previous run
+                                rows.append(done)
+                                fh.write(json.dumps(done, default=float) + "\n")
+                                continue
                             res = run_scenario(
                                 task, start, method, pred, data_root=data_root, seed=sd
                             )
@@ -1206,6 +1223,67 @@ def run_planar(
                                 )
     tmp.replace(folder / "rows.jsonl")
     return rows
+
+
+def reusable_rows(
+    folder: Path, config: Mapping[str, Any]
+) -> dict[tuple[str, str, str, int, int], dict[str, Any]]:
+    """The rows a previous :func:`run_planar` into ``folder`` finished that a run of
+    ``config`` would produce alike, by ``(dataset, method, predictor, seed, start)``.
+
+    Kept only when the previous ``config.json`` has the same suite and protocol and the
+    row's method the same definition (its :meth:`PlanarMethod.as_dict`); rows of
+    ``rows.jsonl`` (a finished run) and of ``rows.jsonl.part`` (a stopped one; a last line
+    cut off mid-write is dropped) count.
+
+    Parameters
+    ----------
+    folder : Path
+        The output folder.
+    config : mapping
+        The new run's ``config.json`` content.
+    """
+    cfg = folder / "config.json"
+    if not cfg.is_file():
+        return {}
+    try:
+        old = json.loads(cfg.read_text())
+    except ValueError:
+        return {}
+
+    def canon(v: Any) -> str:
+        return json.dumps(v, sort_keys=True, default=str)
+
+    if old.get("suite") != config["suite"] or canon(old.get("protocol")) != canon(
+        json.loads(json.dumps(config["protocol"], default=str))
+    ):
+        return {}
+    new_defs = {m["name"]: canon(m) for m in json.loads(json.dumps(config["methods"], default=str))}
+    same = {
+        m["name"]
+        for m in old.get("methods", [])
+        if isinstance(m, dict) and new_defs.get(m.get("name")) == canon(m)
+    }
+    kept: dict[tuple[str, str, str, int, int], dict[str, Any]] = {}
+    for name in ("rows.jsonl", "rows.jsonl.part"):
+        path = folder / name
+        if not path.is_file():
+            continue
+        for line in path.read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except ValueError:  # cut off mid-write
+                continue
+            if isinstance(row, dict) and row.get("method") in same:
+                key = (
+                    str(row["dataset"]),
+                    str(row["method"]),
+                    str(row["predictor"]),
+                    int(row["seed"]),
+                    int(row["start_timestep"]),
+                )
+                kept[key] = row
+    return kept
 
 
 def warm_up_kernels() -> None:

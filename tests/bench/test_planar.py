@@ -147,6 +147,45 @@ def test_bad_method_and_dataset_names_are_one_line_errors(tmp_path):
         planar.run_planar(tmp_path, datasets=["eth2"])
 
 
+def test_a_stopped_run_resumes_keeping_only_rows_of_the_same_definition(tmp_path, monkeypatch):
+    calls: list[tuple[str, int, int]] = []
+
+    def fake(task, start, method, pred, data_root=None, seed=0):
+        calls.append((method.name, seed, start))
+        res = planar.ScenarioResult(task.dataset, method.name, pred, start, task.max_steps)
+        res.steps = [{"recorded": True, "collision": seed == 1, "infeasible": False}]
+        res.ended, res.goal_step = "max_steps", None
+        return res
+
+    monkeypatch.setattr(planar, "run_scenario", fake)
+    monkeypatch.setattr(planar, "warm_up_kernels", lambda: None)
+    tasks = {"zara1": dataclasses.replace(TASKS["zara1"], start_timesteps=(100, 200))}
+    kw = {"methods": ["mpc", "cc_mpc"], "predictors": ["constant_velocity"], "tasks": tasks}
+    first = planar.run_planar(tmp_path, seeds=[0, 1], **kw)
+    assert len(calls) == 8
+    # stopped after three rows, the fourth cut off mid-write
+    lines = (tmp_path / "rows.jsonl").read_text().splitlines()
+    (tmp_path / "rows.jsonl").unlink()
+    (tmp_path / "rows.jsonl.part").write_text("\n".join(lines[:3]) + "\n" + lines[3][:20])
+    calls.clear()
+    seen: list[str] = []
+    again = planar.run_planar(tmp_path, seeds=[0, 1], progress=seen.append, **kw)
+    assert len(calls) == 5 and ("mpc", 1, 200) in calls and ("mpc", 0, 100) not in calls
+    assert seen[0].startswith("resuming: 3 rows")
+    assert json.dumps(again) == json.dumps(first)  # the same rows in the same order
+    assert (tmp_path / "rows.jsonl").read_text().splitlines() == lines
+    # another definition of cc_mpc: its rows run again, mpc's are kept
+    cc = PLANAR_METHODS["cc_mpc"]
+    other = dataclasses.replace(cc, rule_params={**cc.rule_params, "epsilon": 0.2})
+    monkeypatch.setitem(PLANAR_METHODS, "cc_mpc", other)
+    calls.clear()
+    planar.run_planar(tmp_path, seeds=[0, 1], **kw)
+    assert sorted({c[0] for c in calls}) == ["cc_mpc"] and len(calls) == 4
+    calls.clear()
+    planar.run_planar(tmp_path, seeds=[0, 1], resume=False, **kw)
+    assert len(calls) == 8
+
+
 def test_the_table_prints_our_rows_beside_the_published_ones():
     rows = [
         {
