@@ -17,7 +17,22 @@ Figures:
 * the longest parameter lists of functions and constructors (compiled ``@jit`` kernels
   aside, as their arguments are arrays by design);
 * private names (``_x``) imported from another module, and the module pairs;
+* reads of other objects' private attributes (:func:`private_reads`): ``obj._x`` where
+  ``obj`` is not ``self``, ``cls``, ``super()`` or ``type(self)`` (a class's own code),
+  and ``getattr``/``hasattr``/``setattr`` of a private name given as text; in the engines
+  and in the whole package;
+* circles again with the ``if TYPE_CHECKING:`` imports counted (a circle of annotations
+  still ties the modules' designs together);
 * lines of ``sim/``, and of the whole package.
+
+``--path`` follows a call path instead (:func:`follow`): the CLI's ``run`` from its
+arguments to the first update of lambda, traced call by call (``sys.setprofile``; code run
+while a module is being imported is left out). The *path* is the chain of modules on the
+stack at that update (consecutive frames of one module count once); the path **enters** a
+module when a function of the path calls into it (the path's own modules included); a
+call from the path into a module of a lower floor that returns before the update is one
+**return to a higher layer** (the path went down for a detour and climbed back). Calls
+made inside a detour are the detour's business and are not counted.
 """
 
 from __future__ import annotations
@@ -81,8 +96,9 @@ def _targets(node: ast.Import | ast.ImportFrom, me: str, is_pkg: bool) -> list[t
     return out
 
 
-def imports(path: Path) -> list[tuple[str, str, bool]]:
-    """(target module, name, inside a function) for every runtime import of ``path``."""
+def imports(path: Path, typing: bool = False) -> list[tuple[str, str, bool]]:
+    """(target module, name, inside a function) for every runtime import of ``path``
+    (with ``typing``, the ``if TYPE_CHECKING:`` imports too)."""
     me = module_name(path)
     is_pkg = path.name == "__init__.py"
     out: list[tuple[str, str, bool]] = []
@@ -91,7 +107,7 @@ def imports(path: Path) -> list[tuple[str, str, bool]]:
         depth = 0
 
         def visit_If(self, node: ast.If) -> None:
-            if _is_type_checking(node):  # never runs
+            if _is_type_checking(node) and not typing:  # never runs
                 for n in node.orelse:
                     self.visit(n)
             else:
@@ -202,6 +218,172 @@ def parameter_lists(files: list[Path], kernels: bool = False) -> list[tuple[int,
     return sorted(out, key=lambda r: (-r[0], r[1]))
 
 
+_ATTR_FUNCTIONS = ("getattr", "hasattr", "setattr", "delattr")
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def private_reads(files: list[Path]) -> list[tuple[str, int, str]]:
+    """(module, line, expression) of every read of another object's private attribute.
+
+    ``obj._x`` counts unless ``obj`` is the method's own ``self``/``cls`` (the first
+    parameter of a function defined in a class body, also in functions nested in it),
+    ``super()`` or ``type(...)`` (a class reading its own); ``getattr(obj, "_x")`` and
+    the like count when the name is given as text. A module's own private names
+    (``_helper``) are names, not attributes, and do not count; library internals
+    (``argparse._Action``, ``os._exit``) do.
+    """
+    out: list[tuple[str, int, str]] = []
+    for path in files:
+
+        class Visitor(ast.NodeVisitor):
+            def __init__(self, mod: str) -> None:
+                self.mod = mod
+                self.own: list[str | None] = [None]
+                self.in_class = [False]
+
+            def visit_ClassDef(self, node: ast.ClassDef) -> None:
+                self.in_class.append(True)
+                self.generic_visit(node)
+                self.in_class.pop()
+
+            def _fn(self, node: ast.FunctionDef | ast.AsyncFunctionDef) -> None:
+                args = [*node.args.posonlyargs, *node.args.args]
+                own = args[0].arg if self.in_class[-1] and args else self.own[-1]
+                self.own.append(own)
+                self.in_class.append(False)
+                self.generic_visit(node)
+                self.in_class.pop()
+                self.own.pop()
+
+            visit_FunctionDef = visit_AsyncFunctionDef = _fn
+
+            def _mine(self, v: ast.expr) -> bool:
+                if isinstance(v, ast.Name):
+                    return v.id == self.own[-1]
+                if not (isinstance(v, ast.Call) and isinstance(v.func, ast.Name)):
+                    return False
+                if v.func.id == "super":
+                    return True
+                return v.func.id == "type" and len(v.args) == 1 and self._mine(v.args[0])
+
+            def visit_Attribute(self, node: ast.Attribute) -> None:
+                if _is_private(node.attr) and not self._mine(node.value):
+                    out.append((self.mod, node.lineno, ast.unparse(node)))
+                self.generic_visit(node)
+
+            def visit_Call(self, node: ast.Call) -> None:
+                if (
+                    isinstance(node.func, ast.Name)
+                    and node.func.id in _ATTR_FUNCTIONS
+                    and len(node.args) >= 2
+                    and isinstance(node.args[1], ast.Constant)
+                    and isinstance(node.args[1].value, str)
+                    and _is_private(node.args[1].value)
+                    and not self._mine(node.args[0])
+                ):
+                    out.append((self.mod, node.lineno, ast.unparse(node)))
+                self.generic_visit(node)
+
+        Visitor(module_name(path)).visit(ast.parse(path.read_text()))
+    return sorted(out)
+
+
+def typing_circles(files: list[Path]) -> list[list[str]]:
+    """The import graph's circles with the ``if TYPE_CHECKING:`` imports counted."""
+    g: dict[str, set[str]] = {}
+    for p in files:
+        me = module_name(p)
+        deps: set[str] = set()
+        for target, _, _ in imports(p, typing=True):
+            parts = target.split(".")
+            for d in {".".join(parts[:i]) for i in range(2, len(parts) + 1)}:
+                if d != me and not me.startswith(d + "."):
+                    deps.add(d)
+        g[me] = deps
+    return _sccs(g)
+
+
+def follow(argv: list[str]) -> dict[str, Any]:
+    """The call path of ``conformal-control ARGV`` up to the first update of lambda (a call
+    of ``update`` in ``update_rules/``): the path's modules, the modules it enters, its
+    returns to a higher layer (see the module docstring), the detours by module pair.
+
+    Parameters
+    ----------
+    argv : list of str
+        The command line after ``conformal-control`` (the command runs in this process).
+    """
+    import sys
+
+    layers = _layers()
+    pkg = str(PKG)
+
+    def layer(module: str) -> int:
+        return layers.get(_unit(module), 99)
+
+    calls: list[list[Any]] = []  # [module stack, returned, entry (a module's first frame)]
+    active: list[int] = []
+    state: dict[str, Any] = {"spine": None, "importing": 0}
+
+    def profile(frame: Any, event: str, arg: Any) -> None:
+        if event not in ("call", "return"):
+            return
+        code = frame.f_code
+        if not code.co_filename.startswith(pkg):
+            return
+        if code.co_name == "<module>":  # an import: not the run's path
+            state["importing"] += 1 if event == "call" else -1
+            return
+        if state["importing"]:
+            return
+        if event == "return":
+            if active:
+                calls[active.pop()][1] = True
+            return
+        module = module_name(Path(code.co_filename))
+        stack = calls[active[-1]][0] if active else ()
+        entry = not (stack and stack[-1] == module)
+        ms = (*stack, module) if entry else stack
+        if code.co_name == "update" and f"{PKG.name}/update_rules/" in code.co_filename:
+            state["spine"] = ms
+            sys.setprofile(None)
+            return
+        calls.append([ms, False, entry])
+        active.append(len(calls) - 1)
+
+    from conformal_control.cli import main as cli_main
+
+    sys.setprofile(profile)
+    try:
+        cli_main(argv)
+    finally:
+        sys.setprofile(None)
+    spine = state["spine"]
+    if spine is None:
+        raise RuntimeError("the command never updated lambda")
+    entered = set(spine)
+    pairs: dict[tuple[str, str], int] = {}
+    for ms, returned, entry in calls:
+        if len(ms) < 2 or not returned or not entry or spine[: len(ms) - 1] != ms[:-1]:
+            continue  # a call inside a detour, or the path itself
+        caller, callee = ms[-2], ms[-1]
+        entered.add(callee)
+        if layer(callee) < layer(caller):
+            pairs[(caller, callee)] = pairs.get((caller, callee), 0) + 1
+    return {
+        "path (modules on the stack at the update)": list(spine),
+        "files entered": len(entered),
+        "returns to a higher layer": sum(pairs.values()),
+        "_detail": {
+            "entered": sorted(entered),
+            "returns": [f"{n:3d}  {a} <- {b}" for (a, b), n in sorted(pairs.items())],
+        },
+    }
+
+
 def measure() -> dict[str, Any]:
     layers = _layers()
     files = sorted(PKG.rglob("*.py"))
@@ -242,6 +424,8 @@ def measure() -> dict[str, Any]:
     sim_lines = (
         sum(len(f.read_text().splitlines()) for f in sim.rglob("*.py")) if sim.exists() else 0
     )
+    reads = private_reads(files)
+    typed = typing_circles(files)
     return {
         "rooms (modules)": len(files),
         "floors (layers)": len(set(layers.values())),
@@ -262,8 +446,11 @@ def measure() -> dict[str, Any]:
             for n, name, kw in params
             if name == "conformal_control.api.run"
         ),
+        "circles counting typing-only imports": len(typed),
         "private names imported across modules": len(private),
         "module pairs with private imports": len({(a, b) for a, b, _ in private}),
+        "reads of other objects' private attributes": len(reads),
+        "  of which in engines/": sum(1 for m, *_ in reads if m.startswith(f"{PKG.name}.engines")),
         "lines of sim/": sim_lines,
         "lines of the package": sum(len(f.read_text().splitlines()) for f in files),
         "_detail": {
@@ -271,6 +458,8 @@ def measure() -> dict[str, Any]:
             "circles": circles,
             "closing": [f"{a} -> {b}" for a, b in sorted(closing)],
             "private": [f"{a} <- {b}.{n}" for a, b, n in private],
+            "private reads": [f"{m}:{line}  {text}" for m, line, text in reads],
+            "typing circles": typed,
         },
     }
 
@@ -279,8 +468,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--json", action="store_true", help="print JSON")
     ap.add_argument("--detail", action="store_true", help="list the offending imports")
+    ap.add_argument(
+        "--path",
+        nargs=argparse.REMAINDER,
+        metavar="ARGV",
+        help="follow the call path of `conformal-control ARGV` to the first lambda update "
+        "instead (e.g. --path run --scene nexus_4 --epsilon -0.1 --no-plot --out DIR -q)",
+    )
     args = ap.parse_args()
-    m = measure()
+    m = follow(args.path) if args.path else measure()
     detail = m.pop("_detail")
     if args.json:
         print(json.dumps({**m, **({"detail": detail} if args.detail else {})}, indent=1))

@@ -16,13 +16,14 @@ robot's ROS 2 bag instead: the commands it would have sent.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
 from .exceptions import InputError
 from .results.episode import EpisodeResult
 from .ros2.shadow import shadow
-from .spec import RunSpec
+from .spec import PARAMETERS, RunSpec
 
 __all__ = ["run", "shadow"]
 
@@ -39,6 +40,9 @@ def run(
     data_root: str | Path | None = None,
     start: Any = None,
     goal: Any = None,
+    start_frame: int | None = None,
+    progress: bool = False,
+    extra_config: dict[str, Any] | None = None,
     **settings: Any,
 ) -> EpisodeResult:
     """Run the conformal CBF controller on a scene and return the result.
@@ -66,17 +70,26 @@ def run(
         the scene's frame (``(0.05, 0.5)``: the image on SDD scenes, the walkable box on
         ETH/UCY ones) or with a unit (``"3.2m,1.0m"``, ``"120px,300px"``); see
         :mod:`~conformal_control.data.positions`. None: the scene's own task.
+    start_frame : int, optional
+        The video frame the robot starts at (default: the scene's).
+    progress : bool
+        Show the episode's progress in frames (a bar on a terminal, lines in a log).
+    extra_config : dict, optional
+        Merged into the result's configuration (``config.json``): what the caller wants
+        recorded beside the run (the command line records its options).
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
         <conformal_control.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
-        (the task in metres, as numbers), ``predictor`` (an instance or a
-        registered name; default ``"constant_velocity"``), ``learn`` (False keeps lambda
-        fixed: the noLearn baseline), ``seed`` (of the built-in scene and of named plugins
-        with a ``random_state``), ``max_frames``, ``barrier``, ``safety_filter``,
-        ``fallback``, ``reference``, ``dynamics``, ``loss``, ``rule`` (instances or
-        names) and their ``*_params``, ``lambda_safe``, ``record_animation``, ``engine``
-        (``"auto"``: the compiled engine where it applies, ``"loop"``: the generic
-        per-instant loop); and ``on_interval`` (a callback per interval).
+        (the task in metres, as numbers), ``predictor`` (an instance or a registered
+        name; default ``"constant_velocity"``; a trainable predictor given by name without
+        ``weights`` is trained on the scene's data first, or its cached weights are used),
+        ``learn`` (False keeps lambda fixed: the noLearn baseline), ``seed`` (of the
+        built-in scene and of the plugins declaring it, ``run_values``), ``max_frames``,
+        ``barrier``, ``safety_filter``, ``fallback``, ``reference``, ``dynamics``,
+        ``loss``, ``rule`` (instances or names) and their ``*_params``, ``lambda_safe``,
+        ``record_animation``, ``engine`` (``"auto"``: the compiled engine where it
+        applies, ``"loop"``: the generic per-instant loop); and ``on_interval`` (a
+        callback per interval).
 
     Returns
     -------
@@ -93,6 +106,7 @@ def run(
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
+    from .predictors.training import with_weights
     from .sim.episode import run_episode
 
     _check_keywords(settings)
@@ -102,8 +116,11 @@ def run(
         raise InputError(f"spec must be a RunSpec, got {type(base).__name__}")
     _refuse_robots(base, settings)
     seed = int(settings.get("seed", base.seed))
+    _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
     if isinstance(scene, str):
-        scene = load_scene(scene, data_root, start=start, goals=goal, seed=seed)
+        scene = load_scene(
+            scene, data_root, start=start, goals=goal, start_frame=start_frame, seed=seed
+        )
     elif start is not None or goal is not None:
         import numpy as np
 
@@ -138,7 +155,55 @@ def run(
         else:
             units = "si"
     settings["units"] = units
-    return run_episode(scene, base, given, on_interval=on_interval, **settings)
+    log = logging.getLogger("conformal_control.run")
+    log.info(
+        "scene %s: %d agents, %d frames at %g fps",
+        scene.name,
+        scene.n_agents,
+        scene.n_frames,
+        scene.fps,
+    )
+    run_spec = RunSpec.from_settings(given, base=base, **settings)
+    run_spec = with_weights(run_spec, scene, None if data_root is None else str(data_root))
+    name, pp = run_spec.role("predictor")
+    log.info("predictor %s with %s; rule %s", name, pp, run_spec.role_name("rule"))
+    if not progress:
+        return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
+    from .progress import progress as progress_bar
+
+    total = scene.n_frames - 1 - scene.start_index
+    if run_spec.max_frames is not None:
+        total = min(total, run_spec.max_frames)
+    # control instants per frame: the run's, else the scene's, else the table's default
+    default = scene.defaults.get("substeps", PARAMETERS["substeps"][0])
+    substeps = int(run_spec.params.get("substeps", default))
+    bar = progress_bar(total, f"run {scene.name} [{run_spec.role_name('predictor')}]", "frames")
+    steps = [0]  # control steps so far; the bar advances in whole frames
+
+    def advance(iv: Any) -> None:
+        before = -(-steps[0] // substeps)
+        steps[0] += iv.n_steps
+        if iv.l_avg is not None:
+            bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
+        bar.update(-(-steps[0] // substeps) - before)
+        if on_interval is not None:
+            on_interval(iv)
+
+    with bar:
+        return run_episode(scene, run_spec, on_interval=advance, extra_config=extra_config)
+
+
+def _check_plugins(run: RunSpec) -> None:
+    """Every role given by name is a registered plugin (an unknown name fails here, before
+    the scene is loaded, with a did-you-mean)."""
+    from . import registry
+
+    roles = run.roles()
+    order = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
+    for role in (*order, "family"):
+        name = roles[role][0]
+        if isinstance(name, str):
+            registry.entry(role, name)
 
 
 def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:

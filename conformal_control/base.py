@@ -36,12 +36,14 @@ Sign convention (all of the toolkit): a *smaller* lambda is *more conservative*.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import inspect
 import math
+import types
 import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Literal, TypeVar
 
 from .exceptions import ConformalControlDeprecationWarning
@@ -50,6 +52,8 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = [
+    "Capabilities",
+    "CompiledForm",
     "DecisionFamily",
     "Environment",
     "GuaranteeKind",
@@ -60,9 +64,11 @@ __all__ = [
     "Settings",
     "SingleStepEnvironment",
     "UpdateRule",
-    "compiled_as",
+    "declared_test_params",
     "expand_settings",
+    "first_test_instance",
     "flat_params",
+    "param_names",
 ]
 
 ObsT = TypeVar("ObsT")
@@ -111,6 +117,145 @@ class KeyedLosses:
     at: Callable[[int, float], float | None] | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class Capabilities:
+    """What a plugin class declares about itself, in one object (like scikit-learn's tags).
+
+    Read it as ``Cls.capabilities`` (or on an instance). A class declares its own values
+    with keywords in its ``class`` statement; every other field is its parent's::
+
+        class MyPredictor(Predictor, batchable=True, run_values={"random_state": "seed"}):
+            ...
+
+    except :attr:`compiled`, which is never inherited (a subclass may compute something
+    else than its parent's compiled code does; it declares the name again if it does not).
+    Fields of another role than the plugin's keep their defaults and mean nothing.
+    ``conformal_control.testing.check_capabilities`` checks a plugin's declaration.
+
+    Attributes
+    ----------
+    compiled : str or None
+        Every role: the compiled form the class declares (the compiled engine runs it as
+        that kernel, reading the constants :meth:`Plugin.compiled_state` hands it).
+    run_values : Mapping[str, str]
+        Every role: constructor argument -> the documented run value
+        (:data:`~conformal_control.spec.RUN_VALUES`) the run's builder passes for it when
+        the caller did not give it.
+    batchable : bool
+        Predictor: its forecasts cost a few milliseconds at most per sampling time
+        (nothing fitted by an iterative optimiser): benchmarks and sweeps run many episodes
+        of it in one process instead of one worker per episode (was ``fast``).
+    trainable : bool
+        Predictor: it takes ``weights=FOLDER`` and is trained by ``train-predictor`` (a
+        run without weights trains and caches them).
+    requires_ground_truth : bool
+        Predictor: it reads the true future (the oracle baseline); reports mark its runs
+        and the contract kit feeds it a truth.
+    guarantee : {"identity", "step_identity", "long_run", "none"}
+        Update rule: what it guarantees (read by the guarantee monitor).
+    fixed_step : bool
+        Update rule: lambda_{k+1} = lambda_k + eta (eps - l_k) with a constant eta.
+    exact_step : bool
+        Update rule: lambda_{k+1} = lambda_k + eta_k (eps - l_k) exactly (before clipping),
+        eta_k in ``last_step_``.
+    uses_loss_function : bool
+        Update rule: it wants the interval's loss as a function of lambda before each
+        update (``set_loss_function``; counterfactual rules such as dtaci).
+    lambda_params : tuple of str
+        Update rule: constructor arguments in the units of lambda (converted from the
+        scene's units).
+    default_loss : str or None
+        Decision family: the loss a run uses when it gives none (None: the gap loss).
+    default_rule_params : Mapping[str, float]
+        Decision family: the rule's ``epsilon``, ``eta``, ... when the run gives none
+        (a family whose lambda is not the CBF's slack).
+    lambda_unit : str or None
+        Decision family: what its lambda is measured in, when not the CBF's rate (``"m"``,
+        ``"level"``).
+    vector_lambda : bool
+        Decision family: it takes one lambda per agent (``lambda_keys()``); a loss: it
+        scores each agent (``components()``).
+    probe_floor_first : bool
+        Safety filter: compute lambda* first when the previous decision fell back (saves a
+        slow infeasible solve; iterative solvers).
+    """
+
+    compiled: str | None = None
+    run_values: Mapping[str, str] = dataclasses.field(
+        default_factory=lambda: types.MappingProxyType({})
+    )
+    batchable: bool = False
+    trainable: bool = False
+    requires_ground_truth: bool = False
+    guarantee: GuaranteeKind = "none"
+    fixed_step: bool = False
+    exact_step: bool = False
+    uses_loss_function: bool = False
+    lambda_params: tuple[str, ...] = ()
+    default_loss: str | None = None
+    default_rule_params: Mapping[str, float] = dataclasses.field(
+        default_factory=lambda: types.MappingProxyType({})
+    )
+    lambda_unit: str | None = None
+    vector_lambda: bool = False
+    probe_floor_first: bool = False
+
+    def replace(self, **changes: Any) -> Capabilities:
+        """A copy with ``changes`` applied (an unknown field is a ``TypeError``)."""
+        unknown = sorted(set(changes) - set(CAPABILITY_FIELDS))
+        if unknown:
+            raise TypeError(
+                f"no capabilit{'y' if len(unknown) == 1 else 'ies'} {', '.join(unknown)}; "
+                f"the capabilities are {', '.join(CAPABILITY_FIELDS)}"
+            )
+        for key in ("run_values", "default_rule_params"):
+            if key in changes:
+                changes[key] = types.MappingProxyType(dict(changes[key]))
+        if "lambda_params" in changes:
+            changes["lambda_params"] = tuple(changes["lambda_params"])
+        return dataclasses.replace(self, **changes)
+
+
+#: The fields of :class:`Capabilities`, in order.
+CAPABILITY_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Capabilities))
+
+#: Class attributes of 0.3 now held by :class:`Capabilities`: old name -> field. A class
+#: that still sets one in its body has it folded in, with a deprecation warning
+#: (removed in 0.4, not before 2027-06-30).
+FORMER_FLAGS: Mapping[str, str] = types.MappingProxyType(
+    {
+        "compiled_as": "compiled",
+        "fast": "batchable",
+        "trainable": "trainable",
+        "requires_ground_truth": "requires_ground_truth",
+        "guarantee": "guarantee",
+        "fixed_step": "fixed_step",
+        "exact_step": "exact_step",
+        "uses_loss_function": "uses_loss_function",
+        "lambda_params": "lambda_params",
+        "default_loss": "default_loss",
+        "default_rule_params": "default_rule_params",
+        "lambda_unit": "lambda_unit",
+        "probe_floor_first": "probe_floor_first",
+    }
+)
+
+
+#: Class-body values that are never a former flag (a method or property of that name).
+_NOT_FLAGS = (property, classmethod, staticmethod, functools.cached_property)
+
+
+@dataclasses.dataclass(frozen=True)
+class CompiledForm:
+    """What a plugin hands the compiled engine (:meth:`Plugin.compiled_state`): the name
+    of the kernel (:attr:`kernel`, the plugin's :attr:`Capabilities.compiled`) and, in a
+    subclass, that kernel's constants, validated. The engine reads plugins only through
+    their forms, never their attributes."""
+
+    #: The kernel this form feeds.
+    kernel: ClassVar[str] = ""
+
+
 @functools.lru_cache(maxsize=1024)
 def _init_param_names(init: Callable[..., None]) -> tuple[str, ...]:
     """The named parameters of an ``__init__`` (cached: a signature costs tens of
@@ -154,6 +299,47 @@ class Settings:
         return dataclasses.replace(self, **changes)
 
 
+def param_names(cls: type) -> list[str]:
+    """The named parameters of a class's ``__init__`` (a plugin's: those
+    :meth:`Plugin.get_params` reports).
+
+    Parameters
+    ----------
+    cls : type
+        The class.
+    """
+    return list(_init_param_names(cls.__init__))  # type: ignore[misc]  # the class's own
+
+
+_T = TypeVar("_T")
+
+
+def first_test_instance(cls: type[_T]) -> _T:
+    """The first instance a class declares for the contract kit (``cls(**params)`` of the
+    first entry of its ``_unit_test_params()`` classmethod, the kit's hook; ``cls()``
+    without one): the partner a plugin's own checks are run with.
+
+    Parameters
+    ----------
+    cls : type
+        A plugin or environment class.
+    """
+    return cls(**declared_test_params(cls)[0])
+
+
+def declared_test_params(cls: type) -> list[dict[str, Any]]:
+    """The constructor kwargs a class declares for the contract kit: what its
+    ``_unit_test_params()`` classmethod (the kit's hook) returns, ``[{}]`` without one.
+
+    Parameters
+    ----------
+    cls : type
+        A plugin or environment class.
+    """
+    hook = getattr(cls, "_unit_test_params", None)
+    return [{}] if hook is None else list(hook())
+
+
 def flat_params(plugin: Any) -> dict[str, Any]:
     """A plugin's parameters as plain data (for ``config.json``): each
     :class:`Settings` group given as its ``<group>__<field>`` entries (see
@@ -180,15 +366,53 @@ class Plugin:
     Subclasses store each ``__init__`` argument under an attribute of the same name and do
     no work in ``__init__`` (validation happens in ``reset``).
 
-    A plugin the compiled engine (:mod:`conformal_control.engines.batch`) runs as compiled
-    code declares it with ``compiled_as``: the name of its compiled counterpart. The
-    declaration holds for the class that makes it only (read it with
-    :func:`compiled_as`): a subclass may compute something else, and runs in the engine
-    only if it declares the name again.
+    What a plugin class declares about itself -- the compiled form it has, the run values
+    it takes, its role's flags -- is one :class:`Capabilities` object,
+    :attr:`capabilities`, declared with keywords in the ``class`` statement
+    (``class APFBarrier(Barrier, compiled="apf", run_values={...})``).
     """
 
-    #: Name of this exact class's compiled counterpart in the compiled engine, or None.
-    compiled_as: ClassVar[str | None] = None
+    #: What this class declares about itself (see :class:`Capabilities`).
+    capabilities: ClassVar[Capabilities] = Capabilities()
+
+    def __init_subclass__(cls, **declared: Any) -> None:
+        own = {k: declared.pop(k) for k in list(declared) if k in CAPABILITY_FIELDS}
+        try:
+            super().__init_subclass__(**declared)
+        except TypeError:
+            if not declared:
+                raise
+            close = difflib.get_close_matches(next(iter(declared)), CAPABILITY_FIELDS, n=1)
+            raise TypeError(
+                f"{cls.__name__}: no capability {', '.join(declared)}"
+                f"{f' (did you mean {close[0]}?)' if close else ''}; the capabilities are "
+                f"{', '.join(CAPABILITY_FIELDS)}"
+            ) from None
+        if "capabilities" in vars(cls):
+            raise TypeError(
+                f"{cls.__name__}: declare capabilities as keywords of the class statement "
+                f"(class {cls.__name__}(Base, batchable=True)), not as an attribute"
+            )
+        for old, new in FORMER_FLAGS.items():
+            value = vars(cls).get(old)
+            if value is None or new in own or isinstance(value, _NOT_FLAGS) or callable(value):
+                continue
+            warnings.warn(
+                f"{cls.__name__}.{old} = ... is deprecated: declare class "
+                f"{cls.__name__}(..., {new}={value!r}) (removed in 0.4, not before 2027-06-30)",
+                ConformalControlDeprecationWarning,
+                stacklevel=3,
+            )
+            own[new] = value
+        inherited: Capabilities = getattr(cls, "capabilities", Capabilities())
+        cls.capabilities = inherited.replace(**{"compiled": None, **own})
+
+    def compiled_state(self) -> CompiledForm | None:
+        """What the compiled engine needs to run this plugin as the kernel its
+        :attr:`Capabilities.compiled` names: that kernel's form holding the plugin's
+        constants, validated (raises ``ValueError`` as the plugin's own checks do). None
+        (the default): the kernel takes no constants, or the class declares none."""
+        return None
 
     #: Former flat constructor keywords now held by a :class:`Settings` group: old name
     #: -> ``<group>__<field>``. Still accepted (by the constructor, :meth:`set_params`
@@ -197,7 +421,7 @@ class Plugin:
 
     @classmethod
     def _param_names(cls) -> list[str]:
-        return list(_init_param_names(cls.__init__))
+        return param_names(cls)
 
     def get_params(self, deep: bool = False) -> dict[str, Any]:
         """Return the constructor parameters of this plugin (name -> value).
@@ -242,7 +466,7 @@ class Plugin:
         warnings.warn(
             f"{type(self).__name__}({key}=...) is deprecated: give {group}="
             f"{type(getattr(self, group, None)).__name__}({field}=...) or {new}=... "
-            f"(removed in 0.4)",
+            f"(removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=stacklevel + 1,
         )
@@ -287,13 +511,6 @@ class Plugin:
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
-
-
-def compiled_as(cls: type) -> str | None:
-    """The compiled counterpart ``cls`` itself declares (``compiled_as`` in its own body),
-    None if it declares none (an inherited declaration does not count)."""
-    value = vars(cls).get("compiled_as")
-    return value if isinstance(value, str) else None
 
 
 # --------------------------------------------------------------------------------------
@@ -437,25 +654,20 @@ class UpdateRule(Plugin, ABC):
     The protocol the loop and the monitor rely on is declared here, not discovered:
 
     ``epsilon``            target average loss
-    ``guarantee``          the :data:`GuaranteeKind` the rule keeps
-    ``fixed_step``         True when lambda_{k+1} = lambda_k + eta (eps - l_k) with a
-                           constant ``eta`` (then :attr:`step` is that eta)
     ``last_step_``         the step eta_k of the last update (NaN if the rule has none)
     ``n_clipped_``         updates whose lambda was clipped into [lambda_min, lambda_max]
     ``lambda_min/max``     clipping bounds (-inf, inf: none)
-    ``uses_loss_function`` the rule wants l_k(.) before each update (counterfactuals)
+
+    and, in its :class:`Capabilities`: ``guarantee`` (the :data:`GuaranteeKind` the rule
+    keeps), ``fixed_step`` (lambda_{k+1} = lambda_k + eta (eps - l_k) with a constant
+    ``eta``, then :attr:`step` is that eta), ``uses_loss_function`` (the rule wants l_k(.)
+    before each update: counterfactuals), ``lambda_params``.
     """
 
     #: Target average loss of the rule (epsilon).
     epsilon: float
     lambda_min: float = -math.inf
     lambda_max: float = math.inf
-
-    guarantee: ClassVar[GuaranteeKind] = "none"
-    fixed_step: ClassVar[bool] = False
-    uses_loss_function: ClassVar[bool] = False
-    #: Constructor parameters expressed in the units of lambda (scene-unit conversion).
-    lambda_params: ClassVar[tuple[str, ...]] = ()
 
     #: Updates whose output was clipped (set by ``reset``).
     n_clipped_: int = 0

@@ -21,6 +21,7 @@ import logging
 import re
 import sys
 import warnings
+import weakref
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -53,12 +54,20 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} [default: %(default)s]"
 
 
+def _is_subcommands(action: argparse.Action) -> bool:
+    """Whether ``action`` chooses a subcommand (its choices are the subcommands' parsers)."""
+    choices = action.choices
+    return isinstance(choices, dict) and any(
+        isinstance(v, argparse.ArgumentParser) for v in choices.values()
+    )
+
+
 def choice_noun(action: argparse.Action) -> str:
     """What a value of ``action`` is called in an error: ``command`` for a subcommand,
     else the option's name (``--crowd`` -> ``crowd``, ``--robot-layout`` -> ``robot
     layout``) or the positional argument's metavar or name, singular for a list
     (``targets`` -> ``target``)."""
-    if isinstance(action, argparse._SubParsersAction):
+    if _is_subcommands(action):
         return "command"
     if action.option_strings:
         name = max(action.option_strings, key=len)
@@ -134,7 +143,7 @@ class ArgumentParser(argparse.ArgumentParser):
 
         names = [str(c) for c in choices]
         close = difflib.get_close_matches(str(value), names, n=1, cutoff=0.6)
-        listed = len(names) <= 12 and not isinstance(action, argparse._SubParsersAction)
+        listed = len(names) <= 12 and not _is_subcommands(action)
         if close:
             hint = f"; did you mean {close[0]!r}?" + (
                 f" [one of {', '.join(names)}]" if listed else ""
@@ -275,16 +284,20 @@ def _show_warning(
     write(f"warning: {text}", file)
 
 
+#: The log handlers the command line installed (replaced when it configures logging again).
+_CLI_HANDLERS: weakref.WeakSet[logging.Handler] = weakref.WeakSet()
+
+
 def _configure_logging(verbose: int) -> None:
     logger = logging.getLogger("conformal_control")
     for h in list(logger.handlers):
-        if getattr(h, "_cc_cli", False):
+        if h in _CLI_HANDLERS:
             logger.removeHandler(h)
     if verbose <= 0:
         logger.setLevel(logging.WARNING)
         return
     handler = logging.StreamHandler(sys.stderr)
-    handler._cc_cli = True  # type: ignore[attr-defined]
+    _CLI_HANDLERS.add(handler)
     handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     logger.addHandler(handler)
     logger.setLevel(logging.INFO if verbose == 1 else logging.DEBUG)

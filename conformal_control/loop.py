@@ -193,7 +193,7 @@ def close_interval(
     log = IntervalLog(k=k, lam=lam, loss=score.loss, n_steps=n_steps, diagnostics=score.diagnostics)
     if score.loss is not None:
         if learn:
-            if rule.uses_loss_function:
+            if rule.capabilities.uses_loss_function:
                 rule.set_loss_function(score.loss_at)
             lam = monitor.update(score.loss)
         else:
@@ -293,7 +293,7 @@ def _policy_is_family(init: Callable[_P, _R]) -> Callable[_P, _R]:
     def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> _R:
         if "policy" in kwargs:
             warnings.warn(
-                "the loop's keyword policy= is now family= (removed in 0.4)",
+                "the loop's keyword policy= is now family= (removed in 0.4, not before 2027-06-30)",
                 ConformalControlDeprecationWarning,
                 stacklevel=2,
             )
@@ -375,9 +375,9 @@ class ConformalStepper:
 
     @property
     def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
-        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
-            "the loop's attribute policy is now family (removed in 0.4)",
+            "the loop's attribute policy is now family (removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=2,
         )

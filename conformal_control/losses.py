@@ -185,6 +185,10 @@ class FunctionLoss(Loss[Any, Any]):
         """Inputs for the checked function (``record - truth`` is a number)."""
         return [(0.0, 0.0), (1.0, -1.0), (-3.0, 2.5)]
 
+    def check(self) -> tuple[float, float]:
+        """The declared bounds, checked with the function (``ValueError`` otherwise)."""
+        return self._check_bounds()
+
     def _check_bounds(self) -> tuple[float, float]:
         try:
             lo, hi = (float(b) for b in self.bounds)
@@ -236,5 +240,5 @@ def wrap_loss(
     0.0
     """
     out = FunctionLoss(fn, bounds=bounds, name=name)
-    out._check_bounds()
+    out.check()
     return out

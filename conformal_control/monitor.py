@@ -154,7 +154,7 @@ class GuaranteeMonitor:
             eta=rule.step if learn else None,
             lambda_safe=lambda_safe,
             bounds=bounds,
-            kind=rule.guarantee if learn else "none",
+            kind=rule.capabilities.guarantee if learn else "none",
             rule=rule if learn else None,
             lambda_safe_source=lambda_safe_source,
             premise_proven=premise_proven,
@@ -452,7 +452,7 @@ class AgentMonitor:
             self.lambda_safe_source = "given"
         self.lambda_1 = float(self.rule.reset())  # validates the rule's parameters
         self.epsilon = float(self.rule.epsilon)
-        self.kind: GuaranteeKind = self.rule.guarantee if self.learn else "none"
+        self.kind: GuaranteeKind = self.rule.capabilities.guarantee if self.learn else "none"
         self.eta = self.rule.step if self.learn else None
 
     @classmethod
@@ -562,7 +562,7 @@ class AgentMonitor:
             if mon is None:
                 raise KeyError(f"agent {key} was scored but has no lambda entry (see values())")
             if self.learn:
-                if mon.rule is not None and mon.rule.uses_loss_function:
+                if mon.rule is not None and mon.rule.capabilities.uses_loss_function:
                     mon.rule.set_loss_function(None if at is None else functools.partial(at, i))
                 mon.update(loss)
             else:

@@ -65,7 +65,6 @@ __all__ = [
     "register",
     "role_name",
     "unregister",
-    "with_context",
 ]
 
 #: role -> entry-point group
@@ -244,7 +243,8 @@ def role_name(role: str) -> str:
     if new is not None:
         warnings.warn(
             f"the plugin role {role!r} is now called {new!r} (as the run's field, "
-            f"config.json key and --{new} option); {role!r} is removed in 0.4",
+            f"config.json key and --{new} option); {role!r} is "
+            "removed in 0.4, not before 2027-06-30",
             ConformalControlDeprecationWarning,
             stacklevel=3,
         )
@@ -724,34 +724,6 @@ def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> Non
                 f"{role} {name!r} has no parameter {key!r}{hint} "
                 f"its parameters: {', '.join(known) or 'none'}"
             )
-
-
-def with_context(cls: type, given: dict[str, Any], context: dict[str, Any]) -> dict[str, Any]:
-    """The keyword arguments to build ``cls`` with: the ``context`` values it takes (by
-    name, or ``<group>__<field>`` for a settings group it takes) that ``given`` does not
-    set, then ``given`` unchanged (so a caller's value always wins).
-
-    Parameters
-    ----------
-    cls : type
-        The plugin class.
-    given : dict
-        The caller's parameters (checked separately with :func:`check_params`).
-    context : dict
-        The values a run fixes for parameters the caller left out (``d_c``, the seed,
-        ``limits__v_max``, ...).
-    """
-    accepted = set(cls._param_names()) if hasattr(cls, "_param_names") else set()
-    renamed: dict[str, str] = getattr(cls, "renamed_params", {})
-    keys = {renamed.get(k, k) for k in given}
-    whole = {k for k in keys if "__" not in k}  # a group given as one object
-    out = {
-        k: v
-        for k, v in context.items()
-        if k.partition("__")[0] in accepted and k not in keys and k.partition("__")[0] not in whole
-    }
-    out.update(given)
-    return out
 
 
 def create(role: str, name: str, **params: Any) -> Any:

@@ -31,8 +31,10 @@ __all__ = [
     "PARAM_DIMENSIONS",
     "PLAUSIBLE_SI",
     "ROLE_FIELDS",
+    "RUN_VALUES",
     "ParamInfo",
     "Parameters",
+    "RunContext",
     "RunSpec",
     "parameter_info",
 ]
@@ -738,7 +740,8 @@ class RunSpec:
             )
         warnings.warn(
             f"the fallback given in the {' and the '.join(given)} is the run's fallback role "
-            "since 0.3: give fallback=NAME (on the command line --fallback NAME)",
+            "since 0.3: give fallback=NAME (on the command line --fallback NAME; the other "
+            "ways are removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=4,
         )
@@ -756,6 +759,11 @@ class RunSpec:
         if name not in ROLE_FIELDS:
             raise KeyError(name)
         return _role_parts(name, getattr(self, name))
+
+    def roles(self) -> dict[str, tuple[Any, dict[str, Any]]]:
+        """Every role as :meth:`role` gives it: role -> (name or instance or None, its
+        params)."""
+        return {name: _role_parts(name, getattr(self, name)) for name in ROLE_FIELDS}
 
     def role_name(self, name: str) -> str | None:
         """The registered name of a role (an instance: its class name; None: default)."""
@@ -946,3 +954,122 @@ class RunSpec:
             if message.startswith(where):
                 raise
             raise _spec_error(f"{where}: {message}") from None
+
+
+# ---------------------------------------------------------------------- the run context
+def _doc(text: str) -> dict[str, str]:
+    return {"doc": text}
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """The values a run hands the plugins it builds, each only to a plugin that asks for it.
+
+    A plugin class declares the run values it takes in its capabilities
+    (:attr:`Capabilities.run_values <conformal_control.base.Capabilities.run_values>`:
+    constructor argument -> one of these field names, e.g. ``{"d_c":
+    "barrier_distance"}``); :meth:`arguments` passes exactly those the caller did not give.
+    Nothing is passed because an argument happens to share a name with a run value: a
+    predictor whose own ``v_max`` is the pedestrians' speed cap keeps it. A field left at
+    None is a value this run does not fix (the plugin's own default then applies). Lengths
+    and times are SI.
+    """
+
+    collision_distance: float | None = field(
+        default=None, metadata=_doc("robot radius + agent radius (m)")
+    )
+    barrier_distance: float | None = field(
+        default=None, metadata=_doc("collision_distance + barrier_margin (m): the barrier's d_c")
+    )
+    safe_distance: float | None = field(
+        default=None, metadata=_doc("collision_distance + 1 m: a safety loss's d_safe")
+    )
+    barrier_margin: float | None = field(
+        default=None, metadata=_doc("margin the barrier adds to the collision distance (m)")
+    )
+    v_max: float | None = field(default=None, metadata=_doc("the robot's speed limit (m/s)"))
+    K_att: float | None = field(
+        default=None, metadata=_doc("gain of the attractive-field reference (1/s)")
+    )
+    K_acc: float | None = field(
+        default=None, metadata=_doc("gain of the velocity-tracking plant (1/s)")
+    )
+    K_rep: float | None = field(default=None, metadata=_doc("gain of the APF barrier's repulsion"))
+    rho0: float | None = field(
+        default=None, metadata=_doc("influence distance of the APF barrier (m)")
+    )
+    convention: str | None = field(
+        default=None, metadata=_doc("the APF barrier's distance convention")
+    )
+    delta: float | None = field(
+        default=None, metadata=_doc("the APF barrier's smoothing length (m)")
+    )
+    speed_sides: int | None = field(
+        default=None, metadata=_doc("sides of the exact filter's speed polygon (0: a box)")
+    )
+    substeps: int | None = field(default=None, metadata=_doc("control instants per frame"))
+    loss_scale: float | None = field(
+        default=None, metadata=_doc("scale c of the gap loss's squashing (m/s)")
+    )
+    seed: int | None = field(
+        default=None, metadata=_doc("the run's seed (a plugin's random_state)")
+    )
+    fallback: Any = field(
+        default=None, metadata=_doc("the run's fallback (a registered name or a Fallback)")
+    )
+    epsilon: float | None = field(default=None, metadata=_doc("target average loss"))
+    eta: float | None = field(default=None, metadata=_doc("learning rate (SI)"))
+    lambda_init: float | None = field(default=None, metadata=_doc("initial lambda (SI)"))
+    lambda_min: float | None = field(
+        default=None, metadata=_doc("lower clipping bound of lambda (SI)")
+    )
+    lambda_max: float | None = field(
+        default=None, metadata=_doc("upper clipping bound of lambda (SI)")
+    )
+    constraint: Any = field(
+        default=None, metadata=_doc("the run's ConformalConstraint (barrier and class-K gain)")
+    )
+    predictor: Any = field(default=None, metadata=_doc("the run's predictor (an instance)"))
+    safety_filter: Any = field(default=None, metadata=_doc("the run's safety filter (an instance)"))
+    reference: Any = field(
+        default=None, metadata=_doc("the run's reference controller (an instance)")
+    )
+    dynamics: Any = field(default=None, metadata=_doc("the run's plant (an instance)"))
+
+    def replace(self, **changes: Any) -> RunContext:
+        """A copy with ``changes`` (run value name -> value) applied."""
+        return dataclasses.replace(self, **changes)
+
+    def arguments(self, cls: type, given: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The keyword arguments to build ``cls`` with: the run values its capabilities
+        declare (``run_values``) that this run fixes and ``given`` does not set, then
+        ``given`` unchanged (a caller's value always wins; a settings group given whole,
+        ``limits=Limits(...)``, also wins over a run value for one of its fields,
+        ``limits__v_max``).
+
+        Parameters
+        ----------
+        cls : type
+            The plugin class (its ``capabilities.run_values`` are read).
+        given : dict, optional
+            The caller's arguments.
+        """
+        given = dict(given or {})
+        caps = getattr(cls, "capabilities", None)
+        declared: dict[str, str] = dict(getattr(caps, "run_values", {}))
+        renamed: dict[str, str] = getattr(cls, "renamed_params", {})
+        keys = {renamed.get(k, k) for k in given}
+        whole = {k for k in keys if "__" not in k}  # a group given as one object
+        out: dict[str, Any] = {}
+        for argument, name in declared.items():
+            value = getattr(self, name)
+            if value is None or argument in keys or argument.partition("__")[0] in whole:
+                continue
+            out[argument] = value
+        out.update(given)
+        return out
+
+
+#: The documented run values (name -> what it is), the fields of :class:`RunContext`: the
+#: names a plugin may declare in its ``run_values``.
+RUN_VALUES: dict[str, str] = {f.name: f.metadata["doc"] for f in dataclasses.fields(RunContext)}

@@ -739,6 +739,17 @@ def fields_table(dotted: str) -> str:
     return "\n".join(rows)
 
 
+def run_values_table() -> str:
+    """The documented run values a plugin may declare (``RunContext``'s fields)."""
+    from conformal_control.spec import RUN_VALUES
+
+    rows = ["| run value | what it is |", "|---|---|"]
+    rows += [
+        f"| `{name}` | {doc.replace('|', chr(92) + '|')} |" for name, doc in RUN_VALUES.items()
+    ]
+    return "\n".join(rows)
+
+
 def cli_output(command: str) -> str:
     """``$ conformal-control COMMAND`` and what it prints, run now (versions, plugins and
     counts of this build); a non-zero exit fails the build."""
@@ -780,6 +791,7 @@ GENERATORS = {
     "<!-- generated:run-demo -->": lambda: cli_run_output(),
     "<!-- generated:run-nexus_4 -->": lambda: cli_run_output("--scene", "nexus_4"),
     "<!-- generated:roles -->": roles_table,
+    "<!-- generated:run-values -->": run_values_table,
     "<!-- generated:ethucy-tasks -->": ethucy_tasks,
 }
 

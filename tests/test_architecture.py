@@ -300,3 +300,73 @@ def test_no_function_takes_more_than_fifteen_parameters() -> None:
         "conformal_control.base.Settings, or a section of the run specification):\n"
         + "\n".join(bad)
     )
+
+
+def _house():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_house", PKG.parent / "benchmarks" / "house.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_no_import_circles_even_through_typing_only_imports() -> None:
+    """An annotation-only import (``if TYPE_CHECKING:``) closing a circle still ties two
+    modules' designs together: none either."""
+    circles = _house().typing_circles(sorted(PKG.rglob("*.py")))
+    assert not circles, f"import circles through typing-only imports: {circles}"
+
+
+def test_no_engine_reads_another_objects_private_attributes() -> None:
+    """The engines read plugins through their declared interface (compiled forms,
+    cursors, public methods); the whole package reads at most 15 private attributes of
+    other objects (library internals and the contract kit's hooks, listed by
+    ``python benchmarks/house.py --detail``)."""
+    reads = _house().private_reads(sorted(PKG.rglob("*.py")))
+    engines = [r for r in reads if r[0].startswith("conformal_control.engines")]
+    assert not engines, f"private reads in the engines: {engines}"
+    assert len(reads) <= 15, "private reads of other objects:\n" + "\n".join(map(str, reads))
+
+
+def test_every_deprecation_names_its_removal_date() -> None:
+    """A deprecated name is kept with a date: every ``DeprecationWarning`` the package
+    raises says when the old way goes (0.4, not before 2027-06-30)."""
+    undated = []
+    for path in sorted(PKG.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (
+                isinstance(node, ast.Call)
+                and ast.unparse(node.func) in ("warnings.warn", "warn")
+                and any(
+                    isinstance(a, ast.Name) and a.id == "DeprecationWarning"
+                    for a in [*node.args[1:], *(k.value for k in node.keywords)]
+                )
+            ):
+                continue
+            text = "".join(
+                n.value
+                for n in ast.walk(node.args[0])
+                if isinstance(n, ast.Constant) and isinstance(n.value, str)
+            )
+            if "not before 2027-06-30" not in text:
+                undated.append(f"{module_name(path)}:{node.lineno}")
+    assert not undated, "deprecations without a removal date: " + ", ".join(undated)
+
+
+def test_the_architecture_page_shows_the_floors_of_this_test() -> None:
+    """The floors tables of docs/architecture.md and CONTRIBUTING.md are LAYERS (every unit
+    on its floor, no other)."""
+    import re
+
+    for page in ("docs/architecture.md", "CONTRIBUTING.md"):
+        shown: dict[str, int] = {}
+        for line in (PKG.parent / page).read_text().splitlines():
+            m = re.match(r"^\s*\| (-?\d+) \| (.*) \|$", line)
+            if m:
+                # the units are the backticked names outside parentheses
+                units = re.sub(r"\([^)]*\)", "", m.group(2))
+                for name in re.findall(r"`(\w+)`", units):
+                    shown[name] = int(m.group(1))
+        assert shown == LAYERS, page

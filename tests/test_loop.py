@@ -231,10 +231,8 @@ def test_zero_instant_interval_still_scored():
     assert env.decisions_ == [] and result.n_updates == 2
 
 
-class ProbingRule(FixedEtaRule):
+class ProbingRule(FixedEtaRule, uses_loss_function=True):
     """Fixed step that asks for l_k(.) and evaluates it at other lambdas."""
-
-    uses_loss_function = True
 
     def reset(self):
         self.fn_ = None

@@ -27,7 +27,6 @@ def test_one_table_gives_every_derived_table() -> None:
     assert "v_max" not in PARAM_DIMENSIONS  # always SI
     info = parameter_info("epsilon")
     assert (info.low, info.high, info.closed) == (-0.5, 0.5, (False, False))
-    assert info.range_text == "(-0.5, 0.5)"
     assert parameter_info("substeps").kind == "int"
     assert PARAMETERS["lambda_max"][0] == math.inf
     assert dataclasses.fields(Parameters)[0].metadata["info"].doc == PARAMETERS["a"][1]

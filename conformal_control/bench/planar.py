@@ -78,6 +78,7 @@ __all__ = [
     "ScenarioResult",
     "dataset_metrics",
     "planar_table",
+    "reusable_rows",
     "run_planar",
     "run_scenario",
     "run_scenarios",

@@ -66,19 +66,25 @@ import copy
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from ..base import Loss
 from ..losses import check_lambda, conformal_radius
 from ..predictors.base import Forecast, PredictionQuery, Predictor
+from .barriers import APFForm
 from .constraint import ConformalConstraint
-from .controller import CBFIntervalRecord, ConformalCBFController, ControlState
+from .controller import CBFIntervalForm, CBFIntervalRecord, ConformalCBFController, ControlState
 from .loss import CBFTruth
 from .roles import EscapeRows, ReferenceController, SafetyFilter
 
-__all__ = ["ACPController", "ACPIntervalRecord", "ACPMiscoverageLoss", "region_radii"]
+__all__ = [
+    "ACPController",
+    "ACPIntervalForm",
+    "ACPIntervalRecord",
+    "ACPMiscoverageLoss",
+    "region_radii",
+]
 
 
 def region_radii(sorted_scores: tuple[np.ndarray, ...], lam: float) -> np.ndarray:
@@ -108,7 +114,34 @@ class ACPIntervalRecord(CBFIntervalRecord):
     inflation: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-class ACPController(ConformalCBFController):
+@dataclass(frozen=True)
+class ACPIntervalForm(CBFIntervalForm):
+    """What the compiled engine reads of the acp family after its ``begin_interval`` (and
+    after :meth:`ACPController.region_barriers` at the interval's lambda): the
+    predictions, and what its regions are made of.
+
+    Attributes
+    ----------
+    xp, vp : ndarray
+        As :class:`~conformal_control.cbf.controller.CBFIntervalForm`.
+    pred_samples : ndarray
+        The predictor's positions over the horizon, ``(agents, horizon, 2)``.
+    sorted_scores : tuple of ndarray
+        Past errors per horizon step, sorted.
+    inflation : ndarray
+        The regions' radii at the interval's lambda, per horizon step (m).
+    capped : ndarray
+        Whether each horizon step's region was capped at ``max_inflation`` (bool).
+    """
+
+    kernel = "acp"
+    pred_samples: np.ndarray
+    sorted_scores: tuple[np.ndarray, ...]
+    inflation: np.ndarray
+    capped: np.ndarray
+
+
+class ACPController(ConformalCBFController, compiled="acp"):
     """Adaptive conformal prediction regions (Dixit et al. 2023) inflating a CBF barrier.
 
     lambda is the miscoverage level of the regions (see the module docstring); run it
@@ -126,9 +159,6 @@ class ACPController(ConformalCBFController):
         <= 0, or fewer errors than the level needs at the start of an episode).
     """
 
-    #: the compiled engine runs this class as compiled code (the inflated compiled step)
-    compiled_as = "acp"
-
     def __init__(
         self,
         predictor: Predictor,
@@ -142,19 +172,6 @@ class ACPController(ConformalCBFController):
         super().__init__(predictor, constraint, safety_filter, reference, substeps)
         self.window = window
         self.max_inflation = max_inflation
-
-    @classmethod
-    def from_controller(cls, controller: ConformalCBFController, **params: Any) -> ACPController:
-        """The ``acp`` family built from the parts of an existing conformal CBF controller
-        (same predictor, constraint, safety filter, reference and substeps)."""
-        return cls(
-            controller.predictor,
-            controller.constraint,
-            controller.safety_filter,
-            controller.reference,
-            controller.substeps,
-            **params,
-        )
 
     # ------------------------------------------------------------------ episode
     def reset(self) -> None:
@@ -269,15 +286,46 @@ class ACPController(ConformalCBFController):
         self.n_capped_ += int(self._capped[h])
         c = float(infl[h])
         if c != self._apf_c:
-            barrier = self._inflated(c).barrier
-            K, rho0, d_c, delta = barrier._checked()  # type: ignore[attr-defined]
+            form = self._inflated(c).barrier.compiled_state()
+            assert isinstance(form, APFForm)  # an APF barrier (_fused_apf)
             self.safety_filter.configure_apf(  # type: ignore[attr-defined]
-                (K, rho0, d_c, delta, barrier.convention == "surface"),  # type: ignore[attr-defined]
+                (form.K_rep, form.rho0, form.d_c, form.delta, form.surface),
                 float(self.constraint.a),
                 self.constraint.edge_settings(),  # the edge rule on the true d_c
             )
             self._apf_c = c
         return super().decide(state, self.slack(lam))
+
+    def compiled_state(self) -> ACPIntervalForm:
+        """The interval's predictions and regions (empty before the first interval)."""
+        base = super().compiled_state()
+        get = self.__dict__.get
+        return ACPIntervalForm(
+            base.xp,
+            base.vp,
+            get("_pred", np.zeros((0, 0, 2))),
+            get("_sorted", ()),
+            get("_infl", np.zeros(0)),
+            get("_capped", np.zeros(0, dtype=bool)),
+        )
+
+    def region_barriers(self, lam: float) -> list[APFForm]:
+        """The barrier of each horizon step of the interval at level ``lam``, as the
+        compiled step reads it (``d_c`` raised by the step's region, as :meth:`decide`
+        sets the compiled step up); the regions are then those of
+        :meth:`compiled_state`.
+
+        Parameters
+        ----------
+        lam : float
+            The interval's level.
+        """
+        forms = []
+        for c in self._inflation(lam):
+            form = self._inflated(float(c)).barrier.compiled_state()
+            assert isinstance(form, APFForm)  # the engine runs the APF barrier only
+            forms.append(form)
+        return forms
 
     def _inflation(self, lam: float) -> np.ndarray:
         if self._lam != lam:
@@ -335,7 +383,7 @@ class ACPController(ConformalCBFController):
         )
 
 
-class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
+class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth], compiled="acp_miscoverage"):
     """Miscoverage of the acp regions: the fraction of (agent, step) pairs of the interval
     whose true position fell outside its region.
 
@@ -348,8 +396,6 @@ class ACPMiscoverageLoss(Loss[ACPIntervalRecord, CBFTruth]):
     """
 
     bounds = (0.0, 1.0)
-    #: the compiled engine scores it with this class's own code (on the engine's record)
-    compiled_as = "acp_miscoverage"
 
     def __init__(self) -> None:
         pass

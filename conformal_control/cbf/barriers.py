@@ -3,18 +3,57 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ..base import CompiledForm
 from .roles import Barrier
 
-__all__ = ["APFBarrier"]
+__all__ = ["APFBarrier", "APFForm"]
+
+
+@dataclass(frozen=True)
+class APFForm(CompiledForm):
+    """The APF barrier as the compiled step reads it (validated constants).
+
+    Attributes
+    ----------
+    K_rep : float
+        Repulsion gain (> 0).
+    rho0 : float
+        Influence distance (m, > 0).
+    d_c : float
+        Collision distance (m, >= 0).
+    delta : float
+        The offset used (:attr:`APFBarrier.effective_delta`).
+    surface : bool
+        Whether distances are measured between surfaces (``convention="surface"``).
+    """
+
+    kernel = "apf"
+    K_rep: float
+    rho0: float
+    d_c: float
+    delta: float
+    surface: bool
+
 
 _CONVENTIONS = ("surface", "centre")
 
 
-class APFBarrier(Barrier):
+class APFBarrier(
+    Barrier,
+    compiled="apf",
+    run_values={
+        "d_c": "barrier_distance",
+        "K_rep": "K_rep",
+        "rho0": "rho0",
+        "convention": "convention",
+        "delta": "delta",
+    },
+):
     """Artificial-potential-field barrier (Singletary et al. 2021), as in the paper.
 
     With the repulsive potential ``U(rho) = K_rep/2 (1/rho - 1/rho0)^2`` for
@@ -24,7 +63,7 @@ class APFBarrier(Barrier):
 
     * ``"surface"`` (default, what the published code ran): ``rho = d - d_c``, the gap
       between the two discs; ``delta = 1/2``. Then h is in (-1/2, 1/2] and ``h >= 0``
-      means the gap is at least ``safe_gap`` > 0.
+      means the gap is at least ``1 / (sqrt(2 (1/delta - 1) / K_rep) + 1/rho0)`` > 0.
     * ``"centre"`` (the paper's formula read literally): ``rho = d`` and
       ``delta = 1/(1 + U(d_c))`` so that h = 0 exactly at the collision distance.
 
@@ -48,9 +87,6 @@ class APFBarrier(Barrier):
     delta : float, optional
         Offset; defaults to 1/2 ("surface") or 1/(1 + U(d_c)) ("centre").
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "apf"
 
     def __init__(
         self,
@@ -83,6 +119,12 @@ class APFBarrier(Barrier):
             raise ValueError(f"convention must be one of {_CONVENTIONS}, got {self.convention!r}")
         return K, rho0, d_c, self.effective_delta
 
+    def compiled_state(self) -> APFForm:
+        """The barrier's constants for the compiled step (validated: ``ValueError`` for a
+        bad parameter, as :meth:`evaluate` raises)."""
+        K, rho0, d_c, delta = self._checked()
+        return APFForm(K, rho0, d_c, delta, self.convention == "surface")
+
     def potential(self, rho: float) -> float:
         """U(rho) (dimensionless); infinite for rho <= 0."""
         if rho <= 0:
@@ -103,14 +145,6 @@ class APFBarrier(Barrier):
     @property
     def upper_bound(self) -> float:
         return 1.0 - self.effective_delta
-
-    @property
-    def safe_gap(self) -> float:
-        """Distance variable rho at which h = 0 (for "surface": the disc gap)."""
-        delta = self.effective_delta
-        if not 0 < delta < 1:
-            return math.nan
-        return 1.0 / (math.sqrt(2.0 * (1.0 / delta - 1.0) / self.K_rep) + 1.0 / self.rho0)
 
     # ------------------------------------------------------------------ API
     def evaluate(

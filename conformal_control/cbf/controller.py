@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..base import DecisionFamily, Environment
+from ..base import CompiledForm, DecisionFamily, Environment, first_test_instance
 from ..data.synthetic import crossing_scene
 from ..predictors.base import Forecast, PredictionQuery, Predictor
 from ..spec import parameter_info
-from .barriers import APFBarrier
+from .barriers import APFBarrier, APFForm
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
 from .filters.base import VelocityFilter
@@ -37,6 +38,7 @@ from .reference import AttractiveField
 from .roles import EscapeRows, FilterResult, ReferenceController, SafetyFilter
 
 __all__ = [
+    "CBFIntervalForm",
     "CBFIntervalRecord",
     "ConformalCBFController",
     "ControlState",
@@ -87,8 +89,33 @@ def merge_forecast_info(total: dict[str, Any], info: dict[str, Any]) -> None:
                 total[f"{key}_dropped"] = total.get(f"{key}_dropped", 0) + len(items) - room
 
 
+@dataclass(frozen=True)
+class CBFIntervalForm(CompiledForm):
+    """What the compiled engine reads of a conformal CBF controller at a sampling time,
+    after its ``begin_interval``: the agents' predictions interpolated at the interval's
+    control instants (views, valid until the next ``begin_interval``).
+
+    Attributes
+    ----------
+    xp, vp : ndarray
+        Predicted positions and velocities, ``(instants, agents, 2)`` (m, m/s).
+    """
+
+    kernel = "cbf"
+    xp: np.ndarray
+    vp: np.ndarray
+
+
 class ConformalCBFController(
-    DecisionFamily[PredictionQuery, ControlState, np.ndarray, CBFIntervalRecord]
+    DecisionFamily[PredictionQuery, ControlState, np.ndarray, CBFIntervalRecord],
+    compiled="cbf",
+    run_values={
+        "predictor": "predictor",
+        "constraint": "constraint",
+        "safety_filter": "safety_filter",
+        "reference": "reference",
+        "substeps": "substeps",
+    },
 ):
     """Conformal CBF controller (Huriot & Sibai, Algorithm 1).
 
@@ -144,9 +171,6 @@ class ConformalCBFController(
     does not comply). The compiled step handles these rows too
     (:meth:`Exact2DSafetyFilter.step_apf_record_peers`).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "cbf"
 
     def __init__(
         self,
@@ -222,9 +246,10 @@ class ConformalCBFController(
         ):
             return False
         c = self.constraint
-        K, rho0, d_c, delta = c.barrier._checked()  # type: ignore[attr-defined]
+        form = c.barrier.compiled_state()
+        assert isinstance(form, APFForm)  # an APFBarrier (_apf_parts)
         self.safety_filter.configure_apf(  # type: ignore[attr-defined]
-            (K, rho0, d_c, delta, c.barrier.convention == "surface"),  # type: ignore[attr-defined]
+            (form.K_rep, form.rho0, form.d_c, form.delta, form.surface),
             float(c.a),
             c.edge_settings(),
         )
@@ -724,6 +749,11 @@ class ConformalCBFController(
             "margin": margin if margin.any() else None,
         }
 
+    def compiled_state(self) -> CBFIntervalForm:
+        """The interval's interpolated predictions (empty before the first interval)."""
+        empty = np.zeros((0, 0, 2))
+        return CBFIntervalForm(self.__dict__.get("_xp", empty), self.__dict__.get("_vp", empty))
+
     def interval_record(self) -> CBFIntervalRecord:
         if self._fast:
             s = self._n
@@ -804,7 +834,7 @@ class CrossingTestbed(Environment[PredictionQuery, ControlState, np.ndarray, CBF
 
     @classmethod
     def _unit_test_family(cls) -> ConformalCBFController:
-        return ConformalCBFController(**ConformalCBFController._unit_test_params()[0])
+        return first_test_instance(ConformalCBFController)
 
     def reset(self) -> None:
         scene = crossing_scene(seed=self.seed, duration=4.0)

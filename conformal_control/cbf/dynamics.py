@@ -13,10 +13,12 @@ plant                       command                                state
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
+from ..base import CompiledForm
 from .roles import CommandKind, Dynamics
 from .rollouts import tracking_rollout, unicycle_rollout
 
@@ -25,6 +27,7 @@ __all__ = [
     "Unicycle",
     "UnicycleLookahead",
     "VelocityTrackingDoubleIntegrator",
+    "VelocityTrackingForm",
 ]
 
 
@@ -76,7 +79,23 @@ class DoubleIntegrator(Dynamics):
         return np.concatenate([x, v], axis=2)
 
 
-class VelocityTrackingDoubleIntegrator(Dynamics):
+@dataclass(frozen=True)
+class VelocityTrackingForm(CompiledForm):
+    """The velocity-tracking plant as the compiled step reads it.
+
+    Attributes
+    ----------
+    K_acc : float
+        Tracking gain (1/s, finite, > 0).
+    """
+
+    kernel = "velocity_tracking"
+    K_acc: float
+
+
+class VelocityTrackingDoubleIntegrator(
+    Dynamics, compiled="velocity_tracking", run_values={"K_acc": "K_acc"}
+):
     """Double integrator under the tracking law u = -K_acc (v - v_cmd).
 
     The command is the desired velocity ``v_cmd`` (the QP's safe velocity), held over the
@@ -92,13 +111,17 @@ class VelocityTrackingDoubleIntegrator(Dynamics):
         Tracking gain in 1/s (> 0).
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "velocity_tracking"
-
     state_dim = 4
 
     def __init__(self, K_acc: float = 60.0) -> None:
         self.K_acc = K_acc
+
+    def compiled_state(self) -> VelocityTrackingForm:
+        """The gain, validated (``ValueError`` as :meth:`step` raises)."""
+        k = float(self.K_acc)
+        if not (math.isfinite(k) and k > 0):
+            raise ValueError(f"K_acc must be a finite number > 0, got {self.K_acc!r}")
+        return VelocityTrackingForm(k)
 
     def step(self, state: np.ndarray, command: np.ndarray, dt: float) -> np.ndarray:
         s = _as_state(state)
@@ -132,7 +155,7 @@ def _wrap(theta: np.ndarray | float) -> np.ndarray:
     return out
 
 
-class Unicycle(Dynamics):
+class Unicycle(Dynamics, run_values={"v_max": "v_max"}):
     """Unicycle (differential-drive) robot: command (v, omega), heading in the state.
 
     The state is ``(x, y, vx, vy, theta)``: position (m), world-frame velocity
@@ -218,6 +241,15 @@ class Unicycle(Dynamics):
     def command_limits(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi, w, _ = self._checked()
         return np.array([lo, -w]), np.array([hi, w])
+
+    def _shift(self, cur: np.ndarray, vw: np.ndarray, dt: float) -> np.ndarray:
+        """One unicycle step of N states at once (the rows of ``cur``) under commands ``vw``."""
+        lo, hi, wmax, _ = self._checked()
+        v = np.clip(vw[:, 0], lo, hi)
+        w = np.clip(vw[:, 1], -wmax, wmax)
+        x, y, th = self._advance(cur[:, 0], cur[:, 1], cur[:, 4], v, w, dt)
+        th = _wrap(th)
+        return np.stack([x, y, v * np.cos(th), v * np.sin(th), th], axis=-1)
 
     def _advance(
         self, x: np.ndarray, y: np.ndarray, th: np.ndarray, v: np.ndarray, w: np.ndarray, dt: float
@@ -329,15 +361,5 @@ class UnicycleLookahead(Unicycle):
             c, sn = np.cos(cur[:, 4]), np.sin(cur[:, 4])
             u = cmd[:, j]
             vw = np.stack([c * u[:, 0] + sn * u[:, 1], (-sn * u[:, 0] + c * u[:, 1]) / ell], -1)
-            cur = out[:, j] = _shift(cur, vw, dt, self)
+            cur = out[:, j] = self._shift(cur, vw, dt)
         return out
-
-
-def _shift(cur: np.ndarray, vw: np.ndarray, dt: float, plant: Unicycle) -> np.ndarray:
-    """One unicycle step of N states at once (the rows of ``cur``) under commands ``vw``."""
-    lo, hi, wmax, _ = plant._checked()
-    v = np.clip(vw[:, 0], lo, hi)
-    w = np.clip(vw[:, 1], -wmax, wmax)
-    x, y, th = plant._advance(cur[:, 0], cur[:, 1], cur[:, 4], v, w, dt)
-    th = _wrap(th)
-    return np.stack([x, y, v * np.cos(th), v * np.sin(th), th], axis=-1)

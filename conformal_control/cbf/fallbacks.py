@@ -37,7 +37,7 @@ from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
 __all__ = ["Brake", "GoalAware", "Hold", "LambdaSearch", "Relax", "resolve_fallback"]
 
 
-class LambdaSearch(Fallback):
+class LambdaSearch(Fallback, compiled="lambda_search"):
     """Raise lambda to the smallest feasible value (plus the solver's margin) and project.
 
     ``lambda_applied`` is the lambda actually used, ``lambda* + margin`` with the margin the
@@ -47,9 +47,6 @@ class LambdaSearch(Fallback):
     ``n_lambda_search_retry``); should it still fail, the LP's own velocity, which meets
     every row at ``lambda*``, is returned (counted as ``n_lambda_search_vertex``).
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "lambda_search"
 
     name = "lambda_search"
 
@@ -131,11 +128,8 @@ class Relax(Fallback):
         return FilterResult(v, "fallback", lam_max, self.name, row_lambda)
 
 
-class Brake(Fallback):
+class Brake(Fallback, compiled="brake"):
     """Command zero velocity (``lambda_applied`` is ``nan``: no lambda is guaranteed)."""
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "brake"
 
     name = "brake"
 
@@ -143,11 +137,8 @@ class Brake(Fallback):
         return FilterResult(np.zeros(2), "fallback", math.nan, self.name)
 
 
-class Hold(Fallback):
+class Hold(Fallback, compiled="hold"):
     """Repeat the previous decision (``lambda_applied`` is ``nan``)."""
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "hold"
 
     name = "hold"
 

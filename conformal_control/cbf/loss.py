@@ -3,20 +3,43 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..base import KeyedLosses, Loss
+from ..base import CompiledForm, KeyedLosses, Loss
 from .constraint import ConformalConstraint
 from .interp import interpolate_at_substeps
 from .reciprocal import grown_constraint
 from .records import CBFIntervalRecord, CBFTruth
 
-__all__ = ["CBFGapLoss", "CBFTruth"]
+__all__ = ["CBFGapLoss", "CBFTruth", "GapLossForm", "gap_test_inputs"]
 
 
-class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
+@dataclass(frozen=True)
+class GapLossForm(CompiledForm):
+    """The gap loss as the compiled engine scores it: ``squash(max_gap + lambda)``.
+
+    Attributes
+    ----------
+    scale : float
+        The squashing's scale c (m/s).
+    squash : callable
+        The loss's own squashing ``s(r) = arctan(r / c) / pi`` (the same bits).
+    """
+
+    kernel = "cbf_gap"
+    scale: float
+    squash: Callable[[Any], Any]
+
+
+class CBFGapLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="cbf_gap",
+    run_values={"constraint": "constraint", "scale": "loss_scale"},
+):
     """l_k = max over sensed agents j and control instants t of s(gap_j(t) + lambda_k).
 
     gap_j(t) = [dh^/dx_i . v_i + dh^/dx_j . v^_j + a h^] - [dh/dx_i . v_i + dh/dx_j . v_j + a h],
@@ -44,9 +67,6 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
         Loss scale c in 1/s (the paper's numbers use 1 per frame = fps per second).
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "cbf_gap"
-
     bounds = (-0.5, 0.5)
 
     def __init__(self, constraint: ConformalConstraint, scale: float = 1.0) -> None:
@@ -67,50 +87,12 @@ class CBFGapLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        """Sample ``(record, truth)`` pairs for the contract kit: a perfect and a noisy
-        prediction, an agent whose truth goes missing mid-interval, nothing sensed."""
-        rng = np.random.default_rng(0)
-        dt, substeps, n_samples, n = 0.4, 4, 3, 3
-        s = n_samples * substeps
-        t = np.arange(n_samples + 1) * dt
-        start = rng.uniform(-3.0, 3.0, size=(n, 2))
-        vel = rng.uniform(-1.0, 1.0, size=(n, 2))
-        true = start[:, None, :] + vel[:, None, :] * t[None, :, None]
-        x_ego = np.column_stack([np.linspace(0.0, 1.0, s), np.zeros(s)])
-        v_ego = np.tile([0.8, 0.1], (s, 1))
+        """Sample ``(record, truth)`` pairs for the contract kit (:func:`gap_test_inputs`)."""
+        return gap_test_inputs()
 
-        def record(samples: np.ndarray) -> CBFIntervalRecord:
-            xp, vp = interpolate_at_substeps(samples, dt, substeps, s)
-            return CBFIntervalRecord(
-                ids=np.arange(samples.shape[0]),
-                x_ego=x_ego.copy(),
-                v_ego=v_ego.copy(),
-                x_pred=xp,
-                v_pred=vp,
-                lam_applied=np.zeros(s),
-                status=["optimal"] * s,
-            )
-
-        noisy = true + np.concatenate(
-            [np.zeros((n, 1, 2)), rng.normal(0.0, 0.3, size=(n, n_samples, 2))], axis=1
-        )
-        missing = true.copy()
-        missing[1, 2:] = np.nan
-        empty = CBFIntervalRecord(
-            ids=np.zeros(0, dtype=np.int64),
-            x_ego=x_ego.copy(),
-            v_ego=v_ego.copy(),
-            x_pred=np.zeros((s, 0, 2)),
-            v_pred=np.zeros((s, 0, 2)),
-            lam_applied=np.zeros(s),
-            status=["unconstrained"] * s,
-        )
-        return [
-            (record(true), CBFTruth(true, dt, substeps)),
-            (record(noisy), CBFTruth(true, dt, substeps)),
-            (record(noisy), CBFTruth(missing, dt, substeps)),
-            (empty, CBFTruth(np.zeros((0, n_samples + 1, 2)), dt, substeps)),
-        ]
+    def compiled_state(self) -> GapLossForm:
+        """The scale and the squashing, as the compiled engine scores the loss."""
+        return GapLossForm(self.scale, self.squash)
 
     def squash(self, r: np.ndarray | float) -> np.ndarray | float:
         """s(r) = arctan(r / c) / pi, in (-1/2, 1/2)."""
@@ -248,3 +230,50 @@ class _AgentGapAt:
     def __call__(self, i: int, lam: float) -> float | None:
         top = float(self.top[i])
         return None if math.isnan(top) else float(self.loss.squash(top + lam))
+
+
+def gap_test_inputs() -> list[tuple[CBFIntervalRecord, CBFTruth]]:
+    """Sample ``(record, truth)`` pairs for the contract kit: a perfect and a noisy
+    prediction, an agent whose truth goes missing mid-interval, nothing sensed."""
+    rng = np.random.default_rng(0)
+    dt, substeps, n_samples, n = 0.4, 4, 3, 3
+    s = n_samples * substeps
+    t = np.arange(n_samples + 1) * dt
+    start = rng.uniform(-3.0, 3.0, size=(n, 2))
+    vel = rng.uniform(-1.0, 1.0, size=(n, 2))
+    true = start[:, None, :] + vel[:, None, :] * t[None, :, None]
+    x_ego = np.column_stack([np.linspace(0.0, 1.0, s), np.zeros(s)])
+    v_ego = np.tile([0.8, 0.1], (s, 1))
+
+    def record(samples: np.ndarray) -> CBFIntervalRecord:
+        xp, vp = interpolate_at_substeps(samples, dt, substeps, s)
+        return CBFIntervalRecord(
+            ids=np.arange(samples.shape[0]),
+            x_ego=x_ego.copy(),
+            v_ego=v_ego.copy(),
+            x_pred=xp,
+            v_pred=vp,
+            lam_applied=np.zeros(s),
+            status=["optimal"] * s,
+        )
+
+    noisy = true + np.concatenate(
+        [np.zeros((n, 1, 2)), rng.normal(0.0, 0.3, size=(n, n_samples, 2))], axis=1
+    )
+    missing = true.copy()
+    missing[1, 2:] = np.nan
+    empty = CBFIntervalRecord(
+        ids=np.zeros(0, dtype=np.int64),
+        x_ego=x_ego.copy(),
+        v_ego=v_ego.copy(),
+        x_pred=np.zeros((s, 0, 2)),
+        v_pred=np.zeros((s, 0, 2)),
+        lam_applied=np.zeros(s),
+        status=["unconstrained"] * s,
+    )
+    return [
+        (record(true), CBFTruth(true, dt, substeps)),
+        (record(noisy), CBFTruth(true, dt, substeps)),
+        (record(noisy), CBFTruth(missing, dt, substeps)),
+        (empty, CBFTruth(np.zeros((0, n_samples + 1, 2)), dt, substeps)),
+    ]

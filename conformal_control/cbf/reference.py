@@ -3,15 +3,38 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..base import CompiledForm
 from .roles import ReferenceController
 
-__all__ = ["AttractiveField"]
+__all__ = ["AttractiveField", "AttractiveFieldForm"]
 
 
-class AttractiveField(ReferenceController):
+@dataclass(frozen=True)
+class AttractiveFieldForm(CompiledForm):
+    """The attractive field as the compiled step reads it.
+
+    Attributes
+    ----------
+    K_att : float
+        Gain (1/s).
+    v_max : float
+        Speed cap of the reference (m/s).
+    """
+
+    kernel = "attractive_field"
+    K_att: float
+    v_max: float
+
+
+class AttractiveField(
+    ReferenceController,
+    compiled="attractive_field",
+    run_values={"K_att": "K_att", "v_max": "v_max"},
+):
     """Attractive potential toward a goal: v_ref = -K_att (X - X_goal), speed-saturated.
 
     The goal is supplied by the environment at each control instant (it owns the task and
@@ -25,9 +48,6 @@ class AttractiveField(ReferenceController):
         Speed saturation in m/s.
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "attractive_field"
-
     def __init__(self, K_att: float = 30.0, v_max: float = 2.0) -> None:
         self.K_att = K_att
         self.v_max = v_max
@@ -37,6 +57,10 @@ class AttractiveField(ReferenceController):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+    def compiled_state(self) -> AttractiveFieldForm:
+        """The gain and the speed cap, as the compiled step reads them."""
+        return AttractiveFieldForm(self.K_att, self.v_max)
 
     def __call__(self, state: np.ndarray, t: float, goal: np.ndarray) -> np.ndarray:
         v: np.ndarray = -self.K_att * (

@@ -25,7 +25,7 @@ from ..base import KeyedLosses, Loss
 from ..losses import check_lambda
 from .controller import CBFIntervalRecord
 from .interp import interpolate_at_substeps
-from .loss import CBFGapLoss, CBFTruth
+from .loss import CBFTruth, gap_test_inputs
 
 __all__ = ["CollisionLoss", "DistanceShortfallLoss", "min_distances"]
 
@@ -43,7 +43,11 @@ def min_distances(record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
     return d
 
 
-class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class CollisionLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="collision",
+    run_values={"d_c": "collision_distance"},
+):
     """l_k = 1 if the ego came closer than ``d_c`` to a sensed agent during I_k, else 0.
 
     Parameters
@@ -52,9 +56,6 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
         Collision distance between centres (m); the paper's 0.5 m + 0.5 m.
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "collision"
-
     bounds = (0.0, 1.0)
 
     def __init__(self, d_c: float = 1.0) -> None:
@@ -62,7 +63,7 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         check_lambda(lam)
@@ -82,7 +83,11 @@ class CollisionLoss(Loss[CBFIntervalRecord, CBFTruth]):
         return {"d_min": float(np.nanmin(d)), "n_truth_missing": int((~np.isfinite(d)).sum())}
 
 
-class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class DistanceShortfallLoss(
+    Loss[CBFIntervalRecord, CBFTruth],
+    compiled="distance_shortfall",
+    run_values={"d_c": "collision_distance", "d_safe": "safe_distance"},
+):
     """l_k = clip((d_safe - d_min,k) / (d_safe - d_c), 0, 1): how far inside the margin.
 
     0 when the ego kept at least ``d_safe`` from every sensed agent during I_k, 1 at or
@@ -98,9 +103,6 @@ class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
         Collision distance (m), >= 0.
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "distance_shortfall"
-
     bounds = (0.0, 1.0)
 
     def __init__(self, d_safe: float = 2.0, d_c: float = 1.0) -> None:
@@ -109,7 +111,7 @@ class DistanceShortfallLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         check_lambda(lam)

@@ -136,7 +136,7 @@ def stream_from(stream: Stream | None, legacy: dict[str, Any], owner: str) -> St
         given = ", ".join(f"{k}={v!r}" for k, v in old.items())
         warnings.warn(
             f"{owner}({', '.join(f'{k}=...' for k in old)}) is deprecated: give "
-            f"stream=Stream({given}) (removed in 0.4)",
+            f"stream=Stream({given}) (removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=3,
         )

@@ -29,14 +29,12 @@ def _animate_args(p: argparse.ArgumentParser) -> None:
 @_animate_args.handler
 def _animate(args: argparse.Namespace) -> int:
     from ..plotting.animation import render_animation
-    from ..plotting.multi_animation import is_multi_record, render_multi_animation
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory {run_dir} does not exist")
     out = Path(args.out) if args.out else run_dir / "animation.gif"
-    render = render_multi_animation if is_multi_record(run_dir) else render_animation  # --robots
-    n = render(
+    n = render_animation(  # one robot or several (--robots): the record says which
         run_dir,
         out,
         start=args.start,

@@ -202,18 +202,39 @@ def _run_args(p: argparse.ArgumentParser) -> None:
 
 
 # ------------------------------------------------------------------------------ replay
-def _run_parser() -> argparse.ArgumentParser:
-    """The command's own parser: the options :func:`_run_args` declares, every default
-    suppressed (a parsed namespace holds only what was given), errors raised rather than
-    printed."""
-    parser = argparse.ArgumentParser(
-        prog="conformal-control run", add_help=False, exit_on_error=False, allow_abbrev=False
-    )
+class _OptionsParser(argparse.ArgumentParser):
+    """The command's own options, every default suppressed (a parsed namespace holds only
+    what was given), errors raised rather than printed, each option recorded by its
+    destination: ``options[dest] = (flag, action)`` (``action`` as given to
+    ``add_argument``: ``"store_true"``, ``"append"``, ... or None)."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            prog="conformal-control run", add_help=False, exit_on_error=False, allow_abbrev=False
+        )
+        self.options: dict[str, tuple[str, str | None]] = {}
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        kwargs["default"] = argparse.SUPPRESS
+        action = super().add_argument(*args, **kwargs)
+        if action.option_strings:
+            kind = kwargs.get("action")
+            self.options[action.dest] = (action.option_strings[-1], kind)
+        return action
+
+    def add_argument_group(self, *args: Any, **kwargs: Any) -> Any:
+        if "options" not in vars(self):  # argparse's own groups, made by its __init__
+            return super().add_argument_group(*args, **kwargs)
+        return self  # a group only shapes the help, which this parser never prints
+
+
+def _run_parser() -> _OptionsParser:
+    """The command's own parser (:class:`_OptionsParser`): the options :func:`_run_args`
+    declares, and ``-q`` / ``-v``."""
+    parser = _OptionsParser()
     _run_args(parser)
     parser.add_argument("-q", "--quiet", action="store_true")
     parser.add_argument("-v", "--verbose", action="count")
-    for action in parser._actions:
-        action.default = argparse.SUPPRESS
     return parser
 
 
@@ -268,24 +289,24 @@ def _replayed_options(stored: dict[str, Any], path: Path) -> dict[str, Any]:
     from ..exceptions import IgnoredOptionWarning, InputError
 
     parser = _run_parser()
-    actions = {a.dest: a for a in parser._actions if a.option_strings and a.dest not in _NOT_STORED}
+    options = {k: v for k, v in parser.options.items() if k not in _NOT_STORED}
     applied: dict[str, Any] = {}
     skipped = []
     for key, value in stored.items():
-        action = actions.get(key)
-        if action is None:
+        option = options.get(key)
+        if option is None:
             skipped.append(key)
             continue
         if value is None:
             continue
-        flag = action.option_strings[-1]
+        flag, kind = option
         where = f"--config {path}: {key}"
-        if isinstance(action, argparse._StoreTrueAction):
+        if kind == "store_true":
             if not isinstance(value, bool):
                 raise InputError(f"{where} must be true or false, got {value!r}")
             tokens = [flag] if value else []
         else:
-            items = value if isinstance(action, argparse._AppendAction) else [value]
+            items = value if kind == "append" else [value]
             if not isinstance(items, list):
                 raise InputError(f"{where} must be a list, got {value!r}")
             tokens = []
@@ -368,11 +389,6 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     from .. import registry
     from ..exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
-    registry.entry("predictor", args.predictor)  # unknown names fail here, with a suggestion
-    registry.entry("rule", args.rule)
-    for role in _ROLES:
-        if getattr(args, role):
-            registry.entry(role, getattr(args, role))
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
             f"scene {args.scene} needs --start fx,fy and --goal fx,fy (fractions of the image "
@@ -409,7 +425,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
             )
     if args.lambda_safe is not None and not args.no_learning:
         cls = registry.get("rule", args.rule)
-        kind = getattr(cls, "guarantee", "none")
+        kind = cls.capabilities.guarantee
         if kind != "identity":
             warnings.warn(
                 IgnoredOptionWarning(
@@ -459,23 +475,6 @@ def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
     return pp
 
 
-def _predictor_params(args: argparse.Namespace, scene: Any, pp: dict[str, Any]) -> dict[str, Any]:
-    """The predictor's arguments: a trainable predictor (lstm, sklearn) without ``weights``
-    gets cached weights (see
-    :func:`~conformal_control.commands.predictors.weights_for_scene`)."""
-    from .. import registry
-    from .predictors import trainable_defaults, weights_for_scene
-
-    cls = registry.get("predictor", args.predictor)
-    if getattr(cls, "trainable", False) and pp.get("weights") is None:
-        trainable_defaults(cls, pp, args.seed, 8, 12)
-        train_params = {k: v for k, v in pp.items() if k != "weights"}
-        pp["weights"] = str(
-            weights_for_scene(args.predictor, scene, args.data_root, train_params, args.seed)
-        )
-    return pp
-
-
 def _default_out(scene_name: str) -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in scene_name)
     return Path("runs") / f"{safe}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
@@ -501,15 +500,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_prepared(args: argparse.Namespace) -> int:
+    """The command: its options as a :class:`~conformal_control.spec.RunSpec`, the run by
+    :func:`conformal_control.run`, the run directory."""
     import logging
 
-    from ..data import load_scene
-    from ..data.paths import resolve_data_root
-    from ..exceptions import SuspiciousValueWarning
-    from ..flagship.params import check_names, resolve_params
-    from ..progress import progress
+    from ..api import run
     from ..results.rundir import write_run_dir
-    from ..sim.episode import run_episode
     from ..spec import RunSpec
 
     log = logging.getLogger("conformal_control.run")
@@ -529,12 +525,12 @@ def _run_prepared(args: argparse.Namespace) -> int:
                 "--fallback NAME only"
             )
         warnings.warn(
-            f"--param fallback={old_way} is --fallback {old_way} since 0.3",
+            f"--param fallback={old_way} is --fallback {old_way} since 0.3 ("
+            "removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         args.fallback = old_way
-    check_names(params)
     _check_options(args, params)
     roles: dict[str, Any] = {}
     for role in _ROLES:
@@ -553,63 +549,10 @@ def _run_prepared(args: argparse.Namespace) -> int:
             whole = name == "tau" and isinstance(value, float) and value.is_integer()
             params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
-    from .. import registry
-
-    registry.check_params("rule", args.rule, registry.get("rule", args.rule), rule_params)
-    given_predictor_params = _checked_predictor_params(args)
-    crowd_params = _checked_crowd_params(args)
-
-    scene = load_scene(
-        args.scene,
-        args.data_root,
-        start=args.start,
-        goals=args.goal,
-        start_frame=args.start_frame,
-        seed=args.seed,
-    )
-    log.info(
-        "scene %s: %d agents, %d frames at %g fps",
-        scene.name,
-        scene.n_agents,
-        scene.n_frames,
-        scene.fps,
-    )
-    check = dict(params)
-    if args.no_learning:
-        check.setdefault("eta", 0.0)
-    with warnings.catch_warnings():  # checked here; the run reports them (once)
-        warnings.simplefilter("ignore", SuspiciousValueWarning)
-        resolved = resolve_params(scene, check)
-    for text in resolved.notes:
-        log.info("unit conversion: %s", text)
-    log.debug("parameters in SI: %s", resolved.si)
-    predictor_params = _predictor_params(args, scene, given_predictor_params)
-    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
-        return _run_multi(args, scene, params, roles, rule_params, predictor_params, out)
-    log.info("predictor %s with %s; rule %s", args.predictor, predictor_params, args.rule)
-
-    data_root = None
-    if args.scene != "crossing":
-        data_root = str(resolve_data_root(args.data_root).resolve())
-    substeps = int(resolved.si["substeps"])
-    total = scene.n_frames - 1 - scene.start_index
-    if args.frames is not None:
-        total = min(total, args.frames)
-    bar = progress(total, f"run {scene.name} [{args.predictor}]", "frames")
-
-    steps = [0]  # control steps so far; the bar advances in whole frames
-
-    def on_interval(iv: Any) -> None:
-        before = -(-steps[0] // substeps)
-        steps[0] += iv.n_steps
-        if iv.l_avg is not None:
-            bar.set_postfix(f"l_avg {iv.l_avg:+.3f}")
-        bar.update(-(-steps[0] // substeps) - before)
-
     spec = RunSpec.from_settings(
         params,
         predictor=args.predictor,
-        predictor_params=predictor_params,
+        predictor_params=_checked_predictor_params(args),
         learn=not args.no_learning,
         max_frames=args.frames,
         seed=args.seed,
@@ -618,25 +561,41 @@ def _run_prepared(args: argparse.Namespace) -> int:
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         crowd=args.crowd,
-        crowd_params=crowd_params,
+        crowd_params=_checked_crowd_params(args),
         **roles,
     )
-    with bar:
-        result = run_episode(
-            scene,
-            spec,
-            extra_config={
-                "command": command_line(args),
-                "data_root": data_root,
-                "cli": _stored_options(args, data_root),
-            },
-            on_interval=on_interval,
-        )
+    if args.robots is not None or args.robots_file is not None:  # several robots: --robots
+        return _run_multi(args, spec, out)
+
+    data_root = _data_root(args)
+    result = run(
+        args.scene,
+        spec,
+        data_root=args.data_root,
+        start=args.start,
+        goal=args.goal,
+        start_frame=args.start_frame,
+        progress=True,
+        extra_config={
+            "command": command_line(args),
+            "data_root": data_root,
+            "cli": _stored_options(args, data_root),
+        },
+    )
     log.info("writing the run directory %s", out)
     out = write_run_dir(result, out, plot=not args.no_plot)
     print(result.metrics.format())
     print(f"results written to {out}")
     return 0
+
+
+def _data_root(args: argparse.Namespace) -> str | None:
+    """The data folder of a run from data (absolute; None for the built-in scene)."""
+    if args.scene == "crossing":
+        return None
+    from ..data.paths import resolve_data_root
+
+    return str(resolve_data_root(args.data_root).resolve())
 
 
 # ------------------------------------------------------------------ several robots (--robots)
@@ -700,19 +659,24 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _run_multi(
-    args: argparse.Namespace,
-    scene: Any,
-    params: dict[str, Any],
-    roles: dict[str, Any],
-    rule_params: dict[str, Any],
-    predictor_params: dict[str, Any],
-    out: Path | None = None,
-) -> int:
-    """``run --robots``: the run's scene, parameters and roles, as ``_run`` prepared them."""
+def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
+    """``run --robots``: the run's specification (as ``_run_prepared`` built it) with the
+    robots' tasks, by :func:`~conformal_control.sim.multi.run_multi`."""
+    from ..data import load_scene
+    from ..predictors.training import with_weights
     from ..sim.multi import load_robots_file, run_multi
+    from ..spec import RunSpec
 
-    roles = dict(roles)
+    scene = load_scene(
+        args.scene,
+        args.data_root,
+        start=args.start,
+        goals=args.goal,
+        start_frame=args.start_frame,
+        seed=args.seed,
+    )
+    data_root = _data_root(args)
+    spec = with_weights(spec, scene, args.data_root)
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:
         if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
@@ -733,50 +697,27 @@ def _run_multi(
             "radius": args.radius,
             "center": center,
         }
-    data_root = None
-    if args.scene != "crossing":
-        from ..data.paths import resolve_data_root
-
-        data_root = str(resolve_data_root(args.data_root).resolve())
     stored = _stored_options(args, data_root)  # what `run --config` replays
     if args.robots_file is not None:
         stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
-    result = run_multi(
-        scene,
+    spec = RunSpec.from_settings(
+        None,
+        base=spec,
         **tasks,
-        predictor=args.predictor,
-        params=params,
-        learn=not args.no_learning,
-        max_frames=args.frames,
-        seed=args.seed,
-        predictor_params=predictor_params,
-        rule=args.rule,
-        rule_params=rule_params,
-        lambda_safe=args.lambda_safe,
-        fallback=args.fallback,
         sensor_history=args.sensor_history,
         reciprocity=args.reciprocity,
         information=args.information,
         lambda_scope=args.lambda_scope,
-        crowd=args.crowd,
-        crowd_params=_checked_crowd_params(args),
+    )
+    result = run_multi(
+        scene,
+        spec,
         extra_config={
             "command": command_line(args),
             "data_root": data_root,
             "cli": stored,
         },
-        **roles,
     )
-    if out is None:
-        out = (
-            Path(args.out)
-            if args.out
-            else Path("runs")
-            / (
-                f"{scene.name.replace(':', '_')}-{result.metrics.n_robots}robots-"
-                f"{_dt.datetime.now():%Y%m%d-%H%M%S}"
-            )
-        )
     out = result.save(out)
     print(result.summary_table())
     print(result.metrics.format())

@@ -132,6 +132,12 @@ class Crowd(Plugin):
         self.seed = seed
 
     # ------------------------------------------------------------------ set-up
+    def validate(self) -> None:
+        """Check the crowd's parameters (``ValueError`` naming the bad one): the
+        construction-time check of :func:`~conformal_control.world.reactive.make_environment`,
+        so a bad value fails before a run starts rather than mid-run."""
+        self._validate()
+
     def _validate(self) -> None:
         for name in (
             "body_radius",

@@ -291,11 +291,6 @@ class Scene:
             d["_tracks_of"] = (d["_dense"], sparse)
         return sparse  # type: ignore[no-any-return]
 
-    @property
-    def is_sparse(self) -> bool:
-        """Whether the positions are stored sparsely only (no dense array held)."""
-        return self.__dict__["_dense"] is None
-
     def replace(self, **changes: Any) -> Scene:
         """``dataclasses.replace`` that keeps the positions' storage (a sparse scene stays
         sparse; ``dataclasses.replace`` reads ``positions`` and so assembles the dense

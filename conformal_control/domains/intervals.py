@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .. import registry
-from ..base import DecisionFamily, SingleStepEnvironment, UpdateRule
+from ..base import DecisionFamily, SingleStepEnvironment, UpdateRule, first_test_instance
 from ..loop import ConformalLoop, LoopResult
 from ..losses import PARAMETRISATIONS, BallRecord, MiscoverageLoss, conformal_radius
 from ..predictors.base import PredictionQuery, Predictor
@@ -130,7 +130,7 @@ class PedestrianSeries(SingleStepEnvironment[dict[str, Any], float, np.ndarray])
 
     @classmethod
     def _unit_test_family(cls) -> ConformalDisc:
-        return ConformalDisc(**ConformalDisc._unit_test_params()[0])
+        return first_test_instance(ConformalDisc)
 
     def reset(self) -> None:
         if not self.steps:
@@ -198,7 +198,7 @@ class ConformalDisc(DecisionFamily[dict[str, Any], dict[str, Any], float, BallRe
 
     @classmethod
     def _unit_test_environment(cls) -> PedestrianSeries:
-        return PedestrianSeries(**PedestrianSeries._unit_test_params()[0])
+        return first_test_instance(PedestrianSeries)
 
     def reset(self) -> None:
         if self.parametrisation not in PARAMETRISATIONS:

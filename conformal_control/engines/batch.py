@@ -83,17 +83,17 @@ from typing import Any, TypeVar, cast
 import numpy as np
 
 from .. import registry
-from ..base import Loss, compiled_as
+from ..base import Loss, Plugin
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
-from ..cbf.barriers import APFBarrier
+from ..cbf.barriers import APFBarrier, APFForm
 from ..cbf.constraint import ConformalConstraint, time_to_contact
 from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
-from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
-from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
+from ..cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
+from ..cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
 from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
-from ..cbf.reference import AttractiveField
+from ..cbf.reference import AttractiveField, AttractiveFieldForm
 from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
 from ..crowds.crowd import Crowd
@@ -109,6 +109,7 @@ from ..loop import (
     close_interval,
 )
 from ..monitor import AgentMonitor, GuaranteeMonitor
+from ..predictors.constant_velocity import ConstantVelocityForm
 from ..predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
 from ..results.episode import EpisodeResult
 from ..results.measure import (
@@ -126,7 +127,7 @@ from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
 from ..spec import RunSpec
 from ..world.reactive import ReactiveEnvironment
-from ..world.replay import FrameLog, ReplayEnvironment
+from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk
 from .crowd_kernels import dense_layout
 from .gap_kernels import BRAKE, HOLD, PYTHON, SEARCH, gap_maxima
@@ -138,8 +139,8 @@ __all__ = ["iter_batch", "run_batch", "run_single", "supports"]
 _T = TypeVar("_T")
 
 #: What the engine compiles, per role of a run: the compiled counterparts it has kernels
-#: for. A plugin runs compiled when its class declares one of them (``compiled_as``, see
-#: :func:`~conformal_control.base.compiled_as`); the role's default (None) always does.
+#: for. A plugin runs compiled when its class declares one of them (``capabilities.compiled``, see
+#: :class:`~conformal_control.base.Capabilities`); the role's default (None) always does.
 KERNELS: dict[str, frozenset[str]] = {
     "barrier": frozenset({"apf"}),
     "safety_filter": frozenset({"exact2d"}),
@@ -166,11 +167,17 @@ _PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
 _SHIFTS = {"delayed": bk.DELAYED, "noisy": bk.NOISY, "scaled": bk.SCALED, "dropout": bk.DROPOUT}
 
 
+def _compiled_name(cls: type) -> str | None:
+    """The compiled form ``cls`` declares (its ``capabilities.compiled``; None for a class
+    that is no plugin)."""
+    return cls.capabilities.compiled if issubclass(cls, Plugin) else None
+
+
 def _kernel_of(role: str, name: str) -> str | None:
     """The compiled counterpart the plugin registered as ``name`` declares (None: none,
     or no such plugin: the loop then says so)."""
     try:
-        return compiled_as(registry.get(role, name))
+        return _compiled_name(registry.get(role, name))
     except (ValueError, ImportError):
         return None
 
@@ -209,8 +216,9 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
         run = as_run_spec(spec, **settings)
     except TypeError as exc:
         return str(exc)
+    roles = run.roles()
     for role in (*ANY_NAME_ROLES, *KERNELS):
-        name, params = run.role(role)
+        name, params = roles[role]
         if name is not None and not isinstance(name, str):
             return (
                 f"{role} given as a {type(name).__name__} instance: the batch engine builds "
@@ -224,14 +232,14 @@ def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
                 f"fallback parameters for {name!r}: the batch engine runs the compiled "
                 "fallbacks as registered"
             )
-    filter_params = run.role("safety_filter")[1]
+    filter_params = roles["safety_filter"][1]
     if filter_params.get("compiled_step", True) is not True:
         return "safety_filter_params compiled_step=False: the batch engine is the compiled step"
     if not isinstance(filter_params.get("fallback"), (str, type(None))):
         return "a fallback instance: the batch engine builds one per episode, give it by name"
     if run.robots is not None:
         return "robots: the batch engine runs one robot per episode"
-    crowd, crowd_params = run.role("crowd")
+    crowd, crowd_params = roles["crowd"]
     if not isinstance(crowd, str):
         return "a crowd instance: the batch engine builds one per episode, give it by name"
     if crowd != "replay":
@@ -261,10 +269,10 @@ def _exact(obj: object, cls: type[_T], role: str) -> _T:
 
 def _compiled(obj: object, cls: type[_T], role: str) -> _T:
     """``obj`` if its class declares the compiled counterpart ``cls`` declares (its own
-    ``compiled_as``, see :func:`~conformal_control.base.compiled_as`), else
+    ``capabilities.compiled``), else
     :class:`_NotRun`."""
-    kernel = compiled_as(cls)
-    if kernel is None or compiled_as(type(obj)) != kernel:
+    kernel = _compiled_name(cls)
+    if kernel is None or _compiled_name(type(obj)) != kernel:
         raise _NotRun(
             f"the {role} is a {type(obj).__name__}, which does not declare the compiled "
             f"counterpart {kernel!r}"
@@ -290,7 +298,7 @@ def _parts(fl: Flagship) -> _Parts:
     """The roles of ``fl`` as the classes the engine runs; raises :class:`_NotRun` (a
     ValueError) if the episode as built is not one it runs."""
     policy = fl.family
-    if compiled_as(type(policy)) not in KERNELS["family"] or not isinstance(
+    if _compiled_name(type(policy)) not in KERNELS["family"] or not isinstance(
         policy, ConformalCBFController
     ):
         raise _NotRun(
@@ -312,7 +320,7 @@ def _parts(fl: Flagship) -> _Parts:
     reference = _compiled(fl.reference, AttractiveField, "reference")
     dynamics = _compiled(fl.dynamics, VelocityTrackingDoubleIntegrator, "dynamics")
     loss = fl.loss
-    kernel = compiled_as(type(loss))
+    kernel = _compiled_name(type(loss))
     gap = cast(CBFGapLoss, loss) if kernel == "cbf_gap" else None
     if gap is None and kernel not in _RECORD_LOSSES:
         shown = ", ".join(sorted(KERNELS["loss"]))
@@ -324,24 +332,37 @@ def _parts(fl: Flagship) -> _Parts:
     if filt.compiled_step is not True:
         raise _NotRun("the safety filter's compiled step is off")
     fallback = filt.fallback
-    if not isinstance(fallback, str) and compiled_as(type(fallback)) in COMPILED_FALLBACKS:
+    if not isinstance(fallback, str) and _compiled_name(type(fallback)) in COMPILED_FALLBACKS:
         # (a fallback decided in Python is the episode's own object, parameters and all)
         raise _NotRun("the compiled fallbacks run as registered, not as a configured instance")
     acp = policy if isinstance(policy, ACPController) else None
-    if (acp is not None) != (compiled_as(type(policy)) == "acp"):
+    if (acp is not None) != (_compiled_name(type(policy)) == "acp"):
         raise _NotRun(f"the decision family {type(policy).__name__} is not the class it declares")
     return _Parts(env, barrier, filt, reference, dynamics, loss, gap, acp)
 
 
+def _form(forms: dict[str, Any], role: str, cls: type[_T]) -> _T:
+    """The compiled form of ``role`` among ``forms`` (the flagship's
+    :meth:`~conformal_control.flagship.build.Flagship.compiled_forms`), as the kernel it
+    declares reads it; :class:`_NotRun` if the part hands another."""
+    form = forms.get(role)
+    if not isinstance(form, cls):
+        raise _NotRun(f"the {role} declares {cls.kernel!r} but hands no {cls.__name__}")  # type: ignore[attr-defined]
+    return form
+
+
 def _predictor_code(pred: object) -> int:
     """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
-    that ``pred``'s class declares (``compiled_as``), else ``_OWN``."""
-    return _PREDICTORS.get(compiled_as(type(pred)) or "", _OWN)
+    that ``pred``'s class declares (``capabilities.compiled``), else ``_OWN``."""
+    return _PREDICTORS.get(_compiled_name(type(pred)) or "", _OWN)
 
 
-def _window_of(pred: object) -> Any:
-    """The constant-velocity predictor's window (as given: checked by the caller)."""
-    return getattr(pred, "window", 1)
+def _window_of(form: object) -> Any:
+    """The constant-velocity predictor's window, read from its compiled form (as given:
+    checked by the caller); :class:`_NotRun` if the predictor hands no such form."""
+    if not isinstance(form, ConstantVelocityForm):
+        raise _NotRun("the predictor declares 'constant_velocity' but hands no form of it")
+    return form.window
 
 
 def _valid_window(window: Any) -> bool:
@@ -349,36 +370,43 @@ def _valid_window(window: Any) -> bool:
 
 
 def _prediction(
-    pred: object, dt_frame: float, history: int, ids: np.ndarray
-) -> tuple[int, int, ShiftForm | None, object]:
-    """How the compiled prediction runs ``pred``: (the predictor code, the shift code,
-    the shift's form, the predictor the code stands for). A predictor shift
-    (:mod:`~conformal_control.predictors.shift`) of a compiled predictor runs compiled
-    with it; one that returns the wrapped forecast itself is that predictor; one the
-    compiled form would not follow exactly where the wrapper raises or reads what the
-    kernel does not hold (a delay beyond the history, a bad window, agent ids that are
-    not integers) is called as it is (``_OWN``)."""
-    kernel = compiled_as(type(pred)) or ""
+    pred: Plugin, form: object, dt_frame: float, history: int, ids: np.ndarray
+) -> tuple[int, int, ShiftForm | None, Any]:
+    """How the compiled prediction runs ``pred`` (whose compiled form is ``form``): (the
+    predictor code, the shift code, the shift's form, the constant-velocity window, 1 for
+    another predictor). A predictor shift (:mod:`~conformal_control.predictors.shift`) of
+    a compiled predictor runs compiled with it (the wrapped predictor read through its own
+    compiled form); one that returns the wrapped forecast itself is that predictor; one
+    the compiled form would not follow exactly where the wrapper raises or reads what the
+    kernel does not hold (a delay beyond the history, a bad window, agent ids that are not
+    integers) is called as it is (``_OWN``)."""
+    kernel = _compiled_name(type(pred)) or ""
     if kernel not in _SHIFTS:
-        return _predictor_code(pred), bk.NO_SHIFT, None, pred
-    form = pred.compiled_state()  # type: ignore[attr-defined]
-    assert isinstance(form, ShiftForm) and form.kernel == kernel
+        code = _predictor_code(pred)
+        return code, bk.NO_SHIFT, None, _window_of(form) if code == bk.CONSTANT_VELOCITY else 1
+    if not isinstance(form, ShiftForm) or form.kernel != kernel:
+        raise _NotRun(f"the predictor declares {kernel!r} but hands no form of that shift")
     base = form.base
     code = _predictor_code(base)
-    own = (_OWN, bk.NO_SHIFT, None, pred)
-    if code == _OWN or (code == bk.CONSTANT_VELOCITY and not _valid_window(_window_of(base))):
+    own = (_OWN, bk.NO_SHIFT, None, 1)
+    window: Any = 1
+    if code == bk.CONSTANT_VELOCITY:
+        window = _window_of(base.compiled_state())
+        if not _valid_window(window):
+            return own
+    if code == _OWN:
         return own
     if isinstance(form, DelayedForm):
         k = form.samples(dt_frame)
         if k == 0:  # the wrapped forecast itself
-            return code, bk.NO_SHIFT, None, base
+            return code, bk.NO_SHIFT, None, window
         if k >= history:  # the wrapper refuses it (its error, at its first prediction)
             return own
     elif form.neutral:
-        return code, bk.NO_SHIFT, None, base
+        return code, bk.NO_SHIFT, None, window
     if kernel in ("noisy", "dropout") and not np.issubdtype(ids.dtype, np.integer):
         return own
-    return code, _SHIFTS[kernel], form, base
+    return code, _SHIFTS[kernel], form, window
 
 
 def _info_keys(code: int, shift: int, form: ShiftForm | None) -> tuple[str, ...]:
@@ -623,7 +651,7 @@ class _Pool:
         self.shift_counts = np.zeros((b, 3), dtype=np.int64)
 
     @staticmethod
-    def _grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
+    def grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
         if arr.shape[axis] >= n:
             return arr
         shape = list(arr.shape)
@@ -670,12 +698,12 @@ class _Pool:
     def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
         """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
         if goals.shape[0] > self.goals.shape[1]:
-            self.goals = self._grown(self.goals, 1, goals.shape[0])
+            self.goals = self.grown(self.goals, 1, goals.shape[0])
         self.goals[b, : goals.shape[0]] = goals
         self.n_goals[b] = goals.shape[0]
         self.n_st[b] = 0
         if self.keep and instants > self.st_t.shape[1]:
-            g = self._grown
+            g = self.grown
             self.st_t = g(self.st_t, 1, instants)
             self.st_x, self.st_cmd = g(self.st_x, 1, instants), g(self.st_cmd, 1, instants)
 
@@ -684,7 +712,7 @@ class _Pool:
     ) -> None:
         """Room for ``steps`` control instants per interval, ``agents`` sensed agents,
         ``columns`` agents in a recording, ``frames`` logged frames, ``sides`` polygon sides."""
-        g = self._grown
+        g = self.grown
         if steps > self.xp.shape[1]:
             self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)
             self.rec_x, self.rec_v = g(self.rec_x, 1, steps), g(self.rec_v, 1, steps)
@@ -755,8 +783,7 @@ class _Engine:
         warn_before_run(fl, floor, learn)
         # what ConformalLoop.run does first: reset the environment (validates the scene and
         # the timing), the family (validates; resets predictor, filter, reference), the rule
-        env, filt, ref = parts.env, parts.safety_filter, parts.reference
-        dyn, bar = parts.dynamics, parts.barrier
+        env = parts.env
         env.reset()
         vec = fl.params.si["lambda_per"] == "agent"
         if vec:  # as ConformalStepper.start, and its begin_interval for the acp family
@@ -777,9 +804,12 @@ class _Engine:
             learn=learn,
             **({"prior": fl.params.si["lambda_prior"]} if vec else {}),
         )
-        k = float(dyn.K_acc)
-        if not (math.isfinite(k) and k > 0):
-            raise ValueError(f"K_acc must be a finite number > 0, got {dyn.K_acc!r}")
+        # each compiled part as its compiled form (validated constants), never its attributes
+        forms = fl.compiled_forms()
+        apf = _form(forms, "barrier", APFForm)
+        filt_form = _form(forms, "safety_filter", Exact2DForm)
+        ref_form = _form(forms, "reference", AttractiveFieldForm)
+        k = _form(forms, "dynamics", VelocityTrackingForm).K_acc
         pred = fl.predictor
         reactive = isinstance(env, ReactiveEnvironment)
         if isinstance(env, ReactiveEnvironment):
@@ -791,10 +821,11 @@ class _Engine:
         # reactive crowd (whose future is not known: its query says so)
         dt_frame = 1.0 / sc.fps
         ids = np.asarray(sc.agent_ids)
-        code, shift, form, runs = _prediction(pred, dt_frame, int(env.history_frames), ids)
+        code, shift, form, window = _prediction(
+            pred, forms.get("predictor"), dt_frame, int(env.history_frames), ids
+        )
         if parts.acp is not None or (reactive and code == bk.ORACLE):
-            code, shift, form, runs = _OWN, bk.NO_SHIFT, None, pred
-        window = _window_of(runs) if code == bk.CONSTANT_VELOCITY else 1
+            code, shift, form, window = _OWN, bk.NO_SHIFT, None, 1
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -819,7 +850,7 @@ class _Engine:
         last = sc.n_frames - 1
         if max_frames is not None:
             last = min(last, sc.start_index + int(max_frames))
-        S, s, verts, radius = speed_polygon(int(filt.speed_sides), float(filt.v_max))
+        S, s, verts, radius = speed_polygon(int(filt_form.speed_sides), float(filt_form.v_max))
         p.ensure(
             steps=tau * substeps,
             agents=1,
@@ -835,7 +866,9 @@ class _Engine:
             assert isinstance(env, ReactiveEnvironment)
             lo, hi = max(lo, 0), min(last + tau + 2, sc.n_frames)
             m = sc.n_agents
-            data = dense_layout(env._buffer[lo:hi], lo, sc.start_index, sc.n_frames)
+            buffer = env.compiled_state().buffer
+            assert buffer is not None  # a reactive environment holds its crowd's positions
+            data = dense_layout(buffer[lo:hi], lo, sc.start_index, sc.n_frames)
             p.put(b, data, (sc.n_frames, m, m * (hi - lo), m * (hi - lo)))
             if self.crowds is None:
                 self.crowds = CrowdSlots(p.size)
@@ -851,8 +884,8 @@ class _Engine:
         p.goal_idx[b] = 0
         p.goal_radius[b] = sc.goal_radius
         p.t_goal[b] = math.nan
-        p.neg_k_att[b] = -ref.K_att
-        p.v_ref_max[b] = ref.v_max
+        p.neg_k_att[b] = -ref_form.K_att
+        p.v_ref_max[b] = ref_form.v_max
         p.dt[b] = dt
         p.dt_frame[b] = dt_frame
         p.decay[b] = math.exp(-k * dt)
@@ -862,8 +895,9 @@ class _Engine:
         p.lam[b] = monitor.lambda_1
         p.vec[b] = vec
         if parts.gap is not None:
-            p.scale[b] = parts.gap.scale
-            self._squash.setdefault(float(parts.gap.scale), parts.gap.squash)
+            gap = _form(forms, "loss", GapLossForm)
+            p.scale[b] = gap.scale
+            self._squash.setdefault(float(gap.scale), gap.squash)
         else:  # scored by the loss object (see end)
             p.scale[b] = math.nan
         p.last[b] = 0.0
@@ -901,22 +935,22 @@ class _Engine:
         poly = np.concatenate([S.ravel(), s, verts.ravel()])
         p.poly[b, : poly.size] = poly
         p.poly_len[b] = poly.size
-        fallback_kernel = compiled_as(type(filt.fallback_))
+        fallback_kernel = filt_form.fallback
         p.fallback[b] = _FALLBACKS.get(fallback_kernel or "", PYTHON)
         p.forced[b] = False
         p.acp[b] = parts.acp is not None
         p.prm[b] = (
-            float(bar.K_rep),
-            float(bar.rho0),
-            float(bar.d_c),
-            bar.effective_delta,
-            bar.convention == "surface",
+            apf.K_rep,
+            apf.rho0,
+            apf.d_c,
+            apf.delta,
+            apf.surface,
             float(fl.constraint.a),
             radius,
-            not filt.speed_sides,
-            filt.v_max,
+            not filt_form.speed_sides,
+            filt_form.v_max,
             fallback_kernel == "lambda_search",
-            filt.lambda_margin,
+            filt_form.lambda_margin,
             p.cap,
             *fl.constraint.edge_settings(),
         )
@@ -996,17 +1030,15 @@ class _Engine:
         assert ep is not None and ep.parts.acp is not None  # b is a live acp slot
         if not p.n_agents[b]:  # no agent: no row, the controller computes no region
             return
-        acp = ep.parts.acp
-        infl = acp._inflation(float(p.lam[b]))
-        H = infl.size
+        forms = ep.parts.acp.region_barriers(float(p.lam[b]))
+        H = len(forms)
         if H > p.acp_dc.shape[1]:
-            p.acp_dc = p._grown(p.acp_dc, 1, H)
-            p.acp_delta = p._grown(p.acp_delta, 1, H)
+            p.acp_dc = p.grown(p.acp_dc, 1, H)
+            p.acp_delta = p.grown(p.acp_delta, 1, H)
         p.acp_h[b] = H
-        for h in range(H):
-            _, _, d_c, delta = acp._inflated(float(infl[h])).barrier._checked()  # type: ignore[attr-defined]
-            p.acp_dc[b, h] = d_c
-            p.acp_delta[b, h] = delta
+        for h, form in enumerate(forms):
+            p.acp_dc[b, h] = form.d_c
+            p.acp_delta[b, h] = form.delta
 
     def _capped(self, b: int) -> None:
         """Count slot ``b``'s control instants whose region was capped (the acp family's
@@ -1016,7 +1048,7 @@ class _Engine:
         s = int(p.step[b])
         if not p.n_agents[b] or not s:
             return
-        capped = ep.parts.acp._capped
+        capped = ep.parts.acp.compiled_state().capped
         h = np.minimum(np.arange(s) // int(p.substeps[b]), capped.size - 1)
         ep.parts.acp.n_capped_ += int(capped[h].sum())
 
@@ -1029,19 +1061,20 @@ class _Engine:
         env, policy = ep.parts.env, ep.fl.family
         n = int(p.n_agents[b])
         # the environment senses where the engine's robot is, at the engine's frame and time
-        env._x = p.x[b].copy()
-        env._fi = int(p.fi[b])
-        env._t = float(p.t[b])
+        env.from_compiled(ReplayCursor(x=p.x[b].copy(), frame=int(p.fi[b]), t=float(p.t[b])))
         query = env.sense()
-        if not np.array_equal(env._sensed, p.sensed[b, :n]):  # both are the same range test
+        sensed = env.compiled_state().sensed
+        assert sensed is not None  # an environment's cursor always holds what it sensed
+        if not np.array_equal(sensed, p.sensed[b, :n]):  # both are the same range test
             raise RuntimeError(
                 f"run_batch: the sensor and the engine disagree on the agents sensed in "
                 f"episode {ep.index} at frame {query.frame}; use run_episode"
             )
         policy.begin_interval(query)
-        s = int(policy._xp.shape[0])
-        p.xp[b, :s, :n] = policy._xp
-        p.vp[b, :s, :n] = policy._vp
+        form = policy.compiled_state()
+        s = int(form.xp.shape[0])
+        p.xp[b, :s, :n] = form.xp
+        p.vp[b, :s, :n] = form.vp
 
     # ------------------------------------------------------------------ control instants
     def control(self, slots: np.ndarray) -> None:
@@ -1120,7 +1153,7 @@ class _Engine:
                 np.array((n0, n1)),
             ),
         )
-        res = ep.parts.safety_filter._fall_back(step)
+        res = ep.parts.safety_filter.fall_back(step)
         v = np.asarray(res.decision, dtype=float)
         p.forced_v[b] = (v[0], v[1], res.lambda_applied)
         p.forced[b] = True
@@ -1286,11 +1319,12 @@ class _Engine:
         }
         acp = ep.parts.acp
         if acp is not None:  # what its regions were made of (ACPController.interval_record)
+            form = acp.compiled_state()
             return ACPIntervalRecord(
                 **fields,
-                pred_samples=acp._pred.copy(),
-                sorted_scores=acp._sorted,
-                inflation=acp._infl.copy(),
+                pred_samples=form.pred_samples.copy(),
+                sorted_scores=form.sorted_scores,
+                inflation=form.inflation.copy(),
             )
         return CBFIntervalRecord(**fields)
 
@@ -1299,11 +1333,14 @@ class _Engine:
         state of the interval: its start frame, the agents sensed then, its steps."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None
-        env = ep.parts.env
-        env._k_start = int(p.k_start[b])
-        env._sensed = p.sensed[b, : int(p.n_agents[b])].copy()
-        env._step = int(p.step[b])
-        return env.reveal()
+        ep.parts.env.from_compiled(
+            ReplayCursor(
+                k_start=int(p.k_start[b]),
+                sensed=p.sensed[b, : int(p.n_agents[b])].copy(),
+                step=int(p.step[b]),
+            )
+        )
+        return ep.parts.env.reveal()
 
     # ------------------------------------------------------------------ episode end
     def finish(self, b: int) -> tuple[int, EpisodeResult | EpisodeMetrics]:

@@ -34,7 +34,7 @@ import numpy as np
 from ..crowds.crowd import Crowd
 from ..crowds.orca import ORCAModel
 from ..crowds.social_force import SocialForceModel
-from ..world.reactive import ReactiveEnvironment
+from ..world.reactive import ReactiveCursor, ReactiveEnvironment
 from .crowd_kernels import (
     ORCA,
     SOCIAL_FORCE,
@@ -332,6 +332,10 @@ class CrowdSlots:
         span = n // max(m, 1)
         lo, f0, f = int(self.lo[b]), int(self.f0[b]), int(self.frame[b])
         xy = store[o : o + 2 * n].reshape(m, span, 2)
-        env._buffer[f0 + 1 : f + 1] = xy[:, f0 + 1 - lo : f + 1 - lo].transpose(1, 0, 2)
-        env._crowd_frame = f
-        env._crowd_sub = int(self.sub[b])
+        env.from_compiled(
+            ReactiveCursor(
+                frames=(f0 + 1, xy[:, f0 + 1 - lo : f + 1 - lo].transpose(1, 0, 2)),
+                crowd_frame=f,
+                crowd_sub=int(self.sub[b]),
+            )
+        )

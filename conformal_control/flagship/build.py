@@ -8,13 +8,13 @@ update rule -- is given as
 * a registered name (``conformal-control plugins``) built with ``<role>_params``, or
 * ``None``: the flagship's default built from the run's parameters.
 
-A named plugin receives, for each constructor argument it declares and the caller did not
-give, the value the run's parameters fix for it (SI): ``d_c`` (robot + agent radius; for
-barriers plus ``barrier_margin``), ``K_rep``, ``rho0``, ``convention``, ``delta``,
-``v_max``, ``K_att``, ``K_acc``, ``fallback``, ``speed_sides``, ``scale`` (the loss scale
-c), ``constraint`` (the run's :class:`~conformal_control.cbf.constraint.ConformalConstraint`),
-``random_state`` (the seed). Update-rule parameters are typed in the scene's units (see
-:func:`build_rule`).
+A plugin receives the run's values (SI) for the constructor arguments its class declares
+in its capabilities (``run_values``: argument -> a name of
+:data:`~conformal_control.spec.RUN_VALUES`, e.g. the APF barrier's ``{"d_c":
+"barrier_distance", ...}``) and the caller did not give; nothing else (an argument that
+merely shares a name with a run value keeps the plugin's own default). The flagship's
+defaults are built the same way, by their registered names. Update-rule parameters are
+typed in the scene's units (see :func:`build_rule`).
 """
 
 from __future__ import annotations
@@ -26,19 +26,23 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .. import registry
-from ..base import DecisionFamily, Loss, Plugin, UpdateRule, flat_params
-from ..cbf.barriers import APFBarrier
+from ..base import (
+    CompiledForm,
+    DecisionFamily,
+    Loss,
+    Plugin,
+    UpdateRule,
+    flat_params,
+    param_names,
+)
 from ..cbf.constraint import ConformalConstraint
 from ..cbf.controller import ConformalCBFController
-from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
-from ..cbf.loss import CBFGapLoss
-from ..cbf.reference import AttractiveField
 from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..data.scene import Scene
 from ..exceptions import ConformalControlDeprecationWarning
 from ..predictors.base import Predictor
-from ..spec import RunSpec
+from ..spec import RunContext, RunSpec
 from ..update_rules import FixedEtaRule
 from ..world.reactive import make_environment
 from ..world.replay import ReplayEnvironment
@@ -83,13 +87,26 @@ class Flagship:
 
     @property
     def policy(self) -> Any:
-        """Deprecated name of :attr:`family` (removed in 0.4)."""
+        """Deprecated name of :attr:`family` (removed in 0.4, not before 2027-06-30)."""
         warnings.warn(
-            "Flagship.policy is now Flagship.family (removed in 0.4)",
+            "Flagship.policy is now Flagship.family (removed in 0.4, not before 2027-06-30)",
             ConformalControlDeprecationWarning,
             stacklevel=2,
         )
         return self.family
+
+    def compiled_forms(self) -> dict[str, CompiledForm | None]:
+        """The compiled form of each part, as the compiled engine reads it: role ->
+        ``compiled_state()`` (None for a part that hands none); after :meth:`reset`."""
+        parts = {
+            "predictor": self.predictor,
+            "barrier": self.barrier,
+            "safety_filter": self.safety_filter,
+            "reference": self.reference,
+            "dynamics": self.dynamics,
+            "loss": self.loss,
+        }
+        return {role: part.compiled_state() for role, part in parts.items()}
 
     def role_params(self) -> dict[str, dict[str, Any]]:
         """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
@@ -117,7 +134,7 @@ class Flagship:
 def _plans_with_a_plant(cls: type) -> bool:
     """Whether a decision family is built from a predictor and the robot's plant (the
     MPC families: ``predictor=``, ``dynamics=``)."""
-    names = set(getattr(cls, "_param_names", lambda: [])())
+    names = set(param_names(cls))
     return {"predictor", "dynamics"} <= names
 
 
@@ -130,22 +147,16 @@ def role_name(spec: RoleSpec, default: str) -> str:
     return type(spec).__name__
 
 
-def _create(role: str, name: str, given: dict[str, Any] | None, context: dict[str, Any]) -> Any:
-    """``registry.create`` with the run's values for the arguments the caller left out."""
-    params = dict(given or {})
-    cls = registry.get(role, name)
-    accepted = set(cls._param_names()) if hasattr(cls, "_param_names") else set()
-    for key, value in context.items():
-        if key in accepted and key not in params:
-            params[key] = value
-    return registry.create(role, name, **params)
+def _create(role: str, name: str, given: dict[str, Any] | None, context: RunContext) -> Any:
+    """``registry.create`` with the run values the plugin declares and the caller left out."""
+    return registry.create(role, name, **context.arguments(registry.get(role, name), given))
 
 
 def _resolve(
     role: str,
     spec: RoleSpec,
     given: dict[str, Any] | None,
-    context: dict[str, Any],
+    context: RunContext,
     base: type,
 ) -> Any | None:
     """An instance for ``spec``: None stays None (caller builds the default)."""
@@ -171,10 +182,11 @@ def build_rule(
     """A registered update rule for the flagship, from the run's parameters.
 
     The rule receives ``epsilon``, ``eta``, ``lambda_init``, ``lambda_min`` and
-    ``lambda_max`` from the run's parameters (SI) for those of its constructor arguments
-    with these names; ``rule_params`` (in the scene's units) override them and add the
-    rule's own parameters. Parameters the rule declares in ``lambda_params`` (units of
-    lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted with ``lam_unit``.
+    ``lambda_max`` from the run's parameters (SI) for the constructor arguments its
+    capabilities declare (``run_values``); ``rule_params`` (in the scene's units) override
+    them and add the rule's own parameters. Parameters the rule declares in
+    ``lambda_params`` (units of lambda, e.g. ``eta``, ``K_I``, ``gammas``) are converted
+    with ``lam_unit``.
 
     Parameters
     ----------
@@ -188,15 +200,17 @@ def build_rule(
         SI value of one unit of lambda as ``rule_params`` are typed (1 for SI).
     """
     cls = registry.get("rule", name)
-    accepted = set(cls._param_names())
-    kwargs = {
-        k: params.si[k]
-        for k in ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
-        if k in accepted
-    }
+    si = params.si
+    kwargs = RunContext(
+        epsilon=si["epsilon"],
+        eta=si["eta"],
+        lambda_init=si["lambda_init"],
+        lambda_min=si["lambda_min"],
+        lambda_max=si["lambda_max"],
+    ).arguments(cls)
     user = dict(rule_params or {})
     registry.check_params("rule", name, cls, user)
-    lam_params = set(getattr(cls, "lambda_params", ()))
+    lam_params = set(cls.capabilities.lambda_params)
     for k, v in user.items():
         if isinstance(v, str) and "," in v:  # a list from the command line: "0.1,1,10"
             v = [float(x) for x in v.split(",") if x.strip()]
@@ -290,48 +304,43 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         v_max=si["v_max"],
     )
     names: dict[str, str] = {}
-    context: dict[str, Any] = {
-        "d_c": d_c,
-        "v_max": si["v_max"],
-        "K_att": si["K_att"],
-        "K_acc": si["K_acc"],
-        "speed_sides": si["speed_sides"],
-        "random_state": seed,
-    }
     fallback_value: Any = "lambda_search" if fallback is None else fallback
     if fallback is not None and not isinstance(fallback, str):
         names["fallback"] = type(fallback).__name__
     else:
         names["fallback"] = str(fallback_value)
-    context["fallback"] = fallback_value
+    # the run's values, each handed only to a plugin that declares it (RunContext)
+    context = RunContext(
+        collision_distance=d_c,
+        barrier_distance=d_c + si["barrier_margin"],
+        safe_distance=d_c + 1.0,
+        barrier_margin=si["barrier_margin"],
+        v_max=si["v_max"],
+        K_att=si["K_att"],
+        K_acc=si["K_acc"],
+        K_rep=si["K_rep"],
+        rho0=si["rho0"],
+        convention=si["convention"],
+        delta=si["delta"],
+        speed_sides=si["speed_sides"],
+        substeps=si["substeps"],
+        loss_scale=si["loss_scale"],
+        seed=seed,
+        fallback=fallback_value,
+    )
 
     pred = _resolve("predictor", predictor, predictor_params, context, Predictor)
     if pred is None:
         pred = _create("predictor", "constant_velocity", None, context)
     names["predictor"] = role_name(predictor, "constant_velocity")
 
-    barrier_context = {
-        **context,
-        "d_c": d_c + si["barrier_margin"],
-        "K_rep": si["K_rep"],
-        "rho0": si["rho0"],
-        "convention": si["convention"],
-        "delta": si["delta"],
-    }
-    bar = _resolve("barrier", barrier, barrier_params, barrier_context, Barrier)
+    bar = _resolve("barrier", barrier, barrier_params, context, Barrier)
     if bar is None:
-        bar = APFBarrier(
-            K_rep=si["K_rep"],
-            rho0=si["rho0"],
-            d_c=d_c + si["barrier_margin"],
-            convention=si["convention"],
-            delta=si["delta"],
-        )
+        bar = _create("barrier", "apf", None, context)
     names["barrier"] = role_name(barrier, "apf")
     # the edge rule on the true collision distance (barrier_margin is the barrier's only)
     constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
-    context["constraint"] = constraint
-    context["scale"] = si["loss_scale"]
+    context = context.replace(constraint=constraint)
 
     filt = _resolve("safety_filter", safety_filter, safety_filter_params, context, SafetyFilter)
     if filt is None:
@@ -340,13 +349,14 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
 
     ref = _resolve("reference", reference, reference_params, context, ReferenceController)
     if ref is None:
-        ref = AttractiveField(K_att=si["K_att"], v_max=si["v_max"])
+        ref = _create("reference", "attractive_field", None, context)
     names["reference"] = role_name(reference, "attractive_field")
 
     dyn = _resolve("dynamics", dynamics, dynamics_params, context, Dynamics)
     if dyn is None:
-        dyn = VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"])
+        dyn = _create("dynamics", "velocity_tracking", None, context)
     names["dynamics"] = role_name(dynamics, "velocity_tracking")
+    context = context.replace(predictor=pred, safety_filter=filt, reference=ref, dynamics=dyn)
 
     fam_name = family or "cbf"
     fam_cls = registry.get("family", fam_name)
@@ -358,13 +368,10 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
             "taking predictor= and dynamics=, as the MPC families do)"
         )
     # an MPC family's loss defaults to its own (a safety distance 1 m beyond collision)
-    context["d_safe"] = d_c + 1.0
     loss_obj = _resolve("loss", loss, loss_params, context, Loss)
-    default_loss = str(getattr(fam_cls, "default_loss", "cbf_gap"))
-    if loss_obj is None and planning:
+    default_loss = fam_cls.capabilities.default_loss or "cbf_gap"
+    if loss_obj is None:
         loss_obj = _create("loss", default_loss, None, context)
-    elif loss_obj is None:
-        loss_obj = CBFGapLoss(constraint, scale=si["loss_scale"])
     names["loss"] = role_name(loss, default_loss)
 
     rule_resolved = resolved
@@ -387,7 +394,7 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     if planning:
         # the scene's epsilon and eta are for the CBF's gap loss: an MPC family's own
         # defaults apply unless the run gave them
-        fam_defaults = dict(getattr(fam_cls, "default_rule_params", {}))
+        fam_defaults = dict(fam_cls.capabilities.default_rule_params)
         ceiling = getattr(fam_cls, "lambda_ceiling", None)
         margin = dict(family_params or {}).get("margin", si["barrier_margin"])
         if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
@@ -433,23 +440,9 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
     names["crowd"] = crowd
 
     registry.check_params("family", fam_name, fam_cls, dict(family_params or {}))
-    policy: DecisionFamily[Any, Any, Any, Any]
-    if planning:
-        plan_context = {
-            "predictor": pred,
-            "dynamics": dyn,
-            "reference": ref,
-            "d_c": d_c,
-            "margin": si["barrier_margin"],
-            "limits__v_max": si["v_max"],
-            "substeps": si["substeps"],
-            "random_state": seed,
-        }
-        policy = fam_cls(**registry.with_context(fam_cls, dict(family_params or {}), plan_context))
-    else:
-        policy = fam_cls(
-            pred, constraint, filt, ref, substeps=si["substeps"], **(family_params or {})
-        )
+    policy: DecisionFamily[Any, Any, Any, Any] = fam_cls(
+        **context.arguments(fam_cls, family_params)
+    )
     names["family"] = fam_name
     cp = dict(crowd_params or {})
     if crowd != "replay":

@@ -21,6 +21,7 @@ A bare number that is implausible in the unit it is read in (a length under 1 m 
 from __future__ import annotations
 
 import difflib
+import logging
 import math
 import re
 import warnings
@@ -327,6 +328,8 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
                 f"parameter {key} must be a number, got the boolean {str(value).lower()}"
             )
     converted, notes = convert_units(scene, given)
+    for text in notes:  # (shown by the command line with -v)
+        logging.getLogger(__name__).info("unit conversion: %s", text)
     for key, value in converted.items():
         if key not in _TEXT_PARAMS and isinstance(value, str):
             raise InputError(f"parameter {key} must be a number, got {value!r}")

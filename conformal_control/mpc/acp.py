@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -78,7 +78,13 @@ class ACPMPCIntervalRecord(MPCIntervalRecord):
     inflation: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-class ACPMPC(SamplingMPC):
+class ACPMPC(
+    SamplingMPC,
+    default_loss="plan_miscoverage",
+    lambda_unit="level",
+    # with the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02
+    default_rule_params={"epsilon": 0.1, "eta": 0.02},
+):
     """Sampling MPC avoiding adaptive conformal prediction regions (Dixit et al. 2023).
 
     lambda is the regions' miscoverage level (see the module docstring); run it with the
@@ -102,9 +108,6 @@ class ACPMPC(SamplingMPC):
         or a former flat keyword with a ``DeprecationWarning``).
     """
 
-    default_loss: ClassVar[str] = "plan_miscoverage"
-    lambda_unit: ClassVar[str] = "level"
-
     @classmethod
     def lambda_ceiling(cls, margin: float) -> float:
         """``inf``: lambda is a level here, the safe distance is never below ``d_c +
@@ -116,9 +119,6 @@ class ACPMPC(SamplingMPC):
             The family's fixed extra safe distance (m).
         """
         return math.inf
-
-    #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
-    default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
     def __init__(
         self,
@@ -160,7 +160,7 @@ class ACPMPC(SamplingMPC):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        base = SamplingMPC._unit_test_params()
+        base = super()._unit_test_params()
         return [{**base[0], "window": 50, "max_inflation": 1.0}, base[1]]
 
     def reset(self) -> None:

@@ -64,7 +64,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import DecisionFamily
+from ..base import DecisionFamily, first_test_instance
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
@@ -148,7 +148,27 @@ class Plan:
     n_safe: int
 
 
-class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCIntervalRecord]):
+class SamplingMPC(
+    DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCIntervalRecord],
+    # the loss of a run that gives none (the CDT conformal controller's); lambda is a length
+    # (how much closer than d_c + margin the robot may come); the rule's target, step and
+    # floor when a run gives none (the scene's are the CBF's): a distance shortfall of 0.1
+    # on average, lambda moving by at most 0.2 m per update and never asking for more than
+    # 1 m beyond d_c + margin (against wind-up)
+    default_loss="distance_shortfall",
+    lambda_unit="m",
+    default_rule_params={"epsilon": 0.1, "eta": 0.2, "lambda_min": -1.0},
+    run_values={
+        "predictor": "predictor",
+        "dynamics": "dynamics",
+        "reference": "reference",
+        "d_c": "collision_distance",
+        "margin": "barrier_margin",
+        "limits__v_max": "v_max",
+        "substeps": "substeps",
+        "random_state": "seed",
+    },
+):
     """Sampling-based MPC whose safe distance to the predicted agents is set by lambda.
 
     See the module docstring for the algorithm, the knob and the fallbacks. Every length
@@ -196,18 +216,6 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
 
     #: Names of the seeded samples, in order (reported by :meth:`plan`'s tests).
     SEEDS: ClassVar[tuple[str, ...]] = ("warm_start", "stop", "reference")
-    #: The loss a run uses when none is given (the CDT conformal controller's).
-    default_loss: ClassVar[str] = "distance_shortfall"
-    #: lambda is a length (how much closer than ``d_c + margin`` the robot may come).
-    lambda_unit: ClassVar[str] = "m"
-    #: The rule's target, step and floor when a run gives none (the scene's are the CBF's):
-    #: a distance shortfall of 0.1 on average, lambda moving by at most 0.2 m per update and
-    #: never asking for more than 1 m beyond ``d_c + margin`` (against wind-up).
-    default_rule_params: ClassVar[dict[str, float]] = {
-        "epsilon": 0.1,
-        "eta": 0.2,
-        "lambda_min": -1.0,
-    }
 
     #: The former flat keywords, now fields of ``sampling``, ``limits`` and ``costs``.
     renamed_params: ClassVar[dict[str, str]] = {
@@ -285,7 +293,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     def _unit_test_environment(cls) -> Any:
         from ..world.replay import ReplayEnvironment
 
-        return ReplayEnvironment(**ReplayEnvironment._unit_test_params()[0])
+        return first_test_instance(ReplayEnvironment)
 
     # ------------------------------------------------------------------ episode
     def _validate(self) -> None:
@@ -424,7 +432,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
     def lambda_ceiling(cls, margin: float) -> float:
         """lambda's default ceiling for a run with this ``margin`` (m): ``margin``, so the
         safe distance ``d_c + margin - lambda`` never falls below ``d_c``. A family whose
-        lambda is not a length taken off the safe distance (its :attr:`lambda_unit` is not
+        lambda is not a length taken off the safe distance (its ``lambda_unit`` is not
         ``"m"``) returns ``inf`` (its own ``default_rule_params`` may bound it).
 
         Parameters
@@ -432,7 +440,7 @@ class SamplingMPC(DecisionFamily[PredictionQuery, ControlState, np.ndarray, MPCI
         margin : float
             The family's fixed extra safe distance (m).
         """
-        return float(margin) if cls.lambda_unit == "m" else math.inf
+        return float(margin) if cls.capabilities.lambda_unit == "m" else math.inf
 
     def safe_radius(self, lam: float) -> np.ndarray:
         """Safe centre distance at each plan step (m), shape (H,): ``max(d_c + margin -

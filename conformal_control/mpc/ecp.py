@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -159,7 +159,13 @@ class ECPMPCIntervalRecord(MPCIntervalRecord):
     ego_missed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
-class ECPMPC(SamplingMPC):
+class ECPMPC(
+    SamplingMPC,
+    default_loss="ego_miscoverage",
+    lambda_unit="level",
+    # with the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02
+    default_rule_params={"epsilon": 0.1, "eta": 0.02},
+):
     """Sampling MPC with egocentric conformal regions (ECP-MPC, Shin et al. 2025).
 
     See the module docstring. Run it with the ``aci`` rule (``epsilon = alpha``) and the
@@ -182,9 +188,6 @@ class ECPMPC(SamplingMPC):
         or a former flat keyword with a ``DeprecationWarning``).
     """
 
-    default_loss: ClassVar[str] = "ego_miscoverage"
-    lambda_unit: ClassVar[str] = "level"
-
     @classmethod
     def lambda_ceiling(cls, margin: float) -> float:
         """``inf``: lambda is a level here, the safe distance is never below ``d_c +
@@ -196,9 +199,6 @@ class ECPMPC(SamplingMPC):
             The family's fixed extra safe distance (m).
         """
         return math.inf
-
-    #: With the fixed-eta rule (ACI's update when epsilon = alpha): alpha 0.1, step 0.02.
-    default_rule_params: ClassVar[dict[str, float]] = {"epsilon": 0.1, "eta": 0.02}
 
     def __init__(
         self,
@@ -240,7 +240,7 @@ class ECPMPC(SamplingMPC):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        base = SamplingMPC._unit_test_params()[0]
+        base = super()._unit_test_params()[0]
         # the partner environment samples every 0.4 s: plan steps of one sampling period
         sampling = base["sampling"].replace(dt_plan=0.4)
         return [{**base, "sampling": sampling, "calibration_size": 4, "max_inflation": 1.0}]

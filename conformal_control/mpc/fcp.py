@@ -57,7 +57,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -178,7 +178,13 @@ class FCPMPCIntervalRecord(MPCIntervalRecord):
     field_needed: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-class FCPMPC(SamplingMPC):
+class FCPMPC(
+    SamplingMPC,
+    default_loss="field_miscoverage",
+    lambda_unit="1",
+    # the published adaptation: target violation 0.1, step 0.05, scale clipped to [0.2, 5]
+    default_rule_params={"epsilon": 0.1, "eta": 0.05, "lambda_min": -4.0, "lambda_max": 0.8},
+):
     """Sampling MPC planning against conformalized distance fields (FCP-MPC, 2026).
 
     See the module docstring. Run it with the fixed-eta rule (``epsilon`` 0.1, ``eta``
@@ -204,16 +210,6 @@ class FCPMPC(SamplingMPC):
         As for :class:`~conformal_control.mpc.controller.SamplingMPC` (``<group>__<field>``,
         e.g. ``constraint__mode="soft"``).
     """
-
-    default_loss: ClassVar[str] = "field_miscoverage"
-    lambda_unit: ClassVar[str] = "1"
-    #: The published adaptation: target violation 0.1, step 0.05, scale clipped to [0.2, 5].
-    default_rule_params: ClassVar[dict[str, float]] = {
-        "epsilon": 0.1,
-        "eta": 0.05,
-        "lambda_min": -4.0,
-        "lambda_max": 0.8,
-    }
 
     def __init__(
         self,
@@ -255,7 +251,7 @@ class FCPMPC(SamplingMPC):
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        base = SamplingMPC._unit_test_params()[0]
+        base = super()._unit_test_params()[0]
         sampling = base["sampling"].replace(dt_plan=0.4, horizon=4)
         online = FieldCalibration(grid_size=16, min_pairs=4, refit_every=2, n_mixtures=2)
         return [

@@ -40,7 +40,7 @@ import numpy as np
 from ..base import Loss
 from ..cbf.controller import CBFIntervalRecord
 from ..cbf.interp import interpolate_at_substeps
-from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.loss import CBFTruth, gap_test_inputs
 from ..losses import check_lambda
 
 __all__ = ["MarginMiscoverageLoss", "clearance_errors"]
@@ -84,7 +84,9 @@ def clearance_errors(
     return out
 
 
-class MarginMiscoverageLoss(Loss[CBFIntervalRecord, CBFTruth]):
+class MarginMiscoverageLoss(
+    Loss[CBFIntervalRecord, CBFTruth], run_values={"d_safe": "safe_distance"}
+):
     """l_k(lambda) = 1 if the interval's largest clearance error at a relevant instant
     exceeded the margin ``margin - lambda``, else 0 (see :mod:`conformal_control.mpc.margin`).
 
@@ -108,7 +110,7 @@ class MarginMiscoverageLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, float]]:

@@ -14,7 +14,7 @@ In the toolkit's convention (a smaller lambda is more conservative) lambda is mi
 weight: the cost is ``cost + lambda sum_h d_h`` with ``lambda <= -0.01``, the loss is
 :class:`NegativeDistanceLoss` (``negative_distance``), and the published update is the
 ``fixed_eta`` rule with ``epsilon = -2``, ``eta = 5000``, ``lambda_init = -1``,
-``lambda_max = -0.01`` (:attr:`SoftRewardMPC.default_rule_params`).
+``lambda_max = -0.01`` (its capabilities' ``default_rule_params``).
 
 Where this differs from the published runs: the published controller updates its weight at
 every step of the warm-up too (the robot standing still); in the planar suite an interval
@@ -31,7 +31,7 @@ import numpy as np
 
 from ..base import Loss
 from ..cbf.controller import CBFIntervalRecord, ControlState
-from ..cbf.loss import CBFGapLoss, CBFTruth
+from ..cbf.loss import CBFTruth, gap_test_inputs
 from ..losses import check_lambda
 from .controller import Plan, PlanInputs, SamplingMPC
 from .fieldcp import step_distances
@@ -39,7 +39,13 @@ from .fieldcp import step_distances
 __all__ = ["NegativeDistanceLoss", "SoftRewardMPC"]
 
 
-class SoftRewardMPC(SamplingMPC):
+class SoftRewardMPC(
+    SamplingMPC,
+    default_loss="negative_distance",
+    lambda_unit="1/m",
+    # the published update: target -2 m, step 5000, weight at least 0.01 (lambda <= -0.01)
+    default_rule_params={"epsilon": -2.0, "eta": 5000.0, "lambda_init": -1.0, "lambda_max": -0.01},
+):
     """Sampling MPC with a reward for distance instead of a safe distance (the published
     CC-MPC).
 
@@ -58,16 +64,6 @@ class SoftRewardMPC(SamplingMPC):
     **grouped
         As for :class:`~conformal_control.mpc.controller.SamplingMPC`.
     """
-
-    default_loss: ClassVar[str] = "negative_distance"
-    lambda_unit: ClassVar[str] = "1/m"
-    #: The published update: target -2 m, step 5000, weight at least 0.01 (lambda <= -0.01).
-    default_rule_params: ClassVar[dict[str, float]] = {
-        "epsilon": -2.0,
-        "eta": 5000.0,
-        "lambda_init": -1.0,
-        "lambda_max": -0.01,
-    }
 
     def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
         """No safe distance: every candidate is kept (radius 0)."""
@@ -107,7 +103,7 @@ class NegativeDistanceLoss(Loss[CBFIntervalRecord, CBFTruth]):
 
     @classmethod
     def _unit_test_inputs(cls) -> list[tuple[CBFIntervalRecord, CBFTruth]]:
-        return CBFGapLoss._unit_test_inputs()
+        return gap_test_inputs()
 
     def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: float) -> float | None:
         check_lambda(lam)

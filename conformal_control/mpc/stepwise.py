@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from .. import registry
-from ..base import DecisionFamily, Loss, UpdateRule
+from ..base import DecisionFamily, Loss, UpdateRule, param_names
 from ..cbf.controller import ConformalCBFController
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Dynamics, ReferenceController
@@ -38,6 +38,7 @@ from ..cbf.stepwise import StepwiseCBF, Stream, reject_unknown, stream_from
 from ..exceptions import ConformalControlDeprecationWarning, InputError
 from ..loop import ConformalStepper
 from ..predictors.base import Predictor
+from ..spec import RunContext
 from ..update_rules.base import check_epsilon, check_finite, check_positive
 
 __all__ = ["StepwiseMPC"]
@@ -54,7 +55,8 @@ def _moved(legacy: dict[str, Any], name: str, new: str) -> Any:
     if name not in legacy:
         return None
     warnings.warn(
-        f"StepwiseMPC({name}=...) is deprecated: give {new} (removed in 0.4)",
+        f"StepwiseMPC({name}=...) is deprecated: give {new} "
+        "(removed in 0.4, not before 2027-06-30)",
         ConformalControlDeprecationWarning,
         stacklevel=3,
     )
@@ -166,25 +168,27 @@ class StepwiseMPC(StepwiseCBF):
         if not isinstance(dynamics, str) and dynamics_params:
             raise ValueError("dynamics_params apply to a plant given by name, not to an instance")
         ref = reference if reference is not None else AttractiveField(K_att, v_max)
+        # the stream's values, each handed only to a plugin that declares it
+        context = RunContext(
+            collision_distance=d_c,
+            safe_distance=d_c + 1.0,
+            v_max=v_max,
+            substeps=substeps,
+            seed=seed,
+            predictor=pred,
+            dynamics=plant,
+            reference=ref,
+        )
         policy: DecisionFamily[Any, Any, Any, Any]
         if isinstance(family, str):
             cls = registry.get("family", family)
-            if issubclass(cls, ConformalCBFController) or "dynamics" not in cls._param_names():
+            if issubclass(cls, ConformalCBFController) or "dynamics" not in param_names(cls):
                 raise InputError(
                     f"StepwiseMPC runs a planning family (one taking a predictor and a plant, "
                     f"as mpc, acp_mpc, ecp_mpc do), not {family!r}; use StepwiseCBF for the CBF"
                 )
             registry.check_params("family", family, cls, dict(family_params or {}))
-            context = {
-                "predictor": pred,
-                "dynamics": plant,
-                "reference": ref,
-                "d_c": d_c,
-                "limits__v_max": v_max,
-                "substeps": substeps,
-                "random_state": seed,
-            }
-            policy = cls(**registry.with_context(cls, dict(family_params or {}), context))
+            policy = cls(**context.arguments(cls, family_params))
         elif isinstance(family, DecisionFamily):
             if family_params:
                 raise ValueError(
@@ -203,12 +207,9 @@ class StepwiseMPC(StepwiseCBF):
             )
 
         if loss is None:
-            name = str(getattr(policy, "default_loss", "distance_shortfall"))
-            lcls = registry.get("loss", name)
-            lctx = {"d_safe": d_c + 1.0, "d_c": d_c}
-            accepted = set(lcls._param_names()) if hasattr(lcls, "_param_names") else set()
-            loss = registry.create("loss", name, **{k: v for k, v in lctx.items() if k in accepted})
-        defaults = dict(getattr(policy, "default_rule_params", {}))
+            name = policy.capabilities.default_loss or "distance_shortfall"
+            loss = registry.create("loss", name, **context.arguments(registry.get("loss", name)))
+        defaults = dict(policy.capabilities.default_rule_params)
         if rule is None:
             eps = _number("epsilon", defaults.get("epsilon", 0.0) if epsilon is None else epsilon)
             step = _number("eta", defaults.get("eta", 1.0) if eta is None else eta)

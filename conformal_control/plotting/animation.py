@@ -1,131 +1,42 @@
-"""Animation of a finished run (``conformal-control animate``): GIF or MP4.
+"""Animation of a finished run (``conformal-control animate``): GIF or MP4, one robot or n.
 
-Each frame shows the reference image of the scene, the robot with its trail and its
-sensing radius, the pedestrians (those sensed at the last sampling time highlighted, with
-their predicted trajectories over the interval), the constraint status of the frame, and a
-side panel with lambda_k and l_k (with epsilon) and a time cursor. Frames are drawn with
-matplotlib and written with imageio as they are drawn: GIF through Pillow (imageio's
-streaming ``GIF-PIL`` writer, so memory does not grow with the number of frames), MP4 through
-imageio-ffmpeg (which ships its own ffmpeg binary), so no system binary is needed.
+:func:`render_animation` is the one rendering path: it reads the record, picks the frames,
+lets the view draw them (:func:`robot_frames` for one robot,
+:func:`~conformal_control.plotting.multi_animation.fleet_frames` for several) and writes
+them. For one robot, each frame shows the reference image of the scene, the robot with its
+trail and its sensing radius, the pedestrians (those sensed at the last sampling time
+highlighted, with their predicted trajectories over the interval), the constraint status
+of the frame, and a side panel with lambda_k and l_k (with epsilon) and a time cursor.
+Frames are drawn with matplotlib and written with imageio as they are drawn: GIF through
+Pillow (imageio's streaming ``GIF-PIL`` writer, so memory does not grow with the number of
+frames), MP4 through imageio-ffmpeg (which ships its own ffmpeg binary), so no system
+binary is needed.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["LEGIBLE_WIDTH_PX", "animation_frames", "frame_size", "load_record", "render_animation"]
+from .frames import LEGIBLE_WIDTH_PX, animation_frames, frame_size, load_record, scene_image
 
-#: Narrowest frame (pixels) whose text is legible: the animations' labels are 8 pt, which
-#: is 10 px at the default 9.6 in x 80 dpi = 768 px; at 60 dpi they shrink to 7 px.
-LEGIBLE_WIDTH_PX = 720
-
-
-def frame_size(width: float, dpi: int) -> tuple[int, int]:
-    """Even pixel sizes (H.264 needs them) of a ``width`` inch frame at ``dpi``; warns
-    (:class:`~conformal_control.exceptions.SuspiciousValueWarning`) when the frame is too
-    narrow for its text to be read (:data:`LEGIBLE_WIDTH_PX`).
-
-    Raises
-    ------
-    ValueError
-        For a non-positive width or dpi.
-    """
-    import warnings
-
-    from ..exceptions import SuspiciousValueWarning
-
-    if not (math.isfinite(width) and width > 0 and dpi > 0):
-        raise ValueError(f"width and dpi must be > 0, got width={width!r}, dpi={dpi!r}")
-    px_w = 2 * round(width * dpi / 2)
-    px_h = 2 * round(width * dpi * 0.45 / 2)
-    if px_w < LEGIBLE_WIDTH_PX:
-        need = math.ceil(LEGIBLE_WIDTH_PX / width)
-        warnings.warn(
-            SuspiciousValueWarning(
-                f"the animation will be {px_w} x {px_h} px ({width:g} in at {dpi} dpi): its "
-                f"8 pt labels are {8 * dpi / 72:.0f} px tall, hard to read below "
-                f"{LEGIBLE_WIDTH_PX} px wide; use --dpi {need} or more (or a larger --width)"
-            ),
-            stacklevel=3,
-        )
-    return px_w, px_h
-
+__all__ = [
+    "LEGIBLE_WIDTH_PX",
+    "animation_frames",
+    "frame_size",
+    "load_record",
+    "render_animation",
+    "robot_frames",
+]
 
 _STATUS_TEXT = {
     0: ("constraints: inactive", "tab:green"),
     1: ("constraints: ACTIVE (QP filters the reference)", "tab:orange"),
     2: ("constraints: INFEASIBLE at lambda_k (fallback)", "tab:red"),
 }
-
-
-def load_record(source: str | Path | Mapping[str, Any]) -> dict[str, Any]:
-    """The animation record: a run directory, an ``animation.npz`` or a dict.
-
-    Raises
-    ------
-    FileNotFoundError
-        If the run directory has no ``animation.npz`` (runs made with
-        ``record_animation=False`` or by an older version: run them again).
-    """
-    if isinstance(source, Mapping):
-        return dict(source)
-    path = Path(source)
-    if path.is_dir():
-        path = path / "animation.npz"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"{path} not found: the run directory has no animation record; run it again "
-            "with this version of conformal-control (it writes animation.npz by default)"
-        )
-    with np.load(path, allow_pickle=False) as data:
-        rec = {k: data[k] for k in data.files}
-    for key, value in rec.items():
-        if isinstance(value, np.ndarray) and value.ndim == 0:
-            rec[key] = value.item()
-    return rec
-
-
-def animation_frames(
-    record: Mapping[str, Any],
-    start: float | None = None,
-    end: float | None = None,
-    fps: float = 10.0,
-) -> np.ndarray:
-    """Indices of the run's frames rendered for a time window and an output frame rate.
-
-    The animation plays in real time: one output frame every ``scene fps / fps`` run
-    frames (at least 1).
-
-    Parameters
-    ----------
-    record : mapping
-        The run's animation record (its frame times ``t`` in s, the scene's ``fps``).
-    start, end : float, optional
-        The time window (s, on the record's ``t``; default: the whole run).
-    fps : float
-        Output frames per second.
-    """
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps must be > 0, got {fps!r}")
-    t = np.asarray(record["t"], dtype=float)
-    if t.size == 0:
-        raise ValueError("the run has no frames to animate")
-    lo = -math.inf if start is None else start
-    hi = math.inf if end is None else end
-    if lo > hi:
-        raise ValueError(f"--start ({start}) is after --end ({end})")
-    idx = np.flatnonzero((t >= lo - 1e-9) & (t <= hi + 1e-9))
-    if idx.size == 0:
-        raise ValueError(
-            f"no frame in the window [{start}, {end}] s; the run spans {t[0]:g}..{t[-1]:g} s"
-        )
-    stride = max(1, round(float(record["fps"]) / fps))
-    return idx[::stride]
 
 
 def _view(rec: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -140,49 +51,25 @@ def _view(rec: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, flo
     return (x0, x1), (y1, y0)  # image convention: y down
 
 
-def render_animation(
-    source: str | Path | Mapping[str, Any],
-    out: str | Path,
-    *,
-    start: float | None = None,
-    end: float | None = None,
-    fps: float = 10.0,
-    width: float = 9.6,
-    dpi: int = 80,
-    progress: bool = True,
-) -> int:
-    """Render a run to ``out`` (``.gif`` or ``.mp4``) and return the number of frames.
+def robot_frames(
+    rec: Mapping[str, Any], frames: np.ndarray, plt: Any, width: float, dpi: int
+) -> tuple[Any, Callable[[int], None]]:
+    """The one-robot view: the figure and the function drawing run frame ``i`` on it
+    (the scene with the robot, its sensing radius, the pedestrians, those sensed with
+    their predictions, the constraint status; lambda_k and l_k against epsilon).
 
     Parameters
     ----------
-    source : path or dict
-        Run directory, ``animation.npz`` or an ``EpisodeResult.animation`` dict.
-    out : path
-        Output file; its suffix picks the format.
-    start, end : float, optional
-        Time window (s since the start of the run).
-    fps : float
-        Output frame rate; the animation plays in real time (see :func:`animation_frames`).
-    width : float
-        Figure width in inches (height = 0.45 width).
-    dpi : int
-        Resolution: the frame is ``width * dpi`` pixels wide.
-    progress : bool
-        Report the rendering's progress (a bar on a terminal, plain lines in a log).
+    rec : mapping
+        The run's animation record.
+    frames : ndarray
+        The run frames rendered (:func:`animation_frames`).
+    plt : module
+        ``matplotlib.pyplot``.
+    width, dpi : float, int
+        As :func:`render_animation` takes them.
     """
-    import imageio.v2 as imageio
     from matplotlib.patches import Circle
-
-    from ..progress import track
-    from .run import pyplot
-
-    out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
-    rec = load_record(source)
-    frames = animation_frames(rec, start, end, fps)
-    plt = pyplot()
 
     t = np.asarray(rec["t"], dtype=float)
     robot = np.asarray(rec["robot"], dtype=float)
@@ -208,19 +95,10 @@ def render_animation(
     ax_loss = fig.add_subplot(gs[1, 1], sharex=ax_lam)
 
     # static layers
-    image = str(rec.get("image") or "")
-    ext = np.asarray(rec["extent"], dtype=float)
     xlim, ylim = _view(rec)
-    if image and Path(image).is_file() and np.isfinite(ext).all():
-        img = plt.imread(image)
-        # crop to the view and thin out to about the axes' resolution: drawing the full
-        # image at every frame dominates the rendering time
-        sx, sy = img.shape[1] / ext[0], img.shape[0] / ext[1]
-        c0, c1 = max(int(xlim[0] * sx), 0), min(math.ceil(xlim[1] * sx), img.shape[1])
-        r0, r1 = max(int(ylim[1] * sy), 0), min(math.ceil(ylim[0] * sy), img.shape[0])
-        step = max(1, int((c1 - c0) / (0.6 * px_w)))
-        crop = img[r0:r1:step, c0:c1:step]
-        ax.imshow(crop, extent=(c0 / sx, c1 / sx, r1 / sy, r0 / sy), alpha=0.7)
+    background = scene_image(rec, xlim, ylim, px_w, plt)
+    if background is not None:
+        ax.imshow(background[0], extent=background[1], alpha=0.7)
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
     ax.set_aspect("equal")
@@ -266,6 +144,104 @@ def render_animation(
     cursors = [a.axvline(t[frames[0]], color="black", lw=0.8) for a in (ax_lam, ax_loss)]
     lam_txt = ax_lam.text(0.01, 0.95, "", transform=ax_lam.transAxes, va="top", fontsize=8)
 
+    def draw(i: int) -> None:
+        x = robot[i]
+        collide = False
+        p = peds[i]
+        ok = np.isfinite(p[:, 0])
+        if ok.any():
+            collide = bool(np.min(np.hypot(*(p[ok] - x).T)) < d_c)
+        k = int(np.searchsorted(k_start, i, side="right") - 1) if k_start.size else -1
+        cols = pred_cols[k][pred_cols[k] >= 0] if k >= 0 else np.zeros(0, dtype=int)
+        is_sensed = np.zeros(p.shape[0], dtype=bool)
+        is_sensed[cols] = True
+        others.set_offsets(p[ok & ~is_sensed] if (ok & ~is_sensed).any() else np.zeros((0, 2)))
+        sensed.set_offsets(p[ok & is_sensed] if (ok & is_sensed).any() else np.zeros((0, 2)))
+        for j, line in enumerate(pred_lines):
+            if k >= 0 and pred_cols[k, j] >= 0:
+                line.set_data(pred[k, j, :, 0], pred[k, j, :, 1])
+            else:
+                line.set_data([], [])
+        trail.set_data(robot[: i + 1, 0], robot[: i + 1, 1])
+        robot_disc.center = (x[0], x[1])
+        robot_disc.set_color("red" if collide else "tab:orange")
+        sense.center = (x[0], x[1])
+        text, color = _STATUS_TEXT.get(int(status[i]), ("", "black"))
+        status_txt.set_text(text)
+        status_txt.set_color(color)
+        h = h_true[i]
+        if not np.isfinite(h):
+            barrier_txt.set_text("no pedestrian sensed")
+            barrier_txt.set_color("black")
+        else:
+            viol = h < 0
+            word = "VIOLATED" if viol else "satisfied"
+            barrier_txt.set_text(f"true barrier min h = {h:+.3f}: {word}")
+            barrier_txt.set_color("red" if (viol or collide) else "black")
+        for c in cursors:
+            c.set_xdata([t[i], t[i]])
+        if k >= 0 and k < lam.size:
+            lam_txt.set_text(f"lambda_k = {lam[k]:+.3f}   l_k = {loss[k]:+.3f}")
+        ax.set_title(f"{rec.get('scene', '')}   t = {t[i]:.2f} s", fontsize=10)
+
+    return fig, draw
+
+
+def render_animation(
+    source: str | Path | Mapping[str, Any],
+    out: str | Path,
+    *,
+    start: float | None = None,
+    end: float | None = None,
+    fps: float = 10.0,
+    width: float = 9.6,
+    dpi: int = 80,
+    trail: float = 3.0,
+    progress: bool = True,
+) -> int:
+    """Render a run to ``out`` (``.gif`` or ``.mp4``) and return the number of frames.
+
+    Parameters
+    ----------
+    source : path or dict
+        Run directory, ``animation.npz`` or a record: ``EpisodeResult.animation`` (one
+        robot) or ``MultiResult.animation`` (``kind="multi"``: several robots).
+    out : path
+        Output file; its suffix picks the format.
+    start, end : float, optional
+        Time window (s since the start of the run).
+    fps : float
+        Output frame rate; the animation plays in real time (see :func:`animation_frames`).
+    width : float
+        Figure width in inches (one robot: height = 0.45 width; several: the scene's
+        aspect).
+    dpi : int
+        Resolution: the frame is ``width * dpi`` pixels wide.
+    trail : float
+        Several robots: length (s) of the trail drawn behind each.
+    progress : bool
+        Report the rendering's progress (a bar on a terminal, plain lines in a log).
+    """
+    import imageio.v2 as imageio
+
+    from ..progress import track
+    from .multi_animation import fleet_frames
+    from .run import pyplot
+
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
+    rec = load_record(source)
+    if str(rec.get("kind", "")) == "multi":
+        frames = animation_frames(rec, start, end, fps)
+        plt = pyplot()
+        fig, draw = fleet_frames(rec, frames, plt, width, dpi, trail)
+    else:
+        frames = animation_frames(rec, start, end, fps)
+        plt = pyplot()
+        fig, draw = robot_frames(rec, frames, plt, width, dpi)
+
     if suffix == ".gif":
         # imageio's streaming GIF writer (Pillow underneath): each frame is quantised and
         # written to the file as it comes, so memory stays flat in the number of frames.
@@ -289,44 +265,7 @@ def render_animation(
     n_written = 0
     try:
         for i in track(frames, f"rendering {out.name}", "frames", enabled=progress):
-            x = robot[i]
-            collide = False
-            p = peds[i]
-            ok = np.isfinite(p[:, 0])
-            if ok.any():
-                collide = bool(np.min(np.hypot(*(p[ok] - x).T)) < d_c)
-            k = int(np.searchsorted(k_start, i, side="right") - 1) if k_start.size else -1
-            cols = pred_cols[k][pred_cols[k] >= 0] if k >= 0 else np.zeros(0, dtype=int)
-            is_sensed = np.zeros(p.shape[0], dtype=bool)
-            is_sensed[cols] = True
-            others.set_offsets(p[ok & ~is_sensed] if (ok & ~is_sensed).any() else np.zeros((0, 2)))
-            sensed.set_offsets(p[ok & is_sensed] if (ok & is_sensed).any() else np.zeros((0, 2)))
-            for j, line in enumerate(pred_lines):
-                if k >= 0 and pred_cols[k, j] >= 0:
-                    line.set_data(pred[k, j, :, 0], pred[k, j, :, 1])
-                else:
-                    line.set_data([], [])
-            trail.set_data(robot[: i + 1, 0], robot[: i + 1, 1])
-            robot_disc.center = (x[0], x[1])
-            robot_disc.set_color("red" if collide else "tab:orange")
-            sense.center = (x[0], x[1])
-            text, color = _STATUS_TEXT.get(int(status[i]), ("", "black"))
-            status_txt.set_text(text)
-            status_txt.set_color(color)
-            h = h_true[i]
-            if not np.isfinite(h):
-                barrier_txt.set_text("no pedestrian sensed")
-                barrier_txt.set_color("black")
-            else:
-                viol = h < 0
-                word = "VIOLATED" if viol else "satisfied"
-                barrier_txt.set_text(f"true barrier min h = {h:+.3f}: {word}")
-                barrier_txt.set_color("red" if (viol or collide) else "black")
-            for c in cursors:
-                c.set_xdata([t[i], t[i]])
-            if k >= 0 and k < lam.size:
-                lam_txt.set_text(f"lambda_k = {lam[k]:+.3f}   l_k = {loss[k]:+.3f}")
-            ax.set_title(f"{rec.get('scene', '')}   t = {t[i]:.2f} s", fontsize=10)
+            draw(i)
             fig.canvas.draw()
             rgba = np.asarray(fig.canvas.buffer_rgba())
             writer.append_data(np.ascontiguousarray(rgba[..., :3]))

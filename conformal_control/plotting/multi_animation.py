@@ -7,42 +7,20 @@ another robot, a robot that reached its goal drawn faded; a side panel shows lam
 every robot with a time cursor, and the title counts the collision frames so far. Frames
 are drawn with matplotlib and written as they are drawn (imageio: GIF through Pillow's
 streaming ``GIF-PIL`` writer, so memory stays flat in the number of frames; MP4 through
-imageio-ffmpeg), like :mod:`conformal_control.plotting.animation`.
+imageio-ffmpeg) by :func:`~conformal_control.plotting.animation.render_animation`, the
+one rendering path of one robot and of n.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
-from pathlib import Path
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
-__all__ = ["is_multi_record", "render_multi_animation"]
+from .frames import frame_size, scene_image
 
-
-def is_multi_record(source: str | Path | Mapping[str, Any]) -> bool:
-    """Whether ``source`` (a run directory, an ``animation.npz`` or a record) is a
-    multi-robot record."""
-    if isinstance(source, Mapping):
-        return str(source.get("kind", "")) == "multi"
-    path = Path(source)
-    if path.is_dir():
-        path = path / "animation.npz"
-    if not path.is_file():
-        return False
-    with np.load(path, allow_pickle=False) as data:
-        return "kind" in data.files and str(data["kind"]) == "multi"
-
-
-def _load(source: str | Path | Mapping[str, Any]) -> dict[str, Any]:
-    from .animation import load_record
-
-    rec = load_record(source)
-    if str(rec.get("kind", "")) != "multi":
-        raise ValueError("not a multi-robot animation record (no kind='multi')")
-    return rec
+__all__ = ["fleet_frames"]
 
 
 def _view(rec: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -58,54 +36,27 @@ def _view(rec: Mapping[str, Any]) -> tuple[tuple[float, float], tuple[float, flo
     return (x0, x1), (y1, y0)  # image convention: y down
 
 
-def render_multi_animation(
-    source: str | Path | Mapping[str, Any],
-    out: str | Path,
-    *,
-    start: float | None = None,
-    end: float | None = None,
-    fps: float = 10.0,
-    width: float = 9.6,
-    dpi: int = 80,
-    trail: float = 3.0,
-    progress: bool = True,
-) -> int:
-    """Render a multi-robot run to ``out`` (``.gif`` or ``.mp4``); returns the frame count.
+def fleet_frames(
+    rec: Mapping[str, Any], frames: np.ndarray, plt: Any, width: float, dpi: int, trail: float
+) -> tuple[Any, Callable[[int], None]]:
+    """The view of n robots: the figure and the function drawing run frame ``f`` on it
+    (every robot in its colour with its trail and goal, rims for contacts, the
+    pedestrians; each robot's lambda_k; the collision frames so far in the title).
 
     Parameters
     ----------
-    source : path or dict
-        Run directory, its ``animation.npz``, or ``MultiResult.animation``.
-    out : path
-        Output file; its suffix picks the format.
-    start, end : float, optional
-        Time window (s since the start of the run).
-    fps : float
-        Output frame rate; the animation plays in real time.
-    width : float
-        Figure width in inches; the height follows the scene's aspect (the scene takes
-        two thirds of the width, each robot's lambda the rest).
-    dpi : int
-        Pixels per inch.
+    rec : mapping
+        The multi-robot animation record (``kind="multi"``).
+    frames : ndarray
+        The run frames rendered.
+    plt : module
+        ``matplotlib.pyplot``.
+    width, dpi : float, int
+        As :func:`~conformal_control.plotting.animation.render_animation` takes them.
     trail : float
         Length (s) of the trail drawn behind each robot.
-    progress : bool
-        Report the rendering's progress (a bar on a terminal, plain lines in a log).
     """
-    import imageio.v2 as imageio
     from matplotlib.patches import Circle
-
-    from ..progress import track
-    from .animation import animation_frames, frame_size
-    from .run import pyplot
-
-    out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"output must end in .gif or .mp4, got {out.name!r}")
-    rec = _load(source)
-    frames = animation_frames(rec, start, end, fps)
-    plt = pyplot()
 
     t = np.asarray(rec["t"], dtype=float)
     robots = np.asarray(rec["robots"], dtype=float)
@@ -154,22 +105,16 @@ def render_multi_animation(
     ax_lam = fig.add_subplot(gs[0, 1])
     fs = 11  # legible at the figure's own size
 
-    image = str(rec.get("image") or "")
-    ext = np.asarray(rec["extent"], dtype=float)
-    if image and Path(image).is_file() and np.isfinite(ext).all():
-        img = plt.imread(image)
-        sx, sy = img.shape[1] / ext[0], img.shape[0] / ext[1]
-        c0, c1 = max(int(xlim[0] * sx), 0), min(math.ceil(xlim[1] * sx), img.shape[1])
-        r0, r1 = max(int(ylim[1] * sy), 0), min(math.ceil(ylim[0] * sy), img.shape[0])
-        step = max(1, int((c1 - c0) / (0.6 * px_w)))
-        crop = img[r0:r1:step, c0:c1:step]
+    background = scene_image(rec, xlim, ylim, px_w, plt)
+    if background is not None:
+        crop = background[0]
         # the reference image in light grey: context without a photograph's colours
         # (which also keeps a GIF's frames small)
         grey = crop[..., :3].mean(axis=2) if crop.ndim == 3 else crop
         grey = np.round(grey / max(float(grey.max()), 1e-9) * 15) / 15  # 16 levels
         ax.imshow(
             grey,
-            extent=(c0 / sx, c1 / sx, r1 / sy, r0 / sy),
+            extent=background[1],
             cmap="gray",
             vmin=-0.8,
             vmax=1.0,
@@ -188,7 +133,7 @@ def render_multi_animation(
     pts_per_m = 72.0 * px_w / dpi * 0.62 * 0.91 / max(abs(xlim[1] - xlim[0]), 1e-9)
     size = max((2.0 * r_ped * pts_per_m) ** 2, 12.0)
     others = ax.scatter([], [], s=size, c="0.3", alpha=0.8, zorder=3, label="pedestrians")
-    ped_discs: list[Circle] = []
+    ped_discs: list[Circle] = []  # the red discs drawn on the current frame
     trails = [ax.plot([], [], color=colours[i], lw=1.2, alpha=0.8)[0] for i in range(n)]
     discs = []
     for i in range(n):
@@ -209,61 +154,39 @@ def render_multi_animation(
     ax_lam.set_xlim(t[frames[0]], max(t[frames[-1]], t[frames[0]] + 1e-6))
     cursor = ax_lam.axvline(t[frames[0]], color="black", lw=0.8)
 
-    if suffix == ".gif":
-        writer = imageio.get_writer(out, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
-    else:
-        try:
-            import imageio_ffmpeg  # noqa: F401
-        except ImportError:
-            plt.close(fig)
-            raise ImportError(
-                "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg "
-                "(or the 'docs' extra), or write a .gif"
-            ) from None
-        writer = imageio.get_writer(
-            out, fps=fps, codec="libx264", macro_block_size=1, pixelformat="yuv420p"
+    def draw(f: int) -> None:
+        p = peds[f]
+        ok = np.isfinite(p[:, 0])
+        others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))
+        for c in ped_discs:
+            c.remove()
+        ped_discs.clear()
+        for i in range(n):
+            lo = max(0, f - n_trail)
+            trails[i].set_data(robots[lo : f + 1, i, 0], robots[lo : f + 1, i, 1])
+            disc = discs[i]
+            disc.center = (robots[f, i, 0], robots[f, i, 1])
+            labels[i].set_position((robots[f, i, 0], robots[f, i, 1] - 2.2 * r_robot))
+            disc.set_alpha(1.0 if active[f, i] else 0.35)
+            if c_rob[f, i] and active[f, i]:
+                disc.set_edgecolor("black")
+                disc.set_linewidth(2.0)
+            elif c_ped[f, i] and active[f, i]:
+                disc.set_edgecolor("red")
+                disc.set_linewidth(2.0)
+                near = np.hypot(*(p[ok] - robots[f, i]).T) < r_robot + r_ped
+                for q in p[ok][near]:
+                    pc = Circle(q, r_ped, fill=False, ec="red", lw=1.0, zorder=4)
+                    ax.add_patch(pc)
+                    ped_discs.append(pc)
+            else:
+                disc.set_edgecolor("none")
+        cursor.set_xdata([t[f], t[f]])
+        ax.set_title(
+            f"{rec.get('scene', '')}: {n} robots, t = {t[f]:4.1f} s, "
+            f"{int(active[f].sum())} under way\ncollision frames so far: robot-pedestrian "
+            f"{int(ped_so_far[f])}, robot-robot {int(rob_so_far[f])}",
+            fontsize=fs,
         )
-    n_written = 0
-    try:
-        for f in track(frames, f"rendering {out.name}", "frames", enabled=progress):
-            p = peds[f]
-            ok = np.isfinite(p[:, 0])
-            others.set_offsets(p[ok] if ok.any() else np.zeros((0, 2)))
-            for c in ped_discs:
-                c.remove()
-            ped_discs = []
-            for i in range(n):
-                lo = max(0, f - n_trail)
-                trails[i].set_data(robots[lo : f + 1, i, 0], robots[lo : f + 1, i, 1])
-                disc = discs[i]
-                disc.center = (robots[f, i, 0], robots[f, i, 1])
-                labels[i].set_position((robots[f, i, 0], robots[f, i, 1] - 2.2 * r_robot))
-                disc.set_alpha(1.0 if active[f, i] else 0.35)
-                if c_rob[f, i] and active[f, i]:
-                    disc.set_edgecolor("black")
-                    disc.set_linewidth(2.0)
-                elif c_ped[f, i] and active[f, i]:
-                    disc.set_edgecolor("red")
-                    disc.set_linewidth(2.0)
-                    near = np.hypot(*(p[ok] - robots[f, i]).T) < r_robot + r_ped
-                    for q in p[ok][near]:
-                        pc = Circle(q, r_ped, fill=False, ec="red", lw=1.0, zorder=4)
-                        ax.add_patch(pc)
-                        ped_discs.append(pc)
-                else:
-                    disc.set_edgecolor("none")
-            cursor.set_xdata([t[f], t[f]])
-            ax.set_title(
-                f"{rec.get('scene', '')}: {n} robots, t = {t[f]:4.1f} s, "
-                f"{int(active[f].sum())} under way\ncollision frames so far: robot-pedestrian "
-                f"{int(ped_so_far[f])}, robot-robot {int(rob_so_far[f])}",
-                fontsize=fs,
-            )
-            fig.canvas.draw()
-            rgba = np.asarray(fig.canvas.buffer_rgba())
-            writer.append_data(np.ascontiguousarray(rgba[..., :3]))
-            n_written += 1
-    finally:
-        writer.close()
-        plt.close(fig)
-    return n_written
+
+    return fig, draw

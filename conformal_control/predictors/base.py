@@ -10,7 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -197,15 +197,6 @@ class Predictor(Plugin, ABC):
     which the controller replaces by a documented, counted fallback), and must be
     deterministic for a given ``random_state`` if it has one.
     """
-
-    #: True for predictors that read the true future (:meth:`PredictionQuery.future`):
-    #: the oracle baseline. Reports mark such runs; the contract kit feeds them a truth.
-    requires_ground_truth: ClassVar[bool] = False
-    #: True for predictors whose forecasts cost a few milliseconds at most per sampling
-    #: time (nothing fitted by an iterative optimiser): a command with a handful of runs
-    #: of such predictors (``reproduce --executor auto``, its default) runs them in its own
-    #: process rather than paying for worker processes to start.
-    fast: ClassVar[bool] = False
 
     def reset(self) -> None:
         """Forget any state accumulated during an episode (optional)."""

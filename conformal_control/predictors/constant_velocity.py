@@ -2,13 +2,30 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ..base import CompiledForm
 from .base import Forecast, PredictionQuery, Predictor
 
-__all__ = ["ConstantVelocityPredictor", "trailing_valid"]
+__all__ = ["ConstantVelocityForm", "ConstantVelocityPredictor", "trailing_valid"]
+
+
+@dataclass(frozen=True)
+class ConstantVelocityForm(CompiledForm):
+    """The constant-velocity predictor as the compiled engine runs it.
+
+    Attributes
+    ----------
+    window : int
+        Samples the velocity is averaged over (as given; the engine checks it is a
+        positive integer and reports a bad one as the predictor's failure).
+    """
+
+    kernel = "constant_velocity"
+    window: Any
 
 
 def trailing_valid(history: np.ndarray) -> np.ndarray:
@@ -22,7 +39,7 @@ def trailing_valid(history: np.ndarray) -> np.ndarray:
     return n
 
 
-class ConstantVelocityPredictor(Predictor):
+class ConstantVelocityPredictor(Predictor, compiled="constant_velocity", batchable=True):
     """Extrapolate each agent at its recent average velocity.
 
     The velocity is the displacement over the last ``window`` sample intervals divided by
@@ -36,17 +53,16 @@ class ConstantVelocityPredictor(Predictor):
         Number of sample intervals the velocity is averaged over (>= 1).
     """
 
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "constant_velocity"
-
-    fast = True
-
     def __init__(self, window: int = 5) -> None:
         self.window = window
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [{}, {"window": 1}]
+
+    def compiled_state(self) -> ConstantVelocityForm:
+        """The window, as the compiled engine's predictor reads it."""
+        return ConstantVelocityForm(self.window)
 
     def predict(self, query: PredictionQuery) -> Forecast:
         if int(self.window) != self.window or self.window < 1:

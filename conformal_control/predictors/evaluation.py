@@ -285,7 +285,9 @@ def evaluate_predictor(
             horizon=horizon,
             scene=scene or windows.source,
             frame=s,
-            ground_truth=windows.future[s:e].copy() if predictor.requires_ground_truth else None,
+            ground_truth=windows.future[s:e].copy()
+            if predictor.capabilities.requires_ground_truth
+            else None,
         )
         fc = predictor.predict(query)
         pos = np.asarray(fc.positions, dtype=float)

@@ -114,11 +114,8 @@ def synthetic_windows(
     return path[:, :obs], path[:, obs:]
 
 
-class WindowPredictor(Predictor):
+class WindowPredictor(Predictor, trainable=True):
     """Learned predictor on fixed windows of ``obs`` past / ``horizon`` future samples."""
-
-    #: Trained by ``conformal-control train-predictor`` (see ``commands/predictors``).
-    trainable: ClassVar[bool] = True
 
     #: Fewest samples (at ``model_dt``) for which a short history is padded backwards at
     #: its first observed velocity instead of falling back to constant velocity.

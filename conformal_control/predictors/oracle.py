@@ -9,7 +9,7 @@ from .base import Forecast, PredictionQuery, Predictor
 __all__ = ["OraclePredictor"]
 
 
-class OraclePredictor(Predictor):
+class OraclePredictor(Predictor, compiled="oracle", batchable=True, requires_ground_truth=True):
     """Ground-truth future of each sensed agent (the "gt/noLearn" baseline).
 
     Reads the true future over the query's horizon through
@@ -25,13 +25,6 @@ class OraclePredictor(Predictor):
     the same rule as for any predictor's non-finite forecast, and what the compiled
     engine does with the oracle.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "oracle"
-
-    fast = True
-
-    requires_ground_truth = True
 
     def predict(self, query: PredictionQuery) -> Forecast:
         if not np.isfinite(query.current).all():

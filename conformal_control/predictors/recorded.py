@@ -205,7 +205,7 @@ def _cached(path: Path) -> RecordedPredictions:
     return hit
 
 
-class RecordedPredictor(Predictor):
+class RecordedPredictor(Predictor, batchable=True):
     """Precomputed predictions replayed from a CSV ``frame,track_id,step,x,y`` (gzip too).
 
     See :mod:`conformal_control.predictors.recorded` for the file, the clock and the
@@ -229,8 +229,6 @@ class RecordedPredictor(Predictor):
     data_root : str, optional
         Folder that relative paths are resolved against.
     """
-
-    fast = True
 
     def __init__(
         self,

@@ -45,6 +45,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ..base import CompiledForm
 from .base import Forecast, PredictionQuery, Predictor
 
 __all__ = [
@@ -211,7 +212,7 @@ def _restart_rows(
 
 # ------------------------------------------------------------------ compiled forms
 @dataclass(frozen=True)
-class ShiftForm:
+class ShiftForm(CompiledForm):
     """A predictor shift as the compiled engine runs it (:meth:`ShiftedPredictor.compiled_state`):
     the kernel of the shift, its constants (validated) and the wrapped predictor, built
     (the engine runs the shift compiled when it compiles that predictor too, and calls
@@ -343,7 +344,8 @@ def noise_offsets(
     return out
 
 
-class ShiftedPredictor(Predictor):
+# batchable: the wrappers cost microseconds (a slow wrapped predictor stays slow)
+class ShiftedPredictor(Predictor, batchable=True):
     """Base of the predictor shifts: a wrapped predictor, built by :meth:`reset`.
 
     Attributes
@@ -354,8 +356,6 @@ class ShiftedPredictor(Predictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    fast = True  # the wrappers cost microseconds; a slow wrapped predictor stays slow
 
     predictor: Any
     predictor_params: dict[str, Any] | None
@@ -387,7 +387,8 @@ class ShiftedPredictor(Predictor):
         return fc
 
 
-class DelayedPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its DelayedForm) compiled (not inherited)
+class DelayedPredictor(ShiftedPredictor, compiled="delayed"):
     """A predictor fed data ``delay_s`` old, its forecast used as current (not compensated).
 
     At a sampling time t the wrapped predictor sees the histories up to t - delay_s (the
@@ -408,9 +409,6 @@ class DelayedPredictor(ShiftedPredictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    #: the compiled engine runs this class (its :class:`DelayedForm`) compiled
-    compiled_as = "delayed"
 
     def __init__(
         self,
@@ -490,7 +488,8 @@ class DelayedPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, out)
 
 
-class NoisyPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its NoisyForm) compiled (not inherited)
+class NoisyPredictor(ShiftedPredictor, run_values={"random_state": "seed"}, compiled="noisy"):
     """A predictor whose forecasts carry a Gaussian position error of ``sigma_m`` per axis.
 
     One draw per agent and sampling time displaces the agent's whole forecast (every
@@ -511,9 +510,6 @@ class NoisyPredictor(ShiftedPredictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    #: the compiled engine runs this class (its :class:`NoisyForm`) compiled
-    compiled_as = "noisy"
 
     def __init__(
         self,
@@ -553,7 +549,8 @@ class NoisyPredictor(ShiftedPredictor):
         return Forecast(pos, fc.covariance, dict(fc.info))
 
 
-class ScaledPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its ScaledForm) compiled (not inherited)
+class ScaledPredictor(ShiftedPredictor, compiled="scaled"):
     """A predictor whose predicted displacements are scaled by ``scale`` (0 = frozen).
 
     The forecast is ``current + scale * (forecast - current)``: ``scale = 0`` predicts
@@ -570,9 +567,6 @@ class ScaledPredictor(ShiftedPredictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    #: the compiled engine runs this class (its :class:`ScaledForm`) compiled
-    compiled_as = "scaled"
 
     def __init__(
         self,
@@ -611,7 +605,8 @@ class ScaledPredictor(ShiftedPredictor):
         return self._nonfinite_current(query, Forecast(pos, fc.covariance, dict(fc.info)))
 
 
-class DropoutPredictor(ShiftedPredictor):
+# compiled: the engine runs this class (its DropoutForm) compiled (not inherited)
+class DropoutPredictor(ShiftedPredictor, run_values={"random_state": "seed"}, compiled="dropout"):
     """A predictor whose agents' detections go missing (probability p, duration_s at a time).
 
     Time (the scene's frame number x the sample spacing) is cut into blocks of
@@ -637,9 +632,6 @@ class DropoutPredictor(ShiftedPredictor):
     predictor_params : dict, optional
         Parameters of a predictor given by name.
     """
-
-    #: the compiled engine runs this class (its :class:`DropoutForm`) compiled
-    compiled_as = "dropout"
 
     def __init__(
         self,

@@ -206,7 +206,7 @@ def forecast_var(coefs: np.ndarray, centred: np.ndarray, horizon: int) -> np.nda
     return buf[:, p:]
 
 
-class VARPredictor(Predictor):
+class VARPredictor(Predictor, batchable=True):
     """VAR(p) on first differences with a constant, Yule–Walker, batched over agents.
 
     The paper's VARIMA(p, 1, 'c') structure, fitted by Yule–Walker instead of darts'
@@ -230,8 +230,6 @@ class VARPredictor(Predictor):
         Largest spectral radius of a fitted companion matrix, in (0, 1); a fit at or
         above it is shrunk to it (counted in ``n_shrunk``).
     """
-
-    fast = True
 
     def __init__(
         self,

@@ -525,7 +525,7 @@ def auto_executor(configs: Sequence[RunConfig]) -> str:
     ``"process"``."""
     from .. import registry
 
-    fast = all(getattr(registry.get("predictor", c.predictor), "fast", False) for c in configs)
+    fast = all(registry.get("predictor", c.predictor).capabilities.batchable for c in configs)
     return "serial" if fast else "process"
 
 
@@ -563,7 +563,7 @@ def reproduce(
     executor : Executor or str
         Where the runs go (see :func:`~conformal_control.sweep.run_sweep`); ``"auto"``
         (default) runs them in this process when every run's predictor is a fast one
-        (:attr:`~conformal_control.predictors.Predictor.fast`: a dozen episodes take about
+        (capabilities' ``batchable``: a dozen episodes take about
         a second, less than starting worker processes), else on a process pool.
     workers : int, optional
         Worker processes (process pool, Dask LocalCluster).

@@ -11,8 +11,9 @@ import numpy as np
 from ..data.scene import Scene
 from ..loop import LoopResult
 from .metrics import EpisodeMetrics
+from .multi_metrics import RobotContacts
 
-__all__ = ["EpisodeResult"]
+__all__ = ["EpisodeResult", "RobotResult"]
 
 
 @dataclass
@@ -62,3 +63,46 @@ class EpisodeResult:
         from .rundir import write_run_dir
 
         return write_run_dir(self, out, plot=plot)
+
+
+@dataclass
+class RobotResult:
+    """One robot of a multi-robot run.
+
+    Attributes
+    ----------
+    index, id : int
+        Its index and the id under which the other robots sense it.
+    start, goals : ndarray
+        Its task (m).
+    metrics : EpisodeMetrics
+        As for one robot (``d_min``, ``n_collide``: pedestrians); ``success`` also
+        requires no robot-robot collision.
+    contacts : RobotContacts
+        Its encounters with the other robots.
+    intervals : list of dict
+    trajectory : dict of arrays
+        Per frame while under way: ``frame, t, x, y, vx, vy, d_min, d_min_robot``.
+    steps : dict of arrays
+    loop : LoopResult
+    """
+
+    index: int
+    id: int
+    start: np.ndarray
+    goals: np.ndarray
+    metrics: EpisodeMetrics
+    contacts: RobotContacts
+    intervals: list[dict[str, Any]]
+    trajectory: dict[str, np.ndarray]
+    steps: dict[str, np.ndarray]
+    loop: LoopResult
+
+    def summary(self) -> dict[str, Any]:
+        """Its metrics and contacts in one JSON-ready dict."""
+        return {
+            "robot": self.index,
+            "id": self.id,
+            **self.metrics.as_dict(),
+            **self.contacts.as_dict(),
+        }

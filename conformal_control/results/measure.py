@@ -57,8 +57,9 @@ def feasibility(fl: Flagship) -> Any:
 def lambda_unit(fl: Flagship) -> tuple[float, str]:
     """How lambda is reported: (SI value of one reported unit, its name). The CBF families'
     lambda is a rate, reported in the scene's time unit (1/frame on SDD); a family that
-    declares ``lambda_unit`` (the MPC families: metres, or a level) is reported in it."""
-    declared = getattr(fl.family, "lambda_unit", None)
+    declares ``lambda_unit`` in its capabilities (the MPC families: metres, or a level) is
+    reported in it."""
+    declared = fl.family.capabilities.lambda_unit
     if isinstance(declared, str):
         return 1.0, declared
     return fl.scene.units.factor("lambda_init"), f"1/{fl.scene.units.time_name}"

@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..sim.multi import RobotResult
     from ..world.multi import MultiRobotWorld
+    from .episode import RobotResult
 
 __all__ = ["multi_record"]
 

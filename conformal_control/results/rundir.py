@@ -7,14 +7,31 @@ import io
 import math
 from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..fileio import atomic_write, atomic_write_json, atomic_write_text
 
-if TYPE_CHECKING:
-    from .episode import EpisodeResult
+if TYPE_CHECKING:  # annotations only (no circle: none of these imports a result)
+    import numpy as np
 
-__all__ = ["csv_cell", "csv_text", "finite_or_none", "write_run_dir"]
+    from ..data.scene import Scene
+    from ..loop import LoopResult
+    from .metrics import EpisodeMetrics
+
+__all__ = ["RunResult", "csv_cell", "csv_text", "finite_or_none", "write_run_dir"]
+
+
+class RunResult(Protocol):
+    """What a run directory is written from (an
+    :class:`~conformal_control.results.episode.EpisodeResult` is one): typed by what it
+    holds, so this module needs no result class (and no import circle ties it to one)."""
+
+    scene: Scene
+    config: dict[str, Any]
+    metrics: EpisodeMetrics
+    intervals: list[dict[str, Any]]
+    trajectory: dict[str, np.ndarray]
+    loop: LoopResult | None
 
 
 def finite_or_none(obj: Any) -> Any:
@@ -47,7 +64,7 @@ def csv_text(header: list[str], rows: Iterable[list[Any]]) -> str:
 
 
 def write_run_dir(
-    result: EpisodeResult,
+    result: RunResult,
     out: str | Path,
     *,
     plot: bool = True,

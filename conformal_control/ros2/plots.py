@@ -4,19 +4,29 @@ and the loss."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from .shadow import ShadowResult
+    from .bag import RecordedBag
 
-__all__ = ["plot_shadow"]
+__all__ = ["ShadowRun", "plot_shadow"]
 
 
-def plot_shadow(res: ShadowResult, path: str | Path | None = None) -> Figure:
+class ShadowRun(Protocol):
+    """What the figure reads of a shadow-mode result
+    (:class:`~conformal_control.ros2.shadow.ShadowResult` is one; typed by what it holds,
+    so the shadow module and its figure import each other in no direction but one)."""
+
+    bag: RecordedBag
+    commands: dict[str, np.ndarray]
+    config: dict[str, Any]
+
+
+def plot_shadow(res: ShadowRun, path: str | Path | None = None) -> Figure:
     """Three panels: the map (the robot's recorded path, the people's tracks, the goal,
     the commanded velocity every second as arrows); the recorded and the commanded speed
     over time, with the instants the controller fell back; lambda and the intervals' loss
@@ -24,8 +34,8 @@ def plot_shadow(res: ShadowResult, path: str | Path | None = None) -> Figure:
 
     Parameters
     ----------
-    res : ShadowResult
-        A shadow-mode result.
+    res : ShadowRun
+        A shadow-mode result (:class:`~conformal_control.ros2.shadow.ShadowResult`).
     path : path, optional
         Where to save the figure (PNG); it is returned either way.
     """

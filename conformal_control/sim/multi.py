@@ -52,13 +52,12 @@ from ..cbf.feasibility import feasibility_floor
 from ..cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..data.scene import Scene
 from ..flagship.build import Flagship, build_flagship
-from ..loop import ConformalStepper, LoopResult
+from ..loop import ConformalStepper
+from ..results.episode import RobotResult
 from ..results.measure import episode_config, jsonable, measure
-from ..results.metrics import EpisodeMetrics
 from ..results.multi_metrics import (
     DeadlockRule,
     FleetMetrics,
-    RobotContacts,
     deadlocks,
     fleet_metrics,
     remaining_paths,
@@ -304,49 +303,6 @@ def check_tasks(starts: np.ndarray, goals: Sequence[np.ndarray], robot_radius: f
 
 # ---------------------------------------------------------------------------- results
 @dataclass
-class RobotResult:
-    """One robot of a multi-robot run.
-
-    Attributes
-    ----------
-    index, id : int
-        Its index and the id under which the other robots sense it.
-    start, goals : ndarray
-        Its task (m).
-    metrics : EpisodeMetrics
-        As for one robot (``d_min``, ``n_collide``: pedestrians); ``success`` also
-        requires no robot-robot collision.
-    contacts : RobotContacts
-        Its encounters with the other robots.
-    intervals : list of dict
-    trajectory : dict of arrays
-        Per frame while under way: ``frame, t, x, y, vx, vy, d_min, d_min_robot``.
-    steps : dict of arrays
-    loop : LoopResult
-    """
-
-    index: int
-    id: int
-    start: np.ndarray
-    goals: np.ndarray
-    metrics: EpisodeMetrics
-    contacts: RobotContacts
-    intervals: list[dict[str, Any]]
-    trajectory: dict[str, np.ndarray]
-    steps: dict[str, np.ndarray]
-    loop: LoopResult
-
-    def summary(self) -> dict[str, Any]:
-        """Its metrics and contacts in one JSON-ready dict."""
-        return {
-            "robot": self.index,
-            "id": self.id,
-            **self.metrics.as_dict(),
-            **self.contacts.as_dict(),
-        }
-
-
-@dataclass
 class MultiResult:
     """Everything a multi-robot run produced (what its run directory is written from).
 
@@ -363,7 +319,7 @@ class MultiResult:
         The world per frame: ``frame (F,)``, ``t (F,)``, ``robots (F, M, 2)`` positions
         (robots that reached their goal included), ``active (F, M)``.
     animation : dict or None
-        The record :func:`~conformal_control.plotting.multi_animation.render_multi_animation`
+        The record :func:`~conformal_control.plotting.animation.render_animation`
         renders.
     """
 

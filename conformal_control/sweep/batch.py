@@ -76,12 +76,12 @@ def _slow_predictor(name: Any) -> str | None:
     if not isinstance(name, str) or name in ("constant_velocity", "oracle"):
         return None  # an instance: supports() says why not
     try:
-        fast = bool(getattr(registry.get("predictor", name), "fast", False))
+        fast = bool(registry.get("predictor", name).capabilities.batchable)
     except (registry.UnknownPluginError, registry.PluginUnavailableError) as exc:
         return f"predictor {name!r}: {exc}"
     if fast:
         return None
-    return f"predictor {name!r} is not marked fast: its runs predict in parallel on the pool"
+    return f"predictor {name!r} is not declared batchable: its runs predict in parallel on the pool"
 
 
 def _group_key(cfg: dict[str, Any]) -> str:

@@ -63,6 +63,7 @@ from ._core import (
 )
 from .barrier import check_barrier
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -86,6 +87,7 @@ __all__ = [
     "ContractError",
     "ExpectedFailures",
     "check_barrier",
+    "check_capabilities",
     "check_crowd_model",
     "check_decision_family",
     "check_dynamics",
@@ -168,6 +170,7 @@ def checks_for(role: str) -> CheckList:
         [
             check_get_params_round_trip,
             check_repr,
+            check_capabilities,
             check_pickle_round_trip,
             check_docstring_parameters,
             check_no_mutable_defaults,

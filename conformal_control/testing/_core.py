@@ -26,6 +26,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..base import declared_test_params, param_names
+
 __all__ = [
     "CheckList",
     "CheckResult",
@@ -222,8 +224,7 @@ def _message(exc: BaseException) -> str:
 
 def unit_test_params(cls: type) -> list[dict[str, Any]]:
     """The cheap constructor kwargs a class declares for the contract tests (default ``[{}]``)."""
-    fn = getattr(cls, "_unit_test_params", None)
-    params = [{}] if fn is None else list(fn())
+    params = declared_test_params(cls)
     if not params or not all(isinstance(p, dict) for p in params):
         raise ContractError(
             f"{cls.__name__}._unit_test_params() must return a non-empty list of dicts of "
@@ -289,17 +290,7 @@ def with_seed(plugin: Any, seed: int) -> Any:
 
 
 def init_names(cls: type[Any]) -> list[str]:
-    names = getattr(cls, "_param_names", None)
-    if names is not None:
-        return list(names())
-    if cls.__init__ is object.__init__:
-        return []
-    sig = inspect.signature(cls.__init__)
-    return [
-        n
-        for n, p in sig.parameters.items()
-        if n != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-    ]
+    return param_names(cls)
 
 
 # ------------------------------------------------------------------ input snapshots

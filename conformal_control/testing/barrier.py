@@ -18,6 +18,7 @@ from ._core import (
     snapshot,
 )
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -250,6 +251,7 @@ check_barrier = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_barrier_output_shape,
         check_barrier_broadcasting,
         check_barrier_value_matches_evaluate,

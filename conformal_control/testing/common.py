@@ -24,6 +24,15 @@ from typing import Any
 
 import numpy as np
 
+from ..base import (
+    Capabilities,
+    CompiledForm,
+    DecisionFamily,
+    Loss,
+    Settings,
+    UpdateRule,
+)
+from ..spec import RUN_VALUES
 from ._core import (
     ContractError,
     deep_clone,
@@ -36,6 +45,7 @@ from ._core import (
 )
 
 __all__ = [
+    "check_capabilities",
     "check_docstring_parameters",
     "check_get_params_round_trip",
     "check_no_mutable_defaults",
@@ -278,3 +288,109 @@ def check_no_mutable_defaults(plugin: Any) -> None:
         "mutable ones when used), got "
         + ", ".join(f"{n}={type(v).__name__} {v!r:.40}" for n, v in bad.items()),
     )
+
+
+#: Fields of :class:`~conformal_control.base.Capabilities` that mean something for one role
+#: only (keyed by the role's base class, resolved lazily: predictors and filters are a
+#: floor up); every other field applies to every role.
+_ROLE_CAPABILITIES: dict[str, tuple[str, ...]] = {
+    "predictor": ("batchable", "trainable", "requires_ground_truth"),
+    "rule": ("guarantee", "fixed_step", "exact_step", "uses_loss_function", "lambda_params"),
+    "family": ("default_loss", "default_rule_params", "lambda_unit", "vector_lambda"),
+    "loss": ("vector_lambda",),
+    "safety_filter": ("probe_floor_first",),
+}
+_RULE_VALUES = ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
+
+
+def _roles_of(cls: type) -> set[str]:
+    from ..cbf.roles import SafetyFilter
+    from ..predictors.base import Predictor
+
+    bases = {
+        "predictor": Predictor,
+        "rule": UpdateRule,
+        "family": DecisionFamily,
+        "loss": Loss,
+        "safety_filter": SafetyFilter,
+    }
+    return {role for role, base in bases.items() if issubclass(cls, base)}
+
+
+def check_capabilities(plugin: Any) -> None:
+    """The plugin's class declares its capabilities as one
+    :class:`~conformal_control.base.Capabilities` object, consistently.
+
+    Fields of another role keep their defaults; every ``run_values`` entry maps a
+    constructor argument (or a settings group's ``<group>__<field>``) to a documented run
+    value (:data:`~conformal_control.spec.RUN_VALUES`); a declared compiled form is the one
+    :meth:`~conformal_control.base.Plugin.compiled_state` hands over; a rule's
+    ``lambda_params`` are constructor arguments and its ``guarantee`` a known kind; a
+    trainable predictor takes ``weights`` and has ``fit``; a family's default rule
+    parameters are the rule's run values.
+    """
+    cls = type(plugin)
+    caps = getattr(cls, "capabilities", None)
+    expect(
+        isinstance(caps, Capabilities),
+        plugin,
+        f"expected {cls.__name__}.capabilities to be a Capabilities, got {caps!r} (declare "
+        "capabilities with keywords of the class statement)",
+    )
+    assert isinstance(caps, Capabilities)
+    roles = _roles_of(cls)
+    default = Capabilities()
+    allowed = {f for role in roles for f in _ROLE_CAPABILITIES[role]}
+    for role, fields in _ROLE_CAPABILITIES.items():
+        for name in fields:
+            expect(
+                name in allowed or getattr(caps, name) == getattr(default, name),
+                plugin,
+                f"expected no {role} capability {name!r} on a "
+                f"{'/'.join(sorted(roles)) or 'plugin of another role'}, got "
+                f"{getattr(caps, name)!r}",
+            )
+    names = set(init_names(cls))
+    for argument, value in caps.run_values.items():
+        group, sep, _ = argument.partition("__")
+        ok = argument in names or (
+            bool(sep) and group in names and isinstance(getattr(plugin, group, None), Settings)
+        )
+        expect(ok, plugin, f"expected run_values key {argument!r} to be a constructor argument")
+        expect(
+            value in RUN_VALUES,
+            plugin,
+            f"expected run_values[{argument!r}] to be a documented run value, got {value!r} "
+            f"(one of {', '.join(RUN_VALUES)})",
+        )
+    # a declared form is the one handed over (a subclass that does not declare its
+    # parent's form inherits compiled_state, unused: it is not run compiled)
+    form = plugin.compiled_state() if caps.compiled and hasattr(plugin, "compiled_state") else None
+    if form is not None:
+        expect(
+            isinstance(form, CompiledForm),
+            plugin,
+            f"expected compiled_state() to return a CompiledForm, got {type(form).__name__}",
+        )
+        expect(
+            caps.compiled is not None and form.kernel == caps.compiled,
+            plugin,
+            f"expected compiled_state() to return a form of the declared kernel "
+            f"{caps.compiled!r}, got one of {form.kernel!r}",
+        )
+    if "rule" in roles:
+        expect(
+            caps.guarantee in ("identity", "step_identity", "long_run", "none"),
+            plugin,
+            f"expected guarantee to be a GuaranteeKind, got {caps.guarantee!r}",
+        )
+        stray = [n for n in caps.lambda_params if n not in names]
+        expect(not stray, plugin, f"expected lambda_params {stray} to be constructor arguments")
+    if caps.trainable:
+        expect(
+            "weights" in names and callable(getattr(plugin, "fit", None)),
+            plugin,
+            "expected a trainable predictor to take weights= and to have fit()",
+        )
+    stray = [k for k in caps.default_rule_params if k not in _RULE_VALUES]
+    expect(not stray, plugin, f"expected default_rule_params to be rule run values, got {stray}")

@@ -20,6 +20,7 @@ import numpy as np
 from ..crowds.base import CrowdModel
 from ._core import CheckList, ContractError, clone, plugin_label
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -140,6 +141,7 @@ check_crowd_model = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_pickle_round_trip,
         check_docstring_parameters,
         check_no_mutable_defaults,

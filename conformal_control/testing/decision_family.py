@@ -30,6 +30,7 @@ import numpy as np
 from ..base import DecisionFamily, Environment
 from ._core import CheckList, ContractError, deep_clone, expect, plugin_label
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -172,6 +173,7 @@ check_decision_family = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_decision_family_decisions,
         check_decision_family_no_mutation,
         check_decision_family_deterministic,

@@ -18,6 +18,7 @@ from ._core import (
     snapshot,
 )
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -172,6 +173,7 @@ check_dynamics = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_dynamics_output,
         check_dynamics_zero_dt,
         check_dynamics_no_mutation,

@@ -16,6 +16,7 @@ import numpy as np
 from ..base import Loss
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -229,6 +230,7 @@ check_loss = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_loss_bounds_declared,
         check_loss_unit_test_inputs,
         check_loss_within_bounds,

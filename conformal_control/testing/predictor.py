@@ -20,6 +20,7 @@ from ._core import (
     with_seed,
 )
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -91,7 +92,7 @@ def make_query(
 
 
 def _query(plugin: Predictor, **kw: Any) -> PredictionQuery:
-    return make_query(ground_truth=bool(getattr(plugin, "requires_ground_truth", False)), **kw)
+    return make_query(ground_truth=plugin.capabilities.requires_ground_truth, **kw)
 
 
 def _subset(q: PredictionQuery, rows: np.ndarray) -> PredictionQuery:
@@ -358,6 +359,7 @@ check_predictor = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_predictor_output_shape,
         check_predictor_finite_on_clean_input,
         check_predictor_no_mutation,

@@ -7,6 +7,7 @@ import numpy as np
 from ..cbf.roles import ReferenceController
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -88,6 +89,7 @@ check_reference_controller = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_reference_output,
         check_reference_no_mutation,
         check_reference_deterministic,

@@ -14,6 +14,7 @@ import numpy as np
 from ..cbf.roles import Fallback, FilterResult, SafetyFilter
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -357,6 +358,7 @@ check_safety_filter = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_safety_filter_output,
         check_safety_filter_feasible_satisfied,
         check_safety_filter_keeps_safe_nominal,
@@ -407,5 +409,5 @@ def check_fallback_decision(fallback: Fallback) -> None:
 #: Every fallback check, in order.
 check_fallback = CheckList(
     "fallback",
-    [check_get_params_round_trip, check_repr, check_fallback_decision],
+    [check_get_params_round_trip, check_repr, check_capabilities, check_fallback_decision],
 )

@@ -14,6 +14,7 @@ from ..base import UpdateRule
 from ..monitor import AgentMonitor
 from ._core import CheckList, ContractError, clone, expect, plugin_label
 from .common import (
+    check_capabilities,
     check_docstring_parameters,
     check_get_params_round_trip,
     check_no_mutable_defaults,
@@ -229,6 +230,7 @@ check_update_rule = CheckList(
     [
         check_get_params_round_trip,
         check_repr,
+        check_capabilities,
         check_update_rule_value,
         check_update_rule_monotone,
         check_update_rule_above_target_not_less_conservative,

@@ -23,7 +23,7 @@ Clipping changes the exact identities below: the upper clip only lowers the aver
 loss bound, the lower clip keeps the Theorem-2 bound as long as
 ``lambda_min <= lambda_safe - eta`` (then it never acts under the theorem's assumption).
 
-Guarantee kinds (``UpdateRule.guarantee``)
+Guarantee kinds (``UpdateRule.capabilities.guarantee``)
 ------------------------------------------
 ``"identity"``       fixed step: mean(l) = eps + (lambda_1 - lambda_{K+1}) / (eta K) exactly,
                      and the Theorem-2 bound when lambda_safe is known.

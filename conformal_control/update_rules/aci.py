@@ -11,7 +11,18 @@ from .base import StepRule, check_finite, check_positive
 __all__ = ["ACIRule"]
 
 
-class ACIRule(StepRule):
+class ACIRule(
+    StepRule,
+    guarantee="identity",
+    fixed_step=True,
+    exact_step=True,
+    lambda_params=(),
+    run_values={
+        "lambda_init": "lambda_init",
+        "lambda_min": "lambda_min",
+        "lambda_max": "lambda_max",
+    },
+):
     """Adaptive conformal inference (Gibbs & Candès 2021): lambda <- lambda + gamma (alpha - err).
 
     lambda is the nominal miscoverage level alpha_t of the prediction set (larger =
@@ -39,11 +50,6 @@ class ACIRule(StepRule):
     lambda_min, lambda_max : float
         Optional clipping (not needed for the guarantee).
     """
-
-    guarantee = "identity"
-    fixed_step = True
-    exact_step = True
-    lambda_params = ()
 
     def __init__(
         self,

@@ -3,14 +3,28 @@
 from __future__ import annotations
 
 import math
-from typing import ClassVar
 
 import numpy as np
 
 from ..base import UpdateRule
 from ..exceptions import InputError
 
-__all__ = ["StepRule", "check_epsilon", "check_finite", "check_loss", "check_positive"]
+__all__ = [
+    "RULE_RUN_VALUES",
+    "StepRule",
+    "check_epsilon",
+    "check_finite",
+    "check_loss",
+    "check_positive",
+]
+
+
+#: The run values a rule with the paper's parameters takes (``epsilon``, ``eta`` and
+#: lambda's start and bounds, SI): declared by ``fixed_eta``, ``decaying_eta`` and ``pid``
+#: as ``run_values=RULE_RUN_VALUES`` (see :class:`~conformal_control.spec.RunContext`).
+RULE_RUN_VALUES: dict[str, str] = {
+    k: k for k in ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
+}
 
 
 def check_finite(name: str, value: float) -> float:
@@ -56,18 +70,12 @@ def check_loss(loss: float) -> float:
     return loss
 
 
-class StepRule(UpdateRule):
+class StepRule(UpdateRule, lambda_params=("lambda_init", "lambda_min", "lambda_max")):
     """Shared machinery: target, initial value, clipping, counters.
 
     Subclasses implement :meth:`_reset` (returning the unclipped lambda_1) and
     :meth:`_step` (returning the unclipped lambda_{k+1}).
     """
-
-    #: True when lambda_{k+1} = lambda_k + eta_k (eps - l_k) exactly (before clipping);
-    #: the step eta_k of the last update is then in ``last_step_``.
-    exact_step: ClassVar[bool] = False
-    #: Constructor parameters in the units of lambda (converted by scene-unit loaders).
-    lambda_params: ClassVar[tuple[str, ...]] = ("lambda_init", "lambda_min", "lambda_max")
 
     lambda_min: float
     lambda_max: float
@@ -85,7 +93,7 @@ class StepRule(UpdateRule):
         clipped = min(max(lam, self.lambda_min), self.lambda_max)
         if clipped != lam:
             self.n_clipped_ += 1
-            if self.exact_step and self.last_step_ > 0:
+            if self.capabilities.exact_step and self.last_step_ > 0:
                 self.clip_weighted_ += abs(clipped - lam) / self.last_step_
         return clipped
 

@@ -8,12 +8,18 @@ from typing import Any
 
 import numpy as np
 
-from .base import StepRule, check_finite, check_positive
+from .base import RULE_RUN_VALUES, StepRule, check_finite, check_positive
 
 __all__ = ["DecayingEtaRule"]
 
 
-class DecayingEtaRule(StepRule):
+class DecayingEtaRule(
+    StepRule,
+    guarantee="step_identity",
+    exact_step=True,
+    lambda_params=("eta", "lambda_init", "lambda_min", "lambda_max"),
+    run_values=RULE_RUN_VALUES,
+):
     """Fixed-step rule with a decaying step: lambda <- lambda + eta_k (epsilon - l_k).
 
     Schedule: eta_k = eta * (offset / (offset + k - 1)) ** power, k = 1, 2, ... (so
@@ -48,10 +54,6 @@ class DecayingEtaRule(StepRule):
     lambda_init, lambda_min, lambda_max : float
         As for :class:`FixedEtaRule`.
     """
-
-    guarantee = "step_identity"
-    exact_step = True
-    lambda_params = ("eta", "lambda_init", "lambda_min", "lambda_max")
 
     def __init__(
         self,

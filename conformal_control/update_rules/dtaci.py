@@ -15,7 +15,18 @@ from .base import StepRule, check_finite, check_positive
 __all__ = ["DtACIRule"]
 
 
-class DtACIRule(StepRule):
+class DtACIRule(
+    StepRule,
+    guarantee="none",
+    uses_loss_function=True,
+    lambda_params=("gammas", "lambda_init", "lambda_min", "lambda_max"),
+    run_values={
+        "epsilon": "epsilon",
+        "lambda_init": "lambda_init",
+        "lambda_min": "lambda_min",
+        "lambda_max": "lambda_max",
+    },
+):
     """Dynamically-tuned ACI (Gibbs & Candès 2022): experts with several learning rates.
 
     Expert i runs its own fixed-step rule lambda^i <- lambda^i + gamma_i (epsilon - l(lambda^i));
@@ -59,13 +70,10 @@ class DtACIRule(StepRule):
         Quadrature points between consecutive expert values for the surrogate.
     """
 
-    guarantee = "none"
-    uses_loss_function = True
     #: Documented empirical tolerance on |miscoverage - alpha| after >= 1000 steps of a
     #: miscoverage loss (i.i.d., shifting, drifting and heavy-tailed scores; checked by
     #: the property tests). Not a theorem: the paper's bound is much looser at that K.
     EMPIRICAL_TOLERANCE: ClassVar[float] = 0.03
-    lambda_params = ("gammas", "lambda_init", "lambda_min", "lambda_max")
 
     def __init__(
         self,

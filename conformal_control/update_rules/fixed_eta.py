@@ -5,12 +5,19 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .base import StepRule, check_finite, check_positive
+from .base import RULE_RUN_VALUES, StepRule, check_finite, check_positive
 
 __all__ = ["FixedEtaRule"]
 
 
-class FixedEtaRule(StepRule):
+class FixedEtaRule(
+    StepRule,
+    guarantee="identity",
+    fixed_step=True,
+    exact_step=True,
+    lambda_params=("eta", "lambda_init", "lambda_min", "lambda_max"),
+    run_values=RULE_RUN_VALUES,
+):
     """Conformal decision theory's fixed-step rule: lambda <- lambda + eta (epsilon - l).
 
     Guarantee (Lekeufack et al. 2024, "Conformal Decision Theory", Theorem 1; Huriot &
@@ -33,11 +40,6 @@ class FixedEtaRule(StepRule):
         Optional clipping of lambda against wind-up (e.g. below the feasibility floor).
         Clipping breaks the exact identity; the monitor then reports a non-zero residual.
     """
-
-    guarantee = "identity"
-    fixed_step = True
-    exact_step = True
-    lambda_params = ("eta", "lambda_init", "lambda_min", "lambda_max")
 
     def __init__(
         self,

@@ -8,12 +8,17 @@ from typing import Any
 
 import numpy as np
 
-from .base import StepRule, check_finite, check_positive
+from .base import RULE_RUN_VALUES, StepRule, check_finite, check_positive
 
 __all__ = ["PIDRule"]
 
 
-class PIDRule(StepRule):
+class PIDRule(
+    StepRule,
+    guarantee="long_run",
+    lambda_params=("eta", "K_I", "lambda_init", "lambda_min", "lambda_max"),
+    run_values=RULE_RUN_VALUES,
+):
     """Conformal PID control (Angelopoulos, Candès & Tibshirani 2023), in lambda's convention.
 
     lambda_{k+1} = P_{k+1} + I_{k+1} + D_{k+1} with
@@ -61,9 +66,6 @@ class PIDRule(StepRule):
     lambda_min, lambda_max : float
         Clipping of the output.
     """
-
-    guarantee = "long_run"
-    lambda_params = ("eta", "K_I", "lambda_init", "lambda_min", "lambda_max")
 
     def __init__(
         self,

@@ -68,7 +68,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -376,11 +375,6 @@ class MultiRobotWorld:
         frames = min(self.tau_frames, self._last - self._fi)
         return max(frames, 0) * self.substeps
 
-    @property
-    def at_sampling_time(self) -> bool:
-        """Whether the current instant starts an interval."""
-        return self._n_instants % (self.tau_frames * self.substeps) == 0
-
     def state(self, i: int) -> ControlState:
         """Decision input of robot ``i`` now (with ``information``: its peer view)."""
         peers = None
@@ -395,10 +389,6 @@ class MultiRobotWorld:
             goal=self.current_goal(i),
             peers=peers,
         )
-
-    def peer_view(self, i: int, robots: np.ndarray) -> PeerView:
-        """What robot ``i`` knows now of ``robots`` (indices), by the information option."""
-        return self._make_view(i, robots, self.robot_ids[robots], self._shares[i, robots])
 
     def yielding(self) -> np.ndarray:
         """The yielding flags the robots broadcast at the last control instant, shape (R,)
@@ -417,8 +407,9 @@ class MultiRobotWorld:
         return out
 
     def _peer_view(self, i: int, robots: np.ndarray) -> PeerView:
-        """:meth:`peer_view` of the robots sensed at the sampling time (their ids and
-        shares computed once per interval)."""
+        """What robot ``i`` knows now of ``robots`` (the robots it sensed at the sampling
+        time), by the information option (their ids and shares computed once per
+        interval)."""
         cached = self._peer_static[i]
         if cached is None or cached[0] is not robots:
             ids, shares = self.robot_ids[robots], self._shares[i, robots]
@@ -732,19 +723,3 @@ def _no_future(horizon: int) -> np.ndarray:
         "the future of this query is not known at the sampling time: its pedestrians "
         "react to the robots (the oracle predictor needs crowd='replay')"
     )
-
-
-def as_waypoints(goals: Any) -> list[np.ndarray]:
-    """Goals given as (R, 2) or as R lists of waypoints, as R arrays of shape (G_i, 2)."""
-    arr = np.asarray(goals, dtype=object if _ragged(goals) else float)
-    if arr.dtype != object and arr.ndim == 2:
-        return [np.asarray(g, dtype=float).reshape(1, 2) for g in arr]
-    return [np.asarray(g, dtype=float).reshape(-1, 2) for g in goals]
-
-
-def _ragged(goals: Any) -> bool:
-    try:
-        np.asarray(goals, dtype=float)
-    except ValueError:
-        return True
-    return False

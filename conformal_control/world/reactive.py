@@ -19,19 +19,22 @@ close, then reactive).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .. import registry
+from ..base import param_names
 from ..cbf.loss import CBFTruth
 from ..crowds.crowd import Crowd, model_names
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from .replay import ReplayEnvironment
+from .replay import ReplayCursor, ReplayEnvironment
 
 __all__ = [
     "DEFAULT_MIXED_RADIUS",
+    "ReactiveCursor",
     "ReactiveEnvironment",
     "make_environment",
     "make_environment_like",
@@ -50,6 +53,32 @@ def _no_future(horizon: int) -> np.ndarray:
         "the pedestrians of a reactive crowd respond to the robot, so their future is not "
         "known at the sampling time (the oracle predictor needs crowd='replay')"
     )
+
+
+@dataclass(frozen=True)
+class ReactiveCursor(ReplayCursor):
+    """A :class:`~conformal_control.world.replay.ReplayCursor` with the crowd's clock and
+    positions (:meth:`ReactiveEnvironment.compiled_state`,
+    :meth:`ReactiveEnvironment.from_compiled`).
+
+    Attributes
+    ----------
+    buffer : ndarray or None
+        The pedestrians' positions per frame, ``(frames, agents, 2)``: the recording
+        before the start frame, the simulation after it (read: the environment's own
+        array; written: ignored, see ``frames``).
+    crowd_frame, crowd_sub : int or None
+        The crowd's clock: its frame and the control instant within it.
+    frames : (int, ndarray) or None
+        Positions simulated elsewhere: ``(first, positions (n, agents, 2))`` are written
+        into the buffer at frames ``first .. first + n - 1``.
+    """
+
+    kernel = "reactive"
+    buffer: np.ndarray | None = None
+    crowd_frame: int | None = None
+    crowd_sub: int | None = None
+    frames: tuple[int, np.ndarray] | None = None
 
 
 class ReactiveEnvironment(ReplayEnvironment):
@@ -97,7 +126,7 @@ class ReactiveEnvironment(ReplayEnvironment):
     def _unit_test_params(cls) -> list[dict[str, Any]]:
         return [
             {**p, "crowd": Crowd("social_force"), "max_frames": 12}
-            for p in ReplayEnvironment._unit_test_params()
+            for p in super()._unit_test_params()
         ]
 
     # ------------------------------------------------------------------ episode
@@ -124,6 +153,41 @@ class ReactiveEnvironment(ReplayEnvironment):
             self._crowd_frame += 1
             self._crowd_sub = 0
             self._buffer[self._crowd_frame] = self.crowd.frame_positions(self._crowd_frame)
+
+    def compiled_state(self) -> ReactiveCursor:
+        """Where the environment and its crowd are (its own arrays: read them only)."""
+        c = super().compiled_state()
+        return ReactiveCursor(
+            c.x,
+            c.frame,
+            c.t,
+            c.k_start,
+            c.sensed,
+            c.step,
+            buffer=self._buffer,
+            crowd_frame=self._crowd_frame,
+            crowd_sub=self._crowd_sub,
+        )
+
+    def from_compiled(self, cursor: ReplayCursor) -> None:
+        """Put the environment (and, for a :class:`ReactiveCursor`, its crowd's clock and
+        the positions simulated elsewhere) where ``cursor`` says.
+
+        Parameters
+        ----------
+        cursor : ReplayCursor or ReactiveCursor
+            The state to take (fields left at None are left as they are).
+        """
+        super().from_compiled(cursor)
+        if not isinstance(cursor, ReactiveCursor):
+            return
+        if cursor.frames is not None:
+            first, xy = cursor.frames
+            self._buffer[first : first + len(xy)] = xy
+        if cursor.crowd_frame is not None:
+            self._crowd_frame = cursor.crowd_frame
+        if cursor.crowd_sub is not None:
+            self._crowd_sub = cursor.crowd_sub
 
     def apply(self, decision: np.ndarray) -> None:
         if self._done:
@@ -236,9 +300,9 @@ def make_environment(
                     "model and simulates every pedestrian"
                 )
         model, radius = crowd, None
-    own = set(Crowd._param_names()) - {"model", "model_params", "mixed_radius"}
+    own = set(param_names(Crowd)) - {"model", "model_params", "mixed_radius"}
     crowd_kw = {k: params.pop(k) for k in list(params) if k in own}
-    known_model = set(registry.get("crowd", model)._param_names())
+    known_model = set(param_names(registry.get("crowd", model)))
     unknown = sorted(set(params) - known_model)
     if unknown:
         raise ValueError(
@@ -247,7 +311,7 @@ def make_environment(
             f"{model} parameters: {', '.join(sorted(known_model))}"
         )
     c = Crowd(model, params or None, mixed_radius=radius, **crowd_kw)
-    c._validate()  # fail at construction on a bad value, not mid-run
+    c.validate()  # fail at construction on a bad value, not mid-run
     return ReactiveEnvironment(scene, crowd=c, **env_kwargs)
 
 

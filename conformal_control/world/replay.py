@@ -8,14 +8,46 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Environment
+from ..base import CompiledForm, Environment, first_test_instance
 from ..cbf.controller import ConformalCBFController, ControlState
 from ..cbf.loss import CBFTruth
 from ..cbf.roles import Dynamics
 from ..data.scene import Scene, SparseTracks
 from ..predictors.base import PredictionQuery
 
-__all__ = ["FrameLog", "ReplayEnvironment"]
+__all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment"]
+
+
+@dataclass(frozen=True)
+class ReplayCursor(CompiledForm):
+    """Where a replay environment is: what the compiled engine reads of it and puts back
+    (:meth:`ReplayEnvironment.compiled_state`, :meth:`ReplayEnvironment.from_compiled`),
+    so that its own :meth:`~ReplayEnvironment.sense` and :meth:`~ReplayEnvironment.reveal`
+    run on the engine's state. A field left at None is left as it is.
+
+    Attributes
+    ----------
+    x : ndarray or None
+        The robot's state (the plant's ``state_dim`` numbers).
+    frame : int or None
+        The current frame (index into the scene).
+    t : float or None
+        Time since the start (s).
+    k_start : int or None
+        The frame the current interval started at.
+    sensed : ndarray or None
+        The columns of the agents sensed at that start (int64).
+    step : int or None
+        Control instants run in the interval.
+    """
+
+    kernel = "replay"
+    x: np.ndarray | None = None
+    frame: int | None = None
+    t: float | None = None
+    k_start: int | None = None
+    sensed: np.ndarray | None = None
+    step: int | None = None
 
 
 @dataclass
@@ -119,7 +151,7 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
 
     @classmethod
     def _unit_test_family(cls) -> ConformalCBFController:
-        return ConformalCBFController(**ConformalCBFController._unit_test_params()[0])
+        return first_test_instance(ConformalCBFController)
 
     # ------------------------------------------------------------------ episode
     def reset(self) -> None:
@@ -224,6 +256,33 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
             scene=sc.name,
             truth_provider=lambda horizon: self._window(fi + 1, fi + 1 + horizon, idx),
         )
+
+    def compiled_state(self) -> ReplayCursor:
+        """Where the environment is (its own arrays, not copies: read them only)."""
+        return ReplayCursor(self._x, self._fi, self._t, self._k_start, self._sensed, self._step)
+
+    def from_compiled(self, cursor: ReplayCursor) -> None:
+        """Put the environment where ``cursor`` says (its fields that are not None): the
+        compiled engine moves the robot, the clock and the interval, then calls
+        :meth:`sense` or :meth:`reveal`.
+
+        Parameters
+        ----------
+        cursor : ReplayCursor
+            The state to take.
+        """
+        if cursor.x is not None:
+            self._x = cursor.x
+        if cursor.frame is not None:
+            self._fi = cursor.frame
+        if cursor.t is not None:
+            self._t = cursor.t
+        if cursor.k_start is not None:
+            self._k_start = cursor.k_start
+        if cursor.sensed is not None:
+            self._sensed = cursor.sensed
+        if cursor.step is not None:
+            self._step = cursor.step
 
     def control_instants(self) -> int:
         frames = min(self.tau_frames, self._last - self._fi)

@@ -28,6 +28,12 @@ from conformal_control.update_rules import ACIRule
 from conformal_control.world.replay import ReplayEnvironment
 
 
+def _acp_from(controller, **params):
+    """The acp family built from the parts of a conformal CBF controller."""
+    parts = ("predictor", "constraint", "safety_filter", "reference", "substeps")
+    return ACPController(**{k: getattr(controller, k) for k in parts}, **params)
+
+
 def _acp_run(
     scene, *, alpha=0.1, gamma=0.05, learn=True, lam0=None, max_frames=None, params=None, **kw
 ):
@@ -45,7 +51,7 @@ def _acp_run(
         AttractiveField(K_att=si["K_att"], v_max=si["v_max"]),
         substeps=si["substeps"],
     )
-    family = ACPController.from_controller(controller, **kw)
+    family = _acp_from(controller, **kw)
     env = ReplayEnvironment(
         scene,
         VelocityTrackingDoubleIntegrator(K_acc=si["K_acc"]),

@@ -71,8 +71,9 @@ def test_gradients_match_central_differences(barrier: APFBarrier) -> None:
 
 def test_safe_gap_is_the_zero_level() -> None:
     b = APFBarrier(K_rep=40 * 0.045883871**2, rho0=400 * 0.045883871, d_c=1.0)
-    gap = b.safe_gap
     # h >= 0 iff gap >= 1/(sqrt(2 (1/delta - 1)/K_rep) + 1/rho0): ~4.4 px ~ 0.2 m here
+    delta = b.effective_delta
+    gap = 1.0 / (np.sqrt(2.0 * (1.0 / delta - 1.0) / b.K_rep) + 1.0 / b.rho0)
     assert 0.15 < gap < 0.25
     h = b.value(np.array([0.0, 0.0]), np.array([b.d_c + gap, 0.0]))
     assert abs(h) < 1e-12

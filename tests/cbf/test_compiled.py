@@ -131,8 +131,9 @@ def test_compiled_acp_step_matches_its_python_path(crossing, fallback) -> None:
     from conformal_control.cbf.acp import ACPController
 
     env, fused, generic = twin_controllers(crossing, {"a": 2.0}, fallback=fallback)
-    fused = ACPController.from_controller(fused, window=50, max_inflation=0.6)
-    generic = ACPController.from_controller(generic, window=50, max_inflation=0.6)
+    parts = ("predictor", "constraint", "safety_filter", "reference", "substeps")
+    fused = ACPController(**{k: getattr(fused, k) for k in parts}, window=50, max_inflation=0.6)
+    generic = ACPController(**{k: getattr(generic, k) for k in parts}, window=50, max_inflation=0.6)
     # levels: infinite regions (capped), finite ones, empty ones
     seen = run_lockstep(env, fused, generic, [0.0, 0.3, 0.1, 0.6, 1.0, 0.05])
     assert fused.n_capped_ > 10 and fused.n_scored_ > 100

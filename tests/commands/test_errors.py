@@ -18,7 +18,8 @@ def test_predictor_database_error_is_one_line(monkeypatch, tmp_path: Path, capsy
 
     monkeypatch.setattr(ConstantVelocityPredictor, "predict", broken)
     # the patched class is no longer the one the engine compiles: its predict() is called
-    monkeypatch.setattr(ConstantVelocityPredictor, "compiled_as", None)
+    caps = ConstantVelocityPredictor.capabilities.replace(compiled=None)
+    monkeypatch.setattr(ConstantVelocityPredictor, "capabilities", caps)
     argv = ["run", "--frames", "20", "--out", str(tmp_path / "r"), "--quiet"]
     assert main(argv) == EXIT_ERROR
     err = capsys.readouterr().err.strip()

@@ -75,8 +75,10 @@ def test_training_and_evaluation_report_progress(
 
 def test_chunked_evaluation_equals_one_call(ethucy_dir: Path) -> None:
     from conformal_control import registry
-    from conformal_control.commands.predictors import _evaluate_with_progress
     from conformal_control.predictors.evaluation import dataset_windows, evaluate_predictor
+    from conformal_control.predictors.training import (
+        evaluate_with_progress as _evaluate_with_progress,
+    )
 
     win = dataset_windows("ethucy:zara1", ethucy_dir.parent)
     cv = registry.create("predictor", "constant_velocity", window=1)
@@ -308,7 +310,7 @@ def test_lstm_on_the_builtin_scene_needs_no_downloaded_data(
 def test_scene_windows_use_nothing_after_the_start(crossing) -> None:
     import dataclasses
 
-    from conformal_control.commands.predictors import scene_windows
+    from conformal_control.predictors.training import scene_windows
 
     win = scene_windows(crossing)
     pos = crossing.positions.copy()

@@ -12,8 +12,9 @@ from conformal_control.cbf.roles import Barrier
 from conformal_control.cli import main
 
 
-class _ScaledDistance(Barrier):
-    """h = gain (|x_ego - x_agent| - d_c), registered at runtime for this test."""
+class _ScaledDistance(Barrier, run_values={"d_c": "barrier_distance"}):
+    """h = gain (|x_ego - x_agent| - d_c), registered at runtime for this test (it asks for
+    the run's collision distance as its d_c)."""
 
     def __init__(self, d_c: float = 1.0, gain: float = 1.0) -> None:
         self.d_c = d_c

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from conformal_control.crowds import ORCAModel
+from conformal_control.crowds.neighbors import neighbor_pairs
 from conformal_control.crowds.orca import solve_orca_lp
+from conformal_control.crowds.orca_compiled import orca_lines_compiled
 
 NONE2 = np.zeros((0, 2))
 
@@ -41,7 +43,12 @@ def test_one_step_matches_rvo2_on_reciprocal_agents() -> None:
         sim.do_step()
         v_rvo = np.array([sim.get_agent_velocity(i).to_tuple() for i in range(n)])
         p_rvo = np.array([sim.get_agent_position(i).to_tuple() for i in range(n)])
-        lines = model.orca_lines(pos, vel, np.full(n, radius), NONE2, NONE2, np.zeros(0), dt)
+        rad = np.full(n, radius)
+        rows, cols, px, py = neighbor_pairs(pos, pos, model.neighbor_dist, model.max_neighbors)
+        lines = orca_lines_compiled(
+            n, model.max_neighbors, rows, cols, px, py, vel, vel, rad, rad,
+            model.other_responsibility, 1.0 / dt, 1.0 / model.time_horizon,
+        )  # fmt: skip
         _, feasible = solve_orca_lp(*lines, pref, np.full(n, vmax))
         n_infeasible += int((~feasible).sum())
         p, v = model.step(

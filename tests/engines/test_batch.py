@@ -195,18 +195,16 @@ def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     """Capability, not a list of names: a subclass inherits no declaration (it may compute
     something else); one that declares the compiled counterpart runs compiled."""
     from conformal_control import registry
-    from conformal_control.base import compiled_as
     from conformal_control.cbf.barriers import APFBarrier
 
     class Tweaked(APFBarrier):
         """An APF barrier computing something else."""
 
-    class Same(APFBarrier):
+    class Same(APFBarrier, compiled="apf"):
         """An APF barrier under another name."""
 
-        compiled_as = "apf"
-
-    assert compiled_as(APFBarrier) == "apf" and compiled_as(Tweaked) is None
+    assert APFBarrier.capabilities.compiled == "apf" and Tweaked.capabilities.compiled is None
+    assert Tweaked.capabilities.run_values == APFBarrier.capabilities.run_values  # inherited
     registry.register("barrier", "tweaked_apf", Tweaked)
     registry.register("barrier", "same_apf", Same)
     try:
@@ -215,3 +213,50 @@ def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     finally:
         registry.unregister("barrier", "tweaked_apf")
         registry.unregister("barrier", "same_apf")
+
+
+def test_a_third_party_barrier_runs_compiled_through_its_compiled_form(crossing) -> None:
+    """A barrier of its own class (no APFBarrier subclass) that declares the ``apf`` form
+    and hands its constants over runs in the compiled engine, with the same result as the
+    loop running its own evaluate()."""
+    from conformal_control import registry
+    from conformal_control.cbf.barriers import APFBarrier, APFForm
+    from conformal_control.cbf.roles import Barrier
+
+    class OwnAPF(Barrier, compiled="apf", run_values=APFBarrier.capabilities.run_values):
+        """The APF barrier written by someone else (same arithmetic, own class).
+
+        Parameters
+        ----------
+        K_rep, rho0, d_c, convention, delta
+            As APFBarrier's.
+        """
+
+        def __init__(self, K_rep=1.0, rho0=10.0, d_c=1.0, convention="surface", delta=None):
+            self.K_rep, self.rho0, self.d_c = K_rep, rho0, d_c
+            self.convention, self.delta = convention, delta
+
+        def _apf(self) -> APFBarrier:
+            return APFBarrier(**self.get_params())
+
+        def evaluate(self, x_ego, x_agent):
+            return self._apf().evaluate(x_ego, x_agent)
+
+        @property
+        def upper_bound(self):
+            return self._apf().upper_bound
+
+        def compiled_state(self) -> APFForm:
+            return self._apf().compiled_state()
+
+    registry.register("barrier", "own_apf", OwnAPF)
+    try:
+        assert supports(barrier="own_apf", learn=True) is None
+        kw = {"barrier": "own_apf", "max_frames": 60, "seed": 0}
+        compiled = run_episode(crossing, engine="batch", **kw)
+        loop = run_episode(crossing, engine="loop", **kw)
+    finally:
+        registry.unregister("barrier", "own_apf")
+    assert compiled.config["engine"] == "batch" and loop.config["engine"] == "loop"
+    assert np.array_equal(compiled.trajectory["x"], loop.trajectory["x"])
+    assert [iv["lambda"] for iv in compiled.intervals] == [iv["lambda"] for iv in loop.intervals]

@@ -109,11 +109,11 @@ def test_batch_reason_batches_compiled_and_fast_predictors_only():
     from conformal_control import registry
     from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 
-    class Slow(ConstantVelocityPredictor):
-        fast = False
+    class Slow(ConstantVelocityPredictor, batchable=False):
+        pass
 
-    class Fast(ConstantVelocityPredictor):
-        fast = True
+    class Fast(ConstantVelocityPredictor, batchable=True):
+        pass
 
     registry.register("predictor", "slow_sweep_test", Slow)
     registry.register("predictor", "fast_sweep_test", Fast)
@@ -126,7 +126,8 @@ def test_batch_reason_batches_compiled_and_fast_predictors_only():
         registry.unregister("predictor", "slow_sweep_test")
         registry.unregister("predictor", "fast_sweep_test")
     assert reasons.pop("slow_sweep_test") == (
-        "predictor 'slow_sweep_test' is not marked fast: its runs predict in parallel on the pool"
+        "predictor 'slow_sweep_test' is not declared batchable: its runs predict in parallel "
+        "on the pool"
     )
     assert reasons == dict.fromkeys(reasons)
     assert "unknown" in batch_reason({"scene": "crossing", "predictor": "nope"}, "none").lower()

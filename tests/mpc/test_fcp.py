@@ -311,4 +311,4 @@ def test_step_size_must_be_positive():
 def test_registered_with_its_loss():
     assert registry.get("family", "fcp_mpc") is FCPMPC
     assert registry.get("loss", "field_miscoverage") is FieldMiscoverageLoss
-    assert FCPMPC.default_loss == "field_miscoverage"
+    assert FCPMPC.capabilities.default_loss == "field_miscoverage"

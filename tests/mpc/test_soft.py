@@ -68,7 +68,9 @@ def test_the_loss_is_minus_the_distance_now_and_the_published_update():
     assert loss(rec, truth, -1.0) == -d
     assert registry.get("loss", "negative_distance") is NegativeDistanceLoss
     # the published weight -lambda: closer than 2 m raises it by 5000 per metre, at least 0.01
-    rule = FixedEtaRule(**{**SoftRewardMPC.default_rule_params, "lambda_min": -math.inf})
+    rule = FixedEtaRule(
+        **{**SoftRewardMPC.capabilities.default_rule_params, "lambda_min": -math.inf}
+    )
     rule.reset()
     assert math.isclose(rule.update(-1.5), -1.0 + 5000 * (-2.0 + 1.5))  # 1.5 m: weight up
     assert rule.update(-10.0) == -0.01  # far: the weight drops to its floor

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.plotting.animation import animation_frames, load_record
-from conformal_control.plotting.multi_animation import is_multi_record, render_multi_animation
+from conformal_control.plotting.animation import animation_frames, load_record, render_animation
 
 
 def test_cli_robots_run_and_animate(tmp_path, capsys):
@@ -40,8 +39,8 @@ def test_cli_robots_run_and_animate(tmp_path, capsys):
     np.testing.assert_allclose(
         [np.hypot(r["start_m"][0] - 15.0, r["start_m"][1] - 8.0) for r in cfg["robots"]], 5.0
     )
-    assert is_multi_record(run) and not is_multi_record(tmp_path)
     rec = load_record(run)
+    assert rec["kind"] == "multi"
     expected = len(animation_frames(rec, None, None, 5.0))
     gif = tmp_path / "multi.gif"
     argv = ["animate", str(run), "--fps", "5", "--dpi", "30", "--width", "6", "--no-progress"]
@@ -69,8 +68,7 @@ def test_robots_file_from_the_cli(tmp_path):
     assert cfg["layout"] == {"layout": "explicit"}
 
 
-def test_not_a_multi_record(tmp_path):
-    with pytest.raises(ValueError, match="multi-robot"):
-        render_multi_animation({"t": np.zeros(3)}, tmp_path / "x.gif")
-    with pytest.raises(ValueError, match=r"\.gif or \.mp4"):
-        render_multi_animation({"kind": "multi"}, tmp_path / "x.png")
+def test_one_rendering_path_checks_the_output_for_one_robot_and_for_several(tmp_path):
+    for record in ({"kind": "multi"}, {"t": np.zeros(3)}):
+        with pytest.raises(ValueError, match=r"\.gif or \.mp4"):
+            render_animation(record, tmp_path / "x.png")

@@ -144,7 +144,10 @@ def test_auto_executor_runs_fast_predictors_in_process() -> None:
     """reproduce's default executor: serial for fast predictors, a process pool else."""
     from conformal_control import registry
 
-    assert all(registry.get("predictor", n).fast for n in ("constant_velocity", "oracle", "var"))
+    assert all(
+        registry.get("predictor", n).capabilities.batchable
+        for n in ("constant_velocity", "oracle", "var")
+    )
     assert auto_executor([r.config for r in plan(["table2"])]) == "serial"
     assert auto_executor([r.config for r in plan(["table2"], predictor="var")]) == "serial"
     # the oracle rows stay, but one slow predictor sends the whole plan to the pool

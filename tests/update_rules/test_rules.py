@@ -39,7 +39,7 @@ def test_all_rules_and_losses_are_registered() -> None:
     for name in RULES:
         rule = registry.create("rule", name)
         assert math.isfinite(rule.reset())
-        assert rule.guarantee in ("identity", "step_identity", "long_run", "none")
+        assert rule.capabilities.guarantee in ("identity", "step_identity", "long_run", "none")
 
 
 @pytest.mark.parametrize("name", RULES)

@@ -27,7 +27,7 @@ import math
 from abc import abstractmethod
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -41,7 +41,10 @@ from ..speed import speed_polygon
 __all__ = ["VelocityFilter"]
 
 
-class VelocityFilter(SafetyFilter):
+class VelocityFilter(
+    SafetyFilter,
+    run_values={"v_max": "v_max", "fallback": "fallback", "speed_sides": "speed_sides"},
+):
     """Base of the velocity safety filters (see the module docstring for the problem).
 
     Parameters
@@ -62,10 +65,6 @@ class VelocityFilter(SafetyFilter):
     the fallback, a solver failure to a counted last resort. NaN or infinite input (or
     finite values so large, ~1e308, that the residuals overflow) is a ``ValueError``.
     """
-
-    #: Compute lambda* first when the previous decision fell back (skips a solve that
-    #: would report infeasibility slowly; worth it for iterative solvers).
-    probe_floor_first: ClassVar[bool] = False
 
     def __init__(
         self, v_max: float = 2.0, fallback: str | Fallback = "lambda_search", speed_sides: int = 16
@@ -283,7 +282,7 @@ class VelocityFilter(SafetyFilter):
             return FilterResult(nominal, "unconstrained", lam)
         lam_star = v_star = None
         feasible = True
-        if self.probe_floor_first and self._fell_back and A.shape[0]:
+        if self.capabilities.probe_floor_first and self._fell_back and A.shape[0]:
             # infeasibility tends to persist: find the floor first, skip a doomed solve
             lam_star, v_star = self.min_lambda(A, b)
             feasible = lam >= lam_star + self.search_margin(lam_star, A, b)
@@ -295,6 +294,18 @@ class VelocityFilter(SafetyFilter):
                 return FilterResult(v, "optimal", lam)
         last = self._last.copy()
         step = InfeasibleStep(nominal, A, b, lam, last, lam_star, v_star, self._escaping, self._ttc)
+        return self._fall_back(step)
+
+    def fall_back(self, step: InfeasibleStep) -> FilterResult:
+        """An infeasible step decided by the filter's fallback, counted as the filter's own
+        (the hand-over of a step solved elsewhere: the compiled engine's step pauses an
+        episode whose fallback decides in Python and hands its rows over here).
+
+        Parameters
+        ----------
+        step : InfeasibleStep
+            The step's nominal decision, rows, lambda and previous decision.
+        """
         return self._fall_back(step)
 
     def _fall_back(self, step: InfeasibleStep) -> FilterResult:

@@ -19,19 +19,45 @@ them).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ...base import CompiledForm
 from ..constraint import time_to_contact
-from ..fallbacks import Brake, Hold, LambdaSearch
+from ..fallbacks import Brake, Hold, LambdaSearch, resolve_fallback
 from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep
 from .base import VelocityFilter
 
-__all__ = ["Exact2DSafetyFilter"]
+__all__ = ["Exact2DForm", "Exact2DSafetyFilter"]
 
 
-class Exact2DSafetyFilter(VelocityFilter):
+@dataclass(frozen=True)
+class Exact2DForm(CompiledForm):
+    """The exact 2-D filter as the compiled step reads it.
+
+    Attributes
+    ----------
+    speed_sides : int
+        Sides of the speed polygon (0: a box).
+    v_max : float
+        Speed limit (m/s).
+    lambda_margin : float
+        Margin of the lambda search.
+    fallback : str or None
+        The compiled form its fallback declares (``lambda_search``, ``brake``, ``hold``;
+        None: the fallback decides in Python, :meth:`Exact2DSafetyFilter.fall_back`).
+    """
+
+    kernel = "exact2d"
+    speed_sides: int
+    v_max: float
+    lambda_margin: float
+    fallback: str | None
+
+
+class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
     """min ||v - v_ref||^2  s.t.  A v + b + lambda >= 0,  v in the speed polygon  (exact 2-D).
 
     The problem, the fast path, the fallbacks and the counters are those of
@@ -55,9 +81,6 @@ class Exact2DSafetyFilter(VelocityFilter):
         Let the controller fuse barrier, rows and this filter into one compiled call when
         the barrier is the APF one (:meth:`step_apf`); False always takes the generic path.
     """
-
-    #: the compiled engine runs this class as compiled code
-    compiled_as = "exact2d"
 
     def __init__(
         self,
@@ -98,6 +121,13 @@ class Exact2DSafetyFilter(VelocityFilter):
         kind = type(self.fallback_)
         self._fused = bool(self.compiled_step) and kind in (LambdaSearch, Brake, Hold)
         self._prm[9] = kind is LambdaSearch
+
+    def compiled_state(self) -> Exact2DForm:
+        """The filter's constants for the compiled step, with the compiled form its
+        fallback declares (the reset one, else the one ``fallback`` names)."""
+        fallback = self.__dict__.get("fallback_") or resolve_fallback(self.fallback)
+        kernel = fallback.capabilities.compiled
+        return Exact2DForm(self.speed_sides, self.v_max, self.lambda_margin, kernel)
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()

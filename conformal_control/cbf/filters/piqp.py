@@ -38,7 +38,7 @@ def normalised_rows(
     return -A[keep] / n[:, None], rhs[keep] / n
 
 
-class QPSafetyFilter(VelocityFilter):
+class QPSafetyFilter(VelocityFilter, probe_floor_first=True):
     """min ||v - v_ref||^2  s.t.  A v + b + lambda >= 0,  v in the speed polygon  (piqp).
 
     The problem, the fast path, the fallbacks and the counters are those of
@@ -66,8 +66,6 @@ class QPSafetyFilter(VelocityFilter):
         stops up to about 1e-5 m/s inside the active constraints. Failures to polish are
         counted as ``n_unpolished``.
     """
-
-    probe_floor_first = True
 
     def __init__(
         self,

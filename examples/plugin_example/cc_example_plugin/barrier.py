@@ -11,7 +11,8 @@ from conformal_control import Barrier
 __all__ = ["DistanceSquaredBarrier"]
 
 
-class DistanceSquaredBarrier(Barrier):
+# run_values: the run hands d_c its collision distance (+ barrier margin) unless given
+class DistanceSquaredBarrier(Barrier, run_values={"d_c": "barrier_distance"}):
     """h = ||x_ego - x_agent||^2 - d_c^2 (m^2), with its exact gradient.
 
     ``h >= 0`` means the centres are at least ``d_c`` apart. The gradients are
@@ -22,7 +23,8 @@ class DistanceSquaredBarrier(Barrier):
     ----------
     d_c : float
         Collision distance in metres (>= 0). ``conformal-control run --barrier
-        distance_squared`` passes the scene's robot radius + agent radius unless given.
+        distance_squared`` passes the run's robot radius + agent radius (+ the barrier
+        margin) unless given: the class declares it (``run_values``).
     """
 
     def __init__(self, d_c: float = 1.0) -> None:

@@ -60,7 +60,7 @@ class Seq2Seq(nn.Module):
         return torch.stack(out, dim=1)
 
 
-class LSTMPredictor(WindowPredictor):
+class LSTMPredictor(WindowPredictor, run_values={"random_state": "seed"}):
     """Encoder-decoder LSTM on past displacements (PyTorch), trained on ETH/UCY.
 
     Parameters

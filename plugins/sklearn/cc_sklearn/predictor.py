@@ -104,7 +104,7 @@ def regressor_class(name: str) -> type:
         ) from None
 
 
-class SklearnPredictor(WindowPredictor):
+class SklearnPredictor(WindowPredictor, run_values={"random_state": "seed"}):
     """Any scikit-learn regressor on past displacements (default Ridge).
 
     Parameters

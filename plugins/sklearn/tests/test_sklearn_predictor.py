@@ -49,7 +49,7 @@ def test_shipped_weights_are_reproducible(tmp_path):
 
 def test_registered_and_trainable():
     cls = registry.get("predictor", "sklearn")
-    assert cls is SklearnPredictor and cls.trainable
+    assert cls is SklearnPredictor and cls.capabilities.trainable
 
 
 def test_ridge_learns_walks_and_round_trips(tmp_path):
@@ -169,8 +169,8 @@ def test_a_modified_model_file_fails_its_checksum(tmp_path):
 
 
 def test_a_corrupt_cached_model_is_trained_again(tmp_path, monkeypatch, data_root):
-    from conformal_control.commands.predictors import cached_weights
     from conformal_control.exceptions import CacheWarning
+    from conformal_control.predictors.training import cached_weights
 
     monkeypatch.setenv("CONFORMAL_CONTROL_CACHE", str(tmp_path / "cache"))
     args = ("sklearn", "ethucy:zara1", str(data_root), {}, 0, 8, 12)
