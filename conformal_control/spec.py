@@ -377,6 +377,10 @@ def _check_stored_param(where: str, name: str, value: Any) -> None:
 #: The most robots one run drives.
 MAX_ROBOTS = 20
 
+#: The default near horizon (s) of a planning robot's lines with its peers
+#: (:class:`Robots` ``peer_horizon``; chosen on the multi-robot benchmark, docs/multi-robot.md).
+PEER_HORIZON_S = 1.2
+
 #: The choices of the robots section's text settings (:class:`Robots`).
 ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "layout": ("scene", "antipodal"),
@@ -466,15 +470,16 @@ class Robots:
         How the lambda search treats the rows lambda is not the slack of.
     peer_horizon : float, optional
         Planning families (MPC): how far ahead (s) a robot's plan keeps to the lines it
-        shares with the other robots; None: the whole plan.
+        shares with the other robots (default :data:`PEER_HORIZON_S`); None: the whole
+        plan.
     coordination : {"none", "yield"}
         ``"yield"`` (needs ``information="plan"``): a robot whose rows about the other
         robots gave way broadcasts it, and its partners take the whole of each pair's
         constraint at the next instant.
     priority : {"pedestrians", "robots"}
-        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
-        rows give way first) or ``"robots"`` (the pedestrians' lambda is raised first,
-        the robot rows as ``hard_rows`` says).
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (default:
+        the robot rows give way first) or ``"robots"`` (the pedestrians' lambda is raised
+        first, the robot rows as ``hard_rows`` says).
 
     Raises
     ------
@@ -498,9 +503,9 @@ class Robots:
     ignoring: Any = ()
     sidestep: float = 0.3
     hard_rows: str = "last"
-    peer_horizon: float | None = None
+    peer_horizon: float | None = PEER_HORIZON_S
     coordination: str = "none"
-    priority: str = "robots"
+    priority: str = "pedestrians"
 
     def __post_init__(self) -> None:
         n = self.robots

@@ -88,7 +88,7 @@ from typing import Any
 import numpy as np
 
 from ..base import Plugin
-from ..spec import ROBOT_CHOICES
+from ..spec import PEER_HORIZON_S, ROBOT_CHOICES
 from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
@@ -178,15 +178,16 @@ class Reciprocity(Plugin):
         docstring).
     peer_horizon : float, optional
         Planners that look ahead (the MPC family, :mod:`~conformal_control.mpc.peers`):
-        how far ahead (s, > 0) the peers' lines bind their plans; None: the whole plan.
+        how far ahead (s, > 0) the peers' lines bind their plans (default
+        :data:`~conformal_control.spec.PEER_HORIZON_S`); None: the whole plan.
     coordination : {"none", "yield"}
         ``"yield"``: when the robot's rows about the other robots give way, it broadcasts
         that it yields (for :data:`YIELD_HOLD_S` seconds), and the world hands both robots
         of each of its pairs the yielding shares
         (:class:`~conformal_control.world.multi.MultiRobotWorld`); needs broadcast plans.
     priority : {"pedestrians", "robots"}
-        The rows kept longest when not every row can be met: ``"pedestrians"`` (the robot
-        rows give way first, :func:`priority_relax`) or ``"robots"`` (the
+        The rows kept longest when not every row can be met: ``"pedestrians"`` (default:
+        the robot rows give way first, :func:`priority_relax`) or ``"robots"`` (the
         pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
         :func:`lexicographic_search`).
     """
@@ -198,9 +199,9 @@ class Reciprocity(Plugin):
         robot_margin: float = 0.0,
         sidestep: float = 0.3,
         hard_rows: str = "last",
-        peer_horizon: float | None = None,
+        peer_horizon: float | None = PEER_HORIZON_S,
         coordination: str = "none",
-        priority: str = "robots",
+        priority: str = "pedestrians",
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope

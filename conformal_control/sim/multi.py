@@ -65,7 +65,7 @@ from ..results.multi_metrics import (
 )
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
-from ..spec import MAX_ROBOTS, ROBOT_CHOICES, Robots, RunSpec
+from ..spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -414,9 +414,11 @@ def run_multi(
         - ``hard_rows`` ({"last", "level"}):
           How the lambda search treats the rows lambda is not the slack of.
         - ``peer_horizon`` (float, optional):
-          Planning families: how far ahead (s) the peers' lines bind a plan.
+          Planning families: how far ahead (s) the peers' lines bind a plan (default
+          1.2 s).
         - ``priority`` ({"pedestrians", "robots"}):
-          The rows kept longest when not every row can be met.
+          The rows kept longest when not every row can be met (default
+          ``"pedestrians"``: the robot rows give way first).
         - ``coordination`` ({"none", "yield"}):
           ``"yield"``: a robot whose robot rows gave way says so, and its partners take
           the whole pair (needs ``information="plan"``).
@@ -649,9 +651,9 @@ def set_reciprocity(
     robot_margin: float = 0.0,
     sidestep: float = 0.3,
     hard_rows: str = "last",
-    peer_horizon: float | None = None,
+    peer_horizon: float | None = PEER_HORIZON_S,
     coordination: str = "none",
-    priority: str = "robots",
+    priority: str = "pedestrians",
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -673,7 +675,8 @@ def set_reciprocity(
     hard_rows : {"level", "last"}
         How the ``lambda_search`` fallback treats the rows without slack.
     peer_horizon : float, optional
-        Planning families: how far ahead (s) the peers' lines bind a plan (None: all of it).
+        Planning families: how far ahead (s) the peers' lines bind a plan (default
+        :data:`~conformal_control.spec.PEER_HORIZON_S`; None: all of it).
     coordination : {"none", "yield"}
         Whether a robot whose robot rows gave way broadcasts that it yields.
     priority : {"pedestrians", "robots"}

@@ -141,7 +141,13 @@ def test_loss_on_a_robot_row_sees_a_partner_that_does_not_take_its_share():
 
 # ------------------------------------------------------------------------------ the step
 def _controller(
-    compiled, mode="reciprocal", scope="pedestrians", margin=0.1, sidestep=0.3, hard="level"
+    compiled,
+    mode="reciprocal",
+    scope="pedestrians",
+    margin=0.1,
+    sidestep=0.3,
+    hard="level",
+    priority="robots",  # the compiled step's order (priority="pedestrians" is generic)
 ):
     return ConformalCBFController(
         ConstantVelocityPredictor(),
@@ -149,7 +155,7 @@ def _controller(
         Exact2DSafetyFilter(v_max=1.5, compiled_step=compiled),
         AttractiveField(K_att=1.0, v_max=1.5),
         substeps=2,
-        reciprocity=Reciprocity(mode, scope, margin, sidestep, hard),
+        reciprocity=Reciprocity(mode, scope, margin, sidestep, hard, priority=priority),
     )
 
 

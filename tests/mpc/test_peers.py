@@ -102,9 +102,10 @@ def test_the_lines_bind_only_the_near_horizon():
     # a plan crossing the line (x = 1.5 - 0.35) only at its last step
     plan = np.array([[[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [2.0, 0.0]]])
     fam = Fam()
-    fam.reciprocity = Reciprocity("reciprocal")
+    fam.reciprocity = Reciprocity("reciprocal", peer_horizon=None)  # the whole plan
     clear, viol = peer_terms(fam, State(), 0.0, plan)
     assert clear[0] < 0 and viol[0] > 0
+    assert Reciprocity("reciprocal").peer_horizon == 1.2  # the default near horizon
     fam.reciprocity = Reciprocity("reciprocal", peer_horizon=1.5)
     clear, viol = peer_terms(fam, State(), 0.0, plan)
     np.testing.assert_allclose(clear, [1.15 - 1.0])
