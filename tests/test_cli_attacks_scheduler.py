@@ -37,6 +37,13 @@ class LostScheduler(SerialExecutor):
                 yield i, ConnectionError("Client lost the connection to the scheduler")
 
 
+@pytest.fixture(autouse=True)
+def _data(data_root: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The commands find the real data where the tests do (CI sets no variable: the data
+    is ``../shared/data`` beside the project, which a command run elsewhere does not see)."""
+    monkeypatch.setenv("CONFORMAL_CONTROL_DATA", str(data_root))
+
+
 @pytest.fixture
 def lost_after(monkeypatch):
     """``bench run --scheduler ...`` on a cluster that loses its scheduler after N jobs."""
