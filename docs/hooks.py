@@ -37,6 +37,7 @@ import functools
 import importlib.util
 import logging
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -84,7 +85,12 @@ def on_files(files: Files, config: Any) -> Files:
 
 
 def on_config(config: Any) -> Any:
-    """Replace the ``API reference: api.md`` entry of the navigation by the module tree."""
+    """Replace the ``API reference: api.md`` entry of the navigation by the module tree;
+    find the data where the test suite does (``tests/conftest.py``): unless
+    ``$CONFORMAL_CONTROL_DATA`` is set, ``shared/data`` beside the project, when there."""
+    beside = ROOT.parent / "shared" / "data"
+    if not os.environ.get("CONFORMAL_CONTROL_DATA") and beside.is_dir():
+        os.environ["CONFORMAL_CONTROL_DATA"] = str(beside)
     nav = config.get("nav") or []
     for i, item in enumerate(nav):
         if isinstance(item, dict) and item.get("API reference") == "api.md":
