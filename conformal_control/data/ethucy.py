@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DataFormatError
-from .paths import ethucy_root, missing, read_data_text
-from .tracks import Tracks, check_frames, file_agent_ids
+from .paths import ethucy_root, missing
+from .tracks import Tracks, check_frames, file_agent_ids, read_rows
 
 __all__ = [
     "ETHUCY_FPS",
@@ -93,29 +93,7 @@ def _interpolate(
 
 def _parse(path: Path) -> tuple[np.ndarray, list[int]]:
     """The rows of an ETH/UCY file (n, 4) and their line numbers."""
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    for lineno, line in enumerate(read_data_text(path, "ETH/UCY file").splitlines(), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if len(parts) != 4:
-            raise DataFormatError(
-                f"{path}:{lineno}: expected 4 fields (frame ped_id x y), got "
-                f"{len(parts)}; the file is malformed or truncated"
-            )
-        try:
-            rows.append([float(p) for p in parts])
-        except ValueError as exc:
-            raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
-        lines.append(lineno)
-    if not rows:
-        raise DataFormatError(f"{path}: no rows")
-    arr = np.array(rows)
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
-    return arr, lines
+    return read_rows(path, "ETH/UCY file", "frame ped_id x y")
 
 
 def read_ethucy(

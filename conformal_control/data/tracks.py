@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -124,6 +125,48 @@ class Tracks:
 
 def _where(path: object, lines: Sequence[int] | np.ndarray | None, row: int) -> str:
     return f"{path}:{int(lines[row])}" if lines is not None else f"{path} (row {row + 1})"
+
+
+def read_rows(path: str | os.PathLike[str], what: str, fields: str) -> tuple[np.ndarray, list[int]]:
+    """The rows of a whitespace-separated data file of four numeric ``fields`` (an array
+    (n, 4)) and their line numbers; blank lines skipped, anything else a
+    ``DataFormatError`` at ``file:line``.
+
+    Parameters
+    ----------
+    path : path
+        The file (read through :func:`~conformal_control.data.paths.read_data_text`).
+    what : str
+        What the file is, for the errors (``"ETH/UCY file"``).
+    fields : str
+        Its columns, for the errors (``"frame ped_id x y"``).
+    """
+    from ..exceptions import DataFormatError
+    from .paths import read_data_text
+
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    for lineno, line in enumerate(read_data_text(path, what).splitlines(), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != 4:
+            raise DataFormatError(
+                f"{path}:{lineno}: expected 4 fields ({fields}), got "
+                f"{len(parts)}; the file is malformed or truncated"
+            )
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError as exc:
+            raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
+        lines.append(lineno)
+    if not rows:
+        raise DataFormatError(f"{path}: no rows")
+    arr = np.array(rows)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
+    return arr, lines
 
 
 def file_agent_ids(

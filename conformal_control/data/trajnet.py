@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DataFormatError
-from .paths import missing, read_data_text
+from .paths import missing
 from .sdd import SDD_FPS
-from .tracks import Tracks, check_frames, file_agent_ids
+from .tracks import Tracks, check_frames, file_agent_ids, read_rows
 
 __all__ = ["TRAJNET_STEP", "read_trajnet"]
 
@@ -30,28 +30,7 @@ TRAJNET_STEP = 12  # frames between TrajNet samples (2.5 fps at 30 fps)
 
 
 def _parse(path: Path, m_per_px: float) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    rows = []
-    lines: list[int] = []
-    for lineno, line in enumerate(read_data_text(path, "TrajNet file").splitlines(), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if len(parts) != 4:
-            raise DataFormatError(
-                f"{path}:{lineno}: expected 4 fields (frame track_id x_px y_px), got "
-                f"{len(parts)}; the file is malformed or truncated"
-            )
-        try:
-            rows.append([float(p) for p in parts])
-        except ValueError as exc:
-            raise DataFormatError(f"{path}:{lineno}: non-numeric field ({exc})") from None
-        lines.append(lineno)
-    if not rows:
-        raise DataFormatError(f"{path}: no rows")
-    arr = np.array(rows)
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        raise DataFormatError(f"{path}:{lines[int(np.argmax(bad))]}: non-finite value")
+    arr, lines = read_rows(path, "TrajNet file", "frame track_id x_px y_px")
     frames = check_frames(arr[:, 0], SDD_FPS, path, lines, step=TRAJNET_STEP)
     ids = file_agent_ids(arr[:, 1], path, lines)
     segs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
