@@ -126,9 +126,9 @@ def test_an_overlapping_pedestrian_does_not_loosen_the_others_rows(escape_margin
     and the minimum distance to a second one ahead over 1 s fell from 1.499 m to 1.001 m.
 
     Without an escape margin the glued pedestrian changes that distance by less than
-    0.05 m (+0.027); with the default margin (0.2 m) the robot, pushed out of the glued
-    pedestrian's disc at 2.45 m/s instead of 1.45, also keeps further from the second one
-    (+0.60 m): the glued pedestrian never brings the robot closer to anyone else."""
+    0.05 m (+0.027); with the default margin (0.1 m) the robot, pushed out of the glued
+    pedestrian's disc at 1.95 m/s instead of 1.45, also keeps further from the second one
+    (+0.44 m): the glued pedestrian never brings the robot closer to anyone else."""
 
     def min_distance(with_glued: bool) -> float:
         ctrl = stepwise("lambda_search", escape_margin=escape_margin)
