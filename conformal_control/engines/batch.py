@@ -45,7 +45,13 @@ instants compiled with the barrier's collision distance raised per horizon step,
 compiled step; its miscoverage loss scores the interval's record with its own code.
 
 What runs compiled and what runs through the episode's own objects: the constant-velocity
-and the oracle predictor are compiled (above); any other predictor is called at each
+and the oracle predictor are compiled (above), and so are the predictor shifts of either
+(``delayed``, ``noisy``, ``scaled``, ``dropout``, :mod:`~conformal_control.predictors.shift`)
+and the ``recorded`` predictor (the forecasts of a predictions file, the benchmark's
+``learned`` shift: each episode's slice of the file is packed into the batch and replayed
+by :mod:`~conformal_control.engines.recorded_kernels`, its constant-velocity fallback
+compiled with it; with another fallback, on a scene the file does not cover or with
+agent ids that are not integers it is called as it is); any other predictor is called at each
 sampling time on the query the episode's environment builds
 (:meth:`~conformal_control.world.replay.ReplayEnvironment.sense`), through the
 controller's own ``begin_interval`` (sanitising, counters, interpolation, the same

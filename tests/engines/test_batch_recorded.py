@@ -180,14 +180,15 @@ def test_the_interpolation_is_numpys_to_the_bit():
 def test_suite_scenarios_under_the_learned_shift(data_root, compare_batch, monkeypatch):
     """Scenarios of biwi_eth (on its corrected clock) and crowds_zara01 under the
     benchmark's ``learned`` shift (Trajectron++'s published forecasts), nolearn and
-    conformal: compiled, and equal to the loop."""
+    conformal: compiled, and equal to the loop (six scenarios two at a time: slots are
+    refilled and their forecasts' blocks moved to make room)."""
     from conformal_control.bench.methods import expand_methods
     from conformal_control.bench.shifts import SHIFTS
     from conformal_control.data.suites import load_suite
 
     test = load_suite("crossings-v2").scenarios_for("test")
     picked = [s for r in ("ethucy:biwi_eth:corrected", "ethucy:crowds_zara01")
-              for s in [x for x in test if x.recording == r][:2]]  # fmt: skip
+              for s in [x for x in test if x.recording == r][:3]]  # fmt: skip
     scenes = [load_scene(f"scenario:crossings-v2/{s.id}", str(data_root)) for s in picked]
     frames = [sc.meta["max_frames"] for sc in scenes]
     calls = []
@@ -209,3 +210,18 @@ def test_suite_scenarios_under_the_learned_shift(data_root, compare_batch, monke
         info = [s.metrics.predictor_info for s in singles]
         assert sum(i["n_missing"] for i in info) > 0 and calls  # (the loop's calls)
         calls.clear()
+
+
+@pytest.mark.parametrize("crowd", ["social_force", "orca"])
+def test_reactive_crowds(gappy, predictions, compare_batch, crowd):
+    """The forecasts anchored at the positions of pedestrians who react to the robot."""
+    compare_batch(
+        gappy,
+        seeds=[1, 2],
+        max_frames=80,
+        crowd=crowd,
+        predictor="recorded",
+        predictor_params=_params(predictions),
+        output="results",
+        batch_size=2,
+    )
