@@ -4,7 +4,7 @@ timed in the same run.
 
 Usage::
 
-    python benchmarks/bench_round4.py [--data-root ../shared/data] [--only shift mpc fleet]
+    python benchmarks/bench_round4.py [--data-root ../shared/data] [--only shift learned]
 
 Every figure is the time per episode of ``bench run`` on the first test scenarios, run in
 this process with one worker (``workers=1``: the process pool and the in-process batch
@@ -14,6 +14,11 @@ engine use one core alike), after a warm-up run that loads the compiled kernels;
 * ``shift``: ``delay-0.5s`` against ``nominal`` (40 scenarios x ``nolearn``, ``conformal``),
   and the same shift with its wrapper called in Python per episode and interval (the
   engine before it compiled the shifts) -- target 1.3x nominal;
+* ``learned``: the ``learned`` shift (Trajectron++'s published forecasts replayed by the
+  ``recorded`` predictor, compiled in the engine) against ``nominal`` on the same scenarios
+  (the first test scenarios of ``crossings-v2`` are biwi_eth's, which it covers), and the
+  same shift with the predictor called in Python per episode and interval (the engine before
+  it compiled the recorded forecasts);
 * ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios) -- target 5x;
 * ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal) against a
   single-robot episode -- target 3x.
@@ -65,6 +70,23 @@ def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple
             best = got
     assert best is not None
     return best
+
+
+@contextlib.contextmanager
+def python_recorded() -> Iterator[None]:
+    """The batch engine with the ``recorded`` predictor called per episode (as before it
+    replayed the forecasts compiled): the predictor is then the episode's own object."""
+    from conformal_control.engines import batch
+
+    code = batch._PREDICTORS.pop("recorded")
+    try:
+        yield
+    finally:
+        batch._PREDICTORS["recorded"] = code
+
+
+def _load() -> str:
+    return "load average " + " ".join(f"{x:.1f}" for x in os.getloadavg())
 
 
 @contextlib.contextmanager
@@ -124,12 +146,50 @@ def measure_shift(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
     ]
 
 
+def measure_learned(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
+    limit, repeats = (10, 1) if quick else (40, 3)
+    kw = {"methods": ("nolearn", "conformal")}
+    time_bench(data_root, 2, shifts=("learned",), **kw)  # warm-up: kernels, files loaded
+    loads = [_load()]
+    nom = time_bench(data_root, limit, repeats, shifts=("nominal",), **kw)
+    learned = time_bench(data_root, limit, repeats, shifts=("learned",), **kw)
+    with python_recorded():
+        before = time_bench(data_root, limit, repeats, shifts=("learned",), **kw)
+    loads.append(_load())
+    if not nom[2] == learned[2] == before[2]:
+        raise RuntimeError(f"episodes differ: nominal {nom[2]}, learned {learned[2]}/{before[2]}")
+    per = [w / n for w, _, n in (nom, learned, before)]
+    cpu = [c / n for _, c, n in (nom, learned, before)]
+    note = (
+        f"{learned[2]} episodes ({limit} test scenarios of biwi_eth x nolearn, conformal), one "
+        f"worker, best of {repeats}; CPU per episode {cpu[1] * 1e3:.1f} ms against "
+        f"{cpu[0] * 1e3:.1f} ms nominal ({cpu[1] / cpu[0]:.2f}x), {cpu[2] * 1e3:.1f} ms with "
+        f"the predictor in Python per episode ({cpu[2] / cpu[0]:.2f}x); {loads[0]} before, "
+        f"{loads[1]} after"
+    )
+    return [
+        _fig(
+            "shift",
+            "learned episode (recorded forecasts compiled)",
+            per[1],
+            "ms",
+            note=note,
+            ratios=[
+                ("a nominal episode", per[0], "times"),
+                ("the predictor called in Python (as before)", per[2], "faster"),
+            ],
+        ),
+    ]
+
+
 def measure(
     data_root: str, quick: bool = False, only: tuple[str, ...] = ()
 ) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     if not only or "shift" in only:
         out += measure_shift(data_root, quick)
+    if not only or "learned" in only:
+        out += measure_learned(data_root, quick)
     return out
 
 

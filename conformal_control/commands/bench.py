@@ -171,9 +171,10 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         help=(
             "batch (default): the runs the lockstep engine supports (replayed or reactive "
             "crowd, "
-            "constant-velocity, oracle or another fast predictor, any update rule, gap or "
-            "collision loss, exact 2-D filter with lambda_search/brake/hold: every method "
-            "but fallback:relax and acp) many at once in this process, with the same "
+            "constant-velocity, oracle or recorded predictor and every --shift compiled, "
+            "another fast predictor called in process, any update rule, gap or "
+            "collision loss, exact 2-D filter with any fallback, the cbf and acp families: "
+            "every method but the MPC families) many at once in this process, with the same "
             "metrics, the others on a process pool; "
             "process: one episode per task on a process pool; "
             "serial: one by one in this process; dask: a Dask cluster (the batched runs "

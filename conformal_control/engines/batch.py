@@ -45,7 +45,13 @@ instants compiled with the barrier's collision distance raised per horizon step,
 compiled step; its miscoverage loss scores the interval's record with its own code.
 
 What runs compiled and what runs through the episode's own objects: the constant-velocity
-and the oracle predictor are compiled (above); any other predictor is called at each
+and the oracle predictor are compiled (above), and so are the predictor shifts of either
+(``delayed``, ``noisy``, ``scaled``, ``dropout``, :mod:`~conformal_control.predictors.shift`)
+and the ``recorded`` predictor (the forecasts of a predictions file, the benchmark's
+``learned`` shift: each episode's slice of the file is packed into the batch and replayed
+by :mod:`~conformal_control.engines.recorded_kernels`, its constant-velocity fallback
+compiled with it; with another fallback, on a scene the file does not cover or with
+agent ids that are not integers it is called as it is); any other predictor is called at each
 sampling time on the query the episode's environment builds
 (:meth:`~conformal_control.world.replay.ReplayEnvironment.sense`), through the
 controller's own ``begin_interval`` (sanitising, counters, interpolation, the same
@@ -110,6 +116,7 @@ from ..loop import (
 )
 from ..monitor import AgentMonitor, GuaranteeMonitor
 from ..predictors.constant_velocity import ConstantVelocityForm
+from ..predictors.recorded import RecordedForm
 from ..predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
 from ..results.episode import EpisodeResult
 from ..results.measure import (
@@ -129,6 +136,7 @@ from ..spec import RunSpec
 from ..world.reactive import ReactiveEnvironment
 from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk
+from . import recorded_kernels as rk
 from .crowd_kernels import dense_layout
 from .gap_kernels import BRAKE, HOLD, PYTHON, SEARCH, gap_maxima
 from .interval import run_interval
@@ -162,7 +170,11 @@ _RECORD_LOSSES = frozenset({"collision", "distance_shortfall", "acp_miscoverage"
 #: Predictor code of an episode whose predictor is called in Python (not compiled).
 _OWN = -1
 _FALLBACKS = {"lambda_search": SEARCH, "brake": BRAKE, "hold": HOLD}  # else PYTHON
-_PREDICTORS = {"constant_velocity": bk.CONSTANT_VELOCITY, "oracle": bk.ORACLE}
+_PREDICTORS = {
+    "constant_velocity": bk.CONSTANT_VELOCITY,
+    "oracle": bk.ORACLE,
+    "recorded": bk.RECORDED,
+}
 #: The predictor shifts the compiled prediction applies (to a compiled predictor).
 _SHIFTS = {"delayed": bk.DELAYED, "noisy": bk.NOISY, "scaled": bk.SCALED, "dropout": bk.DROPOUT}
 
@@ -381,20 +393,22 @@ def _prediction(
     kernel does not hold (a delay beyond the history, a bad window, agent ids that are not
     integers) is called as it is (``_OWN``)."""
     kernel = _compiled_name(type(pred)) or ""
+    own = (_OWN, bk.NO_SHIFT, None, 1)
     if kernel not in _SHIFTS:
         code = _predictor_code(pred)
+        if code == bk.RECORDED:
+            return _recorded_prediction(form, ids)
         return code, bk.NO_SHIFT, None, _window_of(form) if code == bk.CONSTANT_VELOCITY else 1
     if not isinstance(form, ShiftForm) or form.kernel != kernel:
         raise _NotRun(f"the predictor declares {kernel!r} but hands no form of that shift")
     base = form.base
     code = _predictor_code(base)
-    own = (_OWN, bk.NO_SHIFT, None, 1)
     window: Any = 1
     if code == bk.CONSTANT_VELOCITY:
         window = _window_of(base.compiled_state())
         if not _valid_window(window):
             return own
-    if code == _OWN:
+    if code in (_OWN, bk.RECORDED):  # (a shift of recorded forecasts: called as it is)
         return own
     if isinstance(form, DelayedForm):
         k = form.samples(dt_frame)
@@ -409,9 +423,54 @@ def _prediction(
     return code, _SHIFTS[kernel], form, window
 
 
+def _recorded_prediction(form: object, ids: np.ndarray) -> tuple[int, int, None, Any]:
+    """How the compiled prediction runs a ``recorded`` predictor (whose compiled form is
+    ``form``): compiled with its fallback's window when the fallback is the constant-velocity
+    predictor with a valid window and the agents' ids are integers (the predictor's
+    ``astype(int64)`` of other ids is not what the kernel reads), else called as it is."""
+    if not isinstance(form, RecordedForm):
+        raise _NotRun("the predictor declares 'recorded' but hands no RecordedForm")
+    own = (_OWN, bk.NO_SHIFT, None, 1)
+    fallback = form.fallback
+    if _predictor_code(fallback) != bk.CONSTANT_VELOCITY:
+        return own
+    window = _window_of(fallback.compiled_state())
+    if not _valid_window(window) or not np.issubdtype(ids.dtype, np.integer):
+        return own
+    return bk.RECORDED, bk.NO_SHIFT, None, window
+
+
+def _recorded_block(
+    form: RecordedForm, sc: Scene, dt_frame: float, last: int
+) -> tuple[np.ndarray, float] | None:
+    """The forecasts of ``sc``'s predictions file that an episode sampling at frames
+    ``sc.start_index`` .. ``last`` can read, packed
+    (:func:`~conformal_control.engines.recorded_kernels.pack`: the latest issue at or before
+    the first sampling time, and every later one up to the last), and the step length;
+    None where the predictor raises on this scene (no file for it, a missing or malformed
+    file): the episode's own predictor is then called, and raises as in the loop, at its
+    first prediction."""
+    try:
+        rec, step_s, per_step = form.source(sc.name)
+    except (ValueError, OSError):
+        return None
+    f_s = step_s / per_step
+    times = rec.frames * f_s  # as the predictor computes them
+    t_lo = int(sc.first_frame + sc.start_index) * dt_frame
+    t_hi = int(sc.first_frame + last) * dt_frame
+    k_lo = max(int(np.searchsorted(times, t_lo + rk.EPS, side="right")) - 1, 0)
+    k_hi = int(np.searchsorted(times, t_hi + rk.EPS, side="right"))
+    keep = range(k_lo, max(k_hi, k_lo))
+    block = rk.pack(times[k_lo : max(k_hi, k_lo)], [rec.ids[k] for k in keep],
+                    [rec.points[k] for k in keep])  # fmt: skip
+    return block, step_s
+
+
 def _info_keys(code: int, shift: int, form: ShiftForm | None) -> tuple[str, ...]:
     """The keys of the controller's ``forecast_info_`` a compiled prediction fills, in the
     order the predictor (and its shift) first report them."""
+    if code == bk.RECORDED:  # (its fallback's counters are not reported)
+        return ("n_missing", "n_missing_steps", "n_extrapolated", "n_nonfinite_current")
     base = ("n_short_history",) if code == bk.CONSTANT_VELOCITY else ()
     if shift == bk.DELAYED:
         return (*base, "n_stale", "n_unseen")
@@ -559,6 +618,13 @@ class _Pool:
     agent_id: np.ndarray  # int64 (size, columns): the id of each agent of the recording
     noise: np.ndarray  # (size, cap, 2): each sensed agent's noisy displacement
     shift_counts: np.ndarray  # int64 (size, 3): stale, unseen, dropped (totals)
+    rec: np.ndarray  # the recorded forecasts of the live episodes that replay them, flat
+    rec_at: np.ndarray  # int64 (size,): where slot b's block starts in rec
+    rec_len: np.ndarray  # int64 (size,): its length (0: none)
+    rec_used: int  # floats of rec in use
+    rec_step: np.ndarray  # (size,): the forecasts' step length (s)
+    rec_counts: np.ndarray  # int64 (size, 4): missing, missing steps, extrapolated,
+    # non-finite current (totals)
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -649,6 +715,12 @@ class _Pool:
         self.agent_id = np.zeros((b, 0), dtype=np.int64)
         self.noise = np.zeros((b, 0, 2))
         self.shift_counts = np.zeros((b, 3), dtype=np.int64)
+        self.rec = np.zeros(0)
+        self.rec_at = np.zeros(b, dtype=np.int64)
+        self.rec_len = np.zeros(b, dtype=np.int64)
+        self.rec_used = 0
+        self.rec_step = np.zeros(b)
+        self.rec_counts = np.zeros((b, 4), dtype=np.int64)
 
     @staticmethod
     def grown(arr: np.ndarray, axis: int, n: int) -> np.ndarray:
@@ -694,6 +766,31 @@ class _Pool:
                 self.where[b, 0] = end
             end += n
         self.used = end
+
+    def put_recorded(self, b: int, block: np.ndarray) -> None:
+        """Copy slot ``b``'s recorded forecasts (a block of
+        :func:`~conformal_control.engines.recorded_kernels.pack`; empty: none) into ``rec``
+        (the live slots' blocks moved to the front first when it is full, then grown)."""
+        n = block.size
+        self.rec_len[b] = 0
+        if self.rec_used + n > self.rec.size:
+            end = 0
+            live = np.flatnonzero(self.active & (self.rec_len > 0))
+            for s in live[np.argsort(self.rec_at[live])].tolist():
+                o, k = int(self.rec_at[s]), int(self.rec_len[s])
+                if o != end:
+                    self.rec[end : end + k] = self.rec[o : o + k]
+                    self.rec_at[s] = end
+                end += k
+            self.rec_used = end
+            if self.rec_used + n > self.rec.size:
+                grown = np.empty(max(2 * self.rec.size, self.rec_used + n))
+                grown[: self.rec_used] = self.rec[: self.rec_used]
+                self.rec = grown
+        self.rec[self.rec_used : self.rec_used + n] = block
+        self.rec_at[b] = self.rec_used
+        self.rec_len[b] = n
+        self.rec_used += n
 
     def prepare(self, b: int, goals: np.ndarray, instants: int) -> None:
         """Slot ``b``'s goals, and room for its ``instants`` control instants if kept."""
@@ -826,6 +923,15 @@ class _Engine:
         )
         if parts.acp is not None or (reactive and code == bk.ORACLE):
             code, shift, form, window = _OWN, bk.NO_SHIFT, None, 1
+        last = sc.n_frames - 1
+        if max_frames is not None:
+            last = min(last, sc.start_index + int(max_frames))
+        recorded = None
+        if code == bk.RECORDED:
+            rform = cast(RecordedForm, forms.get("predictor"))
+            recorded = _recorded_block(rform, sc, dt_frame, last)
+            if recorded is None:  # the predictor raises on this scene: called as it is
+                code, window = _OWN, 1
         if int(window) != window or window < 1:
             raise PredictorError(
                 f"predictor {type(pred).__name__} failed on scene {sc.name}: ValueError: "
@@ -847,9 +953,6 @@ class _Engine:
         )
         p = self.pool
         substeps, tau = int(env.substeps), int(env.tau_frames)
-        last = sc.n_frames - 1
-        if max_frames is not None:
-            last = min(last, sc.start_index + int(max_frames))
         S, s, verts, radius = speed_polygon(int(filt_form.speed_sides), float(filt_form.v_max))
         p.ensure(
             steps=tau * substeps,
@@ -922,9 +1025,15 @@ class _Engine:
         p.seeds[b] = getattr(form, "seed", 0)
         p.scene_keys[b] = scene_key(sc.name)
         p.first_frame[b] = sc.first_frame
-        if shift in (bk.NOISY, bk.DROPOUT):
+        if shift in (bk.NOISY, bk.DROPOUT) or code == bk.RECORDED:
             p.agent_id[b, : ids.size] = ids
         p.shift_counts[b] = 0
+        p.rec_counts[b] = 0
+        if recorded is not None:
+            p.put_recorded(b, recorded[0])
+            p.rec_step[b] = recorded[1]
+        else:
+            p.rec_len[b] = 0
         p.n_log[b] = 0
         p.wall[b] = 0.0
         p.n_predicted[b] = p.n_short_total[b] = p.n_bad_total[b] = 0
@@ -1000,7 +1109,7 @@ class _Engine:
                 predicted, p.store, p.where, p.fi, p.sensed, p.n_agents, p.predictor, p.window,
                 p.history, p.tau, p.substeps, p.dt_frame, p.samples, p.xp, p.vp, p.n_short,
                 p.n_bad, p.shift, p.shift_k, p.shift_x, p.seeds, p.scene_keys, p.first_frame,
-                p.agent_id, p.noise, p.shift_counts,
+                p.agent_id, p.noise, p.shift_counts, p.rec, p.rec_at, p.rec_step, p.rec_counts,
             )  # fmt: skip
             p.n_predicted[predicted] += 1
             p.n_bad_total[predicted] += p.n_bad[predicted]
@@ -1374,6 +1483,10 @@ class _Engine:
                 "n_stale": int(p.shift_counts[b, 0]),
                 "n_unseen": int(p.shift_counts[b, 1]),
                 "n_dropped": int(p.shift_counts[b, 2]),
+                "n_missing": int(p.rec_counts[b, 0]),
+                "n_missing_steps": int(p.rec_counts[b, 1]),
+                "n_extrapolated": int(p.rec_counts[b, 2]),
+                "n_nonfinite_current": int(p.rec_counts[b, 3]),
             }
             policy.forecast_info_ = {key: totals[key] for key in ep.info_keys}
         # the compiled step's counts, added to those a fallback decided in Python counted

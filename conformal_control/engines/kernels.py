@@ -27,6 +27,7 @@ import numpy as np
 
 from ..cbf.pyhypot import c_hypot
 from ..jit import kernel
+from .recorded_kernels import find_issue, forecast_agent, snap_times
 
 if TYPE_CHECKING:
     from ..data.scene import SparseTracks
@@ -38,6 +39,7 @@ __all__ = [
     "NOISY",
     "NO_SHIFT",
     "ORACLE",
+    "RECORDED",
     "SCALED",
     "count_sensed",
     "d_min",
@@ -208,7 +210,7 @@ def log_frames(
 
 
 #: Predictor codes of :func:`predict_interpolate`.
-CONSTANT_VELOCITY, ORACLE = 0, 1
+CONSTANT_VELOCITY, ORACLE, RECORDED = 0, 1, 2
 #: Shift codes of :func:`predict_interpolate` (:mod:`conformal_control.predictors.shift`):
 #: none, ``delayed``, ``noisy``, ``scaled``, ``dropout``.
 NO_SHIFT, DELAYED, NOISY, SCALED, DROPOUT = 0, 1, 2, 3, 4
@@ -310,6 +312,10 @@ def predict_interpolate(
     agent_id: np.ndarray,
     noise: np.ndarray,
     shift_counts: np.ndarray,
+    rec: np.ndarray,
+    rec_at: np.ndarray,
+    rec_step: np.ndarray,
+    rec_counts: np.ndarray,
 ) -> None:
     """The controller's predictions at a sampling time, for each slot ``b``: its sensed
     agents' forecast over ``tau[b]`` frames, sanitised and interpolated at the interval's
@@ -319,7 +325,14 @@ def predict_interpolate(
     :class:`~conformal_control.predictors.constant_velocity.ConstantVelocityPredictor`
     with ``window[b]`` on the last ``history[b]`` frames (``n_short[b]``: agents predicted
     to stand still for want of a second sample), or the recording's future
-    (:class:`~conformal_control.predictors.oracle.OraclePredictor`), under the episode's
+    (:class:`~conformal_control.predictors.oracle.OraclePredictor`), or the forecasts of a
+    predictions file (``RECORDED``:
+    :class:`~conformal_control.predictors.recorded.RecordedPredictor`, slot ``b``'s block
+    of :func:`~conformal_control.engines.recorded_kernels.pack` at ``rec_at[b]`` in ``rec``,
+    step length ``rec_step[b]`` seconds, the agents' ids ``agent_id[b]``, frame numbers
+    from ``first_frame[b]``; an agent without a recorded forecast predicted at constant
+    velocity with ``window[b]``; ``rec_counts[b]``: agents without one (missing), missing
+    steps, agents extrapolated, agents without a finite current position), under the episode's
     predictor shift (``shift[b]``, :mod:`~conformal_control.predictors.shift`, with the
     same arithmetic and the same fallbacks):
 
@@ -358,6 +371,20 @@ def predict_interpolate(
         lo = f - history[b] + 1  # the history window's first frame
         short = 0
         bad = 0
+        code = predictor[b]
+        o = rec_at[b]
+        t_q = float(first_frame[b] + f) * dt
+        issue = -1
+        steps = 0
+        times = np.empty(horizon if code == RECORDED else 0)
+        if code == RECORDED:  # the issue the query's time reads, and its requested times
+            issue = find_issue(rec, o, t_q)
+            if issue >= 0:
+                snap_times(rec, o, issue, t_q, dt, rec_step[b], times)
+                steps = int(rec[o + 1 + 2 * int(rec[o]) + issue])
+        knot_t = np.empty(steps + 1)
+        knot_x = np.empty(steps + 1)
+        knot_y = np.empty(steps + 1)
         for a in range(n_agents[b]):
             j = sensed[b, a]
             agent = agent_id[b, j]
@@ -365,7 +392,23 @@ def predict_interpolate(
             samples[0, 0] = cx
             samples[0, 1] = cy
             frozen = kind == SCALED and shift_x[b, 0] == 0.0
-            if frozen:  # every agent stands where it is: the predictor is not asked
+            use = code
+            if code == RECORDED:
+                if not (math.isfinite(cx) and math.isfinite(cy)):  # NaN, not predicted
+                    rec_counts[b, 3] += 1
+                    use = -1
+                    for h in range(horizon):
+                        samples[h + 1, 0] = math.nan
+                        samples[h + 1, 1] = math.nan
+                elif forecast_agent(rec, o, issue, agent, cx, cy, t_q, rec_step[b], times,
+                                    samples, knot_t, knot_x, knot_y, rec_counts[b]):  # fmt: skip
+                    use = -1
+                else:  # no recorded forecast: the fallback's
+                    rec_counts[b, 0] += 1
+                    use = CONSTANT_VELOCITY
+            if use < 0:
+                pass
+            elif frozen:  # every agent stands where it is: the predictor is not asked
                 for h in range(horizon):
                     samples[h + 1, 0] = cx
                     samples[h + 1, 1] = cy
@@ -397,7 +440,7 @@ def predict_interpolate(
                             ax, ay = sample(store, where, b, g, j)
                             if math.isfinite(ax) and math.isfinite(ay):
                                 break
-                if predictor[b] == CONSTANT_VELOCITY:
+                if use == CONSTANT_VELOCITY:
                     # trailing run of finite samples in the history window up to fc
                     # (frames lo .. fc), counted up to window + 1 (longer runs give the
                     # same k)

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from ..base import CompiledForm
 from ..exceptions import DataFormatError
 from ..fileio import read_limited
 from .base import Forecast, PredictionQuery, Predictor
@@ -53,6 +54,7 @@ __all__ = [
     "COLUMNS",
     "MAX_FILE_BYTES",
     "MAX_STEP",
+    "RecordedForm",
     "RecordedPredictions",
     "RecordedPredictor",
     "read_predictions",
@@ -205,7 +207,88 @@ def _cached(path: Path) -> RecordedPredictions:
     return hit
 
 
-class RecordedPredictor(Predictor, batchable=True):
+def _source(
+    path: Any, step_s: float, frames_per_step: float, data_root: str | None, scene: str
+) -> tuple[Path, float, float]:
+    """The file, step length and CSV frames per step a :class:`RecordedPredictor` with
+    these parameters uses for ``scene`` (one-line ``ValueError`` for a scene the mapping
+    does not cover or a malformed entry)."""
+    spec: Any = path
+    step, per_step = float(step_s), float(frames_per_step)
+    if isinstance(spec, Mapping):
+        if scene not in spec:
+            raise ValueError(
+                f"no recorded predictions for scene {scene!r}; the files cover "
+                f"{', '.join(map(str, spec)) or 'no scene'}"
+            )
+        spec = spec[scene]
+        if isinstance(spec, Mapping):
+            unknown = sorted(set(spec) - {"file", "step_s", "frames_per_step"})
+            if unknown or "file" not in spec:
+                raise ValueError(
+                    f"path[{scene!r}] must be a file or a dict with 'file' (and optionally "
+                    f"'step_s', 'frames_per_step'), got {dict(spec)!r}"
+                )
+            step = float(spec.get("step_s", step))
+            per_step = float(spec.get("frames_per_step", per_step))
+            spec = spec["file"]
+    p = Path(str(spec)).expanduser()
+    if not p.is_absolute() and not p.exists():
+        from ..data.paths import PART_MARKERS, data_part, resolve_data_root
+
+        part, *rest = p.parts
+        if part in PART_MARKERS and rest:  # external/...: wherever that part is
+            p = data_part(part, data_root).joinpath(*rest)
+        else:
+            p = resolve_data_root(data_root) / p
+    return p, step, per_step
+
+
+@dataclass(frozen=True)
+class RecordedForm(CompiledForm):
+    """:class:`RecordedPredictor` as the compiled engine runs it: its parameters, validated,
+    and its fallback predictor, built (the engine compiles the recorded forecasts when it
+    compiles the fallback too, and calls the predictor itself otherwise).
+
+    Attributes
+    ----------
+    path : str or dict
+        The predictions file, or a dict scene name -> file (see :class:`RecordedPredictor`).
+    step_s : float
+        Time between two prediction steps (s).
+    frames_per_step : float
+        CSV frame numbers per step.
+    data_root : str or None
+        Folder relative paths are resolved against.
+    fallback : Predictor
+        The predictor of agents without a recorded forecast (reset).
+    """
+
+    kernel = "recorded"
+    path: Any
+    step_s: float
+    frames_per_step: float
+    data_root: str | None
+    fallback: Predictor
+
+    def source(self, scene: str) -> tuple[RecordedPredictions, float, float]:
+        """The indexed predictions, step length (s) and CSV frames per step the predictor
+        uses on ``scene``, read as it reads them (its errors: a scene the mapping does
+        not cover, a missing or malformed file).
+
+        Parameters
+        ----------
+        scene : str
+            The scene's name (a query's ``scene``).
+        """
+        p, step_s, per_step = _source(
+            self.path, self.step_s, self.frames_per_step, self.data_root, scene
+        )
+        return _cached(p), step_s, per_step
+
+
+# compiled: the engine replays the forecasts compiled (its RecordedForm; not inherited)
+class RecordedPredictor(Predictor, compiled="recorded", batchable=True):
     """Precomputed predictions replayed from a CSV ``frame,track_id,step,x,y`` (gzip too).
 
     See :mod:`conformal_control.predictors.recorded` for the file, the clock and the
@@ -266,35 +349,19 @@ class RecordedPredictor(Predictor, batchable=True):
 
     def _source(self, scene: str) -> tuple[Path, float, float]:
         """The file, step length and CSV frames per step used for ``scene``."""
-        spec: Any = self.path
-        step_s, per_step = float(self.step_s), float(self.frames_per_step)
-        if isinstance(spec, Mapping):
-            if scene not in spec:
-                raise ValueError(
-                    f"no recorded predictions for scene {scene!r}; the files cover "
-                    f"{', '.join(map(str, spec)) or 'no scene'}"
-                )
-            spec = spec[scene]
-            if isinstance(spec, Mapping):
-                unknown = sorted(set(spec) - {"file", "step_s", "frames_per_step"})
-                if unknown or "file" not in spec:
-                    raise ValueError(
-                        f"path[{scene!r}] must be a file or a dict with 'file' (and optionally "
-                        f"'step_s', 'frames_per_step'), got {dict(spec)!r}"
-                    )
-                step_s = float(spec.get("step_s", step_s))
-                per_step = float(spec.get("frames_per_step", per_step))
-                spec = spec["file"]
-        p = Path(str(spec)).expanduser()
-        if not p.is_absolute() and not p.exists():
-            from ..data.paths import PART_MARKERS, data_part, resolve_data_root
+        return _source(self.path, self.step_s, self.frames_per_step, self.data_root, scene)
 
-            part, *rest = p.parts
-            if part in PART_MARKERS and rest:  # external/...: wherever that part is
-                p = data_part(part, self.data_root).joinpath(*rest)
-            else:
-                p = resolve_data_root(self.data_root) / p
-        return p, step_s, per_step
+    def compiled_state(self) -> RecordedForm:
+        """This predictor as the compiled engine runs it (validated; reset if it was not)."""
+        if not hasattr(self, "fallback_"):
+            self.reset()
+        return RecordedForm(
+            self.path,
+            float(self.step_s),
+            float(self.frames_per_step),
+            self.data_root,
+            self.fallback_,
+        )
 
     def predictions(self, scene: str) -> RecordedPredictions:
         """The indexed predictions used for ``scene``."""

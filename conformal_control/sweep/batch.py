@@ -5,12 +5,13 @@ sweep are split in two:
 
 * a run is **batched** when :func:`~conformal_control.engines.batch.supports` accepts its
   ``run_episode`` arguments (replayed crowd, or social force, ORCA or mixed without noise;
-  the constant-velocity or oracle predictor, or
-  any predictor marked ``fast`` -- the engine calls the others in this process, one episode
-  after another, while the pool predicts in parallel; any update rule given by name; APF
-  barrier; exact 2-D filter with the ``lambda_search``, ``brake`` or ``hold`` fallback;
-  attractive field; velocity-tracking plant; ``cbf_gap``, ``collision`` or
-  ``distance_shortfall`` loss; learning or not) and it writes no animation or plots
+  the constant-velocity, oracle or ``recorded`` predictor and the shifts of the first two
+  (compiled in the engine), or any other predictor marked ``fast`` -- the engine calls the
+  others in this process, one episode after another, while the pool predicts in parallel;
+  any update rule given by name; APF barrier; exact 2-D filter with the ``lambda_search``,
+  ``brake`` or ``hold`` fallback; attractive field; velocity-tracking plant; ``cbf_gap``,
+  ``collision`` or ``distance_shortfall`` loss; learning or not) and it writes no animation
+  or plots
   (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
   limit, and each group runs in this process through
