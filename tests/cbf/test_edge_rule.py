@@ -402,3 +402,20 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
     # the step-wise controller's default rule too (a = 10/s, h_max = 1/2)
     ctrl = StepwiseCBF(epsilon=-0.1, eta=0.5)
     assert ctrl.stepper.rule.lambda_min == pytest.approx(-DEFAULT_FLOOR_SHARE * 10.0 * 0.5)
+
+
+def test_the_escape_margin_is_a_run_parameter() -> None:
+    from conformal_control.data import load_scene
+    from conformal_control.exceptions import InputError
+    from conformal_control.flagship.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    default = build_flagship(scene, {}, units="si").constraint
+    assert default.escape_margin == 0.1
+    assert default.edge_settings()[2] == 0.1  # what the compiled step is handed
+    given = build_flagship(scene, {"escape_margin": 0.3}, units="si").constraint
+    assert given.escape_margin == 0.3 and given.edge_settings()[2] == 0.3
+    for bad in (-0.1, math.nan, math.inf):
+        with pytest.raises(InputError, match="escape_margin must be a finite number >= 0") as info:
+            build_flagship(scene, {"escape_margin": bad}, units="si")
+        assert "\n" not in str(info.value)
