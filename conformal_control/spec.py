@@ -193,6 +193,11 @@ class Parameters:
         "'paper' (Algorithm 1 as published)",
         kind="text",
     )
+    escape_margin: float = _p(
+        0.1,
+        "edge rule: distance beyond the collision distance its push aims at (m)",
+        **_NON_NEGATIVE,
+    )
     delta: float | None = _p(
         None,
         "barrier offset delta; default 1/2 (surface) or 1/(1+U(d_c)) (centre)",

@@ -87,10 +87,11 @@ PROSE: list[tuple[str, str, str, list[str]]] = [
     ),
     (
         "README.md",
-        "Predicting each other instead\n(`--reciprocity none`) they touch in 4 pair-frames.",
+        "Predicting each other instead (`--reciprocity none`) they touch in 1 pair-frame and\n"
+        "hit pedestrians in 28 frames.",
         "run --scene sdd:nexus/video3 --start 0.05,0.5 --goal 0.95,0.5 --robots 10 "
         "--reciprocity none",
-        ["n_collide_robot_pairs 4"],
+        ["n_collide_pedestrian 28", "n_collide_robot_pairs 1"],
     ),
     (
         "docs/getting-started.md",

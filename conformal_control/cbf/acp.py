@@ -342,7 +342,11 @@ class ACPController(ConformalCBFController, compiled="acp"):
             barrier.d_c = self._d_c + c  # type: ignore[attr-defined]
             base = self.constraint
             con = ConformalConstraint(
-                barrier, base.a, edge=base.edge, escape_gain=base.escape_gain
+                barrier,
+                base.a,
+                edge=base.edge,
+                escape_gain=base.escape_gain,
+                escape_margin=base.escape_margin,
             )  # the edge rule within the inflated d_c (the rows are flat there)
             self._constraints[c] = con
         return con

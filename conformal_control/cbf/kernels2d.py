@@ -594,6 +594,7 @@ def escape_rows(
     vp: np.ndarray,
     d_edge: float,
     gain: float,
+    margin: float,
     idx: np.ndarray,
     U: np.ndarray,
     c: np.ndarray,
@@ -603,7 +604,7 @@ def escape_rows(
     the robot at ``(x0, x1)``: returns ``(n, k)``, their number ``n`` (indices in
     ``idx[:n]``) and the number ``k`` of rows of :func:`escape_polygon` written to ``U``,
     ``c``, ``push``: the unit vector from the agent to the robot, ``c = -U . v`` and
-    ``push = gain (d_edge - d)``, for each of them but an agent at the robot's very
+    ``push = gain (d_edge + margin - d)``, for each of them but an agent at the robot's very
     position (there is no direction to keep away from: every motion leaves it)."""
     n = 0
     k = 0
@@ -621,7 +622,7 @@ def escape_rows(
             U[k, 0] = u0
             U[k, 1] = u1
             c[k] = -(u0 * vp[j, 0] + u1 * vp[j, 1])
-            push[k] = gain * (d_edge - d)
+            push[k] = gain * (d_edge + margin - d)
             k += 1
     return n, k
 
@@ -629,9 +630,10 @@ def escape_rows(
 #: Layout of the parameter vector of :func:`apf_step`.
 #: ``edge``: the collision distance of the edge rule (m, centre to centre; negative: the
 #: rule is off, the paper's rows; the rule applies within the larger of it and ``d_c``),
-#: ``edge_gain`` its push gain (1/s), see :func:`edge_prepare`.
+#: ``edge_gain`` its push gain (1/s) and ``edge_margin`` the distance beyond it the push
+#: aims at (m), see :func:`edge_prepare`.
 PARAMS = ("K_rep", "rho0", "d_c", "delta", "surface", "a", "radius", "box", "v_max", "search",
-          "margin", "capacity", "edge", "edge_gain")  # fmt: skip
+          "margin", "capacity", "edge", "edge_gain", "edge_margin")  # fmt: skip
 
 #: Header of the edge rule's region of the work vector: agents within the collision
 #: distance, escape rows, mode of :func:`escape_polygon` (-1: no agent within it), its
@@ -705,6 +707,7 @@ def edge_prepare(
     vp: np.ndarray,
     d_edge: float,
     gain: float,
+    margin: float,
     lam: float,
     A: np.ndarray,
     b: np.ndarray,
@@ -719,7 +722,8 @@ def edge_prepare(
 
     The rows of the agents closer than ``d_edge`` are neutralised (``A_j = 0``, ``b_j =
     -lam``: met at every lambda >= ``lam``, so they never raise the lambda the other rows
-    share) and their escape rows (:func:`escape_rows`, push gain ``gain``) give the escape
+    share) and their escape rows (:func:`escape_rows`, push gain ``gain``, aimed
+    ``margin`` beyond ``d_edge``) give the escape
     polygon (:func:`escape_polygon`) in ``region`` (:func:`edge_views`); returns its
     ``(mode, sides, vertices, v_x, v_y)``, mode -1 when no agent is that close (the header
     records it, so a later :func:`escape_guard` knows).
@@ -731,7 +735,7 @@ def edge_prepare(
     n = 0
     k = 0
     if d_edge >= 0.0:
-        n, k = escape_rows(x0, x1, xp, vp, d_edge, gain, idx, U, c, push)
+        n, k = escape_rows(x0, x1, xp, vp, d_edge, gain, margin, idx, U, c, push)
     head[0] = n
     head[1] = k
     if n == 0:
@@ -841,7 +845,8 @@ def apf_step(
     e1 = 0.0
     if prm[12] >= 0.0:  # (the barrier's own d_c when larger: it is flat within it)
         mode, nsq, nvq, e0, e1 = edge_prepare(
-            x0, x1, xp, vp, max(prm[12], prm[2]), prm[13], lam, A, b, S, s, verts, prm[6],
+            x0, x1, xp, vp, max(prm[12], prm[2]), prm[13], prm[14], lam, A, b, S, s, verts,
+            prm[6],
             region, cap,
         )  # fmt: skip
     if mode < 0:

@@ -335,8 +335,8 @@ def apf_control_peers(
     mode = -1
     if prm[12] >= 0.0 and npred:
         mode, nsq, nvq, e0, e1 = edge_prepare(
-            x0, x1, pv[0, s, :npred], pv[1, s, :npred], max(prm[12], prm[2]), prm[13], lam, A,
-            b, S, sv, verts, prm[6], region, cap,
+            x0, x1, pv[0, s, :npred], pv[1, s, :npred], max(prm[12], prm[2]), prm[13], prm[14],
+            lam, A, b, S, sv, verts, prm[6], region, cap,
         )  # fmt: skip
         if mode >= 0:
             if mode != ESCAPE_POLYGON:

@@ -339,7 +339,13 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
         bar = _create("barrier", "apf", None, context)
     names["barrier"] = role_name(barrier, "apf")
     # the edge rule on the true collision distance (barrier_margin is the barrier's only)
-    constraint = ConformalConstraint(bar, a=si["a"], edge=si["edge"], collision_distance=d_c)
+    constraint = ConformalConstraint(
+        bar,
+        a=si["a"],
+        edge=si["edge"],
+        collision_distance=d_c,
+        escape_margin=si["escape_margin"],
+    )
     context = context.replace(constraint=constraint)
 
     filt = _resolve("safety_filter", safety_filter, safety_filter_params, context, SafetyFilter)

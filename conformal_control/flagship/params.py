@@ -363,6 +363,7 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
         _positive(si, name)
     _positive(si, "eta", allow_zero=True)
     _positive(si, "barrier_margin", allow_zero=True)
+    _positive(si, "escape_margin", allow_zero=True)
     check_epsilon(si["epsilon"])
     # whole-number parameters in their table's range, before anything is allocated with
     # them (substeps=1e8 asked for 95 GiB; speed_sides=1e8 ran for minutes)

@@ -69,7 +69,9 @@ def non_closing_exists(escape: EscapeRows, v_max: float = V_MAX, sides: int = 16
 POSITIONS = ((0.3, 0.0), (0.9, 0.0), (0.05, 0.0), (0.2, -0.3), (-0.5, 0.5), (0.0, 0.99))
 
 
-def stepwise(fallback: str, compiled: bool = True, edge: str = "escape") -> StepwiseCBF:
+def stepwise(
+    fallback: str, compiled: bool = True, edge: str = "escape", escape_margin: float | None = None
+) -> StepwiseCBF:
     filt = Exact2DSafetyFilter(v_max=V_MAX, fallback=fallback, compiled_step=compiled)
     barrier = APFBarrier(rho0=10.0, d_c=D_C)
     ctrl = StepwiseCBF(
@@ -81,6 +83,8 @@ def stepwise(fallback: str, compiled: bool = True, edge: str = "escape") -> Step
         safety_filter=filt,
     )
     ctrl.constraint.edge = edge
+    if escape_margin is not None:
+        ctrl.constraint.escape_margin = escape_margin
     ctrl.controller.reset()
     return ctrl
 
@@ -96,10 +100,11 @@ def test_no_command_closes_in_on_a_pedestrian_within_the_collision_distance(
     ctrl.observe([1], ped[None], t=0.0)
     v = ctrl.step(np.zeros(4), t=0.0, goal=np.array([10.0, 0.0]))
     assert closing(v, np.zeros(2), ped, np.zeros(2)) <= TOL
-    # and it moves out at the push speed escape_gain (d_c - d), as far as the speed set
-    # allows (its support is at least v_max cos(pi/16); the push rows are loosened by
-    # ESCAPE_WIDTH v_max when they bind)
-    push = ctrl.constraint.escape_gain * (D_C - np.hypot(*ped))
+    # and it moves out at the push speed escape_gain (d_c + escape_margin - d), as far as
+    # the speed set allows (its support is at least v_max cos(pi/16); the push rows are
+    # loosened by ESCAPE_WIDTH v_max when they bind)
+    c = ctrl.constraint
+    push = c.escape_gain * (D_C + c.escape_margin - np.hypot(*ped))
     reach = V_MAX * (math.cos(math.pi / 16) - ESCAPE_WIDTH)
     assert closing(v, np.zeros(2), ped, np.zeros(2)) <= -min(push, reach) + 1e-9
     assert np.hypot(*v) <= V_MAX * (1 + 1e-12)
@@ -115,12 +120,18 @@ def test_paper_mode_keeps_the_published_behaviour(fallback) -> None:
     np.testing.assert_allclose(v, expected, atol=1e-9)
 
 
-def test_an_overlapping_pedestrian_does_not_loosen_the_others_rows() -> None:
+@pytest.mark.parametrize("escape_margin", [None, 0.0])
+def test_an_overlapping_pedestrian_does_not_loosen_the_others_rows(escape_margin) -> None:
     """Issue 30: a pedestrian glued to the robot's side at 0.71 m raised the shared lambda,
-    and the minimum distance to a second one ahead over 1 s fell from 1.499 m to 1.001 m."""
+    and the minimum distance to a second one ahead over 1 s fell from 1.499 m to 1.001 m.
+
+    Without an escape margin the glued pedestrian changes that distance by less than
+    0.05 m (+0.027); with the default margin (0.1 m) the robot, pushed out of the glued
+    pedestrian's disc at 1.95 m/s instead of 1.45, also keeps further from the second one
+    (+0.44 m): the glued pedestrian never brings the robot closer to anyone else."""
 
     def min_distance(with_glued: bool) -> float:
-        ctrl = stepwise("lambda_search")
+        ctrl = stepwise("lambda_search", escape_margin=escape_margin)
         x = np.zeros(4)
         goal = np.array([10.0, 0.0])
         ahead = np.array([2.6, 0.0])
@@ -139,7 +150,33 @@ def test_an_overlapping_pedestrian_does_not_loosen_the_others_rows() -> None:
 
     alone, glued = min_distance(False), min_distance(True)
     assert alone > D_C
-    assert abs(glued - alone) < 0.05, (alone, glued)
+    assert glued > alone - 0.05, (alone, glued)  # never loosened
+    if escape_margin == 0.0:
+        assert abs(glued - alone) < 0.05, (alone, glued)
+    else:  # the margin's stronger push keeps the robot further from everyone
+        assert glued > alone + 0.3, (alone, glued)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_escape_margin_gets_the_robot_out_of_the_disc(compiled) -> None:
+    """With ``escape_margin`` the push does not fade at the disc's edge: a robot 0.3 m
+    inside a standing pedestrian's disc, its goal behind the pedestrian, is out within
+    0.5 s; without the margin it only approaches the edge (still inside after 0.5 s)."""
+
+    def distance_after(margin: float, seconds: float = 0.5) -> float:
+        ctrl = stepwise("lambda_search", compiled, escape_margin=margin)
+        x = np.zeros(4)
+        ped = np.array([0.7, 0.0])
+        goal = np.array([10.0, 0.0])
+        for k in range(round(seconds / 0.1)):
+            ctrl.observe([1], ped[None], t=0.1 * k)
+            for j in range(ctrl.substeps):
+                v = ctrl.step(x, t=0.1 * k + j * ctrl.dt_control, goal=goal)
+                x = np.r_[x[:2] + v * ctrl.dt_control, v]
+        return float(np.hypot(*(x[:2] - ped)))
+
+    assert distance_after(0.2) >= D_C
+    assert distance_after(0.0) < D_C
 
 
 # ------------------------------------------------------------------------------ random cases
@@ -316,13 +353,18 @@ def test_escape_rows_are_none_without_overlap_and_in_paper_mode() -> None:
     assert esc is not None and esc.rows.tolist() == [0]
     np.testing.assert_allclose(esc.U, [[-1.0, 0.0]])
     np.testing.assert_allclose(esc.c, [1.0])  # walking away at 1 m/s: distance grows at 1
-    np.testing.assert_allclose(esc.push, [CONSTRAINT.escape_gain * 0.5])
+    np.testing.assert_allclose(
+        esc.push, [CONSTRAINT.escape_gain * (0.5 + CONSTRAINT.escape_margin)]
+    )
     with pytest.raises(ValueError, match="edge must be one of"):
         ConformalConstraint(APFBarrier(), edge="off").validate()
     with pytest.raises(ValueError, match="collision_distance"):
         ConformalConstraint(APFBarrier(), collision_distance=-1.0).validate()
     with pytest.raises(ValueError, match="escape_gain"):
         ConformalConstraint(APFBarrier(), escape_gain=math.nan).validate()
+    for bad in (-0.1, math.inf, "0.2", True):
+        with pytest.raises(ValueError, match="escape_margin must be a finite number >= 0"):
+            ConformalConstraint(APFBarrier(), escape_margin=bad).validate()
 
 
 def test_filter_counts_the_rule_deciding_alone() -> None:
@@ -360,3 +402,20 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
     # the step-wise controller's default rule too (a = 10/s, h_max = 1/2)
     ctrl = StepwiseCBF(epsilon=-0.1, eta=0.5)
     assert ctrl.stepper.rule.lambda_min == pytest.approx(-DEFAULT_FLOOR_SHARE * 10.0 * 0.5)
+
+
+def test_the_escape_margin_is_a_run_parameter() -> None:
+    from conformal_control.data import load_scene
+    from conformal_control.exceptions import InputError
+    from conformal_control.flagship.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    default = build_flagship(scene, {}, units="si").constraint
+    assert default.escape_margin == 0.1
+    assert default.edge_settings()[2] == 0.1  # what the compiled step is handed
+    given = build_flagship(scene, {"escape_margin": 0.3}, units="si").constraint
+    assert given.escape_margin == 0.3 and given.edge_settings()[2] == 0.3
+    for bad in (-0.1, math.nan, math.inf):
+        with pytest.raises(InputError, match="escape_margin must be a finite number >= 0") as info:
+            build_flagship(scene, {"escape_margin": bad}, units="si")
+        assert "\n" not in str(info.value)

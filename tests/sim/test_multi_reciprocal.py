@@ -425,7 +425,10 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
     assert old.n_collide_pedestrian > 0 and old.n_collide_robot_pairs == 0
     new = run_multi(_walls(1.2), priority="pedestrians", **kw).metrics
     assert new.n_collide_pedestrian == 0 and new.n_collide_robot_pairs == 0
-    assert new.d_min_robot < old.d_min_robot - 0.15  # they did make room for the walls
+    # they did make room for the walls: 0.80 m (their floor) against 0.91 m robots first,
+    # where the walls inside the robots' discs push them together too (escape_margin;
+    # 0.98 m without it)
+    assert new.d_min_robot < old.d_min_robot - 0.05
     # robots predicted like pedestrians do touch each other
     assert run_multi(_walls(1.2), reciprocity="none", **kw).metrics.n_collide_robot_pairs > 0
 

@@ -233,11 +233,11 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         self,
         barrier_params: tuple[float, float, float, float, bool],
         a: float,
-        edge: tuple[float, float] = (-1.0, 0.0),
+        edge: tuple[float, float, float] = (-1.0, 0.0, 0.0),
     ) -> None:
         """Set the APF barrier ``(K_rep, rho0, d_c, delta, surface)``, the slope ``a`` that
         :meth:`step_apf` builds its rows from and the edge rule ``(collision distance,
-        push gain)`` (the controller does, at ``reset``).
+        push gain, escape margin)`` (the controller does, at ``reset``).
 
         Parameters
         ----------
@@ -245,13 +245,13 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             ``(K_rep, rho0, d_c, delta, surface)`` of the APF barrier.
         a : float
             Slope of alpha(h) = a h (1/s).
-        edge : (float, float)
+        edge : (float, float, float)
             The edge rule's collision distance (m, centre to centre; negative: the rule is
-            off) and push gain (1/s), :meth:`ConformalConstraint.edge_settings
+            off), push gain (1/s) and escape margin (m), :meth:`ConformalConstraint.edge_settings
             <conformal_control.cbf.constraint.ConformalConstraint.edge_settings>`.
         """
         self._prm[:6] = (*barrier_params, a)
-        self._prm[12:14] = edge
+        self._prm[12:15] = edge
 
     @staticmethod
     def escape_in(work: np.ndarray, cap: int, ns: int) -> EscapeRows | None:
