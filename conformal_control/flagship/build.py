@@ -95,22 +95,9 @@ class Flagship:
         )
         return self.family
 
-    def compiled_forms(self) -> dict[str, CompiledForm | None]:
-        """The compiled form of each part, as the compiled engine reads it: role ->
-        ``compiled_state()`` (None for a part that hands none); after :meth:`reset`."""
-        parts = {
-            "predictor": self.predictor,
-            "barrier": self.barrier,
-            "safety_filter": self.safety_filter,
-            "reference": self.reference,
-            "dynamics": self.dynamics,
-            "loss": self.loss,
-        }
-        return {role: part.compiled_state() for role, part in parts.items()}
-
-    def role_params(self) -> dict[str, dict[str, Any]]:
-        """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
-        roles = {
+    def _parts(self) -> dict[str, Any]:
+        """role -> the plugin that fills it (the rule last: it has no compiled form)."""
+        return {
             "predictor": self.predictor,
             "barrier": self.barrier,
             "safety_filter": self.safety_filter,
@@ -119,6 +106,17 @@ class Flagship:
             "loss": self.loss,
             "rule": self.rule,
         }
+
+    def compiled_forms(self) -> dict[str, CompiledForm | None]:
+        """The compiled form of each part, as the compiled engine reads it: role ->
+        ``compiled_state()`` (None for a part that hands none); after :meth:`reset`."""
+        parts = self._parts()
+        del parts["rule"]
+        return {role: part.compiled_state() for role, part in parts.items()}
+
+    def role_params(self) -> dict[str, dict[str, Any]]:
+        """role -> ``{"name": ..., "params": get_params()}`` (for config.json)."""
+        roles = self._parts()
         out = {
             role: {"name": self.names.get(role, type(obj).__name__), "params": flat_params(obj)}
             for role, obj in roles.items()

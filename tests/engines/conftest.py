@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import pytest
 
 #: Metrics that measure the machine, not the episode.
@@ -67,3 +68,33 @@ def compare_batch() -> Callable[..., tuple[list[Any], list[Any]]]:
     """``compare_batch(scenes, **run_batch_kwargs)``: run the scenes with
     :func:`run_batch` and with :func:`run_episode`, assert the metrics are identical."""
     return _compare
+
+
+def _gappy_track(scene, p0, v, gaps=()):
+    """p0 + v (t - t_start) at every frame of ``scene``, NaN on the frame ranges ``gaps``
+    (clipped at the first frame)."""
+    t = (np.arange(scene.n_frames) - scene.start_index)[:, None] / scene.fps
+    out = np.asarray(p0, dtype=float) + t * np.asarray(v, dtype=float)
+    for lo, hi in gaps:
+        out[max(scene.start_index + lo, 0) : scene.start_index + hi] = np.nan
+    return out
+
+
+@pytest.fixture(scope="module")
+def gappy():
+    """Crossing scenes whose agents enter late, leave and come back, or blink (agents
+    appear and disappear between sampling times: delayed and dropped agents then have no
+    current sample, recorded forecasts none for them), and a plain second scene."""
+    from conformal_control.data import load_scene
+
+    base = load_scene("crossing", seed=0)
+    tracks = [
+        _gappy_track(base, (6.0, 2.0), (0.0, 1.2), gaps=[(-40, 12)]),  # appears after the start
+        _gappy_track(base, (9.0, 14.0), (-0.2, -1.0), gaps=[(30, 44)]),  # leaves, comes back
+        _gappy_track(base, (4.0, 9.0), (0.8, -0.1), gaps=[(20, 21), (23, 24), (60, 10_000)]),
+        _gappy_track(base, (12.0, 3.0), (-0.9, 0.9), gaps=[(-40, 2), (5, 6)]),
+    ]
+    pos = np.stack(tracks, axis=1)
+    ids = np.array([3, 17, 40, 1001])
+    other = load_scene("crossing", seed=1)
+    return [dataclasses.replace(base, positions=pos, agent_ids=ids), other]

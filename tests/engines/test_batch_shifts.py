@@ -8,9 +8,6 @@ interval's row must be those of the per-episode loop, which calls the wrappers t
 
 from __future__ import annotations
 
-import dataclasses
-
-import numpy as np
 import pytest
 
 from conformal_control.cbf.controller import PredictorError
@@ -38,31 +35,6 @@ SHIFTS = [
     ("scaled", {"scale": 0.5}),
     ("dropout", {"p": 0.3, "duration_s": 1.0}),
 ]
-
-
-def _track(scene, p0, v, gaps=()):
-    t = (np.arange(scene.n_frames) - scene.start_index)[:, None] / scene.fps
-    out = np.asarray(p0, dtype=float) + t * np.asarray(v, dtype=float)
-    for lo, hi in gaps:
-        out[max(scene.start_index + lo, 0) : scene.start_index + hi] = np.nan
-    return out
-
-
-@pytest.fixture(scope="module")
-def gappy():
-    """Crossing scenes whose agents enter late, leave and come back, or blink: delayed and
-    dropped agents then have no current sample (stale and unseen forecasts)."""
-    base = load_scene("crossing", seed=0)
-    tracks = [
-        _track(base, (6.0, 2.0), (0.0, 1.2), gaps=[(-40, 12)]),  # appears after the start
-        _track(base, (9.0, 14.0), (-0.2, -1.0), gaps=[(30, 44)]),  # leaves, comes back
-        _track(base, (4.0, 9.0), (0.8, -0.1), gaps=[(20, 21), (23, 24), (60, 10_000)]),
-        _track(base, (12.0, 3.0), (-0.9, 0.9), gaps=[(-40, 2), (5, 6)]),
-    ]
-    pos = np.stack(tracks, axis=1)
-    ids = np.array([3, 17, 40, 1001])
-    other = load_scene("crossing", seed=1)
-    return [dataclasses.replace(base, positions=pos, agent_ids=ids), other]
 
 
 @pytest.mark.parametrize("base", ["constant_velocity", "oracle"])
