@@ -4,7 +4,7 @@ alone, with and without the margin.
 Usage::
 
     python benchmarks/fleet_floor.py OUT [--robots 10] [--methods nolearn,conformal]
-        [--margins 0.1,0] [--data-root ../shared/data] [--workers 1]
+        [--margins 0.1,0] [--data-root DIR] [--workers 1]
 
 The subset is the first scenario of each test recording of the shipped multi-robot suite
 (``multi-crossings-v1``) under the ``swap`` and ``cross`` layouts: 28 entries. For each
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -86,10 +87,16 @@ def main() -> None:
     ap.add_argument("--robots", default="10")
     ap.add_argument("--methods", default="nolearn,conformal")
     ap.add_argument("--margins", default="0.1,0")
-    ap.add_argument("--data-root", default=str(ROOT.parent / "shared" / "data"))
+    ap.add_argument(
+        "--data-root",
+        default=None,
+        help="the data folder (default: $CONFORMAL_CONTROL_DATA, else ../shared/data)",
+    )
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--table-only", action="store_true", help="print the table of OUT only")
     args = ap.parse_args()
+    data_root = args.data_root or os.environ.get("CONFORMAL_CONTROL_DATA")
+    data_root = data_root or str(ROOT.parent / "shared" / "data")
     out = Path(args.out)
     suite = subset_manifest(out / "subset.json")
     entries = {e["id"] for e in json.loads(suite.read_text())["entries"]}
@@ -107,7 +114,7 @@ def main() -> None:
             methods=methods,
             reciprocity=["solo"] if margin is None else ["reciprocal"],
             base=None if margin is None else RunSpec(robots=Robots(floor_margin=margin)),
-            data_root=args.data_root,
+            data_root=data_root,
             workers=args.workers,
             progress=print,
         )
