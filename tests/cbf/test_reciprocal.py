@@ -3,6 +3,7 @@ compiled step against the generic one."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -451,3 +452,29 @@ def test_floor_margin_is_checked():
             Reciprocity(floor_margin=bad).validate()  # type: ignore[arg-type]
         assert "\n" not in str(e.value)
     Reciprocity(floor_margin=0).validate()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compiled):
+    # people first runs the generic path even with the compiled filter step (the floor
+    # rows exist only there). A robot between a pedestrian walking at it from behind and a
+    # peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows cannot all be met, the robot's
+    # barrier row gives way, and its floor row holds: it closes in on the peer at no more
+    # than its share of a (d - d_c - margin)
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    closing = {}
+    for margin in (0.0, 0.15):
+        c = _controller(compiled, priority="pedestrians")
+        c.reciprocity.floor_margin = margin  # type: ignore[union-attr]
+        c.reset()
+        c.begin_interval(q)
+        assert not c._fast  # the generic path, whatever the filter
+        view = PeerView(q.ids[1:], np.array([[1.0, 0.0]]), np.array([0.5]))
+        v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        assert c.interval_record().status == ["lambda_search"]  # the fallback decided
+        closing[margin] = float(v[0])
+        assert closing[margin] <= 0.5 * 2.0 * (1.0 - 0.8 - margin) + 1e-6
+    assert closing[0.15] < closing[0.0] - 0.1
