@@ -215,6 +215,16 @@ def build_rule(
         if k in lam_params and v is not None:
             v = [x * lam_unit for x in v] if isinstance(v, (list, tuple)) else v * lam_unit
         kwargs[k] = v
+    init, floor = kwargs.get("lambda_init"), kwargs.get("lambda_min")
+    if (
+        "lambda_init" in user
+        and "lambda_min" not in user
+        and "lambda_min" not in params.given
+        and isinstance(init, (int, float))
+        and isinstance(floor, (int, float))
+    ):
+        # a default floor never overrides the rule's own initial lambda (see build_flagship)
+        kwargs["lambda_min"] = min(float(floor), float(init))
     rule: UpdateRule = registry.create("rule", name, **kwargs)
     return rule
 
@@ -380,18 +390,25 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
 
     rule_resolved = resolved
     if not planning and "lambda_min" not in resolved.given and si["edge"] == "escape":
-        # the CBF's default lambda floor (issue 30): a share of the feasibility floor
-        floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        # the CBF's default lambda floor (issue 30): a share of the feasibility floor,
+        # never above the run's own lambda_init (a default never overrides a value the
+        # run gave: a fixed lambda of -45/s runs at -45/s, not at the floor)
+        default_floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        floor = min(default_floor, float(si["lambda_init"]))
         if si["lambda_min"] < floor <= si["lambda_max"]:
             in_scene = floor / scene.units.factor("lambda_min")
+            why = (
+                f"the default floor ({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)"
+                if floor == default_floor
+                else "the run's lambda_init (above it the default floor would move it)"
+            )
             resolved = dataclasses.replace(
                 resolved,
                 si={**si, "lambda_min": floor},
                 scene_units={**resolved.scene_units, "lambda_min": in_scene},
                 notes=[
                     *resolved.notes,
-                    f"lambda_min: {in_scene:g}, the default floor "
-                    f"({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)",
+                    f"lambda_min: {in_scene:g}, {why}",
                 ],
             )
             rule_resolved = resolved
