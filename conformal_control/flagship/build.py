@@ -225,6 +225,14 @@ def build_rule(
     ):
         # a default floor never overrides the rule's own initial lambda (see build_flagship)
         kwargs["lambda_min"] = min(float(floor), float(init))
+    lo, hi = kwargs.get("lambda_min"), kwargs.get("lambda_max")
+    if (
+        "lambda_init" not in user
+        and "lambda_init" not in params.given
+        and all(isinstance(x, (int, float)) for x in (init, lo, hi))
+    ):
+        # bounds given to the rule by name: a default initial lambda starts inside them
+        kwargs["lambda_init"] = min(max(float(init), float(lo)), float(hi))  # type: ignore[arg-type]
     rule: UpdateRule = registry.create("rule", name, **kwargs)
     return rule
 
@@ -438,6 +446,28 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
                     "scene's (which are the CBF's)",
                 ],
             )
+            resolved = rule_resolved
+    rsi = rule_resolved.si
+    if "lambda_init" not in rule_resolved.given and not (
+        rsi["lambda_min"] <= rsi["lambda_init"] <= rsi["lambda_max"]
+    ):
+        # a default lambda_init outside bounds the run or the family set (an MPC family's
+        # ceiling below 0): start at the nearest bound, said in the run's notes; a
+        # lambda_init the run gave is never moved (the rule refuses it at reset)
+        start = min(max(rsi["lambda_init"], rsi["lambda_min"]), rsi["lambda_max"])
+        in_scene = start if planning else start / scene.units.factor("lambda_init")
+        same = resolved is rule_resolved
+        rule_resolved = dataclasses.replace(
+            rule_resolved,
+            si={**rsi, "lambda_init": start},
+            scene_units={**rule_resolved.scene_units, "lambda_init": in_scene},
+            notes=[
+                *rule_resolved.notes,
+                f"lambda_init: {start:g} (SI), the default {rsi['lambda_init']:g} moved into "
+                f"[lambda_min, lambda_max] = [{rsi['lambda_min']:g}, {rsi['lambda_max']:g}]",
+            ],
+        )
+        if same:
             resolved = rule_resolved
     if isinstance(rule, str):
         # an MPC family's lambda is a length or a level, never in the scene's time unit

@@ -422,14 +422,27 @@ def test_a_fixed_lambda_below_the_default_floor_runs_at_that_lambda() -> None:
     # lambda_init below it is an error, not a clip)
     above = build_flagship(scene, {"a": 4.0, "lambda_init": floor + 0.25}, units="si")
     assert above.rule.lambda_min == pytest.approx(floor)
-    given = build_flagship(
-        scene, {"a": 4.0, "lambda_init": below, "lambda_min": floor}, units="si"
-    )
+    given = build_flagship(scene, {"a": 4.0, "lambda_init": below, "lambda_min": floor}, units="si")
     with pytest.raises(ValueError, match="initial lambda .* lies outside"):
         given.rule.reset()
     # the same through a rule given by name with its own lambda_init
     dt = build_flagship(scene, {"a": 4.0}, units="si", rule=("fixed_eta", {"lambda_init": below}))
     assert dt.rule.lambda_min == below
+
+
+def test_a_default_lambda_init_starts_inside_the_bounds_a_given_one_never_moves() -> None:
+    from conformal_control.data import load_scene
+    from conformal_control.flagship.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    fl = build_flagship(scene, {"lambda_max": -0.5}, units="si")
+    assert fl.rule.reset() == -0.5 and fl.params.si["lambda_init"] == -0.5
+    assert any("lambda_init: -0.5 (SI), the default 0 moved" in n for n in fl.params.notes)
+    named = build_flagship(scene, {}, units="si", rule=("fixed_eta", {"lambda_max": -0.5}))
+    assert named.rule.reset() == -0.5
+    given = build_flagship(scene, {"lambda_max": -0.5, "lambda_init": 0.0}, units="si")
+    with pytest.raises(ValueError, match=r"initial lambda \(0\) lies outside"):
+        given.rule.reset()
 
 
 def test_a_fixed_lambda_below_the_default_floor_is_the_episodes_lambda() -> None:

@@ -245,4 +245,7 @@ def test_an_initial_lambda_outside_the_bounds_is_an_error_not_a_silent_clip() ->
         FixedEtaRule(epsilon=0.05, eta=0.0, lambda_init=-1.5, lambda_min=-1.3333).reset()
     with pytest.raises(ValueError, match=r"initial lambda \(0.1\) lies outside"):
         FixedEtaRule(epsilon=0.05, eta=0.1, lambda_init=0.1, lambda_max=0.065).reset()
-    assert FixedEtaRule(epsilon=0.05, eta=0.0, lambda_init=-1.3333, lambda_min=-1.3333).reset() == -1.3333
+    assert (
+        FixedEtaRule(epsilon=0.05, eta=0.0, lambda_init=-1.3333, lambda_min=-1.3333).reset()
+        == -1.3333
+    )
