@@ -423,7 +423,7 @@ def test_a_fixed_lambda_below_the_default_floor_runs_at_that_lambda() -> None:
     above = build_flagship(scene, {"a": 4.0, "lambda_init": floor + 0.25}, units="si")
     assert above.rule.lambda_min == pytest.approx(floor)
     given = build_flagship(scene, {"a": 4.0, "lambda_init": below, "lambda_min": floor}, units="si")
-    with pytest.raises(ValueError, match="initial lambda .* lies outside"):
+    with pytest.raises(ValueError, match=r"initial lambda .* lies outside"):
         given.rule.reset()
     # the same through a rule given by name with its own lambda_init
     dt = build_flagship(scene, {"a": 4.0}, units="si", rule=("fixed_eta", {"lambda_init": below}))
