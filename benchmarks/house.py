@@ -130,8 +130,23 @@ def imports(path: Path, typing: bool = False) -> list[tuple[str, str, bool]]:
 
 
 def _unit(module: str) -> str:
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    """The unit of LAYERS holding ``module`` (the longest dotted key prefixing it), as the
+    layer test reads it; ``""`` for the package and for grouping folders."""
+    layers = _layers_cached()
+    parts = module.split(".")[1:]
+    for n in range(len(parts), 0, -1):
+        if ".".join(parts[:n]) in layers:
+            return ".".join(parts[:n])
+    return ""
+
+
+_LAYERS: dict[str, int] = {}
+
+
+def _layers_cached() -> dict[str, int]:
+    if not _LAYERS:
+        _LAYERS.update(_layers())
+    return _LAYERS
 
 
 def _sccs(g: dict[str, set[str]]) -> list[list[str]]:
@@ -347,7 +362,7 @@ def follow(argv: list[str]) -> dict[str, Any]:
         stack = calls[active[-1]][0] if active else ()
         entry = not (stack and stack[-1] == module)
         ms = (*stack, module) if entry else stack
-        if code.co_name == "update" and f"{PKG.name}/update_rules/" in code.co_filename:
+        if code.co_name == "update" and "/update_rules/" in code.co_filename:
             state["spine"] = ms
             sys.setprofile(None)
             return

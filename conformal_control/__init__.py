@@ -17,6 +17,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from ._moved import install as _install_moved
+
 __version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
@@ -103,6 +105,9 @@ __all__ = [
     "run",
     "shadow",
 ]
+
+
+_install_moved()  # the module paths of 0.3 keep working, with a dated warning
 
 
 def __getattr__(name: str) -> Any:
