@@ -147,10 +147,10 @@ def _fmt(wall: float, cpu: float) -> str:
 
 def bench_crossing(args: argparse.Namespace) -> dict[str, float]:
     """Print and return the crossing figures (see the module docstring)."""
-    from conformal_control.jit import compile_now
+    from conformal_control.core.jit import compile_now
     from conformal_control.sim import run_episode
 
-    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.core.jit)
     cache = _cache_dir(args.cache)
     ensure_scenes(cache, args.seeds, args.workers)
     print(f"\n== crossing: {args.seeds} seeds, learning (fixed_eta), batch_size={args.batch_size}")
@@ -216,11 +216,11 @@ def bench_suite(
     ``scenarios`` (default ``args.scenarios``; see the module docstring)."""
     from conformal_control.bench import load_scenario, load_suite
     from conformal_control.bench.methods import expand_methods
+    from conformal_control.core.jit import compile_now
     from conformal_control.engines.batch import run_batch, supports
-    from conformal_control.jit import compile_now
     from conformal_control.sim import run_episode
 
-    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.core.jit)
     warnings.simplefilter("ignore")
     suite = load_suite("crossings-v1")
     dev = suite.scenarios_for("dev")[: scenarios or args.scenarios]
@@ -261,8 +261,8 @@ def bench_reactive(
     engine, and the metrics compared field by field."""
     from conformal_control.bench import load_scenario, load_suite
     from conformal_control.bench.methods import expand_methods
+    from conformal_control.core.jit import compile_now
     from conformal_control.engines.batch import run_batch, supports
-    from conformal_control.jit import compile_now
     from conformal_control.sim import run_episode
 
     compile_now()

@@ -56,7 +56,7 @@ from conformal_control.cbf import (
     Exact2DSafetyFilter,
     QPSafetyFilter,
 )
-from conformal_control.jit import compile_now
+from conformal_control.core.jit import compile_now
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,7 +93,7 @@ def interval(n: int, regime: str, rng: np.random.Generator):
 
 def bench_steps(filter_cls: type, n: int, regime: str, repeats: int) -> tuple[float, float, float]:
     """Median and p95 latency (us) and the share of steps that call a solver."""
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     rng = np.random.default_rng(n)
     ctrl = make_controller(filter_cls)
     lam = -10.0 if regime == "fallback" else 0.0
@@ -147,7 +147,7 @@ print(t1 - t0, time.perf_counter() - t1)
 def bench_compile() -> None:
     with tempfile.TemporaryDirectory() as cache:
         # compiled at the first call, as a process with enough work for it runs (a short run
-        # interprets its kernels instead; see conformal_control.jit)
+        # interprets its kernels instead; see conformal_control.core.jit)
         env = {**os.environ, "NUMBA_CACHE_DIR": cache, "CONFORMAL_CONTROL_JIT": "always"}
         out = []
         for _ in range(2):
@@ -190,7 +190,7 @@ def measure_episode(
     Returns ``wall_s``, ``loop_s`` (medians), ``peak_bytes``, the ``metrics`` of the last
     timed run and the ``engine`` that ran.
     """
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     from conformal_control.sim import run_episode
 
     kw = {"safety_filter": safety_filter, "engine": engine}

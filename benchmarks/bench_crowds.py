@@ -102,9 +102,9 @@ def timed(step: Callable[[], None], n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ours(model: CrowdModel, steps: int) -> tuple[np.ndarray, np.ndarray, World]:
-    from conformal_control.jit import compile_now
+    from conformal_control.core.jit import compile_now
 
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     model.reset(np.random.default_rng(0))
     w = World()
     rad, vmax = np.full(N, RADIUS), np.full(N, 1.3 * V0)
@@ -278,7 +278,7 @@ def _wire(scene, params: dict):
 
         return build_flagship(scene, params)
     except ImportError:
-        from conformal_control import registry
+        from conformal_control.core import registry
         from conformal_control.flagship.params import resolve_params
         from conformal_control.sim.episode import build_components
 
@@ -287,8 +287,8 @@ def _wire(scene, params: dict):
 
 
 def bench_episodes(data_root: Path) -> None:
+    from conformal_control.core.loop import ConformalLoop
     from conformal_control.data import load_scene
-    from conformal_control.loop import ConformalLoop
     from conformal_control.world.reactive import make_environment_like
 
     scene = load_scene("nexus_4", data_root / "sdd")
@@ -367,12 +367,12 @@ def _rss_peak() -> float:
 
 def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, float]:
     """One figure of the scale table (run in its own process; see the module docstring)."""
+    from conformal_control.core.jit import compile_now
     from conformal_control.crowds import neighbors
     from conformal_control.crowds import orca as orca_module
     from conformal_control.crowds import social_force as sf_module
-    from conformal_control.jit import compile_now
 
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
 
     model: CrowdModel = SocialForceModel() if model_name == "social_force" else ORCAModel()
     model.reset(np.random.default_rng(0))

@@ -62,7 +62,7 @@ from conformal_control.cbf import (
 )
 from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.roles import Dynamics
-from conformal_control.jit import compile_now
+from conformal_control.core.jit import compile_now
 from conformal_control.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
 from conformal_control.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
@@ -197,7 +197,7 @@ def measure(
     data_root: Any = None,
 ) -> list:
     """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
     uni = Unicycle()
     common = {"sampling": Sampling(n_samples=samples, horizon=horizon, dt_plan=DT), "substeps": 1}

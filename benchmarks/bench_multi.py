@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+from conformal_control.core.jit import compile_now
+from conformal_control.core.loop import ConformalLoop
 from conformal_control.data import load_scene
-from conformal_control.jit import compile_now
-from conformal_control.loop import ConformalLoop
 from conformal_control.sim import build_flagship
 from conformal_control.sim.multi import run_multi
 
@@ -69,7 +69,7 @@ def main() -> None:
     ap.add_argument("--robots", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     scene = load_scene(args.scene, Path(args.data_root) / "sdd")
     n = args.robots
     print(

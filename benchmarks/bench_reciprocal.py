@@ -37,8 +37,8 @@ import os
 import time
 from pathlib import Path
 
+from conformal_control.core.jit import compile_now
 from conformal_control.data import load_scene
-from conformal_control.jit import compile_now
 from conformal_control.sim.multi import run_multi
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,7 +66,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     scene = load_scene("sdd:nexus/video3", args.data_root, start=(0.05, 0.5), goals=[(0.95, 0.5)])
-    compile_now()  # every kernel compiled before timing (see conformal_control.jit)
+    compile_now()  # every kernel compiled before timing (see conformal_control.core.jit)
     run_multi(scene, 2, max_frames=30, record_animation=False)  # load them, warm caches
     cases = {
         "one robot": {"robots": 1},

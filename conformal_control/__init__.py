@@ -5,8 +5,8 @@ loss), over a family of decision policies ordered by conservativeness. The flags
 instantiation adds lambda as slack to control-barrier-function constraints built from
 predicted pedestrian trajectories (Huriot & Sibai).
 
-Every public name, the generic core (:mod:`conformal_control.base`,
-:mod:`conformal_control.loop`, :mod:`conformal_control.monitor`) included, is imported on
+Every public name, the generic core (:mod:`conformal_control.core.base`,
+:mod:`conformal_control.core.loop`, :mod:`conformal_control.core.monitor`) included, is imported on
 first use (``from conformal_control import ConformalLoop`` works as usual), so
 ``import conformal_control`` costs next to nothing: not even numpy is imported until a
 name that needs it is used (the command line's ``--help`` and ``--version`` stay instant).
@@ -23,14 +23,6 @@ __version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
     from .api import run, shadow
-    from .base import (
-        DecisionFamily,
-        Environment,
-        Loss,
-        Plugin,
-        SingleStepEnvironment,
-        UpdateRule,
-    )
     from .cbf.roles import (
         Barrier,
         Dynamics,
@@ -40,28 +32,36 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         SafetyFilter,
     )
     from .cbf.stepwise import StepwiseCBF, Stream
+    from .core.base import (
+        DecisionFamily,
+        Environment,
+        Loss,
+        Plugin,
+        SingleStepEnvironment,
+        UpdateRule,
+    )
+    from .core.loop import ConformalLoop, IntervalLog, LoopResult
+    from .core.monitor import GuaranteeMonitor
+    from .core.spec import Parameters, RunSpec
     from .crowds.base import CrowdModel
-    from .loop import ConformalLoop, IntervalLog, LoopResult
-    from .monitor import GuaranteeMonitor
     from .predictors.base import Forecast, PredictionQuery, Predictor
-    from .spec import Parameters, RunSpec
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
-    "DecisionFamily": "conformal_control.base",
-    "Environment": "conformal_control.base",
-    "Loss": "conformal_control.base",
-    "Plugin": "conformal_control.base",
-    "SingleStepEnvironment": "conformal_control.base",
-    "UpdateRule": "conformal_control.base",
-    "ConformalLoop": "conformal_control.loop",
-    "IntervalLog": "conformal_control.loop",
-    "LoopResult": "conformal_control.loop",
-    "GuaranteeMonitor": "conformal_control.monitor",
+    "DecisionFamily": "conformal_control.core.base",
+    "Environment": "conformal_control.core.base",
+    "Loss": "conformal_control.core.base",
+    "Plugin": "conformal_control.core.base",
+    "SingleStepEnvironment": "conformal_control.core.base",
+    "UpdateRule": "conformal_control.core.base",
+    "ConformalLoop": "conformal_control.core.loop",
+    "IntervalLog": "conformal_control.core.loop",
+    "LoopResult": "conformal_control.core.loop",
+    "GuaranteeMonitor": "conformal_control.core.monitor",
     "run": "conformal_control.api",
     "shadow": "conformal_control.api",
-    "RunSpec": "conformal_control.spec",
-    "Parameters": "conformal_control.spec",
+    "RunSpec": "conformal_control.core.spec",
+    "Parameters": "conformal_control.core.spec",
     "StepwiseCBF": "conformal_control.cbf.stepwise",
     "Stream": "conformal_control.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",

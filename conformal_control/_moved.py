@@ -20,7 +20,20 @@ from types import ModuleType
 from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
-MOVED: dict[str, str] = {}
+MOVED: dict[str, str] = {
+    "conformal_control.base": "conformal_control.core.base",
+    "conformal_control.exceptions": "conformal_control.core.exceptions",
+    "conformal_control.progress": "conformal_control.core.progress",
+    "conformal_control.fileio": "conformal_control.core.fileio",
+    "conformal_control.compiled": "conformal_control.core.compiled",
+    "conformal_control.jit": "conformal_control.core.jit",
+    "conformal_control.monitor": "conformal_control.core.monitor",
+    "conformal_control.registry": "conformal_control.core.registry",
+    "conformal_control.losses": "conformal_control.core.losses",
+    "conformal_control.spec": "conformal_control.core.spec",
+    "conformal_control.loop": "conformal_control.core.loop",
+    "conformal_control.update_rules": "conformal_control.core.update_rules",
+}
 
 #: Old package fronts that no new package replaces (their modules moved apart): old package ->
 #: {public name: the new module that defines it}. ``from conformal_control.sim import
@@ -138,7 +151,7 @@ def _facade(name: str, names: dict[str, str]) -> ModuleType:
     :data:`MOVED`."""
     module = ModuleType(name, f"{name} (moved apart; {REMOVAL})")
     module.__path__ = []
-    module.__all__ = sorted(names)
+    module.__dict__["__all__"] = sorted(names)
 
     def __getattr__(attr: str) -> Any:
         if attr not in names:

@@ -5,7 +5,7 @@ module owns what every command shares:
 
 * global options, accepted before or after the command name: ``--quiet`` (no progress
   bars or notes), ``-v`` / ``-vv`` (diagnostics of the ``conformal_control`` logger);
-* warnings (:class:`~conformal_control.exceptions.ConformalControlWarning` and any other)
+* warnings (:class:`~conformal_control.core.exceptions.ConformalControlWarning` and any other)
   printed as one line each, ``warning: <message>``;
 * errors: an expected failure (bad input or data, a missing or unreadable file, an
   unwritable output, a failed download) prints one line, ``error: <message>``, and exits
@@ -234,7 +234,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 def describe_error(exc: BaseException) -> str | None:
     """The one-line message for an expected failure, or None for a bug."""
-    from .exceptions import ConformalControlError
+    from .core.exceptions import ConformalControlError
 
     if isinstance(exc, ConformalControlError):
         return str(exc)
@@ -275,8 +275,8 @@ def _show_warning(
     line: str | None = None,
 ) -> None:
     """warnings.showwarning for the CLI: one line, ``warning: <message>``."""
-    from .exceptions import ConformalControlWarning
-    from .progress import write
+    from .core.exceptions import ConformalControlWarning
+    from .core.progress import write
 
     text = " ".join(str(message).split())
     if not issubclass(category, ConformalControlWarning):
@@ -317,9 +317,9 @@ def _cut(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``conformal-control`` script."""
-    from . import progress
     from .commands import COMMANDS
-    from .exceptions import ConformalControlWarning
+    from .core import progress
+    from .core.exceptions import ConformalControlWarning
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)

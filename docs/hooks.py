@@ -660,7 +660,8 @@ def roles_table() -> str:
     """Every role of the registry (entry-point group, base class, contract check list, the
     plugins registered under it now), how to import the base classes, and the installed
     distributions other than this package that add plugins (``plugins/``, third parties)."""
-    from conformal_control import registry, testing
+    from conformal_control import testing
+    from conformal_control.core import registry
     from conformal_control.testing import ROLE_BASES, checks_for
 
     rows = [
@@ -747,7 +748,7 @@ def fields_table(dotted: str) -> str:
 
 def run_values_table() -> str:
     """The documented run values a plugin may declare (``RunContext``'s fields)."""
-    from conformal_control.spec import RUN_VALUES
+    from conformal_control.core.spec import RUN_VALUES
 
     rows = ["| run value | what it is |", "|---|---|"]
     rows += [

@@ -113,10 +113,10 @@ def test_no_import_cycles() -> None:
 def test_generic_loop_knows_nothing_about_cbfs_or_data() -> None:
     g = graph()
     for mod in (
-        "conformal_control.loop",
-        "conformal_control.base",
-        "conformal_control.monitor",
-        "conformal_control.update_rules",
+        "conformal_control.core.loop",
+        "conformal_control.core.base",
+        "conformal_control.core.monitor",
+        "conformal_control.core.update_rules",
     ):
         bad = {
             d
@@ -127,7 +127,7 @@ def test_generic_loop_knows_nothing_about_cbfs_or_data() -> None:
         assert not bad, f"{mod} imports {bad}"
     names = {
         n.id.lower() if isinstance(n, ast.Name) else n.attr.lower()
-        for n in ast.walk(ast.parse((PKG / "loop.py").read_text()))
+        for n in ast.walk(ast.parse((PKG / "core" / "loop.py").read_text()))
         if isinstance(n, (ast.Name, ast.Attribute))
     }
     for word in ("barrier", "pedestrian", "piqp", "qp", "scene"):
@@ -140,19 +140,19 @@ def test_generic_loop_knows_nothing_about_cbfs_or_data() -> None:
 #: placed here.
 LAYERS: dict[str, int] = {
     # the generic core: roles, the parameter table, the loop
-    "base": 0,
-    "exceptions": -1,  # imports nothing of the package: every unit may raise its errors
+    "core.base": 0,
+    "core.exceptions": -1,  # imports nothing of the package: every unit may raise its errors
     "_moved": 0,  # the old module paths of 0.3 (imports a new path when an old one is asked)
-    "progress": 0,
-    "fileio": 1,
-    "compiled": 1,
-    "jit": 2,
-    "monitor": 1,
-    "registry": 1,
-    "losses": 1,
-    "spec": 1,
-    "loop": 2,
-    "update_rules": 2,
+    "core.progress": 0,
+    "core.fileio": 1,
+    "core.compiled": 1,
+    "core.jit": 2,
+    "core.monitor": 1,
+    "core.registry": 1,
+    "core.losses": 1,
+    "core.spec": 1,
+    "core.loop": 2,
+    "core.update_rules": 2,
     # data and plugins
     "data": 3,
     "predictors": 4,
@@ -316,7 +316,7 @@ def test_no_function_takes_more_than_fifteen_parameters() -> None:
     bad = [f"{name}: {n} parameters" for name, n in sorted(counts.items()) if n > MAX_PARAMETERS]
     assert not bad, (
         f"more than {MAX_PARAMETERS} parameters (group related ones into a settings object, "
-        "conformal_control.base.Settings, or a section of the run specification):\n"
+        "conformal_control.core.base.Settings, or a section of the run specification):\n"
         + "\n".join(bad)
     )
 

@@ -124,7 +124,7 @@ def test_an_empty_scheduler_is_refused_not_a_local_cluster(
 
 
 def test_quiet_mutes_the_cluster_s_logs() -> None:
-    from conformal_control import progress
+    from conformal_control.core import progress
     from conformal_control.sweep.executors.dask import _distributed
 
     try:

@@ -225,7 +225,7 @@ def test_plugin_pages_are_generated_from_the_registry(site: Path) -> None:
     import dataclasses
 
     import conformal_control
-    from conformal_control import registry
+    from conformal_control.core import registry
     from conformal_control.predictors.base import Forecast, PredictionQuery
     from conformal_control.testing import ROLE_BASES
 
@@ -386,7 +386,7 @@ def test_api_reference_one_page_per_module(site: Path) -> None:
     # roles became links, also across modules and to re-exports of private modules
     checks = (site / "api/conformal_control/testing/safety_filter/index.html").read_text()
     assert re.search(r'href="[^"]*cbf/roles/#conformal_control\.cbf\.roles\.SafetyFilter"', checks)
-    loop = (site / "api/conformal_control/loop/index.html").read_text()
+    loop = (site / "api/conformal_control/core/loop/index.html").read_text()
     assert re.search(r'href="#conformal_control\.loop\.IntervalLog"', loop)
     # each object once, on the page of the module that defines it
     roles = (site / "api/conformal_control/cbf/roles/index.html").read_text()

@@ -1,5 +1,5 @@
 """Kernels run interpreted until a process has work enough to compile them, with the same
-numbers either way (``conformal_control.jit``)."""
+numbers either way (``conformal_control.core.jit``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control import jit
+from conformal_control.core import jit
 
 DATA = Path(
     os.environ.get("CONFORMAL_CONTROL_DATA", Path(__file__).parents[1] / ".." / "shared" / "data")
@@ -23,7 +23,7 @@ _EPISODES = r"""
 import hashlib, json, sys, warnings
 import numpy as np
 warnings.simplefilter("ignore")
-from conformal_control import jit
+from conformal_control.core import jit
 from conformal_control.data import load_scene
 from conformal_control.data.synthetic import crossing_scene
 from conformal_control.engines.batch import run_batch
@@ -147,7 +147,7 @@ def test_interpreted_and_compiled_runs_are_identical(tmp_path: Path) -> None:
 _AUTO = r"""
 import json, sys
 import numpy as np
-from conformal_control import jit
+from conformal_control.core import jit
 from conformal_control.cbf import kernels2d
 jit.BUDGET_S = float(sys.argv[1])
 A = np.array([[1.0, 0.0]]); rhs = np.array([2.0]); G = np.zeros((4, 2)); h = np.zeros(4)

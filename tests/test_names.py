@@ -10,11 +10,11 @@ import warnings
 
 import pytest
 
-from conformal_control import registry, spec
 from conformal_control.cli import build_parser
+from conformal_control.core import registry, spec
+from conformal_control.core.loop import ConformalLoop, ConformalStepper
 from conformal_control.data.synthetic import crossing_scene
 from conformal_control.flagship.build import build_flagship
-from conformal_control.loop import ConformalLoop, ConformalStepper
 from conformal_control.testing import checks_for
 
 
@@ -81,5 +81,5 @@ def test_the_cli_lists_plugins_under_a_role_name_of_0_2(capsys):
 
     assert main(["plugins", "--role", "update_rule"]) == 0
     captured = capsys.readouterr()
-    assert captured.out.startswith("rule (conformal_control.update_rules):")
+    assert captured.out.startswith("rule (conformal_control.core.update_rules):")
     assert "'update_rule' is now called 'rule'" in captured.err

@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from conformal_control.exceptions import InputError
-from conformal_control.spec import (
+from conformal_control.core.exceptions import InputError
+from conformal_control.core.spec import (
     PARAM_DIMENSIONS,
     PARAMETERS,
     PLAUSIBLE_SI,
@@ -160,7 +160,7 @@ def test_the_fallback_parameter_of_the_command_line_is_the_role(tmp_path) -> Non
 )
 def test_from_dict_refuses_what_fails_later_with_one_input_error(data: dict, words: str) -> None:
     """These passed ``from_dict`` and failed later as TypeError or ValueError."""
-    from conformal_control.exceptions import InputError
+    from conformal_control.core.exceptions import InputError
 
     with pytest.raises(InputError) as info:
         RunSpec.from_dict(data, where="config.json")

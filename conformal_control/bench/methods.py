@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from ..spec import RunSpec
+from ..core.spec import RunSpec
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -143,7 +143,7 @@ class Method:
         return kw
 
     def run_spec(self, predictor: str = "constant_velocity") -> RunSpec:
-        """The method as a :class:`~conformal_control.spec.RunSpec` (SI units), with the
+        """The method as a :class:`~conformal_control.core.spec.RunSpec` (SI units), with the
         benchmark's ``predictor`` unless the method names its own."""
         return RunSpec.from_settings(**self.run_kwargs(predictor))
 
@@ -580,7 +580,7 @@ def expand_methods(
 
 def available(method: Method) -> str | None:
     """None if every plugin the method needs is registered and loadable, else why not."""
-    from .. import registry
+    from ..core import registry
 
     for role, name in method.requirements().items():
         try:

@@ -58,7 +58,7 @@ from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
 if TYPE_CHECKING:
-    from ..spec import RunSpec
+    from ..core.spec import RunSpec
 
 __all__ = [
     "LAYOUTS",
@@ -638,8 +638,8 @@ def multi_bench_base(
     base : RunSpec, optional
         None: the constant-velocity predictor, seed 0, the robots section's defaults.
     """
-    from ..exceptions import InputError
-    from ..spec import Robots, RunSpec
+    from ..core.exceptions import InputError
+    from ..core.spec import Robots, RunSpec
 
     if base is None:
         base = RunSpec()
@@ -716,7 +716,7 @@ def run_multi_bench(
         three.
     base : RunSpec, optional
         What every run takes (:func:`multi_bench_base`): the predictor (a method may
-        replace it) and the seed; its robots section (:class:`~conformal_control.spec.Robots`)
+        replace it) and the seed; its robots section (:class:`~conformal_control.core.spec.Robots`)
         the reciprocal runs' ``information``, ``lambda_scope`` (see
         :mod:`conformal_control.cbf.reciprocal`) and :data:`RECIPROCAL_OPTIONS` (these
         recorded in each row, ``options``, and key when not the defaults). Default:
@@ -1233,7 +1233,7 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
     int
         The exit status: 0 when every episode ran.
     """
-    from ..spec import Robots, RunSpec
+    from ..core.spec import Robots, RunSpec
 
     robots = _ints(args.robots, "--robots")
     suite = args.suite if args.suite != default_suite else "multi-crossings-v1"

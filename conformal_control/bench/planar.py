@@ -555,7 +555,7 @@ SHIFT_SEPARATOR = "@"
 
 
 def _predictor(name: str, task: PlanarTask, data_root: str | Path | None) -> TimedPredictor:
-    from .. import registry
+    from ..core import registry
 
     if SHIFT_SEPARATOR in name:
         import re
@@ -664,13 +664,13 @@ def build_method(
     envelope : FunctionalEnvelope, optional
         An ``fcp_mpc`` method's calibrated envelopes (:func:`scenario_envelope`).
     """
-    from .. import registry
     from ..cbf.barriers import APFBarrier
     from ..cbf.constraint import ConformalConstraint
     from ..cbf.controller import ConformalCBFController
     from ..cbf.dynamics import Unicycle, UnicycleLookahead
     from ..cbf.filters.exact2d import Exact2DSafetyFilter
     from ..cbf.reference import AttractiveField
+    from ..core import registry
 
     limits = {
         "v_min": ROBOT["v_min_mps"],
@@ -796,7 +796,7 @@ def run_scenario(
 ) -> ScenarioResult:
     """Run one scenario of the protocol with one of our methods (see the module docstring).
 
-    The family runs through :class:`~conformal_control.loop.ConformalStepper`, one interval
+    The family runs through :class:`~conformal_control.core.loop.ConformalStepper`, one interval
     per step: at each step it receives the pedestrians with a history (their last
     ``HISTORY_SAMPLES`` positions), decides once (after the warm-up), and the interval is
     scored on the pedestrians' positions at the next time step.
@@ -906,7 +906,7 @@ def _scenario(
     returns the :class:`ScenarioResult`."""
     from ..cbf.controller import ControlState
     from ..cbf.loss import CBFTruth
-    from ..loop import ConformalStepper
+    from ..core.loop import ConformalStepper
 
     rec = recording(task, data_root)
     predictor = method.predictor or predictor
@@ -1290,10 +1290,10 @@ def warm_up_kernels() -> None:
     """Compile (or load from numba's cache) the MPC's kernels once, so that the first
     scenario's controller time does not include it."""
     from ..cbf.dynamics import Unicycle
-    from ..jit import compile_now
+    from ..core.jit import compile_now
     from ..mpc.kernels import evaluate
 
-    compile_now()  # a suite of episodes: compiled (see conformal_control.jit)
+    compile_now()  # a suite of episodes: compiled (see conformal_control.core.jit)
     cmds = np.zeros((2, 3, 2))
     pos = Unicycle().rollout(np.zeros(5), cmds, STEP_S)[..., :2]
     evaluate(
@@ -1487,7 +1487,7 @@ def run_command(
     seeds : str, optional
         Comma-separated random states (None: 0).
     """
-    from .. import registry
+    from ..core import registry
 
     try:
         seed_list = [int(v) for v in (seeds or "0").split(",") if v.strip()]

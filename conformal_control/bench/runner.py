@@ -34,13 +34,13 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..core.exceptions import InputError
 from ..data.suites import Scenario, load_suite
-from ..exceptions import InputError
 from .methods import DEFAULT_METHODS, FAMILIES, Method, available, expand_methods
 from .shifts import SHIFTS, Shift, get_shift
 
 if TYPE_CHECKING:
-    from ..spec import RunSpec
+    from ..core.spec import RunSpec
 
 __all__ = [
     "DEFAULT_SUITE",
@@ -163,7 +163,7 @@ def load_tuned(tuned: str | Path | None, suite: str) -> Tuned | None:
 
 
 def check_tuned_split(tuned: Tuned, split: str | None) -> None:
-    """Warn (:class:`~conformal_control.exceptions.TunedOnReportedSplitWarning`) when the
+    """Warn (:class:`~conformal_control.core.exceptions.TunedOnReportedSplitWarning`) when the
     split a run reports is the one the tuned values were chosen on (or None: every split).
 
     Parameters
@@ -175,7 +175,7 @@ def check_tuned_split(tuned: Tuned, split: str | None) -> None:
     """
     import warnings
 
-    from ..exceptions import TunedOnReportedSplitWarning
+    from ..core.exceptions import TunedOnReportedSplitWarning
 
     chosen_on = str(tuned.data.get("split"))
     if split is None or split == chosen_on:
@@ -497,7 +497,7 @@ def bench_base(
     base : RunSpec, optional
         None: the constant-velocity predictor, the replayed crowd, seed 0, no parameters.
     """
-    from ..spec import RunSpec
+    from ..core.spec import RunSpec
 
     if base is None:
         return "constant_velocity", {}, "replay", {}, 0, {}

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..spec import RunSpec
+from ..core.spec import RunSpec
 from .methods import FAMILIES
 from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
 

@@ -9,7 +9,7 @@ adaptive conformal inference (ACI, Gibbs & Candès 2021) so that the regions cov
 true positions a target fraction ``1 - alpha`` of the time, whatever the data do.
 
 Here the ACI step runs through the SAME generic loop as every other family
-(:class:`~conformal_control.loop.ConformalLoop` with the registered ``aci`` rule): the
+(:class:`~conformal_control.core.loop.ConformalLoop` with the registered ``aci`` rule): the
 conformal variable lambda IS the miscoverage level alpha_t of the regions, the loss is
 the observed miscoverage (:class:`ACPMiscoverageLoss`) and the target epsilon is alpha.
 Smaller lambda = larger quantile = larger regions = more conservative, as the toolkit's
@@ -26,7 +26,7 @@ The family (:class:`ACPController`) is the conformal CBF controller's machinery
   (``dh/dx . v + dh/dx_j . v_j + a h_inflated >= 0``). The safety filter's fallback for
   an infeasible QP is unchanged (it may raise the slack; its record says so);
 * ``C^h(lambda)`` is the conformal quantile at level ``1 - lambda`` of the last
-  ``window`` errors of step h (:func:`conformal_control.losses.conformal_radius`:
+  ``window`` errors of step h (:func:`conformal_control.core.losses.conformal_radius`:
   infinite for lambda <= 0 or too few errors, empty for lambda >= 1); the barrier uses
   ``min(C^h, max_inflation)`` (a finite region the QP can work with; capped instants are
   counted in ``n_capped_``) and 0 for an empty region;
@@ -69,8 +69,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..base import Loss
-from ..losses import check_lambda, conformal_radius
+from ..core.base import Loss
+from ..core.losses import check_lambda, conformal_radius
 from ..predictors.base import Forecast, PredictionQuery, Predictor
 from .barriers import APFForm
 from .constraint import ConformalConstraint

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm
+from ..core.base import CompiledForm
 from .roles import Barrier
 
 __all__ = ["APFBarrier", "APFForm"]

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from ..base import Plugin
+from ..core.base import Plugin
 from .roles import Barrier, EscapeRows
 
 __all__ = ["EDGES", "ConformalConstraint", "time_to_contact"]

@@ -8,10 +8,10 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm, DecisionFamily, Environment, first_test_instance
+from ..core.base import CompiledForm, DecisionFamily, Environment, first_test_instance
+from ..core.spec import parameter_info
 from ..data.synthetic import crossing_scene
 from ..predictors.base import Forecast, PredictionQuery, Predictor
-from ..spec import parameter_info
 from .barriers import APFBarrier, APFForm
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator

@@ -18,7 +18,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..base import CompiledForm
+from ..core.base import CompiledForm
 from .roles import CommandKind, Dynamics
 from .rollouts import tracking_rollout, unicycle_rollout
 

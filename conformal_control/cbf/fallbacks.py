@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
+from ..core import registry
 from .reciprocal import lexicographic_search
 from .roles import Fallback, FilterPrimitives, FilterResult, InfeasibleStep
 

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 from .pyhypot import c_hypot
 
 __all__ = [

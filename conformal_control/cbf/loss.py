@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm, KeyedLosses, Loss
+from ..core.base import CompiledForm, KeyedLosses, Loss
 from .constraint import ConformalConstraint
 from .interp import interpolate_at_substeps
 from .reciprocal import grown_constraint

@@ -27,7 +27,7 @@ import sys
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 
 __all__ = ["EXACT_FOR_THIS_PYTHON", "c_hypot", "hypot_fma", "hypot_split", "py_hypot"]
 
@@ -190,7 +190,7 @@ def py_hypot(x: float, y: float) -> float:
 
     Infinite if either is infinite (even with a NaN), else NaN if either is NaN; exact for
     zeros; subnormals, huge values and everything between as CPython. Interpreted (see
-    :mod:`conformal_control.jit`), it is ``math.hypot`` itself.
+    :mod:`conformal_control.core.jit`), it is ``math.hypot`` itself.
     """
     if _FMA:
         return hypot_fma(x, y)

@@ -87,8 +87,8 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Plugin
-from ..spec import PEER_HORIZON_S, ROBOT_CHOICES
+from ..core.base import Plugin
+from ..core.spec import PEER_HORIZON_S, ROBOT_CHOICES
 from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
@@ -179,7 +179,7 @@ class Reciprocity(Plugin):
     peer_horizon : float, optional
         Planners that look ahead (the MPC family, :mod:`~conformal_control.mpc.peers`):
         how far ahead (s, > 0) the peers' lines bind their plans (default
-        :data:`~conformal_control.spec.PEER_HORIZON_S`); None: the whole plan.
+        :data:`~conformal_control.core.spec.PEER_HORIZON_S`); None: the whole plan.
     coordination : {"none", "yield"}
         ``"yield"``: when the robot's rows about the other robots give way, it broadcasts
         that it yields (for :data:`YIELD_HOLD_S` seconds), and the world hands both robots

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..base import CompiledForm
+from ..core.base import CompiledForm
 from .roles import ReferenceController
 
 __all__ = ["AttractiveField", "AttractiveFieldForm"]

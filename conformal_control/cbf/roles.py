@@ -1,7 +1,7 @@
 """The flagship's roles: barrier, safety filter, reference controller, robot dynamics.
 
 The conformal CBF controller (:class:`~conformal_control.cbf.controller.ConformalCBFController`)
-is one :class:`~conformal_control.base.DecisionFamily` built from these parts. Each is a
+is one :class:`~conformal_control.core.base.DecisionFamily` built from these parts. Each is a
 small abstract base class; implementations are plugins found by name
 (``conformal-control plugins``).
 
@@ -23,7 +23,7 @@ from typing import ClassVar, Literal, Protocol
 
 import numpy as np
 
-from ..base import Plugin
+from ..core.base import Plugin
 
 __all__ = [
     "Barrier",

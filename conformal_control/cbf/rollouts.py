@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 
 __all__ = ["tracking_rollout", "unicycle_rollout"]
 

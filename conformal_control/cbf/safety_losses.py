@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ..base import KeyedLosses, Loss
-from ..losses import check_lambda
+from ..core.base import KeyedLosses, Loss
+from ..core.losses import check_lambda
 from .controller import CBFIntervalRecord
 from .interp import interpolate_at_substeps
 from .loss import CBFTruth, gap_test_inputs

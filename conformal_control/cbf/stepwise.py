@@ -50,11 +50,11 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..base import Loss, Settings, UpdateRule
+from ..core import registry
+from ..core.base import Loss, Settings, UpdateRule
+from ..core.exceptions import ConformalControlDeprecationWarning, InputError
+from ..core.loop import ConformalStepper, LoopResult
 from ..data.tracks import agent_ids
-from ..exceptions import ConformalControlDeprecationWarning, InputError
-from ..loop import ConformalStepper, LoopResult
 from ..predictors.base import PredictionQuery, Predictor
 from .barriers import APFBarrier
 from .constraint import ConformalConstraint
@@ -97,7 +97,7 @@ class Stream(Settings):
     def check(self) -> int:
         """Validate the fields (one-line errors naming the field); return the number
         of sensor samples per interval (``tau / dt``)."""
-        from ..update_rules.base import check_positive
+        from ..core.update_rules.base import check_positive
 
         for name in ("tau", "dt", "sensing_radius"):
             value = getattr(self, name)
@@ -214,7 +214,7 @@ class StepwiseCBF:
         lambda_init: float = 0.0,
         **legacy: Any,
     ) -> None:
-        from ..update_rules.base import check_epsilon, check_finite, check_positive
+        from ..core.update_rules.base import check_epsilon, check_finite, check_positive
 
         stream = stream_from(stream, legacy, "StepwiseCBF")
         reject_unknown("StepwiseCBF", legacy)
@@ -262,7 +262,7 @@ class StepwiseCBF:
             pred, self.constraint, filt, reference, substeps=self.substeps
         )
         if rule is None:
-            from ..update_rules import FixedEtaRule
+            from ..core.update_rules import FixedEtaRule
             from .feasibility import default_lambda_min
 
             # lambda never sinks below the default floor (a share of -a h_max, issue 30)

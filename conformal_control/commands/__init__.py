@@ -71,11 +71,11 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     """Parse repeated ``KEY=VALUE`` options into a dict of typed values.
 
     A key given twice with different values keeps the last one, with an
-    :class:`~conformal_control.exceptions.OptionConflictWarning`.
+    :class:`~conformal_control.core.exceptions.OptionConflictWarning`.
     """
     import warnings
 
-    from ..exceptions import InputError, OptionConflictWarning
+    from ..core.exceptions import InputError, OptionConflictWarning
     from ..flagship.params import parse_value
 
     out: dict[str, Any] = {}
@@ -206,7 +206,7 @@ def check_writable(path: str | Path, what: str = "output folder") -> Path:
     """
     import tempfile
 
-    from ..exceptions import OutputNotWritableError
+    from ..core.exceptions import OutputNotWritableError
 
     path = Path(path).expanduser()
     if path.exists() and not path.is_dir():

@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Any
 
-from .. import registry
+from ..core import registry
 from . import add_data_root, command, key_values, positive_int
 
 #: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
@@ -392,7 +392,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..bench.methods import DEFAULT_METHODS
     from ..bench.runner import run_bench
     from ..bench.shifts import parse_shifts
-    from ..spec import RunSpec
+    from ..core.spec import RunSpec
 
     if args.robots is not None:  # several robots: the multi-robot suite
         from ..bench.multi import run_command as run_multi_command
@@ -428,7 +428,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _executor(args: argparse.Namespace) -> str:
     """``--executor``, ``dask`` with ``--scheduler``, else ``batch``."""
-    from ..exceptions import InputError
+    from ..core.exceptions import InputError
 
     if args.scheduler is None:
         return str(args.executor or "batch")

@@ -10,7 +10,7 @@ from . import command
 
 @command("plugins", "list the registered plugins by role (--check runs the contract kit)")
 def _plugins_args(p: argparse.ArgumentParser) -> None:
-    from .. import registry
+    from ..core import registry
 
     p.add_argument(
         "--role",
@@ -32,7 +32,7 @@ def _truncate(text: str, width: int) -> str:
 
 @_plugins_args.handler
 def _plugins(args: argparse.Namespace) -> int:
-    from .. import registry
+    from ..core import registry
 
     roles = [registry.role_name(args.role)] if args.role else list(registry.ROLES)
     n_fail = n_plugins = n_unavailable = 0

@@ -56,7 +56,7 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
 
 @_reproduce_args.handler
 def _reproduce(args: argparse.Namespace) -> int:
-    from ..progress import is_quiet
+    from ..core.progress import is_quiet
     from ..reproduce import reproduce
 
     check_writable(args.out, "output folder")

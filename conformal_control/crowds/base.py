@@ -15,7 +15,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..base import Plugin
+from ..core.base import Plugin
 
 __all__ = ["CrowdModel"]
 

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 
 __all__ = ["orca_lines_compiled", "solve_orca_lp_compiled"]
 

@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 from .ethucy import (
     ETHUCY_FPS,
     ETHUCY_ORIGINAL_RATE,

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from ..base import DecisionFamily, Loss, SingleStepEnvironment, UpdateRule
-from ..loop import ConformalLoop, LoopResult
-from ..losses import check_lambda
+from ..core.base import DecisionFamily, Loss, SingleStepEnvironment, UpdateRule
+from ..core.loop import ConformalLoop, LoopResult
+from ..core.losses import check_lambda
 
 __all__ = [
     "DefectFractionLoss",

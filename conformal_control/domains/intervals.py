@@ -4,7 +4,7 @@ The series: every (frame, pedestrian) of an ETH/UCY scene, in time order, whose 
 position (0.4 s later) is known. At each step a registered predictor (default:
 ``constant_velocity``) forecasts the next position from the pedestrian's past positions;
 the decision is a disc around that forecast; once the truth is revealed the loss is the
-miscoverage 1 - covered (:class:`~conformal_control.losses.MiscoverageLoss`) and the
+miscoverage 1 - covered (:class:`~conformal_control.core.losses.MiscoverageLoss`) and the
 score (the displacement error, m) joins the calibration window.
 
 Two parametrisations of the disc radius by lambda (both: larger lambda = smaller disc,
@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..base import DecisionFamily, SingleStepEnvironment, UpdateRule, first_test_instance
-from ..loop import ConformalLoop, LoopResult
-from ..losses import PARAMETRISATIONS, BallRecord, MiscoverageLoss, conformal_radius
+from ..core import registry
+from ..core.base import DecisionFamily, SingleStepEnvironment, UpdateRule, first_test_instance
+from ..core.loop import ConformalLoop, LoopResult
+from ..core.losses import PARAMETRISATIONS, BallRecord, MiscoverageLoss, conformal_radius
 from ..predictors.base import PredictionQuery, Predictor
 
 __all__ = ["ConformalDisc", "PedestrianSeries", "load_series", "run_intervals"]

@@ -1,7 +1,7 @@
 """Backends of the conformal loop: how an episode's control instants are executed.
 
 * :mod:`~conformal_control.engines.loop` -- the generic
-  :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per control
+  :class:`~conformal_control.core.loop.ConformalLoop`, one chain of Python calls per control
   instant, for any configuration;
 * :mod:`~conformal_control.engines.batch` -- the compiled lockstep engine (one compiled
   call per interval, many episodes at once) with its kernels

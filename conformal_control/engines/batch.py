@@ -16,7 +16,7 @@ episode). :func:`run_episode` itself runs a single episode on this engine when i
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
 :func:`~conformal_control.flagship.build.build_flagship` (same parameter resolution, same
 validation, same errors), its lambda is updated by its own update rule through its own
-:class:`~conformal_control.monitor.GuaranteeMonitor`, its counters are written into the
+:class:`~conformal_control.core.monitor.GuaranteeMonitor`, its counters are written into the
 same learned attributes the per-episode loop fills, and it is measured by the same code.
 The per-instant arithmetic is written to round the same way (``tests/engines/test_batch.py``
 checks every metric against :func:`run_episode`). The wall time of the control loop
@@ -61,7 +61,7 @@ predictions are copied into the batch. The gap loss is compiled; the ``collision
 record and on the truth the environment reveals. The rule is the episode's own; a rule that
 evaluates the interval's loss at other lambdas (``uses_loss_function``, e.g. ``dtaci``)
 receives the loss as a function of lambda, as
-:class:`~conformal_control.loop.ConformalStepper` hands it (for the gap loss
+:class:`~conformal_control.core.loop.ConformalStepper` hands it (for the gap loss
 ``s(max_gap + lambda)``: the gaps do not depend on lambda, and
 :class:`~conformal_control.cbf.loss.CBFGapLoss` adds lambda to their maximum).
 
@@ -88,8 +88,6 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from .. import registry
-from ..base import Loss, Plugin
 from ..cbf import kernels2d
 from ..cbf.acp import ACPController, ACPIntervalRecord
 from ..cbf.barriers import APFBarrier, APFForm
@@ -102,11 +100,10 @@ from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
 from ..cbf.reference import AttractiveField, AttractiveFieldForm
 from ..cbf.roles import InfeasibleStep
 from ..cbf.speed import speed_polygon
-from ..crowds.crowd import Crowd
-from ..data.scene import Scene, SparseTracks
-from ..flagship.build import Flagship, build_flagship
-from ..jit import compile_now
-from ..loop import (
+from ..core import registry
+from ..core.base import Loss, Plugin
+from ..core.jit import compile_now
+from ..core.loop import (
     IntervalLog,
     IntervalScore,
     LoopResult,
@@ -114,7 +111,11 @@ from ..loop import (
     close_agent_interval,
     close_interval,
 )
-from ..monitor import AgentMonitor, GuaranteeMonitor
+from ..core.monitor import AgentMonitor, GuaranteeMonitor
+from ..core.spec import RunSpec
+from ..crowds.crowd import Crowd
+from ..data.scene import Scene, SparseTracks
+from ..flagship.build import Flagship, build_flagship
 from ..predictors.constant_velocity import ConstantVelocityForm
 from ..predictors.recorded import RecordedForm
 from ..predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
@@ -132,7 +133,6 @@ from ..results.measure import (
 )
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
-from ..spec import RunSpec
 from ..world.reactive import ReactiveEnvironment
 from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk
@@ -148,7 +148,7 @@ _T = TypeVar("_T")
 
 #: What the engine compiles, per role of a run: the compiled counterparts it has kernels
 #: for. A plugin runs compiled when its class declares one of them (``capabilities.compiled``, see
-#: :class:`~conformal_control.base.Capabilities`); the role's default (None) always does.
+#: :class:`~conformal_control.core.base.Capabilities`); the role's default (None) always does.
 KERNELS: dict[str, frozenset[str]] = {
     "barrier": frozenset({"apf"}),
     "safety_filter": frozenset({"exact2d"}),
@@ -195,7 +195,7 @@ def _kernel_of(role: str, name: str) -> str | None:
 
 
 def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settings: Any) -> RunSpec:
-    """The :class:`~conformal_control.spec.RunSpec` of the arguments the functions that
+    """The :class:`~conformal_control.core.spec.RunSpec` of the arguments the functions that
     run episodes take: a RunSpec (with ``settings`` applied), or the predictor (a name or
     an instance; the positional argument of before) and ``settings``."""
     if isinstance(spec, RunSpec):
@@ -1382,7 +1382,7 @@ class _Engine:
         """Slot ``b``'s interval end with lambda run per agent: each agent's gap loss from
         its largest gap (``agent_top[o:]``, the compiled gap loss), or the loss object's
         components on the interval's record and truth; then each agent's update
-        (:func:`~conformal_control.loop.close_agent_interval`)."""
+        (:func:`~conformal_control.core.loop.close_agent_interval`)."""
         p = self.pool
         assert isinstance(ep.monitor, AgentMonitor)
         s, n = int(p.step[b]), int(p.n_agents[b])
@@ -1620,7 +1620,7 @@ def iter_batch(
         Merged into each episode's configuration.
     **settings
         Other settings of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`).
+        <conformal_control.core.spec.RunSpec.from_settings>`).
 
     Yields
     ------
@@ -1639,7 +1639,7 @@ def iter_batch(
         raise ValueError(f"output must be 'metrics' or 'results', got {output!r}")
     if int(batch_size) != batch_size or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    compile_now()  # many episodes: compiled from the start (see conformal_control.jit)
+    compile_now()  # many episodes: compiled from the start (see conformal_control.core.jit)
     frames = _per_episode(max_frames, "max_frames")
     seed_values = _per_episode(0 if seeds is None else seeds, "seeds")
 
@@ -1673,7 +1673,7 @@ def run_batch(
     scenes : iterable of Scene
         Consumed lazily (a generator keeps only the live episodes' scenes in memory).
     spec : RunSpec or str, optional
-        The run of every episode (:class:`~conformal_control.spec.RunSpec`), or its
+        The run of every episode (:class:`~conformal_control.core.spec.RunSpec`), or its
         predictor (a registered name).
     params : dict, optional
         Parameter overrides (the run's ``params``).

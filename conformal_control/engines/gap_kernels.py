@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from ..cbf.pyhypot import c_hypot
-from ..jit import kernel
+from ..core.jit import kernel
 
 __all__ = ["BRAKE", "HOLD", "PYTHON", "SEARCH", "gap_maxima"]
 
@@ -117,7 +117,7 @@ def _gap_maxima_numpy(
 ) -> None:
     """:func:`gap_maxima`'s interpreted form: each slot's (instant, agent) pairs as arrays
     (the same IEEE operations pair by pair, so the same numbers; the maxima of the same
-    values). A single run keeps its kernels interpreted (:mod:`conformal_control.jit`):
+    values). A single run keeps its kernels interpreted (:mod:`conformal_control.core.jit`):
     the scalar loop would be its largest cost."""
     for i in range(slots.shape[0]):
         b = int(slots[i])

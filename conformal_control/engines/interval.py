@@ -36,7 +36,7 @@ from ..cbf.kernels2d import (
     escape_guard,
 )
 from ..cbf.pyhypot import py_hypot
-from ..jit import kernel
+from ..core.jit import kernel
 from .gap_kernels import HOLD, PYTHON
 from .kernels import d_min
 

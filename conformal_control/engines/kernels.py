@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..cbf.pyhypot import c_hypot
-from ..jit import kernel
+from ..core.jit import kernel
 from .recorded_kernels import find_issue, forecast_agent, snap_times
 
 if TYPE_CHECKING:

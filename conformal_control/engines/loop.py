@@ -1,4 +1,4 @@
-"""The generic backend: one episode as :class:`~conformal_control.loop.ConformalLoop` runs
+"""The generic backend: one episode as :class:`~conformal_control.core.loop.ConformalLoop` runs
 it, one chain of Python calls per control instant, for any configuration."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..loop import ConformalLoop, IntervalLog
+from ..core.loop import ConformalLoop, IntervalLog
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     check_lambda,
@@ -24,8 +24,8 @@ from ..results.measure import (
 from ..results.record import AnimationRecorder
 
 if TYPE_CHECKING:
+    from ..core.spec import RunSpec
     from ..flagship.build import Flagship
-    from ..spec import RunSpec
 
 __all__ = ["run_loop"]
 
@@ -46,7 +46,7 @@ def run_loop(
     run : RunSpec
         Its specification (options: ``learn``, ``lambda_safe``, ``record_animation``, ...).
     on_interval : callable, optional
-        Called with each scored :class:`~conformal_control.loop.IntervalLog`.
+        Called with each scored :class:`~conformal_control.core.loop.IntervalLog`.
     extra_config : dict, optional
         Merged into the configuration (``config.json``).
     """

@@ -27,10 +27,10 @@ from ..cbf.controller import ConformalCBFController
 from ..cbf.filters.exact2d import Exact2DSafetyFilter
 from ..cbf.loss import CBFGapLoss
 from ..cbf.reciprocal import Reciprocity
+from ..core.loop import ConformalStepper
+from ..core.spec import Robots, RunSpec
 from ..data.scene import Scene
-from ..loop import ConformalStepper
 from ..sim.multi import as_tasks, robot_tasks
-from ..spec import Robots, RunSpec
 from .core import CrowdCore, load
 from .crowd import observation_space
 from .roles import GivenVelocity, RecordingFilter

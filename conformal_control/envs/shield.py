@@ -45,9 +45,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from ..core.loop import ConformalStepper
+from ..core.spec import RunSpec
 from ..flagship.build import build_flagship
-from ..loop import ConformalStepper
-from ..spec import RunSpec
 from .crowd import ConformalCrowdEnv
 from .roles import GivenVelocity, LastSolve, RecordingFilter
 
@@ -69,7 +69,7 @@ class ConformalShield(
         (e.g. ``{"epsilon": -0.1, "eta": 2, "a": 2}``); timing (``tau``, ``substeps``)
         must stay the environment's.
     spec : RunSpec, optional
-        The shield's run (:class:`~conformal_control.spec.RunSpec`); ``params`` and the
+        The shield's run (:class:`~conformal_control.core.spec.RunSpec`); ``params`` and the
         settings below are applied on it, and its units are the environment's.
     active_tol : float
         A constraint is reported active when its slack is within this (1/s).

@@ -3,7 +3,7 @@
 Every exporter (MCAP, Rerun, and any added beside them) writes its file through
 :func:`safe_output` (or :func:`safe_output_path` for a library that insists on opening a
 path itself). Both first call :func:`check_destination`, which refuses, with a one-line
-:class:`~conformal_control.exceptions.OutputNotWritableError` naming the path:
+:class:`~conformal_control.core.exceptions.OutputNotWritableError` naming the path:
 
 * a symbolic link (the link is never followed, whatever it points at);
 * anything but a regular file: a device (``/dev/full``, ``/dev/null``), a FIFO, a socket,
@@ -33,8 +33,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from ..exceptions import ConformalControlError, OutputNotWritableError
-from ..fileio import write_error
+from ..core.exceptions import ConformalControlError, OutputNotWritableError
+from ..core.fileio import write_error
 
 __all__ = ["check_destination", "safe_output", "safe_output_path"]
 

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 from . import foxglove as fg
 from .destination import safe_output
 from .reader import RunRecord, read_run

@@ -300,7 +300,7 @@ def write_ros2_bag(run: str | Path | RunRecord, out: str | Path, *, storage: str
     """
     import shutil
 
-    from ..exceptions import OutputNotWritableError
+    from ..core.exceptions import OutputNotWritableError
     from ..ros2.writer import Recording
 
     rec = run if isinstance(run, RunRecord) else read_run(run)

@@ -10,7 +10,7 @@ update rule -- is given as
 
 A plugin receives the run's values (SI) for the constructor arguments its class declares
 in its capabilities (``run_values``: argument -> a name of
-:data:`~conformal_control.spec.RUN_VALUES`, e.g. the APF barrier's ``{"d_c":
+:data:`~conformal_control.core.spec.RUN_VALUES`, e.g. the APF barrier's ``{"d_c":
 "barrier_distance", ...}``) and the caller did not give; nothing else (an argument that
 merely shares a name with a run value keeps the plugin's own default). The flagship's
 defaults are built the same way, by their registered names. Update-rule parameters are
@@ -25,8 +25,12 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-from .. import registry
-from ..base import (
+from ..cbf.constraint import ConformalConstraint
+from ..cbf.controller import ConformalCBFController
+from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
+from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..core import registry
+from ..core.base import (
     CompiledForm,
     DecisionFamily,
     Loss,
@@ -35,15 +39,11 @@ from ..base import (
     flat_params,
     param_names,
 )
-from ..cbf.constraint import ConformalConstraint
-from ..cbf.controller import ConformalCBFController
-from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
-from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
+from ..core.exceptions import ConformalControlDeprecationWarning
+from ..core.spec import RunContext, RunSpec
+from ..core.update_rules import FixedEtaRule
 from ..data.scene import Scene
-from ..exceptions import ConformalControlDeprecationWarning
 from ..predictors.base import Predictor
-from ..spec import RunContext, RunSpec
-from ..update_rules import FixedEtaRule
 from ..world.reactive import make_environment
 from ..world.replay import ReplayEnvironment
 from .params import ResolvedParams, resolve_params
@@ -230,11 +230,11 @@ def build_flagship(
     ----------
     scene : Scene
     spec : RunSpec, dict or ResolvedParams, optional
-        The run (:class:`~conformal_control.spec.RunSpec`); a dict is its ``params`` (in
+        The run (:class:`~conformal_control.core.spec.RunSpec`); a dict is its ``params`` (in
         its ``units``), a :class:`ResolvedParams` parameters already resolved.
     **settings
         Settings of the run applied on ``spec``
-        (:meth:`RunSpec.from_settings <conformal_control.spec.RunSpec.from_settings>`):
+        (:meth:`RunSpec.from_settings <conformal_control.core.spec.RunSpec.from_settings>`):
         ``predictor``, ``barrier``, ``safety_filter``, ``fallback``, ``reference``,
         ``dynamics``, ``loss``, ``rule``, ``family``, ``crowd`` (each an instance, a
         registered name, ``(name, params)`` or None for the flagship's default: the

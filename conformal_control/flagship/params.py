@@ -15,7 +15,7 @@ time           ``s``, ``ms``, ``frame``/``frames`` (``tau=0.4s``, ``tau=12frames
 
 A bare number that is implausible in the unit it is read in (a length under 1 m or over
 100 m, a sampling period over 10 s) raises a
-:class:`~conformal_control.exceptions.SuspiciousValueWarning` that suggests the suffix.
+:class:`~conformal_control.core.exceptions.SuspiciousValueWarning` that suggests the suffix.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..base import LAMBDA_PER
+from ..core.base import LAMBDA_PER
+from ..core.exceptions import InputError, SuspiciousValueWarning
+from ..core.spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI, parameter_info
+from ..core.update_rules.base import check_epsilon
 from ..data.scene import Scene
-from ..exceptions import InputError, SuspiciousValueWarning
-from ..spec import PARAM_DIMENSIONS, PARAMETERS, PLAUSIBLE_SI, parameter_info
-from ..update_rules.base import check_epsilon
 
 __all__ = [
     "PARAMETERS",

@@ -44,10 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Loss
 from ..cbf.acp import region_radii
 from ..cbf.roles import Dynamics, ReferenceController
-from ..losses import check_lambda
+from ..core.base import Loss
+from ..core.losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, SamplingMPC
 from .settings import Costs, Limits, Sampling

@@ -64,13 +64,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import DecisionFamily, first_test_instance
 from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, merge_forecast_info
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
+from ..core.base import DecisionFamily, first_test_instance
+from ..core.spec import parameter_info
 from ..predictors.base import Forecast, PredictionQuery, Predictor
-from ..spec import parameter_info
 from .kernels import evaluate
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences

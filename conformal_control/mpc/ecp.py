@@ -39,11 +39,11 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Loss
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
-from ..jit import kernel
-from ..losses import check_lambda
+from ..core.base import Loss
+from ..core.jit import kernel
+from ..core.losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
 from .fieldcp import distance_field

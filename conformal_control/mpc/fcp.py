@@ -61,10 +61,10 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Loss, Settings
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
-from ..losses import check_lambda
+from ..core.base import Loss, Settings
+from ..core.losses import check_lambda
 from ..predictors.base import PredictionQuery, Predictor
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
 from .fieldcp import (

@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 from .kernels import agent_rows
 
 __all__ = [

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ..jit import kernel
+from ..core.jit import kernel
 
 __all__ = ["agent_rows", "evaluate", "evaluate_many", "evaluate_numpy"]
 

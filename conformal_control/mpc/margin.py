@@ -37,11 +37,11 @@ import math
 
 import numpy as np
 
-from ..base import Loss
 from ..cbf.controller import CBFIntervalRecord
 from ..cbf.interp import interpolate_at_substeps
 from ..cbf.loss import CBFTruth, gap_test_inputs
-from ..losses import check_lambda
+from ..core.base import Loss
+from ..core.losses import check_lambda
 
 __all__ = ["MarginMiscoverageLoss", "clearance_errors"]
 

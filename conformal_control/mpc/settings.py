@@ -1,7 +1,7 @@
 """The sampling MPC's parameter groups, shared by every planning family (``mpc``,
 ``acp_mpc``, ``ecp_mpc``).
 
-Each is a small frozen :class:`~conformal_control.base.Settings`: a family takes it as
+Each is a small frozen :class:`~conformal_control.core.base.Settings`: a family takes it as
 one argument (``sampling=Sampling(n_samples=200)``) and reports and takes its fields as
 deep parameters (``family.get_params(deep=True)["sampling__n_samples"]``,
 ``family.set_params(costs__w_goal=2.0)``; the registry's ``("mpc", {"costs__w_goal":
@@ -14,7 +14,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from ..base import Settings
+from ..core.base import Settings
 
 __all__ = [
     "MAX_HORIZON",

@@ -29,10 +29,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import Loss
 from ..cbf.controller import CBFIntervalRecord, ControlState
 from ..cbf.loss import CBFTruth, gap_test_inputs
-from ..losses import check_lambda
+from ..core.base import Loss
+from ..core.losses import check_lambda
 from .controller import Plan, PlanInputs, SamplingMPC
 from .fieldcp import step_distances
 

@@ -29,17 +29,17 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..base import DecisionFamily, Loss, UpdateRule, param_names
 from ..cbf.controller import ConformalCBFController
 from ..cbf.reference import AttractiveField
 from ..cbf.roles import Dynamics, ReferenceController
 from ..cbf.stepwise import StepwiseCBF, Stream, reject_unknown, stream_from
-from ..exceptions import ConformalControlDeprecationWarning, InputError
-from ..loop import ConformalStepper
+from ..core import registry
+from ..core.base import DecisionFamily, Loss, UpdateRule, param_names
+from ..core.exceptions import ConformalControlDeprecationWarning, InputError
+from ..core.loop import ConformalStepper
+from ..core.spec import RunContext
+from ..core.update_rules.base import check_epsilon, check_finite, check_positive
 from ..predictors.base import Predictor
-from ..spec import RunContext
-from ..update_rules.base import check_epsilon, check_finite, check_positive
 
 __all__ = ["StepwiseMPC"]
 
@@ -222,7 +222,7 @@ class StepwiseMPC(StepwiseCBF):
                 if callable(ceiling) and isinstance(margin, (int, float)) and margin >= 0:
                     lambda_max = min(lambda_max, float(ceiling(float(margin))))
             check_epsilon(eps, loss.bounds)
-            from ..update_rules import FixedEtaRule
+            from ..core.update_rules import FixedEtaRule
 
             rule = FixedEtaRule(
                 epsilon=eps,

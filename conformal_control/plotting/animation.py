@@ -224,7 +224,7 @@ def render_animation(
     """
     import imageio.v2 as imageio
 
-    from ..progress import track
+    from ..core.progress import track
     from .multi_animation import fleet_frames
     from .run import pyplot
 

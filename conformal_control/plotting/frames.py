@@ -19,7 +19,7 @@ LEGIBLE_WIDTH_PX = 720
 
 def frame_size(width: float, dpi: int) -> tuple[int, int]:
     """Even pixel sizes (H.264 needs them) of a ``width`` inch frame at ``dpi``; warns
-    (:class:`~conformal_control.exceptions.SuspiciousValueWarning`) when the frame is too
+    (:class:`~conformal_control.core.exceptions.SuspiciousValueWarning`) when the frame is too
     narrow for its text to be read (:data:`LEGIBLE_WIDTH_PX`).
 
     Raises
@@ -29,7 +29,7 @@ def frame_size(width: float, dpi: int) -> tuple[int, int]:
     """
     import warnings
 
-    from ..exceptions import SuspiciousValueWarning
+    from ..core.exceptions import SuspiciousValueWarning
 
     if not (math.isfinite(width) and width > 0 and dpi > 0):
         raise ValueError(f"width and dpi must be > 0, got width={width!r}, dpi={dpi!r}")

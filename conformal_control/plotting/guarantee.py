@@ -10,7 +10,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ..monitor import AgentMonitor, GuaranteeMonitor
+    from ..core.monitor import AgentMonitor, GuaranteeMonitor
 
 __all__ = ["plot_agent_guarantee", "plot_guarantee"]
 
@@ -32,7 +32,7 @@ def plot_guarantee(
     loss range ``monitor.bounds``: the band is clipped to it, and a bound that never enters
     it (e.g. PID's b_k = 1.93 for losses in (-1/2, 1/2)) is written on the panel instead
     of drawn. Bottom: lambda_k (divided by ``lambda_unit``). A run with lambda per agent
-    (an :class:`~conformal_control.monitor.AgentMonitor`) is drawn by
+    (an :class:`~conformal_control.core.monitor.AgentMonitor`) is drawn by
     :func:`plot_agent_guarantee`.
 
     Parameters
@@ -48,7 +48,7 @@ def plot_guarantee(
     lambda_label : str
         The label of lambda's axis.
     """
-    from ..monitor import AgentMonitor
+    from ..core.monitor import AgentMonitor
     from .run import SAVE_DPI, png_options, pyplot
 
     if isinstance(monitor, AgentMonitor):

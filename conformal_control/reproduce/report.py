@@ -523,7 +523,7 @@ def auto_executor(configs: Sequence[RunConfig]) -> str:
     """``"serial"`` when every run's predictor is a fast one (a dozen episodes then take
     about a second in this process, less than starting worker processes), else
     ``"process"``."""
-    from .. import registry
+    from ..core import registry
 
     fast = all(registry.get("predictor", c.predictor).capabilities.batchable for c in configs)
     return "serial" if fast else "process"
@@ -590,7 +590,7 @@ def reproduce(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(dict.fromkeys(TARGETS if "all" in targets else targets))
-    from .. import registry
+    from ..core import registry
 
     registry.get("predictor", predictor)  # unknown or unavailable: a clear error up front
     variants = list(variants or VARIANTS)

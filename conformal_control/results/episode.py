@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.loop import LoopResult
 from ..data.scene import Scene
-from ..loop import LoopResult
 from .metrics import EpisodeMetrics
 from .multi_metrics import RobotContacts
 

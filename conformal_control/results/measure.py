@@ -17,19 +17,19 @@ import numpy as np
 
 from .. import __version__
 from ..cbf.feasibility import feasibility_floor
-from ..exceptions import (
+from ..core.exceptions import (
     FeasibilityWarning,
     GoalNotReachedWarning,
     LambdaOverflowError,
     NoUpdatesWarning,
 )
-from ..loop import LoopResult
+from ..core.loop import LoopResult
 from .collisions import account_collisions
 from .metrics import EpisodeMetrics, episode_metrics
 
 if TYPE_CHECKING:
+    from ..core.spec import RunSpec
     from ..flagship.build import Flagship
-    from ..spec import RunSpec
 
 __all__ = [
     "LAMBDA_LIMIT",
@@ -77,7 +77,7 @@ def lambda_safe_values(
 
 # ---------------------------------------------------------------------- warnings
 # What makes a run probably not the one that was meant is reported with warnings.warn
-# (conformal_control.exceptions); the CLI prints each as one line.
+# (conformal_control.core.exceptions); the CLI prints each as one line.
 def _clip_advice(fl: Flagship, floor: Any) -> tuple[str, bool | None]:
     """What to do about lambda sinking below the floor, given the run's ``lambda_min``:
     (advice, whether lambda_min keeps lambda above the floor; None when not given)."""
@@ -401,7 +401,7 @@ def episode_config(fl: Flagship, run: RunSpec, lambda_safe: float | None) -> dic
     """``config.json`` of an episode of ``run`` built as ``fl`` (``lambda_safe`` in the
     scene's units): the scene, every role with its parameters, the parameters as given,
     as used and in SI, and the run specification itself (``spec``, what
-    :meth:`RunSpec.from_dict <conformal_control.spec.RunSpec.from_dict>` reads back)."""
+    :meth:`RunSpec.from_dict <conformal_control.core.spec.RunSpec.from_dict>` reads back)."""
     scene = fl.scene
     rule_params = run.role("rule")[1]
     roles = jsonable(fl.role_params())

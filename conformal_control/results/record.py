@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 
 from ..cbf.roles import Barrier
+from ..core.loop import IntervalLog
 from ..data.scene import Scene
-from ..loop import IntervalLog
 
 __all__ = ["AnimationRecorder"]
 

@@ -9,13 +9,13 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from ..fileio import atomic_write, atomic_write_json, atomic_write_text
+from ..core.fileio import atomic_write, atomic_write_json, atomic_write_text
 
 if TYPE_CHECKING:  # annotations only (no circle: none of these imports a result)
     import numpy as np
 
+    from ..core.loop import LoopResult
     from ..data.scene import Scene
-    from ..loop import LoopResult
     from .metrics import EpisodeMetrics
 
 __all__ = ["RunResult", "csv_cell", "csv_text", "finite_or_none", "write_run_dir"]
@@ -90,7 +90,7 @@ def write_run_dir(
     after every other data file (before the plots): a run directory holding
     ``metrics.json`` is complete, and a crash or a full disk never leaves a half-written or
     empty file; a write error is an
-    :class:`~conformal_control.exceptions.OutputNotWritableError` naming the file.
+    :class:`~conformal_control.core.exceptions.OutputNotWritableError` naming the file.
 
     Parameters
     ----------

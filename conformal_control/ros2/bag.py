@@ -20,8 +20,8 @@ record`` writes it, or a bare ``.mcap`` or ``.db3`` file, either storage -- with
 
 Times are the messages' header stamps (integer nanoseconds); a ``MarkerArray`` without
 markers has no header and takes the bag's receive time. Every problem of the bag is one
-line (:class:`~conformal_control.exceptions.DataFormatError`, or
-:class:`~conformal_control.exceptions.InputError` for a topic option that does not fit):
+line (:class:`~conformal_control.core.exceptions.DataFormatError`, or
+:class:`~conformal_control.core.exceptions.InputError` for a topic option that does not fit):
 a missing file, an unreadable bag, no messages, a missing topic or one of another type,
 stamps out of order or repeated, non-finite poses, frames without a transform.
 """
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import DataFormatError, InputError
+from ..core.exceptions import DataFormatError, InputError
 from .types import MARKER_ARRAY, ODOMETRY, PEOPLE, TF_MESSAGE, require_rosbags, typestore
 
 __all__ = ["OdometryTrack", "PeopleTrack", "RecordedBag", "read_bag"]

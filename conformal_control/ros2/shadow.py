@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..exceptions import DataFormatError, InputError
-from ..loop import LoopResult
+from ..core.exceptions import DataFormatError, InputError
+from ..core.loop import LoopResult
 from .bag import RecordedBag, read_bag
 from .types import FLOAT64, TWIST
 

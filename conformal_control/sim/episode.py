@@ -1,6 +1,7 @@
 """One episode of the conformal CBF controller on a scene: build, run, measure.
 
-The data flow of one interval, top to bottom (see :class:`~conformal_control.loop.ConformalLoop`):
+The data flow of one interval, top to bottom (see
+:class:`~conformal_control.core.loop.ConformalLoop`):
 sensor -> predictor -> per control instant: constraints from the barrier + lambda -> QP ->
 double-integrator dynamics; at the next sampling time: truth -> loss -> lambda update.
 Building is :func:`~conformal_control.flagship.build.build_flagship`; running is a backend
@@ -12,14 +13,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from ..core.exceptions import InputError
+from ..core.loop import IntervalLog
+from ..core.spec import RunSpec
 from ..data.scene import Scene
 from ..engines.batch import as_run_spec, run_single
 from ..engines.loop import run_loop
-from ..exceptions import InputError
 from ..flagship.build import RoleSpec, build_flagship
-from ..loop import IntervalLog
 from ..results.episode import EpisodeResult
-from ..spec import RunSpec
 
 __all__ = ["EpisodeResult", "run_episode"]
 
@@ -39,19 +40,19 @@ def run_episode(
     ----------
     scene : Scene
     spec : RunSpec, Predictor or str
-        The run (:class:`~conformal_control.spec.RunSpec`; the keyword settings below are
+        The run (:class:`~conformal_control.core.spec.RunSpec`; the keyword settings below are
         applied on it), or its predictor: an instance or a registered name (built with
         ``predictor_params``).
     params : dict
         Parameter overrides (see ``conformal-control params``), in the unit system
         ``units`` says.
     on_interval : callable, optional
-        Called with each scored :class:`~conformal_control.loop.IntervalLog` (progress).
+        Called with each scored :class:`~conformal_control.core.loop.IntervalLog` (progress).
     extra_config : dict, optional
         Merged into the result's configuration (``config.json``).
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`), as follows.
+        <conformal_control.core.spec.RunSpec.from_settings>`), as follows.
 
         - ``units`` ({"scene", "si"}):
           ``"scene"``: dimensional parameters are typed in the scene's units (SDD: pixels and
@@ -87,7 +88,7 @@ def run_episode(
           written as ``animation.npz``; see :mod:`conformal_control.results.record`).
         - ``engine`` ({"auto", "loop", "batch"}):
           How the episode is run. ``"loop"``: the generic
-          :class:`~conformal_control.loop.ConformalLoop`, one chain of Python calls per
+          :class:`~conformal_control.core.loop.ConformalLoop`, one chain of Python calls per
           control instant, for any configuration. ``"batch"``: the compiled engine of
           :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
           configurations :func:`~conformal_control.engines.batch.supports` accepts (the
@@ -101,7 +102,7 @@ def run_episode(
     ------
     InputError
         For a run with a robots section (``robots=3``, ``starts=``, a
-        :class:`~conformal_control.spec.RunSpec` read from a multi-robot ``config.json``):
+        :class:`~conformal_control.core.spec.RunSpec` read from a multi-robot ``config.json``):
         one robot runs here, several with :func:`~conformal_control.sim.multi.run_multi`.
     """
     run = as_run_spec(spec, params, **settings)

@@ -3,7 +3,7 @@
 Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
-is shared) and driven by its own :class:`~conformal_control.loop.ConformalStepper`. Each
+is shared) and driven by its own :class:`~conformal_control.core.loop.ConformalStepper`. Each
 senses the pedestrians and the other robots through its own sensor in the shared world
 (:class:`~conformal_control.world.multi.MultiRobotWorld`), which types the robots as
 robots, and learns its own lambda from its own losses.
@@ -50,9 +50,10 @@ import numpy as np
 
 from ..cbf.feasibility import feasibility_floor
 from ..cbf.reciprocal import RECIPROCITY, Reciprocity
+from ..core.loop import ConformalStepper
+from ..core.spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
 from ..data.scene import Scene
 from ..flagship.build import Flagship, build_flagship
-from ..loop import ConformalStepper
 from ..results.episode import RobotResult
 from ..results.measure import episode_config, jsonable, measure
 from ..results.multi_metrics import (
@@ -65,7 +66,6 @@ from ..results.multi_metrics import (
 )
 from ..results.multi_record import multi_record
 from ..results.rundir import csv_cell, finite_or_none
-from ..spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
 from ..world.multi import MultiRobotWorld
 
 __all__ = [
@@ -195,8 +195,8 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
     """
     import difflib
 
-    from ..exceptions import InputError
-    from ..fileio import read_limited
+    from ..core.exceptions import InputError
+    from ..core.fileio import read_limited
 
     p = Path(path)
     try:
@@ -380,7 +380,7 @@ def run_multi(
     scene : Scene
     robots : int or RunSpec, optional
         Number of robots (1 to :data:`MAX_ROBOTS`), placed by ``layout``; or give
-        ``starts`` and ``goals``. Or the run (:class:`~conformal_control.spec.RunSpec`,
+        ``starts`` and ``goals``. Or the run (:class:`~conformal_control.core.spec.RunSpec`,
         its ``robots`` section saying where they go; the settings below apply on it).
     extra_config : dict, optional
         Merged into the configuration (``config.json``).
@@ -388,7 +388,7 @@ def run_multi(
         When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`), the robots section's included:
+        <conformal_control.core.spec.RunSpec.from_settings>`), the robots section's included:
 
         - ``starts``, ``goals`` (array-like, optional):
           Explicit tasks (m): starts ``(M, 2)``; goals ``(M, 2)`` or one ``(G, 2)`` list of
@@ -676,7 +676,7 @@ def set_reciprocity(
         How the ``lambda_search`` fallback treats the rows without slack.
     peer_horizon : float, optional
         Planning families: how far ahead (s) the peers' lines bind a plan (default
-        :data:`~conformal_control.spec.PEER_HORIZON_S`; None: all of it).
+        :data:`~conformal_control.core.spec.PEER_HORIZON_S`; None: all of it).
     coordination : {"none", "yield"}
         Whether a robot whose robot rows gave way broadcasts that it yields.
     priority : {"pedestrians", "robots"}
@@ -718,7 +718,7 @@ def drive(
     (:meth:`~conformal_control.world.multi.MultiRobotWorld.broadcast`: seen by the others
     at the next control instant).
 
-    The loop of :class:`~conformal_control.loop.ConformalLoop` for each robot, all robots
+    The loop of :class:`~conformal_control.core.loop.ConformalLoop` for each robot, all robots
     stepping together: at a sampling time each robot under way senses and begins an
     interval; at each control instant each decides with its own lambda and the world
     applies all the decisions at once; at the next sampling time each scores its interval
@@ -821,7 +821,7 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
     Every file is written atomically (temporary name, then rename), the fleet's
     ``metrics.json`` last; a write error names the file.
     """
-    from ..fileio import atomic_write, atomic_write_json, atomic_write_text
+    from ..core.fileio import atomic_write, atomic_write_json, atomic_write_text
     from ..results.rundir import csv_text
 
     out = Path(out)

@@ -72,7 +72,7 @@ def _slow_predictor(name: Any) -> str | None:
     does not compile (any but constant_velocity and oracle) in this process, one episode
     after another, so only predictors marked ``fast`` are batched; a slow one predicts in
     parallel on the pool's workers."""
-    from .. import registry
+    from ..core import registry
 
     if not isinstance(name, str) or name in ("constant_velocity", "oracle"):
         return None  # an instance: supports() says why not

@@ -37,9 +37,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from ..fileio import TMP_PREFIX as _TMP_PREFIX
-from ..fileio import TMP_SUFFIX as _TMP_SUFFIX
-from ..fileio import atomic_write
+from ..core.fileio import TMP_PREFIX as _TMP_PREFIX
+from ..core.fileio import TMP_SUFFIX as _TMP_SUFFIX
+from ..core.fileio import atomic_write
 
 __all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record", "record_problem"]
 

@@ -221,12 +221,12 @@ class _NoBar:
 
 
 class _Report:
-    """The sweep's progress (:func:`conformal_control.progress.progress`): a bar on a
+    """The sweep's progress (:func:`conformal_control.core.progress.progress`): a bar on a
     terminal, and where the output is redirected (a log file, ``nohup``, CI) a line every
     10 s with the runs done, the time so far and the time left; no thread either way."""
 
     def __init__(self, total: int, initial: int) -> None:
-        from ..progress import progress
+        from ..core.progress import progress
 
         self._report = progress(total, "sweep", "runs", initial=initial)
 

@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..exceptions import InputError
-from ..spec import OPTION_FIELDS, ROLE_FIELDS, RunSpec
+from ..core.exceptions import InputError
+from ..core.spec import OPTION_FIELDS, ROLE_FIELDS, RunSpec
 
 __all__ = [
     "MAX_RUNS",
@@ -75,7 +75,7 @@ RESERVED_KEYS = (
     "label",
     "meta",
 )
-#: Keys of the run specification (:class:`~conformal_control.spec.RunSpec`) a run
+#: Keys of the run specification (:class:`~conformal_control.core.spec.RunSpec`) a run
 #: configuration holds as they are, under ``episode`` (roles by name and their parameters,
 #: the rule, the unit system, the crowd, the family, lambda_safe, the engine); they enter
 #: the run key. Derived from the specification's fields: the predictor, ``learn``,
@@ -183,7 +183,7 @@ class RunConfig:
         ValueError
             For a missing scene, an unknown key or a badly typed reserved value.
         """
-        from ..spec import PARAMETERS
+        from ..core.spec import PARAMETERS
 
         flat = dict(flat)
         pp = dict(flat.pop("predictor_params", None) or {})
@@ -253,7 +253,7 @@ def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
 
 
 def run_spec(cfg: Mapping[str, Any], max_frames: int | None = None) -> RunSpec:
-    """The :class:`~conformal_control.spec.RunSpec` of a run configuration
+    """The :class:`~conformal_control.core.spec.RunSpec` of a run configuration
     (:meth:`RunConfig.as_dict`); ``max_frames`` is the limit when the configuration sets
     none (a benchmark scenario's time limit)."""
     return RunSpec.from_settings(

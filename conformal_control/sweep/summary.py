@@ -42,7 +42,7 @@ def summary_axes(rows: Sequence[Mapping[str, Any]]) -> tuple[str | None, str | N
     rows : list of dict
         Flat result rows of the ok runs (``ResultsStore.rows``).
     """
-    from ..spec import PARAMETERS
+    from ..core.spec import PARAMETERS
 
     cols: list[str] = []
     for r in rows:

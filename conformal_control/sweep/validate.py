@@ -48,7 +48,7 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
     scenes : dict, optional
         Cache of loaded scenes (or the errors loading them) shared between calls.
     """
-    from .. import registry
+    from ..core import registry
     from ..flagship.params import resolve_params
     from .worker import cached_scene
 

@@ -75,10 +75,10 @@ from ..cbf.controller import ControlState
 from ..cbf.loss import CBFTruth
 from ..cbf.reciprocal import INFORMATION, PeerView, pair_shares
 from ..cbf.roles import Dynamics
+from ..core.spec import ROBOT_CHOICES
 from ..crowds.crowd import Crowd
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from ..spec import ROBOT_CHOICES
 from .replay import FrameLog
 
 __all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..base import param_names
 from ..cbf.loss import CBFTruth
+from ..core import registry
+from ..core.base import param_names
 from ..crowds.crowd import Crowd, model_names
 from ..data.scene import Scene
 from ..predictors.base import PredictionQuery, TruthUnavailableError

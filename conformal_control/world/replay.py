@@ -8,10 +8,10 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm, Environment, first_test_instance
 from ..cbf.controller import ConformalCBFController, ControlState
 from ..cbf.loss import CBFTruth
 from ..cbf.roles import Dynamics
+from ..core.base import CompiledForm, Environment, first_test_instance
 from ..data.scene import Scene, SparseTracks
 from ..predictors.base import PredictionQuery
 

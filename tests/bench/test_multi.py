@@ -257,8 +257,8 @@ def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
 
 def test_the_base_run_gives_predictor_seed_and_the_robots_information():
     from conformal_control.bench.multi import multi_bench_base
-    from conformal_control.exceptions import InputError
-    from conformal_control.spec import Robots, RunSpec
+    from conformal_control.core.exceptions import InputError
+    from conformal_control.core.spec import Robots, RunSpec
 
     assert multi_bench_base(None) == ("constant_velocity", 0, "plan", "pedestrians", {})
     base = RunSpec(

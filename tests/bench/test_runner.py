@@ -137,8 +137,8 @@ def test_tune_run_report_end_to_end(tmp_path: Path, data_root: Path, capsys) -> 
 
 def test_the_base_run_gives_predictor_crowd_seed_and_si_parameters_only() -> None:
     from conformal_control.bench.runner import bench_base
-    from conformal_control.exceptions import InputError
-    from conformal_control.spec import RunSpec
+    from conformal_control.core.exceptions import InputError
+    from conformal_control.core.spec import RunSpec
 
     assert bench_base(None) == ("constant_velocity", {}, "replay", {}, 0, {})
     base = RunSpec(
@@ -191,7 +191,7 @@ def test_bench_run_warns_when_the_tuned_split_is_reported(
     import warnings
 
     from conformal_control.bench.runner import check_tuned_split, load_tuned
-    from conformal_control.exceptions import TunedOnReportedSplitWarning
+    from conformal_control.core.exceptions import TunedOnReportedSplitWarning
 
     tuned = load_tuned(_tuned_file(tmp_path, tuned_on), "crossings-v2")
     with warnings.catch_warnings(record=True) as seen:

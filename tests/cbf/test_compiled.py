@@ -7,7 +7,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control import registry
 from conformal_control.cbf import (
     APFBarrier,
     AttractiveField,
@@ -18,6 +17,7 @@ from conformal_control.cbf import (
 )
 from conformal_control.cbf import kernels2d as k
 from conformal_control.cbf.reciprocal import Reciprocity
+from conformal_control.core import registry
 from conformal_control.flagship.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 

@@ -382,8 +382,8 @@ def test_filter_counts_the_rule_deciding_alone() -> None:
 # ------------------------------------------------------------------------------ lambda's floor
 def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
     from conformal_control.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
-    from conformal_control.exceptions import InputError
     from conformal_control.flagship.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
@@ -405,8 +405,8 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
 
 
 def test_the_escape_margin_is_a_run_parameter() -> None:
+    from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
-    from conformal_control.exceptions import InputError
     from conformal_control.flagship.build import build_flagship
 
     scene = load_scene("crossing", seed=0)

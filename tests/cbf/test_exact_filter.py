@@ -11,7 +11,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from conformal_control import registry
 from conformal_control.cbf import (
     APFBarrier,
     ConformalConstraint,
@@ -19,6 +18,7 @@ from conformal_control.cbf import (
     QPSafetyFilter,
     VelocityFilter,
 )
+from conformal_control.core import registry
 
 BACKENDS = [
     cls

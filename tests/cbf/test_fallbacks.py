@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, nnls
 
-from conformal_control import registry
 from conformal_control.cbf import (
     Exact2DSafetyFilter,
     Fallback,
@@ -19,6 +18,7 @@ from conformal_control.cbf import (
     Relax,
 )
 from conformal_control.cbf.fallbacks import GoalAware
+from conformal_control.core import registry
 from conformal_control.testing import check_fallback
 
 BACKENDS = [QPSafetyFilter, Exact2DSafetyFilter]

@@ -14,8 +14,8 @@ from conformal_control.cbf import (
     CBFTruth,
     ConformalConstraint,
 )
+from conformal_control.core.update_rules import FixedEtaRule
 from conformal_control.sim import run_episode
-from conformal_control.update_rules import FixedEtaRule
 
 
 def s(lam: float, c: float) -> float:

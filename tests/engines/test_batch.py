@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from conformal_control.core.exceptions import NoUpdatesWarning
 from conformal_control.data import load_scene
 from conformal_control.engines.batch import iter_batch, run_batch, supports
-from conformal_control.exceptions import NoUpdatesWarning
 from conformal_control.sim import run_episode
 
 
@@ -194,8 +194,8 @@ def test_supported_configuration_and_clear_error(crossings):
 def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     """Capability, not a list of names: a subclass inherits no declaration (it may compute
     something else); one that declares the compiled counterpart runs compiled."""
-    from conformal_control import registry
     from conformal_control.cbf.barriers import APFBarrier
+    from conformal_control.core import registry
 
     class Tweaked(APFBarrier):
         """An APF barrier computing something else."""
@@ -219,9 +219,9 @@ def test_a_third_party_barrier_runs_compiled_through_its_compiled_form(crossing)
     """A barrier of its own class (no APFBarrier subclass) that declares the ``apf`` form
     and hands its constants over runs in the compiled engine, with the same result as the
     loop running its own evaluate()."""
-    from conformal_control import registry
     from conformal_control.cbf.barriers import APFBarrier, APFForm
     from conformal_control.cbf.roles import Barrier
+    from conformal_control.core import registry
 
     class OwnAPF(Barrier, compiled="apf", run_values=APFBarrier.capabilities.run_values):
         """The APF barrier written by someone else (same arithmetic, own class).

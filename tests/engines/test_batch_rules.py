@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control import registry
 from conformal_control.cbf.controller import PredictorError
 from conformal_control.cbf.loss import CBFGapLoss
+from conformal_control.core import registry
 from conformal_control.data import load_scene
 from conformal_control.engines.batch import _GapLossAt, run_batch, supports
 from conformal_control.predictors.base import Forecast, Predictor

@@ -106,7 +106,7 @@ def test_batch_reason(cfg, plot, words):
 
 
 def test_batch_reason_batches_compiled_and_fast_predictors_only():
-    from conformal_control import registry
+    from conformal_control.core import registry
     from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 
     class Slow(ConstantVelocityPredictor, batchable=False):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control.exceptions import OutputNotWritableError
+from conformal_control.core.exceptions import OutputNotWritableError
 from conformal_control.export.destination import (
     check_destination,
     safe_output,

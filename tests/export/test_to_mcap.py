@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from conformal_control.exceptions import DataFormatError
+from conformal_control.core.exceptions import DataFormatError
 from conformal_control.export import export_run, read_run
 
 

@@ -9,9 +9,9 @@ import pickle
 import numpy as np
 import pytest
 
-from conformal_control import registry
 from conformal_control.cbf.controller import ControlState
 from conformal_control.cbf.dynamics import Unicycle
+from conformal_control.core import registry
 from conformal_control.mpc import FCPMPC, FieldCalibration, FieldConstraint, Sampling
 from conformal_control.mpc.fcp import FieldMiscoverageLoss
 from conformal_control.mpc.fieldcp import (

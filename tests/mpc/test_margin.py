@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control import registry
 from conformal_control.cbf.controller import CBFIntervalRecord
 from conformal_control.cbf.interp import interpolate_at_substeps
 from conformal_control.cbf.loss import CBFTruth
+from conformal_control.core import registry
 from conformal_control.mpc.margin import MarginMiscoverageLoss, clearance_errors
 
 DT, SUB = 0.4, 4

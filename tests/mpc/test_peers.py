@@ -9,9 +9,10 @@ from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.cbf.reciprocal import PeerView, Reciprocity
 from conformal_control.cbf.reference import AttractiveField
 from conformal_control.cbf.safety_losses import DistanceShortfallLoss
+from conformal_control.core.loop import ConformalStepper
+from conformal_control.core.update_rules.fixed_eta import FixedEtaRule
 from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
-from conformal_control.loop import ConformalStepper
 from conformal_control.mpc.controller import SamplingMPC
 from conformal_control.mpc.peers import (
     near_steps,
@@ -23,7 +24,6 @@ from conformal_control.mpc.peers import (
 from conformal_control.mpc.settings import Limits, Sampling
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 from conformal_control.sim.multi import drive
-from conformal_control.update_rules.fixed_eta import FixedEtaRule
 from conformal_control.world.multi import MultiRobotWorld
 
 

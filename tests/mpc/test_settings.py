@@ -9,10 +9,10 @@ import warnings
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.base import flat_params
 from conformal_control.cbf import StepwiseCBF, Stream
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.core import registry
+from conformal_control.core.base import flat_params
 from conformal_control.mpc import (
     ACPMPC,
     ECPMPC,

@@ -111,7 +111,7 @@ def test_animation_record_content(crossing):
 def test_a_frame_too_narrow_to_read_is_warned() -> None:
     import warnings
 
-    from conformal_control.exceptions import SuspiciousValueWarning
+    from conformal_control.core.exceptions import SuspiciousValueWarning
     from conformal_control.plotting.animation import LEGIBLE_WIDTH_PX, frame_size
 
     with pytest.warns(SuspiciousValueWarning, match=r"480 x 216 px .* use --dpi 90 or more"):

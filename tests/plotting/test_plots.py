@@ -103,7 +103,7 @@ def test_distance_axis_clips_a_spike_and_says_so():
 
 
 def _monitor(rule, losses, **kw):
-    from conformal_control.monitor import GuaranteeMonitor
+    from conformal_control.core.monitor import GuaranteeMonitor
 
     m = GuaranteeMonitor.for_rule(rule, **kw)
     for x in losses:
@@ -112,8 +112,8 @@ def _monitor(rule, losses, **kw):
 
 
 def test_guarantee_plot_keeps_bounds_in_the_loss_range():
+    from conformal_control.core.update_rules import FixedEtaRule, PIDRule
     from conformal_control.plotting import plot_guarantee
-    from conformal_control.update_rules import FixedEtaRule, PIDRule
 
     losses = np.random.default_rng(0).uniform(-0.1, 0.1, 60)
     # fixed step with lambda_safe: the Theorem-2 bound ends inside the axes
@@ -150,9 +150,9 @@ def test_guarantee_plot_keeps_bounds_in_the_loss_range():
 def test_guarantee_plot_per_agent():
     """lambda per agent: one point per agent (hollow under 10 losses), each agent's bound,
     the clipped agents ringed, one lambda line per agent and the floor."""
-    from conformal_control.monitor import AgentMonitor
+    from conformal_control.core.monitor import AgentMonitor
+    from conformal_control.core.update_rules import FixedEtaRule
     from conformal_control.plotting import plot_guarantee
-    from conformal_control.update_rules import FixedEtaRule
 
     rule = FixedEtaRule(epsilon=0.0, eta=1.0, lambda_min=-0.3)
     m = AgentMonitor.for_rule(rule, lambda_safe=-0.2)

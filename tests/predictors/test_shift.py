@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control import registry
+from conformal_control.core import registry
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 from conformal_control.predictors.shift import (
     DelayedPredictor,

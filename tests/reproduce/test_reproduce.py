@@ -142,7 +142,7 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
 
 def test_auto_executor_runs_fast_predictors_in_process() -> None:
     """reproduce's default executor: serial for fast predictors, a process pool else."""
-    from conformal_control import registry
+    from conformal_control.core import registry
 
     assert all(
         registry.get("predictor", n).capabilities.batchable

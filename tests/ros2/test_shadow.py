@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conformal_control.cbf.stepwise import StepwiseCBF, Stream
-from conformal_control.exceptions import DataFormatError, InputError
+from conformal_control.core.exceptions import DataFormatError, InputError
 from conformal_control.ros2.shadow import COLUMNS, shadow
 
 

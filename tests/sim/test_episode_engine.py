@@ -161,7 +161,7 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
 
 
 def test_warnings_point_at_the_caller(crossing):
-    from conformal_control.exceptions import FeasibilityWarning
+    from conformal_control.core.exceptions import FeasibilityWarning
 
     for engine in ("auto", "loop"):
         with pytest.warns(FeasibilityWarning) as caught:

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.exceptions import InputError
+from conformal_control.core.exceptions import InputError
+from conformal_control.core.spec import ROBOT_FIELDS, Robots, RunSpec
 from conformal_control.sim.multi import run_multi
-from conformal_control.spec import ROBOT_FIELDS, Robots, RunSpec
 
 
 @pytest.mark.parametrize(

@@ -247,7 +247,7 @@ def test_a_failed_table_write_names_the_file_and_keeps_the_old_table(
 ) -> None:
     import errno
 
-    from conformal_control.exceptions import OutputNotWritableError
+    from conformal_control.core.exceptions import OutputNotWritableError
 
     store = ResultsStore(tmp_path)
     store.append(rec("a", status="ok", metrics={"x": 1.0}))

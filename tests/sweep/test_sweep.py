@@ -398,7 +398,7 @@ def test_progress_is_reported_in_lines_when_the_output_is_redirected(
     """The issue: `bench tune` with its output redirected printed nothing for a minute (the
     bar was for terminals only). Redirected (here: captured), a sweep prints a line per
     period with the runs done and the time left, and a last line; no carriage return."""
-    import conformal_control.progress as progress_mod
+    import conformal_control.core.progress as progress_mod
 
     monkeypatch.setattr(progress_mod, "DELAY", 0.0)
     monkeypatch.setattr(progress_mod, "EVERY", 0.0)

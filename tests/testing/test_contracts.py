@@ -10,8 +10,6 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.base import DecisionFamily, Environment, Loss, UpdateRule
 from conformal_control.cbf import (
     APFBarrier,
     CBFGapLoss,
@@ -20,6 +18,9 @@ from conformal_control.cbf import (
     QPSafetyFilter,
 )
 from conformal_control.cbf.roles import Barrier, SafetyFilter
+from conformal_control.core import registry
+from conformal_control.core.base import DecisionFamily, Environment, Loss, UpdateRule
+from conformal_control.core.update_rules import FixedEtaRule
 from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
 from conformal_control.domains.intervals import ConformalDisc, PedestrianSeries
 from conformal_control.predictors import ConstantVelocityPredictor
@@ -74,7 +75,6 @@ from conformal_control.testing.safety_filter import (
     check_safety_filter_infeasible_reported,
 )
 from conformal_control.testing.update_rule import check_update_rule_monotone
-from conformal_control.update_rules import FixedEtaRule
 from conformal_control.world.replay import ReplayEnvironment
 
 # ------------------------------------------------------------------ built-ins failing today
@@ -112,7 +112,7 @@ def test_discovery_finds_every_builtin_environment_and_family():
     assert {FactoryEnvironment, PedestrianSeries, ReplayEnvironment} <= set(BUILTIN_GENERIC)
     assert {MachineSpeed, ConformalDisc, ConformalCBFController} <= set(BUILTIN_GENERIC)
     # abstract bases and classes defined outside the package are left out
-    from conformal_control.base import SingleStepEnvironment
+    from conformal_control.core.base import SingleStepEnvironment
 
     assert SingleStepEnvironment not in BUILTIN_GENERIC
     assert all(c.__module__.startswith("conformal_control.") for c in BUILTIN_GENERIC)

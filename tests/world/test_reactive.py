@@ -7,7 +7,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control import registry
 from conformal_control.cbf import (
     APFBarrier,
     AttractiveField,
@@ -18,10 +17,11 @@ from conformal_control.cbf import (
 )
 from conformal_control.cbf.controller import PredictorError
 from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.core import registry
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import FixedEtaRule
 from conformal_control.flagship.params import resolve_params
-from conformal_control.loop import ConformalLoop
 from conformal_control.predictors.base import TruthUnavailableError
-from conformal_control.update_rules import FixedEtaRule
 from conformal_control.world.reactive import (
     ReactiveEnvironment,
     make_environment,

@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ... import registry
-from ...spec import parameter_info
+from ...core import registry
+from ...core.spec import parameter_info
 from ..fallbacks import resolve_fallback
 from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep, SafetyFilter
 from ..speed import speed_polygon

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ...base import CompiledForm
+from ...core.base import CompiledForm
 from ..constraint import time_to_contact
 from ..fallbacks import Brake, Hold, LambdaSearch, resolve_fallback
 from ..roles import EscapeRows, Fallback, FilterResult, InfeasibleStep

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from ...exceptions import ConformalControlError, InputError
+from ...core.exceptions import ConformalControlError, InputError
 from .base import Executor, Outcome
 
 __all__ = ["CONNECT_TIMEOUT_S", "DaskExecutor", "SchedulerUnreachableError"]
@@ -65,7 +65,7 @@ def _distributed() -> Any:
         raise ImportError(
             "the dask executor needs dask.distributed: pip install 'conformal-control[sweep]'"
         ) from exc
-    from ...progress import is_quiet
+    from ...core.progress import is_quiet
 
     if is_quiet():  # -q: a lost scheduler is one line of the sweep's summary, not a traceback
         import logging

@@ -11,7 +11,7 @@ finishes within ``delay`` prints nothing in either mode.
 :func:`note` prints a one-line message about what is happening (e.g. which data a
 predictor is being trained on). Both are silenced by :func:`set_quiet` (the CLI's
 ``--quiet``) or ``CONFORMAL_CONTROL_QUIET=1``; ``CONFORMAL_CONTROL_PROGRESS=bar|lines|off``
-forces a mode. Warnings are not affected (see :mod:`conformal_control.exceptions`).
+forces a mode. Warnings are not affected (see :mod:`conformal_control.core.exceptions`).
 """
 
 from __future__ import annotations

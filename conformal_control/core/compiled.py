@@ -4,7 +4,8 @@ Every compiled kernel of the package is decorated with ``njit(...)`` from here: 
 ``njit`` with ``cache=True``. The first use on a machine compiles for a few seconds and
 writes the machine code beside the sources (``__pycache__``) or under
 ``$NUMBA_CACHE_DIR``; later processes load it. numba turns three states of that cache into
-errors that stop any command; here each is a :class:`~conformal_control.exceptions.CacheWarning`
+errors that stop any command; here each is a
+:class:`~conformal_control.core.exceptions.CacheWarning`
 (once per kind and process, naming the first function concerned) and a fallback:
 
 * **no writable cache location** (a read-only install without a writable home; numba:

@@ -17,7 +17,7 @@ through the same loop). One interval, top to bottom::
 
 With ``lambda_per="agent"`` lambda is a vector indexed by agent: after ``begin_interval``
 the family names the interval's agents (``family.lambda_keys()``), each gets its entry
-(a new one at the prior, see :class:`~conformal_control.monitor.AgentMonitor`), the
+(a new one at the prior, see :class:`~conformal_control.core.monitor.AgentMonitor`), the
 family decides with the vector, the loss is split by agent (``loss.components``) and
 each entry is updated by its own copy of the rule from its own loss. With one agent this
 is the scalar loop, bit for bit.
@@ -342,7 +342,7 @@ class ConformalStepper:
         One lambda for the run (the paper's), or one per agent: the family then decides
         with a vector indexed by its ``lambda_keys()`` and each entry learns from its
         agent's own loss (``loss.components``), see
-        :class:`~conformal_control.monitor.AgentMonitor`.
+        :class:`~conformal_control.core.monitor.AgentMonitor`.
     lambda_prior : float
         Per agent: the quantile in [0, 1] of the current lambdas a new agent starts at.
     """
@@ -527,7 +527,7 @@ class ConformalLoop(ConformalStepper):
         Where ``lambda_safe`` came from, reported with the verdict.
     lambda_safe_proven : bool
         lambda <= lambda_safe provably keeps the loss <= epsilon for this family (see
-        :class:`~conformal_control.monitor.GuaranteeMonitor`).
+        :class:`~conformal_control.core.monitor.GuaranteeMonitor`).
     on_interval : callable, optional
         Called with each :class:`IntervalLog` as soon as the interval is scored.
     lambda_per : {"run", "agent"}

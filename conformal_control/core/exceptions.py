@@ -4,7 +4,7 @@ Warnings are raised with :func:`warnings.warn` and are all subclasses of
 :class:`ConformalControlWarning`, so a script can silence or escalate them as a group::
 
     import warnings
-    from conformal_control.exceptions import ConformalControlWarning
+    from conformal_control.core.exceptions import ConformalControlWarning
 
     warnings.simplefilter("error", ConformalControlWarning)   # make every one an error
 

@@ -2,11 +2,11 @@
 
 Every role has an entry-point group named after it (``conformal_control.predictors``,
 ``conformal_control.barriers``, ...; :data:`ROLES` maps each role to its group). A role's
-name is the one a run uses everywhere: the :class:`~conformal_control.spec.RunSpec`
+name is the one a run uses everywhere: the :class:`~conformal_control.core.spec.RunSpec`
 field, the ``config.json`` key and the command line's option (``rule`` / ``--rule``,
 ``family`` / ``--family``, ``crowd`` / ``--crowd``). Three groups keep the names they were
 published under, since third-party plugins register under them: ``rule`` is
-``conformal_control.update_rules``, ``family`` is ``conformal_control.families`` and
+``conformal_control.core.update_rules``, ``family`` is ``conformal_control.families`` and
 ``crowd`` is ``conformal_control.crowd_models``. The role names of 0.2 (``update_rule``,
 ``decision_family``, ``crowd_model``) are still accepted, with a ``DeprecationWarning``.
 Our own core plugins are declared in our ``pyproject.toml`` exactly like a third party
@@ -17,7 +17,7 @@ it raises :class:`PluginUnavailableError` instead of breaking ``import conformal
 
 Registering at runtime (tests, notebooks) needs no packaging::
 
-    from conformal_control import registry
+    from conformal_control.core import registry
 
     @registry.register("predictor", "my_model")
     class MyPredictor(Predictor): ...
@@ -73,8 +73,8 @@ ROLES: dict[str, str] = {
     "barrier": "conformal_control.barriers",
     "safety_filter": "conformal_control.safety_filters",
     "fallback": "conformal_control.fallbacks",
-    "loss": "conformal_control.losses",
-    "rule": "conformal_control.update_rules",
+    "loss": "conformal_control.core.losses",
+    "rule": "conformal_control.core.update_rules",
     "dynamics": "conformal_control.dynamics",
     "reference": "conformal_control.references",
     "family": "conformal_control.families",
@@ -699,7 +699,7 @@ def check_params(role: str, name: str, cls: type, params: dict[str, Any]) -> Non
         Its class.
     params : dict
         The arguments to check against ``cls``'s constructor: its parameters by name,
-        a :class:`~conformal_control.base.Settings` group's field as ``<group>__<field>``
+        a :class:`~conformal_control.core.base.Settings` group's field as ``<group>__<field>``
         (the group's own fields are checked when it is built), or a former flat name
         the class still maps (``renamed_params``).
     """

@@ -21,7 +21,7 @@ __all__ = [
 
 #: The run values a rule with the paper's parameters takes (``epsilon``, ``eta`` and
 #: lambda's start and bounds, SI): declared by ``fixed_eta``, ``decaying_eta`` and ``pid``
-#: as ``run_values=RULE_RUN_VALUES`` (see :class:`~conformal_control.spec.RunContext`).
+#: as ``run_values=RULE_RUN_VALUES`` (see :class:`~conformal_control.core.spec.RunContext`).
 RULE_RUN_VALUES: dict[str, str] = {
     k: k for k in ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
 }
@@ -48,7 +48,7 @@ def check_epsilon(epsilon: object, bounds: tuple[float, float] = (-0.5, 0.5)) ->
 
     A target at or beyond a bound can never be met on average (the loss never exceeds
     it), so lambda would drift without end. Raises
-    :class:`~conformal_control.exceptions.InputError` (a ``ValueError``) otherwise; the
+    :class:`~conformal_control.core.exceptions.InputError` (a ``ValueError``) otherwise; the
     command line, :func:`conformal_control.run` and
     :class:`~conformal_control.cbf.StepwiseCBF` all check with this function.
     """

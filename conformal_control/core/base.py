@@ -3,7 +3,7 @@
 Conformal decision theory runs a family of decision functions ``D^lambda``, ordered by
 conservativeness, in an environment; after each interval the truth is revealed, a loss
 scores the interval and an update rule moves lambda. Those four roles are all the loop
-(:mod:`conformal_control.loop`) knows:
+(:mod:`conformal_control.core.loop`) knows:
 
 =======================  =============================================================
 ``Environment``          the world: observation at a sampling time, the decision input
@@ -77,7 +77,8 @@ DecisionT = TypeVar("DecisionT")
 TruthT = TypeVar("TruthT")
 RecordT = TypeVar("RecordT")
 
-#: What an update rule guarantees, read by :class:`~conformal_control.monitor.GuaranteeMonitor`:
+#: What an update rule guarantees, read by
+#: :class:`~conformal_control.core.monitor.GuaranteeMonitor`:
 #: ``"identity"`` (fixed step: exact identity + Theorem-2 bound), ``"step_identity"``
 #: (variable step: weighted identity + long-run bound), ``"long_run"`` (a bound on
 #: |mean loss - epsilon|) or ``"none"``.
@@ -88,7 +89,7 @@ LossFunction = Callable[[float], "float | None"]
 
 #: What a loop may run lambda as: ``"run"`` (one lambda for the whole run, the paper's) or
 #: ``"agent"`` (one entry per agent, each learned from that agent's own loss; see
-#: :class:`~conformal_control.monitor.AgentMonitor`).
+#: :class:`~conformal_control.core.monitor.AgentMonitor`).
 LAMBDA_PER: tuple[str, ...] = ("run", "agent")
 
 
@@ -139,7 +140,7 @@ class Capabilities:
         that kernel, reading the constants :meth:`Plugin.compiled_state` hands it).
     run_values : Mapping[str, str]
         Every role: constructor argument -> the documented run value
-        (:data:`~conformal_control.spec.RUN_VALUES`) the run's builder passes for it when
+        (:data:`~conformal_control.core.spec.RUN_VALUES`) the run's builder passes for it when
         the caller did not give it.
     batchable : bool
         Predictor: its forecasts cost a few milliseconds at most per sampling time

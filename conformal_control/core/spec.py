@@ -10,7 +10,7 @@ parameters is derived from it: :data:`PARAMETERS` (name -> (default, doc), what
 (the SI range outside which a bare number is reported as suspicious).
 
 This module imports nothing of the package but the exceptions and the generic core
-(:mod:`~conformal_control.base`), so every floor of the house can read the table and the
+(:mod:`~conformal_control.core.base`), so every floor of the house can read the table and the
 specification.
 """
 
@@ -268,7 +268,7 @@ PLAUSIBLE_SI: dict[str, tuple[float, float, str]] = {
 RoleValue = Any
 
 #: The roles of a run, in the order they are reported: the registry's roles
-#: (:data:`conformal_control.registry.ROLES`), by the same names.
+#: (:data:`conformal_control.core.registry.ROLES`), by the same names.
 ROLE_FIELDS: tuple[str, ...] = (
     "predictor",
     "barrier",
@@ -976,7 +976,7 @@ class RunContext:
     """The values a run hands the plugins it builds, each only to a plugin that asks for it.
 
     A plugin class declares the run values it takes in its capabilities
-    (:attr:`Capabilities.run_values <conformal_control.base.Capabilities.run_values>`:
+    (:attr:`Capabilities.run_values <conformal_control.core.base.Capabilities.run_values>`:
     constructor argument -> one of these field names, e.g. ``{"d_c":
     "barrier_distance"}``); :meth:`arguments` passes exactly those the caller did not give.
     Nothing is passed because an argument happens to share a name with a run value: a

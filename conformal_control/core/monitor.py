@@ -14,7 +14,7 @@ lambda_1 and reports its residual normalised by sum_k eta_k (for a fixed step th
 exactly |mean(l) - epsilon - (lambda_1 - lambda_{K+1})/(eta K)|): ~1e-15 unless lambda was
 clipped. Rules that declare a long-run bound (decaying step, ACI, PID) get
 |mean(l) - epsilon| <= bound checked as well. Which figures apply is read from the rule's
-``guarantee`` kind (see :mod:`conformal_control.update_rules`).
+``guarantee`` kind (see :mod:`conformal_control.core.update_rules`).
 
 Theorem 2 rests on a premise about the decision family, "lambda <= lambda_safe keeps the
 loss <= epsilon", which no arithmetic on the losses can prove. The monitor checks it on

@@ -9,7 +9,7 @@ failed writer removes. The temporary file is created with mode ``0o666`` less th
 like any file ``open(..., "w")`` creates (``tempfile.mkstemp`` would make it ``0600``).
 
 An :class:`OSError` while writing (no space left, permission denied, read-only folder)
-becomes an :class:`~conformal_control.exceptions.OutputNotWritableError` whose message
+becomes an :class:`~conformal_control.core.exceptions.OutputNotWritableError` whose message
 names the file and the reason.
 
 Every reader of a file a user names (``--config``, ``--robots-file``, recorded predictions,
@@ -19,7 +19,7 @@ file's bytes are capped (the cap is stated in the error), and a gzip file is dec
 with a cap on its decompressed size (a 204 KB gzip file held gigabytes of zeros), a corrupt
 one being a one-line error.
 
-It imports nothing from the package but :mod:`conformal_control.exceptions` (layer 1).
+It imports nothing from the package but :mod:`conformal_control.core.exceptions` (layer 1).
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any]) -> 
     ``write`` receives the temporary path (already created, empty) and fills it. The file
     replaces ``path`` only when ``write`` returned; on any failure the temporary file is
     removed and ``path`` is left as it was. An :class:`OSError` is re-raised as
-    :class:`~conformal_control.exceptions.OutputNotWritableError` naming ``path``.
+    :class:`~conformal_control.core.exceptions.OutputNotWritableError` naming ``path``.
     """
     path = Path(path)
     tmp = _temp_path(path)

@@ -10,7 +10,7 @@ that than for its work. So :func:`kernel` defers it:
 
 * ``auto`` (the default): a kernel runs as Python (its ``py_func``) until the process has
   spent :data:`BUDGET_S` seconds of CPU in interpreted kernels, then every kernel is compiled
-  (:func:`conformal_control.compiled.njit` with the kernel's options: numba, loaded from its
+  (:func:`conformal_control.core.compiled.njit` with the kernel's options: numba, loaded from its
   cache, whose problems are warnings) and the rest of the
   process runs compiled. Whatever the amount of work, the process spends at most about twice
   what the better of the two choices would have cost (the rent-or-buy argument: interpret
