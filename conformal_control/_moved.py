@@ -21,6 +21,9 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.export": "conformal_control.io.export",
+    "conformal_control.plotting": "conformal_control.io.plotting",
+    "conformal_control.ros2": "conformal_control.io.ros2",
     "conformal_control.base": "conformal_control.core.base",
     "conformal_control.exceptions": "conformal_control.core.exceptions",
     "conformal_control.progress": "conformal_control.core.progress",

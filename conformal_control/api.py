@@ -10,7 +10,7 @@ system when the scene's own is not SI: ``units="si"`` (metres, seconds) or
 built-in ``crossing``) both mean the same. Everything else is
 :func:`conformal_control.sim.run_episode`.
 
-:func:`shadow` (:func:`conformal_control.ros2.shadow.shadow`) runs the controller over a
+:func:`shadow` (:func:`conformal_control.io.ros2.shadow.shadow`) runs the controller over a
 robot's ROS 2 bag instead: the commands it would have sent.
 """
 
@@ -22,8 +22,8 @@ from typing import Any
 
 from .core.exceptions import InputError
 from .core.spec import PARAMETERS, RunSpec
+from .io.ros2.shadow import shadow
 from .results.episode import EpisodeResult
-from .ros2.shadow import shadow
 
 __all__ = ["run", "shadow"]
 

@@ -161,7 +161,7 @@ LAYERS: dict[str, int] = {
     # worlds and decision problems; figures (read results by duck typing)
     "world": 6,
     "domains": 6,
-    "plotting": 6,
+    "io.plotting": 6,
     # decision families driven in the replay world by their contract checks
     "mpc": 7,
     # wiring one episode; measuring and writing what it produced; the contract kit
@@ -171,11 +171,11 @@ LAYERS: dict[str, int] = {
     # the backends of the loop, then running episodes
     "engines": 9,
     "sim": 10,
-    "ros2": 10,
+    "io.ros2": 10,
     # many episodes, environments for RL, the paper's tables
     "sweep": 11,
     "envs": 11,
-    "export": 11,
+    "io.export": 11,
     "bench": 12,
     "reproduce": 12,
     # the front door and the command line

@@ -211,7 +211,7 @@ def test_a_multi_robot_run_missing_a_robot_is_refused(
 
 
 def test_a_multi_robot_export_keeps_each_robot_s_own_data(multi: Path, tmp_path: Path) -> None:
-    from conformal_control.export import read_run
+    from conformal_control.io.export import read_run
 
     rec = read_run(multi)
     assert [r.name for r in rec.robots] == ["robot_0", "robot_1", "robot_2"]

@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from ..plotting.jobs import FigureJob, draw_all
+from ..io.plotting.jobs import FigureJob, draw_all
 from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_means, paired_comparisons
@@ -791,7 +791,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     )
     # every point named beside it (points that coincide stay readable): Pareto members
     # first and in bold; plotting.labels guarantees no two labels overlap
-    from ..plotting.labels import place_labels
+    from ..io.plotting.labels import place_labels
 
     order = sorted(range(len(v.shown)), key=lambda i: not front[i])
     place_labels(

@@ -462,7 +462,7 @@ def _report(args: argparse.Namespace) -> int:
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
-    from ..plotting.jobs import prepare
+    from ..io.plotting.jobs import prepare
 
     # the figure process imports matplotlib on the other core while the rows are read
     prepare(("conformal_control.bench.report",))

@@ -487,11 +487,13 @@ def _run(args: argparse.Namespace) -> int:
         # the run's modules first: the figure process inherits them (its jobs hold objects
         # of their classes), then it imports matplotlib on the other core during the episode
         from .. import data  # noqa: F401
-        from ..plotting.jobs import prepare, release
+        from ..io.plotting.jobs import prepare, release
         from ..results import rundir  # noqa: F401
         from ..sim import episode  # noqa: F401
 
-        prepare(("conformal_control.plotting.guarantee", "conformal_control.plotting.distance"))
+        prepare(
+            ("conformal_control.io.plotting.guarantee", "conformal_control.io.plotting.distance")
+        )
         try:
             return _run_prepared(args)
         finally:

@@ -1,5 +1,5 @@
 """``conformal-control shadow BAG``: what the conformal controller would have commanded on a
-robot's ROS 2 bag (the work is :func:`conformal_control.ros2.shadow.shadow`)."""
+robot's ROS 2 bag (the work is :func:`conformal_control.io.ros2.shadow.shadow`)."""
 
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def _shadow_args(p: argparse.ArgumentParser) -> None:
 
 @_shadow_args.handler
 def _shadow(args: argparse.Namespace) -> int:
-    from ..ros2.shadow import shadow
+    from ..io.ros2.shadow import shadow
 
     out = check_writable(args.out)
     params = key_values(args.param, "--param")

@@ -454,8 +454,8 @@ def _figures(
     table: PaperTable, rows: list[ReproRow], fig_dir: Path, data_root: str | None
 ) -> list[str]:
     from ..data import load_scene
-    from ..plotting.jobs import FigureJob, draw_all
-    from ..plotting.reproduce import (
+    from ..io.plotting.jobs import FigureJob, draw_all
+    from ..io.plotting.reproduce import (
         plot_lambda_loss_rows,
         plot_lavg_vs_epsilon,
         plot_paths_grid,

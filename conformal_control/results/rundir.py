@@ -159,12 +159,12 @@ def write_run_dir(
         atomic_write(out / "animation.npz", save_npz)
     atomic_write_json(out / "metrics.json", metrics)
     if plot:
-        from ..plotting.jobs import FigureJob, draw_all
-        from ..plotting.run import plot_run
+        from ..io.plotting.jobs import FigureJob, draw_all
+        from ..io.plotting.run import plot_run
 
         jobs: list[FigureJob] = [(plot_run, (result, out / "plot.png"), {})]
         if result.loop is not None and result.loop.monitor.n:
-            from ..plotting.guarantee import plot_guarantee
+            from ..io.plotting.guarantee import plot_guarantee
 
             units = result.scene.units
             kwargs = {

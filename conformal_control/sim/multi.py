@@ -319,7 +319,7 @@ class MultiResult:
         The world per frame: ``frame (F,)``, ``t (F,)``, ``robots (F, M, 2)`` positions
         (robots that reached their goal included), ``active (F, M)``.
     animation : dict or None
-        The record :func:`~conformal_control.plotting.animation.render_animation`
+        The record :func:`~conformal_control.io.plotting.animation.render_animation`
         renders.
     """
 

@@ -208,7 +208,7 @@ class _SignalGuard:
 class _NoBar:
     """The progress bar when it is off: tqdm's first bar, even disabled, starts a monitor
     thread, and a process with a second thread cannot safely fork (figures are drawn on
-    a forked child: :mod:`conformal_control.plotting.jobs`)."""
+    a forked child: :mod:`conformal_control.io.plotting.jobs`)."""
 
     def update(self, n: int = 1) -> None:
         pass

@@ -4,7 +4,7 @@ The horizontal axis is the swept controller parameter (``epsilon`` first, then t
 parameters in the order of ``spec.PARAMETERS``, then predictor parameters, then the
 seed); one line is drawn per value of another swept column with few values (predictor,
 learn, label, scene, another parameter). Runs that share a point - other axes, seeds - are
-averaged with their min-max range shaded (:func:`conformal_control.plotting.sweep.plot_sweep`).
+averaged with their min-max range shaded (:func:`conformal_control.io.plotting.sweep.plot_sweep`).
 """
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ def write_summary_plot(
     (path or None, note)
         The file written, or None with the reason there is nothing to plot.
     """
-    from ..plotting.run import pyplot
-    from ..plotting.sweep import plot_sweep
+    from ..io.plotting.run import pyplot
+    from ..io.plotting.sweep import plot_sweep
     from .results import atomic_write
 
     ok = [dict(r) for r in rows if r.get("status") == "ok"]

@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from conformal_control.core.exceptions import DataFormatError
-from conformal_control.export import export_run, read_run
+from conformal_control.io.export import export_run, read_run
 
 
 def _read(path):

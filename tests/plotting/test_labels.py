@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from conformal_control.plotting.labels import place_labels
+from conformal_control.io.plotting.labels import place_labels
 
 
 def _boxes(fig, texts) -> np.ndarray:

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from conformal_control.plotting import (
+from conformal_control.io.plotting import (
     plot_distance,
     plot_lambda_loss,
     plot_run,
@@ -113,7 +113,7 @@ def _monitor(rule, losses, **kw):
 
 def test_guarantee_plot_keeps_bounds_in_the_loss_range():
     from conformal_control.core.update_rules import FixedEtaRule, PIDRule
-    from conformal_control.plotting import plot_guarantee
+    from conformal_control.io.plotting import plot_guarantee
 
     losses = np.random.default_rng(0).uniform(-0.1, 0.1, 60)
     # fixed step with lambda_safe: the Theorem-2 bound ends inside the axes
@@ -152,7 +152,7 @@ def test_guarantee_plot_per_agent():
     the clipped agents ringed, one lambda line per agent and the floor."""
     from conformal_control.core.monitor import AgentMonitor
     from conformal_control.core.update_rules import FixedEtaRule
-    from conformal_control.plotting import plot_guarantee
+    from conformal_control.io.plotting import plot_guarantee
 
     rule = FixedEtaRule(epsilon=0.0, eta=1.0, lambda_min=-0.3)
     m = AgentMonitor.for_rule(rule, lambda_safe=-0.2)
@@ -306,7 +306,7 @@ def _paths_runs(scene, n):
 def test_reproduction_figures_are_sized_per_panel_and_labelled(crossing, tmp_path):
     from PIL import Image
 
-    from conformal_control.plotting import (
+    from conformal_control.io.plotting import (
         plot_lambda_loss_rows,
         plot_lavg_vs_epsilon,
         plot_paths_grid,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conformal_control.plotting.run import plot_scene, reference_image
+from conformal_control.io.plotting.run import plot_scene, reference_image
 
 
 def _gradient(w: int, h: int) -> np.ndarray:

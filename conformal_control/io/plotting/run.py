@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from ..data.scene import Scene
+    from ...data.scene import Scene
 
 __all__ = ["plot_lambda_loss", "plot_run", "plot_scene", "reference_image"]
 

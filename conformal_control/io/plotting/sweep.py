@@ -82,7 +82,7 @@ def _parameter_columns(rows: Sequence[Mapping[str, Any]], exclude: set[str]) -> 
     column named after a controller parameter is that parameter. A column that names the
     same parameter as one of ``exclude`` (the x axis, the lines) is never another one.
     """
-    from ..core.spec import PARAMETERS
+    from ...core.spec import PARAMETERS
 
     cols = list(dict.fromkeys(k for r in rows for k in r))
     prefixed = any(c.startswith(_PREFIXES) for c in cols)

@@ -18,7 +18,7 @@ __all__ = ["ShadowRun", "plot_shadow"]
 
 class ShadowRun(Protocol):
     """What the figure reads of a shadow-mode result
-    (:class:`~conformal_control.ros2.shadow.ShadowResult` is one; typed by what it holds,
+    (:class:`~conformal_control.io.ros2.shadow.ShadowResult` is one; typed by what it holds,
     so the shadow module and its figure import each other in no direction but one)."""
 
     bag: RecordedBag
@@ -35,7 +35,7 @@ def plot_shadow(res: ShadowRun, path: str | Path | None = None) -> Figure:
     Parameters
     ----------
     res : ShadowRun
-        A shadow-mode result (:class:`~conformal_control.ros2.shadow.ShadowResult`).
+        A shadow-mode result (:class:`~conformal_control.io.ros2.shadow.ShadowResult`).
     path : path, optional
         Where to save the figure (PNG); it is returned either way.
     """

@@ -47,8 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
-from ..core.exceptions import InputError
+from ... import __version__
+from ...core.exceptions import InputError
 from . import foxglove as fg
 from .destination import safe_output
 from .reader import RunRecord, read_run
@@ -313,7 +313,7 @@ def write_mcap(
     run : path or RunRecord
     out : path
         The ``.mcap`` file to write (its folder is created), through
-        :func:`~conformal_control.export.destination.safe_output`: never a file of the run
+        :func:`~conformal_control.io.export.destination.safe_output`: never a file of the run
         directory but an earlier ``.mcap``, never a link or a device.
     start_time : datetime or str, optional
         The date and time the run's ``t = 0`` is shown at (:func:`start_time_ns`); None:

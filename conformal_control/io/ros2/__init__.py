@@ -3,15 +3,15 @@
 Needs the ``ros`` extra (``pip install 'conformal-control[ros]'``: ``rosbags``, pure
 Python); the modules import it on first use.
 
-* :func:`~conformal_control.ros2.bag.read_bag` -- the people and the odometry of a ROS 2
+* :func:`~conformal_control.io.ros2.bag.read_bag` -- the people and the odometry of a ROS 2
   bag (folder, ``.mcap`` or ``.db3``), in one frame;
-* :func:`~conformal_control.ros2.shadow.shadow` -- ``conformal-control shadow``: what the
+* :func:`~conformal_control.io.ros2.shadow.shadow` -- ``conformal-control shadow``: what the
   conformal controller would have commanded on that recording;
-* :class:`~conformal_control.ros2.writer.Recording` -- ROS 2 messages written as a bag
+* :class:`~conformal_control.io.ros2.writer.Recording` -- ROS 2 messages written as a bag
   folder or one MCAP file (the shadow outputs, ``export --schema ros2``);
-* :func:`~conformal_control.ros2.types.typestore` -- the message types, ``people_msgs``
+* :func:`~conformal_control.io.ros2.types.typestore` -- the message types, ``people_msgs``
   registered from its ``.msg`` text;
-* :func:`~conformal_control.ros2.example.scene_bag` -- a robot's bag made from a built-in
+* :func:`~conformal_control.io.ros2.example.scene_bag` -- a robot's bag made from a built-in
   scene (the documentation's example).
 """
 

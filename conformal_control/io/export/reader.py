@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.exceptions import DataFormatError
+from ...core.exceptions import DataFormatError
 
 __all__ = ["RobotTrack", "RunRecord", "read_run"]
 

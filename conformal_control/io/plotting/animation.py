@@ -2,7 +2,7 @@
 
 :func:`render_animation` is the one rendering path: it reads the record, picks the frames,
 lets the view draw them (:func:`robot_frames` for one robot,
-:func:`~conformal_control.plotting.multi_animation.fleet_frames` for several) and writes
+:func:`~conformal_control.io.plotting.multi_animation.fleet_frames` for several) and writes
 them. For one robot, each frame shows the reference image of the scene, the robot with its
 trail and its sensing radius, the pedestrians (those sensed at the last sampling time
 highlighted, with their predicted trajectories over the interval), the constraint status
@@ -224,7 +224,7 @@ def render_animation(
     """
     import imageio.v2 as imageio
 
-    from ..core.progress import track
+    from ...core.progress import track
     from .multi_animation import fleet_frames
     from .run import pyplot
 

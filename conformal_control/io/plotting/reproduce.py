@@ -14,7 +14,7 @@ from .run import plot_scene, pyplot
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ..data.scene import Scene
+    from ...data.scene import Scene
 
 __all__ = ["plot_lambda_loss_rows", "plot_lavg_vs_epsilon", "plot_paths_grid"]
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.exceptions import DataFormatError, InputError
+from ...core.exceptions import DataFormatError, InputError
 from .types import MARKER_ARRAY, ODOMETRY, PEOPLE, TF_MESSAGE, require_rosbags, typestore
 
 __all__ = ["OdometryTrack", "PeopleTrack", "RecordedBag", "read_bag"]

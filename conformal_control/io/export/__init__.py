@@ -1,16 +1,16 @@
 """Runs as files for the tools robotics people use: MCAP for Foxglove, ``.rrd`` for Rerun.
 
 * :func:`export_run` -- ``conformal-control export RUN --format mcap|rerun``;
-* :func:`~conformal_control.export.reader.read_run` -- a run directory as arrays;
-* :func:`~conformal_control.export.to_mcap.write_mcap` -- the MCAP file (Foxglove's JSON
+* :func:`~conformal_control.io.export.reader.read_run` -- a run directory as arrays;
+* :func:`~conformal_control.io.export.to_mcap.write_mcap` -- the MCAP file (Foxglove's JSON
   schemas; needs the ``mcap`` package, a core dependency);
-* :func:`~conformal_control.export.to_rerun.write_rerun` -- the Rerun recording (the
+* :func:`~conformal_control.io.export.to_rerun.write_rerun` -- the Rerun recording (the
   ``rerun`` extra: ``pip install "conformal-control[rerun]"``);
-* :func:`~conformal_control.export.to_ros2.write_ros2_mcap` and
-  :func:`~conformal_control.export.to_ros2.write_ros2_bag` -- the run as ROS 2 messages,
+* :func:`~conformal_control.io.export.to_ros2.write_ros2_mcap` and
+  :func:`~conformal_control.io.export.to_ros2.write_ros2_bag` -- the run as ROS 2 messages,
   one MCAP file (``--schema ros2``) or a bag folder (``--format ros2-bag``) (the ``ros``
   extra);
-* :func:`~conformal_control.export.destination.safe_output` -- the one way every exporter
+* :func:`~conformal_control.io.export.destination.safe_output` -- the one way every exporter
   writes its file: never one of its inputs (a file of the run directory), never through a
   link, never a device, through an exclusively created temporary file.
 """
@@ -80,7 +80,7 @@ def export_run(
     out : path, optional
         The file (a new folder, for ``ros2-bag``) to write; default :func:`default_output`.
         Never a file of the run directory (but an earlier export of the same format), a
-        link or a device (:mod:`conformal_control.export.destination`).
+        link or a device (:mod:`conformal_control.io.export.destination`).
     format : {"mcap", "rerun", "ros2-bag"}
         The file format (``ros2-bag``: a bag folder as ``ros2 bag record`` writes it).
     schema : {"foxglove", "ros2"}

@@ -29,7 +29,7 @@ def frame_size(width: float, dpi: int) -> tuple[int, int]:
     """
     import warnings
 
-    from ..core.exceptions import SuspiciousValueWarning
+    from ...core.exceptions import SuspiciousValueWarning
 
     if not (math.isfinite(width) and width > 0 and dpi > 0):
         raise ValueError(f"width and dpi must be > 0, got width={width!r}, dpi={dpi!r}")

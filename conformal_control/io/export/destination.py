@@ -33,8 +33,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from ..core.exceptions import ConformalControlError, OutputNotWritableError
-from ..core.fileio import write_error
+from ...core.exceptions import ConformalControlError, OutputNotWritableError
+from ...core.fileio import write_error
 
 __all__ = ["check_destination", "safe_output", "safe_output_path"]
 

@@ -7,7 +7,7 @@ another robot, a robot that reached its goal drawn faded; a side panel shows lam
 every robot with a time cursor, and the title counts the collision frames so far. Frames
 are drawn with matplotlib and written as they are drawn (imageio: GIF through Pillow's
 streaming ``GIF-PIL`` writer, so memory stays flat in the number of frames; MP4 through
-imageio-ffmpeg) by :func:`~conformal_control.plotting.animation.render_animation`, the
+imageio-ffmpeg) by :func:`~conformal_control.io.plotting.animation.render_animation`, the
 one rendering path of one robot and of n.
 """
 
@@ -52,7 +52,7 @@ def fleet_frames(
     plt : module
         ``matplotlib.pyplot``.
     width, dpi : float, int
-        As :func:`~conformal_control.plotting.animation.render_animation` takes them.
+        As :func:`~conformal_control.io.plotting.animation.render_animation` takes them.
     trail : float
         Length (s) of the trail drawn behind each robot.
     """

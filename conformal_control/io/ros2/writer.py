@@ -1,7 +1,7 @@
 """Write ROS 2 messages: as a bag folder (``ros2 bag record``'s layout) or one MCAP file.
 
 A :class:`Recording` collects messages (topic, type, time, message object of the
-:func:`~conformal_control.ros2.types.typestore`) and writes them in time order:
+:func:`~conformal_control.io.ros2.types.typestore`) and writes them in time order:
 
 * :meth:`Recording.write_bag`: a rosbag2 folder -- ``metadata.yaml`` and one storage file,
   MCAP (``ros2 bag record``'s default since Iron) or sqlite3 -- with ``rosbags``'

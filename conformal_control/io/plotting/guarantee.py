@@ -10,7 +10,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ..core.monitor import AgentMonitor, GuaranteeMonitor
+    from ...core.monitor import AgentMonitor, GuaranteeMonitor
 
 __all__ = ["plot_agent_guarantee", "plot_guarantee"]
 
@@ -48,7 +48,7 @@ def plot_guarantee(
     lambda_label : str
         The label of lambda's axis.
     """
-    from ..core.monitor import AgentMonitor
+    from ...core.monitor import AgentMonitor
     from .run import SAVE_DPI, png_options, pyplot
 
     if isinstance(monitor, AgentMonitor):

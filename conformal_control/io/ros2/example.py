@@ -67,7 +67,7 @@ def scene_bag(
     Path
         The bag folder; the goal in ``odom`` is the scene's goal minus its start.
     """
-    from ..data.scenes import load_scene
+    from ...data.scenes import load_scene
 
     sc = load_scene(scene)
     rng = np.random.default_rng(seed)

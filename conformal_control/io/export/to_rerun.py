@@ -185,11 +185,11 @@ def write_rerun(run: str | Path | RunRecord, out: str | Path, *, start_time: Any
     run : path or RunRecord
     out : path
         The ``.rrd`` file to write (its folder is created), through
-        :func:`~conformal_control.export.destination.safe_output_path`: never a file of
+        :func:`~conformal_control.io.export.destination.safe_output_path`: never a file of
         the run directory but an earlier ``.rrd``, never a link or a device.
     start_time : datetime or str, optional
         The date and time the run's ``t = 0`` is shown at (the ``time`` timeline is then a
-        timestamp; :func:`~conformal_control.export.to_mcap.start_time_ns`); None: the
+        timestamp; :func:`~conformal_control.io.export.to_mcap.start_time_ns`); None: the
         time since the start (a duration).
 
     Returns

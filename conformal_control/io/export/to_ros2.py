@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ... import __version__
 from .destination import check_destination, safe_output
 from .reader import RunRecord, read_run
 
@@ -73,12 +73,12 @@ def _headings(vx: np.ndarray, vy: np.ndarray) -> np.ndarray:
 
 
 def ros2_recording(rec: RunRecord) -> object:
-    """The run's messages (a :class:`~conformal_control.ros2.writer.Recording`).
+    """The run's messages (a :class:`~conformal_control.io.ros2.writer.Recording`).
 
     Parameters
     ----------
     rec : RunRecord
-        A run read by :func:`~conformal_control.export.reader.read_run`.
+        A run read by :func:`~conformal_control.io.export.reader.read_run`.
     """
     from ..ros2 import writer as w
     from ..ros2.types import FLOAT64, TF_MESSAGE, TWIST, typestore
@@ -247,7 +247,7 @@ def write_ros2_mcap(run: str | Path | RunRecord, out: str | Path) -> Path:
         A run directory or a record read by :func:`read_run`.
     out : path
         The ``.mcap`` file to write (its folder is created), through
-        :func:`~conformal_control.export.destination.safe_output`: never a file of the run
+        :func:`~conformal_control.io.export.destination.safe_output`: never a file of the run
         directory but an earlier ``.mcap``, never a link or a device.
 
     Returns
@@ -300,7 +300,7 @@ def write_ros2_bag(run: str | Path | RunRecord, out: str | Path, *, storage: str
     """
     import shutil
 
-    from ..core.exceptions import OutputNotWritableError
+    from ...core.exceptions import OutputNotWritableError
     from ..ros2.writer import Recording
 
     rec = run if isinstance(run, RunRecord) else read_run(run)

@@ -1,6 +1,6 @@
 """Shadow mode: what the conformal controller would have commanded on a recorded bag.
 
-:func:`shadow` reads a robot's ROS 2 bag (:func:`~conformal_control.ros2.bag.read_bag`),
+:func:`shadow` reads a robot's ROS 2 bag (:func:`~conformal_control.io.ros2.bag.read_bag`),
 feeds its people to a step-wise controller -- :class:`~conformal_control.cbf.StepwiseCBF`
 (``family="cbf"``) or :class:`~conformal_control.mpc.StepwiseMPC` (any registered
 planning family: ``mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``, ``soft_mpc``, a
@@ -45,9 +45,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
-from ..core.exceptions import DataFormatError, InputError
-from ..core.loop import LoopResult
+from ... import __version__
+from ...core.exceptions import DataFormatError, InputError
+from ...core.loop import LoopResult
 from .bag import RecordedBag, read_bag
 from .types import FLOAT64, TWIST
 
@@ -163,7 +163,7 @@ class ShadowResult:
         return folder
 
     def recording(self) -> Any:
-        """The output bag's messages (a :class:`~conformal_control.ros2.writer.Recording`)."""
+        """The output bag's messages (a :class:`~conformal_control.io.ros2.writer.Recording`)."""
         from .writer import Recording, float64, twist
 
         rec = Recording()
@@ -228,7 +228,7 @@ def _interp(t_ns: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.ndar
 
 # ---------------------------------------------------------------------------- controller
 def _controller(family: str, predictor: Any, params: dict[str, Any], tau: float, dt: float) -> Any:
-    from ..cbf.stepwise import StepwiseCBF, Stream
+    from ...cbf.stepwise import StepwiseCBF, Stream
 
     stream_kw = {k: params.pop(k) for k in _STREAM_KEYS if k in params}
     stream_kw.pop("tau", None)
@@ -237,7 +237,7 @@ def _controller(family: str, predictor: Any, params: dict[str, Any], tau: float,
     stream = Stream(tau=tau, dt=dt, **stream_kw)
     if family == "cbf":
         return StepwiseCBF(predictor, stream=stream, **params)
-    from ..mpc.stepwise import StepwiseMPC
+    from ...mpc.stepwise import StepwiseMPC
 
     return StepwiseMPC(predictor, family=family, stream=stream, **params)
 
