@@ -47,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from conformal_control.cbf import (
+from conformal_control.core.jit import compile_now
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -56,7 +57,6 @@ from conformal_control.cbf import (
     Exact2DSafetyFilter,
     QPSafetyFilter,
 )
-from conformal_control.core.jit import compile_now
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ CLOCK = "wall"
 COMPILE_SNIPPET = """
 import time, numpy as np
 t0 = time.perf_counter()
-from conformal_control.cbf import (APFBarrier, AttractiveField, ConformalCBFController,
+from conformal_control.families.cbf import (APFBarrier, AttractiveField, ConformalCBFController,
     ConformalConstraint, ControlState, Exact2DSafetyFilter)
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 t1 = time.perf_counter()
@@ -169,7 +169,7 @@ def bench_compile() -> None:
     print("\ncompiled kernels, first use in a fresh process (numba cache=True):")
     print(
         f"  empty cache (compiles): first reset + 2 steps {c_first:.2f} s "
-        f"(import of conformal_control.cbf {c_imp:.2f} s, process {c_tot:.2f} s wall, "
+        f"(import of conformal_control.families.cbf {c_imp:.2f} s, process {c_tot:.2f} s wall, "
         f"{c_cpu:.2f} s CPU)"
     )
     print(

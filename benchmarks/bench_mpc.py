@@ -52,7 +52,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.cbf import (
+from conformal_control.core.jit import compile_now
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -60,11 +61,10 @@ from conformal_control.cbf import (
     ControlState,
     Exact2DSafetyFilter,
 )
-from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.roles import Dynamics
-from conformal_control.core.jit import compile_now
-from conformal_control.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
-from conformal_control.mpc.kernels import evaluate_numpy
+from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.roles import Dynamics
+from conformal_control.families.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
+from conformal_control.families.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
 DT = 0.4
@@ -84,7 +84,7 @@ class NumpyMPC(SamplingMPC):
     """The same step with numpy arithmetic for the cost/clearance (the baseline)."""
 
     def plan(self, state: ControlState, lam: float) -> Any:  # same code path, numpy kernel
-        import conformal_control.mpc.controller as ctl
+        import conformal_control.families.mpc.controller as ctl
 
         compiled = ctl.evaluate
         ctl.evaluate = evaluate_numpy  # type: ignore[assignment]

@@ -23,15 +23,6 @@ __version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
     from .api import run, shadow
-    from .cbf.roles import (
-        Barrier,
-        Dynamics,
-        Fallback,
-        FilterResult,
-        ReferenceController,
-        SafetyFilter,
-    )
-    from .cbf.stepwise import StepwiseCBF, Stream
     from .core.base import (
         DecisionFamily,
         Environment,
@@ -44,6 +35,15 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
     from .core.monitor import GuaranteeMonitor
     from .core.spec import Parameters, RunSpec
     from .crowds.base import CrowdModel
+    from .families.cbf.roles import (
+        Barrier,
+        Dynamics,
+        Fallback,
+        FilterResult,
+        ReferenceController,
+        SafetyFilter,
+    )
+    from .families.cbf.stepwise import StepwiseCBF, Stream
     from .predictors.base import Forecast, PredictionQuery, Predictor
 
 #: Public names imported on first use: name -> module.
@@ -62,17 +62,17 @@ _LAZY = {
     "shadow": "conformal_control.api",
     "RunSpec": "conformal_control.core.spec",
     "Parameters": "conformal_control.core.spec",
-    "StepwiseCBF": "conformal_control.cbf.stepwise",
-    "Stream": "conformal_control.cbf.stepwise",
+    "StepwiseCBF": "conformal_control.families.cbf.stepwise",
+    "Stream": "conformal_control.families.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
     "Forecast": "conformal_control.predictors.base",
-    "Barrier": "conformal_control.cbf.roles",
-    "SafetyFilter": "conformal_control.cbf.roles",
-    "FilterResult": "conformal_control.cbf.roles",
-    "ReferenceController": "conformal_control.cbf.roles",
-    "Dynamics": "conformal_control.cbf.roles",
-    "Fallback": "conformal_control.cbf.roles",
+    "Barrier": "conformal_control.families.cbf.roles",
+    "SafetyFilter": "conformal_control.families.cbf.roles",
+    "FilterResult": "conformal_control.families.cbf.roles",
+    "ReferenceController": "conformal_control.families.cbf.roles",
+    "Dynamics": "conformal_control.families.cbf.roles",
+    "Fallback": "conformal_control.families.cbf.roles",
     "CrowdModel": "conformal_control.crowds.base",
 }
 

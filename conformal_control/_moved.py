@@ -21,6 +21,9 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.cbf": "conformal_control.families.cbf",
+    "conformal_control.mpc": "conformal_control.families.mpc",
+    "conformal_control.domains": "conformal_control.families.domains",
     "conformal_control.export": "conformal_control.io.export",
     "conformal_control.plotting": "conformal_control.io.plotting",
     "conformal_control.ros2": "conformal_control.io.ros2",

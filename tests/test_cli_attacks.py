@@ -406,7 +406,7 @@ def test_weights_folder_with_a_pickle_runs_no_code(tmp_path: Path, capsys) -> No
 
 # ------------------------------------------------------------------------------ the step-wise API
 def _stepwise(**kw: object) -> object:
-    from conformal_control.cbf import StepwiseCBF, Stream
+    from conformal_control.families.cbf import StepwiseCBF, Stream
 
     return StepwiseCBF("constant_velocity", stream=Stream(tau=0.4, dt=0.1), **kw)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 CODE = """
 import warnings
 warnings.simplefilter("default")
-from conformal_control.cbf.pyhypot import hypot_split
+from conformal_control.families.cbf.pyhypot import hypot_split
 print(hypot_split(3.0, 4.0))
 """
 

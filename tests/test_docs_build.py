@@ -368,7 +368,7 @@ def test_no_spec_reference_or_machine_path(site: Path) -> None:
 
 def test_api_reference_one_page_per_module(site: Path) -> None:
     modules = _public_modules()
-    assert "conformal_control.cbf.controller" in modules and len(modules) > 50
+    assert "conformal_control.families.cbf.controller" in modules and len(modules) > 50
     api = site / "api"
     pages = []
     for module in modules:
@@ -385,15 +385,19 @@ def test_api_reference_one_page_per_module(site: Path) -> None:
         assert found is None, (page.relative_to(site), found and found.group(0))
     # roles became links, also across modules and to re-exports of private modules
     checks = (site / "api/conformal_control/testing/safety_filter/index.html").read_text()
-    assert re.search(r'href="[^"]*cbf/roles/#conformal_control\.cbf\.roles\.SafetyFilter"', checks)
+    assert re.search(
+        r'href="[^"]*families/cbf/roles/#conformal_control\.families\.cbf\.roles\.SafetyFilter"',
+        checks,
+    )
     loop = (site / "api/conformal_control/core/loop/index.html").read_text()
-    assert re.search(r'href="#conformal_control\.loop\.IntervalLog"', loop)
+    assert re.search(r'href="#conformal_control\.core\.loop\.IntervalLog"', loop)
     # each object once, on the page of the module that defines it
-    roles = (site / "api/conformal_control/cbf/roles/index.html").read_text()
-    cbf = (site / "api/conformal_control/cbf/index.html").read_text()
-    assert 'id="conformal_control.cbf.roles.SafetyFilter"' in roles
-    assert 'id="conformal_control.cbf.SafetyFilter"' not in cbf
-    assert 'href="roles/#conformal_control.cbf.roles.SafetyFilter"' in cbf  # a re-export link
+    roles = (site / "api/conformal_control/families/cbf/roles/index.html").read_text()
+    cbf = (site / "api/conformal_control/families/cbf/index.html").read_text()
+    assert 'id="conformal_control.families.cbf.roles.SafetyFilter"' in roles
+    assert 'id="conformal_control.families.cbf.SafetyFilter"' not in cbf
+    # a re-export link
+    assert 'href="roles/#conformal_control.families.cbf.roles.SafetyFilter"' in cbf
 
 
 # ---------------------------------------------------------------------------- the sources

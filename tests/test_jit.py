@@ -84,7 +84,7 @@ nexus = load_scene("nexus_4", sys.argv[2])
 out["nexus_4-loop"] = result(run_episode(nexus, "constant_velocity", engine="loop"))
 out["nexus_4-batch"] = result(run_episode(nexus, "constant_velocity", engine="batch"))
 
-from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 rng = np.random.default_rng(0)
 cmds = rng.normal(0, 1, (5, 7, 2))
 vt = VelocityTrackingDoubleIntegrator(K_acc=10.0)
@@ -92,7 +92,7 @@ out["rollouts"] = [
     digest(vt.rollout(np.array([0.0, 0, 1, 0]), cmds, 0.05)),
     digest(Unicycle().rollout(np.array([0.0, 0, 0.3, 0.5, 0.2]), cmds, 0.05)),
 ]
-from conformal_control.mpc.kernels import evaluate
+from conformal_control.families.mpc.kernels import evaluate
 pos = rng.normal(0, 3, (50, 6, 2)); c2 = rng.normal(0, 1, (50, 6, 2))
 pred = rng.normal(0, 3, (7, 6, 2)); y0 = rng.normal(0, 3, (7, 2))
 radius = rng.uniform(0.5, 1.5, (50, 6))
@@ -148,7 +148,7 @@ _AUTO = r"""
 import json, sys
 import numpy as np
 from conformal_control.core import jit
-from conformal_control.cbf import kernels2d
+from conformal_control.families.cbf import kernels2d
 jit.BUDGET_S = float(sys.argv[1])
 A = np.array([[1.0, 0.0]]); rhs = np.array([2.0]); G = np.zeros((4, 2)); h = np.zeros(4)
 before = type(kernels2d.presolve).__name__
@@ -207,7 +207,7 @@ def test_the_mode_is_checked(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_a_kernel_looks_like_its_function() -> None:
-    from conformal_control.cbf import kernels2d
+    from conformal_control.families.cbf import kernels2d
 
     k = kernels2d.presolve
     assert k.__name__ == "presolve" and "unit-norm" in (k.__doc__ or "")

@@ -718,7 +718,7 @@ def run_multi_bench(
         What every run takes (:func:`multi_bench_base`): the predictor (a method may
         replace it) and the seed; its robots section (:class:`~conformal_control.core.spec.Robots`)
         the reciprocal runs' ``information``, ``lambda_scope`` (see
-        :mod:`conformal_control.cbf.reciprocal`) and :data:`RECIPROCAL_OPTIONS` (these
+        :mod:`conformal_control.families.cbf.reciprocal`) and :data:`RECIPROCAL_OPTIONS` (these
         recorded in each row, ``options``, and key when not the defaults). Default:
         constant velocity, seed 0, the section's defaults.
     data_root : str, optional

@@ -664,13 +664,13 @@ def build_method(
     envelope : FunctionalEnvelope, optional
         An ``fcp_mpc`` method's calibrated envelopes (:func:`scenario_envelope`).
     """
-    from ..cbf.barriers import APFBarrier
-    from ..cbf.constraint import ConformalConstraint
-    from ..cbf.controller import ConformalCBFController
-    from ..cbf.dynamics import Unicycle, UnicycleLookahead
-    from ..cbf.filters.exact2d import Exact2DSafetyFilter
-    from ..cbf.reference import AttractiveField
     from ..core import registry
+    from ..families.cbf.barriers import APFBarrier
+    from ..families.cbf.constraint import ConformalConstraint
+    from ..families.cbf.controller import ConformalCBFController
+    from ..families.cbf.dynamics import Unicycle, UnicycleLookahead
+    from ..families.cbf.filters.exact2d import Exact2DSafetyFilter
+    from ..families.cbf.reference import AttractiveField
 
     limits = {
         "v_min": ROBOT["v_min_mps"],
@@ -837,11 +837,11 @@ def run_scenarios(
     """:func:`run_scenario` of several start times of a task, in lockstep: the scenarios
     advance together from one decision to the next, and a sampling-MPC family's plans of
     every scenario at a decision are evaluated in one compiled call
-    (:func:`~conformal_control.mpc.batch.plan_all`). The results equal
+    (:func:`~conformal_control.families.mpc.batch.plan_all`). The results equal
     :func:`run_scenario`'s one by one (``tests/mpc/test_batch.py``), except the measured
     times: a scenario's controller time includes its share (an equal part) of the joint
     evaluation. Not faster than one at a time at the protocol's size (see
-    :mod:`conformal_control.mpc.batch`), so :func:`run_planar` does not use it.
+    :mod:`conformal_control.families.mpc.batch`), so :func:`run_planar` does not use it.
 
     Parameters
     ----------
@@ -863,7 +863,7 @@ def run_scenarios(
     list of ScenarioResult
         One per start time step, in order.
     """
-    from ..mpc.batch import plan_all
+    from ..families.mpc.batch import plan_all
 
     runs = [
         _scenario(task, s, method, predictor, data_root=data_root, seed=seed)
@@ -902,11 +902,11 @@ def _scenario(
 ) -> Generator[tuple[Any, Any, float], float, ScenarioResult]:
     """One scenario as a generator: before each decision it yields ``(family, state,
     lambda)`` and receives the seconds of joint work done for it meanwhile (its share of
-    :func:`~conformal_control.mpc.batch.plan_all`, counted in its controller time); it
+    :func:`~conformal_control.families.mpc.batch.plan_all`, counted in its controller time); it
     returns the :class:`ScenarioResult`."""
-    from ..cbf.controller import ControlState
-    from ..cbf.loss import CBFTruth
     from ..core.loop import ConformalStepper
+    from ..families.cbf.controller import ControlState
+    from ..families.cbf.loss import CBFTruth
 
     rec = recording(task, data_root)
     predictor = method.predictor or predictor
@@ -1001,9 +1001,9 @@ _ENVELOPES: dict[tuple[Any, ...], Any] = {}
 
 
 def method_calibration(method: PlanarMethod) -> Any:
-    """The :class:`~conformal_control.mpc.fcp.FieldCalibration` of an ``fcp_mpc`` method
+    """The :class:`~conformal_control.families.mpc.fcp.FieldCalibration` of an ``fcp_mpc`` method
     (its ``calibration__*`` parameters over the published defaults)."""
-    from ..mpc.fcp import FieldCalibration
+    from ..families.mpc.fcp import FieldCalibration
 
     pre = "calibration__"
     given = {k[len(pre) :]: v for k, v in method.family_params.items() if k.startswith(pre)}
@@ -1289,9 +1289,9 @@ def reusable_rows(
 def warm_up_kernels() -> None:
     """Compile (or load from numba's cache) the MPC's kernels once, so that the first
     scenario's controller time does not include it."""
-    from ..cbf.dynamics import Unicycle
     from ..core.jit import compile_now
-    from ..mpc.kernels import evaluate
+    from ..families.cbf.dynamics import Unicycle
+    from ..families.mpc.kernels import evaluate
 
     compile_now()  # a suite of episodes: compiled (see conformal_control.core.jit)
     cmds = np.zeros((2, 3, 2))

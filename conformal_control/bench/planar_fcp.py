@@ -5,7 +5,7 @@ envelopes before a scenario from the dataset's prediction file: for every time s
 file (every time step at which a pedestrian has a history), the positions predicted 1..12
 steps ahead are paired with the positions then observed, for the pedestrians predicted and
 observed; the residual distance fields of those pairs on a 128 x 128 grid calibrate the
-envelopes (:func:`~conformal_control.mpc.fieldcp.fit_envelope`, alpha = 0.1, 5 principal
+envelopes (:func:`~conformal_control.families.mpc.fieldcp.fit_envelope`, alpha = 0.1, 5 principal
 components, 7 mixture components, 30 % held out). The grid covers the scenario: the robot's
 start and goal, and the pedestrians' current and predicted positions over the scenario's
 first ``min(max_steps, 200)`` time steps, with 2 m of margin.
@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from ..mpc.fcp import FieldCalibration
-from ..mpc.fieldcp import FieldGrid, FunctionalEnvelope, fit_envelope
+from ..families.mpc.fcp import FieldCalibration
+from ..families.mpc.fieldcp import FieldGrid, FunctionalEnvelope, fit_envelope
 from ..predictors.base import PredictionQuery, Predictor
 
 __all__ = ["PlanarPredictions", "calibrate", "predictions_on", "scenario_samples"]

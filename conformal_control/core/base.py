@@ -22,7 +22,7 @@ an environment, a family and a loss fit together.
 
 The flagship's roles (predictor, barrier, safety filter, fallback, reference controller,
 dynamics) live beside their users: :mod:`conformal_control.predictors.base` and
-:mod:`conformal_control.cbf.roles`.
+:mod:`conformal_control.families.cbf.roles`.
 
 Every plugin follows the scikit-learn / river habits: constructor arguments are stored
 unchanged as attributes of the same name (so :meth:`Plugin.get_params` can report them

@@ -23,8 +23,8 @@ Both forms compute the same numbers: the same source, the same IEEE operations i
 order (numba compiles without fast-math, so no reassociation or fused multiply-add), and
 where numba and Python call different C functions for one name -- ``math.hypot`` is the C
 library's in numba and CPython's own algorithm in Python -- the kernel names which one it
-means (:func:`~conformal_control.cbf.pyhypot.c_hypot`,
-:func:`~conformal_control.cbf.pyhypot.py_hypot`) and each form calls that one
+means (:func:`~conformal_control.families.cbf.pyhypot.c_hypot`,
+:func:`~conformal_control.families.cbf.pyhypot.py_hypot`) and each form calls that one
 (``python=``). ``tests/test_jit.py`` runs episodes of every compiled path in both forms and
 compares them field by field.
 

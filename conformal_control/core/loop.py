@@ -3,8 +3,8 @@
 It owns exactly one thing: *decide with the current lambda at the control rate; at each
 sampling time observe the truth, score the interval, update lambda*. It knows nothing
 about predictors, barriers, QPs or pedestrians; those live in the environment and the
-decision family plugged into it (see :mod:`conformal_control.cbf` for the flagship
-instantiation, and :mod:`conformal_control.domains` for other decision problems run
+decision family plugged into it (see :mod:`conformal_control.families.cbf` for the flagship
+instantiation, and :mod:`conformal_control.families.domains` for other decision problems run
 through the same loop). One interval, top to bottom::
 
     observation = env.sense()                      # sampling time k tau

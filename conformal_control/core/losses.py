@@ -3,8 +3,8 @@
 A loss scores one interval once its truth is revealed, *with the conformal variable
 lambda it is evaluated at* (``loss(record, truth, lam)``); losses that can be evaluated at
 any lambda (both here) let rules such as DtACI compare what other lambdas would have
-given. The flagship's losses live in :mod:`conformal_control.cbf` (constraint gap) and
-:mod:`conformal_control.cbf.safety_losses` (collision indicator, distance shortfall).
+given. The flagship's losses live in :mod:`conformal_control.families.cbf` (constraint gap) and
+:mod:`conformal_control.families.cbf.safety_losses` (collision indicator, distance shortfall).
 """
 
 from __future__ import annotations

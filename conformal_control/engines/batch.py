@@ -41,7 +41,7 @@ The ``acp`` family runs its own per-interval code (scoring its past predictions,
 their errors, the regions' radii at the interval's lambda: its ``begin_interval`` and
 ``_inflation``) on the episode's own controller, and the engine runs the interval's control
 instants compiled with the barrier's collision distance raised per horizon step, as
-:meth:`ACPController.decide <conformal_control.cbf.acp.ACPController.decide>` sets up the
+:meth:`ACPController.decide <conformal_control.families.cbf.acp.ACPController.decide>` sets up the
 compiled step; its miscoverage loss scores the interval's record with its own code.
 
 What runs compiled and what runs through the episode's own objects: the constant-velocity
@@ -55,7 +55,7 @@ agent ids that are not integers it is called as it is); any other predictor is c
 sampling time on the query the episode's environment builds
 (:meth:`~conformal_control.world.replay.ReplayEnvironment.sense`), through the
 controller's own ``begin_interval`` (sanitising, counters, interpolation, the same
-:class:`~conformal_control.cbf.controller.PredictorError`), and its interpolated
+:class:`~conformal_control.families.cbf.controller.PredictorError`), and its interpolated
 predictions are copied into the batch. The gap loss is compiled; the ``collision`` and
 ``distance_shortfall`` losses are the loss objects themselves, called on the interval's
 record and on the truth the environment reveals. The rule is the episode's own; a rule that
@@ -63,7 +63,7 @@ evaluates the interval's loss at other lambdas (``uses_loss_function``, e.g. ``d
 receives the loss as a function of lambda, as
 :class:`~conformal_control.core.loop.ConformalStepper` hands it (for the gap loss
 ``s(max_gap + lambda)``: the gaps do not depend on lambda, and
-:class:`~conformal_control.cbf.loss.CBFGapLoss` adds lambda to their maximum).
+:class:`~conformal_control.families.cbf.loss.CBFGapLoss` adds lambda to their maximum).
 
 Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
 refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
@@ -88,18 +88,6 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from ..cbf import kernels2d
-from ..cbf.acp import ACPController, ACPIntervalRecord
-from ..cbf.barriers import APFBarrier, APFForm
-from ..cbf.constraint import ConformalConstraint, time_to_contact
-from ..cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
-from ..cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
-from ..cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
-from ..cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
-from ..cbf.pyhypot import EXACT_FOR_THIS_PYTHON
-from ..cbf.reference import AttractiveField, AttractiveFieldForm
-from ..cbf.roles import InfeasibleStep
-from ..cbf.speed import speed_polygon
 from ..core import registry
 from ..core.base import Loss, Plugin
 from ..core.jit import compile_now
@@ -115,6 +103,18 @@ from ..core.monitor import AgentMonitor, GuaranteeMonitor
 from ..core.spec import RunSpec
 from ..crowds.crowd import Crowd
 from ..data.scene import Scene, SparseTracks
+from ..families.cbf import kernels2d
+from ..families.cbf.acp import ACPController, ACPIntervalRecord
+from ..families.cbf.barriers import APFBarrier, APFForm
+from ..families.cbf.constraint import ConformalConstraint, time_to_contact
+from ..families.cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
+from ..families.cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
+from ..families.cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
+from ..families.cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
+from ..families.cbf.pyhypot import EXACT_FOR_THIS_PYTHON
+from ..families.cbf.reference import AttractiveField, AttractiveFieldForm
+from ..families.cbf.roles import InfeasibleStep
+from ..families.cbf.speed import speed_polygon
 from ..flagship.build import Flagship, build_flagship
 from ..predictors.constant_velocity import ConstantVelocityForm
 from ..predictors.recorded import RecordedForm
@@ -483,7 +483,8 @@ def _info_keys(code: int, shift: int, form: ShiftForm | None) -> tuple[str, ...]
 
 class _GapLossAt:
     """The gap loss of an interval as a function of lambda: ``s(max_gap + lambda)``, as
-    :meth:`CBFGapLoss.__call__ <conformal_control.cbf.loss.CBFGapLoss.__call__>` computes it
+    :meth:`CBFGapLoss.__call__ <conformal_control.families.cbf.loss.CBFGapLoss.__call__>` computes
+    it
     (the gaps do not depend on lambda; lambda is added to their maximum), from the maximum
     the engine computed (what ``ConformalStepper.end_interval`` hands a rule with
     ``uses_loss_function``, without rebuilding the interval's record)."""
@@ -1133,7 +1134,7 @@ class _Engine:
     def _regions(self, b: int) -> None:
         """Slot ``b``'s barrier at each horizon step of the interval (the acp family:
         ``d_c`` raised by the region's inflation at the interval's lambda), as
-        :meth:`ACPController.decide <conformal_control.cbf.acp.ACPController.decide>`
+        :meth:`ACPController.decide <conformal_control.families.cbf.acp.ACPController.decide>`
         sets up the compiled step."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None and ep.parts.acp is not None  # b is a live acp slot
@@ -1240,7 +1241,7 @@ class _Engine:
         """Slot ``b``'s infeasible step decided by its own fallback (one the compiled step
         does not decide, e.g. ``relax``), on the rows the step left in the work buffer,
         as :meth:`Exact2DSafetyFilter.step_apf_record
-        <conformal_control.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf_record>`
+        <conformal_control.families.cbf.filters.exact2d.Exact2DSafetyFilter.step_apf_record>`
         hands it over; the decision is applied when the slot runs on."""
         p, ep = self.pool, self.eps[b]
         assert ep is not None

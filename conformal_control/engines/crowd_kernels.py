@@ -30,11 +30,11 @@ import math
 
 import numpy as np
 
-from ..cbf.pyhypot import c_hypot
 from ..core.jit import kernel
 from ..crowds.crowd import ACTIVE, GONE, REPLAY
 from ..crowds.neighbors import cell_pairs
 from ..crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
+from ..families.cbf.pyhypot import c_hypot
 from .kernels import d_min
 
 __all__ = ["ORCA", "SOCIAL_FORCE", "crowd_begin", "crowd_end", "relog_d_min"]

@@ -2,11 +2,11 @@
 
 :func:`gap_maxima` scores the intervals that end at a sampling time for every episode of a
 batch: the largest gap between the APF constraint on the predicted and on the true agents
-(:class:`~conformal_control.cbf.loss.CBFGapLoss`, with
-:meth:`~conformal_control.cbf.constraint.ConformalConstraint.value`'s arithmetic), agent by
+(:class:`~conformal_control.families.cbf.loss.CBFGapLoss`, with
+:meth:`~conformal_control.families.cbf.constraint.ConformalConstraint.value`'s arithmetic), agent by
 agent and instant by instant. The control instants themselves run in
 :func:`~conformal_control.engines.interval.run_interval`, which calls the exact 2-D
-filter's fused APF step (:func:`~conformal_control.cbf.kernels2d.apf_step`) as is.
+filter's fused APF step (:func:`~conformal_control.families.cbf.kernels2d.apf_step`) as is.
 :data:`SEARCH`, :data:`BRAKE`, :data:`HOLD` and :data:`PYTHON` are the fallback codes the engine
 gives it.
 """
@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from ..cbf.pyhypot import c_hypot
 from ..core.jit import kernel
+from ..families.cbf.pyhypot import c_hypot
 
 __all__ = ["BRAKE", "HOLD", "PYTHON", "SEARCH", "gap_maxima"]
 
@@ -203,9 +203,9 @@ def gap_maxima(
 
     The ``i``-th slot ``b`` has ``n_agents[b]`` sensed agents whose true positions at the
     interval's frames are rows ``truth[offsets[i] + a]`` (NaN where unobserved); it ran
-    ``step[b]`` control instants. As :class:`~conformal_control.cbf.loss.CBFGapLoss`: the
+    ``step[b]`` control instants. As :class:`~conformal_control.families.cbf.loss.CBFGapLoss`: the
     truth is interpolated at the control instants like the prediction
-    (:func:`~conformal_control.cbf.interp.interpolate_at_substeps`), the gap is the
+    (:func:`~conformal_control.families.cbf.interp.interpolate_at_substeps`), the gap is the
     constraint on the prediction minus the constraint on the truth (with the ego's recorded
     position and decision), pairs without truth are left out. Writes the largest gap
     ``top[b]``, the largest gap plus the lambda applied (``lam[b]`` where brake / hold

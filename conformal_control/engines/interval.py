@@ -3,7 +3,8 @@
 The lockstep engine (:mod:`conformal_control.engines.batch`) calls :func:`run_interval` once
 per interval: for each slot it runs the interval's control instants back to back --
 the attractive field's reference velocity, the fused APF step of the exact 2-D filter
-(:func:`~conformal_control.cbf.kernels2d.apf_step`; for the ``acp`` family with the barrier's
+(:func:`~conformal_control.families.cbf.kernels2d.apf_step`; for the ``acp`` family with the
+barrier's
 collision distance raised per horizon step and no slack), the ``brake`` / ``hold``
 fallbacks (any other fallback pauses the slot: the engine lets the episode's own fallback
 object decide in Python and calls again), the velocity-tracking plant, the goal check
@@ -11,11 +12,11 @@ object decide in Python and calls again), the velocity-tracking plant, the goal 
 agent's distance -- and stops the slot at its interval's end or at its episode's end. It is
 the work of
 :meth:`ConformalCBFController.decide
-<conformal_control.cbf.controller.ConformalCBFController.decide>`,
+<conformal_control.families.cbf.controller.ConformalCBFController.decide>`,
 :meth:`ReplayEnvironment.apply <conformal_control.world.replay.ReplayEnvironment.apply>`
 and the dynamics' ``step``, with the same floating-point operations in the same order:
 the distances the Python code takes with ``math.hypot`` (the reference's speed, the goal
-check) are taken with :func:`~conformal_control.cbf.pyhypot.py_hypot`, those it takes with
+check) are taken with :func:`~conformal_control.families.cbf.pyhypot.py_hypot`, those it takes with
 ``numpy.hypot`` (the frame log) with numba's ``math.hypot`` (the C library's, as numpy's).
 """
 
@@ -25,7 +26,8 @@ import math
 
 import numpy as np
 
-from ..cbf.kernels2d import (
+from ..core.jit import kernel
+from ..families.cbf.kernels2d import (
     ESCAPED,
     INFEASIBLE,
     NONFINITE,
@@ -35,8 +37,7 @@ from ..cbf.kernels2d import (
     apf_step,
     escape_guard,
 )
-from ..cbf.pyhypot import py_hypot
-from ..core.jit import kernel
+from ..families.cbf.pyhypot import py_hypot
 from .gap_kernels import HOLD, PYTHON
 from .kernels import d_min
 

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..cbf.pyhypot import c_hypot
 from ..core.jit import kernel
+from ..families.cbf.pyhypot import c_hypot
 from .recorded_kernels import find_issue, forecast_agent, snap_times
 
 if TYPE_CHECKING:
@@ -354,8 +354,8 @@ def predict_interpolate(
 
     As the controller does, the current positions are prepended, non-finite samples are
     replaced by the last finite one (``n_bad[b]``: agents concerned;
-    :func:`~conformal_control.cbf.interp.forward_fill`) and the samples are interpolated
-    (:func:`~conformal_control.cbf.interp.interpolate_at_substeps`). ``samples`` is a
+    :func:`~conformal_control.families.cbf.interp.forward_fill`) and the samples are interpolated
+    (:func:`~conformal_control.families.cbf.interp.interpolate_at_substeps`). ``samples`` is a
     buffer of at least ``tau + 1`` rows.
     """
     for i in range(slots.shape[0]):

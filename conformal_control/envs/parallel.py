@@ -23,13 +23,13 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import BaseParallelWrapper
 
-from ..cbf.controller import ConformalCBFController
-from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.loss import CBFGapLoss
-from ..cbf.reciprocal import Reciprocity
 from ..core.loop import ConformalStepper
 from ..core.spec import Robots, RunSpec
 from ..data.scene import Scene
+from ..families.cbf.controller import ConformalCBFController
+from ..families.cbf.filters.exact2d import Exact2DSafetyFilter
+from ..families.cbf.loss import CBFGapLoss
+from ..families.cbf.reciprocal import Reciprocity
 from ..sim.multi import as_tasks, robot_tasks
 from .core import CrowdCore, load
 from .crowd import observation_space
@@ -182,7 +182,7 @@ class ReciprocalShield(BaseParallelWrapper):  # type: ignore[misc]
     (as :class:`~conformal_control.envs.shield.ConformalShield` does for one robot): its
     pedestrians' rows from its own predictor, with its own lambda learned online from its
     own losses, and **reciprocal rows about the other robots**
-    (:mod:`~conformal_control.cbf.reciprocal`: each robot takes its share of every pair's
+    (:mod:`~conformal_control.families.cbf.reciprocal`: each robot takes its share of every pair's
     barrier rate, from what the world lets robots know of each other). Two shielded
     policies can therefore not drive their robots into each other, whatever the policies
     do; a robot whose policy drives at a pedestrian is held back by its own rows.

@@ -25,10 +25,6 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..cbf.constraint import ConformalConstraint
-from ..cbf.controller import ConformalCBFController
-from ..cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
-from ..cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..core import registry
 from ..core.base import (
     CompiledForm,
@@ -43,6 +39,10 @@ from ..core.exceptions import ConformalControlDeprecationWarning
 from ..core.spec import RunContext, RunSpec
 from ..core.update_rules import FixedEtaRule
 from ..data.scene import Scene
+from ..families.cbf.constraint import ConformalConstraint
+from ..families.cbf.controller import ConformalCBFController
+from ..families.cbf.feasibility import DEFAULT_FLOOR_SHARE, default_lambda_min
+from ..families.cbf.roles import Barrier, Dynamics, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
 from ..world.reactive import make_environment
 from ..world.replay import ReplayEnvironment
@@ -247,9 +247,9 @@ def build_flagship(
     -----
     ``fallback`` is handed to the safety filter's ``fallback`` argument. ``family``
     ``"acp"`` is adaptive conformal prediction regions
-    (:class:`~conformal_control.cbf.acp.ACPController`). A family built from a predictor
+    (:class:`~conformal_control.families.cbf.acp.ACPController`). A family built from a predictor
     and the plant (the sampling MPCs ``"mpc"``, ``"acp_mpc"``, ``"ecp_mpc"``,
-    :mod:`conformal_control.mpc`) receives the predictor, the dynamics, the reference,
+    :mod:`conformal_control.families.mpc`) receives the predictor, the dynamics, the reference,
     ``d_c`` (robot + agent radius), ``margin`` (``barrier_margin``), ``v_max``,
     ``substeps`` and ``random_state`` (the seed) for the arguments it takes, then the
     family's parameters; its loss defaults to the family's ``default_loss`` (with

@@ -3,7 +3,7 @@
 Every row is run in two variants, because ``a`` sets a floor under lambda. Lambda is
 added to the constraint of every sensed agent, and a far agent (no gradient, h = h_max =
 1/2) leaves the row ``a h_max + lambda >= 0``, which no velocity can meet once lambda <
--a h_max (:meth:`~conformal_control.cbf.constraint.ConformalConstraint.lambda_floor`).
+-a h_max (:meth:`~conformal_control.families.cbf.constraint.ConformalConstraint.lambda_floor`).
 With Table II's a = 1 and epsilon = -0.25 the target is then out of reach: the fallback
 acts at almost every step and the robot never reaches its goal. So:
 

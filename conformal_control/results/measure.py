@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import __version__
-from ..cbf.feasibility import feasibility_floor
 from ..core.exceptions import (
     FeasibilityWarning,
     GoalNotReachedWarning,
@@ -24,6 +23,7 @@ from ..core.exceptions import (
     NoUpdatesWarning,
 )
 from ..core.loop import LoopResult
+from ..families.cbf.feasibility import feasibility_floor
 from .collisions import account_collisions
 from .metrics import EpisodeMetrics, episode_metrics
 
@@ -45,7 +45,8 @@ __all__ = [
 
 
 def feasibility(fl: Flagship) -> Any:
-    """The run's feasibility floor (:func:`~conformal_control.cbf.feasibility.feasibility_floor`
+    """The run's feasibility floor
+    (:func:`~conformal_control.families.cbf.feasibility.feasibility_floor`
     of its ``a``, barrier bound, epsilon and loss scale)."""
     si = fl.params.si
     h_max = fl.barrier.upper_bound

@@ -8,7 +8,7 @@ senses the pedestrians and the other robots through its own sensor in the shared
 (:class:`~conformal_control.world.multi.MultiRobotWorld`), which types the robots as
 robots, and learns its own lambda from its own losses.
 
-How a robot treats the others (:mod:`conformal_control.cbf.reciprocal`): by default each
+How a robot treats the others (:mod:`conformal_control.families.cbf.reciprocal`): by default each
 pair shares one constraint, each robot taking its share of the pair's barrier rate
 (``reciprocity="reciprocal"``), from what the ``information`` option lets robots know of
 each other (positions, velocities, or the commands they broadcast: ``"plan"``, the
@@ -48,11 +48,11 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.feasibility import feasibility_floor
-from ..cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..core.loop import ConformalStepper
 from ..core.spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
 from ..data.scene import Scene
+from ..families.cbf.feasibility import feasibility_floor
+from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..flagship.build import Flagship, build_flagship
 from ..results.episode import RobotResult
 from ..results.measure import episode_config, jsonable, measure
@@ -657,7 +657,7 @@ def set_reciprocity(
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
-    :class:`~conformal_control.cbf.reciprocal.Reciprocity`.
+    :class:`~conformal_control.families.cbf.reciprocal.Reciprocity`.
 
     Parameters
     ----------

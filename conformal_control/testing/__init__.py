@@ -45,9 +45,9 @@ import pkgutil
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from ..cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..core.base import DecisionFamily, Environment, Loss, UpdateRule
 from ..crowds.base import CrowdModel
+from ..families.cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
 from ._core import (
     CheckList,

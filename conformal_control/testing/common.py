@@ -304,7 +304,7 @@ _RULE_VALUES = ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
 
 
 def _roles_of(cls: type) -> set[str]:
-    from ..cbf.roles import SafetyFilter
+    from ..families.cbf.roles import SafetyFilter
     from ..predictors.base import Predictor
 
     bases = {

@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.loss import CBFTruth
 from ..core import registry
 from ..core.base import param_names
 from ..crowds.crowd import Crowd, model_names
 from ..data.scene import Scene
+from ..families.cbf.loss import CBFTruth
 from ..predictors.base import PredictionQuery, TruthUnavailableError
 from .replay import ReplayCursor, ReplayEnvironment
 

@@ -7,22 +7,22 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control.cbf import (
-    APFBarrier,
-    AttractiveField,
-    ConformalCBFController,
-    ConformalConstraint,
-    QPSafetyFilter,
-)
-from conformal_control.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.core import registry
 from conformal_control.core.loop import ConformalLoop
 from conformal_control.core.update_rules import ACIRule
 from conformal_control.data.scene import scene_from_tracks
 from conformal_control.data.tracks import Tracks
 from conformal_control.data.units import SI
+from conformal_control.families.cbf import (
+    APFBarrier,
+    AttractiveField,
+    ConformalCBFController,
+    ConformalConstraint,
+    QPSafetyFilter,
+)
+from conformal_control.families.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.flagship.params import resolve_params
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.world.replay import ReplayEnvironment

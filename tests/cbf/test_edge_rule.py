@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from conformal_control.cbf import (
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -28,12 +28,12 @@ from conformal_control.cbf import (
     ControlState,
     Exact2DSafetyFilter,
 )
-from conformal_control.cbf.filters.piqp import QPSafetyFilter
-from conformal_control.cbf.kernels2d import ESCAPE_WIDTH
-from conformal_control.cbf.reciprocal import PeerView, Reciprocity
-from conformal_control.cbf.roles import EscapeRows, FilterResult, SafetyFilter
-from conformal_control.cbf.speed import speed_polygon
-from conformal_control.cbf.stepwise import StepwiseCBF, Stream
+from conformal_control.families.cbf.filters.piqp import QPSafetyFilter
+from conformal_control.families.cbf.kernels2d import ESCAPE_WIDTH
+from conformal_control.families.cbf.reciprocal import PeerView, Reciprocity
+from conformal_control.families.cbf.roles import EscapeRows, FilterResult, SafetyFilter
+from conformal_control.families.cbf.speed import speed_polygon
+from conformal_control.families.cbf.stepwise import StepwiseCBF, Stream
 from conformal_control.predictors import ConstantVelocityPredictor
 
 D_C = 1.0
@@ -381,9 +381,9 @@ def test_filter_counts_the_rule_deciding_alone() -> None:
 
 # ------------------------------------------------------------------------------ lambda's floor
 def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
-    from conformal_control.cbf.feasibility import DEFAULT_FLOOR_SHARE
     from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
+    from conformal_control.families.cbf.feasibility import DEFAULT_FLOOR_SHARE
     from conformal_control.flagship.build import build_flagship
 
     scene = load_scene("crossing", seed=0)

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.barriers import APFBarrier
-from conformal_control.cbf.constraint import ConformalConstraint
-from conformal_control.cbf.controller import ConformalCBFController
-from conformal_control.cbf.filters.exact2d import Exact2DSafetyFilter
-from conformal_control.cbf.loss import CBFGapLoss
-from conformal_control.cbf.reciprocal import (
+from conformal_control.families.cbf.barriers import APFBarrier
+from conformal_control.families.cbf.constraint import ConformalConstraint
+from conformal_control.families.cbf.controller import ConformalCBFController
+from conformal_control.families.cbf.filters.exact2d import Exact2DSafetyFilter
+from conformal_control.families.cbf.loss import CBFGapLoss
+from conformal_control.families.cbf.reciprocal import (
     INFORMATION,
     PeerView,
     Reciprocity,
@@ -22,8 +22,8 @@ from conformal_control.cbf.reciprocal import (
     peer_rows,
     sidestep,
 )
-from conformal_control.cbf.records import CBFTruth, ControlState
-from conformal_control.cbf.reference import AttractiveField
+from conformal_control.families.cbf.records import CBFTruth, ControlState
+from conformal_control.families.cbf.reference import AttractiveField
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 
@@ -107,7 +107,7 @@ def test_a_robot_row_with_a_margin_keeps_two_robot_radii():
 
 # ------------------------------------------------------------------------------ the loss
 def _record_for(view_positions, v_assumed, share, x_ego, v_ego, steps):
-    from conformal_control.cbf.records import CBFIntervalRecord
+    from conformal_control.families.cbf.records import CBFIntervalRecord
 
     return CBFIntervalRecord(
         ids=np.array([10]),
@@ -267,7 +267,7 @@ def test_sidestep_turns_away_from_the_robot_ahead_only_when_held_back():
 def _squeeze(rng, n_ped=3, n_rob=2):
     """Rows of a robot at the origin among pedestrians and robots close around it, walking
     at it: the pedestrians' rows, the robots' barrier rows and their floor rows."""
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     c = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=3.0, d_c=0.7), a=2.0)
     ang = rng.uniform(0, 2 * np.pi, n_ped + n_rob)
@@ -282,7 +282,7 @@ def _squeeze(rng, n_ped=3, n_rob=2):
 
 
 def test_the_priority_order_robots_then_pedestrians_then_floors():
-    from conformal_control.cbf.reciprocal import priority_relax
+    from conformal_control.families.cbf.reciprocal import priority_relax
 
     f = Exact2DSafetyFilter(v_max=2.0)
     f.reset()
@@ -319,7 +319,7 @@ def test_the_priority_order_robots_then_pedestrians_then_floors():
 
 
 def test_floor_rows_keep_a_pair_apart_when_both_keep_them():
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     rng = np.random.default_rng(5)
     for _ in range(50):
@@ -345,8 +345,8 @@ def test_the_robot_rows_least_slack_is_the_lp_optimum():
     # the vertex enumeration of priority_relax's stage 1 against a linear program solver
     from scipy.optimize import linprog
 
-    from conformal_control.cbf.reciprocal import _robot_slacks
-    from conformal_control.cbf.speed import speed_polygon
+    from conformal_control.families.cbf.reciprocal import _robot_slacks
+    from conformal_control.families.cbf.speed import speed_polygon
 
     S, s_poly, _, _ = speed_polygon(16, 2.0)
     rng = np.random.default_rng(7)

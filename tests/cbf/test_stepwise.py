@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import StepwiseCBF, Stream
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf import StepwiseCBF, Stream
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.sim import build_flagship, run_episode
 
 

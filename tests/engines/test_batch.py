@@ -194,8 +194,8 @@ def test_supported_configuration_and_clear_error(crossings):
 def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     """Capability, not a list of names: a subclass inherits no declaration (it may compute
     something else); one that declares the compiled counterpart runs compiled."""
-    from conformal_control.cbf.barriers import APFBarrier
     from conformal_control.core import registry
+    from conformal_control.families.cbf.barriers import APFBarrier
 
     class Tweaked(APFBarrier):
         """An APF barrier computing something else."""
@@ -219,9 +219,9 @@ def test_a_third_party_barrier_runs_compiled_through_its_compiled_form(crossing)
     """A barrier of its own class (no APFBarrier subclass) that declares the ``apf`` form
     and hands its constants over runs in the compiled engine, with the same result as the
     loop running its own evaluate()."""
-    from conformal_control.cbf.barriers import APFBarrier, APFForm
-    from conformal_control.cbf.roles import Barrier
     from conformal_control.core import registry
+    from conformal_control.families.cbf.barriers import APFBarrier, APFForm
+    from conformal_control.families.cbf.roles import Barrier
 
     class OwnAPF(Barrier, compiled="apf", run_values=APFBarrier.capabilities.run_values):
         """The APF barrier written by someone else (same arithmetic, own class).

@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.cbf.controller import PredictorError
 from conformal_control.data import load_scene
 from conformal_control.engines import recorded_kernels as rk
 from conformal_control.engines.batch import run_batch
+from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.recorded import RecordedPredictor
 from conformal_control.sim import run_episode
 

@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.controller import PredictorError
-from conformal_control.cbf.loss import CBFGapLoss
 from conformal_control.core import registry
 from conformal_control.data import load_scene
 from conformal_control.engines.batch import _GapLossAt, run_batch, supports
+from conformal_control.families.cbf.controller import PredictorError
+from conformal_control.families.cbf.loss import CBFGapLoss
 from conformal_control.predictors.base import Forecast, Predictor
 from conformal_control.sim import run_episode
 

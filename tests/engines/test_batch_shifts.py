@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from conformal_control.cbf.controller import PredictorError
 from conformal_control.data import load_scene
 from conformal_control.engines.batch import run_batch
+from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.shift import (
     DelayedPredictor,
     DropoutPredictor,

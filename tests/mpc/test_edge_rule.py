@@ -9,14 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.records import ControlState
-from conformal_control.cbf.reference import AttractiveField
-from conformal_control.cbf.stepwise import Stream
-from conformal_control.mpc import SamplingMPC
-from conformal_control.mpc.kernels import evaluate
-from conformal_control.mpc.settings import Limits, Sampling
-from conformal_control.mpc.stepwise import StepwiseMPC
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.records import ControlState
+from conformal_control.families.cbf.reference import AttractiveField
+from conformal_control.families.cbf.stepwise import Stream
+from conformal_control.families.mpc import SamplingMPC
+from conformal_control.families.mpc.kernels import evaluate
+from conformal_control.families.mpc.settings import Limits, Sampling
+from conformal_control.families.mpc.stepwise import StepwiseMPC
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
 FAST = {"sampling__n_samples": 60, "sampling__horizon": 6}

@@ -145,7 +145,7 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
     # evaluated frame by frame on the agents present within the sensing radius
     res = run_episode(nexus4, "constant_velocity", PAPER_A10, max_frames=200)
     anim, sc = res.animation, res.scene
-    from conformal_control.cbf.barriers import APFBarrier
+    from conformal_control.families.cbf.barriers import APFBarrier
 
     barrier = APFBarrier(**res.config["barrier"]["params"])
     robot = np.column_stack([res.trajectory["x"], res.trajectory["y"]])

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.core.loop import ConformalStepper
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 from conformal_control.sim import build_flagship, run_episode
 from conformal_control.sim.multi import (

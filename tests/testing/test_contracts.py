@@ -10,19 +10,19 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.core.base import DecisionFamily, Environment, Loss, UpdateRule
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf import (
     APFBarrier,
     CBFGapLoss,
     ConformalCBFController,
     ConformalConstraint,
     QPSafetyFilter,
 )
-from conformal_control.cbf.roles import Barrier, SafetyFilter
-from conformal_control.core import registry
-from conformal_control.core.base import DecisionFamily, Environment, Loss, UpdateRule
-from conformal_control.core.update_rules import FixedEtaRule
-from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
-from conformal_control.domains.intervals import ConformalDisc, PedestrianSeries
+from conformal_control.families.cbf.roles import Barrier, SafetyFilter
+from conformal_control.families.domains.factory import FactoryEnvironment, MachineSpeed
+from conformal_control.families.domains.intervals import ConformalDisc, PedestrianSeries
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import Forecast, Predictor
 from conformal_control.testing import (
@@ -229,7 +229,7 @@ class LyingFilter(QPSafetyFilter):
     """Returns the nominal decision and claims it is optimal."""
 
     def solve(self, nominal, A, b, lam):
-        from conformal_control.cbf.roles import FilterResult
+        from conformal_control.families.cbf.roles import FilterResult
 
         return FilterResult(np.asarray(nominal, float), "optimal", lam)
 
@@ -917,7 +917,7 @@ def test_pytest_runs_expected_failures_both_ways(tmp_path, monkeypatch):
     (tmp_path / "test_inner.py").write_text(
         textwrap.dedent(
             """
-            from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
+            from conformal_control.families.domains.factory import FactoryEnvironment, MachineSpeed
             from conformal_control.testing import parametrize_with_checks
 
             class Lenient(FactoryEnvironment):

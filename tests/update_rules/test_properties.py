@@ -26,7 +26,7 @@ from conformal_control.core.update_rules import (
     FixedEtaRule,
     PIDRule,
 )
-from conformal_control.domains.intervals import _Step, run_intervals
+from conformal_control.families.domains.intervals import _Step, run_intervals
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 losses_in_range = st.lists(

@@ -7,7 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     CBFGapLoss,
@@ -15,11 +18,8 @@ from conformal_control.cbf import (
     ConformalConstraint,
     QPSafetyFilter,
 )
-from conformal_control.cbf.controller import PredictorError
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.core import registry
-from conformal_control.core.loop import ConformalLoop
-from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf.controller import PredictorError
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.flagship.params import resolve_params
 from conformal_control.predictors.base import TruthUnavailableError
 from conformal_control.world.reactive import (

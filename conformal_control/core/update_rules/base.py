@@ -50,7 +50,7 @@ def check_epsilon(epsilon: object, bounds: tuple[float, float] = (-0.5, 0.5)) ->
     it), so lambda would drift without end. Raises
     :class:`~conformal_control.core.exceptions.InputError` (a ``ValueError``) otherwise; the
     command line, :func:`conformal_control.run` and
-    :class:`~conformal_control.cbf.StepwiseCBF` all check with this function.
+    :class:`~conformal_control.families.cbf.StepwiseCBF` all check with this function.
     """
     lo, hi = bounds
     if (

@@ -1,8 +1,8 @@
 """Shadow mode: what the conformal controller would have commanded on a recorded bag.
 
 :func:`shadow` reads a robot's ROS 2 bag (:func:`~conformal_control.io.ros2.bag.read_bag`),
-feeds its people to a step-wise controller -- :class:`~conformal_control.cbf.StepwiseCBF`
-(``family="cbf"``) or :class:`~conformal_control.mpc.StepwiseMPC` (any registered
+feeds its people to a step-wise controller -- :class:`~conformal_control.families.cbf.StepwiseCBF`
+(``family="cbf"``) or :class:`~conformal_control.families.mpc.StepwiseMPC` (any registered
 planning family: ``mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``, ``soft_mpc``, a
 plugin's) -- as a live node would, and asks it for a command at every control instant,
 with the robot's **recorded** state: the robot moves as it did, the commands are what the
@@ -228,7 +228,7 @@ def _interp(t_ns: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.ndar
 
 # ---------------------------------------------------------------------------- controller
 def _controller(family: str, predictor: Any, params: dict[str, Any], tau: float, dt: float) -> Any:
-    from ...cbf.stepwise import StepwiseCBF, Stream
+    from ...families.cbf.stepwise import StepwiseCBF, Stream
 
     stream_kw = {k: params.pop(k) for k in _STREAM_KEYS if k in params}
     stream_kw.pop("tau", None)
@@ -237,7 +237,7 @@ def _controller(family: str, predictor: Any, params: dict[str, Any], tau: float,
     stream = Stream(tau=tau, dt=dt, **stream_kw)
     if family == "cbf":
         return StepwiseCBF(predictor, stream=stream, **params)
-    from ...mpc.stepwise import StepwiseMPC
+    from ...families.mpc.stepwise import StepwiseMPC
 
     return StepwiseMPC(predictor, family=family, stream=stream, **params)
 
@@ -276,9 +276,9 @@ def shadow(
     odom_topic : str
         ``nav_msgs/msg/Odometry`` topic.
     family : str
-        ``cbf`` (:class:`~conformal_control.cbf.StepwiseCBF`) or a planning family
+        ``cbf`` (:class:`~conformal_control.families.cbf.StepwiseCBF`) or a planning family
         (any registered one -- ``mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``,
-        ``soft_mpc``, a plugin's: :class:`~conformal_control.mpc.StepwiseMPC` with its
+        ``soft_mpc``, a plugin's: :class:`~conformal_control.families.mpc.StepwiseMPC` with its
         velocity plant).
     predictor : str or Predictor
         A registered predictor name or an instance.
