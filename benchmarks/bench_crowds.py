@@ -29,7 +29,7 @@ Scale (``measure_scale``, also run by ``run_all.py``): the same crowd at the sam
 100, 1,000, 5,000 and 10,000 pedestrians, on a jittered lattice (at least 1 m apart), each
 model stepped as shipped (the cell neighbour search; ORCA's half-planes and programs
 compiled) and as before (the dense ``N x M`` search,
-:func:`~conformal_control.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
+:func:`~conformal_control.world.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
 ``orca_lines`` and ``solve_orca_lp``; not at 10,000: about 5 GB). Each figure comes from its own
 subprocess: after warm-up steps (with the cell search, whose steps are identical), the
 median wall and CPU time of a step and the peak memory of the steps (the process's peak
@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.crowds import ORCAModel, SocialForceModel
-from conformal_control.crowds.base import CrowdModel
+from conformal_control.world.crowds import ORCAModel, SocialForceModel
+from conformal_control.world.crowds.base import CrowdModel
 
 ROOT = Path(__file__).resolve().parents[1]
 N, L, DT, V0 = 100, 40.0, 1.0 / 120.0, 1.3
@@ -368,9 +368,9 @@ def _rss_peak() -> float:
 def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, float]:
     """One figure of the scale table (run in its own process; see the module docstring)."""
     from conformal_control.core.jit import compile_now
-    from conformal_control.crowds import neighbors
-    from conformal_control.crowds import orca as orca_module
-    from conformal_control.crowds import social_force as sf_module
+    from conformal_control.world.crowds import neighbors
+    from conformal_control.world.crowds import orca as orca_module
+    from conformal_control.world.crowds import social_force as sf_module
 
     compile_now()  # timed compiled (see conformal_control.core.jit)
 

@@ -34,7 +34,6 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
     from .core.loop import ConformalLoop, IntervalLog, LoopResult
     from .core.monitor import GuaranteeMonitor
     from .core.spec import Parameters, RunSpec
-    from .crowds.base import CrowdModel
     from .families.cbf.roles import (
         Barrier,
         Dynamics,
@@ -45,6 +44,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
     )
     from .families.cbf.stepwise import StepwiseCBF, Stream
     from .predictors.base import Forecast, PredictionQuery, Predictor
+    from .world.crowds.base import CrowdModel
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
@@ -73,7 +73,7 @@ _LAZY = {
     "ReferenceController": "conformal_control.families.cbf.roles",
     "Dynamics": "conformal_control.families.cbf.roles",
     "Fallback": "conformal_control.families.cbf.roles",
-    "CrowdModel": "conformal_control.crowds.base",
+    "CrowdModel": "conformal_control.world.crowds.base",
 }
 
 __all__ = [

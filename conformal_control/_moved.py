@@ -21,6 +21,7 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.crowds": "conformal_control.world.crowds",
     "conformal_control.cbf": "conformal_control.families.cbf",
     "conformal_control.mpc": "conformal_control.families.mpc",
     "conformal_control.domains": "conformal_control.families.domains",

@@ -158,7 +158,7 @@ LAYERS: dict[str, int] = {
     "data": 3,
     "predictors": 4,
     "families.cbf": 5,
-    "crowds": 5,
+    "world.crowds": 5,
     # worlds and decision problems; figures (read results by duck typing)
     "world": 6,
     "families.domains": 6,

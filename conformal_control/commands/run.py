@@ -458,8 +458,8 @@ def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
     before the scene is loaded)."""
     from ..core import registry
-    from ..crowds.crowd import Crowd
     from ..data.units import si_value
+    from ..world.crowds.crowd import Crowd
 
     given = key_values(args.crowd_param, "--crowd-param")
     model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd

@@ -101,7 +101,6 @@ from ..core.loop import (
 )
 from ..core.monitor import AgentMonitor, GuaranteeMonitor
 from ..core.spec import RunSpec
-from ..crowds.crowd import Crowd
 from ..data.scene import Scene, SparseTracks
 from ..families.cbf import kernels2d
 from ..families.cbf.acp import ACPController, ACPIntervalRecord
@@ -133,6 +132,7 @@ from ..results.measure import (
 )
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
+from ..world.crowds.crowd import Crowd
 from ..world.reactive import ReactiveEnvironment
 from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk

@@ -1,6 +1,6 @@
 """Reactive crowds of many episodes stepped together, compiled.
 
-What :meth:`Crowd.step <conformal_control.crowds.crowd.Crowd.step>` and its model do for
+What :meth:`Crowd.step <conformal_control.world.crowds.crowd.Crowd.step>` and its model do for
 one episode at one control instant -- pedestrians entering (the full crowd) or switching
 from the recording (the mixed crowd), the replayed pedestrians interpolated between
 frames, the preferred velocities towards the recorded waypoints, the neighbour search, the
@@ -9,14 +9,14 @@ is complete -- written as loops over the episodes of a batch
 (:mod:`conformal_control.engines.batch`), with the same floating-point operations in the
 same order (numba compiles without fast-math; ``math.hypot`` is the C library's, the one
 ``numpy.hypot`` calls). ORCA's step is the model's own compiled functions
-(:mod:`~conformal_control.crowds.orca_compiled`) called per episode;
+(:mod:`~conformal_control.world.crowds.orca_compiled`) called per episode;
 the social force's pairwise interaction is computed by the model's own numpy code on the
 pairs of every episode laid side by side (an elementwise computation: one call on the
 concatenation is the same arithmetic as one call per episode), between
 :func:`crowd_begin` (everything before it) and :func:`crowd_end` (everything after).
 
 State of slot ``b`` (arrays indexed by slot, then by the recording's column ``j``):
-``status`` (:data:`~conformal_control.crowds.crowd.REPLAY`, ``ACTIVE``, ``GONE``),
+``status`` (:data:`~conformal_control.world.crowds.crowd.REPLAY`, ``ACTIVE``, ``GONE``),
 ``pos`` / ``vel`` (m, m/s; NaN unless active), ``switched`` (frame of the switch, -1),
 the plan the crowd made at its reset (``wp_time`` padded with inf, ``wp_pos``,
 ``wp_count``, ``exit_``, ``final``, ``v0``, ``vmax``) and the recording and its recorded
@@ -31,10 +31,10 @@ import math
 import numpy as np
 
 from ..core.jit import kernel
-from ..crowds.crowd import ACTIVE, GONE, REPLAY
-from ..crowds.neighbors import cell_pairs
-from ..crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 from ..families.cbf.pyhypot import c_hypot
+from ..world.crowds.crowd import ACTIVE, GONE, REPLAY
+from ..world.crowds.neighbors import cell_pairs
+from ..world.crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 from .kernels import d_min
 
 __all__ = ["ORCA", "SOCIAL_FORCE", "crowd_begin", "crowd_end", "relog_d_min"]
@@ -549,7 +549,7 @@ def sf_directions(
     """Per pair: the centre distance, ``t`` (the interaction direction), ``B`` and whether
     it is defined, and the two arguments of ``arctan2`` giving the angle from ``t`` to ``e``
     (:meth:`SocialForceModel.pair_forces
-    <conformal_control.crowds.social_force.SocialForceModel.pair_forces>`)."""
+    <conformal_control.world.crowds.social_force.SocialForceModel.pair_forces>`)."""
     n = dx.shape[0]
     dists = np.empty(n)
     tx = np.empty(n)

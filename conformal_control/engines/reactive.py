@@ -3,7 +3,7 @@
 An episode of a reactive crowd (``social_force``, ``orca`` or ``mixed``) is built as the
 per-episode loop builds it: a
 :class:`~conformal_control.world.reactive.ReactiveEnvironment` whose
-:class:`~conformal_control.crowds.crowd.Crowd` is reset with the scene (its plan: each
+:class:`~conformal_control.world.crowds.crowd.Crowd` is reset with the scene (its plan: each
 pedestrian's waypoints, schedule, speed bound and recorded velocities; the pedestrians
 present at the start frame). :class:`CrowdSlots` copies that state into one row per slot
 and steps every slot's crowd with :mod:`~conformal_control.engines.crowd_kernels`.
@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from ..crowds.crowd import Crowd
-from ..crowds.orca import ORCAModel
-from ..crowds.social_force import SocialForceModel
+from ..world.crowds.crowd import Crowd
+from ..world.crowds.orca import ORCAModel
+from ..world.crowds.social_force import SocialForceModel
 from ..world.reactive import ReactiveCursor, ReactiveEnvironment
 from .crowd_kernels import (
     ORCA,

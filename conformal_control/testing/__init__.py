@@ -46,9 +46,9 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..core.base import DecisionFamily, Environment, Loss, UpdateRule
-from ..crowds.base import CrowdModel
 from ..families.cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
+from ..world.crowds.base import CrowdModel
 from ._core import (
     CheckList,
     CheckResult,

@@ -42,7 +42,7 @@ Nothing else about another robot is ever handed out: not its lambda, predictor, 
 reference or command (except as the broadcast plan).
 
 **Pedestrians** are replayed from the recording, or simulated by a
-:class:`~conformal_control.crowds.crowd.Crowd` that sees every robot (position, velocity,
+:class:`~conformal_control.world.crowds.crowd.Crowd` that sees every robot (position, velocity,
 the scene's robot radius) at every control instant.
 
 **A robot that reaches its last goal** stops deciding; its plant is then commanded to
@@ -72,13 +72,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.spec import ROBOT_CHOICES
-from ..crowds.crowd import Crowd
 from ..data.scene import Scene
 from ..families.cbf.controller import ControlState
 from ..families.cbf.loss import CBFTruth
 from ..families.cbf.reciprocal import INFORMATION, PeerView, pair_shares
 from ..families.cbf.roles import Dynamics
 from ..predictors.base import PredictionQuery, TruthUnavailableError
+from .crowds.crowd import Crowd
 from .replay import FrameLog
 
 __all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]

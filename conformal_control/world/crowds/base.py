@@ -5,7 +5,7 @@ A :class:`CrowdModel` moves ``N`` simulated pedestrians by one time step. It als
 the model) and, in mixed mode, the pedestrians still replayed from the recording. The
 model does not know where the pedestrians are going: the caller hands it each
 pedestrian's preferred velocity (towards its next recorded waypoint, see
-:mod:`conformal_control.crowds.crowd`) and speed bound. Every length is in metres and
+:mod:`conformal_control.world.crowds.crowd`) and speed bound. Every length is in metres and
 every time in seconds.
 """
 
@@ -15,7 +15,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from ..core.base import Plugin
+from ...core.base import Plugin
 
 __all__ = ["CrowdModel"]
 

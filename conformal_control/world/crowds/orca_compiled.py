@@ -1,7 +1,7 @@
 """ORCA's half-planes and linear programs, compiled: one pass over the pedestrians.
 
-:meth:`ORCAModel.orca_lines <conformal_control.crowds.orca.ORCAModel.orca_lines>` and
-:func:`~conformal_control.crowds.orca.solve_orca_lp` are vectorised numpy: readable, and
+:meth:`ORCAModel.orca_lines <conformal_control.world.crowds.orca.ORCAModel.orca_lines>` and
+:func:`~conformal_control.world.crowds.orca.solve_orca_lp` are vectorised numpy: readable, and
 fast for thousands of pedestrians, but each is a few dozen numpy calls, which is most of a
 step for a hundred (0.6 of 0.75 ms on the shared 2-core machine). The functions below do
 the same arithmetic per pedestrian in scalar loops compiled with numba (``cache=True``, as
@@ -9,7 +9,7 @@ the controller's kernels): the same operations in the same order (no fused multi
 numba does not contract without ``fastmath``), the same candidates in the same order and
 the same tie-breaks, so their results are the numpy functions' bit for bit
 (``tests/crowds/test_orca_compiled.py`` checks it on random crowds, infeasible programs
-included). :meth:`ORCAModel.step <conformal_control.crowds.orca.ORCAModel.step>` uses
+included). :meth:`ORCAModel.step <conformal_control.world.crowds.orca.ORCAModel.step>` uses
 them.
 """
 
@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
+from ...core.jit import kernel
 
 __all__ = ["orca_lines_compiled", "solve_orca_lp_compiled"]
 
@@ -251,7 +251,7 @@ def solve_orca_lp_compiled(
     v_pref: np.ndarray,
     v_max: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~conformal_control.crowds.orca.solve_orca_lp`, one pedestrian at a time."""
+    """:func:`~conformal_control.world.crowds.orca.solve_orca_lp`, one pedestrian at a time."""
     n, k = valid.shape
     v = np.empty((n, 2))
     feasible = np.ones(n, dtype=np.bool_)

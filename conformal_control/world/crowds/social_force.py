@@ -21,7 +21,7 @@ from the side ``j`` is on. The robot and, in mixed mode, the replayed pedestrian
 the simulated ones through the same interaction (with their own velocities) but are not
 moved. The velocity is integrated by semi-implicit Euler and capped at ``v_max``
 (Helbing & Molnár: 1.3 times the desired speed; the cap is set by
-:class:`~conformal_control.crowds.crowd.Crowd`).
+:class:`~conformal_control.world.crowds.crowd.Crowd`).
 
 Two additions for agents of other sizes than a pedestrian (the robot): the interaction
 is evaluated at the distance two pedestrians with the same gap between their bodies

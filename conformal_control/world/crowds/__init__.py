@@ -1,10 +1,10 @@
 """Pedestrians who react to the robot: crowd models seeded from the recorded scene.
 
-* :class:`~conformal_control.crowds.social_force.SocialForceModel` - Helbing & Molnár
+* :class:`~conformal_control.world.crowds.social_force.SocialForceModel` - Helbing & Molnár
   (1995) with the interaction of Moussaïd et al. (2009), in numpy;
-* :class:`~conformal_control.crowds.orca.ORCAModel` - optimal reciprocal collision
+* :class:`~conformal_control.world.crowds.orca.ORCAModel` - optimal reciprocal collision
   avoidance (van den Berg et al. 2011), its linear programs solved exactly in numpy;
-* :class:`~conformal_control.crowds.crowd.Crowd` - seeds a model from the recording
+* :class:`~conformal_control.world.crowds.crowd.Crowd` - seeds a model from the recording
   (positions, velocities, waypoints) and runs it around the robot, in full or mixed mode;
 * the episode's environment with such a crowd is
   :class:`~conformal_control.world.reactive.ReactiveEnvironment` (built by

@@ -34,7 +34,7 @@ pedestrians in the CrowdNav benchmark, Chen et al. 2019, with RVO2):
 ========================= ======== ====================================================
 
 Body radii and speed bounds come per agent from the caller
-(:class:`~conformal_control.crowds.crowd.Crowd`).
+(:class:`~conformal_control.world.crowds.crowd.Crowd`).
 
 Why not ``pyrvo`` (PyPI 0.4.3, pybind11 bindings to RVO2, Apache-2.0, the package this
 module was evaluated against and is tested against): (i) RVO2 hard-codes the reciprocal
@@ -50,7 +50,7 @@ about 0.1 ms (``do_step`` alone: 0.34 ms); ``benchmarks/bench_crowds.py`` prints
 figures and the ratios.
 This module solves the same linear programs exactly, vectorised over the pedestrians (and,
 in :meth:`ORCAModel.step`, compiled per pedestrian with the same arithmetic:
-:mod:`~conformal_control.crowds.orca_compiled`): a 2-D program's optimum is one of a few
+:mod:`~conformal_control.world.crowds.orca_compiled`): a 2-D program's optimum is one of a few
 candidate points (the preferred velocity clipped
 to the disc, its projection on each line clipped to the disc, the intersection of each
 pair of lines), so all candidates are formed at once and the closest feasible one is

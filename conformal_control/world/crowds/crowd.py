@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core import registry
-from ..core.base import Plugin
+from ...core import registry
+from ...core.base import Plugin
 from .base import CrowdModel
 
 __all__ = ["Crowd", "build_model", "model_names"]

@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
+from ...core.jit import kernel
 
 __all__ = ["cell_pairs", "dense_neighbor_pairs", "neighbor_pairs"]
 
