@@ -214,10 +214,10 @@ def bench_suite(
 ) -> dict[str, float]:
     """Print and return the figures of the suite's dev split with ``method`` on its first
     ``scenarios`` (default ``args.scenarios``; see the module docstring)."""
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.bench.methods import expand_methods
     from conformal_control.core.jit import compile_now
     from conformal_control.engines.batch import run_batch, supports
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
     from conformal_control.sim import run_episode
 
     compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.core.jit)
@@ -259,10 +259,10 @@ def bench_reactive(
     """Print and return the figures of a reactive crowd (``crowd``) on the suite's dev
     split (the first ``scenarios``) with ``method``: the per-episode loop against the batch
     engine, and the metrics compared field by field."""
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.bench.methods import expand_methods
     from conformal_control.core.jit import compile_now
     from conformal_control.engines.batch import run_batch, supports
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
     from conformal_control.sim import run_episode
 
     compile_now()

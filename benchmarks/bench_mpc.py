@@ -146,7 +146,7 @@ def time_cbf(m: int, repeats: int) -> float:
 def time_lockstep(method: str = "cc_mpc", data_root: Any = None, repeats: int = 2) -> tuple:
     """CPU ms per decided step of the planar protocol's scenarios of ``method``, one at a
     time and in lockstep (the better of ``repeats`` passes each, alternated)."""
-    from conformal_control.bench import planar
+    from conformal_control.experiments.bench import planar
 
     planar.warm_up_kernels()
     m = planar.PLANAR_METHODS[method]
@@ -174,7 +174,7 @@ def time_planar(method: str, data_root: Any = None) -> float:
     """CPU ms per decided step of a planar method over the first scenario of every dataset
     (constant-velocity predictions; an ``fcp_mpc`` method's offline calibration done before
     the clock starts): everything the protocol's loop does, divided by its decided steps."""
-    from conformal_control.bench import planar
+    from conformal_control.experiments.bench import planar
 
     m = planar.PLANAR_METHODS[method]
     spent, steps = 0.0, 0

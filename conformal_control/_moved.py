@@ -21,6 +21,9 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.sweep": "conformal_control.experiments",
+    "conformal_control.bench": "conformal_control.experiments.bench",
+    "conformal_control.reproduce": "conformal_control.experiments.reproduce",
     "conformal_control.crowds": "conformal_control.world.crowds",
     "conformal_control.cbf": "conformal_control.families.cbf",
     "conformal_control.mpc": "conformal_control.families.mpc",

@@ -174,11 +174,11 @@ LAYERS: dict[str, int] = {
     "sim": 10,
     "io.ros2": 10,
     # many episodes, environments for RL, the paper's tables
-    "sweep": 11,
+    "experiments": 11,
     "envs": 11,
     "io.export": 11,
-    "bench": 12,
-    "reproduce": 12,
+    "experiments.bench": 12,
+    "experiments.reproduce": 12,
     # the front door and the command line
     "api": 13,
     "commands": 14,

@@ -83,7 +83,7 @@ def test_from_dict_is_type_checked(data: dict, words: str) -> None:
 
 
 def test_every_benchmark_method_is_a_run_specification() -> None:
-    from conformal_control.bench.methods import METHOD_FAMILIES, expand_methods
+    from conformal_control.experiments.bench.methods import METHOD_FAMILIES, expand_methods
 
     for m in expand_methods(METHOD_FAMILIES):
         spec = m.run_spec("oracle")

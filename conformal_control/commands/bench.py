@@ -16,7 +16,8 @@ from typing import Any
 from ..core import registry
 from . import add_data_root, command, key_values, positive_int
 
-#: The default suite (``conformal_control.bench.runner.DEFAULT_SUITE``; not imported here so
+#: The default suite (``conformal_control.experiments.bench.runner.DEFAULT_SUITE``; not imported
+#: here so
 #: that ``--help`` stays fast).
 SUITE = "crossings-v2"
 
@@ -280,7 +281,7 @@ def _bench(args: argparse.Namespace) -> int:
 def _methods(args: argparse.Namespace) -> int:
     import json
 
-    from ..bench.methods import FAMILIES, available, expand_methods
+    from ..experiments.bench.methods import FAMILIES, available, expand_methods
 
     methods = expand_methods(FAMILIES)
     if args.json:
@@ -314,7 +315,7 @@ def _methods(args: argparse.Namespace) -> int:
 
 
 def _shifts() -> int:
-    from ..bench.shifts import SHIFTS
+    from ..experiments.bench.shifts import SHIFTS
 
     for sh in SHIFTS.values():
         what = "unchanged" if sh.predictor is None else f"{sh.predictor} {dict(sh.params)}"
@@ -338,7 +339,7 @@ def _grids(items: list[str] | None) -> dict[str, list[Any]]:
 
 
 def _families(text: str | None, default: tuple[str, ...]) -> list[str]:
-    from ..bench.methods import FAMILIES
+    from ..experiments.bench.methods import FAMILIES
 
     if not text:
         return list(default)
@@ -352,7 +353,7 @@ def _progress(value: str | None) -> bool | None:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from ..bench.tune import DEFAULT_TUNED, tune
+    from ..experiments.bench.tune import DEFAULT_TUNED, tune
 
     res = tune(
         args.out,
@@ -371,7 +372,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     if args.suite == "fcp-planar-dense":  # the planar protocol, a start every 20 steps
-        from ..bench.planar_dense import run_command as run_dense
+        from ..experiments.bench.planar_dense import run_command as run_dense
 
         split = "test" if args.split is None else args.split
         return run_dense(
@@ -384,18 +385,18 @@ def _run(args: argparse.Namespace) -> int:
             split,
         )
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
-        from ..bench.planar import run_command
+        from ..experiments.bench.planar import run_command
 
         return run_command(
             args.out, args.methods, args.predictor, args.data_root, args.datasets, args.seeds
         )
-    from ..bench.methods import DEFAULT_METHODS
-    from ..bench.runner import run_bench
-    from ..bench.shifts import parse_shifts
     from ..core.spec import RunSpec
+    from ..experiments.bench.methods import DEFAULT_METHODS
+    from ..experiments.bench.runner import run_bench
+    from ..experiments.bench.shifts import parse_shifts
 
     if args.robots is not None:  # several robots: the multi-robot suite
-        from ..bench.multi import run_command as run_multi_command
+        from ..experiments.bench.multi import run_command as run_multi_command
 
         families = _families(args.methods, ("nolearn", "conformal"))
         return run_multi_command(args, SUITE, families, _grids(args.grid))
@@ -445,27 +446,32 @@ def _report(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from ..bench.report import write_report
-    from ..bench.runner import incomplete_notice, read_bench, read_rows, unfinished_episodes
+    from ..experiments.bench.report import write_report
+    from ..experiments.bench.runner import (
+        incomplete_notice,
+        read_bench,
+        read_rows,
+        unfinished_episodes,
+    )
 
     folder = Path(args.folder)
-    from ..bench.planar import is_planar_folder, report_command
-    from ..bench.planar_dense import is_dense_folder
-    from ..bench.planar_dense import report_command as dense_report_command
+    from ..experiments.bench.planar import is_planar_folder, report_command
+    from ..experiments.bench.planar_dense import is_dense_folder
+    from ..experiments.bench.planar_dense import report_command as dense_report_command
 
     if is_dense_folder(folder):
         return dense_report_command(args.folder, args.out)
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
-    from ..bench.multi import is_multi_folder
-    from ..bench.multi import report_command as multi_report
+    from ..experiments.bench.multi import is_multi_folder
+    from ..experiments.bench.multi import report_command as multi_report
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
     from ..io.plotting.jobs import prepare
 
     # the figure process imports matplotlib on the other core while the rows are read
-    prepare(("conformal_control.bench.report",))
+    prepare(("conformal_control.experiments.bench.report",))
     rows = read_rows(folder)
     bench = read_bench(folder)
     tune_wall = None
@@ -521,8 +527,8 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 
 def _regenerate(args: argparse.Namespace) -> int:
-    from ..bench.generator import SUITES, generate_suite
     from ..data.suites import dump_manifest, load_suite, suite_names
+    from ..experiments.bench.generator import SUITES, generate_suite
 
     if args.suite not in SUITES:
         raise ValueError(

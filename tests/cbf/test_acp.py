@@ -242,7 +242,7 @@ def test_end_to_end_on_crossing_larger_regions_keep_the_robot_further(crossing) 
 
 @pytest.mark.data
 def test_end_to_end_on_an_sdd_scenario_of_the_suite(data_root) -> None:
-    from conformal_control.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench import load_scenario, load_suite
 
     suite = load_suite("crossings-v1")
     sc = next(s for s in suite.scenarios if s.source == "sdd" and s.collided_nolearn)

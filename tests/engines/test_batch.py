@@ -46,7 +46,7 @@ def test_crossing_oracle_and_brake_with_si_parameters(crossings, compare_batch):
 def test_acp_family_matches_run_episode(crossings, compare_batch, fallback):
     """The acp family (its regions, its miscoverage loss, ACI) with the compiled and a
     Python fallback: every metric and every interval's row."""
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods(["acp"])[0].run_kwargs()
     kw["family_params"] = {"window": 200, "max_inflation": 0.6}
@@ -87,7 +87,7 @@ def suite_scenes(data_root):
 
 @pytest.mark.parametrize("method", ["nolearn", "conformal", "inflated", "acp", "fallback:relax"])
 def test_suite_scenarios_match_run_episode(suite_scenes, compare_batch, method):
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     m = expand_methods([method], {"conformal": [-0.1], "inflated": [0.25]})[0]
     kw = m.run_kwargs()

@@ -43,7 +43,7 @@ CASES = [
 def test_suite_scenarios_match_run_episode(
     suite_scenes, compare_batch, crowd, crowd_params, method
 ):
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods([method], {"conformal": [-0.1]})[0].run_kwargs()
     frames = [sc.meta["max_frames"] for sc in suite_scenes]

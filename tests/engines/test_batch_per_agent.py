@@ -79,7 +79,7 @@ def suite_scenes(data_root):
 def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
     """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
     predictor called through the episode's own objects) on crossings-v2 scenarios."""
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods([family])[0].run_kwargs()
     kw["predictor"] = "delayed"

@@ -7,10 +7,10 @@ import json
 
 import pytest
 
-from conformal_control.bench.runner import read_rows, run_bench
-from conformal_control.sweep import run_sweep
-from conformal_control.sweep.batch import batch_reason
-from conformal_control.sweep.spec import RunConfig
+from conformal_control.experiments import run_sweep
+from conformal_control.experiments.batch import batch_reason
+from conformal_control.experiments.bench.runner import read_rows, run_bench
+from conformal_control.experiments.spec import RunConfig
 
 #: Columns that measure the machine or the process, not the episode.
 MACHINE = {"wall_s", "elapsed_s", "worker", "finished_at", "run_dir"}
@@ -147,7 +147,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     import threading
 
     import conformal_control.engines.batch as sim_batch
-    import conformal_control.sweep.batch as sweep_batch
+    import conformal_control.experiments.batch as sweep_batch
 
     pool_delivered = threading.Event()
 
@@ -168,7 +168,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     monkeypatch.setattr(
         sweep_batch, "_record", lambda cfg, key, out, plot, result, t0: {"key": key}
     )
-    monkeypatch.setattr("conformal_control.sweep.worker.load_run_scene", lambda cfg: _Scene())
+    monkeypatch.setattr("conformal_control.experiments.worker.load_run_scene", lambda cfg: _Scene())
     batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
     pooled = {"scene": "crossing", "seed": 1, "episode": {"family": "mpc"}}
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from conformal_control.bench import planar
+from conformal_control.experiments.bench import planar
 from conformal_control.families.cbf.controller import ControlState
 from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 from conformal_control.families.mpc import ECPMPC, SamplingMPC

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.reproduce import PAPER_TABLES, auto_executor, plan
+from conformal_control.experiments.reproduce import PAPER_TABLES, auto_executor, plan
 
 #: ``conformal-control reproduce all --frames 90 --executor serial`` on SDD at 68fa01c (the
 #: commit before the edge rule), wall time and run folders left out

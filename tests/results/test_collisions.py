@@ -194,8 +194,8 @@ def test_the_grid_never_contradicts_the_closed_form_tests(x, y, vx, vy, v_max, n
 def test_recomputed_from_the_raw_sdd_annotations(data_root):
     """An SDD test scenario's collision frames and events, recomputed from the raw
     annotations file (its own parser, not the loader) and the robot's logged path."""
-    from conformal_control.bench import load_scenario, load_suite
     from conformal_control.data.sdd import sdd_video
+    from conformal_control.experiments.bench import load_scenario, load_suite
     from conformal_control.sim import run_episode
 
     sc = load_suite("crossings-v1").scenario("sdd-hyang-13-w017")

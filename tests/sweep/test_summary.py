@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from conformal_control.cli import main
-from conformal_control.sweep.summary import summary_axes, write_summary_plot
+from conformal_control.experiments.summary import summary_axes, write_summary_plot
 
 
 def row(**kw) -> dict:

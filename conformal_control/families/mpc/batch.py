@@ -17,7 +17,7 @@ for all episodes instead of once per episode.
 
 **Measured: it does not pay at the planar protocol's size.** The 13 scenarios of ``cc_mpc``
 (1,203 candidates of 12 steps per decision) take 3.7 ms of CPU per decided step in lockstep
-(:func:`~conformal_control.bench.planar.run_scenarios`) against 3.1 ms one at a time
+(:func:`~conformal_control.experiments.bench.planar.run_scenarios`) against 3.1 ms one at a time
 (``benchmarks/bench_mpc.py``, the better of two passes each, on a machine shared with other
 jobs): the evaluation's call overhead is tens of microseconds, while the joint call copies
 every episode's candidates (three arrays of 1,203 x 12 x 2) into one and works through 13

@@ -31,7 +31,7 @@ The runner (:func:`run_multi_bench`, ``conformal-control bench run --robots M``)
 entry x robots count x method x reciprocity, one :func:`~conformal_control.sim.multi.run_multi`
 each, on a process pool; rows go to ``results.jsonl`` as they finish (a rerun into the same
 folder skips what is done). Methods are the single-robot benchmark's
-(:mod:`conformal_control.bench.methods`), applied to every robot. The report
+(:mod:`conformal_control.experiments.bench.methods`), applied to every robot. The report
 (:func:`write_multi_report`) gives per (robots, method, reciprocity) the fleet metrics with
 bootstrap CIs, and the reciprocal rows against the non-reciprocal ones paired by entry.
 """
@@ -50,15 +50,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..data.suites import SPLITS, TAIL_S, Scenario, load_suite
-from ..results.multi_metrics import ROBOT_NEAR_M
+from ...data.suites import SPLITS, TAIL_S, Scenario, load_suite
+from ...results.multi_metrics import ROBOT_NEAR_M
 from .methods import Method, available
 from .runner import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
 
 if TYPE_CHECKING:
-    from ..core.spec import RunSpec
+    from ...core.spec import RunSpec
 
 __all__ = [
     "LAYOUTS",
@@ -168,7 +168,7 @@ def layout_tasks(
     """
     if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
         raise ValueError(f"the number of robots must be an integer, got {n_robots!r}")
-    from ..sim.multi import MAX_ROBOTS
+    from ...sim.multi import MAX_ROBOTS
 
     if not 2 <= n_robots <= MAX_ROBOTS:
         raise ValueError(f"a fleet has 2 to {MAX_ROBOTS} robots, got {n_robots}")
@@ -274,7 +274,7 @@ class MultiSuite:
 
 
 def _manifest_dir() -> Path:
-    return Path(str(resources.files("conformal_control.bench") / "multi_manifests"))
+    return Path(str(resources.files("conformal_control.experiments.bench") / "multi_manifests"))
 
 
 def multi_suite_names() -> list[str]:
@@ -398,7 +398,7 @@ def entry_tasks(
 def entry_scene(base: Scenario, time_factor: float, data_root: str | None) -> Any:
     """The scene of an entry: the scenario's recording from its start, for ``time_factor``
     times its time limit (plus the suite's tail)."""
-    from ..data import load_scene
+    from ...data import load_scene
 
     frames = math.ceil(base.max_frames * time_factor)
     scene = load_scene(
@@ -454,7 +454,7 @@ def _options_label(options: Mapping[str, Any]) -> str:
 
 def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str, Any]:
     """Run one configuration; never raises (a failure is a row with its error)."""
-    from ..sim.multi import run_multi
+    from ...sim.multi import run_multi
 
     t0 = time.perf_counter()
     e = run.entry
@@ -515,8 +515,8 @@ def _solo(
     seed ``seed + i``, as in the fleet): pedestrian frames and deadlocks summed, the goal
     rate over the robots, no robot pair (:func:`~conformal_control.results.multi_metrics.
     fleet_metrics` of the single-robot runs)."""
-    from ..results.multi_metrics import fleet_metrics
-    from ..sim.multi import run_multi
+    from ...results.multi_metrics import fleet_metrics
+    from ...sim.multi import run_multi
 
     robots, contacts = [], []
     frames, wall, cpu = 0, 0.0, 0.0
@@ -638,8 +638,8 @@ def multi_bench_base(
     base : RunSpec, optional
         None: the constant-velocity predictor, seed 0, the robots section's defaults.
     """
-    from ..core.exceptions import InputError
-    from ..core.spec import Robots, RunSpec
+    from ...core.exceptions import InputError
+    from ...core.spec import Robots, RunSpec
 
     if base is None:
         base = RunSpec()
@@ -702,12 +702,12 @@ def run_multi_bench(
     suite, split
         The multi-robot suite and its split (None: both).
     methods, grids, tuned
-        Method families of :mod:`conformal_control.bench.methods`, their settings (a
+        Method families of :mod:`conformal_control.experiments.bench.methods`, their settings (a
         family's ``grids`` entry, else its tuned value for the base suite where one is
         shipped or given as a ``tuned.json``, else its settings), as the single-robot
-        benchmark plans them (:func:`~conformal_control.bench.runner.plan_methods`).
+        benchmark plans them (:func:`~conformal_control.experiments.bench.runner.plan_methods`).
     shifts : sequence of str
-        Predictor shifts of :mod:`conformal_control.bench.shifts` (entries a shift does
+        Predictor shifts of :mod:`conformal_control.experiments.bench.shifts` (entries a shift does
         not cover are left out of it).
     reciprocity : sequence of {"solo", "none", "reciprocal"}
         How the robots treat each other (``"none"``: predicted like pedestrians, lambda on
@@ -1233,7 +1233,7 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
     int
         The exit status: 0 when every episode ran.
     """
-    from ..core.spec import Robots, RunSpec
+    from ...core.spec import Robots, RunSpec
 
     robots = _ints(args.robots, "--robots")
     suite = args.suite if args.suite != default_suite else "multi-crossings-v1"

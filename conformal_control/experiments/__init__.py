@@ -1,6 +1,6 @@
 """Sweeps: run the controller over any parameter grid, locally or on a Dask cluster.
 
->>> from conformal_control.sweep import SweepSpec, run_sweep
+>>> from conformal_control.experiments import SweepSpec, run_sweep
 >>> spec = SweepSpec(base={"scene": "crossing", "frames": 100},
 ...                  grid={"epsilon": [-0.1, 0.1], "seed": [0, 1]})
 >>> report = run_sweep(spec, "sweeps/demo", executor="serial")  # doctest: +SKIP

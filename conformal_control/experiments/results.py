@@ -5,7 +5,7 @@ written to the file (handed to the operating system) the moment the run complete
 interrupted or killed sweep loses nothing it finished. Making it durable against a crash of
 the machine itself (``fsync``) is up to the caller: :meth:`ResultsStore.append` syncs by
 default, and the sweep runner syncs once per burst of records (group commit, see
-:mod:`conformal_control.sweep.runner`).
+:mod:`conformal_control.experiments.runner`).
 
 ``results.csv`` (and ``results.parquet`` when pyarrow is installed) are one flat row per
 run key (the latest record of each key), rewritten from the journal through a uniquely

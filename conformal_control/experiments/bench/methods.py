@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from ..core.spec import RunSpec
+from ...core.spec import RunSpec
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -580,7 +580,7 @@ def expand_methods(
 
 def available(method: Method) -> str | None:
     """None if every plugin the method needs is registered and loadable, else why not."""
-    from ..core import registry
+    from ...core import registry
 
     for role, name in method.requirements().items():
         try:

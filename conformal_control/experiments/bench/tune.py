@@ -1,6 +1,7 @@
 """``bench tune``: each method family's setting chosen on the dev split by one stated rule.
 
-Every tuned family (:attr:`~conformal_control.bench.methods.Family.tune` non-empty) runs its
+Every tuned family (:attr:`~conformal_control.experiments.bench.methods.Family.tune` non-empty)
+runs its
 tuning grid on the suite's dev split under the nominal predictor; :data:`RULE` picks one
 setting per family from the rows alone (:func:`choose`), and :func:`tune` writes
 ``tuned.json``: the chosen settings, every candidate's figures, the rule, the suite, split,
@@ -18,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
-from ..core.spec import RunSpec
+from ... import __version__
+from ...core.spec import RunSpec
 from .methods import FAMILIES
 from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
 
@@ -148,12 +149,12 @@ def tune(
     data_root : str, optional
         The data folder.
     executor : {"batch", "process", "serial", "dask"}
-        As for :func:`~conformal_control.bench.runner.run_bench`.
+        As for :func:`~conformal_control.experiments.bench.runner.run_bench`.
     workers : int, optional
         Worker processes (default: the CPUs available).
     progress : bool, optional
         False: no progress report; otherwise a bar on a terminal, periodic lines where
-        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
+        the output is redirected (:func:`~conformal_control.experiments.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
     seed : int

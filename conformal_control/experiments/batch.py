@@ -23,7 +23,7 @@ A batched run's record, ``metrics.json`` and ``config.json`` are those of the pe
 run (the engine gives ``run_episode``'s metrics exactly), except ``wall_s`` (the run's share
 of the batch's wall time), ``elapsed_s``, ``worker`` and the extra ``"engine": "batch"`` of
 ``config.json``. If a batch raises (an invalid scene, a failing episode), its runs not yet
-recorded are run one by one through :func:`~conformal_control.sweep.worker.execute_run`, so a
+recorded are run one by one through :func:`~conformal_control.experiments.worker.execute_run`, so a
 bad run fails alone, as in any sweep.
 """
 

@@ -23,7 +23,8 @@ class Executor(ABC):
 
     name = "base"
     #: whether the workers are other processes, maybe on other machines, that take chunks of
-    #: batched runs (the sweep runner sends them :func:`~conformal_control.sweep.batch.run_chunk`)
+    #: batched runs (the sweep runner sends them
+    #: :func:`~conformal_control.experiments.batch.run_chunk`)
     distributed = False
 
     @abstractmethod

@@ -79,12 +79,12 @@ from typing import Any
 
 import numpy as np
 
-from ..data.ethucy import ETHUCY_FPS, ETHUCY_ORIGINAL_RATE, ETHUCY_RECORDINGS, ethucy_recording
-from ..data.paths import resolve_data_root
-from ..data.scenes import read_tracks
-from ..data.sdd import SDD_FPS, sdd_video
-from ..data.suites import SCHEMA, SCHEMA_VERSION, Scenario, load_scenario
-from ..data.tracks import Tracks
+from ...data.ethucy import ETHUCY_FPS, ETHUCY_ORIGINAL_RATE, ETHUCY_RECORDINGS, ethucy_recording
+from ...data.paths import resolve_data_root
+from ...data.scenes import read_tracks
+from ...data.sdd import SDD_FPS, sdd_video
+from ...data.suites import SCHEMA, SCHEMA_VERSION, Scenario, load_scenario
+from ...data.tracks import Tracks
 
 __all__ = [
     "CROSSINGS_V1",
@@ -648,7 +648,7 @@ def nolearn_outcome(
         ``n_collide``, ``d_min`` (m), ``goal_reached``, ``t_goal`` (s), ``frames``,
         ``n_fallback`` (lengths and times rounded).
     """
-    from ..sim.episode import run_episode
+    from ...sim.episode import run_episode
 
     sc = Scenario.from_dict(scenario)
     scene = load_scenario(sc, data_root)

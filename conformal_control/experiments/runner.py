@@ -93,7 +93,7 @@ class SweepReport:
     executor : str
     journal_skipped : list of (int, str)
         Journal lines that could not be read (line number, reason); a
-        :class:`~conformal_control.sweep.results.JournalWarning` names them too.
+        :class:`~conformal_control.experiments.results.JournalWarning` names them too.
     summary_plot : Path or None
         The summary plot written (``summary.png``), if any.
     notes : list of str
@@ -276,10 +276,10 @@ def run_sweep(
     executor : Executor or str
         ``"process"`` (default), ``"serial"``, ``"dask"``, ``"batch"``, or an executor
         instance (not closed here). ``"batch"`` runs every run the lockstep engine supports
-        many at once in this process (same metrics; see :mod:`conformal_control.sweep.batch`)
+        many at once in this process (same metrics; see :mod:`conformal_control.experiments.batch`)
         and the others on a process pool; ``"dask"`` (``scheduler``: a running cluster's
         address, else a local one) sends those runs in chunks, each batched on a worker
-        (:func:`~conformal_control.sweep.batch.run_chunked`), and the others one per task.
+        (:func:`~conformal_control.experiments.batch.run_chunked`), and the others one per task.
         Either way this process journals every record as it arrives.
     workers, scheduler :
         For executors built by name.
@@ -291,7 +291,7 @@ def run_sweep(
         Write ``plot.png`` and ``guarantee.png`` in every run directory (default off:
         plotting takes most of a short run's time); ``"metrics"`` writes only each run's
         ``config.json`` and ``metrics.json``, ``"none"`` no run directory (the journal
-        holds the metrics): see :func:`~conformal_control.sweep.worker.execute_run`.
+        holds the metrics): see :func:`~conformal_control.experiments.worker.execute_run`.
     summary_plot : bool
         Write ``summary.png``, the metrics against the swept parameter (default on).
     validate : bool

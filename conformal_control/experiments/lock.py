@@ -1,7 +1,7 @@
 """One sweep at a time per folder: an OS-level lock on ``OUT/.lock`` naming its owner.
 
 Two drivers writing one folder would run every configuration twice and interleave their
-journal lines and table rewrites, so :func:`~conformal_control.sweep.runner.run_sweep`
+journal lines and table rewrites, so :func:`~conformal_control.experiments.runner.run_sweep`
 holds an exclusive lock on ``OUT/.lock`` for as long as it runs. The lock is taken with
 ``fcntl.flock`` (``msvcrt.locking`` on Windows): the operating system releases it when
 the owner's file descriptor closes, including when the owner is killed, so a crash never

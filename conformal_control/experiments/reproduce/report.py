@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from ..sweep import RunConfig, run_sweep
-from ..sweep.executors import Executor
+from .. import RunConfig, run_sweep
+from ..executors import Executor
 from .paper import PAPER_EDGE, PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
 
 __all__ = [
@@ -418,7 +418,7 @@ def forms_data_stats(data_root: str | None, frames: int = 300) -> dict[str, Any]
     """
     from scipy.spatial import cKDTree
 
-    from ..data import load_scene
+    from ...data import load_scene
 
     out: dict[str, Any] = {"frames": frames}
     win = {}
@@ -453,9 +453,9 @@ def forms_data_stats(data_root: str | None, frames: int = 300) -> dict[str, Any]
 def _figures(
     table: PaperTable, rows: list[ReproRow], fig_dir: Path, data_root: str | None
 ) -> list[str]:
-    from ..data import load_scene
-    from ..io.plotting.jobs import FigureJob, draw_all
-    from ..io.plotting.reproduce import (
+    from ...data import load_scene
+    from ...io.plotting.jobs import FigureJob, draw_all
+    from ...io.plotting.reproduce import (
         plot_lambda_loss_rows,
         plot_lavg_vs_epsilon,
         plot_paths_grid,
@@ -523,7 +523,7 @@ def auto_executor(configs: Sequence[RunConfig]) -> str:
     """``"serial"`` when every run's predictor is a fast one (a dozen episodes then take
     about a second in this process, less than starting worker processes), else
     ``"process"``."""
-    from ..core import registry
+    from ...core import registry
 
     fast = all(registry.get("predictor", c.predictor).capabilities.batchable for c in configs)
     return "serial" if fast else "process"
@@ -561,7 +561,7 @@ def reproduce(
     predictor_params : dict, optional
         Its parameters.
     executor : Executor or str
-        Where the runs go (see :func:`~conformal_control.sweep.run_sweep`); ``"auto"``
+        Where the runs go (see :func:`~conformal_control.experiments.run_sweep`); ``"auto"``
         (default) runs them in this process when every run's predictor is a fast one
         (capabilities' ``batchable``: a dozen episodes take about
         a second, less than starting worker processes), else on a process pool.
@@ -590,7 +590,7 @@ def reproduce(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     targets = list(dict.fromkeys(TARGETS if "all" in targets else targets))
-    from ..core import registry
+    from ...core import registry
 
     registry.get("predictor", predictor)  # unknown or unavailable: a clear error up front
     variants = list(variants or VARIANTS)

@@ -1,6 +1,6 @@
 """``fcp-planar-dense``: the ETH/UCY planar protocol with a start every few steps.
 
-The published protocol (:mod:`~conformal_control.bench.planar`, ``fcp-planar``) has 13
+The published protocol (:mod:`~conformal_control.experiments.bench.planar`, ``fcp-planar``) has 13
 scenarios, one to three per recording: too few to put an interval on a collision rate or to
 separate two methods. This suite keeps everything of that protocol (the five recordings, eth's
 published time base, the robot, radii, limits, warm-up, goal tolerance, step limits, metrics,
@@ -8,7 +8,8 @@ and each dataset's start pose and goal) and only adds start time steps, by a rul
 (:data:`RULE`):
 
 * every :data:`STRIDE` (20) time steps, on the multiples of 20, from the first start whose
-  scenario has :data:`~conformal_control.bench.planar.HISTORY_SAMPLES` samples of history
+  scenario has :data:`~conformal_control.experiments.bench.planar.HISTORY_SAMPLES` samples of
+  history
   to the last whose scenario (its step limit of protocol steps, then the plan's 12 steps of
   truth) ends within the recording;
 * split by time: a dataset's **boundary** is the middle time step of its starts' range; a
@@ -21,7 +22,8 @@ The task list is shipped (``planar_manifests/fcp-planar-dense.json``) and regene
 the data by :func:`generate_manifest` (a test compares the bytes). Methods are tuned on
 ``dev``, reported on ``test``; :func:`dense_report` gives per dataset and method the mean of
 every metric over scenarios with a bootstrap 95 % interval (seeds averaged per scenario
-first), and paired comparisons over the same scenarios (:mod:`~conformal_control.bench.stats`).
+first), and paired comparisons over the same scenarios
+(:mod:`~conformal_control.experiments.bench.stats`).
 """
 
 from __future__ import annotations
@@ -136,14 +138,15 @@ def dump_manifest(manifest: Mapping[str, Any]) -> str:
 
 def load_manifest() -> dict[str, Any]:
     """The shipped manifest."""
-    path = resources.files("conformal_control.bench") / "planar_manifests" / f"{SUITE}.json"
+    path = resources.files("conformal_control.experiments.bench") / "planar_manifests"
+    path = path / f"{SUITE}.json"
     out: dict[str, Any] = json.loads(path.read_text())
     return out
 
 
 def dense_tasks(split: str = "test") -> dict[str, PlanarTask]:
     """The suite's tasks of a split (``dev``, ``test`` or ``all``), one
-    :class:`~conformal_control.bench.planar.PlanarTask` per dataset with the split's
+    :class:`~conformal_control.experiments.bench.planar.PlanarTask` per dataset with the split's
     starts (datasets without any left out).
 
     Parameters
@@ -214,7 +217,7 @@ def dense_report(
     Parameters
     ----------
     rows : sequence of mappings
-        :func:`~conformal_control.bench.planar.run_planar`'s rows.
+        :func:`~conformal_control.experiments.bench.planar.run_planar`'s rows.
     baseline : str
         The method every other is paired with first.
     reference : str

@@ -60,7 +60,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..predictors.base import Forecast, PredictionQuery, Predictor
+from ...predictors.base import Forecast, PredictionQuery, Predictor
 
 __all__ = [
     "GOAL_TOLERANCE_M",
@@ -226,7 +226,7 @@ class PlanarRecording:
     """
 
     def __init__(self, path: str | Path) -> None:
-        from ..data.ethucy import read_ethucy
+        from ...data.ethucy import read_ethucy
 
         tracks = read_ethucy(path)
         step = float(tracks.meta.get("frame_step", FRAMES_PER_STEP))
@@ -278,7 +278,7 @@ def _recording(path: str) -> PlanarRecording:
 
 def recording(task: PlanarTask, data_root: str | Path | None = None) -> PlanarRecording:
     """The task's recording (read once per process)."""
-    from ..data.ethucy import ethucy_recording
+    from ...data.ethucy import ethucy_recording
 
     return _recording(str(ethucy_recording(task.recording, data_root)))
 
@@ -287,7 +287,8 @@ def recording(task: PlanarTask, data_root: str | Path | None = None) -> PlanarRe
 #: How a method's row is defined: by the published code ("published", the row's name
 #: follows the published method) or by us ("ours").
 DEFINITIONS = ("published", "ours")
-#: How ``fcp_mpc`` is calibrated on the protocol (:mod:`~conformal_control.bench.planar_fcp`):
+#: How ``fcp_mpc`` is calibrated on the protocol
+#: (:mod:`~conformal_control.experiments.bench.planar_fcp`):
 #: every time step of the recording (the published runs'), or every time step outside the
 #: scenario's window (ours: the test window is not calibrated on; in the dense suite, the
 #: other part of the recording).
@@ -555,12 +556,12 @@ SHIFT_SEPARATOR = "@"
 
 
 def _predictor(name: str, task: PlanarTask, data_root: str | Path | None) -> TimedPredictor:
-    from ..core import registry
+    from ...core import registry
 
     if SHIFT_SEPARATOR in name:
         import re
 
-        from ..predictors.shift import DelayedPredictor
+        from ...predictors.shift import DelayedPredictor
 
         base, shift = name.split(SHIFT_SEPARATOR, 1)
         match = re.fullmatch(r"delay-([0-9]*\.?[0-9]+)s", shift)
@@ -639,7 +640,7 @@ class TimedPredictor(Predictor):
 
 def _recorded_params(task: PlanarTask, data_root: str | Path | None) -> dict[str, Any]:
     """Arguments of the ``recorded`` predictor for a task's Trajectron++ file."""
-    from ..data.paths import external_root
+    from ...data.paths import external_root
 
     path = external_root(data_root) / "trajectron-ethucy" / f"{task.dataset}.csv.gz"
     return {"path": str(path), "step_s": STEP_S, "frames_per_step": float(FRAMES_PER_STEP)}
@@ -664,13 +665,13 @@ def build_method(
     envelope : FunctionalEnvelope, optional
         An ``fcp_mpc`` method's calibrated envelopes (:func:`scenario_envelope`).
     """
-    from ..core import registry
-    from ..families.cbf.barriers import APFBarrier
-    from ..families.cbf.constraint import ConformalConstraint
-    from ..families.cbf.controller import ConformalCBFController
-    from ..families.cbf.dynamics import Unicycle, UnicycleLookahead
-    from ..families.cbf.filters.exact2d import Exact2DSafetyFilter
-    from ..families.cbf.reference import AttractiveField
+    from ...core import registry
+    from ...families.cbf.barriers import APFBarrier
+    from ...families.cbf.constraint import ConformalConstraint
+    from ...families.cbf.controller import ConformalCBFController
+    from ...families.cbf.dynamics import Unicycle, UnicycleLookahead
+    from ...families.cbf.filters.exact2d import Exact2DSafetyFilter
+    from ...families.cbf.reference import AttractiveField
 
     limits = {
         "v_min": ROBOT["v_min_mps"],
@@ -863,7 +864,7 @@ def run_scenarios(
     list of ScenarioResult
         One per start time step, in order.
     """
-    from ..families.mpc.batch import plan_all
+    from ...families.mpc.batch import plan_all
 
     runs = [
         _scenario(task, s, method, predictor, data_root=data_root, seed=seed)
@@ -904,9 +905,9 @@ def _scenario(
     lambda)`` and receives the seconds of joint work done for it meanwhile (its share of
     :func:`~conformal_control.families.mpc.batch.plan_all`, counted in its controller time); it
     returns the :class:`ScenarioResult`."""
-    from ..core.loop import ConformalStepper
-    from ..families.cbf.controller import ControlState
-    from ..families.cbf.loss import CBFTruth
+    from ...core.loop import ConformalStepper
+    from ...families.cbf.controller import ControlState
+    from ...families.cbf.loss import CBFTruth
 
     rec = recording(task, data_root)
     predictor = method.predictor or predictor
@@ -1003,7 +1004,7 @@ _ENVELOPES: dict[tuple[Any, ...], Any] = {}
 def method_calibration(method: PlanarMethod) -> Any:
     """The :class:`~conformal_control.families.mpc.fcp.FieldCalibration` of an ``fcp_mpc`` method
     (its ``calibration__*`` parameters over the published defaults)."""
-    from ..families.mpc.fcp import FieldCalibration
+    from ...families.mpc.fcp import FieldCalibration
 
     pre = "calibration__"
     given = {k[len(pre) :]: v for k, v in method.family_params.items() if k.startswith(pre)}
@@ -1018,7 +1019,8 @@ def scenario_envelope(
     data_root: str | Path | None = None,
 ) -> Any:
     """The envelopes an ``fcp_mpc`` method plans with in a scenario, calibrated offline on
-    the recording with the scenario's predictor (:mod:`~conformal_control.bench.planar_fcp`;
+    the recording with the scenario's predictor
+    (:mod:`~conformal_control.experiments.bench.planar_fcp`;
     cached in the process: the seeds of a scenario share them).
 
     Parameters
@@ -1134,7 +1136,7 @@ def run_planar(
         Several random states: every scenario runs once per seed.
     tasks : mapping, optional
         The datasets' tasks (default :data:`TASKS`, the published 13 scenarios; the dense
-        suite's, :mod:`~conformal_control.bench.planar_dense`).
+        suite's, :mod:`~conformal_control.experiments.bench.planar_dense`).
     suite : str
         The suite's name (``config.json``).
     progress : callable, optional
@@ -1289,9 +1291,9 @@ def reusable_rows(
 def warm_up_kernels() -> None:
     """Compile (or load from numba's cache) the MPC's kernels once, so that the first
     scenario's controller time does not include it."""
-    from ..core.jit import compile_now
-    from ..families.cbf.dynamics import Unicycle
-    from ..families.mpc.kernels import evaluate
+    from ...core.jit import compile_now
+    from ...families.cbf.dynamics import Unicycle
+    from ...families.mpc.kernels import evaluate
 
     compile_now()  # a suite of episodes: compiled (see conformal_control.core.jit)
     cmds = np.zeros((2, 3, 2))
@@ -1487,7 +1489,7 @@ def run_command(
     seeds : str, optional
         Comma-separated random states (None: 0).
     """
-    from ..core import registry
+    from ...core import registry
 
     try:
         seed_list = [int(v) for v in (seeds or "0").split(",") if v.strip()]

@@ -10,7 +10,7 @@ components, 7 mixture components, 30 % held out). The grid covers the scenario: 
 start and goal, and the pedestrians' current and predicted positions over the scenario's
 first ``min(max_steps, 200)`` time steps, with 2 m of margin.
 
-Two calibration sets (:data:`~conformal_control.bench.planar.CALIBRATIONS`):
+Two calibration sets (:data:`~conformal_control.experiments.bench.planar.CALIBRATIONS`):
 
 * ``recording``: every time step of the recording, the published runs' (which includes the
   scenario's own time steps: the envelopes have seen the test window's prediction errors);
@@ -21,7 +21,7 @@ The published runs cache one calibration per dataset (their cache file's name ha
 scenario), so the second and third scenarios of a dataset reuse the first scenario's grid
 geometry under their own centre and side; in ``fcp-planar`` each scenario is calibrated on
 its own grid. In ``fcp-planar-dense`` a task carries its part of the recording
-(:attr:`~conformal_control.bench.planar.PlanarTask.part`): one grid covers the part, one
+(:attr:`~conformal_control.experiments.bench.planar.PlanarTask.part`): one grid covers the part, one
 calibration serves all its scenarios, and ``held_out`` calibrates on the *other* part
 (test scenarios on the dev part and back, each without the plan's horizon at the boundary).
 """
@@ -34,9 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from ..families.mpc.fcp import FieldCalibration
-from ..families.mpc.fieldcp import FieldGrid, FunctionalEnvelope, fit_envelope
-from ..predictors.base import PredictionQuery, Predictor
+from ...families.mpc.fcp import FieldCalibration
+from ...families.mpc.fieldcp import FieldGrid, FunctionalEnvelope, fit_envelope
+from ...predictors.base import PredictionQuery, Predictor
 
 __all__ = ["PlanarPredictions", "calibrate", "predictions_on", "scenario_samples"]
 

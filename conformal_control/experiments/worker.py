@@ -69,7 +69,7 @@ def cached_scene(name: str, data_root: str | None, seed: int) -> Scene:
 def execute_run(
     cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str = False
 ) -> dict[str, Any]:
-    """Run one configuration (see :class:`~conformal_control.sweep.spec.RunConfig`).
+    """Run one configuration (see :class:`~conformal_control.experiments.spec.RunConfig`).
 
     Parameters
     ----------

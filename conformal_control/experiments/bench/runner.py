@@ -1,15 +1,16 @@
 """Run the benchmark: scenarios x methods x predictor shifts, on the sweep runner.
 
 Each (shift, scenario, method) triple is one run of a sweep
-(:func:`conformal_control.sweep.run_sweep`): resumable by key, failures isolated and
+(:func:`conformal_control.experiments.run_sweep`): resumable by key, failures isolated and
 recorded, a progress bar, any executor (the lockstep batch engine, local processes, Dask).
 The scene of a run is ``scenario:<suite>/<id>`` (its time limit comes with it), the method's
 parameters are in SI (``units="si"``), and the row of every episode carries the scenario's,
 the method's and the shift's description (``meta``) so that reports are built from the
-stored rows alone (:func:`conformal_control.bench.report.write_report`).
+stored rows alone (:func:`conformal_control.experiments.bench.report.write_report`).
 
 **Tuned values.** :func:`run_bench` uses, by default, the values ``bench tune`` chose on the
-suite's dev split and the package ships (``conformal_control/bench/tuned/<suite>.json``), or
+suite's dev split and the package ships
+(``conformal_control/experiments/bench/tuned/<suite>.json``), or
 a ``tuned.json`` given with ``tuned=``: a tuned family runs its tuned setting only, except a
 *reference* family (``fixed``), which runs its whole tuning grid so that the report can show,
 clearly labelled, the setting re-tuned on the reported split itself. ``bench.json`` records
@@ -34,13 +35,13 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.exceptions import InputError
-from ..data.suites import Scenario, load_suite
+from ...core.exceptions import InputError
+from ...data.suites import Scenario, load_suite
 from .methods import DEFAULT_METHODS, FAMILIES, Method, available, expand_methods
 from .shifts import SHIFTS, Shift, get_shift
 
 if TYPE_CHECKING:
-    from ..core.spec import RunSpec
+    from ...core.spec import RunSpec
 
 __all__ = [
     "DEFAULT_SUITE",
@@ -112,7 +113,9 @@ class Tuned:
 
 
 def _shipped_tuned(suite: str) -> Path | None:
-    path = Path(str(resources.files("conformal_control.bench") / "tuned" / f"{suite}.json"))
+    path = Path(
+        str(resources.files("conformal_control.experiments.bench") / "tuned" / f"{suite}.json")
+    )
     return path if path.is_file() else None
 
 
@@ -132,7 +135,7 @@ def load_tuned(tuned: str | Path | None, suite: str) -> Tuned | None:
         path = _shipped_tuned(suite)
         if path is None:
             return None
-        source = f"shipped:conformal_control/bench/tuned/{path.name}"
+        source = f"shipped:conformal_control/experiments/bench/tuned/{path.name}"
     else:
         path = Path(tuned)
         if path.is_dir():
@@ -175,7 +178,7 @@ def check_tuned_split(tuned: Tuned, split: str | None) -> None:
     """
     import warnings
 
-    from ..core.exceptions import TunedOnReportedSplitWarning
+    from ...core.exceptions import TunedOnReportedSplitWarning
 
     chosen_on = str(tuned.data.get("split"))
     if split is None or split == chosen_on:
@@ -277,11 +280,11 @@ def bench_configs(
     base_params : mapping, optional
         Run parameters (SI) applied to every method; a method's own parameters win.
     shifts : sequence of Shift or str
-        The predictor shifts (:mod:`conformal_control.bench.shifts`).
+        The predictor shifts (:mod:`conformal_control.experiments.bench.shifts`).
     tuned : Tuned, optional
         Recorded in every row (``tuned_from``).
     """
-    from ..sweep.spec import RunConfig
+    from ..spec import RunConfig
 
     if limit is not None and (int(limit) != limit or limit < 1):
         raise ValueError(f"limit must be a positive number of scenarios, got {limit!r}")
@@ -349,14 +352,14 @@ class _BenchLock:
     sweep's own lock, on ``OUT/.lock``, is taken later, by the sweep)."""
 
     def __init__(self, out: Path) -> None:
-        from ..sweep.lock import SweepLock
+        from ..lock import SweepLock
 
         self._lock = SweepLock(out)
         self._lock.path = out / ".bench.lock"
         self.out = out
 
     def __enter__(self) -> _BenchLock:
-        from ..sweep.lock import SweepLockedError
+        from ..lock import SweepLockedError
 
         try:
             self._lock.acquire()
@@ -497,7 +500,7 @@ def bench_base(
     base : RunSpec, optional
         None: the constant-velocity predictor, the replayed crowd, seed 0, no parameters.
     """
-    from ..core.spec import RunSpec
+    from ...core.spec import RunSpec
 
     if base is None:
         return "constant_velocity", {}, "replay", {}, 0, {}
@@ -560,11 +563,11 @@ def run_bench(
     split : {"dev", "test"} or None
         None runs both.
     methods : sequence of str
-        Method families (:data:`~conformal_control.bench.methods.FAMILIES`).
+        Method families (:data:`~conformal_control.experiments.bench.methods.FAMILIES`).
     grids : mapping, optional
         A family's settings to run instead of its tuned value or its default settings.
     shifts : sequence of str
-        Names of :data:`~conformal_control.bench.shifts.SHIFTS`.
+        Names of :data:`~conformal_control.experiments.bench.shifts.SHIFTS`.
     tuned : path, "default" or None
         The tuned values (see the module docstring).
     base : RunSpec, optional
@@ -578,14 +581,14 @@ def run_bench(
         ``"batch"`` (default) runs the (scenario, method) pairs the lockstep engine
         supports many at once in this process, with the metrics of the per-episode loop,
         and the others on a process pool of ``workers`` (see
-        :mod:`conformal_control.sweep.batch`); the others run one episode per task.
+        :mod:`conformal_control.experiments.batch`); the others run one episode per task.
     workers : int, optional
         Worker processes (default: the CPUs available).
     scheduler : str, optional
         A Dask scheduler's address (``executor="dask"``).
     progress : bool, optional
         False: no progress report; otherwise a bar on a terminal, periodic lines where
-        the output is redirected (:func:`~conformal_control.sweep.runner.run_sweep`).
+        the output is redirected (:func:`~conformal_control.experiments.runner.run_sweep`).
     limit : int, optional
         Only the first ``limit`` scenarios of the split.
 
@@ -594,7 +597,7 @@ def run_bench(
     BenchFolderError
         ``out`` is in use by another ``bench run``, or holds runs of another condition.
     """
-    from ..sweep.runner import run_sweep
+    from ..runner import run_sweep
 
     predictor, predictor_params, crowd, crowd_params, seed, base_params = bench_base(base)
     out = Path(out)
@@ -693,7 +696,7 @@ def unfinished_episodes(out: str | Path) -> tuple[int, int]:
     out : str or Path
         The benchmark folder.
     """
-    from ..sweep.results import ResultsStore
+    from ..results import ResultsStore
 
     out = Path(out)
     try:
@@ -727,7 +730,7 @@ def incomplete_notice(planned: int, unfinished: int, command: str = "bench run")
 
 def read_rows(out: str | Path) -> list[dict[str, Any]]:
     """The stored per-episode rows of a benchmark folder (the latest record of each run)."""
-    from ..sweep.results import ResultsStore
+    from ..results import ResultsStore
 
     out = Path(out)
     if not (out / "results.jsonl").exists():

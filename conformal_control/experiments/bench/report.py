@@ -21,7 +21,7 @@ method) and writes, per predictor shift:
 * ``targets.md`` -- the benchmark's targets, met or not, with the figures;
 * ``no_regret.md`` / ``no_regret.csv`` -- per shift, each adaptive method against the whole
   fixed-lambda grid the folder ran: dominated or not, regret to the best fixed lambda in
-  hindsight, difference to the re-tuned one (:mod:`~conformal_control.bench.regret`);
+  hindsight, difference to the re-tuned one (:mod:`~conformal_control.experiments.bench.regret`);
 * ``agents.md`` -- lambda run per agent: the distribution over agents of their average
   loss against epsilon and their bounds (from each run's ``metrics.json``);
 * ``success_vs_epsilon.png`` -- success rate against epsilon for the epsilon families.
@@ -29,7 +29,7 @@ method) and writes, per predictor shift:
 A report is a pure function of the SET of rows and the seed: the rows are sorted (by shift,
 method, scenario, then their whole content) before anything is computed, methods are listed
 in a fixed order (the baseline, then by family, then by name), and the bootstrap resamples
-sorted values (:func:`~conformal_control.bench.stats.bootstrap_mean`); shuffling
+sorted values (:func:`~conformal_control.experiments.bench.stats.bootstrap_mean`); shuffling
 ``results.jsonl``, or two runs finishing their episodes in another order, give the same
 files.
 
@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from ..io.plotting.jobs import FigureJob, draw_all
+from ...io.plotting.jobs import FigureJob, draw_all
 from .regret import GridComparison, compare_with_grid, issue_targets
 from .shifts import SHIFTS
 from .stats import Estimate, PairedComparison, bootstrap_means, paired_comparisons
@@ -161,7 +161,7 @@ def _ok_rows(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict[str, Any]], l
 def _paired_args(
     mrows: list[dict[str, Any]], base: dict[str, dict[str, Any]]
 ) -> list[tuple[list[float], list[float], str, bool]]:
-    """The :func:`~conformal_control.bench.stats.paired_comparisons` arguments of the
+    """The :func:`~conformal_control.experiments.bench.stats.paired_comparisons` arguments of the
     paired columns (in the order of :data:`PAIRED`)."""
     common = [r for r in mrows if str(r["scenario"]) in base]
     out = []
@@ -791,7 +791,7 @@ def _frontier(v: _ShiftView, path: Path, title: str) -> None:
     )
     # every point named beside it (points that coincide stay readable): Pareto members
     # first and in bold; plotting.labels guarantees no two labels overlap
-    from ..io.plotting.labels import place_labels
+    from ...io.plotting.labels import place_labels
 
     order = sorted(range(len(v.shown)), key=lambda i: not front[i])
     place_labels(
@@ -1017,7 +1017,8 @@ def _issue_targets(
     comps: Mapping[str, list[GridComparison]],
     bench: Mapping[str, Any] | None,
 ) -> str:
-    """The per-agent issue's targets (:func:`~conformal_control.bench.regret.issue_targets`)
+    """The per-agent issue's targets
+    (:func:`~conformal_control.experiments.bench.regret.issue_targets`)
     for the dev-tuned adaptive methods."""
     tuned = set(_tuned_names(bench).values())
     methods = [m for v in views for m in _adaptive(v) if m in tuned]
@@ -1189,7 +1190,7 @@ def write_report(
     Parameters
     ----------
     rows : sequence of mapping
-        The benchmark's rows (:func:`~conformal_control.bench.runner.read_rows`).
+        The benchmark's rows (:func:`~conformal_control.experiments.bench.runner.read_rows`).
     out : str or Path
         The report's folder (created).
     baseline : str
@@ -1204,7 +1205,7 @@ def write_report(
         Seconds ``bench tune`` took (for the run-time target).
     notice : str, optional
         The first line of every page (a folder with unfinished episodes:
-        :func:`~conformal_control.bench.runner.incomplete_notice`).
+        :func:`~conformal_control.experiments.bench.runner.incomplete_notice`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..data.scenes import PUBLISHED_A, TABLE_I, TABLE_II
+from ...data.scenes import PUBLISHED_A, TABLE_I, TABLE_II
 
 __all__ = ["PAPER_EDGE", "PAPER_TABLES", "VARIANTS", "PaperRow", "PaperTable", "variant_a"]
 
