@@ -52,7 +52,7 @@ def _cpu() -> float:
 def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple[float, float, int]:
     """(wall, CPU, episodes) of the better of ``repeats`` ``run_bench`` calls into fresh
     folders (one worker)."""
-    from conformal_control.experiments.bench.runner import run_bench
+    from conformal_control.experiments.bench.suite import run_bench
 
     best: tuple[float, float, int] | None = None
     for _ in range(repeats):

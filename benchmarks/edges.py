@@ -102,7 +102,7 @@ def missed(folder: Path) -> list[dict[str, Any]]:
 
 
 def rerun(cfg: dict[str, Any], data_root: str | None, seconds: float | None) -> Any:
-    from conformal_control.experiments.spec import run_spec
+    from conformal_control.experiments.plan import run_spec
     from conformal_control.experiments.worker import cached_scene
     from conformal_control.sim import run_episode
 

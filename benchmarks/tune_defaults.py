@@ -28,7 +28,7 @@ from pathlib import Path
 
 from conformal_control.experiments.bench.methods import FRAME, Method
 from conformal_control.experiments.bench.report import write_report
-from conformal_control.experiments.bench.runner import bench_configs, read_rows
+from conformal_control.experiments.bench.suite import bench_configs, read_rows
 from conformal_control.experiments.runner import run_sweep
 
 

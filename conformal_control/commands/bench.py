@@ -16,7 +16,7 @@ from typing import Any
 from ..core import registry
 from . import add_data_root, command, key_values, positive_int
 
-#: The default suite (``conformal_control.experiments.bench.runner.DEFAULT_SUITE``; not imported
+#: The default suite (``conformal_control.experiments.bench.suite.DEFAULT_SUITE``; not imported
 #: here so
 #: that ``--help`` stays fast).
 SUITE = "crossings-v2"
@@ -392,8 +392,8 @@ def _run(args: argparse.Namespace) -> int:
         )
     from ..core.spec import RunSpec
     from ..experiments.bench.methods import DEFAULT_METHODS
-    from ..experiments.bench.runner import run_bench
     from ..experiments.bench.shifts import parse_shifts
+    from ..experiments.bench.suite import run_bench
 
     if args.robots is not None:  # several robots: the multi-robot suite
         from ..experiments.bench.multi import run_command as run_multi_command
@@ -447,7 +447,7 @@ def _report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..experiments.bench.report import write_report
-    from ..experiments.bench.runner import (
+    from ..experiments.bench.suite import (
         incomplete_notice,
         read_bench,
         read_rows,

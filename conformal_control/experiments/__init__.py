@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from .executors import EXECUTORS, Executor, ProcessExecutor, SerialExecutor, make_executor
 from .lock import SweepLock, SweepLockedError
+from .plan import RunConfig, SweepSpec, load_spec, parse_grid_option, run_key
 from .results import JournalWarning, ResultsStore, flatten_record
 from .runner import SweepInterrupted, SweepReport, run_sweep
-from .spec import RunConfig, SweepSpec, load_spec, parse_grid_option, run_key
 from .validate import SweepValidationError, validate_runs
 from .worker import METRIC_COLUMNS, execute_run
 

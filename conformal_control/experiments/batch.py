@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from .executors.base import Executor, Outcome
-from .spec import run_spec
+from .plan import run_spec
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
 __all__ = ["batch_reason", "run_batched", "run_chunk", "run_chunked"]

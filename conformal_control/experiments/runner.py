@@ -47,8 +47,8 @@ from typing import Any
 
 from .executors import Executor, make_executor
 from .lock import SweepLock
+from .plan import RunConfig, SweepSpec
 from .results import ResultsStore, atomic_write
-from .spec import RunConfig, SweepSpec
 from .worker import execute_run
 
 __all__ = ["JOURNAL_SYNC_S", "TABLE_INTERVAL_S", "SweepInterrupted", "SweepReport", "run_sweep"]

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from .spec import RunConfig, invalid_runs_message
+from .plan import RunConfig, invalid_runs_message
 
 __all__ = ["SweepValidationError", "check_run", "validate_runs"]
 

@@ -69,7 +69,7 @@ def cached_scene(name: str, data_root: str | None, seed: int) -> Scene:
 def execute_run(
     cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str = False
 ) -> dict[str, Any]:
-    """Run one configuration (see :class:`~conformal_control.experiments.spec.RunConfig`).
+    """Run one configuration (see :class:`~conformal_control.experiments.plan.RunConfig`).
 
     Parameters
     ----------
@@ -107,7 +107,7 @@ def execute_run(
     try:
         from ..results.rundir import write_run_dir
         from ..sim.episode import run_episode
-        from .spec import run_spec
+        from .plan import run_spec
 
         seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
         cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)

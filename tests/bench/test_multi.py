@@ -223,7 +223,7 @@ def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
     # the solo arm's figures, recomputed from the run directories of each robot of the
     # entry run alone on its own task (run_multi with that one task, saved)
     from conformal_control.experiments.bench.multi import entry_scene
-    from conformal_control.experiments.bench.runner import plan_methods
+    from conformal_control.experiments.bench.suite import plan_methods
     from conformal_control.sim.multi import run_multi
 
     out = tmp_path / "bench"

@@ -13,7 +13,7 @@ from conformal_control.experiments.bench.methods import (
     available,
     expand_methods,
 )
-from conformal_control.experiments.bench.runner import bench_configs, read_rows, run_bench
+from conformal_control.experiments.bench.suite import bench_configs, read_rows, run_bench
 
 
 def test_every_method_family_is_available_and_runs_one_scenario(data_root: Path) -> None:
@@ -138,7 +138,7 @@ def test_tune_run_report_end_to_end(tmp_path: Path, data_root: Path, capsys) -> 
 def test_the_base_run_gives_predictor_crowd_seed_and_si_parameters_only() -> None:
     from conformal_control.core.exceptions import InputError
     from conformal_control.core.spec import RunSpec
-    from conformal_control.experiments.bench.runner import bench_base
+    from conformal_control.experiments.bench.suite import bench_base
 
     assert bench_base(None) == ("constant_velocity", {}, "replay", {}, 0, {})
     base = RunSpec(
@@ -174,7 +174,7 @@ def _tuned_file(tmp_path, split):
 
 
 def test_a_tuned_file_must_say_its_split(tmp_path) -> None:
-    from conformal_control.experiments.bench.runner import load_tuned
+    from conformal_control.experiments.bench.suite import load_tuned
 
     with pytest.raises(ValueError, match="does not say which split its values were tuned on"):
         load_tuned(_tuned_file(tmp_path, None), "crossings-v2")
@@ -191,7 +191,7 @@ def test_bench_run_warns_when_the_tuned_split_is_reported(
     import warnings
 
     from conformal_control.core.exceptions import TunedOnReportedSplitWarning
-    from conformal_control.experiments.bench.runner import check_tuned_split, load_tuned
+    from conformal_control.experiments.bench.suite import check_tuned_split, load_tuned
 
     tuned = load_tuned(_tuned_file(tmp_path, tuned_on), "crossings-v2")
     with warnings.catch_warnings(record=True) as seen:

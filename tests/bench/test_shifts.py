@@ -15,13 +15,13 @@ from conformal_control.experiments.bench.methods import (
     expand_methods,
     register_family,
 )
-from conformal_control.experiments.bench.runner import (
+from conformal_control.experiments.bench.shifts import SHIFTS, get_shift, parse_shifts
+from conformal_control.experiments.bench.suite import (
     _BenchLock,
     bench_configs,
     plan_methods,
     read_bench,
 )
-from conformal_control.experiments.bench.shifts import SHIFTS, get_shift, parse_shifts
 from conformal_control.experiments.bench.tune import RULE, choose
 
 
@@ -107,7 +107,7 @@ def test_every_family_is_data():
 
 
 def test_tuned_values_plan_the_methods():
-    from conformal_control.experiments.bench.runner import Tuned
+    from conformal_control.experiments.bench.suite import Tuned
 
     tuned = Tuned({"fixed": -10.0, "conformal": -0.1}, "x", "0", {})
     names = [m.name for m in plan_methods(["nolearn", "fixed", "conformal"], tuned)]
@@ -252,7 +252,7 @@ def test_report_names_what_differs_between_pooled_runs(tmp_path: Path):
 
 def test_the_tuned_values_ship_with_the_package():
     """`bench run` uses the dev-tuned values shipped for the default suite."""
-    from conformal_control.experiments.bench.runner import DEFAULT_SUITE, load_tuned
+    from conformal_control.experiments.bench.suite import DEFAULT_SUITE, load_tuned
     from conformal_control.experiments.bench.tune import DEFAULT_TUNED, RULE
 
     tuned = load_tuned("default", DEFAULT_SUITE)

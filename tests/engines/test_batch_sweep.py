@@ -9,8 +9,8 @@ import pytest
 
 from conformal_control.experiments import run_sweep
 from conformal_control.experiments.batch import batch_reason
-from conformal_control.experiments.bench.runner import read_rows, run_bench
-from conformal_control.experiments.spec import RunConfig
+from conformal_control.experiments.bench.suite import read_rows, run_bench
+from conformal_control.experiments.plan import RunConfig
 
 #: Columns that measure the machine or the process, not the episode.
 MACHINE = {"wall_s", "elapsed_s", "worker", "finished_at", "run_dir"}

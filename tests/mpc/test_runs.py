@@ -259,7 +259,7 @@ def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
     tmp_path, data_root, shift, crowd, predictor
 ):
     from conformal_control.core.spec import RunSpec
-    from conformal_control.experiments.bench.runner import run_bench
+    from conformal_control.experiments.bench.suite import run_bench
 
     run = run_bench(
         tmp_path / "b",

@@ -280,7 +280,7 @@ WRONG_SCHEMA = [
 
 def test_valid_json_of_the_wrong_schema_is_skipped_like_a_torn_line(tmp_path: Path) -> None:
     """Such a line broke resume, the tables and `bench report` (AttributeError deep inside)."""
-    from conformal_control.experiments.bench.runner import read_rows
+    from conformal_control.experiments.bench.suite import read_rows
 
     store = ResultsStore(tmp_path)
     store.append(rec("good", status="ok", metrics={"x": 1.0}))

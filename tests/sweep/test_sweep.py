@@ -372,7 +372,7 @@ def test_tables_are_not_rewritten_after_every_run(tmp_path: Path, monkeypatch) -
 
 
 def test_a_huge_grid_is_refused_before_it_is_expanded(monkeypatch) -> None:
-    import conformal_control.experiments.spec as spec_mod
+    import conformal_control.experiments.plan as spec_mod
 
     huge = SweepSpec(grid={"epsilon": list(range(10**4)), "eta": list(range(10**4))})
     assert huge.size() == 10**8

@@ -6,7 +6,7 @@ data), methods declared as data (:mod:`~conformal_control.experiments.bench.meth
 shifts
 (:mod:`~conformal_control.experiments.bench.shifts`), the tuning protocol
 (:mod:`~conformal_control.experiments.bench.tune`), the runner
-(:mod:`~conformal_control.experiments.bench.runner`),
+(:mod:`~conformal_control.experiments.bench.suite`),
 statistics (:mod:`~conformal_control.experiments.bench.stats`) and reports
 (:mod:`~conformal_control.experiments.bench.report`). Collisions are classified in every run's
 metrics

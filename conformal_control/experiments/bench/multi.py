@@ -53,9 +53,9 @@ import numpy as np
 from ...data.suites import SPLITS, TAIL_S, Scenario, load_suite
 from ...results.multi_metrics import ROBOT_NEAR_M
 from .methods import Method, available
-from .runner import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
+from .suite import check_tuned_split, incomplete_notice, load_tuned, plan_methods
 
 if TYPE_CHECKING:
     from ...core.spec import RunSpec
@@ -705,7 +705,7 @@ def run_multi_bench(
         Method families of :mod:`conformal_control.experiments.bench.methods`, their settings (a
         family's ``grids`` entry, else its tuned value for the base suite where one is
         shipped or given as a ``tuned.json``, else its settings), as the single-robot
-        benchmark plans them (:func:`~conformal_control.experiments.bench.runner.plan_methods`).
+        benchmark plans them (:func:`~conformal_control.experiments.bench.suite.plan_methods`).
     shifts : sequence of str
         Predictor shifts of :mod:`conformal_control.experiments.bench.shifts` (entries a shift does
         not cover are left out of it).

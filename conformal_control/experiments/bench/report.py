@@ -1190,7 +1190,7 @@ def write_report(
     Parameters
     ----------
     rows : sequence of mapping
-        The benchmark's rows (:func:`~conformal_control.experiments.bench.runner.read_rows`).
+        The benchmark's rows (:func:`~conformal_control.experiments.bench.suite.read_rows`).
     out : str or Path
         The report's folder (created).
     baseline : str
@@ -1205,7 +1205,7 @@ def write_report(
         Seconds ``bench tune`` took (for the run-time target).
     notice : str, optional
         The first line of every page (a folder with unfinished episodes:
-        :func:`~conformal_control.experiments.bench.runner.incomplete_notice`).
+        :func:`~conformal_control.experiments.bench.suite.incomplete_notice`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,7 @@ from typing import Any
 from ... import __version__
 from ...core.spec import RunSpec
 from .methods import FAMILIES
-from .runner import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
+from .suite import DEFAULT_SUITE, BenchFolderError, read_rows, run_bench, write_json
 
 __all__ = ["DEFAULT_TUNED", "RULE", "TuneResult", "choose", "tune"]
 
@@ -149,7 +149,7 @@ def tune(
     data_root : str, optional
         The data folder.
     executor : {"batch", "process", "serial", "dask"}
-        As for :func:`~conformal_control.experiments.bench.runner.run_bench`.
+        As for :func:`~conformal_control.experiments.bench.suite.run_bench`.
     workers : int, optional
         Worker processes (default: the CPUs available).
     progress : bool, optional

@@ -11,7 +11,7 @@ import distributed  # the sweep extra, installed by the README: a missing one fa
 
 from conformal_control.cli import main
 from conformal_control.experiments.batch import run_chunked
-from conformal_control.experiments.bench.runner import read_rows
+from conformal_control.experiments.bench.suite import read_rows
 from conformal_control.experiments.executors.serial import SerialExecutor
 
 #: one method without learning, one learning method, one whose fallback decides in Python

@@ -284,7 +284,7 @@ def bench_configs(
     tuned : Tuned, optional
         Recorded in every row (``tuned_from``).
     """
-    from ..spec import RunConfig
+    from ..plan import RunConfig
 
     if limit is not None and (int(limit) != limit or limit < 1):
         raise ValueError(f"limit must be a positive number of scenarios, got {limit!r}")
