@@ -21,6 +21,7 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.commands": "conformal_control.cli.commands",
     "conformal_control.sweep.spec": "conformal_control.experiments.plan",
     "conformal_control.bench.runner": "conformal_control.experiments.bench.suite",
     "conformal_control.sweep": "conformal_control.experiments",

@@ -5,7 +5,7 @@
   ``conformal_control.data.units.PARAM_DIMENSIONS`` and the defaults of the built-in and
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
-  argparse parsers of ``conformal_control.commands``.
+  argparse parsers of ``conformal_control.cli.commands``.
 * **Outputs of commands**, run at build time: ``<!-- generated:run-demo -->`` (and
   ``run-nexus_4``), ``<!-- generated:run ARGS -->`` (``$ conformal-control run ARGS`` and
   what it prints), ``<!-- generated:runs NAME -->`` (a table of runs, :data:`RUN_TABLES`,

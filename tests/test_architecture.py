@@ -181,7 +181,7 @@ LAYERS: dict[str, int] = {
     "experiments.reproduce": 12,
     # the front door and the command line
     "api": 13,
-    "commands": 14,
+    "cli.commands": 14,
     "cli": 15,
 }
 

@@ -56,8 +56,8 @@ def _reproduce_args(p: argparse.ArgumentParser) -> None:
 
 @_reproduce_args.handler
 def _reproduce(args: argparse.Namespace) -> int:
-    from ..core.progress import is_quiet
-    from ..experiments.reproduce import reproduce
+    from ...core.progress import is_quiet
+    from ...experiments.reproduce import reproduce
 
     check_writable(args.out, "output folder")
     shown = {"auto": None, "on": True, "off": False}[args.progress]

@@ -18,8 +18,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from ..core import registry
-from ..core.exceptions import ConformalControlDeprecationWarning
+from ...core import registry
+from ...core.exceptions import ConformalControlDeprecationWarning
 from . import (
     add_data_root,
     check_writable,
@@ -42,8 +42,8 @@ def _position(text: str) -> str:
     """argparse type: a position as :mod:`~conformal_control.data.positions` reads it
     (``fx,fy`` fractions, ``3.2m,1.0m``, ``120px,300px``), kept as typed (the scene
     converts it; ``config.json`` stores it as given)."""
-    from ..core.exceptions import InputError
-    from ..data.positions import parse_position
+    from ...core.exceptions import InputError
+    from ...data.positions import parse_position
 
     try:
         return str(parse_position(text, "the position"))
@@ -286,7 +286,7 @@ def _replayed_options(stored: dict[str, Any], path: Path) -> dict[str, Any]:
         For a value of the wrong type (``no_learning: "false"``, ``frames: "abc"``): one
         line naming the file, the key and what it must be.
     """
-    from ..core.exceptions import IgnoredOptionWarning, InputError
+    from ...core.exceptions import IgnoredOptionWarning, InputError
 
     parser = _run_parser()
     options = {k: v for k, v in parser.options.items() if k not in _NOT_STORED}
@@ -342,8 +342,8 @@ MAX_CONFIG_BYTES = 16 << 20
 
 def _apply_config(args: argparse.Namespace) -> None:
     """Fill ``args`` from a run's config.json; options given explicitly win."""
-    from ..core.exceptions import InputError
-    from ..core.fileio import read_limited
+    from ...core.exceptions import InputError
+    from ...core.fileio import read_limited
 
     path = Path(args.config).expanduser()
     if path.is_dir():
@@ -386,8 +386,8 @@ def _apply_config(args: argparse.Namespace) -> None:
 # ------------------------------------------------------------------------------ checks
 def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     """Conflicting, ignored and incomplete options (before anything is loaded)."""
-    from ..core import registry
-    from ..core.exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
+    from ...core import registry
+    from ...core.exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
         raise InputError(
@@ -446,7 +446,7 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
 
 def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--predictor-param`` values, checked against the predictor's constructor."""
-    from ..core import registry
+    from ...core import registry
 
     cls = registry.get("predictor", args.predictor)
     pp = plugin_key_values(args.predictor_param, "--predictor-param", [cls])
@@ -457,9 +457,9 @@ def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
 def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
     """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
     before the scene is loaded)."""
-    from ..core import registry
-    from ..data.units import si_value
-    from ..world.crowds.crowd import Crowd
+    from ...core import registry
+    from ...data.units import si_value
+    from ...world.crowds.crowd import Crowd
 
     given = key_values(args.crowd_param, "--crowd-param")
     model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
@@ -486,10 +486,10 @@ def _run(args: argparse.Namespace) -> int:
     if not args.no_plot and args.robots is None and args.robots_file is None:
         # the run's modules first: the figure process inherits them (its jobs hold objects
         # of their classes), then it imports matplotlib on the other core during the episode
-        from .. import data  # noqa: F401
-        from ..io.plotting.jobs import prepare, release
-        from ..results import rundir  # noqa: F401
-        from ..sim import episode  # noqa: F401
+        from ... import data  # noqa: F401
+        from ...io.plotting.jobs import prepare, release
+        from ...results import rundir  # noqa: F401
+        from ...sim import episode  # noqa: F401
 
         prepare(
             ("conformal_control.io.plotting.guarantee", "conformal_control.io.plotting.distance")
@@ -506,9 +506,9 @@ def _run_prepared(args: argparse.Namespace) -> int:
     :func:`conformal_control.run`, the run directory."""
     import logging
 
-    from ..api import run
-    from ..core.spec import RunSpec
-    from ..results.rundir import write_run_dir
+    from ...api import run
+    from ...core.spec import RunSpec
+    from ...results.rundir import write_run_dir
 
     log = logging.getLogger("conformal_control.run")
     if args.config:
@@ -520,7 +520,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
     if "fallback" in params:  # the way of 0.2: the fallback is a role, --fallback NAME
         old_way = str(params.pop("fallback"))
         if args.fallback is not None and args.fallback != old_way:
-            from ..core.exceptions import InputError
+            from ...core.exceptions import InputError
 
             raise InputError(
                 f"--fallback {args.fallback} and --param fallback={old_way} disagree; give "
@@ -540,7 +540,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
         given = key_values(getattr(args, f"{role}_param"), f"--{flag}-param")
         name = getattr(args, role)
         if given and not name:
-            from ..core.exceptions import InputError
+            from ...core.exceptions import InputError
 
             raise InputError(f"--{flag}-param needs --{flag} NAME")
         roles[role] = name
@@ -595,7 +595,7 @@ def _data_root(args: argparse.Namespace) -> str | None:
     """The data folder of a run from data (absolute; None for the built-in scene)."""
     if args.scene == "crossing":
         return None
-    from ..data.paths import resolve_data_root
+    from ...data.paths import resolve_data_root
 
     return str(resolve_data_root(args.data_root).resolve())
 
@@ -664,10 +664,10 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
 def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     """``run --robots``: the run's specification (as ``_run_prepared`` built it) with the
     robots' tasks, by :func:`~conformal_control.sim.multi.run_multi`."""
-    from ..core.spec import RunSpec
-    from ..data import load_scene
-    from ..predictors.training import with_weights
-    from ..sim.multi import load_robots_file, run_multi
+    from ...core.spec import RunSpec
+    from ...data import load_scene
+    from ...predictors.training import with_weights
+    from ...sim.multi import load_robots_file, run_multi
 
     scene = load_scene(
         args.scene,
@@ -690,7 +690,7 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     else:
         center = None
         if args.center is not None:
-            from ..data.positions import scene_position
+            from ...data.positions import scene_position
 
             center = tuple(scene_position(scene, args.center, "--center").tolist())
         tasks = {

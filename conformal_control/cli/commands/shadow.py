@@ -77,7 +77,7 @@ def _shadow_args(p: argparse.ArgumentParser) -> None:
 
 @_shadow_args.handler
 def _shadow(args: argparse.Namespace) -> int:
-    from ..io.ros2.shadow import shadow
+    from ...io.ros2.shadow import shadow
 
     out = check_writable(args.out)
     params = key_values(args.param, "--param")

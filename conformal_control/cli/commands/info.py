@@ -15,7 +15,7 @@ def _scenes_args(p: argparse.ArgumentParser) -> None:
 
 @_scenes_args.handler
 def _scenes(args: argparse.Namespace) -> int:
-    from ..data.scenes import PAPER_SCENES
+    from ...data.scenes import PAPER_SCENES
 
     print("crossing        built-in synthetic crossing flows (no data needed; SI units)")
     for s in PAPER_SCENES.values():
@@ -24,7 +24,7 @@ def _scenes(args: argparse.Namespace) -> int:
             f"{s.name:<15} SDD {s.sdd_scene}/video{s.video} ({s.source}); start {s.start} -> "
             f"{goals}; frame {s.start_frame}; v_max {s.v_max} m/s {s.note}"
         )
-    from ..data.ethucy import ETHUCY_RECORDINGS
+    from ...data.ethucy import ETHUCY_RECORDINGS
 
     print(
         "sdd:<scene>/video<N>  any SDD video with raw annotations (--start/--goal: fractions "
@@ -64,8 +64,8 @@ def _fmt(value: Any) -> str:
 
 @_params_args.handler
 def _params(args: argparse.Namespace) -> int:
-    from ..data.units import PARAM_DIMENSIONS
-    from ..flagship.params import PARAMETERS, UNIT_SUFFIXES
+    from ...data.units import PARAM_DIMENSIONS
+    from ...flagship.params import PARAMETERS, UNIT_SUFFIXES
 
     if not args.scene:
         print(
@@ -82,8 +82,8 @@ def _params(args: argparse.Namespace) -> int:
             print(f"{name:<15} {word:<10} {suffixes:<29} {shown:<14} {doc}")
         return 0
 
-    from ..data import load_scene
-    from ..flagship.params import resolve_params
+    from ...data import load_scene
+    from ...flagship.params import resolve_params
 
     scene = load_scene(args.scene, args.data_root)
     resolved = resolve_params(scene, {})

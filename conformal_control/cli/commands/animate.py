@@ -28,7 +28,7 @@ def _animate_args(p: argparse.ArgumentParser) -> None:
 
 @_animate_args.handler
 def _animate(args: argparse.Namespace) -> int:
-    from ..io.plotting.animation import render_animation
+    from ...io.plotting.animation import render_animation
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():

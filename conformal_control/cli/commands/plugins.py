@@ -10,7 +10,7 @@ from . import command
 
 @command("plugins", "list the registered plugins by role (--check runs the contract kit)")
 def _plugins_args(p: argparse.ArgumentParser) -> None:
-    from ..core import registry
+    from ...core import registry
 
     p.add_argument(
         "--role",
@@ -32,7 +32,7 @@ def _truncate(text: str, width: int) -> str:
 
 @_plugins_args.handler
 def _plugins(args: argparse.Namespace) -> int:
-    from ..core import registry
+    from ...core import registry
 
     roles = [registry.role_name(args.role)] if args.role else list(registry.ROLES)
     n_fail = n_plugins = n_unavailable = 0
@@ -70,7 +70,7 @@ def _plugins(args: argparse.Namespace) -> int:
 
 def _check(role: str, cls: type, verbose: bool) -> int:
     """Run the role's checks on ``cls``; print a summary line, failures in full."""
-    from ..testing import checks_for
+    from ...testing import checks_for
 
     t0 = time.perf_counter()
     results = checks_for(role).run(cls)

@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Any
 
-from ..core import registry
+from ...core import registry
 from . import add_data_root, command, key_values, positive_int
 
 #: The default suite (``conformal_control.experiments.bench.suite.DEFAULT_SUITE``; not imported
@@ -281,7 +281,7 @@ def _bench(args: argparse.Namespace) -> int:
 def _methods(args: argparse.Namespace) -> int:
     import json
 
-    from ..experiments.bench.methods import FAMILIES, available, expand_methods
+    from ...experiments.bench.methods import FAMILIES, available, expand_methods
 
     methods = expand_methods(FAMILIES)
     if args.json:
@@ -315,7 +315,7 @@ def _methods(args: argparse.Namespace) -> int:
 
 
 def _shifts() -> int:
-    from ..experiments.bench.shifts import SHIFTS
+    from ...experiments.bench.shifts import SHIFTS
 
     for sh in SHIFTS.values():
         what = "unchanged" if sh.predictor is None else f"{sh.predictor} {dict(sh.params)}"
@@ -327,7 +327,7 @@ def _shifts() -> int:
 
 
 def _grids(items: list[str] | None) -> dict[str, list[Any]]:
-    from ..flagship.params import parse_value
+    from ...flagship.params import parse_value
 
     out: dict[str, list[Any]] = {}
     for item in items or []:
@@ -339,7 +339,7 @@ def _grids(items: list[str] | None) -> dict[str, list[Any]]:
 
 
 def _families(text: str | None, default: tuple[str, ...]) -> list[str]:
-    from ..experiments.bench.methods import FAMILIES
+    from ...experiments.bench.methods import FAMILIES
 
     if not text:
         return list(default)
@@ -353,7 +353,7 @@ def _progress(value: str | None) -> bool | None:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from ..experiments.bench.tune import DEFAULT_TUNED, tune
+    from ...experiments.bench.tune import DEFAULT_TUNED, tune
 
     res = tune(
         args.out,
@@ -372,7 +372,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     if args.suite == "fcp-planar-dense":  # the planar protocol, a start every 20 steps
-        from ..experiments.bench.planar_dense import run_command as run_dense
+        from ...experiments.bench.planar_dense import run_command as run_dense
 
         split = "test" if args.split is None else args.split
         return run_dense(
@@ -385,18 +385,18 @@ def _run(args: argparse.Namespace) -> int:
             split,
         )
     if args.suite == "fcp-planar":  # the ETH/UCY planar protocol (its own world and table)
-        from ..experiments.bench.planar import run_command
+        from ...experiments.bench.planar import run_command
 
         return run_command(
             args.out, args.methods, args.predictor, args.data_root, args.datasets, args.seeds
         )
-    from ..core.spec import RunSpec
-    from ..experiments.bench.methods import DEFAULT_METHODS
-    from ..experiments.bench.shifts import parse_shifts
-    from ..experiments.bench.suite import run_bench
+    from ...core.spec import RunSpec
+    from ...experiments.bench.methods import DEFAULT_METHODS
+    from ...experiments.bench.shifts import parse_shifts
+    from ...experiments.bench.suite import run_bench
 
     if args.robots is not None:  # several robots: the multi-robot suite
-        from ..experiments.bench.multi import run_command as run_multi_command
+        from ...experiments.bench.multi import run_command as run_multi_command
 
         families = _families(args.methods, ("nolearn", "conformal"))
         return run_multi_command(args, SUITE, families, _grids(args.grid))
@@ -429,7 +429,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _executor(args: argparse.Namespace) -> str:
     """``--executor``, ``dask`` with ``--scheduler``, else ``batch``."""
-    from ..core.exceptions import InputError
+    from ...core.exceptions import InputError
 
     if args.scheduler is None:
         return str(args.executor or "batch")
@@ -446,8 +446,8 @@ def _report(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from ..experiments.bench.report import write_report
-    from ..experiments.bench.suite import (
+    from ...experiments.bench.report import write_report
+    from ...experiments.bench.suite import (
         incomplete_notice,
         read_bench,
         read_rows,
@@ -455,20 +455,20 @@ def _report(args: argparse.Namespace) -> int:
     )
 
     folder = Path(args.folder)
-    from ..experiments.bench.planar import is_planar_folder, report_command
-    from ..experiments.bench.planar_dense import is_dense_folder
-    from ..experiments.bench.planar_dense import report_command as dense_report_command
+    from ...experiments.bench.planar import is_planar_folder, report_command
+    from ...experiments.bench.planar_dense import is_dense_folder
+    from ...experiments.bench.planar_dense import report_command as dense_report_command
 
     if is_dense_folder(folder):
         return dense_report_command(args.folder, args.out)
     if is_planar_folder(folder):
         return report_command(args.folder, args.out)
-    from ..experiments.bench.multi import is_multi_folder
-    from ..experiments.bench.multi import report_command as multi_report
+    from ...experiments.bench.multi import is_multi_folder
+    from ...experiments.bench.multi import report_command as multi_report
 
     if is_multi_folder(folder):
         return multi_report(folder, args.out)
-    from ..io.plotting.jobs import prepare
+    from ...io.plotting.jobs import prepare
 
     # the figure process imports matplotlib on the other core while the rows are read
     prepare(("conformal_control.experiments.bench.report",))
@@ -498,7 +498,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _scenarios(args: argparse.Namespace) -> int:
-    from ..data.suites import load_suite
+    from ...data.suites import load_suite
 
     if args.regenerate:
         return _regenerate(args)
@@ -527,8 +527,8 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 
 def _regenerate(args: argparse.Namespace) -> int:
-    from ..data.suites import dump_manifest, load_suite, suite_names
-    from ..experiments.bench.generator import SUITES, generate_suite
+    from ...data.suites import dump_manifest, load_suite, suite_names
+    from ...experiments.bench.generator import SUITES, generate_suite
 
     if args.suite not in SUITES:
         raise ValueError(

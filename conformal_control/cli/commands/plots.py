@@ -32,7 +32,7 @@ def _plot_sweep_args(p: argparse.ArgumentParser) -> None:
 
 @_plot_sweep_args.handler
 def _plot_sweep(args: argparse.Namespace) -> int:
-    from ..io.plotting.sweep import load_results, plot_sweep
+    from ...io.plotting.sweep import load_results, plot_sweep
 
     rows = load_results(args.results)
     metrics = args.metric or ["t_goal", "n_collide", "d_min", "l_avg"]

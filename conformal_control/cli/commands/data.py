@@ -33,9 +33,9 @@ def _fetch_args(p: argparse.ArgumentParser) -> None:
 
 @_fetch_args.handler
 def _fetch(args: argparse.Namespace) -> int:
-    from ..core.progress import is_quiet
-    from ..data.fetch import fetch, plan
-    from ..data.paths import ENV_VAR, user_data_dir
+    from ...core.progress import is_quiet
+    from ...data.fetch import fetch, plan
+    from ...data.paths import ENV_VAR, user_data_dir
 
     dest = args.dest if args.dest is not None else str(user_data_dir())
     if args.dry_run:

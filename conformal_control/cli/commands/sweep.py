@@ -91,7 +91,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
 
 @_sweep_args.handler
 def _sweep(args: argparse.Namespace) -> int:
-    from ..experiments import (
+    from ...experiments import (
         JournalWarning,
         SweepInterrupted,
         SweepLockedError,
@@ -163,7 +163,7 @@ def _show_warning(
 
 def interrupted_summary(out: str) -> str:
     """What an interrupted sweep left, read back from its journal (only true statements)."""
-    from ..experiments import ResultsStore
+    from ...experiments import ResultsStore
 
     store = ResultsStore(out)
     latest = store.latest()

@@ -46,7 +46,7 @@ def _export_args(p: argparse.ArgumentParser) -> None:
 
 @_export_args.handler
 def _export(args: argparse.Namespace) -> int:
-    from ..io.export import export_run, read_run
+    from ...io.export import export_run, read_run
 
     rec = read_run(args.run_dir)  # read once, checked (one-line errors for a damaged folder)
     start: Any = args.start_time
@@ -55,7 +55,7 @@ def _export(args: argparse.Namespace) -> int:
 
         start = datetime.datetime.now(datetime.timezone.utc)
     if start is not None:
-        from ..io.export.to_mcap import start_time_ns
+        from ...io.export.to_mcap import start_time_ns
 
         start_time_ns(start)  # a bad date is one line, before anything is written
     out = export_run(rec, args.out, format=args.format, schema=args.schema, start_time=start)

@@ -14,15 +14,15 @@ import json
 import time
 from pathlib import Path
 
-from ..core.spec import RunContext
-from ..predictors.training import cached_weights, evaluate_with_progress, train, trainable_defaults
+from ...core.spec import RunContext
+from ...predictors.training import cached_weights, evaluate_with_progress, train, trainable_defaults
 from . import add_data_root, check_writable, command, command_line, key_values
 
 
 def _dataset(text: str) -> str:
     """argparse type: a data set's one name (aliases resolved by the data catalog)."""
-    from ..core.exceptions import InputError
-    from ..data.catalog import dataset_name
+    from ...core.exceptions import InputError
+    from ...data.catalog import dataset_name
 
     try:
         return dataset_name(text)
@@ -61,8 +61,8 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
 
 @_eval_args.handler
 def _eval(args: argparse.Namespace) -> int:
-    from ..core import registry
-    from ..predictors.evaluation import dataset_windows
+    from ...core import registry
+    from ...predictors.evaluation import dataset_windows
 
     if args.out:
         check_writable(args.out, "results folder")

@@ -75,8 +75,8 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     """
     import warnings
 
-    from ..core.exceptions import InputError, OptionConflictWarning
-    from ..flagship.params import parse_value
+    from ...core.exceptions import InputError, OptionConflictWarning
+    from ...flagship.params import parse_value
 
     out: dict[str, Any] = {}
     raw: dict[str, str] = {}
@@ -117,7 +117,7 @@ def plugin_key_values(
     and its model): values with an SI unit suffix (``max_speed=2m/s``, ``delay_s=500ms``)
     are converted to the number in the unit the class documents, and a suffix that does
     not fit is an error now, before anything runs."""
-    from ..data.units import documented_unit, si_value
+    from ...data.units import documented_unit, si_value
 
     out = key_values(items, flag)
     for key, value in out.items():
@@ -206,7 +206,7 @@ def check_writable(path: str | Path, what: str = "output folder") -> Path:
     """
     import tempfile
 
-    from ..core.exceptions import OutputNotWritableError
+    from ...core.exceptions import OutputNotWritableError
 
     path = Path(path).expanduser()
     if path.exists() and not path.is_dir():

@@ -1,6 +1,6 @@
 """Command-line interface: ``conformal-control <command>``.
 
-The subcommands live in :mod:`conformal_control.commands`, one module per feature. This
+The subcommands live in :mod:`conformal_control.cli.commands`, one module per feature. This
 module owns what every command shares:
 
 * global options, accepted before or after the command name: ``--quiet`` (no progress
@@ -25,7 +25,7 @@ import weakref
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-from . import __version__
+from .. import __version__
 
 __all__ = ["EXIT_BUG", "EXIT_ERROR", "build_parser", "choice_noun", "describe_error", "main"]
 
@@ -234,13 +234,13 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 def describe_error(exc: BaseException) -> str | None:
     """The one-line message for an expected failure, or None for a bug."""
-    from .core.exceptions import ConformalControlError
+    from ..core.exceptions import ConformalControlError
 
     if isinstance(exc, ConformalControlError):
         return str(exc)
     sqlite3 = sys.modules.get("sqlite3")  # not imported: no cache database was opened
     if sqlite3 is not None and isinstance(exc, sqlite3.DatabaseError):
-        from .predictors.cache import cache_dir
+        from ..predictors.cache import cache_dir
 
         return (
             f"a cache database cannot be read ({exc}); delete the cache folder "
@@ -275,8 +275,8 @@ def _show_warning(
     line: str | None = None,
 ) -> None:
     """warnings.showwarning for the CLI: one line, ``warning: <message>``."""
-    from .core.exceptions import ConformalControlWarning
-    from .core.progress import write
+    from ..core.exceptions import ConformalControlWarning
+    from ..core.progress import write
 
     text = " ".join(str(message).split())
     if not issubclass(category, ConformalControlWarning):
@@ -317,9 +317,9 @@ def _cut(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``conformal-control`` script."""
+    from ..core import progress
+    from ..core.exceptions import ConformalControlWarning
     from .commands import COMMANDS
-    from .core import progress
-    from .core.exceptions import ConformalControlWarning
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
