@@ -191,7 +191,7 @@ def measure_episode(
     timed run and the ``engine`` that ran.
     """
     compile_now()  # timed compiled (see conformal_control.core.jit)
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     kw = {"safety_filter": safety_filter, "engine": engine}
     run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)

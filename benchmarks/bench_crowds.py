@@ -274,13 +274,13 @@ def row(name: str, wall: np.ndarray, cpu: np.ndarray, base: tuple | None = None)
 def _wire(scene, params: dict):
     """The flagship's components (env, policy, loss, rule) with whichever builder exists."""
     try:  # the builder of later layouts
-        from conformal_control.flagship.build import build_flagship
+        from conformal_control.runs.build import build_flagship
 
         return build_flagship(scene, params)
     except ImportError:
         from conformal_control.core import registry
-        from conformal_control.flagship.params import resolve_params
-        from conformal_control.sim.episode import build_components
+        from conformal_control.runs.episode import build_components
+        from conformal_control.runs.params import resolve_params
 
         predictor = registry.create("predictor", "constant_velocity")
         return build_components(scene, resolve_params(scene, params), predictor)

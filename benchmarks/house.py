@@ -23,7 +23,8 @@ Figures:
   and in the whole package;
 * circles again with the ``if TYPE_CHECKING:`` imports counted (a circle of annotations
   still ties the modules' designs together);
-* lines of ``sim/``, and of the whole package.
+* lines of ``runs/episode.py`` and ``runs/fleet.py`` (``sim/`` of 0.3), and of the whole
+  package.
 
 ``--path`` follows a call path instead (:func:`follow`): the CLI's ``run`` from its
 arguments to the first update of lambda, traced call by call (``sys.setprofile``; code run
@@ -435,10 +436,9 @@ def measure() -> dict[str, Any]:
         if nested and a in in_circle and in_circle.get(b) == in_circle[a]
     ]
     params = parameter_lists(files)
-    sim = PKG / "sim"
-    sim_lines = (
-        sum(len(f.read_text().splitlines()) for f in sim.rglob("*.py")) if sim.exists() else 0
-    )
+    # what sim/ held in 0.3 (its package front aside): one episode and a fleet
+    runners = [PKG / "runs" / "episode.py", PKG / "runs" / "fleet.py"]
+    sim_lines = sum(len(f.read_text().splitlines()) for f in runners if f.exists())
     reads = private_reads(files)
     typed = typing_circles(files)
     return {
@@ -465,8 +465,10 @@ def measure() -> dict[str, Any]:
         "private names imported across modules": len(private),
         "module pairs with private imports": len({(a, b) for a, b, _ in private}),
         "reads of other objects' private attributes": len(reads),
-        "  of which in engines/": sum(1 for m, *_ in reads if m.startswith(f"{PKG.name}.engines")),
-        "lines of sim/": sim_lines,
+        "  of which in runs/engines/": sum(
+            1 for m, *_ in reads if m.startswith(f"{PKG.name}.runs.engines")
+        ),
+        "lines of runs/episode.py + runs/fleet.py": sim_lines,
         "lines of the package": sum(len(f.read_text().splitlines()) for f in files),
         "_detail": {
             "up": [f"{a} -> {b}{' (in a function)' if n else ''}" for a, b, n in up],

@@ -623,7 +623,7 @@ def sec_scene(args: argparse.Namespace) -> list[Figure]:
     import warnings
 
     from conformal_control.data.synthetic import crossing_scene
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     frames = 20_000 if args.quick else 100_000
     agents = frames * 9 // 100

@@ -21,6 +21,12 @@ from typing import Any
 
 #: Old dotted path -> new dotted path. A package's entry covers every module below it.
 MOVED: dict[str, str] = {
+    "conformal_control.flagship.build": "conformal_control.runs.build",
+    "conformal_control.flagship.params": "conformal_control.runs.params",
+    "conformal_control.sim.episode": "conformal_control.runs.episode",
+    "conformal_control.sim.multi": "conformal_control.runs.fleet",
+    "conformal_control.engines": "conformal_control.runs.engines",
+    "conformal_control.results": "conformal_control.runs.results",
     "conformal_control.commands": "conformal_control.cli.commands",
     "conformal_control.sweep.spec": "conformal_control.experiments.plan",
     "conformal_control.bench.runner": "conformal_control.experiments.bench.suite",
@@ -51,7 +57,31 @@ MOVED: dict[str, str] = {
 #: Old package fronts that no new package replaces (their modules moved apart): old package ->
 #: {public name: the new module that defines it}. ``from conformal_control.sim import
 #: run_episode`` keeps working through a stand-in module that imports each name on first use.
-FACADES: dict[str, dict[str, str]] = {}
+FACADES: dict[str, dict[str, str]] = {
+    "conformal_control.flagship": {
+        "Flagship": "conformal_control.runs.build",
+        "RoleSpec": "conformal_control.runs.build",
+        "build_flagship": "conformal_control.runs.build",
+        "build_rule": "conformal_control.runs.build",
+        "PARAMETERS": "conformal_control.runs.params",
+        "ResolvedParams": "conformal_control.runs.params",
+        "parse_value": "conformal_control.runs.params",
+        "resolve_params": "conformal_control.runs.params",
+    },
+    "conformal_control.sim": {
+        "Flagship": "conformal_control.runs.build",
+        "build_flagship": "conformal_control.runs.build",
+        "build_rule": "conformal_control.runs.build",
+        "PARAMETERS": "conformal_control.runs.params",
+        "ResolvedParams": "conformal_control.runs.params",
+        "parse_value": "conformal_control.runs.params",
+        "resolve_params": "conformal_control.runs.params",
+        "EpisodeResult": "conformal_control.runs.results.episode",
+        "EpisodeMetrics": "conformal_control.runs.results.metrics",
+        "ReplayEnvironment": "conformal_control.world.replay",
+        "run_episode": "conformal_control.runs.episode",
+    },
+}
 
 #: When the old paths stop working.
 REMOVAL = "removed in 0.4, not before 2027-06-30"

@@ -8,7 +8,7 @@ Parameters with a unit (``eta``, ``tau``, ``a``, ``rho0``, ...) need an explicit
 system when the scene's own is not SI: ``units="si"`` (metres, seconds) or
 ``units="scene"`` (the paper's pixels and frames for SDD scenes). On SI scenes (the
 built-in ``crossing``) both mean the same. Everything else is
-:func:`conformal_control.sim.run_episode`.
+:func:`conformal_control.runs.episode.run_episode`.
 
 :func:`shadow` (:func:`conformal_control.io.ros2.shadow.shadow`) runs the controller over a
 robot's ROS 2 bag instead: the commands it would have sent.
@@ -23,7 +23,7 @@ from typing import Any
 from .core.exceptions import InputError
 from .core.spec import PARAMETERS, RunSpec
 from .io.ros2.shadow import shadow
-from .results.episode import EpisodeResult
+from .runs.results.episode import EpisodeResult
 
 __all__ = ["run", "shadow"]
 
@@ -102,12 +102,12 @@ def run(
     InputError
         For what one robot's run cannot honour: a robots section (``robots=3``,
         ``starts``/``goals``, a spec read from a multi-robot ``config.json``; run several
-        with :func:`conformal_control.sim.run_multi`), checked before the scene is loaded.
+        with :func:`conformal_control.runs.fleet.run_multi`), checked before the scene is loaded.
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
     from .predictors.training import with_weights
-    from .sim.episode import run_episode
+    from .runs.episode import run_episode
 
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
@@ -225,7 +225,7 @@ def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
     )
     raise InputError(
         f"run() drives one robot and cannot honour {what}: run several with "
-        "conformal_control.sim.run_multi(scene, ...) with the same arguments, or "
+        "conformal_control.runs.fleet.run_multi(scene, ...) with the same arguments, or "
         "`conformal-control run --robots M`"
     )
 

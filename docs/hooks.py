@@ -1,7 +1,7 @@
 """MkDocs hooks: generated reference pages, offline math and the example notebooks.
 
 * ``<!-- generated:parameters -->`` in a page is replaced by the table of every controller
-  parameter, built from ``conformal_control.flagship.params.PARAMETERS`` (with units from
+  parameter, built from ``conformal_control.runs.params.PARAMETERS`` (with units from
   ``conformal_control.data.units.PARAM_DIMENSIONS`` and the defaults of the built-in and
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
@@ -430,7 +430,7 @@ def parameters_table() -> str:
     from conformal_control.data.scenes import PAPER_SCENES
     from conformal_control.data.sdd import SDD_FPS
     from conformal_control.data.synthetic import crossing_scene
-    from conformal_control.flagship.params import PARAMETERS
+    from conformal_control.runs.params import PARAMETERS
 
     crossing = crossing_scene(seed=0)
     field_defaults = {f.name: f.default for f in dataclasses.fields(Scene)}

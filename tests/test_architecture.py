@@ -166,12 +166,14 @@ LAYERS: dict[str, int] = {
     # decision families driven in the replay world by their contract checks
     "families.mpc": 7,
     # wiring one episode; measuring and writing what it produced; the contract kit
-    "flagship": 8,
-    "results": 8,
+    "runs.build": 8,
+    "runs.params": 7,
+    "runs.results": 8,
     "testing": 8,
     # the backends of the loop, then running episodes
-    "engines": 9,
-    "sim": 10,
+    "runs.engines": 9,
+    "runs.episode": 10,
+    "runs.fleet": 10,
     "io.ros2": 10,
     # many episodes, environments for RL, the paper's tables
     "experiments": 11,
@@ -345,7 +347,7 @@ def test_no_engine_reads_another_objects_private_attributes() -> None:
     other objects (library internals and the contract kit's hooks, listed by
     ``python benchmarks/house.py --detail``)."""
     reads = _house().private_reads(sorted(PKG.rglob("*.py")))
-    engines = [r for r in reads if r[0].startswith("conformal_control.engines")]
+    engines = [r for r in reads if r[0].startswith("conformal_control.runs.engines")]
     assert not engines, f"private reads in the engines: {engines}"
     assert len(reads) <= 15, "private reads of other objects:\n" + "\n".join(map(str, reads))
 

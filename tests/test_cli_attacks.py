@@ -121,7 +121,7 @@ def _out_below_a_file(t: Path) -> Path:
 def test_unwritable_out_is_refused_before_running(
     make: Callable[[Path], Path], words: str, tmp_path: Path, capsys, monkeypatch
 ) -> None:
-    import conformal_control.sim.episode as episode
+    import conformal_control.runs.episode as episode
 
     def no_run(*a: object, **k: object) -> None:
         raise AssertionError("the episode ran although --out cannot be written")

@@ -32,7 +32,7 @@ def single(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def multi(tmp_path_factory) -> Path:
     from conformal_control.data import load_scene
-    from conformal_control.sim.multi import run_multi, write_multi_run_dir
+    from conformal_control.runs.fleet import run_multi, write_multi_run_dir
 
     res = run_multi(load_scene("crossing", seed=0), 3, max_frames=30)
     return write_multi_run_dir(res, tmp_path_factory.mktemp("multi") / "run")

@@ -124,7 +124,7 @@ def test_mkdocs_build_strict(site: Path) -> None:
         assert (site / page).is_file(), page
     # generated sections: every parameter and every subcommand, straight from the code
     from conformal_control.cli import build_parser
-    from conformal_control.flagship.params import PARAMETERS
+    from conformal_control.runs.params import PARAMETERS
 
     controller = (site / "controller/index.html").read_text()
     assert "generated:parameters" not in controller

@@ -26,8 +26,8 @@ warnings.simplefilter("ignore")
 from conformal_control.core import jit
 from conformal_control.data import load_scene
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.engines.batch import run_batch
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 def digest(a):
     a = np.ascontiguousarray(np.asarray(a, dtype=float))
@@ -101,7 +101,7 @@ out["mpc"] = [
     for a in evaluate(pos, c2, np.zeros(2), pred, y0, radius, np.array([4.0, 1.0]),
                       (1.0, 10.0, 0.01, 0.3), np.array([0.2, -0.1]), cont)
 ]
-from conformal_control.sim.multi import run_multi
+from conformal_control.runs.fleet import run_multi
 for info in ("position", "velocity", "plan"):  # reciprocal robot rows (cbf.kernels_peers)
     res = run_multi(scenes[0], robots=4, layout="antipodal", radius=3.0, center=(15.0, 8.0),
                     information=info, max_frames=60, record_animation=False)

@@ -96,7 +96,7 @@ def test_every_benchmark_method_is_a_run_specification() -> None:
 def test_config_json_is_the_specification_of_the_run() -> None:
     """config.json holds the run's specification; read back, it runs the same episode."""
     from conformal_control.data import load_scene
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     spec = RunSpec(
         params={"epsilon": 0.1, "a": 2.0, "lambda_min": -math.inf},

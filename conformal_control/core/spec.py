@@ -608,7 +608,7 @@ class RunSpec:
     record_animation : bool
         Keep the compact record ``conformal-control animate`` renders.
     engine : {"auto", "loop", "batch"}
-        The backend (:mod:`conformal_control.engines`).
+        The backend (:mod:`conformal_control.runs.engines`).
     start_m : (x, y), optional
         The robot's start in metres, replacing the scene's (:meth:`on_scene`); None: the
         scene's own.
@@ -616,7 +616,7 @@ class RunSpec:
         The goals visited in order, in metres (one ``(x, y)`` for a single goal); None: the
         scene's own.
     robots : Robots, optional
-        Several robots in the crowd (:func:`conformal_control.sim.multi.run_multi`).
+        Several robots in the crowd (:func:`conformal_control.runs.fleet.run_multi`).
 
     """
 

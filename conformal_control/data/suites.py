@@ -13,7 +13,7 @@ outcome) and a ``dev`` / ``test`` split by recording.
 Usage::
 
     from conformal_control.experiments.bench import load_suite, load_scenario
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     suite = load_suite("crossings-v1")
     sc = suite.scenarios_for("dev")[0]

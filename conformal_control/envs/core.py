@@ -63,8 +63,8 @@ import numpy as np
 from ..core.loop import ConformalStepper
 from ..core.spec import RunSpec
 from ..data.scene import Scene
-from ..flagship.build import Flagship, build_flagship
 from ..predictors.base import PredictionQuery
+from ..runs.build import Flagship, build_flagship
 from ..world.multi import MultiRobotWorld
 from .roles import GivenVelocity, MonitorFilter
 

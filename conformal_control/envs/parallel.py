@@ -2,13 +2,13 @@
 
 Agents are the robots, ``"robot_0"`` ... ``"robot_{M-1}"``, each with the observation,
 action, reward and ``info`` of ``ConformalCrowd-v0`` (:mod:`conformal_control.envs.core`)
-and its own conformal monitor. As in :func:`~conformal_control.sim.multi.run_multi`, the
+and its own conformal monitor. As in :func:`~conformal_control.runs.fleet.run_multi`, the
 robots share nothing but the world: each observes the pedestrians and the other robots
 within its own sensing radius (another robot is one more agent in its ``"agents"`` rows).
 A robot leaves ``agents`` when it reaches its last goal (terminated; it then stops near
 its goal and stays an obstacle) or when the recording runs out (truncated).
 
-Starts and goals: ``robots=M`` with a ``layout`` (:func:`~conformal_control.sim.multi.robot_tasks`:
+Starts and goals: ``robots=M`` with a ``layout`` (:func:`~conformal_control.runs.fleet.robot_tasks`:
 the scene's task rotated about its midpoint, or ``"antipodal"`` on a circle), or explicit
 ``starts`` and ``goals`` (m).
 """
@@ -30,7 +30,7 @@ from ..families.cbf.controller import ConformalCBFController
 from ..families.cbf.filters.exact2d import Exact2DSafetyFilter
 from ..families.cbf.loss import CBFGapLoss
 from ..families.cbf.reciprocal import Reciprocity
-from ..sim.multi import as_tasks, robot_tasks
+from ..runs.fleet import as_tasks, robot_tasks
 from .core import CrowdCore, load
 from .crowd import observation_space
 from .roles import GivenVelocity, RecordingFilter
@@ -56,7 +56,7 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
     **settings
         Settings of the run, as for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`,
         and of its robots section: ``starts``, ``goals`` (explicit tasks, m), ``layout``,
-        ``radius``, ``center`` (see :func:`~conformal_control.sim.multi.robot_tasks`).
+        ``radius``, ``center`` (see :func:`~conformal_control.runs.fleet.robot_tasks`).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance

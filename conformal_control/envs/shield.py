@@ -47,7 +47,7 @@ import numpy as np
 
 from ..core.loop import ConformalStepper
 from ..core.spec import RunSpec
-from ..flagship.build import build_flagship
+from ..runs.build import build_flagship
 from .crowd import ConformalCrowdEnv
 from .roles import GivenVelocity, LastSolve, RecordingFilter
 
@@ -76,7 +76,7 @@ class ConformalShield(
     **settings
         Settings of the run: the shield's roles (names or instances) ``predictor``,
         ``barrier``, ``safety_filter``, ``fallback``, ``loss``, ``rule`` and their
-        ``*_params``, as for :func:`~conformal_control.flagship.build.build_flagship`
+        ``*_params``, as for :func:`~conformal_control.runs.build.build_flagship`
         (the default is the flagship's: constant velocity, APF barrier, the exact 2-D
         filter with the lambda-search fallback, the gap loss, the fixed-step rule);
         ``learn`` (False keeps lambda at ``lambda_init``); ``seed`` (``random_state`` of

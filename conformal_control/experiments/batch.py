@@ -3,7 +3,7 @@
 With ``run_sweep(..., executor="batch")`` (``bench run`` uses it by default) the runs of a
 sweep are split in two:
 
-* a run is **batched** when :func:`~conformal_control.engines.batch.supports` accepts its
+* a run is **batched** when :func:`~conformal_control.runs.engines.batch.supports` accepts its
   ``run_episode`` arguments (replayed crowd, or social force, ORCA or mixed without noise;
   the constant-velocity, oracle or ``recorded`` predictor and the shifts of the first two
   (compiled in the engine), or any other predictor marked ``fast`` -- the engine calls the
@@ -15,7 +15,7 @@ sweep are split in two:
   (``plot="metrics"`` or ``"none"``, or ``record_animation: false``): the lockstep engine
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
   limit, and each group runs in this process through
-  :func:`~conformal_control.engines.batch.iter_batch` (one core);
+  :func:`~conformal_control.runs.engines.batch.iter_batch` (one core);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
@@ -50,7 +50,7 @@ _PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
 
 def batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | None:
     """Why the run ``cfg`` (``RunConfig.as_dict()``) is not batched, or None if it is."""
-    from ..engines.batch import supports
+    from ..runs.engines.batch import supports
 
     files = plot if isinstance(plot, str) else ("plots" if plot else "full")
     episode = dict(cfg.get("episode") or {})
@@ -95,7 +95,7 @@ def _record(
     """The sweep record of a batched run (as :func:`execute_run` writes it)."""
     import os
 
-    from ..results.rundir import write_run_dir
+    from ..runs.results.rundir import write_run_dir
 
     rec: dict[str, Any] = {
         "key": key,
@@ -141,7 +141,7 @@ def run_batched(
     runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
     pool's workers and this process share the machine instead of taking turns."""
 
-    from ..engines.batch import iter_batch
+    from ..runs.engines.batch import iter_batch
     from .worker import load_run_scene
 
     groups: dict[str, list[int]] = {}

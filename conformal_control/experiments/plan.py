@@ -25,7 +25,7 @@ A run configuration has these keys (all optional except ``scene``):
 settings of the run specification in :data:`EPISODE_KEYS` (roles by name, ``family``
 and ``family_params``, ``rule_params``, ``crowd``, ...; a key
 ``family_params.NAME``, ``rule_params.NAME``, ... sets one entry of that dict), and any
-controller parameter of :data:`conformal_control.flagship.params.PARAMETERS` (``epsilon``,
+controller parameter of :data:`conformal_control.runs.params.PARAMETERS` (``epsilon``,
 ``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
 
 The **key** of a run is a hash of its normalised configuration (everything except
@@ -129,7 +129,8 @@ class RunConfig:
     data_root : str or None
     label : str
     episode : dict
-        Other arguments of :func:`~conformal_control.sim.run_episode` (:data:`EPISODE_KEYS`).
+        Other arguments of :func:`~conformal_control.runs.episode.run_episode`
+        (:data:`EPISODE_KEYS`).
     meta : dict
         Free description copied into the results table (not part of the key), e.g. the
         benchmark's method, scenario, split.
@@ -408,7 +409,7 @@ def load_spec(path: str | Path) -> SweepSpec:
 
 def parse_grid_option(items: Iterable[str] | None) -> dict[str, list[Any]]:
     """Parse repeated ``--grid KEY=V1,V2,...`` options (values typed like ``--param``)."""
-    from ..flagship.params import parse_value
+    from ..runs.params import parse_value
 
     grid: dict[str, list[Any]] = {}
     for item in items or []:

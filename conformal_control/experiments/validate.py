@@ -3,7 +3,7 @@
 A sweep of a hundred runs whose last grid value is a typo should not run ninety-nine of
 them first. :func:`validate_runs` does, for every configuration, what a run does before
 it simulates anything - load its scene, resolve its controller parameters against that
-scene with :func:`conformal_control.flagship.params.resolve_params` (the code the runs use),
+scene with :func:`conformal_control.runs.params.resolve_params` (the code the runs use),
 look up its predictor and check the predictor's parameter names - and reports every
 distinct problem in one sentence.
 """
@@ -49,7 +49,7 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
         Cache of loaded scenes (or the errors loading them) shared between calls.
     """
     from ..core import registry
-    from ..flagship.params import resolve_params
+    from ..runs.params import resolve_params
     from .worker import cached_scene
 
     scenes = {} if scenes is None else scenes
@@ -64,7 +64,7 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
     scene = scenes[skey]
     if isinstance(scene, BaseException):
         raise scene
-    from ..flagship.params import to_scene_units
+    from ..runs.params import to_scene_units
 
     given = to_scene_units(scene, dict(cfg.params), str(cfg.episode.get("units", "scene")))
     if not cfg.learn:  # as run_episode does: the noLearn baseline keeps lambda fixed

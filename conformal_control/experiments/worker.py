@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..results.metrics import EpisodeMetrics
+from ..runs.results.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
     from ..data.scene import Scene
@@ -105,8 +105,8 @@ def execute_run(
         "worker": f"{os.uname().nodename}:{os.getpid()}",
     }
     try:
-        from ..results.rundir import write_run_dir
-        from ..sim.episode import run_episode
+        from ..runs.episode import run_episode
+        from ..runs.results.rundir import write_run_dir
         from .plan import run_spec
 
         seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry

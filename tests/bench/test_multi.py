@@ -20,7 +20,7 @@ from conformal_control.experiments.bench.multi import (
     run_multi_bench,
     write_multi_report,
 )
-from conformal_control.sim.multi import check_tasks
+from conformal_control.runs.fleet import check_tasks
 
 P, Q = (0.0, 0.0), (10.0, 0.0)
 
@@ -224,7 +224,7 @@ def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
     # entry run alone on its own task (run_multi with that one task, saved)
     from conformal_control.experiments.bench.multi import entry_scene
     from conformal_control.experiments.bench.suite import plan_methods
-    from conformal_control.sim.multi import run_multi
+    from conformal_control.runs.fleet import run_multi
 
     out = tmp_path / "bench"
     res = run_multi_bench(

@@ -19,7 +19,7 @@ from conformal_control.experiments.bench.suite import bench_configs, read_rows, 
 def test_every_method_family_is_available_and_runs_one_scenario(data_root: Path) -> None:
     """One scenario end to end for each method family, through the public builder."""
     from conformal_control.data import load_scene
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     scene = load_scene("scenario:crossings-v1/sdd-little-0-w004", data_root)
     limit = scene.meta["max_frames"]

@@ -24,7 +24,7 @@ from conformal_control.experiments.bench.generator import (
     assign_splits,
     generate_suite,
 )
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
 
 SDD_RAW_VIDEOS = {
     "deathCircle": (2, 4),

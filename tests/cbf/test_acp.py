@@ -23,8 +23,8 @@ from conformal_control.families.cbf import (
 from conformal_control.families.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
 from conformal_control.families.cbf.controller import ControlState
 from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.flagship.params import resolve_params
 from conformal_control.predictors import ConstantVelocityPredictor
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 
 

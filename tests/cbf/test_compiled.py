@@ -18,7 +18,7 @@ from conformal_control.families.cbf import (
 )
 from conformal_control.families.cbf import kernels2d as k
 from conformal_control.families.cbf.reciprocal import Reciprocity
-from conformal_control.flagship.params import resolve_params
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 
 

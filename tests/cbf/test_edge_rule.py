@@ -384,7 +384,7 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
     from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
     from conformal_control.families.cbf.feasibility import DEFAULT_FLOOR_SHARE
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"a": 4.0}, units="si")
@@ -407,7 +407,7 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
 def test_the_escape_margin_is_a_run_parameter() -> None:
     from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     default = build_flagship(scene, {}, units="si").constraint

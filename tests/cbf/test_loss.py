@@ -15,7 +15,7 @@ from conformal_control.families.cbf import (
     CBFTruth,
     ConformalConstraint,
 )
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
 
 
 def s(lam: float, c: float) -> float:

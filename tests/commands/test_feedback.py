@@ -19,8 +19,8 @@ from conformal_control.core.exceptions import (
     NoUpdatesWarning,
     SuspiciousValueWarning,
 )
-from conformal_control.flagship.params import resolve_params
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
+from conformal_control.runs.params import resolve_params
 
 
 def warning_lines(err: str) -> list[str]:

@@ -22,7 +22,7 @@ from conformal_control.core.exceptions import (
 )
 from conformal_control.core.spec import PLAUSIBLE_SI, Parameters
 from conformal_control.data.scenes import PAPER_SCENES
-from conformal_control.flagship.params import resolve_params
+from conformal_control.runs.params import resolve_params
 
 ROOT = Path(__file__).resolve().parents[2]
 

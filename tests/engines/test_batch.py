@@ -10,8 +10,8 @@ import pytest
 
 from conformal_control.core.exceptions import NoUpdatesWarning
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import iter_batch, run_batch, supports
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import iter_batch, run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import run_batch, supports
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 DEV_SCENARIOS = 3
 

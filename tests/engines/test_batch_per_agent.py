@@ -59,7 +59,7 @@ def test_per_agent_matches_run_episode(crossings, compare_batch, rule, extra):
 
 
 def test_per_agent_with_a_loss_that_does_not_split_is_refused(crossings):
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     with pytest.raises(ValueError, match="does not split by agent"):
         run_batch(crossings[:1], params={"lambda_per": "agent"}, loss="collision", max_frames=40)

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from conformal_control.data import load_scene
-from conformal_control.engines import recorded_kernels as rk
-from conformal_control.engines.batch import run_batch
 from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.recorded import RecordedPredictor
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines import recorded_kernels as rk
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 
 def write_predictions(path, scenes, *, every=7, steps=12, per_step=4, seed=0):

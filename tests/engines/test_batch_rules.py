@@ -10,11 +10,11 @@ import pytest
 
 from conformal_control.core import registry
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import _GapLossAt, run_batch, supports
 from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.families.cbf.loss import CBFGapLoss
 from conformal_control.predictors.base import Forecast, Predictor
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import _GapLossAt, run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 ETA = 30.0  # the benchmark's eta, 1 per frame at 30 fps, in 1/s
 FRAMES = 150

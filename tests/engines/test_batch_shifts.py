@@ -11,7 +11,6 @@ from __future__ import annotations
 import pytest
 
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import run_batch
 from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.shift import (
     DelayedPredictor,
@@ -19,7 +18,8 @@ from conformal_control.predictors.shift import (
     NoisyPredictor,
     ScaledPredictor,
 )
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 WRAPPERS = {
     "delayed": DelayedPredictor,

@@ -75,7 +75,7 @@ def _crossing_runs(n=3):
 
 
 def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypatch):
-    import conformal_control.engines.batch as engine
+    import conformal_control.runs.engines.batch as engine
 
     real = engine.iter_batch
 
@@ -146,8 +146,8 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     # batch would time out and the order below would differ
     import threading
 
-    import conformal_control.engines.batch as sim_batch
     import conformal_control.experiments.batch as sweep_batch
+    import conformal_control.runs.engines.batch as sim_batch
 
     pool_delivered = threading.Event()
 

@@ -77,7 +77,7 @@ def test_a_negative_margin_is_a_one_line_error() -> None:
 
 def test_a_run_gets_the_ceiling_unless_it_gives_one() -> None:
     from conformal_control.data import load_scene
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"barrier_margin": 0.2}, family="mpc", family_params=FAST)

@@ -15,7 +15,7 @@ from conformal_control.families.mpc import Sampling, SamplingMPC
 from conformal_control.predictors.base import PredictionQuery, TruthUnavailableError
 from conformal_control.predictors.oracle import OraclePredictor
 from conformal_control.predictors.shift import DelayedPredictor
-from conformal_control.sim.episode import run_episode
+from conformal_control.runs.episode import run_episode
 from conformal_control.world.replay import ReplayEnvironment
 
 

@@ -23,7 +23,7 @@ from conformal_control.families.mpc.peers import (
 )
 from conformal_control.families.mpc.settings import Limits, Sampling
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
-from conformal_control.sim.multi import drive
+from conformal_control.runs.fleet import drive
 from conformal_control.world.multi import MultiRobotWorld
 
 

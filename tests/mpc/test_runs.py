@@ -12,7 +12,7 @@ import pytest
 import conformal_control as cc
 from conformal_control.data.synthetic import crossing_scene
 from conformal_control.experiments.bench.methods import expand_methods
-from conformal_control.sim.episode import run_episode
+from conformal_control.runs.episode import run_episode
 
 FAST = {"sampling__n_samples": 60, "sampling__horizon": 6, "sampling__replan_every": 2}
 

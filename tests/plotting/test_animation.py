@@ -84,7 +84,7 @@ def test_animate_bad_input(tmp_path, capsys):
 
 
 def test_animation_record_content(crossing):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     # epsilon below the feasibility floor and the default lambda floor opened: the fallback
     # runs, and the record shows it

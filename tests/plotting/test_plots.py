@@ -22,7 +22,7 @@ from conformal_control.io.plotting import (
 
 @pytest.fixture(scope="module")
 def crossing_run(crossing):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     return run_episode(crossing, "constant_velocity", max_frames=60)
 
@@ -279,7 +279,7 @@ def test_plot_sweep_command_writes_beside_the_results(tmp_path, capsys, monkeypa
 
 
 def _paths_runs(scene, n):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     res = run_episode(scene, "constant_velocity", max_frames=30)
     runs = []

@@ -20,8 +20,8 @@ from conformal_control.families.cbf import (
 )
 from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.flagship.params import resolve_params
 from conformal_control.predictors.base import TruthUnavailableError
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.reactive import (
     ReactiveEnvironment,
     make_environment,

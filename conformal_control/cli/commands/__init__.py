@@ -76,7 +76,7 @@ def key_values(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     import warnings
 
     from ...core.exceptions import InputError, OptionConflictWarning
-    from ...flagship.params import parse_value
+    from ...runs.params import parse_value
 
     out: dict[str, Any] = {}
     raw: dict[str, str] = {}

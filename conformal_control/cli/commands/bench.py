@@ -327,7 +327,7 @@ def _shifts() -> int:
 
 
 def _grids(items: list[str] | None) -> dict[str, list[Any]]:
-    from ...flagship.params import parse_value
+    from ...runs.params import parse_value
 
     out: dict[str, list[Any]] = {}
     for item in items or []:

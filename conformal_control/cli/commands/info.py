@@ -65,7 +65,7 @@ def _fmt(value: Any) -> str:
 @_params_args.handler
 def _params(args: argparse.Namespace) -> int:
     from ...data.units import PARAM_DIMENSIONS
-    from ...flagship.params import PARAMETERS, UNIT_SUFFIXES
+    from ...runs.params import PARAMETERS, UNIT_SUFFIXES
 
     if not args.scene:
         print(
@@ -83,7 +83,7 @@ def _params(args: argparse.Namespace) -> int:
         return 0
 
     from ...data import load_scene
-    from ...flagship.params import resolve_params
+    from ...runs.params import resolve_params
 
     scene = load_scene(args.scene, args.data_root)
     resolved = resolve_params(scene, {})

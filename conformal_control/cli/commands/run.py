@@ -488,8 +488,8 @@ def _run(args: argparse.Namespace) -> int:
         # of their classes), then it imports matplotlib on the other core during the episode
         from ... import data  # noqa: F401
         from ...io.plotting.jobs import prepare, release
-        from ...results import rundir  # noqa: F401
-        from ...sim import episode  # noqa: F401
+        from ...runs import episode  # noqa: F401
+        from ...runs.results import rundir  # noqa: F401
 
         prepare(
             ("conformal_control.io.plotting.guarantee", "conformal_control.io.plotting.distance")
@@ -508,7 +508,7 @@ def _run_prepared(args: argparse.Namespace) -> int:
 
     from ...api import run
     from ...core.spec import RunSpec
-    from ...results.rundir import write_run_dir
+    from ...runs.results.rundir import write_run_dir
 
     log = logging.getLogger("conformal_control.run")
     if args.config:
@@ -663,11 +663,11 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
 
 def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     """``run --robots``: the run's specification (as ``_run_prepared`` built it) with the
-    robots' tasks, by :func:`~conformal_control.sim.multi.run_multi`."""
+    robots' tasks, by :func:`~conformal_control.runs.fleet.run_multi`."""
     from ...core.spec import RunSpec
     from ...data import load_scene
     from ...predictors.training import with_weights
-    from ...sim.multi import load_robots_file, run_multi
+    from ...runs.fleet import load_robots_file, run_multi
 
     scene = load_scene(
         args.scene,

@@ -10,7 +10,7 @@ shifts
 statistics (:mod:`~conformal_control.experiments.bench.stats`) and reports
 (:mod:`~conformal_control.experiments.bench.report`). Collisions are classified in every run's
 metrics
-(:mod:`conformal_control.results.collisions`).
+(:mod:`conformal_control.runs.results.collisions`).
 """
 
 from ...data.suites import (

@@ -648,7 +648,7 @@ def nolearn_outcome(
         ``n_collide``, ``d_min`` (m), ``goal_reached``, ``t_goal`` (s), ``frames``,
         ``n_fallback`` (lengths and times rounded).
     """
-    from ...sim.episode import run_episode
+    from ...runs.episode import run_episode
 
     sc = Scenario.from_dict(scenario)
     scene = load_scenario(sc, data_root)

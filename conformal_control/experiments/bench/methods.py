@@ -3,8 +3,8 @@
 A :class:`Method` is a family name, a setting, and what it changes in the flagship: run
 parameters (SI units: lambda and eta in 1/s, lengths in m), the update rule, and any role
 given by registered name (barrier, safety filter, fallback, loss, predictor). Every
-method runs through the same public builder (:func:`conformal_control.sim.build_flagship`
-via :func:`conformal_control.sim.run_episode`), so a user can reproduce any row of a
+method runs through the same public builder (:func:`conformal_control.runs.build.build_flagship`
+via :func:`conformal_control.runs.episode.run_episode`), so a user can reproduce any row of a
 leaderboard with ``run_episode(scene, **method.run_kwargs(predictor))``.
 
 Families are declared as data (:class:`Family`: roles by registered name, parameters, and
@@ -125,7 +125,7 @@ class Method:
         return req
 
     def run_kwargs(self, predictor: str = "constant_velocity") -> dict[str, Any]:
-        """Keyword arguments of :func:`~conformal_control.sim.run_episode` (SI units)."""
+        """Keyword arguments of :func:`~conformal_control.runs.episode.run_episode` (SI units)."""
         kw: dict[str, Any] = {
             "predictor": self.predictor or predictor,
             "params": dict(self.params),

@@ -28,7 +28,7 @@ itself). The manifest (``multi_manifests/<suite>.json``) lists the entries; the 
 recomputed from it (:func:`entry_tasks`), deterministically, and stored with every run.
 
 The runner (:func:`run_multi_bench`, ``conformal-control bench run --robots M``) runs every
-entry x robots count x method x reciprocity, one :func:`~conformal_control.sim.multi.run_multi`
+entry x robots count x method x reciprocity, one :func:`~conformal_control.runs.fleet.run_multi`
 each, on a process pool; rows go to ``results.jsonl`` as they finish (a rerun into the same
 folder skips what is done). Methods are the single-robot benchmark's
 (:mod:`conformal_control.experiments.bench.methods`), applied to every robot. The report
@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...data.suites import SPLITS, TAIL_S, Scenario, load_suite
-from ...results.multi_metrics import ROBOT_NEAR_M
+from ...runs.results.multi_metrics import ROBOT_NEAR_M
 from .methods import Method, available
 from .shifts import Shift, get_shift
 from .stats import Estimate, bootstrap_mean, paired_comparison
@@ -168,7 +168,7 @@ def layout_tasks(
     """
     if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
         raise ValueError(f"the number of robots must be an integer, got {n_robots!r}")
-    from ...sim.multi import MAX_ROBOTS
+    from ...runs.fleet import MAX_ROBOTS
 
     if not 2 <= n_robots <= MAX_ROBOTS:
         raise ValueError(f"a fleet has 2 to {MAX_ROBOTS} robots, got {n_robots}")
@@ -454,7 +454,7 @@ def _options_label(options: Mapping[str, Any]) -> str:
 
 def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str, Any]:
     """Run one configuration; never raises (a failure is a row with its error)."""
-    from ...sim.multi import run_multi
+    from ...runs.fleet import run_multi
 
     t0 = time.perf_counter()
     e = run.entry
@@ -513,10 +513,10 @@ def _solo(
 ) -> dict[str, Any]:
     """The fleet's figures with every robot run alone on its own task (robot ``i`` with
     seed ``seed + i``, as in the fleet): pedestrian frames and deadlocks summed, the goal
-    rate over the robots, no robot pair (:func:`~conformal_control.results.multi_metrics.
+    rate over the robots, no robot pair (:func:`~conformal_control.runs.results.multi_metrics.
     fleet_metrics` of the single-robot runs)."""
-    from ...results.multi_metrics import fleet_metrics
-    from ...sim.multi import run_multi
+    from ...runs.fleet import run_multi
+    from ...runs.results.multi_metrics import fleet_metrics
 
     robots, contacts = [], []
     frames, wall, cpu = 0, 0.0, 0.0

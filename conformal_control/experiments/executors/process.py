@@ -34,7 +34,7 @@ __all__ = ["ProcessExecutor", "default_workers", "process_alive", "watch_driver"
 #: Seconds between two checks of the driver by a worker's watchdog.
 WATCHDOG_PERIOD_S = 0.25
 #: Modules the fork server imports before it forks workers (``forkserver`` only).
-PRELOAD = ("conformal_control.experiments.worker", "conformal_control.sim.episode")
+PRELOAD = ("conformal_control.experiments.worker", "conformal_control.runs.episode")
 
 
 def default_workers() -> int:

@@ -227,7 +227,7 @@ class SamplingMPC(
     }
 
     #: How the robots the sensor reports are treated (set by a multi-robot run,
-    #: :func:`~conformal_control.sim.multi.set_reciprocity`): reciprocal robots are kept on
+    #: :func:`~conformal_control.runs.fleet.set_reciprocity`): reciprocal robots are kept on
     #: their side of shared lines (:mod:`~conformal_control.families.mpc.peers`); None predicts
     #: every agent alike.
     reciprocity: Reciprocity | None = None

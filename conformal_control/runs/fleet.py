@@ -1,6 +1,6 @@
 """Decentralized multi-robot runs: M robots, each its own conformal CBF controller.
 
-Every robot is the flagship of :func:`~conformal_control.flagship.build.build_flagship` -- its
+Every robot is the flagship of :func:`~conformal_control.runs.build.build_flagship` -- its
 own predictor, barrier, safety filter, reference controller, loss, update rule and lambda
 -- built from the same parameters (role instances are deep-copied per robot, so no state
 is shared) and driven by its own :class:`~conformal_control.core.loop.ConformalStepper`. Each
@@ -24,7 +24,7 @@ Starts and goals (:func:`robot_tasks`):
   robot ``i`` does the same task rotated by ``2 pi i / M`` about the midpoint of the start
   and the last goal. With two robots they swap ends; with one, it is the single-robot
   episode exactly (:func:`run_multi` then reproduces
-  :func:`~conformal_control.sim.episode.run_episode`, metric for metric);
+  :func:`~conformal_control.runs.episode.run_episode`, metric for metric);
 * ``layout="antipodal"``: the robots evenly spaced on a circle of ``radius`` (m) about
   ``center`` (m), each going to the opposite point (robot 0 starts left of the centre);
 * ``starts=`` and ``goals=``: an explicit list (goals ``(M, 2)``, or one list of waypoints
@@ -53,10 +53,11 @@ from ..core.spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSp
 from ..data.scene import Scene
 from ..families.cbf.feasibility import feasibility_floor
 from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
-from ..flagship.build import Flagship, build_flagship
-from ..results.episode import RobotResult
-from ..results.measure import episode_config, jsonable, measure
-from ..results.multi_metrics import (
+from ..world.multi import MultiRobotWorld
+from .build import Flagship, build_flagship
+from .results.episode import RobotResult
+from .results.measure import episode_config, jsonable, measure
+from .results.multi_metrics import (
     DeadlockRule,
     FleetMetrics,
     deadlocks,
@@ -64,9 +65,8 @@ from ..results.multi_metrics import (
     remaining_paths,
     robot_contacts,
 )
-from ..results.multi_record import multi_record
-from ..results.rundir import csv_cell, finite_or_none
-from ..world.multi import MultiRobotWorld
+from .results.multi_record import multi_record
+from .results.rundir import csv_cell, finite_or_none
 
 __all__ = [
     "LAYOUTS",
@@ -373,7 +373,7 @@ def run_multi(
     """Run M robots, each with its own conformal CBF controller, in one scene.
 
     The parameters not listed below are as for
-    :func:`~conformal_control.sim.episode.run_episode`, applied to every robot.
+    :func:`~conformal_control.runs.episode.run_episode`, applied to every robot.
 
     Parameters
     ----------
@@ -777,7 +777,8 @@ def drive(
 def _deadlocks(
     world: MultiRobotWorld, tasks: list[np.ndarray], rule: DeadlockRule
 ) -> list[float | None]:
-    """When each robot deadlocked (:func:`~conformal_control.results.multi_metrics.deadlocks`)."""
+    """When each robot deadlocked
+    (:func:`~conformal_control.runs.results.multi_metrics.deadlocks`)."""
     sc = world.scene
     lo, hi = sc.start_index, world.frame_index
     track = world.robot_track()[lo : hi + 1]
@@ -822,7 +823,7 @@ def write_multi_run_dir(result: MultiResult, out: str | Path) -> Path:
     ``metrics.json`` last; a write error names the file.
     """
     from ..core.fileio import atomic_write, atomic_write_json, atomic_write_text
-    from ..results.rundir import csv_text
+    from .results.rundir import csv_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Collision accounting: every collision event of an episode, classified.
 
 A *collision frame* is a frame whose smallest robot-pedestrian centre distance is below
-the collision distance d_c (:class:`~conformal_control.results.metrics.EpisodeMetrics`'s
+the collision distance d_c (:class:`~conformal_control.runs.results.metrics.EpisodeMetrics`'s
 ``n_collide``). A *collision event* is a run of consecutive frames during which one
 pedestrian is closer than d_c. Each collision frame is attributed to the event of its
 nearest pedestrian, so the frame counts of the classes below add up to ``n_collide``.

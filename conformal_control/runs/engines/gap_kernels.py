@@ -5,7 +5,7 @@ batch: the largest gap between the APF constraint on the predicted and on the tr
 (:class:`~conformal_control.families.cbf.loss.CBFGapLoss`, with
 :meth:`~conformal_control.families.cbf.constraint.ConformalConstraint.value`'s arithmetic), agent by
 agent and instant by instant. The control instants themselves run in
-:func:`~conformal_control.engines.interval.run_interval`, which calls the exact 2-D
+:func:`~conformal_control.runs.engines.interval.run_interval`, which calls the exact 2-D
 filter's fused APF step (:func:`~conformal_control.families.cbf.kernels2d.apf_step`) as is.
 :data:`SEARCH`, :data:`BRAKE`, :data:`HOLD` and :data:`PYTHON` are the fallback codes the engine
 gives it.
@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
-from ..families.cbf.pyhypot import c_hypot
+from ...core.jit import kernel
+from ...families.cbf.pyhypot import c_hypot
 
 __all__ = ["BRAKE", "HOLD", "PYTHON", "SEARCH", "gap_maxima"]
 

@@ -3,8 +3,8 @@
 What :class:`~conformal_control.world.replay.ReplayEnvironment` does per episode in Python
 -- the sensor's range test, the history / truth windows it cuts from the recording, the
 per-frame log (the frame clock itself runs in
-:func:`~conformal_control.engines.interval.run_interval`) -- written as loops over the
-episodes of a batch (:mod:`conformal_control.engines.batch`), with the same floating-point
+:func:`~conformal_control.runs.engines.interval.run_interval`) -- written as loops over the
+episodes of a batch (:mod:`conformal_control.runs.engines.batch`), with the same floating-point
 operations (numba's ``math.hypot`` is the C library's, the one ``numpy.hypot`` calls).
 Each episode reads its own recording, stored sparsely as the scene holds it
 (:class:`~conformal_control.data.scene.SparseTracks`: memory proportional to the
@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.jit import kernel
-from ..families.cbf.pyhypot import c_hypot
+from ...core.jit import kernel
+from ...families.cbf.pyhypot import c_hypot
 from .recorded_kernels import find_issue, forecast_agent, snap_times
 
 if TYPE_CHECKING:
-    from ..data.scene import SparseTracks
+    from ...data.scene import SparseTracks
 
 __all__ = [
     "CONSTANT_VELOCITY",
@@ -222,7 +222,7 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 
 
 def _dropout_draw_python(seed: int, scene: int, agent: int, block: int) -> float:
-    from ..predictors.shift import hash_uniform
+    from ...predictors.shift import hash_uniform
 
     return float(hash_uniform(seed, scene, agent, block, 2)[0])
 
@@ -328,7 +328,7 @@ def predict_interpolate(
     (:class:`~conformal_control.predictors.oracle.OraclePredictor`), or the forecasts of a
     predictions file (``RECORDED``:
     :class:`~conformal_control.predictors.recorded.RecordedPredictor`, slot ``b``'s block
-    of :func:`~conformal_control.engines.recorded_kernels.pack` at ``rec_at[b]`` in ``rec``,
+    of :func:`~conformal_control.runs.engines.recorded_kernels.pack` at ``rec_at[b]`` in ``rec``,
     step length ``rec_step[b]`` seconds, the agents' ids ``agent_id[b]``, frame numbers
     from ``first_frame[b]``; an agent without a recorded forecast predicted at constant
     velocity with ``window[b]``; ``rec_counts[b]``: agents without one (missing), missing

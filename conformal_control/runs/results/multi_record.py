@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..world.multi import MultiRobotWorld
+    from ...world.multi import MultiRobotWorld
     from .episode import RobotResult
 
 __all__ = ["multi_record"]

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
+from ...core.jit import kernel
 
 __all__ = ["EPS", "find_issue", "forecast_agent", "interp", "pack", "snap_times"]
 

@@ -6,7 +6,7 @@ from the recording (the mixed crowd), the replayed pedestrians interpolated betw
 frames, the preferred velocities towards the recorded waypoints, the neighbour search, the
 model's step, the pedestrians leaving the scene, the frame the environment stores when it
 is complete -- written as loops over the episodes of a batch
-(:mod:`conformal_control.engines.batch`), with the same floating-point operations in the
+(:mod:`conformal_control.runs.engines.batch`), with the same floating-point operations in the
 same order (numba compiles without fast-math; ``math.hypot`` is the C library's, the one
 ``numpy.hypot`` calls). ORCA's step is the model's own compiled functions
 (:mod:`~conformal_control.world.crowds.orca_compiled`) called per episode;
@@ -30,11 +30,11 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
-from ..families.cbf.pyhypot import c_hypot
-from ..world.crowds.crowd import ACTIVE, GONE, REPLAY
-from ..world.crowds.neighbors import cell_pairs
-from ..world.crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
+from ...core.jit import kernel
+from ...families.cbf.pyhypot import c_hypot
+from ...world.crowds.crowd import ACTIVE, GONE, REPLAY
+from ...world.crowds.neighbors import cell_pairs
+from ...world.crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 from .kernels import d_min
 
 __all__ = ["ORCA", "SOCIAL_FORCE", "crowd_begin", "crowd_end", "relog_d_min"]
@@ -487,7 +487,7 @@ def relog_d_min(
 
 
 def dense_layout(positions: np.ndarray, lo: int, upto: int, n_frames: int) -> np.ndarray:
-    """A slot's store for a reactive crowd: :func:`~conformal_control.engines.kernels.pack`'s
+    """A slot's store for a reactive crowd: :func:`~conformal_control.runs.engines.kernels.pack`'s
     layout with every column stored over frames ``lo .. lo + L - 1`` (``positions`` of
     shape ``(L, M, 2)``: the environment's buffer over those frames), room for every
     column present at every frame, and the frames up to ``upto`` indexed (the later ones

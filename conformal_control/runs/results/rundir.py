@@ -9,13 +9,13 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from ..core.fileio import atomic_write, atomic_write_json, atomic_write_text
+from ...core.fileio import atomic_write, atomic_write_json, atomic_write_text
 
 if TYPE_CHECKING:  # annotations only (no circle: none of these imports a result)
     import numpy as np
 
-    from ..core.loop import LoopResult
-    from ..data.scene import Scene
+    from ...core.loop import LoopResult
+    from ...data.scene import Scene
     from .metrics import EpisodeMetrics
 
 __all__ = ["RunResult", "csv_cell", "csv_text", "finite_or_none", "write_run_dir"]
@@ -23,7 +23,7 @@ __all__ = ["RunResult", "csv_cell", "csv_text", "finite_or_none", "write_run_dir
 
 class RunResult(Protocol):
     """What a run directory is written from (an
-    :class:`~conformal_control.results.episode.EpisodeResult` is one): typed by what it
+    :class:`~conformal_control.runs.results.episode.EpisodeResult` is one): typed by what it
     holds, so this module needs no result class (and no import circle ties it to one)."""
 
     scene: Scene
@@ -81,7 +81,7 @@ def write_run_dir(
       the largest constraint gap, agents sensed, control steps);
     * ``trajectory.csv`` - ``frame,t,x,y,vx,vy,d_min`` per video frame (m, m/s);
     * ``animation.npz`` - what ``conformal-control animate`` renders (if the episode kept
-      it; see :mod:`conformal_control.results.record`);
+      it; see :mod:`conformal_control.runs.results.record`);
     * ``plot.png`` - the scene with the path, lambda(t), loss(t) and the distance to the
       nearest pedestrian;
     * ``guarantee.png`` - running average loss against epsilon and the rule's bounds.
@@ -159,12 +159,12 @@ def write_run_dir(
         atomic_write(out / "animation.npz", save_npz)
     atomic_write_json(out / "metrics.json", metrics)
     if plot:
-        from ..io.plotting.jobs import FigureJob, draw_all
-        from ..io.plotting.run import plot_run
+        from ...io.plotting.jobs import FigureJob, draw_all
+        from ...io.plotting.run import plot_run
 
         jobs: list[FigureJob] = [(plot_run, (result, out / "plot.png"), {})]
         if result.loop is not None and result.loop.monitor.n:
-            from ..io.plotting.guarantee import plot_guarantee
+            from ...io.plotting.guarantee import plot_guarantee
 
             units = result.scene.units
             kwargs = {

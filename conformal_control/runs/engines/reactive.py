@@ -6,14 +6,14 @@ per-episode loop builds it: a
 :class:`~conformal_control.world.crowds.crowd.Crowd` is reset with the scene (its plan: each
 pedestrian's waypoints, schedule, speed bound and recorded velocities; the pedestrians
 present at the start frame). :class:`CrowdSlots` copies that state into one row per slot
-and steps every slot's crowd with :mod:`~conformal_control.engines.crowd_kernels`.
+and steps every slot's crowd with :mod:`~conformal_control.runs.engines.crowd_kernels`.
 
 Timing, as :meth:`ReactiveEnvironment.apply
 <conformal_control.world.reactive.ReactiveEnvironment.apply>` has it: the crowd and the
 robot move together over each control instant, each seeing the other's state at its start.
 Within an interval the robot's control does not read the pedestrians (it reads the
 predictions made at the sampling time), so the engine runs the interval's control instants
-first (:func:`~conformal_control.engines.interval.run_interval`) and then walks the crowds
+first (:func:`~conformal_control.runs.engines.interval.run_interval`) and then walks the crowds
 through the same instants with the robot's recorded positions and velocities; each
 completed frame is written to the slot's store (which the sensor, the predictors, the
 frame log's ``d_min`` and the truth read), the frame log's ``d_min`` of the interval's
@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
-from ..world.crowds.crowd import Crowd
-from ..world.crowds.orca import ORCAModel
-from ..world.crowds.social_force import SocialForceModel
-from ..world.reactive import ReactiveCursor, ReactiveEnvironment
+from ...world.crowds.crowd import Crowd
+from ...world.crowds.orca import ORCAModel
+from ...world.crowds.social_force import SocialForceModel
+from ...world.reactive import ReactiveCursor, ReactiveEnvironment
 from .crowd_kernels import (
     ORCA,
     SOCIAL_FORCE,

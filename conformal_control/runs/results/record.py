@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core.loop import IntervalLog
-from ..data.scene import Scene
-from ..families.cbf.roles import Barrier
+from ...core.loop import IntervalLog
+from ...data.scene import Scene
+from ...families.cbf.roles import Barrier
 
 __all__ = ["AnimationRecorder"]
 

@@ -1,6 +1,6 @@
 """Every control instant of an interval, for every live episode of a batch, in one call.
 
-The lockstep engine (:mod:`conformal_control.engines.batch`) calls :func:`run_interval` once
+The lockstep engine (:mod:`conformal_control.runs.engines.batch`) calls :func:`run_interval` once
 per interval: for each slot it runs the interval's control instants back to back --
 the attractive field's reference velocity, the fused APF step of the exact 2-D filter
 (:func:`~conformal_control.families.cbf.kernels2d.apf_step`; for the ``acp`` family with the
@@ -26,8 +26,8 @@ import math
 
 import numpy as np
 
-from ..core.jit import kernel
-from ..families.cbf.kernels2d import (
+from ...core.jit import kernel
+from ...families.cbf.kernels2d import (
     ESCAPED,
     INFEASIBLE,
     NONFINITE,
@@ -37,7 +37,7 @@ from ..families.cbf.kernels2d import (
     apf_step,
     escape_guard,
 )
-from ..families.cbf.pyhypot import py_hypot
+from ...families.cbf.pyhypot import py_hypot
 from .gap_kernels import HOLD, PYTHON
 from .kernels import d_min
 

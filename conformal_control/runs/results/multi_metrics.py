@@ -1,7 +1,7 @@
 """Metrics of a multi-robot run: per robot, robot-robot contacts, and the fleet's aggregate.
 
 Each robot is measured as a single robot is
-(:class:`~conformal_control.results.metrics.EpisodeMetrics`, with ``d_min`` and ``n_collide``
+(:class:`~conformal_control.runs.results.metrics.EpisodeMetrics`, with ``d_min`` and ``n_collide``
 about *pedestrians*), plus :class:`RobotContacts` about the *other robots*. A robot's
 ``success`` requires its goal and no collision of either kind.
 
@@ -16,7 +16,7 @@ until it reaches its last goal or the run ends):
 * a robot-pedestrian collision frame is **robot-nearby** when another robot (under way or
   parked at its goal) is within :data:`ROBOT_NEAR_M` of the hit robot in that frame (the
   fleet's spacing: a contact the other robots may have pushed it into), and **avoidable**
-  as for one robot (:mod:`~conformal_control.results.collisions`: a point robot with the
+  as for one robot (:mod:`~conformal_control.runs.results.collisions`: a point robot with the
   same speed bound could have kept away from that pedestrian since first sensing it;
   pop-ins never count as avoidable);
 * **makespan**: the time the last robot reached its goal (None when one never did);

@@ -4,8 +4,9 @@ The data flow of one interval, top to bottom (see
 :class:`~conformal_control.core.loop.ConformalLoop`):
 sensor -> predictor -> per control instant: constraints from the barrier + lambda -> QP ->
 double-integrator dynamics; at the next sampling time: truth -> loss -> lambda update.
-Building is :func:`~conformal_control.flagship.build.build_flagship`; running is a backend
-of :mod:`conformal_control.engines`; measuring is :mod:`conformal_control.results.measure`.
+Building is :func:`~conformal_control.runs.build.build_flagship`; running is a backend
+of :mod:`conformal_control.runs.engines`; measuring is
+:mod:`conformal_control.runs.results.measure`.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ from ..core.exceptions import InputError
 from ..core.loop import IntervalLog
 from ..core.spec import RunSpec
 from ..data.scene import Scene
-from ..engines.batch import as_run_spec, run_single
-from ..engines.loop import run_loop
-from ..flagship.build import RoleSpec, build_flagship
-from ..results.episode import EpisodeResult
+from .build import RoleSpec, build_flagship
+from .engines.batch import as_run_spec, run_single
+from .engines.loop import run_loop
+from .results.episode import EpisodeResult
 
 __all__ = ["EpisodeResult", "run_episode"]
 
@@ -65,7 +66,7 @@ def run_episode(
           Recorded in the config; named plugins with a ``random_state`` receive it.
         - ``rule`` (str or UpdateRule):
           A registered update rule built from the run's parameters and ``rule_params``
-          (in ``units``; see :func:`~conformal_control.flagship.build.build_rule`), or an instance
+          (in ``units``; see :func:`~conformal_control.runs.build.build_rule`), or an instance
           (SI units, used as given).
         - ``lambda_safe`` (float, optional):
           lambda known or estimated to keep the robot safe (in ``units``): metrics then hold
@@ -75,7 +76,7 @@ def run_episode(
         - ``barrier``, ``safety_filter``, ``fallback``, ``reference``, ``dynamics``, ``loss``:
           Each an instance, a registered name (built with the matching ``*_params``, SI
           units) or None for the flagship's default; see
-          :func:`~conformal_control.flagship.build.build_flagship`.
+          :func:`~conformal_control.runs.build.build_flagship`.
         - ``crowd`` (str):
           ``"replay"`` (default), ``"social_force"``, ``"orca"`` or ``"mixed"``: pedestrians
           who react to the robot, with ``crowd_params`` (SI; see
@@ -85,13 +86,13 @@ def run_episode(
           ``"acp"``), with ``family_params``.
         - ``record_animation`` (bool):
           Keep the compact record ``conformal-control animate`` renders (``result.animation``,
-          written as ``animation.npz``; see :mod:`conformal_control.results.record`).
+          written as ``animation.npz``; see :mod:`conformal_control.runs.results.record`).
         - ``engine`` ({"auto", "loop", "batch"}):
           How the episode is run. ``"loop"``: the generic
           :class:`~conformal_control.core.loop.ConformalLoop`, one chain of Python calls per
           control instant, for any configuration. ``"batch"``: the compiled engine of
-          :mod:`~conformal_control.engines.batch` (one compiled call per interval), for the
-          configurations :func:`~conformal_control.engines.batch.supports` accepts (the
+          :mod:`~conformal_control.runs.engines.batch` (one compiled call per interval), for the
+          configurations :func:`~conformal_control.runs.engines.batch.supports` accepts (the
           flagship's roles given by name, a replayed crowd, no ``on_interval``); raises
           ``ValueError`` with the reason otherwise. ``"auto"`` (default): the engine when it
           runs the configuration, else the loop. Both give the same result (metrics but
@@ -103,7 +104,7 @@ def run_episode(
     InputError
         For a run with a robots section (``robots=3``, ``starts=``, a
         :class:`~conformal_control.core.spec.RunSpec` read from a multi-robot ``config.json``):
-        one robot runs here, several with :func:`~conformal_control.sim.multi.run_multi`.
+        one robot runs here, several with :func:`~conformal_control.runs.fleet.run_multi`.
     """
     run = as_run_spec(spec, params, **settings)
     if run.robots is not None:  # one robot here: never drop the section silently
@@ -111,7 +112,8 @@ def run_episode(
         what = f"robots={given}" if given is not None else "a robots section"
         raise InputError(
             f"the run has {what}, and run() / run_episode drive one robot: run several with "
-            "conformal_control.sim.run_multi(scene, spec) or `conformal-control run --robots`"
+            "conformal_control.runs.fleet.run_multi(scene, spec) or "
+            "`conformal-control run --robots`"
         )
     scene = run.on_scene(scene)
     if run.engine != "loop":

@@ -50,7 +50,7 @@ class MetricsTable(Mapping[str, Any]):
     (``metadata``), read like a dict, written as JSON, printed as aligned lines.
 
     One table type for one robot (:class:`EpisodeMetrics`) and a fleet
-    (:class:`~conformal_control.results.multi_metrics.FleetMetrics`).
+    (:class:`~conformal_control.runs.results.multi_metrics.FleetMetrics`).
     """
 
     #: What ``format()`` prints by default.
@@ -120,7 +120,7 @@ class EpisodeMetrics(MetricsTable):
     any_collision: bool = _m("-", "at least one collision frame", False)
     d_min: float | None = _m("m", "smallest centre distance to a pedestrian")
     time_in_personal_space: float = _m("s", "time with a surface gap < 0.5 m", 0.0)
-    # -- collision accounting (conformal_control.results.collisions) -----------------------
+    # -- collision accounting (conformal_control.runs.results.collisions) -----------------------
     n_collision_events: int = _m("-", "runs of frames with one pedestrian closer than d_c", 0)
     n_collide_avoidable: int = _m(
         "-", "collision frames a point robot could have avoided from first sensing (no pop-in)", 0

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.loop import LoopResult
-from ..data.scene import Scene
+from ...core.loop import LoopResult
+from ...data.scene import Scene
 from .metrics import EpisodeMetrics
 from .multi_metrics import RobotContacts
 
@@ -51,7 +51,7 @@ class EpisodeResult:
 
     def plot(self, path: str | Path | None = None) -> Any:
         """The run figure (scene and path, lambda(t), loss(t), distances); saved if ``path``."""
-        from ..io.plotting import plot_run  # matplotlib is imported on first use
+        from ...io.plotting import plot_run  # matplotlib is imported on first use
 
         fig = plot_run(self)
         if path is not None:

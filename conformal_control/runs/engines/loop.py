@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.loop import ConformalLoop, IntervalLog
+from ...core.loop import ConformalLoop, IntervalLog
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     check_lambda,
@@ -24,8 +24,8 @@ from ..results.measure import (
 from ..results.record import AnimationRecorder
 
 if TYPE_CHECKING:
-    from ..core.spec import RunSpec
-    from ..flagship.build import Flagship
+    from ...core.spec import RunSpec
+    from ..build import Flagship
 
 __all__ = ["run_loop"]
 
@@ -42,7 +42,7 @@ def run_loop(
     Parameters
     ----------
     fl : Flagship
-        The wired episode (:func:`~conformal_control.flagship.build.build_flagship`).
+        The wired episode (:func:`~conformal_control.runs.build.build_flagship`).
     run : RunSpec
         Its specification (options: ``learn``, ``lambda_safe``, ``record_animation``, ...).
     on_interval : callable, optional

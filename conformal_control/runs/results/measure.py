@@ -1,7 +1,7 @@
 """Measuring an episode of the flagship: checks before and during the run, metrics and
 intervals after it, and the configuration written as ``config.json``.
 
-Every engine (:mod:`conformal_control.engines`) measures with these functions, so the
+Every engine (:mod:`conformal_control.runs.engines`) measures with these functions, so the
 metrics of an episode do not depend on the engine that ran it.
 """
 
@@ -15,21 +15,21 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .. import __version__
-from ..core.exceptions import (
+from ... import __version__
+from ...core.exceptions import (
     FeasibilityWarning,
     GoalNotReachedWarning,
     LambdaOverflowError,
     NoUpdatesWarning,
 )
-from ..core.loop import LoopResult
-from ..families.cbf.feasibility import feasibility_floor
+from ...core.loop import LoopResult
+from ...families.cbf.feasibility import feasibility_floor
 from .collisions import account_collisions
 from .metrics import EpisodeMetrics, episode_metrics
 
 if TYPE_CHECKING:
-    from ..core.spec import RunSpec
-    from ..flagship.build import Flagship
+    from ...core.spec import RunSpec
+    from ..build import Flagship
 
 __all__ = [
     "LAMBDA_LIMIT",

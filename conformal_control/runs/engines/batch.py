@@ -4,9 +4,9 @@
 instant (environment, controller, filter, plant). :func:`run_batch` runs many: every
 episode of a batch advances by one interval per iteration, and the work of an iteration is
 done for all of them together -- ONE compiled call for every control instant of the
-interval (:func:`~conformal_control.engines.interval.run_interval`: reference, the exact
+interval (:func:`~conformal_control.runs.engines.interval.run_interval`: reference, the exact
 2-D filter's fused APF step, plant, goal check, frame clock and log), compiled loops for
-the replay bookkeeping (:mod:`~conformal_control.engines.kernels`), and, at sampling
+the replay bookkeeping (:mod:`~conformal_control.runs.engines.kernels`), and, at sampling
 times, ONE call of the predictor, the interpolation, the constraint and the loss on the
 agents of every episode at that sampling time laid side by side (these are computed agent
 by agent, so one call on the concatenation is the same arithmetic as one call per
@@ -14,7 +14,7 @@ episode). :func:`run_episode` itself runs a single episode on this engine when i
 (:func:`run_single`, keeping the per-instant steps and the animation record too).
 
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
-:func:`~conformal_control.flagship.build.build_flagship` (same parameter resolution, same
+:func:`~conformal_control.runs.build.build_flagship` (same parameter resolution, same
 validation, same errors), its lambda is updated by its own update rule through its own
 :class:`~conformal_control.core.monitor.GuaranteeMonitor`, its counters are written into the
 same learned attributes the per-episode loop fills, and it is measured by the same code.
@@ -25,7 +25,7 @@ the episodes it advanced.
 
 Supported (:func:`supports` says why not otherwise, so a caller can fall back to
 :func:`run_episode`): replayed crowds, and the reactive ``social_force``, ``orca`` and
-``mixed`` crowds without noise (:mod:`~conformal_control.engines.reactive`: each episode's
+``mixed`` crowds without noise (:mod:`~conformal_control.runs.engines.reactive`: each episode's
 crowd walks through the interval's control instants after its robot, one compiled call
 per instant for all of them); any registered predictor; the ``cbf`` family and the
 ``acp`` family (adaptive conformal prediction regions); the APF barrier; the exact 2-D
@@ -49,7 +49,7 @@ and the oracle predictor are compiled (above), and so are the predictor shifts o
 (``delayed``, ``noisy``, ``scaled``, ``dropout``, :mod:`~conformal_control.predictors.shift`)
 and the ``recorded`` predictor (the forecasts of a predictions file, the benchmark's
 ``learned`` shift: each episode's slice of the file is packed into the batch and replayed
-by :mod:`~conformal_control.engines.recorded_kernels`, its constant-velocity fallback
+by :mod:`~conformal_control.runs.engines.recorded_kernels`, its constant-velocity fallback
 compiled with it; with another fallback, on a scene the file does not cover or with
 agent ids that are not integers it is called as it is); any other predictor is called at each
 sampling time on the query the episode's environment builds
@@ -68,8 +68,8 @@ receives the loss as a function of lambda, as
 Memory: at most ``batch_size`` episodes are alive at a time; a finished episode's slot is
 refilled from ``scenes`` (consumed lazily: pass a generator to keep only the live scenes in
 memory) at the next common sampling time. With ``output="metrics"`` (default) only the
-:class:`~conformal_control.results.metrics.EpisodeMetrics` are kept; ``output="results"``
-keeps an :class:`~conformal_control.results.episode.EpisodeResult` per episode (scene, config,
+:class:`~conformal_control.runs.results.metrics.EpisodeMetrics` are kept; ``output="results"``
+keeps an :class:`~conformal_control.runs.results.episode.EpisodeResult` per episode (scene, config,
 intervals, per-frame trajectory, the loop's result; no per-instant ``steps`` and no
 animation record).
 """
@@ -88,10 +88,10 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from ..core import registry
-from ..core.base import Loss, Plugin
-from ..core.jit import compile_now
-from ..core.loop import (
+from ...core import registry
+from ...core.base import Loss, Plugin
+from ...core.jit import compile_now
+from ...core.loop import (
     IntervalLog,
     IntervalScore,
     LoopResult,
@@ -99,25 +99,28 @@ from ..core.loop import (
     close_agent_interval,
     close_interval,
 )
-from ..core.monitor import AgentMonitor, GuaranteeMonitor
-from ..core.spec import RunSpec
-from ..data.scene import Scene, SparseTracks
-from ..families.cbf import kernels2d
-from ..families.cbf.acp import ACPController, ACPIntervalRecord
-from ..families.cbf.barriers import APFBarrier, APFForm
-from ..families.cbf.constraint import ConformalConstraint, time_to_contact
-from ..families.cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
-from ..families.cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
-from ..families.cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
-from ..families.cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
-from ..families.cbf.pyhypot import EXACT_FOR_THIS_PYTHON
-from ..families.cbf.reference import AttractiveField, AttractiveFieldForm
-from ..families.cbf.roles import InfeasibleStep
-from ..families.cbf.speed import speed_polygon
-from ..flagship.build import Flagship, build_flagship
-from ..predictors.constant_velocity import ConstantVelocityForm
-from ..predictors.recorded import RecordedForm
-from ..predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
+from ...core.monitor import AgentMonitor, GuaranteeMonitor
+from ...core.spec import RunSpec
+from ...data.scene import Scene, SparseTracks
+from ...families.cbf import kernels2d
+from ...families.cbf.acp import ACPController, ACPIntervalRecord
+from ...families.cbf.barriers import APFBarrier, APFForm
+from ...families.cbf.constraint import ConformalConstraint, time_to_contact
+from ...families.cbf.controller import CBFIntervalRecord, ConformalCBFController, PredictorError
+from ...families.cbf.dynamics import VelocityTrackingDoubleIntegrator, VelocityTrackingForm
+from ...families.cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
+from ...families.cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
+from ...families.cbf.pyhypot import EXACT_FOR_THIS_PYTHON
+from ...families.cbf.reference import AttractiveField, AttractiveFieldForm
+from ...families.cbf.roles import InfeasibleStep
+from ...families.cbf.speed import speed_polygon
+from ...predictors.constant_velocity import ConstantVelocityForm
+from ...predictors.recorded import RecordedForm
+from ...predictors.shift import DelayedForm, ScaledForm, ShiftForm, noise_offsets, scene_key
+from ...world.crowds.crowd import Crowd
+from ...world.reactive import ReactiveEnvironment
+from ...world.replay import FrameLog, ReplayCursor, ReplayEnvironment
+from ..build import Flagship, build_flagship
 from ..results.episode import EpisodeResult
 from ..results.measure import (
     LAMBDA_LIMIT,
@@ -132,9 +135,6 @@ from ..results.measure import (
 )
 from ..results.metrics import EpisodeMetrics
 from ..results.record import AnimationRecorder
-from ..world.crowds.crowd import Crowd
-from ..world.reactive import ReactiveEnvironment
-from ..world.replay import FrameLog, ReplayCursor, ReplayEnvironment
 from . import kernels as bk
 from . import recorded_kernels as rk
 from .crowd_kernels import dense_layout
@@ -209,7 +209,7 @@ def as_run_spec(spec: Any = None, params: dict[str, Any] | None = None, **settin
 
 def supports(spec: RunSpec | None = None, /, **settings: Any) -> str | None:
     """Whether the compiled engine runs episodes of ``spec`` (or of the settings of a run,
-    as :func:`~conformal_control.sim.run_episode` takes them): None if it does, else the
+    as :func:`~conformal_control.runs.episode.run_episode` takes them): None if it does, else the
     reason (one sentence).
 
     Examples
@@ -355,7 +355,7 @@ def _parts(fl: Flagship) -> _Parts:
 
 def _form(forms: dict[str, Any], role: str, cls: type[_T]) -> _T:
     """The compiled form of ``role`` among ``forms`` (the flagship's
-    :meth:`~conformal_control.flagship.build.Flagship.compiled_forms`), as the kernel it
+    :meth:`~conformal_control.runs.build.Flagship.compiled_forms`), as the kernel it
     declares reads it; :class:`_NotRun` if the part hands another."""
     form = forms.get(role)
     if not isinstance(form, cls):
@@ -364,7 +364,7 @@ def _form(forms: dict[str, Any], role: str, cls: type[_T]) -> _T:
 
 
 def _predictor_code(pred: object) -> int:
-    """The compiled predictor of :func:`~conformal_control.engines.kernels.predict_interpolate`
+    """The compiled predictor of :func:`~conformal_control.runs.engines.kernels.predict_interpolate`
     that ``pred``'s class declares (``capabilities.compiled``), else ``_OWN``."""
     return _PREDICTORS.get(_compiled_name(type(pred)) or "", _OWN)
 
@@ -445,7 +445,7 @@ def _recorded_block(
 ) -> tuple[np.ndarray, float] | None:
     """The forecasts of ``sc``'s predictions file that an episode sampling at frames
     ``sc.start_index`` .. ``last`` can read, packed
-    (:func:`~conformal_control.engines.recorded_kernels.pack`: the latest issue at or before
+    (:func:`~conformal_control.runs.engines.recorded_kernels.pack`: the latest issue at or before
     the first sampling time, and every later one up to the last), and the step length;
     None where the predictor raises on this scene (no file for it, a missing or malformed
     file): the episode's own predictor is then called, and raises as in the loop, at its
@@ -734,13 +734,15 @@ class _Pool:
         return out
 
     def load(self, b: int, tracks: SparseTracks) -> None:
-        """Copy slot ``b``'s recording (sparse, :func:`~conformal_control.engines.kernels.pack`)
+        """Copy slot ``b``'s recording (sparse,
+        :func:`~conformal_control.runs.engines.kernels.pack`)
         into the store (compacting or growing it)."""
         counts = (tracks.n_frames, tracks.n_agents, tracks.xy.shape[0], tracks.frame_cols.size)
         self.put(b, bk.pack(tracks), counts)
 
     def put(self, b: int, data: np.ndarray, counts: tuple[int, int, int, int]) -> None:
-        """Copy slot ``b``'s recording laid out as :func:`~conformal_control.engines.kernels.pack`
+        """Copy slot ``b``'s recording laid out as
+        :func:`~conformal_control.runs.engines.kernels.pack`
         lays it out, with ``counts`` = (frames, agents, samples, present), into the store."""
         n = data.size
         if self.used + n > self.store.size:
@@ -770,7 +772,7 @@ class _Pool:
 
     def put_recorded(self, b: int, block: np.ndarray) -> None:
         """Copy slot ``b``'s recorded forecasts (a block of
-        :func:`~conformal_control.engines.recorded_kernels.pack`; empty: none) into ``rec``
+        :func:`~conformal_control.runs.engines.recorded_kernels.pack`; empty: none) into ``rec``
         (the live slots' blocks moved to the front first when it is full, then grown)."""
         n = block.size
         self.rec_len[b] = 0
@@ -1190,7 +1192,7 @@ class _Engine:
     def control(self, slots: np.ndarray) -> None:
         """The control instants of the current interval of ``slots``, each slot up to its
         interval's end or its episode's end, in one compiled call
-        (:func:`~conformal_control.engines.interval.run_interval`: reference, filter,
+        (:func:`~conformal_control.runs.engines.interval.run_interval`: reference, filter,
         plant, goal with waypoints, frame clock and frame log)."""
         p = self.pool
         todo = slots
