@@ -66,3 +66,29 @@ def test_an_old_path_warns_where_it_is_imported():
     )
     assert "<string>:2: ConformalControlDeprecationWarning" in proc.stderr, proc.stderr
     assert MOVED[old] in proc.stderr
+
+
+def test_the_entry_point_groups_keep_their_published_names():
+    """Third-party plugins register under these group names: they are not module paths, and
+    a module moving (``losses``, ``update_rules`` into ``core/``) does not rename them."""
+    import tomllib
+    from pathlib import Path
+
+    from conformal_control.core.registry import ROLES
+
+    published = {
+        "predictor": "conformal_control.predictors",
+        "barrier": "conformal_control.barriers",
+        "safety_filter": "conformal_control.safety_filters",
+        "fallback": "conformal_control.fallbacks",
+        "loss": "conformal_control.losses",
+        "rule": "conformal_control.update_rules",
+        "dynamics": "conformal_control.dynamics",
+        "reference": "conformal_control.references",
+        "family": "conformal_control.families",
+        "crowd": "conformal_control.crowd_models",
+    }
+    assert ROLES == published
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    groups = set(tomllib.loads(pyproject.read_text())["project"]["entry-points"])
+    assert groups == set(published.values())

@@ -81,5 +81,5 @@ def test_the_cli_lists_plugins_under_a_role_name_of_0_2(capsys):
 
     assert main(["plugins", "--role", "update_rule"]) == 0
     captured = capsys.readouterr()
-    assert captured.out.startswith("rule (conformal_control.core.update_rules):")
+    assert captured.out.startswith("rule (conformal_control.update_rules):")
     assert "'update_rule' is now called 'rule'" in captured.err

@@ -6,7 +6,7 @@ name is the one a run uses everywhere: the :class:`~conformal_control.core.spec.
 field, the ``config.json`` key and the command line's option (``rule`` / ``--rule``,
 ``family`` / ``--family``, ``crowd`` / ``--crowd``). Three groups keep the names they were
 published under, since third-party plugins register under them: ``rule`` is
-``conformal_control.core.update_rules``, ``family`` is ``conformal_control.families`` and
+``conformal_control.update_rules``, ``family`` is ``conformal_control.families`` and
 ``crowd`` is ``conformal_control.crowd_models``. The role names of 0.2 (``update_rule``,
 ``decision_family``, ``crowd_model``) are still accepted, with a ``DeprecationWarning``.
 Our own core plugins are declared in our ``pyproject.toml`` exactly like a third party
@@ -73,8 +73,8 @@ ROLES: dict[str, str] = {
     "barrier": "conformal_control.barriers",
     "safety_filter": "conformal_control.safety_filters",
     "fallback": "conformal_control.fallbacks",
-    "loss": "conformal_control.core.losses",
-    "rule": "conformal_control.core.update_rules",
+    "loss": "conformal_control.losses",
+    "rule": "conformal_control.update_rules",
     "dynamics": "conformal_control.dynamics",
     "reference": "conformal_control.references",
     "family": "conformal_control.families",
