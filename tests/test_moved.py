@@ -71,8 +71,9 @@ def test_an_old_path_warns_where_it_is_imported():
 def test_the_entry_point_groups_keep_their_published_names():
     """Third-party plugins register under these group names: they are not module paths, and
     a module moving (``losses``, ``update_rules`` into ``core/``) does not rename them."""
-    import tomllib
     from pathlib import Path
+
+    import tomllib
 
     from conformal_control.core.registry import ROLES
 
