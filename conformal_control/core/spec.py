@@ -386,6 +386,11 @@ MAX_ROBOTS = 20
 #: (:class:`Robots` ``peer_horizon``; chosen on the multi-robot benchmark, docs/multi-robot.md).
 PEER_HORIZON_S = 1.2
 
+#: The default distance (m) a reciprocal CBF robot's floor rows keep beyond the robots'
+#: collision distance (:class:`Robots` ``floor_margin``; chosen on the multi-robot
+#: benchmark, docs/multi-robot.md).
+FLOOR_MARGIN_M = 0.1
+
 #: The choices of the robots section's text settings (:class:`Robots`).
 ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "layout": ("scene", "antipodal"),
@@ -417,6 +422,7 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "peer_horizon",
     "coordination",
     "priority",
+    "floor_margin",
 )
 
 
@@ -485,6 +491,11 @@ class Robots:
         The rows kept longest when not every row can be met: ``"pedestrians"`` (default:
         the robot rows give way first) or ``"robots"`` (the pedestrians' lambda is raised
         first, the robot rows as ``hard_rows`` says).
+    floor_margin : float
+        CBF family, ``priority="pedestrians"``: how far (m, finite, >= 0) beyond the
+        robots' collision distance the floor rows aim (the rows kept after the robots'
+        barrier rows gave way; default :data:`FLOOR_MARGIN_M`); 0: the collision
+        distance itself.
 
     Raises
     ------
@@ -511,6 +522,7 @@ class Robots:
     peer_horizon: float | None = PEER_HORIZON_S
     coordination: str = "none"
     priority: str = "pedestrians"
+    floor_margin: float = FLOOR_MARGIN_M
 
     def __post_init__(self) -> None:
         n = self.robots
@@ -550,6 +562,9 @@ class Robots:
         p = self.peer_horizon
         if p is not None and not (_is_real(p) and math.isfinite(p) and p > 0):
             raise _spec_error(f"robots peer_horizon must be a duration > 0 (s), got {p!r}")
+        f = self.floor_margin
+        if not (_is_real(f) and math.isfinite(f) and f >= 0):
+            raise _spec_error(f"robots floor_margin must be a finite distance >= 0 (m), got {f!r}")
 
     @property
     def scope(self) -> str:

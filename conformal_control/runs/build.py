@@ -215,6 +215,24 @@ def build_rule(
         if k in lam_params and v is not None:
             v = [x * lam_unit for x in v] if isinstance(v, (list, tuple)) else v * lam_unit
         kwargs[k] = v
+    init, floor = kwargs.get("lambda_init"), kwargs.get("lambda_min")
+    if (
+        "lambda_init" in user
+        and "lambda_min" not in user
+        and "lambda_min" not in params.given
+        and isinstance(init, (int, float))
+        and isinstance(floor, (int, float))
+    ):
+        # a default floor never overrides the rule's own initial lambda (see build_flagship)
+        kwargs["lambda_min"] = min(float(floor), float(init))
+    lo, hi = kwargs.get("lambda_min"), kwargs.get("lambda_max")
+    if (
+        "lambda_init" not in user
+        and "lambda_init" not in params.given
+        and all(isinstance(x, (int, float)) for x in (init, lo, hi))
+    ):
+        # bounds given to the rule by name: a default initial lambda starts inside them
+        kwargs["lambda_init"] = min(max(float(init), float(lo)), float(hi))  # type: ignore[arg-type]
     rule: UpdateRule = registry.create("rule", name, **kwargs)
     return rule
 
@@ -380,18 +398,25 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
 
     rule_resolved = resolved
     if not planning and "lambda_min" not in resolved.given and si["edge"] == "escape":
-        # the CBF's default lambda floor (issue 30): a share of the feasibility floor
-        floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        # the CBF's default lambda floor (issue 30): a share of the feasibility floor,
+        # never above the run's own lambda_init (a default never overrides a value the
+        # run gave: a fixed lambda of -45/s runs at -45/s, not at the floor)
+        default_floor = default_lambda_min(float(si["a"]), bar.upper_bound)
+        floor = min(default_floor, float(si["lambda_init"]))
         if si["lambda_min"] < floor <= si["lambda_max"]:
             in_scene = floor / scene.units.factor("lambda_min")
+            why = (
+                f"the default floor ({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)"
+                if floor == default_floor
+                else "the run's lambda_init (above it the default floor would move it)"
+            )
             resolved = dataclasses.replace(
                 resolved,
                 si={**si, "lambda_min": floor},
                 scene_units={**resolved.scene_units, "lambda_min": in_scene},
                 notes=[
                     *resolved.notes,
-                    f"lambda_min: {in_scene:g}, the default floor "
-                    f"({DEFAULT_FLOOR_SHARE:g} x the feasibility floor -a h_max)",
+                    f"lambda_min: {in_scene:g}, {why}",
                 ],
             )
             rule_resolved = resolved
@@ -421,6 +446,28 @@ def _build(scene: Scene, run: RunSpec, resolved: ResolvedParams | None) -> Flags
                     "scene's (which are the CBF's)",
                 ],
             )
+            resolved = rule_resolved
+    rsi = rule_resolved.si
+    if "lambda_init" not in rule_resolved.given and not (
+        rsi["lambda_min"] <= rsi["lambda_init"] <= rsi["lambda_max"]
+    ):
+        # a default lambda_init outside bounds the run or the family set (an MPC family's
+        # ceiling below 0): start at the nearest bound, said in the run's notes; a
+        # lambda_init the run gave is never moved (the rule refuses it at reset)
+        start = min(max(rsi["lambda_init"], rsi["lambda_min"]), rsi["lambda_max"])
+        in_scene = start if planning else start / scene.units.factor("lambda_init")
+        same = resolved is rule_resolved
+        rule_resolved = dataclasses.replace(
+            rule_resolved,
+            si={**rsi, "lambda_init": start},
+            scene_units={**rule_resolved.scene_units, "lambda_init": in_scene},
+            notes=[
+                *rule_resolved.notes,
+                f"lambda_init: {start:g} (SI), the default {rsi['lambda_init']:g} moved into "
+                f"[lambda_min, lambda_max] = [{rsi['lambda_min']:g}, {rsi['lambda_max']:g}]",
+            ],
+        )
+        if same:
             resolved = rule_resolved
     if isinstance(rule, str):
         # an MPC family's lambda is a length or a level, never in the scene's time unit

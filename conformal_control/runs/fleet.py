@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from ..core.loop import ConformalStepper
-from ..core.spec import MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
+from ..core.spec import FLOOR_MARGIN_M, MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
 from ..data.scene import Scene
 from ..families.cbf.feasibility import feasibility_floor
 from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
@@ -422,6 +422,9 @@ def run_multi(
         - ``coordination`` ({"none", "yield"}):
           ``"yield"``: a robot whose robot rows gave way says so, and its partners take
           the whole pair (needs ``information="plan"``).
+        - ``floor_margin`` (float):
+          CBF family, people first: how far (m) beyond the robots' collision distance
+          their floor rows aim (default 0.1 m; 0: the collision distance).
 
     Returns
     -------
@@ -442,7 +445,7 @@ def run_multi(
     lambda_scope, weights, ignoring = section.scope, section.weights, section.ignoring
     sidestep, hard_rows = section.sidestep, section.hard_rows
     peer_horizon, coordination = section.peer_horizon, section.coordination
-    priority = section.priority
+    priority, floor_margin = section.priority, section.floor_margin
     if coordination != "none" and information != "plan":
         raise ValueError(
             f"robots coordination={coordination!r} needs information='plan' (robots tell "
@@ -489,6 +492,7 @@ def run_multi(
             peer_horizon,
             coordination,
             priority,
+            floor_margin,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -620,6 +624,7 @@ def run_multi(
         "peer_horizon": peer_horizon,
         "coordination": coordination,
         "priority": priority,
+        "floor_margin": float(floor_margin),
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -654,6 +659,7 @@ def set_reciprocity(
     peer_horizon: float | None = PEER_HORIZON_S,
     coordination: str = "none",
     priority: str = "pedestrians",
+    floor_margin: float = FLOOR_MARGIN_M,
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -681,6 +687,9 @@ def set_reciprocity(
         Whether a robot whose robot rows gave way broadcasts that it yields.
     priority : {"pedestrians", "robots"}
         The rows kept longest when not every row can be met.
+    floor_margin : float
+        How far (m) beyond the robots' collision distance the floor rows aim (CBF
+        family, ``priority="pedestrians"``).
     """
     if not hasattr(family, "reciprocity"):
         raise ValueError(
@@ -696,6 +705,7 @@ def set_reciprocity(
         peer_horizon,
         coordination,
         priority,
+        floor_margin,
     )
     rec.validate()
     family.reciprocity = rec

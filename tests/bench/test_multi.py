@@ -269,6 +269,41 @@ def test_the_base_run_gives_predictor_seed_and_the_robots_information():
     assert multi_bench_base(base) == ("oracle", 3, "position", "both", {"sidestep": 0.0})
     with pytest.raises(InputError, match=r"drop learn, robots\.layout"):
         multi_bench_base(RunSpec(learn=False, robots=Robots(layout="antipodal")))
+    # a floor margin other than the default is an option of the reciprocal runs
+    fm = multi_bench_base(RunSpec(robots=Robots(floor_margin=0.0)))
+    assert fm == ("constant_velocity", 0, "plan", "pedestrians", {"floor_margin": 0.0})
+
+
+def test_bench_run_robots_set_gives_the_reciprocal_options_and_refuses_the_rest(
+    tmp_path, monkeypatch, capsys
+):
+    # `bench run --robots M --set KEY=VALUE` used to drop --set without a word
+    import conformal_control.experiments.bench.multi as bm
+    from conformal_control.cli import main
+
+    seen = {}
+
+    class Done:
+        failed, unfinished = 0, 0
+
+        def summary(self):
+            return "done"
+
+    def fake(out, **kw):
+        seen.update(multi_bench_base=bm.multi_bench_base(kw["base"]))
+        return Done()
+
+    monkeypatch.setattr(bm, "run_multi_bench", fake)
+    argv = ["bench", "run", "--robots", "3", "--out", str(tmp_path / "b")]
+    assert main([*argv, "--set", "floor_margin=0", "--set", "priority=robots"]) == 0
+    assert seen["multi_bench_base"][4] == {"floor_margin": 0.0, "priority": "robots"}
+    capsys.readouterr()
+    assert main([*argv, "--set", "K_rep=0.3"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "floor_margin" in err and "drop params" in err, err
+    assert main([*argv, "--set", "floor_margin=-1"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "floor_margin must be a finite distance" in err
 
 
 def test_the_paired_reduction_does_not_depend_on_the_order_of_the_rows():

@@ -404,6 +404,57 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
     assert ctrl.stepper.rule.lambda_min == pytest.approx(-DEFAULT_FLOOR_SHARE * 10.0 * 0.5)
 
 
+def test_a_fixed_lambda_below_the_default_floor_runs_at_that_lambda() -> None:
+    # the default floor clipped a fixed lambda of -45/s to -40/s without a count (issue 31's
+    # fixed-lambda grid): a default never overrides the run's own lambda_init
+    from conformal_control.data import load_scene
+    from conformal_control.families.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.runs.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    fl = build_flagship(scene, {"a": 4.0}, units="si")
+    floor = DEFAULT_FLOOR_SHARE * -fl.constraint.a * fl.barrier.upper_bound
+    below = floor - 0.25
+    fixed = build_flagship(scene, {"a": 4.0, "lambda_init": below, "eta": 0.0}, units="si")
+    assert fixed.rule.lambda_min == below and fixed.rule.reset() == below
+    assert any("the run's lambda_init" in n for n in fixed.params.notes)
+    # above the floor the default stays; a floor the run gives is kept (and then a
+    # lambda_init below it is an error, not a clip)
+    above = build_flagship(scene, {"a": 4.0, "lambda_init": floor + 0.25}, units="si")
+    assert above.rule.lambda_min == pytest.approx(floor)
+    given = build_flagship(scene, {"a": 4.0, "lambda_init": below, "lambda_min": floor}, units="si")
+    with pytest.raises(ValueError, match=r"initial lambda .* lies outside"):
+        given.rule.reset()
+    # the same through a rule given by name with its own lambda_init
+    dt = build_flagship(scene, {"a": 4.0}, units="si", rule=("fixed_eta", {"lambda_init": below}))
+    assert dt.rule.lambda_min == below
+
+
+def test_a_default_lambda_init_starts_inside_the_bounds_a_given_one_never_moves() -> None:
+    from conformal_control.data import load_scene
+    from conformal_control.runs.build import build_flagship
+
+    scene = load_scene("crossing", seed=0)
+    fl = build_flagship(scene, {"lambda_max": -0.5}, units="si")
+    assert fl.rule.reset() == -0.5 and fl.params.si["lambda_init"] == -0.5
+    assert any("lambda_init: -0.5 (SI), the default 0 moved" in n for n in fl.params.notes)
+    named = build_flagship(scene, {}, units="si", rule=("fixed_eta", {"lambda_max": -0.5}))
+    assert named.rule.reset() == -0.5
+    given = build_flagship(scene, {"lambda_max": -0.5, "lambda_init": 0.0}, units="si")
+    with pytest.raises(ValueError, match=r"initial lambda \(0\) lies outside"):
+        given.rule.reset()
+
+
+def test_a_fixed_lambda_below_the_default_floor_is_the_episodes_lambda() -> None:
+    import conformal_control as cc
+    from conformal_control.core.exceptions import GoalNotReachedWarning
+
+    unit = 30.0  # the crossing scene's lambda is per frame at 30 frames per second
+    with pytest.warns(GoalNotReachedWarning):
+        m = cc.run("crossing", params={"lambda_init": -45 / unit, "eta": 0.0}).metrics
+    assert m["lambda_mean"] == m["lambda_min"] == -1.5 and m["n_lambda_clipped"] == 0
+
+
 def test_the_escape_margin_is_a_run_parameter() -> None:
     from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene

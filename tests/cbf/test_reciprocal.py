@@ -3,6 +3,7 @@ compiled step against the generic one."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -375,3 +376,105 @@ def test_the_robot_rows_least_slack_is_the_lp_optimum():
                                    atol=1e-9)  # fmt: skip
         checked += 1
     assert checked > 15
+
+
+# -------------------------------------------------------------------- floor margin
+def test_floor_rows_aim_at_the_margin_and_margin_0_is_the_plain_rows_bit_for_bit():
+    from conformal_control.families.cbf.reciprocal import floor_rows
+
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        pos = rng.uniform(-3, 3, (4, 2))
+        view = PeerView(np.arange(4), pos, rng.uniform(0.1, 0.9, 4), "position")
+        x = rng.uniform(-1, 1, 2)
+        A0, b0 = floor_rows(x, view, 0.8, 2.0)
+        Am, bm = floor_rows(x, view, 0.8, 2.0, 0.0)
+        # margin 0: the rows s a (d - d_c) written out here, bit for bit
+        rel = pos - x
+        d = np.hypot(rel[:, 0], rel[:, 1])
+        assert np.array_equal(Am, A0) and np.array_equal(bm, b0)
+        assert np.array_equal(b0, view.shares * 2.0 * (d - 0.8))
+        assert np.array_equal(A0, -rel / d[:, None])
+        # a margin moves every row's target out by it: the rows at d_c + margin
+        A1, b1 = floor_rows(x, view, 0.8, 2.0, 0.1)
+        assert np.array_equal(A1, A0)
+        np.testing.assert_allclose(b1, view.shares * 2.0 * (d - 0.9), rtol=0, atol=1e-12)
+        assert (b1 < b0).all()
+
+
+@pytest.mark.parametrize("a", [2.0, 3.75])
+def test_a_head_on_pair_on_its_floor_rows_keeps_the_margin_less_one_step_s_slack(a):
+    # two robots at full speed at each other, each on its floor row alone (what
+    # priority_relax keeps once the barrier rows gave way), in steps of dt. In continuous
+    # time the rows keep d >= d_c + margin. In steps, with e = d - d_c - margin and the
+    # pair closing at min(a e, 2 v_max): e' = e - dt min(a e, 2 v_max) >= -2 v_max (dt -
+    # 1/a) (the worst e is 2 v_max / a), so the pair can overshoot the target by at most
+    # slack = 2 v_max max(0, dt - 1/a): 0 when a dt <= 1 (a = 2), 0.267 m for a dt = 1.5.
+    # This is the bound asserted; with margin >= slack the pair never touches (d >= d_c)
+    from conformal_control.families.cbf.reciprocal import floor_rows
+
+    d_c, dt, v_max = 0.8, 0.4, 1.0
+    slack = 2 * v_max * max(0.0, dt - 1 / a)
+    f = Exact2DSafetyFilter(v_max=4 * v_max)  # the speed limit below, not the polygon's
+    f.reset()
+
+    def closest(margin: float, d0: float) -> float:
+        x = np.array([[-d0 / 2, 0.0], [d0 / 2, 0.0]])
+        best = d0
+        for _ in range(60):
+            v = np.zeros((2, 2))
+            for i in range(2):
+                j = 1 - i
+                view = PeerView(np.array([j]), x[[j]], np.array([0.5]), "position")
+                A, b = floor_rows(x[i], view, d_c, a, margin)
+                nominal = v_max * (x[j] - x[i]) / np.hypot(*(x[j] - x[i]))
+                v[i] = f.project(nominal, A, b)
+            x = x + v * dt
+            best = min(best, float(np.hypot(*(x[1] - x[0]))))
+        return best
+
+    starts = d_c + 0.3 + np.linspace(0.0, 2.0, 41)
+    for margin in (0.0, 0.1, slack):
+        worst = min(closest(margin, d0) for d0 in starts)
+        assert worst >= d_c + margin - slack - 1e-9
+        if slack == 0.0:
+            assert worst == pytest.approx(d_c + margin, abs=1e-6)  # and it gets there
+    if slack > 0.0:
+        # the overshoot is real: without a margin some start ends in contact, and a
+        # margin of one step's slack keeps every start out of it
+        assert min(closest(0.0, d0) for d0 in starts) < d_c - 0.1
+        assert min(closest(slack, d0) for d0 in starts) >= d_c - 1e-9
+
+
+def test_floor_margin_is_checked():
+    for bad in (-0.1, float("nan"), float("inf"), "0.1", True):
+        with pytest.raises(ValueError, match="floor_margin must be a finite distance >= 0") as e:
+            Reciprocity(floor_margin=bad).validate()  # type: ignore[arg-type]
+        assert "\n" not in str(e.value)
+    Reciprocity(floor_margin=0).validate()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compiled):
+    # people first runs the generic path even with the compiled filter step (the floor
+    # rows exist only there). A robot between a pedestrian walking at it from behind and a
+    # peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows cannot all be met, the robot's
+    # barrier row gives way, and its floor row holds: it closes in on the peer at no more
+    # than its share of a (d - d_c - margin)
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    closing = {}
+    for margin in (0.0, 0.15):
+        c = _controller(compiled, priority="pedestrians")
+        c.reciprocity.floor_margin = margin  # type: ignore[union-attr]
+        c.reset()
+        c.begin_interval(q)
+        assert not c._fast  # the generic path, whatever the filter
+        view = PeerView(q.ids[1:], np.array([[1.0, 0.0]]), np.array([0.5]))
+        v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        assert c.interval_record().status == ["lambda_search"]  # the fallback decided
+        closing[margin] = float(v[0])
+        assert closing[margin] <= 0.5 * 2.0 * (1.0 - 0.8 - margin) + 1e-6
+    assert closing[0.15] < closing[0.0] - 0.1

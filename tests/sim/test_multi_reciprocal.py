@@ -423,17 +423,28 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
     kw = dict(max_frames=120, record_animation=False, learn=False, **tasks)
     old = run_multi(_walls(1.2), priority="robots", **kw).metrics
     assert old.n_collide_pedestrian > 0 and old.n_collide_robot_pairs == 0
-    new = run_multi(_walls(1.2), priority="pedestrians", **kw).metrics
+    new = run_multi(_walls(1.2), priority="pedestrians", floor_margin=0.0, **kw).metrics
     assert new.n_collide_pedestrian == 0 and new.n_collide_robot_pairs == 0
-    # they did make room for the walls: 0.80 m (their floor) against 0.91 m robots first,
-    # where the walls inside the robots' discs push them together too (escape_margin;
-    # 0.98 m without it)
+    # they did make room for the walls: 0.80 m (their floor at d_c) against 0.91 m robots
+    # first, where the walls inside the robots' discs push them together too
+    # (escape_margin; 0.98 m without it)
     assert new.d_min_robot < old.d_min_robot - 0.05
+    d_c = 2 * _walls(1.2).robot_radius
+    assert d_c - 1e-6 <= new.d_min_robot < d_c + 0.01  # pressed onto the floor
+    # the default floor margin (0.1 m) keeps them that much further apart, still touching
+    # nobody: the walls leave 1.0 m. The bound is d_c + margin less one step's slack,
+    # 2 v_max max(0, tau - 1/a) (tests/cbf/test_reciprocal.py), 0 here (a tau = 0.8)
+    dflt = run_multi(_walls(1.2), **kw)
+    m = dflt.metrics
+    assert dflt.config["reciprocity"]["floor_margin"] == 0.1
+    assert m.n_collide_pedestrian == 0 and m.n_collide_robot_pairs == 0
+    assert d_c + 0.1 - 1e-6 <= m.d_min_robot < d_c + 0.11
     # robots predicted like pedestrians do touch each other
     assert run_multi(_walls(1.2), reciprocity="none", **kw).metrics.n_collide_robot_pairs > 0
 
 
-def test_head_on_robots_with_a_pedestrian_beside_each_touch_nobody():
+@pytest.mark.parametrize("floor_margin", [0.0, 0.1])
+def test_head_on_robots_with_a_pedestrian_beside_each_touch_nobody(floor_margin):
     n = 400
     t = np.arange(n) / 10.0
     beside = [np.c_[-8.0 + 0.8 * t, np.full(n, 1.2)], np.c_[8.0 - 0.8 * t, np.full(n, 1.2)]]
@@ -443,6 +454,7 @@ def test_head_on_robots_with_a_pedestrian_beside_each_touch_nobody():
     res = run_multi(
         sc, starts=[(-7.6, 0.0), (7.6, 0.0)], goals=[[(8.0, 0.0)], [(-8.0, 0.0)]],
         max_frames=300, record_animation=False, learn=False, priority="pedestrians",
+        floor_margin=floor_margin,
     )  # fmt: skip
     m = res.metrics
     assert m.goal_rate == 1.0 and m.n_deadlocked == 0

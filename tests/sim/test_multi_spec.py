@@ -44,6 +44,11 @@ from conformal_control.runs.fleet import run_multi
         ({"sidestep": float("nan")}, "sidestep must be an angle in \\[0, pi/2\\]"),
         ({"sidestep": 2.0}, "sidestep must be an angle in \\[0, pi/2\\]"),
         ({"sidestep": "a"}, "sidestep must be an angle in \\[0, pi/2\\]"),
+        ({"floor_margin": -0.1}, "floor_margin must be a finite distance >= 0"),
+        ({"floor_margin": float("nan")}, "floor_margin must be a finite distance >= 0"),
+        ({"floor_margin": float("inf")}, "floor_margin must be a finite distance >= 0"),
+        ({"floor_margin": "0.1"}, "floor_margin must be a finite distance >= 0"),
+        ({"floor_margin": True}, "floor_margin must be a finite distance >= 0"),
     ],
 )
 def test_robots_settings_are_checked_when_given_in_one_line(setting, words):
@@ -97,6 +102,7 @@ def test_config_json_reads_back_into_the_same_multi_robot_run(tmp_path, crossing
         ignoring=[2],
         sidestep=0.2,
         hard_rows="level",
+        floor_margin=0.05,
         sensor_history="observed",
         max_frames=120,
         seed=4,
@@ -113,8 +119,10 @@ def test_config_json_reads_back_into_the_same_multi_robot_run(tmp_path, crossing
         ignoring=(2,),
         sidestep=0.2,
         hard_rows="level",
+        floor_margin=0.05,
         sensor_history="observed",
     )
+    assert res.config["reciprocity"]["floor_margin"] == 0.05
     assert spec.seed == 4 and spec.max_frames == 120
     again = run_multi(crossing, spec)
     np.testing.assert_array_equal(again.track["robots"], res.track["robots"])
@@ -157,6 +165,27 @@ def test_the_command_line_options_reach_the_robots_section_and_replay(tmp_path):
     cfg4 = json.loads((fourth / "config.json").read_text())
     assert cfg4["spec"]["robots"]["lambda_scope"] is None
     assert cfg4["reciprocity"]["lambda_scope"] == "both"
+    assert cfg4["reciprocity"]["floor_margin"] == 0.1  # the default
+
+
+def test_floor_margin_on_the_command_line_reaches_the_run_and_is_checked(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["run", "--robots", "2", "--frames", "40", "--no-plot", "--floor-margin", "0.25"]
+    assert main([*argv, "--out", str(out)]) == 0
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["spec"]["robots"]["floor_margin"] == 0.25
+    assert cfg["reciprocity"]["floor_margin"] == 0.25
+    assert cfg["cli"]["floor_margin"] == 0.25  # what --config replays
+    for bad, words in (
+        (["--robots", "2", "--floor-margin", "-1"], "floor_margin must be a finite distance"),
+        (["--robots", "2", "--floor-margin", "nan"], "floor_margin must be a finite distance"),
+        (["--floor-margin", "0.1"], "--floor-margin .* needs --robots"),
+    ):
+        capsys.readouterr()
+        rc = main(["run", "--frames", "5", "--no-plot", "--out", str(tmp_path / "x"), *bad])
+        err = capsys.readouterr().err
+        assert rc != 0 and len(err.strip().splitlines()) == 1
+        assert __import__("re").search(words, err), err
 
 
 # ------------------------------------------------------------------ one robot refuses a fleet

@@ -171,7 +171,7 @@ def test_monitor_flags_a_violated_bound_and_assumption() -> None:
 
 def test_monitor_residual_nonzero_when_clipped() -> None:
     _, fig = run_factory(
-        FixedEtaRule(epsilon=0.05, eta=0.1, lambda_init=0.1, lambda_max=0.065), seed=0
+        FixedEtaRule(epsilon=0.05, eta=0.1, lambda_init=0.06, lambda_max=0.065), seed=0
     )
     assert fig["n_lambda_clipped"] > 0
     assert fig["identity_residual"] > 1e-6
@@ -236,3 +236,16 @@ def test_safety_losses() -> None:
     assert coll(rec, truth, 0.0) is None and short(rec, truth, 0.0) is None
     with pytest.raises(ValueError, match="d_c < d_safe"):
         DistanceShortfallLoss(d_safe=1.0, d_c=1.0)(rec, truth, 0.0)
+
+
+def test_an_initial_lambda_outside_the_bounds_is_an_error_not_a_silent_clip() -> None:
+    # clipped silently, lambda_init = -1.5 with lambda_min = -1.333 ran at -1.333 and no
+    # counter said so (a fixed lambda below the CBF's default floor ran at the floor)
+    with pytest.raises(ValueError, match=r"initial lambda \(-1.5\) lies outside"):
+        FixedEtaRule(epsilon=0.05, eta=0.0, lambda_init=-1.5, lambda_min=-1.3333).reset()
+    with pytest.raises(ValueError, match=r"initial lambda \(0.1\) lies outside"):
+        FixedEtaRule(epsilon=0.05, eta=0.1, lambda_init=0.1, lambda_max=0.065).reset()
+    assert (
+        FixedEtaRule(epsilon=0.05, eta=0.0, lambda_init=-1.3333, lambda_min=-1.3333).reset()
+        == -1.3333
+    )

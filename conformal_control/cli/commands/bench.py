@@ -156,7 +156,8 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="run parameter in SI applied to every method, e.g. K_rep=0.3 (repeatable)",
+        help="run parameter in SI applied to every method, e.g. K_rep=0.3 (repeatable); with "
+        "--robots the reciprocal runs' options, e.g. floor_margin=0 or priority=robots",
     )
     ru.add_argument(
         "--crowd",
@@ -399,7 +400,8 @@ def _run(args: argparse.Namespace) -> int:
         from ...experiments.bench.multi import run_command as run_multi_command
 
         families = _families(args.methods, ("nolearn", "conformal"))
-        return run_multi_command(args, SUITE, families, _grids(args.grid))
+        settings = key_values(args.set, "--set")
+        return run_multi_command(args, SUITE, families, _grids(args.grid), settings)
 
     shifts = [s.name for s in parse_shifts(args.shift)]
     res = run_bench(

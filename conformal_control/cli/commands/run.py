@@ -568,6 +568,10 @@ def _run_prepared(args: argparse.Namespace) -> int:
     )
     if args.robots is not None or args.robots_file is not None:  # several robots: --robots
         return _run_multi(args, spec, out)
+    if args.floor_margin is not None:
+        from ...core.exceptions import InputError
+
+        raise InputError("--floor-margin sets the robots' floor rows: it needs --robots M")
 
     data_root = _data_root(args)
     result = run(
@@ -659,6 +663,15 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
         help="the rows lambda is the slack of (default: pedestrians with reciprocity, both "
         "without)",
     )
+    g.add_argument(
+        "--floor-margin",
+        type=float,
+        default=None,
+        metavar="M",
+        help="how far (m, >= 0) beyond the robots' collision distance the reciprocal CBF "
+        "robots' floor rows aim, the rows kept when the robot rows give way to the "
+        "pedestrians' (default 0.1; 0: the collision distance)",
+    )
 
 
 def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
@@ -710,6 +723,7 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
         reciprocity=args.reciprocity,
         information=args.information,
         lambda_scope=args.lambda_scope,
+        **({} if args.floor_margin is None else {"floor_margin": args.floor_margin}),
     )
     result = run_multi(
         scene,

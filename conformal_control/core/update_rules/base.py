@@ -111,7 +111,14 @@ class StepRule(UpdateRule, lambda_params=("lambda_init", "lambda_min", "lambda_m
         self.n_updates_ = 0
         self.last_step_ = math.nan
         lam = float(self._reset())
-        self.lambda_ = float(np.clip(lam, self.lambda_min, self.lambda_max))
+        if not self.lambda_min <= lam <= self.lambda_max:
+            # clipping lambda_1 silently would run another lambda than the one asked for
+            raise ValueError(
+                f"{type(self).__name__}: the initial lambda ({lam:g}) lies outside "
+                f"[lambda_min, lambda_max] = [{self.lambda_min:g}, {self.lambda_max:g}]; "
+                "give a lambda_init inside the bounds or widen them"
+            )
+        self.lambda_ = lam
         return self.lambda_
 
     def update(self, loss: float) -> float:

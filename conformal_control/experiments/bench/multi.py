@@ -92,6 +92,7 @@ RECIPROCAL_OPTIONS = (
     "peer_horizon",
     "coordination",
     "priority",
+    "floor_margin",
 )
 
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
@@ -1213,7 +1214,13 @@ def _ints(text: str, what: str) -> list[int]:
     return out
 
 
-def run_command(args: Any, default_suite: str, families: Sequence[str], grids: Any) -> int:
+def run_command(
+    args: Any,
+    default_suite: str,
+    families: Sequence[str],
+    grids: Any,
+    settings: Mapping[str, Any] | None = None,
+) -> int:
     """``bench run --robots M``: the multi-robot benchmark into ``--out``.
 
     Parameters
@@ -1227,6 +1234,10 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
         The methods to run.
     grids : dict, optional
         Settings per method (``--grid``), as for the single-robot benchmark.
+    settings : mapping, optional
+        ``--set KEY=VALUE`` (typed): the reciprocal runs' options
+        (:data:`RECIPROCAL_OPTIONS`, e.g. ``floor_margin=0``); any other key is refused
+        (one line: the suite and the methods set the run parameters).
 
     Returns
     -------
@@ -1236,6 +1247,10 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
     from ...core.spec import Robots, RunSpec
 
     robots = _ints(args.robots, "--robots")
+    # --set: the reciprocal runs' options (RECIPROCAL_OPTIONS, e.g. floor_margin=0); any
+    # other key is a run parameter, which multi_bench_base refuses in one line
+    given = dict(settings or {})
+    section = {k: given.pop(k) for k in RECIPROCAL_OPTIONS if k in given}
     suite = args.suite if args.suite != default_suite else "multi-crossings-v1"
     res = run_multi_bench(
         args.out,
@@ -1248,8 +1263,9 @@ def run_command(args: Any, default_suite: str, families: Sequence[str], grids: A
         tuned=args.tuned,
         reciprocity=[s.strip() for s in args.reciprocity.split(",") if s.strip()],
         base=RunSpec(
+            params=given,
             predictor=args.predictor or "constant_velocity",
-            robots=Robots(information=args.information, lambda_scope=args.lambda_scope),
+            robots=Robots(information=args.information, lambda_scope=args.lambda_scope, **section),
         ),
         data_root=args.data_root,
         workers=args.workers,

@@ -620,7 +620,8 @@ class ConformalCBFController(
             br = np.where(hard[n:], br - sl, br)
         if self._turn[6]:  # priority pedestrians: the robots' floor rows (no slack)
             a = float(self._robot_constraint.a)
-            Af, bf = floor_rows(state.x[:2], view, self._robot_dc, a)
+            margin = float(self.reciprocity.floor_margin)  # type: ignore[union-attr]
+            Af, bf = floor_rows(state.x[:2], view, self._robot_dc, a, margin)
             Ar, br = np.concatenate([Ar, Af]), np.concatenate([br, bf - sl])
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))

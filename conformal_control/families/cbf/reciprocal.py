@@ -88,7 +88,7 @@ from typing import Any
 import numpy as np
 
 from ...core.base import Plugin
-from ...core.spec import PEER_HORIZON_S, ROBOT_CHOICES
+from ...core.spec import FLOOR_MARGIN_M, PEER_HORIZON_S, ROBOT_CHOICES
 from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
@@ -190,6 +190,15 @@ class Reciprocity(Plugin):
         the robot rows give way first, :func:`priority_relax`) or ``"robots"`` (the
         pedestrians' lambda is raised first and the robot rows kept as ``hard_rows`` says,
         :func:`lexicographic_search`).
+    floor_margin : float
+        With ``priority="pedestrians"``: how far (m, finite, >= 0) beyond the robots'
+        collision distance the floor rows aim (:func:`floor_rows`; default
+        :data:`~conformal_control.core.spec.FLOOR_MARGIN_M`). The floor rows of the plain
+        barrier ``d - d_c`` let a pair close to ``d_c`` in continuous time and, in steps,
+        a little below it; aiming at ``d_c + floor_margin`` keeps the pair out of contact
+        (measured in docs/multi-robot.md). 0: the floor rows at ``d_c``. Not used by the
+        MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
+        (no floor rows).
     """
 
     def __init__(
@@ -202,6 +211,7 @@ class Reciprocity(Plugin):
         peer_horizon: float | None = PEER_HORIZON_S,
         coordination: str = "none",
         priority: str = "pedestrians",
+        floor_margin: float = FLOOR_MARGIN_M,
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -211,9 +221,10 @@ class Reciprocity(Plugin):
         self.peer_horizon = peer_horizon
         self.coordination = coordination
         self.priority = priority
+        self.floor_margin = floor_margin
 
     def validate(self) -> None:
-        """Raise ``ValueError`` for an unknown mode or scope."""
+        """Raise ``ValueError`` (one line) for an unknown choice or a setting out of range."""
         if self.mode not in RECIPROCITY:
             raise ValueError(
                 f"reciprocity must be one of {', '.join(RECIPROCITY)}, got {self.mode!r}"
@@ -242,6 +253,11 @@ class Reciprocity(Plugin):
             raise ValueError(
                 f"priority must be one of {', '.join(PRIORITIES)}, got {self.priority!r}"
             )
+        f = self.floor_margin
+        if not (
+            isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f >= 0
+        ):
+            raise ValueError(f"floor_margin must be a finite distance >= 0 (m), got {f!r}")
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
@@ -658,16 +674,19 @@ PEDESTRIAN_ROW, ROBOT_ROW, FLOOR_ROW = 0, 1, 2
 
 
 def floor_rows(
-    x_ego: np.ndarray, view: PeerView, d_c: float, a: float
+    x_ego: np.ndarray, view: PeerView, d_c: float, a: float, margin: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The robots' *floor* rows: for each peer, ``-u . v + s_ij a (d - d_c) >= 0`` with
-    ``u`` the unit vector toward it, ``d`` the distance and ``s_ij`` the robot's share.
+    """The robots' *floor* rows: for each peer, ``-u . v + s_ij a (d - d_c - margin) >= 0``
+    with ``u`` the unit vector toward it, ``d`` the distance and ``s_ij`` the robot's share.
 
-    The reciprocal rows of the plain distance barrier ``d - d_c`` (no partner's velocity,
-    no comfort margin): robot i may close in on j at its share of ``a (d - d_c)``; when both
-    robots of a pair keep theirs, ``d`` never falls below ``d_c`` (and a pair already in
-    contact parts). Far apart they allow much; near contact they forbid closing in.
-    :func:`priority_relax` keeps them after the robots' barrier rows have given way.
+    The reciprocal rows of the plain distance barrier ``d - d_c - margin`` (no partner's
+    velocity, no comfort margin): robot i may close in on j at its share of
+    ``a (d - d_c - margin)``; when both robots of a pair keep theirs, ``d`` never falls
+    below ``d_c + margin`` in continuous time (and a pair already closer parts). In steps
+    of ``dt`` with ``a dt > 1`` a pair may overshoot that distance by a fraction of a
+    step's closing; the ``margin`` (:attr:`Reciprocity.floor_margin`) keeps that
+    overshoot out of contact. Far apart they allow much; near contact they forbid closing
+    in. :func:`priority_relax` keeps them after the robots' barrier rows have given way.
 
     Parameters
     ----------
@@ -679,6 +698,9 @@ def floor_rows(
         The robots' collision distance, centre to centre (m).
     a : float
         The slope (1/s).
+    margin : float
+        The distance beyond ``d_c`` the rows aim at (m, >= 0; 0: ``d_c`` itself, the
+        rows bit for bit as without it).
 
     Returns
     -------
@@ -691,7 +713,8 @@ def floor_rows(
     A = np.zeros_like(rel)
     ok = d > 0.0
     A[ok] = -rel[ok] / d[ok, None]
-    b = np.where(ok, np.asarray(view.shares, dtype=float) * a * (d - d_c), 0.0)
+    target = d_c + margin  # d_c itself for 0 (x + 0.0 == x)
+    b = np.where(ok, np.asarray(view.shares, dtype=float) * a * (d - target), 0.0)
     return A, b
 
 

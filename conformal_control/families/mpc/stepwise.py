@@ -90,8 +90,10 @@ class StepwiseMPC(StepwiseCBF):
     epsilon, eta, lambda_min : float, optional
         The rule's target, step and floor; default the family's (for ``mpc``: 0.1, 0.2 m,
         -1 m). ``epsilon`` lies strictly inside the loss's range.
-    lambda_init : float
-        lambda_1, in the family's unit (m for ``mpc``, a level for the others).
+    lambda_init : float, optional
+        lambda_1, in the family's unit (m for ``mpc``, a level for the others); default 0,
+        or the nearest bound when 0 lies outside ``[lambda_min, lambda_max]`` (a family's
+        ceiling below 0). A value given outside the bounds is an error.
     lambda_max : float, optional
         The ceiling; default the family's: its ``default_rule_params`` ceiling, and at
         most :meth:`SamplingMPC.lambda_ceiling
@@ -126,7 +128,7 @@ class StepwiseMPC(StepwiseCBF):
         loss: Loss[Any, Any] | None = None,
         epsilon: float | None = None,
         eta: float | None = None,
-        lambda_init: float = 0.0,
+        lambda_init: float | None = None,
         lambda_min: float | None = None,
         lambda_max: float | None = None,
         stream: Stream | None = None,
@@ -227,7 +229,11 @@ class StepwiseMPC(StepwiseCBF):
             rule = FixedEtaRule(
                 epsilon=eps,
                 eta=step,
-                lambda_init=check_finite("lambda_init", lambda_init),
+                lambda_init=(
+                    min(max(0.0, float(floor)), float(lambda_max))
+                    if lambda_init is None
+                    else check_finite("lambda_init", lambda_init)
+                ),
                 lambda_min=float(floor),
                 lambda_max=float(lambda_max),
             )
