@@ -216,7 +216,7 @@ def measure_mpc(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
 def time_fleet(data_root: str, limit: int, robots: int, repeats: int) -> tuple[float, float, int]:
     """(wall, CPU, robot episodes) of the better of ``repeats`` reciprocal ``conformal``
     fleet runs of ``robots`` robots on the first ``limit`` multi-robot test entries."""
-    from conformal_control.bench.multi import run_multi_bench
+    from conformal_control.experiments.bench.multi import run_multi_bench
 
     best: tuple[float, float, int] | None = None
     for _ in range(repeats):
