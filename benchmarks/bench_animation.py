@@ -57,7 +57,7 @@ def child(run_dir: str, n_frames: int, out: str, dpi: int) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
-    from conformal_control.plotting.animation import load_record, render_animation
+    from conformal_control.io.plotting.animation import load_record, render_animation
 
     rec = tile_record(load_record(run_dir), n_frames)
     before = _peak_rss_mb()

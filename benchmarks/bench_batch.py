@@ -99,7 +99,7 @@ def _rss_mb() -> float:
 def child_crossing(cache: Path, n: int, batch_size: int) -> None:
     """Run the batch engine on the cached scenes 0 .. n-1; print a JSON line."""
     warnings.simplefilter("ignore")
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     run_batch([load_cached(cache, 0)], batch_size=batch_size)  # load the compiled kernels
     load = {"wall": 0.0, "cpu": 0.0}
@@ -147,10 +147,10 @@ def _fmt(wall: float, cpu: float) -> str:
 
 def bench_crossing(args: argparse.Namespace) -> dict[str, float]:
     """Print and return the crossing figures (see the module docstring)."""
-    from conformal_control.jit import compile_now
-    from conformal_control.sim import run_episode
+    from conformal_control.core.jit import compile_now
+    from conformal_control.runs.episode import run_episode
 
-    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.core.jit)
     cache = _cache_dir(args.cache)
     ensure_scenes(cache, args.seeds, args.workers)
     print(f"\n== crossing: {args.seeds} seeds, learning (fixed_eta), batch_size={args.batch_size}")
@@ -214,13 +214,13 @@ def bench_suite(
 ) -> dict[str, float]:
     """Print and return the figures of the suite's dev split with ``method`` on its first
     ``scenarios`` (default ``args.scenarios``; see the module docstring)."""
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.bench.methods import expand_methods
-    from conformal_control.engines.batch import run_batch, supports
-    from conformal_control.jit import compile_now
-    from conformal_control.sim import run_episode
+    from conformal_control.core.jit import compile_now
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
+    from conformal_control.runs.engines.batch import run_batch, supports
+    from conformal_control.runs.episode import run_episode
 
-    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.jit)
+    compile_now()  # the per-episode loop's kernels compiled too (see conformal_control.core.jit)
     warnings.simplefilter("ignore")
     suite = load_suite("crossings-v1")
     dev = suite.scenarios_for("dev")[: scenarios or args.scenarios]
@@ -259,11 +259,11 @@ def bench_reactive(
     """Print and return the figures of a reactive crowd (``crowd``) on the suite's dev
     split (the first ``scenarios``) with ``method``: the per-episode loop against the batch
     engine, and the metrics compared field by field."""
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.bench.methods import expand_methods
-    from conformal_control.engines.batch import run_batch, supports
-    from conformal_control.jit import compile_now
-    from conformal_control.sim import run_episode
+    from conformal_control.core.jit import compile_now
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
+    from conformal_control.runs.engines.batch import run_batch, supports
+    from conformal_control.runs.episode import run_episode
 
     compile_now()
     warnings.simplefilter("ignore")

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from conformal_control import registry
+from conformal_control.core import registry
 from conformal_control.testing import checks_for, instances
 
 

@@ -47,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from conformal_control.cbf import (
+from conformal_control.core.jit import compile_now
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -56,7 +57,6 @@ from conformal_control.cbf import (
     Exact2DSafetyFilter,
     QPSafetyFilter,
 )
-from conformal_control.jit import compile_now
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,7 +93,7 @@ def interval(n: int, regime: str, rng: np.random.Generator):
 
 def bench_steps(filter_cls: type, n: int, regime: str, repeats: int) -> tuple[float, float, float]:
     """Median and p95 latency (us) and the share of steps that call a solver."""
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     rng = np.random.default_rng(n)
     ctrl = make_controller(filter_cls)
     lam = -10.0 if regime == "fallback" else 0.0
@@ -126,7 +126,7 @@ CLOCK = "wall"
 COMPILE_SNIPPET = """
 import time, numpy as np
 t0 = time.perf_counter()
-from conformal_control.cbf import (APFBarrier, AttractiveField, ConformalCBFController,
+from conformal_control.families.cbf import (APFBarrier, AttractiveField, ConformalCBFController,
     ConformalConstraint, ControlState, Exact2DSafetyFilter)
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 t1 = time.perf_counter()
@@ -147,7 +147,7 @@ print(t1 - t0, time.perf_counter() - t1)
 def bench_compile() -> None:
     with tempfile.TemporaryDirectory() as cache:
         # compiled at the first call, as a process with enough work for it runs (a short run
-        # interprets its kernels instead; see conformal_control.jit)
+        # interprets its kernels instead; see conformal_control.core.jit)
         env = {**os.environ, "NUMBA_CACHE_DIR": cache, "CONFORMAL_CONTROL_JIT": "always"}
         out = []
         for _ in range(2):
@@ -169,7 +169,7 @@ def bench_compile() -> None:
     print("\ncompiled kernels, first use in a fresh process (numba cache=True):")
     print(
         f"  empty cache (compiles): first reset + 2 steps {c_first:.2f} s "
-        f"(import of conformal_control.cbf {c_imp:.2f} s, process {c_tot:.2f} s wall, "
+        f"(import of conformal_control.families.cbf {c_imp:.2f} s, process {c_tot:.2f} s wall, "
         f"{c_cpu:.2f} s CPU)"
     )
     print(
@@ -190,8 +190,8 @@ def measure_episode(
     Returns ``wall_s``, ``loop_s`` (medians), ``peak_bytes``, the ``metrics`` of the last
     timed run and the ``engine`` that ran.
     """
-    compile_now()  # timed compiled (see conformal_control.jit)
-    from conformal_control.sim import run_episode
+    compile_now()  # timed compiled (see conformal_control.core.jit)
+    from conformal_control.runs.episode import run_episode
 
     kw = {"safety_filter": safety_filter, "engine": engine}
     run_episode(scene, "constant_velocity", params, **kw)  # warm-up (compiles)

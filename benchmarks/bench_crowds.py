@@ -29,7 +29,7 @@ Scale (``measure_scale``, also run by ``run_all.py``): the same crowd at the sam
 100, 1,000, 5,000 and 10,000 pedestrians, on a jittered lattice (at least 1 m apart), each
 model stepped as shipped (the cell neighbour search; ORCA's half-planes and programs
 compiled) and as before (the dense ``N x M`` search,
-:func:`~conformal_control.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
+:func:`~conformal_control.world.crowds.neighbors.dense_neighbor_pairs`, and for ORCA the numpy
 ``orca_lines`` and ``solve_orca_lp``; not at 10,000: about 5 GB). Each figure comes from its own
 subprocess: after warm-up steps (with the cell search, whose steps are identical), the
 median wall and CPU time of a step and the peak memory of the steps (the process's peak
@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.crowds import ORCAModel, SocialForceModel
-from conformal_control.crowds.base import CrowdModel
+from conformal_control.world.crowds import ORCAModel, SocialForceModel
+from conformal_control.world.crowds.base import CrowdModel
 
 ROOT = Path(__file__).resolve().parents[1]
 N, L, DT, V0 = 100, 40.0, 1.0 / 120.0, 1.3
@@ -102,9 +102,9 @@ def timed(step: Callable[[], None], n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ours(model: CrowdModel, steps: int) -> tuple[np.ndarray, np.ndarray, World]:
-    from conformal_control.jit import compile_now
+    from conformal_control.core.jit import compile_now
 
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     model.reset(np.random.default_rng(0))
     w = World()
     rad, vmax = np.full(N, RADIUS), np.full(N, 1.3 * V0)
@@ -274,21 +274,21 @@ def row(name: str, wall: np.ndarray, cpu: np.ndarray, base: tuple | None = None)
 def _wire(scene, params: dict):
     """The flagship's components (env, policy, loss, rule) with whichever builder exists."""
     try:  # the builder of later layouts
-        from conformal_control.flagship.build import build_flagship
+        from conformal_control.runs.build import build_flagship
 
         return build_flagship(scene, params)
     except ImportError:
-        from conformal_control import registry
-        from conformal_control.flagship.params import resolve_params
-        from conformal_control.sim.episode import build_components
+        from conformal_control.core import registry
+        from conformal_control.runs.episode import build_components
+        from conformal_control.runs.params import resolve_params
 
         predictor = registry.create("predictor", "constant_velocity")
         return build_components(scene, resolve_params(scene, params), predictor)
 
 
 def bench_episodes(data_root: Path) -> None:
+    from conformal_control.core.loop import ConformalLoop
     from conformal_control.data import load_scene
-    from conformal_control.loop import ConformalLoop
     from conformal_control.world.reactive import make_environment_like
 
     scene = load_scene("nexus_4", data_root / "sdd")
@@ -367,12 +367,12 @@ def _rss_peak() -> float:
 
 def scale_child(model_name: str, n: int, method: str, steps: int) -> dict[str, float]:
     """One figure of the scale table (run in its own process; see the module docstring)."""
-    from conformal_control.crowds import neighbors
-    from conformal_control.crowds import orca as orca_module
-    from conformal_control.crowds import social_force as sf_module
-    from conformal_control.jit import compile_now
+    from conformal_control.core.jit import compile_now
+    from conformal_control.world.crowds import neighbors
+    from conformal_control.world.crowds import orca as orca_module
+    from conformal_control.world.crowds import social_force as sf_module
 
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
 
     model: CrowdModel = SocialForceModel() if model_name == "social_force" else ORCAModel()
     model.reset(np.random.default_rng(0))

@@ -26,7 +26,7 @@ def main() -> None:
     os.environ["CONFORMAL_CONTROL_CACHE"] = cache
 
     from conformal_control.data import load_scene
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     scene = load_scene(args.scene, args.data_root)
     rows = []

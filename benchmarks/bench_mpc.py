@@ -52,7 +52,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.cbf import (
+from conformal_control.core.jit import compile_now
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -60,11 +61,10 @@ from conformal_control.cbf import (
     ControlState,
     Exact2DSafetyFilter,
 )
-from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.roles import Dynamics
-from conformal_control.jit import compile_now
-from conformal_control.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
-from conformal_control.mpc.kernels import evaluate_numpy
+from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.roles import Dynamics
+from conformal_control.families.mpc import ACPMPC, ECPMPC, Limits, Sampling, SamplingMPC
+from conformal_control.families.mpc.kernels import evaluate_numpy
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
 DT = 0.4
@@ -84,7 +84,7 @@ class NumpyMPC(SamplingMPC):
     """The same step with numpy arithmetic for the cost/clearance (the baseline)."""
 
     def plan(self, state: ControlState, lam: float) -> Any:  # same code path, numpy kernel
-        import conformal_control.mpc.controller as ctl
+        import conformal_control.families.mpc.controller as ctl
 
         compiled = ctl.evaluate
         ctl.evaluate = evaluate_numpy  # type: ignore[assignment]
@@ -146,7 +146,7 @@ def time_cbf(m: int, repeats: int) -> float:
 def time_lockstep(method: str = "cc_mpc", data_root: Any = None, repeats: int = 2) -> tuple:
     """CPU ms per decided step of the planar protocol's scenarios of ``method``, one at a
     time and in lockstep (the better of ``repeats`` passes each, alternated)."""
-    from conformal_control.bench import planar
+    from conformal_control.experiments.bench import planar
 
     planar.warm_up_kernels()
     m = planar.PLANAR_METHODS[method]
@@ -174,7 +174,7 @@ def time_planar(method: str, data_root: Any = None) -> float:
     """CPU ms per decided step of a planar method over the first scenario of every dataset
     (constant-velocity predictions; an ``fcp_mpc`` method's offline calibration done before
     the clock starts): everything the protocol's loop does, divided by its decided steps."""
-    from conformal_control.bench import planar
+    from conformal_control.experiments.bench import planar
 
     m = planar.PLANAR_METHODS[method]
     spent, steps = 0.0, 0
@@ -197,7 +197,7 @@ def measure(
     data_root: Any = None,
 ) -> list:
     """Rows ``(name, ms, baseline name, baseline ms, ratio)``."""
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     vt = VelocityTrackingDoubleIntegrator(K_acc=60.0)
     uni = Unicycle()
     common = {"sampling": Sampling(n_samples=samples, horizon=horizon, dt_plan=DT), "substeps": 1}

@@ -7,7 +7,7 @@ Usage::
 Scene: SDD ``nexus_4`` (the paper's Table II scene and parameters), pedestrians replayed.
 Baseline: the single-robot episode on the scene's own task (the flagship built by
 ``build_flagship``, its ``ConformalLoop`` timed). Multi-robot
-(:func:`~conformal_control.sim.multi.run_multi`, ``--robots`` robots, each its own
+(:func:`~conformal_control.runs.fleet.run_multi`, ``--robots`` robots, each its own
 controller and lambda), in two layouts:
 
 * ``swap``  -- the default layout: the scene's task rotated about its midpoint, so all the
@@ -34,11 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from conformal_control.core.jit import compile_now
+from conformal_control.core.loop import ConformalLoop
 from conformal_control.data import load_scene
-from conformal_control.jit import compile_now
-from conformal_control.loop import ConformalLoop
-from conformal_control.sim import build_flagship
-from conformal_control.sim.multi import run_multi
+from conformal_control.runs.build import build_flagship
+from conformal_control.runs.fleet import run_multi
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,7 +69,7 @@ def main() -> None:
     ap.add_argument("--robots", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    compile_now()  # timed compiled (see conformal_control.jit)
+    compile_now()  # timed compiled (see conformal_control.core.jit)
     scene = load_scene(args.scene, Path(args.data_root) / "sdd")
     n = args.robots
     print(

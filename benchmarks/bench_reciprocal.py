@@ -7,7 +7,7 @@ Usage::
 Scene: SDD ``nexus/video3``, start 0.05,0.5 -> goal 0.95,0.5 (the multi-robot page's
 command), pedestrians replayed. Timed in the same run, best of ``--repeat``:
 
-* **one robot** -- :func:`~conformal_control.sim.multi.run_multi` with one robot (the
+* **one robot** -- :func:`~conformal_control.runs.fleet.run_multi` with one robot (the
   single-robot episode, number for number), run M times per repeat (as much work as the
   fleet's, summed): the baseline step;
 * **M robots, reciprocal** -- the command's default: each robot's rows about the others
@@ -20,7 +20,7 @@ Two figures per run, each with its ratio to the single robot's:
 * *decision per robot-step*: the process CPU time each robot spends in its own sensing,
   predicting, deciding (the reciprocal rows and the world's peer view included) and
   learning, per control instant it decided (summed over robots / robot-steps; the loop of
-  :func:`~conformal_control.sim.multi.drive` itself, its clock ``time.process_time``);
+  :func:`~conformal_control.runs.fleet.drive` itself, its clock ``time.process_time``);
 * *loop per robot-step*: the process CPU time of the whole loop (the world's plants,
   sensors and logs included) per robot-step.
 
@@ -37,16 +37,16 @@ import os
 import time
 from pathlib import Path
 
+from conformal_control.core.jit import compile_now
 from conformal_control.data import load_scene
-from conformal_control.jit import compile_now
-from conformal_control.sim.multi import run_multi
+from conformal_control.runs.fleet import run_multi
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def timed(scene, **kw) -> tuple[float, float, int, object]:
     """(decision CPU s, loop CPU s, robot-steps, fleet metrics) of one run."""
-    from conformal_control.sim import multi
+    from conformal_control.runs import multi
 
     saved = multi.drive
     multi.drive = functools.partial(saved, clock=time.process_time)  # shares in CPU time
@@ -66,7 +66,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     scene = load_scene("sdd:nexus/video3", args.data_root, start=(0.05, 0.5), goals=[(0.95, 0.5)])
-    compile_now()  # every kernel compiled before timing (see conformal_control.jit)
+    compile_now()  # every kernel compiled before timing (see conformal_control.core.jit)
     run_multi(scene, 2, max_frames=30, record_animation=False)  # load them, warm caches
     cases = {
         "one robot": {"robots": 1},

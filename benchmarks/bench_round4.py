@@ -52,7 +52,7 @@ def _cpu() -> float:
 def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple[float, float, int]:
     """(wall, CPU, episodes) of the better of ``repeats`` ``run_bench`` calls into fresh
     folders (one worker)."""
-    from conformal_control.bench.runner import run_bench
+    from conformal_control.experiments.bench.suite import run_bench
 
     best: tuple[float, float, int] | None = None
     for _ in range(repeats):
@@ -76,7 +76,7 @@ def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple
 def python_recorded() -> Iterator[None]:
     """The batch engine with the ``recorded`` predictor called per episode (as before it
     replayed the forecasts compiled): the predictor is then the episode's own object."""
-    from conformal_control.engines import batch
+    from conformal_control.runs.engines import batch
 
     code = batch._PREDICTORS.pop("recorded")
     try:
@@ -93,7 +93,7 @@ def _load() -> str:
 def python_shifts() -> Iterator[None]:
     """The batch engine with the shifts' wrappers called per episode (as before they ran
     compiled): the predictor is then the episode's own object."""
-    from conformal_control.engines import batch
+    from conformal_control.runs.engines import batch
 
     saved = dict(batch._SHIFTS)
     batch._SHIFTS.clear()

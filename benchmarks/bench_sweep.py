@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from conformal_control.sweep import SweepSpec, run_sweep
+from conformal_control.experiments import SweepSpec, run_sweep
 
 
 def main() -> None:

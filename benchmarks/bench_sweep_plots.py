@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from conformal_control.sweep import SweepSpec, run_sweep
+from conformal_control.experiments import SweepSpec, run_sweep
 
 #: the three ways the grid is run: run_sweep's plot keywords
 WAYS = {

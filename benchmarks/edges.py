@@ -102,9 +102,9 @@ def missed(folder: Path) -> list[dict[str, Any]]:
 
 
 def rerun(cfg: dict[str, Any], data_root: str | None, seconds: float | None) -> Any:
-    from conformal_control.sim import run_episode
-    from conformal_control.sweep.spec import run_spec
-    from conformal_control.sweep.worker import cached_scene
+    from conformal_control.experiments.plan import run_spec
+    from conformal_control.experiments.worker import cached_scene
+    from conformal_control.runs.episode import run_episode
 
     cfg = dict(cfg)
     if data_root:

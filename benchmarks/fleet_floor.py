@@ -26,8 +26,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from conformal_control.bench.multi import _manifest_dir, run_multi_bench
-from conformal_control.spec import Robots, RunSpec
+from conformal_control.core.spec import Robots, RunSpec
+from conformal_control.experiments.bench.multi import _manifest_dir, run_multi_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUTS = ("swap", "cross")

@@ -23,7 +23,8 @@ Figures:
   and in the whole package;
 * circles again with the ``if TYPE_CHECKING:`` imports counted (a circle of annotations
   still ties the modules' designs together);
-* lines of ``sim/``, and of the whole package.
+* lines of ``runs/episode.py`` and ``runs/fleet.py`` (``sim/`` of 0.3), and of the whole
+  package.
 
 ``--path`` follows a call path instead (:func:`follow`): the CLI's ``run`` from its
 arguments to the first update of lambda, traced call by call (``sys.setprofile``; code run
@@ -130,8 +131,23 @@ def imports(path: Path, typing: bool = False) -> list[tuple[str, str, bool]]:
 
 
 def _unit(module: str) -> str:
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    """The unit of LAYERS holding ``module`` (the longest dotted key prefixing it), as the
+    layer test reads it; ``""`` for the package and for grouping folders."""
+    layers = _layers_cached()
+    parts = module.split(".")[1:]
+    for n in range(len(parts), 0, -1):
+        if ".".join(parts[:n]) in layers:
+            return ".".join(parts[:n])
+    return ""
+
+
+_LAYERS: dict[str, int] = {}
+
+
+def _layers_cached() -> dict[str, int]:
+    if not _LAYERS:
+        _LAYERS.update(_layers())
+    return _LAYERS
 
 
 def _sccs(g: dict[str, set[str]]) -> list[list[str]]:
@@ -347,7 +363,7 @@ def follow(argv: list[str]) -> dict[str, Any]:
         stack = calls[active[-1]][0] if active else ()
         entry = not (stack and stack[-1] == module)
         ms = (*stack, module) if entry else stack
-        if code.co_name == "update" and f"{PKG.name}/update_rules/" in code.co_filename:
+        if code.co_name == "update" and "/update_rules/" in code.co_filename:
             state["spine"] = ms
             sys.setprofile(None)
             return
@@ -420,10 +436,9 @@ def measure() -> dict[str, Any]:
         if nested and a in in_circle and in_circle.get(b) == in_circle[a]
     ]
     params = parameter_lists(files)
-    sim = PKG / "sim"
-    sim_lines = (
-        sum(len(f.read_text().splitlines()) for f in sim.rglob("*.py")) if sim.exists() else 0
-    )
+    # what sim/ held in 0.3 (its package front aside): one episode and a fleet
+    runners = [PKG / "runs" / "episode.py", PKG / "runs" / "fleet.py"]
+    sim_lines = sum(len(f.read_text().splitlines()) for f in runners if f.exists())
     reads = private_reads(files)
     typed = typing_circles(files)
     return {
@@ -450,8 +465,10 @@ def measure() -> dict[str, Any]:
         "private names imported across modules": len(private),
         "module pairs with private imports": len({(a, b) for a, b, _ in private}),
         "reads of other objects' private attributes": len(reads),
-        "  of which in engines/": sum(1 for m, *_ in reads if m.startswith(f"{PKG.name}.engines")),
-        "lines of sim/": sim_lines,
+        "  of which in runs/engines/": sum(
+            1 for m, *_ in reads if m.startswith(f"{PKG.name}.runs.engines")
+        ),
+        "lines of runs/episode.py + runs/fleet.py": sim_lines,
         "lines of the package": sum(len(f.read_text().splitlines()) for f in files),
         "_detail": {
             "up": [f"{a} -> {b}{' (in a function)' if n else ''}" for a, b, n in up],

@@ -5,7 +5,7 @@ Usage::
     python benchmarks/multi_targets.py [--data-root ../shared/data] [--robots 10]
 
 Runs ``conformal-control run --scene sdd:nexus/video3 --start 0.05,0.5 --goal 0.95,0.5
---robots M`` (through :func:`~conformal_control.sim.multi.run_multi`, the command's
+--robots M`` (through :func:`~conformal_control.runs.fleet.run_multi`, the command's
 defaults: reciprocal rows, broadcast plans), then every robot's task alone (the same
 start, goals and seed, no other robot), and prints
 
@@ -21,7 +21,7 @@ import argparse
 from pathlib import Path
 
 from conformal_control.data import load_scene
-from conformal_control.sim.multi import robot_tasks, run_multi
+from conformal_control.runs.fleet import robot_tasks, run_multi
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -623,7 +623,7 @@ def sec_scene(args: argparse.Namespace) -> list[Figure]:
     import warnings
 
     from conformal_control.data.synthetic import crossing_scene
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     frames = 20_000 if args.quick else 100_000
     agents = frames * 9 // 100
@@ -681,9 +681,9 @@ def sec_scene(args: argparse.Namespace) -> list[Figure]:
 def _sweep_per_run(n: int) -> tuple[float, float, float]:
     """Time per run over the first and the last tenth of an ``n``-run sweep whose runs are
     stubs (a fixed record), and its wall time."""
-    from conformal_control.sweep.executors.base import Executor
-    from conformal_control.sweep.runner import run_sweep
-    from conformal_control.sweep.spec import RunConfig
+    from conformal_control.experiments.executors.base import Executor
+    from conformal_control.experiments.plan import RunConfig
+    from conformal_control.experiments.runner import run_sweep
 
     stamps: list[float] = []
 
@@ -797,13 +797,16 @@ def _report_figures(folder: Path, section: str, repeats: int) -> list[Figure]:
     """``conformal-control bench report`` on a benchmark folder (subprocess, its own output
     folder), against reading the folder's rows alone in a fresh process (the floor of any
     report: Python, the imports and the journal's JSON), timed in the same run."""
-    from conformal_control.bench.runner import read_rows
+    from conformal_control.experiments.bench.suite import read_rows
 
     n_rows = len(read_rows(folder))
     with tempfile.TemporaryDirectory(prefix="cc-run-all-report-") as tmp:
         cmd = [*_cli(), "bench", "report", str(folder), "--out", str(Path(tmp) / "report")]
         wall, cpu = time_command(cmd, repeats)
-    read = f"from conformal_control.bench.runner import read_rows; read_rows({str(folder)!r})"
+    read = (
+        "from conformal_control.experiments.bench.suite import read_rows; "
+        f"read_rows({str(folder)!r})"
+    )
     r_wall, r_cpu = time_command([sys.executable, "-c", read], repeats)
     return [
         figure(

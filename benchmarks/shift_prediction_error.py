@@ -15,9 +15,9 @@ import sys
 
 import numpy as np
 
-from conformal_control import registry
-from conformal_control.bench import load_scenario, load_suite
-from conformal_control.bench.shifts import SHIFTS
+from conformal_control.core import registry
+from conformal_control.experiments.bench import load_scenario, load_suite
+from conformal_control.experiments.bench.shifts import SHIFTS
 from conformal_control.predictors.base import PredictionQuery
 
 

@@ -26,10 +26,10 @@ import itertools
 import time
 from pathlib import Path
 
-from conformal_control.bench.methods import FRAME, Method
-from conformal_control.bench.report import write_report
-from conformal_control.bench.runner import bench_configs, read_rows
-from conformal_control.sweep.runner import run_sweep
+from conformal_control.experiments.bench.methods import FRAME, Method
+from conformal_control.experiments.bench.report import write_report
+from conformal_control.experiments.bench.suite import bench_configs, read_rows
+from conformal_control.experiments.runner import run_sweep
 
 
 def barrier_methods(k_reps, slopes, fallbacks) -> list[Method]:

@@ -5,8 +5,8 @@ loss), over a family of decision policies ordered by conservativeness. The flags
 instantiation adds lambda as slack to control-barrier-function constraints built from
 predicted pedestrian trajectories (Huriot & Sibai).
 
-Every public name, the generic core (:mod:`conformal_control.base`,
-:mod:`conformal_control.loop`, :mod:`conformal_control.monitor`) included, is imported on
+Every public name, the generic core (:mod:`conformal_control.core.base`,
+:mod:`conformal_control.core.loop`, :mod:`conformal_control.core.monitor`) included, is imported on
 first use (``from conformal_control import ConformalLoop`` works as usual), so
 ``import conformal_control`` costs next to nothing: not even numpy is imported until a
 name that needs it is used (the command line's ``--help`` and ``--version`` stay instant).
@@ -17,11 +17,13 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from ._moved import install as _install_moved
+
 __version__ = "0.3.0"
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __getattr__
     from .api import run, shadow
-    from .base import (
+    from .core.base import (
         DecisionFamily,
         Environment,
         Loss,
@@ -29,7 +31,10 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         SingleStepEnvironment,
         UpdateRule,
     )
-    from .cbf.roles import (
+    from .core.loop import ConformalLoop, IntervalLog, LoopResult
+    from .core.monitor import GuaranteeMonitor
+    from .core.spec import Parameters, RunSpec
+    from .families.cbf.roles import (
         Barrier,
         Dynamics,
         Fallback,
@@ -37,41 +42,38 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time these come from __g
         ReferenceController,
         SafetyFilter,
     )
-    from .cbf.stepwise import StepwiseCBF, Stream
-    from .crowds.base import CrowdModel
-    from .loop import ConformalLoop, IntervalLog, LoopResult
-    from .monitor import GuaranteeMonitor
+    from .families.cbf.stepwise import StepwiseCBF, Stream
     from .predictors.base import Forecast, PredictionQuery, Predictor
-    from .spec import Parameters, RunSpec
+    from .world.crowds.base import CrowdModel
 
 #: Public names imported on first use: name -> module.
 _LAZY = {
-    "DecisionFamily": "conformal_control.base",
-    "Environment": "conformal_control.base",
-    "Loss": "conformal_control.base",
-    "Plugin": "conformal_control.base",
-    "SingleStepEnvironment": "conformal_control.base",
-    "UpdateRule": "conformal_control.base",
-    "ConformalLoop": "conformal_control.loop",
-    "IntervalLog": "conformal_control.loop",
-    "LoopResult": "conformal_control.loop",
-    "GuaranteeMonitor": "conformal_control.monitor",
+    "DecisionFamily": "conformal_control.core.base",
+    "Environment": "conformal_control.core.base",
+    "Loss": "conformal_control.core.base",
+    "Plugin": "conformal_control.core.base",
+    "SingleStepEnvironment": "conformal_control.core.base",
+    "UpdateRule": "conformal_control.core.base",
+    "ConformalLoop": "conformal_control.core.loop",
+    "IntervalLog": "conformal_control.core.loop",
+    "LoopResult": "conformal_control.core.loop",
+    "GuaranteeMonitor": "conformal_control.core.monitor",
     "run": "conformal_control.api",
     "shadow": "conformal_control.api",
-    "RunSpec": "conformal_control.spec",
-    "Parameters": "conformal_control.spec",
-    "StepwiseCBF": "conformal_control.cbf.stepwise",
-    "Stream": "conformal_control.cbf.stepwise",
+    "RunSpec": "conformal_control.core.spec",
+    "Parameters": "conformal_control.core.spec",
+    "StepwiseCBF": "conformal_control.families.cbf.stepwise",
+    "Stream": "conformal_control.families.cbf.stepwise",
     "Predictor": "conformal_control.predictors.base",
     "PredictionQuery": "conformal_control.predictors.base",
     "Forecast": "conformal_control.predictors.base",
-    "Barrier": "conformal_control.cbf.roles",
-    "SafetyFilter": "conformal_control.cbf.roles",
-    "FilterResult": "conformal_control.cbf.roles",
-    "ReferenceController": "conformal_control.cbf.roles",
-    "Dynamics": "conformal_control.cbf.roles",
-    "Fallback": "conformal_control.cbf.roles",
-    "CrowdModel": "conformal_control.crowds.base",
+    "Barrier": "conformal_control.families.cbf.roles",
+    "SafetyFilter": "conformal_control.families.cbf.roles",
+    "FilterResult": "conformal_control.families.cbf.roles",
+    "ReferenceController": "conformal_control.families.cbf.roles",
+    "Dynamics": "conformal_control.families.cbf.roles",
+    "Fallback": "conformal_control.families.cbf.roles",
+    "CrowdModel": "conformal_control.world.crowds.base",
 }
 
 __all__ = [
@@ -103,6 +105,9 @@ __all__ = [
     "run",
     "shadow",
 ]
+
+
+_install_moved()  # the module paths of 0.3 keep working, with a dated warning
 
 
 def __getattr__(name: str) -> Any:

@@ -8,9 +8,9 @@ Parameters with a unit (``eta``, ``tau``, ``a``, ``rho0``, ...) need an explicit
 system when the scene's own is not SI: ``units="si"`` (metres, seconds) or
 ``units="scene"`` (the paper's pixels and frames for SDD scenes). On SI scenes (the
 built-in ``crossing``) both mean the same. Everything else is
-:func:`conformal_control.sim.run_episode`.
+:func:`conformal_control.runs.episode.run_episode`.
 
-:func:`shadow` (:func:`conformal_control.ros2.shadow.shadow`) runs the controller over a
+:func:`shadow` (:func:`conformal_control.io.ros2.shadow.shadow`) runs the controller over a
 robot's ROS 2 bag instead: the commands it would have sent.
 """
 
@@ -20,10 +20,10 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from .exceptions import InputError
-from .results.episode import EpisodeResult
-from .ros2.shadow import shadow
-from .spec import PARAMETERS, RunSpec
+from .core.exceptions import InputError
+from .core.spec import PARAMETERS, RunSpec
+from .io.ros2.shadow import shadow
+from .runs.results.episode import EpisodeResult
 
 __all__ = ["run", "shadow"]
 
@@ -54,7 +54,7 @@ def run(
         in, no data), ``"nexus_4"``, ``"sdd:quad/video2"``, ``"ethucy:crowds_zara01"``; or a
         :class:`~conformal_control.data.scene.Scene`.
     spec : RunSpec, optional
-        The run (:class:`~conformal_control.spec.RunSpec`); the arguments below are
+        The run (:class:`~conformal_control.core.spec.RunSpec`); the arguments below are
         applied on it.
     epsilon, eta, tau : float, optional
         Target average loss, learning rate, sampling period (shortcuts for ``params``).
@@ -79,7 +79,7 @@ def run(
         recorded beside the run (the command line records its options).
     **settings
         Any other setting of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
+        <conformal_control.core.spec.RunSpec.from_settings>`): ``start_m`` and ``goals_m``
         (the task in metres, as numbers), ``predictor`` (an instance or a registered
         name; default ``"constant_velocity"``; a trainable predictor given by name without
         ``weights`` is trained on the scene's data first, or its cached weights are used),
@@ -102,12 +102,12 @@ def run(
     InputError
         For what one robot's run cannot honour: a robots section (``robots=3``,
         ``starts``/``goals``, a spec read from a multi-robot ``config.json``; run several
-        with :func:`conformal_control.sim.run_multi`), checked before the scene is loaded.
+        with :func:`conformal_control.runs.fleet.run_multi`), checked before the scene is loaded.
     """
     from .data import load_scene
     from .data.units import PARAM_DIMENSIONS
     from .predictors.training import with_weights
-    from .sim.episode import run_episode
+    from .runs.episode import run_episode
 
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
@@ -169,7 +169,7 @@ def run(
     log.info("predictor %s with %s; rule %s", name, pp, run_spec.role_name("rule"))
     if not progress:
         return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
-    from .progress import progress as progress_bar
+    from .core.progress import progress as progress_bar
 
     total = scene.n_frames - 1 - scene.start_index
     if run_spec.max_frames is not None:
@@ -196,7 +196,7 @@ def run(
 def _check_plugins(run: RunSpec) -> None:
     """Every role given by name is a registered plugin (an unknown name fails here, before
     the scene is loaded, with a did-you-mean)."""
-    from . import registry
+    from .core import registry
 
     roles = run.roles()
     order = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
@@ -209,7 +209,7 @@ def _check_plugins(run: RunSpec) -> None:
 def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
     """One robot runs here: a robots section (in ``spec`` or the keywords) is refused, never
     dropped (``run("crossing", robots=3)`` used to run one robot without a word)."""
-    from .spec import ROBOT_FIELDS
+    from .core.spec import ROBOT_FIELDS
 
     given = [k for k in ROBOT_FIELDS if k in settings]
     if spec.robots is None and not given:
@@ -225,7 +225,7 @@ def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
     )
     raise InputError(
         f"run() drives one robot and cannot honour {what}: run several with "
-        "conformal_control.sim.run_multi(scene, ...) with the same arguments, or "
+        "conformal_control.runs.fleet.run_multi(scene, ...) with the same arguments, or "
         "`conformal-control run --robots M`"
     )
 
@@ -236,7 +236,7 @@ def _check_keywords(kwargs: dict[str, Any]) -> None:
     import difflib
     import inspect
 
-    from .spec import OPTION_FIELDS, PARAMETERS, ROBOT_FIELDS, ROLE_FIELDS
+    from .core.spec import OPTION_FIELDS, PARAMETERS, ROBOT_FIELDS, ROLE_FIELDS
 
     own = [p for p in inspect.signature(run).parameters if p not in ("settings", "spec")]
     passed = [

@@ -1,11 +1,11 @@
 """MkDocs hooks: generated reference pages, offline math and the example notebooks.
 
 * ``<!-- generated:parameters -->`` in a page is replaced by the table of every controller
-  parameter, built from ``conformal_control.flagship.params.PARAMETERS`` (with units from
+  parameter, built from ``conformal_control.runs.params.PARAMETERS`` (with units from
   ``conformal_control.data.units.PARAM_DIMENSIONS`` and the defaults of the built-in and
   the paper scenes), so the table cannot drift from the code.
 * ``<!-- generated:cli -->`` is replaced by the help of every subcommand, taken from the
-  argparse parsers of ``conformal_control.commands``.
+  argparse parsers of ``conformal_control.cli.commands``.
 * **Outputs of commands**, run at build time: ``<!-- generated:run-demo -->`` (and
   ``run-nexus_4``), ``<!-- generated:run ARGS -->`` (``$ conformal-control run ARGS`` and
   what it prints), ``<!-- generated:runs NAME -->`` (a table of runs, :data:`RUN_TABLES`,
@@ -430,7 +430,7 @@ def parameters_table() -> str:
     from conformal_control.data.scenes import PAPER_SCENES
     from conformal_control.data.sdd import SDD_FPS
     from conformal_control.data.synthetic import crossing_scene
-    from conformal_control.flagship.params import PARAMETERS
+    from conformal_control.runs.params import PARAMETERS
 
     crossing = crossing_scene(seed=0)
     field_defaults = {f.name: f.default for f in dataclasses.fields(Scene)}
@@ -660,7 +660,8 @@ def roles_table() -> str:
     """Every role of the registry (entry-point group, base class, contract check list, the
     plugins registered under it now), how to import the base classes, and the installed
     distributions other than this package that add plugins (``plugins/``, third parties)."""
-    from conformal_control import registry, testing
+    from conformal_control import testing
+    from conformal_control.core import registry
     from conformal_control.testing import ROLE_BASES, checks_for
 
     rows = [
@@ -747,7 +748,7 @@ def fields_table(dotted: str) -> str:
 
 def run_values_table() -> str:
     """The documented run values a plugin may declare (``RunContext``'s fields)."""
-    from conformal_control.spec import RUN_VALUES
+    from conformal_control.core.spec import RUN_VALUES
 
     rows = ["| run value | what it is |", "|---|---|"]
     rows += [

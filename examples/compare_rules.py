@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from conformal_control.data import load_scene
-from conformal_control.sim.episode import run_episode
+from conformal_control.runs.episode import run_episode
 
 #: name -> (rule, rule parameters in the scene's units)
 RULES: dict[str, tuple[str, dict[str, Any]]] = {

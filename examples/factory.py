@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.domains.factory import run_factory
-from conformal_control.update_rules import DecayingEtaRule, DtACIRule, FixedEtaRule, PIDRule
+from conformal_control.core.update_rules import DecayingEtaRule, DtACIRule, FixedEtaRule, PIDRule
+from conformal_control.families.domains.factory import run_factory
 
 EPSILON, ETA, LAMBDA_1 = 0.05, 0.1, 0.1
 

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from conformal_control.domains.intervals import load_series, run_intervals
-from conformal_control.update_rules import ACIRule, DtACIRule, FixedEtaRule, PIDRule
+from conformal_control.core.update_rules import ACIRule, DtACIRule, FixedEtaRule, PIDRule
+from conformal_control.families.domains.intervals import load_series, run_intervals
 
 ALPHA = 0.1
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from conformal_control.ros2 import scene_bag
+from conformal_control.io.ros2 import scene_bag
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -100,7 +100,7 @@ def _straight(
 
 def _run_stopped_robot(scene: Scene, crowd: str, crowd_params: dict | None = None, frames=150):
     """Run an episode in which the robot is commanded to stand still; return the env."""
-    from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+    from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
     from conformal_control.world.reactive import make_environment
 
     env = make_environment(

@@ -113,71 +113,77 @@ def test_no_import_cycles() -> None:
 def test_generic_loop_knows_nothing_about_cbfs_or_data() -> None:
     g = graph()
     for mod in (
-        "conformal_control.loop",
-        "conformal_control.base",
-        "conformal_control.monitor",
-        "conformal_control.update_rules",
+        "conformal_control.core.loop",
+        "conformal_control.core.base",
+        "conformal_control.core.monitor",
+        "conformal_control.core.update_rules",
     ):
         bad = {
             d
             for d in g[mod]
             if d.split(".")[1:2]
-            and d.split(".")[1] in ("cbf", "data", "sim", "plotting", "commands", "predictors")
+            and d.split(".")[1]
+            in ("families", "data", "runs", "sim", "io", "cli", "commands", "predictors")
         }
         assert not bad, f"{mod} imports {bad}"
     names = {
         n.id.lower() if isinstance(n, ast.Name) else n.attr.lower()
-        for n in ast.walk(ast.parse((PKG / "loop.py").read_text()))
+        for n in ast.walk(ast.parse((PKG / "core" / "loop.py").read_text()))
         if isinstance(n, (ast.Name, ast.Attribute))
     }
     for word in ("barrier", "pedestrian", "piqp", "qp", "scene"):
         assert not any(word in n for n in names), f"loop.py uses a name with {word!r}"
 
 
-#: Every top-level module and subpackage, by layer: a unit may import (at module level or
-#: inside a function) only units of a LOWER layer. A new top-level unit must be placed here.
+#: Every unit (a module or a subpackage, named by its dotted path below the package), by
+#: layer: a unit may import (at module level or inside a function) only units of a LOWER
+#: layer. A module belongs to the longest unit prefixing its path; a new unit must be
+#: placed here.
 LAYERS: dict[str, int] = {
     # the generic core: roles, the parameter table, the loop
-    "base": 0,
-    "exceptions": -1,  # imports nothing of the package: every unit may raise its errors
-    "progress": 0,
-    "fileio": 1,
-    "compiled": 1,
-    "jit": 2,
-    "monitor": 1,
-    "registry": 1,
-    "losses": 1,
-    "spec": 1,
-    "loop": 2,
-    "update_rules": 2,
+    "core.base": 0,
+    "core.exceptions": -1,  # imports nothing of the package: every unit may raise its errors
+    "_moved": 0,  # the old module paths of 0.3 (imports a new path when an old one is asked)
+    "core.progress": 0,
+    "core.fileio": 1,
+    "core.compiled": 1,
+    "core.jit": 2,
+    "core.monitor": 1,
+    "core.registry": 1,
+    "core.losses": 1,
+    "core.spec": 1,
+    "core.loop": 2,
+    "core.update_rules": 2,
     # data and plugins
     "data": 3,
     "predictors": 4,
-    "cbf": 5,
-    "crowds": 5,
+    "families.cbf": 5,
+    "world.crowds": 5,
     # worlds and decision problems; figures (read results by duck typing)
     "world": 6,
-    "domains": 6,
-    "plotting": 6,
+    "families.domains": 6,
+    "io.plotting": 6,
     # decision families driven in the replay world by their contract checks
-    "mpc": 7,
+    "families.mpc": 7,
     # wiring one episode; measuring and writing what it produced; the contract kit
-    "flagship": 8,
-    "results": 8,
+    "runs.build": 8,
+    "runs.params": 7,
+    "runs.results": 8,
     "testing": 8,
     # the backends of the loop, then running episodes
-    "engines": 9,
-    "sim": 10,
-    "ros2": 10,
+    "runs.engines": 9,
+    "runs.episode": 10,
+    "runs.fleet": 10,
+    "io.ros2": 10,
     # many episodes, environments for RL, the paper's tables
-    "sweep": 11,
+    "experiments": 11,
     "envs": 11,
-    "export": 11,
-    "bench": 12,
-    "reproduce": 12,
+    "io.export": 11,
+    "experiments.bench": 12,
+    "experiments.reproduce": 12,
     # the front door and the command line
     "api": 13,
-    "commands": 14,
+    "cli.commands": 14,
     "cli": 15,
 }
 
@@ -187,15 +193,31 @@ ALLOWED_UP: dict[tuple[str, str], str] = {}
 
 
 def _unit(module: str) -> str:
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    """The key of LAYERS that holds ``module``: the longest dotted unit prefixing it
+    (``conformal_control.core.loop`` -> ``core.loop``); ``""`` for the package itself and
+    for a folder that only groups units (``core``, whose ``__init__`` imports nothing)."""
+    parts = module.split(".")[1:]
+    for n in range(len(parts), 0, -1):
+        if ".".join(parts[:n]) in LAYERS:
+            return ".".join(parts[:n])
+    return ""
 
 
-def test_every_top_level_unit_has_a_layer() -> None:
-    units = {p.stem for p in PKG.glob("*.py") if p.stem != "__init__"}
-    units |= {p.name for p in PKG.iterdir() if (p / "__init__.py").exists()}
-    missing = sorted(units - set(LAYERS))
+def test_every_unit_has_a_layer() -> None:
+    """Every module belongs to a unit of LAYERS, except grouping folders that import
+    nothing of the package (their ``__init__`` is a docstring)."""
+    g = graph()
+    missing = sorted(
+        m for m in g if m != "conformal_control" and not _unit(m) and not _imports_nothing(m)
+    )
     assert not missing, f"place {missing} in LAYERS (tests/test_architecture.py)"
+    unused = sorted(k for k in LAYERS if not any(_unit(m) == k for m in g))
+    assert not unused, f"LAYERS names units that do not exist: {unused}"
+
+
+def _imports_nothing(module: str) -> bool:
+    path = PKG.parent / module.replace(".", "/") / "__init__.py"
+    return path.exists() and not imports(path)
 
 
 def test_imports_point_downward() -> None:
@@ -297,7 +319,7 @@ def test_no_function_takes_more_than_fifteen_parameters() -> None:
     bad = [f"{name}: {n} parameters" for name, n in sorted(counts.items()) if n > MAX_PARAMETERS]
     assert not bad, (
         f"more than {MAX_PARAMETERS} parameters (group related ones into a settings object, "
-        "conformal_control.base.Settings, or a section of the run specification):\n"
+        "conformal_control.core.base.Settings, or a section of the run specification):\n"
         + "\n".join(bad)
     )
 
@@ -325,7 +347,7 @@ def test_no_engine_reads_another_objects_private_attributes() -> None:
     other objects (library internals and the contract kit's hooks, listed by
     ``python benchmarks/house.py --detail``)."""
     reads = _house().private_reads(sorted(PKG.rglob("*.py")))
-    engines = [r for r in reads if r[0].startswith("conformal_control.engines")]
+    engines = [r for r in reads if r[0].startswith("conformal_control.runs.engines")]
     assert not engines, f"private reads in the engines: {engines}"
     assert len(reads) <= 15, "private reads of other objects:\n" + "\n".join(map(str, reads))
 
@@ -367,6 +389,6 @@ def test_the_architecture_page_shows_the_floors_of_this_test() -> None:
             if m:
                 # the units are the backticked names outside parentheses
                 units = re.sub(r"\([^)]*\)", "", m.group(2))
-                for name in re.findall(r"`(\w+)`", units):
+                for name in re.findall(r"`([\w.]+)`", units):
                     shown[name] = int(m.group(1))
         assert shown == LAYERS, page

@@ -8,12 +8,12 @@ import warnings
 import numpy as np
 import pytest
 
-from conformal_control.base import Capabilities
-from conformal_control.cbf.barriers import APFBarrier
+from conformal_control.core.base import Capabilities
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf.barriers import APFBarrier
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 from conformal_control.testing import ContractError, check_capabilities
-from conformal_control.update_rules import FixedEtaRule
 
 
 class _Still(Predictor):

@@ -121,7 +121,7 @@ def _out_below_a_file(t: Path) -> Path:
 def test_unwritable_out_is_refused_before_running(
     make: Callable[[Path], Path], words: str, tmp_path: Path, capsys, monkeypatch
 ) -> None:
-    import conformal_control.sim.episode as episode
+    import conformal_control.runs.episode as episode
 
     def no_run(*a: object, **k: object) -> None:
         raise AssertionError("the episode ran although --out cannot be written")
@@ -406,7 +406,7 @@ def test_weights_folder_with_a_pickle_runs_no_code(tmp_path: Path, capsys) -> No
 
 # ------------------------------------------------------------------------------ the step-wise API
 def _stepwise(**kw: object) -> object:
-    from conformal_control.cbf import StepwiseCBF, Stream
+    from conformal_control.families.cbf import StepwiseCBF, Stream
 
     return StepwiseCBF("constant_velocity", stream=Stream(tau=0.4, dt=0.1), **kw)
 

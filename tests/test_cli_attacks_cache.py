@@ -3,7 +3,7 @@
 The entry-point cache (``$CONFORMAL_CONTROL_CACHE/entry-points-<crc>.json``) was trusted
 as written: pointing a core predictor at ``subprocess:Popen`` and passing the command as
 predictor parameters ran it. The cache is now checked row by row against the installed
-distributions' metadata (``conformal_control.registry``)."""
+distributions' metadata (``conformal_control.core.registry``)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control import registry
 from conformal_control.cli import EXIT_ERROR, main
+from conformal_control.core import registry
 
 
 @pytest.fixture

@@ -32,7 +32,7 @@ def single(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def multi(tmp_path_factory) -> Path:
     from conformal_control.data import load_scene
-    from conformal_control.sim.multi import run_multi, write_multi_run_dir
+    from conformal_control.runs.fleet import run_multi, write_multi_run_dir
 
     res = run_multi(load_scene("crossing", seed=0), 3, max_frames=30)
     return write_multi_run_dir(res, tmp_path_factory.mktemp("multi") / "run")
@@ -211,7 +211,7 @@ def test_a_multi_robot_run_missing_a_robot_is_refused(
 
 
 def test_a_multi_robot_export_keeps_each_robot_s_own_data(multi: Path, tmp_path: Path) -> None:
-    from conformal_control.export import read_run
+    from conformal_control.io.export import read_run
 
     rec = read_run(multi)
     assert [r.name for r in rec.robots] == ["robot_0", "robot_1", "robot_2"]

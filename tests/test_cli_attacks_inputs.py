@@ -106,8 +106,8 @@ def test_recorded_ids_beyond_2_to_the_53_are_refused(tmp_path: Path, error_line)
 
 
 def test_a_nan_parameter_in_a_replayed_spec_is_an_input_error() -> None:
-    from conformal_control.exceptions import InputError
-    from conformal_control.spec import RunSpec
+    from conformal_control.core.exceptions import InputError
+    from conformal_control.core.spec import RunSpec
 
     with pytest.raises(InputError, match="parameter epsilon must be finite, got nan"):
         RunSpec.from_dict({"params": {"epsilon": math.nan}}, where="config.json")

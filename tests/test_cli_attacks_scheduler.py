@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sweep.executors.serial import SerialExecutor
+from conformal_control.experiments.executors.serial import SerialExecutor
 
 
 class LostScheduler(SerialExecutor):
@@ -47,7 +47,7 @@ def _data(data_root: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 @pytest.fixture
 def lost_after(monkeypatch):
     """``bench run --scheduler ...`` on a cluster that loses its scheduler after N jobs."""
-    import conformal_control.sweep.runner as runner
+    import conformal_control.experiments.runner as runner
 
     def install(keep: int) -> None:
         monkeypatch.setattr(runner, "make_executor", lambda *a, **k: LostScheduler(keep))
@@ -124,8 +124,8 @@ def test_an_empty_scheduler_is_refused_not_a_local_cluster(
 
 
 def test_quiet_mutes_the_cluster_s_logs() -> None:
-    from conformal_control import progress
-    from conformal_control.sweep.executors.dask import _distributed
+    from conformal_control.core import progress
+    from conformal_control.experiments.executors.dask import _distributed
 
     try:
         progress.set_quiet(True)

@@ -1,5 +1,5 @@
 """The numba cache never breaks a command: unreadable, unwritable or unavailable caches are
-warnings with a fallback (see :mod:`conformal_control.compiled`).
+warnings with a fallback (see :mod:`conformal_control.core.compiled`).
 
 Each case runs a compiled kernel of the package in a fresh interpreter whose numba cache is a
 temporary folder (``NUMBA_CACHE_DIR``), so the package's own ``__pycache__`` is never touched.
@@ -15,13 +15,13 @@ from pathlib import Path
 CODE = """
 import warnings
 warnings.simplefilter("default")
-from conformal_control.cbf.pyhypot import hypot_split
+from conformal_control.families.cbf.pyhypot import hypot_split
 print(hypot_split(3.0, 4.0))
 """
 
 
 #: kernels compiled at their first call (a short process would run them interpreted and never
-#: touch numba's cache; see conformal_control.jit)
+#: touch numba's cache; see conformal_control.core.jit)
 COMPILED = {"CONFORMAL_CONTROL_JIT": "always"}
 
 

@@ -124,7 +124,7 @@ def test_mkdocs_build_strict(site: Path) -> None:
         assert (site / page).is_file(), page
     # generated sections: every parameter and every subcommand, straight from the code
     from conformal_control.cli import build_parser
-    from conformal_control.flagship.params import PARAMETERS
+    from conformal_control.runs.params import PARAMETERS
 
     controller = (site / "controller/index.html").read_text()
     assert "generated:parameters" not in controller
@@ -225,7 +225,7 @@ def test_plugin_pages_are_generated_from_the_registry(site: Path) -> None:
     import dataclasses
 
     import conformal_control
-    from conformal_control import registry
+    from conformal_control.core import registry
     from conformal_control.predictors.base import Forecast, PredictionQuery
     from conformal_control.testing import ROLE_BASES
 
@@ -368,7 +368,7 @@ def test_no_spec_reference_or_machine_path(site: Path) -> None:
 
 def test_api_reference_one_page_per_module(site: Path) -> None:
     modules = _public_modules()
-    assert "conformal_control.cbf.controller" in modules and len(modules) > 50
+    assert "conformal_control.families.cbf.controller" in modules and len(modules) > 50
     api = site / "api"
     pages = []
     for module in modules:
@@ -385,15 +385,19 @@ def test_api_reference_one_page_per_module(site: Path) -> None:
         assert found is None, (page.relative_to(site), found and found.group(0))
     # roles became links, also across modules and to re-exports of private modules
     checks = (site / "api/conformal_control/testing/safety_filter/index.html").read_text()
-    assert re.search(r'href="[^"]*cbf/roles/#conformal_control\.cbf\.roles\.SafetyFilter"', checks)
-    loop = (site / "api/conformal_control/loop/index.html").read_text()
-    assert re.search(r'href="#conformal_control\.loop\.IntervalLog"', loop)
+    assert re.search(
+        r'href="[^"]*families/cbf/roles/#conformal_control\.families\.cbf\.roles\.SafetyFilter"',
+        checks,
+    )
+    loop = (site / "api/conformal_control/core/loop/index.html").read_text()
+    assert re.search(r'href="#conformal_control\.core\.loop\.IntervalLog"', loop)
     # each object once, on the page of the module that defines it
-    roles = (site / "api/conformal_control/cbf/roles/index.html").read_text()
-    cbf = (site / "api/conformal_control/cbf/index.html").read_text()
-    assert 'id="conformal_control.cbf.roles.SafetyFilter"' in roles
-    assert 'id="conformal_control.cbf.SafetyFilter"' not in cbf
-    assert 'href="roles/#conformal_control.cbf.roles.SafetyFilter"' in cbf  # a re-export link
+    roles = (site / "api/conformal_control/families/cbf/roles/index.html").read_text()
+    cbf = (site / "api/conformal_control/families/cbf/index.html").read_text()
+    assert 'id="conformal_control.families.cbf.roles.SafetyFilter"' in roles
+    assert 'id="conformal_control.families.cbf.SafetyFilter"' not in cbf
+    # a re-export link
+    assert 'href="roles/#conformal_control.families.cbf.roles.SafetyFilter"' in cbf
 
 
 # ---------------------------------------------------------------------------- the sources

@@ -1,5 +1,5 @@
 """Kernels run interpreted until a process has work enough to compile them, with the same
-numbers either way (``conformal_control.jit``)."""
+numbers either way (``conformal_control.core.jit``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control import jit
+from conformal_control.core import jit
 
 DATA = Path(
     os.environ.get("CONFORMAL_CONTROL_DATA", Path(__file__).parents[1] / ".." / "shared" / "data")
@@ -23,11 +23,11 @@ _EPISODES = r"""
 import hashlib, json, sys, warnings
 import numpy as np
 warnings.simplefilter("ignore")
-from conformal_control import jit
+from conformal_control.core import jit
 from conformal_control.data import load_scene
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.engines.batch import run_batch
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 def digest(a):
     a = np.ascontiguousarray(np.asarray(a, dtype=float))
@@ -84,7 +84,7 @@ nexus = load_scene("nexus_4", sys.argv[2])
 out["nexus_4-loop"] = result(run_episode(nexus, "constant_velocity", engine="loop"))
 out["nexus_4-batch"] = result(run_episode(nexus, "constant_velocity", engine="batch"))
 
-from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
 rng = np.random.default_rng(0)
 cmds = rng.normal(0, 1, (5, 7, 2))
 vt = VelocityTrackingDoubleIntegrator(K_acc=10.0)
@@ -92,7 +92,7 @@ out["rollouts"] = [
     digest(vt.rollout(np.array([0.0, 0, 1, 0]), cmds, 0.05)),
     digest(Unicycle().rollout(np.array([0.0, 0, 0.3, 0.5, 0.2]), cmds, 0.05)),
 ]
-from conformal_control.mpc.kernels import evaluate
+from conformal_control.families.mpc.kernels import evaluate
 pos = rng.normal(0, 3, (50, 6, 2)); c2 = rng.normal(0, 1, (50, 6, 2))
 pred = rng.normal(0, 3, (7, 6, 2)); y0 = rng.normal(0, 3, (7, 2))
 radius = rng.uniform(0.5, 1.5, (50, 6))
@@ -101,7 +101,7 @@ out["mpc"] = [
     for a in evaluate(pos, c2, np.zeros(2), pred, y0, radius, np.array([4.0, 1.0]),
                       (1.0, 10.0, 0.01, 0.3), np.array([0.2, -0.1]), cont)
 ]
-from conformal_control.sim.multi import run_multi
+from conformal_control.runs.fleet import run_multi
 for info in ("position", "velocity", "plan"):  # reciprocal robot rows (cbf.kernels_peers)
     res = run_multi(scenes[0], robots=4, layout="antipodal", radius=3.0, center=(15.0, 8.0),
                     information=info, max_frames=60, record_animation=False)
@@ -147,8 +147,8 @@ def test_interpreted_and_compiled_runs_are_identical(tmp_path: Path) -> None:
 _AUTO = r"""
 import json, sys
 import numpy as np
-from conformal_control import jit
-from conformal_control.cbf import kernels2d
+from conformal_control.core import jit
+from conformal_control.families.cbf import kernels2d
 jit.BUDGET_S = float(sys.argv[1])
 A = np.array([[1.0, 0.0]]); rhs = np.array([2.0]); G = np.zeros((4, 2)); h = np.zeros(4)
 before = type(kernels2d.presolve).__name__
@@ -207,7 +207,7 @@ def test_the_mode_is_checked(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_a_kernel_looks_like_its_function() -> None:
-    from conformal_control.cbf import kernels2d
+    from conformal_control.families.cbf import kernels2d
 
     k = kernels2d.presolve
     assert k.__name__ == "presolve" and "unit-norm" in (k.__doc__ or "")

@@ -56,7 +56,7 @@ def test_public_names_resolve_lazily_and_are_listed():
     code = (
         "import conformal_control as cc\n"
         "from conformal_control import ConformalLoop, GuaranteeMonitor\n"
-        "from conformal_control.loop import ConformalLoop as L\n"
+        "from conformal_control.core.loop import ConformalLoop as L\n"
         "assert ConformalLoop is L\n"
         "missing = [n for n in cc.__all__ if getattr(cc, n, None) is None]\n"
         "assert not missing, missing\n"

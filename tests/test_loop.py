@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.base import DecisionFamily, Environment, Loss
-from conformal_control.loop import ConformalLoop, ConformalStepper, IntervalLog
-from conformal_control.update_rules import FixedEtaRule
+from conformal_control.core.base import DecisionFamily, Environment, Loss
+from conformal_control.core.loop import ConformalLoop, ConformalStepper, IntervalLog
+from conformal_control.core.update_rules import FixedEtaRule
 
 THRESHOLDS = [0.3, -0.2, 0.1, None, 0.4, 0.0, None, -0.1]
 

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.monitor import GuaranteeMonitor
-from conformal_control.update_rules import DecayingEtaRule, FixedEtaRule
+from conformal_control.core.monitor import GuaranteeMonitor
+from conformal_control.core.update_rules import DecayingEtaRule, FixedEtaRule
 
 
 def monitored(losses, *, epsilon=0.0, eta=1.0, lambda_init=0.0, rule_kw=None, **monitor_kw):

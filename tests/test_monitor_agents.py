@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.loop import close_agent_interval
-from conformal_control.monitor import AgentMonitor
-from conformal_control.update_rules import DtACIRule, FixedEtaRule, PIDRule
+from conformal_control.core.loop import close_agent_interval
+from conformal_control.core.monitor import AgentMonitor
+from conformal_control.core.update_rules import DtACIRule, FixedEtaRule, PIDRule
 
 
 def _drive(monitor, keys_per_step, rng, eta_check=None):
@@ -165,7 +165,7 @@ def test_long_run_rules_report_a_pooled_long_run_bound():
 def test_close_agent_interval_logs_the_largest_term_and_updates_each_agent():
     class Parts:
         def components(self, record, truth, lam):
-            from conformal_control.base import KeyedLosses
+            from conformal_control.core.base import KeyedLosses
 
             return KeyedLosses(np.array([3, 1]), np.array([0.1, np.nan]) + 0 * lam[:2])
 

@@ -10,11 +10,11 @@ import warnings
 
 import pytest
 
-from conformal_control import registry, spec
 from conformal_control.cli import build_parser
+from conformal_control.core import registry, spec
+from conformal_control.core.loop import ConformalLoop, ConformalStepper
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.flagship.build import build_flagship
-from conformal_control.loop import ConformalLoop, ConformalStepper
+from conformal_control.runs.build import build_flagship
 from conformal_control.testing import checks_for
 
 

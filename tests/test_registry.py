@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control import registry
 from conformal_control.cli import main
+from conformal_control.core import registry
 from conformal_control.predictors import ConstantVelocityPredictor
 
 
@@ -149,7 +149,7 @@ def test_lazy_and_direct_registration():
 # ------------------------------------------------------------------ the entry-point cache
 CACHED_DISCOVERY = """
 import json, sys
-from conformal_control import registry
+from conformal_control.core import registry
 rows = [[e.role, e.name, registry._target_text(e.target), e.origin, e.version]
         for e in registry.entries()]
 print(json.dumps({"metadata": "importlib.metadata" in sys.modules, "rows": rows}))

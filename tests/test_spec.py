@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from conformal_control.exceptions import InputError
-from conformal_control.spec import (
+from conformal_control.core.exceptions import InputError
+from conformal_control.core.spec import (
     PARAM_DIMENSIONS,
     PARAMETERS,
     PLAUSIBLE_SI,
@@ -83,7 +83,7 @@ def test_from_dict_is_type_checked(data: dict, words: str) -> None:
 
 
 def test_every_benchmark_method_is_a_run_specification() -> None:
-    from conformal_control.bench.methods import METHOD_FAMILIES, expand_methods
+    from conformal_control.experiments.bench.methods import METHOD_FAMILIES, expand_methods
 
     for m in expand_methods(METHOD_FAMILIES):
         spec = m.run_spec("oracle")
@@ -96,7 +96,7 @@ def test_every_benchmark_method_is_a_run_specification() -> None:
 def test_config_json_is_the_specification_of_the_run() -> None:
     """config.json holds the run's specification; read back, it runs the same episode."""
     from conformal_control.data import load_scene
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     spec = RunSpec(
         params={"epsilon": 0.1, "a": 2.0, "lambda_min": -math.inf},
@@ -160,7 +160,7 @@ def test_the_fallback_parameter_of_the_command_line_is_the_role(tmp_path) -> Non
 )
 def test_from_dict_refuses_what_fails_later_with_one_input_error(data: dict, words: str) -> None:
     """These passed ``from_dict`` and failed later as TypeError or ValueError."""
-    from conformal_control.exceptions import InputError
+    from conformal_control.core.exceptions import InputError
 
     with pytest.raises(InputError) as info:
         RunSpec.from_dict(data, where="config.json")

@@ -78,7 +78,7 @@ def test_the_wheel_carries_every_package_file_and_runs_installed(tmp_path: Path)
     want = _package_files()
     assert {"conformal_control/data/manifest.json", "conformal_control/py.typed"} <= want
     assert any(n.startswith("conformal_control/data/suite_manifests/") for n in want)
-    assert any(n.startswith("conformal_control/bench/tuned/") for n in want)
+    assert any(n.startswith("conformal_control/experiments/bench/tuned/") for n in want)
     missing = sorted(want - names)
     assert not missing, f"not in the wheel (add them to package-data in pyproject.toml): {missing}"
     assert f"Version: {conformal_control.__version__}\n" in metadata

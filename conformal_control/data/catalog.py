@@ -31,7 +31,7 @@ import re
 from collections.abc import Sequence
 from typing import Any
 
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 from . import scenes
 from .ethucy import ETHUCY_RECORDINGS, ETHUCY_SCENES
 from .scene import Scene

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataFormatError
+from ..core.exceptions import DataFormatError
 from .paths import ethucy_root, missing
 from .tracks import Tracks, check_frames, file_agent_ids, read_rows
 

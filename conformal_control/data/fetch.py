@@ -37,8 +37,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from ..exceptions import ConformalControlError, DataFetchError
-from ..fileio import write_error
+from ..core.exceptions import ConformalControlError, DataFetchError
+from ..core.fileio import write_error
 
 __all__ = ["ChecksumError", "FetchPlan", "fetch", "load_manifest", "trajnet_metres_to_pixels"]
 
@@ -243,7 +243,7 @@ def fetch(
     progress : bool
         Show a progress bar.
     """
-    from ..progress import progress as report
+    from ..core.progress import progress as report
 
     dest = Path(dest)
     items = plan(only, mirror)

@@ -215,7 +215,7 @@ def external_root(data_root: str | os.PathLike[str] | None = None) -> Path:
 
 def read_data_text(path: str | os.PathLike[str], what: str = "data file") -> str:
     """The text of a data file, read through
-    :func:`~conformal_control.fileio.read_limited`: a regular file of at most
+    :func:`~conformal_control.core.fileio.read_limited`: a regular file of at most
     :data:`MAX_DATA_FILE_BYTES` (a FIFO or a device is refused, not read).
 
     Parameters
@@ -225,6 +225,6 @@ def read_data_text(path: str | os.PathLike[str], what: str = "data file") -> str
     what : str
         What it is, for the messages.
     """
-    from ..fileio import read_limited
+    from ..core.fileio import read_limited
 
     return read_limited(path, MAX_DATA_FILE_BYTES, what=what).decode("utf-8", "replace")

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 
 __all__ = [
     "POSITION_UNITS",

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 from .tracks import Tracks
 from .units import SI, UnitSystem
 

@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import InputError
+from ..core.exceptions import InputError
 from .ethucy import (
     ETHUCY_FPS,
     ETHUCY_ORIGINAL_RATE,
@@ -116,7 +116,7 @@ TABLE_II: dict[str, float] = {
 #: The published code hard-coded alpha(h) = 10 h whatever ``a`` said; our SDD defaults use
 #: a = 10 so the defaults run as the published code did. With the printed a = 1 lambda
 #: cannot go below -a h_max = -1/2 per frame (a far agent's row), which leaves epsilon =
-#: -0.25 out of reach (see :mod:`conformal_control.reproduce.paper`).
+#: -0.25 out of reach (see :mod:`conformal_control.experiments.reproduce.paper`).
 PUBLISHED_A = 10.0
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..exceptions import DataFormatError, InputError
+from ..core.exceptions import DataFormatError, InputError
 from .paths import missing, read_data_text, sdd_root
 from .tracks import Tracks, check_frames, file_agent_ids
 

@@ -5,14 +5,15 @@ an ETH/UCY recording), the frame the robot starts at, its start and goal (metres
 image fractions where the recording has an image), and a time limit (mapped to the
 episode's ``max_frames``). A *suite* is a manifest of scenarios shipped with the package
 (``conformal_control/data/suite_manifests/<suite>.json``) together with the parameters of the
-generator that produced it (:mod:`conformal_control.bench.generator`), what the generator
+generator that produced it (:mod:`conformal_control.experiments.bench.generator`), what the
+generator
 measured for every scenario (crossing pedestrians, density, the ``nolearn`` baseline's
 outcome) and a ``dev`` / ``test`` split by recording.
 
 Usage::
 
-    from conformal_control.bench import load_suite, load_scenario
-    from conformal_control.sim import run_episode
+    from conformal_control.experiments.bench import load_suite, load_scenario
+    from conformal_control.runs.episode import run_episode
 
     suite = load_suite("crossings-v1")
     sc = suite.scenarios_for("dev")[0]
@@ -112,7 +113,7 @@ class Scenario:
     history_frames : int
         Frames of data kept before the start.
     stats : dict
-        What the generator measured (see :mod:`conformal_control.bench.generator`).
+        What the generator measured (see :mod:`conformal_control.experiments.bench.generator`).
     nolearn : dict or None
         Outcome of the suite's ``nolearn`` baseline run (see the manifest's ``nolearn``).
     """

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..fileio import read_limited
+from ..core.fileio import read_limited
 from .paths import MAX_DATA_FILE_BYTES
 from .tracks import Tracks
 

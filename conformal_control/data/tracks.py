@@ -34,11 +34,11 @@ def agent_ids(values: Any, what: str = "ids") -> np.ndarray:
     """Agent ids as an int64 array; whole numbers only, each at most ``2**53`` in size.
 
     Accepts integer arrays and sequences, and floats that are whole numbers (``3.0``, as
-    text files hold them). Raises :class:`~conformal_control.exceptions.InputError` for a
+    text files hold them). Raises :class:`~conformal_control.core.exceptions.InputError` for a
     fractional, non-finite, boolean, non-numeric or too large id, naming it; ``what`` says
     where the ids came from. Uniqueness is the caller's to check (per sample, per frame).
     """
-    from ..exceptions import InputError
+    from ..core.exceptions import InputError
 
     if not isinstance(values, np.ndarray) and any(
         isinstance(v, (bool, np.bool_)) for v in np.ravel(np.asarray(values, dtype=object))
@@ -141,7 +141,7 @@ def read_rows(path: str | os.PathLike[str], what: str, fields: str) -> tuple[np.
     fields : str
         Its columns, for the errors (``"frame ped_id x y"``).
     """
-    from ..exceptions import DataFormatError
+    from ..core.exceptions import DataFormatError
     from .paths import read_data_text
 
     rows: list[list[float]] = []
@@ -173,7 +173,7 @@ def file_agent_ids(
     values: np.ndarray, path: object, lines: Sequence[int] | np.ndarray | None = None
 ) -> np.ndarray:
     """The id column of a data file as int64, or a ``DataFormatError`` at ``file:line``."""
-    from ..exceptions import DataFormatError
+    from ..core.exceptions import DataFormatError
 
     v = np.asarray(values, dtype=float)
     bad = ~np.isfinite(v) | (v != np.round(v)) | (np.abs(v) > MAX_AGENT_ID)
@@ -215,7 +215,7 @@ def check_frames(
     step : int, optional
         The file's frame step (every frame on ``first + k * step``).
     """
-    from ..exceptions import DataFormatError
+    from ..core.exceptions import DataFormatError
 
     f = np.asarray(frames, dtype=float)
     bad = ~np.isfinite(f) | (f != np.round(f)) | (f < 0) | (f > MAX_FRAME)

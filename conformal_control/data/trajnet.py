@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataFormatError
+from ..core.exceptions import DataFormatError
 from .paths import missing
 from .sdd import SDD_FPS
 from .tracks import Tracks, check_frames, file_agent_ids, read_rows

@@ -30,8 +30,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from ..exceptions import InputError
-from ..spec import PARAM_DIMENSIONS  # the dimensions come from the one parameter table
+from ..core.exceptions import InputError
+from ..core.spec import PARAM_DIMENSIONS  # the dimensions come from the one parameter table
 
 __all__ = ["PARAM_DIMENSIONS", "SI", "SI_UNITS", "UnitSystem", "documented_unit", "si_value"]
 

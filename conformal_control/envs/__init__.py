@@ -14,7 +14,7 @@ Needs the ``rl`` extra (``pip install -e ".[rl]"``: gymnasium and PettingZoo).
 * :class:`ConformalCrowdParallel`: the multi-robot case as a PettingZoo parallel
   environment (agents = robots), and :class:`ReciprocalShield`, its shield: every robot's
   action filtered by its own conformal CBF, the robots' rows shared
-  (:mod:`conformal_control.cbf.reciprocal`).
+  (:mod:`conformal_control.families.cbf.reciprocal`).
 
 Observation, action, reward and ``info`` are described in :mod:`conformal_control.envs.core`.
 """

@@ -60,11 +60,11 @@ from typing import Any
 
 import numpy as np
 
+from ..core.loop import ConformalStepper
+from ..core.spec import RunSpec
 from ..data.scene import Scene
-from ..flagship.build import Flagship, build_flagship
-from ..loop import ConformalStepper
 from ..predictors.base import PredictionQuery
-from ..spec import RunSpec
+from ..runs.build import Flagship, build_flagship
 from ..world.multi import MultiRobotWorld
 from .roles import GivenVelocity, MonitorFilter
 
@@ -100,7 +100,7 @@ class CrowdCore:
     starts : ndarray of shape (R, 2)
     goals : list of R arrays of shape (G, 2)
     spec : RunSpec
-        The run (:class:`~conformal_control.spec.RunSpec`): parameters in its ``units``,
+        The run (:class:`~conformal_control.core.spec.RunSpec`): parameters in its ``units``,
         the crowd, the monitors' predictor and update rule, ``max_frames``; robot ``i``
         is built with seed ``i``.
     max_agents : int

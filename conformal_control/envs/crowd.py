@@ -20,8 +20,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from ..core.spec import RunSpec
 from ..data.scene import Scene
-from ..spec import RunSpec
 from .core import CrowdCore, load
 
 __all__ = ["ConformalCrowdEnv", "observation_space"]
@@ -51,7 +51,7 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
         Run parameters in ``units`` (``v_max``, radii, ``tau``, ``substeps``, the
         monitor's ``epsilon``, ``eta``, ...; see ``conformal-control params``).
     spec : RunSpec, optional
-        The run (:class:`~conformal_control.spec.RunSpec`); ``params`` and the settings
+        The run (:class:`~conformal_control.core.spec.RunSpec`); ``params`` and the settings
         below are applied on it.
     max_agents : int
         Agents in an observation.
@@ -64,7 +64,7 @@ class ConformalCrowdEnv(gym.Env[dict[str, Any], np.ndarray]):
     render_mode : {"rgb_array"}, optional
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
-        <conformal_control.spec.RunSpec.from_settings>`): ``units`` ({"scene", "si"}),
+        <conformal_control.core.spec.RunSpec.from_settings>`): ``units`` ({"scene", "si"}),
         ``crowd`` ({"replay", "social_force", "orca", "mixed"}) and ``crowd_params``
         (SI), the conformal monitor's ``predictor``, ``predictor_params``, ``rule`` and
         ``rule_params``, ``max_frames`` (cut the episode after this many frames).

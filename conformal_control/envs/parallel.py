@@ -2,13 +2,13 @@
 
 Agents are the robots, ``"robot_0"`` ... ``"robot_{M-1}"``, each with the observation,
 action, reward and ``info`` of ``ConformalCrowd-v0`` (:mod:`conformal_control.envs.core`)
-and its own conformal monitor. As in :func:`~conformal_control.sim.multi.run_multi`, the
+and its own conformal monitor. As in :func:`~conformal_control.runs.fleet.run_multi`, the
 robots share nothing but the world: each observes the pedestrians and the other robots
 within its own sensing radius (another robot is one more agent in its ``"agents"`` rows).
 A robot leaves ``agents`` when it reaches its last goal (terminated; it then stops near
 its goal and stays an obstacle) or when the recording runs out (truncated).
 
-Starts and goals: ``robots=M`` with a ``layout`` (:func:`~conformal_control.sim.multi.robot_tasks`:
+Starts and goals: ``robots=M`` with a ``layout`` (:func:`~conformal_control.runs.fleet.robot_tasks`:
 the scene's task rotated about its midpoint, or ``"antipodal"`` on a circle), or explicit
 ``starts`` and ``goals`` (m).
 """
@@ -23,14 +23,14 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import BaseParallelWrapper
 
-from ..cbf.controller import ConformalCBFController
-from ..cbf.filters.exact2d import Exact2DSafetyFilter
-from ..cbf.loss import CBFGapLoss
-from ..cbf.reciprocal import Reciprocity
+from ..core.loop import ConformalStepper
+from ..core.spec import Robots, RunSpec
 from ..data.scene import Scene
-from ..loop import ConformalStepper
-from ..sim.multi import as_tasks, robot_tasks
-from ..spec import Robots, RunSpec
+from ..families.cbf.controller import ConformalCBFController
+from ..families.cbf.filters.exact2d import Exact2DSafetyFilter
+from ..families.cbf.loss import CBFGapLoss
+from ..families.cbf.reciprocal import Reciprocity
+from ..runs.fleet import as_tasks, robot_tasks
 from .core import CrowdCore, load
 from .crowd import observation_space
 from .roles import GivenVelocity, RecordingFilter
@@ -56,7 +56,7 @@ class ConformalCrowdParallel(ParallelEnv[str, dict[str, np.ndarray], np.ndarray]
     **settings
         Settings of the run, as for :class:`~conformal_control.envs.crowd.ConformalCrowdEnv`,
         and of its robots section: ``starts``, ``goals`` (explicit tasks, m), ``layout``,
-        ``radius``, ``center`` (see :func:`~conformal_control.sim.multi.robot_tasks`).
+        ``radius``, ``center`` (see :func:`~conformal_control.runs.fleet.robot_tasks`).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012 - PettingZoo's attribute, replaced per instance
@@ -182,7 +182,7 @@ class ReciprocalShield(BaseParallelWrapper):  # type: ignore[misc]
     (as :class:`~conformal_control.envs.shield.ConformalShield` does for one robot): its
     pedestrians' rows from its own predictor, with its own lambda learned online from its
     own losses, and **reciprocal rows about the other robots**
-    (:mod:`~conformal_control.cbf.reciprocal`: each robot takes its share of every pair's
+    (:mod:`~conformal_control.families.cbf.reciprocal`: each robot takes its share of every pair's
     barrier rate, from what the world lets robots know of each other). Two shielded
     policies can therefore not drive their robots into each other, whatever the policies
     do; a robot whose policy drives at a pedestrian is held back by its own rows.

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.roles import FilterResult, ReferenceController, SafetyFilter
+from ..families.cbf.roles import FilterResult, ReferenceController, SafetyFilter
 
 __all__ = ["GivenVelocity", "LastSolve", "MonitorFilter", "RecordingFilter"]
 

@@ -45,9 +45,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from ..flagship.build import build_flagship
-from ..loop import ConformalStepper
-from ..spec import RunSpec
+from ..core.loop import ConformalStepper
+from ..core.spec import RunSpec
+from ..runs.build import build_flagship
 from .crowd import ConformalCrowdEnv
 from .roles import GivenVelocity, LastSolve, RecordingFilter
 
@@ -69,14 +69,14 @@ class ConformalShield(
         (e.g. ``{"epsilon": -0.1, "eta": 2, "a": 2}``); timing (``tau``, ``substeps``)
         must stay the environment's.
     spec : RunSpec, optional
-        The shield's run (:class:`~conformal_control.spec.RunSpec`); ``params`` and the
+        The shield's run (:class:`~conformal_control.core.spec.RunSpec`); ``params`` and the
         settings below are applied on it, and its units are the environment's.
     active_tol : float
         A constraint is reported active when its slack is within this (1/s).
     **settings
         Settings of the run: the shield's roles (names or instances) ``predictor``,
         ``barrier``, ``safety_filter``, ``fallback``, ``loss``, ``rule`` and their
-        ``*_params``, as for :func:`~conformal_control.flagship.build.build_flagship`
+        ``*_params``, as for :func:`~conformal_control.runs.build.build_flagship`
         (the default is the flagship's: constant velocity, APF barrier, the exact 2-D
         filter with the lambda-search fallback, the gap loss, the fixed-step rule);
         ``learn`` (False keeps lambda at ``lambda_init``); ``seed`` (``random_state`` of

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Plugin
+from ..core.base import Plugin
 
 __all__ = ["Forecast", "PredictionQuery", "Predictor", "TruthUnavailableError"]
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm
+from ..core.base import CompiledForm
 from .base import Forecast, PredictionQuery, Predictor
 
 __all__ = ["ConstantVelocityForm", "ConstantVelocityPredictor", "trailing_valid"]

@@ -27,8 +27,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..exceptions import InputError
-from ..fileio import atomic_write_json
+from ..core.exceptions import InputError
+from ..core.fileio import atomic_write_json
 from .base import Forecast, PredictionQuery, Predictor
 from .constant_velocity import ConstantVelocityPredictor, trailing_valid
 from .evaluation import resample_future, resample_history

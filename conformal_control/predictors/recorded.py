@@ -26,7 +26,7 @@ missing column, a non-numeric or non-finite value, a step < 1 or above :data:`MA
 frame or track id beyond 2^53, or a duplicated (frame, track_id, step) is refused with a
 one-line error naming the file and the line (never echoing the file's contents: a path
 given by mistake, or by a replayed configuration, may name any file). The file is read
-through :func:`~conformal_control.fileio.read_limited`: a regular file of at most
+through :func:`~conformal_control.core.fileio.read_limited`: a regular file of at most
 :data:`MAX_FILE_BYTES` (decompressed, for a gzip file; a corrupt gzip file is a one-line
 error), never a FIFO or a device. Each issue frame's forecasts are an array of its own
 agents by its own longest step, so memory follows the file's rows.
@@ -44,9 +44,9 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm
-from ..exceptions import DataFormatError
-from ..fileio import read_limited
+from ..core.base import CompiledForm
+from ..core.exceptions import DataFormatError
+from ..core.fileio import read_limited
 from .base import Forecast, PredictionQuery, Predictor
 from .shift import resolve_predictor
 
@@ -109,7 +109,7 @@ def read_predictions(path: str | os.PathLike[str]) -> RecordedPredictions:
         No such file.
     ValueError
         A malformed, oversized or unreadable file (a
-        :class:`~conformal_control.exceptions.DataFormatError`; the message names the file,
+        :class:`~conformal_control.core.exceptions.DataFormatError`; the message names the file,
         and the line where it applies).
     """
     p = Path(path)

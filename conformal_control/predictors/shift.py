@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..base import CompiledForm
+from ..core.base import CompiledForm
 from .base import Forecast, PredictionQuery, Predictor
 
 __all__ = [
@@ -164,7 +164,7 @@ def resolve_predictor(spec: Any, params: Mapping[str, Any] | None, role: str) ->
     if spec is None:
         spec = "constant_velocity"
     if isinstance(spec, str):
-        from .. import registry
+        from ..core import registry
 
         out = registry.create("predictor", spec, **dict(params or {}))
         if not isinstance(out, Predictor):

@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..base import Plugin, param_names
-from ..spec import RunSpec
+from ..core.base import Plugin, param_names
+from ..core.spec import RunSpec
 
 __all__ = [
     "MIN_SCENE_WINDOWS",
@@ -57,7 +57,7 @@ def trainable_defaults(
     horizon : int
         Predicted samples per window.
     """
-    from ..spec import RunContext
+    from ..core.spec import RunContext
 
     for key, value in RunContext(seed=seed).arguments(cls).items():
         params.setdefault(key, value)
@@ -79,7 +79,7 @@ def _fit_and_save(
     command: list[str] | None = None,
 ) -> Path:
     """Fit predictor ``name`` on windows ``win`` and save it (with ``training.json``)."""
-    from .. import registry
+    from ..core import registry
 
     p = {k: v for k, v in params.items() if k != "weights"}
     trainable_defaults(registry.get("predictor", name), p, seed, obs, horizon)
@@ -101,7 +101,7 @@ def _fit_and_save(
         "fit_s": round(time.perf_counter() - t0, 2),
         "command": command,
     }
-    from ..fileio import atomic_write_json
+    from ..core.fileio import atomic_write_json
 
     atomic_write_json(out / "training.json", info, default=str)
     return out
@@ -147,10 +147,10 @@ def train(
     Path
         ``out``.
     """
-    from .. import registry
-    from ..exceptions import InputError
-    from ..predictors.evaluation import training_windows
-    from ..progress import note
+    from ..core import registry
+    from ..core.exceptions import InputError
+    from ..core.progress import note
+    from .evaluation import training_windows
 
     cls = registry.get("predictor", name)
     if not cls.capabilities.trainable:
@@ -168,7 +168,7 @@ def train(
 
 
 def _is_trainable(name: str) -> bool:
-    from .. import registry
+    from ..core import registry
 
     try:
         return bool(registry.get("predictor", name).capabilities.trainable)
@@ -177,8 +177,8 @@ def _is_trainable(name: str) -> bool:
 
 
 def _weights_folder(name: str, tag: str, params: dict[str, Any], extra: dict[str, Any]) -> Path:
-    from .. import registry
-    from ..predictors.cache import cache_dir
+    from ..core import registry
+    from .cache import cache_dir
 
     # key on every constructor parameter (defaults included), so changed defaults retrain
     full = registry.create("predictor", name, **params).get_params()
@@ -230,12 +230,12 @@ def cached_weights(
     folder = _weights_folder(name, dataset, params, {"s": seed, "o": obs, "h": horizon})
     if _cached_weights_ok(folder):
         return folder
-    from ..predictors.evaluation import training_windows
-    from ..progress import note
+    from ..core.progress import note
+    from .evaluation import training_windows
 
     win = training_windows(dataset, data_root, obs, horizon)
     if len(win) == 0:
-        from ..exceptions import InputError
+        from ..core.exceptions import InputError
 
         raise InputError(f"no training windows of {obs + horizon} samples for {dataset}")
     what = "all of ETH/UCY" if dataset == "sdd:any" else win.source
@@ -264,14 +264,14 @@ def cached_weights(
 def _cached_weights_ok(folder: Path) -> bool:
     """Whether a cached weights folder is complete and every model file matches its
     SHA-256 in ``config.json``; a folder that exists but fails is reported (a
-    :class:`~conformal_control.exceptions.CacheWarning`) and will be trained again.
+    :class:`~conformal_control.core.exceptions.CacheWarning`) and will be trained again.
 
     Entries without checksums (written by older versions) count as stale.
     """
     import warnings
 
-    from ..exceptions import CacheWarning
-    from ..predictors.learned import verify_model_files
+    from ..core.exceptions import CacheWarning
+    from .learned import verify_model_files
 
     if not folder.exists():
         return False
@@ -301,9 +301,9 @@ def scene_windows(scene: Any, obs: int = 8, horizon: int = 12) -> Any:
     """
     import numpy as np
 
+    from ..core.exceptions import InputError
     from ..data.tracks import Tracks
-    from ..exceptions import InputError
-    from ..predictors.evaluation import STANDARD_DT, Windows, windows_from_tracks
+    from .evaluation import STANDARD_DT, Windows, windows_from_tracks
 
     step_f = scene.fps * STANDARD_DT
     step = round(step_f)
@@ -375,8 +375,8 @@ def weights_for_scene(
     Path
         The cached weights' folder.
     """
-    from ..exceptions import InputError
-    from ..progress import note
+    from ..core.exceptions import InputError
+    from ..core.progress import note
 
     if "sdd_scene" in scene.meta:
         from ..data.paths import DataNotFoundError
@@ -426,8 +426,8 @@ def evaluate_with_progress(predictor: Any, win: Any, desc: str, chunk: int = 256
     """
     import numpy as np
 
-    from ..predictors.evaluation import Windows, evaluate_predictor
-    from ..progress import progress
+    from ..core.progress import progress
+    from .evaluation import Windows, evaluate_predictor
 
     n = len(win)
     if n <= chunk:
@@ -469,7 +469,7 @@ def with_weights(run: RunSpec, scene: Any, data_root: str | None) -> RunSpec:
     name, pp = run.role("predictor")
     if not isinstance(name, str):
         return run
-    from .. import registry
+    from ..core import registry
 
     cls = registry.get("predictor", name)
     if not cls.capabilities.trainable or pp.get("weights") is not None:

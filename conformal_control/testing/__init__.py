@@ -19,9 +19,9 @@ constructor kwargs; default ``[{}]``). Losses also provide ``_unit_test_inputs()
 
 The generic roles a user writes for a problem of their own are checked the same way,
 each driven through a short stub of the conformal loop (gymnasium's ``check_env``):
-``check_environment`` (an :class:`~conformal_control.base.Environment`, driven by the
+``check_environment`` (an :class:`~conformal_control.core.base.Environment`, driven by the
 family its class's ``_unit_test_family()`` returns) and ``check_decision_family`` (a
-:class:`~conformal_control.base.DecisionFamily`, driven in the environment of
+:class:`~conformal_control.core.base.DecisionFamily`, driven in the environment of
 ``_unit_test_environment()``); see :mod:`.environment` and :mod:`.decision_family`.
 :func:`discover` finds every concrete subclass of a base class in a package, for a test
 matrix that grows by itself.
@@ -45,10 +45,10 @@ import pkgutil
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from ..base import DecisionFamily, Environment, Loss, UpdateRule
-from ..cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
-from ..crowds.base import CrowdModel
+from ..core.base import DecisionFamily, Environment, Loss, UpdateRule
+from ..families.cbf.roles import Barrier, Dynamics, Fallback, ReferenceController, SafetyFilter
 from ..predictors.base import Predictor
+from ..world.crowds.base import CrowdModel
 from ._core import (
     CheckList,
     CheckResult,
@@ -159,7 +159,7 @@ def role_of(plugin: Any) -> str:
 
 def checks_for(role: str) -> CheckList:
     """The check list of ``role`` (roles without their own list get the common checks)."""
-    from ..registry import RENAMED_ROLES, role_name
+    from ..core.registry import RENAMED_ROLES, role_name
 
     if role in RENAMED_ROLES:
         role = role_name(role)  # a role name of 0.2: its new name, with a warning
@@ -300,7 +300,7 @@ def discover(base: type, package: str = "conformal_control") -> list[type]:
 
 def registered_plugins(role: str | None = None) -> list[tuple[str, str, type | None, str | None]]:
     """Every registered plugin as ``(role, name, class or None, unavailability reason)``."""
-    from .. import registry
+    from ..core import registry
 
     out: list[tuple[str, str, type | None, str | None]] = []
     for entry in registry.entries(role):

@@ -26,7 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..base import declared_test_params, param_names
+from ..core.base import declared_test_params, param_names
 
 __all__ = [
     "CheckList",

@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.cbf.roles.Barrier` plugins."""
+"""Contract checks for :class:`~conformal_control.families.cbf.roles.Barrier` plugins."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.roles import Barrier
+from ..families.cbf.roles import Barrier
 from ._core import (
     CheckList,
     ContractError,

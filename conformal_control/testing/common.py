@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import (
+from ..core.base import (
     Capabilities,
     CompiledForm,
     DecisionFamily,
@@ -32,7 +32,7 @@ from ..base import (
     Settings,
     UpdateRule,
 )
-from ..spec import RUN_VALUES
+from ..core.spec import RUN_VALUES
 from ._core import (
     ContractError,
     deep_clone,
@@ -290,7 +290,7 @@ def check_no_mutable_defaults(plugin: Any) -> None:
     )
 
 
-#: Fields of :class:`~conformal_control.base.Capabilities` that mean something for one role
+#: Fields of :class:`~conformal_control.core.base.Capabilities` that mean something for one role
 #: only (keyed by the role's base class, resolved lazily: predictors and filters are a
 #: floor up); every other field applies to every role.
 _ROLE_CAPABILITIES: dict[str, tuple[str, ...]] = {
@@ -304,7 +304,7 @@ _RULE_VALUES = ("epsilon", "eta", "lambda_init", "lambda_min", "lambda_max")
 
 
 def _roles_of(cls: type) -> set[str]:
-    from ..cbf.roles import SafetyFilter
+    from ..families.cbf.roles import SafetyFilter
     from ..predictors.base import Predictor
 
     bases = {
@@ -319,12 +319,12 @@ def _roles_of(cls: type) -> set[str]:
 
 def check_capabilities(plugin: Any) -> None:
     """The plugin's class declares its capabilities as one
-    :class:`~conformal_control.base.Capabilities` object, consistently.
+    :class:`~conformal_control.core.base.Capabilities` object, consistently.
 
     Fields of another role keep their defaults; every ``run_values`` entry maps a
     constructor argument (or a settings group's ``<group>__<field>``) to a documented run
-    value (:data:`~conformal_control.spec.RUN_VALUES`); a declared compiled form is the one
-    :meth:`~conformal_control.base.Plugin.compiled_state` hands over; a rule's
+    value (:data:`~conformal_control.core.spec.RUN_VALUES`); a declared compiled form is the one
+    :meth:`~conformal_control.core.base.Plugin.compiled_state` hands over; a rule's
     ``lambda_params`` are constructor arguments and its ``guarantee`` a known kind; a
     trainable predictor takes ``weights`` and has ``fit``; a family's default rule
     parameters are the rule's run values.

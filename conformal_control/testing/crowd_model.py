@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.crowds.base.CrowdModel` plugins.
+"""Contract checks for :class:`~conformal_control.world.crowds.base.CrowdModel` plugins.
 
 A crowd model moves simulated pedestrians one time step at a time among agents it only
 sees (the robot first). The checks drive it on a small crowd of its own for a few seconds:
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..crowds.base import CrowdModel
+from ..world.crowds.base import CrowdModel
 from ._core import CheckList, ContractError, clone, plugin_label
 from .common import (
     check_capabilities,

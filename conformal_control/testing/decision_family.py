@@ -1,10 +1,10 @@
-"""Contract checks for :class:`~conformal_control.base.DecisionFamily` plugins.
+"""Contract checks for :class:`~conformal_control.core.base.DecisionFamily` plugins.
 
 A family's observations and decision inputs come from the environment it is made for,
 so every check drives the family through the stub loop of :mod:`.environment` in a
 *partner* environment its class provides through hooks (classmethods):
 
-``_unit_test_environment()``       a fresh :class:`~conformal_control.base.Environment`
+``_unit_test_environment()``       a fresh :class:`~conformal_control.core.base.Environment`
                                    producing what the family reads, with a short episode
                                    (required)
 ``_unit_test_params()``            constructor kwargs of the instances to check
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import DecisionFamily, Environment
+from ..core.base import DecisionFamily, Environment
 from ._core import CheckList, ContractError, deep_clone, expect, plugin_label
 from .common import (
     check_capabilities,

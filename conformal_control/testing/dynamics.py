@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.cbf.roles.Dynamics` plugins."""
+"""Contract checks for :class:`~conformal_control.families.cbf.roles.Dynamics` plugins."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..cbf.roles import Dynamics
+from ..families.cbf.roles import Dynamics
 from ._core import (
     CheckList,
     ContractError,

@@ -1,11 +1,12 @@
-"""Contract checks for :class:`~conformal_control.base.Environment` (gymnasium's ``check_env``).
+"""Contract checks for :class:`~conformal_control.core.base.Environment` (gymnasium's
+``check_env``).
 
 An environment's observations, decision inputs and truths have problem-specific types, and
 so do the decisions it applies: the kit cannot invent them. Each check therefore drives
 the environment through a short stub of the conformal loop with a *partner* decision
 family that the environment class provides through hooks (classmethods):
 
-``_unit_test_family()``   a fresh :class:`~conformal_control.base.DecisionFamily` whose
+``_unit_test_family()``   a fresh :class:`~conformal_control.core.base.DecisionFamily` whose
                           decisions the environment accepts (required)
 ``_unit_test_params()``   constructor kwargs of the instances to check, each giving a
                           short, finite episode (default ``[{}]``)
@@ -38,7 +39,7 @@ from typing import Any, TypeAlias
 
 import numpy as np
 
-from ..base import DecisionFamily, Environment
+from ..core.base import DecisionFamily, Environment
 from ._core import CheckList, ContractError, differ, expect, plugin_label, snapshot
 from .common import (
     check_docstring_parameters,

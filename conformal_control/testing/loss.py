@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.base.Loss` plugins.
+"""Contract checks for :class:`~conformal_control.core.base.Loss` plugins.
 
 A loss's inputs (an interval record and the revealed truth) depend on the decision family
 it goes with, so the kit cannot invent them: every loss class provides a
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Loss
+from ..core.base import Loss
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
     check_capabilities,

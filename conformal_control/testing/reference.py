@@ -1,10 +1,11 @@
-"""Contract checks for :class:`~conformal_control.cbf.roles.ReferenceController` plugins."""
+"""Contract checks for :class:`~conformal_control.families.cbf.roles.ReferenceController`
+plugins."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..cbf.roles import ReferenceController
+from ..families.cbf.roles import ReferenceController
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
     check_capabilities,

@@ -1,4 +1,4 @@
-"""Contract checks for :class:`~conformal_control.cbf.roles.SafetyFilter` plugins.
+"""Contract checks for :class:`~conformal_control.families.cbf.roles.SafetyFilter` plugins.
 
 Constraints are ``A @ u + b + lam >= 0`` row-wise. Every check recomputes the residuals of
 the returned decision itself instead of trusting the filter's status.
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cbf.roles import Fallback, FilterResult, SafetyFilter
+from ..families.cbf.roles import Fallback, FilterResult, SafetyFilter
 from ._core import CheckList, ContractError, assert_unchanged, clone, expect, plugin_label, snapshot
 from .common import (
     check_capabilities,
@@ -380,7 +380,7 @@ def check_fallback_decision(fallback: Fallback) -> None:
     """Run by a safety filter on infeasible problems, the fallback returns status
     'fallback' under its own name, a finite decision, and (when it claims a lambda or
     per-row lambdas) a decision that meets the rows there."""
-    from ..cbf.filters import Exact2DSafetyFilter, QPSafetyFilter
+    from ..families.cbf.filters import Exact2DSafetyFilter, QPSafetyFilter
 
     problems = [
         (np.array([0.3, 0.1]), np.array([[1.0, 0.0], [-1.0, 0.0]]), np.array([-5.0, -5.0])),

@@ -1,6 +1,6 @@
-"""Contract checks for :class:`~conformal_control.base.UpdateRule` plugins.
+"""Contract checks for :class:`~conformal_control.core.base.UpdateRule` plugins.
 
-Sign convention (whole toolkit, see :class:`~conformal_control.update_rules.FixedEtaRule`):
+Sign convention (whole toolkit, see :class:`~conformal_control.core.update_rules.FixedEtaRule`):
 a *smaller* lambda is *more conservative*, so a higher loss must never give a larger lambda.
 """
 
@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from ..base import UpdateRule
-from ..monitor import AgentMonitor
+from ..core.base import UpdateRule
+from ..core.monitor import AgentMonitor
 from ._core import CheckList, ContractError, clone, expect, plugin_label
 from .common import (
     check_capabilities,
@@ -183,7 +183,7 @@ def check_update_rule_nan_loss(rule: UpdateRule) -> None:
 
 
 def check_update_rule_per_agent(rule: UpdateRule) -> None:
-    """Run per agent (:class:`~conformal_control.monitor.AgentMonitor`: a copy of the rule
+    """Run per agent (:class:`~conformal_control.core.monitor.AgentMonitor`: a copy of the rule
     per agent), one agent's lambdas are the rule's own bit for bit, and each of two agents
     fed in turn follows the rule on its own losses only (no agent moves another's
     lambda). A rule without ``lambda_init`` cannot run per agent and is not checked."""

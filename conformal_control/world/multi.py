@@ -19,7 +19,7 @@ would report them); with ``sensor_history="observed"`` only the frames at which 
 was within robot ``i``'s own sensing radius are kept (NaN elsewhere).
 
 With ``information`` set, :meth:`MultiRobotWorld.state` also gives robot ``i``, at every
-control instant, a :class:`~conformal_control.cbf.reciprocal.PeerView` of the robots it
+control instant, a :class:`~conformal_control.families.cbf.reciprocal.PeerView` of the robots it
 sensed at the sampling time (what a reciprocal controller builds its rows from): their
 positions now and robot ``i``'s share of each pair, plus, by option,
 
@@ -32,7 +32,7 @@ positions now and robot ``i``'s share of each pair, plus, by option,
 
 **Yielding** (``"plan"`` only: it is communication). A robot may broadcast, with its plan,
 that it *yields*: its rows about the other robots gave way at its last decision (it is
-squeezed, :mod:`~conformal_control.cbf.reciprocal`). At the next control instant the
+squeezed, :mod:`~conformal_control.families.cbf.reciprocal`). At the next control instant the
 shares of its pairs are then recomputed from the broadcast flags, the same way for both
 robots of a pair: a yielding robot's share of a pair with a robot that does not yield is
 0 and its partner's 1 (the partner takes the whole pair constraint); two yielding robots,
@@ -42,7 +42,7 @@ Nothing else about another robot is ever handed out: not its lambda, predictor, 
 reference or command (except as the broadcast plan).
 
 **Pedestrians** are replayed from the recording, or simulated by a
-:class:`~conformal_control.crowds.crowd.Crowd` that sees every robot (position, velocity,
+:class:`~conformal_control.world.crowds.crowd.Crowd` that sees every robot (position, velocity,
 the scene's robot radius) at every control instant.
 
 **A robot that reaches its last goal** stops deciding; its plant is then commanded to
@@ -71,14 +71,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..cbf.controller import ControlState
-from ..cbf.loss import CBFTruth
-from ..cbf.reciprocal import INFORMATION, PeerView, pair_shares
-from ..cbf.roles import Dynamics
-from ..crowds.crowd import Crowd
+from ..core.spec import ROBOT_CHOICES
 from ..data.scene import Scene
+from ..families.cbf.controller import ControlState
+from ..families.cbf.loss import CBFTruth
+from ..families.cbf.reciprocal import INFORMATION, PeerView, pair_shares
+from ..families.cbf.roles import Dynamics
 from ..predictors.base import PredictionQuery, TruthUnavailableError
-from ..spec import ROBOT_CHOICES
+from .crowds.crowd import Crowd
 from .replay import FrameLog
 
 __all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]

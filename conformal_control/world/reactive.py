@@ -4,7 +4,7 @@
 :class:`~conformal_control.world.replay.ReplayEnvironment` (same sensor, histories,
 reveal of the true trajectories over each interval, frame log with ``d_min``, goals,
 collision counting), but after the robot's start frame the pedestrians' positions are
-simulated online by a :class:`~conformal_control.crowds.crowd.Crowd`: one model step per
+simulated online by a :class:`~conformal_control.world.crowds.crowd.Crowd`: one model step per
 control instant, fed with the robot's position and velocity at that instant. History
 before the start frame is the recording. Since the future depends on what the robot will
 do, a query's ``truth_provider`` raises
@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from .. import registry
-from ..base import param_names
-from ..cbf.loss import CBFTruth
-from ..crowds.crowd import Crowd, model_names
+from ..core import registry
+from ..core.base import param_names
 from ..data.scene import Scene
+from ..families.cbf.loss import CBFTruth
 from ..predictors.base import PredictionQuery, TruthUnavailableError
+from .crowds.crowd import Crowd, model_names
 from .replay import ReplayCursor, ReplayEnvironment
 
 __all__ = [
@@ -254,7 +254,7 @@ def make_environment(
     crowd_params : dict, optional
         For ``mixed``: ``model`` (``"social_force"`` by default or ``"orca"``) and
         ``radius`` (m, default :data:`DEFAULT_MIXED_RADIUS`). For every reactive crowd:
-        the :class:`~conformal_control.crowds.crowd.Crowd` parameters (``body_radius``,
+        the :class:`~conformal_control.world.crowds.crowd.Crowd` parameters (``body_radius``,
         ``waypoint_interval``, ``velocity_window``, ``max_speed_factor``,
         ``min_max_speed``, ``arrival_radius``, ``max_delay``, ``seed``) and the model's
         own parameters (e.g. ``A``, ``tau`` or ``time_horizon``), in SI units.

@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from ..base import CompiledForm, Environment, first_test_instance
-from ..cbf.controller import ConformalCBFController, ControlState
-from ..cbf.loss import CBFTruth
-from ..cbf.roles import Dynamics
+from ..core.base import CompiledForm, Environment, first_test_instance
 from ..data.scene import Scene, SparseTracks
+from ..families.cbf.controller import ConformalCBFController, ControlState
+from ..families.cbf.loss import CBFTruth
+from ..families.cbf.roles import Dynamics
 from ..predictors.base import PredictionQuery
 
 __all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment"]
@@ -135,8 +135,8 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
 
     @classmethod
     def _unit_test_params(cls) -> list[dict[str, Any]]:
-        from ..cbf.dynamics import VelocityTrackingDoubleIntegrator
         from ..data.synthetic import crossing_scene
+        from ..families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 
         dynamics = VelocityTrackingDoubleIntegrator(K_acc=10.0)
         return [

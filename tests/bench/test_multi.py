@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from conformal_control.bench.multi import (
+from conformal_control.data.suites import dump_manifest, load_suite
+from conformal_control.experiments.bench.multi import (
     LAYOUTS,
     entry_tasks,
     is_multi_folder,
@@ -19,8 +20,7 @@ from conformal_control.bench.multi import (
     run_multi_bench,
     write_multi_report,
 )
-from conformal_control.data.suites import dump_manifest, load_suite
-from conformal_control.sim.multi import check_tasks
+from conformal_control.runs.fleet import check_tasks
 
 P, Q = (0.0, 0.0), (10.0, 0.0)
 
@@ -90,7 +90,7 @@ def test_the_shipped_suite_is_the_generator_s_output():
     text = dump_manifest(make_multi_manifest(suite.base))
     shipped = (
         __import__("pathlib").Path(__file__).resolve().parents[2]
-        / "conformal_control/bench/multi_manifests/multi-crossings-v1.json"
+        / "conformal_control/experiments/bench/multi_manifests/multi-crossings-v1.json"
     )
     assert shipped.read_text() == text
     base = load_suite(suite.base)
@@ -222,9 +222,9 @@ def test_run_report_and_resume(tmp_path, data_root):
 def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
     # the solo arm's figures, recomputed from the run directories of each robot of the
     # entry run alone on its own task (run_multi with that one task, saved)
-    from conformal_control.bench.multi import entry_scene
-    from conformal_control.bench.runner import plan_methods
-    from conformal_control.sim.multi import run_multi
+    from conformal_control.experiments.bench.multi import entry_scene
+    from conformal_control.experiments.bench.suite import plan_methods
+    from conformal_control.runs.fleet import run_multi
 
     out = tmp_path / "bench"
     res = run_multi_bench(
@@ -256,9 +256,9 @@ def test_the_solo_baseline_is_each_robot_run_alone(tmp_path, data_root):
 
 
 def test_the_base_run_gives_predictor_seed_and_the_robots_information():
-    from conformal_control.bench.multi import multi_bench_base
-    from conformal_control.exceptions import InputError
-    from conformal_control.spec import Robots, RunSpec
+    from conformal_control.core.exceptions import InputError
+    from conformal_control.core.spec import Robots, RunSpec
+    from conformal_control.experiments.bench.multi import multi_bench_base
 
     assert multi_bench_base(None) == ("constant_velocity", 0, "plan", "pedestrians", {})
     base = RunSpec(
@@ -278,7 +278,7 @@ def test_bench_run_robots_set_gives_the_reciprocal_options_and_refuses_the_rest(
     tmp_path, monkeypatch, capsys
 ):
     # `bench run --robots M --set KEY=VALUE` used to drop --set without a word
-    import conformal_control.bench.multi as bm
+    import conformal_control.experiments.bench.multi as bm
     from conformal_control.cli import main
 
     seen = {}
@@ -322,7 +322,7 @@ def test_a_worker_killed_leaves_fleet_episodes_unfinished_not_failed(
 ):
     """A pool worker killed used to end the command (BrokenProcessPool); its episodes are
     now left unfinished, the summary says so, and the report says so on its first line."""
-    import conformal_control.bench.multi as multi
+    import conformal_control.experiments.bench.multi as multi
 
     monkeypatch.setattr(multi, "_run_one", _dies_when_reciprocal)
     out = tmp_path / "bench"

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conformal_control.bench import planar
-from conformal_control.bench.planar import (
+from conformal_control.experiments.bench import planar
+from conformal_control.experiments.bench.planar import (
     COLLISION_M,
     PLANAR_METHODS,
     PUBLISHED,
@@ -284,7 +284,7 @@ def test_offline_calibration_leaves_the_scenario_window_out(data_root):
     full = planar.scenario_envelope(task, 100, pub, "constant_velocity", data_root)
     held = planar.scenario_envelope(task, 100, ours, "constant_velocity", data_root)
     rec = planar.recording(task, data_root)
-    from conformal_control.bench.planar_fcp import scenario_samples
+    from conformal_control.experiments.bench.planar_fcp import scenario_samples
 
     lo, hi = scenario_samples(rec, rec.sample(100, task.frame_offset), task.max_steps)
     assert hi - lo + 1 >= task.max_steps

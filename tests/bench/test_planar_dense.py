@@ -7,21 +7,23 @@ from importlib import resources
 
 import numpy as np
 
-from conformal_control.bench import planar, planar_dense
-from conformal_control.bench.planar_dense import (
+from conformal_control.experiments.bench import planar, planar_dense
+from conformal_control.experiments.bench.planar_dense import (
     dense_report,
     dense_tasks,
     dump_manifest,
     generate_manifest,
     load_manifest,
 )
-from conformal_control.bench.planar_fcp import scenario_samples
-from conformal_control.bench.stats import bootstrap_mean, paired_comparison
+from conformal_control.experiments.bench.planar_fcp import scenario_samples
+from conformal_control.experiments.bench.stats import bootstrap_mean, paired_comparison
 
 
 def test_the_shipped_tasks_are_regenerated_byte_for_byte(data_root):
     shipped = (
-        resources.files("conformal_control.bench") / "planar_manifests" / "fcp-planar-dense.json"
+        resources.files("conformal_control.experiments.bench")
+        / "planar_manifests"
+        / "fcp-planar-dense.json"
     ).read_bytes()
     assert dump_manifest(generate_manifest(data_root)).encode() == shipped
 
@@ -130,7 +132,7 @@ def test_bench_run_and_report_on_the_dense_suite(tmp_path, data_root, capsys):
 def test_fcp_calibrates_once_per_part_on_the_other_part(data_root):
     import dataclasses
 
-    from conformal_control.bench.planar import PLANAR_METHODS, scenario_envelope
+    from conformal_control.experiments.bench.planar import PLANAR_METHODS, scenario_envelope
 
     method = PLANAR_METHODS["fcp_mpc"]
     method = dataclasses.replace(

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from conformal_control.bench.regret import compare_with_grid, issue_targets
-from conformal_control.bench.report import write_report
+from conformal_control.experiments.bench.regret import compare_with_grid, issue_targets
+from conformal_control.experiments.bench.report import write_report
 
 #: (success, reached, collision frames) per method, per shift: a fixed grid of three, an
 #: adaptive method that no member dominates under delay, one that fixed[-30] dominates.

@@ -7,7 +7,7 @@ import csv
 import numpy as np
 import pytest
 
-from conformal_control.bench.report import _pareto, summarise, write_report
+from conformal_control.experiments.bench.report import _pareto, summarise, write_report
 
 
 def rows() -> list[dict]:
@@ -97,7 +97,7 @@ def test_canonical_order_is_the_sort_by_every_key() -> None:
     them: it must equal sorting every row by all four keys."""
     import json
 
-    from conformal_control.bench.report import canonical_order
+    from conformal_control.experiments.bench.report import canonical_order
 
     data = rows()
     data += [{**r, "n_collide": 7, "shift": "delay-0.5s"} for r in data[:6]]

@@ -6,20 +6,20 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control.bench.methods import (
+from conformal_control.cli import main
+from conformal_control.experiments.bench.methods import (
     DEFAULT_METHODS,
     METHOD_FAMILIES,
     available,
     expand_methods,
 )
-from conformal_control.bench.runner import bench_configs, read_rows, run_bench
-from conformal_control.cli import main
+from conformal_control.experiments.bench.suite import bench_configs, read_rows, run_bench
 
 
 def test_every_method_family_is_available_and_runs_one_scenario(data_root: Path) -> None:
     """One scenario end to end for each method family, through the public builder."""
     from conformal_control.data import load_scene
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     scene = load_scene("scenario:crossings-v1/sdd-little-0-w004", data_root)
     limit = scene.meta["max_frames"]
@@ -136,9 +136,9 @@ def test_tune_run_report_end_to_end(tmp_path: Path, data_root: Path, capsys) -> 
 
 
 def test_the_base_run_gives_predictor_crowd_seed_and_si_parameters_only() -> None:
-    from conformal_control.bench.runner import bench_base
-    from conformal_control.exceptions import InputError
-    from conformal_control.spec import RunSpec
+    from conformal_control.core.exceptions import InputError
+    from conformal_control.core.spec import RunSpec
+    from conformal_control.experiments.bench.suite import bench_base
 
     assert bench_base(None) == ("constant_velocity", {}, "replay", {}, 0, {})
     base = RunSpec(
@@ -174,7 +174,7 @@ def _tuned_file(tmp_path, split):
 
 
 def test_a_tuned_file_must_say_its_split(tmp_path) -> None:
-    from conformal_control.bench.runner import load_tuned
+    from conformal_control.experiments.bench.suite import load_tuned
 
     with pytest.raises(ValueError, match="does not say which split its values were tuned on"):
         load_tuned(_tuned_file(tmp_path, None), "crossings-v2")
@@ -190,8 +190,8 @@ def test_bench_run_warns_when_the_tuned_split_is_reported(
 ) -> None:
     import warnings
 
-    from conformal_control.bench.runner import check_tuned_split, load_tuned
-    from conformal_control.exceptions import TunedOnReportedSplitWarning
+    from conformal_control.core.exceptions import TunedOnReportedSplitWarning
+    from conformal_control.experiments.bench.suite import check_tuned_split, load_tuned
 
     tuned = load_tuned(_tuned_file(tmp_path, tuned_on), "crossings-v2")
     with warnings.catch_warnings(record=True) as seen:

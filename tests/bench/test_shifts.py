@@ -7,12 +7,22 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control.bench import shifts as shifts_module
-from conformal_control.bench.methods import FAMILIES, Family, expand_methods, register_family
-from conformal_control.bench.runner import _BenchLock, bench_configs, plan_methods, read_bench
-from conformal_control.bench.shifts import SHIFTS, get_shift, parse_shifts
-from conformal_control.bench.tune import RULE, choose
 from conformal_control.cli import main
+from conformal_control.experiments.bench import shifts as shifts_module
+from conformal_control.experiments.bench.methods import (
+    FAMILIES,
+    Family,
+    expand_methods,
+    register_family,
+)
+from conformal_control.experiments.bench.shifts import SHIFTS, get_shift, parse_shifts
+from conformal_control.experiments.bench.suite import (
+    _BenchLock,
+    bench_configs,
+    plan_methods,
+    read_bench,
+)
+from conformal_control.experiments.bench.tune import RULE, choose
 
 
 def test_every_shift_is_documented_in_the_table():
@@ -97,7 +107,7 @@ def test_every_family_is_data():
 
 
 def test_tuned_values_plan_the_methods():
-    from conformal_control.bench.runner import Tuned
+    from conformal_control.experiments.bench.suite import Tuned
 
     tuned = Tuned({"fixed": -10.0, "conformal": -0.1}, "x", "0", {})
     names = [m.name for m in plan_methods(["nolearn", "fixed", "conformal"], tuned)]
@@ -179,7 +189,7 @@ def test_runs_of_another_condition_are_refused(tmp_path, data_root, capsys):
 
 
 def test_report_refuses_pooled_conditions(tmp_path: Path):
-    from conformal_control.bench.report import write_report
+    from conformal_control.experiments.bench.report import write_report
 
     rows = [
         {"scenario": "s1", "method": "nolearn", "family": "nolearn", "status": "ok",
@@ -192,7 +202,7 @@ def test_report_refuses_pooled_conditions(tmp_path: Path):
 
 
 def test_tune_refuses_families_without_a_grid(tmp_path):
-    from conformal_control.bench.tune import tune
+    from conformal_control.experiments.bench.tune import tune
 
     with pytest.raises(ValueError, match="method 'nolearn' has no setting to tune"):
         tune(tmp_path / "t", families=["nolearn"])
@@ -223,7 +233,7 @@ def test_a_method_redefined_under_its_name_is_refused(tmp_path, data_root, capsy
 def test_report_names_what_differs_between_pooled_runs(tmp_path: Path):
     """Rows of two conditions in one folder (written by an older version, or by hand):
     the report refuses them and names the configuration that differs."""
-    from conformal_control.bench.report import write_report
+    from conformal_control.experiments.bench.report import write_report
 
     def row(crowd, k_rep):
         return {"scenario": "s1", "method": "nolearn", "family": "nolearn", "status": "ok",
@@ -242,12 +252,12 @@ def test_report_names_what_differs_between_pooled_runs(tmp_path: Path):
 
 def test_the_tuned_values_ship_with_the_package():
     """`bench run` uses the dev-tuned values shipped for the default suite."""
-    from conformal_control.bench.runner import DEFAULT_SUITE, load_tuned
-    from conformal_control.bench.tune import DEFAULT_TUNED, RULE
+    from conformal_control.experiments.bench.suite import DEFAULT_SUITE, load_tuned
+    from conformal_control.experiments.bench.tune import DEFAULT_TUNED, RULE
 
     tuned = load_tuned("default", DEFAULT_SUITE)
-    assert tuned is not None, "conformal_control/bench/tuned/crossings-v2.json is missing"
-    assert tuned.source == "shipped:conformal_control/bench/tuned/crossings-v2.json"
+    assert tuned is not None, "conformal_control/experiments/bench/tuned/crossings-v2.json missing"
+    assert tuned.source == "shipped:conformal_control/experiments/bench/tuned/crossings-v2.json"
     assert tuned.data["split"] == "dev" and tuned.data["rule"] == RULE
     # the default families, and families tuned since with `bench tune --methods`
     assert set(DEFAULT_TUNED) <= set(tuned.values)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.bench.stats import bootstrap_mean, paired_comparison
+from conformal_control.experiments.bench.stats import bootstrap_mean, paired_comparison
 
 
 def test_bootstrap_ci_covers_the_true_mean_at_its_level() -> None:
@@ -86,7 +86,7 @@ def test_the_batched_bootstrap_is_scipys_to_the_bit() -> None:
     """``bootstrap_means`` draws the indices once per size and sums integer-valued samples
     through their counts: every bound must still be exactly scipy's (rates, counts, large
     counts beyond the exact-sum shortcut, floats, NaNs; samples of shared and lone sizes)."""
-    from conformal_control.bench.stats import bootstrap_means
+    from conformal_control.experiments.bench.stats import bootstrap_means
 
     rng = np.random.default_rng(11)
     samples: list[np.ndarray] = []
@@ -110,7 +110,7 @@ def test_the_batched_bootstrap_is_scipys_to_the_bit() -> None:
 
 
 def test_batched_paired_comparisons_equal_one_at_a_time() -> None:
-    from conformal_control.bench.stats import paired_comparisons
+    from conformal_control.experiments.bench.stats import paired_comparisons
 
     rng = np.random.default_rng(4)
     pairs = []

@@ -10,12 +10,21 @@ import numpy as np
 import pytest
 import yaml
 
-from conformal_control.bench import dump_manifest, load_scenario, load_suite, validate_manifest
-from conformal_control.bench.generator import CROSSINGS_V1, assign_splits, generate_suite
 from conformal_control.cli import main
 from conformal_control.data import suites as suites_module
 from conformal_control.data.suites import shipped_scenario, suite_names
-from conformal_control.sim import run_episode
+from conformal_control.experiments.bench import (
+    dump_manifest,
+    load_scenario,
+    load_suite,
+    validate_manifest,
+)
+from conformal_control.experiments.bench.generator import (
+    CROSSINGS_V1,
+    assign_splits,
+    generate_suite,
+)
+from conformal_control.runs.episode import run_episode
 
 SDD_RAW_VIDEOS = {
     "deathCircle": (2, 4),
@@ -240,7 +249,7 @@ def test_shipped_scenarios_are_read_once_and_again_when_the_file_changes(
 def test_v2_replays_biwi_eth_on_its_original_clock(data_root) -> None:
     """crossings-v2's biwi_eth scenarios read the recording at 0.667 s per row: walking
     speeds, where v1's 0.4 s gives 2.45 m/s."""
-    from conformal_control.bench.generator import CROSSINGS_V2
+    from conformal_control.experiments.bench.generator import CROSSINGS_V2
 
     v1, v2 = load_suite("crossings-v1"), load_suite("crossings-v2")
     validate_manifest(v2.manifest)
@@ -275,7 +284,7 @@ def test_v2_replays_biwi_eth_on_its_original_clock(data_root) -> None:
 def test_v2_nolearn_record_is_the_benchmark_nolearn(data_root) -> None:
     """v2 records the nolearn outcome with the scenes' defaults: bench run's nolearn, with
     the edge rule pinned off as the record is (issue 30)."""
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     v2 = load_suite("crossings-v2")
     sc = next(s for s in v2.scenarios_for("test") if s.nolearn and s.nolearn["n_collide"] > 0)

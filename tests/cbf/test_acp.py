@@ -7,24 +7,24 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import ACIRule
+from conformal_control.data.scene import scene_from_tracks
+from conformal_control.data.tracks import Tracks
+from conformal_control.data.units import SI
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
     ConformalConstraint,
     QPSafetyFilter,
 )
-from conformal_control.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.data.scene import scene_from_tracks
-from conformal_control.data.tracks import Tracks
-from conformal_control.data.units import SI
-from conformal_control.flagship.params import resolve_params
-from conformal_control.loop import ConformalLoop
+from conformal_control.families.cbf.acp import ACPController, ACPMiscoverageLoss, region_radii
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.predictors import ConstantVelocityPredictor
-from conformal_control.update_rules import ACIRule
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 
 
@@ -242,7 +242,7 @@ def test_end_to_end_on_crossing_larger_regions_keep_the_robot_further(crossing) 
 
 @pytest.mark.data
 def test_end_to_end_on_an_sdd_scenario_of_the_suite(data_root) -> None:
-    from conformal_control.bench import load_scenario, load_suite
+    from conformal_control.experiments.bench import load_scenario, load_suite
 
     suite = load_suite("crossings-v1")
     sc = next(s for s in suite.scenarios if s.source == "sdd" and s.collided_nolearn)

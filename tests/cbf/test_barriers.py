@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.cbf import APFBarrier
+from conformal_control.families.cbf import APFBarrier
 
 
 def literal_h(b: APFBarrier, x_ego: np.ndarray, x_agent: np.ndarray) -> float:

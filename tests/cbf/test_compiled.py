@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -16,9 +16,9 @@ from conformal_control.cbf import (
     Exact2DSafetyFilter,
     VelocityTrackingDoubleIntegrator,
 )
-from conformal_control.cbf import kernels2d as k
-from conformal_control.cbf.reciprocal import Reciprocity
-from conformal_control.flagship.params import resolve_params
+from conformal_control.families.cbf import kernels2d as k
+from conformal_control.families.cbf.reciprocal import Reciprocity
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.replay import ReplayEnvironment
 
 
@@ -128,7 +128,7 @@ def test_compiled_step_matches_python_path_on_crossing(crossing, fallback) -> No
 def test_compiled_acp_step_matches_its_python_path(crossing, fallback) -> None:
     """The acp family's compiled step (the barrier's d_c raised per horizon step, no
     slack) decides as its generic path (constraint_rows, slack 0)."""
-    from conformal_control.cbf.acp import ACPController
+    from conformal_control.families.cbf.acp import ACPController
 
     env, fused, generic = twin_controllers(crossing, {"a": 2.0}, fallback=fallback)
     parts = ("predictor", "constraint", "safety_filter", "reference", "substeps")

@@ -19,7 +19,7 @@ import pickle
 import numpy as np
 import pytest
 
-from conformal_control.cbf import (
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -27,7 +27,7 @@ from conformal_control.cbf import (
     ControlState,
     Exact2DSafetyFilter,
 )
-from conformal_control.cbf.interp import interpolate_at_substeps
+from conformal_control.families.cbf.interp import interpolate_at_substeps
 from conformal_control.predictors import OraclePredictor, PredictionQuery
 
 HORIZON, SUBSTEPS, DT = 4, 4, 0.1

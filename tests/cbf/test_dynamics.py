@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.dynamics import (
+from conformal_control.families.cbf.dynamics import (
     DoubleIntegrator,
     Unicycle,
     UnicycleLookahead,
     VelocityTrackingDoubleIntegrator,
 )
-from conformal_control.cbf.roles import Dynamics
+from conformal_control.families.cbf.roles import Dynamics
 
 
 def test_exact_unicycle_follows_the_circle_of_constant_v_and_omega():

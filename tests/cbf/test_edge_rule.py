@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from conformal_control.cbf import (
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     ConformalCBFController,
@@ -28,12 +28,12 @@ from conformal_control.cbf import (
     ControlState,
     Exact2DSafetyFilter,
 )
-from conformal_control.cbf.filters.piqp import QPSafetyFilter
-from conformal_control.cbf.kernels2d import ESCAPE_WIDTH
-from conformal_control.cbf.reciprocal import PeerView, Reciprocity
-from conformal_control.cbf.roles import EscapeRows, FilterResult, SafetyFilter
-from conformal_control.cbf.speed import speed_polygon
-from conformal_control.cbf.stepwise import StepwiseCBF, Stream
+from conformal_control.families.cbf.filters.piqp import QPSafetyFilter
+from conformal_control.families.cbf.kernels2d import ESCAPE_WIDTH
+from conformal_control.families.cbf.reciprocal import PeerView, Reciprocity
+from conformal_control.families.cbf.roles import EscapeRows, FilterResult, SafetyFilter
+from conformal_control.families.cbf.speed import speed_polygon
+from conformal_control.families.cbf.stepwise import StepwiseCBF, Stream
 from conformal_control.predictors import ConstantVelocityPredictor
 
 D_C = 1.0
@@ -381,10 +381,10 @@ def test_filter_counts_the_rule_deciding_alone() -> None:
 
 # ------------------------------------------------------------------------------ lambda's floor
 def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
-    from conformal_control.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
-    from conformal_control.exceptions import InputError
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.families.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"a": 4.0}, units="si")
@@ -407,9 +407,9 @@ def test_the_cbf_gets_a_default_lambda_floor_unless_the_run_gives_one() -> None:
 def test_a_fixed_lambda_below_the_default_floor_runs_at_that_lambda() -> None:
     # the default floor clipped a fixed lambda of -45/s to -40/s without a count (issue 31's
     # fixed-lambda grid): a default never overrides the run's own lambda_init
-    from conformal_control.cbf.feasibility import DEFAULT_FLOOR_SHARE
     from conformal_control.data import load_scene
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.families.cbf.feasibility import DEFAULT_FLOOR_SHARE
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"a": 4.0}, units="si")
@@ -432,7 +432,7 @@ def test_a_fixed_lambda_below_the_default_floor_runs_at_that_lambda() -> None:
 
 def test_a_default_lambda_init_starts_inside_the_bounds_a_given_one_never_moves() -> None:
     from conformal_control.data import load_scene
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"lambda_max": -0.5}, units="si")
@@ -447,7 +447,7 @@ def test_a_default_lambda_init_starts_inside_the_bounds_a_given_one_never_moves(
 
 def test_a_fixed_lambda_below_the_default_floor_is_the_episodes_lambda() -> None:
     import conformal_control as cc
-    from conformal_control.exceptions import GoalNotReachedWarning
+    from conformal_control.core.exceptions import GoalNotReachedWarning
 
     unit = 30.0  # the crossing scene's lambda is per frame at 30 frames per second
     with pytest.warns(GoalNotReachedWarning):
@@ -456,9 +456,9 @@ def test_a_fixed_lambda_below_the_default_floor_is_the_episodes_lambda() -> None
 
 
 def test_the_escape_margin_is_a_run_parameter() -> None:
+    from conformal_control.core.exceptions import InputError
     from conformal_control.data import load_scene
-    from conformal_control.exceptions import InputError
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     default = build_flagship(scene, {}, units="si").constraint

@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from conformal_control import registry
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.families.cbf import (
     APFBarrier,
     ConformalConstraint,
     Exact2DSafetyFilter,

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, nnls
 
-from conformal_control import registry
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.families.cbf import (
     Exact2DSafetyFilter,
     Fallback,
     FilterResult,
@@ -18,7 +18,7 @@ from conformal_control.cbf import (
     QPSafetyFilter,
     Relax,
 )
-from conformal_control.cbf.fallbacks import GoalAware
+from conformal_control.families.cbf.fallbacks import GoalAware
 from conformal_control.testing import check_fallback
 
 BACKENDS = [QPSafetyFilter, Exact2DSafetyFilter]
@@ -236,9 +236,9 @@ def _lp_feasible(A: np.ndarray, rhs: np.ndarray, S: np.ndarray, s: np.ndarray) -
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> None:
-    from conformal_control.cbf import ConformalConstraint
-    from conformal_control.cbf.barriers import APFBarrier
-    from conformal_control.cbf.speed import speed_polygon
+    from conformal_control.families.cbf import ConformalConstraint
+    from conformal_control.families.cbf.barriers import APFBarrier
+    from conformal_control.families.cbf.speed import speed_polygon
 
     con = ConformalConstraint(APFBarrier(K_rep=1.0, rho0=10.0, d_c=1.0), a=10.0)
     S, s, _, _ = speed_polygon(16, 2.0)
@@ -306,7 +306,7 @@ def test_goal_aware_meets_the_imminent_rows_and_heads_for_the_goal(backend) -> N
 
 
 def test_time_to_contact() -> None:
-    from conformal_control.cbf.constraint import time_to_contact
+    from conformal_control.families.cbf.constraint import time_to_contact
 
     x = np.zeros(2)
     xp = np.array([[3.0, 0.0], [3.0, 0.0], [0.5, 0.0], [3.0, 2.0], [-3.0, 0.0]])

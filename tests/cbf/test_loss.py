@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import (
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf import (
     APFBarrier,
     CBFGapLoss,
     CBFIntervalRecord,
     CBFTruth,
     ConformalConstraint,
 )
-from conformal_control.sim import run_episode
-from conformal_control.update_rules import FixedEtaRule
+from conformal_control.runs.episode import run_episode
 
 
 def s(lam: float, c: float) -> float:

@@ -9,10 +9,15 @@ import numba
 import numpy as np
 import pytest
 
-from conformal_control.cbf.pyhypot import EXACT_FOR_THIS_PYTHON, hypot_fma, hypot_split, py_hypot
-from conformal_control.jit import compile_now
+from conformal_control.core.jit import compile_now
+from conformal_control.families.cbf.pyhypot import (
+    EXACT_FOR_THIS_PYTHON,
+    hypot_fma,
+    hypot_split,
+    py_hypot,
+)
 
-# the compiled kernels (interpreted, py_hypot is math.hypot itself; see conformal_control.jit)
+# the compiled kernels (interpreted, py_hypot is math.hypot itself; see conformal_control.core.jit)
 compile_now()
 
 

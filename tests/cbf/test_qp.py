@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, nnls
 
-from conformal_control import registry
-from conformal_control.cbf import QPSafetyFilter, VelocityFilter
+from conformal_control.core import registry
+from conformal_control.families.cbf import QPSafetyFilter, VelocityFilter
 
 #: every registered velocity safety-filter backend (qp, exact2d, and any plugin's)
 BACKENDS = [

@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.barriers import APFBarrier
-from conformal_control.cbf.constraint import ConformalConstraint
-from conformal_control.cbf.controller import ConformalCBFController
-from conformal_control.cbf.filters.exact2d import Exact2DSafetyFilter
-from conformal_control.cbf.loss import CBFGapLoss
-from conformal_control.cbf.reciprocal import (
+from conformal_control.families.cbf.barriers import APFBarrier
+from conformal_control.families.cbf.constraint import ConformalConstraint
+from conformal_control.families.cbf.controller import ConformalCBFController
+from conformal_control.families.cbf.filters.exact2d import Exact2DSafetyFilter
+from conformal_control.families.cbf.loss import CBFGapLoss
+from conformal_control.families.cbf.reciprocal import (
     INFORMATION,
     PeerView,
     Reciprocity,
@@ -23,8 +23,8 @@ from conformal_control.cbf.reciprocal import (
     peer_rows,
     sidestep,
 )
-from conformal_control.cbf.records import CBFTruth, ControlState
-from conformal_control.cbf.reference import AttractiveField
+from conformal_control.families.cbf.records import CBFTruth, ControlState
+from conformal_control.families.cbf.reference import AttractiveField
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 
@@ -108,7 +108,7 @@ def test_a_robot_row_with_a_margin_keeps_two_robot_radii():
 
 # ------------------------------------------------------------------------------ the loss
 def _record_for(view_positions, v_assumed, share, x_ego, v_ego, steps):
-    from conformal_control.cbf.records import CBFIntervalRecord
+    from conformal_control.families.cbf.records import CBFIntervalRecord
 
     return CBFIntervalRecord(
         ids=np.array([10]),
@@ -268,7 +268,7 @@ def test_sidestep_turns_away_from_the_robot_ahead_only_when_held_back():
 def _squeeze(rng, n_ped=3, n_rob=2):
     """Rows of a robot at the origin among pedestrians and robots close around it, walking
     at it: the pedestrians' rows, the robots' barrier rows and their floor rows."""
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     c = ConformalConstraint(APFBarrier(K_rep=0.5, rho0=3.0, d_c=0.7), a=2.0)
     ang = rng.uniform(0, 2 * np.pi, n_ped + n_rob)
@@ -283,7 +283,7 @@ def _squeeze(rng, n_ped=3, n_rob=2):
 
 
 def test_the_priority_order_robots_then_pedestrians_then_floors():
-    from conformal_control.cbf.reciprocal import priority_relax
+    from conformal_control.families.cbf.reciprocal import priority_relax
 
     f = Exact2DSafetyFilter(v_max=2.0)
     f.reset()
@@ -320,7 +320,7 @@ def test_the_priority_order_robots_then_pedestrians_then_floors():
 
 
 def test_floor_rows_keep_a_pair_apart_when_both_keep_them():
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     rng = np.random.default_rng(5)
     for _ in range(50):
@@ -346,8 +346,8 @@ def test_the_robot_rows_least_slack_is_the_lp_optimum():
     # the vertex enumeration of priority_relax's stage 1 against a linear program solver
     from scipy.optimize import linprog
 
-    from conformal_control.cbf.reciprocal import _robot_slacks
-    from conformal_control.cbf.speed import speed_polygon
+    from conformal_control.families.cbf.reciprocal import _robot_slacks
+    from conformal_control.families.cbf.speed import speed_polygon
 
     S, s_poly, _, _ = speed_polygon(16, 2.0)
     rng = np.random.default_rng(7)
@@ -380,7 +380,7 @@ def test_the_robot_rows_least_slack_is_the_lp_optimum():
 
 # -------------------------------------------------------------------- floor margin
 def test_floor_rows_aim_at_the_margin_and_margin_0_is_the_plain_rows_bit_for_bit():
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     rng = np.random.default_rng(11)
     for _ in range(20):
@@ -411,7 +411,7 @@ def test_a_head_on_pair_on_its_floor_rows_keeps_the_margin_less_one_step_s_slack
     # 1/a) (the worst e is 2 v_max / a), so the pair can overshoot the target by at most
     # slack = 2 v_max max(0, dt - 1/a): 0 when a dt <= 1 (a = 2), 0.267 m for a dt = 1.5.
     # This is the bound asserted; with margin >= slack the pair never touches (d >= d_c)
-    from conformal_control.cbf.reciprocal import floor_rows
+    from conformal_control.families.cbf.reciprocal import floor_rows
 
     d_c, dt, v_max = 0.8, 0.4, 1.0
     slack = 2 * v_max * max(0.0, dt - 1 / a)

@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import StepwiseCBF, Stream
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.sim import build_flagship, run_episode
+from conformal_control.families.cbf import StepwiseCBF, Stream
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.runs.build import build_flagship
+from conformal_control.runs.episode import run_episode
 
 
 def drive(scene, fl, ctrl: StepwiseCBF, max_frames: int):
@@ -196,7 +197,7 @@ def test_rates_and_gains_are_checked(name, value) -> None:
 
 def test_the_same_message_as_the_command_line_for_epsilon() -> None:
     from conformal_control.data import load_scene
-    from conformal_control.flagship.params import resolve_params
+    from conformal_control.runs.params import resolve_params
 
     with pytest.raises(ValueError) as cli:
         resolve_params(load_scene("crossing"), {"epsilon": 5.0})

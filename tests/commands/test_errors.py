@@ -39,7 +39,7 @@ def test_os_errors_name_the_file() -> None:
 
 
 def test_a_bug_is_reported_as_a_bug(monkeypatch, tmp_path: Path, capsys) -> None:
-    import conformal_control.sim.episode as episode
+    import conformal_control.runs.episode as episode
 
     def broken(*a: object, **k: object) -> None:
         raise TypeError("unsupported operand")

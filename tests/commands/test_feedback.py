@@ -10,17 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import conformal_control.progress as progress_mod
+import conformal_control.core.progress as progress_mod
 from conformal_control.cli import main
-from conformal_control.exceptions import (
+from conformal_control.core.exceptions import (
     ConformalControlWarning,
     FeasibilityWarning,
     GoalNotReachedWarning,
     NoUpdatesWarning,
     SuspiciousValueWarning,
 )
-from conformal_control.flagship.params import resolve_params
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
+from conformal_control.runs.params import resolve_params
 
 
 def warning_lines(err: str) -> list[str]:
@@ -74,7 +74,7 @@ def test_training_and_evaluation_report_progress(
 
 
 def test_chunked_evaluation_equals_one_call(ethucy_dir: Path) -> None:
-    from conformal_control import registry
+    from conformal_control.core import registry
     from conformal_control.predictors.evaluation import dataset_windows, evaluate_predictor
     from conformal_control.predictors.training import (
         evaluate_with_progress as _evaluate_with_progress,

@@ -13,16 +13,16 @@ from pathlib import Path
 import pytest
 
 import conformal_control as cc
-import conformal_control.progress as progress_mod
+import conformal_control.core.progress as progress_mod
 from conformal_control.cli import EXIT_ERROR, build_parser, main
-from conformal_control.data.scenes import PAPER_SCENES
-from conformal_control.exceptions import (
+from conformal_control.core.exceptions import (
     GoalNotReachedWarning,
     InputError,
     SuspiciousValueWarning,
 )
-from conformal_control.flagship.params import resolve_params
-from conformal_control.spec import PLAUSIBLE_SI, Parameters
+from conformal_control.core.spec import PLAUSIBLE_SI, Parameters
+from conformal_control.data.scenes import PAPER_SCENES
+from conformal_control.runs.params import resolve_params
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -313,7 +313,7 @@ def test_run_keywords_get_a_did_you_mean(kwargs: dict, words: str) -> None:
 
 
 # ------------------------------------------------------------------------------ advice
-@pytest.mark.filterwarnings("ignore::conformal_control.exceptions.FeasibilityWarning")
+@pytest.mark.filterwarnings("ignore::conformal_control.core.exceptions.FeasibilityWarning")
 def test_below_the_floor_the_missed_goal_is_blamed_on_the_fallback(crossing) -> None:
     with pytest.warns(GoalNotReachedWarning) as rec:  # the default lambda floor opened
         res = cc.run(crossing, epsilon=-0.45, params={"lambda_min": -math.inf})
@@ -332,7 +332,7 @@ def test_the_floor_advice_knows_the_lambda_min_given(nexus4) -> None:
     """The issue: `--param a=1 --param lambda_min=-5` failed and the warning advised
     clipping lambda with lambda_min, already given. A lambda_min at or below the floor is
     named as the reason, with the bound that works; one above it is not advised again."""
-    from conformal_control.exceptions import FeasibilityWarning
+    from conformal_control.core.exceptions import FeasibilityWarning
 
     def warned(**params: float) -> tuple[list[str], cc.EpisodeResult]:
         with warnings.catch_warnings(record=True) as rec:

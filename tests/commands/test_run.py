@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
 
 METRIC_KEYS = {
     "t_goal",

@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 
-from conformal_control import registry
-from conformal_control.cbf.roles import Barrier
 from conformal_control.cli import main
+from conformal_control.core import registry
+from conformal_control.families.cbf.roles import Barrier
 
 
 class _ScaledDistance(Barrier, run_values={"d_c": "barrier_distance"}):

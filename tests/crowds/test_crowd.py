@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.crowds import Crowd
+from conformal_control.world.crowds import Crowd
 
 NAN = np.full(2, np.nan)
 

@@ -7,10 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformal_control.crowds import Crowd, ORCAModel, SocialForceModel
-from conformal_control.crowds import orca as orca_module
-from conformal_control.crowds import social_force as sf_module
-from conformal_control.crowds.neighbors import dense_neighbor_pairs, neighbor_pairs
+from conformal_control.world.crowds import Crowd, ORCAModel, SocialForceModel
+from conformal_control.world.crowds import orca as orca_module
+from conformal_control.world.crowds import social_force as sf_module
+from conformal_control.world.crowds.neighbors import dense_neighbor_pairs, neighbor_pairs
 
 
 def _same(a: tuple[np.ndarray, ...], b: tuple[np.ndarray, ...]) -> None:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.crowds import ORCAModel
-from conformal_control.crowds.neighbors import neighbor_pairs
-from conformal_control.crowds.orca import solve_orca_lp
-from conformal_control.crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
+from conformal_control.world.crowds import ORCAModel
+from conformal_control.world.crowds.neighbors import neighbor_pairs
+from conformal_control.world.crowds.orca import solve_orca_lp
+from conformal_control.world.crowds.orca_compiled import orca_lines_compiled, solve_orca_lp_compiled
 
 
 def _state(rng: np.random.Generator):

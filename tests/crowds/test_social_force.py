@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.crowds import SocialForceModel
+from conformal_control.world.crowds import SocialForceModel
 
 NONE2 = np.zeros((0, 2))
 NONE1 = np.zeros(0)

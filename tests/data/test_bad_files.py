@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conformal_control.core.exceptions import DataFetchError, DataFormatError, InputError
 from conformal_control.data import load_scene, read_annotations, read_trajnet
 from conformal_control.data.fetch import fetch
 from conformal_control.data.paths import DataNotFoundError, missing
 from conformal_control.data.sdd import sdd_video
-from conformal_control.exceptions import DataFetchError, DataFormatError, InputError
 
 GOOD = '1 10 20 30 40 5 0 0 0 "Pedestrian"\n1 12 20 32 40 6 0 0 1 "Pedestrian"\n'
 

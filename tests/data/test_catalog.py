@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import EXIT_ERROR, main
+from conformal_control.core.exceptions import InputError
 from conformal_control.data import load_scene
 from conformal_control.data.catalog import (
     dataset_name,
@@ -20,7 +21,6 @@ from conformal_control.data.catalog import (
 )
 from conformal_control.data.ethucy import ETHUCY_RECORDINGS
 from conformal_control.data.fetch import plan
-from conformal_control.exceptions import InputError
 
 
 @pytest.mark.parametrize(

@@ -208,7 +208,7 @@ def test_a_full_disk_names_the_file(tmp_path: Path, data_root: Path, monkeypatch
     import errno
 
     import conformal_control.data.fetch as fetch_mod
-    from conformal_control.exceptions import OutputNotWritableError
+    from conformal_control.core.exceptions import OutputNotWritableError
 
     def full(*args: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conformal_control.core.exceptions import InputError
 from conformal_control.data.positions import (
     Position,
     parse_position,
     parse_positions,
     to_metres,
 )
-from conformal_control.exceptions import InputError
 
 
 @pytest.mark.parametrize(

@@ -17,7 +17,7 @@ from conformal_control.data.scenes import (
     ETHUCY_PUBLISHED,
     read_tracks,
 )
-from conformal_control.flagship.params import resolve_params
+from conformal_control.runs.params import resolve_params
 
 
 def test_ethucy_interpolated_to_30_fps_keeps_the_samples(ethucy_dir: Path) -> None:

@@ -174,7 +174,7 @@ def test_memory_follows_the_observations_not_frames_times_agents() -> None:
 def test_an_episode_never_assembles_the_dense_array(monkeypatch, engine: str) -> None:
     """The replay world, the compiled engine, the measuring and the animation record read
     the sparse tracks (windows of the episode's frames), never the whole dense array."""
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     scene = crossing_scene(seed=4)
     assert _sparse(scene)

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conformal_control.domains.factory import FactoryEnvironment, defect_rate, run_factory
-from conformal_control.domains.intervals import load_series, run_intervals
-from conformal_control.losses import BallRecord, conformal_radius
-from conformal_control.update_rules import ACIRule, DtACIRule, FixedEtaRule
+from conformal_control.core.losses import BallRecord, conformal_radius
+from conformal_control.core.update_rules import ACIRule, DtACIRule, FixedEtaRule
+from conformal_control.families.domains.factory import FactoryEnvironment, defect_rate, run_factory
+from conformal_control.families.domains.intervals import load_series, run_intervals
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

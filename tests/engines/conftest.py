@@ -39,8 +39,8 @@ def _compare(scenes, *, max_frames=None, seeds=None, batch_size=3, output="metri
     """Run the scenes batched and one by one (the per-episode loop, `engine="loop"`: the
     default would take the engine too); assert every metric is identical (and, with
     ``output="results"``, every interval's row). Returns (batched, run_episode results)."""
-    from conformal_control.engines.batch import run_batch
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.engines.batch import run_batch
+    from conformal_control.runs.episode import run_episode
 
     frames = max_frames if isinstance(max_frames, list) else [max_frames] * len(scenes)
     seed_list = seeds if isinstance(seeds, list) else [seeds or 0] * len(scenes)

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from conformal_control.core.exceptions import NoUpdatesWarning
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import iter_batch, run_batch, supports
-from conformal_control.exceptions import NoUpdatesWarning
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import iter_batch, run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def test_crossing_oracle_and_brake_with_si_parameters(crossings, compare_batch):
 def test_acp_family_matches_run_episode(crossings, compare_batch, fallback):
     """The acp family (its regions, its miscoverage loss, ACI) with the compiled and a
     Python fallback: every metric and every interval's row."""
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods(["acp"])[0].run_kwargs()
     kw["family_params"] = {"window": 200, "max_inflation": 0.6}
@@ -87,7 +87,7 @@ def suite_scenes(data_root):
 
 @pytest.mark.parametrize("method", ["nolearn", "conformal", "inflated", "acp", "fallback:relax"])
 def test_suite_scenarios_match_run_episode(suite_scenes, compare_batch, method):
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     m = expand_methods([method], {"conformal": [-0.1], "inflated": [0.25]})[0]
     kw = m.run_kwargs()
@@ -194,8 +194,8 @@ def test_supported_configuration_and_clear_error(crossings):
 def test_a_plugin_runs_compiled_only_if_its_class_declares_it():
     """Capability, not a list of names: a subclass inherits no declaration (it may compute
     something else); one that declares the compiled counterpart runs compiled."""
-    from conformal_control import registry
-    from conformal_control.cbf.barriers import APFBarrier
+    from conformal_control.core import registry
+    from conformal_control.families.cbf.barriers import APFBarrier
 
     class Tweaked(APFBarrier):
         """An APF barrier computing something else."""
@@ -219,9 +219,9 @@ def test_a_third_party_barrier_runs_compiled_through_its_compiled_form(crossing)
     """A barrier of its own class (no APFBarrier subclass) that declares the ``apf`` form
     and hands its constants over runs in the compiled engine, with the same result as the
     loop running its own evaluate()."""
-    from conformal_control import registry
-    from conformal_control.cbf.barriers import APFBarrier, APFForm
-    from conformal_control.cbf.roles import Barrier
+    from conformal_control.core import registry
+    from conformal_control.families.cbf.barriers import APFBarrier, APFForm
+    from conformal_control.families.cbf.roles import Barrier
 
     class OwnAPF(Barrier, compiled="apf", run_values=APFBarrier.capabilities.run_values):
         """The APF barrier written by someone else (same arithmetic, own class).

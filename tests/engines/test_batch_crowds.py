@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import run_batch, supports
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 DEV_SCENARIOS = 3
 
@@ -43,7 +43,7 @@ CASES = [
 def test_suite_scenarios_match_run_episode(
     suite_scenes, compare_batch, crowd, crowd_params, method
 ):
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods([method], {"conformal": [-0.1]})[0].run_kwargs()
     frames = [sc.meta["max_frames"] for sc in suite_scenes]

@@ -59,7 +59,7 @@ def test_per_agent_matches_run_episode(crossings, compare_batch, rule, extra):
 
 
 def test_per_agent_with_a_loss_that_does_not_split_is_refused(crossings):
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     with pytest.raises(ValueError, match="does not split by agent"):
         run_batch(crossings[:1], params={"lambda_per": "agent"}, loss="collision", max_frames=40)
@@ -79,7 +79,7 @@ def suite_scenes(data_root):
 def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
     """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
     predictor called through the episode's own objects) on crossings-v2 scenarios."""
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     kw = expand_methods([family])[0].run_kwargs()
     kw["predictor"] = "delayed"

@@ -13,12 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.cbf.controller import PredictorError
 from conformal_control.data import load_scene
-from conformal_control.engines import recorded_kernels as rk
-from conformal_control.engines.batch import run_batch
+from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.recorded import RecordedPredictor
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines import recorded_kernels as rk
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 
 def write_predictions(path, scenes, *, every=7, steps=12, per_step=4, seed=0):
@@ -155,9 +155,9 @@ def test_suite_scenarios_under_the_learned_shift(data_root, compare_batch, monke
     benchmark's ``learned`` shift (Trajectron++'s published forecasts), nolearn and
     conformal: compiled, and equal to the loop (six scenarios two at a time: slots are
     refilled and their forecasts' blocks moved to make room)."""
-    from conformal_control.bench.methods import expand_methods
-    from conformal_control.bench.shifts import SHIFTS
     from conformal_control.data.suites import load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
+    from conformal_control.experiments.bench.shifts import SHIFTS
 
     test = load_suite("crossings-v2").scenarios_for("test")
     picked = [s for r in ("ethucy:biwi_eth:corrected", "ethucy:crowds_zara01")

@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf.controller import PredictorError
-from conformal_control.cbf.loss import CBFGapLoss
+from conformal_control.core import registry
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import _GapLossAt, run_batch, supports
+from conformal_control.families.cbf.controller import PredictorError
+from conformal_control.families.cbf.loss import CBFGapLoss
 from conformal_control.predictors.base import Forecast, Predictor
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import _GapLossAt, run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 ETA = 30.0  # the benchmark's eta, 1 per frame at 30 fps, in 1/s
 FRAMES = 150
@@ -76,7 +76,7 @@ def test_gap_loss_as_a_function_of_lambda_is_the_loss():
 
 
 def test_collision_loss_with_aci_as_the_benchmark_runs_it(suite_scenes, compare_batch):
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     [m] = expand_methods(["conformal_aci"])
     frames = [sc.meta["max_frames"] for sc in suite_scenes]
@@ -188,7 +188,7 @@ def test_supports_any_rule_and_predictor_by_name(kwargs):
 
 
 def test_benchmark_methods_now_batched():
-    from conformal_control.bench.methods import expand_methods
+    from conformal_control.experiments.bench.methods import expand_methods
 
     methods = {m.family: supports(**m.run_kwargs()) for m in expand_methods(["conformal_pid"])}
     for fam in ("conformal_dtaci", "conformal_aci"):

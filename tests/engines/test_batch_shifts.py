@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import pytest
 
-from conformal_control.cbf.controller import PredictorError
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import run_batch
+from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.predictors.shift import (
     DelayedPredictor,
     DropoutPredictor,
     NoisyPredictor,
     ScaledPredictor,
 )
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch
+from conformal_control.runs.episode import run_episode
 
 WRAPPERS = {
     "delayed": DelayedPredictor,
@@ -104,9 +104,9 @@ def test_a_delay_beyond_the_history_fails_as_in_the_loop(gappy):
 
 
 def test_suite_scenarios_under_the_benchmark_shifts(data_root, compare_batch):
-    from conformal_control.bench.methods import expand_methods
-    from conformal_control.bench.shifts import SHIFTS as BENCH_SHIFTS
     from conformal_control.data.suites import load_suite
+    from conformal_control.experiments.bench.methods import expand_methods
+    from conformal_control.experiments.bench.shifts import SHIFTS as BENCH_SHIFTS
 
     ids = [sc.id for sc in load_suite("crossings-v1").scenarios_for("dev")][:3]
     scenes = [load_scene(f"scenario:crossings-v1/{i}", str(data_root)) for i in ids]

@@ -7,10 +7,10 @@ import json
 
 import pytest
 
-from conformal_control.bench.runner import read_rows, run_bench
-from conformal_control.sweep import run_sweep
-from conformal_control.sweep.batch import batch_reason
-from conformal_control.sweep.spec import RunConfig
+from conformal_control.experiments import run_sweep
+from conformal_control.experiments.batch import batch_reason
+from conformal_control.experiments.bench.suite import read_rows, run_bench
+from conformal_control.experiments.plan import RunConfig
 
 #: Columns that measure the machine or the process, not the episode.
 MACHINE = {"wall_s", "elapsed_s", "worker", "finished_at", "run_dir"}
@@ -75,7 +75,7 @@ def _crossing_runs(n=3):
 
 
 def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypatch):
-    import conformal_control.engines.batch as engine
+    import conformal_control.runs.engines.batch as engine
 
     real = engine.iter_batch
 
@@ -106,7 +106,7 @@ def test_batch_reason(cfg, plot, words):
 
 
 def test_batch_reason_batches_compiled_and_fast_predictors_only():
-    from conformal_control import registry
+    from conformal_control.core import registry
     from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 
     class Slow(ConstantVelocityPredictor, batchable=False):
@@ -146,8 +146,8 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     # batch would time out and the order below would differ
     import threading
 
-    import conformal_control.engines.batch as sim_batch
-    import conformal_control.sweep.batch as sweep_batch
+    import conformal_control.experiments.batch as sweep_batch
+    import conformal_control.runs.engines.batch as sim_batch
 
     pool_delivered = threading.Event()
 
@@ -168,7 +168,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     monkeypatch.setattr(
         sweep_batch, "_record", lambda cfg, key, out, plot, result, t0: {"key": key}
     )
-    monkeypatch.setattr("conformal_control.sweep.worker.load_run_scene", lambda cfg: _Scene())
+    monkeypatch.setattr("conformal_control.experiments.worker.load_run_scene", lambda cfg: _Scene())
     batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
     pooled = {"scene": "crossing", "seed": 1, "episode": {"family": "mpc"}}
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]

@@ -54,8 +54,8 @@ def test_the_monitor_of_an_unshielded_environment_never_changes_the_action() -> 
     parallel snippet's robots stopped for good)."""
     import numpy as np
 
-    from conformal_control.cbf.roles import EscapeRows
     from conformal_control.envs.roles import MonitorFilter
+    from conformal_control.families.cbf.roles import EscapeRows
 
     f = MonitorFilter()
     f.reset()

@@ -19,7 +19,7 @@ def single_run(tmp_path_factory) -> Path:
 @pytest.fixture(scope="package")
 def multi_run(tmp_path_factory) -> Path:
     from conformal_control.data import load_scene
-    from conformal_control.sim.multi import run_multi, write_multi_run_dir
+    from conformal_control.runs.fleet import run_multi, write_multi_run_dir
 
     res = run_multi(load_scene("crossing", seed=0), 3, max_frames=50)
     return write_multi_run_dir(res, tmp_path_factory.mktemp("multi") / "run")

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control.exceptions import OutputNotWritableError
-from conformal_control.export.destination import (
+from conformal_control.core.exceptions import OutputNotWritableError
+from conformal_control.io.export.destination import (
     check_destination,
     safe_output,
     safe_output_path,

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from conformal_control.export import foxglove as fg
+from conformal_control.io.export import foxglove as fg
 
 
 def test_foxglove_schemas_are_the_published_definitions():

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from conformal_control.exceptions import DataFormatError
-from conformal_control.export import export_run, read_run
+from conformal_control.core.exceptions import DataFormatError
+from conformal_control.io.export import export_run, read_run
 
 
 def _read(path):

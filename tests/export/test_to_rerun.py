@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from rerun.chunk import RrdReader
 
-from conformal_control.export import export_run
+from conformal_control.io.export import export_run
 
 
 def _columns(path):

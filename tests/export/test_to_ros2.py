@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from conformal_control.export import export_run, read_run
+from conformal_control.io.export import export_run, read_run
 
 
 def _decode_mcap(path: Path) -> dict[str, list[tuple[int, Any]]]:
@@ -94,7 +94,7 @@ def test_bag_folder_of_either_storage_holds_the_same_messages(
 ) -> None:
     mcap = _decode_mcap(export_run(single_run, tmp_path / "r.mcap", schema="ros2"))
     for storage in ("mcap", "sqlite3"):
-        from conformal_control.export.to_ros2 import write_ros2_bag
+        from conformal_control.io.export.to_ros2 import write_ros2_bag
 
         bag = write_ros2_bag(single_run, tmp_path / f"bag_{storage}", storage=storage)
         assert (bag / "metadata.yaml").is_file()

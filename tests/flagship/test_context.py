@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.flagship.build import build_flagship
+from conformal_control.core import registry
+from conformal_control.core.spec import RUN_VALUES, RunContext
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
-from conformal_control.spec import RUN_VALUES, RunContext
+from conformal_control.runs.build import build_flagship
 
 
 class CappedWalker(Predictor):

@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.loop import ConformalLoop
-from conformal_control.mpc import ACPMPC, Limits, PlanMiscoverageLoss, Sampling
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import ACIRule
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.mpc import ACPMPC, Limits, PlanMiscoverageLoss, Sampling
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
-from conformal_control.update_rules import ACIRule
 
 DT = 0.4
 

@@ -9,12 +9,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from conformal_control.bench import planar
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
-from conformal_control.mpc import ECPMPC, SamplingMPC
-from conformal_control.mpc.batch import plan_all
-from conformal_control.mpc.kernels import evaluate, evaluate_many
+from conformal_control.experiments.bench import planar
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import Unicycle, VelocityTrackingDoubleIntegrator
+from conformal_control.families.mpc import ECPMPC, SamplingMPC
+from conformal_control.families.mpc.batch import plan_all
+from conformal_control.families.mpc.kernels import evaluate, evaluate_many
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
 #: measured times: not part of the equality (a batch shares its joint evaluation's time)

@@ -8,15 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import (
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import (
     DoubleIntegrator,
     Unicycle,
     VelocityTrackingDoubleIntegrator,
 )
-from conformal_control.cbf.reference import AttractiveField
-from conformal_control.mpc import Costs, Limits, Sampling, SamplingMPC
-from conformal_control.mpc.kernels import evaluate, evaluate_numpy
+from conformal_control.families.cbf.reference import AttractiveField
+from conformal_control.families.mpc import Costs, Limits, Sampling, SamplingMPC
+from conformal_control.families.mpc.kernels import evaluate, evaluate_numpy
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
 

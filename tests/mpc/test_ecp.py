@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.loop import ConformalLoop
-from conformal_control.mpc import ECPMPC, EgocentricMiscoverageLoss, Limits, Sampling
-from conformal_control.mpc.ecp import egocentric_quantiles
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import ACIRule
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.mpc import ECPMPC, EgocentricMiscoverageLoss, Limits, Sampling
+from conformal_control.families.mpc.ecp import egocentric_quantiles
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
-from conformal_control.update_rules import ACIRule
 
 DT = 0.4
 

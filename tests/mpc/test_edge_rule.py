@@ -9,14 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.records import ControlState
-from conformal_control.cbf.reference import AttractiveField
-from conformal_control.cbf.stepwise import Stream
-from conformal_control.mpc import SamplingMPC
-from conformal_control.mpc.kernels import evaluate
-from conformal_control.mpc.settings import Limits, Sampling
-from conformal_control.mpc.stepwise import StepwiseMPC
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.records import ControlState
+from conformal_control.families.cbf.reference import AttractiveField
+from conformal_control.families.cbf.stepwise import Stream
+from conformal_control.families.mpc import SamplingMPC
+from conformal_control.families.mpc.kernels import evaluate
+from conformal_control.families.mpc.settings import Limits, Sampling
+from conformal_control.families.mpc.stepwise import StepwiseMPC
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 
 FAST = {"sampling__n_samples": 60, "sampling__horizon": 6}
@@ -77,7 +77,7 @@ def test_a_negative_margin_is_a_one_line_error() -> None:
 
 def test_a_run_gets_the_ceiling_unless_it_gives_one() -> None:
     from conformal_control.data import load_scene
-    from conformal_control.flagship.build import build_flagship
+    from conformal_control.runs.build import build_flagship
 
     scene = load_scene("crossing", seed=0)
     fl = build_flagship(scene, {"barrier_margin": 0.2}, family="mpc", family_params=FAST)

@@ -9,12 +9,12 @@ import pickle
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import Unicycle
-from conformal_control.mpc import FCPMPC, FieldCalibration, FieldConstraint, Sampling
-from conformal_control.mpc.fcp import FieldMiscoverageLoss
-from conformal_control.mpc.fieldcp import (
+from conformal_control.core import registry
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import Unicycle
+from conformal_control.families.mpc import FCPMPC, FieldCalibration, FieldConstraint, Sampling
+from conformal_control.families.mpc.fcp import FieldMiscoverageLoss
+from conformal_control.families.mpc.fieldcp import (
     FieldGrid,
     FunctionalEnvelope,
     distance_field,

@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf.controller import CBFIntervalRecord
-from conformal_control.cbf.interp import interpolate_at_substeps
-from conformal_control.cbf.loss import CBFTruth
-from conformal_control.mpc.margin import MarginMiscoverageLoss, clearance_errors
+from conformal_control.core import registry
+from conformal_control.families.cbf.controller import CBFIntervalRecord
+from conformal_control.families.cbf.interp import interpolate_at_substeps
+from conformal_control.families.cbf.loss import CBFTruth
+from conformal_control.families.mpc.margin import MarginMiscoverageLoss, clearance_errors
 
 DT, SUB = 0.4, 4
 
@@ -84,7 +84,7 @@ def test_bad_parameters_are_one_line_errors():
 def test_lambda_follows_the_predictors_error_in_closed_loop():
     """The same crossing with a constant-velocity forecast, then with one 0.5 s late:
     the learned distance grows with the error (its mean lambda is lower)."""
-    from conformal_control.mpc import Sampling, StepwiseMPC
+    from conformal_control.families.mpc import Sampling, StepwiseMPC
     from conformal_control.predictors.shift import DelayedPredictor
 
     def run(delay: float) -> float:

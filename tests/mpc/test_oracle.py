@@ -8,14 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.reference import AttractiveField
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.mpc import Sampling, SamplingMPC
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.reference import AttractiveField
+from conformal_control.families.mpc import Sampling, SamplingMPC
 from conformal_control.predictors.base import PredictionQuery, TruthUnavailableError
 from conformal_control.predictors.oracle import OraclePredictor
 from conformal_control.predictors.shift import DelayedPredictor
-from conformal_control.sim.episode import run_episode
+from conformal_control.runs.episode import run_episode
 from conformal_control.world.replay import ReplayEnvironment
 
 

@@ -5,25 +5,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.cbf.reciprocal import PeerView, Reciprocity
-from conformal_control.cbf.reference import AttractiveField
-from conformal_control.cbf.safety_losses import DistanceShortfallLoss
+from conformal_control.core.loop import ConformalStepper
+from conformal_control.core.update_rules.fixed_eta import FixedEtaRule
 from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
-from conformal_control.loop import ConformalStepper
-from conformal_control.mpc.controller import SamplingMPC
-from conformal_control.mpc.peers import (
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.cbf.reciprocal import PeerView, Reciprocity
+from conformal_control.families.cbf.reference import AttractiveField
+from conformal_control.families.cbf.safety_losses import DistanceShortfallLoss
+from conformal_control.families.mpc.controller import SamplingMPC
+from conformal_control.families.mpc.peers import (
     near_steps,
     peer_clearance,
     peer_lines,
     peer_terms,
     reference_paths,
 )
-from conformal_control.mpc.settings import Limits, Sampling
+from conformal_control.families.mpc.settings import Limits, Sampling
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
-from conformal_control.sim.multi import drive
-from conformal_control.update_rules.fixed_eta import FixedEtaRule
+from conformal_control.runs.fleet import drive
 from conformal_control.world.multi import MultiRobotWorld
 
 
@@ -132,7 +132,7 @@ def test_the_lines_give_way_before_the_pedestrians():
         x = np.zeros(4)
         peers = PeerView(np.array([7]), np.array([[3.0, 0.0]]), np.array([0.5]), "position")
 
-    from conformal_control.mpc.controller import PlanInputs
+    from conformal_control.families.mpc.controller import PlanInputs
 
     pos = np.array([[[1.6, 0.0], [1.6, 0.0]], [[0.0, 0.0], [0.0, 0.0]], [[1.3, 0.0], [1.3, 0.0]]])
     todo = PlanInputs(State(), 0.0, np.zeros((3, 2, 2)), pos, ())

@@ -10,8 +10,8 @@ import pytest
 from conformal_control.data.scene import scene_from_tracks
 from conformal_control.data.tracks import Tracks
 from conformal_control.data.units import SI
-from conformal_control.mpc.kernels import evaluate, evaluate_many
-from conformal_control.sim import run_episode
+from conformal_control.families.mpc.kernels import evaluate, evaluate_many
+from conformal_control.runs.episode import run_episode
 
 FPS = 10.0
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import conformal_control as cc
-from conformal_control.bench.methods import expand_methods
 from conformal_control.data.synthetic import crossing_scene
-from conformal_control.sim.episode import run_episode
+from conformal_control.experiments.bench.methods import expand_methods
+from conformal_control.runs.episode import run_episode
 
 FAST = {"sampling__n_samples": 60, "sampling__horizon": 6, "sampling__replan_every": 2}
 
@@ -186,7 +186,7 @@ def test_several_robots_run_the_mpc_family(tmp_path, capsys):
 def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
     import csv
 
-    from conformal_control.sweep import SweepSpec, run_sweep
+    from conformal_control.experiments import SweepSpec, run_sweep
 
     spec = SweepSpec(
         base={
@@ -222,7 +222,7 @@ def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
 
 
 def test_a_dotted_family_parameter_needs_a_mapping():
-    from conformal_control.sweep import SweepSpec
+    from conformal_control.experiments import SweepSpec
 
     spec = SweepSpec(base={"scene": "crossing", "family_params": 3}, grid={"family_params.x": [1]})
     with pytest.raises(ValueError, match="'family_params' must be a mapping, got 3"):
@@ -258,8 +258,8 @@ def test_the_metrics_report_the_family_defaults_the_rule_uses(scene):
 def test_the_bench_runs_the_mpc_families_under_a_shift_and_a_reactive_crowd(
     tmp_path, data_root, shift, crowd, predictor
 ):
-    from conformal_control.bench.runner import run_bench
-    from conformal_control.spec import RunSpec
+    from conformal_control.core.spec import RunSpec
+    from conformal_control.experiments.bench.suite import run_bench
 
     run = run_bench(
         tmp_path / "b",

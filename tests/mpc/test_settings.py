@@ -9,11 +9,11 @@ import warnings
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.base import flat_params
-from conformal_control.cbf import StepwiseCBF, Stream
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.mpc import (
+from conformal_control.core import registry
+from conformal_control.core.base import flat_params
+from conformal_control.families.cbf import StepwiseCBF, Stream
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.families.mpc import (
     ACPMPC,
     ECPMPC,
     Costs,
@@ -102,7 +102,7 @@ def test_a_former_flat_keyword_still_works_with_a_deprecation_warning(old, group
 
 def test_old_and_new_forms_plan_the_same_commands():
     def commands(fam: SamplingMPC) -> np.ndarray:
-        from conformal_control.cbf.controller import ControlState
+        from conformal_control.families.cbf.controller import ControlState
 
         fam.reset()
         s = ControlState(x=np.zeros(4), t=0.0, step=0, goal=np.array([5.0, 1.0]))

@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 
-from conformal_control import registry
-from conformal_control.cbf.controller import ControlState
-from conformal_control.cbf.dynamics import Unicycle
-from conformal_control.mpc import NegativeDistanceLoss, Sampling, SoftRewardMPC
-from conformal_control.mpc.fieldcp import step_distances
+from conformal_control.core import registry
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf.controller import ControlState
+from conformal_control.families.cbf.dynamics import Unicycle
+from conformal_control.families.mpc import NegativeDistanceLoss, Sampling, SoftRewardMPC
+from conformal_control.families.mpc.fieldcp import step_distances
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
-from conformal_control.update_rules import FixedEtaRule
 
 DT = 0.4
 

@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control.cbf import Stream
-from conformal_control.mpc import SamplingMPC, StepwiseMPC
-from conformal_control.sim import build_flagship, run_episode
+from conformal_control.families.cbf import Stream
+from conformal_control.families.mpc import SamplingMPC, StepwiseMPC
+from conformal_control.runs.build import build_flagship
+from conformal_control.runs.episode import run_episode
 
 FAST = {"sampling__n_samples": 60, "sampling__horizon": 6, "sampling__replan_every": 2}
 

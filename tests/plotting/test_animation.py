@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.plotting.animation import animation_frames, load_record
+from conformal_control.io.plotting.animation import animation_frames, load_record
 
 
 def test_animate_crossing_gif_and_mp4(tmp_path, capsys):
@@ -84,7 +84,7 @@ def test_animate_bad_input(tmp_path, capsys):
 
 
 def test_animation_record_content(crossing):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     # epsilon below the feasibility floor and the default lambda floor opened: the fallback
     # runs, and the record shows it
@@ -111,8 +111,8 @@ def test_animation_record_content(crossing):
 def test_a_frame_too_narrow_to_read_is_warned() -> None:
     import warnings
 
-    from conformal_control.exceptions import SuspiciousValueWarning
-    from conformal_control.plotting.animation import LEGIBLE_WIDTH_PX, frame_size
+    from conformal_control.core.exceptions import SuspiciousValueWarning
+    from conformal_control.io.plotting.animation import LEGIBLE_WIDTH_PX, frame_size
 
     with pytest.warns(SuspiciousValueWarning, match=r"480 x 216 px .* use --dpi 90 or more"):
         assert frame_size(8, 60) == (480, 216)  # the size the multi-robot GIF had

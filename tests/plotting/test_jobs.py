@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conformal_control.plotting import jobs
-from conformal_control.plotting.jobs import can_fork, draw_all
+from conformal_control.io.plotting import jobs
+from conformal_control.io.plotting.jobs import can_fork, draw_all
 
 PARENT = os.getpid()
 
 
 def _figure(path: Path, seed: int) -> None:
-    from conformal_control.plotting.run import pyplot
+    from conformal_control.io.plotting.run import pyplot
 
     plt = pyplot()
     rng = np.random.default_rng(seed)
@@ -104,7 +104,7 @@ def test_bad_workers(workers: object) -> None:
 STOPPED_CHILD = """
 import os, signal, sys, warnings
 from pathlib import Path
-from conformal_control.plotting.jobs import can_fork, draw_all
+from conformal_control.io.plotting.jobs import can_fork, draw_all
 
 parent = os.getpid()
 

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from conformal_control.plotting.labels import place_labels
+from conformal_control.io.plotting.labels import place_labels
 
 
 def _boxes(fig, texts) -> np.ndarray:
@@ -80,7 +80,7 @@ def test_a_label_that_cannot_fit_is_reported_not_drawn_on_top() -> None:
 
 def test_the_benchmark_frontier_names_every_method_without_overlap(tmp_path, monkeypatch) -> None:
     """bench's frontier figure: every shown method labelled, Pareto members in bold."""
-    import conformal_control.bench.report as report
+    import conformal_control.experiments.bench.report as report
 
     captured = {}
     real = report._frontier
@@ -95,7 +95,7 @@ def test_the_benchmark_frontier_names_every_method_without_overlap(tmp_path, mon
         monkeypatch.setattr(plt.Figure, "savefig", keep)
         real(v, path, title)
 
-    from conformal_control.bench.stats import bootstrap_mean
+    from conformal_control.experiments.bench.stats import bootstrap_mean
 
     class Summary:
         def __init__(self, method: str, reached: list[float], frames: list[float]) -> None:

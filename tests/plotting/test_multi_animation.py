@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.plotting.animation import animation_frames, load_record, render_animation
+from conformal_control.io.plotting.animation import animation_frames, load_record, render_animation
 
 
 def test_cli_robots_run_and_animate(tmp_path, capsys):

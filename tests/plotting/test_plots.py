@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from conformal_control.plotting import (
+from conformal_control.io.plotting import (
     plot_distance,
     plot_lambda_loss,
     plot_run,
@@ -22,7 +22,7 @@ from conformal_control.plotting import (
 
 @pytest.fixture(scope="module")
 def crossing_run(crossing):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     return run_episode(crossing, "constant_velocity", max_frames=60)
 
@@ -103,7 +103,7 @@ def test_distance_axis_clips_a_spike_and_says_so():
 
 
 def _monitor(rule, losses, **kw):
-    from conformal_control.monitor import GuaranteeMonitor
+    from conformal_control.core.monitor import GuaranteeMonitor
 
     m = GuaranteeMonitor.for_rule(rule, **kw)
     for x in losses:
@@ -112,8 +112,8 @@ def _monitor(rule, losses, **kw):
 
 
 def test_guarantee_plot_keeps_bounds_in_the_loss_range():
-    from conformal_control.plotting import plot_guarantee
-    from conformal_control.update_rules import FixedEtaRule, PIDRule
+    from conformal_control.core.update_rules import FixedEtaRule, PIDRule
+    from conformal_control.io.plotting import plot_guarantee
 
     losses = np.random.default_rng(0).uniform(-0.1, 0.1, 60)
     # fixed step with lambda_safe: the Theorem-2 bound ends inside the axes
@@ -150,9 +150,9 @@ def test_guarantee_plot_keeps_bounds_in_the_loss_range():
 def test_guarantee_plot_per_agent():
     """lambda per agent: one point per agent (hollow under 10 losses), each agent's bound,
     the clipped agents ringed, one lambda line per agent and the floor."""
-    from conformal_control.monitor import AgentMonitor
-    from conformal_control.plotting import plot_guarantee
-    from conformal_control.update_rules import FixedEtaRule
+    from conformal_control.core.monitor import AgentMonitor
+    from conformal_control.core.update_rules import FixedEtaRule
+    from conformal_control.io.plotting import plot_guarantee
 
     rule = FixedEtaRule(epsilon=0.0, eta=1.0, lambda_min=-0.3)
     m = AgentMonitor.for_rule(rule, lambda_safe=-0.2)
@@ -279,7 +279,7 @@ def test_plot_sweep_command_writes_beside_the_results(tmp_path, capsys, monkeypa
 
 
 def _paths_runs(scene, n):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     res = run_episode(scene, "constant_velocity", max_frames=30)
     runs = []
@@ -306,7 +306,7 @@ def _paths_runs(scene, n):
 def test_reproduction_figures_are_sized_per_panel_and_labelled(crossing, tmp_path):
     from PIL import Image
 
-    from conformal_control.plotting import (
+    from conformal_control.io.plotting import (
         plot_lambda_loss_rows,
         plot_lavg_vs_epsilon,
         plot_paths_grid,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conformal_control.plotting.run import plot_scene, reference_image
+from conformal_control.io.plotting.run import plot_scene, reference_image
 
 
 def _gradient(w: int, h: int) -> np.ndarray:
@@ -48,7 +48,7 @@ def test_reference_image_full_resolution_without_max_size(tmp_path):
 
 
 def test_scene_plot_draws_the_reduced_image_over_the_scene_extent(nexus4):
-    from conformal_control.sim.episode import run_episode
+    from conformal_control.runs.episode import run_episode
 
     traj = run_episode(nexus4, "constant_velocity", max_frames=5).trajectory
     fig, ax = plt.subplots(figsize=(5, 3), dpi=100)

@@ -150,9 +150,9 @@ def test_bad_parameters(tmp_path):
 def test_closed_loop_on_a_biwi_hotel_scenario(data_root):
     """A dev scenario of biwi_hotel (Trajectron++'s hotel predictions) runs on the batch
     engine as on the loop, and its forecasts come from the file."""
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.engines.batch import run_batch
-    from conformal_control.sim import run_episode
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.runs.engines.batch import run_batch
+    from conformal_control.runs.episode import run_episode
 
     suite = load_suite("crossings-v1")
     sc = next(s for s in suite.scenarios if s.recording == "ethucy:biwi_hotel")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control import registry
+from conformal_control.core import registry
 from conformal_control.predictors import ConstantVelocityPredictor, PredictionQuery
 from conformal_control.predictors.shift import (
     DelayedPredictor,
@@ -199,9 +199,9 @@ def test_dropout_predicts_a_dropped_agent_from_its_last_detection():
 
 
 def test_shifted_runs_on_the_batch_engine_equal_the_loop(data_root):
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.engines.batch import run_batch
-    from conformal_control.sim import run_episode
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.runs.engines.batch import run_batch
+    from conformal_control.runs.episode import run_episode
 
     suite = load_suite("crossings-v1")
     scs = suite.scenarios_for("test")[:3]
@@ -229,8 +229,8 @@ def test_shifted_runs_on_the_batch_engine_equal_the_loop(data_root):
 
 
 def test_neutral_shift_equals_its_base_in_closed_loop(data_root):
-    from conformal_control.bench import load_scenario, load_suite
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.runs.engines.batch import run_batch
 
     suite = load_suite("crossings-v1")
     scs = suite.scenarios_for("test")[:12]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control import registry
+from conformal_control.core import registry
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.var import (
     VARPredictor,

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.reproduce import PAPER_TABLES, auto_executor, plan
+from conformal_control.experiments.reproduce import PAPER_TABLES, auto_executor, plan
 
 #: ``conformal-control reproduce all --frames 90 --executor serial`` on SDD at 68fa01c (the
 #: commit before the edge rule), wall time and run folders left out
@@ -142,7 +142,7 @@ def test_reproduce_short_window(tmp_path: Path, sdd_dir: Path, capsys) -> None:
 
 def test_auto_executor_runs_fast_predictors_in_process() -> None:
     """reproduce's default executor: serial for fast predictors, a process pool else."""
-    from conformal_control import registry
+    from conformal_control.core import registry
 
     assert all(
         registry.get("predictor", n).capabilities.batchable

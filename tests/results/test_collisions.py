@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conformal_control.results.collisions import (
+from conformal_control.runs.results.collisions import (
     CLOSING_TOL,
     account_collisions,
     avoidable,
@@ -177,7 +177,7 @@ def test_a_trap_that_only_the_grid_proves():
 def test_the_grid_never_contradicts_the_closed_form_tests(x, y, vx, vy, v_max, n):
     """Straight-line pedestrians: when the covering test proves a collision, the grid finds
     no path; when a straight escape exists, the grid does not prove there is none."""
-    from conformal_control.results.collisions import _grid, _straight
+    from conformal_control.runs.results.collisions import _grid, _straight
 
     k = np.arange(1, n + 1)
     q = np.array([x, y]) + np.outer(k / FPS, [vx, vy])
@@ -194,9 +194,9 @@ def test_the_grid_never_contradicts_the_closed_form_tests(x, y, vx, vy, v_max, n
 def test_recomputed_from_the_raw_sdd_annotations(data_root):
     """An SDD test scenario's collision frames and events, recomputed from the raw
     annotations file (its own parser, not the loader) and the robot's logged path."""
-    from conformal_control.bench import load_scenario, load_suite
     from conformal_control.data.sdd import sdd_video
-    from conformal_control.sim import run_episode
+    from conformal_control.experiments.bench import load_scenario, load_suite
+    from conformal_control.runs.episode import run_episode
 
     sc = load_suite("crossings-v1").scenario("sdd-hyang-13-w017")
     scene = load_scenario(sc, data_root)

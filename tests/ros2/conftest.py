@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from conformal_control.ros2.types import MARKER_ARRAY, ODOMETRY, PEOPLE, TF_MESSAGE, typestore
-from conformal_control.ros2.writer import (
+from conformal_control.io.ros2.types import MARKER_ARRAY, ODOMETRY, PEOPLE, TF_MESSAGE, typestore
+from conformal_control.io.ros2.writer import (
     CYLINDER,
     DELETEALL,
     Recording,

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conformal_control.exceptions import DataFormatError, InputError
-from conformal_control.ros2.bag import read_bag, static_transform
-from conformal_control.ros2.types import PEOPLE_MSGS, typestore
-from conformal_control.ros2.writer import Recording
+from conformal_control.core.exceptions import DataFormatError, InputError
+from conformal_control.io.ros2.bag import read_bag, static_transform
+from conformal_control.io.ros2.types import PEOPLE_MSGS, typestore
+from conformal_control.io.ros2.writer import Recording
 
 
 def _one_line(exc: pytest.ExceptionInfo[BaseException]) -> str:

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conformal_control.cbf.stepwise import StepwiseCBF, Stream
-from conformal_control.exceptions import DataFormatError, InputError
-from conformal_control.ros2.shadow import COLUMNS, shadow
+from conformal_control.core.exceptions import DataFormatError, InputError
+from conformal_control.families.cbf.stepwise import StepwiseCBF, Stream
+from conformal_control.io.ros2.shadow import COLUMNS, shadow
 
 
 def _read_commands(path: Path) -> dict[str, np.ndarray]:

@@ -10,7 +10,7 @@ import pytest
 from conformal_control.data.scene import Scene
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
 
 
 class Corrupting(Predictor):

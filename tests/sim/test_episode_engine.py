@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from conformal_control.data import load_scene
-from conformal_control.results.episode import EpisodeResult
-from conformal_control.sim import run_episode
+from conformal_control.runs.episode import run_episode
+from conformal_control.runs.results.episode import EpisodeResult
 
 #: Table II settings with a = 10 (scene units), the benchmark's nexus_4 configuration.
 PAPER_A10 = {"epsilon": -0.25, "eta": 1, "tau": 4, "a": 10, "K_rep": 40}
@@ -145,7 +145,7 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
     # evaluated frame by frame on the agents present within the sensing radius
     res = run_episode(nexus4, "constant_velocity", PAPER_A10, max_frames=200)
     anim, sc = res.animation, res.scene
-    from conformal_control.cbf.barriers import APFBarrier
+    from conformal_control.families.cbf.barriers import APFBarrier
 
     barrier = APFBarrier(**res.config["barrier"]["params"])
     robot = np.column_stack([res.trajectory["x"], res.trajectory["y"]])
@@ -161,7 +161,7 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
 
 
 def test_warnings_point_at_the_caller(crossing):
-    from conformal_control.exceptions import FeasibilityWarning
+    from conformal_control.core.exceptions import FeasibilityWarning
 
     for engine in ("auto", "loop"):
         with pytest.warns(FeasibilityWarning) as caught:
@@ -175,7 +175,7 @@ def test_warnings_point_at_the_caller(crossing):
 def test_a_lone_episode_reads_its_recording_in_place_and_never_writes_it():
     # the engine reads a lone episode's recording without copying it; a batch copies it out
     # before a second episode joins: the scenes' data stay as they were
-    from conformal_control.engines.batch import run_batch
+    from conformal_control.runs.engines.batch import run_batch
 
     scenes = [load_scene("crossing", seed=s) for s in range(3)]
     before = [sc.positions.copy() for sc in scenes]

@@ -8,12 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.core.loop import ConformalStepper
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
-from conformal_control.loop import ConformalStepper
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.predictors.constant_velocity import ConstantVelocityPredictor
-from conformal_control.sim import build_flagship, run_episode
-from conformal_control.sim.multi import (
+from conformal_control.runs.build import build_flagship
+from conformal_control.runs.episode import run_episode
+from conformal_control.runs.fleet import (
     MAX_ROBOTS,
     load_robots_file,
     robot_tasks,

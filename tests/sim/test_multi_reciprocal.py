@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
+from conformal_control.core.loop import ConformalStepper
 from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
-from conformal_control.loop import ConformalStepper
-from conformal_control.sim import build_flagship
-from conformal_control.sim.multi import load_robots_file, robot_tasks, run_multi, set_reciprocity
+from conformal_control.runs.build import build_flagship
+from conformal_control.runs.fleet import load_robots_file, robot_tasks, run_multi, set_reciprocity
 from conformal_control.world.multi import MultiRobotWorld
 
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.exceptions import InputError
-from conformal_control.sim.multi import run_multi
-from conformal_control.spec import ROBOT_FIELDS, Robots, RunSpec
+from conformal_control.core.exceptions import InputError
+from conformal_control.core.spec import ROBOT_FIELDS, Robots, RunSpec
+from conformal_control.runs.fleet import run_multi
 
 
 @pytest.mark.parametrize(
@@ -209,7 +209,7 @@ def test_the_public_run_refuses_a_robots_section(settings: dict, words: str) -> 
 def test_a_spec_read_from_a_multi_robot_config_is_not_run_as_one_robot(tmp_path) -> None:
     import conformal_control as cc
     from conformal_control.data import load_scene
-    from conformal_control.sim import run_episode
+    from conformal_control.runs.episode import run_episode
 
     res = run_multi(load_scene("crossing", seed=0), 2, max_frames=5)
     spec = RunSpec.from_dict(res.config["spec"])

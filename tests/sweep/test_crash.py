@@ -21,7 +21,7 @@ from collections import Counter
 from pathlib import Path
 
 from conformal_control.cli import main
-from conformal_control.sweep import SweepSpec
+from conformal_control.experiments import SweepSpec
 
 TOKEN = "CONFORMAL_CONTROL_TEST_SWEEP_TOKEN"
 CLI = [sys.executable, "-c", "import sys; from conformal_control.cli import main; sys.exit(main())"]
@@ -242,7 +242,7 @@ def test_process_pool_workers_exit_with_their_driver() -> None:
     token = uuid.uuid4().hex
     code = (
         "import time\n"
-        "from conformal_control.sweep import ProcessExecutor\n"
+        "from conformal_control.experiments import ProcessExecutor\n"
         "ex = ProcessExecutor(workers=2)\n"
         "for _ in ex.run(time.sleep, [(0.01,), (0.01,), (600,), (600,)]):\n"
         "    print('done', flush=True)\n"

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from conformal_control.sweep import SweepLock, SweepLockedError
+from conformal_control.experiments import SweepLock, SweepLockedError
 
 
 def test_a_second_holder_is_refused_with_the_owner_named(tmp_path: Path) -> None:
@@ -31,7 +31,7 @@ def test_a_second_holder_is_refused_with_the_owner_named(tmp_path: Path) -> None
 def test_a_killed_holder_leaves_no_stale_lock(tmp_path: Path) -> None:
     code = (
         "import sys, time\n"
-        "from conformal_control.sweep import SweepLock\n"
+        "from conformal_control.experiments import SweepLock\n"
         f"SweepLock({str(tmp_path)!r}).acquire()\n"
         "print('locked', flush=True)\n"
         "time.sleep(600)\n"

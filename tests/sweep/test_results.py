@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sweep import ResultsStore
+from conformal_control.experiments import ResultsStore
 
 SWEEP = [
     "sweep",
@@ -247,7 +247,7 @@ def test_a_failed_table_write_names_the_file_and_keeps_the_old_table(
 ) -> None:
     import errno
 
-    from conformal_control.exceptions import OutputNotWritableError
+    from conformal_control.core.exceptions import OutputNotWritableError
 
     store = ResultsStore(tmp_path)
     store.append(rec("a", status="ok", metrics={"x": 1.0}))
@@ -280,7 +280,7 @@ WRONG_SCHEMA = [
 
 def test_valid_json_of_the_wrong_schema_is_skipped_like_a_torn_line(tmp_path: Path) -> None:
     """Such a line broke resume, the tables and `bench report` (AttributeError deep inside)."""
-    from conformal_control.bench.runner import read_rows
+    from conformal_control.experiments.bench.suite import read_rows
 
     store = ResultsStore(tmp_path)
     store.append(rec("good", status="ok", metrics={"x": 1.0}))

@@ -17,9 +17,9 @@ from typing import Any
 
 import pytest
 
-import conformal_control.sweep.runner as runner_mod
-from conformal_control.sweep import ResultsStore, RunConfig, run_sweep
-from conformal_control.sweep.executors import Executor
+import conformal_control.experiments.runner as runner_mod
+from conformal_control.experiments import ResultsStore, RunConfig, run_sweep
+from conformal_control.experiments.executors import Executor
 
 
 class StubExecutor(Executor):

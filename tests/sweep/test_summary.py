@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from conformal_control.cli import main
-from conformal_control.sweep.summary import summary_axes, write_summary_plot
+from conformal_control.experiments.summary import summary_axes, write_summary_plot
 
 
 def row(**kw) -> dict:
@@ -70,7 +70,7 @@ def test_summary_plot_averages_nothing_it_does_not_say(tmp_path: Path) -> None:
     the summary neither averages over them nor over the x axis or its lines."""
     from matplotlib.figure import Figure
 
-    import conformal_control.plotting.sweep as plotting_sweep
+    import conformal_control.io.plotting.sweep as plotting_sweep
 
     rows = [
         row(

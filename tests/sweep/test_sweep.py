@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sweep import (
+from conformal_control.experiments import (
     ResultsStore,
     RunConfig,
     SerialExecutor,
@@ -20,8 +20,8 @@ from conformal_control.sweep import (
     parse_grid_option,
     run_sweep,
 )
-from conformal_control.sweep.executors import Executor
-from conformal_control.sweep.worker import cached_scene
+from conformal_control.experiments.executors import Executor
+from conformal_control.experiments.worker import cached_scene
 
 
 def need(module: str):
@@ -249,7 +249,7 @@ def test_progress_off_starts_no_thread(tmp_path: Path) -> None:
 
     code = (
         "import threading\n"
-        "from conformal_control.sweep import SweepSpec, run_sweep\n"
+        "from conformal_control.experiments import SweepSpec, run_sweep\n"
         "spec = SweepSpec(base={'scene': 'crossing', 'frames': 20}, runs=[{}])\n"
         f"run_sweep(spec, {str(tmp_path)!r}, 'serial', progress=False, summary_plot=False)\n"
         "print(sorted(t.name for t in threading.enumerate()))\n"
@@ -263,7 +263,7 @@ def test_progress_off_starts_no_thread(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------------- Dask
 def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path) -> None:
     distributed = need("distributed")
-    from conformal_control.sweep.executors.dask import DaskExecutor
+    from conformal_control.experiments.executors.dask import DaskExecutor
 
     spec = SweepSpec(
         base={"scene": "nexus_4", "data_root": str(sdd_dir), "frames": 90, "a": 10},
@@ -306,7 +306,7 @@ def test_dask_local_cluster_same_results_as_serial(tmp_path: Path, sdd_dir: Path
 def test_process_pool_workers_run_single_threaded_blas(monkeypatch) -> None:
     import os
 
-    from conformal_control.sweep import ProcessExecutor
+    from conformal_control.experiments import ProcessExecutor
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     with ProcessExecutor(workers=2) as ex:
@@ -319,7 +319,7 @@ def test_process_pool_survives_a_dying_worker() -> None:
     """A worker killed mid-run fails its own task; the pool restarts and the rest run."""
     from concurrent.futures.process import BrokenProcessPool
 
-    from conformal_control.sweep import ProcessExecutor
+    from conformal_control.experiments import ProcessExecutor
 
     tasks = [("1 + 1",), ("__import__('os')._exit(3)",), ("2 + 2",), ("3 + 3",)]
     with ProcessExecutor(workers=1) as ex:
@@ -372,7 +372,7 @@ def test_tables_are_not_rewritten_after_every_run(tmp_path: Path, monkeypatch) -
 
 
 def test_a_huge_grid_is_refused_before_it_is_expanded(monkeypatch) -> None:
-    import conformal_control.sweep.spec as spec_mod
+    import conformal_control.experiments.plan as spec_mod
 
     huge = SweepSpec(grid={"epsilon": list(range(10**4)), "eta": list(range(10**4))})
     assert huge.size() == 10**8
@@ -398,7 +398,7 @@ def test_progress_is_reported_in_lines_when_the_output_is_redirected(
     """The issue: `bench tune` with its output redirected printed nothing for a minute (the
     bar was for terminals only). Redirected (here: captured), a sweep prints a line per
     period with the runs done and the time left, and a last line; no carriage return."""
-    import conformal_control.progress as progress_mod
+    import conformal_control.core.progress as progress_mod
 
     monkeypatch.setattr(progress_mod, "DELAY", 0.0)
     monkeypatch.setattr(progress_mod, "EVERY", 0.0)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sweep import SweepSpec, SweepValidationError, run_sweep, validate_runs
+from conformal_control.experiments import SweepSpec, SweepValidationError, run_sweep, validate_runs
 
 BASE = ["sweep", "--scene", "crossing", "--set", "frames=10", "--progress", "off"]
 

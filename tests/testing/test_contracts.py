@@ -10,18 +10,19 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.base import DecisionFamily, Environment, Loss, UpdateRule
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.core.base import DecisionFamily, Environment, Loss, UpdateRule
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf import (
     APFBarrier,
     CBFGapLoss,
     ConformalCBFController,
     ConformalConstraint,
     QPSafetyFilter,
 )
-from conformal_control.cbf.roles import Barrier, SafetyFilter
-from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
-from conformal_control.domains.intervals import ConformalDisc, PedestrianSeries
+from conformal_control.families.cbf.roles import Barrier, SafetyFilter
+from conformal_control.families.domains.factory import FactoryEnvironment, MachineSpeed
+from conformal_control.families.domains.intervals import ConformalDisc, PedestrianSeries
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import Forecast, Predictor
 from conformal_control.testing import (
@@ -74,7 +75,6 @@ from conformal_control.testing.safety_filter import (
     check_safety_filter_infeasible_reported,
 )
 from conformal_control.testing.update_rule import check_update_rule_monotone
-from conformal_control.update_rules import FixedEtaRule
 from conformal_control.world.replay import ReplayEnvironment
 
 # ------------------------------------------------------------------ built-ins failing today
@@ -112,7 +112,7 @@ def test_discovery_finds_every_builtin_environment_and_family():
     assert {FactoryEnvironment, PedestrianSeries, ReplayEnvironment} <= set(BUILTIN_GENERIC)
     assert {MachineSpeed, ConformalDisc, ConformalCBFController} <= set(BUILTIN_GENERIC)
     # abstract bases and classes defined outside the package are left out
-    from conformal_control.base import SingleStepEnvironment
+    from conformal_control.core.base import SingleStepEnvironment
 
     assert SingleStepEnvironment not in BUILTIN_GENERIC
     assert all(c.__module__.startswith("conformal_control.") for c in BUILTIN_GENERIC)
@@ -229,7 +229,7 @@ class LyingFilter(QPSafetyFilter):
     """Returns the nominal decision and claims it is optimal."""
 
     def solve(self, nominal, A, b, lam):
-        from conformal_control.cbf.roles import FilterResult
+        from conformal_control.families.cbf.roles import FilterResult
 
         return FilterResult(np.asarray(nominal, float), "optimal", lam)
 
@@ -917,7 +917,7 @@ def test_pytest_runs_expected_failures_both_ways(tmp_path, monkeypatch):
     (tmp_path / "test_inner.py").write_text(
         textwrap.dedent(
             """
-            from conformal_control.domains.factory import FactoryEnvironment, MachineSpeed
+            from conformal_control.families.domains.factory import FactoryEnvironment, MachineSpeed
             from conformal_control.testing import parametrize_with_checks
 
             class Lenient(FactoryEnvironment):

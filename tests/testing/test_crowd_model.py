@@ -5,8 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformal_control.crowds.base import CrowdModel
-from conformal_control.crowds.social_force import SocialForceModel
 from conformal_control.testing import ContractError, check_crowd_model
 from conformal_control.testing.crowd_model import (
     check_crowd_model_deterministic,
@@ -14,6 +12,8 @@ from conformal_control.testing.crowd_model import (
     check_crowd_model_finite,
     check_crowd_model_no_mutation,
 )
+from conformal_control.world.crowds.base import CrowdModel
+from conformal_control.world.crowds.social_force import SocialForceModel
 
 
 class Walker(CrowdModel):

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from conformal_control.cli import main
-from conformal_control.sim.episode import run_episode
-from conformal_control.update_rules import DtACIRule, PIDRule
+from conformal_control.core.update_rules import DtACIRule, PIDRule
+from conformal_control.runs.episode import run_episode
 
 
 @pytest.mark.parametrize("rule", ["fixed_eta", "decaying_eta", "pid", "dtaci"])

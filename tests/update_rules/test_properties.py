@@ -18,15 +18,15 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conformal_control.domains.intervals import _Step, run_intervals
-from conformal_control.monitor import GuaranteeMonitor
-from conformal_control.update_rules import (
+from conformal_control.core.monitor import GuaranteeMonitor
+from conformal_control.core.update_rules import (
     ACIRule,
     DecayingEtaRule,
     DtACIRule,
     FixedEtaRule,
     PIDRule,
 )
+from conformal_control.families.domains.intervals import _Step, run_intervals
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 losses_in_range = st.lists(

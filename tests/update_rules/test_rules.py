@@ -7,20 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf.controller import CBFIntervalRecord
-from conformal_control.cbf.loss import CBFTruth
-from conformal_control.cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
-from conformal_control.domains.factory import run_factory
-from conformal_control.losses import FunctionLoss, LossRangeError, MiscoverageLoss, wrap_loss
-from conformal_control.monitor import GuaranteeMonitor
-from conformal_control.update_rules import (
+from conformal_control.core import registry
+from conformal_control.core.losses import FunctionLoss, LossRangeError, MiscoverageLoss, wrap_loss
+from conformal_control.core.monitor import GuaranteeMonitor
+from conformal_control.core.update_rules import (
     ACIRule,
     DecayingEtaRule,
     DtACIRule,
     FixedEtaRule,
     PIDRule,
 )
+from conformal_control.families.cbf.controller import CBFIntervalRecord
+from conformal_control.families.cbf.loss import CBFTruth
+from conformal_control.families.cbf.safety_losses import CollisionLoss, DistanceShortfallLoss
+from conformal_control.families.domains.factory import run_factory
 
 RULES = ["fixed_eta", "decaying_eta", "aci", "dtaci", "pid"]
 LOSSES = [

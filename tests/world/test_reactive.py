@@ -7,8 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conformal_control import registry
-from conformal_control.cbf import (
+from conformal_control.core import registry
+from conformal_control.core.loop import ConformalLoop
+from conformal_control.core.update_rules import FixedEtaRule
+from conformal_control.families.cbf import (
     APFBarrier,
     AttractiveField,
     CBFGapLoss,
@@ -16,12 +18,10 @@ from conformal_control.cbf import (
     ConformalConstraint,
     QPSafetyFilter,
 )
-from conformal_control.cbf.controller import PredictorError
-from conformal_control.cbf.dynamics import VelocityTrackingDoubleIntegrator
-from conformal_control.flagship.params import resolve_params
-from conformal_control.loop import ConformalLoop
+from conformal_control.families.cbf.controller import PredictorError
+from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from conformal_control.predictors.base import TruthUnavailableError
-from conformal_control.update_rules import FixedEtaRule
+from conformal_control.runs.params import resolve_params
 from conformal_control.world.reactive import (
     ReactiveEnvironment,
     make_environment,

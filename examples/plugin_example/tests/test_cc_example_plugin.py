@@ -14,8 +14,8 @@ except ImportError as exc:  # fail loudly (never skip), saying what to do
     ) from exc
 
 
-from conformal_control import registry
 from conformal_control.cli import main
+from conformal_control.core import registry
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.testing import parametrize_with_checks
 

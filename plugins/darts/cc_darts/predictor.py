@@ -25,13 +25,13 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from conformal_control.core.progress import progress
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
 from conformal_control.predictors.cache import cache_dir
 from conformal_control.predictors.constant_velocity import (
     ConstantVelocityPredictor,
     trailing_valid,
 )
-from conformal_control.progress import progress
 
 if importlib.util.find_spec("darts") is None:  # report "unavailable" without importing darts
     raise ImportError("the darts predictor needs the 'darts' package (pip install darts)")

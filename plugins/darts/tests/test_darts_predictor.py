@@ -10,8 +10,8 @@ import pytest
 from cc_darts import DartsPredictor, ForecastCache
 from cc_darts.predictor import CacheCorruptWarning
 
-from conformal_control import registry
-from conformal_control.cbf.controller import merge_forecast_info
+from conformal_control.core import registry
+from conformal_control.families.cbf.controller import merge_forecast_info
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.var import VARPredictor
 from conformal_control.testing import parametrize_with_checks
@@ -115,7 +115,7 @@ def test_missing_darts_reports_unavailable(monkeypatch):
     assert "needs the 'darts' package" in entry.error
     import conformal_control  # the core still imports
 
-    assert conformal_control.registry is registry
+    assert conformal_control.core.registry is registry
 
 
 def _corrupt(path, how):

@@ -6,8 +6,8 @@ import dataclasses
 import json
 
 from conformal_control.data import load_scene
-from conformal_control.engines.batch import run_batch, supports
-from conformal_control.sim import run_episode
+from conformal_control.runs.engines.batch import run_batch, supports
+from conformal_control.runs.episode import run_episode
 
 
 def _metrics(m):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from cc_kalman import KalmanPredictor
 
-from conformal_control import registry
 from conformal_control.cli import main
+from conformal_control.core import registry
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.testing import parametrize_with_checks
 

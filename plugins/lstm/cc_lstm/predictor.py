@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from conformal_control.core.progress import progress
 from conformal_control.predictors.learned import WindowPredictor, synthetic_windows
-from conformal_control.progress import progress
 
 __all__ = [
     "UNIT_TEST_PARAMS",

@@ -9,8 +9,8 @@ import pytest
 from cc_lstm import LSTMPredictor
 from cc_lstm.predictor import UNIT_TEST_PARAMS, UNIT_TEST_WEIGHTS, make_unit_test_weights
 
-from conformal_control import registry
 from conformal_control.cli import main
+from conformal_control.core import registry
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
 from conformal_control.predictors.learned import synthetic_windows

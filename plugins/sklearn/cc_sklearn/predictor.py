@@ -15,7 +15,7 @@ are refused with a message saying to train again.
 
 The registry's entry-point cache cannot run code either: the plugin is found as
 ``sklearn`` through an entry point, and a cached row is used only when the installed
-distribution's ``entry_points.txt`` declares exactly it (``conformal_control.registry``
+distribution's ``entry_points.txt`` declares exactly it (``conformal_control.core.registry``
 checks every row against the installed metadata rather than signing the cache, whose key
 would sit beside it in the user's folder); a cache pointing ``sklearn`` elsewhere is
 discarded and the entry points are scanned again.
@@ -35,7 +35,7 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.utils import all_estimators
 
-from conformal_control.exceptions import InputError
+from conformal_control.core.exceptions import InputError
 from conformal_control.predictors.learned import WindowPredictor, synthetic_windows
 
 __all__ = [

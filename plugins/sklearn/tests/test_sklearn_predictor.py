@@ -12,8 +12,8 @@ import skops.io
 from cc_sklearn import SklearnPredictor
 from cc_sklearn.predictor import UNIT_TEST_WEIGHTS, make_unit_test_weights
 
-from conformal_control import registry
-from conformal_control.exceptions import InputError
+from conformal_control.core import registry
+from conformal_control.core.exceptions import InputError
 from conformal_control.predictors import ConstantVelocityPredictor
 from conformal_control.predictors.base import PredictionQuery
 from conformal_control.predictors.evaluation import Windows, evaluate_predictor
@@ -169,7 +169,7 @@ def test_a_modified_model_file_fails_its_checksum(tmp_path):
 
 
 def test_a_corrupt_cached_model_is_trained_again(tmp_path, monkeypatch, data_root):
-    from conformal_control.exceptions import CacheWarning
+    from conformal_control.core.exceptions import CacheWarning
     from conformal_control.predictors.training import cached_weights
 
     monkeypatch.setenv("CONFORMAL_CONTROL_CACHE", str(tmp_path / "cache"))

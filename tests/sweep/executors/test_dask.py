@@ -9,10 +9,10 @@ from pathlib import Path
 
 import distributed  # the sweep extra, installed by the README: a missing one fails
 
-from conformal_control.bench.runner import read_rows
 from conformal_control.cli import main
-from conformal_control.sweep.batch import run_chunked
-from conformal_control.sweep.executors.serial import SerialExecutor
+from conformal_control.experiments.batch import run_chunked
+from conformal_control.experiments.bench.suite import read_rows
+from conformal_control.experiments.executors.serial import SerialExecutor
 
 #: one method without learning, one learning method, one whose fallback decides in Python
 #: (relax; these three batched), one the engine does not batch (cc_mpc: the sampling MPC)

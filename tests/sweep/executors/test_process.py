@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from conformal_control.sweep.executors.process import process_alive
+from conformal_control.experiments.executors.process import process_alive
 
 
 def test_process_alive_sees_exit_zombies_and_reuse() -> None:

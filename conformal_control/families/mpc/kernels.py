@@ -1,0 +1,430 @@
+"""The sampling MPC's inner loop, compiled: cost and clearance of every sampled plan.
+
+For N sampled plans of H steps and M predicted agents, the clearance of plan n is::
+
+    c_n = min over steps h = 1..H and agents j of ( dist_njh - r_nh )
+
+with ``r_nh`` the safe distance at step h and ``dist_njh`` either the distance between
+the plan's position ``p_nh`` and agent j's predicted position ``y_jh`` at the end of the
+step (``continuous=False``, the discrete check of the published sampling MPCs), or the
+smallest distance between the two over the whole step, both moving linearly from their
+positions at step h - 1 (``continuous=True``): a robot and a pedestrian crossing at
+3 m/s cover 1.2 m in a 0.4 s step, more than a collision distance, so end points alone
+can miss a collision between them. A plan is safe when ``c_n >= 0``. The minimum over
+agents is taken on squared distances: one square root per (plan, step).
+
+The cost of plan n (goal g, commands u, ``u_-1`` the command applied last)::
+
+    w_goal sum_{h=1}^{H-1} |p_nh - g|^2 + w_terminal |p_nH - g|^2
+        + w_effort sum_h |u_nh|^2 + w_comfort sum_h |u_nh - u_n(h-1)|^2
+
+The violation of plan n is ``sum_h max(r_nh - dist_nh, 0)`` with ``dist_nh`` the step's
+smallest distance over agents: how far, in total, the plan intrudes (the fallback
+``least_violation`` minimises it).
+
+Written as plain loops for numba; :func:`evaluate_numpy` is the same arithmetic in numpy
+(the reference the tests compare with).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+from ...core.jit import kernel
+
+__all__ = ["agent_rows", "evaluate", "evaluate_many", "evaluate_numpy"]
+
+jit = kernel(cache=True, nogil=True)
+
+
+@jit
+def _evaluate_range(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+    n0: int,
+    n1: int,
+    a0: int,
+    a1: int,
+    cost: np.ndarray,
+    clear: np.ndarray,
+    viol: np.ndarray,
+    aoff: np.ndarray,
+) -> None:
+    """Plans ``n0:n1`` of ``pos``/``cmds``/``radius`` against agents ``a0:a1`` (columns of
+    ``ex``, ``ey``, ``sx``, ``sy``), written into ``cost``, ``clear``, ``viol`` at ``n0:n1``:
+    the body of :func:`_evaluate` and of :func:`_evaluate_many` (one body, so one plan's
+    numbers are the same whichever call evaluates it). ``aoff`` is empty, or holds one
+    number per agent (columns ``a0:a1``) added to the safe distance of that agent only
+    (lambda run per agent)."""
+    # ex, ey (H, M): the agents' predicted positions at the end of each step; sx, sy: at
+    # its start. Agent-major rows and separate coordinates, and the closest approach chosen
+    # by selects rather than branches: the agent loop compiles to vector instructions
+    # (several times faster than the branching loop on (M, H, 2) arrays; the same numbers)
+    horizon = pos.shape[1]
+    n_agents = a1 - a0
+    w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
+    es = np.empty(n_agents)
+    for n in range(n0, n1):
+        c = 0.0
+        best = np.inf
+        v = 0.0
+        ax = p0[0]
+        ay = p0[1]
+        ux = last[0]
+        uy = last[1]
+        for h in range(horizon):
+            px = pos[n, h, 0]
+            py = pos[n, h, 1]
+            gx = px - goal[0]
+            gy = py - goal[1]
+            c += (w_term if h == horizon - 1 else w_goal) * (gx * gx + gy * gy)
+            vx = cmds[n, h, 0]
+            vy = cmds[n, h, 1]
+            c += w_eff * (vx * vx + vy * vy)
+            c += w_comf * ((vx - ux) * (vx - ux) + (vy - uy) * (vy - uy))
+            ux = vx
+            uy = vy
+            if continuous:
+                for j in range(n_agents):
+                    bx = px - ex[h, a0 + j]
+                    by = py - ey[h, a0 + j]
+                    e = bx * bx + by * by  # at the step's end
+                    rx = ax - sx[h, a0 + j]
+                    ry = ay - sy[h, a0 + j]
+                    dx = bx - rx
+                    dy = by - ry
+                    dd = dx * dx + dy * dy
+                    # the closest approach at s in (0, 1); before the step (s <= 0) its
+                    # start; after it (s >= 1) or with no relative motion its end
+                    s = -(rx * dx + ry * dy) / (dd if dd > 0.0 else 1.0)
+                    qx = rx + s * dx
+                    qy = ry + s * dy
+                    within = qx * qx + qy * qy
+                    start = min(e, rx * rx + ry * ry)
+                    moving = dd > 0.0
+                    es[j] = (
+                        within
+                        if moving & (0.0 < s) & (s < 1.0)
+                        else (start if moving & (s <= 0.0) else e)
+                    )
+            else:
+                for j in range(n_agents):
+                    bx = px - ex[h, a0 + j]
+                    by = py - ey[h, a0 + j]
+                    es[j] = bx * bx + by * by
+            d2 = np.inf
+            for j in range(n_agents):
+                if es[j] < d2:
+                    d2 = es[j]
+            if n_agents and aoff.shape[0]:  # each agent its own safe distance
+                cl = np.inf
+                for j in range(n_agents):
+                    cj = math.sqrt(es[j]) - (radius[n, h] + aoff[a0 + j])
+                    if cj < cl:
+                        cl = cj
+                if cl < best:
+                    best = cl
+                if cl < 0.0:
+                    v -= cl
+            elif n_agents:
+                cl = math.sqrt(d2) - radius[n, h]
+                if cl < best:
+                    best = cl
+                if cl < 0.0:
+                    v -= cl
+            ax = px
+            ay = py
+        cost[n] = c
+        clear[n] = best
+        viol[n] = v
+
+
+@jit
+def _evaluate(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+    aoff: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n_plans = pos.shape[0]
+    cost = np.zeros(n_plans)
+    clear = np.full(n_plans, np.inf)
+    viol = np.zeros(n_plans)
+    _evaluate_range(
+        pos, cmds, p0, ex, ey, sx, sy, radius, goal, weights, last, continuous,
+        0, n_plans, 0, ex.shape[1], cost, clear, viol, aoff,
+    )  # fmt: skip
+    return cost, clear, viol
+
+
+@jit
+def _evaluate_many(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: np.ndarray,
+    plans: np.ndarray,
+    agents: np.ndarray,
+    aoff: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Problem ``i`` is plans ``plans[i]:plans[i + 1]`` against agents ``agents[i]:agents[i
+    + 1]``, with its own ``p0[i]``, ``goal[i]``, ``weights[i]``, ``last[i]``,
+    ``continuous[i]``; ``aoff`` is empty or one number per agent of every problem."""
+    n_plans = pos.shape[0]
+    cost = np.zeros(n_plans)
+    clear = np.full(n_plans, np.inf)
+    viol = np.zeros(n_plans)
+    for i in range(plans.shape[0] - 1):
+        _evaluate_range(
+            pos, cmds, p0[i], ex, ey, sx, sy, radius, goal[i], weights[i], last[i],
+            continuous[i], plans[i], plans[i + 1], agents[i], agents[i + 1], cost, clear, viol,
+            aoff,
+        )  # fmt: skip
+    return cost, clear, viol
+
+
+def evaluate(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    pred: np.ndarray,
+    y0: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: tuple[float, float, float, float],
+    last: np.ndarray,
+    continuous: bool = True,
+    offsets: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cost, clearance (m) and violation (m) of every plan.
+
+    Parameters
+    ----------
+    pos : ndarray of shape (N, H, 2)
+        Planned positions at the end of steps 1..H (m).
+    cmds : ndarray of shape (N, H, 2)
+        The commands of each step.
+    p0 : ndarray of shape (2,)
+        The robot's position now (the start of step 1).
+    pred : ndarray of shape (M, H, 2)
+        Predicted agent positions at the end of steps 1..H (m; finite).
+    y0 : ndarray of shape (M, 2)
+        Their predicted positions now.
+    radius : ndarray of shape (N, H) or (H,)
+        Safe centre distance at each step (m), per plan or shared by all plans.
+    goal : ndarray of shape (2,)
+    weights : (w_goal, w_terminal, w_effort, w_comfort)
+    last : ndarray of shape (2,)
+        The command applied last (for the comfort term).
+    continuous : bool
+        Check the whole of every step (True) or its end points only.
+    offsets : ndarray of shape (M,), optional
+        Added to the safe distance of each agent (m; lambda run per agent: agent j's
+        safe distance is ``radius + offsets[j]``); None: ``radius`` for every agent.
+
+    Returns
+    -------
+    cost, clearance, violation : ndarrays of shape (N,)
+        The clearance is ``inf`` when there is no agent; the violation is the sum over
+        steps of how far the step's smallest distance falls short of its safe distance
+        (0 for a safe plan).
+    """
+    r = np.asarray(radius, dtype=np.float64)
+    if r.ndim == 1:
+        r = np.broadcast_to(r, pos.shape[:2])
+    c = np.ascontiguousarray
+    ex, ey, sx, sy = agent_rows(pred, y0)
+    cost, clear, viol = _evaluate(
+        c(pos, dtype=np.float64),
+        c(cmds, dtype=np.float64),
+        c(p0, dtype=np.float64),
+        ex,
+        ey,
+        sx,
+        sy,
+        c(r),
+        c(goal, dtype=np.float64),
+        np.asarray(weights, dtype=np.float64),
+        c(last, dtype=np.float64),
+        bool(continuous),
+        _offsets(offsets),
+    )
+    return cost, clear, viol
+
+
+def _offsets(offsets: Any) -> np.ndarray:
+    """The kernels' ``aoff``: the agents' safe-distance offsets as float64, or empty."""
+    if offsets is None:
+        return np.zeros(0)
+    return np.ascontiguousarray(offsets, dtype=np.float64).ravel()
+
+
+def evaluate_many(
+    problems: list[tuple[Any, ...]],
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`evaluate` of several problems in ONE compiled call (the lockstep episodes of a
+    batch: every episode's samples at once), each problem's numbers the same as
+    :func:`evaluate`'s on it alone (the same compiled body, plan by plan).
+
+    Parameters
+    ----------
+    problems : list of tuples
+        Each ``(pos, cmds, p0, pred, y0, radius, goal, weights, last, continuous[,
+        offsets])``, the arguments of :func:`evaluate`; every ``pos`` with the same
+        horizon H.
+
+    Returns
+    -------
+    list of (cost, clearance, violation)
+        One per problem, as :func:`evaluate` returns them.
+    """
+    if not problems:
+        return []
+    horizon = {int(np.shape(p[0])[1]) for p in problems}
+    if len(horizon) != 1:
+        raise ValueError(f"evaluate_many needs one horizon, got {sorted(horizon)}")
+    f64 = np.float64
+    pos = np.concatenate([np.asarray(p[0], dtype=f64) for p in problems])
+    cmds = np.concatenate([np.asarray(p[1], dtype=f64) for p in problems])
+    rows = [agent_rows(p[3], p[4]) for p in problems]
+    ex, ey, sx, sy = (np.ascontiguousarray(np.concatenate([r[k] for r in rows], axis=1))
+                      for k in range(4))  # fmt: skip
+    radius = np.concatenate(
+        [np.broadcast_to(np.asarray(p[5], dtype=f64), np.shape(p[0])[:2]) for p in problems]
+    )
+    sizes = np.array([np.shape(p[0])[0] for p in problems], dtype=np.int64)
+    plans = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    agents = np.concatenate([[0], np.cumsum([r[0].shape[1] for r in rows])]).astype(np.int64)
+    offs = [_offsets(p[10] if len(p) > 10 else None) for p in problems]
+    if any(o.size for o in offs):  # per agent for every problem (0 where it has none)
+        offs = [o if o.size else np.zeros(r[0].shape[1]) for o, r in zip(offs, rows, strict=True)]
+    aoff = np.concatenate(offs) if offs else np.zeros(0)
+    cost, clear, viol = _evaluate_many(
+        np.ascontiguousarray(pos),
+        np.ascontiguousarray(cmds),
+        np.array([np.asarray(p[2], dtype=f64) for p in problems]).reshape(-1, 2),
+        ex,
+        ey,
+        sx,
+        sy,
+        np.ascontiguousarray(radius),
+        np.array([np.asarray(p[6], dtype=f64) for p in problems]).reshape(-1, 2),
+        np.array([np.asarray(p[7], dtype=f64) for p in problems]).reshape(-1, 4),
+        np.array([np.asarray(p[8], dtype=f64) for p in problems]).reshape(-1, 2),
+        np.array([bool(p[9]) if len(p) > 9 else True for p in problems]),
+        plans,
+        agents,
+        aoff,
+    )
+    return [(cost[a:b], clear[a:b], viol[a:b]) for a, b in itertools.pairwise(plans)]
+
+
+def agent_rows(
+    pred: np.ndarray, y0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's layout of the predictions: x and y of every agent at the end of each
+    step, and at its start (``y0`` for the first step), each of shape (H, M)."""
+    end = np.asarray(pred, dtype=np.float64).transpose(1, 0, 2)  # (H, M, 2)
+    first = np.asarray(y0, dtype=np.float64).reshape(1, -1, 2)
+    start = np.concatenate([first, end[:-1]], axis=0) if end.shape[0] else end
+    c = np.ascontiguousarray
+    return c(end[..., 0]), c(end[..., 1]), c(start[..., 0]), c(start[..., 1])
+
+
+def evaluate_numpy(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    pred: np.ndarray,
+    y0: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: tuple[float, float, float, float],
+    last: np.ndarray,
+    continuous: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`evaluate` in numpy (reference; allocates (N, H, M) arrays).
+
+    Parameters
+    ----------
+    pos : ndarray of shape (N, H, 2)
+        Planned positions at the end of steps 1..H (m).
+    cmds : ndarray of shape (N, H, 2)
+        The commands of each step.
+    p0 : ndarray of shape (2,)
+        The robot's position now (the start of step 1).
+    pred : ndarray of shape (M, H, 2)
+        Predicted agent positions at the end of steps 1..H (m; finite).
+    y0 : ndarray of shape (M, 2)
+        Their predicted positions now.
+    radius : ndarray of shape (N, H) or (H,)
+        Safe centre distance at each step (m), per plan or shared by all plans.
+    goal : ndarray of shape (2,)
+        The goal (m).
+    weights : (w_goal, w_terminal, w_effort, w_comfort)
+        The cost weights.
+    last : ndarray of shape (2,)
+        The command applied last (for the comfort term).
+    continuous : bool
+        Check the whole of every step (True) or its end points only.
+
+    Returns
+    -------
+    cost, clearance, violation : ndarrays of shape (N,)
+        As :func:`evaluate`'s.
+    """
+    w_goal, w_term, w_eff, w_comf = weights
+    d2g = ((pos - goal) ** 2).sum(-1)
+    cost = w_goal * d2g[:, :-1].sum(1) + w_term * d2g[:, -1]
+    prev = np.concatenate([np.broadcast_to(last, cmds[:, :1].shape), cmds[:, :-1]], 1)
+    cost = cost + w_eff * (cmds**2).sum((1, 2)) + w_comf * ((cmds - prev) ** 2).sum((1, 2))
+    n = pos.shape[0]
+    if pred.shape[0] == 0:
+        return cost, np.full(n, np.inf), np.zeros(n)
+    b = pos[:, :, None, :] - pred.transpose(1, 0, 2)[None]  # (N, H, M, 2): ends
+    d2 = (b**2).sum(-1)
+    if continuous:
+        start_p = np.concatenate([np.broadcast_to(p0, (n, 1, 2)), pos[:, :-1]], 1)
+        start_y = np.concatenate([y0[:, None], pred[:, :-1]], 1)  # (M, H, 2)
+        a = start_p[:, :, None, :] - start_y.transpose(1, 0, 2)[None]
+        d = b - a
+        dd = (d**2).sum(-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = np.clip(-(a * d).sum(-1) / dd, 0.0, 1.0)
+        s = np.where(dd > 0, s, 1.0)
+        q = a + s[..., None] * d
+        d2 = (q**2).sum(-1)
+    r = np.broadcast_to(np.asarray(radius, dtype=float), pos.shape[:2])
+    per_step = np.sqrt(d2.min(axis=2)) - r
+    return cost, per_step.min(axis=1), np.maximum(-per_step, 0.0).sum(axis=1)
