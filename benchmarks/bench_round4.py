@@ -19,9 +19,10 @@ engine use one core alike), after a warm-up run that loads the compiled kernels;
   (the first test scenarios of ``crossings-v2`` are biwi_eth's, which it covers), and the
   same shift with the predictor called in Python per episode and interval (the engine before
   it compiled the recorded forecasts);
-* ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios) -- target 5x;
-* ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal) against a
-  single-robot episode -- target 3x.
+* ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios; the MPC families run
+  one episode per task, not in the lockstep engine) -- target 5x;
+* ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal; fleets run
+  one per task, not in the lockstep engine) against a single-robot episode -- target 3x.
 
 :func:`measure` returns the figures as dicts (``benchmarks/run_all.py``'s form).
 """
@@ -137,6 +138,7 @@ def measure_shift(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
             "delay-0.5s episode (shift compiled)",
             per[1],
             "ms",
+            target=1.3 * per[0],
             note=note,
             ratios=[
                 ("a nominal episode", per[0], "times"),
@@ -182,14 +184,113 @@ def measure_learned(data_root: str, quick: bool = False) -> list[dict[str, Any]]
     ]
 
 
+def measure_mpc(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
+    """An ``mpc`` episode against a ``conformal`` (CBF) episode on the same scenarios."""
+    limit, repeats = (5, 1) if quick else (20, 2)
+    time_bench(data_root, 1, methods=("mpc", "conformal"))  # warm-up: kernels loaded
+    loads = [_load()]
+    cbf = time_bench(data_root, limit, repeats, methods=("conformal",))
+    mpc = time_bench(data_root, limit, repeats, methods=("mpc",))
+    loads.append(_load())
+    per = [w / n for w, _, n in (cbf, mpc)]
+    note = (
+        f"{mpc[2]} mpc and {cbf[2]} conformal episodes (the first {limit} test scenarios; "
+        "mpc, a reference family, runs its whole margin grid), one worker (the MPC family "
+        "one episode per task on a process pool, the CBF in the lockstep engine), best of "
+        f"{repeats}; wall time (the pool worker's CPU time is not this process's); "
+        f"{loads[0]} before, {loads[1]} after"
+    )
+    return [
+        _fig(
+            "mpc",
+            "mpc episode (sampling MPC, fixed margin)",
+            per[1],
+            "ms",
+            target=5.0 * per[0],
+            note=note,
+            ratios=[("a conformal CBF episode", per[0], "times")],
+        )
+    ]
+
+
+def time_fleet(data_root: str, limit: int, robots: int, repeats: int) -> tuple[float, float, int]:
+    """(wall, CPU, robot episodes) of the better of ``repeats`` reciprocal ``conformal``
+    fleet runs of ``robots`` robots on the first ``limit`` multi-robot test entries."""
+    from conformal_control.experiments.bench.multi import run_multi_bench
+
+    best: tuple[float, float, int] | None = None
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory(prefix="cc-round4-") as tmp, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            c0, t0 = _cpu(), time.perf_counter()
+            run = run_multi_bench(
+                Path(tmp) / "m",
+                robots=(robots,),
+                methods=("conformal",),
+                reciprocity=("reciprocal",),
+                data_root=data_root,
+                workers=1,
+                limit=limit,
+            )
+            wall, cpu = time.perf_counter() - t0, _cpu() - c0
+        if run.failed:
+            raise RuntimeError(f"{run.failed} fleet runs failed")
+        got = (wall, cpu, run.ran * robots)
+        if best is None or got[0] < best[0]:
+            best = got
+    assert best is not None
+    return best
+
+
+def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
+    """A robot of a 5-robot reciprocal fleet against a single-robot ``conformal`` episode."""
+    limit, repeats = (2, 1) if quick else (4, 1)
+    time_fleet(data_root, 1, 2, 1)  # warm-up: kernels loaded
+    loads = [_load()]
+    single = time_bench(data_root, 20, 2, methods=("conformal",))
+    fleet = time_fleet(data_root, limit, 5, repeats)
+    loads.append(_load())
+    per = [w / n for w, _, n in (single, fleet)]
+    cpu = [c / n for _, c, n in (single, fleet)]
+    note = (
+        f"{fleet[2]} robot episodes (the first {limit} multi-crossings-v1 test entries, "
+        f"5 robots, reciprocal, conformal), one worker (fleets "
+        f"run one per task), against {single[2]} single-robot episodes (20 crossings-v2 test "
+        f"scenarios, lockstep engine); CPU per robot {cpu[1] * 1e3:.1f} ms against "
+        f"{cpu[0] * 1e3:.1f} ms ({cpu[1] / cpu[0]:.1f}x); {loads[0]} before, {loads[1]} after"
+    )
+    return [
+        _fig(
+            "fleet",
+            "a robot of a 5-robot fleet (reciprocal)",
+            per[1],
+            "ms",
+            target=3.0 * per[0],
+            note=note,
+            ratios=[("a single-robot episode", per[0], "times")],
+        )
+    ]
+
+
+#: section -> function, in the order :func:`measure` runs them
+MEASURES = {
+    "shift": measure_shift,
+    "learned": measure_learned,
+    "mpc": measure_mpc,
+    "fleet": measure_fleet,
+}
+
+
 def measure(
     data_root: str, quick: bool = False, only: tuple[str, ...] = ()
 ) -> list[dict[str, Any]]:
+    unknown = sorted(set(only) - set(MEASURES))
+    if unknown:
+        raise ValueError(f"unknown section(s) {unknown}; choose from {sorted(MEASURES)}")
     out: list[dict[str, Any]] = []
-    if not only or "shift" in only:
-        out += measure_shift(data_root, quick)
-    if not only or "learned" in only:
-        out += measure_learned(data_root, quick)
+    for name, fn in MEASURES.items():
+        if not only or name in only:
+            out += fn(data_root, quick)
     return out
 
 

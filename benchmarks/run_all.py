@@ -47,6 +47,9 @@ as goals, never asserted. Sections (``--only`` picks some):
   ``bench report`` on its 14,040 rows (target 10 s) against reading the rows alone;
 * ``report``     -- ``bench report`` on ``--report-folder PATH`` (the same figure on a
   folder at hand; not run without it);
+* ``round4``     -- per episode under ``delay-0.5s`` and ``learned`` against nominal (target
+  1.3x), a robot of a 5-robot reciprocal fleet (target 3x) and an ``mpc`` episode (target 5x)
+  against a single-robot CBF episode, one worker (``bench_round4.measure``);
 * ``mpc``        -- one sampling-MPC step, N = 500, H = 12, 20 pedestrians (target 2 ms),
   against its numpy reference and the CBF step (``bench_mpc.measure``);
 * ``scene``      -- a 100,000-frame scene of 9,000 passers-by: the memory it holds, the peak
@@ -768,6 +771,28 @@ def sec_mpc(args: argparse.Namespace) -> list[Figure]:
     return out
 
 
+def sec_round4(args: argparse.Namespace) -> list[Figure]:
+    """What an episode costs under a predictor shift, as a fleet robot and with the MPC
+    family, each against the plain single-robot CBF episode timed in the same run
+    (``bench_round4.measure``: one worker, the first test scenarios)."""
+    import bench_round4
+
+    out = []
+    for f in bench_round4.measure(str(args.data_root), quick=args.quick):
+        out.append(
+            figure(
+                "round4",
+                f["name"],
+                f["value"],
+                f["unit"],
+                target=None if args.quick else f["target"],
+                ratios=list(f["ratios"]),
+                note=f["note"],
+            )
+        )
+    return out
+
+
 def sec_shift(args: argparse.Namespace) -> list[Figure] | str:
     """The benchmark's shift axis as its page runs it: the test split, nominal and four
     shifts (``bench run --shift nominal,delay-0.2s,delay-0.5s,noise-0.25m,frozen``, the
@@ -845,6 +870,7 @@ SECTIONS: dict[str, tuple[str, Callable[[argparse.Namespace], list[Figure] | str
     "suite": ("The benchmark's default suite", sec_suite),
     "shift": ("The benchmark's shift axis", sec_shift),
     "mpc": ("Sampling MPC: one control step", sec_mpc),
+    "round4": ("Per episode: shifted predictors, fleets, the MPC family", sec_round4),
     "scene": ("Scenes stored sparsely: a 100,000-frame scene", sec_scene),
     "sweep_scale": ("Sweeps at 100,000 runs: the bookkeeping's throughput", sec_sweep_scale),
     "report": ("bench report on a given folder", sec_report),

@@ -104,3 +104,12 @@ def test_a_failing_section_is_reported_and_the_others_still_run(
     out = capsys.readouterr().out
     assert "failed: ValueError: broken" in out
     assert "fine figure" in out
+
+
+def test_round4_is_a_section_and_names_its_parts(run_all):
+    import bench_round4  # run_all put benchmarks/ on sys.path
+
+    assert "round4" in run_all.SECTIONS
+    assert list(bench_round4.MEASURES) == ["shift", "learned", "mpc", "fleet"]
+    with pytest.raises(ValueError, match=r"unknown section\(s\) \['fleets'\]"):
+        bench_round4.measure("/nowhere", only=("fleets",))
