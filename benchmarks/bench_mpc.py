@@ -15,7 +15,7 @@ lockstep (``planar.run_scenarios``: every scenario's plans at a decision evaluat
 compiled call, ``mpc.batch.plan_all``) against the same scenarios one at a time
 (``planar.run_scenario``), per decided step (CPU time of this process: the two paths do the
 same work on one thread, and the machine's other jobs do not enter), with identical results
-(``tests/mpc/test_batch.py``),
+(``tests/families/mpc/test_batch.py``),
 
 and, in the same run on the same inputs,
 

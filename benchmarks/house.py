@@ -10,7 +10,8 @@ it only closes it later), ``if TYPE_CHECKING:`` blocks aside (they never run). U
 
 Figures:
 
-* rooms, floors, arrows (distinct module -> module imports), arrows running up (a unit
+* rooms, floors, arrows (distinct module -> module imports; none to a folder that only
+  groups units, whose ``__init__`` imports nothing), arrows running up (a unit
   importing a unit of its own or a higher layer, which the layer rule forbids), the
   function-level imports among them;
 * circles: strongly connected groups of modules in the import graph (every import);
@@ -336,6 +337,7 @@ def follow(argv: list[str]) -> dict[str, Any]:
 
     layers = _layers()
     pkg = str(PKG)
+    moved = str(PKG / "_moved.py")
 
     def layer(module: str) -> int:
         return layers.get(_unit(module), 99)
@@ -348,8 +350,8 @@ def follow(argv: list[str]) -> dict[str, Any]:
         if event not in ("call", "return"):
             return
         code = frame.f_code
-        if not code.co_filename.startswith(pkg):
-            return
+        if not code.co_filename.startswith(pkg) or code.co_filename == moved:
+            return  # _moved.py is the import system's finder (asked at every import)
         if code.co_name == "<module>":  # an import: not the run's path
             state["importing"] += 1 if event == "call" else -1
             return
@@ -407,6 +409,11 @@ def measure() -> dict[str, Any]:
     edges: dict[tuple[str, str], bool] = {}  # (a, b) -> only inside functions
     private: list[tuple[str, str, str]] = []
     n_function_level = 0
+    # folders that only group units (an __init__ importing nothing of the package, e.g.
+    # core/): running their __init__ is no dependency, so no arrow points at them
+    grouping = {
+        module_name(p) for p in files if p.name == "__init__.py" and not imports(p, typing=True)
+    }
     for p in files:
         me = module_name(p)
         deps: set[str] = set()
@@ -416,7 +423,7 @@ def measure() -> dict[str, Any]:
             # importing a.b.c runs a/__init__ and a/b/__init__ first
             chain = {".".join(parts[:i]) for i in range(2, len(parts) + 1)}
             for d in chain:
-                if d == me or me.startswith(d + "."):
+                if d == me or me.startswith(d + ".") or (d in grouping and d != target):
                     continue
                 deps.add(d)
                 edges[(me, d)] = edges.get((me, d), True) and nested

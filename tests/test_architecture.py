@@ -166,8 +166,7 @@ LAYERS: dict[str, int] = {
     # decision families driven in the replay world by their contract checks
     "families.mpc": 7,
     # wiring one episode; measuring and writing what it produced; the contract kit
-    "runs.build": 8,
-    "runs.params": 7,
+    "runs": 8,  # runs/build.py and runs/params.py: wiring one run (flagship/ of 0.3)
     "runs.results": 8,
     "testing": 8,
     # the backends of the loop, then running episodes

@@ -54,7 +54,7 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 ELSEWHERE = {
     "run --scene nexus_4": "tests/test_docs_build.py::"
     "test_the_data_page_explains_the_lookup_order_the_code_uses (a user without data)",
-    "run --predictor lstm": "tests/commands/test_feedback.py::"
+    "run --predictor lstm": "tests/cli/commands/test_feedback.py::"
     "test_lstm_on_the_builtin_scene_needs_no_downloaded_data (a first use: training)",
 }
 

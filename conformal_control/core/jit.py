@@ -25,7 +25,7 @@ where numba and Python call different C functions for one name -- ``math.hypot``
 library's in numba and CPython's own algorithm in Python -- the kernel names which one it
 means (:func:`~conformal_control.families.cbf.pyhypot.c_hypot`,
 :func:`~conformal_control.families.cbf.pyhypot.py_hypot`) and each form calls that one
-(``python=``). ``tests/test_jit.py`` runs episodes of every compiled path in both forms and
+(``python=``). ``tests/core/test_jit.py`` runs episodes of every compiled path in both forms and
 compares them field by field.
 
 Compiling replaces each kernel in the namespace of every loaded module of the package that

@@ -839,7 +839,7 @@ def run_scenarios(
     advance together from one decision to the next, and a sampling-MPC family's plans of
     every scenario at a decision are evaluated in one compiled call
     (:func:`~conformal_control.families.mpc.batch.plan_all`). The results equal
-    :func:`run_scenario`'s one by one (``tests/mpc/test_batch.py``), except the measured
+    :func:`run_scenario`'s one by one (``tests/families/mpc/test_batch.py``), except the measured
     times: a scenario's controller time includes its share (an equal part) of the joint
     evaluation. Not faster than one at a time at the protocol's size (see
     :mod:`conformal_control.families.mpc.batch`), so :func:`run_planar` does not use it.

@@ -109,7 +109,7 @@ def bootstrap_means(
     resampled means), computed here for many samples at once because a report asks
     for thousands of intervals: the resample indices of a size are drawn once, not per
     interval, integer-valued samples are summed through their counts, and the quantiles
-    of all samples are taken in one call. ``tests/bench/test_stats.py`` checks every
+    of all samples are taken in one call. ``tests/experiments/bench/test_stats.py`` checks every
     bound against ``scipy.stats.bootstrap`` itself.
 
     Parameters

@@ -16,7 +16,7 @@ with two accumulators. The two round differently for a few inputs (e.g. ``hypot(
 1.2)``), and the C library's ``hypot`` for others, which is enough to flip a comparison such
 as ``distance <= goal_radius``. No library offers this function for numba, so both
 variants are written here, step by step as CPython's ``Modules/mathmodule.c`` does them;
-:func:`py_hypot` is the one of the running interpreter. ``tests/cbf/test_pyhypot.py``
+:func:`py_hypot` is the one of the running interpreter. ``tests/families/cbf/test_pyhypot.py``
 checks it against ``math.hypot`` with exact equality.
 """
 

@@ -5,7 +5,7 @@ Foxglove recognises its schemas by name (``foxglove.SceneUpdate``, ``foxglove.Fr
 ``jsonschema``. The schemas below are Foxglove's published definitions of these messages
 (the ``foxglove/schemas`` repository, MIT), built from their parts (time, Vector3,
 Quaternion, Pose, Color, the primitives) instead of pasted: the same titles, fields and
-types, without the field descriptions (``tests/export/test_foxglove.py`` checks that they
+types, without the field descriptions (``tests/io/export/test_foxglove.py`` checks that they
 equal the published definitions, descriptions left out, through a fingerprint of their
 canonical JSON).
 

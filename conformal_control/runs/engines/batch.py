@@ -18,7 +18,7 @@ The metrics are those of :func:`run_episode`, exactly: every episode is built by
 validation, same errors), its lambda is updated by its own update rule through its own
 :class:`~conformal_control.core.monitor.GuaranteeMonitor`, its counters are written into the
 same learned attributes the per-episode loop fills, and it is measured by the same code.
-The per-instant arithmetic is written to round the same way (``tests/engines/test_batch.py``
+The per-instant arithmetic is written to round the same way (``tests/runs/engines/test_batch.py``
 checks every metric against :func:`run_episode`). The wall time of the control loop
 (``wall_s``) is the episode's share of the batch's: each iteration's time divided among
 the episodes it advanced.

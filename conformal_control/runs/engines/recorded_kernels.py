@@ -8,7 +8,7 @@ one is predicted by its fallback. The batch engine runs that arithmetic here, ag
 with the same floating-point operations in the same order: :func:`interp` is ``numpy.interp``'s
 algorithm (numpy's ``arr_interp``: the same bracket, the same slope formula, the same
 returns at and beyond the knots, its two-sided retry on NaN), so that every forecast is the
-predictor's to the bit (``tests/engines/test_batch_recorded.py``; written by hand because
+predictor's to the bit (``tests/runs/engines/test_batch_recorded.py``; written by hand because
 numba's own ``np.interp`` is a separate implementation this module would have to trust).
 
 An episode's forecasts lie in one flat float64 block (:func:`pack`), of the issue frames

@@ -8,7 +8,7 @@ search (:func:`dense_neighbor_pairs`, every pedestrian against every agent) need
 dense search's, bit for bit and in the same order: the same pairs (a pair is in when its
 squared distance, computed from the same coordinate differences, is below the squared
 cut-off), rows sorted, columns sorted within a row, and the same cut to the nearest
-``max_neighbors``. ``tests/crowds/test_neighbors.py`` checks this on random crowds,
+``max_neighbors``. ``tests/world/crowds/test_neighbors.py`` checks this on random crowds,
 including agents exactly at the cut-off.
 
 Why by hand: ``scipy.spatial.cKDTree`` answers the same question, but its ball queries

@@ -55,7 +55,7 @@ candidate points (the preferred velocity clipped
 to the disc, its projection on each line clipped to the disc, the intersection of each
 pair of lines), so all candidates are formed at once and the closest feasible one is
 kept; the same enumeration (lines, pairs on the circle, triples of equal violation)
-solves the "safest velocity" program. ``tests/crowds/test_orca.py`` checks a step
+solves the "safest velocity" program. ``tests/world/crowds/test_orca.py`` checks a step
 against RVO2 on reciprocal agents.
 """
 

@@ -8,7 +8,7 @@ the same arithmetic per pedestrian in scalar loops compiled with numba (``cache=
 the controller's kernels): the same operations in the same order (no fused multiply-add:
 numba does not contract without ``fastmath``), the same candidates in the same order and
 the same tie-breaks, so their results are the numpy functions' bit for bit
-(``tests/crowds/test_orca_compiled.py`` checks it on random crowds, infeasible programs
+(``tests/world/crowds/test_orca_compiled.py`` checks it on random crowds, infeasible programs
 included). :meth:`ORCAModel.step <conformal_control.world.crowds.orca.ORCAModel.step>` uses
 them.
 """

@@ -296,7 +296,7 @@ def test_lstm_on_the_builtin_scene_needs_no_downloaded_data(
     assert "training lstm on" in err
     assert "crossing's own pedestrian tracks in the 12 s before the start frame" in err
     # the line Getting started shows, up to the cache path (which is the user's)
-    page = (Path(__file__).resolve().parents[2] / "docs/getting-started.md").read_text()
+    page = (Path(__file__).resolve().parents[3] / "docs/getting-started.md").read_text()
     shown = page.split("$ conformal-control run --predictor lstm\n", 1)[1].split(" -> ")[0]
     line = next(ln for ln in err.splitlines() if ln.startswith("training lstm"))
     assert line.startswith(shown), (line, shown)

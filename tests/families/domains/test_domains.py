@@ -14,7 +14,7 @@ from conformal_control.core.update_rules import ACIRule, DtACIRule, FixedEtaRule
 from conformal_control.families.domains.factory import FactoryEnvironment, defect_rate, run_factory
 from conformal_control.families.domains.intervals import load_series, run_intervals
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
 def example(name: str):

@@ -158,7 +158,7 @@ def test_supports_reactive_crowds_and_names_what_it_does_not(kwargs, words):
 def test_run_episode_takes_the_engine_for_one_reactive_episode(suite_scenes, crowd):
     """run_episode's default engine runs a reactive episode compiled: the loop's result,
     per-instant steps and animation record (drawn with the pedestrians the robot met)."""
-    from tests.engines.conftest import WALL, same
+    from tests.runs.engines.conftest import WALL, same
 
     sc = suite_scenes[1]
     kw = {"crowd": crowd, "max_frames": 120}

@@ -24,7 +24,7 @@ from conformal_control.core.spec import PLAUSIBLE_SI, Parameters
 from conformal_control.data.scenes import PAPER_SCENES
 from conformal_control.runs.params import resolve_params
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def error_line(capsys: pytest.CaptureFixture[str]) -> str:

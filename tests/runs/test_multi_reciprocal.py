@@ -433,7 +433,7 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
     assert d_c - 1e-6 <= new.d_min_robot < d_c + 0.01  # pressed onto the floor
     # the default floor margin (0.1 m) keeps them that much further apart, still touching
     # nobody: the walls leave 1.0 m. The bound is d_c + margin less one step's slack,
-    # 2 v_max max(0, tau - 1/a) (tests/cbf/test_reciprocal.py), 0 here (a tau = 0.8)
+    # 2 v_max max(0, tau - 1/a) (tests/families/cbf/test_reciprocal.py), 0 here (a tau = 0.8)
     dflt = run_multi(_walls(1.2), **kw)
     m = dflt.metrics
     assert dflt.config["reciprocity"]["floor_margin"] == 0.1

@@ -14,7 +14,7 @@ import pytest
 from conformal_control.core import jit
 
 DATA = Path(
-    os.environ.get("CONFORMAL_CONTROL_DATA", Path(__file__).parents[1] / ".." / "shared" / "data")
+    os.environ.get("CONFORMAL_CONTROL_DATA", Path(__file__).parents[2] / ".." / "shared" / "data")
 )
 
 #: Episodes and kernel calls of every compiled path, dumped field by field (run twice in

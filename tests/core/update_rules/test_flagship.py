@@ -90,7 +90,7 @@ def test_cli_rule_and_lambda_safe_reach_metrics_and_plot(tmp_path: Path, capsys)
 def test_compare_rules_example_small(capsys, data_root) -> None:
     import runpy
 
-    path = Path(__file__).resolve().parents[2] / "examples" / "compare_rules.py"
+    path = Path(__file__).resolve().parents[3] / "examples" / "compare_rules.py"
     main_fn = runpy.run_path(str(path), run_name="example")["main"]
     rows = main_fn(
         [

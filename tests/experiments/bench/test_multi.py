@@ -89,7 +89,7 @@ def test_the_shipped_suite_is_the_generator_s_output():
     assert suite.base == "crossings-v2"
     text = dump_manifest(make_multi_manifest(suite.base))
     shipped = (
-        __import__("pathlib").Path(__file__).resolve().parents[2]
+        __import__("pathlib").Path(__file__).resolve().parents[3]
         / "conformal_control/experiments/bench/multi_manifests/multi-crossings-v1.json"
     )
     assert shipped.read_text() == text
