@@ -4,7 +4,7 @@ alone, with and without the margin.
 Usage::
 
     python benchmarks/fleet_floor.py OUT [--robots 10] [--methods nolearn,conformal]
-        [--margins 0.1,0] [--data-root DIR] [--workers 1] [--whole-split]
+        [--margins 0.1,0] [--data-root DIR] [--workers 1] [--whole-split] [--entries ID,ID]
 
 The subset is the first scenario of each test recording of the shipped multi-robot suite
 (``multi-crossings-v1``) under the ``swap`` and ``cross`` layouts: 28 entries. For each
@@ -14,7 +14,8 @@ there resumes), and prints one row per (robots, method, arm): pedestrian collisi
 (with the ratio to the robots alone), of them avoidable / with another robot within 2.5 m,
 robot pair-frames (episodes with any), goal rate and deadlocked robots, summed over the
 entries every arm of that method has. ``--whole-split``: every test entry of the suite (96)
-instead of the subset.
+instead of the subset; ``--entries``: only these test entries (ids of the suite, e.g. the
+whole split's worst).
 """
 
 from __future__ import annotations
@@ -33,12 +34,17 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYOUTS = ("swap", "cross")
 
 
-def subset_manifest(path: Path, whole: bool = False) -> Path:
+def subset_manifest(path: Path, whole: bool = False, only: list[str] | None = None) -> Path:
     """Write the 28-entry subset (first scenario of each test recording x swap, cross), or
-    with ``whole`` every test entry."""
+    with ``whole`` every test entry, or with ``only`` those test entries."""
     m = json.loads((_manifest_dir() / "multi-crossings-v1.json").read_text())
-    if whole:
+    if whole or only:
         m["entries"] = [e for e in m["entries"] if e["split"] == "test"]
+        if only:
+            missing = sorted(set(only) - {e["id"] for e in m["entries"]})
+            if missing:
+                raise SystemExit(f"no test entry {', '.join(missing)} in multi-crossings-v1")
+            m["entries"] = [e for e in m["entries"] if e["id"] in only]
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(m, indent=1))
         return path
@@ -102,11 +108,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--table-only", action="store_true", help="print the table of OUT only")
     ap.add_argument("--whole-split", action="store_true", help="every test entry, not the subset")
+    ap.add_argument("--entries", default="", help="only these test entries (comma-separated ids)")
     args = ap.parse_args()
     data_root = args.data_root or os.environ.get("CONFORMAL_CONTROL_DATA")
     data_root = data_root or str(ROOT.parent / "shared" / "data")
     out = Path(args.out)
-    suite = subset_manifest(out / "subset.json", args.whole_split)
+    only = [e for e in args.entries.split(",") if e]
+    suite = subset_manifest(out / "subset.json", args.whole_split, only)
     entries = {e["id"] for e in json.loads(suite.read_text())["entries"]}
     robots = [int(x) for x in args.robots.split(",")]
     methods = args.methods.split(",")

@@ -436,7 +436,9 @@ class MultiRobotWorld:
             own = self._plan_v[i].copy()
             plans = tuple(self._paths[int(j)] for j in robots)
             own_plan = self._paths[i]
-        return PeerView(ids, sub[:, :2], shares, info, ref, own, plans, own_plan)
+        return PeerView(
+            ids, sub[:, :2], shares, info, ref, own, plans, own_plan, int(self.robot_ids[i])
+        )
 
     def broadcast(
         self,

@@ -148,6 +148,7 @@ def test_a_robot_gets_only_what_the_information_option_allows(information):
     w.sense(0)
     view = w.state(0).peers
     assert view.ids.tolist() == w.robot_ids[[1, 2]].tolist()
+    assert view.own_id == int(w.robot_ids[0])  # what fixes a coinciding pair's tie-break
     np.testing.assert_array_equal(view.positions, w.positions[[1, 2], :2])
     np.testing.assert_array_equal(view.shares, [0.5, 0.5])
     if information == "position":
@@ -231,6 +232,29 @@ def _drive(world, steppers, *, perturb=None, replay=None, intervals=30):
         for i in active:
             steppers[i].end_interval(world.reveal(i))
     return np.array(log)
+
+
+def test_two_flagship_robots_started_at_the_same_position_part_from_the_first_instant():
+    # run_multi refuses such tasks; the world does not, and robots can end up there. Both
+    # robots head the same way (goals 10 m and 20 m ahead): their nominal velocities are
+    # equal, their barrier rows flat (zero) at overlap; without the tie-break their floor
+    # rows were zero too and the pair moved as one for the first instants (6 at this
+    # setting). With it they part from the first instant, steadily, past d_c.
+    world, steppers, fleet = _fleet(
+        free_scene(), [(0.0, 0.0), (0.0, 0.0)], [[(10.0, 0.0)], [(20.0, 0.0)]], "plan"
+    )
+    d_c = 2 * fleet[0].scene.robot_radius
+    ds: list[float] = []
+    apply = world.apply
+
+    def recording(cmds):
+        apply(cmds)
+        ds.append(float(np.hypot(*(world.positions[0, :2] - world.positions[1, :2]))))
+
+    world.apply = recording  # type: ignore[method-assign]
+    _drive(world, steppers, intervals=8)
+    assert ds[0] > 0.0 and (np.diff(ds[:31]) > 0).all()
+    assert max(ds[:40]) >= d_c, ds[:40]
 
 
 @pytest.mark.parametrize("information", ["position", "velocity", "plan"])

@@ -104,6 +104,7 @@ __all__ = [
     "ROBOT_ROW",
     "SIDESTEP_CONE",
     "SIDESTEP_HORIZON",
+    "TIE_DISTANCE",
     "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
@@ -111,11 +112,13 @@ __all__ = [
     "floor_rows",
     "grown_constraint",
     "lexicographic_search",
+    "pair_directions",
     "pair_shares",
     "peer_rows",
     "priority_relax",
     "reference_velocities",
     "sidestep",
+    "tie_direction",
 ]
 
 #: How a robot treats the robots its sensor identifies: ``"reciprocal"`` (a shared
@@ -143,6 +146,13 @@ COORDINATION = ROBOT_CHOICES["coordination"]
 #: A robot keeps broadcasting that it yields for this long (s) after its robot rows last
 #: gave way (so that its partners' shares do not flip at every control instant).
 YIELD_HOLD_S = 0.5
+
+#: Two robots closer than this (m) *coincide*: the direction between them is taken from
+#: their ids (:func:`pair_directions`), not from their positions. Far below any distance a
+#: robot can tell (a nanometre), yet far above the rounding of the positions' difference
+#: (positions of a scene are below 1e5 m, whose float64 spacing is 1.5e-11 m), so that the
+#: positions' direction is used wherever it is more than rounding noise.
+TIE_DISTANCE = 1e-9
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -330,6 +340,10 @@ class PeerView:
         With ``"plan"``, the path this robot broadcast itself (what its peers read of it),
         so that both robots of a pair reason from the same two paths; None when it has
         broadcast none.
+    own_id : int or None
+        This robot's own id (as its peers sense it): with a peer's id it fixes the pair's
+        tie-break direction (:func:`pair_directions`) when the two coincide; None (a view
+        built without it): such a peer gets a zero row, as before.
     """
 
     ids: np.ndarray
@@ -340,6 +354,7 @@ class PeerView:
     own_reference: np.ndarray | None = None
     plans: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
     own_plan: tuple[np.ndarray, np.ndarray] | None = None
+    own_id: int | None = None
 
     @property
     def n_peers(self) -> int:
@@ -673,6 +688,60 @@ def _level(
 PEDESTRIAN_ROW, ROBOT_ROW, FLOOR_ROW = 0, 1, 2
 
 
+def pair_directions(x_ego: np.ndarray, view: PeerView) -> tuple[np.ndarray, np.ndarray]:
+    """The unit vectors from the robot toward each peer and the distances: ``(u, d)``,
+    shapes (K, 2) and (K,).
+
+    ``u = rel / d`` from the positions, except for a peer that *coincides* with the robot
+    (``d <`` :data:`TIE_DISTANCE`), where the positions give no direction: there ``u`` is
+    the pair's tie-break direction (:func:`tie_direction`), a function of the two ids
+    alone that both robots compute the same way and oppositely. With ``lo < hi`` the
+    pair's ids, the direction ``e`` is the unit vector at angle ``2 pi frac(lo phi + hi
+    phi^2)`` (``phi`` the golden ratio: neighbouring pairs get well-spread angles), and the
+    robot with id ``lo`` has ``u = e`` (it parts along ``-e``), the robot with id ``hi``
+    ``u = -e``: the pair parts whatever order the robots are stepped in. Without an own id
+    (:attr:`PeerView.own_id` None) such a peer keeps ``u = 0`` (no direction, as before).
+    Pairs apart are computed exactly as ``rel / d`` (bit for bit).
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,) or more
+        The robot's position (m) first.
+    view : PeerView
+        Its peers (ids, positions) and its own id.
+    """
+    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    ok = d >= TIE_DISTANCE
+    u = np.zeros_like(rel)
+    u[ok] = rel[ok] / d[ok, None]
+    if not ok.all() and view.own_id is not None:
+        for k in np.flatnonzero(~ok):
+            u[k] = tie_direction(int(view.own_id), int(view.ids[k]))
+    return u, d
+
+
+def tie_direction(own_id: int, peer_id: int) -> np.ndarray:
+    """The unit vector robot ``own_id`` takes as "toward" robot ``peer_id`` when the two
+    coincide (:func:`pair_directions`): ``e`` for the lower id, ``-e`` for the higher, with
+    ``e`` at angle ``2 pi frac(lo phi + hi phi^2)``; so ``tie_direction(i, j) ==
+    -tie_direction(j, i)`` exactly.
+
+    Parameters
+    ----------
+    own_id, peer_id : int
+        The two robots' ids (different).
+    """
+    me, other = int(own_id), int(peer_id)
+    if me == other:
+        raise ValueError(f"a robot has no tie-break direction with itself (id {me})")
+    lo, hi = min(me, other), max(me, other)
+    phi = (1.0 + math.sqrt(5.0)) / 2.0
+    angle = 2.0 * math.pi * ((lo * phi + hi * phi * phi) % 1.0)
+    e = np.array([math.cos(angle), math.sin(angle)])
+    return e if me == lo else -e
+
+
 def floor_rows(
     x_ego: np.ndarray, view: PeerView, d_c: float, a: float, margin: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -706,15 +775,15 @@ def floor_rows(
     -------
     A : ndarray of shape (K, 2)
     b : ndarray of shape (K,)
-        Peers at the very same position get a zero row (no direction to part in).
+        A peer that coincides with the robot (closer than :data:`TIE_DISTANCE`) gets the
+        pair's tie-break direction (:func:`pair_directions`), so the pair parts; a zero
+        row only when the view has no own id.
     """
-    rel = np.asarray(view.positions, dtype=float) - np.asarray(x_ego, dtype=float)[:2]
-    d = np.hypot(rel[:, 0], rel[:, 1])
-    A = np.zeros_like(rel)
-    ok = d > 0.0
-    A[ok] = -rel[ok] / d[ok, None]
+    u, d = pair_directions(x_ego, view)
+    A = -u
+    live = (u != 0.0).any(axis=1)
     target = d_c + margin  # d_c itself for 0 (x + 0.0 == x)
-    b = np.where(ok, np.asarray(view.shares, dtype=float) * a * (d - target), 0.0)
+    b = np.where(live, np.asarray(view.shares, dtype=float) * a * (d - target), 0.0)
     return A, b
 
 

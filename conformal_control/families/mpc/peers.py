@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from ...predictors.base import PredictionQuery
-from ..cbf.reciprocal import PeerView, Reciprocity
+from ..cbf.reciprocal import TIE_DISTANCE, PeerView, Reciprocity, tie_direction
 
 __all__ = [
     "RobotSplit",
@@ -147,8 +147,16 @@ def peer_lines(
     d = peers - own[None, :, :]
     dist = np.hypot(d[..., 0], d[..., 1])
     normal = d / np.maximum(dist, 1e-12)[..., None]
-    # coincident references: any direction would do; keep the line through them
-    normal[dist <= 1e-12] = (1.0, 0.0)
+    # coincident references: the pair's tie-break direction (opposite for the two robots,
+    # so that their lines part them), or (1, 0) for a view without the robot's own id
+    tied = dist < TIE_DISTANCE
+    if tied.any():
+        for k, h in zip(*np.nonzero(tied), strict=True):
+            normal[k, h] = (
+                (1.0, 0.0)
+                if view.own_id is None
+                else tie_direction(int(view.own_id), int(view.ids[k]))
+            )
     share = np.asarray(view.shares, dtype=float)[:, None]
     mid = own[None, :, :] + share[..., None] * d
     offset: np.ndarray = (normal * mid).sum(-1) - float(buffer)

@@ -478,3 +478,118 @@ def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compil
         closing[margin] = float(v[0])
         assert closing[margin] <= 0.5 * 2.0 * (1.0 - 0.8 - margin) + 1e-6
     assert closing[0.15] < closing[0.0] - 0.1
+
+
+def _tie_floor_step(x, ids, order, d_c, a, margin, dt, v_max):
+    """One control instant of robots on their floor rows alone (nominal velocity 0: the
+    closest velocity to 0 meeting the row, capped at v_max), views built in ``order``
+    from the same positions; returns the new positions and each robot's row."""
+    from conformal_control.families.cbf.reciprocal import floor_rows
+
+    rows = {}
+    for i in order:
+        others = [j for j in range(len(ids)) if j != i]
+        view = PeerView(ids[others], x[others], np.full(len(others), 0.5), own_id=int(ids[i]))
+        A, b = floor_rows(x[i], view, d_c, a, margin)
+        rows[i] = (A, b)
+    new = x.copy()
+    for i in range(len(ids)):
+        A, b = rows[i]
+        v = A[0] * max(0.0, -b[0])  # unit A: the projection of 0 onto A v + b >= 0
+        sp = math.hypot(*v)
+        new[i] = x[i] + dt * (v if sp <= v_max else v * v_max / sp)
+    return new, rows
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e-12, 5e-10])
+@pytest.mark.parametrize("ids", [(3, 7), (7, 3), (0, 1), (12, 40)])
+def test_coinciding_robots_part_on_their_floor_rows_within_the_derived_bound(offset, ids):
+    # two robots at the same position (or closer than TIE_DISTANCE): the positions give no
+    # direction, so each takes the pair's tie-break direction from the two ids, oppositely.
+    # Each robot on its floor row alone with share 1/2 moves away at min(a e / 2, v_max),
+    # e = T - d, T = d_c + margin; along one line (the tie direction, then rel / d, the
+    # same), so d' = d + dt min(a e, 2 v_max). With a dt <= 1 and 2 v_max >= a T (no
+    # capped phase) e shrinks by (1 - a dt) per step from e = T: the pair is at d >= d_c
+    # (e <= margin) after at most N = ceil(ln(T / margin) / -ln(1 - a dt)) steps, and never
+    # beyond T. Without a tie-break the rows are zero and the pair never moves.
+    d_c, a, margin, dt, v_max = 0.8, 2.0, 0.1, 0.1, 1.0
+    T = d_c + margin
+    assert a * dt <= 1 and 2 * v_max >= a * T
+    n_bound = math.ceil(math.log(T / margin) / -math.log(1 - a * dt))
+    idx = np.array(ids, dtype=np.int64)
+    x = np.array([[1.5, -2.0], [1.5 + offset, -2.0]])
+    ds = [math.dist(*x)]
+    for step in range(n_bound):
+        first, second = _tie_floor_step(x, idx, (0, 1), d_c, a, margin, dt, v_max)
+        other, rows = _tie_floor_step(x, idx, (1, 0), d_c, a, margin, dt, v_max)
+        assert np.array_equal(first, other)  # whatever order the robots are stepped in
+        # the two robots' directions are opposite and equal in size, exactly
+        assert np.array_equal(rows[0][0], -rows[1][0])
+        assert math.isclose(math.hypot(*rows[0][0][0]), 1.0, rel_tol=1e-12)
+        if step == 0 and offset == 0.0:
+            assert np.array_equal(second[0][0], -second[1][0])
+        x = first
+        ds.append(math.dist(*x))
+    assert ds[-1] >= d_c, ds
+    assert (np.diff(ds) >= 0).all() and max(ds) <= T + 1e-12
+
+
+def test_tie_direction_is_the_pairs_and_opposite_for_its_two_robots():
+    from conformal_control.families.cbf.reciprocal import tie_direction
+
+    seen = []
+    for i in range(12):
+        for j in range(12):
+            if i == j:
+                continue
+            e = tie_direction(i, j)
+            assert np.array_equal(e, -tie_direction(j, i))
+            assert math.isclose(math.hypot(*e), 1.0, rel_tol=1e-12)
+            if i < j:
+                seen.append(math.atan2(e[1], e[0]))
+    # neighbouring pairs are spread over the circle, not all along one axis
+    assert np.ptp(np.cos(seen)) > 1.5 and np.ptp(np.sin(seen)) > 1.5
+    with pytest.raises(ValueError, match="itself"):
+        tie_direction(4, 4)
+
+
+def test_nothing_changes_bit_for_bit_when_no_pair_coincides():
+    from conformal_control.families.cbf.reciprocal import TIE_DISTANCE, floor_rows
+    from conformal_control.families.mpc.peers import peer_lines
+
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        pos = rng.uniform(-3, 3, (4, 2))
+        x = rng.uniform(-1, 1, 2)
+        turn = rng.uniform(0, 2 * math.pi)  # peer 1 close, yet apart: 1.5 to 3 TIE_DISTANCE
+        pos[1] = x + rng.uniform(1.5, 3) * TIE_DISTANCE * np.array([math.cos(turn), math.sin(turn)])
+        shares = rng.uniform(0.1, 0.9, 4)
+        bare = PeerView(np.arange(4) + 10, pos, shares, "position")
+        owned = dataclasses.replace(bare, own_id=3)
+        for margin in (0.0, 0.1):
+            A0, b0 = floor_rows(x, bare, 0.8, 2.0, margin)
+            A1, b1 = floor_rows(x, owned, 0.8, 2.0, margin)
+            assert np.array_equal(A0, A1) and np.array_equal(b0, b1)
+            rel = pos - x
+            assert np.array_equal(A1, -rel / np.hypot(rel[:, 0], rel[:, 1])[:, None])
+        own = np.stack([x, x + 0.1])
+        peers = np.stack([pos, pos + 0.1], axis=1)
+        n0, o0 = peer_lines(bare, own, peers, 0.2)
+        n1, o1 = peer_lines(owned, own, peers, 0.2)
+        assert np.array_equal(n0, n1) and np.array_equal(o0, o1)
+
+
+def test_coinciding_mpc_references_get_opposite_lines_that_part_the_pair():
+    from conformal_control.families.mpc.peers import peer_lines
+
+    p = np.array([[2.0, 1.0], [2.5, 1.0]])  # both robots' references at both times
+    for ids in ((3, 8), (8, 3)):
+        vi = PeerView(np.array([ids[1]]), p[:1], np.array([0.5]), own_id=ids[0])
+        vj = PeerView(np.array([ids[0]]), p[:1], np.array([0.5]), own_id=ids[1])
+        ni, oi = peer_lines(vi, p, p[None], 0.2)
+        nj, oj = peer_lines(vj, p, p[None], 0.2)
+        assert np.array_equal(ni, -nj)  # opposite, equal in size
+        # robot i keeps n . p <= n . mid - buffer, robot j n . p >= n . mid + buffer: no
+        # point satisfies both, so the lines part the pair by twice the buffer
+        np.testing.assert_allclose(oi + oj, -0.4)
+        assert not np.array_equal(ni[0, 0], nj[0, 0])
