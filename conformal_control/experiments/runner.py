@@ -39,12 +39,14 @@ import os
 import signal
 import threading
 import time
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from ..core.exceptions import ConformalControlWarning
 from .executors import Executor, make_executor
 from .lock import SweepLock
 from .plan import RunConfig, SweepSpec
@@ -248,6 +250,30 @@ def _progress(total: int, initial: int, enabled: bool | None) -> Any:
     return _Report(total, initial)
 
 
+def distinct_runs(configs: list[RunConfig]) -> tuple[list[RunConfig], list[tuple[str, str]]]:
+    """The configurations with one run per key (the first of each), and ``(label left out,
+    label kept)`` for every run whose configuration another run of the list already has
+    (e.g. a method that a predictor shift turns into another one: ``oracle_mpc`` under a
+    shift that replaces every predictor is ``mpc``).
+
+    Parameters
+    ----------
+    configs : list of RunConfig
+        The sweep's runs, in order.
+    """
+    first: dict[str, RunConfig] = {}
+    kept: list[RunConfig] = []
+    same: list[tuple[str, str]] = []
+    for c in configs:
+        k = c.key
+        if k in first:
+            same.append((c.label, first[k].label))
+        else:
+            first[k] = c
+            kept.append(c)
+    return kept, same
+
+
 def run_sweep(
     spec: SweepSpec | list[RunConfig],
     out_dir: str | os.PathLike[str],
@@ -323,6 +349,7 @@ def run_sweep(
     """
     t0 = time.perf_counter()
     configs = spec.expand() if isinstance(spec, SweepSpec) else list(spec)
+    configs, same = distinct_runs(configs)
     keys = [c.key for c in configs]
     if validate:
         from .validate import validate_runs
@@ -330,6 +357,16 @@ def run_sweep(
         validate_runs(configs)
     out = Path(out_dir)
     report = SweepReport(out, keys)
+    if same:
+        # two runs of one configuration are one result (the journal keeps one row per
+        # key): said, counted and warned, never collapsed silently
+        shown = "; ".join(f"{a} = {b}" for a, b in same[:5]) + ("; ..." if len(same) > 5 else "")
+        note = (
+            f"{len(same)} run(s) left out: the same configuration (and key) as another run "
+            f"of this sweep, whose result stands for both ({shown})"
+        )
+        report.notes.append(note)
+        warnings.warn(note, ConformalControlWarning, stacklevel=2)
     with SweepLock(out), _SignalGuard() as guard:
         store = ResultsStore(out)
         store.remove_stale_temp_files()

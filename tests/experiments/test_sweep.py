@@ -412,3 +412,21 @@ def test_progress_is_reported_in_lines_when_the_output_is_redirected(
     assert lines[-1].startswith("sweep: done, 3 runs in ")
     run_sweep(spec, tmp_path / "t", "serial", plot=False, summary_plot=False, progress=False)
     assert "sweep:" not in capsys.readouterr().err
+
+
+def test_runs_of_one_configuration_are_one_run_said_and_counted(tmp_path: Path) -> None:
+    # two labels, one configuration (labels and meta are not hashed): the journal keeps one
+    # row per key, so the second was collapsed into the first without a word
+    from conformal_control.core.exceptions import ConformalControlWarning
+
+    a = RunConfig(scene="crossing", frames=30, label="oracle_mpc", params={"epsilon": 0.1})
+    b = RunConfig(scene="crossing", frames=30, label="mpc", params={"epsilon": 0.1})
+    c = RunConfig(scene="crossing", frames=30, label="other", params={"epsilon": 0.2})
+    assert a.key == b.key != c.key
+    with pytest.warns(
+        ConformalControlWarning, match=r"1 run\(s\) left out: .*\(mpc = oracle_mpc\)"
+    ):
+        report = run_sweep([a, b, c], tmp_path / "sw", "serial", plot=False, progress=False)
+    assert report.keys == [a.key, c.key] and len(report.ran) == 2
+    assert any("mpc = oracle_mpc" in n for n in report.notes)
+    assert [r["label"] for r in rows(tmp_path / "sw")] == ["oracle_mpc", "other"]
