@@ -50,27 +50,34 @@ def _cpu() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple[float, float, int]:
-    """(wall, CPU, episodes) of the better of ``repeats`` ``run_bench`` calls into fresh
-    folders (one worker)."""
-    from conformal_control.experiments.bench.suite import run_bench
-
+def _best_of(repeats: int, run: Any, what: str) -> tuple[float, float, int]:
+    """(wall, CPU, episodes) of the fastest of ``repeats`` calls of ``run(folder)`` into
+    fresh folders; ``run`` returns ``(episodes, failed)``."""
     best: tuple[float, float, int] | None = None
     for _ in range(repeats):
         with tempfile.TemporaryDirectory(prefix="cc-round4-") as tmp, warnings.catch_warnings():
             warnings.simplefilter("ignore")
             c0, t0 = _cpu(), time.perf_counter()
-            run = run_bench(
-                Path(tmp) / "b", data_root=data_root, limit=limit, workers=1, progress=False, **kw
-            )
+            episodes, failed = run(Path(tmp) / "b")
             wall, cpu = time.perf_counter() - t0, _cpu() - c0
-        if run.failed:
-            raise RuntimeError(f"{run.failed} episodes failed ({kw})")
-        got = (wall, cpu, run.ran)
-        if best is None or got[0] < best[0]:
-            best = got
+        if failed:
+            raise RuntimeError(f"{failed} episodes failed ({what})")
+        if best is None or wall < best[0]:
+            best = (wall, cpu, episodes)
     assert best is not None
     return best
+
+
+def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple[float, float, int]:
+    """(wall, CPU, episodes) of the better of ``repeats`` ``run_bench`` calls into fresh
+    folders (one worker)."""
+    from conformal_control.experiments.bench.suite import run_bench
+
+    def run(folder: Path) -> tuple[int, int]:
+        r = run_bench(folder, data_root=data_root, limit=limit, workers=1, progress=False, **kw)
+        return r.ran, r.failed
+
+    return _best_of(repeats, run, str(kw))
 
 
 @contextlib.contextmanager
@@ -218,28 +225,19 @@ def time_fleet(data_root: str, limit: int, robots: int, repeats: int) -> tuple[f
     fleet runs of ``robots`` robots on the first ``limit`` multi-robot test entries."""
     from conformal_control.experiments.bench.multi import run_multi_bench
 
-    best: tuple[float, float, int] | None = None
-    for _ in range(repeats):
-        with tempfile.TemporaryDirectory(prefix="cc-round4-") as tmp, warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            c0, t0 = _cpu(), time.perf_counter()
-            run = run_multi_bench(
-                Path(tmp) / "m",
-                robots=(robots,),
-                methods=("conformal",),
-                reciprocity=("reciprocal",),
-                data_root=data_root,
-                workers=1,
-                limit=limit,
-            )
-            wall, cpu = time.perf_counter() - t0, _cpu() - c0
-        if run.failed:
-            raise RuntimeError(f"{run.failed} fleet runs failed")
-        got = (wall, cpu, run.ran * robots)
-        if best is None or got[0] < best[0]:
-            best = got
-    assert best is not None
-    return best
+    def run(folder: Path) -> tuple[int, int]:
+        r = run_multi_bench(
+            folder,
+            robots=(robots,),
+            methods=("conformal",),
+            reciprocity=("reciprocal",),
+            data_root=data_root,
+            workers=1,
+            limit=limit,
+        )
+        return r.ran * robots, r.failed
+
+    return _best_of(repeats, run, f"{robots}-robot fleets")
 
 
 def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
