@@ -46,7 +46,6 @@ from ...predictors.base import PredictionQuery, Predictor
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
-from .fieldcp import distance_field
 from .settings import Costs, Limits, Sampling
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
@@ -192,10 +191,50 @@ def egocentric_quantiles(
     return out
 
 
-def _min_dist(x: np.ndarray, agents: np.ndarray) -> np.ndarray:
-    """Distance from each row of ``x`` (N, 2) to the nearest of ``agents`` (M, 2), compiled
-    (:func:`~conformal_control.families.mpc.fieldcp.distance_field`; ``inf`` without agents)."""
-    return distance_field(agents, x)
+@jit
+def _missed_kernel(
+    xx: np.ndarray, xy: np.ndarray, pred: np.ndarray, obs: np.ndarray, q: np.ndarray
+) -> np.ndarray:
+    n = xx.shape[0]
+    dp = np.full(n, np.inf)
+    do = np.full(n, np.inf)
+    for j in range(pred.shape[0]):  # the candidates inner: vector instructions
+        qx = pred[j, 0]
+        qy = pred[j, 1]
+        ox = obs[j, 0]
+        oy = obs[j, 1]
+        for i in range(n):
+            dx = xx[i] - qx
+            dy = xy[i] - qy
+            e = dx * dx + dy * dy
+            dp[i] = e if e < dp[i] else dp[i]
+            dx = xx[i] - ox
+            dy = xy[i] - oy
+            e = dx * dx + dy * dy
+            do[i] = e if e < do[i] else do[i]
+    out = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        s = math.sqrt(dp[i]) - math.sqrt(do[i])
+        if not s > 0.0 and s == s:  # numpy.maximum(s, 0): NaN stays NaN
+            s = 0.0
+        out[i] = s > q[i]
+    return out
+
+
+def _missed(x: np.ndarray, pred: np.ndarray, obs: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Whether each candidate position's egocentric score against the pedestrians'
+    predicted and observed positions exceeds its quantile: ``max(d(x, pred) - d(x, obs), 0)
+    > q`` with ``d`` the distance to the nearest (the arithmetic of two
+    :func:`~conformal_control.families.mpc.fieldcp.distance_field` calls, in one pass)."""
+    c = np.ascontiguousarray
+    out: np.ndarray = _missed_kernel(
+        c(x[:, 0], dtype=np.float64),
+        c(x[:, 1], dtype=np.float64),
+        c(pred, dtype=np.float64).reshape(-1, 2),
+        c(obs, dtype=np.float64).reshape(-1, 2),
+        c(q, dtype=np.float64),
+    )
+    return out
 
 
 @dataclass
@@ -378,9 +417,7 @@ class ECPMPC(
             y, yhat = self._pair(now, made, h)
             if y.shape[0] == 0:
                 continue
-            x = made["pos"][:, h - 1]
-            score = np.maximum(_min_dist(x, yhat) - _min_dist(x, y), 0.0)
-            out.append(score > made["q"][:, h - 1])
+            out.append(_missed(made["pos"][:, h - 1], yhat, y, made["q"][:, h - 1]))
         missed = np.concatenate(out) if out else np.zeros(0, dtype=bool)
         self.n_ego_scored_ += int(missed.size)
         return missed

@@ -185,3 +185,16 @@ def test_quantiles_equal_the_one_candidate_at_a_time_evaluation_bit_for_bit():
             got = egocentric_quantiles(pos, cal_pred, cal_obs, cal_n, cal_b, lam)
             want = _quantiles_one_candidate_at_a_time(pos, cal_pred, cal_obs, cal_n, cal_b, lam)
             assert got.tobytes() == want.tobytes(), (trial, lam)
+
+
+def test_misses_equal_the_two_distance_fields_bit_for_bit():
+    from conformal_control.families.mpc.ecp import _missed
+    from conformal_control.families.mpc.fieldcp import distance_field
+
+    rng = np.random.default_rng(5)
+    x = np.round(rng.normal(0, 3, (40, 2)), 1)
+    for m in (1, 4):
+        pred, obs = np.round(rng.normal(0, 3, (m, 2))), rng.normal(0, 3, (m, 2))
+        q = np.concatenate([rng.uniform(0, 2, 38), [-math.inf, math.inf]])
+        score = np.maximum(distance_field(pred, x) - distance_field(obs, x), 0.0)
+        assert _missed(x, pred, obs, q).tolist() == (score > q).tolist()
