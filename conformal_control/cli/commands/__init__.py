@@ -28,6 +28,7 @@ __all__ = [
     "check_writable",
     "command",
     "command_line",
+    "crowd_choices",
     "crowd_params",
     "finite_float",
     "key_values",
@@ -151,6 +152,14 @@ def plugin_params(role: str, name: str, items: Sequence[str] | None, flag: str) 
     pp = plugin_key_values(items, flag, [cls])
     registry.check_params(role, name, cls, pp)
     return pp
+
+
+def crowd_choices() -> list[str]:
+    """The crowds a ``--crowd`` option accepts (``replay``, every registered crowd model,
+    ``mixed``: :func:`~conformal_control.core.registry.crowd_names`)."""
+    from ...core import registry
+
+    return registry.crowd_names()
 
 
 def crowd_params(crowd: str, items: Sequence[str] | None) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from . import (
     check_writable,
     command,
     command_line,
+    crowd_choices,
     crowd_params,
     finite_float,
     finite_quantity,
@@ -112,7 +113,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--crowd",
         default="replay",
-        choices=registry.crowd_names(),
+        choices=crowd_choices(),
         help="pedestrians replayed from the data, or reacting to the robot (social force, "
         "ORCA, or replayed until the robot comes near: mixed)",
     )
@@ -388,7 +389,6 @@ def _apply_config(args: argparse.Namespace) -> None:
 # ------------------------------------------------------------------------------ checks
 def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     """Conflicting, ignored and incomplete options (before anything is loaded)."""
-    from ...core import registry
     from ...core.exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
