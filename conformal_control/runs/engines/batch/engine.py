@@ -48,6 +48,19 @@ class Engine(EpisodeSlots):
     def __init__(
         self, size: int, output: str, run: RunSpec, extra_config: dict[str, Any] | None
     ) -> None:
+        """The engine of ``size`` slots.
+
+        Parameters
+        ----------
+        size : int
+            Episodes alive at a time.
+        output : {"metrics", "results"}
+            What :meth:`finish` gives per episode.
+        run : RunSpec
+            The run of every episode (each gets its own seed and frame limit).
+        extra_config : dict, optional
+            Merged into each episode's configuration.
+        """
         self.pool = Pool(size)
         self.eps: list[Episode | None] = [None] * size
         self.output = output

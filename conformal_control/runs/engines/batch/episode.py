@@ -139,7 +139,19 @@ class EpisodeSlots:
     built: Flagship | None
 
     def start(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
-        """Build episode ``index`` as run_episode does and load it into slot ``b``."""
+        """Build episode ``index`` as run_episode does and load it into slot ``b``.
+
+        Parameters
+        ----------
+        b, index : int
+            The slot, and the episode's position among the engine's scenes.
+        scene : Scene
+            The episode's scene (its run's task on it).
+        seed : int
+            The episode's seed.
+        max_frames : int, optional
+            Its frame limit.
+        """
         run = dataclasses.replace(self.run_spec, seed=seed, max_frames=max_frames)
         learn = run.learn
         fl = build_flagship(scene, run)
@@ -572,7 +584,19 @@ class EpisodeSlots:
         return ep.index, EpisodeResult(sc, config, metrics, intervals, traj, {}, result, None)
 
     def load(self, b: int, index: int, scene: Scene, seed: int, max_frames: int | None) -> None:
-        """Start episode ``index`` in slot ``b`` and lay out its interval's buffers."""
+        """Start episode ``index`` in slot ``b`` and lay out its interval's buffers.
+
+        Parameters
+        ----------
+        b, index : int
+            The slot, and the episode's position among the engine's scenes.
+        scene : Scene
+            The episode's scene (its run's task on it).
+        seed : int
+            The episode's seed.
+        max_frames : int, optional
+            Its frame limit.
+        """
         p = self.pool
         self.start(b, index, scene, seed, max_frames)
         ep = self.eps[b]

@@ -306,8 +306,21 @@ class Pool:
     def ensure(
         self, *, steps: int = 0, agents: int = 0, columns: int = 0, frames: int = 0, sides: int = 0
     ) -> None:
-        """Room for ``steps`` control instants per interval, ``agents`` sensed agents,
-        ``columns`` agents in a recording, ``frames`` logged frames, ``sides`` polygon sides."""
+        """Room (arrays grown where they are too small) for what the parameters say.
+
+        Parameters
+        ----------
+        steps : int
+            Control instants per interval.
+        agents : int
+            Sensed agents per slot.
+        columns : int
+            Agents in a recording.
+        frames : int
+            Logged frames.
+        sides : int
+            Sides of a speed polygon.
+        """
         g = self.grown
         if steps > self.xp.shape[1]:
             self.xp, self.vp = g(self.xp, 1, steps), g(self.vp, 1, steps)

@@ -283,7 +283,21 @@ def prediction(
     compiled form); one that returns the wrapped forecast itself is that predictor; one
     the compiled form would not follow exactly where the wrapper raises or reads what the
     kernel does not hold (a delay beyond the history, a bad window, agent ids that are not
-    integers) is called as it is (``OWN``)."""
+    integers) is called as it is (``OWN``).
+
+    Parameters
+    ----------
+    pred : Plugin
+        The episode's predictor.
+    form : object
+        Its compiled form.
+    dt_frame : float
+        The scene's frame period (s).
+    history : int
+        Frames of history the environment keeps.
+    ids : np.ndarray
+        The scene's agent ids.
+    """
     kernel = compiled_name(type(pred)) or ""
     own = (OWN, bk.NO_SHIFT, None, 1)
     if kernel not in SHIFTS:
@@ -341,7 +355,19 @@ def recorded_block(
     the first sampling time, and every later one up to the last), and the step length;
     None where the predictor raises on this scene (no file for it, a missing or malformed
     file): the episode's own predictor is then called, and raises as in the loop, at its
-    first prediction."""
+    first prediction.
+
+    Parameters
+    ----------
+    form : RecordedForm
+        The ``recorded`` predictor's compiled form.
+    sc : Scene
+        The episode's scene.
+    dt_frame : float
+        The scene's frame period (s).
+    last : int
+        The episode's last frame index.
+    """
     try:
         rec, step_s, per_step = form.source(sc.name)
     except (ValueError, OSError):
