@@ -99,7 +99,9 @@ def prepare_run(
         raise InputError(f"spec must be a RunSpec, got {type(base).__name__}")
     _refuse_robots(base, settings)
     seed = int(settings.get("seed", base.seed))
-    _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
+    # the settings applied once: the plugins they name are checked before the scene loads
+    applied = RunSpec.from_settings(None, base=base, **settings) if settings else base
+    _check_plugins(applied)
     if isinstance(scene, str):
         scene = load_scene(
             scene, data_root, start=start, goals=goal, start_frame=start_frame, seed=seed
@@ -137,7 +139,6 @@ def prepare_run(
             )
         else:
             units = "si"
-    settings["units"] = units
     log = logging.getLogger("conformal_control.run")
     log.info(
         "scene %s: %d agents, %d frames at %g fps",
@@ -146,7 +147,7 @@ def prepare_run(
         scene.n_frames,
         scene.fps,
     )
-    run_spec = RunSpec.from_settings(given, base=base, **settings)
+    run_spec = RunSpec.from_settings(given, base=applied, units=units)
     run_spec = with_weights(run_spec, scene, None if data_root is None else str(data_root))
     name, pp = run_spec.role("predictor")
     log.info("predictor %s with %s; rule %s", name, pp, run_spec.role_name("rule"))
