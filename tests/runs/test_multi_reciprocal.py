@@ -14,6 +14,7 @@ import pytest
 from conformal_control.core.loop import ConformalStepper
 from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+from conformal_control.families.cbf.reciprocal import FLOOR_CORE
 from conformal_control.runs.build import build_flagship
 from conformal_control.runs.fleet import load_robots_file, robot_tasks, run_multi, set_reciprocity
 from conformal_control.world.multi import MultiRobotWorld
@@ -455,16 +456,66 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
     assert new.d_min_robot < old.d_min_robot - 0.05
     d_c = 2 * _walls(1.2).robot_radius
     assert d_c - 1e-6 <= new.d_min_robot < d_c + 0.01  # pressed onto the floor
-    # the default floor margin (0.1 m) keeps them that much further apart, still touching
-    # nobody: the walls leave 1.0 m. The bound is d_c + margin less one step's slack,
-    # 2 v_max max(0, tau - 1/a) (tests/families/cbf/test_reciprocal.py), 0 here (a tau = 0.8)
+    # the default floor margin (0.1 m) keeps them further apart, still touching nobody:
+    # the walls leave 1.0 m. The floor rows' margin band gives way before the pedestrians'
+    # rows (their comfort margin kept), down to the core, d_c + FLOOR_CORE margin (the
+    # bound's step slack, 2 v_max max(0, tau - 1/a), tests/families/cbf/test_reciprocal.py,
+    # is 0 here: a tau = 0.8)
     dflt = run_multi(_walls(1.2), **kw)
     m = dflt.metrics
     assert dflt.config["reciprocity"]["floor_margin"] == 0.1
     assert m.n_collide_pedestrian == 0 and m.n_collide_robot_pairs == 0
-    assert d_c + 0.1 - 1e-6 <= m.d_min_robot < d_c + 0.11
+    core = d_c + FLOOR_CORE * 0.1
+    assert core - 1e-6 <= m.d_min_robot < core + 0.01
     # robots predicted like pedestrians do touch each other
     assert run_multi(_walls(1.2), reciprocity="none", **kw).metrics.n_collide_robot_pairs > 0
+
+
+@pytest.mark.parametrize("stop", [1.13, 1.05])
+def test_robots_squeezed_below_their_floor_keep_their_core_and_move_toward_nobody(stop):
+    # walls standing at y = +-1.13 leave 0.86 m between the robots' discs of 0.7 m from
+    # them: less than the floor (0.9 m), more than the core (0.85 m); at +-1.05 only 0.7 m,
+    # less than the robots' d_c (0.8 m): the robots cannot keep clear of both. The floors
+    # give way to their cores, never below: the pair never touches (before: 4 and 76
+    # pair-frames, with the pedestrians' escape push driving each robot into the other),
+    # and no robot's command closes in on the other once the walls stand
+    tasks = {"starts": [(0.0, 0.9), (0.0, -0.9)], "goals": [[(3.0, 0.9)], [(3.0, -0.9)]]}
+    res = run_multi(_walls(stop), max_frames=120, record_animation=False, learn=False, **tasks)
+    m = res.metrics
+    d_c = 2 * res.scene.robot_radius
+    assert m.n_collide_robot_pairs == 0
+    assert m.d_min_robot >= d_c + FLOOR_CORE * 0.1 - 1e-6
+    if stop > 1.1:  # room for the core: nobody touched
+        assert m.n_collide_pedestrian == 0
+    else:  # the walls stand on the robots; the robots stand still between them
+        x = res.track["robots"]
+        t = res.track["t"]
+        still = t > (2.5 - stop) / 0.3 + 1.0  # a second after the walls stopped
+        assert np.abs(np.diff(x[still], axis=0)).max() < 1e-3
+
+
+def test_a_parked_robot_leaves_the_whole_pair_to_its_peers():
+    # robot 0's goal is at its start: it parks at once and decides no more. Its peers'
+    # views mark it parked, and their controllers take the whole pair constraint (share
+    # 1) about it; the peer driving at it passes without contact
+    from conformal_control.families.cbf.reciprocal import parked_shares
+
+    starts, goals = [(0.0, 0.0), (-3.0, 0.3)], [[(0.05, 0.0)], [(3.0, 0.3)]]
+    world, steppers, _ = _fleet(free_scene(), starts, goals, "plan")
+    world.reset()
+    world.apply(np.zeros((2, 2)))
+    assert world.robot_done(0) and not world.robot_done(1)
+    world.sense(1)
+    view = world.state(1).peers
+    assert view.parked.tolist() == [True] and view.shares.tolist() == [0.5]
+    assert parked_shares(view).shares.tolist() == [1.0]
+    _drive(world, steppers, intervals=60)
+    fam = steppers[1].family
+    assert fam._col[0, fam._ids.size :].tolist() == [1.0]  # the share it decided with
+    res = run_multi(
+        free_scene(), starts=starts, goals=goals, max_frames=300, record_animation=False
+    )
+    assert res.metrics.n_collide_robot_pairs == 0 and res.metrics.n_goal_reached == 2
 
 
 @pytest.mark.parametrize("floor_margin", [0.0, 0.1])
