@@ -396,6 +396,42 @@ def test_fleet_metrics_recomputed_from_the_run_directory(tmp_path, crossing):
 
 
 # -------------------------------------------------------------------- bad tasks
+def test_robot_pair_frames_are_pairs_under_two_radii_while_one_is_under_way():
+    # issue 36 found 86 pair-frames on deathCircle 2 (nolearn, 10 robots) against 63 frames
+    # counted from the track; the 63 took 0.9 m for the robots' contact distance, but the
+    # benchmark's robots have radius 0.5 m (2 radii: 1.0 m; the 86 recomputed from the
+    # track at 1.0 m: 32 + 33 + 4 + 7 + 10 in five pairs). Three robots: 0 and 1 at 1.2,
+    # 0.95, 0.95, 0.85 and 1.05 m; robot 2 parked 0.96 m from robot 0 in frames 1 and 2;
+    # in frame 4 robots 1 and 2, neither under way, 0.5 m apart
+    from conformal_control.runs.results.metrics import EpisodeMetrics
+    from conformal_control.runs.results.multi_metrics import RobotContacts, fleet_metrics
+
+    d01 = [1.2, 0.95, 0.95, 0.85, 1.05]
+    x = np.zeros((5, 3, 2))
+    x[:, 1, 0] = d01
+    x[:, 2] = [0.0, 5.0]
+    x[1:3, 2] = [0.0, 0.96]
+    x[4, 2] = [1.05, 0.5]
+    act = np.ones((5, 3), dtype=bool)
+    act[:, 2] = False
+    act[4, 1] = False
+    m = fleet_metrics(
+        [EpisodeMetrics() for _ in range(3)],
+        [RobotContacts() for _ in range(3)],
+        robot_track=x,
+        active=act,
+        robot_radius=0.5,
+        frames=5,
+        wall_s=0.0,
+        lam_unit_name="1/s",
+    )
+    # (0, 1) in frames 1-3 and (0, 2) in frames 1-2 (robot 0 under way); not (1, 2) in 4
+    assert m.n_collide_robot_pairs == 3 + 2
+    # the other count: frames with any pair under 0.9 m
+    d = np.hypot(*(x[:, :, None] - x[:, None]).transpose(3, 0, 1, 2))
+    assert int((d[:, np.triu_indices(3, 1)[0], np.triu_indices(3, 1)[1]] < 0.9).any(1).sum()) == 2
+
+
 def test_tasks_no_fleet_can_do_are_one_line_errors(tmp_path, crossing):
     for starts, goals, msg in (
         ([(5.0, 5.0), (5.0, 5.0)], [(20.0, 5.0), (20.0, 9.0)], "start 0 m apart"),

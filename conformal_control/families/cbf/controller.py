@@ -640,23 +640,14 @@ class ConformalCBFController(
             return res
         # people first, and a pair must not collide: when the robots' cores gave way
         # within the escape polygon, they come before the edge rule's push (a wish to move
-        # out of the discs at a speed), then before its demand to retreat from an agent
-        # walking in (c < 0); never before its rule that no command of the robot's own
-        # closes in on an agent inside (U v >= 0 at least)
-        zero = np.zeros_like(escape.push)
-        for calm, event in (
-            (EscapeRows(escape.rows, escape.U, escape.c, zero), "escape_push_yielded"),
-            (
-                EscapeRows(escape.rows, escape.U, np.maximum(escape.c, 0.0), zero),
-                "escape_retreat_yielded",
-            ),
-        ):
-            if self._stage != "robot_cores":
-                break
+        # out of the discs at a speed), never before its rule that no command closes in
+        # on an agent inside its collision distance (non-closing rows kept)
+        if self._stage == "robot_cores" and escape.push.any():
+            calm = EscapeRows(escape.rows, escape.U, escape.c, np.zeros_like(escape.push))
             with f.contact(ttc), f.escaping(v_ref, calm) as escaped:
                 if escaped is not None:
                     return escaped
-                f.count(event)  # type: ignore[attr-defined]
+                f.count("escape_push_yielded")  # type: ignore[attr-defined]
                 res = self._keep_hard_rows(v_ref, A, b, slack, fell, first, tally=False)
         if self._stage:
             f.count(f"{self._stage[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
