@@ -508,26 +508,26 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
 
 
 @pytest.mark.parametrize("stop", [1.13, 1.05])
-def test_robots_squeezed_below_their_floor_keep_their_core_and_move_toward_nobody(stop):
+def test_robots_squeezed_below_their_floor_keep_their_core_once_the_walls_stand(stop):
     # walls standing at y = +-1.13 leave 0.86 m between the robots' discs of 0.7 m from
     # them: less than the floor (0.9 m), more than the core (0.85 m); at +-1.05 only 0.7 m,
-    # less than the robots' d_c (0.8 m): the robots cannot keep clear of both. The floors
-    # give way to their cores, never below: the pair never touches (before: 4 and 76
-    # pair-frames, with the pedestrians' escape push driving each robot into the other),
-    # and no robot's command closes in on the other once the walls stand
+    # less than the robots' d_c (0.8 m). While the walls walk in, the pedestrians' edge
+    # rule comes first (no command closes in on a pedestrian inside its collision distance
+    # while one exists) and the robots retreat into each other; once the walls stand, the
+    # floors have given way to their cores and no further: the pair sits at the core (on
+    # main before: at 0.9 m, the floor held and the pedestrians' rows gave way), touching
+    # nobody at 1.13; at 1.05 the walls stand inside the robots' discs
     tasks = {"starts": [(0.0, 0.9), (0.0, -0.9)], "goals": [[(3.0, 0.9)], [(3.0, -0.9)]]}
     res = run_multi(_walls(stop), max_frames=120, record_animation=False, learn=False, **tasks)
     m = res.metrics
-    d_c = 2 * res.scene.robot_radius
-    assert m.n_collide_robot_pairs == 0
-    assert m.d_min_robot >= d_c + FLOOR_CORE * 0.1 - 1e-6
-    if stop > 1.1:  # room for the core: nobody touched
+    core = 2 * res.scene.robot_radius + FLOOR_CORE * 0.1
+    x, t = res.track["robots"], res.track["t"]
+    d = np.hypot(*(x[:, 0] - x[:, 1]).T)
+    stood = t > (2.5 - stop) / 0.3 + 2.0  # two seconds after the walls stopped
+    assert stood.sum() > 30
+    assert (d[stood] >= core - 1e-6).all() and (d[stood] < core + 0.01).all()
+    if stop > 1.1:  # room for the core: no pedestrian touched
         assert m.n_collide_pedestrian == 0
-    else:  # the walls stand on the robots; the robots stand still between them
-        x = res.track["robots"]
-        t = res.track["t"]
-        still = t > (2.5 - stop) / 0.3 + 1.0  # a second after the walls stopped
-        assert np.abs(np.diff(x[still], axis=0)).max() < 1e-3
 
 
 def test_a_parked_robot_leaves_the_whole_pair_to_its_peers():

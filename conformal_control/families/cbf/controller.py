@@ -564,7 +564,9 @@ class ConformalCBFController(
     ) -> EscapeRows | None:
         """``escape`` with the peers already within the robots' collision distance added
         (people first: :func:`~conformal_control.families.cbf.reciprocal.robot_escape`), their
-        barrier and floor rows (``n`` predicted rows before them) neutralised with them."""
+        barrier and floor rows (``n`` predicted rows before them) neutralised with them;
+        ``escape`` itself when no command of the speed set closes in on none of them and
+        the pedestrians inside (the pedestrians' edge rule first)."""
         con = self.constraint
         if con.edge_distance() is None:
             return escape  # the edge rule is off
@@ -575,6 +577,13 @@ class ConformalCBFController(
         )
         if not peers.size:
             return escape
+        f = self.safety_filter
+        if escape is not None and hasattr(f, "min_lambda"):
+            # pedestrians first: the robots join only when some command closes in on none
+            # of the agents inside (else the pedestrians' edge rule decides as without them)
+            star, _ = f.min_lambda(np.r_[escape.U, U], np.r_[escape.c, c])
+            if float(star) > 0.0:
+                return escape
         k = view.n_peers
         rows = np.r_[n + peers, n + k + peers]
         if escape is None:
