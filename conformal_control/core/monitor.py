@@ -363,6 +363,14 @@ class GuaranteeMonitor:
 #: Figures of :meth:`AgentMonitor.summary` per agent (lists, one entry per agent with at
 #: least ``min_intervals`` losses): its number of losses, its average loss, its bound.
 AGENT_FIGURES = ("agent_n", "agent_l_avg", "agent_bound")
+#: Figures of :meth:`AgentMonitor.premise_figures` (counts; None without lambda_safe).
+_PREMISE_FIGURES = (
+    "n_agents_premise_tested",
+    "n_agents_premise_failed",
+    "n_premise_checks",
+    "n_premise_exceeded",
+    "n_agents_premise_exceeded",
+)
 
 
 @dataclass
@@ -436,6 +444,10 @@ class AgentMonitor:
     sequence: list[tuple[int, int, float]] = field(default_factory=list)
     #: Calls of :meth:`update` so far (intervals closed).
     n_intervals: int = 0
+    #: With ``lambda_safe`` and a loss that re-evaluates an agent's loss at another lambda
+    #: (``at``): per key, [losses re-evaluated at ``lambda_safe``, of those above epsilon]
+    #: -- Theorem 2's premise checked at every interval, whatever lambda the agent had.
+    safe_checks: dict[int, list[int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         q = self.prior
@@ -549,7 +561,9 @@ class AgentMonitor:
         """Feed each key its loss (NaN: none this interval, no update) and update its entry.
 
         ``at(i, lam)`` re-evaluates key ``i``'s loss at another lambda (rules with
-        ``uses_loss_function``). A key must have been given an entry by :meth:`values`.
+        ``uses_loss_function``; and, with ``lambda_safe``, the premise's check at every
+        interval, :attr:`safe_checks`). A key must have been given an entry by
+        :meth:`values`.
         """
         keys = np.asarray(keys).ravel()
         losses = np.asarray(losses, dtype=float).ravel()
@@ -561,6 +575,12 @@ class AgentMonitor:
             mon = self.entries.get(int(key))
             if mon is None:
                 raise KeyError(f"agent {key} was scored but has no lambda entry (see values())")
+            if self.lambda_safe is not None and at is not None:
+                at_safe = at(i, self.lambda_safe)
+                if at_safe is not None and math.isfinite(at_safe):
+                    counts = self.safe_checks.setdefault(int(key), [0, 0])
+                    counts[0] += 1
+                    counts[1] += int(at_safe > self.epsilon + _TOL)
             if self.learn:
                 if mon.rule is not None and mon.rule.capabilities.uses_loss_function:
                     mon.rule.set_loss_function(None if at is None else functools.partial(at, i))
@@ -594,6 +614,29 @@ class AgentMonitor:
 
     def _scored(self) -> list[GuaranteeMonitor]:
         return [m for m in self.entries.values() if m.n]
+
+    def premise_figures(self) -> dict[str, int | None]:
+        """Theorem 2's premise ("lambda <= lambda_safe keeps the loss <= epsilon") per agent,
+        None without ``lambda_safe``:
+
+        * ``n_agents_premise_tested``: agents with an update at lambda_j <= lambda_safe;
+        * ``n_agents_premise_failed``: of those, agents with a loss > epsilon there;
+        * ``n_premise_checks``: (agent, interval) losses re-evaluated at lambda_safe (the
+          loss's ``at``; 0 when the loss cannot), and ``n_premise_exceeded`` of them above
+          epsilon, in ``n_agents_premise_exceeded`` agents: the premise checked at every
+          interval, with the decision the robot took.
+        """
+        if self.lambda_safe is None:
+            return dict.fromkeys(_PREMISE_FIGURES)
+        scored = self._scored()
+        checks = list(self.safe_checks.values())
+        return {
+            "n_agents_premise_tested": sum(1 for m in scored if m.premise_tested),
+            "n_agents_premise_failed": sum(1 for m in scored if m.premise_violations),
+            "n_premise_checks": sum(c[0] for c in checks),
+            "n_premise_exceeded": sum(c[1] for c in checks),
+            "n_agents_premise_exceeded": sum(1 for c in checks if c[1]),
+        }
 
     def agent_bound(self, mon: GuaranteeMonitor) -> float | None:
         """Agent ``mon``'s bound on its average loss: Theorem 2's with ``lambda_safe``, else
@@ -731,6 +774,7 @@ class AgentMonitor:
             "n_agents": self.n_agents,
             "n_agents_checked": int(per["n"].size),
             "n_agents_bound_met": int(met.sum()) if has.any() else None,
+            **self.premise_figures(),
             "agent_min_intervals": int(self.min_intervals),
             "agent_n": per["n"].tolist(),
             "agent_l_avg": per["l_avg"].tolist(),

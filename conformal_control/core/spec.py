@@ -26,6 +26,8 @@ from .base import expand_settings
 from .exceptions import ConformalControlDeprecationWarning, InputError
 
 __all__ = [
+    "LAMBDA_SAFE_AUTO",
+    "LAMBDA_SAFE_AUTO_SOURCE",
     "OPTION_FIELDS",
     "PARAMETERS",
     "PARAM_DIMENSIONS",
@@ -281,6 +283,14 @@ ROLE_FIELDS: tuple[str, ...] = (
     "family",
     "crowd",
 )
+#: ``lambda_safe="auto"``: derived when the run is built (the CBF gap loss; see
+#: :func:`conformal_control.families.cbf.safe_lambda.derive_lambda_safe`).
+LAMBDA_SAFE_AUTO = "auto"
+#: The ``lambda_safe_source`` of ``lambda_safe="auto"`` when none is given.
+LAMBDA_SAFE_AUTO_SOURCE = (
+    "derived: CBF gap bound (robot within its speed set, pedestrians true and predicted "
+    "within the assumed speed bound)"
+)
 #: Options of a run (not controller parameters, not roles).
 OPTION_FIELDS: tuple[str, ...] = (
     "units",
@@ -304,7 +314,7 @@ _OPTION_TYPES: dict[str, tuple[type, ...]] = {
     "learn": (bool,),
     "seed": (int,),
     "max_frames": (int, type(None)),
-    "lambda_safe": (int, float, type(None)),
+    "lambda_safe": (int, float, str, type(None)),
     "lambda_safe_source": (str, type(None)),
     "record_animation": (bool,),
     "engine": (str,),
@@ -616,8 +626,11 @@ class RunSpec:
         ``random_state``.
     max_frames : int, optional
         Limit on simulated frames.
-    lambda_safe : float, optional
-        lambda known or estimated to keep the robot safe (in ``units``).
+    lambda_safe : float or "auto", optional
+        lambda known or estimated to keep the robot safe (in ``units``); ``"auto"``: derived
+        at build time for the CBF gap loss from the run's constraint, loss scale, epsilon
+        and speed bounds
+        (:func:`~conformal_control.families.cbf.safe_lambda.derive_lambda_safe`).
     lambda_safe_source : str, optional
         Where ``lambda_safe`` came from.
     record_animation : bool
@@ -650,7 +663,7 @@ class RunSpec:
     learn: bool = True
     seed: int = 0
     max_frames: int | None = None
-    lambda_safe: float | None = None
+    lambda_safe: float | str | None = None
     lambda_safe_source: str | None = None
     record_animation: bool = True
     engine: str = "auto"
@@ -686,7 +699,15 @@ class RunSpec:
         if not 0 <= self.seed < 2**63:
             raise _spec_error(f"seed must be an integer in [0, 2**63), got {self.seed!r}")
         ls = self.lambda_safe
-        if ls is not None and not math.isfinite(ls):
+        if isinstance(ls, str):
+            if ls != LAMBDA_SAFE_AUTO:
+                raise _spec_error(
+                    f"lambda_safe must be a number or {LAMBDA_SAFE_AUTO!r} (derived from the "
+                    f"run's constraint and speed bounds), got {ls!r}"
+                )
+            if self.lambda_safe_source is None:
+                object.__setattr__(self, "lambda_safe_source", LAMBDA_SAFE_AUTO_SOURCE)
+        elif ls is not None and not math.isfinite(ls):
             raise _spec_error(f"lambda_safe must be finite, got {ls!r}")
         for role in ROLE_FIELDS:
             _role_parts(role, getattr(self, role))

@@ -56,7 +56,7 @@ from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..world.multi import MultiRobotWorld
 from .build import Flagship, build_flagship
 from .results.episode import RobotResult
-from .results.measure import episode_config, jsonable, measure
+from .results.measure import derived_lambda_safe, episode_config, jsonable, measure
 from .results.multi_metrics import (
     DeadlockRule,
     FleetMetrics,
@@ -515,7 +515,9 @@ def run_multi(
     si = fl0.params.si
     lam_unit = run_scene.units.factor("lambda_init")
     lambda_safe = run.lambda_safe
-    if lambda_safe is not None and run.units == "si":
+    if isinstance(lambda_safe, str):  # "auto": derived from the built run, SI
+        lambda_safe = derived_lambda_safe(fl0).value / lam_unit
+    elif lambda_safe is not None and run.units == "si":
         lambda_safe = lambda_safe / lam_unit
     lam_safe_si = None if lambda_safe is None else float(lambda_safe) * lam_unit
     steppers = [

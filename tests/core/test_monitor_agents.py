@@ -180,3 +180,37 @@ def test_close_agent_interval_logs_the_largest_term_and_updates_each_agent():
     assert np.array_equal(log.agent_losses, [np.nan, 0.1, np.nan], equal_nan=True)
     assert mon.entries[3].lam == pytest.approx(-0.1) and mon.entries[1].n == 0
     assert lam == mon.prior_value()
+
+
+def test_the_premise_is_checked_at_every_interval_and_per_agent():
+    # agent j's loss at lambda is 0.4 tanh(lambda - theta_j): theta_1 = -1 always, agent 2's
+    # theta is -1 except at 3 intervals where it is -3 (the premise at lambda_safe = -1
+    # fails there: 0.4 tanh(2) > 0); lambda never goes down to -1 (epsilon high)
+    theta = {1: -1.0, 2: -1.0}
+    mon = AgentMonitor.for_rule(
+        FixedEtaRule(epsilon=0.3, eta=0.1, lambda_init=0.5), lambda_safe=-1.0
+    )
+    for k in range(30):
+        theta[2] = -3.0 if k in (4, 10, 20) else -1.0
+        keys = [1, 2]
+        lams = mon.values(keys)
+        th = np.array([theta[1], theta[2]])
+        losses = 0.4 * np.tanh(lams - th)
+        mon.update(keys, losses, lambda i, lam, th=th: float(0.4 * np.tanh(lam - th[i])))
+    fig = mon.premise_figures()
+    assert fig["n_premise_checks"] == 60 and fig["n_premise_exceeded"] == 3
+    assert fig["n_agents_premise_exceeded"] == 1
+    assert mon.safe_checks == {1: [30, 0], 2: [30, 3]}
+    assert fig["n_agents_premise_tested"] == 0 and fig["n_agents_premise_failed"] == 0
+    assert mon.summary()["n_premise_exceeded"] == 3
+    # without lambda_safe: no figures; without ``at``: nothing re-evaluated
+    plain = AgentMonitor.for_rule(FixedEtaRule(epsilon=0.3, eta=0.1))
+    plain.values([1])
+    plain.update([1], [0.1])
+    assert set(plain.premise_figures().values()) == {None}
+    blind = AgentMonitor.for_rule(FixedEtaRule(epsilon=0.0, eta=1.0), lambda_safe=5.0)
+    blind.values([1])
+    blind.update([1], [0.3])  # lambda 0 <= 5: tested, and the loss breaks the premise
+    fig = blind.premise_figures()
+    assert fig["n_premise_checks"] == 0
+    assert fig["n_agents_premise_tested"] == 1 and fig["n_agents_premise_failed"] == 1

@@ -156,6 +156,7 @@ def test_the_fallback_parameter_of_the_command_line_is_the_role(tmp_path) -> Non
         ({"params": {"tau": True}}, "parameter tau must be a number"),
         ({"seed": -3}, "seed must be an integer in [0, 2**63), got -3"),
         ({"lambda_safe": float("nan")}, "lambda_safe must be finite"),
+        ({"lambda_safe": "safe"}, "lambda_safe must be a number or 'auto'"),
     ],
 )
 def test_from_dict_refuses_what_fails_later_with_one_input_error(data: dict, words: str) -> None:
@@ -172,3 +173,13 @@ def test_from_dict_keeps_what_config_json_writes() -> None:
     back = RunSpec.from_dict(json.loads(json.dumps(spec.as_dict())))
     assert back.params["lambda_min"] == -math.inf and back.params["tau"] == "0.4s"
     assert back.seed == 7
+
+
+def test_lambda_safe_auto_says_where_it_comes_from() -> None:
+    spec = RunSpec(lambda_safe="auto")
+    assert spec.lambda_safe_source is not None
+    assert spec.lambda_safe_source.startswith("derived: CBF gap bound")
+    own = RunSpec(lambda_safe="auto", lambda_safe_source="mine")
+    assert own.lambda_safe_source == "mine"
+    back = RunSpec.from_dict(json.loads(json.dumps(spec.as_dict())))
+    assert back.lambda_safe == "auto"

@@ -91,6 +91,9 @@ class Method:
         ``loss``, ``reference``, ``dynamics``.
     role_params : mapping
         role -> parameters (SI) of that named plugin.
+    options : mapping
+        Run options (:class:`~conformal_control.core.spec.RunSpec` fields that are no
+        parameter and no role), e.g. ``{"lambda_safe": "auto"}``.
     """
 
     family: str
@@ -103,9 +106,10 @@ class Method:
     rule_params: Mapping[str, Any] = field(default_factory=dict)
     roles: Mapping[str, str] = field(default_factory=dict)
     role_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    options: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name in ("params", "rule_params", "roles"):
+        for name in ("params", "rule_params", "roles", "options"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
         object.__setattr__(
             self, "role_params", _frozen({k: _frozen(v) for k, v in self.role_params.items()})
@@ -133,6 +137,7 @@ class Method:
             "learn": self.learn,
             "rule": self.rule,
             "rule_params": dict(self.rule_params),
+            **self.options,
         }
         for role, name in self.roles.items():
             # "decision_family": a method written by 0.2 (a stored bench.json)
@@ -161,6 +166,7 @@ class Method:
             "rule_params": dict(self.rule_params),
             "roles": dict(self.roles),
             "role_params": {k: dict(v) for k, v in self.role_params.items()},
+            **({"options": dict(self.options)} if self.options else {}),
         }
 
 
@@ -203,7 +209,7 @@ class Family:
     reference : bool
         ``bench run`` with tuned values keeps the whole ``tune`` grid (the family's
         setting re-tuned per shift on the reported split is then a labelled reference).
-    learn, predictor, params, rule, rule_params, roles, role_params
+    learn, predictor, params, rule, rule_params, roles, role_params, options
         As in :class:`Method`.
     """
 
@@ -222,9 +228,10 @@ class Family:
     rule_params: Mapping[str, Any] = field(default_factory=dict)
     roles: Mapping[str, str] = field(default_factory=dict)
     role_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    options: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name in ("params", "rule_params", "roles"):
+        for name in ("params", "rule_params", "roles", "options"):
             object.__setattr__(self, name, _frozen_map(getattr(self, name)))
         object.__setattr__(
             self, "role_params", _frozen_map({k: _frozen(v) for k, v in self.role_params.items()})
@@ -267,6 +274,7 @@ class Family:
             rule_params=rule_params,
             roles=self.roles,
             role_params=role_params,
+            options=self.options,
         )
 
     def members(self, grid: Iterable[Any] | None = None) -> list[Method]:
@@ -292,6 +300,11 @@ DTACI_GAMMAS = (0.1 * ETA, 0.3 * ETA, ETA, 3 * ETA)
 #: delayed and noisy predictors), above the feasibility floor -a h_max = -50/s where a far
 #: pedestrian's row alone makes the step infeasible.
 AGENT_FLOOR = -30.0
+#: The per-pedestrian families carry a derived lambda_safe (Theorem 2 per agent, its
+#: premise checked at every interval): ``c tan(pi epsilon) - G`` with G the CBF gap bound
+#: of :func:`conformal_control.families.cbf.safe_lambda.gap_bound` (-125.8/s at
+#: epsilon = -0.05 on the crossing suites).
+AGENT_SAFE: Mapping[str, Any] = MappingProxyType({"lambda_safe": "auto"})
 
 _DECLARED: tuple[Family, ...] = (
     Family("nolearn", "lambda = 0, no learning (pred/noLearn)", learn=False),
@@ -349,6 +362,7 @@ _DECLARED: tuple[Family, ...] = (
         settings=(-0.05,),
         tune=(-0.2, -0.15, -0.1, -0.05, 0.0),
         params={"eta": ETA, "lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+        options=AGENT_SAFE,
     ),
     Family(
         "conformal_agent_dtaci",
@@ -361,6 +375,7 @@ _DECLARED: tuple[Family, ...] = (
         params={"lambda_per": "agent", "lambda_min": AGENT_FLOOR},
         rule="dtaci",
         rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+        options=AGENT_SAFE,
     ),
     Family(
         "conformal_dtaci_floor",

@@ -1097,9 +1097,22 @@ def _agents(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> b
         "how many meet their own bound where the run had one (Theorem 2 with lambda_safe, "
         "or a long-run bound). Episodes whose run folder is missing are counted apart.",
         "",
+        "Where the run had a `lambda_safe` (the per-pedestrian methods: `lambda_safe=auto`, "
+        "derived from the CBF gap bound, see the Benchmark page), Theorem 2's premise "
+        "(lambda_j <= lambda_safe keeps agent j's loss <= epsilon) is checked two ways: "
+        "*tested* counts the agents with an update at lambda_j <= lambda_safe and, of "
+        "those, the agents with a loss above epsilon there; *every interval* re-evaluates "
+        "each agent's loss at lambda_safe at every interval (with the decision the robot "
+        "took) and counts the losses above epsilon. *Assumption* counts the episodes where "
+        "Theorem 2's lambda_1 >= lambda_safe - eta and lambda_min <= lambda_safe - eta hold "
+        "(a floor above lambda_safe - eta breaks it: clipping adds to lambda, and the "
+        "bound is then arithmetic only).",
+        "",
         "| shift | method | episodes | agents checked | median | 90th percentile | "
-        "largest | within 0.01 of epsilon | bound met |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "largest | within 0.01 of epsilon | lambda_safe (1/s) | bound met | assumption | "
+        "premise tested: agents failed / tested | premise at every interval: losses above "
+        "epsilon / checked |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|",
     ]
     for (shift, method), g in sorted(groups.items()):
         gaps: list[float] = []
@@ -1123,11 +1136,51 @@ def _agents(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> b
             )
         else:
             cells = "- | - | - | -"
-        bound = f"{met} of {with_bound}" if with_bound else "no bound (no lambda_safe)"
+        safe = [r for r in g if math.isfinite(_num(r.get("lambda_safe")))]
+        if with_bound:
+            bound = f"{met} of {with_bound}"
+        elif safe:
+            bound = f"no bound (rule {g[0].get('rule') or '?'})"
+        else:
+            bound = "no bound (no lambda_safe)"
         note = f" ({missing} without run folder)" if missing else ""
-        md.append(f"| {shift} | `{method}` | {len(g)}{note} | {x.size} | {cells} | {bound} |")
+        md.append(
+            f"| {shift} | `{method}` | {len(g)}{note} | {x.size} | {cells} | "
+            f"{_premise_cells(safe)} | {bound} | {_premise_rest(safe)} |"
+        )
     (out / "agents.md").write_text("\n".join(md) + "\n")
     return True
+
+
+def _premise_cells(safe: list[dict[str, Any]]) -> str:
+    """The rows' lambda_safe in 1/s (one value, or their range), "-" without one."""
+    values = sorted(
+        {round(_num(r.get("lambda_safe")) * _num(r.get("lambda_unit_si") or 1.0), 6) for r in safe}
+    )
+    if not values:
+        return "-"
+    return f"{values[0]:.1f}" if len(values) == 1 else f"{values[0]:.1f} to {values[-1]:.1f}"
+
+
+def _premise_rest(safe: list[dict[str, Any]]) -> str:
+    """The assumption, the premise tested and the premise at every interval (cells)."""
+    if not safe:
+        return "- | - | -"
+
+    def total(key: str) -> int:
+        return int(sum(v for r in safe if math.isfinite(v := _num(r.get(key)))))
+
+    with_assumption = [r for r in safe if math.isfinite(_num(r.get("theorem2_assumption")))]
+    held = sum(int(_num(r.get("theorem2_assumption")) == 1.0) for r in with_assumption)
+    assumption = f"holds in {held} of {len(with_assumption)} episodes" if with_assumption else "-"
+    tested = f"{total('n_agents_premise_failed')} / {total('n_agents_premise_tested')} agents"
+    checks = total("n_premise_checks")
+    every = (
+        f"{total('n_premise_exceeded')} / {checks} ({total('n_agents_premise_exceeded')} agents)"
+        if checks
+        else "not checked (the loss cannot re-evaluate)"
+    )
+    return f"{assumption} | {tested} | {every}"
 
 
 # ------------------------------------------------------------------ entry point

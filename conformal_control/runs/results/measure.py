@@ -24,6 +24,8 @@ from ...core.exceptions import (
 )
 from ...core.loop import LoopResult
 from ...families.cbf.feasibility import feasibility_floor
+from ...families.cbf.loss import CBFGapLoss
+from ...families.cbf.safe_lambda import DerivedLambdaSafe, derive_lambda_safe
 from .collisions import account_collisions
 from .metrics import EpisodeMetrics, episode_metrics
 
@@ -34,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "LAMBDA_LIMIT",
     "check_lambda",
+    "derived_lambda_safe",
     "episode_config",
     "feasibility",
     "jsonable",
@@ -67,13 +70,44 @@ def lambda_unit(fl: Flagship) -> tuple[float, str]:
 
 
 def lambda_safe_values(
-    fl: Flagship, lambda_safe: float | None, units: str
+    fl: Flagship, lambda_safe: float | str | None, units: str
 ) -> tuple[float | None, float | None]:
-    """``lambda_safe`` given in ``units``: (in the scene's units, as reported; in SI)."""
+    """``lambda_safe`` given in ``units``: (in the scene's units, as reported; in SI).
+
+    ``"auto"`` is derived from the built run (:func:`derived_lambda_safe`).
+    """
     lam_unit = lambda_unit(fl)[0]
+    if isinstance(lambda_safe, str):
+        si = derived_lambda_safe(fl).value
+        return si / lam_unit, si
     if lambda_safe is not None and units == "si":
         lambda_safe = lambda_safe / lam_unit
     return lambda_safe, None if lambda_safe is None else float(lambda_safe) * lam_unit
+
+
+def derived_lambda_safe(fl: Flagship) -> DerivedLambdaSafe:
+    """``lambda_safe="auto"`` for the built run ``fl`` (SI): the CBF gap loss's
+    :func:`~conformal_control.families.cbf.safe_lambda.derive_lambda_safe` with the run's
+    constraint, loss scale and epsilon, the robot's speed bound (the radius of its speed
+    set: ``v_max``, or ``sqrt(2) v_max`` for the box, ``speed_sides = 0``) and the assumed
+    pedestrian speed bound
+    (:data:`~conformal_control.families.cbf.safe_lambda.AGENT_SPEED_BOUND`).
+
+    Raises
+    ------
+    ValueError
+        When the run's loss is not the CBF gap loss or its barrier not the APF barrier.
+    """
+    loss = fl.loss
+    if not isinstance(loss, CBFGapLoss):
+        raise ValueError(
+            f"lambda_safe='auto' is derived for the CBF gap loss only; this run's loss is "
+            f"{type(loss).__name__}: give lambda_safe as a number"
+        )
+    si = fl.params.si
+    v_max = float(si["v_max"])
+    robot_speed = v_max if int(si.get("speed_sides", 16)) else math.sqrt(2.0) * v_max
+    return derive_lambda_safe(loss.constraint, loss.scale, si["epsilon"], robot_speed)
 
 
 # ---------------------------------------------------------------------- warnings
@@ -373,6 +407,17 @@ def measure(
     return metrics, intervals, traj
 
 
+#: The per-agent premise counts of the monitor's summary, as metrics (None without
+#: lambda_safe).
+_PREMISE_KEYS = (
+    "n_agents_premise_tested",
+    "n_agents_premise_failed",
+    "n_premise_checks",
+    "n_premise_exceeded",
+    "n_agents_premise_exceeded",
+)
+
+
 def _agent_figures(guarantee: dict[str, Any]) -> dict[str, Any]:
     """The metrics of lambda run per agent, from the monitor's summary."""
     avg = np.asarray(guarantee["agent_l_avg"], dtype=float)
@@ -382,6 +427,7 @@ def _agent_figures(guarantee: dict[str, Any]) -> dict[str, Any]:
         "n_agents_bound_met": guarantee["n_agents_bound_met"],
         "agent_l_avg_median": float(np.median(avg)) if avg.size else None,
         "agent_l_avg_max": float(avg.max()) if avg.size else None,
+        **{k: guarantee.get(k) for k in _PREMISE_KEYS},
         "agents": {
             "min_intervals": guarantee["agent_min_intervals"],
             "n": list(guarantee["agent_n"]),

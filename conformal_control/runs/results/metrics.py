@@ -179,6 +179,19 @@ class EpisodeMetrics(MetricsTable):
         "-", "median over the checked agents of their average loss"
     )
     agent_l_avg_max: float | None = _m("-", "largest average loss of a checked agent")
+    n_agents_premise_tested: int | None = _m(
+        "-", "agents with an update at lambda_j <= lambda_safe (with lambda_safe)"
+    )
+    n_agents_premise_failed: int | None = _m(
+        "-", "of those, agents with a loss > epsilon at lambda_j <= lambda_safe"
+    )
+    n_premise_checks: int | None = _m(
+        "-", "(agent, interval) losses re-evaluated at lambda_safe (with lambda_safe)"
+    )
+    n_premise_exceeded: int | None = _m("-", "of those, losses above epsilon at lambda_safe")
+    n_agents_premise_exceeded: int | None = _m(
+        "-", "agents with a loss above epsilon at lambda_safe at some interval"
+    )
     agents: dict[str, Any] | None = _m("-", "per checked agent: losses, average loss, bound")  # noqa: RUF009 (a field)
     # -- feasibility floor ------------------------------------------------------------
     lambda_floor: float | None = _m("lambda", "-a h_max: below it a far agent's row fails")

@@ -154,3 +154,58 @@ def test_agents_md_reads_each_runs_agents(tmp_path):
     md = files["agents.md"].read_text()
     # gaps to epsilon: +0.01 and 0 -> median +0.005, 90th percentile +0.009
     assert "| nominal | `conformal_agent[eps=-0.05]` | 1 | 2 | +0.0050 | +0.0090 | +0.0100 |" in md
+
+
+def test_agents_md_reports_the_bound_and_the_premise_per_row(tmp_path):
+    rows = []
+    # two episodes of a fixed-step method with a derived lambda_safe (-4.2/frame at 30 fps:
+    # -126/s): 2 of 4 agents meet their bound; one episode's premise exceeded once
+    bounds = [([-0.04, 0.2], [0.1, 0.1]), ([-0.05, -0.05], [0.0, -0.06])]
+    for i, (avg, bnd) in enumerate(bounds):
+        run = tmp_path / f"run{i}"
+        run.mkdir()
+        agents = {"min_intervals": 10, "n": [12, 30], "l_avg": avg, "bound": bnd}
+        (run / "metrics.json").write_text(json.dumps({"agents": agents}))
+        rows.append(
+            {
+                "scenario": f"s{i}",
+                "method": "conformal_agent[eps=-0.05]",
+                "family": "conformal_agent",
+                "status": "ok",
+                "success": "true",
+                "goal_reached": "true",
+                "n_collide": 0,
+                "any_collision": "false",
+                "t_goal": 8.0,
+                "time_limit": 10.0,
+                "n_agents": 2,
+                "epsilon": -0.05,
+                "run_dir": str(run),
+                "rule": "fixed_eta",
+                "lambda_safe": -4.2,
+                "lambda_unit_si": 30.0,
+                "theorem2_assumption": "false" if i else "true",
+                "n_agents_premise_tested": 1 - i,
+                "n_agents_premise_failed": 0,
+                "n_premise_checks": 50,
+                "n_premise_exceeded": i,
+                "n_agents_premise_exceeded": i,
+            }
+        )
+    # the same under DtACI: lambda_safe but no Theorem-2 bound
+    dt = [dict(r, method="conformal_agent_dtaci[eps=-0.05]", rule="dtaci") for r in rows]
+    for r in dt:
+        r["run_dir"] = ""
+    files = write_report(rows + dt, tmp_path / "report")
+    md = files["agents.md"].read_text()
+    line = next(x for x in md.splitlines() if "`conformal_agent[eps=-0.05]`" in x)
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[8:] == [
+        "-126.0",
+        "2 of 4",
+        "holds in 1 of 2 episodes",
+        "0 / 1 agents",
+        "1 / 100 (1 agents)",
+    ]
+    line = next(x for x in md.splitlines() if "`conformal_agent_dtaci" in x)
+    assert "no bound (rule dtaci)" in line and "2 without run folder" in line

@@ -91,3 +91,42 @@ def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch
     if kw["params"].get("lambda_per") == "agent":
         _same_agents(batched, singles)
     assert all(s.metrics.n_updates > 0 for s in singles)
+
+
+def test_a_derived_lambda_safe_is_reported_and_its_premise_checked(crossings, compare_batch):
+    """lambda_safe="auto": derived from the built run (the CBF gap bound), the same on both
+    engines, every agent's loss re-evaluated at it at every interval."""
+    from conformal_control.families.cbf.safe_lambda import barrier_slope_bound
+    from conformal_control.runs.build import build_flagship
+    from conformal_control.runs.results.measure import derived_lambda_safe
+
+    params = {"lambda_per": "agent", "epsilon": -0.05}
+    batched, singles = compare_batch(
+        crossings[:2], seeds=[0, 1], output="results", params=params, lambda_safe="auto",
+        max_frames=[160, 160], batch_size=2,
+    )  # fmt: skip
+    _same_agents(batched, singles)
+    from conformal_control.core.spec import RunSpec
+
+    fl = build_flagship(crossings[0], RunSpec(params=params, lambda_safe="auto"))
+    safe = derived_lambda_safe(fl)
+    si = fl.params.si
+    m_h = barrier_slope_bound(fl.barrier)
+    g = m_h * (2 * si["v_max"] + 2 * 3.0) + si["a"] * 1.0
+    assert safe.gap_bound == pytest.approx(g)
+    assert safe.value == pytest.approx(si["loss_scale"] * math.tan(math.pi * -0.05) - g)
+    unit = crossings[0].units.factor("lambda_init")
+    for s in singles:
+        m = s.metrics
+        assert m.lambda_safe == pytest.approx(safe.value / unit)
+        assert m.lambda_safe_source.startswith("derived: CBF gap bound")
+        assert m.n_premise_checks > 0 and m.n_premise_exceeded == 0
+        assert m.n_agents_premise_tested == 0  # lambda never goes that low here
+        assert m.theorem2_verdict != "not_applicable" and m.n_agents_bound_met is not None
+
+
+def test_a_derived_lambda_safe_needs_the_gap_loss(crossings):
+    from conformal_control.runs.episode import run_episode
+
+    with pytest.raises(ValueError, match="derived for the CBF gap loss only"):
+        run_episode(crossings[0], loss="collision", lambda_safe="auto", max_frames=20)
