@@ -656,10 +656,10 @@ class ConformalCBFController(
             with f.contact(ttc), f.escaping(v_ref, calm) as escaped:
                 if escaped is not None:
                     return escaped
-                f.count("escape_push_yielded")  # type: ignore[attr-defined]
+                f.count("escape_push_yielded")
                 res = self._keep_hard_rows(v_ref, A, b, slack, fell, first, tally=False)
         if self._stage:
-            f.count(f"{self._stage[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
+            f.count(f"{self._stage[:-1]}_rows_relaxed")
         return res
 
     def _with_robots(
