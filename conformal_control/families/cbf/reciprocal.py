@@ -216,7 +216,9 @@ class Reciprocity(Plugin):
         :data:`~conformal_control.core.spec.FLOOR_MARGIN_M`). The floor rows of the plain
         barrier ``d - d_c`` let a pair close to ``d_c`` in continuous time and, in steps,
         a little below it; aiming at ``d_c + floor_margin`` keeps the pair out of contact
-        (measured in docs/multi-robot.md). 0: the floor rows at ``d_c``. Not used by the
+        (measured in docs/multi-robot.md). Before the pedestrians' rows give way, the floor
+        rows give way down to their cores at ``d_c + FLOOR_CORE * floor_margin``
+        (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
     """
