@@ -84,13 +84,13 @@ def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple
 def python_recorded() -> Iterator[None]:
     """The batch engine with the ``recorded`` predictor called per episode (as before it
     replayed the forecasts compiled): the predictor is then the episode's own object."""
-    from conformal_control.runs.engines import batch
+    from conformal_control.runs.engines.batch import supports as batch
 
-    code = batch._PREDICTORS.pop("recorded")
+    code = batch.PREDICTORS.pop("recorded")
     try:
         yield
     finally:
-        batch._PREDICTORS["recorded"] = code
+        batch.PREDICTORS["recorded"] = code
 
 
 def _load() -> str:
@@ -101,14 +101,14 @@ def _load() -> str:
 def python_shifts() -> Iterator[None]:
     """The batch engine with the shifts' wrappers called per episode (as before they ran
     compiled): the predictor is then the episode's own object."""
-    from conformal_control.runs.engines import batch
+    from conformal_control.runs.engines.batch import supports as batch
 
-    saved = dict(batch._SHIFTS)
-    batch._SHIFTS.clear()
+    saved = dict(batch.SHIFTS)
+    batch.SHIFTS.clear()
     try:
         yield
     finally:
-        batch._SHIFTS.update(saved)
+        batch.SHIFTS.update(saved)
 
 
 def _fig(section: str, name: str, value: float, unit: str, **kw: Any) -> dict[str, Any]:

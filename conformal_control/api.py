@@ -16,12 +16,10 @@ robot's ROS 2 bag instead: the commands it would have sent.
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import Any
 
-from .core.exceptions import InputError
-from .core.spec import PARAMETERS, RunSpec
+from .core.spec import RunSpec
 from .io.ros2.shadow import shadow
 from .runs.results.episode import EpisodeResult
 
@@ -104,80 +102,31 @@ def run(
         ``starts``/``goals``, a spec read from a multi-robot ``config.json``; run several
         with :func:`conformal_control.runs.fleet.run_multi`), checked before the scene is loaded.
     """
-    from .data import load_scene
-    from .data.units import PARAM_DIMENSIONS
-    from .predictors.training import with_weights
+    from .core.progress import progress as progress_bar
     from .runs.episode import run_episode
+    from .runs.prepare import prepare_run
 
     _check_keywords(settings)
     on_interval = settings.pop("on_interval", None)
-    base = spec if spec is not None else RunSpec()
-    if not isinstance(base, RunSpec):
-        raise InputError(f"spec must be a RunSpec, got {type(base).__name__}")
-    _refuse_robots(base, settings)
-    seed = int(settings.get("seed", base.seed))
-    _check_plugins(RunSpec.from_settings(None, base=base, **settings) if settings else base)
-    if isinstance(scene, str):
-        scene = load_scene(
-            scene, data_root, start=start, goals=goal, start_frame=start_frame, seed=seed
-        )
-    elif start is not None or goal is not None:
-        import numpy as np
-
-        from .data.positions import parse_positions, scene_position
-
-        changes: dict[str, Any] = {}
-        if start is not None:
-            changes["start"] = scene_position(scene, start, "start")
-        if goal is not None:
-            goals = [scene_position(scene, g, "goal") for g in parse_positions(goal, "goal")]
-            changes["goals"] = np.array(goals)
-        scene = scene.replace(**changes)
-    given = dict(base.params)
-    given.update(params or {})
-    for name, value in (("epsilon", epsilon), ("eta", eta), ("tau", tau)):
-        if value is not None:
-            if name in given and given[name] != value:
-                raise ValueError(f"{name} given twice with different values")
-            given[name] = value
-    dimensional = sorted(k for k in given if k in PARAM_DIMENSIONS)
-    si_scene = scene.units.length == 1.0 and scene.units.time == 1.0
-    if units is None:
-        if spec is not None and "units" not in settings:
-            units = spec.units
-        elif dimensional and not si_scene:
-            raise ValueError(
-                f"parameter(s) {', '.join(dimensional)} have units and scene {scene.name} is "
-                f"typed in {scene.units.length_name} and {scene.units.time_name}: pass "
-                f"units='si' (m, s) or units='scene' ({scene.units.length_name}, "
-                f"{scene.units.time_name})"
-            )
-        else:
-            units = "si"
-    settings["units"] = units
-    log = logging.getLogger("conformal_control.run")
-    log.info(
-        "scene %s: %d agents, %d frames at %g fps",
-        scene.name,
-        scene.n_agents,
-        scene.n_frames,
-        scene.fps,
+    prepared = prepare_run(
+        scene,
+        spec,
+        epsilon=epsilon,
+        eta=eta,
+        tau=tau,
+        params=params,
+        units=units,
+        data_root=data_root,
+        start=start,
+        goal=goal,
+        start_frame=start_frame,
+        settings=settings,
     )
-    run_spec = RunSpec.from_settings(given, base=base, **settings)
-    run_spec = with_weights(run_spec, scene, None if data_root is None else str(data_root))
-    name, pp = run_spec.role("predictor")
-    log.info("predictor %s with %s; rule %s", name, pp, run_spec.role_name("rule"))
+    scene, run_spec = prepared.scene, prepared.spec
     if not progress:
         return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
-    from .core.progress import progress as progress_bar
-
-    total = scene.n_frames - 1 - scene.start_index
-    if run_spec.max_frames is not None:
-        total = min(total, run_spec.max_frames)
-    # control instants per frame: the run's, else the scene's, else the table's default
-    default = scene.defaults.get("substeps", PARAMETERS["substeps"][0])
-    substeps = int(run_spec.params.get("substeps", default))
-    bar = progress_bar(total, f"run {scene.name} [{run_spec.role_name('predictor')}]", "frames")
+    substeps = prepared.substeps
+    bar = progress_bar(prepared.frames, prepared.label, "frames")
     steps = [0]  # control steps so far; the bar advances in whole frames
 
     def advance(iv: Any) -> None:
@@ -191,43 +140,6 @@ def run(
 
     with bar:
         return run_episode(scene, run_spec, on_interval=advance, extra_config=extra_config)
-
-
-def _check_plugins(run: RunSpec) -> None:
-    """Every role given by name is a registered plugin (an unknown name fails here, before
-    the scene is loaded, with a did-you-mean)."""
-    from .core import registry
-
-    roles = run.roles()
-    order = ("predictor", "rule", "barrier", "safety_filter", "reference", "dynamics", "loss")
-    for role in (*order, "family"):
-        name = roles[role][0]
-        if isinstance(name, str):
-            registry.entry(role, name)
-
-
-def _refuse_robots(spec: RunSpec, settings: dict[str, Any]) -> None:
-    """One robot runs here: a robots section (in ``spec`` or the keywords) is refused, never
-    dropped (``run("crossing", robots=3)`` used to run one robot without a word)."""
-    from .core.spec import ROBOT_FIELDS
-
-    given = [k for k in ROBOT_FIELDS if k in settings]
-    if spec.robots is None and not given:
-        return
-    import reprlib
-
-    short = reprlib.Repr()
-    short.maxstring, short.maxother = 30, 30
-    what = (
-        ", ".join(f"{k}={short.repr(settings[k])}" for k in given)
-        if given
-        else f"a robots section (robots={spec.robots.robots if spec.robots else None})"
-    )
-    raise InputError(
-        f"run() drives one robot and cannot honour {what}: run several with "
-        "conformal_control.runs.fleet.run_multi(scene, ...) with the same arguments, or "
-        "`conformal-control run --robots M`"
-    )
 
 
 def _check_keywords(kwargs: dict[str, Any]) -> None:

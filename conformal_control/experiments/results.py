@@ -250,6 +250,21 @@ class ResultsStore:
         """The last record of every key."""
         return {r["key"]: r for r in self.records()}
 
+    def interrupted_summary(self) -> str:
+        """What an interrupted sweep left in this folder, read back from its journal (only
+        true statements): the runs finished and failed, those recovered from their run
+        directories, and how to resume."""
+        latest = self.latest()
+        ok = sum(r.get("status") == "ok" for r in latest.values())
+        failed = len(latest) - ok
+        recovered = sum(bool(r.get("recovered")) for r in latest.values())
+        adopted = f" ({recovered} recovered from their run directories)" if recovered else ""
+        return (
+            f"{ok} finished and {failed} failed run(s) are in the journal {self.journal}"
+            f"{adopted}; the runs in flight were abandoned; run the same command again to "
+            "resume"
+        )
+
     def run_path(self, run_dir: str | os.PathLike[str] | None) -> Path | None:
         """Where a recorded run directory is now, inside this sweep folder.
 

@@ -106,7 +106,11 @@ def run_episode(
         :class:`~conformal_control.core.spec.RunSpec` read from a multi-robot ``config.json``):
         one robot runs here, several with :func:`~conformal_control.runs.fleet.run_multi`.
     """
-    run = as_run_spec(spec, params, **settings)
+    run = (
+        spec
+        if isinstance(spec, RunSpec) and params is None and not settings
+        else as_run_spec(spec, params, **settings)
+    )
     if run.robots is not None:  # one robot here: never drop the section silently
         given = run.robots.robots
         what = f"robots={given}" if given is not None else "a robots section"
@@ -115,11 +119,13 @@ def run_episode(
             "conformal_control.runs.fleet.run_multi(scene, spec) or "
             "`conformal-control run --robots`"
         )
-    scene = run.on_scene(scene)
-    if run.engine != "loop":
+    if run.engine != "loop":  # (the compiled engine puts the run's task on the scene)
         compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
         if compiled is not None:
             return compiled
     return run_loop(
-        build_flagship(scene, run), run, on_interval=on_interval, extra_config=extra_config
+        build_flagship(run.on_scene(scene), run),
+        run,
+        on_interval=on_interval,
+        extra_config=extra_config,
     )

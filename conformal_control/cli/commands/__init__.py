@@ -28,12 +28,17 @@ __all__ = [
     "check_writable",
     "command",
     "command_line",
+    "crowd_choices",
+    "crowd_params",
     "finite_float",
     "key_values",
     "load_all",
     "load_command",
     "non_negative_int",
+    "plugin_key_values",
+    "plugin_params",
     "positive_int",
+    "scene_data_root",
 ]
 
 Handler = Callable[[argparse.Namespace], int]
@@ -126,6 +131,80 @@ def plugin_key_values(
         unit = next((u for c in classes if (u := documented_unit(c, key)) is not None), None)
         out[key] = si_value(key, value, unit, flag)
     return out
+
+
+def plugin_params(role: str, name: str, items: Sequence[str] | None, flag: str) -> dict[str, Any]:
+    """``--<role>-param`` values for the plugin registered as ``name``: each typed by the
+    plugin's constructor (:func:`plugin_key_values`) and checked against it.
+
+    Parameters
+    ----------
+    role, name : str
+        The plugin's role and registered name.
+    items : list of str or None
+        The ``KEY=VALUE`` items given.
+    flag : str
+        The option, for error messages.
+    """
+    from ...core import registry
+
+    cls = registry.get(role, name)
+    pp = plugin_key_values(items, flag, [cls])
+    registry.check_params(role, name, cls, pp)
+    return pp
+
+
+def crowd_choices() -> list[str]:
+    """The crowds a ``--crowd`` option accepts (``replay``, every registered crowd model,
+    ``mixed``: :func:`~conformal_control.core.registry.crowd_names`)."""
+    from ...core import registry
+
+    return registry.crowd_names()
+
+
+def crowd_params(crowd: str, items: Sequence[str] | None) -> dict[str, Any]:
+    """``--crowd-param`` values for the crowd ``crowd``: typed by the crowd's classes, a
+    unit suffix converted to the crowd's SI units (the ``mixed`` crowd's own ``radius``, in
+    metres), checked before the scene is loaded.
+
+    Parameters
+    ----------
+    crowd : str
+        The crowd (``replay``, ``social_force``, ``orca``, ``mixed``, ...).
+    items : list of str or None
+        The ``KEY=VALUE`` items given.
+    """
+    from ...core import registry
+    from ...data.units import si_value
+    from ...world.crowds.crowd import Crowd
+
+    given = key_values(items, "--crowd-param")
+    model = given.get("model", "social_force") if crowd == "mixed" else crowd
+    known = model in registry.names("crowd")
+    classes: list[type] = [Crowd, *([registry.get("crowd", model)] if known else [])]
+    radius = given.pop("radius", None) if crowd == "mixed" else None
+    kept = [i for i in items or [] if i.partition("=")[0].strip() != "radius"]
+    pp = plugin_key_values(kept if crowd == "mixed" else items, "--crowd-param", classes)
+    if radius is not None:  # the mixed crowd's own radius (m)
+        pp["radius"] = si_value("radius", radius, "m", "--crowd-param")
+    return pp
+
+
+def scene_data_root(scene: str, data_root: str | None) -> str | None:
+    """The data folder a run on ``scene`` reads (absolute; None for the built-in scene).
+
+    Parameters
+    ----------
+    scene : str
+        The scene's name.
+    data_root : str or None
+        The ``--data-root`` given.
+    """
+    if scene == "crossing":
+        return None
+    from ...data.paths import resolve_data_root
+
+    return str(resolve_data_root(data_root).resolve())
 
 
 def _takes(cls: type, key: str) -> bool:

@@ -13,8 +13,7 @@ import sys
 import time
 from typing import Any
 
-from ...core import registry
-from . import add_data_root, command, key_values, positive_int
+from . import add_data_root, command, crowd_choices, key_values, positive_int
 
 #: The default suite (``conformal_control.experiments.bench.suite.DEFAULT_SUITE``; not imported
 #: here so
@@ -162,7 +161,7 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
     ru.add_argument(
         "--crowd",
         default="replay",
-        choices=registry.crowd_names(),
+        choices=crowd_choices(),
         help="pedestrians replayed, or reacting to the robot (default replay)",
     )
     add_data_root(ru)

@@ -25,12 +25,15 @@ from . import (
     check_writable,
     command,
     command_line,
+    crowd_choices,
+    crowd_params,
     finite_float,
     finite_quantity,
     key_values,
     non_negative_int,
-    plugin_key_values,
+    plugin_params,
     positive_int,
+    scene_data_root,
 )
 
 _ROLES = ("barrier", "safety_filter", "reference", "dynamics", "loss", "family")
@@ -110,7 +113,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--crowd",
         default="replay",
-        choices=registry.crowd_names(),
+        choices=crowd_choices(),
         help="pedestrians replayed from the data, or reacting to the robot (social force, "
         "ORCA, or replayed until the robot comes near: mixed)",
     )
@@ -386,7 +389,6 @@ def _apply_config(args: argparse.Namespace) -> None:
 # ------------------------------------------------------------------------------ checks
 def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
     """Conflicting, ignored and incomplete options (before anything is loaded)."""
-    from ...core import registry
     from ...core.exceptions import IgnoredOptionWarning, InputError, OptionConflictWarning
 
     if args.scene.startswith("sdd:") and (args.start is None or args.goal is None):
@@ -444,37 +446,6 @@ def _check_options(args: argparse.Namespace, params: dict[str, Any]) -> None:
         )
 
 
-def _checked_predictor_params(args: argparse.Namespace) -> dict[str, Any]:
-    """``--predictor-param`` values, checked against the predictor's constructor."""
-    from ...core import registry
-
-    cls = registry.get("predictor", args.predictor)
-    pp = plugin_key_values(args.predictor_param, "--predictor-param", [cls])
-    registry.check_params("predictor", args.predictor, cls, pp)
-    return pp
-
-
-def _checked_crowd_params(args: argparse.Namespace) -> dict[str, Any]:
-    """``--crowd-param`` values, unit suffixes converted to the crowd's SI units (checked
-    before the scene is loaded)."""
-    from ...core import registry
-    from ...data.units import si_value
-    from ...world.crowds.crowd import Crowd
-
-    given = key_values(args.crowd_param, "--crowd-param")
-    model = given.get("model", "social_force") if args.crowd == "mixed" else args.crowd
-    known = model in registry.names("crowd")
-    classes: list[type] = [Crowd, *([registry.get("crowd", model)] if known else [])]
-    radius = given.pop("radius", None) if args.crowd == "mixed" else None
-    items = [i for i in args.crowd_param or [] if i.partition("=")[0].strip() != "radius"]
-    pp = plugin_key_values(
-        items if args.crowd == "mixed" else args.crowd_param, "--crowd-param", classes
-    )
-    if radius is not None:  # the mixed crowd's own radius (m)
-        pp["radius"] = si_value("radius", radius, "m", "--crowd-param")
-    return pp
-
-
 def _default_out(scene_name: str) -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in scene_name)
     return Path("runs") / f"{safe}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
@@ -502,12 +473,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_prepared(args: argparse.Namespace) -> int:
-    """The command: its options as a :class:`~conformal_control.core.spec.RunSpec`, the run by
-    :func:`conformal_control.run`, the run directory."""
+    """The command: its options parsed and checked, the run by :func:`conformal_control.run`
+    (one robot) or :func:`~conformal_control.runs.fleet.run_multi` (``--robots``), the run
+    directory."""
     import logging
 
     from ...api import run
-    from ...core.spec import RunSpec
     from ...runs.results.rundir import write_run_dir
 
     log = logging.getLogger("conformal_control.run")
@@ -551,10 +522,11 @@ def _run_prepared(args: argparse.Namespace) -> int:
             whole = name == "tau" and isinstance(value, float) and value.is_integer()
             params[name] = int(value) if whole else value
     rule_params = key_values(args.rule_param, "--rule-param")
-    spec = RunSpec.from_settings(
-        params,
+    settings: dict[str, Any] = dict(
         predictor=args.predictor,
-        predictor_params=_checked_predictor_params(args),
+        predictor_params=plugin_params(
+            "predictor", args.predictor, args.predictor_param, "--predictor-param"
+        ),
         learn=not args.no_learning,
         max_frames=args.frames,
         seed=args.seed,
@@ -563,20 +535,24 @@ def _run_prepared(args: argparse.Namespace) -> int:
         lambda_safe=args.lambda_safe,
         fallback=args.fallback,
         crowd=args.crowd,
-        crowd_params=_checked_crowd_params(args),
+        crowd_params=crowd_params(args.crowd, args.crowd_param),
         **roles,
     )
     if args.robots is not None or args.robots_file is not None:  # several robots: --robots
-        return _run_multi(args, spec, out)
+        from ...core.spec import RunSpec
+
+        return _run_multi(args, RunSpec.from_settings(params, **settings), out)
     if args.floor_margin is not None:
         from ...core.exceptions import InputError
 
         raise InputError("--floor-margin sets the robots' floor rows: it needs --robots M")
 
-    data_root = _data_root(args)
+    data_root = scene_data_root(args.scene, args.data_root)
     result = run(
         args.scene,
-        spec,
+        params=params,
+        units="scene",  # --param and the flags are in the scene's units (or carry one)
+        **settings,
         data_root=args.data_root,
         start=args.start,
         goal=args.goal,
@@ -593,15 +569,6 @@ def _run_prepared(args: argparse.Namespace) -> int:
     print(result.metrics.format())
     print(f"results written to {out}")
     return 0
-
-
-def _data_root(args: argparse.Namespace) -> str | None:
-    """The data folder of a run from data (absolute; None for the built-in scene)."""
-    if args.scene == "crossing":
-        return None
-    from ...data.paths import resolve_data_root
-
-    return str(resolve_data_root(args.data_root).resolve())
 
 
 # ------------------------------------------------------------------ several robots (--robots)
@@ -690,7 +657,7 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
         start_frame=args.start_frame,
         seed=args.seed,
     )
-    data_root = _data_root(args)
+    data_root = scene_data_root(args.scene, args.data_root)
     spec = with_weights(spec, scene, args.data_root)
     tasks: dict[str, Any] = {}
     if args.robots_file is not None:

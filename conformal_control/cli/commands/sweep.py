@@ -93,6 +93,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
 def _sweep(args: argparse.Namespace) -> int:
     from ...experiments import (
         JournalWarning,
+        ResultsStore,
         SweepInterrupted,
         SweepLockedError,
         SweepSpec,
@@ -139,7 +140,7 @@ def _sweep(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         except SweepInterrupted as exc:
-            print(f"sweep {exc}: {interrupted_summary(args.out)}", file=sys.stderr)
+            print(f"sweep {exc}: {ResultsStore(args.out).interrupted_summary()}", file=sys.stderr)
             return 128 + exc.signum
     print(report.summary())
     if report.summary_plot is not None:
@@ -159,19 +160,3 @@ def _show_warning(
     message: Warning | str, category: type[Warning], *args: object, **kw: object
 ) -> None:
     print(f"warning: {message}", file=sys.stderr)
-
-
-def interrupted_summary(out: str) -> str:
-    """What an interrupted sweep left, read back from its journal (only true statements)."""
-    from ...experiments import ResultsStore
-
-    store = ResultsStore(out)
-    latest = store.latest()
-    ok = sum(r.get("status") == "ok" for r in latest.values())
-    failed = len(latest) - ok
-    recovered = sum(bool(r.get("recovered")) for r in latest.values())
-    adopted = f" ({recovered} recovered from their run directories)" if recovered else ""
-    return (
-        f"{ok} finished and {failed} failed run(s) are in the journal {store.journal}"
-        f"{adopted}; the runs in flight were abandoned; run the same command again to resume"
-    )

@@ -37,6 +37,7 @@ Where this differs from Dixit et al.:
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -192,15 +193,21 @@ class ACPMPC(
 
     # ------------------------------------------------------------------ sampling time
     def _score(self, observation: PredictionQuery) -> tuple[np.ndarray, np.ndarray]:
-        """Errors of the stored predictions whose targets have passed: (steps, errors)."""
-        steps: list[int] = []
-        errors: list[float] = []
+        """Errors of the stored predictions whose targets have passed: (steps, errors).
+
+        Vectorised over the agents of a stored prediction (the same arithmetic, element by
+        element, as one agent at a time: the interpolation and ``numpy.hypot``), in the
+        order (prediction, step, agent)."""
+        steps: list[np.ndarray] = []
+        errors: list[np.ndarray] = []
         hist = observation.history
         span = (hist.shape[1] - 1) * observation.dt
-        row = {int(i): r for r, i in enumerate(np.asarray(observation.ids))}
+        row = {int(i): r for r, i in enumerate(np.asarray(observation.ids).tolist())}
         keep = []
+        n_scored = 0
         for t_made, ids, pred, first in self._pending:
             h = first
+            rows: np.ndarray | None = None
             while h <= pred.shape[1]:
                 target = t_made + h * self.sampling.dt_plan
                 back = observation.t - target
@@ -210,40 +217,71 @@ class ACPMPC(
                     self.n_unscored_ += len(ids)
                     h += 1
                     continue
+                if rows is None:  # the agents' rows in this history (-1: left the sensor)
+                    rows = np.array([row.get(a, -1) for a in ids.tolist()], dtype=np.int64)
+                    seen = np.flatnonzero(rows >= 0)
+                    rs = rows[seen]
                 f = back / observation.dt
                 k0 = math.floor(f + 1e-9)
                 w = max(f - k0, 0.0)
                 c0 = hist.shape[1] - 1 - k0
                 c1 = max(c0 - 1, 0)
-                for a, agent in enumerate(ids):
-                    r = row.get(int(agent))
-                    truth = None
-                    if r is not None:
-                        p = (
-                            hist[r, c0]
-                            if w == 0.0
-                            else hist[r, c0] + w * (hist[r, c1] - hist[r, c0])
-                        )
-                        truth = p if np.isfinite(p).all() else None
-                    if truth is None:
-                        self.n_unscored_ += 1
-                        continue
-                    steps.append(h)
-                    errors.append(float(np.hypot(*(truth - pred[a, h - 1]))))
+                p = hist[rs, c0] if w == 0.0 else hist[rs, c0] + w * (hist[rs, c1] - hist[rs, c0])
+                ok = np.isfinite(p).all(axis=1)
+                self.n_unscored_ += len(ids) - int(ok.sum())
+                d = p[ok] - pred[seen[ok], h - 1]
+                steps.append(np.full(d.shape[0], h, dtype=np.int64))
+                errors.append(np.hypot(d[:, 0], d[:, 1]))
+                n_scored += d.shape[0]
                 h += 1
             if h <= pred.shape[1]:
                 keep.append((t_made, ids, pred, h))
         self._pending = keep
-        self.n_scored_ += len(errors)
-        return np.array(steps, dtype=np.int64), np.array(errors, dtype=float)
+        self.n_scored_ += n_scored
+        if not steps:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        return np.concatenate(steps), np.concatenate(errors).astype(float)
+
+    def _add_scores(self, steps: np.ndarray, errors: np.ndarray) -> None:
+        """Append the errors to their steps' windows and keep each window's sorted copy
+        (``_sorted``) up to date: the errors leaving the window removed from it and the new
+        ones inserted (the same array as sorting the window afresh, without re-sorting
+        2,000 errors per step at every sampling time). A window whose length is no longer
+        that of its sorted copy (filled from outside, as ``benchmarks/bench_mpc.py`` seeds
+        it) or a non-finite error is sorted afresh."""
+        sorted_ = list(self._sorted)
+        for h in range(len(self.scores_)):
+            new = errors[steps == h + 1]
+            if not new.size:
+                continue
+            win = self.scores_[h]
+            old = sorted_[h]
+            cap = int(self.window)
+            gone = max(len(win) + new.size - cap, 0)
+            fresh = (
+                old.size != len(win)
+                or gone > len(win)
+                or not np.isfinite(new).all()
+                or bool(old.size and np.isnan(old[-1]))
+            )
+            if not fresh and gone:
+                out = np.sort(np.fromiter(itertools.islice(win, gone), float, count=gone))
+                at = np.searchsorted(old, out, "left")
+                at += np.arange(gone) - np.searchsorted(out, out, "left")  # repeated values
+                old = np.delete(old, at)
+            win.extend(new.tolist())
+            if fresh:
+                sorted_[h] = np.sort(np.fromiter(win, float))
+            else:
+                add = np.sort(new)
+                sorted_[h] = np.insert(old, np.searchsorted(old, add, "left"), add)
+        self._sorted = tuple(sorted_)
 
     def begin_interval(self, observation: PredictionQuery) -> None:
         steps, errors = self._score(observation)
         self._snapshot = self._sorted
         self._scored = (steps, errors)
-        for h, e in zip(steps.tolist(), errors.tolist(), strict=True):
-            self.scores_[h - 1].append(e)
-        self._sorted = tuple(np.sort(np.fromiter(s, float)) for s in self.scores_)
+        self._add_scores(steps, errors)
         self._infl_lam = None
         self._first_infl = np.zeros(int(self.sampling.horizon))
         self._first_set = False

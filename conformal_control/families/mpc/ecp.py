@@ -46,12 +46,50 @@ from ...predictors.base import PredictionQuery, Predictor
 from ..cbf.controller import ControlState
 from ..cbf.roles import Dynamics, ReferenceController
 from .controller import MPCIntervalRecord, Plan, PlanInputs, SamplingMPC
-from .fieldcp import distance_field
 from .settings import Costs, Limits, Sampling
 
 __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egocentric_quantiles"]
 
 jit = kernel(cache=True, nogil=True)
+
+
+@jit
+def _kth(scores: np.ndarray, n: int, b_n: int, k: int, buf: np.ndarray) -> float:
+    """The k-th smallest (1-based) of ``scores[:b_n, n]``: the order statistic kept in a small
+    insertion buffer (the k smallest, or the ``b_n - k + 1`` largest when fewer), the same
+    value as sorting them all and taking entry ``k - 1``."""
+    top = b_n - k + 1
+    if top <= k:  # the `top` largest, descending: the k-th smallest is the last of them
+        cnt = 0
+        for b in range(b_n):
+            v = scores[b, n]
+            if cnt < top:
+                i = cnt
+                cnt += 1
+            elif v > buf[top - 1]:
+                i = top - 1
+            else:
+                continue
+            while i > 0 and buf[i - 1] < v:
+                buf[i] = buf[i - 1]
+                i -= 1
+            buf[i] = v
+        return buf[top - 1]  # type: ignore[no-any-return]
+    cnt = 0  # the k smallest, ascending
+    for b in range(b_n):
+        v = scores[b, n]
+        if cnt < k:
+            i = cnt
+            cnt += 1
+        elif v < buf[k - 1]:
+            i = k - 1
+        else:
+            continue
+        while i > 0 and buf[i - 1] > v:
+            buf[i] = buf[i - 1]
+            i -= 1
+        buf[i] = v
+    return buf[k - 1]  # type: ignore[no-any-return]
 
 
 @jit
@@ -63,9 +101,18 @@ def _quantiles(
     cal_b: np.ndarray,
     lam: float,
 ) -> np.ndarray:
+    # For each (step, calibration time, pedestrian) the candidates are the inner loop: the
+    # nearest distances kept per candidate by selects rather than branches, so the loop
+    # compiles to vector instructions (the same numbers as one candidate at a time: the
+    # same squared distances, their minimum, one square root each).
     n_plans, horizon = pos.shape[0], pos.shape[1]
     out = np.empty((n_plans, horizon))
-    scores = np.empty(cal_pred.shape[1])
+    scores = np.empty((max(cal_pred.shape[1], 1), n_plans))
+    px = np.empty(n_plans)
+    py = np.empty(n_plans)
+    dp = np.empty(n_plans)
+    do = np.empty(n_plans)
+    buf = np.empty(max(cal_pred.shape[1], 1))
     for h in range(horizon):
         b_n = cal_b[h]
         if lam >= 1.0:
@@ -76,30 +123,35 @@ def _quantiles(
             out[:, h] = np.inf
             continue
         for n in range(n_plans):
-            px = pos[n, h, 0]
-            py = pos[n, h, 1]
-            for b in range(b_n):
-                m = cal_n[h, b]
-                if m == 0:
-                    scores[b] = 0.0
-                    continue
-                dp = np.inf
-                do = np.inf
-                for j in range(m):
-                    ax = px - cal_pred[h, b, j, 0]
-                    ay = py - cal_pred[h, b, j, 1]
+            px[n] = pos[n, h, 0]
+            py[n] = pos[n, h, 1]
+        for b in range(b_n):
+            m = cal_n[h, b]
+            if m == 0:
+                scores[b, :] = 0.0
+                continue
+            dp[:] = np.inf
+            do[:] = np.inf
+            for j in range(m):
+                qx = cal_pred[h, b, j, 0]
+                qy = cal_pred[h, b, j, 1]
+                ox = cal_obs[h, b, j, 0]
+                oy = cal_obs[h, b, j, 1]
+                for n in range(n_plans):
+                    ax = px[n] - qx
+                    ay = py[n] - qy
                     e = ax * ax + ay * ay
-                    if e < dp:
-                        dp = e
-                    ax = px - cal_obs[h, b, j, 0]
-                    ay = py - cal_obs[h, b, j, 1]
+                    dp[n] = e if e < dp[n] else dp[n]
+                    ax = px[n] - ox
+                    ay = py[n] - oy
                     e = ax * ax + ay * ay
-                    if e < do:
-                        do = e
-                s = math.sqrt(dp) - math.sqrt(do)
-                scores[b] = s if s > 0.0 else 0.0
-            srt = np.sort(scores[:b_n])
-            out[n, h] = srt[max(k, 1) - 1]
+                    do[n] = e if e < do[n] else do[n]
+            for n in range(n_plans):
+                s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                scores[b, n] = s if s > 0.0 else 0.0
+        kk = max(k, 1)
+        for n in range(n_plans):
+            out[n, h] = _kth(scores, n, b_n, kk, buf)
     return out
 
 
@@ -139,10 +191,50 @@ def egocentric_quantiles(
     return out
 
 
-def _min_dist(x: np.ndarray, agents: np.ndarray) -> np.ndarray:
-    """Distance from each row of ``x`` (N, 2) to the nearest of ``agents`` (M, 2), compiled
-    (:func:`~conformal_control.families.mpc.fieldcp.distance_field`; ``inf`` without agents)."""
-    return distance_field(agents, x)
+@jit
+def _missed_kernel(
+    xx: np.ndarray, xy: np.ndarray, pred: np.ndarray, obs: np.ndarray, q: np.ndarray
+) -> np.ndarray:
+    n = xx.shape[0]
+    dp = np.full(n, np.inf)
+    do = np.full(n, np.inf)
+    for j in range(pred.shape[0]):  # the candidates inner: vector instructions
+        qx = pred[j, 0]
+        qy = pred[j, 1]
+        ox = obs[j, 0]
+        oy = obs[j, 1]
+        for i in range(n):
+            dx = xx[i] - qx
+            dy = xy[i] - qy
+            e = dx * dx + dy * dy
+            dp[i] = e if e < dp[i] else dp[i]
+            dx = xx[i] - ox
+            dy = xy[i] - oy
+            e = dx * dx + dy * dy
+            do[i] = e if e < do[i] else do[i]
+    out = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        s = math.sqrt(dp[i]) - math.sqrt(do[i])
+        if not s > 0.0 and s == s:  # numpy.maximum(s, 0): NaN stays NaN
+            s = 0.0
+        out[i] = s > q[i]
+    return out
+
+
+def _missed(x: np.ndarray, pred: np.ndarray, obs: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Whether each candidate position's egocentric score against the pedestrians'
+    predicted and observed positions exceeds its quantile: ``max(d(x, pred) - d(x, obs), 0)
+    > q`` with ``d`` the distance to the nearest (the arithmetic of two
+    :func:`~conformal_control.families.mpc.fieldcp.distance_field` calls, in one pass)."""
+    c = np.ascontiguousarray
+    out: np.ndarray = _missed_kernel(
+        c(x[:, 0], dtype=np.float64),
+        c(x[:, 1], dtype=np.float64),
+        c(pred, dtype=np.float64).reshape(-1, 2),
+        c(obs, dtype=np.float64).reshape(-1, 2),
+        c(q, dtype=np.float64),
+    )
+    return out
 
 
 @dataclass
@@ -325,9 +417,7 @@ class ECPMPC(
             y, yhat = self._pair(now, made, h)
             if y.shape[0] == 0:
                 continue
-            x = made["pos"][:, h - 1]
-            score = np.maximum(_min_dist(x, yhat) - _min_dist(x, y), 0.0)
-            out.append(score > made["q"][:, h - 1])
+            out.append(_missed(made["pos"][:, h - 1], yhat, y, made["q"][:, h - 1]))
         missed = np.concatenate(out) if out else np.zeros(0, dtype=bool)
         self.n_ego_scored_ += int(missed.size)
         return missed

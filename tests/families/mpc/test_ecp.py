@@ -138,3 +138,63 @@ def test_aci_drives_the_egocentric_miscoverage_to_alpha_in_closed_loop():
     result = ConformalLoop(env, fam, EgocentricMiscoverageLoss(), ACIRule(0.2, 0.05)).run()
     assert result.n_updates > 50
     assert abs(result.l_avg - 0.2) <= result.guarantee["long_run_bound"]
+
+
+def _quantiles_one_candidate_at_a_time(pos, cal_pred, cal_obs, cal_n, cal_b, lam):
+    """The quantiles as first written: one candidate at a time, every score sorted (the
+    reference the compiled kernel must equal bit for bit)."""
+    n_plans, horizon = pos.shape[:2]
+    out = np.empty((n_plans, horizon))
+    for h in range(horizon):
+        b_n = int(cal_b[h])
+        if lam >= 1.0:
+            out[:, h] = -math.inf
+            continue
+        k = math.ceil((b_n + 1) * (1.0 - lam))
+        if lam <= 0.0 or b_n == 0 or k > b_n:
+            out[:, h] = math.inf
+            continue
+        for n in range(n_plans):
+            px, py = float(pos[n, h, 0]), float(pos[n, h, 1])
+            scores = []
+            for b in range(b_n):
+                dp = do = math.inf
+                for j in range(int(cal_n[h, b])):
+                    ax, ay = px - float(cal_pred[h, b, j, 0]), py - float(cal_pred[h, b, j, 1])
+                    dp = min(dp, ax * ax + ay * ay)
+                    ax, ay = px - float(cal_obs[h, b, j, 0]), py - float(cal_obs[h, b, j, 1])
+                    do = min(do, ax * ax + ay * ay)
+                s = math.sqrt(dp) - math.sqrt(do) if cal_n[h, b] else 0.0
+                scores.append(s if s > 0.0 else 0.0)
+            out[n, h] = sorted(scores)[max(k, 1) - 1]
+    return out
+
+
+def test_quantiles_equal_the_one_candidate_at_a_time_evaluation_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n, h_n, b_max, m = 9, 3, int(rng.integers(1, 17)), int(rng.integers(1, 5))
+        pos = rng.normal(0, 3, (n, h_n, 2))
+        cal_pred = rng.normal(0, 3, (h_n, b_max, m, 2))
+        cal_obs = rng.normal(0, 3, (h_n, b_max, m, 2))
+        if trial % 2:  # on a lattice: many equal scores
+            pos, cal_pred, cal_obs = np.round(pos), np.round(cal_pred), np.round(cal_obs)
+        cal_n = rng.integers(0, m + 1, (h_n, b_max))
+        cal_b = rng.integers(0, b_max + 1, h_n)
+        for lam in (0.0, 0.04, 0.1, 0.25, 0.5, 0.75, 0.95, 1.0):
+            got = egocentric_quantiles(pos, cal_pred, cal_obs, cal_n, cal_b, lam)
+            want = _quantiles_one_candidate_at_a_time(pos, cal_pred, cal_obs, cal_n, cal_b, lam)
+            assert got.tobytes() == want.tobytes(), (trial, lam)
+
+
+def test_misses_equal_the_two_distance_fields_bit_for_bit():
+    from conformal_control.families.mpc.ecp import _missed
+    from conformal_control.families.mpc.fieldcp import distance_field
+
+    rng = np.random.default_rng(5)
+    x = np.round(rng.normal(0, 3, (40, 2)), 1)
+    for m in (1, 4):
+        pred, obs = np.round(rng.normal(0, 3, (m, 2))), rng.normal(0, 3, (m, 2))
+        q = np.concatenate([rng.uniform(0, 2, 38), [-math.inf, math.inf]])
+        score = np.maximum(distance_field(pred, x) - distance_field(obs, x), 0.0)
+        assert _missed(x, pred, obs, q).tolist() == (score > q).tolist()

@@ -312,3 +312,33 @@ def test_registered_with_its_loss():
     assert registry.get("family", "fcp_mpc") is FCPMPC
     assert registry.get("loss", "field_miscoverage") is FieldMiscoverageLoss
     assert FCPMPC.capabilities.default_loss == "field_miscoverage"
+
+
+def test_distance_field_is_the_point_by_point_minimum_bit_for_bit():
+    rng = np.random.default_rng(8)
+    pts, at = np.round(rng.normal(0, 3, (7, 2)), 1), rng.normal(0, 4, (33, 2))
+    want = []
+    for ax, ay in at.tolist():
+        best = math.inf
+        for px, py in pts.tolist():
+            dx, dy = ax - px, ay - py
+            best = min(best, dx * dx + dy * dy)
+        want.append(math.sqrt(best))
+    assert distance_field(pts, at).tolist() == want
+
+
+def test_a_repeated_scale_is_read_from_a_table_with_the_same_values():
+    from conformal_control.families.mpc.fieldcp import _envelope_at
+
+    grid, fields = toy_fields()
+    step = fit_envelope_step(fields, 0.1, n_components=3, n_mixtures=2)
+    env = FunctionalEnvelope(grid=grid, steps=(step, None, step), miscoverage=0.1)
+    pos = np.random.default_rng(9).uniform(-4, 4, (50, 4, 2))  # some outside the grid
+
+    def direct(scale: float) -> np.ndarray:
+        return _envelope_at(pos, *env._stacked(), scale, -5.0)
+
+    for scale in (0.7, 0.7, 0.7, 1.3, 0.7, 0.7):
+        assert env.at(pos, scale, -5.0).tobytes() == direct(scale).tobytes()
+    assert "_table" in env.__dict__  # the repeated scale was read from the table
+    assert "_table" not in pickle.loads(pickle.dumps(env)).__dict__

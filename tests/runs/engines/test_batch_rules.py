@@ -13,7 +13,8 @@ from conformal_control.data import load_scene
 from conformal_control.families.cbf.controller import PredictorError
 from conformal_control.families.cbf.loss import CBFGapLoss
 from conformal_control.predictors.base import Forecast, Predictor
-from conformal_control.runs.engines.batch import _GapLossAt, run_batch, supports
+from conformal_control.runs.engines.batch import run_batch, supports
+from conformal_control.runs.engines.batch.episode import GapLossAt
 from conformal_control.runs.episode import run_episode
 
 ETA = 30.0  # the benchmark's eta, 1 per frame at 30 fps, in 1/s
@@ -68,7 +69,7 @@ def test_gap_loss_as_a_function_of_lambda_is_the_loss():
             gaps = loss.gaps(record, truth)
             if not np.isfinite(gaps).any():
                 continue
-            at = _GapLossAt(loss, np.nanmax(gaps))
+            at = GapLossAt(loss, np.nanmax(gaps))
             for lam in lams:
                 assert at(lam) == loss(record, truth, lam), (lam, params)
     with pytest.raises(ValueError, match="lambda that is a number"):
