@@ -47,9 +47,12 @@ the scene's robot radius) at every control instant.
 
 **A robot that reaches its last goal** stops deciding; its plant is then commanded to
 zero velocity (it brakes, and is held still once slower than :data:`PARKED_SPEED`), and
-it remains an agent the others and the pedestrians see. Its metrics (frame log,
-collisions) end at its goal time, as for one robot. The world ends when every robot has
-reached its goal, when the data runs out, or after ``max_frames`` frames.
+it remains an agent the others and the pedestrians see. The others' views mark it
+parked (:attr:`~conformal_control.families.cbf.reciprocal.PeerView.parked`): it takes no
+share of a pair any more, so a reciprocal CBF robot takes the whole of each pair with it.
+Its metrics (frame log, collisions) end at its goal time, as for one robot. The world
+ends when every robot has reached its goal, when the data runs out, or after
+``max_frames`` frames.
 
 **Collisions.** Each frame (while a robot is under way) the log holds its smallest centre
 distance to a pedestrian (``d_min``; a collision below robot radius + pedestrian radius)
@@ -436,8 +439,18 @@ class MultiRobotWorld:
             own = self._plan_v[i].copy()
             plans = tuple(self._paths[int(j)] for j in robots)
             own_plan = self._paths[i]
+        parked = self._done.take(robots)
         return PeerView(
-            ids, sub[:, :2], shares, info, ref, own, plans, own_plan, int(self.robot_ids[i])
+            ids,
+            sub[:, :2],
+            shares,
+            info,
+            ref,
+            own,
+            plans,
+            own_plan,
+            int(self.robot_ids[i]),
+            parked if parked.any() else None,
         )
 
     def broadcast(

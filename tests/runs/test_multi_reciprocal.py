@@ -14,6 +14,7 @@ import pytest
 from conformal_control.core.loop import ConformalStepper
 from conformal_control.data.scene import Scene
 from conformal_control.data.synthetic import SYNTHETIC_DEFAULTS
+from conformal_control.families.cbf.reciprocal import FLOOR_CORE
 from conformal_control.runs.build import build_flagship
 from conformal_control.runs.fleet import load_robots_file, robot_tasks, run_multi, set_reciprocity
 from conformal_control.world.multi import MultiRobotWorld
@@ -395,6 +396,42 @@ def test_fleet_metrics_recomputed_from_the_run_directory(tmp_path, crossing):
 
 
 # -------------------------------------------------------------------- bad tasks
+def test_robot_pair_frames_are_pairs_under_two_radii_while_one_is_under_way():
+    # issue 36 found 86 pair-frames on deathCircle 2 (nolearn, 10 robots) against 63 frames
+    # counted from the track; the 63 took 0.9 m for the robots' contact distance, but the
+    # benchmark's robots have radius 0.5 m (2 radii: 1.0 m; the 86 recomputed from the
+    # track at 1.0 m: 32 + 33 + 4 + 7 + 10 in five pairs). Three robots: 0 and 1 at 1.2,
+    # 0.95, 0.95, 0.85 and 1.05 m; robot 2 parked 0.96 m from robot 0 in frames 1 and 2;
+    # in frame 4 robots 1 and 2, neither under way, 0.5 m apart
+    from conformal_control.runs.results.metrics import EpisodeMetrics
+    from conformal_control.runs.results.multi_metrics import RobotContacts, fleet_metrics
+
+    d01 = [1.2, 0.95, 0.95, 0.85, 1.05]
+    x = np.zeros((5, 3, 2))
+    x[:, 1, 0] = d01
+    x[:, 2] = [0.0, 5.0]
+    x[1:3, 2] = [0.0, 0.96]
+    x[4, 2] = [1.05, 0.5]
+    act = np.ones((5, 3), dtype=bool)
+    act[:, 2] = False
+    act[4, 1] = False
+    m = fleet_metrics(
+        [EpisodeMetrics() for _ in range(3)],
+        [RobotContacts() for _ in range(3)],
+        robot_track=x,
+        active=act,
+        robot_radius=0.5,
+        frames=5,
+        wall_s=0.0,
+        lam_unit_name="1/s",
+    )
+    # (0, 1) in frames 1-3 and (0, 2) in frames 1-2 (robot 0 under way); not (1, 2) in 4
+    assert m.n_collide_robot_pairs == 3 + 2
+    # the other count: frames with any pair under 0.9 m
+    d = np.hypot(*(x[:, :, None] - x[:, None]).transpose(3, 0, 1, 2))
+    assert int((d[:, np.triu_indices(3, 1)[0], np.triu_indices(3, 1)[1]] < 0.9).any(1).sum()) == 2
+
+
 def test_tasks_no_fleet_can_do_are_one_line_errors(tmp_path, crossing):
     for starts, goals, msg in (
         ([(5.0, 5.0), (5.0, 5.0)], [(20.0, 5.0), (20.0, 9.0)], "start 0 m apart"),
@@ -455,16 +492,66 @@ def test_two_robots_squeezed_between_pedestrians_give_way_to_each_other():
     assert new.d_min_robot < old.d_min_robot - 0.05
     d_c = 2 * _walls(1.2).robot_radius
     assert d_c - 1e-6 <= new.d_min_robot < d_c + 0.01  # pressed onto the floor
-    # the default floor margin (0.1 m) keeps them that much further apart, still touching
-    # nobody: the walls leave 1.0 m. The bound is d_c + margin less one step's slack,
-    # 2 v_max max(0, tau - 1/a) (tests/families/cbf/test_reciprocal.py), 0 here (a tau = 0.8)
+    # the default floor margin (0.1 m) keeps them further apart, still touching nobody:
+    # the walls leave 1.0 m. The floor rows' margin band gives way before the pedestrians'
+    # rows (their comfort margin kept), down to the core, d_c + FLOOR_CORE margin (the
+    # bound's step slack, 2 v_max max(0, tau - 1/a), tests/families/cbf/test_reciprocal.py,
+    # is 0 here: a tau = 0.8)
     dflt = run_multi(_walls(1.2), **kw)
     m = dflt.metrics
     assert dflt.config["reciprocity"]["floor_margin"] == 0.1
     assert m.n_collide_pedestrian == 0 and m.n_collide_robot_pairs == 0
-    assert d_c + 0.1 - 1e-6 <= m.d_min_robot < d_c + 0.11
+    core = d_c + FLOOR_CORE * 0.1
+    assert core - 1e-6 <= m.d_min_robot < core + 0.01
     # robots predicted like pedestrians do touch each other
     assert run_multi(_walls(1.2), reciprocity="none", **kw).metrics.n_collide_robot_pairs > 0
+
+
+@pytest.mark.parametrize("stop", [1.13, 1.05])
+def test_robots_squeezed_below_their_floor_keep_their_core_once_the_walls_stand(stop):
+    # walls standing at y = +-1.13 leave 0.86 m between the robots' discs of 0.7 m from
+    # them: less than the floor (0.9 m), more than the core (0.85 m); at +-1.05 only 0.7 m,
+    # less than the robots' d_c (0.8 m). While the walls walk in, the pedestrians' edge
+    # rule comes first (no command closes in on a pedestrian inside its collision distance
+    # while one exists) and the robots retreat into each other; once the walls stand, the
+    # floors have given way to their cores and no further: the pair sits at the core (on
+    # main before: at 0.9 m, the floor held and the pedestrians' rows gave way), touching
+    # nobody at 1.13; at 1.05 the walls stand inside the robots' discs
+    tasks = {"starts": [(0.0, 0.9), (0.0, -0.9)], "goals": [[(3.0, 0.9)], [(3.0, -0.9)]]}
+    res = run_multi(_walls(stop), max_frames=120, record_animation=False, learn=False, **tasks)
+    m = res.metrics
+    core = 2 * res.scene.robot_radius + FLOOR_CORE * 0.1
+    x, t = res.track["robots"], res.track["t"]
+    d = np.hypot(*(x[:, 0] - x[:, 1]).T)
+    stood = t > (2.5 - stop) / 0.3 + 2.0  # two seconds after the walls stopped
+    assert stood.sum() > 30
+    assert (d[stood] >= core - 1e-6).all() and (d[stood] < core + 0.01).all()
+    if stop > 1.1:  # room for the core: no pedestrian touched
+        assert m.n_collide_pedestrian == 0
+
+
+def test_a_parked_robot_leaves_the_whole_pair_to_its_peers():
+    # robot 0's goal is at its start: it parks at once and decides no more. Its peers'
+    # views mark it parked, and their controllers take the whole pair constraint (share
+    # 1) about it; the peer driving at it passes without contact
+    from conformal_control.families.cbf.reciprocal import parked_shares
+
+    starts, goals = [(0.0, 0.0), (-3.0, 0.3)], [[(0.05, 0.0)], [(3.0, 0.3)]]
+    world, steppers, _ = _fleet(free_scene(), starts, goals, "plan")
+    world.reset()
+    world.apply(np.zeros((2, 2)))
+    assert world.robot_done(0) and not world.robot_done(1)
+    world.sense(1)
+    view = world.state(1).peers
+    assert view.parked.tolist() == [True] and view.shares.tolist() == [0.5]
+    assert parked_shares(view).shares.tolist() == [1.0]
+    _drive(world, steppers, intervals=60)
+    fam = steppers[1].family
+    assert fam._col[0, fam._ids.size :].tolist() == [1.0]  # the share it decided with
+    res = run_multi(
+        free_scene(), starts=starts, goals=goals, max_frames=300, record_animation=False
+    )
+    assert res.metrics.n_collide_robot_pairs == 0 and res.metrics.n_goal_reached == 2
 
 
 @pytest.mark.parametrize("floor_margin", [0.0, 0.1])

@@ -20,6 +20,7 @@ from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
+    FLOOR_CORE,
     FLOOR_ROW,
     PEDESTRIAN_ROW,
     ROBOT_ROW,
@@ -28,9 +29,11 @@ from .reciprocal import (
     check_peer_view,
     floor_rows,
     lexicographic_search,
+    parked_shares,
     peer_rows,
     priority_relax,
     reference_velocities,
+    robot_escape,
     sidestep,
 )
 from .records import CBFIntervalRecord, CBFTruth, ControlState
@@ -231,6 +234,7 @@ class ConformalCBFController(
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
         self._yield_until = -math.inf  # broadcast that it yields until then (s)
+        self._stage = ""  # the stage priority_relax gave way at, last time
         self._t_now = 0.0
         self._fused = self._fused_apf()
         self._pv = np.zeros((2, 0, 0, 2))
@@ -521,8 +525,11 @@ class ConformalCBFController(
             escape = self.escape_rows(state)
             ttc = self.contact_times(state, A.shape[0], v_ref)
             if self._typed:
+                n = A.shape[0]
                 A, b = self._with_robots(state, lam, A, b)
                 ttc = np.r_[ttc, np.full(A.shape[0] - ttc.size, math.inf)]  # (peers: none)
+                if self._peer_ids.size and self._turn[6]:
+                    escape = self._robot_escape(state, n, escape)
             res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
             if res.status == "fallback" and self._peer_ids.size:
                 self._yield_until = state.t + YIELD_HOLD_S
@@ -551,6 +558,42 @@ class ConformalCBFController(
             return None
         s = state.step
         return self.constraint.escape(state.x[:2], self._xp[s], self._vp[s])
+
+    def _robot_escape(
+        self, state: ControlState, n: int, escape: EscapeRows | None
+    ) -> EscapeRows | None:
+        """``escape`` with the peers already within the robots' collision distance added
+        (people first: :func:`~conformal_control.families.cbf.reciprocal.robot_escape`), their
+        barrier and floor rows (``n`` predicted rows before them) neutralised with them;
+        ``escape`` itself when no command of the speed set closes in on none of them and
+        the pedestrians inside (the pedestrians' edge rule first)."""
+        con = self.constraint
+        if con.edge_distance() is None:
+            return escape  # the edge rule is off
+        view = parked_shares(self._peer_view(state))
+        margin = float(self.reciprocity.floor_margin)  # type: ignore[union-attr]
+        peers, U, c, push = robot_escape(
+            state.x[:2], view, self._robot_dc, float(con.escape_gain), margin
+        )
+        if not peers.size:
+            return escape
+        f = self.safety_filter
+        if escape is not None and hasattr(f, "min_lambda"):
+            # pedestrians first: the robots join only when some command closes in on none
+            # of the agents inside (else the pedestrians' edge rule decides as without them)
+            star, _ = f.min_lambda(np.r_[escape.U, U], np.r_[escape.c, c])
+            if float(star) > 0.0:
+                return escape
+        k = view.n_peers
+        rows = np.r_[n + peers, n + k + peers]
+        if escape is None:
+            return EscapeRows(rows, U, c, push)
+        return EscapeRows(
+            np.r_[escape.rows, rows],
+            np.r_[escape.U, U],
+            np.r_[escape.c, c],
+            np.r_[escape.push, push],
+        )
 
     def contact_times(self, state: ControlState, n: int, v_ref: np.ndarray) -> np.ndarray:
         """The predicted times to contact (s) of the ``n`` predicted agents' rows at this
@@ -598,9 +641,26 @@ class ConformalCBFController(
             if escaped is not None:
                 return escaped
             res = f.solve(v_ref, A, b, slack)
-            if res.fallback == "lambda_search":
-                res = self._keep_hard_rows(v_ref, A, b, slack, res, first)
+            if res.fallback != "lambda_search":
+                return res
+            fell = res
+            res = self._keep_hard_rows(v_ref, A, b, slack, res, first, tally=not first)
+        if not first:
             return res
+        # people first, and a pair must not collide: when the robots' cores gave way
+        # within the escape polygon, they come before the edge rule's push (a wish to move
+        # out of the discs at a speed), never before its rule that no command closes in
+        # on an agent inside its collision distance (non-closing rows kept)
+        if self._stage == "robot_cores" and escape.push.any():
+            calm = EscapeRows(escape.rows, escape.U, escape.c, np.zeros_like(escape.push))
+            with f.contact(ttc), f.escaping(v_ref, calm) as escaped:
+                if escaped is not None:
+                    return escaped
+                f.count("escape_push_yielded")
+                res = self._keep_hard_rows(v_ref, A, b, slack, fell, first, tally=False)
+        if self._stage:
+            f.count(f"{self._stage[:-1]}_rows_relaxed")
+        return res
 
     def _with_robots(
         self, state: ControlState, lam: float, A: np.ndarray, b: np.ndarray
@@ -613,7 +673,7 @@ class ConformalCBFController(
             b = np.where(hard[:n], b - sl, b)
         if not self._peer_ids.size:
             return A, b
-        view = self._peer_view(state)
+        view = parked_shares(self._peer_view(state))
         self._col[0, n:] = view.shares
         Ar, br = peer_rows(self._robot_constraint, state.x[:2], view)
         if hard[n:].any():
@@ -623,6 +683,9 @@ class ConformalCBFController(
             margin = float(self.reciprocity.floor_margin)  # type: ignore[union-attr]
             Af, bf = floor_rows(state.x[:2], view, self._robot_dc, a, margin)
             Ar, br = np.concatenate([Ar, Af]), np.concatenate([br, bf - sl])
+            # the floor rows' margin bands (what may give way before their cores)
+            band = (1.0 - FLOOR_CORE) * margin
+            self._band = np.asarray(view.shares, dtype=float) * a * band
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))
         return np.concatenate([A, Ar]), np.concatenate([b, br])
@@ -635,12 +698,15 @@ class ConformalCBFController(
         lam: float,
         res: FilterResult,
         first: bool = False,
+        tally: bool = True,
     ) -> FilterResult:
         """The lambda search again, keeping the rows without slack
         (:func:`~conformal_control.families.cbf.reciprocal.lexicographic_search`), or with ``first``
         giving way with the robot rows first, row by row
-        (:func:`~conformal_control.families.cbf.reciprocal.priority_relax`)."""
+        (:func:`~conformal_control.families.cbf.reciprocal.priority_relax`; ``tally``: count the
+        stage it gave way at)."""
         f = self.safety_filter
+        self._stage = ""
         if not all(hasattr(f, k) for k in ("project", "min_lambda", "search_margin", "v_max")):
             return res  # a filter without the primitives: its own search stands
         if first:  # rows: predicted agents, robots' barrier rows, their floor rows
@@ -648,8 +714,11 @@ class ConformalCBFController(
             kind = np.full(A.shape[0], FLOOR_ROW)
             kind[:n] = PEDESTRIAN_ROW
             kind[n : n + k] = ROBOT_ROW
-            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam)
-            if gave_way:
+            band = np.zeros(A.shape[0])
+            band[n + k :] = self._band
+            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam, band)
+            self._stage = gave_way
+            if gave_way and tally:
                 f.count(f"{gave_way[:-1]}_rows_relaxed")  # type: ignore[attr-defined]
             return FilterResult(v, "fallback", used, "lambda_search")
         keep = self._turn[5] != 0.0
@@ -702,7 +771,7 @@ class ConformalCBFController(
         k = self._peer_ids.size
         n = self._ids.size
         if k:
-            view = self._peer_view(state)
+            view = parked_shares(self._peer_view(state))
             self._col[0, n:] = view.shares
             pos = view.positions
             ref = view.reference

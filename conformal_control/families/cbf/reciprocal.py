@@ -82,7 +82,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -94,6 +94,7 @@ from .speed import speed_polygon
 
 __all__ = [
     "COORDINATION",
+    "FLOOR_CORE",
     "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
@@ -114,9 +115,11 @@ __all__ = [
     "lexicographic_search",
     "pair_directions",
     "pair_shares",
+    "parked_shares",
     "peer_rows",
     "priority_relax",
     "reference_velocities",
+    "robot_escape",
     "sidestep",
     "tie_direction",
 ]
@@ -153,6 +156,13 @@ YIELD_HOLD_S = 0.5
 #: (positions of a scene are below 1e5 m, whose float64 spacing is 1.5e-11 m), so that the
 #: positions' direction is used wherever it is more than rounding noise.
 TIE_DISTANCE = 1e-9
+
+#: The fraction of the floor margin (:attr:`Reciprocity.floor_margin`) the floor rows'
+#: *cores* keep (:func:`priority_relax`): the floor rows aim at ``d_c + floor_margin`` and
+#: give way, before the pedestrians' rows do, down to ``d_c + FLOOR_CORE * floor_margin``
+#: at most. Not all the way to ``d_c``: a robot tracks its command with a lag, so a pair
+#: held exactly at ``d_c`` overshoots into contact (measured in docs/multi-robot.md).
+FLOOR_CORE = 0.5
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -206,7 +216,9 @@ class Reciprocity(Plugin):
         :data:`~conformal_control.core.spec.FLOOR_MARGIN_M`). The floor rows of the plain
         barrier ``d - d_c`` let a pair close to ``d_c`` in continuous time and, in steps,
         a little below it; aiming at ``d_c + floor_margin`` keeps the pair out of contact
-        (measured in docs/multi-robot.md). 0: the floor rows at ``d_c``. Not used by the
+        (measured in docs/multi-robot.md). Before the pedestrians' rows give way, the floor
+        rows give way down to their cores at ``d_c + FLOOR_CORE * floor_margin``
+        (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
     """
@@ -344,6 +356,10 @@ class PeerView:
         This robot's own id (as its peers sense it): with a peer's id it fixes the pair's
         tie-break direction (:func:`pair_directions`) when the two coincide; None (a view
         built without it): such a peer gets a zero row, as before.
+    parked : ndarray of bool, shape (K,), or None
+        Which peers have reached their last goal and stopped deciding (the world holds
+        them still): they take no share of a pair any more, so a CBF robot takes the
+        whole of each pair with them (:func:`parked_shares`). None: none known.
     """
 
     ids: np.ndarray
@@ -355,10 +371,29 @@ class PeerView:
     plans: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
     own_plan: tuple[np.ndarray, np.ndarray] | None = None
     own_id: int | None = None
+    parked: np.ndarray | None = None
 
     @property
     def n_peers(self) -> int:
         return int(self.positions.shape[0])
+
+
+def parked_shares(view: PeerView) -> PeerView:
+    """``view`` with this robot's share of each pair with a parked peer
+    (:attr:`PeerView.parked`) set to 1: a robot at its goal no longer decides, so it never
+    takes its share, and its partner takes the whole pair constraint (the barrier row
+    with the partner's reference at its broadcast standstill, and the floor row closing
+    in at most at ``a (d - d_c - margin)``). ``view`` itself when no peer is parked.
+
+    Parameters
+    ----------
+    view : PeerView
+        What the robot knows of its peers.
+    """
+    if view.parked is None or not view.parked.any():
+        return view
+    shares = np.where(view.parked, 1.0, np.asarray(view.shares, dtype=float))
+    return replace(view, shares=shares)
 
 
 def pair_shares(weights: np.ndarray) -> np.ndarray:
@@ -622,7 +657,13 @@ def _robot_slacks(
     is tried (a few hundred points in the plane; exact, and much faster than a
     general LP solver here). Among minima the one keeping most rows without slack wins,
     so rows that need none get none."""
+    # held rows met everywhere in the speed set (|v| <= 2 max s_poly there: a polygon of
+    # 3+ sides around its disc) are left out, and the tolerance of the held rows is not
+    # the robot rows': a row with a tiny gradient (a far agent's, or one at overlap) has a
+    # huge normalised right-hand side, which would swamp it
+    reach = 2.0 * float(np.abs(s_poly).max(initial=0.0))
     fx = np.flatnonzero(fixed)
+    fx = fx[fixed_rhs[fx] < nrm[fx] * reach]
     An, rn = A[rows] / nrm[rows, None], base[rows] / nrm[rows]
     Fn, fn = A[fx] / nrm[fx, None], fixed_rhs[fx] / nrm[fx]
     G = np.concatenate([-An, -Fn, S])
@@ -630,10 +671,11 @@ def _robot_slacks(
     pts = _vertices(G, g)
     if not pts.size:
         return None
+    held_tol = 1e-9 * (1.0 + float(np.abs(np.r_[fn, s_poly]).max(initial=0.0)))
     tol = 1e-9 * (1.0 + float(np.abs(g).max(initial=0.0)))
-    ok = (pts @ S.T <= s_poly + tol).all(axis=1)
+    ok = (pts @ S.T <= s_poly + held_tol).all(axis=1)
     if fx.size:
-        ok &= (pts @ Fn.T + fn >= -tol).all(axis=1)
+        ok &= (pts @ Fn.T + fn >= -held_tol).all(axis=1)
     pts = pts[ok]
     if not pts.size:
         return None
@@ -721,6 +763,40 @@ def pair_directions(x_ego: np.ndarray, view: PeerView) -> tuple[np.ndarray, np.n
     return u, d
 
 
+def robot_escape(
+    x_ego: np.ndarray, view: PeerView, d_c: float, gain: float, margin: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The edge rule's terms for the peers already within the robots' collision distance
+    ``d_c``: ``(peers, U, c, push)``, the peers' indices in ``view`` and, for each, the
+    unit vector from it to the robot, ``c = 0`` and the speed to move out at.
+
+    A reciprocal robot is held to the edge rule about a robot inside ``d_c`` as about a
+    pedestrian inside its collision distance: no command of its own closes in on it
+    (``U v + c >= 0`` with ``c = 0``: only its own velocity counts, the partner keeps the
+    same rule about it), and it moves out at its share of ``gain (d_c + margin - d)``
+    where the speed set allows (:class:`~conformal_control.families.cbf.roles.EscapeRows`).
+    A coinciding peer gets the pair's tie-break direction (:func:`pair_directions`).
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    view : PeerView
+        Its peers (positions, shares, ids).
+    d_c : float
+        The robots' collision distance, centre to centre (m).
+    gain : float
+        The edge rule's gain (1/s).
+    margin : float
+        Beyond ``d_c`` (m) the push aims at.
+    """
+    u, d = pair_directions(x_ego, view)
+    peers = np.flatnonzero((d < d_c) & (u != 0.0).any(axis=1))
+    share = np.asarray(view.shares, dtype=float)[peers]
+    push = share * float(gain) * (float(d_c) + float(margin) - d[peers])
+    return peers.astype(np.int64), -u[peers], np.zeros(peers.size), push
+
+
 def tie_direction(own_id: int, peer_id: int) -> np.ndarray:
     """The unit vector robot ``own_id`` takes as "toward" robot ``peer_id`` when the two
     coincide (:func:`pair_directions`): ``e`` for the lower id, ``-e`` for the higher, with
@@ -794,30 +870,44 @@ def priority_relax(
     b: np.ndarray,
     kind: np.ndarray,
     lam: float,
+    band: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, str]:
-    """The fallback with the pedestrians' rows given way after the robots' barrier rows
+    """The fallback with the pedestrians' rows given way after the robots' rows
     (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
 
     ``kind`` says what each row is (:data:`PEDESTRIAN_ROW`, :data:`ROBOT_ROW`,
     :data:`FLOOR_ROW`). Every row's base is ``A v + b + lam >= 0`` (rows without slack
-    already hold ``- lam`` in ``b``). The rows give way in this order, each stage only when
+    already hold ``- lam`` in ``b``). A floor row's **core** is its base raised by its
+    ``band`` (the floor rows aim at ``d_c + floor_margin``; their core, at ``d_c`` itself:
+    ``band = s_ij a floor_margin``). The rows give way in this order, each stage only when
     the one before cannot make them feasible:
 
     1. ``"robots"``: the robots' barrier rows, each with its own slack (the least summed
        slack, rows normalised to unit gradient so that slacks are speeds; exact, at a
        vertex of the rows' arrangement that leaves the rows that need none without), the
        pedestrians' rows at ``lam`` and the floor rows held;
-    2. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
-       which they can be met with the floor rows (bisection on the exact projection),
-       then stage 1 there;
-    3. ``"robot_floors"``: when the floor rows cannot be met with the pedestrians' at any
-       level (robots hemmed in after a contact), the pedestrians' rows at the smallest
-       level at which they can be met alone, the floor rows given way as stage 1 gives
-       the barrier rows (which are left out).
+    2. ``"robot_floors"``: the floor rows' margin band, with the pedestrians' rows at
+       ``lam`` and the floor rows' cores held (the least summed slack of the floor rows
+       within their bands; the barrier rows left out from here on);
+    3. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
+       which they can be met with the cores held (bisection on the exact projection),
+       the floor rows within their bands as in stage 2 there;
+    4. ``"robot_cores"``: when the cores cannot be met at any level of the pedestrians'
+       rows (robots hemmed in, or already closer than ``d_c``), the least-violation
+       command: it never closes in on a robot already inside its collision distance (a
+       floor row whose core is negative: the row ``A v >= 0``; the pedestrians inside
+       theirs are kept out by the speed set, the edge rule's escape polygon), the
+       pedestrians' rows at the smallest level at which they can be met with that, and
+       the cores given way by their least summed slack. When even not closing in on
+       those robots is impossible in the speed set, the command that closes in on them
+       the slowest (the brake: the min-lambda LP on their rows).
 
-    The decision is the velocity closest to the nominal at that relaxation (plus the
-    solver's margin on the relaxed rows), or the LP's own velocity should that
-    projection fail. Rows with a zero gradient are left out.
+    Each robot of a pair computes its floor row from the same distance and its own share
+    (the shares of a pair add to 1), so the cores are reciprocal: a pair whose robots
+    both keep theirs never closes below ``d_c`` (continuous time), whatever the
+    pedestrians do to the bands. The decision is the velocity closest to the nominal at
+    that relaxation (plus the solver's margin on the relaxed rows), or the LP's own
+    velocity should that projection fail. Rows with a zero gradient are left out.
 
     Parameters
     ----------
@@ -827,14 +917,17 @@ def priority_relax(
         filter works in, the escape polygon under the edge rule).
     nominal : ndarray of shape (2,)
         The nominal velocity (m/s).
-    A : ndarray of shape (R, 2)
-        The rows' velocity coefficients.
+    A : ndarray of shape (R,)
+        The rows' velocity coefficients, shape (R, 2).
     b : ndarray of shape (R,)
         Their right-hand sides at lambda = 0 (the rows without slack already minus ``lam``).
     kind : ndarray of int, shape (R,)
         Each row's kind.
     lam : float
         The lambda of the step (1/s).
+    band : ndarray of shape (R,), optional
+        How far each floor row may give way before its core (finite, >= 0, in the row's
+        units: m/s; read for floor rows only). None: 0, the floor rows are their cores.
 
     Returns
     -------
@@ -844,48 +937,89 @@ def priority_relax(
         ``lam`` plus the pedestrians' level (1/s).
     gave_way : str
         The last stage that gave way: ``""`` (none: round-off), ``"robots"``,
-        ``"pedestrians"`` or ``"robot_floors"``.
+        ``"robot_floors"``, ``"pedestrians"`` or ``"robot_cores"``.
     """
     kind = np.asarray(kind)
+    if band is None:
+        band = np.zeros(A.shape[0])
+    band = np.asarray(band, dtype=float)
+    if band.shape != (A.shape[0],) or not np.isfinite(band).all() or (band < 0).any():
+        raise ValueError(
+            f"priority_relax: band must be {A.shape[0]} finite numbers >= 0 (one per row), "
+            f"got shape {band.shape}"
+        )
     nrm = np.hypot(A[:, 0], A[:, 1])
     live = nrm > 0.0
     if not live.all():
-        A, b, kind, nrm = A[live], b[live], kind[live], nrm[live]
+        A, b, kind, nrm, band = A[live], b[live], kind[live], nrm[live], band[live]
     base = b + lam
     ped, rob, flo = kind == PEDESTRIAN_ROW, kind == ROBOT_ROW, kind == FLOOR_ROW
+    core = base + np.where(flo, band, 0.0)  # the floor rows' cores; the others' bases
     S, s_poly, radius = solver.speed_set()  # the escape polygon under the edge rule
     could_bind = base < nrm * radius  # else met anywhere in the speed disc
-    rows = np.flatnonzero(rob & could_bind)
-    held = ped | flo
-    gave_way, delta = "robots", 0.0
+    held, fixed_rhs, delta = ped | flo, base, 0.0
+    gave_way, rows, slack_of = "robots", np.flatnonzero(rob & could_bind), base
     found = _robot_slacks(A, base, nrm, held, base, rows, S, s_poly)
-    if found is None:
-        level = _level(solver, A, base, nrm, ped, flo, S, s_poly, radius) if ped.any() else None
-        if level is not None:  # 2. the pedestrians' level with the floors held
-            gave_way = "pedestrians"
-            delta = max(level, 0.0)
-        else:  # 3. the floors give way too: the pedestrians' level alone
-            gave_way = "robot_floors"
-            rows, held = np.flatnonzero(flo & could_bind), ped
-            star, _ = solver.min_lambda(A[ped], base[ped])
-            delta = max(float(star), 0.0)
-        delta += float(solver.search_margin(abs(delta), A, base))
-        fixed_rhs = base + np.where(ped, delta, 0.0)
-        found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, S, s_poly)
+    extra = np.zeros(0, dtype=np.int64)  # rows held at A v >= 0 too (stage 4)
+    if found is None:  # 2. the floors' margin bands, the pedestrians at lam
+        gave_way, rows, fixed_rhs = "robot_floors", np.flatnonzero(flo & could_bind), core
+        found = _robot_slacks(A, base, nrm, held, core, rows, S, s_poly)
+    if found is None and ped.any():  # 3. the pedestrians' level with the cores held
+        level = _level(solver, A, core, nrm, ped, flo, S, s_poly, radius)
+        if level is not None:
+            gave_way, delta = "pedestrians", max(level, 0.0)
+            delta += float(solver.search_margin(abs(delta), A, core))
+            fixed_rhs = core + np.where(ped, delta, 0.0)
+            found = _robot_slacks(A, base, nrm, held, fixed_rhs, rows, S, s_poly)
+    if found is None:  # 4. the cores give way: never closing in on a robot inside d_c
+        gave_way, slack_of = "robot_cores", core
+        inside = flo & (core < 0.0)
+        extra = np.flatnonzero(inside)
+        held, fixed_rhs = ped | inside, np.where(inside, 0.0, core)
+        rows = np.flatnonzero(flo & (core < nrm * radius))
+        level = (
+            _level(solver, A, fixed_rhs, nrm, ped, inside, S, s_poly, radius)
+            if ped.any()
+            else (0.0 if _meets(A, fixed_rhs, nrm, inside, S, s_poly) else None)
+        )
+        if level is None:  # the brake: the slowest closing on the robots inside d_c
+            star, v_star = solver.min_lambda(A[inside] / nrm[inside, None], np.zeros(extra.size))
+            return np.asarray(v_star, dtype=float), lam, gave_way
+        delta = max(level, 0.0)
+        delta += float(solver.search_margin(abs(delta), A, fixed_rhs))
+        fixed_rhs = fixed_rhs + np.where(ped, delta, 0.0)
+        found = _robot_slacks(A, core, nrm, held, fixed_rhs, rows, S, s_poly)
     v_lp, slack = found if found is not None else (None, np.zeros(A.shape[0]))
     relaxed = slack > 0.0
     if relaxed.any():
         slack = np.where(relaxed, slack + float(solver.search_margin(slack.max(), A, base)), 0.0)
-    if gave_way != "robot_floors":
-        keep = slack  # the barrier rows' slacks; floors at 0
+    if gave_way == "robots":
+        rhs = base + np.where(ped, delta, slack)  # the barrier rows' slacks; floors at 0
     else:  # the barrier rows left out, the floors with their slacks
-        keep = np.where(rob, np.inf, slack)
-    v = solver.project(nominal, A, base + np.where(ped, delta, keep))
+        rhs = np.where(rob, np.inf, slack_of + np.where(ped, delta, slack))
+    Ax, rx = A, rhs
+    if extra.size:  # and not closing in on the robots inside d_c
+        Ax, rx = np.concatenate([A, A[extra]]), np.concatenate([rhs, np.zeros(extra.size)])
+    v = solver.project(nominal, Ax, rx)
     if v is None:
         if v_lp is None:  # round-off: every row relaxed together
             star, v_star = solver.min_lambda(A, base)
-            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "robot_floors"
+            return np.asarray(v_star, dtype=float), lam + max(0.0, float(star)), "robot_cores"
         v = v_lp
     if gave_way == "robots" and not relaxed.any():
         gave_way = ""
     return np.asarray(v, dtype=float), lam + delta, gave_way
+
+
+def _meets(
+    A: np.ndarray,
+    rhs: np.ndarray,
+    nrm: np.ndarray,
+    rows: np.ndarray,
+    S: np.ndarray,
+    s_poly: np.ndarray,
+) -> bool:
+    """Whether some velocity of the speed set ``S v <= s_poly`` meets the rows ``rows``
+    (a mask) at ``rhs``."""
+    found = _robot_slacks(A, rhs, nrm, rows, rhs, np.zeros(0, dtype=np.int64), S, s_poly)
+    return found is not None

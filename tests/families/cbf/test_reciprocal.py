@@ -459,8 +459,11 @@ def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compil
     # people first runs the generic path even with the compiled filter step (the floor
     # rows exist only there). A robot between a pedestrian walking at it from behind and a
     # peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows cannot all be met, the robot's
-    # barrier row gives way, and its floor row holds: it closes in on the peer at no more
-    # than its share of a (d - d_c - margin)
+    # barrier row gives way, then its floor row's margin band (the pedestrian's row is
+    # kept), and its core holds: it closes in on the peer at no more than its share of
+    # a (d - d_c - FLOOR_CORE margin)
+    from conformal_control.families.cbf.reciprocal import FLOOR_CORE
+
     rng = np.random.default_rng(0)
     q = _query(rng, n_ped=1, n_rob=1)
     ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
@@ -476,8 +479,9 @@ def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compil
         v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
         assert c.interval_record().status == ["lambda_search"]  # the fallback decided
         closing[margin] = float(v[0])
-        assert closing[margin] <= 0.5 * 2.0 * (1.0 - 0.8 - margin) + 1e-6
-    assert closing[0.15] < closing[0.0] - 0.1
+        core = FLOOR_CORE * margin
+        assert closing[margin] == pytest.approx(0.5 * 2.0 * (1.0 - 0.8 - core), abs=1e-6)
+    assert closing[0.15] < closing[0.0] - 0.07
 
 
 def _tie_floor_step(x, ids, order, d_c, a, margin, dt, v_max):
@@ -593,3 +597,77 @@ def test_coinciding_mpc_references_get_opposite_lines_that_part_the_pair():
         # point satisfies both, so the lines part the pair by twice the buffer
         np.testing.assert_allclose(oi + oj, -0.4)
         assert not np.array_equal(ni[0, 0], nj[0, 0])
+
+
+# -------------------------------------------------------------------- when floors give way
+def _floor(d, share=0.5, a=2.0, d_c=0.8, margin=0.1, below=True):
+    """A floor row about a peer straight below (``below``) or above the robot at the origin,
+    and its margin band (``FLOOR_CORE`` of the margin kept as its core)."""
+    from conformal_control.families.cbf.reciprocal import FLOOR_CORE, floor_rows
+
+    peer = np.array([[0.0, -d if below else d]])
+    A, b = floor_rows(np.zeros(2), PeerView(np.array([1]), peer, np.array([share])), d_c, a, margin)
+    return A[0], b[0], share * a * margin * (1.0 - FLOOR_CORE)
+
+
+def test_the_floors_give_way_to_their_cores_then_the_pedestrians_then_the_cores():
+    # a pedestrian above walking down (its row asks v_y <= lam - p) and a robot below at
+    # 0.95 m (d_c 0.8, margin 0.1: the floor allows closing at 0.05 m/s, its core at 0.85 m
+    # at 0.1 m/s). Nominal: standing still
+    from conformal_control.families.cbf.reciprocal import (
+        FLOOR_ROW,
+        PEDESTRIAN_ROW,
+        priority_relax,
+    )
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    Af, bf, band = _floor(0.95)
+    assert band == pytest.approx(0.05)
+    kind = np.array([PEDESTRIAN_ROW, FLOOR_ROW])
+    lam = 0.0
+    for p, stage in ((0.08, "robot_floors"), (0.2, "pedestrians")):
+        A = np.array([[0.0, -1.0], Af])
+        b = np.array([-p, bf])
+        v, used, gave_way = priority_relax(f, np.zeros(2), A, b, kind, lam, np.r_[0.0, band])
+        assert gave_way == stage
+        floor, core = Af @ v + bf, Af @ v + bf + band
+        if stage == "robot_floors":
+            # the band gave way (down to 0.03 below the floor), the pedestrian's row held
+            assert used == lam and -v[1] >= p - 1e-9
+            assert floor == pytest.approx(-0.03, abs=1e-6) and core >= 0.0
+        else:
+            # the core held, the pedestrian's row at the least level with it: v_y = -0.1
+            assert core >= -1e-9 and v[1] == pytest.approx(-0.1, abs=1e-6)
+            assert used == pytest.approx(p - 0.1, abs=1e-6) and used > lam
+    # without a band (None: the floors are their cores) the pedestrians give way first
+    v, used, gave_way = priority_relax(f, np.zeros(2), A[:, :], np.array([-0.08, bf]), kind, lam)
+    assert gave_way == "pedestrians" and v[1] == pytest.approx(-0.05, abs=1e-6)
+    with pytest.raises(ValueError, match="band must be 2 finite numbers >= 0"):
+        priority_relax(f, np.zeros(2), A, b, kind, lam, np.r_[0.0, -1.0])
+
+
+def test_cores_that_cannot_hold_never_let_the_robot_close_in_on_a_robot_inside_d_c():
+    # robots below at 0.7 m and above at 0.75 m, both inside d_c = 0.8: their cores ask the
+    # robot to move away from both at once (impossible); a pedestrian's row asks v_y <=
+    # -0.3. The decision closes in on neither robot (v_y = 0), the pedestrians' rows give way
+    from conformal_control.families.cbf.reciprocal import (
+        FLOOR_ROW,
+        PEDESTRIAN_ROW,
+        priority_relax,
+    )
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    (A1, b1, w1), (A2, b2, w2) = _floor(0.7), _floor(0.75, below=False)
+    A = np.array([[0.0, -1.0], A1, A2, [1.0, 0.0]])
+    b = np.array([-0.3, b1, b2, 0.5])  # and a second pedestrian: v_x >= -0.5
+    kind = np.array([PEDESTRIAN_ROW, FLOOR_ROW, FLOOR_ROW, PEDESTRIAN_ROW])
+    nominal = np.array([-1.0, -1.0])
+    v, used, gave_way = priority_relax(f, nominal, A, b, kind, 0.0, np.r_[0.0, w1, w2, 0.0])
+    assert gave_way == "robot_cores"
+    assert A1 @ v >= -1e-9 and A2 @ v >= -1e-9  # closes in on neither robot
+    assert v[1] == pytest.approx(0.0, abs=1e-9)
+    # the pedestrians' rows at their least common level with that: 0.3 (v_x >= -0.8)
+    assert used == pytest.approx(0.3, abs=1e-6)
+    assert v[0] == pytest.approx(-0.8, abs=1e-6)
