@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import os
 import resource
 import sys
@@ -80,12 +81,18 @@ def time_bench(data_root: str, limit: int, repeats: int = 1, **kw: Any) -> tuple
     return _best_of(repeats, run, str(kw))
 
 
+def _supports_module() -> Any:
+    """The batch engine's ``supports`` module (by its dotted name: the package re-exports the
+    function :func:`supports` under the same name, so ``from ...batch import supports`` gives
+    the function, not the module whose tables these benchmarks empty)."""
+    return importlib.import_module("conformal_control.runs.engines.batch.supports")
+
+
 @contextlib.contextmanager
 def python_recorded() -> Iterator[None]:
     """The batch engine with the ``recorded`` predictor called per episode (as before it
     replayed the forecasts compiled): the predictor is then the episode's own object."""
-    from conformal_control.runs.engines.batch import supports as batch
-
+    batch = _supports_module()
     code = batch.PREDICTORS.pop("recorded")
     try:
         yield
@@ -101,8 +108,7 @@ def _load() -> str:
 def python_shifts() -> Iterator[None]:
     """The batch engine with the shifts' wrappers called per episode (as before they ran
     compiled): the predictor is then the episode's own object."""
-    from conformal_control.runs.engines.batch import supports as batch
-
+    batch = _supports_module()
     saved = dict(batch.SHIFTS)
     batch.SHIFTS.clear()
     try:

@@ -113,3 +113,22 @@ def test_round4_is_a_section_and_names_its_parts(run_all):
     assert list(bench_round4.MEASURES) == ["shift", "learned", "mpc", "fleet"]
     with pytest.raises(ValueError, match=r"unknown section\(s\) \['fleets'\]"):
         bench_round4.measure("/nowhere", only=("fleets",))
+
+
+def test_round4_python_baselines_empty_and_restore_the_engine_tables(run_all):
+    """The per-episode baselines empty the batch engine's compiled-shift and compiled-predictor
+    tables while they run and restore them after (the package's ``supports`` is also a
+    function's name: reading the tables through it was an AttributeError)."""
+    import importlib
+
+    import bench_round4  # run_all put benchmarks/ on sys.path
+
+    tables = importlib.import_module("conformal_control.runs.engines.batch.supports")
+    shifts, predictors = dict(tables.SHIFTS), dict(tables.PREDICTORS)
+    assert shifts and "recorded" in predictors
+    with bench_round4.python_shifts():
+        assert tables.SHIFTS == {}
+    assert tables.SHIFTS == shifts
+    with bench_round4.python_recorded():
+        assert "recorded" not in tables.PREDICTORS
+    assert tables.PREDICTORS == predictors
