@@ -421,6 +421,19 @@ def _scales_needed(
 
 
 @jit
+def _grid_point(x: float, y: float, cx: float, cy: float, side: float, size: int) -> int:
+    """The flat index of the grid point nearest ``(x, y)`` as :meth:`FieldGrid.cells` finds
+    it, or -1 outside the grid (the one lookup of :func:`_envelope_at` and
+    :func:`_envelope_lookup`)."""
+    n1 = size - 1
+    u = (x - cx + side / 2) / side * n1
+    v = (y - cy + side / 2) / side * n1
+    if not ((u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n1)):
+        return -1
+    return int(np.rint(v)) * size + int(np.rint(u))
+
+
+@jit
 def _envelope_at(
     pos: np.ndarray,
     geometry: np.ndarray,
@@ -435,7 +448,6 @@ def _envelope_at(
     """:meth:`FunctionalEnvelope.at` for every (plan, step): the nearest grid point as
     :meth:`FieldGrid.cells` finds it, then the envelope's formula."""
     cx, cy, side, size = geometry[0], geometry[1], geometry[2], int(geometry[3])
-    n1 = size - 1
     n_plans, horizon = pos.shape[0], pos.shape[1]
     out = np.empty((n_plans, horizon))
     for n in range(n_plans):
@@ -443,13 +455,8 @@ def _envelope_at(
             if h >= has.shape[0] or not has[h]:
                 out[n, h] = outside
                 continue
-            u = (pos[n, h, 0] - cx + side / 2) / side * n1
-            v = (pos[n, h, 1] - cy + side / 2) / side * n1
-            if not ((u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n1)):
-                out[n, h] = outside
-                continue
-            g = int(np.rint(v)) * size + int(np.rint(u))
-            out[n, h] = _envelope_value(h, g, mean, lin, spread, slack, scale)
+            g = _grid_point(pos[n, h, 0], pos[n, h, 1], cx, cy, side, size)
+            out[n, h] = outside if g < 0 else _envelope_value(h, g, mean, lin, spread, slack, scale)
     return out
 
 
@@ -503,7 +510,6 @@ def _envelope_lookup(
     """:func:`_envelope_at` read from a table of :func:`_envelope_table` (the same grid
     point found the same way, the same value)."""
     cx, cy, side, size = geometry[0], geometry[1], geometry[2], int(geometry[3])
-    n1 = size - 1
     n_plans, horizon = pos.shape[0], pos.shape[1]
     out = np.empty((n_plans, horizon))
     for n in range(n_plans):
@@ -511,12 +517,8 @@ def _envelope_lookup(
             if h >= has.shape[0] or not has[h]:
                 out[n, h] = outside
                 continue
-            u = (pos[n, h, 0] - cx + side / 2) / side * n1
-            v = (pos[n, h, 1] - cy + side / 2) / side * n1
-            if not ((u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n1)):
-                out[n, h] = outside
-                continue
-            out[n, h] = table[h, int(np.rint(v)) * size + int(np.rint(u))]
+            g = _grid_point(pos[n, h, 0], pos[n, h, 1], cx, cy, side, size)
+            out[n, h] = outside if g < 0 else table[h, g]
     return out
 
 
