@@ -87,6 +87,7 @@ def run_loop(
         on_interval=hooks,
         lambda_per=si["lambda_per"],
         lambda_prior=si["lambda_prior"],
+        lambda_floor_row=si["lambda_floor_row"],
     )
     result = loop.run()
     wall = time.perf_counter() - t0
