@@ -595,6 +595,17 @@ class AgentMonitor:
         own feasibility floors of the interval (the family's ``lambda_floors``), read
         with ``row_floor`` > 0: key i's update is clipped at ``min(lambda_min, row_floor
         * floors[i])``. A key must have been given an entry by :meth:`values`.
+
+        Parameters
+        ----------
+        keys : sequence of int
+            The agents scored this interval.
+        losses : sequence of float
+            Their losses (NaN: none).
+        at : callable, optional
+            ``at(i, lam)``: key i's loss at another lambda.
+        floors : sequence of float, optional
+            The keys' own feasibility floors of the interval (1/s; NaN: none).
         """
         keys = np.asarray(keys).ravel()
         losses = np.asarray(losses, dtype=float).ravel()
