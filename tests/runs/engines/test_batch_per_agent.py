@@ -74,7 +74,13 @@ def suite_scenes(data_root):
 
 
 @pytest.mark.parametrize(
-    "family", ["conformal_agent", "conformal_agent_dtaci", "conformal_dtaci_floor"]
+    "family",
+    [
+        "conformal_agent",
+        "conformal_agent_dtaci",
+        "conformal_agent_shortfall",
+        "conformal_dtaci_floor",
+    ],
 )
 def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
     """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
