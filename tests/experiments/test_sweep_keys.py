@@ -2,8 +2,9 @@
 gave the same run: results folders written by 0.3 resume without a run done again.
 
 The pinned keys below were computed by 0.3's ``RunConfig`` (main at 56d88d7, before
-``SweepRun``), by running the same calls as the tests below on that commit; ``sweep_0_3/`` is a results folder that code wrote (a six-run sweep of the
-built-in crossing, ``plot="metrics"``; kept: the journal, ``sweep.json`` and each run's
+``SweepRun``), by running the same calls as the tests below on that commit.
+``sweep_0_3/`` is a results folder that code wrote (a six-run sweep of the built-in
+crossing, ``plot="metrics"``; kept: the journal, ``sweep.json`` and each run's
 ``metrics.json``, which is what a resumed sweep reads; the worker field anonymised).
 """
 
