@@ -93,6 +93,7 @@ RECIPROCAL_OPTIONS = (
     "coordination",
     "priority",
     "floor_margin",
+    "floor_core",
 )
 
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
