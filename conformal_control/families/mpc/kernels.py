@@ -22,6 +22,20 @@ The violation of plan n is ``sum_h max(r_nh - dist_nh, 0)`` with ``dist_nh`` the
 smallest distance over agents: how far, in total, the plan intrudes (the fallback
 ``least_violation`` minimises it).
 
+**The exact cut.** Before the plans are evaluated, each plan step h drops the agents that
+cannot be the nearest one of any candidate at that step (:func:`_kept_agents`): with ``U_h``
+an upper bound, over every candidate, on the distance to the agent that is nearest in the
+worst case (the farthest corner of the candidates' box at the step's end from that agent's
+predicted position at the step's end), an agent whose lower bound ``L_jh`` (the distance
+between the box the candidates' step can sweep and the box of the agent's step) exceeds
+``U_h`` is farther than some other agent for EVERY candidate, so it is never the minimum
+of the step: the minimum (a selection, not a sum) is the same number, bit for bit, and so
+are the clearance and the violation built from it; the cost has no agent term. The bounds
+are compared with a margin far above the rounding of the squared distances (see
+:func:`_kept_agents`). With one safe distance per agent (``offsets``) nothing is cut.
+``evaluate(..., cut=False)`` evaluates every agent at every step (the reference the
+equality tests compare with).
+
 Written as plain loops for numba; :func:`evaluate_numpy` is the same arithmetic in numpy
 (the reference the tests compare with).
 """
@@ -39,6 +53,124 @@ from ...core.jit import kernel
 __all__ = ["agent_rows", "evaluate", "evaluate_many", "evaluate_numpy"]
 
 jit = kernel(cache=True, nogil=True)
+
+
+#: The cut's margin, relative to ``1 + S^2`` (S the largest coordinate of the problem, m):
+#: a squared distance of coordinates below S computed in float64 is within a few units in
+#: the last place of ``S^2`` (~1e-15 S^2) of the exact value; 1e-9 is a million times that.
+CUT_MARGIN = 1e-9
+
+
+@jit
+def _kept_agents(
+    pos: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    continuous: bool,
+    n0: int,
+    n1: int,
+    a0: int,
+    a1: int,
+    cut: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The agents ``a0:a1`` that plan step h evaluates for the plans ``n0:n1``: their
+    coordinates packed at the start of row h of ``(H, M)`` arrays (``ex``, ``ey``, ``sx``,
+    ``sy`` order, the agents' own order kept) and their number per step. With ``cut`` False
+    every agent at every step.
+
+    Why a dropped agent never changes a number (the exact cut). For candidate n at step h
+    the kernel's squared distance to agent j, ``es_nj`` (the step's end, or the smallest
+    over the step with robot and agent moving linearly), is
+
+    * at most the squared end distance ``|p_nh - e_jh|^2`` (the closest approach over the
+      step is no farther than its end; ``start`` is ``min(end, start)``), and that is at
+      most ``U_jh``, the squared distance from ``e_jh`` to the farthest corner of the box
+      of every candidate's end position at step h;
+    * at least ``L_jh``, the squared distance between the box the robot's step can sweep
+      (the boxes of the candidates' positions at the step's start -- p0 for the first --
+      and end) and the box of the agent's step (its start and end; its end alone for the
+      end-point check): both move linearly inside those boxes.
+
+    With ``U_h = min_k U_kh``: an agent with ``L_jh > U_h`` has, for every candidate,
+    ``es_nj > U_h >= es_nk`` for the agent k attaining ``U_h``, so it is never the nearest
+    agent of step h, and the minimum over the kept agents is the minimum over all of them
+    (the same float: a minimum selects, it does not add). In float64 each computed squared
+    distance is within a few ulps of ``S^2`` of the exact one (S the largest coordinate,
+    every difference below 2S); the comparison is ``L_jh > U_h + 2 CUT_MARGIN (1 + S^2)``,
+    so the inequalities hold for the computed numbers too. An agent with a non-finite bound
+    is kept (a comparison with NaN is false)."""
+    horizon = pos.shape[1]
+    m = a1 - a0
+    kx = np.empty((horizon, m))
+    ky = np.empty((horizon, m))
+    ksx = np.empty((horizon, m))
+    ksy = np.empty((horizon, m))
+    cnt = np.full(horizon, m, dtype=np.int64)
+    if not cut or m < 2 or n1 <= n0:
+        for h in range(horizon):
+            for j in range(m):
+                kx[h, j] = ex[h, a0 + j]
+                ky[h, j] = ey[h, a0 + j]
+                ksx[h, j] = sx[h, a0 + j]
+                ksy[h, j] = sy[h, a0 + j]
+        return kx, ky, ksx, ksy, cnt
+    # the box of the candidates' end positions at every step
+    lox = np.full(horizon, np.inf)
+    hix = np.full(horizon, -np.inf)
+    loy = np.full(horizon, np.inf)
+    hiy = np.full(horizon, -np.inf)
+    for n in range(n0, n1):
+        for h in range(horizon):
+            x = pos[n, h, 0]
+            y = pos[n, h, 1]
+            lox[h] = min(lox[h], x)
+            hix[h] = max(hix[h], x)
+            loy[h] = min(loy[h], y)
+            hiy[h] = max(hiy[h], y)
+    big = max(abs(p0[0]), abs(p0[1]))
+    for h in range(horizon):
+        big = max(big, abs(lox[h]), abs(hix[h]), abs(loy[h]), abs(hiy[h]))
+        for j in range(a0, a1):
+            big = max(big, abs(ex[h, j]), abs(ey[h, j]), abs(sx[h, j]), abs(sy[h, j]))
+    tol = 2.0 * CUT_MARGIN * (1.0 + big * big)
+    for h in range(horizon):
+        # U_h: the farthest corner of the end box from each agent's end, the least of them
+        top = np.inf
+        for j in range(a0, a1):
+            fx = max(hix[h] - ex[h, j], ex[h, j] - lox[h])
+            fy = max(hiy[h] - ey[h, j], ey[h, j] - loy[h])
+            u = fx * fx + fy * fy
+            if u < top:
+                top = u
+        # the box the robot's step sweeps: this step's end box and the last one's (p0)
+        rlx, rhx, rly, rhy = lox[h], hix[h], loy[h], hiy[h]
+        if continuous:
+            if h == 0:
+                rlx, rhx = min(rlx, p0[0]), max(rhx, p0[0])
+                rly, rhy = min(rly, p0[1]), max(rhy, p0[1])
+            else:
+                rlx, rhx = min(rlx, lox[h - 1]), max(rhx, hix[h - 1])
+                rly, rhy = min(rly, loy[h - 1]), max(rhy, hiy[h - 1])
+        k = 0
+        for j in range(a0, a1):
+            alx, ahx, aly, ahy = ex[h, j], ex[h, j], ey[h, j], ey[h, j]
+            if continuous:
+                alx, ahx = min(alx, sx[h, j]), max(ahx, sx[h, j])
+                aly, ahy = min(aly, sy[h, j]), max(ahy, sy[h, j])
+            gx = max(0.0, alx - rhx, rlx - ahx)
+            gy = max(0.0, aly - rhy, rly - ahy)
+            if gx * gx + gy * gy > top + tol:
+                continue  # never the nearest agent of this step (see above)
+            kx[h, k] = ex[h, j]
+            ky[h, k] = ey[h, j]
+            ksx[h, k] = sx[h, j]
+            ksy[h, k] = sy[h, j]
+            k += 1
+        cnt[h] = k
+    return kx, ky, ksx, ksy, cnt
 
 
 @jit
@@ -63,19 +195,25 @@ def _evaluate_range(
     clear: np.ndarray,
     viol: np.ndarray,
     aoff: np.ndarray,
+    cut: bool,
 ) -> None:
     """Plans ``n0:n1`` of ``pos``/``cmds``/``radius`` against agents ``a0:a1`` (columns of
     ``ex``, ``ey``, ``sx``, ``sy``), written into ``cost``, ``clear``, ``viol`` at ``n0:n1``:
     the body of :func:`_evaluate` and of :func:`_evaluate_many` (one body, so one plan's
     numbers are the same whichever call evaluates it). ``aoff`` is empty, or holds one
     number per agent (columns ``a0:a1``) added to the safe distance of that agent only
-    (lambda run per agent)."""
+    (lambda run per agent). ``cut``: each step evaluates only the agents that can be its
+    nearest (:func:`_kept_agents`; the same numbers); never with ``aoff``."""
     # ex, ey (H, M): the agents' predicted positions at the end of each step; sx, sy: at
     # its start. Agent-major rows and separate coordinates, and the closest approach chosen
     # by selects rather than branches: the agent loop compiles to vector instructions
     # (several times faster than the branching loop on (M, H, 2) arrays; the same numbers)
     horizon = pos.shape[1]
     n_agents = a1 - a0
+    per_agent = n_agents > 0 and aoff.shape[0] > 0
+    kx, ky, ksx, ksy, cnt = _kept_agents(
+        pos, p0, ex, ey, sx, sy, continuous, n0, n1, a0, a1, cut and not per_agent
+    )
     w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
     es = np.empty(n_agents)
     for n in range(n0, n1):
@@ -98,13 +236,14 @@ def _evaluate_range(
             c += w_comf * ((vx - ux) * (vx - ux) + (vy - uy) * (vy - uy))
             ux = vx
             uy = vy
+            m = cnt[h]
             if continuous:
-                for j in range(n_agents):
-                    bx = px - ex[h, a0 + j]
-                    by = py - ey[h, a0 + j]
+                for j in range(m):
+                    bx = px - kx[h, j]
+                    by = py - ky[h, j]
                     e = bx * bx + by * by  # at the step's end
-                    rx = ax - sx[h, a0 + j]
-                    ry = ay - sy[h, a0 + j]
+                    rx = ax - ksx[h, j]
+                    ry = ay - ksy[h, j]
                     dx = bx - rx
                     dy = by - ry
                     dd = dx * dx + dy * dy
@@ -122,17 +261,17 @@ def _evaluate_range(
                         else (start if moving & (s <= 0.0) else e)
                     )
             else:
-                for j in range(n_agents):
-                    bx = px - ex[h, a0 + j]
-                    by = py - ey[h, a0 + j]
+                for j in range(m):
+                    bx = px - kx[h, j]
+                    by = py - ky[h, j]
                     es[j] = bx * bx + by * by
             d2 = np.inf
-            for j in range(n_agents):
+            for j in range(m):
                 if es[j] < d2:
                     d2 = es[j]
-            if n_agents and aoff.shape[0]:  # each agent its own safe distance
+            if per_agent:  # each agent its own safe distance (nothing cut: m == n_agents)
                 cl = np.inf
-                for j in range(n_agents):
+                for j in range(m):
                     cj = math.sqrt(es[j]) - (radius[n, h] + aoff[a0 + j])
                     if cj < cl:
                         cl = cj
@@ -168,6 +307,7 @@ def _evaluate(
     last: np.ndarray,
     continuous: bool,
     aoff: np.ndarray,
+    cut: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n_plans = pos.shape[0]
     cost = np.zeros(n_plans)
@@ -175,7 +315,7 @@ def _evaluate(
     viol = np.zeros(n_plans)
     _evaluate_range(
         pos, cmds, p0, ex, ey, sx, sy, radius, goal, weights, last, continuous,
-        0, n_plans, 0, ex.shape[1], cost, clear, viol, aoff,
+        0, n_plans, 0, ex.shape[1], cost, clear, viol, aoff, cut,
     )  # fmt: skip
     return cost, clear, viol
 
@@ -197,6 +337,7 @@ def _evaluate_many(
     plans: np.ndarray,
     agents: np.ndarray,
     aoff: np.ndarray,
+    cut: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Problem ``i`` is plans ``plans[i]:plans[i + 1]`` against agents ``agents[i]:agents[i
     + 1]``, with its own ``p0[i]``, ``goal[i]``, ``weights[i]``, ``last[i]``,
@@ -209,7 +350,7 @@ def _evaluate_many(
         _evaluate_range(
             pos, cmds, p0[i], ex, ey, sx, sy, radius, goal[i], weights[i], last[i],
             continuous[i], plans[i], plans[i + 1], agents[i], agents[i + 1], cost, clear, viol,
-            aoff,
+            aoff, cut,
         )  # fmt: skip
     return cost, clear, viol
 
@@ -226,6 +367,8 @@ def evaluate(
     last: np.ndarray,
     continuous: bool = True,
     offsets: np.ndarray | None = None,
+    *,
+    cut: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cost, clearance (m) and violation (m) of every plan.
 
@@ -252,6 +395,10 @@ def evaluate(
     offsets : ndarray of shape (M,), optional
         Added to the safe distance of each agent (m; lambda run per agent: agent j's
         safe distance is ``radius + offsets[j]``); None: ``radius`` for every agent.
+    cut : bool
+        Evaluate at each step only the agents that can be the nearest one of some
+        candidate (the module's exact cut: the same numbers, bit for bit); False evaluates
+        every agent at every step (the reference).
 
     Returns
     -------
@@ -279,6 +426,7 @@ def evaluate(
         c(last, dtype=np.float64),
         bool(continuous),
         _offsets(offsets),
+        bool(cut),
     )
     return cost, clear, viol
 
@@ -291,7 +439,7 @@ def _offsets(offsets: Any) -> np.ndarray:
 
 
 def evaluate_many(
-    problems: list[tuple[Any, ...]],
+    problems: list[tuple[Any, ...]], *, cut: bool = True
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """:func:`evaluate` of several problems in ONE compiled call (the lockstep episodes of a
     batch: every episode's samples at once), each problem's numbers the same as
@@ -303,6 +451,8 @@ def evaluate_many(
         Each ``(pos, cmds, p0, pred, y0, radius, goal, weights, last, continuous[,
         offsets])``, the arguments of :func:`evaluate`; every ``pos`` with the same
         horizon H.
+    cut : bool
+        As for :func:`evaluate` (problem by problem).
 
     Returns
     -------
@@ -346,6 +496,7 @@ def evaluate_many(
         plans,
         agents,
         aoff,
+        bool(cut),
     )
     return [(cost[a:b], clear[a:b], viol[a:b]) for a, b in itertools.pairwise(plans)]
 
