@@ -93,7 +93,8 @@ def loop_steps(
     si = fl.params.si
     lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
     floor = feasibility(fl)
-    warn_before_run(fl, floor, learn)
+    # the warnings point at run_episode's caller: run_loop and this generator in between
+    warn_before_run(fl, floor, learn, stacklevel=5)
 
     recorder = None
     if run.record_animation:
@@ -148,7 +149,7 @@ def loop_steps(
     wall = time.perf_counter() - t0 - away
 
     metrics, intervals, traj = measure(fl, result, learn, lambda_safe, floor, wall)
-    warn_after_run(fl, metrics, learn, max_frames)
+    warn_after_run(fl, metrics, learn, max_frames, stacklevel=5)
     config = episode_config(fl, run, lambda_safe)
     config["feasibility"] = jsonable(floor.as_dict())
     config.update(extra_config or {})
