@@ -102,18 +102,16 @@ def missed(folder: Path) -> list[dict[str, Any]]:
 
 
 def rerun(cfg: dict[str, Any], data_root: str | None, seconds: float | None) -> Any:
-    from conformal_control.experiments.plan import run_spec
+    from conformal_control.experiments.plan import SweepRun
     from conformal_control.experiments.worker import cached_scene
     from conformal_control.runs.episode import run_episode
 
-    cfg = dict(cfg)
-    if data_root:
-        cfg["data_root"] = data_root
-    scene = cached_scene(cfg["scene"], cfg.get("data_root"), 0)
+    run = SweepRun.from_dict(cfg)
+    scene = cached_scene(run.scene, data_root or run.data_root, 0)
     frames = scene.meta.get("max_frames")
     if seconds is not None:
         frames = round(seconds * scene.fps)
-    return run_episode(scene, run_spec(cfg, frames), engine="loop")
+    return run_episode(scene, run.spec_on(frames), engine="loop")
 
 
 def lambda_table(folder: Path, data_root: str | None, extend: float | None) -> None:

@@ -4,16 +4,20 @@ alone, with and without the margin.
 Usage::
 
     python benchmarks/fleet_floor.py OUT [--robots 10] [--methods nolearn,conformal]
-        [--margins 0.1,0] [--data-root DIR] [--workers 1] [--whole-split] [--entries ID,ID]
+        [--margins 0.1,0] [--cores always,inside,none] [--data-root DIR] [--workers 1]
+        [--whole-split] [--entries ID,ID] [--predicted] [--grids mpc=0]
 
 The subset is the first scenario of each test recording of the shipped multi-robot suite
 (``multi-crossings-v1``) under the ``swap`` and ``cross`` layouts: 28 entries. For each
 method it runs the robots alone (``solo``) once and the reciprocal fleet (people first,
-the default) once per floor margin, each in its own folder under ``OUT`` (a run already
-there resumes), and prints one row per (robots, method, arm): pedestrian collision frames
-(with the ratio to the robots alone), of them avoidable / with another robot within 2.5 m,
-robot pair-frames (episodes with any), goal rate and deadlocked robots, summed over the
-entries every arm of that method has. ``--whole-split``: every test entry of the suite (96)
+the default) once per floor margin (with ``--cores``: per margin and floor-core setting),
+each in its own folder under ``OUT`` (a run already there resumes), and prints one row
+per (robots, method, arm): pedestrian collision frames (with the ratio to the robots
+alone), of them avoidable / with another robot within 2.5 m, robot pair-frames (episodes
+with any), goal rate and deadlocked robots, summed over the entries every arm of that
+method has. ``--predicted`` adds the fleet whose robots predict each other like
+pedestrians (``none``); ``--grids`` gives the methods' settings (e.g. ``mpc=0``, the
+sampling MPC with margin 0). ``--whole-split``: every test entry of the suite (96)
 instead of the subset; ``--entries``: only these test entries (ids of the suite, e.g. the
 whole split's worst).
 """
@@ -69,7 +73,7 @@ def table(folders: list[Path], entries: set[str]) -> list[str]:
             r = json.loads(line)
             if r.get("status") != "ok" or r["entry"] not in entries:
                 continue
-            arm = "solo" if r["reciprocity"] == "solo" else arm_name
+            arm = r["reciprocity"] if r["reciprocity"] in ("solo", "none") else arm_name
             rows[(r["robots"], r["method"], arm, r["entry"])] = r
     by: dict[tuple[Any, Any], dict[str, set[str]]] = defaultdict(lambda: defaultdict(set))
     for n, method, arm, entry in rows:
@@ -105,6 +109,23 @@ def main() -> None:
         default=None,
         help="the data folder (default: $CONFORMAL_CONTROL_DATA, else ../shared/data)",
     )
+    ap.add_argument(
+        "--cores",
+        default="",
+        help="floor_core settings to run (comma-separated, e.g. always,inside,none; "
+        "default: the run's default only)",
+    )
+    ap.add_argument(
+        "--predicted",
+        action="store_true",
+        help="also the fleet whose robots predict each other like pedestrians (arm none)",
+    )
+    ap.add_argument(
+        "--grids",
+        default="",
+        help="settings per family, e.g. 'mpc=0' (';' between families; default: the "
+        "benchmark's tuned settings)",
+    )
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--table-only", action="store_true", help="print the table of OUT only")
     ap.add_argument("--whole-split", action="store_true", help="every test entry, not the subset")
@@ -119,17 +140,31 @@ def main() -> None:
     robots = [int(x) for x in args.robots.split(",")]
     methods = args.methods.split(",")
     folders = [out / "solo"]
-    folders += [out / f"floor_margin={float(m):g}" for m in args.margins.split(",")]
+    cores = [c for c in args.cores.split(",") if c]
+    arms: dict[str, dict[str, Any]] = {}
+    for m in args.margins.split(","):
+        for c in cores or [None]:
+            name = f"floor_margin={float(m):g}" + ("" if c is None else f"-floor_core={c}")
+            arms[name] = {"floor_margin": float(m), **({} if c is None else {"floor_core": c})}
+    folders += [out / name for name in arms]
+    if args.predicted:
+        folders.append(out / "none")
+    grids: dict[str, list[float]] = {}
+    for g in [g for g in args.grids.split(";") if g]:
+        fam, _, values = g.partition("=")
+        grids[fam] = [float(v) for v in values.split(",")]
     for folder in folders if not args.table_only else []:
-        margin = None if folder.name == "solo" else float(folder.name.split("=")[1])
+        arm = arms.get(folder.name)
+        reciprocity = [folder.name] if folder.name in ("solo", "none") else ["reciprocal"]
         res = run_multi_bench(
             folder,
             robots=robots,
             suite=str(suite),
             split="test",
             methods=methods,
-            reciprocity=["solo"] if margin is None else ["reciprocal"],
-            base=None if margin is None else RunSpec(robots=Robots(floor_margin=margin)),
+            reciprocity=reciprocity,
+            grids=grids or None,
+            base=None if arm is None else RunSpec(robots=Robots(**arm)),
             data_root=data_root,
             workers=args.workers,
             progress=print,

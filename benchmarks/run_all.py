@@ -685,7 +685,7 @@ def _sweep_per_run(n: int) -> tuple[float, float, float]:
     """Time per run over the first and the last tenth of an ``n``-run sweep whose runs are
     stubs (a fixed record), and its wall time."""
     from conformal_control.experiments.executors.base import Executor
-    from conformal_control.experiments.plan import RunConfig
+    from conformal_control.experiments.plan import SweepRun
     from conformal_control.experiments.runner import run_sweep
 
     stamps: list[float] = []
@@ -699,7 +699,7 @@ def _sweep_per_run(n: int) -> tuple[float, float, float]:
                 yield i, {"key": key, "status": "ok", "run_dir": None, "metrics": {"t_goal": 1.0}}
 
     configs = [
-        RunConfig(scene="crossing", frames=5, params={"epsilon": -i * 1e-6}) for i in range(n)
+        SweepRun.from_settings("crossing", {"epsilon": -i * 1e-6}, max_frames=5) for i in range(n)
     ]
     with tempfile.TemporaryDirectory(prefix="cc-run-all-") as tmp:
         t0 = time.perf_counter()

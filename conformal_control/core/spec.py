@@ -401,6 +401,11 @@ PEER_HORIZON_S = 1.2
 #: benchmark, docs/multi-robot.md).
 FLOOR_MARGIN_M = 0.1
 
+#: The default choice of the reciprocal CBF robots' floor cores (:class:`Robots`
+#: ``floor_core``; chosen by people first on the multi-robot benchmark,
+#: docs/multi-robot.md).
+FLOOR_CORE_DEFAULT = "always"
+
 #: The choices of the robots section's text settings (:class:`Robots`).
 ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "layout": ("scene", "antipodal"),
@@ -411,6 +416,7 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "hard_rows": ("level", "last"),
     "coordination": ("none", "yield"),
     "priority": ("pedestrians", "robots"),
+    "floor_core": ("always", "inside", "none"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -433,6 +439,7 @@ ROBOT_FIELDS: tuple[str, ...] = (
     "coordination",
     "priority",
     "floor_margin",
+    "floor_core",
 )
 
 
@@ -506,6 +513,11 @@ class Robots:
         robots' collision distance the floor rows aim (the rows kept after the robots'
         barrier rows gave way; default :data:`FLOOR_MARGIN_M`); 0: the collision
         distance itself.
+    floor_core : {"always", "inside", "none"}
+        CBF family, ``priority="pedestrians"``: which floor rows keep their cores (half
+        the margin beyond the collision distance) before the pedestrians' rows give way:
+        ``"always"`` every pair's, ``"inside"`` only the pairs already closer than the
+        collision distance, ``"none"`` no pair's (the floor rows give way entirely first).
 
     Raises
     ------
@@ -533,6 +545,7 @@ class Robots:
     coordination: str = "none"
     priority: str = "pedestrians"
     floor_margin: float = FLOOR_MARGIN_M
+    floor_core: str = FLOOR_CORE_DEFAULT
 
     def __post_init__(self) -> None:
         n = self.robots

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from .executors import EXECUTORS, Executor, ProcessExecutor, SerialExecutor, make_executor
 from .lock import SweepLock, SweepLockedError
-from .plan import RunConfig, SweepSpec, load_spec, parse_grid_option, run_key
+from .plan import RunConfig, SweepRun, SweepSpec, load_spec, parse_grid_option, run_key
 from .results import JournalWarning, ResultsStore, flatten_record
 from .runner import SweepInterrupted, SweepReport, run_sweep
 from .validate import SweepValidationError, validate_runs
@@ -35,6 +35,7 @@ __all__ = [
     "SweepLock",
     "SweepLockedError",
     "SweepReport",
+    "SweepRun",
     "SweepSpec",
     "SweepValidationError",
     "execute_run",

@@ -45,51 +45,59 @@ from pathlib import Path
 from typing import Any
 
 from .executors.base import Executor, Outcome
-from .plan import run_spec
+from .plan import SweepRun
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
 __all__ = ["batch_reason", "mpc_batch_reason", "run_batched", "run_chunk", "run_chunked"]
 
-#: Run-configuration keys that may differ inside one batch.
-_PER_EPISODE = ("scene", "seed", "frames", "data_root", "label", "meta")
 
+def batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
+    """Why ``run`` is not batched, or None if it is.
 
-def batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | None:
-    """Why the run ``cfg`` (``RunConfig.as_dict()``) is not batched, or None if it is."""
+    Parameters
+    ----------
+    run : SweepRun
+        The run.
+    plot : bool or str
+        What the run writes (as :func:`execute_run` takes it).
+    """
     from ..runs.engines.batch import supports
 
     files = plot if isinstance(plot, str) else ("plots" if plot else "full")
-    episode = dict(cfg.get("episode") or {})
+    spec = run.spec
     if files in ("metrics", "none"):
-        episode.pop("record_animation", None)  # not written: the episode may skip it
+        # not written: the episode may skip it
+        spec = dataclasses.replace(spec, record_animation=True)
     elif files == "plots":
         return "the batch engine keeps no per-instant steps to plot"
-    elif episode.get("record_animation", True):
+    elif spec.record_animation:
         return "the run directory gets an animation, which the batch engine does not record"
-    predictor = cfg.get("predictor") or "constant_velocity"
-    slow = _slow_predictor(predictor)
+    slow = _slow_predictor(spec.role("predictor")[0])
     if slow is not None:
         return slow
-    return supports(predictor=predictor, predictor_params=cfg.get("predictor_params"), **episode)
+    return supports(spec)
 
 
-def mpc_batch_reason(cfg: dict[str, Any], plot: bool | str = "metrics") -> str | None:
-    """Why the run ``cfg`` does not run with the sampling-MPC episodes in this process
-    (:func:`~conformal_control.runs.engines.mpc_batch.iter_mpc_batch`), or None if it
-    does."""
+def mpc_batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
+    """Why ``run`` does not run with the sampling-MPC episodes in this process
+    (:func:`~conformal_control.runs.engines.mpc_batch.iter_mpc_batch`), or None if it does.
+
+    Parameters
+    ----------
+    run : SweepRun
+        The run.
+    plot : bool or str
+        What the run writes (as :func:`execute_run` takes it).
+    """
     from ..runs.engines.mpc_batch import mpc_batch_reason as reason
 
     files = plot if isinstance(plot, str) else ("plots" if plot else "full")
     if files == "plots":
         return "the run directory gets plots, drawn on the pool"
-    slow = _slow_predictor(cfg.get("predictor") or "constant_velocity")
+    slow = _slow_predictor(run.spec.role("predictor")[0])
     if slow is not None:
         return slow
-    try:
-        run = run_spec(cfg)
-    except Exception as exc:  # the pool's run says so in its record
-        return f"{type(exc).__name__}: {exc}"
-    return reason(run)
+    return reason(run.spec)
 
 
 def _slow_predictor(name: Any) -> str | None:
@@ -110,12 +118,15 @@ def _slow_predictor(name: Any) -> str | None:
     return f"predictor {name!r} is not declared batchable: its runs predict in parallel on the pool"
 
 
-def _group_key(cfg: dict[str, Any]) -> str:
-    return json.dumps({k: v for k, v in cfg.items() if k not in _PER_EPISODE}, sort_keys=True)
+def _group_key(run: SweepRun) -> str:
+    """What the runs of one batch share: the specification but its seed and frame limit
+    (the scene, the seed, the limit and the names may differ inside a batch)."""
+    shared = dataclasses.replace(run.spec, seed=0, max_frames=None)
+    return json.dumps(shared.as_dict(), sort_keys=True, default=repr)
 
 
 def _record(
-    cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str, result: Any, t0: float
+    run: SweepRun, key: str, out_dir: str, plot: bool | str, result: Any, t0: float
 ) -> dict[str, Any]:
     """The sweep record of a batched run (as :func:`execute_run` writes it)."""
     import os
@@ -132,11 +143,11 @@ def _record(
         "worker": f"{os.uname().nodename}:{os.getpid()} (batch)",
     }
     try:
-        result.config.update({"sweep": {"key": key, "run": cfg}})
+        result.config.update({"sweep": {"key": key, "run": run.as_dict()}})
         files = plot if isinstance(plot, str) else ("plots" if plot else "full")
         run_dir: Path | None = None
         if files in ("metrics", "full"):
-            run_dir = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+            run_dir = Path(out_dir) / "runs" / run_dir_name(run, key)
             if files == "metrics":
                 only = ("config.json", "metrics.json")
                 write_run_dir(result, run_dir, plot=False, only=only)
@@ -157,11 +168,11 @@ def _record(
 
 def run_batched(
     ex: Executor,
-    tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]],
+    tasks: Sequence[tuple[SweepRun, str, str, bool | str]],
     *,
     batch_size: int = 256,
 ) -> Iterator[Outcome]:
-    """Yield ``(index, record)`` for every task (``(cfg, key, out_dir, plot)``, the
+    """Yield ``(index, record)`` for every task (``(run, key, out_dir, plot)``, the
     arguments of :func:`execute_run`): the batched groups in this process while the other
     runs go to ``ex`` at the same time (a thread waits for the pool's results), so that the
     pool's workers and this process share the machine instead of taking turns."""
@@ -173,28 +184,28 @@ def run_batched(
     groups: dict[str, list[int]] = {}
     lock: list[int] = []  # sampling-MPC runs, in this process
     rest: list[int] = []
-    for i, (cfg, _key, _out, plot) in enumerate(tasks):
-        if batch_reason(cfg, plot) is None:
-            groups.setdefault(_group_key(cfg), []).append(i)
-        elif mpc_batch_reason(cfg, plot) is None:
+    for i, (run, _key, _out, plot) in enumerate(tasks):
+        if batch_reason(run, plot) is None:
+            groups.setdefault(_group_key(run), []).append(i)
+        elif mpc_batch_reason(run, plot) is None:
             lock.append(i)
         else:
             rest.append(i)
 
-    def scene_id(cfg: dict[str, Any]) -> tuple[Any, ...]:
-        seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0
-        return cfg["scene"], cfg.get("data_root"), seed
+    def scene_id(run: SweepRun) -> tuple[Any, ...]:
+        seed = run.spec.seed if run.scene == "crossing" else 0
+        return run.scene, run.data_root, seed
 
     # a scene used by several batched runs (one per method of a benchmark) is loaded once
     # and kept until its last use; the others are loaded when their slot opens
     uses = Counter(scene_id(tasks[i][0]) for idx in [*groups.values(), lock] for i in idx)
     kept: dict[tuple[Any, ...], Any] = {}
 
-    def scene_of(cfg: dict[str, Any]) -> Any:
-        sid = scene_id(cfg)
+    def scene_of(run: SweepRun) -> Any:
+        sid = scene_id(run)
         scene = kept.get(sid)
         if scene is None:
-            scene = load_run_scene(cfg)
+            scene = load_run_scene(run)
         uses[sid] -= 1
         if uses[sid] > 0:
             kept[sid] = scene
@@ -205,14 +216,14 @@ def run_batched(
 
     def batched() -> Iterator[Outcome]:
         for idx in groups.values():
-            cfg0 = tasks[idx[0]][0]
+            run0 = tasks[idx[0]][0]
             frames: list[int | None] = []
 
             def scenes(idx: list[int] = idx, frames: list[int | None] = frames) -> Iterator[Any]:
                 for i in idx:
-                    cfg = tasks[i][0]
-                    scene = scene_of(cfg)
-                    frames.append(cfg.get("frames") or scene.meta.get("max_frames"))
+                    run = tasks[i][0]
+                    scene = scene_of(run)
+                    frames.append(run.spec.max_frames or scene.meta.get("max_frames"))
                     yield scene
 
             def limits(frames: list[int | None] = frames) -> Iterator[int | None]:
@@ -224,19 +235,20 @@ def run_batched(
             done: set[int] = set()
             t0 = time.perf_counter()
             try:
-                run = run_spec({**cfg0, "frames": None})  # the limits are per scene
+                # the limits are per scene
+                shared = dataclasses.replace(run0.spec, max_frames=None, record_animation=False)
                 for j, result in iter_batch(
                     scenes(),
-                    dataclasses.replace(run, record_animation=False),
+                    shared,
                     max_frames=limits(),
-                    seeds=[int(tasks[i][0].get("seed", 0)) for i in idx],
+                    seeds=[tasks[i][0].spec.seed for i in idx],
                     batch_size=batch_size,
                     output="results",
                 ):
                     i = idx[j]
-                    cfg, key, out_dir, plot = tasks[i]
+                    run, key, out_dir, plot = tasks[i]
                     done.add(i)
-                    yield i, _record(cfg, key, out_dir, plot, result, t0)
+                    yield i, _record(run, key, out_dir, plot, result, t0)
             except Exception:  # the batch stopped: its other runs fail (or not) one by one
                 for i in idx:
                     if i not in done:
@@ -247,19 +259,19 @@ def run_batched(
     def mpc_runs() -> Iterator[Outcome]:
         def episodes() -> Iterator[tuple[Any, Any, dict[str, Any]]]:
             for i in lock:
-                cfg, key = tasks[i][0], tasks[i][1]
-                scene = scene_of(cfg)  # a benchmark scenario carries its time limit
-                run = run_spec(cfg, scene.meta.get("max_frames"))
-                yield scene, run, {"sweep": {"key": key, "run": cfg}}
+                run, key = tasks[i][0], tasks[i][1]
+                scene = scene_of(run)  # a benchmark scenario carries its time limit
+                spec = run.spec_on(scene.meta.get("max_frames"))
+                yield scene, spec, {"sweep": {"key": key, "run": run.as_dict()}}
 
         done: set[int] = set()
         t0 = time.perf_counter()
         try:
             for j, result in iter_mpc_batch(episodes()):
                 i = lock[j]
-                cfg, key, out_dir, plot = tasks[i]
+                run, key, out_dir, plot = tasks[i]
                 done.add(i)
-                yield i, _record(cfg, key, out_dir, plot, result, t0)
+                yield i, _record(run, key, out_dir, plot, result, t0)
         except Exception:  # stopped: its other runs fail (or not) one by one
             for i in lock:
                 if i not in done:
@@ -350,7 +362,7 @@ class _PoolDrain:
         self._thread.join(timeout=60)
 
 
-def run_chunk(tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]]) -> list[Outcome]:
+def run_chunk(tasks: Sequence[tuple[SweepRun, str, str, bool | str]]) -> list[Outcome]:
     """Run ``tasks`` in this process (the batched groups on the lockstep engine, the others
     one by one) and return their ``(index, record)``: the task a cluster's worker runs for a
     chunk of a sweep (:func:`run_chunked`)."""
@@ -366,7 +378,7 @@ def _chunk_or_run(*args: Any) -> Any:
 
 def run_chunked(
     ex: Executor,
-    tasks: Sequence[tuple[dict[str, Any], str, str, bool | str]],
+    tasks: Sequence[tuple[SweepRun, str, str, bool | str]],
     *,
     chunk: int | None = None,
 ) -> Iterator[Outcome]:
@@ -378,9 +390,9 @@ def run_chunked(
     (rerun them: finished runs are skipped)."""
     batched: dict[str, list[int]] = {}
     rest: list[int] = []
-    for i, (cfg, _key, _out, plot) in enumerate(tasks):
-        if batch_reason(cfg, plot) is None:
-            batched.setdefault(_group_key(cfg), []).append(i)
+    for i, (run, _key, _out, plot) in enumerate(tasks):
+        if batch_reason(run, plot) is None:
+            batched.setdefault(_group_key(run), []).append(i)
         else:
             rest.append(i)
     order = [i for idx in batched.values() for i in idx]

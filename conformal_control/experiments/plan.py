@@ -1,4 +1,5 @@
-"""Sweep specifications: a grid and/or a list of runs, expanded into run configurations.
+"""Sweep specifications: a grid and/or a list of runs, expanded into runs (:class:`SweepRun`,
+a :class:`~conformal_control.core.spec.RunSpec` on a named scene).
 
 A specification is a mapping (from a YAML, JSON or TOML file, or built in Python) with up to
 three sections::
@@ -16,7 +17,7 @@ three sections::
       - {label: noLearn, learn: false}
 
 Every run is ``base`` updated by one entry of ``runs`` updated by one point of ``grid``.
-A run configuration has these keys (all optional except ``scene``):
+A run has these keys (all optional except ``scene``):
 
 ``scene``, ``predictor`` (registered name, default ``constant_velocity``),
 ``predictor_params`` (dict; a key ``predictor_params.NAME`` in a grid sets one entry),
@@ -28,13 +29,15 @@ and ``family_params``, ``rule_params``, ``crowd``, ...; a key
 controller parameter of :data:`conformal_control.runs.params.PARAMETERS` (``epsilon``,
 ``eta``, ``tau``, ``a``, ...; in the scene's units), which go to ``params``.
 
-The **key** of a run is a hash of its normalised configuration (everything except
-``label`` and ``data_root``, which name but do not change a run): a sweep resumed with
-the same runs skips every key already finished.
+The **key** of a run is a hash of its normalised settings (everything except ``label``,
+``data_root`` and ``meta``, which name but do not change a run; :meth:`SweepRun.hashed`):
+a sweep resumed with the same runs skips every key already finished.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import hashlib
 import itertools
 import json
@@ -46,18 +49,25 @@ from pathlib import Path
 from typing import Any
 
 from ..core.exceptions import InputError
-from ..core.spec import OPTION_FIELDS, ROLE_FIELDS, RunSpec
+from ..core.spec import (
+    LAMBDA_SAFE_AUTO,
+    LAMBDA_SAFE_AUTO_SOURCE,
+    OPTION_FIELDS,
+    ROLE_FIELDS,
+    RunSpec,
+)
 
 __all__ = [
     "MAX_RUNS",
     "RESERVED_KEYS",
     "RunConfig",
+    "SweepRun",
     "SweepSpec",
     "invalid_runs_message",
     "load_spec",
     "parse_grid_option",
     "run_key",
-    "run_spec",
+    "settings_view",
 ]
 
 #: Most runs one sweep may have (checked before the grid is expanded).
@@ -84,6 +94,20 @@ EPISODE_KEYS: tuple[str, ...] = (
     *(o for o in OPTION_FIELDS if o not in ("learn", "seed", "max_frames")),
     *(r for r in ROLE_FIELDS if r != "predictor"),
     *(f"{r}_params" for r in ROLE_FIELDS if r != "predictor"),
+)
+#: The fields of 0.3's flat run configuration (:func:`settings_view`).
+_FLAT_FIELDS = (
+    "scene",
+    "predictor",
+    "predictor_params",
+    "learn",
+    "seed",
+    "frames",
+    "params",
+    "data_root",
+    "label",
+    "episode",
+    "meta",
 )
 #: Keys that do not enter the run key.
 UNHASHED_KEYS = ("label", "data_root", "meta")
@@ -112,45 +136,155 @@ def _canonical(value: Any) -> Any:
     raise TypeError(f"cannot use {value!r} ({type(value).__name__}) in a run configuration")
 
 
-@dataclass(frozen=True)
-class RunConfig:
-    """One fully specified run of a sweep.
+@functools.lru_cache(maxsize=1)
+def _default_spec() -> dict[str, Any]:
+    """``RunSpec().as_dict()``: the settings a run leaves at their default."""
+    return RunSpec().as_dict()
 
-    Attributes
+
+def _role_entry(role: str, value: Any) -> tuple[Any, dict[str, Any]]:
+    """A role of :meth:`RunSpec.as_dict` as ``(name, params)``."""
+    if isinstance(value, dict):
+        if "instance" in value:
+            raise TypeError(
+                f"cannot use an instance of {value['instance']} as the {role} of a sweep's run "
+                "(it has no key); give it by registered name"
+            )
+        return value.get("name"), dict(value.get("params") or {})
+    return value, {}
+
+
+def settings_view(run: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored run (:meth:`SweepRun.as_dict`) in the flat form of 0.3's run
+    configurations: ``scene``, ``predictor``, ``predictor_params``, ``learn``, ``seed``,
+    ``frames``, ``params``, ``data_root``, ``label``, ``episode``, ``meta``; the run key
+    and the results table are computed from it. ``episode`` holds the settings of
+    :data:`EPISODE_KEYS` the run changes from their default, and those it names in
+    ``given`` even at their default (0.3 kept every setting a sweep wrote). A record
+    written by 0.3 (no ``spec``) is already in this form and is returned as it is.
+
+    Parameters
+    ----------
+    run : mapping
+        :meth:`SweepRun.as_dict`, or a 0.3 record's ``config``.
+    """
+    spec = run.get("spec")
+    if not isinstance(spec, Mapping):
+        return dict(run)
+    default = _default_spec()
+    given = set(run.get("given") or ())
+    predictor, predictor_params = _role_entry("predictor", spec.get("predictor"))
+    episode: dict[str, Any] = {}
+    for role in ROLE_FIELDS:
+        if role == "predictor":
+            continue
+        name, params = _role_entry(role, spec.get(role))
+        if role in given or name != default[role]:
+            episode[role] = name
+        if f"{role}_params" in given or params:
+            episode[f"{role}_params"] = params
+    for option in OPTION_FIELDS:
+        if option in ("learn", "seed", "max_frames"):
+            continue
+        value, unset = spec.get(option), default[option]
+        if option == "lambda_safe_source" and spec.get("lambda_safe") == LAMBDA_SAFE_AUTO:
+            unset = LAMBDA_SAFE_AUTO_SOURCE  # filled in by the spec itself
+        if option in given or value != unset:
+            episode[option] = value
+    if spec.get("robots") is not None:
+        episode["robots"] = spec["robots"]
+    return {
+        "scene": run.get("scene"),
+        "predictor": predictor,
+        "predictor_params": predictor_params,
+        "learn": spec.get("learn", True),
+        "seed": spec.get("seed", 0),
+        "frames": spec.get("max_frames"),
+        "params": dict(spec.get("params") or {}),
+        "data_root": run.get("data_root"),
+        "label": run.get("label", ""),
+        "episode": episode,
+        "meta": dict(run.get("meta") or {}),
+    }
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """One run of a sweep: a :class:`~conformal_control.core.spec.RunSpec` on a named
+    scene, and the names the sweep gives it.
+
+    The run specification is the one class every entry point builds
+    (:func:`conformal_control.run`, the benchmark, the paper's tables); a sweep adds only
+    where the run happens and what it is called. The run's **key** is a hash of the scene
+    and the specification in 0.3's flat form (:func:`settings_view`): the same content
+    0.3's ``RunConfig`` hashed, so a results folder written by 0.3 resumes without a run
+    done again.
+
+    Parameters
     ----------
     scene : str
-    predictor : str
-    predictor_params : dict
-    learn : bool
-    seed : int
-    frames : int or None
-    params : dict
-        Controller parameters in the scene's units.
-    data_root : str or None
+        The scene's name (:func:`conformal_control.data.load_scene`).
+    spec : RunSpec
+        The run; parameters in its ``units``. ``max_frames`` None: the scene's own limit
+        (a benchmark scenario's), else the whole recording.
+    data_root : str, optional
+        The data folder (names the data, does not change the run: not in the key).
     label : str
-    episode : dict
-        Other arguments of :func:`~conformal_control.runs.episode.run_episode`
-        (:data:`EPISODE_KEYS`).
+        Free text naming the run (not in the key).
     meta : dict
         Free description copied into the results table (not part of the key), e.g. the
         benchmark's method, scenario, split.
+    given : tuple of str
+        Settings of :data:`EPISODE_KEYS` the sweep wrote out: they stay in the key and the
+        table at their default too, as 0.3's run configurations kept them.
     """
 
     scene: str
-    predictor: str = "constant_velocity"
-    predictor_params: dict[str, Any] = field(default_factory=dict)
-    learn: bool = True
-    seed: int = 0
-    frames: int | None = None
-    params: dict[str, Any] = field(default_factory=dict)
+    spec: RunSpec = field(default_factory=RunSpec)
     data_root: str | None = None
     label: str = ""
-    episode: dict[str, Any] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    given: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.spec, RunSpec):
+            raise TypeError(f"spec must be a RunSpec, got {type(self.spec).__name__}")
+        object.__setattr__(self, "given", tuple(self.given))
+
+    @classmethod
+    def from_settings(
+        cls,
+        scene: str,
+        params: Mapping[str, Any] | None = None,
+        *,
+        data_root: str | None = None,
+        label: str = "",
+        meta: Mapping[str, Any] | None = None,
+        **settings: Any,
+    ) -> SweepRun:
+        """The run of keyword settings, as :meth:`RunSpec.from_settings` takes them
+        (``predictor=``, ``predictor_params=``, ``learn=``, ``seed=``, ``max_frames=``,
+        the settings of :data:`EPISODE_KEYS`); those of :data:`EPISODE_KEYS` given are
+        the run's ``given``.
+
+        Parameters
+        ----------
+        scene : str
+            The scene's name.
+        params : mapping, optional
+            Controller parameters (in ``units``, default the scene's).
+        data_root, label, meta :
+            As the attributes of the same names.
+        **settings :
+            Settings of the run specification.
+        """
+        spec = RunSpec.from_settings(dict(params or {}), **settings)
+        given = tuple(k for k in settings if k in EPISODE_KEYS)
+        return cls(str(scene), spec, data_root, str(label), dict(meta or {}), given)
 
     def hashed(self) -> dict[str, Any]:
-        """The part of the configuration the key is computed from (canonical form)."""
-        d = self.as_dict()
+        """The part of the run the key is computed from (canonical form)."""
+        d = settings_view(self.as_dict())
         for k in UNHASHED_KEYS:
             d.pop(k, None)
         canonical: dict[str, Any] = _canonical(d)
@@ -158,31 +292,77 @@ class RunConfig:
 
     @property
     def key(self) -> str:
+        """The run's key (:func:`run_key` of :meth:`hashed`)."""
         return run_key(self.hashed())
 
     def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict: the scene, the names, and the specification as
+        :meth:`RunSpec.as_dict` writes it (the journal's ``config``)."""
         return {
             "scene": self.scene,
-            "predictor": self.predictor,
-            "predictor_params": dict(self.predictor_params),
-            "learn": self.learn,
-            "seed": self.seed,
-            "frames": self.frames,
-            "params": dict(self.params),
             "data_root": self.data_root,
             "label": self.label,
-            "episode": dict(self.episode),
             "meta": dict(self.meta),
+            "given": list(self.given),
+            "spec": self.spec.as_dict(),
         }
 
     @classmethod
-    def from_flat(cls, flat: Mapping[str, Any]) -> RunConfig:
-        """Build from a flat mapping (reserved keys + controller parameters).
+    def from_dict(cls, data: Mapping[str, Any]) -> SweepRun:
+        """The run stored as :meth:`as_dict` wrote it (the journal's ``config``, a run
+        directory's ``sweep.run``), or as 0.3 wrote it (its flat form).
+
+        Parameters
+        ----------
+        data : mapping
+            The stored run.
+
+        Raises
+        ------
+        InputError
+            For a stored specification that does not read back
+            (:meth:`RunSpec.from_dict`).
+        """
+        if isinstance(data.get("spec"), Mapping):
+            return cls(
+                str(data["scene"]),
+                RunSpec.from_dict(dict(data["spec"]), where="stored run"),
+                data.get("data_root"),
+                str(data.get("label") or ""),
+                dict(data.get("meta") or {}),
+                tuple(data.get("given") or ()),
+            )
+        return _from_flat_fields(**{k: v for k, v in data.items() if k in _FLAT_FIELDS})
+
+    def spec_on(self, max_frames: int | None) -> RunSpec:
+        """The specification to run: with ``max_frames`` (the scene's limit, e.g. a
+        benchmark scenario's) when the run sets none.
+
+        Parameters
+        ----------
+        max_frames : int or None
+            The scene's limit on simulated frames.
+        """
+        if self.spec.max_frames is not None or not max_frames:
+            return self.spec
+        return dataclasses.replace(self.spec, max_frames=max_frames)
+
+    @classmethod
+    def from_flat(cls, flat: Mapping[str, Any]) -> SweepRun:
+        """Build from a flat mapping (reserved keys, settings and controller parameters),
+        as a sweep's ``base``, ``runs`` and ``grid`` give them.
+
+        Parameters
+        ----------
+        flat : mapping
+            One run of a sweep specification.
 
         Raises
         ------
         ValueError
-            For a missing scene, an unknown key or a badly typed reserved value.
+            For a missing scene, an unknown key or a badly typed value.
+        TypeError
+            For a setting that is no setting of a run.
         """
         from ..core.spec import PARAMETERS
 
@@ -225,19 +405,73 @@ class RunConfig:
         if frames is not None and (not isinstance(frames, int) or frames < 1):
             raise ValueError(f"'frames' must be a positive integer or null, got {frames!r}")
         data_root = reserved.get("data_root")
-        return cls(
-            scene=str(reserved["scene"]),
+        return cls.from_settings(
+            str(reserved["scene"]),
+            params,
+            data_root=None if data_root is None else str(data_root),
+            label=str(reserved.get("label") or ""),
+            meta=dict(reserved.get("meta") or {}),
             predictor=str(reserved.get("predictor") or "constant_velocity"),
             predictor_params=pp,
             learn=learn,
             seed=seed,
-            frames=frames,
-            params=params,
-            data_root=None if data_root is None else str(data_root),
-            label=str(reserved.get("label") or ""),
-            episode=episode,
-            meta=dict(reserved.get("meta") or {}),
+            max_frames=frames,
+            **episode,
         )
+
+
+def _from_flat_fields(
+    scene: str,
+    predictor: str = "constant_velocity",
+    predictor_params: Mapping[str, Any] | None = None,
+    learn: bool = True,
+    seed: int = 0,
+    frames: int | None = None,
+    params: Mapping[str, Any] | None = None,
+    data_root: str | None = None,
+    label: str = "",
+    episode: Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
+) -> SweepRun:
+    """The :class:`SweepRun` of 0.3's flat run configuration (same key)."""
+    return SweepRun.from_settings(
+        scene,
+        params,
+        data_root=data_root,
+        label=label,
+        meta=meta,
+        predictor=predictor,
+        predictor_params=dict(predictor_params or {}),
+        learn=learn,
+        seed=seed,
+        max_frames=frames,
+        **dict(episode or {}),
+    )
+
+
+def RunConfig(*args: Any, **kwargs: Any) -> SweepRun:  # 0.3 named a class so
+    """Deprecated: 0.3's run configuration, now a :class:`SweepRun` (removed in 0.4, not
+    before 2027-06-30). Takes 0.3's arguments (``scene``, ``predictor``,
+    ``predictor_params``, ``learn``, ``seed``, ``frames``, ``params``, ``data_root``,
+    ``label``, ``episode``, ``meta``) and gives the :class:`SweepRun` of the same key.
+
+    Parameters
+    ----------
+    *args, **kwargs :
+        0.3's arguments.
+    """
+    import warnings
+
+    from ..core.exceptions import ConformalControlDeprecationWarning
+
+    warnings.warn(
+        "RunConfig is now SweepRun (a RunSpec on a named scene): build it with "
+        "SweepRun.from_settings(scene, params, predictor=..., max_frames=..., ...) "
+        "(RunConfig is removed in 0.4, not before 2027-06-30)",
+        ConformalControlDeprecationWarning,
+        stacklevel=2,
+    )
+    return _from_flat_fields(*args, **kwargs)
 
 
 def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
@@ -250,21 +484,6 @@ def invalid_runs_message(errors: Mapping[str, int], total: int) -> str:
     return (
         f"{n_bad} of {total} run{'s' if total != 1 else ''} of the sweep "
         f"{'is' if n_bad == 1 else 'are'} invalid, so none was started: " + "; ".join(parts)
-    )
-
-
-def run_spec(cfg: Mapping[str, Any], max_frames: int | None = None) -> RunSpec:
-    """The :class:`~conformal_control.core.spec.RunSpec` of a run configuration
-    (:meth:`RunConfig.as_dict`); ``max_frames`` is the limit when the configuration sets
-    none (a benchmark scenario's time limit)."""
-    return RunSpec.from_settings(
-        dict(cfg.get("params") or {}),
-        predictor=cfg.get("predictor") or "constant_velocity",
-        predictor_params=dict(cfg.get("predictor_params") or {}),
-        learn=bool(cfg.get("learn", True)),
-        seed=int(cfg.get("seed", 0)),
-        max_frames=cfg.get("frames") or max_frames,
-        **dict(cfg.get("episode") or {}),
     )
 
 
@@ -321,7 +540,7 @@ class SweepSpec:
         """Number of runs before duplicates are merged: ``len(runs) x product of axes``."""
         return max(len(self.runs), 1) * math.prod(len(v) for v in self.grid.values())
 
-    def expand(self) -> list[RunConfig]:
+    def expand(self) -> list[SweepRun]:
         """All runs, in order, without duplicates (same key kept once).
 
         Raises
@@ -343,7 +562,7 @@ class SweepSpec:
                 "sweep may hold; split it into several sweeps or use coarser grids"
             )
         axes = list(self.grid)
-        out: list[RunConfig] = []
+        out: list[SweepRun] = []
         seen: set[str] = set()
         errors: dict[str, int] = {}
         n = 0
@@ -352,7 +571,7 @@ class SweepSpec:
                 n += 1
                 flat = {**self.base, **run, **dict(zip(axes, point, strict=True))}
                 try:
-                    cfg = RunConfig.from_flat(flat)
+                    cfg = SweepRun.from_flat(flat)
                     key = cfg.key
                 except (ValueError, TypeError) as exc:
                     msg = str(exc)

@@ -40,6 +40,7 @@ from typing import Any
 from ..core.fileio import TMP_PREFIX as _TMP_PREFIX
 from ..core.fileio import TMP_SUFFIX as _TMP_SUFFIX
 from ..core.fileio import atomic_write
+from .plan import settings_view
 
 __all__ = ["JournalWarning", "ResultsStore", "atomic_write", "flatten_record", "record_problem"]
 
@@ -75,8 +76,9 @@ _RECORD_FIELDS: dict[str, tuple[type, ...]] = {
     "elapsed_s": (int, float, type(None)),
     "finished_at": (int, float, type(None)),
 }
-#: Parts of ``config`` that must be mappings when present.
-_CONFIG_MAPPINGS = ("meta", "episode", "predictor_params", "params")
+#: Parts of ``config`` that must be mappings when present (``spec``: a run written by
+#: :meth:`~conformal_control.experiments.plan.SweepRun.as_dict`; the others: by 0.3).
+_CONFIG_MAPPINGS = ("meta", "spec", "episode", "predictor_params", "params")
 
 
 def record_problem(rec: Any) -> str | None:
@@ -100,12 +102,24 @@ def record_problem(rec: Any) -> str | None:
     for name in _CONFIG_MAPPINGS:
         if cfg.get(name) is not None and not isinstance(cfg[name], dict):
             return f"'config.{name}' is a {type(cfg[name]).__name__}"
+    params = (cfg.get("spec") or {}).get("params")
+    if params is not None and not isinstance(params, dict):
+        return f"'config.spec.params' is a {type(params).__name__}"
     return None
 
 
 def flatten_record(rec: dict[str, Any]) -> dict[str, Any]:
-    """One flat row: run identity, parameters (``param.*``), metrics, status, error."""
-    cfg = rec.get("config") or {}
+    """One flat row: run identity, parameters (``param.*``), metrics, status, error.
+
+    The columns are those of 0.3 (:func:`~conformal_control.experiments.plan.settings_view`
+    of the stored run), whichever version wrote the record.
+
+    Parameters
+    ----------
+    rec : dict
+        A journal record.
+    """
+    cfg = settings_view(rec.get("config") or {})
     row: dict[str, Any] = {
         "key": rec.get("key"),
         "status": rec.get("status"),

@@ -49,7 +49,7 @@ from typing import Any
 from ..core.exceptions import ConformalControlWarning
 from .executors import Executor, make_executor
 from .lock import SweepLock
-from .plan import RunConfig, SweepSpec
+from .plan import SweepRun, SweepSpec
 from .results import ResultsStore, atomic_write
 from .worker import execute_run
 
@@ -250,7 +250,7 @@ def _progress(total: int, initial: int, enabled: bool | None) -> Any:
     return _Report(total, initial)
 
 
-def distinct_runs(configs: list[RunConfig]) -> tuple[list[RunConfig], list[tuple[str, str]]]:
+def distinct_runs(configs: list[SweepRun]) -> tuple[list[SweepRun], list[tuple[str, str]]]:
     """The configurations with one run per key (the first of each), and ``(label left out,
     label kept)`` for every run whose configuration another run of the list already has
     (e.g. a method that a predictor shift turns into another one: ``oracle_mpc`` under a
@@ -258,11 +258,11 @@ def distinct_runs(configs: list[RunConfig]) -> tuple[list[RunConfig], list[tuple
 
     Parameters
     ----------
-    configs : list of RunConfig
+    configs : list of SweepRun
         The sweep's runs, in order.
     """
-    first: dict[str, RunConfig] = {}
-    kept: list[RunConfig] = []
+    first: dict[str, SweepRun] = {}
+    kept: list[SweepRun] = []
     same: list[tuple[str, str]] = []
     for c in configs:
         k = c.key
@@ -275,7 +275,7 @@ def distinct_runs(configs: list[RunConfig]) -> tuple[list[RunConfig], list[tuple
 
 
 def run_sweep(
-    spec: SweepSpec | list[RunConfig],
+    spec: SweepSpec | list[SweepRun],
     out_dir: str | os.PathLike[str],
     executor: Executor | str = "process",
     *,
@@ -294,7 +294,7 @@ def run_sweep(
 
     Parameters
     ----------
-    spec : SweepSpec or list of RunConfig
+    spec : SweepSpec or list of SweepRun
     out_dir : path
         Folder of the sweep: ``runs/<name>-<key>/`` (one run directory each),
         ``results.jsonl`` (journal), ``results.csv`` / ``results.parquet``, ``sweep.json``,
@@ -428,7 +428,7 @@ def run_sweep(
 
 def _run(
     ex: Executor,
-    todo: list[tuple[RunConfig, str]],
+    todo: list[tuple[SweepRun, str]],
     store: ResultsStore,
     report: SweepReport,
     guard: _SignalGuard,
@@ -441,7 +441,7 @@ def _run(
     """Dispatch ``todo`` and journal every outcome as it arrives."""
     report.executor = ex.describe() if todo else ex.name
     out_str = str(store.out_dir.resolve())
-    tasks = [(c.as_dict(), k, out_str, plot) for c, k in todo]
+    tasks = [(c, k, out_str, plot) for c, k in todo]
     bar = _progress(len(report.keys), len(report.keys) - len(todo), progress)
     n_since_table = 0
     last_table = time.perf_counter()
@@ -517,7 +517,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _adopt_finished(
-    store: ResultsStore, todo: list[tuple[RunConfig, str]], guard: _SignalGuard
+    store: ResultsStore, todo: list[tuple[SweepRun, str]], guard: _SignalGuard
 ) -> list[str]:
     """Journal the runs of ``todo`` whose run directory is complete; return their keys.
 
@@ -535,7 +535,7 @@ def _adopt_finished(
     adopted: list[str] = []
     for cfg, key in todo:
         d = cfg.as_dict()
-        name = run_dir_name(d, key)
+        name = run_dir_name(cfg, key)
         if name not in present:
             continue
         try:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from .plan import RunConfig, invalid_runs_message
+from .plan import SweepRun, invalid_runs_message
 
 __all__ = ["SweepValidationError", "check_run", "validate_runs"]
 
@@ -39,12 +39,12 @@ def _message(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) -> None:
+def check_run(cfg: SweepRun, scenes: dict[tuple[Any, ...], Any] | None = None) -> None:
     """Raise what the run ``cfg`` would raise before simulating anything.
 
     Parameters
     ----------
-    cfg : RunConfig
+    cfg : SweepRun
     scenes : dict, optional
         Cache of loaded scenes (or the errors loading them) shared between calls.
     """
@@ -66,25 +66,24 @@ def check_run(cfg: RunConfig, scenes: dict[tuple[Any, ...], Any] | None = None) 
         raise scene
     from ..runs.params import to_scene_units
 
-    given = to_scene_units(scene, dict(cfg.params), str(cfg.episode.get("units", "scene")))
-    if not cfg.learn:  # as run_episode does: the noLearn baseline keeps lambda fixed
+    spec = cfg.spec
+    given = to_scene_units(scene, dict(spec.params), spec.units)
+    if not spec.learn:  # as run_episode does: the noLearn baseline keeps lambda fixed
         given.setdefault("eta", 0.0)
     resolve_params(scene, given)
-    cls = registry.get("predictor", cfg.predictor)
-    registry.check_params("predictor", cfg.predictor, cls, dict(cfg.predictor_params))
-    ep = cfg.episode
-    for role in ("barrier", "safety_filter", "fallback", "reference", "dynamics", "loss"):
-        name = ep.get(role)
+    roles = ("predictor", "barrier", "safety_filter", "fallback", "reference", "dynamics", "loss")
+    for role in roles:
+        name, params = spec.role(role)
         if isinstance(name, str):
             cls = registry.get(role, name)
-            registry.check_params(role, name, cls, dict(ep.get(f"{role}_params") or {}))
-    if isinstance(ep.get("family"), str):
-        registry.get("family", ep["family"])
-    if isinstance(ep.get("rule"), str):
-        registry.get("rule", ep["rule"])
+            registry.check_params(role, name, cls, dict(params))
+    for role in ("family", "rule"):
+        name = spec.role(role)[0]
+        if isinstance(name, str):
+            registry.get(role, name)
 
 
-def validate_runs(configs: Sequence[RunConfig]) -> None:
+def validate_runs(configs: Sequence[SweepRun]) -> None:
     """Check every configuration; raise one :class:`SweepValidationError` for all problems.
 
     Scenes are loaded once per (scene, data root), through the worker's small scene cache

@@ -21,6 +21,7 @@ from ..runs.results.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
     from ..data.scene import Scene
+    from .plan import SweepRun
 
 __all__ = ["METRIC_COLUMNS", "execute_run", "load_run_scene", "run_dir_name"]
 
@@ -28,9 +29,17 @@ __all__ = ["METRIC_COLUMNS", "execute_run", "load_run_scene", "run_dir_name"]
 METRIC_COLUMNS = EpisodeMetrics.columns()
 
 
-def run_dir_name(cfg: dict[str, Any], key: str) -> str:
-    """Directory name of a run: readable prefix (label or scene) + its key."""
-    stem = cfg.get("label") or cfg["scene"]
+def run_dir_name(run: SweepRun, key: str) -> str:
+    """Directory name of a run: readable prefix (label or scene) + its key.
+
+    Parameters
+    ----------
+    run : SweepRun
+        The run.
+    key : str
+        Its key.
+    """
+    stem = run.label or run.scene
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in str(stem))[:60]
     return f"{safe}-{key}"
 
@@ -52,29 +61,36 @@ def _single_threaded_blas() -> Iterator[None]:
         yield
 
 
-def load_run_scene(cfg: dict[str, Any]) -> Scene:
-    """The scene of a run configuration (uncached; the built-in scene depends on the seed)."""
+def load_run_scene(run: SweepRun) -> Scene:
+    """The scene of a run (uncached; the built-in scene depends on the seed).
+
+    Parameters
+    ----------
+    run : SweepRun
+        The run.
+    """
+    return _load_scene(run.scene, run.data_root, run.spec.seed)
+
+
+def _load_scene(name: str, data_root: str | None, seed: int) -> Scene:
     from ..data import load_scene
 
-    name, seed = cfg["scene"], int(cfg.get("seed", 0))
-    return load_scene(name, cfg.get("data_root"), seed=seed if name == "crossing" else 0)
+    return load_scene(name, data_root, seed=seed if name == "crossing" else 0)
 
 
 @functools.lru_cache(maxsize=8)
 def cached_scene(name: str, data_root: str | None, seed: int) -> Scene:
     """:func:`load_run_scene`, the last eight scenes kept (a serial sweep reuses them)."""
-    return load_run_scene({"scene": name, "data_root": data_root, "seed": seed})
+    return _load_scene(name, data_root, seed)
 
 
-def execute_run(
-    cfg: dict[str, Any], key: str, out_dir: str, plot: bool | str = False
-) -> dict[str, Any]:
-    """Run one configuration (see :class:`~conformal_control.experiments.plan.RunConfig`).
+def execute_run(run: SweepRun, key: str, out_dir: str, plot: bool | str = False) -> dict[str, Any]:
+    """Run one run of a sweep.
 
     Parameters
     ----------
-    cfg : dict
-        ``RunConfig.as_dict()``.
+    run : SweepRun
+        The run (:class:`~conformal_control.experiments.plan.SweepRun`).
     key : str
         The run's key (names its directory).
     out_dir : str
@@ -107,10 +123,9 @@ def execute_run(
     try:
         from ..runs.episode import run_episode
         from ..runs.results.rundir import write_run_dir
-        from .plan import run_spec
 
-        seed = int(cfg.get("seed", 0)) if cfg["scene"] == "crossing" else 0  # one cache entry
-        cached = cached_scene(cfg["scene"], cfg.get("data_root"), seed)
+        seed = run.spec.seed if run.scene == "crossing" else 0  # one cache entry
+        cached = cached_scene(run.scene, run.data_root, seed)
         # a shallow copy per run: building an episode sets radii and v_max on the scene
         # it gets, and runs in one process share the cached scene
         scene = cached.replace(meta=dict(cached.meta), defaults=dict(cached.defaults))
@@ -118,11 +133,11 @@ def execute_run(
             result = run_episode(
                 # a benchmark scenario carries its time limit
                 scene,
-                run_spec(cfg, scene.meta.get("max_frames")),
-                extra_config={"sweep": {"key": key, "run": cfg}},
+                run.spec_on(scene.meta.get("max_frames")),
+                extra_config={"sweep": {"key": key, "run": run.as_dict()}},
             )
         files = plot if isinstance(plot, str) else ("plots" if plot else "full")
-        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(cfg, key)
+        run_dir: Path | None = Path(out_dir) / "runs" / run_dir_name(run, key)
         assert run_dir is not None
         if files in ("plots", "full"):
             write_run_dir(result, run_dir, plot=files == "plots")

@@ -49,7 +49,15 @@ from typing import Any
 import numpy as np
 
 from ..core.loop import ConformalStepper
-from ..core.spec import FLOOR_MARGIN_M, MAX_ROBOTS, PEER_HORIZON_S, ROBOT_CHOICES, Robots, RunSpec
+from ..core.spec import (
+    FLOOR_CORE_DEFAULT,
+    FLOOR_MARGIN_M,
+    MAX_ROBOTS,
+    PEER_HORIZON_S,
+    ROBOT_CHOICES,
+    Robots,
+    RunSpec,
+)
 from ..data.scene import Scene
 from ..families.cbf.feasibility import feasibility_floor
 from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
@@ -425,6 +433,10 @@ def run_multi(
         - ``floor_margin`` (float):
           CBF family, people first: how far (m) beyond the robots' collision distance
           their floor rows aim (default 0.1 m; 0: the collision distance).
+        - ``floor_core`` ({"always", "inside", "none"}):
+          CBF family, people first: which pairs' floor rows keep their cores before the
+          pedestrians' rows give way (every pair's, only those already closer than the
+          collision distance, or none).
 
     Returns
     -------
@@ -446,6 +458,7 @@ def run_multi(
     sidestep, hard_rows = section.sidestep, section.hard_rows
     peer_horizon, coordination = section.peer_horizon, section.coordination
     priority, floor_margin = section.priority, section.floor_margin
+    floor_core = section.floor_core
     if coordination != "none" and information != "plan":
         raise ValueError(
             f"robots coordination={coordination!r} needs information='plan' (robots tell "
@@ -493,6 +506,7 @@ def run_multi(
             coordination,
             priority,
             floor_margin,
+            floor_core,
         )
     fl0 = fleet[0]
     env0 = fl0.env
@@ -627,6 +641,7 @@ def run_multi(
         "coordination": coordination,
         "priority": priority,
         "floor_margin": float(floor_margin),
+        "floor_core": floor_core,
         "modes": modes,
     }
     config["max_frames"] = max_frames
@@ -662,6 +677,7 @@ def set_reciprocity(
     coordination: str = "none",
     priority: str = "pedestrians",
     floor_margin: float = FLOOR_MARGIN_M,
+    floor_core: str = FLOOR_CORE_DEFAULT,
 ) -> None:
     """Give a robot's decision family its treatment of the other robots (a one-line error
     for a family that cannot have one), a
@@ -692,6 +708,9 @@ def set_reciprocity(
     floor_margin : float
         How far (m) beyond the robots' collision distance the floor rows aim (CBF
         family, ``priority="pedestrians"``).
+    floor_core : {"always", "inside", "none"}
+        Which pairs' floor rows keep their cores before the pedestrians' rows give way
+        (CBF family, ``priority="pedestrians"``).
     """
     if not hasattr(family, "reciprocity"):
         raise ValueError(
@@ -708,6 +727,7 @@ def set_reciprocity(
         coordination,
         priority,
         floor_margin,
+        floor_core,
     )
     rec.validate()
     family.reciprocity = rec

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 import conformal_control.experiments.runner as runner_mod
-from conformal_control.experiments import ResultsStore, RunConfig, run_sweep
+from conformal_control.experiments import ResultsStore, SweepRun, run_sweep
 from conformal_control.experiments.executors import Executor
 
 
@@ -40,8 +40,10 @@ class StubExecutor(Executor):
             yield i, {"key": key, "status": "ok", "run_dir": None, "metrics": {"t_goal": 1.0}}
 
 
-def configs(n: int) -> list[RunConfig]:
-    return [RunConfig(scene="crossing", frames=5, params={"epsilon": -i * 1e-6}) for i in range(n)]
+def configs(n: int) -> list[SweepRun]:
+    return [
+        SweepRun.from_settings("crossing", {"epsilon": -i * 1e-6}, max_frames=5) for i in range(n)
+    ]
 
 
 class FakeClock:

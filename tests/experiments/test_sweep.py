@@ -12,8 +12,8 @@ import pytest
 from conformal_control.cli import main
 from conformal_control.experiments import (
     ResultsStore,
-    RunConfig,
     SerialExecutor,
+    SweepRun,
     SweepSpec,
     execute_run,
     load_spec,
@@ -50,12 +50,13 @@ def test_grid_expansion_and_keys() -> None:
     assert len(runs) == 2 * 2 * 2
     assert len({r.key for r in runs}) == 8
     r = runs[0]
-    assert r.params == {"epsilon": -0.1} and r.predictor_params == {"window": 3}
-    assert r.frames == 30 and r.learn is True and r.label == "learn"
+    assert r.spec.params == {"epsilon": -0.1}
+    assert r.spec.role("predictor") == ("constant_velocity", {"window": 3})
+    assert r.spec.max_frames == 30 and r.spec.learn is True and r.label == "learn"
     # the key ignores label and data root, and 4 == 4.0
-    a = RunConfig.from_flat({"scene": "nexus_4", "tau": 4, "label": "x", "data_root": "/a"})
-    b = RunConfig.from_flat({"scene": "nexus_4", "tau": 4.0, "label": "y"})
-    c = RunConfig.from_flat({"scene": "nexus_4", "tau": 8})
+    a = SweepRun.from_flat({"scene": "nexus_4", "tau": 4, "label": "x", "data_root": "/a"})
+    b = SweepRun.from_flat({"scene": "nexus_4", "tau": 4.0, "label": "y"})
+    c = SweepRun.from_flat({"scene": "nexus_4", "tau": 8})
     assert a.key == b.key != c.key
     # duplicates collapse
     dup = SweepSpec(base={"scene": "crossing"}, runs=[{"label": "a"}, {"label": "b"}])
@@ -64,9 +65,9 @@ def test_grid_expansion_and_keys() -> None:
 
 def test_spec_errors() -> None:
     with pytest.raises(ValueError, match="unknown sweep key"):
-        RunConfig.from_flat({"scene": "crossing", "epsilonn": 0.1})
+        SweepRun.from_flat({"scene": "crossing", "epsilonn": 0.1})
     with pytest.raises(ValueError, match="needs a 'scene'"):
-        RunConfig.from_flat({"epsilon": 0.1})
+        SweepRun.from_flat({"epsilon": 0.1})
     with pytest.raises(ValueError, match="unknown section"):
         SweepSpec.from_mapping({"grids": {}})
     with pytest.raises(ValueError, match="KEY=V1"):
@@ -87,7 +88,7 @@ def test_load_spec_formats(tmp_path: Path, suffix: str) -> None:
     path = tmp_path / f"spec.{suffix}"
     path.write_text(text)
     runs = load_spec(path).expand()
-    assert [r.params["epsilon"] for r in runs] == [-0.1, 0.1]
+    assert [r.spec.params["epsilon"] for r in runs] == [-0.1, 0.1]
 
 
 # ---------------------------------------------------------------------------- running
@@ -186,12 +187,12 @@ def test_unvalidated_bad_parameters_fail_as_runs(tmp_path: Path) -> None:
 def test_runs_sharing_a_scene_do_not_leak_into_each_other(tmp_path: Path) -> None:
     """Building an episode sets radii/v_max on its scene: runs must not see each other's."""
     base = {"scene": "crossing", "frames": 40}
-    big = RunConfig.from_flat({**base, "robot_radius": 2.0, "v_max": 1.0})
-    plain = RunConfig.from_flat(base)
-    alone = execute_run(plain.as_dict(), "alone", str(tmp_path / "a"), False)
+    big = SweepRun.from_flat({**base, "robot_radius": 2.0, "v_max": 1.0})
+    plain = SweepRun.from_flat(base)
+    alone = execute_run(plain, "alone", str(tmp_path / "a"), False)
     cached_scene.cache_clear()
-    first = execute_run(big.as_dict(), "big", str(tmp_path / "b"), False)
-    after = execute_run(plain.as_dict(), "after", str(tmp_path / "b"), False)
+    first = execute_run(big, "big", str(tmp_path / "b"), False)
+    after = execute_run(plain, "after", str(tmp_path / "b"), False)
     assert first["status"] == after["status"] == alone["status"] == "ok"
     from conformal_control.data import load_scene
 
@@ -419,9 +420,9 @@ def test_runs_of_one_configuration_are_one_run_said_and_counted(tmp_path: Path) 
     # row per key, so the second was collapsed into the first without a word
     from conformal_control.core.exceptions import ConformalControlWarning
 
-    a = RunConfig(scene="crossing", frames=30, label="oracle_mpc", params={"epsilon": 0.1})
-    b = RunConfig(scene="crossing", frames=30, label="mpc", params={"epsilon": 0.1})
-    c = RunConfig(scene="crossing", frames=30, label="other", params={"epsilon": 0.2})
+    a = SweepRun.from_settings("crossing", {"epsilon": 0.1}, label="oracle_mpc", max_frames=30)
+    b = SweepRun.from_settings("crossing", {"epsilon": 0.1}, label="mpc", max_frames=30)
+    c = SweepRun.from_settings("crossing", {"epsilon": 0.2}, label="other", max_frames=30)
     assert a.key == b.key != c.key
     with pytest.warns(
         ConformalControlWarning, match=r"1 run\(s\) left out: .*\(mpc = oracle_mpc\)"

@@ -49,6 +49,8 @@ from conformal_control.runs.fleet import run_multi
         ({"floor_margin": float("inf")}, "floor_margin must be a finite distance >= 0"),
         ({"floor_margin": "0.1"}, "floor_margin must be a finite distance >= 0"),
         ({"floor_margin": True}, "floor_margin must be a finite distance >= 0"),
+        ({"floor_core": "never"}, "floor_core must be one of always, inside, none"),
+        ({"floor_core": None}, "floor_core must be one of always, inside, none"),
     ],
 )
 def test_robots_settings_are_checked_when_given_in_one_line(setting, words):
@@ -103,6 +105,7 @@ def test_config_json_reads_back_into_the_same_multi_robot_run(tmp_path, crossing
         sidestep=0.2,
         hard_rows="level",
         floor_margin=0.05,
+        floor_core="inside",
         sensor_history="observed",
         max_frames=120,
         seed=4,
@@ -120,9 +123,11 @@ def test_config_json_reads_back_into_the_same_multi_robot_run(tmp_path, crossing
         sidestep=0.2,
         hard_rows="level",
         floor_margin=0.05,
+        floor_core="inside",
         sensor_history="observed",
     )
     assert res.config["reciprocity"]["floor_margin"] == 0.05
+    assert res.config["reciprocity"]["floor_core"] == "inside"
     assert spec.seed == 4 and spec.max_frames == 120
     again = run_multi(crossing, spec)
     np.testing.assert_array_equal(again.track["robots"], res.track["robots"])
@@ -171,15 +176,18 @@ def test_the_command_line_options_reach_the_robots_section_and_replay(tmp_path):
 def test_floor_margin_on_the_command_line_reaches_the_run_and_is_checked(tmp_path, capsys):
     out = tmp_path / "run"
     argv = ["run", "--robots", "2", "--frames", "40", "--no-plot", "--floor-margin", "0.25"]
-    assert main([*argv, "--out", str(out)]) == 0
+    assert main([*argv, "--floor-core", "none", "--out", str(out)]) == 0
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["spec"]["robots"]["floor_margin"] == 0.25
     assert cfg["reciprocity"]["floor_margin"] == 0.25
     assert cfg["cli"]["floor_margin"] == 0.25  # what --config replays
+    assert cfg["spec"]["robots"]["floor_core"] == "none"
+    assert cfg["reciprocity"]["floor_core"] == "none" and cfg["cli"]["floor_core"] == "none"
     for bad, words in (
         (["--robots", "2", "--floor-margin", "-1"], "floor_margin must be a finite distance"),
         (["--robots", "2", "--floor-margin", "nan"], "floor_margin must be a finite distance"),
         (["--floor-margin", "0.1"], "--floor-margin .* needs --robots"),
+        (["--floor-core", "none"], "--floor-core .* needs --robots"),
     ):
         capsys.readouterr()
         rc = main(["run", "--frames", "5", "--no-plot", "--out", str(tmp_path / "x"), *bad])

@@ -542,10 +542,11 @@ def _run_prepared(args: argparse.Namespace) -> int:
         from ...core.spec import RunSpec
 
         return _run_multi(args, RunSpec.from_settings(params, **settings), out)
-    if args.floor_margin is not None:
+    if args.floor_margin is not None or args.floor_core is not None:
         from ...core.exceptions import InputError
 
-        raise InputError("--floor-margin sets the robots' floor rows: it needs --robots M")
+        flag = "--floor-margin" if args.floor_margin is not None else "--floor-core"
+        raise InputError(f"{flag} sets the robots' floor rows: it needs --robots M")
 
     data_root = scene_data_root(args.scene, args.data_root)
     result = run(
@@ -639,6 +640,14 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
         "robots' floor rows aim, the rows kept when the robot rows give way to the "
         "pedestrians' (default 0.1; 0: the collision distance)",
     )
+    g.add_argument(
+        "--floor-core",
+        choices=("always", "inside", "none"),
+        default=None,
+        help="which pairs' floor rows keep their cores (half the floor margin) before the "
+        "pedestrians' rows give way: every pair's, only pairs already in contact, or none "
+        "(default: see docs/multi-robot.md)",
+    )
 
 
 def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
@@ -691,6 +700,7 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
         information=args.information,
         lambda_scope=args.lambda_scope,
         **({} if args.floor_margin is None else {"floor_margin": args.floor_margin}),
+        **({} if args.floor_core is None else {"floor_core": args.floor_core}),
     )
     result = run_multi(
         scene,

@@ -93,6 +93,7 @@ RECIPROCAL_OPTIONS = (
     "coordination",
     "priority",
     "floor_margin",
+    "floor_core",
 )
 
 #: The arms :func:`run_multi_bench` runs by default: every one, paired by entry.
@@ -1244,13 +1245,16 @@ def run_command(
     int
         The exit status: 0 when every episode ran.
     """
-    from ...core.spec import Robots, RunSpec
+    from ...core.spec import ROBOT_CHOICES, Robots, RunSpec
 
     robots = _ints(args.robots, "--robots")
     # --set: the reciprocal runs' options (RECIPROCAL_OPTIONS, e.g. floor_margin=0); any
     # other key is a run parameter, which multi_bench_base refuses in one line
     given = dict(settings or {})
     section = {k: given.pop(k) for k in RECIPROCAL_OPTIONS if k in given}
+    for k, v in section.items():  # KEY=none reads as None: the choice "none" where it is one
+        if v is None and "none" in ROBOT_CHOICES.get(k, ()):
+            section[k] = "none"
     suite = args.suite if args.suite != default_suite else "multi-crossings-v1"
     res = run_multi_bench(
         args.out,

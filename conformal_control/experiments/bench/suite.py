@@ -284,7 +284,7 @@ def bench_configs(
     tuned : Tuned, optional
         Recorded in every row (``tuned_from``).
     """
-    from ..plan import RunConfig
+    from ..plan import SweepRun
 
     if limit is not None and (int(limit) != limit or limit < 1):
         raise ValueError(f"limit must be a positive number of scenarios, got {limit!r}")
@@ -325,17 +325,17 @@ def bench_configs(
                 episode["record_animation"] = False
                 shown = "" if shift.name == "nominal" else f"{shift.name}-"
                 configs.append(
-                    RunConfig(
-                        scene=f"scenario:{name}/{sc.id}",
+                    SweepRun.from_settings(
+                        f"scenario:{name}/{sc.id}",
+                        {**dict(base_params or {}), **dict(kw["params"])},
+                        data_root=data_root,
+                        label=f"{shown}{sc.id}-{m.name}",
+                        meta=_meta(name, sc, m, crowd, shift, tuned),
                         predictor=pred,
                         predictor_params=pred_params or {},
                         learn=kw["learn"],
                         seed=seed,
-                        params={**dict(base_params or {}), **dict(kw["params"])},
-                        data_root=data_root,
-                        label=f"{shown}{sc.id}-{m.name}",
-                        episode=episode,
-                        meta=_meta(name, sc, m, crowd, shift, tuned),
+                        **episode,
                     )
                 )
     if not configs:

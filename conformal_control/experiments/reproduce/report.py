@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import RunConfig, run_sweep
+from .. import run_sweep
 from ..executors import Executor
+from ..plan import SweepRun
 from .paper import PAPER_EDGE, PAPER_TABLES, VARIANTS, PaperRow, PaperTable, variant_a
 
 __all__ = [
@@ -56,7 +57,7 @@ class ReproRow:
     table: PaperTable
     variant: str
     row: PaperRow
-    config: RunConfig
+    config: SweepRun
     form: str = ""
     result: dict[str, Any] = field(default_factory=dict)
     checks: dict[str, Any] = field(default_factory=dict)
@@ -78,18 +79,18 @@ def _config(
     frames: int | None,
     seed: int,
     label: str,
-) -> RunConfig:
+) -> SweepRun:
     params = {**table.base, **row.params, "a": variant_a(table, variant), **PAPER_EDGE}
-    return RunConfig(
-        scene=scene,
+    return SweepRun.from_settings(
+        scene,
+        params,
+        data_root=data_root,
+        label=label,
         predictor="oracle" if row.oracle else predictor,
         predictor_params={} if row.oracle else dict(predictor_params),
         learn=row.learn,
         seed=seed,
-        frames=frames,
-        params=params,
-        data_root=data_root,
-        label=label,
+        max_frames=frames,
     )
 
 
@@ -266,14 +267,14 @@ CSV_COLS = [
 
 def _csv_row(r: ReproRow) -> dict[str, Any]:
     m = (r.result.get("metrics") or {}) if r.result else {}
-    p = r.config.params
+    p = r.config.spec.params
     out = {
         "table": r.table.name,
         "variant": r.variant,
         "form": r.form,
         "row": r.row.label,
         "scene": r.config.scene,
-        "predictor": r.config.predictor,
+        "predictor": r.config.spec.role_name("predictor"),
         "a": p.get("a"),
         "tau": p.get("tau"),
         "eta": p.get("eta") if r.row.learn else 0,
@@ -478,7 +479,7 @@ def _figures(
                 "metrics": r.result.get("metrics"),
                 "intervals": r.result.get("intervals"),
                 "learn": r.row.learn,
-                "epsilon": r.config.params.get("epsilon"),
+                "epsilon": r.config.spec.params.get("epsilon"),
             }
             for r in vrows
         ]
@@ -495,7 +496,7 @@ def _figures(
                 points.append(
                     {
                         "series": f"ours, {variant} (a = {a:g})",
-                        "epsilon": r.config.params.get("epsilon"),
+                        "epsilon": r.config.spec.params.get("epsilon"),
                         "l_avg": m.get("l_avg"),
                     }
                 )
@@ -505,7 +506,7 @@ def _figures(
             points.append(
                 {
                     "series": "paper",
-                    "epsilon": r.config.params.get("epsilon"),
+                    "epsilon": r.config.spec.params.get("epsilon"),
                     "l_avg": r.row.paper.get("l_avg"),
                 }
             )
@@ -519,13 +520,16 @@ def _figures(
 
 
 # ---------------------------------------------------------------------------- driver
-def auto_executor(configs: Sequence[RunConfig]) -> str:
+def auto_executor(configs: Sequence[SweepRun]) -> str:
     """``"serial"`` when every run's predictor is a fast one (a dozen episodes then take
     about a second in this process, less than starting worker processes), else
     ``"process"``."""
     from ...core import registry
 
-    fast = all(registry.get("predictor", c.predictor).capabilities.batchable for c in configs)
+    fast = all(
+        registry.get("predictor", c.spec.role("predictor")[0]).capabilities.batchable
+        for c in configs
+    )
     return "serial" if fast else "process"
 
 

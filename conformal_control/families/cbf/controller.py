@@ -29,6 +29,7 @@ from .reciprocal import (
     check_peer_view,
     floor_rows,
     lexicographic_search,
+    pair_directions,
     parked_shares,
     peer_rows,
     priority_relax,
@@ -637,6 +638,7 @@ class ConformalCBFController(
                 res = self._keep_hard_rows(v_ref, A, b, slack, res, first)
             return res
         A, b = escape.neutralise(A, b, slack)
+        counted = (f.n_infeasible_, f.n_fallback_, dict(f.fallback_counts_))
         with f.contact(ttc), f.escaping(v_ref, escape) as escaped:
             if escaped is not None:
                 return escaped
@@ -655,6 +657,11 @@ class ConformalCBFController(
             calm = EscapeRows(escape.rows, escape.U, escape.c, np.zeros_like(escape.push))
             with f.contact(ttc), f.escaping(v_ref, calm) as escaped:
                 if escaped is not None:
+                    # the edge rule decides alone: its decision replaces the first one,
+                    # whose infeasible step and fallback are not counted a second time
+                    n_inf, n_fb, by_name = counted
+                    f.n_infeasible_, f.n_fallback_ = n_inf + 1, n_fb + 1
+                    f.fallback_counts_ = {**by_name, "escape": by_name.get("escape", 0) + 1}
                     return escaped
                 f.count("escape_push_yielded")
                 res = self._keep_hard_rows(v_ref, A, b, slack, fell, first, tally=False)
@@ -686,6 +693,12 @@ class ConformalCBFController(
             # the floor rows' margin bands (what may give way before their cores)
             band = (1.0 - FLOOR_CORE) * margin
             self._band = np.asarray(view.shares, dtype=float) * a * band
+            # the floor rows whose cores hold before the pedestrians' rows give way
+            which = self.reciprocity.floor_core  # type: ignore[union-attr]
+            if which == "inside":
+                self._cored = pair_directions(state.x[:2], view)[1] < self._robot_dc
+            else:
+                self._cored = np.full(view.n_peers, which == "always")
         self._rec_px.append(np.array(view.positions, dtype=float))
         self._rec_pv.append(reference_velocities(view))
         return np.concatenate([A, Ar]), np.concatenate([b, br])
@@ -716,7 +729,9 @@ class ConformalCBFController(
             kind[n : n + k] = ROBOT_ROW
             band = np.zeros(A.shape[0])
             band[n + k :] = self._band
-            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam, band)
+            cored = np.ones(A.shape[0], dtype=bool)
+            cored[n + k :] = self._cored
+            v, used, gave_way = priority_relax(f, v_ref, A, b, kind, lam, band, cored)
             self._stage = gave_way
             if gave_way and tally:
                 f.count(f"{gave_way[:-1]}_rows_relaxed")  # type: ignore[attr-defined]

@@ -88,13 +88,14 @@ from typing import Any
 import numpy as np
 
 from ...core.base import Plugin
-from ...core.spec import FLOOR_MARGIN_M, PEER_HORIZON_S, ROBOT_CHOICES
+from ...core.spec import FLOOR_CORE_DEFAULT, FLOOR_MARGIN_M, PEER_HORIZON_S, ROBOT_CHOICES
 from .constraint import ConformalConstraint
 from .speed import speed_polygon
 
 __all__ = [
     "COORDINATION",
     "FLOOR_CORE",
+    "FLOOR_CORES",
     "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
@@ -141,6 +142,10 @@ HARD_ROWS = ROBOT_CHOICES["hard_rows"]
 
 #: The rows kept longest when not every row can be met (:class:`Reciprocity`).
 PRIORITIES = ROBOT_CHOICES["priority"]
+
+#: Which floor rows keep their cores before the pedestrians' rows give way
+#: (:class:`Reciprocity` ``floor_core``).
+FLOOR_CORES = ROBOT_CHOICES["floor_core"]
 
 #: How robots coordinate beyond their shares (:class:`Reciprocity`): ``"yield"``, a robot
 #: whose robot rows gave way broadcasts it and its partners take the whole pair.
@@ -221,6 +226,13 @@ class Reciprocity(Plugin):
         (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
+    floor_core : {"always", "inside", "none"}
+        With ``priority="pedestrians"``: which floor rows keep their cores before the
+        pedestrians' rows give way (:func:`priority_relax`'s ``cored``): ``"always"``
+        every pair's; ``"inside"`` only the pairs already closer than the robots'
+        collision distance (the others' floor rows give way entirely first); ``"none"``
+        no pair's. Default :data:`~conformal_control.core.spec.FLOOR_CORE_DEFAULT`
+        (the trade-off measured in docs/multi-robot.md).
     """
 
     def __init__(
@@ -234,6 +246,7 @@ class Reciprocity(Plugin):
         coordination: str = "none",
         priority: str = "pedestrians",
         floor_margin: float = FLOOR_MARGIN_M,
+        floor_core: str = FLOOR_CORE_DEFAULT,
     ) -> None:
         self.mode = mode
         self.lambda_scope = lambda_scope
@@ -244,6 +257,7 @@ class Reciprocity(Plugin):
         self.coordination = coordination
         self.priority = priority
         self.floor_margin = floor_margin
+        self.floor_core = floor_core
 
     def validate(self) -> None:
         """Raise ``ValueError`` (one line) for an unknown choice or a setting out of range."""
@@ -280,6 +294,10 @@ class Reciprocity(Plugin):
             isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f >= 0
         ):
             raise ValueError(f"floor_margin must be a finite distance >= 0 (m), got {f!r}")
+        if self.floor_core not in FLOOR_CORES:
+            raise ValueError(
+                f"floor_core must be one of {', '.join(FLOOR_CORES)}, got {self.floor_core!r}"
+            )
 
     def turn(self) -> np.ndarray:
         """The compiled step's options: ``(cos, sin)`` of :attr:`sidestep`, the horizon (s),
@@ -871,6 +889,7 @@ def priority_relax(
     kind: np.ndarray,
     lam: float,
     band: np.ndarray | None = None,
+    cored: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, str]:
     """The fallback with the pedestrians' rows given way after the robots' rows
     (``priority="pedestrians"``): ``(v, lambda_applied, gave_way)``.
@@ -878,20 +897,23 @@ def priority_relax(
     ``kind`` says what each row is (:data:`PEDESTRIAN_ROW`, :data:`ROBOT_ROW`,
     :data:`FLOOR_ROW`). Every row's base is ``A v + b + lam >= 0`` (rows without slack
     already hold ``- lam`` in ``b``). A floor row's **core** is its base raised by its
-    ``band`` (the floor rows aim at ``d_c + floor_margin``; their core, at ``d_c`` itself:
-    ``band = s_ij a floor_margin``). The rows give way in this order, each stage only when
-    the one before cannot make them feasible:
+    ``band`` (the floor rows aim at ``d_c + floor_margin``; their core at
+    ``d_c + FLOOR_CORE * floor_margin``: ``band = s_ij a (1 - FLOOR_CORE) floor_margin``).
+    Only the floor rows in ``cored`` keep their cores before the pedestrians' rows give
+    way (:attr:`Reciprocity.floor_core`); the others give way entirely in stage 2. The
+    rows give way in this order, each stage only when the one before cannot make them
+    feasible:
 
     1. ``"robots"``: the robots' barrier rows, each with its own slack (the least summed
        slack, rows normalised to unit gradient so that slacks are speeds; exact, at a
        vertex of the rows' arrangement that leaves the rows that need none without), the
        pedestrians' rows at ``lam`` and the floor rows held;
-    2. ``"robot_floors"``: the floor rows' margin band, with the pedestrians' rows at
-       ``lam`` and the floor rows' cores held (the least summed slack of the floor rows
-       within their bands; the barrier rows left out from here on);
+    2. ``"robot_floors"``: the floor rows' margin band (the whole row for a floor row not
+       in ``cored``), with the pedestrians' rows at ``lam`` and the cores held (the least
+       summed slack of the floor rows; the barrier rows left out from here on);
     3. ``"pedestrians"``: the pedestrians' rows at the smallest level ``lam + delta`` at
        which they can be met with the cores held (bisection on the exact projection),
-       the floor rows within their bands as in stage 2 there;
+       the floor rows given way as in stage 2 there;
     4. ``"robot_cores"``: when the cores cannot be met at any level of the pedestrians'
        rows (robots hemmed in, or already closer than ``d_c``), the least-violation
        command: it never closes in on a robot already inside its collision distance (a
@@ -928,6 +950,9 @@ def priority_relax(
     band : ndarray of shape (R,), optional
         How far each floor row may give way before its core (finite, >= 0, in the row's
         units: m/s; read for floor rows only). None: 0, the floor rows are their cores.
+    cored : ndarray of bool, shape (R,), optional
+        The floor rows whose cores are held before the pedestrians' rows give way (read
+        for floor rows only). None: every floor row (``floor_core="always"``).
 
     Returns
     -------
@@ -948,10 +973,17 @@ def priority_relax(
             f"priority_relax: band must be {A.shape[0]} finite numbers >= 0 (one per row), "
             f"got shape {band.shape}"
         )
+    cored = np.ones(A.shape[0], dtype=bool) if cored is None else np.asarray(cored)
+    if cored.shape != (A.shape[0],) or cored.dtype != bool:
+        raise ValueError(
+            f"priority_relax: cored must be {A.shape[0]} booleans (one per row), "
+            f"got {cored.dtype} of shape {cored.shape}"
+        )
     nrm = np.hypot(A[:, 0], A[:, 1])
     live = nrm > 0.0
     if not live.all():
-        A, b, kind, nrm, band = A[live], b[live], kind[live], nrm[live], band[live]
+        A, b, kind, nrm = A[live], b[live], kind[live], nrm[live]
+        band, cored = band[live], cored[live]
     base = b + lam
     ped, rob, flo = kind == PEDESTRIAN_ROW, kind == ROBOT_ROW, kind == FLOOR_ROW
     core = base + np.where(flo, band, 0.0)  # the floor rows' cores; the others' bases
@@ -961,11 +993,13 @@ def priority_relax(
     gave_way, rows, slack_of = "robots", np.flatnonzero(rob & could_bind), base
     found = _robot_slacks(A, base, nrm, held, base, rows, S, s_poly)
     extra = np.zeros(0, dtype=np.int64)  # rows held at A v >= 0 too (stage 4)
+    kept = flo & cored  # the floor rows whose cores hold before the pedestrians give way
     if found is None:  # 2. the floors' margin bands, the pedestrians at lam
         gave_way, rows, fixed_rhs = "robot_floors", np.flatnonzero(flo & could_bind), core
+        held = ped | kept
         found = _robot_slacks(A, base, nrm, held, core, rows, S, s_poly)
     if found is None and ped.any():  # 3. the pedestrians' level with the cores held
-        level = _level(solver, A, core, nrm, ped, flo, S, s_poly, radius)
+        level = _level(solver, A, core, nrm, ped, kept, S, s_poly, radius)
         if level is not None:
             gave_way, delta = "pedestrians", max(level, 0.0)
             delta += float(solver.search_margin(abs(delta), A, core))

@@ -304,6 +304,13 @@ def test_bench_run_robots_set_gives_the_reciprocal_options_and_refuses_the_rest(
     assert main([*argv, "--set", "floor_margin=-1"]) != 0
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "floor_margin must be a finite distance" in err
+    # which floor cores hold is a reciprocal runs' option too
+    assert main([*argv, "--set", "floor_core=none"]) == 0
+    assert seen["multi_bench_base"][4] == {"floor_core": "none"}
+    capsys.readouterr()
+    assert main([*argv, "--set", "floor_core=sometimes"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "floor_core must be one of always, inside" in err
 
 
 def test_the_paired_reduction_does_not_depend_on_the_order_of_the_rows():

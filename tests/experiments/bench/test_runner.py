@@ -50,7 +50,7 @@ def test_configs_carry_the_scenario_and_method(data_root: Path) -> None:
     assert len(cfgs) == 2 * len(methods)
     assert len({c.key for c in cfgs}) == len(cfgs)
     c = cfgs[1]
-    assert c.scene.startswith("scenario:crossings-v1/") and c.episode["units"] == "si"
+    assert c.scene.startswith("scenario:crossings-v1/") and c.spec.units == "si"
     assert c.meta["method"] == methods[1].name and c.meta["split"] == "dev"
     with pytest.raises(ValueError, match="unknown method 'conformall'; did you mean"):
         expand_methods(["conformall"])

@@ -50,11 +50,13 @@ def test_shifts_wrap_the_method_predictor_and_carry_into_the_rows():
     cfgs = bench_configs("crossings-v2", "test", methods, limit=2, shifts=["nominal", "delay-0.5s"])
     assert len(cfgs) == 2 * 2 * 2 and len({c.key for c in cfgs}) == len(cfgs)
     by = {(c.meta["shift"], c.meta["method"]): c for c in cfgs}
-    assert by[("nominal", "nolearn")].predictor == "constant_velocity"
+    assert by[("nominal", "nolearn")].spec.role("predictor") == ("constant_velocity", {})
     d = by[("delay-0.5s", "nolearn")]
-    assert d.predictor == "delayed"
-    assert d.predictor_params == {"delay_s": 0.5, "predictor": "constant_velocity"}
-    assert by[("delay-0.5s", "oracle")].predictor_params["predictor"] == "oracle"
+    assert d.spec.role("predictor") == (
+        "delayed",
+        {"delay_s": 0.5, "predictor": "constant_velocity"},
+    )
+    assert by[("delay-0.5s", "oracle")].spec.role("predictor")[1]["predictor"] == "oracle"
     assert d.label.startswith("delay-0.5s-")
 
 
@@ -65,9 +67,9 @@ def test_learned_runs_only_on_the_recordings_it_covers():
     )  # fmt: skip
     recs = {c.meta["recording"] for c in cfgs}
     assert recs == {"ethucy:biwi_eth:corrected", "ethucy:crowds_zara01"}
-    c = cfgs[0]
-    assert c.predictor == "recorded" and c.predictor_params["data_root"] == "/data"
-    assert c.predictor_params["path"]["biwi_eth:corrected"]["step_s"] == pytest.approx(2 / 3)
+    name, pp = cfgs[0].spec.role("predictor")
+    assert name == "recorded" and pp["data_root"] == "/data"
+    assert pp["path"]["biwi_eth:corrected"]["step_s"] == pytest.approx(2 / 3)
 
 
 def test_a_new_method_is_one_entry(data_root, tmp_path):

@@ -89,10 +89,13 @@ class _Cluster(SerialExecutor):
 
 
 def test_chunks_cover_every_run_once_and_a_lost_chunk_fails_its_runs(tmp_path: Path) -> None:
-    cfg = {"scene": "crossing", "frames": 30, "episode": {"record_animation": False}}
-    tasks = [({**cfg, "seed": s}, f"k{s}", str(tmp_path), "metrics") for s in range(20)]
-    other = {"record_animation": False, "barrier": "distance_squared"}  # not batched
-    tasks.append(({**cfg, "seed": 0, "episode": other}, "other", str(tmp_path), "metrics"))
+    from conformal_control.experiments import SweepRun
+
+    cfg = {"max_frames": 30, "record_animation": False}
+    runs = [SweepRun.from_settings("crossing", seed=s, **cfg) for s in range(20)]
+    tasks = [(run, f"k{s}", str(tmp_path), "metrics") for s, run in enumerate(runs)]
+    other = SweepRun.from_settings("crossing", barrier="distance_squared", **cfg)  # not batched
+    tasks.append((other, "other", str(tmp_path), "metrics"))
     ex = _Cluster()
     got = dict(run_chunked(ex, tasks, chunk=8))
     assert sorted(got) == list(range(21))

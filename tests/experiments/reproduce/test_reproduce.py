@@ -26,21 +26,28 @@ def test_plan_has_the_papers_configurations() -> None:
     assert len(rows) == 2 * 7 * 2
     t1 = [r for r in rows if r.table.name == "table1"]
     for r in t1:
-        p = r.config.params
+        p = r.config.spec.params
         assert r.config.scene == "gates_1"
         assert (p["K_acc"], p["K_rep"], p["K_att"], p["rho0"], p["tau"]) == (2, 20, 1, 400, 12)
         assert p["a"] == {"printed": 0.1, "published": 10.0}[r.variant]
         assert p["loss_scale"] == 1.0
         if r.row.learn:
-            assert p["eta"] == 100.0 and r.config.predictor == "darts"
-    eps = sorted({r.config.params["epsilon"] for r in t1 if r.row.learn})
+            assert p["eta"] == 100.0 and r.config.spec.role_name("predictor") == "darts"
+    eps = sorted({r.config.spec.params["epsilon"] for r in t1 if r.row.learn})
     assert eps == [-0.4, -0.2, 0.0, 0.2, 0.4]
     gt = [r for r in rows if r.row.oracle]
-    assert len(gt) == 4 and all(r.config.predictor == "oracle" and not r.config.learn for r in gt)
+    assert len(gt) == 4 and all(
+        r.config.spec.role_name("predictor") == "oracle" and not r.config.spec.learn for r in gt
+    )
     nolearn = [r for r in rows if not r.row.learn and not r.row.oracle]
-    assert len(nolearn) == 6 and all(r.config.predictor == "darts" for r in nolearn)
+    assert len(nolearn) == 6 and all(
+        r.config.spec.role_name("predictor") == "darts" for r in nolearn
+    )
     t2 = [r for r in rows if r.table.name == "table2" and r.variant == "printed"]
-    assert [(r.config.params["tau"], r.config.params.get("eta"), r.config.learn) for r in t2] == [
+    assert [
+        (r.config.spec.params["tau"], r.config.spec.params.get("eta"), r.config.spec.learn)
+        for r in t2
+    ] == [
         (4, 0.1, True),
         (4, 1.0, True),
         (4, None, False),
@@ -49,7 +56,9 @@ def test_plan_has_the_papers_configurations() -> None:
         (8, None, False),
         (4, None, False),
     ]
-    assert all(r.config.params["epsilon"] == -0.25 and r.config.params["a"] == 1 for r in t2)
+    assert all(
+        r.config.spec.params["epsilon"] == -0.25 and r.config.spec.params["a"] == 1 for r in t2
+    )
     assert len({r.key for r in rows}) == len(rows)  # every row is its own run
     # the paper's printed values ride along
     assert PAPER_TABLES["table2"].rows[1].paper == {

@@ -671,3 +671,123 @@ def test_cores_that_cannot_hold_never_let_the_robot_close_in_on_a_robot_inside_d
     # the pedestrians' rows at their least common level with that: 0.3 (v_x >= -0.8)
     assert used == pytest.approx(0.3, abs=1e-6)
     assert v[0] == pytest.approx(-0.8, abs=1e-6)
+
+
+def test_floor_core_chooses_which_floor_rows_keep_their_cores_before_the_pedestrians():
+    # the first case above with the pedestrian's row asking v_y <= -0.2: with the floor's
+    # core held (cored) the pedestrians give way (v_y = -0.1, the core); without it the
+    # floor row gives way entirely and the pedestrian's row holds at lam (v_y = -0.2)
+    from conformal_control.families.cbf.reciprocal import (
+        FLOOR_ROW,
+        PEDESTRIAN_ROW,
+        priority_relax,
+    )
+
+    f = Exact2DSafetyFilter(v_max=2.0)
+    f.reset()
+    Af, bf, band = _floor(0.95)
+    A, b = np.array([[0.0, -1.0], Af]), np.array([-0.2, bf])
+    kind, bands = np.array([PEDESTRIAN_ROW, FLOOR_ROW]), np.r_[0.0, band]
+    held = priority_relax(f, np.zeros(2), A, b, kind, 0.0, bands, np.array([True, True]))
+    free = priority_relax(f, np.zeros(2), A, b, kind, 0.0, bands, np.array([True, False]))
+    default = priority_relax(f, np.zeros(2), A, b, kind, 0.0, bands)
+    assert held[2] == default[2] == "pedestrians" and held[1] == pytest.approx(0.1, abs=1e-6)
+    assert np.array_equal(held[0], default[0])
+    assert free[2] == "robot_floors" and free[1] == 0.0
+    assert free[0][1] == pytest.approx(-0.2, abs=1e-6)  # the pedestrian's row at lam
+    assert Af @ free[0] + bf + band < -0.04  # the core gave way
+    with pytest.raises(ValueError, match="cored must be 2 booleans"):
+        priority_relax(f, np.zeros(2), A, b, kind, 0.0, bands, np.array([1.0, 0.0]))
+
+
+def test_floor_core_is_checked():
+    for bad in ("sometimes", None, 1):
+        with pytest.raises(ValueError, match="floor_core must be one of always, inside, none"):
+            Reciprocity(floor_core=bad).validate()  # type: ignore[arg-type]
+    for ok in ("always", "inside", "none"):
+        Reciprocity(floor_core=ok).validate()
+
+
+def test_floor_core_reaches_the_decision():
+    # the floor-margin case above (a pedestrian walking at the robot from behind, a peer
+    # ahead at 1.0 m; robots' d_c 0.8): "always" keeps the floor's core and closes in on
+    # the peer at no more than its share of a (d - d_c - FLOOR_CORE margin); "none" lets
+    # the floor row give way entirely before the pedestrian's row, so it closes in faster;
+    # "inside" is "none" for a peer outside d_c and keeps the core of one inside it
+    from conformal_control.families.cbf.reciprocal import FLOOR_CORE
+
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    closing, cored = {}, {}
+    for core in ("always", "inside", "none"):
+        c = _controller(False, priority="pedestrians")
+        c.reciprocity.floor_core = core  # type: ignore[union-attr]
+        c.reset()
+        c.begin_interval(q)
+        for d in (0.75, 1.0):
+            view = PeerView(q.ids[1:], np.array([[d, 0.0]]), np.array([0.5]))
+            v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+            cored[core, d] = c._cored.tolist()
+        closing[core] = float(v[0])  # at 1.0 m
+    assert closing["always"] <= 0.5 * 2.0 * (1.0 - 0.8 - FLOOR_CORE * 0.1) + 1e-6
+    assert closing["none"] > closing["always"] + 0.05
+    assert closing["inside"] == closing["none"]
+    assert cored == {
+        ("always", 0.75): [True],
+        ("always", 1.0): [True],
+        ("inside", 0.75): [True],
+        ("inside", 1.0): [False],
+        ("none", 0.75): [False],
+        ("none", 1.0): [False],
+    }
+
+
+def test_a_push_yield_retry_decided_by_the_edge_rule_alone_is_counted_once(monkeypatch):
+    # people first, an agent inside its collision distance (edge rule with a push), the
+    # fallback's cores gave way: the decision is taken again without the push. When the
+    # edge rule then decides alone (no non-closing command, or a degenerate polygon), that
+    # decision replaces the first: one infeasible step, one fallback ("escape"), not the
+    # first decision's ("lambda_search") as well. The two conditions are forced here
+    # (the cores' stage and the edge rule deciding alone without the push) to reach the
+    # counting; the rows are the floor-margin case's
+    from conformal_control.families.cbf.roles import EscapeRows, FilterResult
+
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    c = _controller(False, priority="pedestrians")
+    c.reset()
+    c.begin_interval(q)
+    f = c.safety_filter
+    pushed = EscapeRows(
+        np.zeros(0, np.int64), np.array([[0.0, 1.0]]), np.zeros(1), np.ones(1) * 0.01
+    )
+    monkeypatch.setattr(c, "_robot_escape", lambda state, n, escape: pushed)
+    keep = c._keep_hard_rows
+
+    def cores_gave_way(*args, **kw):
+        res = keep(*args, **kw)
+        c._stage = "robot_cores"
+        return res
+
+    monkeypatch.setattr(c, "_keep_hard_rows", cores_gave_way)
+    enter = f._enter_escape
+    alone = np.array([0.0, 0.3])
+
+    def edge_rule(nominal, escape):
+        if not escape.push.any():  # the retry: the edge rule decides alone
+            return FilterResult(alone, "fallback", math.nan, "escape")
+        return enter(nominal, escape)
+
+    monkeypatch.setattr(f, "_enter_escape", edge_rule)
+    before = f.stats()
+    view = PeerView(q.ids[1:], np.array([[1.0, 0.0]]), np.array([0.5]))
+    v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+    after = f.stats()
+    assert np.array_equal(v, alone)
+    grew = {k: after[k] - before[k] for k in before if after[k] != before[k]}
+    assert grew["n_infeasible"] == 1 and grew["n_fallback"] == 1
+    assert grew["n_fallback_escape"] == 1 and "n_fallback_lambda_search" not in grew

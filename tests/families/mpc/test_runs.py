@@ -200,7 +200,7 @@ def test_a_sweep_over_mpc_parameters_records_the_family(tmp_path):
     )
     runs = spec.expand()
     assert len(runs) == 4
-    assert runs[0].episode["family_params"] == {
+    assert runs[0].spec.role("family")[1] == {
         "sampling__n_samples": 40,
         "sampling__replan_every": 2,
         "sampling__horizon": 4,

@@ -10,7 +10,7 @@ import pytest
 from conformal_control.experiments import run_sweep
 from conformal_control.experiments.batch import batch_reason
 from conformal_control.experiments.bench.suite import read_rows, run_bench
-from conformal_control.experiments.plan import RunConfig
+from conformal_control.experiments.plan import SweepRun
 
 #: Columns that measure the machine or the process, not the episode.
 MACHINE = {"wall_s", "elapsed_s", "worker", "finished_at", "run_dir"}
@@ -69,7 +69,7 @@ def test_bench_run_batched_equals_serial(tmp_path, data_root):
 
 def _crossing_runs(n=3):
     return [
-        RunConfig(scene="crossing", seed=s, frames=60, episode={"record_animation": False})
+        SweepRun.from_settings("crossing", seed=s, max_frames=60, record_animation=False)
         for s in range(n)
     ]
 
@@ -95,14 +95,14 @@ def test_sweep_batch_falls_back_run_by_run_when_a_batch_fails(tmp_path, monkeypa
 @pytest.mark.parametrize(
     ("cfg", "plot", "words"),
     [
-        ({"scene": "crossing"}, False, "animation"),
-        ({"scene": "crossing"}, True, "plot"),
-        ({"scene": "crossing", "episode": {"barrier": "distance_squared"}}, "metrics", "barrier"),
-        ({"scene": "crossing", "episode": {"family": "mpc"}}, "none", "family 'mpc'"),
+        ({}, False, "animation"),
+        ({}, True, "plot"),
+        ({"barrier": "distance_squared"}, "metrics", "barrier"),
+        ({"family": "mpc"}, "none", "family 'mpc'"),
     ],
 )
 def test_batch_reason(cfg, plot, words):
-    assert words in batch_reason(cfg, plot)
+    assert words in batch_reason(SweepRun.from_settings("crossing", **cfg), plot)
 
 
 def test_batch_reason_batches_compiled_and_fast_predictors_only():
@@ -119,7 +119,7 @@ def test_batch_reason_batches_compiled_and_fast_predictors_only():
     registry.register("predictor", "fast_sweep_test", Fast)
     try:
         reasons = {
-            name: batch_reason({"scene": "crossing", "predictor": name}, "none")
+            name: batch_reason(SweepRun.from_settings("crossing", predictor=name), "none")
             for name in ("oracle", "constant_velocity", "fast_sweep_test", "slow_sweep_test")
         }
     finally:
@@ -130,14 +130,16 @@ def test_batch_reason_batches_compiled_and_fast_predictors_only():
         "on the pool"
     )
     assert reasons == dict.fromkeys(reasons)
-    assert "unknown" in batch_reason({"scene": "crossing", "predictor": "nope"}, "none").lower()
+    assert (
+        "unknown"
+        in batch_reason(SweepRun.from_settings("crossing", predictor="nope"), "none").lower()
+    )
 
 
 def test_batch_reason_accepts_metrics_only_runs():
-    assert batch_reason({"scene": "crossing"}, "metrics") is None
-    assert (
-        batch_reason({"scene": "crossing", "episode": {"record_animation": False}}, False) is None
-    )
+    assert batch_reason(SweepRun("crossing"), "metrics") is None
+    quiet = SweepRun.from_settings("crossing", record_animation=False)
+    assert batch_reason(quiet, False) is None
 
 
 def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
@@ -169,8 +171,8 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
         sweep_batch, "_record", lambda cfg, key, out, plot, result, t0: {"key": key}
     )
     monkeypatch.setattr("conformal_control.experiments.worker.load_run_scene", lambda cfg: _Scene())
-    batched = {"scene": "crossing", "seed": 0, "episode": {"record_animation": False}}
-    pooled = {"scene": "crossing", "seed": 1, "episode": {"barrier": "distance_squared"}}
+    batched = SweepRun.from_settings("crossing", seed=0, record_animation=False)
+    pooled = SweepRun.from_settings("crossing", seed=1, barrier="distance_squared")
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]
     assert batch_reason(batched, "none") is None and batch_reason(pooled, "none") is not None
     records = dict(sweep_batch.run_batched(FakePool(), tasks))

@@ -13,6 +13,7 @@ from conformal_control.core.spec import RunSpec
 from conformal_control.data import load_scene
 from conformal_control.experiments.batch import mpc_batch_reason
 from conformal_control.experiments.bench.methods import expand_methods
+from conformal_control.experiments.plan import SweepRun
 from conformal_control.runs.engines.batch import as_run_spec
 from conformal_control.runs.engines.mpc_batch import iter_mpc_batch
 from conformal_control.runs.engines.mpc_batch import mpc_batch_reason as run_reason
@@ -86,9 +87,10 @@ def test_mpc_batch_reasons():
     run = as_run_spec(family="mpc")
     assert run_reason(run) is None
     assert "not a sampling MPC" in run_reason(as_run_spec(family="cbf"))
-    assert mpc_batch_reason({"scene": "crossing", "episode": {"family": "acp_mpc"}}, "none") is None
-    assert "plots" in mpc_batch_reason({"scene": "crossing", "episode": {"family": "mpc"}}, True)
-    assert "sampling MPC" in mpc_batch_reason({"scene": "crossing"}, "none")
+    sweep = SweepRun.from_settings
+    assert mpc_batch_reason(sweep("crossing", family="acp_mpc"), "none") is None
+    assert "plots" in mpc_batch_reason(sweep("crossing", family="mpc"), True)
+    assert "sampling MPC" in mpc_batch_reason(sweep("crossing"), "none")
     with pytest.raises(ValueError, match="batch_size"):
         list(iter_mpc_batch([], batch_size=0))
     bad = (load_scene("crossing", seed=0), as_run_spec(family="cbf"), None)
@@ -100,17 +102,18 @@ def test_a_sweep_runs_mpc_families_in_process_with_the_serial_records(tmp_path):
     """``run_sweep(executor="batch")`` (``bench run``'s) runs MPC runs in this process; their
     rows and config.json are the serial sweep's (the engine aside)."""
     from conformal_control.experiments import run_sweep
-    from conformal_control.experiments.plan import RunConfig
 
     from .test_batch_sweep import _by_key, _same_rows
 
     small = {"sampling__n_samples": 40, "sampling__replan_every": 2}
     runs = [
-        RunConfig(
-            scene="crossing",
+        SweepRun.from_settings(
+            "crossing",
             seed=s,
-            frames=160,
-            episode={"record_animation": False, "family": fam, "family_params": small},
+            max_frames=160,
+            record_animation=False,
+            family=fam,
+            family_params=small,
         )
         for s, fam in ((0, "mpc"), (1, "acp_mpc"), (2, "mpc"))
     ]
