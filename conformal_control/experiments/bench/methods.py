@@ -28,6 +28,7 @@ them with their settings and tuning grids):
 ``mpc``            the sampling MPC with a fixed safe distance (margin grid), no learning
 ``cc_mpc``         the CDT conformal controller: the sampling MPC learning its distance
 ``cc_mpc_margin``  the same learning its distance from the forecast's clearance error
+``cc_mpc_margin_agent`` the same with a distance per pedestrian (lambda per pedestrian)
 ``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
@@ -482,6 +483,20 @@ _DECLARED: tuple[Family, ...] = (
         tune=(0.05, 0.1, 0.2),
         params={"eta": 0.1, "lambda_min": -1.0, "lambda_max": 1.0},
         roles={"family": "mpc", "loss": "margin_miscoverage"},
+        role_params={"family": MPC_SEARCH},
+    ),
+    Family(
+        "cc_mpc_margin_agent",
+        "cc_mpc_margin with a lambda per pedestrian: pedestrian j's safe distance d_c - "
+        "lambda_j, each its own fixed-eta rule on its own clearance error",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's rate of intervals whose clearance error exceeds "
+        "its margin)",
+        settings=(0.1,),
+        tune=(0.05, 0.1, 0.2),
+        params={"eta": 0.1, "lambda_min": -1.0, "lambda_max": 1.0, "lambda_per": "agent"},
+        roles={"family": "mpc", "loss": "margin_miscoverage_agent"},
         role_params={"family": MPC_SEARCH},
     ),
     Family(

@@ -26,7 +26,7 @@ from .fcp import (
     FieldMiscoverageLoss,
 )
 from .kernels import evaluate
-from .margin import MarginMiscoverageLoss
+from .margin import AgentMarginMiscoverageLoss, MarginMiscoverageLoss
 from .settings import Costs, Limits, Sampling
 from .soft import NegativeDistanceLoss, SoftRewardMPC
 from .stepwise import StepwiseMPC
@@ -37,6 +37,7 @@ __all__ = [
     "FALLBACKS",
     "FCPMPC",
     "ACPMPCIntervalRecord",
+    "AgentMarginMiscoverageLoss",
     "Costs",
     "ECPMPCIntervalRecord",
     "EgocentricMiscoverageLoss",

@@ -26,6 +26,14 @@ With the fixed-eta rule and target ``epsilon``, lambda converges to where the ma
 errors: a predictor that errs more (a delayed forecast) gets a larger margin, an accurate
 one a smaller one, and intervals far from everybody do not move lambda at all.
 
+**Per pedestrian** (``lambda_per="agent"``, loss ``margin_miscoverage_agent``):
+pedestrian j's safe distance is ``d_c + margin - lambda_j`` and its loss asks the same
+question of its own forecast: the largest of ``|x(s) - y^_j(s)| - |x(s) - y_j(s)|`` over the
+instants where j (predicted or true) is within ``d_safe``, against ``margin - lambda_j``
+(:func:`agent_clearance_errors`). A badly forecast pedestrian gets a larger margin without
+widening it for the well-forecast ones. With one pedestrian the two losses are the same
+number.
+
 The record's predictions at the control instants are the interval's forecast (made at its
 start); the truth is the sensor's. The error is therefore that of the forecast up to one
 sampling period ahead, the part of the plan that is executed before the next plan.
@@ -34,16 +42,22 @@ sampling period ahead, the part of the plan that is executed before the next pla
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
-from ...core.base import Loss
+from ...core.base import KeyedLosses, Loss
 from ...core.losses import check_lambda
 from ..cbf.controller import CBFIntervalRecord
 from ..cbf.interp import interpolate_at_substeps
 from ..cbf.loss import CBFTruth, gap_test_inputs
 
-__all__ = ["MarginMiscoverageLoss", "clearance_errors"]
+__all__ = [
+    "AgentMarginMiscoverageLoss",
+    "MarginMiscoverageLoss",
+    "agent_clearance_errors",
+    "clearance_errors",
+]
 
 
 def clearance_errors(
@@ -82,6 +96,54 @@ def clearance_errors(
     relevant = np.isfinite(near_true) & (np.minimum(near_true, near_pred) <= d_safe)
     out: np.ndarray = near_pred[relevant] - near_true[relevant]
     return out
+
+
+def agent_clearance_errors(
+    record: CBFIntervalRecord, truth: CBFTruth, d_safe: float = math.inf
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each scored agent's largest clearance error (m) over its relevant instants.
+
+    Agent j's error at control instant s is ``|x(s) - y^_j(s)| - |x(s) - y_j(s)|`` (how much
+    its forecast overestimated its distance to the robot); an instant is relevant for j when
+    j, predicted or true, is within ``d_safe``.
+
+    Parameters
+    ----------
+    record : CBFIntervalRecord
+        The interval's ego positions and the forecast at the control instants.
+    truth : CBFTruth
+        The sensor's true positions.
+    d_safe : float
+        Relevance distance (m).
+
+    Returns
+    -------
+    (ndarray of shape (n,), ndarray of shape (n,))
+        The scored agents' keys (int64) and their largest error (NaN: no relevant instant
+        with the agent known both ways).
+    """
+    keys = np.asarray(record.ids, dtype=np.int64)
+    s = record.n_steps
+    if record.scored is not None:
+        keys = keys[np.asarray(record.scored, dtype=bool)]
+    top = np.full(keys.size, np.nan)
+    if s == 0 or keys.size == 0:
+        return keys, top
+    y, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)  # (S, N, 2)
+    yhat = np.asarray(record.x_pred, dtype=float)
+    if record.scored is not None:
+        keep = np.asarray(record.scored, dtype=bool)
+        y, yhat = y[:, keep], yhat[:, keep]
+    x = np.asarray(record.x_ego, dtype=float)[:, None, :]
+    both = np.isfinite(y).all(axis=-1) & np.isfinite(yhat).all(axis=-1)  # (S, n)
+    d_true = np.linalg.norm(x - np.nan_to_num(y), axis=-1)
+    d_pred = np.linalg.norm(x - np.nan_to_num(yhat), axis=-1)
+    relevant = both & (np.minimum(d_true, d_pred) <= d_safe)
+    has = relevant.any(axis=0)
+    if has.any():
+        err = np.where(relevant, d_pred - d_true, -np.inf)
+        top[has] = err[:, has].max(axis=0)
+    return keys, top
 
 
 class MarginMiscoverageLoss(
@@ -137,3 +199,72 @@ class MarginMiscoverageLoss(
         self._check()
         e = clearance_errors(record, truth, self.d_safe)
         return {"clearance_error": float(e.max())} if e.size else {}
+
+
+class AgentMarginMiscoverageLoss(MarginMiscoverageLoss):
+    """The margin miscoverage loss per pedestrian (``margin_miscoverage_agent``): pedestrian
+    j's term is 1 if its own largest clearance error at its relevant instants exceeded
+    ``margin - lambda_j``, else 0 (:func:`agent_clearance_errors`); the interval's loss is the
+    largest term. For lambda run per pedestrian (``lambda_per="agent"``), where pedestrian j's
+    safe distance is ``d_c + margin - lambda_j``.
+
+    With a scalar lambda it differs from ``margin_miscoverage``, which scores the error of the
+    *nearest* pedestrian's distance (min over predictions minus min over truths): a
+    pedestrian predicted farther than a nearer one hides its error there, not here. With one
+    pedestrian the two are the same number.
+
+    Parameters
+    ----------
+    margin : float
+        The family's fixed margin (m): pedestrian j's safe distance is
+        ``d_c + margin - lambda_j``.
+    d_safe : float
+        Instants with pedestrian j (predicted or true) within this distance count for j
+        (m, > 0).
+    """
+
+    def __call__(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> float | None:
+        if not np.ndim(lam):
+            check_lambda(lam)
+        comp = self.components(record, truth, lam)
+        ok = np.isfinite(comp.values)
+        return float(comp.values[ok].max()) if ok.any() else None
+
+    def diagnostics(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> dict[str, float]:
+        self._check()
+        _, top = agent_clearance_errors(record, truth, self.d_safe)
+        ok = np.isfinite(top)
+        return {"clearance_error": float(top[ok].max())} if ok.any() else {}
+
+    def components(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> KeyedLosses:
+        """Pedestrian j's loss: 1 if its largest clearance error at its relevant instants
+        exceeded ``margin - lambda_j``, else 0; NaN without a relevant instant
+        (:func:`agent_clearance_errors`). ``lam`` is a number or one entry per record agent
+        (``record.ids``'s order)."""
+        self._check()
+        n = record.ids.size
+        lam_arr = np.asarray(lam, dtype=float)
+        if lam_arr.ndim == 0:
+            lam_arr = np.full(n, float(lam_arr))
+        if lam_arr.shape != (n,):
+            raise ValueError(
+                f"lambda per agent has shape {lam_arr.shape}; the record has {n} agents"
+            )
+        for x in lam_arr.tolist():
+            check_lambda(x)
+        if record.scored is not None:
+            lam_arr = lam_arr[np.asarray(record.scored, dtype=bool)]
+        keys, top = agent_clearance_errors(record, truth, self.d_safe)
+        values = np.where(np.isnan(top), np.nan, (top > self.margin - lam_arr).astype(float))
+        return KeyedLosses(keys, values, _AgentMarginAt(self.margin, top))
+
+
+class _AgentMarginAt:
+    """Agent i's margin loss at another lambda (picklable)."""
+
+    def __init__(self, margin: float, top: np.ndarray) -> None:
+        self.margin, self.top = margin, top
+
+    def __call__(self, i: int, lam: float) -> float | None:
+        top = float(self.top[i])
+        return None if math.isnan(top) else (1.0 if top > self.margin - lam else 0.0)

@@ -12,7 +12,12 @@ from conformal_control.core import registry
 from conformal_control.families.cbf.controller import CBFIntervalRecord
 from conformal_control.families.cbf.interp import interpolate_at_substeps
 from conformal_control.families.cbf.loss import CBFTruth
-from conformal_control.families.mpc.margin import MarginMiscoverageLoss, clearance_errors
+from conformal_control.families.mpc.margin import (
+    AgentMarginMiscoverageLoss,
+    MarginMiscoverageLoss,
+    agent_clearance_errors,
+    clearance_errors,
+)
 
 DT, SUB = 0.4, 4
 
@@ -122,3 +127,40 @@ def test_lambda_follows_the_predictors_error_in_closed_loop():
 
     nominal, late = run(0.0), run(0.5)
     assert late < nominal - 0.1
+
+
+def test_per_pedestrian_losses_move_only_the_badly_forecast_pedestrian():
+    """Two pedestrians near the robot, one forecast exactly and one stale (predicted to
+    stay while it walks 1 m closer): only the stale one misses its margin, and with one
+    pedestrian the per-pedestrian loss is the scalar loss at every lambda."""
+    true = np.array([[[1.5, 0.0], [1.5, 0.0]], [[0.0, 2.5], [0.0, 1.5]]])
+    pred = np.array([[[1.5, 0.0], [1.5, 0.0]], [[0.0, 2.5], [0.0, 2.5]]])
+    x = np.zeros((SUB, 2))
+    rec, truth = interval(true, pred, x)
+    loss = AgentMarginMiscoverageLoss(margin=0.25, d_safe=3.0)
+    nearest = MarginMiscoverageLoss(margin=0.25, d_safe=3.0)
+    keys, top = agent_clearance_errors(rec, truth, 3.0)
+    assert keys.tolist() == [0, 1]
+    assert top[0] == 0.0 and math.isclose(top[1], 0.75)  # 1 m late by the last instant (3/4)
+    comp = loss.components(rec, truth, np.array([0.0, 0.0]))
+    assert comp.values.tolist() == [0.0, 1.0]
+    # pedestrian 1 covered once its own margin exceeds its error: lambda_1 <= -0.5
+    assert loss.components(rec, truth, np.array([0.0, -0.5])).values.tolist() == [0.0, 0.0]
+    assert comp.at is not None and comp.at(1, -0.49) == 1.0 and comp.at(1, -0.5) == 0.0
+    # margin_miscoverage scores min-pred minus min-true: pedestrian 0 (nearest both ways)
+    # hides pedestrian 1's error there; the per-pedestrian loss is the largest term
+    assert nearest(rec, truth, 0.0) == 0.0
+    assert loss(rec, truth, 0.0) == 1.0 == loss(rec, truth, np.array([0.0, 0.0]))
+    for j in (0, 1):
+        one, one_truth = interval(true[j : j + 1], pred[j : j + 1], x)
+        for lam in (-1.0, -0.5, -0.49, 0.0, 0.3):
+            assert loss.components(one, one_truth, np.array([lam])).values[0] == nearest(
+                one, one_truth, lam
+            )
+
+
+def test_per_pedestrian_lambda_of_the_wrong_shape_is_a_one_line_error():
+    rec, truth = MarginMiscoverageLoss._unit_test_inputs()[0]
+    with pytest.raises(ValueError, match="lambda per agent has shape") as err:
+        AgentMarginMiscoverageLoss().components(rec, truth, np.zeros(rec.ids.size + 1))
+    assert "\n" not in str(err.value)

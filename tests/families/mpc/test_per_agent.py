@@ -118,3 +118,24 @@ def test_two_agents_learn_their_own_distance():
             scene, family="ecp_mpc", rule="aci", loss=None, params={"lambda_per": "agent"},
             engine="loop", max_frames=20,
         )  # fmt: skip
+
+
+def test_one_agent_margin_loss_per_agent_is_the_scalar_margin_loss_bit_for_bit():
+    """cc_mpc_margin_agent's loss (margin_miscoverage_agent, lambda per pedestrian) with one
+    pedestrian is cc_mpc_margin (margin_miscoverage, one lambda) bit for bit."""
+    scene = _scene({1: _circling((5.0, 0.3), 1.5, 0.8)})
+    kw = {**MPC, "params": {**MPC["params"], "lambda_max": 1.0, "eta": 0.1}}
+    a = run_episode(scene, engine="loop", max_frames=120, loss="margin_miscoverage", **kw)
+    kw["params"] = {**kw["params"], "lambda_per": "agent"}
+    b = run_episode(scene, engine="loop", max_frames=120, loss="margin_miscoverage_agent", **kw)
+    ia, ib = a.loop.intervals, b.loop.intervals
+    assert len(ia) == len(ib) > 20 and sum(iv.loss == 1.0 for iv in ia) >= 1
+    for x, y in zip(ia, ib, strict=True):
+        assert (x.lam, x.loss, x.n_steps, x.diagnostics) == (
+            y.lam,
+            y.loss,
+            y.n_steps,
+            y.diagnostics,
+        )
+    assert np.array_equal(a.steps["cmd"], b.steps["cmd"])
+    assert len({iv.lam for iv in ia}) > 3  # lambda moved
