@@ -140,8 +140,20 @@ def _clip_advice(fl: Flagship, floor: Any) -> tuple[str, bool | None]:
     )
 
 
-def warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
-    """epsilon at or below the feasibility floor (known before the first step)."""
+def warn_before_run(fl: Flagship, floor: Any, learn: bool, stacklevel: int = 4) -> None:
+    """Warn when epsilon is at or below the feasibility floor (known before the first step).
+
+    Parameters
+    ----------
+    fl : Flagship
+        The built episode.
+    floor : Feasibility
+        Its feasibility floor (:func:`feasibility`).
+    learn : bool
+        Whether lambda learns (no warning when it does not).
+    stacklevel : int
+        Frames up the warning points at (4: the caller of run_episode through run_loop).
+    """
     if floor.attainable or not learn:
         return
     unit = f"1/{fl.scene.units.time_name}"
@@ -154,7 +166,7 @@ def warn_before_run(fl: Flagship, floor: Any, learn: bool) -> None:
             f"{floor.lambda_floor / lam_unit:g} {unit}), below which a far agent's constraint "
             f"fails and the fallback decides; {advice}"
         ),
-        stacklevel=4,  # the caller of run_episode (through run_loop)
+        stacklevel=stacklevel,
     )
 
 
