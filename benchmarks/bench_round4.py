@@ -19,8 +19,10 @@ engine use one core alike), after a warm-up run that loads the compiled kernels;
   (the first test scenarios of ``crossings-v2`` are biwi_eth's, which it covers), and the
   same shift with the predictor called in Python per episode and interval (the engine before
   it compiled the recorded forecasts);
-* ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios; the MPC families run
-  one episode per task, not in the lockstep engine) -- target 5x;
+* ``mpc``: the ``mpc`` family against ``conformal`` (20 scenarios; the MPC families run in
+  this process one episode after another, ``runs.engines.mpc_batch``, not in the compiled
+  lockstep engine) -- target 5x; wall time, and the CPU time of this process (every episode
+  of both runs in it);
 * ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal; fleets run
   one per task, not in the lockstep engine) against a single-robot episode -- target 3x.
 
@@ -206,12 +208,13 @@ def measure_mpc(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
     mpc = time_bench(data_root, limit, repeats, methods=("mpc",))
     loads.append(_load())
     per = [w / n for w, _, n in (cbf, mpc)]
+    cpu = [c / n for _, c, n in (cbf, mpc)]
     note = (
         f"{mpc[2]} mpc and {cbf[2]} conformal episodes (the first {limit} test scenarios; "
         "mpc, a reference family, runs its whole margin grid), one worker (the MPC family "
-        "one episode per task on a process pool, the CBF in the lockstep engine), best of "
-        f"{repeats}; wall time (the pool worker's CPU time is not this process's); "
-        f"{loads[0]} before, {loads[1]} after"
+        "in this process one episode after another, the CBF in the lockstep engine), best "
+        f"of {repeats}; CPU per episode {cpu[1] * 1e3:.1f} ms against {cpu[0] * 1e3:.1f} ms "
+        f"({cpu[1] / cpu[0]:.2f}x); {loads[0]} before, {loads[1]} after"
     )
     return [
         _fig(

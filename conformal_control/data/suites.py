@@ -197,10 +197,40 @@ class Suite:
     def recordings(self) -> list[dict[str, Any]]:
         return list(self.manifest["recordings"])
 
-    def summary(self) -> list[dict[str, Any]]:
-        """Counts per (source, split): scenarios and scenarios where nolearn collided."""
+    def table(self, split: str | None = None) -> list[dict[str, Any]]:
+        """One row per scenario of ``split`` (``None``: all), as ``bench scenarios`` lists
+        them: ``id``, ``split``, ``scene``, ``start_frame``, ``max_frames``, ``n_crossing``,
+        ``density`` (the corridor's), ``nolearn_collide`` (None if not measured).
+
+        Parameters
+        ----------
+        split : {"dev", "test"}, optional
+            The split.
+        """
+        return [
+            {
+                "id": s.id,
+                "split": s.split,
+                "scene": s.scene,
+                "start_frame": s.start_frame,
+                "max_frames": s.max_frames,
+                "n_crossing": s.stats.get("n_crossing"),
+                "density": s.stats.get("corridor_density"),
+                "nolearn_collide": None if s.nolearn is None else s.nolearn["n_collide"],
+            }
+            for s in self.scenarios_for(split)
+        ]
+
+    def summary(self, split: str | None = None) -> list[dict[str, Any]]:
+        """Counts per (source, split): scenarios and scenarios where nolearn collided.
+
+        Parameters
+        ----------
+        split : {"dev", "test"}, optional
+            Only this split (``None``: both).
+        """
         rows: dict[tuple[str, str], dict[str, Any]] = {}
-        for s in self.scenarios:
+        for s in self.scenarios_for(split):
             row = rows.setdefault(
                 (s.source, s.split),
                 {"source": s.source, "split": s.split, "scenarios": 0, "nolearn_collision": 0},

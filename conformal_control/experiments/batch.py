@@ -16,6 +16,12 @@ sweep are split in two:
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
   limit, and each group runs in this process through
   :func:`~conformal_control.runs.engines.batch.iter_batch` (one core);
+* a run of a sampling-MPC family (``mpc``, ``cc_mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``,
+  ...; :func:`~conformal_control.runs.engines.mpc_batch.mpc_batch_reason`) with a predictor
+  the engine would batch and no plots runs in this process too, one episode after another
+  (:func:`~conformal_control.runs.engines.mpc_batch.iter_mpc_batch`: no pool task per
+  episode), each equal to its run on the generic loop (``config.json`` says ``"engine":
+  "mpc_batch"``);
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
@@ -42,7 +48,7 @@ from .executors.base import Executor, Outcome
 from .plan import SweepRun
 from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 
-__all__ = ["batch_reason", "run_batched", "run_chunk", "run_chunked"]
+__all__ = ["batch_reason", "mpc_batch_reason", "run_batched", "run_chunk", "run_chunked"]
 
 
 def batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
@@ -70,6 +76,28 @@ def batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
     if slow is not None:
         return slow
     return supports(spec)
+
+
+def mpc_batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
+    """Why ``run`` does not run with the sampling-MPC episodes in this process
+    (:func:`~conformal_control.runs.engines.mpc_batch.iter_mpc_batch`), or None if it does.
+
+    Parameters
+    ----------
+    run : SweepRun
+        The run.
+    plot : bool or str
+        What the run writes (as :func:`execute_run` takes it).
+    """
+    from ..runs.engines.mpc_batch import mpc_batch_reason as reason
+
+    files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+    if files == "plots":
+        return "the run directory gets plots, drawn on the pool"
+    slow = _slow_predictor(run.spec.role("predictor")[0])
+    if slow is not None:
+        return slow
+    return reason(run.spec)
 
 
 def _slow_predictor(name: Any) -> str | None:
@@ -150,13 +178,17 @@ def run_batched(
     pool's workers and this process share the machine instead of taking turns."""
 
     from ..runs.engines.batch import iter_batch
+    from ..runs.engines.mpc_batch import iter_mpc_batch
     from .worker import load_run_scene
 
     groups: dict[str, list[int]] = {}
+    lock: list[int] = []  # sampling-MPC runs, in this process
     rest: list[int] = []
     for i, (run, _key, _out, plot) in enumerate(tasks):
         if batch_reason(run, plot) is None:
             groups.setdefault(_group_key(run), []).append(i)
+        elif mpc_batch_reason(run, plot) is None:
+            lock.append(i)
         else:
             rest.append(i)
 
@@ -166,7 +198,7 @@ def run_batched(
 
     # a scene used by several batched runs (one per method of a benchmark) is loaded once
     # and kept until its last use; the others are loaded when their slot opens
-    uses = Counter(scene_id(tasks[i][0]) for idx in groups.values() for i in idx)
+    uses = Counter(scene_id(tasks[i][0]) for idx in [*groups.values(), lock] for i in idx)
     kept: dict[tuple[Any, ...], Any] = {}
 
     def scene_of(run: SweepRun) -> Any:
@@ -221,6 +253,29 @@ def run_batched(
                 for i in idx:
                     if i not in done:
                         yield i, execute_run(*tasks[i])
+        if lock:
+            yield from mpc_runs()
+
+    def mpc_runs() -> Iterator[Outcome]:
+        def episodes() -> Iterator[tuple[Any, Any, dict[str, Any]]]:
+            for i in lock:
+                run, key = tasks[i][0], tasks[i][1]
+                scene = scene_of(run)  # a benchmark scenario carries its time limit
+                spec = run.spec_on(scene.meta.get("max_frames"))
+                yield scene, spec, {"sweep": {"key": key, "run": run.as_dict()}}
+
+        done: set[int] = set()
+        t0 = time.perf_counter()
+        try:
+            for j, result in iter_mpc_batch(episodes()):
+                i = lock[j]
+                run, key, out_dir, plot = tasks[i]
+                done.add(i)
+                yield i, _record(run, key, out_dir, plot, result, t0)
+        except Exception:  # stopped: its other runs fail (or not) one by one
+            for i in lock:
+                if i not in done:
+                    yield i, execute_run(*tasks[i])
 
     pool = _PoolDrain(ex, rest, [tasks[i] for i in rest]) if rest else None
     try:

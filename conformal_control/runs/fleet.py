@@ -85,6 +85,7 @@ __all__ = [
     "check_tasks",
     "drive",
     "load_robots_file",
+    "prepare_fleet",
     "robot_tasks",
     "run_multi",
     "write_multi_run_dir",
@@ -289,6 +290,72 @@ def load_robots_file(path: str | Path, scene: Scene) -> tuple[np.ndarray, list[n
                 f"two robot radii ({gap:.3g} m): they would start in collision"
             )
     return as_tasks(first, goals)
+
+
+def prepare_fleet(
+    scene: str | Scene,
+    spec: RunSpec,
+    *,
+    data_root: str | Path | None = None,
+    start: Any = None,
+    goal: Any = None,
+    start_frame: int | None = None,
+    robots_file: str | Path | None = None,
+    center: Any = None,
+    **robots: Any,
+) -> tuple[Scene, RunSpec]:
+    """A fleet's run made ready: the scene loaded, a trainable predictor's weights found
+    or trained, and the robots' section (their tasks from ``robots_file``, else from the
+    layout) on ``spec``.
+
+    Parameters
+    ----------
+    scene : str or Scene
+        A registered scene name (loaded with ``data_root``, ``start``, ``goal``,
+        ``start_frame`` and the spec's seed) or a scene.
+    spec : RunSpec
+        The run every robot shares.
+    data_root : path, optional
+        Data folder for scenes read from data and a trainable predictor's weights.
+    start, goal, start_frame :
+        The scene's task, as :func:`~conformal_control.data.load_scene` takes it.
+    robots_file : path, optional
+        The robots' starts and goals (:func:`load_robots_file`); then no ``layout``
+        (other than ``"scene"``), ``radius`` or ``center``.
+    center : position, optional
+        The layout's centre as typed (a fraction of the scene's frame, metres, pixels).
+    **robots :
+        Fields of the robots section (:class:`~conformal_control.core.spec.Robots`):
+        ``robots``, ``layout``, ``radius``, ``sensor_history``, ``reciprocity``, ...
+
+    Raises
+    ------
+    ValueError
+        For a robots file given with a layout, a radius or a centre.
+    """
+    from ..predictors.training import with_weights
+
+    if isinstance(scene, str):
+        from ..data import load_scene
+
+        scene = load_scene(
+            scene, data_root, start=start, goals=goal, start_frame=start_frame, seed=spec.seed
+        )
+    spec = with_weights(spec, scene, None if data_root is None else str(data_root))
+    if robots_file is not None:
+        layout, radius = robots.pop("layout", "scene"), robots.pop("radius", None)
+        if layout != "scene" or radius is not None or center is not None:
+            raise ValueError(
+                "--robots-file gives the tasks: drop --robot-layout, --radius, --center"
+            )
+        robots["starts"], robots["goals"] = load_robots_file(robots_file, scene)
+    elif center is not None:
+        from ..data.positions import scene_position
+
+        robots["center"] = tuple(scene_position(scene, center, "--center").tolist())
+    else:
+        robots["center"] = None
+    return scene, RunSpec.from_settings(None, base=spec, **robots)
 
 
 def check_tasks(starts: np.ndarray, goals: Sequence[np.ndarray], robot_radius: float) -> None:

@@ -339,3 +339,28 @@ def test_bad_input(crossing):
         run_multi(crossing, starts=[(0, 0)], goals=[(2, 2)], layout="antipodal")
     with pytest.raises(ValueError, match="sensor_history"):
         run_multi(crossing, robots=2, sensor_history="psychic", max_frames=5)
+
+
+def test_prepare_fleet_gives_the_scene_and_the_robots_section(tmp_path):
+    # the fleet's preparation `run --robots` did in the command line: the scene loaded with
+    # the run's seed, the tasks from a robots file or the layout's centre in metres
+    from conformal_control.core.spec import RunSpec
+    from conformal_control.data import load_scene
+    from conformal_control.runs.fleet import prepare_fleet
+
+    base = RunSpec(seed=3, max_frames=20)
+    scene, spec = prepare_fleet("crossing", base, robots=2, layout="antipodal", center="0.5,0.5")
+    expected = load_scene("crossing", seed=3)
+    np.testing.assert_array_equal(scene.positions, expected.positions)
+    assert spec.robots is not None and spec.robots.robots == 2
+    assert spec.robots.layout == "antipodal" and spec.robots.center == (15.0, 8.0)
+    assert spec.max_frames == 20 and spec.seed == 3
+    f = tmp_path / "robots.json"
+    f.write_text(json.dumps({"robots": [{"start": [1, 2], "goal": [20, 2]}]}))
+    _, spec = prepare_fleet(scene, base, robots_file=f, layout="scene", radius=None)
+    np.testing.assert_array_equal(spec.robots.starts, [[1.0, 2.0]])
+    assert spec.robots.layout == "scene"
+    with pytest.raises(ValueError, match="--robots-file gives the tasks"):
+        prepare_fleet(scene, base, robots_file=f, layout="antipodal")
+    with pytest.raises(ValueError, match="--robots-file gives the tasks"):
+        prepare_fleet(scene, base, robots_file=f, center="0.5,0.5")

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from typing import Any
 
 from . import add_data_root, command, crowd_choices, key_values, positive_int
@@ -506,77 +505,49 @@ def _scenarios(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     if args.recording or args.output:
         raise ValueError("--recording and --output go with --regenerate")
-    rows = suite.scenarios_for(args.split)
+    rows = suite.table(args.split)
     if not args.summary:
         print("id\tsplit\tscene\tstart_frame\tmax_frames\tn_crossing\tdensity\tnolearn_collide")
-        for s in rows:
-            collide = "-" if s.nolearn is None else s.nolearn["n_collide"]
+        for r in rows:
+            collide = "-" if r["nolearn_collide"] is None else r["nolearn_collide"]
             print(
-                f"{s.id}\t{s.split}\t{s.scene}\t{s.start_frame}\t{s.max_frames}\t"
-                f"{s.stats.get('n_crossing')}\t{s.stats.get('corridor_density')}\t{collide}"
+                f"{r['id']}\t{r['split']}\t{r['scene']}\t{r['start_frame']}\t{r['max_frames']}\t"
+                f"{r['n_crossing']}\t{r['density']}\t{collide}"
             )
-    for row in suite.summary():
-        if args.split is None or row["split"] == args.split:
-            print(
-                f"# {row['source']:8s} {row['split']:5s} {row['scenarios']:4d} scenario(s), "
-                f"{row['nolearn_collision']:4d} with a nolearn collision"
-            )
-    n = len(rows)
-    n_col = sum(int(bool(s.collided_nolearn)) for s in rows)
-    print(f"# {suite.name}: {n} scenario(s), {n_col} with a nolearn collision")
+    for row in suite.summary(args.split):
+        print(
+            f"# {row['source']:8s} {row['split']:5s} {row['scenarios']:4d} scenario(s), "
+            f"{row['nolearn_collision']:4d} with a nolearn collision"
+        )
+    n_col = sum(row["nolearn_collision"] for row in suite.summary(args.split))
+    print(f"# {suite.name}: {len(rows)} scenario(s), {n_col} with a nolearn collision")
     return 0
 
 
 def _regenerate(args: argparse.Namespace) -> int:
-    from ...data.suites import dump_manifest, load_suite, suite_names
-    from ...experiments.bench.generator import SUITES, generate_suite
+    from ...experiments.bench.generator import regenerate_suite
 
-    if args.suite not in SUITES:
-        raise ValueError(
-            f"no generator for suite {args.suite!r}; suites with one: {', '.join(SUITES)}"
-        )
-    t0 = time.perf_counter()
-    manifest = generate_suite(
-        SUITES[args.suite],
+    done = regenerate_suite(
+        args.suite,
         args.data_root,
         recordings=args.recording,
         workers=args.workers,
         progress=lambda line: print(line, flush=True),
     )
-    wall = time.perf_counter() - t0
-    text = dump_manifest(manifest)
     if args.output:
         with open(args.output, "w") as fh:
-            fh.write(text)
+            fh.write(done.text)
         print(f"wrote {args.output}")
-    n = len(manifest["scenarios"])
-    n_col = sum(int(s["nolearn"]["n_collide"] > 0) for s in manifest["scenarios"])
     print(
-        f"regenerated {n} scenario(s) ({n_col} with a nolearn collision) from "
-        f"{len(manifest['recordings'])} recording(s) in {wall:.1f} s"
+        f"regenerated {done.n_scenarios} scenario(s) ({done.n_collisions} with a nolearn "
+        f"collision) from {len(done.manifest['recordings'])} recording(s) in "
+        f"{done.wall_s:.1f} s"
     )
-    if args.suite not in suite_names():
+    if done.compared is None:
         print(f"no shipped manifest of {args.suite} to compare with")
         return 0
-    shipped = load_suite(args.suite).manifest
-    if args.recording:
-        wanted = set(args.recording)
-        same = _entries(shipped, wanted) == _entries(manifest, wanted)
-        what = f"the shipped entries of {len(wanted)} recording(s)"
-    else:
-        same = text == dump_manifest(shipped)
-        what = "the shipped manifest"
-    if same:
-        print(f"byte-identical to {what}")
+    if done.same:
+        print(f"byte-identical to {done.compared}")
         return 0
-    print(f"DIFFERS from {what}", file=sys.stderr)
+    print(f"DIFFERS from {done.compared}", file=sys.stderr)
     return 1
-
-
-def _entries(manifest: dict[str, Any], wanted: set[str]) -> list[str]:
-    """The serialised recording entries and scenarios of some recordings."""
-    import json
-
-    recs = [r for r in manifest["recordings"] if r["id"] in wanted]
-    scs = [s for s in manifest["scenarios"] if s["recording"] in wanted]
-    return [json.dumps(x, indent=1) for x in (*recs, *scs)]

@@ -653,48 +653,20 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
 def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
     """``run --robots``: the run's specification (as ``_run_prepared`` built it) with the
     robots' tasks, by :func:`~conformal_control.runs.fleet.run_multi`."""
-    from ...core.spec import RunSpec
-    from ...data import load_scene
-    from ...predictors.training import with_weights
-    from ...runs.fleet import load_robots_file, run_multi
+    from ...runs.fleet import prepare_fleet, run_multi
 
-    scene = load_scene(
+    scene, spec = prepare_fleet(
         args.scene,
-        args.data_root,
+        spec,
+        data_root=args.data_root,
         start=args.start,
-        goals=args.goal,
+        goal=args.goal,
         start_frame=args.start_frame,
-        seed=args.seed,
-    )
-    data_root = scene_data_root(args.scene, args.data_root)
-    spec = with_weights(spec, scene, args.data_root)
-    tasks: dict[str, Any] = {}
-    if args.robots_file is not None:
-        if args.robot_layout != "scene" or args.radius is not None or args.center is not None:
-            raise ValueError(
-                "--robots-file gives the tasks: drop --robot-layout, --radius, --center"
-            )
-        starts, goals = load_robots_file(args.robots_file, scene)
-        tasks = {"starts": starts, "goals": goals, "robots": args.robots}
-    else:
-        center = None
-        if args.center is not None:
-            from ...data.positions import scene_position
-
-            center = tuple(scene_position(scene, args.center, "--center").tolist())
-        tasks = {
-            "robots": args.robots,
-            "layout": args.robot_layout,
-            "radius": args.radius,
-            "center": center,
-        }
-    stored = _stored_options(args, data_root)  # what `run --config` replays
-    if args.robots_file is not None:
-        stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
-    spec = RunSpec.from_settings(
-        None,
-        base=spec,
-        **tasks,
+        robots_file=args.robots_file,
+        center=args.center,
+        robots=args.robots,
+        layout=args.robot_layout,
+        radius=args.radius,
         sensor_history=args.sensor_history,
         reciprocity=args.reciprocity,
         information=args.information,
@@ -702,6 +674,10 @@ def _run_multi(args: argparse.Namespace, spec: Any, out: Path) -> int:
         **({} if args.floor_margin is None else {"floor_margin": args.floor_margin}),
         **({} if args.floor_core is None else {"floor_core": args.floor_core}),
     )
+    data_root = scene_data_root(args.scene, args.data_root)
+    stored = _stored_options(args, data_root)  # what `run --config` replays
+    if args.robots_file is not None:
+        stored["robots_file"] = str(Path(args.robots_file).expanduser().resolve())
     result = run_multi(
         scene,
         spec,

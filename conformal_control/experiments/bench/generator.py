@@ -88,12 +88,16 @@ from ...data.tracks import Tracks
 
 __all__ = [
     "CROSSINGS_V1",
+    "SUITES",
     "Criterion",
     "Recording",
+    "Regenerated",
     "SuiteSpec",
     "assign_splits",
     "generate_suite",
+    "manifest_entries",
     "recording_scenarios",
+    "regenerate_suite",
 ]
 
 FPS = SDD_FPS
@@ -774,3 +778,109 @@ def generate_suite(
         "recordings": entries,
         "scenarios": scenarios,
     }
+
+
+@dataclass(frozen=True)
+class Regenerated:
+    """A suite regenerated from the data and compared with the shipped manifest
+    (:func:`regenerate_suite`).
+
+    Attributes
+    ----------
+    manifest : dict
+        The regenerated manifest.
+    text : str
+        It serialised as the shipped file is (:func:`~conformal_control.data.suites.dump_manifest`).
+    wall_s : float
+        Time the generation took.
+    compared : str or None
+        What it was compared with (``"the shipped manifest"``, ``"the shipped entries of
+        N recording(s)"``); None when no manifest of the suite is shipped.
+    same : bool or None
+        Byte-identical to it (None: nothing to compare with).
+    """
+
+    manifest: dict[str, Any]
+    text: str
+    wall_s: float
+    compared: str | None
+    same: bool | None
+
+    @property
+    def n_scenarios(self) -> int:
+        """Scenarios generated."""
+        return len(self.manifest["scenarios"])
+
+    @property
+    def n_collisions(self) -> int:
+        """Scenarios where the nolearn baseline collided."""
+        return sum(int(s["nolearn"]["n_collide"] > 0) for s in self.manifest["scenarios"])
+
+
+def manifest_entries(manifest: dict[str, Any], recordings: Sequence[str]) -> list[str]:
+    """The serialised recording entries and scenarios of some recordings of a manifest.
+
+    Parameters
+    ----------
+    manifest : dict
+        A suite's manifest.
+    recordings : sequence of str
+        Recording ids.
+    """
+    import json
+
+    wanted = set(recordings)
+    recs = [r for r in manifest["recordings"] if r["id"] in wanted]
+    scs = [s for s in manifest["scenarios"] if s["recording"] in wanted]
+    return [json.dumps(x, indent=1) for x in (*recs, *scs)]
+
+
+def regenerate_suite(
+    suite: str,
+    data_root: str | Path | None = None,
+    *,
+    recordings: Sequence[str] | None = None,
+    workers: int = 1,
+    progress: Callable[[str], None] | None = None,
+) -> Regenerated:
+    """Regenerate a suite that has a generator from the data (``bench scenarios
+    --regenerate``) and compare it with the shipped manifest: the whole file, or the
+    entries of ``recordings`` when only those were generated.
+
+    Parameters
+    ----------
+    suite : str
+        The suite's name (one of :data:`SUITES`).
+    data_root : path, optional
+        The data folder.
+    recordings : sequence of str, optional
+        Regenerate only these recordings.
+    workers : int
+        Processes running the nolearn episodes.
+    progress : callable, optional
+        Receives one line per recording.
+
+    Raises
+    ------
+    ValueError
+        For a suite without a generator.
+    """
+    from ...data.suites import dump_manifest, load_suite, suite_names
+
+    if suite not in SUITES:
+        raise ValueError(f"no generator for suite {suite!r}; suites with one: {', '.join(SUITES)}")
+    t0 = time.perf_counter()
+    manifest = generate_suite(
+        SUITES[suite], data_root, recordings=recordings, workers=workers, progress=progress
+    )
+    wall = time.perf_counter() - t0
+    text = dump_manifest(manifest)
+    if suite not in suite_names():
+        return Regenerated(manifest, text, wall, None, None)
+    shipped = load_suite(suite).manifest
+    if recordings:
+        same = manifest_entries(shipped, recordings) == manifest_entries(manifest, recordings)
+        what = f"the shipped entries of {len(set(recordings))} recording(s)"
+    else:
+        same, what = text == dump_manifest(shipped), "the shipped manifest"
+    return Regenerated(manifest, text, wall, what, same)

@@ -93,6 +93,46 @@ def _kth(scores: np.ndarray, n: int, b_n: int, k: int, buf: np.ndarray) -> float
 
 
 @jit
+def _nearest_candidates(
+    pts: np.ndarray,
+    m: int,
+    lox: float,
+    hix: float,
+    loy: float,
+    hiy: float,
+    tol: float,
+    keep: np.ndarray,
+) -> int:
+    """The points ``pts[:m]`` that can be the nearest of some candidate in the box
+    ``[lox, hix] x [loy, hiy]``, their indices written into ``keep`` (ascending); returns
+    how many. A point whose squared distance from the box exceeds, by ``tol``, the least
+    squared distance from any point to the box's farthest corner is farther than that point
+    from every candidate: never the minimum (the bound and its rounding margin: the MPC
+    evaluation's cut, ``families/mpc/kernels.py``, ``_kept_agents``). With ``tol`` not
+    finite, every point."""
+    top = np.inf
+    for j in range(m):
+        x = pts[j, 0]
+        y = pts[j, 1]
+        fx = max(hix - x, x - lox)
+        fy = max(hiy - y, y - loy)
+        u = fx * fx + fy * fy
+        if u < top:
+            top = u
+    k = 0
+    for j in range(m):
+        x = pts[j, 0]
+        y = pts[j, 1]
+        gx = max(0.0, lox - x, x - hix)
+        gy = max(0.0, loy - y, y - hiy)
+        if gx * gx + gy * gy > top + tol:
+            continue
+        keep[k] = j
+        k += 1
+    return k
+
+
+@jit
 def _quantiles(
     pos: np.ndarray,
     cal_pred: np.ndarray,
@@ -100,11 +140,14 @@ def _quantiles(
     cal_n: np.ndarray,
     cal_b: np.ndarray,
     lam: float,
+    cut: bool,
 ) -> np.ndarray:
     # For each (step, calibration time, pedestrian) the candidates are the inner loop: the
     # nearest distances kept per candidate by selects rather than branches, so the loop
     # compiles to vector instructions (the same numbers as one candidate at a time: the
-    # same squared distances, their minimum, one square root each).
+    # same squared distances, their minimum, one square root each). ``cut``: each nearest
+    # distance is taken over the pedestrians that can be the nearest of some candidate of
+    # the step (a minimum selects: the same numbers, see _nearest_candidates).
     n_plans, horizon = pos.shape[0], pos.shape[1]
     out = np.empty((n_plans, horizon))
     scores = np.empty((max(cal_pred.shape[1], 1), n_plans))
@@ -113,6 +156,8 @@ def _quantiles(
     dp = np.empty(n_plans)
     do = np.empty(n_plans)
     buf = np.empty(max(cal_pred.shape[1], 1))
+    kp = np.empty(cal_pred.shape[2], dtype=np.int64)
+    ko = np.empty(cal_pred.shape[2], dtype=np.int64)
     for h in range(horizon):
         b_n = cal_b[h]
         if lam >= 1.0:
@@ -122,26 +167,41 @@ def _quantiles(
         if lam <= 0.0 or b_n == 0 or k > b_n:
             out[:, h] = np.inf
             continue
+        lox, hix, loy, hiy = np.inf, -np.inf, np.inf, -np.inf
         for n in range(n_plans):
             px[n] = pos[n, h, 0]
             py[n] = pos[n, h, 1]
+            lox, hix = min(lox, px[n]), max(hix, px[n])
+            loy, hiy = min(loy, py[n]), max(hiy, py[n])
+        big = max(abs(lox), abs(hix), abs(loy), abs(hiy))
         for b in range(b_n):
             m = cal_n[h, b]
             if m == 0:
                 scores[b, :] = 0.0
                 continue
+            scale = big
+            for j in range(m):
+                scale = max(scale, abs(cal_pred[h, b, j, 0]), abs(cal_pred[h, b, j, 1]))
+                scale = max(scale, abs(cal_obs[h, b, j, 0]), abs(cal_obs[h, b, j, 1]))
+            # the kernels' rounding margin (CUT_MARGIN (1 + S^2), twice); nothing cut
+            # without ``cut`` or with a non-finite coordinate
+            tol = 2e-9 * (1.0 + scale * scale) if cut and n_plans > 0 else np.inf
+            mp = _nearest_candidates(cal_pred[h, b], m, lox, hix, loy, hiy, tol, kp)
+            mo = _nearest_candidates(cal_obs[h, b], m, lox, hix, loy, hiy, tol, ko)
             dp[:] = np.inf
             do[:] = np.inf
-            for j in range(m):
-                qx = cal_pred[h, b, j, 0]
-                qy = cal_pred[h, b, j, 1]
-                ox = cal_obs[h, b, j, 0]
-                oy = cal_obs[h, b, j, 1]
+            for i in range(mp):
+                qx = cal_pred[h, b, kp[i], 0]
+                qy = cal_pred[h, b, kp[i], 1]
                 for n in range(n_plans):
                     ax = px[n] - qx
                     ay = py[n] - qy
                     e = ax * ax + ay * ay
                     dp[n] = e if e < dp[n] else dp[n]
+            for i in range(mo):
+                ox = cal_obs[h, b, ko[i], 0]
+                oy = cal_obs[h, b, ko[i], 1]
+                for n in range(n_plans):
                     ax = px[n] - ox
                     ay = py[n] - oy
                     e = ax * ax + ay * ay
@@ -162,6 +222,8 @@ def egocentric_quantiles(
     cal_n: np.ndarray,
     cal_b: np.ndarray,
     lam: float,
+    *,
+    cut: bool = True,
 ) -> np.ndarray:
     """Egocentric conformal quantile of every candidate position, shape (N, H) (m;
     ``inf``: unbounded region, ``-inf``: empty).
@@ -179,6 +241,10 @@ def egocentric_quantiles(
         Calibration times available per step.
     lam : float
         Miscoverage level.
+    cut : bool
+        Take each nearest distance over the pedestrians that can be the nearest of some
+        candidate of the step only (the same numbers, bit for bit; see
+        :func:`_nearest_candidates`); False: over all of them (the reference).
     """
     out: np.ndarray = _quantiles(
         np.ascontiguousarray(pos, dtype=np.float64),
@@ -187,6 +253,7 @@ def egocentric_quantiles(
         np.ascontiguousarray(cal_n, dtype=np.int64),
         np.ascontiguousarray(cal_b, dtype=np.int64),
         float(lam),
+        bool(cut),
     )
     return out
 

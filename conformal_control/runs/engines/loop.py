@@ -4,8 +4,8 @@ it, one chain of Python calls per control instant, for any configuration."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Generator
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from ...core.spec import RunSpec
     from ..build import Flagship
 
-__all__ = ["run_loop"]
+__all__ = ["loop_steps", "run_loop"]
 
 
 def run_loop(
@@ -50,12 +50,51 @@ def run_loop(
     extra_config : dict, optional
         Merged into the configuration (``config.json``).
     """
+    steps = loop_steps(fl, run, on_interval=on_interval, extra_config=extra_config, pause=False)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return cast(EpisodeResult, done.value)
+
+
+def loop_steps(
+    fl: Flagship,
+    run: RunSpec,
+    *,
+    on_interval: Callable[[IntervalLog], None] | None = None,
+    extra_config: dict[str, Any] | None = None,
+    pause: Callable[[Any], bool] | bool = False,
+) -> Generator[tuple[Any, Any, Any], float, EpisodeResult]:
+    """:func:`run_loop` as a generator, so that several episodes can advance together (the
+    lockstep MPC runs of :mod:`~conformal_control.runs.engines.mpc_batch`): before a control
+    instant at which ``pause(family)`` is true (``pause=True``: every instant) it yields
+    ``(family, state, lam)`` -- the state and lambda the family then decides with -- and
+    receives the seconds of work done for it meanwhile (its share of a joint plan, counted
+    in its ``wall_s``); it returns what :func:`run_loop` returns. The loop is
+    :meth:`ConformalLoop.run <conformal_control.core.loop.ConformalLoop.run>`'s, one call at a
+    time.
+
+    Parameters
+    ----------
+    fl : Flagship
+        The wired episode.
+    run : RunSpec
+        Its specification.
+    on_interval : callable, optional
+        Called with each scored interval.
+    extra_config : dict, optional
+        Merged into the configuration.
+    pause : callable or bool
+        Whether to yield before the family decides (called with the family).
+    """
     learn, max_frames = run.learn, run.max_frames
     scene = fl.scene  # the copy carrying the resolved radii, v_max and goal radius
     si = fl.params.si
     lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
     floor = feasibility(fl)
-    warn_before_run(fl, floor, learn)
+    # the warnings point at run_episode's caller: run_loop and this generator in between
+    warn_before_run(fl, floor, learn, stacklevel=5)
 
     recorder = None
     if run.record_animation:
@@ -75,6 +114,7 @@ def run_loop(
         if on_interval is not None:
             on_interval(log)
 
+    wants = pause if callable(pause) else (lambda _family: bool(pause))
     t0 = time.perf_counter()
     loop = ConformalLoop(
         fl.env,
@@ -87,12 +127,30 @@ def run_loop(
         on_interval=hooks,
         lambda_per=si["lambda_per"],
         lambda_prior=si["lambda_prior"],
+        lambda_floor_row=si["lambda_floor_row"],
     )
-    result = loop.run()
-    wall = time.perf_counter() - t0
+    # ConformalLoop.run, one control instant at a time
+    env, family, away = loop.env, loop.family, 0.0
+    env.reset()
+    loop.start()
+    while not env.done:
+        loop.begin_interval(env.sense())
+        for _ in range(env.control_instants()):
+            state = env.state()
+            if wants(family):
+                lams = loop.lams
+                t1 = time.perf_counter()
+                share = yield family, state, (loop.lam if lams is None else lams)
+                away += time.perf_counter() - t1 - share
+            env.apply(loop.decide(state))
+            if env.done:
+                break
+        loop.end_interval(env.reveal())
+    result = loop.result()
+    wall = time.perf_counter() - t0 - away
 
     metrics, intervals, traj = measure(fl, result, learn, lambda_safe, floor, wall)
-    warn_after_run(fl, metrics, learn, max_frames)
+    warn_after_run(fl, metrics, learn, max_frames, stacklevel=5)
     config = episode_config(fl, run, lambda_safe)
     config["feasibility"] = jsonable(floor.as_dict())
     config.update(extra_config or {})

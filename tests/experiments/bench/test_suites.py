@@ -23,6 +23,8 @@ from conformal_control.experiments.bench.generator import (
     CROSSINGS_V1,
     assign_splits,
     generate_suite,
+    manifest_entries,
+    regenerate_suite,
 )
 from conformal_control.runs.episode import run_episode
 
@@ -132,9 +134,26 @@ def _entries(manifest: dict, recordings: list[str], drop_nolearn: bool = False) 
 
 
 def test_regeneration_reproduces_the_shipped_entries_byte_for_byte(suite, data_root) -> None:
-    regenerated = generate_suite(CROSSINGS_V1, data_root, recordings=REGENERATED)
+    # what `bench scenarios --regenerate --recording ...` prints comes from regenerate_suite
+    lines: list[str] = []
+    done = regenerate_suite(
+        "crossings-v1", data_root, recordings=REGENERATED, progress=lines.append
+    )
+    regenerated = done.manifest
     assert regenerated["scenarios"], "the regenerated recordings must have scenarios"
     assert _entries(regenerated, REGENERATED) == _entries(suite.manifest, REGENERATED)
+    assert (done.same, done.compared) == (True, "the shipped entries of 2 recording(s)")
+    assert len(lines) == 3 and done.n_scenarios == len(regenerated["scenarios"])
+    assert done.n_collisions == sum(
+        int(s.collided_nolearn) for s in suite.scenarios if s.recording in REGENERATED
+    )
+    # one changed scenario is a difference, for the recordings' entries
+    changed = copy.deepcopy(regenerated)
+    changed["scenarios"][0]["max_frames"] += 1
+    assert manifest_entries(changed, REGENERATED) != manifest_entries(suite.manifest, REGENERATED)
+    assert manifest_entries(regenerated, REGENERATED) == manifest_entries(
+        suite.manifest, REGENERATED
+    )
     header = {k: v for k, v in regenerated.items() if k not in ("recordings", "scenarios")}
     shipped = {k: v for k, v in suite.manifest.items() if k not in ("recordings", "scenarios")}
     assert dump_manifest(header) == dump_manifest(shipped)
@@ -329,3 +348,23 @@ def test_the_docs_suite_tables_are_the_manifests(name) -> None:
                 ]
             )
     assert [[r[0], r[1], r[3], r[4], r[5]] for r in table] == expect
+
+
+def test_a_suite_without_a_generator_is_refused_before_any_work() -> None:
+    with pytest.raises(ValueError, match="no generator for suite 'fcp-planar'"):
+        regenerate_suite("fcp-planar")
+
+
+def test_the_scenario_table_and_its_summary_per_split(suite) -> None:
+    rows = suite.table("test")
+    assert [r["id"] for r in rows] == [s.id for s in suite.scenarios_for("test")]
+    first = suite.scenarios_for("test")[0]
+    assert rows[0]["density"] == first.stats.get("corridor_density")
+    assert rows[0]["nolearn_collide"] == first.nolearn["n_collide"]
+    by_split = suite.summary("test")
+    assert {r["split"] for r in by_split} == {"test"}
+    assert sum(r["scenarios"] for r in by_split) == len(rows)
+    assert sum(r["nolearn_collision"] for r in by_split) == sum(
+        int(bool(s.collided_nolearn)) for s in suite.scenarios_for("test")
+    )
+    assert suite.summary() == suite.summary(None) and len(suite.summary()) > len(by_split)

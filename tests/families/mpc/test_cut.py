@@ -93,3 +93,48 @@ def test_the_cut_skips_the_agents_no_candidate_can_reach() -> None:
     edge = np.array([[near[0], hi[0] + corner * 0.999]] * h)
     two = (pos, p0, edge, ey[:, :2], edge.copy(), ey[:, :2].copy(), True, 0, n, 0, 2, True)
     assert kernels._kept_agents(*two)[4][0] == 2
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 30),
+    h=st.integers(1, 5),
+    m=st.integers(1, 12),
+    spread=st.sampled_from([1.0, 10.0, 40.0]),
+    shift=st.sampled_from([0.0, 1e4]),
+    lattice=st.booleans(),
+)
+def test_the_egocentric_quantiles_cut_gives_the_uncut_numbers_bit_for_bit(
+    seed: int, n: int, h: int, m: int, spread: float, shift: float, lattice: bool
+) -> None:
+    """ecp_mpc's regions: each score's two nearest distances over the pedestrians that can
+    be a candidate's nearest (a near crowd and a far one, ties on a lattice)."""
+    from conformal_control.families.mpc.ecp import egocentric_quantiles
+
+    rng = np.random.default_rng(seed)
+    b_max = int(rng.integers(1, 16))
+    pos = rng.normal(0.0, 1.5, (n, h, 2)) * np.arange(1, h + 1)[None, :, None]
+    cal_pred = rng.uniform(-spread, spread, (h, b_max, m, 2))
+    cal_obs = cal_pred + rng.normal(0.0, 0.5, (h, b_max, m, 2))
+    if lattice:
+        pos, cal_pred, cal_obs = np.round(pos), np.round(cal_pred), np.round(cal_obs)
+    pos, cal_pred, cal_obs = pos + shift, cal_pred + shift, cal_obs + shift
+    cal_n = rng.integers(0, m + 1, (h, b_max))
+    cal_b = rng.integers(0, b_max + 1, h)
+    for lam in (0.05, 0.1, 0.3, 0.9):
+        args = (pos, cal_pred, cal_obs, cal_n, cal_b, lam)
+        got = egocentric_quantiles(*args, cut=True)
+        assert got.tobytes() == egocentric_quantiles(*args, cut=False).tobytes(), lam
+
+
+def test_the_egocentric_cut_skips_far_pedestrians() -> None:
+    from conformal_control.families.mpc.ecp import _nearest_candidates
+
+    pts = np.array([[0.5, 0.0], [100.0, 0.0], [0.0, 2.5], [0.0, 3.0], [-1.0, -1.0]])
+    keep = np.empty(5, dtype=np.int64)
+    k = _nearest_candidates(pts, 5, -1.0, 1.0, -1.0, 1.0, 1e-9, keep)
+    # every candidate is within 1.80 m of the first (its farthest corner), at least 2 m
+    # from (0, 3) and 99 m from (100, 0): never the nearest; (0, 2.5) may be
+    assert keep[:k].tolist() == [0, 2, 4]
+    assert _nearest_candidates(pts, 5, -1.0, 1.0, -1.0, 1.0, np.inf, keep) == 5

@@ -172,7 +172,7 @@ def test_pool_runs_while_the_batch_runs(monkeypatch, tmp_path):
     )
     monkeypatch.setattr("conformal_control.experiments.worker.load_run_scene", lambda cfg: _Scene())
     batched = SweepRun.from_settings("crossing", seed=0, record_animation=False)
-    pooled = SweepRun.from_settings("crossing", seed=1, family="mpc")
+    pooled = SweepRun.from_settings("crossing", seed=1, barrier="distance_squared")
     tasks = [(batched, "b0", str(tmp_path), "none"), (pooled, "p0", str(tmp_path), "none")]
     assert batch_reason(batched, "none") is None and batch_reason(pooled, "none") is not None
     records = dict(sweep_batch.run_batched(FakePool(), tasks))
