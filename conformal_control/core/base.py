@@ -607,6 +607,14 @@ class DecisionFamily(Plugin, ABC, Generic[ObsT, StateT, DecisionT, RecordT]):
         (int64). None (the default): the family takes one lambda only."""
         return None
 
+    def lambda_floors(self) -> np.ndarray | None:
+        """Per key of :meth:`lambda_keys`, the lowest lambda at which that key's part of
+        the decision stayed satisfiable over the interval just decided (valid between the
+        interval's last :meth:`decide` and the next :meth:`begin_interval`): what a
+        per-agent floor that binds only where it must reads (the loop's
+        ``lambda_floor_row``). None (the default): the family does not say."""
+        return None
+
     @abstractmethod
     def interval_record(self) -> RecordT:
         """Everything the loss needs about the decisions of the current interval."""

@@ -215,6 +215,7 @@ def close_agent_interval(
     truth: Any = None,
     components: KeyedLosses | None = None,
     diagnostics: dict[str, float] | None = None,
+    floors: np.ndarray | None = None,
 ) -> tuple[IntervalLog, float]:
     """:func:`close_interval` with lambda run per agent: score interval ``k`` agent by
     agent and update each scored agent's entry from its own loss.
@@ -237,6 +238,9 @@ def close_agent_interval(
         The interval's losses per agent, computed by the caller.
     diagnostics : dict, optional
         The loss's diagnostics, computed by the caller.
+    floors : ndarray of shape (n,), optional
+        The agents' own feasibility floors of the interval, in ``keys``' order (the
+        family's ``lambda_floors()``; read by a monitor with ``row_floor``).
 
     Returns
     -------
@@ -276,7 +280,13 @@ def close_agent_interval(
         lams=np.array(lams, dtype=float),
         agent_losses=per,
     )
-    monitor.update(components.keys, values, components.at)
+    own = None
+    if floors is not None:  # the scored keys' floors (components may leave keys out)
+        fl = np.asarray(floors, dtype=float).ravel()
+        if fl.shape != (len(keys),):
+            raise ValueError(f"{fl.size} floors for the interval's {len(keys)} agents")
+        own = np.array([fl[where[int(key)]] for key in np.asarray(components.keys).tolist()])
+    monitor.update(components.keys, values, components.at, floors=own)
     if l_k is not None:
         log.l_avg = monitor.average
     return log, monitor.prior_value()
@@ -345,6 +355,10 @@ class ConformalStepper:
         :class:`~conformal_control.core.monitor.AgentMonitor`.
     lambda_prior : float
         Per agent: the quantile in [0, 1] of the current lambdas a new agent starts at.
+    lambda_floor_row : float
+        Per agent: the share in [0, 1] of each agent's own feasibility floor (the
+        family's ``lambda_floors()``) that may replace the rule's ``lambda_min`` for it
+        (:class:`~conformal_control.core.monitor.AgentMonitor`'s ``row_floor``); 0: off.
     """
 
     @_policy_is_family
@@ -361,6 +375,7 @@ class ConformalStepper:
         on_interval: Callable[[IntervalLog], None] | None = None,
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
+        lambda_floor_row: float = 0.0,
     ) -> None:
         self.family = family
         self.loss = loss
@@ -372,6 +387,7 @@ class ConformalStepper:
         self.on_interval = on_interval
         self.lambda_per = lambda_per
         self.lambda_prior = lambda_prior
+        self.lambda_floor_row = lambda_floor_row
 
     @property
     def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
@@ -401,7 +417,11 @@ class ConformalStepper:
             premise_proven=self.lambda_safe_proven,
             bounds=self.loss.bounds,
             learn=self.learn,
-            **({"prior": self.lambda_prior} if self._vector else {}),
+            **(
+                {"prior": self.lambda_prior, "row_floor": self.lambda_floor_row}
+                if self._vector
+                else {}
+            ),
         )
         self.lam_ = self.monitor_.lambda_1
         self._keys = np.zeros(0, dtype=np.int64)
@@ -478,6 +498,7 @@ class ConformalStepper:
                 loss=self.loss,
                 record=self.family.interval_record(),
                 truth=truth,
+                floors=self.family.lambda_floors() if self.monitor_.row_floor > 0 else None,
             )
         else:
             log, self.lam_ = close_interval(
@@ -534,6 +555,9 @@ class ConformalLoop(ConformalStepper):
         One lambda for the run, or one per agent (see :class:`ConformalStepper`).
     lambda_prior : float
         Per agent: the quantile of the current lambdas a new agent starts at.
+    lambda_floor_row : float
+        Per agent: the share of each agent's own feasibility floor that may replace
+        ``lambda_min`` for it (see :class:`ConformalStepper`).
     """
 
     @_policy_is_family
@@ -551,6 +575,7 @@ class ConformalLoop(ConformalStepper):
         on_interval: Callable[[IntervalLog], None] | None = None,
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
+        lambda_floor_row: float = 0.0,
     ) -> None:
         super().__init__(
             family,
@@ -563,6 +588,7 @@ class ConformalLoop(ConformalStepper):
             on_interval=on_interval,
             lambda_per=lambda_per,
             lambda_prior=lambda_prior,
+            lambda_floor_row=lambda_floor_row,
         )
         self.env = env
 

@@ -428,6 +428,13 @@ class AgentMonitor:
         False keeps every entry at its start (losses are still recorded).
     min_intervals : int
         Agents with at least this many losses are checked one by one (``summary``).
+    row_floor : float
+        Share in [0, 1] of each agent's own feasibility floor (the ``floors`` given to
+        :meth:`update`) that may replace the rule's ``lambda_min`` for that agent: agent
+        j's floor at an update is ``min(lambda_min, row_floor * floor_j)``, so lambda_j
+        may go below the run's floor down to where its own row stops being satisfiable,
+        and the run's floor binds only where a lower lambda_j would make that row
+        infeasible. 0 (the default): the rule's ``lambda_min`` for every agent.
     """
 
     rule: UpdateRule
@@ -438,6 +445,7 @@ class AgentMonitor:
     bounds: tuple[float, float] = (-0.5, 0.5)
     learn: bool = True
     min_intervals: int = 10
+    row_floor: float = 0.0
     entries: dict[int, GuaranteeMonitor] = field(default_factory=dict)
     #: (interval, key, loss) of every update, in order (the pooled running average);
     #: the interval counts the calls of :meth:`update` from 0.
@@ -448,11 +456,23 @@ class AgentMonitor:
     #: (``at``): per key, [losses re-evaluated at ``lambda_safe``, of those above epsilon]
     #: -- Theorem 2's premise checked at every interval, whatever lambda the agent had.
     safe_checks: dict[int, list[int]] = field(default_factory=dict)
+    #: With ``row_floor``: updates whose agent's floor went below the rule's lambda_min
+    #: (its own row allowed it), and of those, updates that ended at that lower floor.
+    n_floor_lowered: int = 0
+    n_floor_bound: int = 0
 
     def __post_init__(self) -> None:
         q = self.prior
         if isinstance(q, bool) or not isinstance(q, (int, float)) or not 0.0 <= q <= 1.0:
             raise ValueError(f"lambda_prior must be a quantile in [0, 1], got {q!r}")
+        r = self.row_floor
+        if (
+            isinstance(r, bool)
+            or not isinstance(r, (int, float))
+            or not math.isfinite(r)
+            or not 0.0 <= r <= 1.0
+        ):
+            raise ValueError(f"lambda_floor_row must be a share in [0, 1], got {r!r}")
         if int(self.min_intervals) != self.min_intervals or self.min_intervals < 1:
             raise ValueError(f"min_intervals must be an integer >= 1, got {self.min_intervals!r}")
         if "lambda_init" not in self.rule.get_params():
@@ -464,6 +484,8 @@ class AgentMonitor:
             self.lambda_safe_source = "given"
         self.lambda_1 = float(self.rule.reset())  # validates the rule's parameters
         self.epsilon = float(self.rule.epsilon)
+        #: the rule's own floor (each agent's, unless its row allows a lower one)
+        self.lambda_min = float(self.rule.lambda_min)
         self.kind: GuaranteeKind = self.rule.capabilities.guarantee if self.learn else "none"
         self.eta = self.rule.step if self.learn else None
 
@@ -478,6 +500,7 @@ class AgentMonitor:
         premise_proven: bool = False,
         bounds: tuple[float, float] = (-0.5, 0.5),
         learn: bool = True,
+        row_floor: float = 0.0,
     ) -> AgentMonitor:
         """A per-agent monitor for ``rule`` (which it resets); the arguments of
         :meth:`GuaranteeMonitor.for_rule`, and the ``prior`` of a new agent.
@@ -498,6 +521,8 @@ class AgentMonitor:
             The loss's range.
         learn : bool
             False keeps every entry at its start.
+        row_floor : float
+            Share of each agent's own feasibility floor that may replace ``lambda_min``.
         """
         return cls(
             rule,
@@ -507,6 +532,7 @@ class AgentMonitor:
             premise_proven=premise_proven,
             bounds=bounds,
             learn=learn,
+            row_floor=row_floor,
         )
 
     # -- entries ------------------------------------------------------------------------
@@ -516,11 +542,13 @@ class AgentMonitor:
 
     def prior_value(self) -> float:
         """The lambda a new agent starts at now: the ``prior`` quantile of :meth:`current`
-        (lambda_1 while no agent has been seen)."""
+        (lambda_1 while no agent has been seen), at least the rule's ``lambda_min`` (with
+        ``row_floor`` other agents' entries can be below it; a new agent's own row is not
+        known yet)."""
         lams = self.current()
         if not lams.size:
             return self.lambda_1
-        return float(np.quantile(lams, self.prior))
+        return max(float(np.quantile(lams, self.prior)), self.lambda_min)
 
     @property
     def lam(self) -> float:
@@ -557,24 +585,50 @@ class AgentMonitor:
         keys: Sequence[int] | np.ndarray,
         losses: Sequence[float] | np.ndarray,
         at: Callable[[int, float], float | None] | None = None,
+        floors: Sequence[float] | np.ndarray | None = None,
     ) -> None:
         """Feed each key its loss (NaN: none this interval, no update) and update its entry.
 
         ``at(i, lam)`` re-evaluates key ``i``'s loss at another lambda (rules with
         ``uses_loss_function``; and, with ``lambda_safe``, the premise's check at every
-        interval, :attr:`safe_checks`). A key must have been given an entry by
-        :meth:`values`.
+        interval, :attr:`safe_checks`). ``floors`` (one per key, NaN: none) are the keys'
+        own feasibility floors of the interval (the family's ``lambda_floors``), read
+        with ``row_floor`` > 0: key i's update is clipped at ``min(lambda_min, row_floor
+        * floors[i])``. A key must have been given an entry by :meth:`values`.
+
+        Parameters
+        ----------
+        keys : sequence of int
+            The agents scored this interval.
+        losses : sequence of float
+            Their losses (NaN: none).
+        at : callable, optional
+            ``at(i, lam)``: key i's loss at another lambda.
+        floors : sequence of float, optional
+            The keys' own feasibility floors of the interval (1/s; NaN: none).
         """
         keys = np.asarray(keys).ravel()
         losses = np.asarray(losses, dtype=float).ravel()
         if keys.shape != losses.shape:
             raise ValueError(f"{keys.size} keys but {losses.size} losses")
+        own: np.ndarray | None = None
+        if floors is not None and self.row_floor > 0.0:
+            own = np.asarray(floors, dtype=float).ravel()
+            if own.shape != keys.shape:
+                raise ValueError(f"{keys.size} keys but {own.size} floors")
         for i, (key, loss) in enumerate(zip(keys.tolist(), losses.tolist(), strict=True)):
             if not math.isfinite(loss):
                 continue
             mon = self.entries.get(int(key))
             if mon is None:
                 raise KeyError(f"agent {key} was scored but has no lambda entry (see values())")
+            lowered = math.nan
+            if self.row_floor > 0.0 and mon.rule is not None:
+                floor = self.lambda_min
+                if own is not None and math.isfinite(own[i]) and self.row_floor * own[i] < floor:
+                    floor = lowered = float(self.row_floor * own[i])
+                    self.n_floor_lowered += 1
+                mon.rule.lambda_min = floor  # this agent's floor for this update only
             if self.lambda_safe is not None and at is not None:
                 at_safe = at(i, self.lambda_safe)
                 if at_safe is not None and math.isfinite(at_safe):
@@ -585,6 +639,8 @@ class AgentMonitor:
                 if mon.rule is not None and mon.rule.capabilities.uses_loss_function:
                     mon.rule.set_loss_function(None if at is None else functools.partial(at, i))
                 mon.update(loss)
+                if mon.lam == lowered:
+                    self.n_floor_bound += 1
             else:
                 mon.observe(loss, mon.lam)
                 mon.set_lambda_next(mon.lam)

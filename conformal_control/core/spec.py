@@ -185,6 +185,13 @@ class Parameters:
         low=0.0,
         high=1.0,
     )
+    lambda_floor_row: float = _p(
+        0.0,
+        "per agent: share in [0, 1] of each agent's own row feasibility floor that may "
+        "replace lambda_min for it (0: off)",
+        low=0.0,
+        high=1.0,
+    )
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )

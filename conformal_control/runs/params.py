@@ -414,6 +414,13 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
     q = merged["lambda_prior"]
     if not (isinstance(q, (int, float)) and 0.0 <= q <= 1.0):
         raise InputError(f"parameter lambda_prior must be a quantile in [0, 1], got {q!r}")
+    r = merged["lambda_floor_row"]
+    if not (isinstance(r, (int, float)) and 0.0 <= r <= 1.0):
+        raise InputError(f"parameter lambda_floor_row must be a share in [0, 1], got {r!r}")
+    if r and merged["lambda_per"] != "agent":
+        raise InputError(
+            f"parameter lambda_floor_row={r!r} needs lambda_per='agent' (a floor per agent's row)"
+        )
     dims = {k: scene.units.unit_of(k) for k in PARAM_DIMENSIONS}
     return ResolvedParams(
         given=dict(given),

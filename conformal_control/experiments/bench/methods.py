@@ -20,6 +20,7 @@ them with their settings and tuning grids):
 ``conformal_aci``  ACI's rule on the collision loss (target: a collision rate per interval)
 ``conformal_agent`` a lambda per pedestrian, each its own fixed-eta rule on its own gap loss
 ``conformal_agent_dtaci`` a lambda per pedestrian, each its own DtACI experts
+``conformal_agent_shortfall`` the same on the shortfall loss (a big miss moves lambda more)
 ``conformal_dtaci_floor`` DtACI experts with a lambda floor (the floor tuned)
 ``oracle``         the true future as prediction, lambda = 0 (the paper's gt/noLearn)
 ``inflated``       a robust CBF: d_c inflated by a fixed margin in the barrier, lambda = 0
@@ -376,6 +377,21 @@ _DECLARED: tuple[Family, ...] = (
         params={"lambda_per": "agent", "lambda_min": AGENT_FLOOR},
         rule="dtaci",
         rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+        options=AGENT_SAFE,
+    ),
+    Family(
+        "conformal_agent_shortfall",
+        "a lambda per pedestrian, each its own DtACI experts on its own shortfall loss (a big "
+        "miss moves lambda by more than one step), floored at -30/s",
+        setting="params.epsilon",
+        label="eps={:g}",
+        meaning="epsilon (each pedestrian's target)",
+        settings=(-0.05,),
+        tune=(-0.2, -0.1, -0.05, 0.0),
+        params={"lambda_per": "agent", "lambda_min": AGENT_FLOOR},
+        rule="dtaci",
+        rule_params={"gammas": DTACI_GAMMAS, "sigma": 0.01},
+        roles={"loss": "cbf_shortfall"},
         options=AGENT_SAFE,
     ),
     Family(

@@ -7,7 +7,7 @@ from .dynamics import DoubleIntegrator, VelocityTrackingDoubleIntegrator
 from .fallbacks import Brake, Hold, LambdaSearch, Relax
 from .feasibility import FeasibilityFloor, feasibility_floor
 from .filters import Exact2DSafetyFilter, QPSafetyFilter, VelocityFilter
-from .loss import CBFGapLoss, CBFTruth
+from .loss import CBFGapLoss, CBFShortfallLoss, CBFTruth
 from .reference import AttractiveField
 from .roles import (
     Barrier,
@@ -27,6 +27,7 @@ __all__ = [
     "Brake",
     "CBFGapLoss",
     "CBFIntervalRecord",
+    "CBFShortfallLoss",
     "CBFTruth",
     "ConformalCBFController",
     "ConformalConstraint",

@@ -15,6 +15,7 @@ from ...predictors.base import Forecast, PredictionQuery, Predictor
 from .barriers import APFBarrier, APFForm
 from .constraint import ConformalConstraint
 from .dynamics import VelocityTrackingDoubleIntegrator
+from .feasibility import robot_speed_bound, row_floors
 from .filters.base import VelocityFilter
 from .filters.exact2d import Exact2DSafetyFilter
 from .interp import forward_fill, interpolate_at_substeps
@@ -483,6 +484,20 @@ class ConformalCBFController(
         ):
             return None
         return self._query_ids
+
+    def lambda_floors(self) -> np.ndarray | None:
+        """Each sensed agent's own feasibility floor over the interval just decided
+        (:func:`~conformal_control.families.cbf.feasibility.row_floors` on
+        :meth:`interval_record`, with the radius of the safety filter's speed set), in
+        :meth:`lambda_keys`' order; None when :meth:`lambda_keys` is None or the filter
+        declares no ``v_max``."""
+        if self.lambda_keys() is None:
+            return None
+        v_max = getattr(self.safety_filter, "v_max", None)
+        if not isinstance(v_max, (int, float)):
+            return None
+        sides = int(getattr(self.safety_filter, "speed_sides", 16))
+        return row_floors(self.constraint, self.interval_record(), robot_speed_bound(v_max, sides))
 
     def _per_agent(self, lam: np.ndarray) -> tuple[float, np.ndarray]:
         """lambda per agent as (the smallest entry, each row's offset above it): row j's

@@ -17,8 +17,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-__all__ = ["DEFAULT_FLOOR_SHARE", "FeasibilityFloor", "default_lambda_min", "feasibility_floor"]
+import numpy as np
+
+if TYPE_CHECKING:  # (annotations only: the constraint and the record import nothing from here)
+    from .constraint import ConformalConstraint
+    from .records import CBFIntervalRecord
+
+__all__ = [
+    "DEFAULT_FLOOR_SHARE",
+    "FeasibilityFloor",
+    "default_lambda_min",
+    "feasibility_floor",
+    "robot_speed_bound",
+    "row_floors",
+]
 
 #: The CBF family's default ``lambda_min`` as a share of the feasibility floor
 #: ``-a h_max``: lambda never sinks to where a far agent's row fails and the fallback
@@ -89,3 +103,70 @@ def default_lambda_min(a: float, h_max: float | None) -> float:
     if h_max is None or not math.isfinite(h_max):
         return -math.inf
     return -DEFAULT_FLOOR_SHARE * a * h_max
+
+
+def robot_speed_bound(v_max: float, speed_sides: int) -> float:
+    """The radius of the robot's speed set (m/s): ``v_max`` for the polygon inscribed in
+    the disc of radius ``v_max`` (``speed_sides >= 3``), ``sqrt(2) v_max`` for the box
+    (``speed_sides = 0``).
+
+    Parameters
+    ----------
+    v_max : float
+        The speed bound of the safety filter (m/s).
+    speed_sides : int
+        Its polygon's sides (0: the box).
+    """
+    return float(v_max) if int(speed_sides) else math.sqrt(2.0) * float(v_max)
+
+
+def row_floors(
+    constraint: ConformalConstraint, record: CBFIntervalRecord, robot_speed: float
+) -> np.ndarray:
+    """Each agent's own feasibility floor over an interval: the lowest lambda_j at which
+    its row stayed satisfiable at every control instant of it (1/s, one per
+    ``record.ids``; NaN for an agent with no finite row).
+
+    Agent j's row at instant t is ``A_j(t) . v + b_j(t) + lambda_j >= 0`` with A_j =
+    dh^/dx_ego and b_j = dh^/dx_j . v^_j + a h^ (:meth:`ConformalConstraint.rows`, on the
+    prediction the robot decided with). Over the speed set (radius ``robot_speed`` = V) the
+    largest ``A_j . v`` is at most ``V |A_j|``, so the row has a solution only if
+    ``lambda_j >= -(b_j(t) + V |A_j(t)|)``; the floor is the largest of these over the
+    interval's instants (the row satisfiable at every one of them). A far agent (no
+    gradient, h^ = h_max) has the global feasibility floor ``-a h_max``
+    (:func:`feasibility_floor`); an agent predicted close has a higher one. With V the
+    radius of the set the floor is a necessary condition (a polygon's largest ``A . v``
+    can be up to ``1 - cos(pi / sides)`` below ``V |A|``); it ignores the other rows
+    (the joint problem can be infeasible above every row's own floor).
+
+    Parameters
+    ----------
+    constraint : ConformalConstraint
+        The run's constraint (the controller's).
+    record : CBFIntervalRecord
+        The interval's record (the robot's positions and the predictions per instant).
+    robot_speed : float
+        The radius of the robot's speed set (m/s, :func:`robot_speed_bound`).
+
+    Raises
+    ------
+    ValueError
+        If ``robot_speed`` is not a finite number >= 0 (one line).
+    """
+    v = float(robot_speed)
+    if not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(f"robot_speed must be a finite number of m/s >= 0, got {robot_speed!r}")
+    s, n = record.n_steps, record.ids.size
+    if s == 0 or n == 0:
+        return np.full(n, np.nan)
+    x_ego = np.asarray(record.x_ego, dtype=float)[:s, None, :]
+    h, dh_dego, dh_dagent = constraint.barrier.evaluate(x_ego, record.x_pred[:s])
+    b = (dh_dagent * record.v_pred[:s]).sum(-1) + constraint.a * h
+    with np.errstate(invalid="ignore"):
+        floor = -(b + v * np.hypot(dh_dego[..., 0], dh_dego[..., 1]))
+    ok = np.isfinite(floor)
+    out = np.full(n, np.nan)
+    has = ok.any(axis=0)
+    if has.any():
+        out[has] = np.max(np.where(ok[:, has], floor[:, has], -np.inf), axis=0)
+    return out

@@ -15,7 +15,14 @@ from .interp import interpolate_at_substeps
 from .reciprocal import grown_constraint
 from .records import CBFIntervalRecord, CBFTruth
 
-__all__ = ["CBFGapLoss", "CBFTruth", "GapLossForm", "gap_test_inputs"]
+__all__ = [
+    "SHORTFALL_CAP",
+    "CBFGapLoss",
+    "CBFShortfallLoss",
+    "CBFTruth",
+    "GapLossForm",
+    "gap_test_inputs",
+]
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,32 @@ class CBFGapLoss(
     def squash(self, r: np.ndarray | float) -> np.ndarray | float:
         """s(r) = arctan(r / c) / pi, in (-1/2, 1/2)."""
         return np.arctan(np.asarray(r) / self.scale) / np.pi
+
+    def level(self, epsilon: float) -> float:
+        """The largest r with s(r) <= ``epsilon``: c tan(pi epsilon) (1/s).
+
+        An agent whose largest gap plus lambda is at most this has a loss of at most
+        epsilon (what the derived lambda_safe rests on,
+        :func:`~conformal_control.families.cbf.safe_lambda.derive_lambda_safe`).
+
+        Parameters
+        ----------
+        epsilon : float
+            A target inside the loss's range (:attr:`bounds`).
+
+        Raises
+        ------
+        ValueError
+            If ``epsilon`` lies outside the open range (one line).
+        """
+        eps = float(epsilon)
+        lo, hi = self.bounds
+        if not lo < eps < hi:
+            raise ValueError(
+                f"epsilon must lie in ({lo:g}, {hi:g}) for the {type(self).__name__}, "
+                f"got {epsilon!r}"
+            )
+        return float(self.scale * math.tan(math.pi * eps))
 
     def gaps(self, record: CBFIntervalRecord, truth: CBFTruth) -> np.ndarray:
         """gap_j(t) without lambda, shape (S, N) over the scored agents; NaN where the
@@ -220,6 +253,81 @@ class CBFGapLoss(
             "n_pairs": int(np.isfinite(gap).sum()),
             "n_truth_missing": int((~np.isfinite(gap)).sum()),
         }
+
+
+#: The shortfall loss's cap (in loss units, a shortfall of ``SHORTFALL_CAP`` times the
+#: scale): with c = 30/s (one per frame at 30 fps) a shortfall up to 120/s is scored
+#: linearly, which covers every gap within the derived bound G = 121/s of the crossing
+#: suites (:func:`~conformal_control.families.cbf.safe_lambda.gap_bound`) at lambda <= 0.
+SHORTFALL_CAP = 4.0
+
+
+class CBFShortfallLoss(
+    CBFGapLoss,
+    compiled="cbf_gap",
+    run_values={"constraint": "constraint", "scale": "loss_scale"},
+):
+    """The gap loss that grows with the shortfall: a big miss moves lambda by more than
+    one step.
+
+    With r = max_t gap_j(t) + lambda_j (agent j's term, as in :class:`CBFGapLoss`),
+    ``l(r) = arctan(r / c) / pi`` for r <= 0 (the gap loss, unchanged) and
+    ``l(r) = min(r / c, SHORTFALL_CAP)`` for r > 0. When agent j's row binds (the
+    predicted constraint equals -lambda_j), r is by how much the true constraint fell
+    short of 0 (true = predicted - gap = -(gap + lambda_j)); the gap loss saturates at 1/2
+    however far it fell short, so a fixed-eta step moves lambda by at most eta (1/2 -
+    epsilon). Here a shortfall r moves it by eta (r / c - epsilon): with eta = c (the
+    benchmark's one per frame) by the shortfall itself, in one interval.
+
+    The loss is continuous and increasing in r (slope 1/(pi c) below 0, 1/c above), in
+    ``bounds = (-1/2, SHORTFALL_CAP)``. Every statement that needs only an increasing loss
+    holds: the fixed-eta identity, Theorem 2 with the loss's range, and the derived
+    lambda_safe of :func:`~conformal_control.families.cbf.safe_lambda.derive_lambda_safe`
+    with this loss's :meth:`level` (equal to the gap loss's for epsilon <= 0). Compiled
+    like the gap loss (``cbf_gap``: the engine computes the largest gaps and applies
+    this loss's own :meth:`squash`).
+
+    Parameters
+    ----------
+    constraint : ConformalConstraint
+        The constraint the controller uses (the same instance: same barrier, same a).
+    scale : float
+        Loss scale c in 1/s.
+    """
+
+    bounds = (-0.5, SHORTFALL_CAP)
+
+    def squash(self, r: np.ndarray | float) -> np.ndarray | float:
+        """l(r): arctan(r / c) / pi for r <= 0, min(r / c, SHORTFALL_CAP) above."""
+        x = np.asarray(r, dtype=float) / self.scale
+        with np.errstate(invalid="ignore"):
+            out = np.where(x > 0.0, np.minimum(x, SHORTFALL_CAP), np.arctan(x) / np.pi)
+        return float(out) if out.ndim == 0 else out
+
+    def level(self, epsilon: float) -> float:
+        """The largest r with l(r) <= ``epsilon``: c tan(pi epsilon) for epsilon <= 0,
+        c epsilon above (1/s).
+
+        Parameters
+        ----------
+        epsilon : float
+            A target in (-1/2, SHORTFALL_CAP).
+
+        Raises
+        ------
+        ValueError
+            If ``epsilon`` lies outside that range (one line).
+        """
+        eps = float(epsilon)
+        if eps <= 0.0:
+            return super().level(eps)
+        lo, hi = self.bounds
+        if not lo < eps < hi:
+            raise ValueError(
+                f"epsilon must lie in ({lo:g}, {hi:g}) for the {type(self).__name__}, "
+                f"got {epsilon!r}"
+            )
+        return float(self.scale * eps)
 
 
 class _AgentGapAt:

@@ -181,8 +181,14 @@ def derive_lambda_safe(
     epsilon: float,
     robot_speed: float,
     agent_speed: float = AGENT_SPEED_BOUND,
+    level: float | None = None,
 ) -> DerivedLambdaSafe:
     """``lambda_safe = c tan(pi epsilon) - G`` for the gap loss ``s(r) = arctan(r / c) / pi``.
+
+    More generally ``lambda_safe = r_eps - G`` for any loss increasing in
+    r = max_t gap_j(t) + lambda_j, with r_eps the largest r whose loss is at most epsilon
+    (``level``; the loss's ``level(epsilon)``, e.g.
+    :meth:`~conformal_control.families.cbf.loss.CBFShortfallLoss.level`).
 
     At or below it every agent's gap loss is at most ``epsilon`` whatever the prediction,
     provided the robot's speed is at most ``robot_speed`` and the pedestrians' (true and
@@ -200,6 +206,8 @@ def derive_lambda_safe(
         The robot's speed bound (m/s).
     agent_speed : float
         The pedestrians' speed bound (m/s).
+    level : float, optional
+        r_eps (1/s); default ``c tan(pi epsilon)``, the gap loss's.
     """
     c = float(loss_scale)
     if not (math.isfinite(c) and c > 0):
@@ -208,7 +216,10 @@ def derive_lambda_safe(
     if not -0.5 < eps < 0.5:
         raise ValueError(f"epsilon must lie in (-1/2, 1/2) for the gap loss, got {epsilon!r}")
     g = gap_bound(constraint, robot_speed, agent_speed)
-    value = c * math.tan(math.pi * eps) - g
+    r_eps = c * math.tan(math.pi * eps) if level is None else float(level)
+    if not math.isfinite(r_eps):
+        raise ValueError(f"level must be a finite number of 1/s, got {level!r}")
+    value = r_eps - g
     source = (
         f"derived: CBF gap bound G = {g:.4g}/s (robot <= {robot_speed:g} m/s, pedestrians "
         f"true and predicted <= {agent_speed:g} m/s)"

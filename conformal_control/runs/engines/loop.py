@@ -127,6 +127,7 @@ def loop_steps(
         on_interval=hooks,
         lambda_per=si["lambda_per"],
         lambda_prior=si["lambda_prior"],
+        lambda_floor_row=si["lambda_floor_row"],
     )
     # ConformalLoop.run, one control instant at a time
     env, family, away = loop.env, loop.family, 0.0

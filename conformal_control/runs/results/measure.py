@@ -86,7 +86,8 @@ def lambda_safe_values(
 
 
 def derived_lambda_safe(fl: Flagship) -> DerivedLambdaSafe:
-    """``lambda_safe="auto"`` for the built run ``fl`` (SI): the CBF gap loss's
+    """``lambda_safe="auto"`` for the built run ``fl`` (SI): the CBF gap loss's (or the
+    shortfall loss's, with its own ``level``)
     :func:`~conformal_control.families.cbf.safe_lambda.derive_lambda_safe` with the run's
     constraint, loss scale and epsilon, the robot's speed bound (the radius of its speed
     set: ``v_max``, or ``sqrt(2) v_max`` for the box, ``speed_sides = 0``) and the assumed
@@ -107,7 +108,9 @@ def derived_lambda_safe(fl: Flagship) -> DerivedLambdaSafe:
     si = fl.params.si
     v_max = float(si["v_max"])
     robot_speed = v_max if int(si.get("speed_sides", 16)) else math.sqrt(2.0) * v_max
-    return derive_lambda_safe(loss.constraint, loss.scale, si["epsilon"], robot_speed)
+    # the loss's own r_eps (CBFShortfallLoss: the same as the gap loss's for epsilon <= 0)
+    level = loss.level(si["epsilon"])
+    return derive_lambda_safe(loss.constraint, loss.scale, si["epsilon"], robot_speed, level=level)
 
 
 # ---------------------------------------------------------------------- warnings

@@ -74,7 +74,13 @@ def suite_scenes(data_root):
 
 
 @pytest.mark.parametrize(
-    "family", ["conformal_agent", "conformal_agent_dtaci", "conformal_dtaci_floor"]
+    "family",
+    [
+        "conformal_agent",
+        "conformal_agent_dtaci",
+        "conformal_agent_shortfall",
+        "conformal_dtaci_floor",
+    ],
 )
 def test_the_new_benchmark_methods_match_run_episode(suite_scenes, compare_batch, family):
     """The benchmark's per-pedestrian and floored methods, under the 0.5 s delay (the
@@ -130,3 +136,44 @@ def test_a_derived_lambda_safe_needs_the_gap_loss(crossings):
 
     with pytest.raises(ValueError, match="derived for the CBF gap loss only"):
         run_episode(crossings[0], loss="collision", lambda_safe="auto", max_frames=20)
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"params": {"lambda_floor_row": 1.0}},  # each agent's own row floor
+        {"loss": "cbf_shortfall"},  # the shortfall loss
+        {"params": {"lambda_floor_row": 0.8}, "loss": "cbf_shortfall"},
+    ],
+)
+def test_the_row_floor_and_the_shortfall_loss_match_run_episode(suite_scenes, compare_batch, extra):
+    """Per-pedestrian DtACI under the 0.5 s delay with each agent's own row floor and/or
+    the shortfall loss: every metric, every agent's lambda and loss, the floor counters."""
+    from conformal_control.experiments.bench.methods import expand_methods
+
+    kw = expand_methods(["conformal_agent_dtaci"])[0].run_kwargs()
+    kw["params"].update(extra.get("params", {}))
+    if "loss" in extra:
+        kw["loss"] = extra["loss"]
+    kw["predictor"] = "delayed"
+    kw["predictor_params"] = {"delay_s": 0.5, "predictor": "constant_velocity"}
+    frames = [sc.meta["max_frames"] for sc in suite_scenes]
+    batched, singles = compare_batch(
+        suite_scenes, max_frames=frames, batch_size=2, output="results", **kw
+    )
+    _same_agents(batched, singles)
+    for b, s in zip(batched, singles, strict=True):
+        mb, ms = b.loop.monitor, s.loop.monitor
+        assert (mb.n_floor_lowered, mb.n_floor_bound) == (ms.n_floor_lowered, ms.n_floor_bound)
+    if "lambda_floor_row" in extra.get("params", {}):
+        assert sum(s.loop.monitor.n_floor_lowered for s in singles) > 0
+        lows = [float(np.min(iv.lams)) for s in singles for iv in s.loop.intervals if iv.lams.size]
+        assert min(lows) < kw["params"]["lambda_min"]  # below the run's floor: its own row's
+    if "loss" in extra:
+        top = max(
+            float(np.nanmax(iv.agent_losses))
+            for s in singles
+            for iv in s.loop.intervals
+            if iv.agent_losses is not None and np.isfinite(iv.agent_losses).any()
+        )
+        assert top > 0.5  # a shortfall scored beyond the gap loss's 1/2

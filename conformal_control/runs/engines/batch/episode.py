@@ -31,6 +31,7 @@ from ....families.cbf.barriers import APFForm
 from ....families.cbf.constraint import time_to_contact
 from ....families.cbf.controller import CBFIntervalRecord, PredictorError
 from ....families.cbf.dynamics import VelocityTrackingForm
+from ....families.cbf.feasibility import robot_speed_bound, row_floors
 from ....families.cbf.filters.exact2d import Exact2DForm, Exact2DSafetyFilter
 from ....families.cbf.loss import CBFGapLoss, CBFTruth, GapLossForm
 from ....families.cbf.pyhypot import EXACT_FOR_THIS_PYTHON
@@ -181,7 +182,14 @@ class EpisodeSlots:
             premise_proven=False,
             bounds=parts.loss.bounds,
             learn=learn,
-            **({"prior": fl.params.si["lambda_prior"]} if vec else {}),
+            **(
+                {
+                    "prior": fl.params.si["lambda_prior"],
+                    "row_floor": fl.params.si["lambda_floor_row"],
+                }
+                if vec
+                else {}
+            ),
         )
         # each compiled part as its compiled form (validated constants), never its attributes
         forms = fl.compiled_forms()
@@ -282,7 +290,8 @@ class EpisodeSlots:
         if parts.gap is not None:
             gap = form_of(forms, "loss", GapLossForm)
             p.scale[b] = gap.scale
-            p.squash.setdefault(float(gap.scale), gap.squash)
+            key = (type(parts.gap), float(gap.scale))
+            p.sq[b] = p.squash.setdefault(key, (len(p.squash), gap.squash))[0]
         else:  # scored by the loss object (see end)
             p.scale[b] = math.nan
         p.last[b] = 0.0
@@ -449,9 +458,10 @@ class EpisodeSlots:
         if gap is None:  # the loss object on the interval's record and truth
             return close_agent_interval(
                 k, ep.keys, ep.lams, s, monitor=ep.monitor, loss=ep.parts.loss,
-                record=self._record(b), truth=self._truth(b),
+                record=self._record(b), truth=self._truth(b), floors=self._floors(b, ep),
             )  # fmt: skip
         top = np.full(n, np.nan)
+        floors = self._floors(b, ep)
         if o is not None:
             got = agent_top[o : o + n]
             top = np.where(np.isfinite(got), got, np.nan)
@@ -466,8 +476,20 @@ class EpisodeSlots:
                 "n_truth_missing": s * n - pairs,
             }
         return close_agent_interval(
-            k, ep.keys, ep.lams, s, monitor=ep.monitor, components=comp, diagnostics=diagnostics
-        )
+            k, ep.keys, ep.lams, s, monitor=ep.monitor, components=comp,
+            diagnostics=diagnostics, floors=floors,
+        )  # fmt: skip
+
+    def _floors(self, b: int, ep: Episode) -> np.ndarray | None:
+        """Slot ``b``'s agents' own feasibility floors of the interval (as the
+        controller's ``lambda_floors`` gives them), when the run reads them
+        (``lambda_floor_row`` > 0), else None."""
+        assert isinstance(ep.monitor, AgentMonitor)
+        if ep.monitor.row_floor <= 0.0:
+            return None
+        si = ep.fl.params.si
+        speed = robot_speed_bound(float(si["v_max"]), int(si["speed_sides"]))
+        return row_floors(ep.fl.constraint, self._record(b), speed)
 
     def _record(self, b: int) -> CBFIntervalRecord:
         """Slot ``b``'s interval as the controller's ``interval_record`` gives it, without

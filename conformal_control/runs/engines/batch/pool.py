@@ -39,6 +39,7 @@ class Pool:
     radius: np.ndarray  # float64 (size,)
     t_goal: np.ndarray  # float64 (size,)
     scale: np.ndarray  # float64 (size,)
+    sq: np.ndarray  # int64 (size,): the slot's loss squashing, its index in squash
     wall: np.ndarray  # float64 (size,)
     step: np.ndarray  # int64 (size,)
     n_ctrl: np.ndarray  # int64 (size,)
@@ -120,7 +121,8 @@ class Pool:
     rec_step: np.ndarray  # (size,): the forecasts' step length (s)
     rec_counts: np.ndarray  # int64 (size, 4): missing, missing steps, extrapolated,
     # non-finite current (totals)
-    squash: dict[float, Any]  # loss scale -> the squashing of a loss with it
+    # (loss class, loss scale) -> (its index in sq, the squashing of such a loss)
+    squash: dict[tuple[type, float], tuple[int, Any]]
 
     def __init__(self, size: int) -> None:
         b = self.size = size
@@ -137,6 +139,7 @@ class Pool:
         self.radius = np.zeros(b)
         self.t_goal = np.zeros(b)
         self.scale = np.zeros(b)
+        self.sq = np.zeros(b, dtype=np.int64)  # the slot's squashing (index in squash)
         self.wall = np.zeros(b)
         self.step = np.zeros(b, dtype=np.int64)
         self.n_ctrl = np.zeros(b, dtype=np.int64)
@@ -432,10 +435,10 @@ class Pool:
             p.rec_v, p.rec_lam, p.xp, p.vp, p.lam, p.prm, top, top_applied, n_pairs,
             p.vec, p.lam_off, agent_top,
         )  # fmt: skip
-        for scale, squash in self.squash.items():
-            # one loss scale in the engine: every scored slot has it
-            sel = scored if len(self.squash) == 1 else scored[p.scale[scored] == scale]
-            if sel.size:  # the loss's own squashing, s(r) = arctan(r / c) / pi
+        for i, squash in self.squash.values():
+            # one loss (class and scale) in the engine: every scored slot has it
+            sel = scored if len(self.squash) == 1 else scored[p.sq[scored] == i]
+            if sel.size:  # the loss's own squashing (the gap loss: arctan(r / c) / pi)
                 loss[sel] = squash(top[sel] + p.lam[sel])
                 applied[sel] = squash(top_applied[sel])
         return agent_top, where
