@@ -16,12 +16,13 @@ sweep are split in two:
   keeps neither. Batched runs are grouped by everything but their scene, seed and frame
   limit, and each group runs in this process through
   :func:`~conformal_control.runs.engines.batch.iter_batch` (one core);
-* a run of a sampling-MPC family (``mpc``, ``cc_mpc``, ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``,
-  ...; :func:`~conformal_control.runs.engines.mpc_batch.mpc_batch_reason`) with a predictor
-  the engine would batch and no plots runs in this process too, one episode after another
+* with one worker (``workers=1``), a run of a sampling-MPC family (``mpc``, ``cc_mpc``,
+  ``acp_mpc``, ``ecp_mpc``, ``fcp_mpc``, ...;
+  :func:`~conformal_control.runs.engines.mpc_batch.mpc_batch_reason`) with a predictor the
+  engine would batch and no plots runs in this process too, one episode after another
   (:func:`~conformal_control.runs.engines.mpc_batch.iter_mpc_batch`: no pool task per
   episode), each equal to its run on the generic loop (``config.json`` says ``"engine":
-  "mpc_batch"``);
+  "mpc_batch"``); with more workers the pool runs them in parallel;
 * every other run goes to a process pool (``workers``), one episode per task, as with
   ``executor="process"``.
 
@@ -184,10 +185,13 @@ def run_batched(
     groups: dict[str, list[int]] = {}
     lock: list[int] = []  # sampling-MPC runs, in this process
     rest: list[int] = []
+    # the MPC runs here only when the pool has one worker: with more, the pool runs them in
+    # parallel (this process runs them one after another, on one core)
+    here = int(getattr(ex, "n_workers", 1)) <= 1
     for i, (run, _key, _out, plot) in enumerate(tasks):
         if batch_reason(run, plot) is None:
             groups.setdefault(_group_key(run), []).append(i)
-        elif mpc_batch_reason(run, plot) is None:
+        elif here and mpc_batch_reason(run, plot) is None:
             lock.append(i)
         else:
             rest.append(i)

@@ -129,3 +129,24 @@ def test_a_sweep_runs_mpc_families_in_process_with_the_serial_records(tmp_path):
         cb = json.loads((tmp_path / "b" / dirs[r["key"]] / "config.json").read_text())
         assert ca.pop("engine") == "mpc_batch" and cb.pop("engine") == "loop"
         assert ca == cb
+
+
+def test_with_several_workers_the_mpc_runs_go_to_the_pool(monkeypatch, tmp_path):
+    """In process only with one worker: more workers run the MPC episodes in parallel."""
+    import conformal_control.experiments.batch as sweep_batch
+
+    class FakePool:
+        n_workers = 2
+
+        def run(self, fn, tasks):
+            for k, _ in enumerate(tasks):
+                yield k, {"key": f"pool{k}", "status": "ok"}
+
+    def no_mpc_here(*a, **k):
+        raise AssertionError("an MPC run ran in this process")
+
+    monkeypatch.setattr("conformal_control.runs.engines.mpc_batch.iter_mpc_batch", no_mpc_here)
+    run = SweepRun.from_settings("crossing", seed=1, family="mpc", record_animation=False)
+    assert mpc_batch_reason(run, "none") is None
+    records = dict(sweep_batch.run_batched(FakePool(), [(run, "m0", str(tmp_path), "none")]))
+    assert records == {0: {"key": "pool0", "status": "ok"}}
