@@ -60,6 +60,25 @@ __all__ = [
 ]
 
 
+def _distances(
+    record: CBFIntervalRecord, truth: CBFTruth
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The robot's true and predicted distance to every scored agent at every control
+    instant, shape (S, n) each, and where both positions are known (a NaN position's
+    distance is to the origin's stand-in: read it only where ``both``)."""
+    s = record.n_steps
+    y, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)  # (S, N, 2)
+    yhat = np.asarray(record.x_pred, dtype=float)
+    if record.scored is not None:
+        keep = np.asarray(record.scored, dtype=bool)
+        y, yhat = y[:, keep], yhat[:, keep]
+    x = np.asarray(record.x_ego, dtype=float)[:, None, :]
+    both = np.isfinite(y).all(axis=-1) & np.isfinite(yhat).all(axis=-1)  # (S, n)
+    d_true = np.linalg.norm(x - np.nan_to_num(y), axis=-1)
+    d_pred = np.linalg.norm(x - np.nan_to_num(yhat), axis=-1)
+    return d_true, d_pred, both
+
+
 def clearance_errors(
     record: CBFIntervalRecord, truth: CBFTruth, d_safe: float = math.inf
 ) -> np.ndarray:
@@ -80,18 +99,10 @@ def clearance_errors(
     ndarray of shape (R,)
         One error per relevant instant with a pedestrian known both ways.
     """
-    s, n = record.n_steps, record.ids.size
-    if s == 0 or n == 0:
+    if record.n_steps == 0 or record.ids.size == 0:
         return np.zeros(0)
-    y, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)  # (S, N, 2)
-    yhat = np.asarray(record.x_pred, dtype=float)
-    if record.scored is not None:
-        keep = np.asarray(record.scored, dtype=bool)
-        y, yhat = y[:, keep], yhat[:, keep]
-    x = np.asarray(record.x_ego, dtype=float)[:, None, :]
-    both = np.isfinite(y).all(axis=-1) & np.isfinite(yhat).all(axis=-1)  # (S, N)
-    d_true = np.where(both, np.linalg.norm(x - np.nan_to_num(y), axis=-1), np.inf)
-    d_pred = np.where(both, np.linalg.norm(x - np.nan_to_num(yhat), axis=-1), np.inf)
+    d_true, d_pred, both = _distances(record, truth)
+    d_true, d_pred = np.where(both, d_true, np.inf), np.where(both, d_pred, np.inf)
     near_true, near_pred = d_true.min(axis=1), d_pred.min(axis=1)
     relevant = np.isfinite(near_true) & (np.minimum(near_true, near_pred) <= d_safe)
     out: np.ndarray = near_pred[relevant] - near_true[relevant]
@@ -129,15 +140,7 @@ def agent_clearance_errors(
     top = np.full(keys.size, np.nan)
     if s == 0 or keys.size == 0:
         return keys, top
-    y, _ = interpolate_at_substeps(truth.samples, truth.dt, truth.substeps, s)  # (S, N, 2)
-    yhat = np.asarray(record.x_pred, dtype=float)
-    if record.scored is not None:
-        keep = np.asarray(record.scored, dtype=bool)
-        y, yhat = y[:, keep], yhat[:, keep]
-    x = np.asarray(record.x_ego, dtype=float)[:, None, :]
-    both = np.isfinite(y).all(axis=-1) & np.isfinite(yhat).all(axis=-1)  # (S, n)
-    d_true = np.linalg.norm(x - np.nan_to_num(y), axis=-1)
-    d_pred = np.linalg.norm(x - np.nan_to_num(yhat), axis=-1)
+    d_true, d_pred, both = _distances(record, truth)
     relevant = both & (np.minimum(d_true, d_pred) <= d_safe)
     has = relevant.any(axis=0)
     if has.any():
