@@ -52,6 +52,11 @@ from .worker import METRIC_COLUMNS, execute_run, run_dir_name
 __all__ = ["batch_reason", "mpc_batch_reason", "run_batched", "run_chunk", "run_chunked"]
 
 
+def _written(plot: bool | str) -> str:
+    """What a run writes, as :func:`execute_run`'s ``plot`` names it."""
+    return plot if isinstance(plot, str) else ("plots" if plot else "full")
+
+
 def batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
     """Why ``run`` is not batched, or None if it is.
 
@@ -64,7 +69,7 @@ def batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
     """
     from ..runs.engines.batch import supports
 
-    files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+    files = _written(plot)
     spec = run.spec
     if files in ("metrics", "none"):
         # not written: the episode may skip it
@@ -92,7 +97,7 @@ def mpc_batch_reason(run: SweepRun, plot: bool | str = "metrics") -> str | None:
     """
     from ..runs.engines.mpc_batch import mpc_batch_reason as reason
 
-    files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+    files = _written(plot)
     if files == "plots":
         return "the run directory gets plots, drawn on the pool"
     slow = _slow_predictor(run.spec.role("predictor")[0])
@@ -145,7 +150,7 @@ def _record(
     }
     try:
         result.config.update({"sweep": {"key": key, "run": run.as_dict()}})
-        files = plot if isinstance(plot, str) else ("plots" if plot else "full")
+        files = _written(plot)
         run_dir: Path | None = None
         if files in ("metrics", "full"):
             run_dir = Path(out_dir) / "runs" / run_dir_name(run, key)

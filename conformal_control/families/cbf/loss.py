@@ -22,6 +22,7 @@ __all__ = [
     "CBFTruth",
     "GapLossForm",
     "gap_test_inputs",
+    "lambda_columns",
 ]
 
 
@@ -185,25 +186,11 @@ class CBFGapLoss(
             return None
         return float(self.squash(np.nanmax(gap) + lam))
 
-    def _columns(self, record: CBFIntervalRecord, lam: Any) -> np.ndarray:
-        """lambda per record column (an array per agent, or a number for every agent)."""
-        n = record.ids.size
-        lam_arr = np.asarray(lam, dtype=float)
-        if lam_arr.ndim == 0:
-            lam_arr = np.full(n, float(lam_arr))
-        if lam_arr.shape != (n,):
-            raise ValueError(
-                f"lambda per agent has shape {lam_arr.shape}; the record has {n} agents"
-            )
-        if np.isnan(lam_arr).any():
-            raise ValueError("the loss needs a lambda that is a number, got nan")
-        return lam_arr
-
     def components(self, record: CBFIntervalRecord, truth: CBFTruth, lam: Any) -> KeyedLosses:
         """The loss per scored agent j: l_j = s(max_t gap_j(t) + lambda_j), NaN for an
         agent without truth; the interval's loss is their largest (``lam`` a number or
         an array with one entry per record agent, ``record.ids``'s order)."""
-        lam_arr = self._columns(record, lam)
+        lam_arr = lambda_columns(record, lam)
         gap = self.gaps(record, truth)
         keys = np.asarray(record.ids, dtype=np.int64)
         if record.scored is not None:
@@ -237,7 +224,7 @@ class CBFGapLoss(
         if gap.size == 0 or not np.isfinite(gap).any():
             return {}
         if np.ndim(lam):  # per agent: each row's lambda is the applied one plus its offset
-            lam_arr = self._columns(record, lam)
+            lam_arr = lambda_columns(record, lam)
             ref = float(lam_arr.min())
             off = lam_arr - ref
             if record.scored is not None:
@@ -339,6 +326,33 @@ class _AgentGapAt:
     def __call__(self, i: int, lam: float) -> float | None:
         top = float(self.top[i])
         return None if math.isnan(top) else float(self.loss.squash(top + lam))
+
+
+def lambda_columns(record: CBFIntervalRecord, lam: Any) -> np.ndarray:
+    """lambda per record column: ``lam`` an array with one entry per record agent
+    (``record.ids``'s order), or a number for every agent.
+
+    Parameters
+    ----------
+    record : CBFIntervalRecord
+        The interval's record (its ``ids`` give the columns).
+    lam : float or array_like
+        lambda, one number or one per agent.
+
+    Raises
+    ------
+    ValueError
+        For an array of another length, or a NaN entry (one line).
+    """
+    n = record.ids.size
+    lam_arr = np.asarray(lam, dtype=float)
+    if lam_arr.ndim == 0:
+        lam_arr = np.full(n, float(lam_arr))
+    if lam_arr.shape != (n,):
+        raise ValueError(f"lambda per agent has shape {lam_arr.shape}; the record has {n} agents")
+    if np.isnan(lam_arr).any():
+        raise ValueError("the loss needs a lambda that is a number, got nan")
+    return lam_arr
 
 
 def gap_test_inputs() -> list[tuple[CBFIntervalRecord, CBFTruth]]:

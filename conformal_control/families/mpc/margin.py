@@ -50,7 +50,7 @@ from ...core.base import KeyedLosses, Loss
 from ...core.losses import check_lambda
 from ..cbf.controller import CBFIntervalRecord
 from ..cbf.interp import interpolate_at_substeps
-from ..cbf.loss import CBFTruth, gap_test_inputs
+from ..cbf.loss import CBFTruth, gap_test_inputs, lambda_columns
 
 __all__ = [
     "AgentMarginMiscoverageLoss",
@@ -245,16 +245,7 @@ class AgentMarginMiscoverageLoss(MarginMiscoverageLoss):
         (:func:`agent_clearance_errors`). ``lam`` is a number or one entry per record agent
         (``record.ids``'s order)."""
         self._check()
-        n = record.ids.size
-        lam_arr = np.asarray(lam, dtype=float)
-        if lam_arr.ndim == 0:
-            lam_arr = np.full(n, float(lam_arr))
-        if lam_arr.shape != (n,):
-            raise ValueError(
-                f"lambda per agent has shape {lam_arr.shape}; the record has {n} agents"
-            )
-        for x in lam_arr.tolist():
-            check_lambda(x)
+        lam_arr = lambda_columns(record, lam)
         if record.scored is not None:
             lam_arr = lam_arr[np.asarray(record.scored, dtype=bool)]
         keys, top = agent_clearance_errors(record, truth, self.d_safe)
