@@ -466,11 +466,11 @@ def test_floor_margin_is_checked():
 @pytest.mark.parametrize("compiled", [True, False])
 def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compiled):
     # people first: the compiled filter step leaves a step whose rows cannot all be met to
-    # the generic path (the priority stages run only there). A robot between a pedestrian walking at it from behind and a
-    # peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows cannot all be met, the robot's
-    # barrier row gives way, then its floor row's margin band (the pedestrian's row is
-    # kept), and its core holds: it closes in on the peer at no more than its share of
-    # a (d - d_c - FLOOR_CORE margin)
+    # the generic path (the priority stages run only there). A robot between a pedestrian
+    # walking at it from behind and a peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows
+    # cannot all be met, the robot's barrier row gives way, then its floor row's margin
+    # band (the pedestrian's row is kept), and its core holds: it closes in on the peer at
+    # no more than its share of a (d - d_c - FLOOR_CORE margin)
     from conformal_control.families.cbf.reciprocal import FLOOR_CORE
 
     rng = np.random.default_rng(0)
