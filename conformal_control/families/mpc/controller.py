@@ -501,16 +501,18 @@ class SamplingMPC(
         out = []
         if self._warm is not None:
             shift = min(round((state.t - self._warm_t) / self.sampling.dt_plan), h)
-            warm = np.concatenate([self._warm[shift:], np.repeat(self._warm[-1:], shift, 0)])
+            warm = np.empty((h, 2))  # the last plan shifted, its last command held
+            warm[: h - shift] = self._warm[shift:]
+            warm[h - shift :] = self._warm[-1]
             out.append(warm)
-        out.append(np.repeat(self._stop_command(state)[None], h, axis=0))
+        out.append(np.broadcast_to(self._stop_command(state), (h, 2)))
         kind = self.dynamics.command_kind
         if self.reference is not None and kind == "velocity":
             v = np.asarray(self.reference(state.x, state.t, state.goal), dtype=float)
             speed = math.hypot(v[0], v[1])
             if speed > self.limits.v_max:
                 v = v * (self.limits.v_max / speed)
-            out.append(np.repeat(v[None], h, axis=0))
+            out.append(np.broadcast_to(v, (h, 2)))
         return out
 
     def _stop_command(self, state: ControlState) -> np.ndarray:
@@ -526,15 +528,20 @@ class SamplingMPC(
         radius = (
             self.limits.a_max if self.dynamics.command_kind == "acceleration" else self.limits.v_max
         )
-        rand = sample_sequences(
+        k, n, h = len(seeds), int(self.sampling.n_samples), int(self.sampling.horizon)
+        out = np.empty((k + n, h, 2))
+        for i, seed in enumerate(seeds):
+            out[i] = seed
+        sample_sequences(
             self._rng,
-            int(self.sampling.n_samples),
-            int(self.sampling.horizon),
+            n,
+            h,
             int(self.sampling.hold),
             box=self._box,
             radius=float(radius),
+            out=out[k:],
         )
-        return np.concatenate([np.stack(seeds), rand], axis=0)
+        return out
 
     def plan(self, state: ControlState, lam: float) -> Plan:
         """Sample, roll out, check and choose (one planning step; counts included)."""

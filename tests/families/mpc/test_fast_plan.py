@@ -5,16 +5,19 @@ prediction lookup against its numpy form."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conformal_control.core.jit import compile_now
+from conformal_control.families.mpc import sampling
 from conformal_control.families.mpc.kernels import (
     agent_rows,
     evaluate,
     plan_predictions,
     predicted_at,
 )
+from conformal_control.families.mpc.sampling import sample_sequences
 
 from .test_cut import _problem, _same
 
@@ -112,3 +115,73 @@ def test_the_rows_given_to_evaluate_are_used() -> None:
     _same(evaluate(*p, rows=rows), evaluate(*p))
     far = tuple(r + 1e3 for r in rows)
     assert not np.array_equal(evaluate(*p, rows=far)[1], evaluate(*p)[1])
+
+
+def _sample_sequences_numpy(rng, n, horizon, hold, box=None, radius=1.0):
+    """The numpy form sample_sequences had (the reference)."""
+    import math
+
+    blocks = math.ceil(horizon / hold)
+    if box is not None:
+        u = rng.uniform(box[0], box[1], size=(n, blocks, 2))
+    else:
+        speed = rng.uniform(0.0, radius, size=(n, blocks))
+        angle = rng.uniform(-math.pi, math.pi, size=(n, blocks))
+        u = np.stack([speed * np.cos(angle), speed * np.sin(angle)], axis=-1)
+    return np.repeat(u, hold, axis=1)[:, :horizon]
+
+
+@pytest.mark.parametrize("form", ["compiled", "python", "py_func"])
+def test_the_samples_equal_the_numpy_form(form: str) -> None:
+    """The same sequences, bit for bit, and the generator left in the same state: in a disc
+    and in a box, holds that divide the horizon and holds that do not, into a new array or
+    into the rows of the caller's; compiled, and the kernels' interpreted forms (numpy, and
+    the loops themselves)."""
+    held, polar = (
+        (sampling._held_numpy, sampling._polar_held_numpy)
+        if form == "python"
+        else (sampling._held.py_func, sampling._polar_held.py_func)
+    )
+    box = (np.array([0.0, -1.2]), np.array([1.5, 1.2]))
+    for seed, (n, h, hold) in enumerate([(500, 12, 2), (7, 5, 3), (1, 1, 1), (3, 4, 5), (0, 3, 1)]):
+        for b in (None, box):
+            a, r = np.random.default_rng(seed), np.random.default_rng(seed)
+            ref = _sample_sequences_numpy(r, n, h, hold, box=b, radius=0.7)
+            if form == "compiled":
+                got = sample_sequences(a, n, h, hold, box=b, radius=0.7)
+            else:  # the interpreted forms of the kernels
+                got = np.empty((n, h, 2))
+                if b is None:
+                    speed = a.uniform(0.0, 0.7, size=(n, -(-h // hold)))
+                    angle = a.uniform(-np.pi, np.pi, size=speed.shape)
+                    polar(speed, np.cos(angle), np.sin(angle), hold, got)
+                else:
+                    held(a.uniform(*b, size=(n, -(-h // hold), 2)), hold, got)
+            assert got.shape == ref.shape and got.tobytes() == ref.tobytes()
+            assert a.random() == r.random()
+            into = np.full((n + 2, h, 2), 7.0)
+            a = np.random.default_rng(seed)
+            sample_sequences(a, n, h, hold, box=b, radius=0.7, out=into[2:])
+            assert into[2:].tobytes() == ref.tobytes() and (into[:2] == 7.0).all()
+    with pytest.raises(ValueError, match="out must be"):
+        sample_sequences(np.random.default_rng(0), 4, 3, 1, out=np.empty((4, 2, 2)))
+
+
+def test_the_plant_step_in_floats_equals_the_array_form() -> None:
+    """VelocityTrackingDoubleIntegrator.step (Python floats) against its numpy formula."""
+    import math
+
+    from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        k = float(rng.choice([10.0, 60.0, rng.random() * 100 + 1e-3]))
+        s = rng.normal(0.0, 10.0 ** rng.integers(-3, 4), 4)
+        c = rng.normal(0.0, 2.0, 2)
+        dt = float(rng.choice([0.1, 0.025, 1 / 60, 0.4 * rng.random()]))
+        dv = s[2:] - c
+        ref = np.empty(4)
+        ref[:2] = s[:2] + c * dt + dv * (-math.expm1(-k * dt)) / k
+        ref[2:] = c + dv * math.exp(-k * dt)
+        got = VelocityTrackingDoubleIntegrator(K_acc=k).step(s, c, dt)
+        assert got.tobytes() == ref.tobytes()
