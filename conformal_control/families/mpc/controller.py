@@ -72,7 +72,7 @@ from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, me
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
-from .kernels import evaluate, plan_predictions, predicted_at
+from .kernels import evaluate, plan_predictions, positions_of, predicted_at
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 from .settings import Costs, Limits, Sampling, check_groups
@@ -496,7 +496,8 @@ class SamplingMPC(
 
     # ------------------------------------------------------------------ planning
     def _seeds(self, state: ControlState, t_off: float) -> list[np.ndarray]:
-        """Warm start, stop, reference (each a (H, 2) sequence)."""
+        """Warm start, stop, reference: each a (H, 2) sequence, or one (2,) command held
+        over the plan."""
         h = int(self.sampling.horizon)
         out = []
         if self._warm is not None:
@@ -505,14 +506,14 @@ class SamplingMPC(
             warm[: h - shift] = self._warm[shift:]
             warm[h - shift :] = self._warm[-1]
             out.append(warm)
-        out.append(np.broadcast_to(self._stop_command(state), (h, 2)))
+        out.append(self._stop_command(state))
         kind = self.dynamics.command_kind
         if self.reference is not None and kind == "velocity":
             v = np.asarray(self.reference(state.x, state.t, state.goal), dtype=float)
             speed = math.hypot(v[0], v[1])
             if speed > self.limits.v_max:
                 v = v * (self.limits.v_max / speed)
-            out.append(np.broadcast_to(v, (h, 2)))
+            out.append(v)
         return out
 
     def _stop_command(self, state: ControlState) -> np.ndarray:
@@ -531,7 +532,7 @@ class SamplingMPC(
         k, n, h = len(seeds), int(self.sampling.n_samples), int(self.sampling.horizon)
         out = np.empty((k + n, h, 2))
         for i, seed in enumerate(seeds):
-            out[i] = seed
+            out[i] = seed  # a (2,) command is held over the plan
         sample_sequences(
             self._rng,
             n,
@@ -560,7 +561,7 @@ class SamplingMPC(
         t_off = float(state.t - self._t0)
         cmds = self.sample_commands(state, t_off)
         states = self.dynamics.rollout(state.x, cmds, float(self.sampling.dt_plan))
-        pos = np.ascontiguousarray(states[..., :2])
+        pos = positions_of(np.asarray(states, dtype=np.float64))
         self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
         h = int(self.sampling.horizon)
         rows = None

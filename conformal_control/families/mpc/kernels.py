@@ -56,6 +56,7 @@ __all__ = [
     "evaluate_many",
     "evaluate_numpy",
     "plan_predictions",
+    "positions_of",
     "predicted_at",
 ]
 
@@ -524,6 +525,30 @@ def plan_predictions(
     return pred, y0, ex, ey, sx, sy
 
 
+def _positions_numpy(states: np.ndarray) -> np.ndarray:
+    out: np.ndarray = np.ascontiguousarray(states[..., :2])
+    return out
+
+
+@kernel(cache=True, nogil=True, python=_positions_numpy)
+def positions_of(states: np.ndarray) -> np.ndarray:
+    """The positions ``states[..., :2]`` of rolled-out states (N, H, D) as a C-contiguous
+    (N, H, 2) copy (numpy's strided copy of two numbers at a time is several times slower).
+
+    Parameters
+    ----------
+    states : ndarray of shape (N, H, D)
+        Plant states, position first.
+    """
+    n, h = states.shape[0], states.shape[1]
+    out = np.empty((n, h, 2))
+    for i in range(n):
+        for j in range(h):
+            out[i, j, 0] = states[i, j, 0]
+            out[i, j, 1] = states[i, j, 1]
+    return out
+
+
 @jit
 def _evaluate_many(
     pos: np.ndarray,
@@ -621,8 +646,10 @@ def evaluate(
         (0 for a safe plan).
     """
     r = np.asarray(radius, dtype=np.float64)
-    if r.ndim == 1:
-        r = np.broadcast_to(r, pos.shape[:2])
+    if r.ndim == 1 and r.shape[0] == np.shape(pos)[1]:  # one row per plan (repeat: a fast copy)
+        r = np.repeat(r.reshape(1, -1), np.shape(pos)[0], axis=0)
+    elif r.ndim == 1:
+        r = np.broadcast_to(r, pos.shape[:2])  # (raises: the shapes differ)
     c = np.ascontiguousarray
     ex, ey, sx, sy = agent_rows(pred, y0) if rows is None else rows
     if offsets is None and not by_plan:

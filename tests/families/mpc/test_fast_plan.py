@@ -185,3 +185,21 @@ def test_the_plant_step_in_floats_equals_the_array_form() -> None:
         ref[2:] = c + dv * math.exp(-k * dt)
         got = VelocityTrackingDoubleIntegrator(K_acc=k).step(s, c, dt)
         assert got.tobytes() == ref.tobytes()
+
+
+def test_the_positions_copy_equals_the_numpy_slice() -> None:
+    """positions_of: compiled, its loops interpreted and its numpy form, for a 4- and a
+    5-column state (a unicycle's), and a non-contiguous input."""
+    from conformal_control.families.mpc.kernels import _positions_numpy, positions_of
+
+    rng = np.random.default_rng(3)
+    for states in (
+        rng.normal(size=(37, 6, 4)),
+        rng.normal(size=(5, 3, 5)),
+        rng.normal(size=(8, 4, 6))[:, :, 1:],
+    ):
+        ref = np.ascontiguousarray(states[..., :2])
+        for form in (positions_of, positions_of.py_func, _positions_numpy):
+            got = form(states)
+            assert got.flags.c_contiguous and got.shape == ref.shape
+            assert got.tobytes() == ref.tobytes()
