@@ -481,7 +481,8 @@ def _report(args: argparse.Namespace) -> int:
         tune_wall = float(json.loads(path.read_text())["wall_s"])
     out = Path(args.out) if args.out else folder / "report"
     title = args.title or f"Benchmark: {folder.name}"
-    notice = incomplete_notice(*unfinished_episodes(folder))
+    # the rows hold the latest record of every key: the journal is parsed once
+    notice = incomplete_notice(*unfinished_episodes(folder, done=(r["key"] for r in rows)))
     files = write_report(
         rows,
         out,

@@ -685,7 +685,7 @@ def run_bench(
     )
 
 
-def unfinished_episodes(out: str | Path) -> tuple[int, int]:
+def unfinished_episodes(out: str | Path, *, done: Iterable[str] | None = None) -> tuple[int, int]:
     """``(planned, unfinished)``: the episodes the folder's last ``bench run`` (or ``bench
     tune``) planned (its ``sweep.json``), and how many of them have no record in the
     journal (left unfinished by a lost scheduler or worker, or a stopped run). A failed
@@ -695,6 +695,9 @@ def unfinished_episodes(out: str | Path) -> tuple[int, int]:
     ----------
     out : str or Path
         The benchmark folder.
+    done : iterable of str, optional
+        The keys of the journal's records, if the caller has read them already (the rows of
+        :func:`read_rows`): the journal is then not parsed a second time.
     """
     from ..results import ResultsStore
 
@@ -704,8 +707,8 @@ def unfinished_episodes(out: str | Path) -> tuple[int, int]:
         keys = {str(r["key"]) for r in planned if isinstance(r, dict) and "key" in r}
     except (OSError, ValueError, AttributeError, TypeError):
         return 0, 0  # no plan to compare with
-    done = set(ResultsStore(out).latest())
-    return len(keys), len(keys - done)
+    recorded = set(ResultsStore(out).latest()) if done is None else set(done)
+    return len(keys), len(keys - recorded)
 
 
 def incomplete_notice(planned: int, unfinished: int, command: str = "bench run") -> str | None:

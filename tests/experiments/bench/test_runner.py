@@ -57,7 +57,9 @@ def test_configs_carry_the_scenario_and_method(data_root: Path) -> None:
         expand_methods(["conformall"])
 
 
-def test_bench_run_resume_and_report(tmp_path: Path, data_root: Path, capsys) -> None:
+def test_bench_run_resume_and_report(
+    tmp_path: Path, data_root: Path, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
     out = tmp_path / "b"
     argv = [
         "bench", "run", "--split", "dev", "--limit", "2", "--methods", "nolearn,conformal",
@@ -84,7 +86,18 @@ def test_bench_run_resume_and_report(tmp_path: Path, data_root: Path, capsys) ->
         progress=False,
     )
     assert (rerun.skipped, rerun.ran) == (4, 0)
+    from conformal_control.experiments.results import ResultsStore
+
+    parsed: list[int] = []
+    real_parse = ResultsStore._parse
+
+    def counting(lines, first, out_list):  # type: ignore[no-untyped-def]
+        parsed.append(sum(bool(x.strip()) for x in lines))
+        return real_parse(lines, first, out_list)
+
+    monkeypatch.setattr(ResultsStore, "_parse", staticmethod(counting))
     assert main(["bench", "report", str(out)]) == 0
+    assert parsed == [4]  # the report parses the journal's 4 lines once
     report = out / "report"
     assert "| `conformal[eps=-0.1]` | 2 |" in (report / "leaderboard.md").read_text()
     assert (report / "frontier.png").stat().st_size > 10_000
