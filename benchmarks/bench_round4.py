@@ -24,7 +24,10 @@ engine use one core alike), after a warm-up run that loads the compiled kernels;
   lockstep engine) -- target 5x; wall time, and the CPU time of this process (every episode
   of both runs in it);
 * ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal; fleets run
-  one per task, not in the lockstep engine) against a single-robot episode -- target 3x.
+  one per task, not in the lockstep engine; each robot's plain steps in the compiled APF
+  step, the priority stages handed to the generic path) against a single-robot episode --
+  target 3x; and the same fleets with every step on the generic path (the per-fleet loop
+  as before), with the share of steps handed over.
 
 :func:`measure` returns the figures as dicts (``benchmarks/run_all.py``'s form).
 """
@@ -249,22 +252,67 @@ def time_fleet(data_root: str, limit: int, robots: int, repeats: int) -> tuple[f
     return _best_of(repeats, run, f"{robots}-robot fleets")
 
 
+@contextlib.contextmanager
+def generic_fleet() -> Iterator[None]:
+    """Every robot of a fleet decided by the generic Python path (the compiled step off:
+    the per-fleet loop as before the robot rows first were compiled)."""
+    from conformal_control.families.cbf.controller import ConformalCBFController
+
+    parts = ConformalCBFController._apf_parts
+    ConformalCBFController._apf_parts = lambda self: False  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        ConformalCBFController._apf_parts = parts  # type: ignore[method-assign]
+
+
+@contextlib.contextmanager
+def counting_steps(seen: dict[str, int]) -> Iterator[None]:
+    """Count the robots' decisions (``decide``) and those handed to the generic path."""
+    from conformal_control.families.cbf.controller import ConformalCBFController
+
+    decide, generic = ConformalCBFController.decide, ConformalCBFController._decide_generic
+
+    def counted(self: Any, *a: Any) -> Any:
+        seen["decide"] = seen.get("decide", 0) + 1
+        return decide(self, *a)
+
+    def handed(self: Any, *a: Any) -> Any:
+        seen["generic"] = seen.get("generic", 0) + 1
+        return generic(self, *a)
+
+    ConformalCBFController.decide = counted  # type: ignore[method-assign]
+    ConformalCBFController._decide_generic = handed  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        ConformalCBFController.decide = decide  # type: ignore[method-assign]
+        ConformalCBFController._decide_generic = generic  # type: ignore[method-assign]
+
+
 def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
     """A robot of a 5-robot reciprocal fleet against a single-robot ``conformal`` episode."""
     limit, repeats = (2, 1) if quick else (4, 1)
-    time_fleet(data_root, 1, 2, 1)  # warm-up: kernels loaded
+    time_fleet(data_root, 1, 5, 1)  # warm-up: kernels loaded (those of 5-robot fleets too)
     loads = [_load()]
     single = time_bench(data_root, 20, 2, methods=("conformal",))
     fleet = time_fleet(data_root, limit, 5, repeats)
+    with generic_fleet():
+        before = time_fleet(data_root, limit, 5, repeats)
     loads.append(_load())
-    per = [w / n for w, _, n in (single, fleet)]
-    cpu = [c / n for _, c, n in (single, fleet)]
+    seen: dict[str, int] = {}
+    with counting_steps(seen):  # not timed
+        time_fleet(data_root, limit, 5, 1)
+    per = [w / n for w, _, n in (single, fleet, before)]
+    cpu = [c / n for _, c, n in (single, fleet, before)]
     note = (
         f"{fleet[2]} robot episodes (the first {limit} multi-crossings-v1 test entries, "
         f"5 robots, reciprocal, conformal), one worker (fleets "
         f"run one per task), against {single[2]} single-robot episodes (20 crossings-v2 test "
         f"scenarios, lockstep engine); CPU per robot {cpu[1] * 1e3:.1f} ms against "
-        f"{cpu[0] * 1e3:.1f} ms ({cpu[1] / cpu[0]:.1f}x); {loads[0]} before, {loads[1]} after"
+        f"{cpu[0] * 1e3:.1f} ms ({cpu[1] / cpu[0]:.1f}x), {cpu[2] * 1e3:.1f} ms with every "
+        f"step on the generic path; {seen.get('generic', 0)} of {seen.get('decide', 0)} "
+        f"steps handed to the generic path; {loads[0]} before, {loads[1]} after"
     )
     return [
         _fig(
@@ -274,7 +322,10 @@ def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
             "ms",
             target=3.0 * per[0],
             note=note,
-            ratios=[("a single-robot episode", per[0], "times")],
+            ratios=[
+                ("a single-robot episode", per[0], "times"),
+                ("every step on the generic path (as before)", per[2], "faster"),
+            ],
         )
     ]
 

@@ -132,3 +132,36 @@ def test_round4_python_baselines_empty_and_restore_the_engine_tables(run_all):
     with bench_round4.python_recorded():
         assert "recorded" not in tables.PREDICTORS
     assert tables.PREDICTORS == predictors
+
+
+def test_round4_fleet_baseline_takes_the_generic_path_and_restores_it(run_all):
+    """``generic_fleet`` turns the compiled step off for the fleet baseline and restores it;
+    ``counting_steps`` counts decisions and hand-overs and restores the methods."""
+    import bench_round4  # run_all put benchmarks/ on sys.path
+
+    from conformal_control.families.cbf import (
+        APFBarrier,
+        AttractiveField,
+        ConformalConstraint,
+        Exact2DSafetyFilter,
+    )
+    from conformal_control.families.cbf.controller import ConformalCBFController as C
+    from conformal_control.predictors import ConstantVelocityPredictor
+
+    c = C(
+        ConstantVelocityPredictor(),
+        ConformalConstraint(APFBarrier(K_rep=0.5, rho0=5.0, d_c=0.7), a=2.0),
+        Exact2DSafetyFilter(v_max=1.5),
+        AttractiveField(K_att=1.0, v_max=1.5),
+    )
+    c.reset()
+    assert c._fused
+    parts, decide, generic = C._apf_parts, C.decide, C._decide_generic
+    with bench_round4.generic_fleet():
+        c.reset()
+        assert not c._fused
+    assert C._apf_parts is parts
+    seen: dict[str, int] = {}
+    with bench_round4.counting_steps(seen):
+        assert C.decide is not decide and C._decide_generic is not generic
+    assert C.decide is decide and C._decide_generic is generic

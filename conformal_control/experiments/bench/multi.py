@@ -456,8 +456,10 @@ def _options_label(options: Mapping[str, Any]) -> str:
 
 def _run_one(run: MultiRun, suite_path: str, data_root: str | None) -> dict[str, Any]:
     """Run one configuration; never raises (a failure is a row with its error)."""
+    from ...core.jit import compile_now
     from ...runs.fleet import run_multi
 
+    compile_now()  # a benchmark of fleets: compiled from the start (conformal_control.core.jit)
     t0 = time.perf_counter()
     e = run.entry
     row: dict[str, Any] = {

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -230,11 +230,16 @@ class ConformalCBFController(
             self._robot_constraint = self.reciprocity.robot_constraint(self.constraint)
             self._turn = self.reciprocity.turn()
             self._robot_dc = float(self._robot_constraint.barrier.get_params().get("d_c", 0.0))
+            # the floor rows of the compiled step: the robots' d_c and the floor margin
+            self._floor = np.array([self._robot_dc, float(self.reciprocity.floor_margin)])
         self.predictor.reset()
         self.safety_filter.reset()
         self.reference.reset()
         self.n_nonfinite_predictions_ = 0
         self.n_steps_ = 0
+        # compiled-path steps left to the generic path (priority stages, edge rule with
+        # robots); not a statistic of the run (the decisions are the generic path's)
+        self.n_generic_steps_ = 0
         self._yield_until = -math.inf  # broadcast that it yields until then (s)
         self._stage = ""  # the stage priority_relax gave way at, last time
         self._t_now = 0.0
@@ -267,7 +272,10 @@ class ConformalCBFController(
         conformal constraint, the exact 2-D filter with its compiled step. A fallback the
         step does not decide itself (e.g. ``relax``) decides in Python on the compiled
         rows (:meth:`Exact2DSafetyFilter.step_apf_record`), except with robots (their hard
-        and reciprocal rows are built by the generic path for such a fallback)."""
+        and reciprocal rows are built by the generic path for such a fallback). With the
+        robot rows giving way first (priority ``"pedestrians"``) the compiled step decides
+        the plain steps and leaves the others (the priority stages, the edge rule with
+        robots) to the generic path, step by step (``n_generic_steps_`` counts them)."""
         f, c = self.safety_filter, self.constraint
         rec = self.reciprocity
         return (
@@ -275,8 +283,6 @@ class ConformalCBFController(
             and type(c.barrier) is APFBarrier
             and isinstance(f, Exact2DSafetyFilter)
             and (f.fused or (f.compiled_step is True and rec is None))
-            # the robot rows given way row by row: an LP per infeasible step, in Python
-            and not (rec is not None and rec.mode == "reciprocal" and rec.priority == "pedestrians")
         )
 
     def stats(self) -> dict[str, float]:
@@ -525,6 +531,19 @@ class ConformalCBFController(
             lam, off = self._per_agent(lam)
         if self._fast:
             return self._decide_compiled(state, lam, off)
+        res = self._decide_generic(state, lam, off)
+        self._rec_x.append(state.x[:2].copy())
+        self._rec_v.append(res.decision)
+        self._rec_lam.append(res.lambda_applied)
+        self._rec_status.append(res.status if res.fallback is None else res.fallback)
+        self.n_steps_ += 1
+        return res.decision
+
+    def _decide_generic(
+        self, state: ControlState, lam: float, off: np.ndarray | None
+    ) -> FilterResult:
+        """The decision of the generic path (rows built in Python, the filter's ``solve``),
+        not recorded."""
         x_ego = state.x[:2]
         v_ref = self.reference(state.x, state.t, state.goal)
         if self._peer_ids.size and self._turn[1]:
@@ -549,12 +568,7 @@ class ConformalCBFController(
             res = self._solve(v_ref, A, b, self.slack(lam), escape, ttc)
             if res.status == "fallback" and self._peer_ids.size:
                 self._yield_until = state.t + YIELD_HOLD_S
-        self._rec_x.append(x_ego.copy())
-        self._rec_v.append(res.decision)
-        self._rec_lam.append(res.lambda_applied)
-        self._rec_status.append(res.status if res.fallback is None else res.fallback)
-        self.n_steps_ += 1
-        return res.decision
+        return res
 
     def yielding(self) -> bool:
         """Whether this robot says it yields to the other robots: its reciprocity's
@@ -777,9 +791,16 @@ class ConformalCBFController(
             n1 = float(v_ref[1])
         res: FilterResult | None
         if self._special:
-            res = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
-            if self._peer_ids.size and (self._rc[i] > 1 or res is not None):  # fell back
-                self._yield_until = state.t + YIELD_HOLD_S
+            got = self._compiled_with_robots(state, x0, x1, n0, n1, lam, i)
+            if got is False:  # a step only the generic path decides (priority stages)
+                self.n_generic_steps_ += 1
+                res = self._decide_generic(state, lam, off)
+                self._rx[i] = (x0, x1)
+                self._rc[i] = 2  # its name in _names
+            else:
+                res = None if got is None else cast(FilterResult, got)
+                if self._peer_ids.size and (self._rc[i] > 1 or res is not None):  # fell back
+                    self._yield_until = state.t + YIELD_HOLD_S
         else:
             res = self.safety_filter.step_apf_record(  # type: ignore[attr-defined]
                 x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, off
@@ -796,8 +817,9 @@ class ConformalCBFController(
 
     def _compiled_with_robots(
         self, state: ControlState, x0: float, x1: float, n0: float, n1: float, lam: float, i: int
-    ) -> FilterResult | None:
-        """The compiled step with the peers' rows and hard rows (one compiled call)."""
+    ) -> FilterResult | bool | None:
+        """The compiled step with the peers' rows and hard rows (one compiled call); False
+        for a step it leaves to the generic path (nothing recorded or counted)."""
         k = self._peer_ids.size
         n = self._ids.size
         if k:
@@ -816,6 +838,7 @@ class ConformalCBFController(
         return self.safety_filter.step_apf_record_peers(  # type: ignore[attr-defined, no-any-return]
             x0, x1, n0, n1, lam, self._pv, state.step, self._rec, i, (self._col, n),
             (pos, ref, o0, o1, self._turn, float(state.x[2]), float(state.x[3])),
+            self._floor,
         )  # fmt: skip
 
     def _robot_columns(

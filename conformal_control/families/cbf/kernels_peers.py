@@ -33,10 +33,12 @@ from .kernels2d import (
     HEADER,
     INFEASIBLE,
     NONFINITE,
+    OPTIMAL,
     OUT_OF_RANGE,
     RECORD_FIELDS,
     SEARCHED,
     TOO_MANY,
+    UNCONSTRAINED,
     edge_prepare,
     edge_step,
     edge_views,
@@ -49,11 +51,31 @@ from .kernels2d import (
 )
 from .pyhypot import c_hypot
 
-__all__ = ["SEARCH_ALL", "apf_control_peers", "apf_rows_weighted", "lexicographic_search"]
+__all__ = [
+    "PYTHON_STEP",
+    "SEARCH_ALL",
+    "apf_control_peers",
+    "apf_rows_weighted",
+    "floor_rows_into",
+    "lexicographic_search",
+]
 
 #: Result code of :func:`apf_control_peers`: the search had to give the rows without
 #: slack some too (the common level ended above 0).
 SEARCH_ALL = 7
+
+#: Result code of :func:`apf_control_peers` with the robot rows giving way first
+#: (``turn[6]``): the step needs what only the generic Python path does -- an agent or a
+#: peer within the edge rule's distance, a coinciding peer, or no command meeting every
+#: row (the priority stages of
+#: :func:`~conformal_control.families.cbf.reciprocal.priority_relax`). Nothing was
+#: recorded or counted; the caller decides the step in Python.
+PYTHON_STEP = 9
+
+#: Below this distance (m) two robots coincide
+#: (:data:`~conformal_control.families.cbf.reciprocal.TIE_DISTANCE`: the generic path
+#: decides, with the pair's tie-break direction).
+TIE_DISTANCE = 1e-9
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -257,6 +279,7 @@ def apf_control_peers(
     turn: np.ndarray,
     vx: float,
     vy: float,
+    floor: np.ndarray,
 ) -> int:
     """:func:`~conformal_control.families.cbf.kernels2d.apf_control` with robot columns.
 
@@ -273,10 +296,21 @@ def apf_control_peers(
     ``(vx, vy)`` below that fraction of the nominal speed, the nominal velocity is first
     turned away from the nearest peer ahead. Same codes, record and buffers as
     ``apf_control``.
+
+    With ``turn[6]`` (priority ``"pedestrians"``: the robot rows give way first) the
+    rows are those of the generic path's ``_with_robots``: the predicted agents', the
+    peers' barrier rows and their floor rows (:func:`floor_rows_into`, ``floor`` = the
+    robots' collision distance and the floor margin, m), and the step is decided here
+    only when it is the plain projection (or the nominal velocity): with an agent or a
+    peer within the edge rule's distance, a coinciding peer or an infeasible step it
+    returns :data:`PYTHON_STEP` before recording or counting anything (the generic path
+    decides it: the edge rule's polygon with the robots, the priority stages).
     """
     cap = int(buf[11])
     m = pv.shape[2]
-    if m > cap:
+    first = turn[6] != 0.0 and m > npred
+    rows = m + (m - npred) if first else m
+    if rows > cap:
         return TOO_MANY
     if s < 0 or s >= pv.shape[1]:
         return OUT_OF_RANGE
@@ -309,10 +343,25 @@ def apf_control_peers(
                 t0 = turn[0] * n0 + sn * n1
                 n1 = -sn * n0 + turn[0] * n1
                 n0 = t0
+    if first:
+        edge = prm[12]
+        for k in range(m - npred):  # a coinciding peer, or one inside (robot_escape)
+            d = c_hypot(peer_pos[k, 0] - x0, peer_pos[k, 1] - x1)
+            if d < TIE_DISTANCE or (edge >= 0.0 and d < floor[0]):
+                return PYTHON_STEP
+        if edge >= 0.0:  # an agent within the edge rule's distance (constraint.escape)
+            for j in range(npred):
+                if c_hypot(x0 - pv[0, s, j, 0], x1 - pv[0, s, j, 1]) < edge:
+                    return PYTHON_STEP
     ns = int(buf[HEADER - 3])
     o = HEADER + 5 * ns
     poly = buf[HEADER:o]
     work = buf[o:]
+    if first:
+        return _first_step(
+            x0, x1, n0, n1, lam, s, i, pv, buf, rec, col, npred, peer_pos, floor, cap, ns,
+            poly, work,
+        )  # fmt: skip
     A = work[0 : 2 * m].reshape((m, 2))
     b = work[2 * cap : 2 * cap + m]
     rhs = work[3 * cap : 3 * cap + m]
@@ -357,6 +406,84 @@ def apf_control_peers(
             n0, n1, A, b, hard, lam, turn[5] != 0.0, S, sv, verts, prm[6], prm[10], G, h, rhs,
             Ak, bk,
         )  # fmt: skip
+    return _record_peers(code, x0, x1, v0, v1, lam_used, i, buf, rec)
+
+
+@jit
+def floor_rows_into(
+    x0: float,
+    x1: float,
+    peer_pos: np.ndarray,
+    shares: np.ndarray,
+    d_c: float,
+    a: float,
+    margin: float,
+    lam: float,
+    A: np.ndarray,
+    b: np.ndarray,
+) -> None:
+    """The robots' floor rows (:func:`~conformal_control.families.cbf.reciprocal.floor_rows`,
+    the same operations) written to ``A`` and ``b``, minus ``lam`` (rows without slack):
+    ``-u . v + s_ij a (d - d_c - margin) - lam`` with ``u`` the unit vector toward the
+    peer; no peer may coincide with the robot (the caller checks)."""
+    target = d_c + margin
+    for k in range(peer_pos.shape[0]):
+        r0 = peer_pos[k, 0] - x0
+        r1 = peer_pos[k, 1] - x1
+        d = c_hypot(r0, r1)
+        A[k, 0] = -(r0 / d)
+        A[k, 1] = -(r1 / d)
+        b[k] = shares[k] * a * (d - target) - lam
+
+
+@jit
+def _first_step(
+    x0: float,
+    x1: float,
+    n0: float,
+    n1: float,
+    lam: float,
+    s: int,
+    i: int,
+    pv: np.ndarray,
+    buf: np.ndarray,
+    rec: np.ndarray,
+    col: np.ndarray,
+    npred: int,
+    peer_pos: np.ndarray,
+    floor: np.ndarray,
+    cap: int,
+    ns: int,
+    poly: np.ndarray,
+    work: np.ndarray,
+) -> int:
+    """The plain step of :func:`apf_control_peers` with the floor rows (``turn[6]``): the
+    predicted agents' and the peers' rows, the floor rows after them, projected; an
+    infeasible step is :data:`PYTHON_STEP` (nothing recorded)."""
+    m = pv.shape[2]
+    k = m - npred
+    rows = m + k
+    prm = buf[: HEADER - 3]
+    A = work[0 : 2 * rows].reshape((rows, 2))
+    b = work[2 * cap : 2 * cap + rows]
+    rhs = work[3 * cap : 3 * cap + rows]
+    Ak = work[4 * cap : 4 * cap + 2 * rows].reshape((rows, 2))
+    bk = work[6 * cap : 6 * cap + rows]
+    G = work[7 * cap : 9 * cap + 2 * ns].reshape((cap + ns, 2))
+    h = work[9 * cap + 2 * ns : 10 * cap + 3 * ns]
+    S = poly[0 : 2 * ns].reshape((ns, 2))
+    sv = poly[2 * ns : 3 * ns]
+    verts = poly[3 * ns : 5 * ns].reshape((ns, 2))
+    apf_rows_weighted(x0, x1, pv[0, s], pv[1, s], col, lam, prm, A[:m], b[:m])
+    floor_rows_into(
+        x0, x1, peer_pos, col[0, npred:m], floor[0], prm[5], floor[1], lam, A[m:], b[m:]
+    )
+    code, v0, v1, lam_used, _ = filter_step(
+        n0, n1, A, b, lam, S, sv, verts, prm[6], prm[7] != 0.0, prm[8], False, prm[10], G, h,
+        rhs, Ak, bk,
+    )  # fmt: skip
+    if code != UNCONSTRAINED and code != OPTIMAL:
+        return PYTHON_STEP
     return _record_peers(code, x0, x1, v0, v1, lam_used, i, buf, rec)
 
 

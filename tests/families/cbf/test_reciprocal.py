@@ -148,7 +148,7 @@ def _controller(
     margin=0.1,
     sidestep=0.3,
     hard="level",
-    priority="robots",  # the compiled step's order (priority="pedestrians" is generic)
+    priority="robots",
 ):
     return ConformalCBFController(
         ConstantVelocityPredictor(),
@@ -172,16 +172,20 @@ def _query(rng, n_ped, n_rob):
     )
 
 
+@pytest.mark.parametrize("priority", ["robots", "pedestrians"])
 @pytest.mark.parametrize("hard", ["level", "last"])
 @pytest.mark.parametrize("scope", ["pedestrians", "robots", "both"])
 @pytest.mark.parametrize("info", INFORMATION)
-def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard):
+def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard, priority):
+    # priority "pedestrians": the compiled step decides the plain steps and hands the
+    # others (the priority stages, the edge rule with robots) to the generic path
     rng = np.random.default_rng(3)
     searched = 0
+    handed = 0
     for trial in range(6):
         q = _query(rng, n_ped=3, n_rob=2)
-        fast = _controller(True, scope=scope, hard=hard)
-        slow = _controller(False, scope=scope, hard=hard)
+        fast = _controller(True, scope=scope, hard=hard, priority=priority)
+        slow = _controller(False, scope=scope, hard=hard, priority=priority)
         for c in (fast, slow):
             c.reset()
             c.begin_interval(q)
@@ -202,6 +206,9 @@ def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard
             lam = float(rng.uniform(-1.0, 0.5))
             a, b = fast.decide(state, lam), slow.decide(state, lam)
             np.testing.assert_allclose(a, b, atol=1e-9, err_msg=f"trial {trial} step {step}")
+        handed += fast.n_generic_steps_
+        if priority == "pedestrians":  # the same counters too
+            assert fast.stats() == slow.stats()
         ra, rb = fast.interval_record(), slow.interval_record()
         assert ra.status == rb.status
         searched += ra.status.count("lambda_search")
@@ -212,6 +219,8 @@ def test_compiled_step_with_robot_rows_equals_the_generic_step(scope, info, hard
         np.testing.assert_array_equal(ra.scored, rb.scored)
         assert ra.scored.tolist() == [scope != "robots"] * 3 + [scope != "pedestrians"] * 2
     assert searched > 0  # the searches were compared, not only the projections
+    # with the robot rows first, some steps compiled and some handed over
+    assert (0 < handed < 36) if priority == "pedestrians" else handed == 0
 
 
 def test_robots_are_not_handed_to_the_predictor():
@@ -456,12 +465,12 @@ def test_floor_margin_is_checked():
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compiled):
-    # people first runs the generic path even with the compiled filter step (the floor
-    # rows exist only there). A robot between a pedestrian walking at it from behind and a
-    # peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows cannot all be met, the robot's
-    # barrier row gives way, then its floor row's margin band (the pedestrian's row is
-    # kept), and its core holds: it closes in on the peer at no more than its share of
-    # a (d - d_c - FLOOR_CORE margin)
+    # people first: the compiled filter step leaves a step whose rows cannot all be met to
+    # the generic path (the priority stages run only there). A robot between a pedestrian
+    # walking at it from behind and a peer robot 1.0 m ahead (robots' d_c 0.8 m): the rows
+    # cannot all be met, the robot's barrier row gives way, then its floor row's margin
+    # band (the pedestrian's row is kept), and its core holds: it closes in on the peer at
+    # no more than its share of a (d - d_c - FLOOR_CORE margin)
     from conformal_control.families.cbf.reciprocal import FLOOR_CORE
 
     rng = np.random.default_rng(0)
@@ -474,9 +483,10 @@ def test_the_floor_margin_reaches_the_decision_whatever_the_filter_s_step(compil
         c.reciprocity.floor_margin = margin  # type: ignore[union-attr]
         c.reset()
         c.begin_interval(q)
-        assert not c._fast  # the generic path, whatever the filter
+        assert c._fast == compiled
         view = PeerView(q.ids[1:], np.array([[1.0, 0.0]]), np.array([0.5]))
         v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        assert c.n_generic_steps_ == int(compiled)  # handed to the generic path
         assert c.interval_record().status == ["lambda_search"]  # the fallback decided
         closing[margin] = float(v[0])
         core = FLOOR_CORE * margin

@@ -403,7 +403,8 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         i: int,
         rows: tuple[np.ndarray, int],
         peers: tuple[np.ndarray, np.ndarray, float, float, np.ndarray, float, float],
-    ) -> FilterResult | None:
+        floor: np.ndarray | None = None,
+    ) -> FilterResult | bool | None:
         """:meth:`step_apf_record` with robot rows (a multi-robot world's reciprocal rows).
 
         ``rows = (col, npred)``: per column of ``pv`` the weight of ``a h``, 1 for a row
@@ -414,7 +415,13 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
         side-step rule and the robot's velocity
         (:func:`~conformal_control.families.cbf.kernels_peers.apf_control_peers`).
         Same results, counters and fallbacks as :meth:`step_apf_record`; a fallback
-        decided in Python starts from the nominal velocity as given.
+        decided in Python starts from the nominal velocity as given. With the robot rows
+        giving way first (``turn[6]``) the floor rows join (``floor``: the robots'
+        collision distance and the floor margin, m) and a step the compiled call does not
+        decide (an agent or a peer within the edge rule's distance, a coinciding peer, an
+        infeasible step: :data:`~conformal_control.families.cbf.kernels_peers.PYTHON_STEP`)
+        returns False, nothing recorded or counted: the caller decides it on the generic
+        path.
 
         Parameters
         ----------
@@ -428,14 +435,20 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             positions (K, 2) m and reference velocities (K, 2) m/s, the robot's own
             reference velocity (m/s), :meth:`Reciprocity.turn`'s options and the robot's
             velocity (m/s).
+        floor : ndarray of shape (2,), optional
+            The robots' collision distance and the floor margin (m), read with ``turn[6]``.
         """
         kernels_peers = self._kp
         col, npred = rows
         pos, ref, o0, o1, turn, vx, vy = peers
+        if floor is None:
+            floor = np.zeros(2)
         code = kernels_peers.apf_control_peers(
             x0, x1, n0, n1, lam, s, i, pv, self._buf, rec, col, npred, pos, ref, o0, o1, turn,
-            vx, vy,
+            vx, vy, floor,
         )  # fmt: skip
+        if code == kernels_peers.PYTHON_STEP:
+            return False
         if code == 0 or code == 1:
             self.n_solves_ += code
             self._last = self._lastv
@@ -443,8 +456,11 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             return None
         k = self._k
         if code == k.TOO_MANY:
-            self._buffers(pv.shape[2])
-            return self.step_apf_record_peers(x0, x1, n0, n1, lam, pv, s, rec, i, rows, peers)
+            m = pv.shape[2]
+            self._buffers(2 * m - npred if turn[6] != 0.0 else m)  # the floor rows too
+            return self.step_apf_record_peers(
+                x0, x1, n0, n1, lam, pv, s, rec, i, rows, peers, floor
+            )
         if code == k.OUT_OF_RANGE:
             raise IndexError(
                 f"control step {s} is outside the interval's {pv.shape[1]} predicted steps"
