@@ -118,7 +118,10 @@ def iter_mpc_batch(
             done.append((i, result))
 
     def refill() -> None:
-        while len(live) < size:
+        # stop once an episode has ended: its result is yielded (and journaled by a sweep)
+        # before the next episode starts; without lockstep an episode runs to its end
+        # inside advance(), so refilling on would run the whole feed before yielding
+        while len(live) < size and not done:
             item = next(feed, None)
             if item is None:
                 return

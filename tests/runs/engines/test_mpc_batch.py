@@ -83,6 +83,26 @@ def test_lockstep_episodes_equal_one_at_a_time():
     assert sum(r.metrics.n_infeasible for r in got.values()) > 0
 
 
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_each_result_is_yielded_before_the_next_episode_starts(lockstep: bool) -> None:
+    """A sweep journals each result as it is yielded: an interrupted benchmark keeps the
+    episodes that ended (the first version ran the whole feed before yielding any)."""
+    scene = load_scene("crossing", seed=0)
+    run = dataclasses.replace(as_run_spec(family="mpc"), max_frames=30, record_animation=False)
+    taken: list[int] = []
+
+    def feed():
+        for i in range(3):
+            taken.append(i)
+            yield scene, dataclasses.replace(run, seed=i), None
+
+    size = 2 if lockstep else 1
+    for n, (i, _) in enumerate(iter_mpc_batch(feed(), lockstep=lockstep, batch_size=size)):
+        # without lockstep the episode yielded is the last one taken; in lockstep at
+        # most one batch is alive beyond the results yielded
+        assert len(taken) <= n + size, (n, i, taken)
+
+
 def test_mpc_batch_reasons():
     run = as_run_spec(family="mpc")
     assert run_reason(run) is None
