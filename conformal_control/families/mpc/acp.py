@@ -37,7 +37,6 @@ Where this differs from Dixit et al.:
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -46,14 +45,172 @@ from typing import Any
 import numpy as np
 
 from ...core.base import Loss
+from ...core.jit import kernel
 from ...core.losses import check_lambda
 from ...predictors.base import PredictionQuery, Predictor
 from ..cbf.acp import region_radii
+from ..cbf.pyhypot import c_hypot
 from ..cbf.roles import Dynamics, ReferenceController
 from .controller import MPCIntervalRecord, SamplingMPC
 from .settings import Costs, Limits, Sampling
 
 __all__ = ["ACPMPC", "ACPMPCIntervalRecord", "PlanMiscoverageLoss"]
+
+jit = kernel(cache=True, nogil=True)
+
+
+@jit
+def _score_kernel(
+    t_made: np.ndarray,
+    first: np.ndarray,
+    off: np.ndarray,
+    ids: np.ndarray,
+    pred: np.ndarray,
+    obs_ids: np.ndarray,
+    obs_rows: np.ndarray,
+    hist: np.ndarray,
+    obs_t: float,
+    obs_dt: float,
+    span: float,
+    dt_plan: float,
+    steps_out: np.ndarray,
+    err_out: np.ndarray,
+    new_first: np.ndarray,
+) -> tuple[int, int]:
+    """The scoring of :meth:`ACPMPC._score_numpy`, compiled: the stored predictions ``p``
+    (made at ``t_made[p]``, agents ``ids[off[p]:off[p + 1]]`` with their positions at the
+    plan steps ``pred[off[p]:off[p + 1]]``, first step not yet scored ``first[p]``) scored
+    against the history, errors written in the order (prediction, step, agent); returns
+    (errors written, pairs not scored) and each prediction's next unscored step in
+    ``new_first``. The same IEEE operations in the same order as the vectorised form (the
+    interpolation, ``numpy.hypot`` = the C library's ``hypot``); an agent's row is the
+    last row of its id in the history (``obs_ids`` sorted stably, ``obs_rows`` their
+    rows), as the vectorised form's dictionary keeps it."""
+    n_cols = hist.shape[1]
+    horizon = pred.shape[1]
+    k = 0
+    unscored = 0
+    for p in range(t_made.shape[0]):
+        a0, a1 = off[p], off[p + 1]
+        m = a1 - a0
+        h = first[p]
+        while h <= horizon:
+            back = obs_t - (t_made[p] + h * dt_plan)
+            if back < -1e-9:
+                break
+            if back > span + 1e-9:  # older than the history: cannot be scored
+                unscored += m
+                h += 1
+                continue
+            f = back / obs_dt
+            k0 = math.floor(f + 1e-9)
+            w = max(f - k0, 0.0)
+            c0 = n_cols - 1 - k0
+            c1 = max(c0 - 1, 0)
+            if c0 < 0:  # numpy's negative index
+                c0 += n_cols
+            for a in range(a0, a1):
+                i = np.searchsorted(obs_ids, ids[a], side="right") - 1
+                if i < 0 or obs_ids[i] != ids[a]:  # left the sensor
+                    unscored += 1
+                    continue
+                r = obs_rows[i]
+                if w == 0.0:
+                    px = hist[r, c0, 0]
+                    py = hist[r, c0, 1]
+                else:
+                    px = hist[r, c0, 0] + w * (hist[r, c1, 0] - hist[r, c0, 0])
+                    py = hist[r, c0, 1] + w * (hist[r, c1, 1] - hist[r, c0, 1])
+                if not (math.isfinite(px) and math.isfinite(py)):
+                    unscored += 1
+                    continue
+                steps_out[k] = h
+                err_out[k] = c_hypot(px - pred[a, h - 1, 0], py - pred[a, h - 1, 1])
+                k += 1
+            h += 1
+        new_first[p] = h
+    return k, unscored
+
+
+@jit
+def _merge_windows(
+    old: np.ndarray,
+    old_off: np.ndarray,
+    ring: np.ndarray,
+    start: np.ndarray,
+    count: np.ndarray,
+    new: np.ndarray,
+    new_off: np.ndarray,
+    move: np.ndarray,
+    out_off: np.ndarray,
+) -> np.ndarray:
+    """Every step's sorted window after its new errors: for each step h with ``move[h]``,
+    the oldest errors leaving the window (the ring ``ring[h]``, oldest at ``start[h]``,
+    ``count[h]`` of them; updated in place with the new errors) removed from its sorted
+    copy ``old[old_off[h]:old_off[h + 1]]``, and the new ones
+    ``new[new_off[h]:new_off[h + 1]]`` merged in; the other steps copied. Written into a
+    new array at ``out_off``. The same array as ``numpy.delete`` of the leftmost copies of
+    the errors leaving and ``numpy.insert`` of the new ones, sorted, before their equals
+    (the form this replaces): finite errors, in one pass. A step whose errors leaving are
+    not all in its sorted copy (the window changed from outside) is not written and its
+    ``move[h]`` set to False, for the caller to sort it afresh."""
+    cap = ring.shape[1]
+    out = np.empty(out_off[-1])
+    for h in range(old_off.shape[0] - 1):
+        src = old[old_off[h] : old_off[h + 1]]
+        dst = out[out_off[h] : out_off[h + 1]]
+        if not move[h]:
+            for t in range(src.shape[0]):
+                dst[t] = src[t]
+            continue
+        add = np.sort(new[new_off[h] : new_off[h + 1]])
+        k = add.shape[0]
+        gone = max(count[h] + k - cap, 0)
+        leave = np.empty(gone)
+        for i in range(gone):
+            leave[i] = ring[h, (start[h] + i) % cap]
+        leave = np.sort(leave)
+        n = src.shape[0]
+        cut = np.empty(gone, dtype=np.int64)  # where the leaving errors are (leftmost copies)
+        for i in range(gone):
+            if i > 0 and leave[i] == leave[i - 1]:
+                cut[i] = cut[i - 1] + 1
+            else:
+                cut[i] = np.searchsorted(src, leave[i], side="left")
+        found = True
+        for i in range(gone):
+            found = found and cut[i] < n and src[cut[i]] == leave[i]
+        if not found:  # the sorted copy is not the window's (changed from outside)
+            move[h] = False
+            continue
+        put = np.searchsorted(src, add, side="left")  # a new error before its equals
+        o = 0
+        s = 0
+        i = 0
+        a = 0
+        while True:  # copy the runs between the events
+            nd = cut[i] if i < gone else n
+            na = put[a] if a < k else n
+            stop = min(nd, na)
+            for t in range(s, stop):
+                dst[o] = src[t]
+                o += 1
+            s = stop
+            if a < k and na <= nd:
+                dst[o] = add[a]
+                o += 1
+                a += 1
+            elif i < gone:
+                s += 1
+                i += 1
+            else:
+                break
+        start[h] = (start[h] + gone) % cap
+        count[h] -= gone
+        for i in range(k):
+            ring[h, (start[h] + count[h] + i) % cap] = new[new_off[h] + i]
+        count[h] += k
+    return out
 
 
 @dataclass
@@ -181,6 +338,15 @@ class ACPMPC(
         # first step not yet scored)
         self._pending: list[tuple[float, np.ndarray, np.ndarray, int]] = []
         self._sorted: tuple[np.ndarray, ...] = tuple(np.zeros(0) for _ in range(h))
+        # each step's window as a ring of floats (arrival order, oldest at _start[h]; the
+        # same errors as scores_[h] while len(scores_[h]) is the sorted copy's length)
+        self._ring = np.zeros((h, int(self.window)))
+        # the sorted copies, one after the other (_sorted[h] = _buf[_off[h]:_off[h + 1]])
+        self._buf = np.zeros(0)
+        self._off = np.zeros(h + 1, dtype=np.int64)
+        self._made = self._sorted
+        self._start = np.zeros(h, dtype=np.int64)
+        self._count = np.zeros(h, dtype=np.int64)
         self._scored = (np.zeros(0, dtype=np.int64), np.zeros(0))
         self._snapshot: tuple[np.ndarray, ...] = self._sorted
         self._infl_lam: float | None = None
@@ -193,11 +359,64 @@ class ACPMPC(
 
     # ------------------------------------------------------------------ sampling time
     def _score(self, observation: PredictionQuery) -> tuple[np.ndarray, np.ndarray]:
-        """Errors of the stored predictions whose targets have passed: (steps, errors).
+        """Errors of the stored predictions whose targets have passed: (steps, errors), in
+        the order (prediction, step, agent).
 
-        Vectorised over the agents of a stored prediction (the same arithmetic, element by
-        element, as one agent at a time: the interpolation and ``numpy.hypot``), in the
-        order (prediction, step, agent)."""
+        Compiled (:func:`_score_kernel`) for integer ids and float64 histories and
+        predictions; otherwise :meth:`_score_numpy`. Both give the same arrays, bit for
+        bit, and the same counters."""
+        pending = self._pending
+        hist = observation.history
+        obs_ids = np.asarray(observation.ids)
+        if not pending:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        if (
+            obs_ids.dtype.kind != "i"
+            or hist.dtype != np.float64
+            or any(e[1].dtype.kind != "i" or e[2].dtype != np.float64 for e in pending)
+            or len({e[2].shape[1] for e in pending}) != 1
+        ):
+            return self._score_numpy(observation)
+        horizon = pending[0][2].shape[1]
+        sizes = np.array([e[1].shape[0] for e in pending], dtype=np.int64)
+        off = np.zeros(sizes.size + 1, dtype=np.int64)
+        np.cumsum(sizes, out=off[1:])
+        first = np.array([e[3] for e in pending], dtype=np.int64)
+        order = np.argsort(obs_ids, kind="stable")
+        room = int((sizes * np.maximum(horizon - first + 1, 0)).sum())
+        steps = np.empty(room, dtype=np.int64)
+        errors = np.empty(room)
+        new_first = np.empty(sizes.size, dtype=np.int64)
+        n, unscored = _score_kernel(
+            np.array([e[0] for e in pending], dtype=np.float64),
+            first,
+            off,
+            np.concatenate([e[1] for e in pending]).astype(np.int64, copy=False),
+            np.concatenate([e[2] for e in pending]).reshape(-1, horizon, 2),
+            np.ascontiguousarray(obs_ids[order], dtype=np.int64),
+            order.astype(np.int64, copy=False),
+            np.ascontiguousarray(hist),
+            float(observation.t),
+            float(observation.dt),
+            float((hist.shape[1] - 1) * observation.dt),
+            float(self.sampling.dt_plan),
+            steps,
+            errors,
+            new_first,
+        )
+        self._pending = [
+            (e[0], e[1], e[2], int(h))
+            for e, h in zip(pending, new_first.tolist(), strict=True)
+            if h <= horizon
+        ]
+        self.n_unscored_ += int(unscored)
+        self.n_scored_ += int(n)
+        return steps[:n], errors[:n]
+
+    def _score_numpy(self, observation: PredictionQuery) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_score` vectorised over the agents of a stored prediction (the same
+        arithmetic, element by element, as one agent at a time: the interpolation and
+        ``numpy.hypot``); for ids or arrays the compiled form does not take."""
         steps: list[np.ndarray] = []
         errors: list[np.ndarray] = []
         hist = observation.history
@@ -245,37 +464,58 @@ class ACPMPC(
     def _add_scores(self, steps: np.ndarray, errors: np.ndarray) -> None:
         """Append the errors to their steps' windows and keep each window's sorted copy
         (``_sorted``) up to date: the errors leaving the window removed from it and the new
-        ones inserted (the same array as sorting the window afresh, without re-sorting
-        2,000 errors per step at every sampling time). A window whose length is no longer
-        that of its sorted copy (filled from outside, as ``benchmarks/bench_mpc.py`` seeds
-        it) or a non-finite error is sorted afresh."""
-        sorted_ = list(self._sorted)
-        for h in range(len(self.scores_)):
-            new = errors[steps == h + 1]
-            if not new.size:
-                continue
-            win = self.scores_[h]
-            old = sorted_[h]
-            cap = int(self.window)
-            gone = max(len(win) + new.size - cap, 0)
-            fresh = (
-                old.size != len(win)
-                or gone > len(win)
-                or not np.isfinite(new).all()
-                or bool(old.size and np.isnan(old[-1]))
-            )
-            if not fresh and gone:
-                out = np.sort(np.fromiter(itertools.islice(win, gone), float, count=gone))
-                at = np.searchsorted(old, out, "left")
-                at += np.arange(gone) - np.searchsorted(out, out, "left")  # repeated values
-                old = np.delete(old, at)
-            win.extend(new.tolist())
-            if fresh:
-                sorted_[h] = np.sort(np.fromiter(win, float))
-            else:
-                add = np.sort(new)
-                sorted_[h] = np.insert(old, np.searchsorted(old, add, "left"), add)
-        self._sorted = tuple(sorted_)
+        ones merged in (:func:`_merge_windows`, compiled: the same array as sorting the
+        window afresh, without re-sorting 2,000 errors per step at every sampling time). A
+        window whose length is no longer that of its sorted copy (filled from outside, as
+        ``benchmarks/bench_mpc.py`` seeds it), more new errors than the window holds, or a
+        non-finite error is sorted afresh."""
+        if not steps.size:
+            return
+        n_steps = len(self.scores_)
+        cap = int(self.window)
+        order = np.argsort(steps, kind="stable")  # each step's errors in arrival order
+        grouped = np.ascontiguousarray(errors[order], dtype=np.float64)
+        by_step = steps[order]
+        new_off = np.searchsorted(by_step, np.arange(1, n_steps + 2), "left").astype(np.int64)
+        counts = np.diff(new_off)
+        if self._sorted is not self._made:  # not the copies made here: lay them out again
+            self._buf = np.concatenate(self._sorted) if n_steps else np.zeros(0)
+            self._off = np.zeros(n_steps + 1, dtype=np.int64)
+            np.cumsum([x.size for x in self._sorted], out=self._off[1:])
+        buf, off = self._buf, self._off
+        sizes = np.diff(off)
+        lengths = np.fromiter(map(len, self.scores_), np.int64, n_steps)
+        last = buf[np.maximum(off[1:] - 1, 0)] if buf.size else np.zeros(n_steps)
+        stale = (sizes != lengths) | (counts > cap) | ((sizes > 0) & np.isnan(last))
+        fresh = (counts > 0) & stale
+        finite = np.isfinite(grouped)
+        if not finite.all():
+            fresh |= np.bincount(by_step[~finite] - 1, minlength=n_steps) > 0
+        move = (counts > 0) & ~fresh
+        listed = grouped.tolist()
+        for h in np.flatnonzero(counts).tolist():
+            self.scores_[h].extend(listed[new_off[h] : new_off[h + 1]])
+        out_off = np.zeros(n_steps + 1, dtype=np.int64)
+        np.cumsum(np.where(move, np.minimum(sizes + counts, cap), sizes), out=out_off[1:])
+        moving = move.copy()
+        merged = _merge_windows(
+            buf, off, self._ring, self._start, self._count, grouped, new_off, move, out_off
+        )
+        fresh |= moving & ~move  # the window changed from outside: sorted afresh
+        if fresh.any():
+            rows = [merged[out_off[h] : out_off[h + 1]] for h in range(n_steps)]
+            for h in np.flatnonzero(fresh).tolist():
+                window = np.fromiter(self.scores_[h], float)
+                rows[h] = np.sort(window)
+                self._ring[h, : window.size] = window
+                self._start[h] = 0
+                self._count[h] = window.size
+            merged = np.concatenate(rows)
+            np.cumsum([x.size for x in rows], out=out_off[1:])
+        self._buf, self._off = merged, out_off
+        self._sorted = self._made = tuple(
+            merged[a:b] for a, b in zip(out_off[:-1].tolist(), out_off[1:].tolist(), strict=True)
+        )
 
     def begin_interval(self, observation: PredictionQuery) -> None:
         steps, errors = self._score(observation)

@@ -52,6 +52,11 @@ __all__ = ["ECPMPC", "ECPMPCIntervalRecord", "EgocentricMiscoverageLoss", "egoce
 
 jit = kernel(cache=True, nogil=True)
 
+#: Ranks (from either end) up to which :func:`_quantiles` keeps a candidate's quantile while
+#: the scores come instead of storing them all (``calibration_size`` 15 at miscoverage 0.1:
+#: the largest).
+_SMALL_RANK = 2
+
 
 @jit
 def _kth(scores: np.ndarray, n: int, b_n: int, k: int, buf: np.ndarray) -> float:
@@ -148,6 +153,11 @@ def _quantiles(
     # same squared distances, their minimum, one square root each). ``cut``: each nearest
     # distance is taken over the pedestrians that can be the nearest of some candidate of
     # the step (a minimum selects: the same numbers, see _nearest_candidates).
+    # The quantile, the k-th smallest of a candidate's B scores, is its (B - k + 1)-th
+    # largest: when either rank is at most SMALL_RANK, it is kept while the scores come,
+    # for all candidates together (a short insertion by max/min selects: the scores are
+    # never NaN, so these order them exactly); else the scores are stored and each
+    # candidate's k-th is selected (_kth).
     n_plans, horizon = pos.shape[0], pos.shape[1]
     out = np.empty((n_plans, horizon))
     scores = np.empty((max(cal_pred.shape[1], 1), n_plans))
@@ -156,6 +166,7 @@ def _quantiles(
     dp = np.empty(n_plans)
     do = np.empty(n_plans)
     buf = np.empty(max(cal_pred.shape[1], 1))
+    ranks = np.empty((_SMALL_RANK, n_plans))
     kp = np.empty(cal_pred.shape[2], dtype=np.int64)
     ko = np.empty(cal_pred.shape[2], dtype=np.int64)
     for h in range(horizon):
@@ -167,6 +178,14 @@ def _quantiles(
         if lam <= 0.0 or b_n == 0 or k > b_n:
             out[:, h] = np.inf
             continue
+        kk = max(k, 1)
+        top = b_n - kk + 1
+        # kept while the scores come: the `top` largest (descending) or the kk smallest
+        # (ascending) in ranks[:r]; 0: stored and selected afterwards
+        large = top <= _SMALL_RANK and top <= kk
+        r = top if large else (kk if kk <= _SMALL_RANK else 0)
+        for i in range(r):
+            ranks[i, :] = -np.inf if large else np.inf
         lox, hix, loy, hiy = np.inf, -np.inf, np.inf, -np.inf
         for n in range(n_plans):
             px[n] = pos[n, h, 0]
@@ -177,41 +196,78 @@ def _quantiles(
         for b in range(b_n):
             m = cal_n[h, b]
             if m == 0:
-                scores[b, :] = 0.0
-                continue
-            scale = big
-            for j in range(m):
-                scale = max(scale, abs(cal_pred[h, b, j, 0]), abs(cal_pred[h, b, j, 1]))
-                scale = max(scale, abs(cal_obs[h, b, j, 0]), abs(cal_obs[h, b, j, 1]))
-            # the kernels' rounding margin (CUT_MARGIN (1 + S^2), twice); nothing cut
-            # without ``cut`` or with a non-finite coordinate
-            tol = 2e-9 * (1.0 + scale * scale) if cut and n_plans > 0 else np.inf
-            mp = _nearest_candidates(cal_pred[h, b], m, lox, hix, loy, hiy, tol, kp)
-            mo = _nearest_candidates(cal_obs[h, b], m, lox, hix, loy, hiy, tol, ko)
-            dp[:] = np.inf
-            do[:] = np.inf
-            for i in range(mp):
-                qx = cal_pred[h, b, kp[i], 0]
-                qy = cal_pred[h, b, kp[i], 1]
+                do[:] = 0.0  # every score 0: sqrt(0) - sqrt(0)
+                dp[:] = 0.0
+            else:
+                scale = big
+                for j in range(m):
+                    scale = max(scale, abs(cal_pred[h, b, j, 0]), abs(cal_pred[h, b, j, 1]))
+                    scale = max(scale, abs(cal_obs[h, b, j, 0]), abs(cal_obs[h, b, j, 1]))
+                # the kernels' rounding margin (CUT_MARGIN (1 + S^2), twice); nothing cut
+                # without ``cut`` or with a non-finite coordinate
+                tol = 2e-9 * (1.0 + scale * scale) if cut and n_plans > 0 else np.inf
+                mp = _nearest_candidates(cal_pred[h, b], m, lox, hix, loy, hiy, tol, kp)
+                mo = _nearest_candidates(cal_obs[h, b], m, lox, hix, loy, hiy, tol, ko)
+                dp[:] = np.inf
+                do[:] = np.inf
+                for i in range(mp):
+                    qx = cal_pred[h, b, kp[i], 0]
+                    qy = cal_pred[h, b, kp[i], 1]
+                    for n in range(n_plans):
+                        ax = px[n] - qx
+                        ay = py[n] - qy
+                        e = ax * ax + ay * ay
+                        dp[n] = e if e < dp[n] else dp[n]
+                for i in range(mo):
+                    ox = cal_obs[h, b, ko[i], 0]
+                    oy = cal_obs[h, b, ko[i], 1]
+                    for n in range(n_plans):
+                        ax = px[n] - ox
+                        ay = py[n] - oy
+                        e = ax * ax + ay * ay
+                        do[n] = e if e < do[n] else do[n]
+            if r == 0:
                 for n in range(n_plans):
-                    ax = px[n] - qx
-                    ay = py[n] - qy
-                    e = ax * ax + ay * ay
-                    dp[n] = e if e < dp[n] else dp[n]
-            for i in range(mo):
-                ox = cal_obs[h, b, ko[i], 0]
-                oy = cal_obs[h, b, ko[i], 1]
+                    s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                    scores[b, n] = s if s > 0.0 else 0.0
+            elif large and r == 1:
+                r1 = ranks[0]
                 for n in range(n_plans):
-                    ax = px[n] - ox
-                    ay = py[n] - oy
-                    e = ax * ax + ay * ay
-                    do[n] = e if e < do[n] else do[n]
+                    s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                    v = s if s > 0.0 else 0.0
+                    r1[n] = v if v > r1[n] else r1[n]
+            elif large:  # r == 2: insert v, the larger stays, the smaller moves on
+                r1 = ranks[0]
+                r2 = ranks[1]
+                for n in range(n_plans):
+                    s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                    v = s if s > 0.0 else 0.0
+                    u = r1[n]
+                    r1[n] = v if v > u else u
+                    v = u if v > u else v
+                    r2[n] = v if v > r2[n] else r2[n]
+            elif r == 1:
+                r1 = ranks[0]
+                for n in range(n_plans):
+                    s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                    v = s if s > 0.0 else 0.0
+                    r1[n] = v if v < r1[n] else r1[n]
+            else:
+                r1 = ranks[0]
+                r2 = ranks[1]
+                for n in range(n_plans):
+                    s = math.sqrt(dp[n]) - math.sqrt(do[n])
+                    v = s if s > 0.0 else 0.0
+                    u = r1[n]
+                    r1[n] = v if v < u else u
+                    v = u if v < u else v
+                    r2[n] = v if v < r2[n] else r2[n]
+        if r == 0:
             for n in range(n_plans):
-                s = math.sqrt(dp[n]) - math.sqrt(do[n])
-                scores[b, n] = s if s > 0.0 else 0.0
-        kk = max(k, 1)
-        for n in range(n_plans):
-            out[n, h] = _kth(scores, n, b_n, kk, buf)
+                out[n, h] = _kth(scores, n, b_n, kk, buf)
+        else:
+            for n in range(n_plans):
+                out[n, h] = ranks[r - 1, n]
     return out
 
 
@@ -302,6 +358,117 @@ def _missed(x: np.ndarray, pred: np.ndarray, obs: np.ndarray, q: np.ndarray) -> 
         c(q, dtype=np.float64),
     )
     return out
+
+
+@jit
+def _missed_at(
+    pos: np.ndarray, q: np.ndarray, h: int, pred: np.ndarray, obs: np.ndarray, n: int
+) -> np.ndarray:
+    """:func:`_missed` for the candidates ``pos[:, h]`` with the quantiles ``q[:, h]`` and
+    the first ``n`` pedestrians of ``pred`` and ``obs``, without copies, each nearest
+    distance taken over the pedestrians that can be the nearest of some candidate (the
+    same numbers, bit for bit: a minimum selects; see :func:`_nearest_candidates`)."""
+    n_pos = pos.shape[0]
+    xx = np.empty(n_pos)  # the candidates' coordinates, contiguous
+    xy = np.empty(n_pos)
+    lox, hix, loy, hiy = np.inf, -np.inf, np.inf, -np.inf
+    for i in range(n_pos):
+        xx[i] = pos[i, h, 0]
+        xy[i] = pos[i, h, 1]
+        lox, hix = min(lox, xx[i]), max(hix, xx[i])
+        loy, hiy = min(loy, xy[i]), max(hiy, xy[i])
+    scale = max(abs(lox), abs(hix), abs(loy), abs(hiy))
+    for j in range(n):
+        scale = max(scale, abs(pred[j, 0]), abs(pred[j, 1]), abs(obs[j, 0]), abs(obs[j, 1]))
+    tol = 2e-9 * (1.0 + scale * scale) if n_pos > 0 else np.inf
+    kp = np.empty(max(n, 1), dtype=np.int64)
+    ko = np.empty(max(n, 1), dtype=np.int64)
+    mp = _nearest_candidates(pred, n, lox, hix, loy, hiy, tol, kp)
+    mo = _nearest_candidates(obs, n, lox, hix, loy, hiy, tol, ko)
+    dp = np.full(n_pos, np.inf)
+    do = np.full(n_pos, np.inf)
+    for t in range(mp):
+        qx = pred[kp[t], 0]
+        qy = pred[kp[t], 1]
+        for i in range(n_pos):
+            dx = xx[i] - qx
+            dy = xy[i] - qy
+            e = dx * dx + dy * dy
+            dp[i] = e if e < dp[i] else dp[i]
+    for t in range(mo):
+        ox = obs[ko[t], 0]
+        oy = obs[ko[t], 1]
+        for i in range(n_pos):
+            dx = xx[i] - ox
+            dy = xy[i] - oy
+            e = dx * dx + dy * dy
+            do[i] = e if e < do[i] else do[i]
+    out = np.empty(n_pos, dtype=np.bool_)
+    for i in range(n_pos):
+        s = math.sqrt(dp[i]) - math.sqrt(do[i])
+        if not s > 0.0 and s == s:  # numpy.maximum(s, 0): NaN stays NaN
+            s = 0.0
+        out[i] = s > q[i, h]
+    return out
+
+
+@jit
+def _roll_pairs(
+    now_ids: np.ndarray,
+    now_cur: np.ndarray,
+    made_ids: np.ndarray,
+    made_off: np.ndarray,
+    made_pred: np.ndarray,
+    cal_pred: np.ndarray,
+    cal_obs: np.ndarray,
+    cal_n: np.ndarray,
+) -> bool:
+    """The calibration arrays moved one sampling time back (``b`` to ``b + 1``) and, at
+    ``b = 0`` of every step h, the pedestrians seen now and h plan steps ago: observed
+    positions ``now_cur`` and that time's predictions ``made_pred[made_off[h]:made_off[h +
+    1]]`` (ids ``made_ids``, same slices), in ascending id, as ``numpy.intersect1d`` of
+    unique ids orders them. Returns False (nothing written) when ids repeat."""
+    order = np.argsort(now_ids)
+    for i in range(1, order.shape[0]):
+        if now_ids[order[i]] == now_ids[order[i - 1]]:
+            return False
+    for h in range(cal_n.shape[0]):
+        a0, a1 = made_off[h], made_off[h + 1]
+        sub = np.argsort(made_ids[a0:a1])
+        for i in range(1, sub.shape[0]):
+            if made_ids[a0 + sub[i]] == made_ids[a0 + sub[i - 1]]:
+                return False
+    for h in range(cal_n.shape[0]):
+        for b in range(cal_n.shape[1] - 1, 0, -1):
+            k = cal_n[h, b - 1]
+            for j in range(k):
+                cal_pred[h, b, j, 0] = cal_pred[h, b - 1, j, 0]
+                cal_pred[h, b, j, 1] = cal_pred[h, b - 1, j, 1]
+                cal_obs[h, b, j, 0] = cal_obs[h, b - 1, j, 0]
+                cal_obs[h, b, j, 1] = cal_obs[h, b - 1, j, 1]
+            cal_n[h, b] = k
+        a0, a1 = made_off[h], made_off[h + 1]
+        sub = np.argsort(made_ids[a0:a1])
+        i = 0
+        j = 0
+        k = 0
+        while i < order.shape[0] and j < sub.shape[0]:
+            u = now_ids[order[i]]
+            v = made_ids[a0 + sub[j]]
+            if u < v:
+                i += 1
+            elif v < u:
+                j += 1
+            else:
+                cal_obs[h, 0, k, 0] = now_cur[order[i], 0]
+                cal_obs[h, 0, k, 1] = now_cur[order[i], 1]
+                cal_pred[h, 0, k, 0] = made_pred[a0 + sub[j], 0]
+                cal_pred[h, 0, k, 1] = made_pred[a0 + sub[j], 1]
+                k += 1
+                i += 1
+                j += 1
+        cal_n[h, 0] = k
+    return True
 
 
 @dataclass
@@ -420,6 +587,12 @@ class ECPMPC(
         # the first plan's candidates (N, H, 2) and their quantiles (N, H)
         self._past: deque[dict[str, Any]] = deque(maxlen=keep)
         self._cal: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # the calibration pairs, kept rolling: (H, B, width, 2) predicted and observed
+        # positions, (H, B) counts (b = 0 the newest sampling time; see _calibration)
+        h = int(self.sampling.horizon)
+        self._cal_pred = np.zeros((h, int(b), 1, 2))
+        self._cal_obs = np.zeros((h, int(b), 1, 2))
+        self._cal_n = np.zeros((h, int(b)), dtype=np.int64)
         self._last_q: np.ndarray | None = None
         self._missed = np.zeros(0, dtype=bool)
         self.n_ego_scored_ = 0
@@ -452,71 +625,88 @@ class ECPMPC(
             if ids.size
             else np.zeros((0, h, 2))
         )
-        entry = {"ids": ids, "cur": cur, "pred": pred, "pos": None, "q": None}
+        t = float(observation.t)
+        entry = {"ids": ids, "cur": cur, "pred": pred, "pos": None, "q": None, "t": t}
         self._past.append(entry)
-        self._missed = self._score_plans()
+        now = self._roll()
+        self._missed = self._score_plans(now)
         self._cal = self._calibration()
 
-    def _pair(self, obs: dict[str, Any], made: dict[str, Any], h: int) -> tuple[Any, Any]:
-        """Observed positions at ``obs`` and the step-h predictions of ``made`` for the
-        pedestrians in both (computed once per pair of sampling times: ``obs`` keeps them,
-        both entries being final once made)."""
-        memo: dict[int, tuple[Any, Any]] = obs.setdefault("pairs", {})
-        if h not in memo:
-            _, i_obs, i_pred = np.intersect1d(
-                obs["ids"], made["ids"], assume_unique=True, return_indices=True
-            )
-            memo[h] = (obs["cur"][i_obs], made["pred"][i_pred, h - 1])
-        return memo[h]
+    def _made(self, h: int) -> dict[str, Any] | None:
+        """The sampling time h plan steps before the newest, if kept."""
+        back = h * self._m
+        return self._past[-1 - back] if back < len(self._past) else None
 
-    def _score_plans(self) -> np.ndarray:
-        """Misses of the candidates planned h plan steps ago, scored against now."""
-        past = self._past
-        now = past[-1]
+    def _roll(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Move the calibration pairs one sampling time back and add the newest time's
+        (:func:`_roll_pairs`, compiled); returns each step's pairs of now, (observed,
+        predicted). The pairs of two times are the pedestrians in both, in ascending id
+        (as ``numpy.intersect1d`` gives them), each pair computed once."""
+        h_n, b_max = int(self.sampling.horizon), int(self.calibration_size)
+        now = self._past[-1]
+        made = [self._made(h) for h in range(1, h_n + 1)]
+        sizes = [0 if e is None else e["ids"].shape[0] for e in made]
+        width = max(self._cal_pred.shape[2], min(now["ids"].shape[0], max(sizes, default=0)))
+        if width > self._cal_pred.shape[2]:  # wider: the pairs kept, copied over
+            grown = np.zeros((h_n, b_max, width, 2)), np.zeros((h_n, b_max, width, 2))
+            grown[0][:, :, : self._cal_pred.shape[2]] = self._cal_pred
+            grown[1][:, :, : self._cal_obs.shape[2]] = self._cal_obs
+            self._cal_pred, self._cal_obs = grown
+        off = np.zeros(h_n + 1, dtype=np.int64)
+        np.cumsum(sizes, out=off[1:])
+        ids_h, pred_h = [], []  # the steps' earlier times, one after the other
+        for h, e in enumerate(made, 1):
+            if e is not None and e["ids"].shape[0]:
+                ids_h.append(e["ids"])
+                pred_h.append(e["pred"][:, h - 1])
+        ids = np.concatenate(ids_h) if ids_h else np.zeros(0, np.int64)
+        pred = np.concatenate(pred_h) if pred_h else np.zeros((0, 2))
+        done = _roll_pairs(
+            now["ids"],
+            np.ascontiguousarray(now["cur"], dtype=np.float64).reshape(-1, 2),
+            ids,
+            off,
+            np.ascontiguousarray(pred, dtype=np.float64),
+            self._cal_pred,
+            self._cal_obs,
+            self._cal_n,
+        )
+        if not done:
+            raise ValueError(
+                f"ecp_mpc needs distinct pedestrian ids at each sampling time; ids repeat "
+                f"at t = {now['t']:g} s"
+            )
+        n = self._cal_n[:, 0].tolist()
+        return [(self._cal_obs[h, 0, : n[h]], self._cal_pred[h, 0, : n[h]]) for h in range(h_n)]
+
+    def _score_plans(self, now: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """Misses of the candidates planned h plan steps ago, scored against now (``now``:
+        each step's pairs, as :meth:`_roll` returns them)."""
         out = []
         for h in range(1, int(self.sampling.horizon) + 1):
-            back = h * self._m
-            if back >= len(past):
+            made = self._made(h)
+            if made is None:
                 break
-            made = past[-1 - back]
             if made["pos"] is None:
                 continue
-            y, yhat = self._pair(now, made, h)
+            y, yhat = now[h - 1]
             if y.shape[0] == 0:
                 continue
-            out.append(_missed(made["pos"][:, h - 1], yhat, y, made["q"][:, h - 1]))
+            out.append(_missed_at(made["pos"], made["q"], h - 1, yhat, y, y.shape[0]))
         missed = np.concatenate(out) if out else np.zeros(0, dtype=bool)
         self.n_ego_scored_ += int(missed.size)
         return missed
 
     def _calibration(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The calibration pairs of every plan step (see :func:`egocentric_quantiles`)."""
-        past = self._past
+        """The calibration pairs of every plan step (see :func:`egocentric_quantiles`): the
+        arrays kept rolling by :meth:`_roll` (pedestrians past ``cal_n`` and times past
+        ``cal_b`` are not read), with each step's number of calibration times."""
         h_n, b_max = int(self.sampling.horizon), int(self.calibration_size)
-        pairs: list[list[tuple[np.ndarray, np.ndarray]]] = []
-        width = 0
-        for h in range(1, h_n + 1):
-            row = []
-            for b in range(b_max):
-                i_obs = len(past) - 1 - b
-                i_made = i_obs - h * self._m
-                if i_made < 0:
-                    break
-                y, yhat = self._pair(past[i_obs], past[i_made], h)
-                row.append((y, yhat))
-                width = max(width, y.shape[0])
-            pairs.append(row)
-        cal_pred = np.zeros((h_n, b_max, max(width, 1), 2))
-        cal_obs = np.zeros_like(cal_pred)
-        cal_n = np.zeros((h_n, b_max), dtype=np.int64)
-        cal_b = np.array([len(r) for r in pairs], dtype=np.int64)
-        for h, row in enumerate(pairs):
-            for b, (y, yhat) in enumerate(row):
-                k = y.shape[0]
-                cal_obs[h, b, :k] = y
-                cal_pred[h, b, :k] = yhat
-                cal_n[h, b] = k
-        return cal_pred, cal_obs, cal_n, cal_b
+        n_past = len(self._past)
+        cal_b = np.array(
+            [min(b_max, max(0, n_past - h * self._m)) for h in range(1, h_n + 1)], dtype=np.int64
+        )
+        return self._cal_pred, self._cal_obs, self._cal_n, cal_b
 
     # ------------------------------------------------------------------ the knob
     def plan_radius(self, lam: float, positions: np.ndarray) -> np.ndarray:
