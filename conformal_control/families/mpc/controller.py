@@ -131,6 +131,10 @@ class PlanInputs:
         return rows[1], rows[2], rows[3], rows[4]
 
 
+#: No agent's predictions (the edge rule's arguments when it cannot apply).
+_NO_PRED = np.zeros((0, 1, 2))
+
+
 @dataclass
 class Plan:
     """One planning step's outcome (:meth:`SamplingMPC.plan`).
@@ -623,18 +627,19 @@ class SamplingMPC(
         if lines is None and type(self).edge_closing is SamplingMPC.edge_closing:
             # the common case in one compiled call: the edge rule and the cheapest safe plan
             # (kernels.choose_safe: the numbers of the numpy form below)
-            _, _, x, pred, y0 = todo.problem[:5]
+            edge = self.edge == "escape" and bool(self._ids.size)
+            x, pred, y0 = todo.problem[2:5] if edge else (np.zeros(2), _NO_PRED, _NO_PRED[:, 0])
             allowed = np.empty(cost.shape[0], dtype=np.bool_)
             i, n_safe, applied = choose_safe(
-                cost,
-                clear,
-                pos,
+                np.asarray(cost, dtype=np.float64),
+                np.asarray(clear, dtype=np.float64),
+                np.asarray(pos, dtype=np.float64),
                 np.asarray(x, dtype=np.float64),
                 np.asarray(pred, dtype=np.float64),
                 np.asarray(y0, dtype=np.float64),
                 float(self.d_c),
                 float(self.sampling.dt_plan),
-                self.edge == "escape" and bool(self._ids.size),
+                edge,
                 allowed,
             )
             if applied:

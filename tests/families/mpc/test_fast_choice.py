@@ -87,7 +87,9 @@ class NumpyChoice(SamplingMPC):
 
 
 @settings(max_examples=25, deadline=None, derandomize=True)
-@given(scenes(), st.sampled_from(["brake", "least_violation"]), st.sampled_from(["escape", "paper"]))
+@given(
+    scenes(), st.sampled_from(["brake", "least_violation"]), st.sampled_from(["escape", "paper"])
+)
 def test_plan_end_chooses_as_the_numpy_form(case, fallback, edge) -> None:
     pos, vel, v_ego, lam = case
     plans, stats = [], []
