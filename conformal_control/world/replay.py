@@ -304,10 +304,11 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self.steps_x.append(self._x.copy())
         self.steps_cmd.append(np.asarray(decision, dtype=float).copy())
         sc = self.scene
-        while (
-            self._goal < len(sc.goals)
-            and math.hypot(*(self._x[:2] - sc.goals[self._goal])) <= sc.goal_radius
-        ):
+        x, y = float(self._x[0]), float(self._x[1])
+        while self._goal < len(sc.goals):
+            gx, gy = sc.goals[self._goal]  # the distance to the goal in floats (as numpy's)
+            if not math.hypot(x - float(gx), y - float(gy)) <= sc.goal_radius:
+                break  # (a NaN distance stops too, as before)
             self._goal += 1
         if self._goal >= len(sc.goals):
             self._goal = len(sc.goals) - 1

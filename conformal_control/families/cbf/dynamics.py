@@ -130,8 +130,20 @@ class VelocityTrackingDoubleIntegrator(
         if not (math.isfinite(k) and k > 0):
             raise ValueError(f"K_acc must be a finite number > 0, got {self.K_acc!r}")
         v_cmd = np.asarray(command, dtype=float)
-        dv = s[2:] - v_cmd
         decay = math.exp(-k * dt)
+        if v_cmd.shape == (2,):  # in Python floats: the same operations, in the same order
+            x, y, vx, vy = s.tolist()
+            cx, cy = v_cmd.tolist()
+            dx, dy, g = vx - cx, vy - cy, -math.expm1(-k * dt)
+            return np.array(
+                [
+                    x + cx * dt + dx * g / k,
+                    y + cy * dt + dy * g / k,
+                    cx + dx * decay,
+                    cy + dy * decay,
+                ]
+            )
+        dv = s[2:] - v_cmd
         out = np.empty(4)
         out[:2] = s[:2] + v_cmd * dt + dv * (-math.expm1(-k * dt)) / k
         out[2:] = v_cmd + dv * decay

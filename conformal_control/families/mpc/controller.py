@@ -72,7 +72,7 @@ from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, me
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
-from .kernels import evaluate
+from .kernels import evaluate, plan_predictions, positions_of, predicted_at
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 from .settings import Costs, Limits, Sampling, check_groups
@@ -117,6 +117,18 @@ class PlanInputs:
     commands: np.ndarray
     positions: np.ndarray
     problem: tuple[Any, ...]
+    #: ``(pred, ex, ey, sx, sy)``: the evaluation's rows of the predictions ``pred``
+    #: (:func:`~conformal_control.families.mpc.kernels.plan_predictions`), or None.
+    rows: tuple[np.ndarray, ...] | None = None
+
+    def agent_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The ``rows`` of :func:`~conformal_control.families.mpc.kernels.evaluate` for
+        ``problem`` when they were made with it (its predictions the same object), else
+        None (evaluate makes them)."""
+        rows = self.rows
+        if rows is None or rows[0] is not self.problem[3]:
+            return None
+        return rows[1], rows[2], rows[3], rows[4]
 
 
 @dataclass
@@ -409,7 +421,7 @@ class SamplingMPC(
         samples = np.concatenate([observation.current[:, None, :], pos[:, :frames]], axis=1)
         samples, had_bad = forward_fill(samples)
         self.n_nonfinite_predictions_ += int(had_bad.sum())
-        self._samples = samples
+        self._samples = np.ascontiguousarray(samples, dtype=np.float64)
         steps = int(observation.horizon) * int(self.substeps)
         self._xp, self._vp = interpolate_at_substeps(samples, self._dt, int(self.substeps), steps)
 
@@ -417,15 +429,11 @@ class SamplingMPC(
         """Predicted positions of the sensed agents at ``offsets`` seconds after the
         sampling time, shape (M, len(offsets), 2) (linear between samples, the samples'
         own values at sample times, the last sample held beyond the forecast)."""
-        last = self._samples.shape[1] - 1
-        f = np.clip(np.asarray(offsets, dtype=float) / self._dt, 0.0, float(last))
-        near = np.abs(f - np.rint(f)) < 1e-9  # a sample time is that sample, exactly
-        f = np.where(near, np.rint(f), f)
-        i0 = np.minimum(np.floor(f).astype(np.int64), max(last - 1, 0))
-        i1 = np.minimum(i0 + 1, last)
-        w = (f - i0)[None, :, None]
-        s = self._samples
-        out: np.ndarray = s[:, i0] + w * (s[:, i1] - s[:, i0])
+        out: np.ndarray = predicted_at(
+            np.ascontiguousarray(self._samples, dtype=np.float64),
+            float(self._dt),
+            np.ascontiguousarray(offsets, dtype=np.float64).ravel(),
+        )
         return out
 
     # ------------------------------------------------------------------ the knob
@@ -488,21 +496,24 @@ class SamplingMPC(
 
     # ------------------------------------------------------------------ planning
     def _seeds(self, state: ControlState, t_off: float) -> list[np.ndarray]:
-        """Warm start, stop, reference (each a (H, 2) sequence)."""
+        """Warm start, stop, reference: each a (H, 2) sequence, or one (2,) command held
+        over the plan."""
         h = int(self.sampling.horizon)
         out = []
         if self._warm is not None:
             shift = min(round((state.t - self._warm_t) / self.sampling.dt_plan), h)
-            warm = np.concatenate([self._warm[shift:], np.repeat(self._warm[-1:], shift, 0)])
+            warm = np.empty((h, 2))  # the last plan shifted, its last command held
+            warm[: h - shift] = self._warm[shift:]
+            warm[h - shift :] = self._warm[-1]
             out.append(warm)
-        out.append(np.repeat(self._stop_command(state)[None], h, axis=0))
+        out.append(self._stop_command(state))
         kind = self.dynamics.command_kind
         if self.reference is not None and kind == "velocity":
             v = np.asarray(self.reference(state.x, state.t, state.goal), dtype=float)
             speed = math.hypot(v[0], v[1])
             if speed > self.limits.v_max:
                 v = v * (self.limits.v_max / speed)
-            out.append(np.repeat(v[None], h, axis=0))
+            out.append(v)
         return out
 
     def _stop_command(self, state: ControlState) -> np.ndarray:
@@ -518,20 +529,25 @@ class SamplingMPC(
         radius = (
             self.limits.a_max if self.dynamics.command_kind == "acceleration" else self.limits.v_max
         )
-        rand = sample_sequences(
+        k, n, h = len(seeds), int(self.sampling.n_samples), int(self.sampling.horizon)
+        out = np.empty((k + n, h, 2))
+        for i, seed in enumerate(seeds):
+            out[i] = seed  # a (2,) command is held over the plan
+        sample_sequences(
             self._rng,
-            int(self.sampling.n_samples),
-            int(self.sampling.horizon),
+            n,
+            h,
             int(self.sampling.hold),
             box=self._box,
             radius=float(radius),
+            out=out[k:],
         )
-        return np.concatenate([np.stack(seeds), rand], axis=0)
+        return out
 
     def plan(self, state: ControlState, lam: float) -> Plan:
         """Sample, roll out, check and choose (one planning step; counts included)."""
         todo = self.plan_begin(state, lam)
-        return self.plan_end(todo, *evaluate(*todo.problem))
+        return self.plan_end(todo, *evaluate(*todo.problem, rows=todo.agent_rows()))
 
     def plan_begin(self, state: ControlState, lam: float) -> PlanInputs:
         """The first half of :meth:`plan`: the candidates sampled and rolled out, and the
@@ -545,12 +561,14 @@ class SamplingMPC(
         t_off = float(state.t - self._t0)
         cmds = self.sample_commands(state, t_off)
         states = self.dynamics.rollout(state.x, cmds, float(self.sampling.dt_plan))
-        pos = np.ascontiguousarray(states[..., :2])
+        pos = positions_of(np.asarray(states, dtype=np.float64))
         self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
         h = int(self.sampling.horizon)
+        rows = None
         if self._ids.size:
-            pred = self.predicted_at(t_off + self.sampling.dt_plan * np.arange(0, h + 1))
-            y0, pred = pred[:, 0], pred[:, 1:]
+            pred, y0, *rows = plan_predictions(
+                self._samples, float(self._dt), t_off, float(self.sampling.dt_plan), h
+            )
             radius = self.plan_radius(lam, pos)
         else:
             pred, y0, radius = np.zeros((0, h, 2)), np.zeros((0, 2)), np.zeros(h)
@@ -570,7 +588,9 @@ class SamplingMPC(
         )
         if self._aoff is not None and self._ids.size:
             problem = (*problem, self._aoff)
-        return PlanInputs(state, float(lam), cmds, pos, problem)
+        return PlanInputs(
+            state, float(lam), cmds, pos, problem, None if rows is None else (pred, *rows)
+        )
 
     def plan_end(
         self, todo: PlanInputs, cost: np.ndarray, clear: np.ndarray, viol: np.ndarray

@@ -50,7 +50,15 @@ import numpy as np
 
 from ...core.jit import kernel
 
-__all__ = ["agent_rows", "evaluate", "evaluate_many", "evaluate_numpy"]
+__all__ = [
+    "agent_rows",
+    "evaluate",
+    "evaluate_many",
+    "evaluate_numpy",
+    "plan_predictions",
+    "positions_of",
+    "predicted_at",
+]
 
 jit = kernel(cache=True, nogil=True)
 
@@ -321,6 +329,227 @@ def _evaluate(
 
 
 @jit
+def _evaluate_steps(
+    pos: np.ndarray,
+    cmds: np.ndarray,
+    p0: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    radius: np.ndarray,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+    cut: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_evaluate_range` of every plan against every agent (no ``aoff``), step by step
+    instead of plan by plan: at each plan step the plans' positions are copied into
+    contiguous rows and the innermost loop runs over the PLANS (hundreds) rather than over
+    the agents (a handful after the cut), so it compiles to vector instructions. Every
+    number is the same arithmetic in the same order per plan (each plan's cost and
+    violation are summed over the steps in step order, the minima over agents and steps
+    select with the same comparisons in the same order), so the results are
+    :func:`_evaluate_range`'s bit for bit (``tests/families/mpc/test_cut.py`` compares them)."""
+    n_plans = pos.shape[0]
+    horizon = pos.shape[1]
+    n_agents = ex.shape[1]
+    kx, ky, ksx, ksy, cnt = _kept_agents(
+        pos, p0, ex, ey, sx, sy, continuous, 0, n_plans, 0, n_agents, cut
+    )
+    w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
+    g0 = goal[0]
+    g1 = goal[1]
+    cost = np.zeros(n_plans)
+    best = np.full(n_plans, np.inf)
+    viol = np.zeros(n_plans)
+    px = np.empty(n_plans)
+    py = np.empty(n_plans)
+    ax = np.full(n_plans, p0[0])
+    ay = np.full(n_plans, p0[1])
+    ux = np.full(n_plans, last[0])
+    uy = np.full(n_plans, last[1])
+    d2 = np.empty(n_plans)
+    for h in range(horizon):
+        wh = w_term if h == horizon - 1 else w_goal
+        for n in range(n_plans):
+            x = pos[n, h, 0]
+            y = pos[n, h, 1]
+            px[n] = x
+            py[n] = y
+            gx = x - g0
+            gy = y - g1
+            c = cost[n]
+            c += wh * (gx * gx + gy * gy)
+            vx = cmds[n, h, 0]
+            vy = cmds[n, h, 1]
+            c += w_eff * (vx * vx + vy * vy)
+            c += w_comf * ((vx - ux[n]) * (vx - ux[n]) + (vy - uy[n]) * (vy - uy[n]))
+            cost[n] = c
+            ux[n] = vx
+            uy[n] = vy
+        if n_agents == 0:
+            continue
+        for n in range(n_plans):
+            d2[n] = np.inf
+        for j in range(cnt[h]):
+            ejx = kx[h, j]
+            ejy = ky[h, j]
+            sjx = ksx[h, j]
+            sjy = ksy[h, j]
+            if continuous:
+                for n in range(n_plans):
+                    bx = px[n] - ejx
+                    by = py[n] - ejy
+                    e = bx * bx + by * by  # at the step's end
+                    rx = ax[n] - sjx
+                    ry = ay[n] - sjy
+                    dx = bx - rx
+                    dy = by - ry
+                    dd = dx * dx + dy * dy
+                    s = -(rx * dx + ry * dy) / (dd if dd > 0.0 else 1.0)
+                    qx = rx + s * dx
+                    qy = ry + s * dy
+                    within = qx * qx + qy * qy
+                    start = min(e, rx * rx + ry * ry)
+                    moving = dd > 0.0
+                    es = (
+                        within
+                        if moving & (0.0 < s) & (s < 1.0)
+                        else (start if moving & (s <= 0.0) else e)
+                    )
+                    d2[n] = es if es < d2[n] else d2[n]
+            else:
+                for n in range(n_plans):
+                    bx = px[n] - ejx
+                    by = py[n] - ejy
+                    es = bx * bx + by * by
+                    d2[n] = es if es < d2[n] else d2[n]
+        for n in range(n_plans):
+            cl = math.sqrt(d2[n]) - radius[n, h]
+            best[n] = cl if cl < best[n] else best[n]
+            viol[n] = viol[n] - cl if cl < 0.0 else viol[n]
+            ax[n] = px[n]
+            ay[n] = py[n]
+    return cost, best, viol
+
+
+@jit
+def predicted_at(samples: np.ndarray, dt: float, offsets: np.ndarray) -> np.ndarray:
+    """Positions (M, K, 2) of the agents at ``offsets`` (K,) seconds after their first
+    sample, from ``samples`` (M, F + 1, 2) ``dt`` seconds apart: linear between samples, a
+    sample's own value within 1e-9 of its time, the last sample held beyond them
+    (:meth:`SamplingMPC.predicted_at
+    <conformal_control.families.mpc.controller.SamplingMPC.predicted_at>`; the numpy form it
+    replaced clipped, rounded and interpolated with the same operations, element by
+    element).
+
+    Parameters
+    ----------
+    samples : ndarray of shape (M, F + 1, 2)
+        The agents' predicted positions at the sampling time and the F samples after it (m;
+        finite).
+    dt : float
+        Seconds between samples.
+    offsets : ndarray of shape (K,)
+        Seconds after the sampling time.
+    """
+    m = samples.shape[0]
+    last = samples.shape[1] - 1
+    k = offsets.shape[0]
+    top = max(last - 1, 0)
+    out = np.empty((m, k, 2))
+    for i in range(k):
+        f = offsets[i] / dt
+        if f < 0.0:
+            f = 0.0
+        if f > last:
+            f = float(last)
+        r = np.rint(f)
+        if abs(f - r) < 1e-9:  # a sample time is that sample, exactly
+            f = r
+        i0 = min(math.floor(f), top)
+        i1 = min(i0 + 1, last)
+        w = f - i0
+        for j in range(m):
+            for c in range(2):
+                a = samples[j, i0, c]
+                out[j, i, c] = a + w * (samples[j, i1, c] - a)
+    return out
+
+
+@jit
+def plan_predictions(
+    samples: np.ndarray, dt: float, t_off: float, dt_plan: float, horizon: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a plan reads of the predictions, in one call: the agents' positions at the
+    plan's steps ``t_off + dt_plan * (1..H)`` (``pred``, (M, H, 2)) and now (``y0``, (M,
+    2)) as :func:`predicted_at` gives them, and the evaluation's rows of them
+    (:func:`agent_rows`: ``ex``, ``ey``, ``sx``, ``sy``, each (H, M)).
+
+    Parameters
+    ----------
+    samples : ndarray of shape (M, F + 1, 2)
+        As for :func:`predicted_at`.
+    dt : float
+        Seconds between samples.
+    t_off : float
+        The plan's start, seconds after the sampling time.
+    dt_plan : float
+        Seconds per plan step.
+    horizon : int
+        Plan steps H.
+    """
+    offsets = np.empty(horizon + 1)
+    for i in range(horizon + 1):
+        offsets[i] = t_off + dt_plan * float(i)
+    both = predicted_at(samples, dt, offsets)
+    m = samples.shape[0]
+    pred = np.empty((m, horizon, 2))
+    y0 = np.empty((m, 2))
+    ex = np.empty((horizon, m))
+    ey = np.empty((horizon, m))
+    sx = np.empty((horizon, m))
+    sy = np.empty((horizon, m))
+    for j in range(m):
+        y0[j, 0] = both[j, 0, 0]
+        y0[j, 1] = both[j, 0, 1]
+        for h in range(horizon):
+            pred[j, h, 0] = both[j, h + 1, 0]
+            pred[j, h, 1] = both[j, h + 1, 1]
+            ex[h, j] = both[j, h + 1, 0]
+            ey[h, j] = both[j, h + 1, 1]
+            sx[h, j] = both[j, h, 0]
+            sy[h, j] = both[j, h, 1]
+    return pred, y0, ex, ey, sx, sy
+
+
+def _positions_numpy(states: np.ndarray) -> np.ndarray:
+    out: np.ndarray = np.ascontiguousarray(states[..., :2])
+    return out
+
+
+@kernel(cache=True, nogil=True, python=_positions_numpy)
+def positions_of(states: np.ndarray) -> np.ndarray:
+    """The positions ``states[..., :2]`` of rolled-out states (N, H, D) as a C-contiguous
+    (N, H, 2) copy (numpy's strided copy of two numbers at a time is several times slower).
+
+    Parameters
+    ----------
+    states : ndarray of shape (N, H, D)
+        Plant states, position first.
+    """
+    n, h = states.shape[0], states.shape[1]
+    out = np.empty((n, h, 2))
+    for i in range(n):
+        for j in range(h):
+            out[i, j, 0] = states[i, j, 0]
+            out[i, j, 1] = states[i, j, 1]
+    return out
+
+
+@jit
 def _evaluate_many(
     pos: np.ndarray,
     cmds: np.ndarray,
@@ -369,6 +598,8 @@ def evaluate(
     offsets: np.ndarray | None = None,
     *,
     cut: bool = True,
+    by_plan: bool = False,
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cost, clearance (m) and violation (m) of every plan.
 
@@ -399,6 +630,13 @@ def evaluate(
         Evaluate at each step only the agents that can be the nearest one of some
         candidate (the module's exact cut: the same numbers, bit for bit); False evaluates
         every agent at every step (the reference).
+    by_plan : bool
+        Evaluate plan by plan (the loop :func:`evaluate_many` and lambda per agent use)
+        instead of step by step over all plans at once (faster; the same numbers, bit for
+        bit). With ``offsets`` always plan by plan.
+    rows : (ex, ey, sx, sy), optional
+        :func:`agent_rows` of ``pred`` and ``y0`` when the caller has them already
+        (:func:`plan_predictions`); else computed here.
 
     Returns
     -------
@@ -408,10 +646,28 @@ def evaluate(
         (0 for a safe plan).
     """
     r = np.asarray(radius, dtype=np.float64)
-    if r.ndim == 1:
-        r = np.broadcast_to(r, pos.shape[:2])
+    if r.ndim == 1 and r.shape[0] == np.shape(pos)[1]:  # one row per plan (repeat: a fast copy)
+        r = np.repeat(r.reshape(1, -1), np.shape(pos)[0], axis=0)
+    elif r.ndim == 1:
+        r = np.broadcast_to(r, pos.shape[:2])  # (raises: the shapes differ)
     c = np.ascontiguousarray
-    ex, ey, sx, sy = agent_rows(pred, y0)
+    ex, ey, sx, sy = agent_rows(pred, y0) if rows is None else rows
+    if offsets is None and not by_plan:
+        return _evaluate_steps(
+            c(pos, dtype=np.float64),
+            c(cmds, dtype=np.float64),
+            c(p0, dtype=np.float64),
+            ex,
+            ey,
+            sx,
+            sy,
+            c(r),
+            c(goal, dtype=np.float64),
+            np.asarray(weights, dtype=np.float64),
+            c(last, dtype=np.float64),
+            bool(continuous),
+            bool(cut),
+        )
     cost, clear, viol = _evaluate(
         c(pos, dtype=np.float64),
         c(cmds, dtype=np.float64),
