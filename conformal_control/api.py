@@ -103,7 +103,7 @@ def run(
         with :func:`conformal_control.runs.fleet.run_multi`), checked before the scene is loaded.
     """
     from .core.progress import progress as progress_bar
-    from .runs.episode import run_episode
+    from .runs.engines.batch import run_single
     from .runs.prepare import prepare_run
 
     _check_keywords(settings)
@@ -123,8 +123,10 @@ def run(
         settings=settings,
     )
     scene, run_spec = prepared.scene, prepared.spec
+    # the engine choice run_episode makes too (prepare_run refused a robots section); the
+    # run's warnings point at this function's caller
     if not progress:
-        return run_episode(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
+        return run_single(scene, run_spec, on_interval=on_interval, extra_config=extra_config)
     substeps = prepared.substeps
     bar = progress_bar(prepared.frames, prepared.label, "frames")
     steps = [0]  # control steps so far; the bar advances in whole frames
@@ -139,7 +141,7 @@ def run(
             on_interval(iv)
 
     with bar:
-        return run_episode(scene, run_spec, on_interval=advance, extra_config=extra_config)
+        return run_single(scene, run_spec, on_interval=advance, extra_config=extra_config)
 
 
 def _check_keywords(kwargs: dict[str, Any]) -> None:

@@ -121,12 +121,12 @@ def _out_below_a_file(t: Path) -> Path:
 def test_unwritable_out_is_refused_before_running(
     make: Callable[[Path], Path], words: str, tmp_path: Path, capsys, monkeypatch
 ) -> None:
-    import conformal_control.runs.episode as episode
+    import conformal_control.runs.engines.batch as engines  # the engine choice run() calls
 
     def no_run(*a: object, **k: object) -> None:
         raise AssertionError("the episode ran although --out cannot be written")
 
-    monkeypatch.setattr(episode, "run_episode", no_run)
+    monkeypatch.setattr(engines, "run_single", no_run)
     out = make(tmp_path)
     assert main(["run", "--out", str(out)]) == EXIT_ERROR
     assert words in one_error(capsys)

@@ -18,9 +18,8 @@ from ..core.exceptions import InputError
 from ..core.loop import IntervalLog
 from ..core.spec import RunSpec
 from ..data.scene import Scene
-from .build import RoleSpec, build_flagship
+from .build import RoleSpec
 from .engines.batch import as_run_spec, run_single
-from .engines.loop import run_loop
 from .results.episode import EpisodeResult
 
 __all__ = ["EpisodeResult", "run_episode"]
@@ -119,13 +118,5 @@ def run_episode(
             "conformal_control.runs.fleet.run_multi(scene, spec) or "
             "`conformal-control run --robots`"
         )
-    if run.engine != "loop":  # (the compiled engine puts the run's task on the scene)
-        compiled = run_single(scene, run, on_interval=on_interval, extra_config=extra_config)
-        if compiled is not None:
-            return compiled
-    return run_loop(
-        build_flagship(run.on_scene(scene), run),
-        run,
-        on_interval=on_interval,
-        extra_config=extra_config,
-    )
+    # the engine choice is run_single's, which conformal_control.run calls too
+    return run_single(scene, run, on_interval=on_interval, extra_config=extra_config)

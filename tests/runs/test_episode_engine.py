@@ -161,15 +161,54 @@ def test_animation_barrier_minimum_is_the_per_frame_one(nexus4):
 
 
 def test_warnings_point_at_the_caller(crossing):
-    from conformal_control.core.exceptions import FeasibilityWarning
+    """Both entry points (``run_episode`` and ``conformal_control.run``, with and without
+    its progress bar) make the one engine choice, ``run_single``: on either engine, and on
+    the loop an episode the compiled engine turned down once built, the run's warnings
+    point at the caller's line."""
+    import inspect
 
-    for engine in ("auto", "loop"):
-        with pytest.warns(FeasibilityWarning) as caught:
-            res = run_episode(
-                crossing, params={"epsilon": -0.3, "a": 0.5}, max_frames=30, engine=engine
-            )
-        assert res.config["engine"] == ("batch" if engine == "auto" else "loop")
-        assert [w.filename for w in caught] == [__file__]
+    import conformal_control as cc
+    from conformal_control.core import registry
+    from conformal_control.core.exceptions import FeasibilityWarning
+    from conformal_control.families.cbf.barriers import APFBarrier
+    from conformal_control.runs.engines.batch import supports
+
+    class HandsNoForm(APFBarrier, compiled="apf"):
+        """Declares the compiled APF form but hands none: turned down once built."""
+
+        def compiled_state(self):  # type: ignore[override]
+            return None
+
+    infeasible = {"params": {"epsilon": -0.3, "a": 0.5}, "max_frames": 30}
+
+    def line() -> int:
+        frame = inspect.currentframe()
+        assert frame is not None and frame.f_back is not None
+        return frame.f_back.f_lineno + 1  # the call on the next line
+
+    registry.register("barrier", "hands_no_form", HandsNoForm)
+    try:
+        assert supports(barrier="hands_no_form") is None  # known only once built
+        for engine, kw, ran in [
+            ("auto", {}, "batch"),
+            ("loop", {}, "loop"),
+            ("auto", {"barrier": "hands_no_form"}, "loop"),
+        ]:
+            for entry in ("run_episode", "run", "run with progress"):
+                bar = "progress" in entry
+                with pytest.warns(FeasibilityWarning) as caught:
+                    if entry == "run_episode":
+                        at = line()
+                        res = run_episode(crossing, engine=engine, **infeasible, **kw)
+                    else:
+                        at = line()
+                        res = cc.run(crossing, engine=engine, progress=bar, **infeasible, **kw)
+                assert res.config["engine"] == ran, (engine, kw, entry)
+                assert [(w.filename, w.lineno) for w in caught] == [(__file__, at)], (
+                    engine, kw, entry, [(w.filename, w.lineno) for w in caught]
+                )  # fmt: skip
+    finally:
+        registry.unregister("barrier", "hands_no_form")
 
 
 def test_a_lone_episode_reads_its_recording_in_place_and_never_writes_it():

@@ -8,6 +8,7 @@
   (:mod:`~conformal_control.runs.engines.interval`, :mod:`~conformal_control.runs.engines.kernels`,
   :mod:`~conformal_control.runs.engines.gap_kernels`).
 
-Both give the same result; :func:`conformal_control.runs.episode.run_episode` picks one with
+Both give the same result; :func:`~conformal_control.runs.engines.batch.run_single` picks one
+(for :func:`conformal_control.runs.episode.run_episode` and :func:`conformal_control.run`) with
 ``engine=``.
 """

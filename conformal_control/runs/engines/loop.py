@@ -36,6 +36,7 @@ def run_loop(
     *,
     on_interval: Callable[[IntervalLog], None] | None = None,
     extra_config: dict[str, Any] | None = None,
+    stacklevel: int = 5,
 ) -> EpisodeResult:
     """Run the built flagship ``fl`` of ``run`` through the generic loop and measure it.
 
@@ -49,8 +50,14 @@ def run_loop(
         Called with each scored :class:`~conformal_control.core.loop.IntervalLog`.
     extra_config : dict, optional
         Merged into the configuration (``config.json``).
+    stacklevel : int
+        Frames up the run's warnings point at: 5, the caller of this function's caller
+        (:func:`~conformal_control.runs.engines.batch.run_single` passes 6: the caller of
+        ``run_episode`` or ``conformal_control.run``).
     """
-    steps = loop_steps(fl, run, on_interval=on_interval, extra_config=extra_config, pause=False)
+    steps = loop_steps(
+        fl, run, on_interval=on_interval, extra_config=extra_config, stacklevel=stacklevel
+    )
     while True:
         try:
             next(steps)
@@ -65,6 +72,7 @@ def loop_steps(
     on_interval: Callable[[IntervalLog], None] | None = None,
     extra_config: dict[str, Any] | None = None,
     pause: Callable[[Any], bool] | bool = False,
+    stacklevel: int = 5,
 ) -> Generator[tuple[Any, Any, Any], float, EpisodeResult]:
     """:func:`run_loop` as a generator, so that several episodes can advance together (the
     lockstep MPC runs of :mod:`~conformal_control.runs.engines.mpc_batch`): before a control
@@ -87,14 +95,15 @@ def loop_steps(
         Merged into the configuration.
     pause : callable or bool
         Whether to yield before the family decides (called with the family).
+    stacklevel : int
+        Frames up the run's warnings point at (5: the caller of :func:`run_loop`'s caller).
     """
     learn, max_frames = run.learn, run.max_frames
     scene = fl.scene  # the copy carrying the resolved radii, v_max and goal radius
     si = fl.params.si
     lambda_safe, lam_safe_si = lambda_safe_values(fl, run.lambda_safe, run.units)
     floor = feasibility(fl)
-    # the warnings point at run_episode's caller: run_loop and this generator in between
-    warn_before_run(fl, floor, learn, stacklevel=5)
+    warn_before_run(fl, floor, learn, stacklevel=stacklevel)
 
     recorder = None
     if run.record_animation:
@@ -150,7 +159,7 @@ def loop_steps(
     wall = time.perf_counter() - t0 - away
 
     metrics, intervals, traj = measure(fl, result, learn, lambda_safe, floor, wall)
-    warn_after_run(fl, metrics, learn, max_frames, stacklevel=5)
+    warn_after_run(fl, metrics, learn, max_frames, stacklevel=stacklevel)
     config = episode_config(fl, run, lambda_safe)
     config["feasibility"] = jsonable(floor.as_dict())
     config.update(extra_config or {})

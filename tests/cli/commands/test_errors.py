@@ -39,12 +39,12 @@ def test_os_errors_name_the_file() -> None:
 
 
 def test_a_bug_is_reported_as_a_bug(monkeypatch, tmp_path: Path, capsys) -> None:
-    import conformal_control.runs.episode as episode
+    import conformal_control.runs.engines.batch as engines  # the engine choice run() calls
 
     def broken(*a: object, **k: object) -> None:
         raise TypeError("unsupported operand")
 
-    monkeypatch.setattr(episode, "run_episode", broken)
+    monkeypatch.setattr(engines, "run_single", broken)
     assert main(["run", "--out", str(tmp_path / "r"), "-q"]) == EXIT_BUG
     err = capsys.readouterr().err
     assert err.startswith("error: internal error (TypeError: unsupported operand)")

@@ -11,8 +11,10 @@ the replay bookkeeping (:mod:`~conformal_control.runs.engines.kernels`), and, at
 times, ONE call of the predictor, the interpolation, the constraint and the loss on the
 agents of every episode at that sampling time laid side by side (these are computed agent
 by agent, so one call on the concatenation is the same arithmetic as one call per
-episode). :func:`run_episode` itself runs a single episode on this engine when it can
-(:func:`run_single`, keeping the per-instant steps and the animation record too).
+episode). One episode runs through :func:`run_single`, the engine choice that
+:func:`run_episode` and :func:`conformal_control.run` both make: this engine when it runs
+the configuration (keeping the per-instant steps and the animation record too), else the
+generic loop.
 
 The metrics are those of :func:`run_episode`, exactly: every episode is built by
 :func:`~conformal_control.runs.build.build_flagship` (same parameter resolution, same

@@ -2,7 +2,9 @@
 interval per iteration -- sense and predict at the sampling time, the interval's control
 instants in one compiled call, the interval scored and lambda updated -- and a finished
 episode's slot is refilled; :func:`run_batch` / :func:`iter_batch` (many episodes) and
-:func:`run_single` (one, as :func:`~conformal_control.runs.episode.run_episode` runs it).
+:func:`run_single` (one episode: the engine choice of
+:func:`~conformal_control.runs.episode.run_episode` and :func:`conformal_control.run`, this
+engine when it runs the configuration, else the generic loop).
 See :mod:`conformal_control.runs.engines.batch`.
 """
 
@@ -27,7 +29,7 @@ from ....core.monitor import AgentMonitor
 from ....core.spec import RunSpec
 from ....data.scene import Scene
 from ....world.reactive import ReactiveEnvironment
-from ...build import Flagship
+from ...build import Flagship, build_flagship
 from ...results.episode import EpisodeResult
 from ...results.measure import (
     LAMBDA_LIMIT,
@@ -35,6 +37,7 @@ from ...results.measure import (
 )
 from ...results.metrics import EpisodeMetrics
 from ...results.record import AnimationRecorder
+from ..loop import run_loop
 from ..reactive import CrowdSlots
 from .episode import Episode, EpisodeSlots, GapLossAt
 from .pool import Pool
@@ -441,31 +444,38 @@ def run_single(
     *,
     on_interval: Callable[[IntervalLog], None] | None = None,
     extra_config: dict[str, Any] | None = None,
-) -> EpisodeResult | None:
-    """One episode of ``run`` on the compiled engine, as :func:`run_episode` returns it.
+) -> EpisodeResult:
+    """One episode of ``run`` on the engine ``run.engine`` chooses: THE engine choice of
+    one episode, which :func:`~conformal_control.runs.episode.run_episode` and
+    :func:`conformal_control.run` both call.
 
-    The result is the one the per-episode loop gives (metrics but the wall time,
-    intervals, trajectory, per-instant ``steps`` and, with ``record_animation``, the
-    animation record), with ``config["engine"] = "batch"``. With ``run.engine == "auto"``
-    returns None if the engine does not run this configuration (the caller runs the
-    loop); with ``"batch"`` raises ``ValueError`` saying why.
+    ``"auto"``: the compiled engine when it runs the configuration (:func:`supports`, then
+    the episode as built), else the generic loop
+    (:func:`~conformal_control.runs.engines.loop.run_loop`); ``"batch"``: the compiled
+    engine, or ``ValueError`` saying why not; ``"loop"``: the loop. Both give the result the
+    loop gives (metrics but the wall time, intervals, trajectory, per-instant ``steps`` and,
+    with ``record_animation``, the animation record); ``config["engine"]`` says which ran.
+    The warnings of the run point at the line that called ``run_episode`` or
+    ``conformal_control.run``.
 
     Parameters
     ----------
     scene : Scene
     run : RunSpec
-        The episode's specification.
+        The episode's specification (one robot).
     on_interval : callable, optional
         Called with each scored interval's log, as the loop calls it.
     extra_config : dict, optional
         Merged into the configuration.
     """
-    eng = Engine(1, "results", run, extra_config)
-    if not eng.load_single(scene, run):  # the loop runs it
-        return None
-    eng.on_interval = on_interval
-    # warn_after_run < finish < run < run_single < run_episode < its caller
-    eng.warn_stacklevel = 6
-    [(_, result)] = list(eng.run(iter(()), started=1))
-    assert isinstance(result, EpisodeResult)
-    return eng.single_result(result)
+    if run.engine != "loop":  # (the compiled engine puts the run's task on the scene)
+        eng = Engine(1, "results", run, extra_config)
+        if eng.load_single(scene, run):
+            eng.on_interval = on_interval
+            # warn_after_run < finish < run < run_single < run_episode (or run) < its caller
+            eng.warn_stacklevel = 6
+            [(_, result)] = list(eng.run(iter(()), started=1))
+            assert isinstance(result, EpisodeResult)
+            return eng.single_result(result)
+    fl = build_flagship(run.on_scene(scene), run)
+    return run_loop(fl, run, on_interval=on_interval, extra_config=extra_config, stacklevel=6)

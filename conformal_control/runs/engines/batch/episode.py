@@ -645,7 +645,7 @@ class EpisodeSlots:
             raise ValueError(f"engine='batch' cannot run this configuration: {reason}")
         self.pool.keep = True
         # the warnings of building the episode (before the engine knows whether it runs it)
-        # are re-issued for run_episode's caller, unless the loop runs it instead; the
+        # are re-issued for run_episode's (or run's) caller, unless the loop runs it instead; the
         # warnings of the run point at the caller by themselves
         caught: list[warnings.WarningMessage] = []
         try:
@@ -658,7 +658,7 @@ class EpisodeSlots:
                 return False
             raise
         finally:
-            for w in caught:  # load_single < run_single < run_episode < its caller
+            for w in caught:  # load_single < run_single < run_episode (or run) < its caller
                 warnings.warn(w.message, w.category, stacklevel=4)
         ep = self.eps[0]
         assert ep is not None
