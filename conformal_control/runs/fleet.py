@@ -840,6 +840,10 @@ def drive(
     for st in steppers:
         st.start()
     cmds = np.zeros((n, 2))
+    # what each robot broadcasts besides its command: its plan's path if it plans ahead,
+    # whether it yields if it can
+    paths = [getattr(st.family, "planned_path", None) for st in steppers]
+    yields = [getattr(st.family, "yielding", None) for st in steppers]
     while not world.done:
         active = [int(i) for i in world.active()]
         for i in active:
@@ -853,14 +857,12 @@ def drive(
                 t0 = clock()
                 cmds[i] = steppers[i].decide(world.state(i))
                 if broadcast:  # its command, its plan's path if it plans ahead, its yield
-                    fam = steppers[i].family
-                    path = getattr(fam, "planned_path", None)
-                    yields = getattr(fam, "yielding", None)
+                    path, yielding = paths[i], yields[i]
                     world.broadcast(
                         i,
                         cmds[i],
                         None if path is None else path(),
-                        yielding=False if yields is None else bool(yields()),
+                        yielding=False if yielding is None else bool(yielding()),
                     )
                 own[i] += clock() - t0
             world.apply(cmds)

@@ -258,6 +258,7 @@ class MultiRobotWorld:
         self._shares = pair_shares(w)
         self._starts = starts
         self._goals = goals
+        self._goal_xy = [g.tolist() for g in goals]  # the same numbers, as Python floats
         self._plants = plants
 
     def reset(self) -> None:
@@ -297,6 +298,7 @@ class MultiRobotWorld:
         self._next_paths: list[tuple[np.ndarray, np.ndarray] | None] = [None] * r
         self._yield = np.zeros(r, dtype=bool)  # broadcast yielding flags, as of now
         self._next_yield = np.zeros(r, dtype=bool)
+        self._any_yield = False  # whether any flag of _yield is set
         # pedestrians: the recording, or a buffer the crowd fills as it is simulated
         if self.crowd is None:
             self._peds = sc.positions
@@ -402,6 +404,8 @@ class MultiRobotWorld:
     def _yield_shares(self, i: int, robots: np.ndarray, shares: np.ndarray) -> np.ndarray:
         """Robot ``i``'s shares of its pairs with ``robots`` given the broadcast yielding
         flags (see the module docstring): ``shares`` itself when no flag changes them."""
+        if not self._any_yield:
+            return shares
         me = bool(self._yield[i])
         them = self._yield.take(robots)
         if not me and not them.any():
@@ -437,20 +441,15 @@ class MultiRobotWorld:
         elif info == "plan":
             ref = self._plan_v.take(robots, axis=0)
             own = self._plan_v[i].copy()
-            plans = tuple(self._paths[int(j)] for j in robots)
-            own_plan = self._paths[i]
-        parked = self._done.take(robots)
+            paths = self._paths
+            plans = tuple([paths[j] for j in robots.tolist()])
+            own_plan = paths[i]
+        parked = None
+        if self._done.any():
+            taken = self._done.take(robots)
+            parked = taken if taken.any() else None
         return PeerView(
-            ids,
-            sub[:, :2],
-            shares,
-            info,
-            ref,
-            own,
-            plans,
-            own_plan,
-            int(self.robot_ids[i]),
-            parked if parked.any() else None,
+            ids, sub[:, :2], shares, info, ref, own, plans, own_plan, int(self.robot_ids[i]), parked
         )
 
     def broadcast(
@@ -476,7 +475,7 @@ class MultiRobotWorld:
             Whether it yields to the others.
         """
         v = np.asarray(velocity, dtype=float).reshape(-1)
-        if v.shape != (2,) or not np.isfinite(v).all():
+        if v.shape != (2,) or not (math.isfinite(v[0]) and math.isfinite(v[1])):
             raise ValueError(f"a broadcast velocity is a finite (vx, vy), got {velocity!r}")
         self._next_v[i] = v
         self._next_paths[i] = path
@@ -701,11 +700,11 @@ class MultiRobotWorld:
             rec.steps_t.append(t)
             rec.steps_x.append(self._x[i].copy())
             rec.steps_cmd.append(c.copy())
-            goals = self._goals[i]
+            goals = self._goal_xy[i]
             g = int(self._goal[i])
-            while g < len(goals) and math.hypot(*(self._x[i, :2] - goals[g])) <= (
-                self.scene.goal_radius
-            ):
+            x0, x1 = self._x[i, :2].tolist()
+            radius = self.scene.goal_radius
+            while g < len(goals) and math.hypot(x0 - goals[g][0], x1 - goals[g][1]) <= radius:
                 g += 1
             if g >= len(goals):
                 g = len(goals) - 1
@@ -720,6 +719,7 @@ class MultiRobotWorld:
             done, nxt = self._done, self._next_paths
             self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
             self._yield[:] = self._next_yield & ~done
+            self._any_yield = bool(self._yield.any())
         if self._n_instants % self.substeps == 0:
             self._fi += 1
             self._robot_pos[self._fi] = self._x[:, :2]

@@ -121,3 +121,36 @@ def test_the_compiled_fleet_step_equals_the_generic_loop(case, crossing, monkeyp
     else:  # most steps compiled
         assert fast_seen["generic"] < 0.2 * fast_seen["decide"]
     _same(_fields(loop), _fields(fast), case)
+
+
+@pytest.mark.data
+def test_a_fleet_benchmark_equals_the_generic_loop_row_by_row(tmp_path, data_root, monkeypatch):
+    """``bench run --robots`` (one worker: in this process) with the compiled step writes
+    the rows the generic loop writes, every field but the times."""
+    import json
+
+    from conformal_control.experiments.bench.multi import run_multi_bench
+
+    kw = dict(
+        robots=(4,),
+        split="test",
+        limit=1,
+        methods=("conformal",),
+        reciprocity=("reciprocal",),
+        data_root=str(data_root),
+        workers=1,
+    )
+    rows = {}
+    for generic in (True, False):
+        with monkeypatch.context() as m:
+            seen = _counted(m, generic=generic)
+            out = tmp_path / f"bench-{generic}"
+            assert run_multi_bench(out, **kw).ran == 1
+        assert (seen["generic"] == seen["decide"]) == generic and seen["decide"] > 0
+        lines = (out / "results.jsonl").read_text().splitlines()
+        rows[generic] = [
+            {k: v for k, v in json.loads(line).items() if k not in ("wall_s", "cpu_s", "elapsed_s")}
+            for line in lines
+        ]
+    assert len(rows[True]) == 1
+    _same(rows[True], rows[False], "rows")

@@ -81,6 +81,7 @@ world) and the rows (:func:`peer_rows`).
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -642,10 +643,20 @@ def lexicographic_search(
     return v, hi, not keep and hi > 0.0
 
 
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n, k=1)``, read-only, computed once per ``n`` (a fleet's steps
+    handed to the priority stages ask for the same few sizes thousands of times)."""
+    i, j = np.triu_indices(n, k=1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
+
+
 def _vertices(G: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Every pairwise intersection of the lines ``G_i . v = g_i`` (parallel pairs left
     out), shape (P, 2)."""
-    i, j = np.triu_indices(G.shape[0], k=1)
+    i, j = _pairs(G.shape[0])
     det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
     ok = np.abs(det) > 1e-12
     i, j, det = i[ok], j[ok], det[ok]

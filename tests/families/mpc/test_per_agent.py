@@ -139,3 +139,22 @@ def test_one_agent_margin_loss_per_agent_is_the_scalar_margin_loss_bit_for_bit()
         )
     assert np.array_equal(a.steps["cmd"], b.steps["cmd"])
     assert len({iv.lam for iv in ia}) > 3  # lambda moved
+
+
+def test_the_floored_method_keeps_each_lambda_above_its_floor() -> None:
+    """``cc_mpc_margin_agent_floor``: each pedestrian's lambda stops at -0.2 m (at most
+    0.2 m of safe distance added) where the floorless method's goes lower."""
+    from conformal_control.experiments.bench.methods import expand_methods
+
+    # a pedestrian circling across the robot's path: the constant-velocity forecast misses
+    scene = _scene({1: _circling((3.0, 0.2), 1.0, 1.5)})
+    lows = {}
+    for name in ("cc_mpc_margin_agent", "cc_mpc_margin_agent_floor"):
+        kw = expand_methods([name])[0].run_kwargs()
+        kw["family_params"] = {**kw["family_params"], "sampling__n_samples": 60}
+        res = run_episode(scene, engine="loop", max_frames=200, **kw)
+        lam = [x for e in res.loop.monitor.entries.values() for x in e.lambdas]
+        assert len(lam) >= 4
+        lows[name] = min(lam)
+    assert lows["cc_mpc_margin_agent"] < -0.2 - 1e-9  # the floor binds in this case
+    assert lows["cc_mpc_margin_agent_floor"] == pytest.approx(-0.2)
