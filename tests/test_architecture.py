@@ -143,6 +143,7 @@ LAYERS: dict[str, int] = {
     # the generic core: roles, the parameter table, the loop
     "core.base": 0,
     "core.exceptions": -1,  # imports nothing of the package: every unit may raise its errors
+    "core.capabilities": -1,  # imports nothing of the package: every unit may read them
     "_moved": 0,  # the old module paths of 0.3 (imports a new path when an old one is asked)
     "core.progress": 0,
     "core.fileio": 1,

@@ -45,7 +45,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .base import GuaranteeKind, UpdateRule
+from .base import UpdateRule
+from .capabilities import GuaranteeKind
 
 __all__ = ["AgentMonitor", "GuaranteeMonitor", "Theorem2Verdict"]
 

@@ -1034,7 +1034,7 @@ class RunContext:
     """The values a run hands the plugins it builds, each only to a plugin that asks for it.
 
     A plugin class declares the run values it takes in its capabilities
-    (:attr:`Capabilities.run_values <conformal_control.core.base.Capabilities.run_values>`:
+    (:attr:`Capabilities.run_values <conformal_control.core.capabilities.Capabilities.run_values>`:
     constructor argument -> one of these field names, e.g. ``{"d_c":
     "barrier_distance"}``); :meth:`arguments` passes exactly those the caller did not give.
     Nothing is passed because an argument happens to share a name with a run value: a

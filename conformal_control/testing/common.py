@@ -290,8 +290,8 @@ def check_no_mutable_defaults(plugin: Any) -> None:
     )
 
 
-#: Fields of :class:`~conformal_control.core.base.Capabilities` that mean something for one role
-#: only (keyed by the role's base class, resolved lazily: predictors and filters are a
+#: Fields of :class:`~conformal_control.core.capabilities.Capabilities` that mean something
+#: for one role only (keyed by the role's base class, resolved lazily: predictors and filters are a
 #: floor up); every other field applies to every role.
 _ROLE_CAPABILITIES: dict[str, tuple[str, ...]] = {
     "predictor": ("batchable", "trainable", "requires_ground_truth"),
@@ -319,7 +319,7 @@ def _roles_of(cls: type) -> set[str]:
 
 def check_capabilities(plugin: Any) -> None:
     """The plugin's class declares its capabilities as one
-    :class:`~conformal_control.core.base.Capabilities` object, consistently.
+    :class:`~conformal_control.core.capabilities.Capabilities` object, consistently.
 
     Fields of another role keep their defaults; every ``run_values`` entry maps a
     constructor argument (or a settings group's ``<group>__<field>``) to a documented run

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
-from conformal_control.core.base import Capabilities
+from conformal_control.core.capabilities import Capabilities
 from conformal_control.core.update_rules import FixedEtaRule
 from conformal_control.families.cbf.barriers import APFBarrier
 from conformal_control.predictors.base import Forecast, PredictionQuery, Predictor
@@ -104,3 +104,25 @@ def test_the_core_plugins_declare_what_they_did_as_attributes() -> None:
     assert (caps.guarantee, caps.fixed_step, caps.exact_step) == ("identity", True, True)
     assert caps.lambda_params == ("eta", "lambda_init", "lambda_min", "lambda_max")
     assert not hasattr(FixedEtaRule, "lambda_params") and not hasattr(Predictor, "fast")
+
+
+def test_the_capabilities_module_stands_alone_and_base_re_exports_it() -> None:
+    """``core.capabilities`` holds the declarations and imports nothing of the package (its
+    floor is -1); ``core.base`` hands the same objects on, so 0.3's imports keep working."""
+    import ast
+    import inspect
+
+    from conformal_control.core import base, capabilities
+
+    tree = ast.parse(inspect.getsource(capabilities))
+    imported = [
+        "." * n.level + (n.module or "") if isinstance(n, ast.ImportFrom) else a.name
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Import, ast.ImportFrom))
+        for a in n.names
+    ]
+    assert not [m for m in imported if m.startswith(("conformal_control", "."))], imported
+    for name in capabilities.__all__:
+        assert getattr(base, name) is getattr(capabilities, name), name
+    assert {"Capabilities", "CompiledForm", "GuaranteeKind"} <= set(base.__all__)
+    assert base.Plugin.capabilities == capabilities.Capabilities()

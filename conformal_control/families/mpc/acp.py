@@ -48,7 +48,6 @@ from ...core.base import Loss
 from ...core.jit import kernel
 from ...core.losses import check_lambda
 from ...predictors.base import PredictionQuery, Predictor
-from ..cbf.acp import region_radii
 from ..cbf.pyhypot import c_hypot
 from ..cbf.roles import Dynamics, ReferenceController
 from .controller import MPCIntervalRecord, SamplingMPC
@@ -210,6 +209,25 @@ def _merge_windows(
         for i in range(k):
             ring[h, (start[h] + count[h] + i) % cap] = new[new_off[h] + i]
         count[h] += k
+    return out
+
+
+def _region_radii(sorted_scores: tuple[np.ndarray, ...], lam: float) -> np.ndarray:
+    """:func:`~conformal_control.families.cbf.acp.region_radii` for all steps at once: the
+    conformal radius of each step's sorted errors at level ``1 - lam`` (``inf``: everything,
+    ``-inf``: empty), the same numbers as
+    :func:`~conformal_control.core.losses.conformal_radius` step by step (the rank
+    ``ceil((n + 1)(1 - lam))`` in the same float arithmetic)."""
+    h_n = len(sorted_scores)
+    if lam >= 1.0:
+        return np.full(h_n, -math.inf)
+    out = np.full(h_n, math.inf)
+    if lam <= 0.0:
+        return out
+    n = np.fromiter(map(len, sorted_scores), np.int64, h_n)
+    k = np.ceil((n + 1) * (1.0 - lam)).astype(np.int64)
+    for h in np.flatnonzero((n > 0) & (k <= n)).tolist():
+        out[h] = sorted_scores[h][max(int(k[h]), 1) - 1]
     return out
 
 
@@ -542,7 +560,7 @@ class ACPMPC(
         """Inflation at each plan step (m): ``min(C^h(lambda), max_inflation)``, 0 for an
         empty region."""
         if self._infl_lam != lam:
-            radii = region_radii(self._sorted, lam)
+            radii = _region_radii(self._sorted, lam)
             self._infl = np.clip(np.where(np.isnan(radii), 0.0, radii), 0.0, self.max_inflation)
             self._infl_lam = lam
         return self._infl
@@ -615,7 +633,7 @@ class PlanMiscoverageLoss(Loss[ACPMPCIntervalRecord, Any]):
         ]
 
     def _misses(self, record: ACPMPCIntervalRecord, lam: float) -> np.ndarray:
-        radii = region_radii(tuple(record.sorted_scores), lam)
+        radii = _region_radii(tuple(record.sorted_scores), lam)
         r = radii[np.asarray(record.scored_step, dtype=np.int64) - 1]
         out: np.ndarray = np.asarray(record.scored_error, dtype=float) > r
         return out

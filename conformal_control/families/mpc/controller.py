@@ -72,7 +72,7 @@ from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, me
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
-from .kernels import evaluate, plan_predictions, positions_of, predicted_at
+from .kernels import choose_safe, evaluate, plan_predictions, positions_of, predicted_at
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 from .settings import Costs, Limits, Sampling, check_groups
@@ -129,6 +129,10 @@ class PlanInputs:
         if rows is None or rows[0] is not self.problem[3]:
             return None
         return rows[1], rows[2], rows[3], rows[4]
+
+
+#: No agent's predictions (the edge rule's arguments when it cannot apply).
+_NO_PRED = np.zeros((0, 1, 2))
 
 
 @dataclass
@@ -619,21 +623,44 @@ class SamplingMPC(
             if self.reciprocity.priority != "pedestrians":  # type: ignore[union-attr]
                 # one problem: no order between the lines and the pedestrians
                 viol, line_viol, lines = viol + line_viol, np.zeros_like(viol), None
-        safe = clear >= 0.0
-        closing = self.edge_closing(todo)
         allowed: np.ndarray | None = None
-        if closing is not None:  # the edge rule: never close in while another plan exists
-            self.n_edge_ += 1
-            allowed = closing <= 1e-9
-            if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
-                allowed = closing <= closing.min() + 1e-9
-            safe &= allowed
-            if lines is not None:
-                kept &= allowed
-        n_safe = int(safe.sum())
+        if lines is None and type(self).edge_closing is SamplingMPC.edge_closing:
+            # the common case in one compiled call: the edge rule and the cheapest safe plan
+            # (kernels.choose_safe: the numbers of the numpy form below)
+            edge = self.edge == "escape" and bool(self._ids.size)
+            x, pred, y0 = todo.problem[2:5] if edge else (np.zeros(2), _NO_PRED, _NO_PRED[:, 0])
+            allowed = np.empty(cost.shape[0], dtype=np.bool_)
+            i, n_safe, applied = choose_safe(
+                np.asarray(cost, dtype=np.float64),
+                np.asarray(clear, dtype=np.float64),
+                np.asarray(pos, dtype=np.float64),
+                np.asarray(x, dtype=np.float64),
+                np.asarray(pred, dtype=np.float64),
+                np.asarray(y0, dtype=np.float64),
+                float(self.d_c),
+                float(self.sampling.dt_plan),
+                edge,
+                allowed,
+            )
+            if applied:
+                self.n_edge_ += 1
+            else:
+                allowed = None
+        else:
+            safe = clear >= 0.0
+            closing = self.edge_closing(todo)
+            if closing is not None:  # the edge rule: never close in while another plan exists
+                self.n_edge_ += 1
+                allowed = closing <= 1e-9
+                if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
+                    allowed = closing <= closing.min() + 1e-9
+                safe &= allowed
+                if lines is not None:
+                    kept &= allowed
+            n_safe = int(safe.sum())
+            i = int(np.argmin(np.where(safe, cost, np.inf))) if n_safe else -1
         self.n_plans_ += 1
         if n_safe:
-            i = int(np.argmin(np.where(safe, cost, np.inf)))
             status = "optimal" if self._ids.size else "unconstrained"
         elif lines is not None and kept.any():  # the lines give way before the pedestrians
             self.n_peer_yield_ += 1

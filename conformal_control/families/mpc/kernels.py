@@ -49,9 +49,11 @@ from typing import Any
 import numpy as np
 
 from ...core.jit import kernel
+from ..cbf.pyhypot import c_hypot
 
 __all__ = [
     "agent_rows",
+    "choose_safe",
     "evaluate",
     "evaluate_many",
     "evaluate_numpy",
@@ -523,6 +525,118 @@ def plan_predictions(
             sx[h, j] = both[j, h, 0]
             sy[h, j] = both[j, h, 1]
     return pred, y0, ex, ey, sx, sy
+
+
+@jit
+def choose_safe(
+    cost: np.ndarray,
+    clear: np.ndarray,
+    pos: np.ndarray,
+    x: np.ndarray,
+    pred: np.ndarray,
+    y0: np.ndarray,
+    d_c: float,
+    dt_plan: float,
+    edge: bool,
+    allowed: np.ndarray,
+) -> tuple[int, int, bool]:
+    """The sampling MPC's choice among evaluated candidates in one compiled call (no peers'
+    lines): the edge rule's check and the cheapest safe plan, the same numbers as the numpy
+    form it replaces (``SamplingMPC.edge_closing`` and ``SamplingMPC.plan_end``).
+
+    With ``edge`` and an agent within ``d_c`` now (``|x - y0_j| < d_c``, C library's hypot
+    as ``numpy.hypot``), candidate n's closing rate is ``max_j (|x - y0_j| - |p_n1 -
+    y_j1|) / dt_plan`` over those agents (NaN if any term is NaN, as ``numpy.max``); the
+    plans closing at most 1e-9 m/s are allowed, or, when none is, those within 1e-9 of the
+    smallest rate (none when a rate is NaN, as ``numpy.min``). A candidate is safe when
+    ``clear >= 0`` and it is allowed; the choice is the first cheapest safe one, a NaN cost
+    first (as ``numpy.argmin``).
+
+    Parameters
+    ----------
+    cost, clear : ndarray of shape (N,)
+        The candidates' cost and clearance (:func:`evaluate`).
+    pos : ndarray of shape (N, H, 2)
+        The candidates' positions (m).
+    x : ndarray of shape (>= 2,)
+        The robot's position now (m), first two entries.
+    pred, y0 : ndarrays of shape (M, H, 2), (M, 2)
+        The agents' predicted positions at the plan steps and now (m).
+    d_c : float
+        The collision distance (m).
+    dt_plan : float
+        The plan step (s).
+    edge : bool
+        Whether the edge rule applies (``edge="escape"``).
+    allowed : ndarray of bool, shape (N,)
+        Written with the edge rule's allowed plans when it applies.
+
+    Returns
+    -------
+    i : int
+        The chosen candidate, -1 when none is safe.
+    n_safe : int
+        The number of safe candidates.
+    applied : bool
+        Whether the edge rule applied (an agent within ``d_c``).
+    """
+    n = cost.shape[0]
+    m = y0.shape[0]
+    applied = False
+    if edge and m > 0:
+        near = np.empty(m, dtype=np.int64)
+        d0 = np.empty(m)
+        k = 0
+        for j in range(m):
+            d = c_hypot(x[0] - y0[j, 0], x[1] - y0[j, 1])
+            if d < d_c:
+                near[k] = j
+                d0[k] = d
+                k += 1
+        if k > 0:
+            applied = True
+            closing = np.empty(n)
+            some = False
+            low = np.inf
+            low_nan = False
+            for i in range(n):
+                top = -np.inf
+                top_nan = False
+                for q in range(k):
+                    j = near[q]
+                    d1 = c_hypot(pos[i, 0, 0] - pred[j, 0, 0], pos[i, 0, 1] - pred[j, 0, 1])
+                    v = (d0[q] - d1) / dt_plan
+                    if v != v:
+                        top_nan = True
+                    elif v > top:
+                        top = v
+                c = np.nan if top_nan else top
+                closing[i] = c
+                ok = c <= 1e-9
+                allowed[i] = ok
+                some = some or ok
+                if c != c:
+                    low_nan = True
+                elif c < low:
+                    low = c
+            if not some:
+                bound = np.nan if low_nan else low + 1e-9
+                for i in range(n):
+                    allowed[i] = closing[i] <= bound
+    n_safe = 0
+    best = -1
+    best_cost = np.inf
+    for i in range(n):
+        if clear[i] >= 0.0 and (not applied or allowed[i]):
+            n_safe += 1
+            v = cost[i]
+        else:
+            v = np.inf
+        if best >= 0 and best_cost != best_cost:
+            continue  # numpy.argmin: the first NaN
+        if best < 0 or v < best_cost or v != v:
+            best, best_cost = i, v
+    return (best if n_safe > 0 else -1), n_safe, applied
 
 
 def _positions_numpy(states: np.ndarray) -> np.ndarray:

@@ -435,3 +435,21 @@ def test_the_interpreted_kernels_equal_the_compiled_ones() -> None:
     assert [x.tobytes() for x in fams[0]._sorted] == [x.tobytes() for x in fams[1]._sorted]
     assert fams[0].n_scored_ == fams[1].n_scored_ > 0
     assert isinstance(fams[0].scores_[0], deque)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10_000), horizon=st.integers(1, 6))
+def test_acp_region_radii_equal_the_radius_step_by_step(seed: int, horizon: int) -> None:
+    """The radii of all steps at once equal ``region_radii`` (``conformal_radius`` per
+    step), at levels around every rank and at the edges."""
+    from conformal_control.families.cbf.acp import region_radii
+
+    rng = np.random.default_rng(seed)
+    scores = tuple(
+        np.sort(np.round(rng.uniform(0, 3, int(rng.integers(0, 25))), 1)) for _ in range(horizon)
+    )
+    levels = [-0.5, 0.0, 1e-9, 0.04, 0.1, 0.25, 0.5, 0.9, 1 - 1e-12, 1.0, 2.0]
+    levels += [1 - r / 26 for r in range(27)]
+    for lam in levels:
+        got = acp._region_radii(scores, lam)
+        assert got.tobytes() == region_radii(scores, lam).tobytes(), lam

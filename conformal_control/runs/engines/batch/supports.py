@@ -39,8 +39,9 @@ from ..reactive import unsupported_crowd
 _T = TypeVar("_T")
 
 #: What the engine compiles, per role of a run: the compiled counterparts it has kernels
-#: for. A plugin runs compiled when its class declares one of them (``capabilities.compiled``, see
-#: :class:`~conformal_control.core.base.Capabilities`); the role's default (None) always does.
+#: for. A plugin runs compiled when its class declares one of them (``capabilities.compiled``,
+#: see :class:`~conformal_control.core.capabilities.Capabilities`); the role's default (None)
+#: always does.
 KERNELS: dict[str, frozenset[str]] = {
     "barrier": frozenset({"apf"}),
     "safety_filter": frozenset({"exact2d"}),
