@@ -9,13 +9,73 @@ from typing import Any
 import numpy as np
 
 from ..core.base import CompiledForm, Environment, first_test_instance
+from ..core.jit import kernel
 from ..data.scene import Scene, SparseTracks
 from ..families.cbf.controller import ConformalCBFController, ControlState
 from ..families.cbf.loss import CBFTruth
 from ..families.cbf.roles import Dynamics
 from ..predictors.base import PredictionQuery
 
-__all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment"]
+__all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment", "sparse_window"]
+
+
+def _sparse_window_numpy(
+    xy: np.ndarray,
+    start: np.ndarray,
+    length: np.ndarray,
+    offset: np.ndarray,
+    lo: int,
+    hi: int,
+    cols: np.ndarray,
+) -> np.ndarray:
+    """:meth:`SparseTracks.window`'s numpy form on the tracks' arrays."""
+    out = np.full((cols.size, max(hi - lo, 0), 2), np.nan)
+    if not cols.size or hi <= lo:
+        return out
+    k = np.arange(lo, hi)[None, :] - start[cols, None]
+    ok = (k >= 0) & (k < length[cols, None])
+    out[ok] = xy[(offset[cols, None] + k)[ok]]
+    return out
+
+
+@kernel(cache=True, nogil=True, python=_sparse_window_numpy)
+def sparse_window(
+    xy: np.ndarray,
+    start: np.ndarray,
+    length: np.ndarray,
+    offset: np.ndarray,
+    lo: int,
+    hi: int,
+    cols: np.ndarray,
+) -> np.ndarray:
+    """:meth:`~conformal_control.data.scene.SparseTracks.window` compiled (the same copies,
+    without numpy's per-call work: the replay sensor reads one window per interval and the
+    truth one more): positions of agents ``cols`` over frames ``lo..hi-1`` as
+    ``(len(cols), hi - lo, 2)``, NaN outside their spans.
+
+    Parameters
+    ----------
+    xy, start, length, offset : ndarrays
+        The tracks' arrays (:class:`~conformal_control.data.scene.SparseTracks`).
+    lo, hi : int
+        The frames ``lo..hi-1`` (any integers).
+    cols : ndarray of int64
+        The agents' columns.
+    """
+    n = cols.size
+    span = max(hi - lo, 0)
+    out = np.full((n, span, 2), np.nan)
+    for a in range(n):
+        c = cols[a]
+        first = start[c]
+        size = length[c]
+        row = offset[c]
+        for t in range(span):
+            k = lo + t - first
+            if 0 <= k < size:
+                out[a, t, 0] = xy[row + k, 0]
+                out[a, t, 1] = xy[row + k, 1]
+    return out
 
 
 @dataclass(frozen=True)
@@ -185,8 +245,24 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self.steps_t: list[float] = []
         self.steps_x: list[np.ndarray] = []
         self.steps_cmd: list[np.ndarray] = []
+        self._goals_xy = [(float(g[0]), float(g[1])) for g in np.asarray(sc.goals)]
         self._positions = self._init_positions()
+        self._index_present()
         self._log_frame()
+
+    def _index_present(self) -> None:
+        """The agents present at each frame of the episode, in one gather (the recording's
+        :meth:`SparseTracks.present` per frame, as views): ``_present`` reads slices."""
+        self._pres: tuple[int, int, np.ndarray, np.ndarray, np.ndarray] | None = None
+        src = self._positions
+        if type(src) is not SparseTracks:
+            return
+        f0, f1 = self.scene.start_index, self._last
+        ptr = src.frame_ptr[f0 : f1 + 2]
+        cols = src.frame_cols[ptr[0] : ptr[-1]]
+        frames = np.repeat(np.arange(f0, f1 + 1), np.diff(ptr))
+        xy = src.xy[src.offset[cols] + (frames - src.start[cols])]
+        self._pres = (f0, f1, ptr - ptr[0], cols, xy)
 
     def _init_positions(self) -> np.ndarray | SparseTracks:
         """Agent positions the sensor, the frame log and the truth read.
@@ -201,6 +277,10 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
     def _present(self, f: int) -> tuple[np.ndarray, np.ndarray]:
         """The agents present (finite x) at frame ``f``, in column order, and their
         positions ``(k, 2)``."""
+        pres = self._pres
+        if pres is not None and pres[0] <= f <= pres[1]:
+            a, b = pres[2][f - pres[0]], pres[2][f - pres[0] + 1]
+            return pres[3][a:b], pres[4][a:b]
         src = self._positions
         if isinstance(src, SparseTracks):
             return src.present(f)
@@ -228,6 +308,10 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
     def _window(self, lo: int, hi: int, idx: np.ndarray) -> np.ndarray:
         """positions[lo:hi, idx] as (N, hi - lo, 2), NaN outside the data."""
         src = self._positions
+        if type(src) is SparseTracks:  # compiled (the same copies)
+            cols = np.asarray(idx, dtype=np.int64)
+            out: np.ndarray = sparse_window(src.xy, src.start, src.length, src.offset, lo, hi, cols)
+            return out
         if isinstance(src, SparseTracks):
             return src.window(lo, hi, idx)
         n = hi - lo
@@ -305,13 +389,14 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
         self.steps_cmd.append(np.asarray(decision, dtype=float).copy())
         sc = self.scene
         x, y = float(self._x[0]), float(self._x[1])
-        while self._goal < len(sc.goals):
-            gx, gy = sc.goals[self._goal]  # the distance to the goal in floats (as numpy's)
-            if not math.hypot(x - float(gx), y - float(gy)) <= sc.goal_radius:
+        goals = self._goals_xy  # the goals as floats (reset)
+        while self._goal < len(goals):
+            gx, gy = goals[self._goal]  # the distance to the goal in floats (as numpy's)
+            if not math.hypot(x - gx, y - gy) <= sc.goal_radius:
                 break  # (a NaN distance stops too, as before)
             self._goal += 1
-        if self._goal >= len(sc.goals):
-            self._goal = len(sc.goals) - 1
+        if self._goal >= len(goals):
+            self._goal = len(goals) - 1
             self.t_goal_ = self._t
             self._done = True
         if self._step % self.substeps == 0:

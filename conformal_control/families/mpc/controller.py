@@ -72,7 +72,14 @@ from ..cbf.controller import CBFIntervalRecord, ControlState, PredictorError, me
 from ..cbf.interp import forward_fill, interpolate_at_substeps
 from ..cbf.reciprocal import YIELD_HOLD_S, Reciprocity
 from ..cbf.roles import Dynamics, ReferenceController
-from .kernels import choose_safe, evaluate, plan_predictions, positions_of, predicted_at
+from .kernels import (
+    choose_safe,
+    evaluate,
+    plan_predictions,
+    positions_of,
+    predicted_at,
+    substep_states,
+)
 from .peers import peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 from .settings import Costs, Limits, Sampling, check_groups
@@ -423,11 +430,15 @@ class SamplingMPC(
                 f"({n}, >= {frames}, 2) for {n} sensed agents and horizon {frames}"
             )
         samples = np.concatenate([observation.current[:, None, :], pos[:, :frames]], axis=1)
-        samples, had_bad = forward_fill(samples)
-        self.n_nonfinite_predictions_ += int(had_bad.sum())
+        if not np.isfinite(samples).all():  # (all finite: forward_fill changes nothing)
+            samples, had_bad = forward_fill(samples)
+            self.n_nonfinite_predictions_ += int(had_bad.sum())
         self._samples = np.ascontiguousarray(samples, dtype=np.float64)
-        steps = int(observation.horizon) * int(self.substeps)
-        self._xp, self._vp = interpolate_at_substeps(samples, self._dt, int(self.substeps), steps)
+        steps, sub = int(observation.horizon) * int(self.substeps), int(self.substeps)
+        if steps > (samples.shape[1] - 1) * sub or self._samples.shape[0] == 0:
+            self._xp, self._vp = interpolate_at_substeps(samples, self._dt, sub, steps)
+        else:  # compiled, the same numbers (kernels.substep_states)
+            self._xp, self._vp = substep_states(self._samples, self._dt, sub, steps)
 
     def predicted_at(self, offsets: np.ndarray) -> np.ndarray:
         """Predicted positions of the sensed agents at ``offsets`` seconds after the

@@ -60,6 +60,7 @@ __all__ = [
     "plan_predictions",
     "positions_of",
     "predicted_at",
+    "substep_states",
 ]
 
 jit = kernel(cache=True, nogil=True)
@@ -637,6 +638,45 @@ def choose_safe(
         if best < 0 or v < best_cost or v != v:
             best, best_cost = i, v
     return (best if n_safe > 0 else -1), n_safe, applied
+
+
+@jit
+def substep_states(
+    samples: np.ndarray, dt: float, substeps: int, n_steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~conformal_control.families.cbf.interp.interpolate_at_substeps` compiled (the
+    same operations: ``frac = (s % substeps) / substeps``, ``p0 + frac * (p1 - p0)`` and
+    ``(p1 - p0) / dt``), without numpy's gathers and transposes; the caller checks that
+    ``n_steps <= (F) * substeps``.
+
+    Parameters
+    ----------
+    samples : ndarray of shape (N, F + 1, 2)
+        Positions at times ``0, dt, ..., F dt`` (NaN where unknown).
+    dt : float
+        Sample spacing (s).
+    substeps : int
+        Control instants per sample interval.
+    n_steps : int
+        Control instants wanted.
+
+    Returns
+    -------
+    pos, vel : ndarrays of shape (n_steps, N, 2)
+    """
+    n = samples.shape[0]
+    pos = np.empty((n_steps, n, 2))
+    vel = np.empty((n_steps, n, 2))
+    for s in range(n_steps):
+        i = s // substeps
+        frac = (s % substeps) / substeps
+        for a in range(n):
+            for c in range(2):
+                p0 = samples[a, i, c]
+                d = samples[a, i + 1, c] - p0
+                pos[s, a, c] = p0 + frac * d
+                vel[s, a, c] = d / dt
+    return pos, vel
 
 
 def _positions_numpy(states: np.ndarray) -> np.ndarray:
