@@ -500,10 +500,11 @@ def run_multi(
         - ``floor_margin`` (float):
           CBF family, people first: how far (m) beyond the robots' collision distance
           their floor rows aim (default 0.1 m; 0: the collision distance).
-        - ``floor_core`` ({"always", "inside", "none"}):
+        - ``floor_core`` ({"always", "inside", "calm", "none"}):
           CBF family, people first: which pairs' floor rows keep their cores before the
           pedestrians' rows give way (every pair's, only those already closer than the
-          collision distance, or none).
+          collision distance, only those with no pedestrian inside its collision
+          distance of either robot, or none).
 
     Returns
     -------
@@ -775,7 +776,7 @@ def set_reciprocity(
     floor_margin : float
         How far (m) beyond the robots' collision distance the floor rows aim (CBF
         family, ``priority="pedestrians"``).
-    floor_core : {"always", "inside", "none"}
+    floor_core : {"always", "inside", "calm", "none"}
         Which pairs' floor rows keep their cores before the pedestrians' rows give way
         (CBF family, ``priority="pedestrians"``).
     """

@@ -642,10 +642,11 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--floor-core",
-        choices=("always", "inside", "none"),
+        choices=("always", "inside", "calm", "none"),
         default=None,
         help="which pairs' floor rows keep their cores (half the floor margin) before the "
-        "pedestrians' rows give way: every pair's, only pairs already in contact, or none "
+        "pedestrians' rows give way: every pair's, only pairs already in contact, only "
+        "pairs with no pedestrian in contact with either robot, or none "
         "(default: see docs/multi-robot.md)",
     )
 

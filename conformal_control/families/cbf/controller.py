@@ -27,6 +27,7 @@ from .reciprocal import (
     ROBOT_ROW,
     YIELD_HOLD_S,
     Reciprocity,
+    calm_pairs,
     check_peer_view,
     floor_rows,
     lexicographic_search,
@@ -726,6 +727,10 @@ class ConformalCBFController(
             which = self.reciprocity.floor_core  # type: ignore[union-attr]
             if which == "inside":
                 self._cored = pair_directions(state.x[:2], view)[1] < self._robot_dc
+            elif which == "calm":  # no pedestrian inside its collision distance of either
+                peds = self._xp[state.step] if self._ids.size else np.zeros((0, 2))
+                d_p = self.constraint.contact_distance()
+                self._cored = calm_pairs(state.x[:2], view.positions, peds, d_p)
             else:
                 self._cored = np.full(view.n_peers, which == "always")
         self._rec_px.append(np.array(view.positions, dtype=float))

@@ -111,6 +111,7 @@ __all__ = [
     "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
+    "calm_pairs",
     "check_peer_view",
     "floor_rows",
     "grown_constraint",
@@ -227,13 +228,17 @@ class Reciprocity(Plugin):
         (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
-    floor_core : {"always", "inside", "none"}
+    floor_core : {"always", "inside", "calm", "none"}
         With ``priority="pedestrians"``: which floor rows keep their cores before the
         pedestrians' rows give way (:func:`priority_relax`'s ``cored``): ``"always"``
         every pair's; ``"inside"`` only the pairs already closer than the robots'
-        collision distance (the others' floor rows give way entirely first); ``"none"``
-        no pair's. Default :data:`~conformal_control.core.spec.FLOOR_CORE_DEFAULT`
-        (the trade-off measured in docs/multi-robot.md).
+        collision distance (the others' floor rows give way entirely first); ``"calm"``
+        only the pairs with no pedestrian inside its collision distance of either robot
+        of the pair (from the predicted agents' positions of the step, as the edge rule
+        reads them: when one is, the pair's floor rows give way as with ``"none"``, so
+        the pedestrians' rows come first; :func:`calm_pairs`); ``"none"`` no pair's.
+        Default :data:`~conformal_control.core.spec.FLOOR_CORE_DEFAULT` (the trade-off
+        measured in docs/multi-robot.md).
     """
 
     def __init__(
@@ -824,6 +829,39 @@ def robot_escape(
     share = np.asarray(view.shares, dtype=float)[peers]
     push = share * float(gain) * (float(d_c) + float(margin) - d[peers])
     return peers.astype(np.int64), -u[peers], np.zeros(peers.size), push
+
+
+def calm_pairs(
+    x_ego: np.ndarray, peers: np.ndarray, pedestrians: np.ndarray, distance: float
+) -> np.ndarray:
+    """Which of a robot's pairs are calm (``floor_core="calm"``): no pedestrian inside
+    ``distance`` of the robot nor of the pair's other robot, shape (K,).
+
+    Both robots of a pair compute it from the same two positions, so they agree whenever
+    they read the same pedestrians there (each reads its own predicted agents: a
+    pedestrian one robot does not sense is not counted by it).
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    peers : ndarray of shape (K, 2)
+        The other robots' positions (m).
+    pedestrians : ndarray of shape (N, 2)
+        The pedestrians' positions (m; NaN rows: absent, never inside).
+    distance : float
+        The pedestrians' collision distance (m).
+    """
+    peers = np.asarray(peers, dtype=float).reshape(-1, 2)
+    peds = np.asarray(pedestrians, dtype=float).reshape(-1, 2)
+    if not peds.size:
+        return np.ones(peers.shape[0], dtype=bool)
+    d_ego = np.hypot(peds[:, 0] - x_ego[0], peds[:, 1] - x_ego[1])
+    if bool((d_ego < distance).any()):
+        return np.zeros(peers.shape[0], dtype=bool)
+    d = np.hypot(peds[None, :, 0] - peers[:, None, 0], peds[None, :, 1] - peers[:, None, 1])
+    out: np.ndarray = ~(d < distance).any(axis=1)
+    return out
 
 
 def tie_direction(own_id: int, peer_id: int) -> np.ndarray:

@@ -712,10 +712,61 @@ def test_floor_core_chooses_which_floor_rows_keep_their_cores_before_the_pedestr
 
 def test_floor_core_is_checked():
     for bad in ("sometimes", None, 1):
-        with pytest.raises(ValueError, match="floor_core must be one of always, inside, none"):
+        with pytest.raises(
+            ValueError, match="floor_core must be one of always, inside, calm, none"
+        ):
             Reciprocity(floor_core=bad).validate()  # type: ignore[arg-type]
-    for ok in ("always", "inside", "none"):
+    for ok in ("always", "inside", "calm", "none"):
         Reciprocity(floor_core=ok).validate()
+
+
+def test_calm_pairs_are_those_with_no_pedestrian_inside_of_either_robot():
+    from conformal_control.families.cbf.reciprocal import calm_pairs
+
+    peers = np.array([[1.0, 0.0], [-3.0, 0.0], [0.0, 4.0]])
+    ego = np.zeros(2)
+    # one pedestrian 0.6 m from the first peer (inside 0.7), 1.6 m from the robot
+    peds = np.array([[1.6, 0.0], [np.nan, np.nan], [0.0, 8.0]])
+    assert calm_pairs(ego, peers, peds, 0.7).tolist() == [False, True, True]
+    assert calm_pairs(ego, peers, peds, 0.5).tolist() == [True, True, True]
+    # one inside the robot's own collision distance: none of its pairs is calm
+    near = np.r_[peds, [[0.3, -0.2]]]
+    assert calm_pairs(ego, peers, near, 0.7).tolist() == [False, False, False]
+    # the pair's other robot reads the same pedestrian from the same two positions
+    assert calm_pairs(peers[0], ego[None], peds, 0.7).tolist() == [False]
+    assert calm_pairs(ego, peers, np.zeros((0, 2)), 0.7).tolist() == [True, True, True]
+    assert calm_pairs(ego, np.zeros((0, 2)), near, 0.7).shape == (0,)
+
+
+@pytest.mark.parametrize(("where", "calm"), [((2.5, 1.5), True), ((1.5, 0.4), False)])
+def test_calm_cores_hold_until_a_pedestrian_is_inside_of_either_robot(where, calm):
+    # the case of test_floor_core_reaches_the_decision (a pedestrian walking at the robot
+    # from behind, a peer ahead at 1.0 m) with a second pedestrian standing at ``where``:
+    # far from both robots the pair is calm and "calm" holds the core as "always" does
+    # (the same decision); 0.64 m from the peer (inside the pedestrians' 0.7 m), the
+    # pair's cores give way as with "none", so the pedestrians' rows come first
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    other = np.tile(where, (6, 1))
+    q = dataclasses.replace(
+        q,
+        ids=np.array([1, 3, 2]),
+        history=np.stack([ped, other, q.history[1]]),
+        robot=np.array([False, False, True]),
+    )
+    got = {}
+    for core in ("always", "calm", "none"):
+        c = _controller(False, priority="pedestrians")
+        c.reciprocity.floor_core = core  # type: ignore[union-attr]
+        c.reset()
+        c.begin_interval(q)
+        view = PeerView(np.array([2]), np.array([[1.0, 0.0]]), np.array([0.5]))
+        v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        got[core] = (v.tolist(), c._cored.tolist(), c._stage)
+    assert got["always"][0] != got["none"][0]  # the cores matter here
+    assert got["calm"] == (got["always"] if calm else got["none"])
+    assert got["calm"][1] == [calm]
 
 
 def test_floor_core_reaches_the_decision():
