@@ -184,9 +184,10 @@ def time_planar(method: str, data_root: Any = None) -> float:
     for task in planar.TASKS.values():  # read every recording once (cached per process)
         planar.recording(task, data_root)
     first = next(iter(planar.TASKS.values()))
+    start, cv = first.start_timesteps[0], "constant_velocity"
     if m.calibration is not None:
-        planar.scenario_envelope(first, first.start_timesteps[0], m, "constant_velocity", data_root)
-    planar.run_scenario(first, first.start_timesteps[0], m, "constant_velocity", data_root=data_root)
+        planar.scenario_envelope(first, start, m, cv, data_root)
+    planar.run_scenario(first, start, m, cv, data_root=data_root)
     spent, steps = 0.0, 0
     for task in planar.TASKS.values():
         start = task.start_timesteps[0]
