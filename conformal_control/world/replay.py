@@ -13,10 +13,41 @@ from ..core.jit import kernel
 from ..data.scene import Scene, SparseTracks
 from ..families.cbf.controller import ConformalCBFController, ControlState
 from ..families.cbf.loss import CBFTruth
+from ..families.cbf.pyhypot import c_hypot
 from ..families.cbf.roles import Dynamics
 from ..predictors.base import PredictionQuery
 
-__all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment", "sparse_window"]
+__all__ = ["FrameLog", "ReplayCursor", "ReplayEnvironment", "nearest_distance", "sparse_window"]
+
+
+def _nearest_distance_numpy(xy: np.ndarray, x: float, y: float) -> float:
+    """:func:`nearest_distance`'s numpy form (the frame log's former expression)."""
+    d = np.hypot(xy[:, 0] - x, xy[:, 1] - y)
+    return float(d.min()) if d.size else math.nan
+
+
+@kernel(cache=True, nogil=True, python=_nearest_distance_numpy)
+def nearest_distance(xy: np.ndarray, x: float, y: float) -> float:
+    """The smallest distance (m) from ``(x, y)`` to the rows of ``xy`` (k, 2), NaN when
+    there is none or any distance is NaN (as ``numpy.min``): numpy's ``hypot`` (the C
+    library's, :func:`~conformal_control.families.cbf.pyhypot.c_hypot`) per row, without
+    numpy's per-call work (the replay logs it every frame).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (k, 2)
+        The agents' positions (m).
+    x, y : float
+        The robot's position (m).
+    """
+    best = math.nan
+    for i in range(xy.shape[0]):
+        d = c_hypot(xy[i, 0] - x, xy[i, 1] - y)
+        if d != d:
+            return math.nan
+        if i == 0 or d < best:
+            best = d
+    return best
 
 
 def _sparse_window_numpy(
@@ -298,11 +329,11 @@ class ReplayEnvironment(Environment[PredictionQuery, ControlState, np.ndarray, C
 
     def _log_frame(self) -> None:
         _, xy = self._present(self._fi)
-        d = np.hypot(*(xy - self._x[:2]).T) if xy.shape[0] else np.zeros(0)
+        x = self._x
         self.log.frame.append(self.scene.first_frame + self._fi)
         self.log.t.append(self._t)
-        self.log.state.append(self._x.copy())
-        self.log.d_min.append(float(d.min()) if d.size else math.nan)
+        self.log.state.append(x.copy())
+        self.log.d_min.append(nearest_distance(xy, float(x[0]), float(x[1])))
 
     # ------------------------------------------------------------------ sensor
     def _window(self, lo: int, hi: int, idx: np.ndarray) -> np.ndarray:

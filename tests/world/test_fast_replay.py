@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from conformal_control.core.jit import compile_now
 from conformal_control.data.scene import SparseTracks
 from conformal_control.families.cbf.dynamics import VelocityTrackingDoubleIntegrator
+from conformal_control.world import replay
 from conformal_control.world.replay import ReplayEnvironment, _sparse_window_numpy, sparse_window
 
 compile_now()
@@ -111,3 +112,37 @@ def test_a_goal_reached_ends_the_episode_as_before(crossing) -> None:
         ends.append((env.t_goal_, env._step, env._fi, len(env.steps_t)))
     assert ends[0][0] is not None
     assert ends[0] == ends[1]
+
+
+def _d_min_before(xy: np.ndarray, x: np.ndarray) -> float:
+    """The frame log's distance as it was computed before (numpy, per frame)."""
+    d = np.hypot(*(xy - x[:2]).T) if xy.shape[0] else np.zeros(0)
+    return float(d.min()) if d.size else float("nan")
+
+
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(st.integers(0, 9), st.integers(0, 2**32 - 1), st.sampled_from(["none", "nan", "inf", "tie"]))
+def test_the_frame_logs_distance_equals_the_numpy_form(k: int, seed: int, odd: str) -> None:
+    """nearest_distance (compiled, its loop interpreted, its numpy form) gives the frame
+    log's former numpy expression bit for bit: no agent (NaN), NaN and infinite positions,
+    ties, a strided (k, 2) view."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-3, 3, 4)
+    big = rng.uniform(-10, 10, (k, 4))
+    xy = big[:, 1:3]  # a strided view, as some sources hand out
+    if k and odd == "nan":
+        xy[rng.integers(0, k), rng.integers(0, 2)] = np.nan
+    elif k and odd == "inf":
+        xy[rng.integers(0, k), rng.integers(0, 2)] = np.inf
+    elif k > 1 and odd == "tie":
+        xy[1] = 2 * x[:2] - xy[0]  # mirrored: the same distance
+    want = _d_min_before(xy, x)
+    for form in (
+        replay.nearest_distance,
+        replay.nearest_distance.py_func,
+        replay._nearest_distance_numpy,
+    ):
+        got = form(xy, float(x[0]), float(x[1]))
+        assert type(got) is float
+        assert np.array_equal(np.float64(got), np.float64(want), equal_nan=True)
+        assert np.float64(got).tobytes() == np.float64(want).tobytes() or np.isnan(want)

@@ -571,7 +571,7 @@ class SamplingMPC(
         (:func:`~conformal_control.families.mpc.kernels.evaluate_many`) before :meth:`plan_end`."""
         lam = self._per_agent(lam)
         goal = np.asarray(state.goal, dtype=float)
-        if goal.shape != (2,) or not np.isfinite(goal).all():
+        if goal.shape != (2,) or not (math.isfinite(goal[0]) and math.isfinite(goal[1])):
             raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
         t_off = float(state.t - self._t0)
         cmds = self.sample_commands(state, t_off)

@@ -9,8 +9,10 @@ Commands are piecewise constant over blocks of ``hold`` plan steps (a plan of H 
   ``[-pi, pi)`` (every speed equally likely, so the samples reach the bound often);
 * an **acceleration** command: the same in a disc of radius ``a_max``.
 
-The draws are numpy's (``Generator.uniform``, then ``np.cos``/``np.sin``); a compiled kernel
-forms the commands and holds them (the products numpy formed, written straight into the
+The draws are numpy's (``Generator.uniform``, then ``np.cos``/``np.sin``; compiled, both
+from one call of the C library's ``sincos`` where it gives numpy's numbers,
+:mod:`~conformal_control.families.mpc.sincos`); a compiled kernel forms the commands and
+holds them (the products numpy formed, written straight into the
 caller's array instead of stacked, repeated and concatenated: the same numbers,
 ``tests/families/mpc/test_fast_plan.py``).
 """
@@ -18,10 +20,11 @@ caller's array instead of stacked, repeated and concatenated: the same numbers,
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
-from ...core.jit import kernel
+from ...core.jit import is_compiled, kernel
 
 __all__ = ["sample_sequences"]
 
@@ -100,5 +103,25 @@ def sample_sequences(
     else:
         speed = rng.uniform(0.0, radius, size=(n, blocks))
         angle = rng.uniform(-math.pi, math.pi, size=(n, blocks))
-        _polar_held(speed, np.cos(angle), np.sin(angle), int(hold), out)
+        fast = _sincos_kernel()
+        if fast is not None:  # cos and sin of each angle in one C call (the same numbers)
+            fast(speed, angle, int(hold), out)
+        else:
+            _polar_held(speed, np.cos(angle), np.sin(angle), int(hold), out)
     return out
+
+
+_SINCOS: list[Any] = []
+
+
+def _sincos_kernel() -> Any:
+    """:func:`~conformal_control.families.mpc.sincos.polar_held` in a process that runs
+    its kernels compiled (None otherwise, or where ``sincos`` is not numpy's)."""
+    if _SINCOS:
+        return _SINCOS[0]
+    if not is_compiled():
+        return None
+    from .sincos import polar_held
+
+    _SINCOS.append(polar_held())
+    return _SINCOS[0]
