@@ -101,12 +101,15 @@ def sample_sequences(
         lo, hi = box
         _held(rng.uniform(lo, hi, size=(n, blocks, 2)), int(hold), out)
     else:
-        speed = rng.uniform(0.0, radius, size=(n, blocks))
-        angle = rng.uniform(-math.pi, math.pi, size=(n, blocks))
         fast = _sincos_kernel()
-        if fast is not None:  # cos and sin of each angle in one C call (the same numbers)
-            fast(speed, angle, int(hold), out)
+        if fast is not None and math.isfinite(radius):  # (else uniform raises)
+            # the doubles both uniform calls draw, in one call; cos and sin of each angle
+            # in one C call: the same numbers (sincos.py)
+            u = rng.random(2 * n * blocks)
+            fast(u, float(radius), -math.pi, math.pi - (-math.pi), int(hold), out)
         else:
+            speed = rng.uniform(0.0, radius, size=(n, blocks))
+            angle = rng.uniform(-math.pi, math.pi, size=(n, blocks))
             _polar_held(speed, np.cos(angle), np.sin(angle), int(hold), out)
     return out
 

@@ -82,13 +82,16 @@ _sincos = cast(Callable[[float], "tuple[float, float]"], _sincos_intrinsic)
 
 @njit(nogil=True)
 def _polar_held(
-    speed: np.ndarray, angle: np.ndarray, hold: int, out: np.ndarray
+    u: np.ndarray, radius: float, low: float, span: float, hold: int, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
-    for i in range(out.shape[0]):
-        for b in range(speed.shape[1]):
-            s, c = _sincos(angle[i, b])
-            vx = speed[i, b] * c
-            vy = speed[i, b] * s
+    n, blocks = out.shape[0], -(-out.shape[1] // hold)
+    m = n * blocks
+    for i in range(n):
+        for b in range(blocks):
+            speed = 0.0 + radius * u[i * blocks + b]  # numpy's uniform(0, radius)
+            s, c = _sincos(low + span * u[m + i * blocks + b])  # uniform(low, low + span)
+            vx = speed * c
+            vy = speed * s
             for h in range(b * hold, min((b + 1) * hold, out.shape[1])):
                 out[i, h, 0] = vx
                 out[i, h, 1] = vy
@@ -125,10 +128,13 @@ _STATE: list[Any] = []  # [the kernel or None], decided at first use
 
 
 def polar_held() -> Any:
-    """The compiled ``(speed, angle, hold, out) -> None`` writing ``out[i, h] = speed *
-    (cos, sin)(angle)`` of block ``h // hold`` (the products numpy's ``speed *
-    np.cos(angle)`` and ``speed * np.sin(angle)`` form), or None when ``sincos`` cannot be
-    used or does not agree with numpy (see the module docstring)."""
+    """The compiled ``(u, radius, low, span, hold, out) -> None`` forming the disc's
+    commands from ``2 n blocks`` uniform doubles ``u`` (``Generator.random``: the first
+    ``n blocks`` the speeds, as ``uniform(0, radius)`` forms them, ``0 + radius u``, the rest
+    the directions, ``low + span u``, the same doubles two ``uniform`` calls draw) and writing
+    ``out[i, h] = speed * (cos, sin)(direction)`` of block ``h // hold`` (the products numpy's
+    ``speed * np.cos(angle)`` and ``speed * np.sin(angle)`` form); or None when ``sincos``
+    cannot be used or does not agree with numpy (see the module docstring)."""
     if not _STATE:
         _STATE.append(_polar_held if _ADDRESS is not None and _agrees() else None)
     return _STATE[0]

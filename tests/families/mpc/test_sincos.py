@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -40,27 +41,27 @@ def test_sincos_is_used_here_and_agrees_with_numpy() -> None:
     blocks=st.integers(1, 7),
     hold=st.integers(1, 4),
     cut=st.integers(0, 3),
+    radius=st.sampled_from([1.0, 0.7, 2.3, 1e-3, 0.0]),
     seed=st.integers(0, 2**32 - 1),
 )
-def test_the_sincos_kernel_equals_numpys_two_passes(
-    n: int, blocks: int, hold: int, cut: int, seed: int
+def test_the_sincos_kernel_equals_numpys_draws_and_two_passes(
+    n: int, blocks: int, hold: int, cut: int, radius: float, seed: int
 ) -> None:
-    """polar_held(speed, angle) writes what _polar_held(speed, cos(angle), sin(angle)) writes,
-    holds dividing the horizon or not (cut), angles with NaN and infinities included."""
-    rng = np.random.default_rng(seed)
-    speed = rng.uniform(0.0, 2.0, size=(n, blocks))
-    angle = rng.uniform(-math.pi, math.pi, size=(n, blocks))
-    if n:
-        angle.flat[rng.integers(0, angle.size)] = rng.choice([np.nan, np.inf, -np.inf, 0.0, 1e6])
+    """polar_held on one Generator.random call writes what two Generator.uniform calls and
+    _polar_held(speed, cos(angle), sin(angle)) write, holds dividing the horizon or not
+    (cut), and leaves the generator in the same state."""
+    a, r = np.random.default_rng(seed), np.random.default_rng(seed)
     horizon = max(blocks * hold - cut, (blocks - 1) * hold + 1)
     got = np.full((n, horizon, 2), 7.0)
     ref = np.full((n, horizon, 2), 7.0)
     fast = sincos.polar_held()
     assert fast is not None
-    fast(speed, angle, hold, got)
-    with np.errstate(invalid="ignore"):  # numpy warns on sin(inf), sincos is quiet
-        sampling._polar_held(speed, np.cos(angle), np.sin(angle), hold, ref)
+    fast(a.random(2 * n * blocks), radius, -math.pi, 2 * math.pi, hold, got)
+    speed = r.uniform(0.0, radius, size=(n, blocks))
+    angle = r.uniform(-math.pi, math.pi, size=(n, blocks))
+    sampling._polar_held(speed, np.cos(angle), np.sin(angle), hold, ref)
     assert _bits(got) == _bits(ref)
+    assert a.random() == r.random()
 
 
 def test_the_samples_are_the_same_with_and_without_sincos(monkeypatch) -> None:  # type: ignore[no-untyped-def]
@@ -74,6 +75,9 @@ def test_the_samples_are_the_same_with_and_without_sincos(monkeypatch) -> None: 
         rng = np.random.default_rng(3)
         outs.append((sample_sequences(rng, 500, 12, 2, radius=0.9), rng.random()))
     assert _bits(outs[0][0]) == _bits(outs[1][0]) and outs[0][1] == outs[1][1]
+    monkeypatch.setattr(sampling, "_SINCOS", [fast])
+    with pytest.raises(OverflowError):  # numpy's uniform refuses an infinite range, still
+        sample_sequences(np.random.default_rng(0), 3, 4, 2, radius=math.inf)
 
     def wrong(x: np.ndarray, s: np.ndarray, c: np.ndarray) -> None:
         s[:] = np.sin(x)
