@@ -806,23 +806,8 @@ def evaluate(
         r = np.broadcast_to(r, pos.shape[:2])  # (raises: the shapes differ)
     c = np.ascontiguousarray
     ex, ey, sx, sy = agent_rows(pred, y0) if rows is None else rows
-    if offsets is None and not by_plan:
-        return _evaluate_steps(
-            c(pos, dtype=np.float64),
-            c(cmds, dtype=np.float64),
-            c(p0, dtype=np.float64),
-            ex,
-            ey,
-            sx,
-            sy,
-            c(r),
-            c(goal, dtype=np.float64),
-            np.asarray(weights, dtype=np.float64),
-            c(last, dtype=np.float64),
-            bool(continuous),
-            bool(cut),
-        )
-    cost, clear, viol = _evaluate(
+    # the arguments both kernels take first (the per-plan one adds the agents' offsets)
+    args = (
         c(pos, dtype=np.float64),
         c(cmds, dtype=np.float64),
         c(p0, dtype=np.float64),
@@ -835,9 +820,10 @@ def evaluate(
         np.asarray(weights, dtype=np.float64),
         c(last, dtype=np.float64),
         bool(continuous),
-        _offsets(offsets),
-        bool(cut),
     )
+    if offsets is None and not by_plan:
+        return _evaluate_steps(*args, bool(cut))
+    cost, clear, viol = _evaluate(*args, _offsets(offsets), bool(cut))
     return cost, clear, viol
 
 
