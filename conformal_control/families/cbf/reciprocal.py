@@ -122,6 +122,7 @@ __all__ = [
     "peer_rows",
     "priority_relax",
     "reference_velocities",
+    "relaxed_approach",
     "robot_escape",
     "sidestep",
     "tie_direction",
@@ -798,11 +799,17 @@ def pair_directions(x_ego: np.ndarray, view: PeerView) -> tuple[np.ndarray, np.n
 
 
 def robot_escape(
-    x_ego: np.ndarray, view: PeerView, d_c: float, gain: float, margin: float
+    x_ego: np.ndarray,
+    view: PeerView,
+    d_c: float,
+    gain: float,
+    margin: float,
+    within: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The edge rule's terms for the peers already within the robots' collision distance
-    ``d_c``: ``(peers, U, c, push)``, the peers' indices in ``view`` and, for each, the
-    unit vector from it to the robot, ``c = 0`` and the speed to move out at.
+    ``d_c`` (or within ``within``): ``(peers, U, c, push)``, the peers' indices in
+    ``view`` and, for each, the unit vector from it to the robot, ``c = 0`` and the speed
+    to move out at.
 
     A reciprocal robot is held to the edge rule about a robot inside ``d_c`` as about a
     pedestrian inside its collision distance: no command of its own closes in on it
@@ -823,12 +830,68 @@ def robot_escape(
         The edge rule's gain (1/s).
     margin : float
         Beyond ``d_c`` (m) the push aims at.
+    within : float, optional
+        The peers closer than this (m) join (default ``d_c``). The controller passes
+        ``d_c + FLOOR_CORE * margin`` (the floor cores) when a pedestrian is inside its
+        collision distance too: there the edge rule may decide alone, without the floor
+        rows, so a peer inside the cores joins it before contact (with
+        :func:`relaxed_approach` when no command meets every agent's rule).
     """
     u, d = pair_directions(x_ego, view)
-    peers = np.flatnonzero((d < d_c) & (u != 0.0).any(axis=1))
+    reach = float(d_c) if within is None else float(within)
+    peers = np.flatnonzero((d < reach) & (u != 0.0).any(axis=1))
     share = np.asarray(view.shares, dtype=float)[peers]
     push = share * float(gain) * (float(d_c) + float(margin) - d[peers])
     return peers.astype(np.int64), -u[peers], np.zeros(peers.size), push
+
+
+def relaxed_approach(solver: Any, U: np.ndarray, c: np.ndarray, robots: np.ndarray) -> np.ndarray:
+    """The pedestrians' edge-rule terms ``c`` relaxed so that the robot need not close in
+    on the robots ``robots`` either: ``c'``, shape (k,).
+
+    The edge rule asks ``U_j v + c_j >= 0`` of a pedestrian j inside its collision
+    distance (``c_j = -U_j . v_j``: the robot moves away at least as fast as the
+    pedestrian comes at it) and ``U_r v >= 0`` of a robot r inside the robots' (the robot
+    commands nothing toward it). Hemmed in -- a pedestrian walking at the robot from
+    behind, a robot ahead -- no command meets both, and a pedestrians' rule alone drives
+    the robot into the robot ahead (measured in docs/multi-robot.md). Here the
+    pedestrians that come at the robot (``c_j < 0``) get ``c'_j = min(c_j + sigma, 0)``
+    with ``sigma`` the smallest level (>= 0) at which every row can be met, so the robot
+    still never commands toward a pedestrian inside (``U_j v >= 0`` at worst: ``sigma``
+    stops there, where ``v = 0`` meets every row) nor toward a robot inside, and moves
+    away from the pedestrians as fast as that leaves room for. The others keep their
+    ``c_j``. ``c`` itself when every row can be met already.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``search_margin``,
+        ``speed_set``).
+    U : ndarray of shape (k, 2)
+        Unit vectors from each pedestrian inside to the robot.
+    c : ndarray of shape (k,)
+        Their edge-rule terms ``-U_j . v_j`` (m/s).
+    robots : ndarray of shape (m, 2)
+        Unit vectors from each robot inside to the robot (its rows ``U_r v >= 0``).
+    """
+    U = np.asarray(U, dtype=float).reshape(-1, 2)
+    c = np.asarray(c, dtype=float).reshape(-1)
+    robots = np.asarray(robots, dtype=float).reshape(-1, 2)
+    coming = c < 0.0
+    if not coming.any() or not robots.size:
+        return c
+    A = np.concatenate([U[coming], U, robots])
+    base = np.concatenate([c[coming], np.where(coming, 0.0, c), np.zeros(robots.shape[0])])
+    raised = np.zeros(A.shape[0], dtype=bool)
+    raised[: int(coming.sum())] = True
+    nrm = np.hypot(A[:, 0], A[:, 1])
+    S, s_poly, radius = solver.speed_set()
+    level = _level(solver, A, base, nrm, raised, ~raised, S, s_poly, radius)
+    if level is None or level <= 0.0:  # the held rows cannot be met (no 0 in the speed set)
+        return c
+    level += float(solver.search_margin(level, A, base))
+    out: np.ndarray = np.where(coming, np.minimum(c + level, 0.0), c)
+    return out
 
 
 def calm_pairs(

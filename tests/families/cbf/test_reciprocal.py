@@ -21,6 +21,7 @@ from conformal_control.families.cbf.reciprocal import (
     grown_constraint,
     pair_shares,
     peer_rows,
+    relaxed_approach,
     sidestep,
 )
 from conformal_control.families.cbf.records import CBFTruth, ControlState
@@ -852,3 +853,55 @@ def test_a_push_yield_retry_decided_by_the_edge_rule_alone_is_counted_once(monke
     grew = {k: after[k] - before[k] for k in before if after[k] != before[k]}
     assert grew["n_infeasible"] == 1 and grew["n_fallback"] == 1
     assert grew["n_fallback_escape"] == 1 and "n_fallback_lambda_search" not in grew
+
+
+def test_relaxed_approach_flees_a_pedestrian_only_as_fast_as_the_robot_ahead_allows():
+    # a pedestrian inside comes at the robot from behind at 1 m/s (U = +x, c = -1), a
+    # robot inside ahead (its row -v_x >= 0): no command meets both; the pedestrian's term
+    # is relaxed to 0 (the robot commands toward neither), not further
+    f = Exact2DSafetyFilter(v_max=1.5)
+    f.reset()
+    ahead = np.array([[-1.0, 0.0]])
+    got = relaxed_approach(f, np.array([[1.0, 0.0]]), np.array([-1.0]), ahead)
+    assert got.tolist() == [0.0]
+    # a pedestrian coming at it from beside, a robot ahead it cannot pass sideways of:
+    # relaxed to 0 as well
+    got = relaxed_approach(f, np.array([[0.0, 1.0]]), np.array([-1.0]), np.array([[0.0, -1.0]]))
+    assert got.tolist() == [0.0]
+    # every row can be met already (the pedestrian beside, the robot ahead): unchanged,
+    # and a pedestrian walking away keeps its term
+    side = np.array([[0.6, 0.8], [1.0, 0.0]])
+    c = np.array([-0.5, 0.4])
+    assert relaxed_approach(f, side, c, ahead).tolist() == c.tolist()
+    # two pedestrians: the one walking away (U = +y, c = 0.3: v_y >= -0.3) keeps its
+    # term; the one coming at the robot (U = +x at 1.4 m/s) is relaxed just enough: the
+    # robot row -0.6 v_x - 0.8 v_y >= 0 leaves v_x <= 0.4 there, so c' = -0.4 (to the
+    # solver's margin), not 0
+    two = np.array([[1.0, 0.0], [0.0, 1.0]])
+    got = relaxed_approach(f, two, np.array([-1.4, 0.3]), np.array([[-0.6, -0.8]]))
+    assert got[1] == 0.3
+    assert abs(got[0] + 0.4) < 1e-6
+
+
+@pytest.mark.parametrize("peer", [0.75, 0.84])
+def test_a_robot_hemmed_in_by_a_pedestrian_behind_never_closes_in_on_the_robot_ahead(peer):
+    # people first, a pedestrian inside its collision distance walking at the robot from
+    # behind at 1 m/s and a peer ahead, inside the robots' d_c (0.8 m) or within the
+    # floor cores (0.85 m): before, the pedestrians' edge rule alone drove the robot at
+    # the peer (the robots' rows dropped: no command met both), so two robots hemmed in by
+    # a crowd closed into contact (issue 36's students001 w043 swap, deathCircle 2 random).
+    # Now the robot commands toward neither: it does not close in on the peer, nor
+    # command toward the pedestrian
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.1, -0.6, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    c = _controller(False, priority="pedestrians")
+    c.reset()
+    c.begin_interval(q)
+    view = PeerView(q.ids[1:], np.array([[peer, 0.0]]), np.array([0.5]))
+    state = ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view)
+    assert c.escape_rows(state) is not None  # the pedestrian is inside
+    v = c.decide(state, 0.0)
+    assert v[0] <= 1e-9  # not toward the peer (+x) ...
+    assert v[0] >= -1e-9  # ... nor toward the pedestrian (-x)
