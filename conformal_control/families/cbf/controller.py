@@ -22,11 +22,13 @@ from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
     FLOOR_CORE,
+    FLOOR_LOOKAHEAD_S,
     FLOOR_ROW,
     PEDESTRIAN_ROW,
     ROBOT_ROW,
     YIELD_HOLD_S,
     Reciprocity,
+    calm_ahead_pairs,
     calm_pairs,
     check_peer_view,
     floor_rows,
@@ -739,6 +741,19 @@ class ConformalCBFController(
                 peds = self._xp[state.step] if self._ids.size else np.zeros((0, 2))
                 d_p = self.constraint.contact_distance()
                 self._cored = calm_pairs(state.x[:2], view.positions, peds, d_p)
+            elif which == "ahead":  # nor any predicted inside within the look-ahead
+                s = state.step
+                peds = self._xp[s] if self._ids.size else np.zeros((0, 2))
+                vel = self._vp[s] if self._ids.size else np.zeros((0, 2))
+                d_p = self.constraint.contact_distance()
+                calm = calm_ahead_pairs(
+                    state.x[:2], view.positions, peds, vel, d_p, FLOOR_LOOKAHEAD_S,
+                    view.own_reference, view.reference,
+                )  # fmt: skip
+                # a pair within the floor distance keeps its core whatever is ahead:
+                # released there, the pedestrians' rows squeeze it into contact
+                near = pair_directions(state.x[:2], view)[1] < self._robot_dc + margin
+                self._cored = calm | near
             else:
                 self._cored = np.full(view.n_peers, which == "always")
         self._rec_px.append(np.array(view.positions, dtype=float))

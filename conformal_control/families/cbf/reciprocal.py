@@ -97,6 +97,7 @@ __all__ = [
     "COORDINATION",
     "FLOOR_CORE",
     "FLOOR_CORES",
+    "FLOOR_LOOKAHEAD_S",
     "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
@@ -111,6 +112,7 @@ __all__ = [
     "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
+    "calm_ahead_pairs",
     "calm_pairs",
     "check_peer_view",
     "floor_rows",
@@ -172,6 +174,11 @@ TIE_DISTANCE = 1e-9
 #: held exactly at ``d_c`` overshoots into contact (measured in docs/multi-robot.md).
 FLOOR_CORE = 0.5
 
+#: The look-ahead (s) of ``floor_core="ahead"`` (:func:`calm_ahead_pairs`): a pair's
+#: cores give way when a pedestrian is predicted inside its collision distance of either
+#: robot of the pair within this many seconds (measured in docs/multi-robot.md).
+FLOOR_LOOKAHEAD_S = 1.0
+
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
 
@@ -229,7 +236,7 @@ class Reciprocity(Plugin):
         (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
-    floor_core : {"always", "inside", "calm", "none"}
+    floor_core : {"always", "inside", "calm", "ahead", "none"}
         With ``priority="pedestrians"``: which floor rows keep their cores before the
         pedestrians' rows give way (:func:`priority_relax`'s ``cored``): ``"always"``
         every pair's; ``"inside"`` only the pairs already closer than the robots'
@@ -237,7 +244,11 @@ class Reciprocity(Plugin):
         only the pairs with no pedestrian inside its collision distance of either robot
         of the pair (from the predicted agents' positions of the step, as the edge rule
         reads them: when one is, the pair's floor rows give way as with ``"none"``, so
-        the pedestrians' rows come first; :func:`calm_pairs`); ``"none"`` no pair's.
+        the pedestrians' rows come first; :func:`calm_pairs`); ``"ahead"`` the pairs
+        with no pedestrian inside, nor predicted inside within :data:`FLOOR_LOOKAHEAD_S`
+        seconds (:func:`calm_ahead_pairs`), and every pair already within the floor
+        distance ``d_c + floor_margin`` (released there, the pedestrians' rows would
+        squeeze it into contact); ``"none"`` no pair's.
         Default :data:`~conformal_control.core.spec.FLOOR_CORE_DEFAULT` (the trade-off
         measured in docs/multi-robot.md).
     """
@@ -924,6 +935,69 @@ def calm_pairs(
         return np.zeros(peers.shape[0], dtype=bool)
     d = np.hypot(peds[None, :, 0] - peers[:, None, 0], peds[None, :, 1] - peers[:, None, 1])
     out: np.ndarray = ~(d < distance).any(axis=1)
+    return out
+
+
+def calm_ahead_pairs(
+    x_ego: np.ndarray,
+    peers: np.ndarray,
+    pedestrians: np.ndarray,
+    velocities: np.ndarray,
+    distance: float,
+    horizon: float,
+    own_velocity: np.ndarray | None = None,
+    peer_velocities: np.ndarray | None = None,
+) -> np.ndarray:
+    """Which of a robot's pairs stay calm for ``horizon`` seconds (``floor_core="ahead"``):
+    no pedestrian inside ``distance`` of the robot nor of the pair's other robot now, nor
+    predicted to come inside within ``horizon``, shape (K,).
+
+    Each pedestrian moves on at its (predicted) velocity and each robot at its reference
+    velocity (:attr:`PeerView.own_reference`, :attr:`PeerView.reference`: the velocities
+    or broadcast plans both robots of a pair read alike; standing still without them); the
+    time to contact is :func:`~conformal_control.families.cbf.constraint.time_to_contact`'s.
+    The pedestrians' rows give way *before* a pedestrian is inside (measured in
+    docs/multi-robot.md), so a rule that waits for contact (:func:`calm_pairs`) releases
+    the cores too late; this one releases them while the pedestrian is still coming.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    peers : ndarray of shape (K, 2)
+        The other robots' positions (m).
+    pedestrians, velocities : ndarrays of shape (N, 2)
+        The pedestrians' positions (m) and velocities (m/s); NaN rows: absent, never
+        inside.
+    distance : float
+        The pedestrians' collision distance (m).
+    horizon : float
+        The look-ahead (s, >= 0; 0: :func:`calm_pairs`' rule, contact now).
+    own_velocity : ndarray of shape (2,), optional
+        The robot's reference velocity (m/s).
+    peer_velocities : ndarray of shape (K, 2), optional
+        The peers' reference velocities (m/s).
+    """
+    from .constraint import time_to_contact
+
+    peers = np.asarray(peers, dtype=float).reshape(-1, 2)
+    peds = np.asarray(pedestrians, dtype=float).reshape(-1, 2)
+    vel = np.asarray(velocities, dtype=float).reshape(-1, 2)
+    k = peers.shape[0]
+    if not peds.size:
+        return np.ones(k, dtype=bool)
+    live = np.isfinite(peds).all(axis=1) & np.isfinite(vel).all(axis=1)
+    peds, vel = peds[live], vel[live]
+    if not peds.size:
+        return np.ones(k, dtype=bool)
+    h = float(horizon)
+    x = np.asarray(x_ego, dtype=float)[:2]
+    if bool((time_to_contact(x, peds, vel, distance, own_velocity) <= h).any()):
+        return np.zeros(k, dtype=bool)
+    pv = np.zeros((k, 2)) if peer_velocities is None else np.asarray(peer_velocities, float)
+    out = np.ones(k, dtype=bool)
+    for j in range(k):
+        out[j] = not bool((time_to_contact(peers[j], peds, vel, distance, pv[j]) <= h).any())
     return out
 
 
