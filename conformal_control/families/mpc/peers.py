@@ -61,6 +61,7 @@ from ..cbf.reciprocal import TIE_DISTANCE, PeerView, Reciprocity, tie_direction
 
 __all__ = [
     "RobotSplit",
+    "has_peer_terms",
     "near_steps",
     "peer_clearance",
     "peer_lines",
@@ -257,6 +258,22 @@ def near_steps(dt_plan: float, horizon: int, peer_horizon: float | None) -> int:
     return int(min(max(np.floor(float(peer_horizon) / float(dt_plan) + 1e-9), 1), horizon))
 
 
+def has_peer_terms(family: Any, state: Any) -> bool:
+    """Whether :func:`peer_terms` has lines for this plan: a reciprocal family and a
+    control instant that sees at least one peer.
+
+    Parameters
+    ----------
+    family : SamplingMPC
+        The planning family (its ``reciprocity``).
+    state : ControlState
+        The control instant (its ``peers`` view).
+    """
+    rec = getattr(family, "reciprocity", None)
+    view = getattr(state, "peers", None)
+    return not (rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0)
+
+
 def peer_terms(
     family: Any, state: Any, lam: float, positions: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -283,10 +300,10 @@ def peer_terms(
         Per candidate, its smallest margin to the lines (m; < 0 crosses one) and its
         summed intrusion over them (m).
     """
-    rec = getattr(family, "reciprocity", None)
-    view = getattr(state, "peers", None)
-    if rec is None or rec.mode != "reciprocal" or view is None or view.n_peers == 0:
+    if not has_peer_terms(family, state):
         return None
+    rec = family.reciprocity
+    view = state.peers
     lam_r = float(lam) if rec.lambda_on_robots else 0.0
     d_r = float(family.d_c) + float(rec.robot_margin)
     buffer = max(0.5 * d_r + 0.5 * (float(family.margin) - lam_r), 0.0)
