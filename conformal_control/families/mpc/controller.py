@@ -407,9 +407,11 @@ class SamplingMPC(
         self._plan_t = 0.0
         self._since = 0
         self._aoff: np.ndarray | None = None  # lambda per agent: safe-distance offsets
-        self._rec: dict[str, list[Any]] = {
-            k: [] for k in ("x", "v", "cmd", "lam", "status", "clear", "safe")
-        }
+        self._rec: dict[str, list[Any]] = {k: [] for k in ("lam", "status", "clear", "safe")}
+        # the ego's position, velocity and command at each control instant, written in
+        # place (columns x, y, vx, vy, cmd x, cmd y; rows _n_rec; grown when full)
+        self._rows = np.empty((64, 6))
+        self._n_rec = 0
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -751,12 +753,11 @@ class SamplingMPC(
     ) -> Plan:
         """The end of :meth:`plan_end` once candidate ``i`` (-1: none safe) is chosen:
         the counts, the peers' yield and the fallbacks."""
-        if line_viol is None:
-            line_viol = np.zeros_like(viol)
         self.n_plans_ += 1
         if n_safe:
             status = "optimal" if self._ids.size else "unconstrained"
-        elif lines is not None and kept is not None and kept.any():  # the lines give way first
+        elif lines is not None and kept is not None and line_viol is not None and kept.any():
+            # the lines give way before the pedestrians
             self.n_peer_yield_ += 1
             self._yield_until = state.t + YIELD_HOLD_S
             i = int(np.lexsort((cost, np.where(kept, line_viol, np.inf)))[0])
@@ -770,6 +771,8 @@ class SamplingMPC(
             stop = 1 if self._warm is not None else 0  # the stop seed
             # least intrusion into the pedestrians' safe distances, then over the peers'
             # lines (priority "pedestrians"), then cheapest
+            if line_viol is None:
+                line_viol = np.zeros_like(viol)
             order = np.lexsort((cost, line_viol, viol))
             if self.fallback == "least_violation":
                 i = int(order[0] if allowed is None else order[allowed[order]][0])
@@ -840,11 +843,16 @@ class SamplingMPC(
         cmd: np.ndarray = plan.commands[j].copy()
         self._last_cmd = cmd
         ok = plan.status in ("optimal", "unconstrained", "peer_yield")
+        rows, i = self._rows, self._n_rec
+        if i == rows.shape[0]:
+            self._rows = rows = np.concatenate([rows, np.empty_like(rows)])
+        rows[i, 0:2] = state.x[:2]
+        rows[i, 2:4] = (
+            cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
+        )
+        rows[i, 4:6] = cmd
+        self._n_rec = i + 1
         rec = self._rec
-        rec["x"].append(np.array(state.x[:2], dtype=float))
-        vel = cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
-        rec["v"].append(np.array(vel, dtype=float))
-        rec["cmd"].append(cmd)
         rec["lam"].append(float(lam) if ok else math.nan)
         rec["status"].append(plan.status)
         rec["clear"].append(plan.clearance)
@@ -875,17 +883,18 @@ class SamplingMPC(
 
     def _record(self) -> MPCIntervalRecord:
         rec = self._rec
-        s = len(rec["x"])
+        s = self._n_rec
         n = self._ids.size
+        rows = self._rows[:s]
         return MPCIntervalRecord(
             ids=self._ids,
-            x_ego=np.array(rec["x"]).reshape(s, 2),
-            v_ego=np.array(rec["v"]).reshape(s, 2),
+            x_ego=rows[:, 0:2].copy(),
+            v_ego=rows[:, 2:4].copy(),
             x_pred=self._xp[:s].copy() if n else np.zeros((s, 0, 2)),
             v_pred=self._vp[:s].copy() if n else np.zeros((s, 0, 2)),
             lam_applied=np.array(rec["lam"], dtype=float),
             status=list(rec["status"]),
-            command=np.array(rec["cmd"]).reshape(s, 2),
+            command=rows[:, 4:6].copy(),
             clearance=np.array(rec["clear"], dtype=float),
             n_safe=np.array(rec["safe"], dtype=np.int64),
         )
