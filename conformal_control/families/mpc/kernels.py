@@ -57,6 +57,7 @@ __all__ = [
     "evaluate",
     "evaluate_many",
     "evaluate_numpy",
+    "plan_choice",
     "plan_predictions",
     "positions_of",
     "predicted_at",
@@ -712,6 +713,81 @@ def positions_of(states: np.ndarray) -> np.ndarray:
             out[i, j, 0] = states[i, j, 0]
             out[i, j, 1] = states[i, j, 1]
     return out
+
+
+@jit
+def plan_choice(
+    states: np.ndarray,
+    cmds: np.ndarray,
+    x: np.ndarray,
+    samples: np.ndarray,
+    dt: float,
+    t_off: float,
+    dt_plan: float,
+    radius: float,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+    d_c: float,
+    edge: bool,
+) -> tuple[int, int, bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One plan's compiled work after the rollout, in one call (``SamplingMPC.plan`` with
+    one safe distance shared by every plan and agent, no peers' lines): the candidates'
+    positions (:func:`positions_of`), the predictions at the plan's steps
+    (:func:`plan_predictions`), the evaluation (:func:`evaluate`'s step-by-step kernel, the
+    exact cut on) and the choice (:func:`choose_safe`), each kernel called on the arguments
+    the Python steps between them formed (the shared radius repeated per plan): the same
+    numbers.
+
+    Parameters
+    ----------
+    states : ndarray of shape (N, H, D)
+        The rolled-out plant states, position first.
+    cmds : ndarray of shape (N, H, 2)
+        The candidates' commands.
+    x : ndarray of shape (>= 2,)
+        The robot's state now (its position first).
+    samples : ndarray of shape (M, F + 1, 2)
+        The interval's forecast samples (M = 0: no agent).
+    dt : float
+        Seconds between samples.
+    t_off : float
+        The plan's start, seconds after the sampling time.
+    dt_plan : float
+        Seconds per plan step.
+    radius : float
+        The safe distance of every plan step (m).
+    goal : ndarray of shape (2,)
+    weights : ndarray of shape (4,)
+        ``(w_goal, w_terminal, w_effort, w_comfort)``.
+    last : ndarray of shape (2,)
+        The command applied last.
+    continuous : bool
+        Check the whole of every step.
+    d_c : float
+        The collision distance (m; the edge rule's).
+    edge : bool
+        Whether the edge rule applies.
+
+    Returns
+    -------
+    i, n_safe, applied
+        :func:`choose_safe`'s.
+    pos, cost, clear, viol, allowed
+        The candidates' positions (N, H, 2), their evaluation and the edge rule's allowed
+        plans (written when it applied).
+    """
+    pos = positions_of(states)
+    horizon = pos.shape[1]
+    pred, y0, ex, ey, sx, sy = plan_predictions(samples, dt, t_off, dt_plan, horizon)
+    r = np.full((pos.shape[0], horizon), radius)
+    cost, clear, viol = _evaluate_steps(
+        pos, cmds, x, ex, ey, sx, sy, r, goal, weights, last, continuous, True
+    )
+    allowed = np.empty(pos.shape[0], dtype=np.bool_)
+    i, n_safe, applied = choose_safe(cost, clear, pos, x, pred, y0, d_c, dt_plan, edge, allowed)
+    return i, n_safe, applied, pos, cost, clear, viol, allowed
 
 
 @jit
