@@ -49,6 +49,7 @@ __all__ = [
     "ConformalCBFController",
     "ControlState",
     "CrossingTestbed",
+    "PeerStepForm",
     "PredictorError",
     "merge_forecast_info",
 ]
@@ -110,6 +111,44 @@ class CBFIntervalForm(CompiledForm):
     kernel = "cbf"
     xp: np.ndarray
     vp: np.ndarray
+
+
+@dataclass(frozen=True)
+class PeerStepForm:
+    """What a lockstep engine of fleets reads of a conformal CBF controller at a sampling
+    time, after its ``begin_interval``, to call the compiled step with robot rows
+    (:func:`~conformal_control.families.cbf.kernels_peers.apf_control_peers`) itself, as
+    :meth:`ConformalCBFController.decide` calls it (views of the controller's own arrays:
+    valid until its next ``begin_interval`` or until a decision it makes itself grows
+    them).
+
+    Attributes
+    ----------
+    pv, col, buf, rec : ndarray
+        The kernel's ``pv``, ``col``, ``buf`` and ``rec``.
+    turn, floor : ndarray
+        The kernel's ``turn`` and ``floor``.
+    peer_ids : ndarray
+        The peers' ids, in the order of ``pv``'s peer columns.
+    npred : int
+        The predicted agents (``pv``'s first columns).
+    n : int
+        The record's next row.
+    k_att, v_max : float
+        The attractive field's gain and speed limit (the nominal velocity).
+    """
+
+    pv: np.ndarray
+    col: np.ndarray
+    buf: np.ndarray
+    rec: np.ndarray
+    turn: np.ndarray
+    floor: np.ndarray
+    peer_ids: np.ndarray
+    npred: int
+    n: int
+    k_att: float
+    v_max: float
 
 
 class ConformalCBFController(
@@ -819,6 +858,61 @@ class ConformalCBFController(
         self._rl[i] = res.lambda_applied
         self._names[i] = res.status if res.fallback is None else res.fallback
         return res.decision
+
+    def peer_step_form(self) -> PeerStepForm | None:
+        """The arrays of the open interval's compiled step with robot rows, or None when
+        this interval's decisions do not all go through it as :meth:`decide` would take
+        them (not the plain controller and exact 2-D filter, no robot rows, another
+        reference than the attractive field, robots that say they yield). A lockstep
+        engine that decides a step with them counts it with :meth:`add_compiled_steps`;
+        a step the kernel does not decide alone (any code but unconstrained or optimal) is
+        left to :meth:`decide`."""
+        rec = self.reciprocity
+        if not (
+            type(self) is ConformalCBFController
+            and type(self.safety_filter) is Exact2DSafetyFilter
+            and self._fast
+            and self._special
+            and self._attract
+            and rec is not None
+            and rec.coordination == "none"
+        ):
+            return None
+        ref = cast(AttractiveField, self.reference)
+        return PeerStepForm(
+            self._pv,
+            self._col,
+            self.safety_filter.step_buffer(),
+            self._rec,
+            self._turn,
+            self._floor,
+            self._peer_ids,
+            int(self._ids.size),
+            self._n,
+            float(ref.K_att),
+            float(ref.v_max),
+        )
+
+    def add_compiled_steps(self, steps: int, solves: int, t: float) -> None:
+        """Count ``steps`` decisions a lockstep engine made on :meth:`peer_step_form`'s
+        arrays (recorded from the form's row ``n`` on, each unconstrained or optimal;
+        ``solves`` of them optimal; the last one at time ``t``, s), as :meth:`decide`
+        counts its own.
+
+        Parameters
+        ----------
+        steps : int
+            Decisions made.
+        solves : int
+            The optimal ones among them.
+        t : float
+            Time of the last one (s).
+        """
+        if steps:
+            self._n += int(steps)
+            self.n_steps_ += int(steps)
+            self._t_now = float(t)
+            cast(Exact2DSafetyFilter, self.safety_filter).add_compiled_steps(solves)
 
     def _compiled_with_robots(
         self, state: ControlState, x0: float, x1: float, n0: float, n1: float, lam: float, i: int
