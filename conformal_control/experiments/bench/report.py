@@ -103,8 +103,6 @@ REFERENCE = "re-tuned on this split: a reference that peeks at it"
 
 
 def _num(v: Any) -> float:
-    if type(v) is float:  # most values (float(v) is v's value)
-        return v
     if v is None or v == "":
         return math.nan
     if isinstance(v, str):
@@ -118,15 +116,8 @@ def _num(v: Any) -> float:
     return float(v)
 
 
-class _PreparedRow(dict):  # type: ignore[type-arg]
-    """A row :func:`_prepared` made (nothing writes to it after): preparing it again would
-    give an equal copy, so it is used as it is."""
-
-
 def _prepared(row: Mapping[str, Any]) -> dict[str, Any]:
-    if type(row) is _PreparedRow:
-        return row
-    r = _PreparedRow(row)
+    r = dict(row)
     reached = _num(r.get("goal_reached")) == 1.0
     t_goal = _num(r.get("t_goal"))
     limit = _num(r.get("time_limit"))
@@ -658,16 +649,14 @@ def _strata(views: list[_ShiftView], rows: list[dict[str, Any]], out: Path) -> N
                 f"| {kind} | n | " + " | ".join(f"`{m}`" for m in names) + " |",
                 "|---|---:|" + "---|" * len(names),
             ]
-            # each method's rows by group, in their order (one pass, not one per group)
-            by_group: dict[tuple[Any, Any], list[dict[str, Any]]] = defaultdict(list)
-            for m in dict.fromkeys(names):
-                for r in by_method.get(m, ()):
-                    by_group[(m, group_of.get(str(r["scenario"])))].append(r)
             for g in groups:
                 cells = []
                 n_g = sum(1 for k in group_of if group_of[k] == g)
                 for m in names:
-                    sel = by_group.get((m, g), [])
+                    sel = [
+                        r for r in by_method.get(m, ())
+                        if group_of.get(str(r["scenario"])) == g
+                    ]  # fmt: skip
                     if not sel:
                         cells.append("-")
                         continue
