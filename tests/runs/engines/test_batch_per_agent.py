@@ -79,6 +79,7 @@ def suite_scenes(data_root):
         "conformal_agent",
         "conformal_agent_dtaci",
         "conformal_agent_shortfall",
+        "conformal_agent_floorstep",
         "conformal_dtaci_floor",
     ],
 )
@@ -144,6 +145,8 @@ def test_a_derived_lambda_safe_needs_the_gap_loss(crossings):
         {"params": {"lambda_floor_row": 1.0}},  # each agent's own row floor
         {"loss": "cbf_shortfall"},  # the shortfall loss
         {"params": {"lambda_floor_row": 0.8}, "loss": "cbf_shortfall"},
+        # each agent's own floor stepping down while it binds
+        {"params": {"lambda_floor_step": 5.0, "lambda_floor_limit": -60.0}},
     ],
 )
 def test_the_row_floor_and_the_shortfall_loss_match_run_episode(suite_scenes, compare_batch, extra):
@@ -165,6 +168,11 @@ def test_the_row_floor_and_the_shortfall_loss_match_run_episode(suite_scenes, co
     for b, s in zip(batched, singles, strict=True):
         mb, ms = b.loop.monitor, s.loop.monitor
         assert (mb.n_floor_lowered, mb.n_floor_bound) == (ms.n_floor_lowered, ms.n_floor_bound)
+        assert (mb.n_floor_stepped, mb.agent_floors) == (ms.n_floor_stepped, ms.agent_floors)
+    if "lambda_floor_step" in extra.get("params", {}):
+        assert sum(s.loop.monitor.n_floor_stepped for s in singles) > 0
+        lows = [float(np.min(iv.lams)) for s in singles for iv in s.loop.intervals if iv.lams.size]
+        assert -60.0 <= min(lows) < kw["params"]["lambda_min"]  # below the run's floor
     if "lambda_floor_row" in extra.get("params", {}):
         assert sum(s.loop.monitor.n_floor_lowered for s in singles) > 0
         lows = [float(np.min(iv.lams)) for s in singles for iv in s.loop.intervals if iv.lams.size]
