@@ -313,7 +313,7 @@ AGENT_SAFE: Mapping[str, Any] = MappingProxyType({"lambda_safe": "auto"})
 #: update whose lambda sat at it while the pedestrian was still missed, and the lowest it
 #: goes (1/s); chosen on the dev split under the 0.5 s delay (docs/benchmark.md, issue 31:
 #: the per-pedestrian lambda sits at the -30/s floor at 97 % of biwi_eth's collision frames).
-AGENT_FLOOR_STEP = 5.0
+AGENT_FLOOR_STEP = 10.0
 AGENT_FLOOR_LIMIT = -60.0
 
 _DECLARED: tuple[Family, ...] = (
@@ -411,7 +411,9 @@ _DECLARED: tuple[Family, ...] = (
         label="eps={:g}",
         meaning="epsilon (each pedestrian's target)",
         settings=(-0.05,),
-        tune=(-0.2, -0.1, -0.05, 0.0),
+        tune=(
+            -0.05,
+        ),  # epsilon: the per-pedestrian DtACI's (dev); the step and limit chosen on dev
         params={
             "lambda_per": "agent",
             "lambda_min": AGENT_FLOOR,
