@@ -24,10 +24,12 @@ engine use one core alike), after a warm-up run that loads the compiled kernels;
   lockstep engine) -- target 5x; wall time, and the CPU time of this process (every episode
   of both runs in it);
 * ``fleet``: a robot of a 5-robot fleet (``bench run --robots 5``, reciprocal; fleets run
-  one per task, not in the lockstep engine; each robot's plain steps in the compiled APF
-  step, the priority stages handed to the generic path) against a single-robot episode --
-  target 3x; and the same fleets with every step on the generic path (the per-fleet loop
-  as before), with the share of steps handed over.
+  one per task, each with its control instants' robots stepped together in compiled calls,
+  ``runs.engines.batch.fleet``: the plain steps compiled, the priority stages handed to the
+  robots' own decide) against a single-robot episode -- target 3x; the same fleets through
+  the per-fleet loop (one robot's decision at a time, its plain steps compiled) and with
+  every step on the generic path (the loop as before either), with the share of steps
+  handed over.
 
 :func:`measure` returns the figures as dicts (``benchmarks/run_all.py``'s form).
 """
@@ -267,11 +269,29 @@ def generic_fleet() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def per_fleet_loop() -> Iterator[None]:
+    """Every fleet through the per-fleet loop (``runs.fleet.drive``: one robot's decision
+    at a time), not the lockstep engine."""
+    from conformal_control.runs import fleet
+
+    reason = fleet.lockstep_reason
+    fleet.lockstep_reason = lambda world, steppers: "the per-fleet loop"  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        fleet.lockstep_reason = reason  # type: ignore[assignment]
+
+
+@contextlib.contextmanager
 def counting_steps(seen: dict[str, int]) -> Iterator[None]:
-    """Count the robots' decisions (``decide``) and those handed to the generic path."""
+    """Count the robots' decisions: those of the lockstep engine's compiled call
+    (``compiled``) and those handed to the robots' own ``decide`` (``decide``), of which
+    the generic path's (``generic``)."""
     from conformal_control.families.cbf.controller import ConformalCBFController
+    from conformal_control.runs import fleet
 
     decide, generic = ConformalCBFController.decide, ConformalCBFController._decide_generic
+    lockstep = fleet.drive_lockstep
 
     def counted(self: Any, *a: Any) -> Any:
         seen["decide"] = seen.get("decide", 0) + 1
@@ -281,13 +301,20 @@ def counting_steps(seen: dict[str, int]) -> Iterator[None]:
         seen["generic"] = seen.get("generic", 0) + 1
         return generic(self, *a)
 
+    def stepped(*a: Any, **kw: Any) -> Any:
+        out = lockstep(*a, **kw)
+        seen["compiled"] = seen.get("compiled", 0) + out.compiled_steps
+        return out
+
     ConformalCBFController.decide = counted  # type: ignore[method-assign]
     ConformalCBFController._decide_generic = handed  # type: ignore[method-assign]
+    fleet.drive_lockstep = stepped  # type: ignore[assignment]
     try:
         yield
     finally:
         ConformalCBFController.decide = decide  # type: ignore[method-assign]
         ConformalCBFController._decide_generic = generic  # type: ignore[method-assign]
+        fleet.drive_lockstep = lockstep  # type: ignore[assignment]
 
 
 def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
@@ -297,22 +324,28 @@ def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
     loads = [_load()]
     single = time_bench(data_root, 20, 2, methods=("conformal",))
     fleet = time_fleet(data_root, limit, 5, repeats)
-    with generic_fleet():
-        before = time_fleet(data_root, limit, 5, repeats)
+    with per_fleet_loop():
+        loop = time_fleet(data_root, limit, 5, repeats)
+        with generic_fleet():
+            before = time_fleet(data_root, limit, 5, repeats)
     loads.append(_load())
     seen: dict[str, int] = {}
     with counting_steps(seen):  # not timed
         time_fleet(data_root, limit, 5, 1)
-    per = [w / n for w, _, n in (single, fleet, before)]
-    cpu = [c / n for _, c, n in (single, fleet, before)]
+    per = [w / n for w, _, n in (single, fleet, loop, before)]
+    cpu = [c / n for _, c, n in (single, fleet, loop, before)]
+    steps = seen.get("compiled", 0) + seen.get("decide", 0)
     note = (
         f"{fleet[2]} robot episodes (the first {limit} multi-crossings-v1 test entries, "
-        f"5 robots, reciprocal, conformal), one worker (fleets "
-        f"run one per task), against {single[2]} single-robot episodes (20 crossings-v2 test "
-        f"scenarios, lockstep engine); CPU per robot {cpu[1] * 1e3:.1f} ms against "
-        f"{cpu[0] * 1e3:.1f} ms ({cpu[1] / cpu[0]:.1f}x), {cpu[2] * 1e3:.1f} ms with every "
-        f"step on the generic path; {seen.get('generic', 0)} of {seen.get('decide', 0)} "
-        f"steps handed to the generic path; {loads[0]} before, {loads[1]} after"
+        f"5 robots, reciprocal, conformal), one worker (fleets run one per task, each in the "
+        f"lockstep engine of fleets), against {single[2]} single-robot episodes (20 "
+        f"crossings-v2 test scenarios, lockstep engine); CPU per robot "
+        f"{cpu[1] * 1e3:.1f} ms against {cpu[0] * 1e3:.1f} ms ({cpu[1] / cpu[0]:.1f}x), "
+        f"{cpu[2] * 1e3:.1f} ms through the per-fleet loop, {cpu[3] * 1e3:.1f} ms with every "
+        f"step on the generic path; of {steps} steps {seen.get('compiled', 0)} decided by "
+        f"the compiled call, {seen.get('decide', 0)} handed to the robots' own decide "
+        f"({seen.get('generic', 0)} of them to the generic path); {loads[0]} before, "
+        f"{loads[1]} after"
     )
     return [
         _fig(
@@ -324,7 +357,8 @@ def measure_fleet(data_root: str, quick: bool = False) -> list[dict[str, Any]]:
             note=note,
             ratios=[
                 ("a single-robot episode", per[0], "times"),
-                ("every step on the generic path (as before)", per[2], "faster"),
+                ("the per-fleet loop (one robot's decision at a time)", per[2], "faster"),
+                ("every step on the generic path (the loop as before)", per[3], "faster"),
             ],
         )
     ]

@@ -9,8 +9,9 @@ module owns what every command shares:
   printed as one line each, ``warning: <message>``;
 * errors: an expected failure (bad input or data, a missing or unreadable file, an
   unwritable output, a failed download) prints one line, ``error: <message>``, and exits
-  with status 2; an interrupted command exits with 130; anything else is a bug and says
-  so in one line (``-v`` shows the traceback), exit status 70;
+  with status 2; an interrupted command exits with 128 + the signal (130 for Ctrl-C, 143
+  for SIGTERM) and a sweep's says what its folder holds and how to resume; anything else is
+  a bug and says so in one line (``-v`` shows the traceback), exit status 70;
 * ``--help`` of every command shows the defaults.
 """
 
@@ -345,9 +346,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             warnings.showwarning = _show_warning
             return COMMANDS[args.command][2](args)
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        # a sweep's (bench run, bench tune, reproduce ...): the signal, what its folder
+        # holds and how to resume; the exit status 128 + the signal, as a shell reports it
+        signum = getattr(exc, "signum", None)
+        recorded = getattr(exc, "recorded", None)
+        said = str(exc) or "interrupted"
+        print(f"error: {said}" + (f": {recorded}" if recorded else ""), file=sys.stderr)
+        return 128 + signum if isinstance(signum, int) else EXIT_INTERRUPTED
     except BrokenPipeError:
         # the reader went away (``conformal-control scenes | head``): what it read is all
         # it wanted; silence the flush at exit instead of printing an error

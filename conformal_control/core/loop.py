@@ -498,6 +498,20 @@ class ConformalStepper:
             return decide(state, self._lams)
         return self.family.decide(state, self.lam_)
 
+    def add_decisions(self, n: int) -> None:
+        """Count ``n`` decisions of the open interval made for this stepper by a lockstep
+        engine (its family's compiled step called directly, at this stepper's ``lam_``),
+        as :meth:`decide` counts its own.
+
+        Parameters
+        ----------
+        n : int
+            Decisions made.
+        """
+        if not self._open:
+            raise RuntimeError("add_decisions() called outside an interval")
+        self._n_steps += int(n)
+
     def end_interval(self, truth: Any) -> IntervalLog:
         """Sampling time (k+1) tau: score the interval on its truth, update lambda."""
         if not self._open:

@@ -70,10 +70,15 @@ class SweepInterrupted(KeyboardInterrupt):
     Attributes
     ----------
     signum : int
+    recorded : str or None
+        What the sweep folder holds now, read back from its journal (set by
+        :func:`run_sweep` once it has stopped; ``None`` if the signal came before the sweep
+        started or the journal could not be read): what finished and how to resume.
     """
 
     def __init__(self, signum: int) -> None:
         self.signum = signum
+        self.recorded: str | None = None
         super().__init__(f"interrupted by {signal.Signals(signum).name}")
 
 
@@ -393,11 +398,14 @@ def run_sweep(
         else:
             ex = executor
         stopped = False
+        signalled: SweepInterrupted | None = None
         try:
             _run(ex, todo, store, report, guard, plot, progress, table_every, batch, parquet)
         except BaseException as exc:
             stopped = True
             report.interrupted = isinstance(exc, KeyboardInterrupt)  # SweepInterrupted too
+            if isinstance(exc, SweepInterrupted):
+                signalled = exc
             raise
         finally:
             if own:
@@ -412,6 +420,9 @@ def run_sweep(
                     store.sync()
                 with contextlib.suppress(SweepInterrupted, Exception):
                     store.write_tables(parquet=parquet)
+                if signalled is not None:  # the caller says what was kept, from the journal
+                    with contextlib.suppress(SweepInterrupted, Exception):
+                        signalled.recorded = store.interrupted_summary()
         report.rows = store.rows(keys, absolute=True)
         if summary_plot:
             from .summary import write_summary_plot

@@ -63,6 +63,7 @@ from ..families.cbf.feasibility import feasibility_floor
 from ..families.cbf.reciprocal import RECIPROCITY, Reciprocity
 from ..world.multi import MultiRobotWorld
 from .build import Flagship, build_flagship
+from .engines.batch.fleet import drive_lockstep, lockstep_reason
 from .results.episode import RobotResult
 from .results.measure import derived_lambda_safe, episode_config, jsonable, measure
 from .results.multi_metrics import (
@@ -443,6 +444,7 @@ def run_multi(
     *,
     extra_config: dict[str, Any] | None = None,
     deadlock: DeadlockRule | None = None,
+    engine: str = "auto",
     **settings: Any,
 ) -> MultiResult:
     """Run M robots, each with its own conformal CBF controller, in one scene.
@@ -461,6 +463,11 @@ def run_multi(
         Merged into the configuration (``config.json``).
     deadlock : DeadlockRule, optional
         When a robot counts as deadlocked (default 5 s without 0.25 m of progress).
+    engine : {"auto", "loop"}
+        ``"auto"``: each control instant's robots stepped together in compiled calls
+        (:func:`~conformal_control.runs.engines.batch.fleet.drive_lockstep`) when
+        :func:`~conformal_control.runs.engines.batch.fleet.lockstep_reason` allows, else the
+        per-fleet loop (:func:`drive`); ``"loop"``: the loop. The results are the same.
     **settings
         Settings of the run (:meth:`RunSpec.from_settings
         <conformal_control.core.spec.RunSpec.from_settings>`), the robots section's included:
@@ -500,16 +507,19 @@ def run_multi(
         - ``floor_margin`` (float):
           CBF family, people first: how far (m) beyond the robots' collision distance
           their floor rows aim (default 0.1 m; 0: the collision distance).
-        - ``floor_core`` ({"always", "inside", "calm", "none"}):
+        - ``floor_core`` ({"always", "inside", "calm", "ahead", "none"}):
           CBF family, people first: which pairs' floor rows keep their cores before the
           pedestrians' rows give way (every pair's, only those already closer than the
           collision distance, only those with no pedestrian inside its collision
-          distance of either robot, or none).
+          distance of either robot, only those with none inside nor predicted inside
+          within 1 s and those within the floor distance, or none).
 
     Returns
     -------
     MultiResult
     """
+    if engine not in ("auto", "loop"):
+        raise ValueError(f"engine must be 'auto' or 'loop', got {engine!r}")
     if isinstance(robots, RunSpec):
         run = RunSpec.from_settings(None, base=robots, **settings) if settings else robots
     else:
@@ -615,7 +625,11 @@ def run_multi(
     ]
 
     t0, c0 = time.perf_counter(), time.process_time()
-    own = drive(world, steppers, broadcast=information == "plan")
+    why = "asked" if engine == "loop" else lockstep_reason(world, steppers)
+    if why is None:
+        own = drive_lockstep(world, steppers, broadcast=information == "plan").own
+    else:
+        own = drive(world, steppers, broadcast=information == "plan")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 
     h_max = fl0.barrier.upper_bound
@@ -776,7 +790,7 @@ def set_reciprocity(
     floor_margin : float
         How far (m) beyond the robots' collision distance the floor rows aim (CBF
         family, ``priority="pedestrians"``).
-    floor_core : {"always", "inside", "calm", "none"}
+    floor_core : {"always", "inside", "calm", "ahead", "none"}
         Which pairs' floor rows keep their cores before the pedestrians' rows give way
         (CBF family, ``priority="pedestrians"``).
     """

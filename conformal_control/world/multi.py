@@ -77,6 +77,7 @@ import numpy as np
 from ..core.spec import ROBOT_CHOICES
 from ..data.scene import Scene
 from ..families.cbf.controller import ControlState
+from ..families.cbf.dynamics import VelocityTrackingDoubleIntegrator
 from ..families.cbf.loss import CBFTruth
 from ..families.cbf.reciprocal import INFORMATION, PeerView, pair_shares
 from ..families.cbf.roles import Dynamics
@@ -84,7 +85,14 @@ from ..predictors.base import PredictionQuery, TruthUnavailableError
 from .crowds.crowd import Crowd
 from .replay import FrameLog
 
-__all__ = ["PARKED_SPEED", "SENSOR_HISTORIES", "MultiRobotWorld", "Neighbours", "RobotLog"]
+__all__ = [
+    "PARKED_SPEED",
+    "SENSOR_HISTORIES",
+    "LockstepArrays",
+    "MultiRobotWorld",
+    "Neighbours",
+    "RobotLog",
+]
 
 #: Values of ``sensor_history``.
 SENSOR_HISTORIES = ROBOT_CHOICES["sensor_history"]
@@ -141,6 +149,57 @@ class Neighbours:
     rel_pos: np.ndarray
     rel_vel: np.ndarray
     is_robot: np.ndarray
+
+
+@dataclass(frozen=True)
+class LockstepArrays:
+    """A world's arrays as a lockstep engine steps them (:meth:`MultiRobotWorld.lockstep`):
+    the world's own, live (the engine writes the robots' states, goals, flags and the
+    broadcast plans into them), plus the goals and the plants' constants packed per robot.
+
+    Attributes
+    ----------
+    x : ndarray (R, 4)
+        The robots' states (x, y, vx, vy).
+    done, parked : ndarray (R,) of bool
+        At the last goal; stopped there.
+    step, goal : ndarray (R,) of int64
+        Control instants decided in the open interval; the current waypoint's index.
+    goals : ndarray (R, G, 2)
+        Each robot's waypoints (the first ``n_goals[i]``), m.
+    n_goals : ndarray (R,) of int64
+        Waypoints per robot.
+    plan_v, next_v : ndarray (R, 2)
+        The broadcast velocities visible now, and those broadcast at this instant.
+    yielding, next_yielding : ndarray (R,) of bool
+        The broadcast yielding flags, likewise.
+    shares : ndarray (R, R)
+        The fleet's shares of each pair.
+    plant : ndarray (R, 3)
+        Per robot, the velocity-tracking plant's gain ``K``, ``exp(-K dt)`` and
+        ``-expm1(-K dt)`` (as its ``step`` computes them).
+    dt, goal_radius : float
+        The control step (s) and the goal radius (m).
+    information : int
+        -1 (no peer view), 0, 1, 2: ``"position"``, ``"velocity"``, ``"plan"``.
+    """
+
+    x: np.ndarray
+    done: np.ndarray
+    parked: np.ndarray
+    step: np.ndarray
+    goal: np.ndarray
+    goals: np.ndarray
+    n_goals: np.ndarray
+    plan_v: np.ndarray
+    next_v: np.ndarray
+    yielding: np.ndarray
+    next_yielding: np.ndarray
+    shares: np.ndarray
+    plant: np.ndarray
+    dt: float
+    goal_radius: float
+    information: int
 
 
 class MultiRobotWorld:
@@ -481,6 +540,107 @@ class MultiRobotWorld:
         self._next_paths[i] = path
         self._next_yield[i] = bool(yielding)
 
+    # ------------------------------------------------------------------ lockstep
+    def lockstep_reason(self) -> str | None:
+        """Why a lockstep engine cannot step this world's plants and clock itself (None:
+        it can, after :meth:`reset`): a simulated crowd, a plant other than the
+        velocity-tracking double integrator."""
+        if self.crowd is not None:
+            return "a simulated crowd (it steps with the robots at every control instant)"
+        dyn = self.dynamics
+        for p in list(dyn) if isinstance(dyn, Sequence) else [dyn]:
+            if type(p) is not VelocityTrackingDoubleIntegrator:
+                return f"the plant {type(p).__name__} (only the velocity-tracking one)"
+        return None
+
+    def lockstep(self) -> LockstepArrays:
+        """The world's arrays for a lockstep engine (after :meth:`reset`; see
+        :meth:`lockstep_reason`). The engine then runs a control instant as
+        :meth:`apply` does up to the plan broadcast (plants, goals, per-instant record
+        kept by the engine and handed over with :meth:`add_steps`), and calls
+        :meth:`close_instant` for the rest."""
+        r = self._x.shape[0]
+        g = max(len(x) for x in self._goals)
+        goals = np.zeros((r, g, 2))
+        for i, x in enumerate(self._goals):
+            goals[i, : len(x)] = x
+        plant = np.zeros((r, 3))
+        for i, p in enumerate(self._plants):
+            assert isinstance(p, VelocityTrackingDoubleIntegrator)  # lockstep_reason
+            k = float(p.compiled_state().K_acc)
+            plant[i] = (k, math.exp(-k * self._dt), -math.expm1(-k * self._dt))
+        info = -1 if self.information is None else INFORMATION.index(self.information)
+        return LockstepArrays(
+            self._x,
+            self._done,
+            self._parked,
+            self._step,
+            self._goal,
+            goals,
+            np.array([len(x) for x in self._goals], dtype=np.int64),
+            self._plan_v,
+            self._next_v,
+            self._yield,
+            self._next_yield,
+            self._shares,
+            plant,
+            self._dt,
+            float(self.scene.goal_radius),
+            info,
+        )
+
+    def control_budget(self) -> int:
+        """Control instants left before the episode's last frame (after :meth:`reset`: all
+        of the episode's at most)."""
+        return max(self._last - self._fi, 0) * int(self.substeps)
+
+    def sensed_robots(self, i: int) -> np.ndarray:
+        """The robots robot ``i`` sensed at its last sampling time (indices, the order of
+        its peer view)."""
+        return self._sensed[i][1]
+
+    def next_time(self) -> float:
+        """The time (s) the next control instant ends at (what :meth:`apply` sets)."""
+        return self._t + self._dt
+
+    def close_instant(self, t_goal: np.ndarray | None) -> None:
+        """The end of a control instant a lockstep engine ran (:meth:`lockstep`): the clock,
+        the goal times ``t_goal`` (R,) of the robots that reached their last goal at it
+        (NaN for the others), the broadcast paths, the frame clock and log -- the rest of
+        :meth:`apply`.
+
+        Parameters
+        ----------
+        t_goal : ndarray of shape (R,), optional
+            Goal times (s), NaN where none (None: no robot reached its goal).
+        """
+        self._t += self._dt
+        self._n_instants += 1
+        if t_goal is not None:
+            for i in np.flatnonzero(np.isfinite(t_goal)).tolist():
+                self.robots[i].t_goal_ = float(t_goal[i])
+        if self.information == "plan":
+            done, nxt = self._done, self._next_paths
+            self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
+            self._any_yield = bool(self._yield.any())
+        self._tick()
+
+    def add_steps(self, i: int, t: np.ndarray, x: np.ndarray, cmd: np.ndarray) -> None:
+        """Robot ``i``'s per-instant record of control instants a lockstep engine ran
+        (times (S,), states (S, 4), commands (S, 2)), appended to its log.
+
+        Parameters
+        ----------
+        i : int
+            The robot.
+        t, x, cmd : ndarray
+            Times (s), states after the step and commands (m/s).
+        """
+        rec = self.robots[i]
+        rec.steps_t.extend(t.tolist())
+        rec.steps_x.extend(x.copy())
+        rec.steps_cmd.extend(cmd.copy())
+
     # ------------------------------------------------------------------ logging
     def _log_frame(self) -> None:
         fi = self._fi
@@ -720,6 +880,11 @@ class MultiRobotWorld:
             self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
             self._yield[:] = self._next_yield & ~done
             self._any_yield = bool(self._yield.any())
+        self._tick()
+
+    def _tick(self) -> None:
+        """The frame clock after a control instant: a closed frame is stored and logged,
+        the world ends at the last frame or once every robot is at its goal."""
         if self._n_instants % self.substeps == 0:
             self._fi += 1
             self._robot_pos[self._fi] = self._x[:, :2]

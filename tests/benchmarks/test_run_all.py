@@ -161,7 +161,15 @@ def test_round4_fleet_baseline_takes_the_generic_path_and_restores_it(run_all):
         c.reset()
         assert not c._fused
     assert C._apf_parts is parts
+    from conformal_control.runs import fleet
+
+    reason, lockstep = fleet.lockstep_reason, fleet.drive_lockstep
     seen: dict[str, int] = {}
     with bench_round4.counting_steps(seen):
         assert C.decide is not decide and C._decide_generic is not generic
+        assert fleet.drive_lockstep is not lockstep
     assert C.decide is decide and C._decide_generic is generic
+    assert fleet.drive_lockstep is lockstep
+    with bench_round4.per_fleet_loop():  # every fleet through the per-fleet loop
+        assert fleet.lockstep_reason(None, []) == "the per-fleet loop"
+    assert fleet.lockstep_reason is reason

@@ -312,3 +312,36 @@ def test_ctrl_c_on_the_batch_executor_journals_every_finished_run(tmp_path: Path
             ).expand()
         },
     )
+
+
+def test_sigterm_to_bench_run_says_what_is_kept_and_exits_143(
+    tmp_path: Path, data_root: Path
+) -> None:
+    """``bench run`` stopped by SIGTERM: exit 128 + 15, and its one line says how many
+    episodes its journal holds and how to resume (it said only ``interrupted``, exit 130)."""
+    out = tmp_path / "bench"
+    token = uuid.uuid4().hex
+    argv = [*CLI, "bench", "run", "--split", "dev", "--methods", "nolearn,conformal"]
+    argv += ["--limit", "40", "--executor", "serial", "--progress", "off"]
+    argv += ["--data-root", str(data_root), "--out", str(out)]
+    log = tmp_path / "log.txt"
+    with log.open("w") as fh:
+        proc = subprocess.Popen(
+            argv, env={**os.environ, TOKEN: token}, stdout=fh, stderr=subprocess.STDOUT
+        )
+    try:
+        deadline = time.monotonic() + 240
+        while n_lines(out) < 2 and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=60)
+        assert wait_gone(token) == []
+    finally:
+        kill_token(token)
+    text = log.read_text()
+    assert rc == 128 + signal.SIGTERM, text
+    ok = sum(r["status"] == "ok" for r in journal(out))
+    assert 2 <= ok < 80, text
+    assert f"error: interrupted by SIGTERM: {ok} finished and 0 failed run(s)" in text, text
+    assert "run the same command again to resume" in text

@@ -1,8 +1,8 @@
-"""A fleet whose robots decide through the compiled step (priority "pedestrians": the
-plain steps compiled, the priority stages and the edge rule with robots handed to the
-generic path step by step) equals the fleet decided by the generic Python path in every
-field: metrics, every robot's trajectory, commands, lambda and intervals, pair-frames,
-the filters' counters."""
+"""In the per-fleet loop, a fleet whose robots decide through the compiled step
+(priority "pedestrians": the plain steps compiled, the priority stages and the edge rule
+with robots handed to the generic path step by step) equals the fleet decided by the
+generic Python path in every field: metrics, every robot's trajectory, commands, lambda
+and intervals, pair-frames, the filters' counters."""
 
 from __future__ import annotations
 
@@ -108,6 +108,18 @@ CASES = {
             floor_core="calm",
         ),
     ),
+    # the same with floor_core="ahead": the pairs' cores give way while the walls'
+    # pedestrians are still coming (predicted inside within the look-ahead)
+    "squeezed_ahead": lambda crossing: (
+        _walls(1.13),
+        dict(
+            starts=[(0.0, 0.9), (0.0, -0.9)],
+            goals=[[(3.0, 0.9)], [(3.0, -0.9)]],
+            max_frames=120,
+            learn=False,
+            floor_core="ahead",
+        ),
+    ),
     # five robots through the centre of a free scene, swapping ends
     "antipodal": lambda crossing: (
         free_scene(300),
@@ -121,10 +133,10 @@ def test_the_compiled_fleet_step_equals_the_generic_loop(case, crossing, monkeyp
     scene, kw = CASES[case](crossing)
     with monkeypatch.context() as m:
         loop_seen = _counted(m, generic=True)
-        loop = run_multi(scene, record_animation=False, **kw)
+        loop = run_multi(scene, record_animation=False, engine="loop", **kw)
     with monkeypatch.context() as m:
         fast_seen = _counted(m, generic=False)
-        fast = run_multi(scene, record_animation=False, **kw)
+        fast = run_multi(scene, record_animation=False, engine="loop", **kw)
     assert loop_seen["generic"] == loop_seen["decide"] > 0
     assert fast_seen["decide"] == loop_seen["decide"]
     if case.startswith("squeezed"):  # squeezed most of the time: the priority stages decide
@@ -156,6 +168,8 @@ def test_a_fleet_benchmark_equals_the_generic_loop_row_by_row(tmp_path, data_roo
     for generic in (True, False):
         with monkeypatch.context() as m:
             seen = _counted(m, generic=generic)
+            # the per-fleet loop (test_fleet_lockstep.py: the lockstep engine equals it)
+            m.setattr("conformal_control.runs.fleet.lockstep_reason", lambda w, s: "the loop")
             out = tmp_path / f"bench-{generic}"
             assert run_multi_bench(out, **kw).ran == 1
         assert (seen["generic"] == seen["decide"]) == generic and seen["decide"] > 0

@@ -253,6 +253,16 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the `bench tune` folder whose time counts in the run-time target",
     )
+    re_.add_argument(
+        "--tuned",
+        default=None,
+        metavar="FILE|default",
+        help=(
+            "label the members of these tuned values as the tuned methods instead of the "
+            "values the run recorded (a `bench tune` folder or its tuned.json, or 'default'); "
+            "for rows run before a family was added to the tuned file"
+        ),
+    )
 
 
 @_bench_args.handler
@@ -474,6 +484,16 @@ def _report(args: argparse.Namespace) -> int:
     prepare(("conformal_control.experiments.bench.report",))
     rows = read_rows(folder)
     bench = read_bench(folder)
+    if args.tuned is not None:
+        from ...experiments.bench.report import with_tuned
+
+        bench, missing = with_tuned(bench, args.tuned, rows)
+        for fam, name in missing:
+            print(
+                f"warning: --tuned: family {fam}'s tuned member {name} has no rows in "
+                f"{folder}: the report shows no tuned member for it",
+                file=sys.stderr,
+            )
     tune_wall = None
     if args.tune_folder:
         path = Path(args.tune_folder)

@@ -140,7 +140,8 @@ def _sweep(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         except SweepInterrupted as exc:
-            print(f"sweep {exc}: {ResultsStore(args.out).interrupted_summary()}", file=sys.stderr)
+            recorded = exc.recorded or ResultsStore(args.out).interrupted_summary()
+            print(f"sweep {exc}: {recorded}", file=sys.stderr)
             return 128 + exc.signum
     print(report.summary())
     if report.summary_plot is not None:

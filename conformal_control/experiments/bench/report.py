@@ -364,6 +364,58 @@ def _tuned_names(bench: Mapping[str, Any] | None) -> dict[str, str]:
     return out
 
 
+def with_tuned(
+    bench: Mapping[str, Any] | None, tuned: str | Path, rows: Sequence[Mapping[str, Any]]
+) -> tuple[dict[str, Any], list[tuple[str, str]]]:
+    """``bench`` with its tuned values replaced by ``tuned``'s (``bench report --tuned``).
+
+    A folder records the tuned file it ran under; a family added to that file later (its
+    rows run with ``--grid``) is not labelled tuned. This reads the values from another
+    file and says which tuned members have no rows in the folder.
+
+    Parameters
+    ----------
+    bench : mapping, optional
+        The folder's ``bench.json``.
+    tuned : str or Path
+        A ``bench tune`` folder or its ``tuned.json``, or ``"default"`` (the shipped values).
+    rows : sequence of mapping
+        The folder's rows.
+
+    Returns
+    -------
+    bench : dict
+        A copy whose ``tuned`` entry describes ``tuned`` (its ``replaced`` the run's source).
+    missing : list of (str, str)
+        (family, tuned member) of the families with rows in the folder whose tuned member
+        has none.
+
+    Raises
+    ------
+    ValueError
+        ``bench`` does not name its suite, or ``tuned`` is not a tuned file of that suite.
+    """
+    from .methods import FAMILIES
+    from .suite import load_tuned
+
+    out = dict(bench or {})
+    suite = out.get("suite")
+    if not isinstance(suite, str):
+        raise ValueError("--tuned: the folder's bench.json does not name its suite")
+    loaded = load_tuned(str(tuned), suite)
+    if loaded is None:
+        raise ValueError(f"--tuned {tuned}: suite {suite!r} ships no tuned values")
+    before = (out.get("tuned") or {}).get("source")
+    out["tuned"] = {**loaded.describe(), "replaced": before}
+    present = {str(r.get("method")) for r in rows}
+    families = {str(r.get("family")) for r in rows}
+    missing = []
+    for fam, name in _tuned_names(out).items():
+        if fam in families and name not in present and fam in FAMILIES:
+            missing.append((fam, name))
+    return out, missing
+
+
 def _view(
     shift: str,
     rows: list[dict[str, Any]],

@@ -22,11 +22,13 @@ from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
     FLOOR_CORE,
+    FLOOR_LOOKAHEAD_S,
     FLOOR_ROW,
     PEDESTRIAN_ROW,
     ROBOT_ROW,
     YIELD_HOLD_S,
     Reciprocity,
+    calm_ahead_pairs,
     calm_pairs,
     check_peer_view,
     floor_rows,
@@ -36,6 +38,7 @@ from .reciprocal import (
     peer_rows,
     priority_relax,
     reference_velocities,
+    relaxed_approach,
     robot_escape,
     sidestep,
 )
@@ -49,6 +52,7 @@ __all__ = [
     "ConformalCBFController",
     "ControlState",
     "CrossingTestbed",
+    "PeerStepForm",
     "PredictorError",
     "merge_forecast_info",
 ]
@@ -110,6 +114,44 @@ class CBFIntervalForm(CompiledForm):
     kernel = "cbf"
     xp: np.ndarray
     vp: np.ndarray
+
+
+@dataclass(frozen=True)
+class PeerStepForm:
+    """What a lockstep engine of fleets reads of a conformal CBF controller at a sampling
+    time, after its ``begin_interval``, to call the compiled step with robot rows
+    (:func:`~conformal_control.families.cbf.kernels_peers.apf_control_peers`) itself, as
+    :meth:`ConformalCBFController.decide` calls it (views of the controller's own arrays:
+    valid until its next ``begin_interval`` or until a decision it makes itself grows
+    them).
+
+    Attributes
+    ----------
+    pv, col, buf, rec : ndarray
+        The kernel's ``pv``, ``col``, ``buf`` and ``rec``.
+    turn, floor : ndarray
+        The kernel's ``turn`` and ``floor``.
+    peer_ids : ndarray
+        The peers' ids, in the order of ``pv``'s peer columns.
+    npred : int
+        The predicted agents (``pv``'s first columns).
+    n : int
+        The record's next row.
+    k_att, v_max : float
+        The attractive field's gain and speed limit (the nominal velocity).
+    """
+
+    pv: np.ndarray
+    col: np.ndarray
+    buf: np.ndarray
+    rec: np.ndarray
+    turn: np.ndarray
+    floor: np.ndarray
+    peer_ids: np.ndarray
+    npred: int
+    n: int
+    k_att: float
+    v_max: float
 
 
 class ConformalCBFController(
@@ -603,18 +645,25 @@ class ConformalCBFController(
             return escape  # the edge rule is off
         view = parked_shares(self._peer_view(state))
         margin = float(self.reciprocity.floor_margin)  # type: ignore[union-attr]
+        # with a pedestrian inside, the edge rule may decide alone (without the floor
+        # rows): the peers inside the floor cores join it, not only those inside d_c
+        within = self._robot_dc + (0.0 if escape is None else FLOOR_CORE * margin)
         peers, U, c, push = robot_escape(
-            state.x[:2], view, self._robot_dc, float(con.escape_gain), margin
+            state.x[:2], view, self._robot_dc, float(con.escape_gain), margin, within
         )
         if not peers.size:
             return escape
         f = self.safety_filter
         if escape is not None and hasattr(f, "min_lambda"):
-            # pedestrians first: the robots join only when some command closes in on none
-            # of the agents inside (else the pedestrians' edge rule decides as without them)
+            # people first, then the robots: when no command closes in on none of the
+            # agents inside, the pedestrians coming at the robot are fled only as fast as
+            # leaves a command toward neither them nor the robots (relaxed_approach)
             star, _ = f.min_lambda(np.r_[escape.U, U], np.r_[escape.c, c])
             if float(star) > 0.0:
-                return escape
+                if not hasattr(f, "speed_set"):
+                    return escape
+                slow = relaxed_approach(f, escape.U, escape.c, U)
+                escape = EscapeRows(escape.rows, escape.U, slow, escape.push)
         k = view.n_peers
         rows = np.r_[n + peers, n + k + peers]
         if escape is None:
@@ -731,6 +780,19 @@ class ConformalCBFController(
                 peds = self._xp[state.step] if self._ids.size else np.zeros((0, 2))
                 d_p = self.constraint.contact_distance()
                 self._cored = calm_pairs(state.x[:2], view.positions, peds, d_p)
+            elif which == "ahead":  # nor any predicted inside within the look-ahead
+                s = state.step
+                peds = self._xp[s] if self._ids.size else np.zeros((0, 2))
+                vel = self._vp[s] if self._ids.size else np.zeros((0, 2))
+                d_p = self.constraint.contact_distance()
+                calm = calm_ahead_pairs(
+                    state.x[:2], view.positions, peds, vel, d_p, FLOOR_LOOKAHEAD_S,
+                    view.own_reference, view.reference,
+                )  # fmt: skip
+                # a pair within the floor distance keeps its core whatever is ahead:
+                # released there, the pedestrians' rows squeeze it into contact
+                near = pair_directions(state.x[:2], view)[1] < self._robot_dc + margin
+                self._cored = calm | near
             else:
                 self._cored = np.full(view.n_peers, which == "always")
         self._rec_px.append(np.array(view.positions, dtype=float))
@@ -819,6 +881,61 @@ class ConformalCBFController(
         self._rl[i] = res.lambda_applied
         self._names[i] = res.status if res.fallback is None else res.fallback
         return res.decision
+
+    def peer_step_form(self) -> PeerStepForm | None:
+        """The arrays of the open interval's compiled step with robot rows, or None when
+        this interval's decisions do not all go through it as :meth:`decide` would take
+        them (not the plain controller and exact 2-D filter, no robot rows, another
+        reference than the attractive field, robots that say they yield). A lockstep
+        engine that decides a step with them counts it with :meth:`add_compiled_steps`;
+        a step the kernel does not decide alone (any code but unconstrained or optimal) is
+        left to :meth:`decide`."""
+        rec = self.reciprocity
+        if not (
+            type(self) is ConformalCBFController
+            and type(self.safety_filter) is Exact2DSafetyFilter
+            and self._fast
+            and self._special
+            and self._attract
+            and rec is not None
+            and rec.coordination == "none"
+        ):
+            return None
+        ref = cast(AttractiveField, self.reference)
+        return PeerStepForm(
+            self._pv,
+            self._col,
+            self.safety_filter.step_buffer(),
+            self._rec,
+            self._turn,
+            self._floor,
+            self._peer_ids,
+            int(self._ids.size),
+            self._n,
+            float(ref.K_att),
+            float(ref.v_max),
+        )
+
+    def add_compiled_steps(self, steps: int, solves: int, t: float) -> None:
+        """Count ``steps`` decisions a lockstep engine made on :meth:`peer_step_form`'s
+        arrays (recorded from the form's row ``n`` on, each unconstrained or optimal;
+        ``solves`` of them optimal; the last one at time ``t``, s), as :meth:`decide`
+        counts its own.
+
+        Parameters
+        ----------
+        steps : int
+            Decisions made.
+        solves : int
+            The optimal ones among them.
+        t : float
+            Time of the last one (s).
+        """
+        if steps:
+            self._n += int(steps)
+            self.n_steps_ += int(steps)
+            self._t_now = float(t)
+            cast(Exact2DSafetyFilter, self.safety_filter).add_compiled_steps(solves)
 
     def _compiled_with_robots(
         self, state: ControlState, x0: float, x1: float, n0: float, n1: float, lam: float, i: int

@@ -75,12 +75,13 @@ from ..cbf.roles import Dynamics, ReferenceController
 from .kernels import (
     choose_safe,
     evaluate,
+    plan_choice,
     plan_predictions,
     positions_of,
     predicted_at,
     substep_states,
 )
-from .peers import peer_terms, split_robots, with_robot_columns
+from .peers import has_peer_terms, peer_terms, split_robots, with_robot_columns
 from .sampling import sample_sequences
 from .settings import Costs, Limits, Sampling, check_groups
 
@@ -136,6 +137,22 @@ class PlanInputs:
         if rows is None or rows[0] is not self.problem[3]:
             return None
         return rows[1], rows[2], rows[3], rows[4]
+
+
+_IN_ONE_CALL: dict[type, bool] = {}
+
+
+def _plans_in_one_call(cls: type) -> bool:
+    """Whether ``cls`` plans with :meth:`SamplingMPC.plan_begin`, :meth:`SamplingMPC.plan_end`
+    and the shared safe distance and edge rule of :class:`SamplingMPC` (none overridden):
+    then :meth:`SamplingMPC.plan` may run them as one compiled call."""
+    known = _IN_ONE_CALL.get(cls)
+    if known is None:
+        known = _IN_ONE_CALL[cls] = all(
+            getattr(cls, name) is getattr(SamplingMPC, name)
+            for name in ("plan_begin", "plan_end", "plan_radius", "safe_radius", "edge_closing")
+        )
+    return known
 
 
 #: No agent's predictions (the edge rule's arguments when it cannot apply).
@@ -390,9 +407,11 @@ class SamplingMPC(
         self._plan_t = 0.0
         self._since = 0
         self._aoff: np.ndarray | None = None  # lambda per agent: safe-distance offsets
-        self._rec: dict[str, list[Any]] = {
-            k: [] for k in ("x", "v", "cmd", "lam", "status", "clear", "safe")
-        }
+        self._rec: dict[str, list[Any]] = {k: [] for k in ("lam", "status", "clear", "safe")}
+        # the ego's position, velocity and command at each control instant, written in
+        # place (columns x, y, vx, vy, cmd x, cmd y; rows _n_rec; grown when full)
+        self._rows = np.empty((64, 6))
+        self._n_rec = 0
 
     # ------------------------------------------------------------------ sampling time
     def _predict(self, observation: PredictionQuery) -> Forecast:
@@ -561,8 +580,50 @@ class SamplingMPC(
 
     def plan(self, state: ControlState, lam: float) -> Plan:
         """Sample, roll out, check and choose (one planning step; counts included)."""
+        if _plans_in_one_call(type(self)):
+            lam = self._per_agent(lam)
+            if self._aoff is None and not has_peer_terms(self, state):
+                return self._plan_compiled(state, lam)
         todo = self.plan_begin(state, lam)
         return self.plan_end(todo, *evaluate(*todo.problem, rows=todo.agent_rows()))
+
+    def _plan_compiled(self, state: ControlState, lam: float) -> Plan:
+        """:meth:`plan_begin`, :func:`evaluate` and :meth:`plan_end` for one safe distance
+        shared by every plan and agent and no peers' lines: the candidates sampled and
+        rolled out as :meth:`plan_begin` does, the rest in one compiled call
+        (:func:`~conformal_control.families.mpc.kernels.plan_choice`: the kernels those
+        steps call, on the arguments they form; the same numbers), then the same counts
+        and fallbacks."""
+        goal = np.asarray(state.goal, dtype=float)
+        if goal.shape != (2,) or not (math.isfinite(goal[0]) and math.isfinite(goal[1])):
+            raise ValueError(f"the goal must be a finite (x, y) in metres, got {state.goal!r}")
+        t_off = float(state.t - self._t0)
+        cmds = self.sample_commands(state, t_off)
+        dt_plan = float(self.sampling.dt_plan)
+        states = self.dynamics.rollout(state.x, cmds, dt_plan)
+        c = self.costs
+        i, n_safe, applied, pos, cost, clear, viol, allowed = plan_choice(
+            np.asarray(states, dtype=np.float64),
+            np.ascontiguousarray(cmds, dtype=np.float64),
+            np.ascontiguousarray(state.x, dtype=np.float64),
+            self._samples,
+            float(self._dt),
+            t_off,
+            dt_plan,
+            max(float(self.d_c) + float(self.margin) - float(lam), 0.0),  # safe_radius's
+            np.ascontiguousarray(goal, dtype=np.float64),
+            np.array([c.w_goal, c.w_terminal, c.w_effort, c.w_comfort], dtype=np.float64),
+            np.ascontiguousarray(self._last_cmd, dtype=np.float64),
+            bool(self.continuous),
+            float(self.d_c),
+            self.edge == "escape" and bool(self._ids.size),
+        )
+        self._candidates = pos  # the plan's candidate positions (N, H, 2), for subclasses
+        if applied:
+            self.n_edge_ += 1
+        return self._conclude(
+            state, cmds, pos, cost, clear, viol, int(i), int(n_safe), allowed if applied else None
+        )
 
     def plan_begin(self, state: ControlState, lam: float) -> PlanInputs:
         """The first half of :meth:`plan`: the candidates sampled and rolled out, and the
@@ -627,6 +688,7 @@ class SamplingMPC(
         state, lam, cmds, pos = todo.state, todo.lam, todo.commands, todo.positions
         lines = peer_terms(self, state, lam, pos)  # robot peers' lines (mpc/peers.py)
         line_viol = np.zeros_like(viol)
+        kept: np.ndarray | None = None
         if lines is not None:
             line_clear, line_viol = lines
             kept = clear >= 0.0  # the pedestrians' safe distances hold
@@ -666,14 +728,36 @@ class SamplingMPC(
                 if not allowed.any():  # none exists: the plan closing in slowest (then cheapest)
                     allowed = closing <= closing.min() + 1e-9
                 safe &= allowed
-                if lines is not None:
+                if lines is not None and kept is not None:
                     kept &= allowed
             n_safe = int(safe.sum())
             i = int(np.argmin(np.where(safe, cost, np.inf))) if n_safe else -1
+        return self._conclude(
+            state, cmds, pos, cost, clear, viol, i, n_safe, allowed, lines, kept, line_viol
+        )
+
+    def _conclude(
+        self,
+        state: ControlState,
+        cmds: np.ndarray,
+        pos: np.ndarray,
+        cost: np.ndarray,
+        clear: np.ndarray,
+        viol: np.ndarray,
+        i: int,
+        n_safe: int,
+        allowed: np.ndarray | None,
+        lines: Any = None,
+        kept: np.ndarray | None = None,
+        line_viol: np.ndarray | None = None,
+    ) -> Plan:
+        """The end of :meth:`plan_end` once candidate ``i`` (-1: none safe) is chosen:
+        the counts, the peers' yield and the fallbacks."""
         self.n_plans_ += 1
         if n_safe:
             status = "optimal" if self._ids.size else "unconstrained"
-        elif lines is not None and kept.any():  # the lines give way before the pedestrians
+        elif lines is not None and kept is not None and line_viol is not None and kept.any():
+            # the lines give way before the pedestrians
             self.n_peer_yield_ += 1
             self._yield_until = state.t + YIELD_HOLD_S
             i = int(np.lexsort((cost, np.where(kept, line_viol, np.inf)))[0])
@@ -687,6 +771,8 @@ class SamplingMPC(
             stop = 1 if self._warm is not None else 0  # the stop seed
             # least intrusion into the pedestrians' safe distances, then over the peers'
             # lines (priority "pedestrians"), then cheapest
+            if line_viol is None:
+                line_viol = np.zeros_like(viol)
             order = np.lexsort((cost, line_viol, viol))
             if self.fallback == "least_violation":
                 i = int(order[0] if allowed is None else order[allowed[order]][0])
@@ -757,11 +843,16 @@ class SamplingMPC(
         cmd: np.ndarray = plan.commands[j].copy()
         self._last_cmd = cmd
         ok = plan.status in ("optimal", "unconstrained", "peer_yield")
+        rows, i = self._rows, self._n_rec
+        if i == rows.shape[0]:
+            self._rows = rows = np.concatenate([rows, np.empty_like(rows)])
+        rows[i, 0:2] = state.x[:2]
+        rows[i, 2:4] = (
+            cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
+        )
+        rows[i, 4:6] = cmd
+        self._n_rec = i + 1
         rec = self._rec
-        rec["x"].append(np.array(state.x[:2], dtype=float))
-        vel = cmd if self.dynamics.command_kind == "velocity" else self.dynamics.velocity(state.x)
-        rec["v"].append(np.array(vel, dtype=float))
-        rec["cmd"].append(cmd)
         rec["lam"].append(float(lam) if ok else math.nan)
         rec["status"].append(plan.status)
         rec["clear"].append(plan.clearance)
@@ -792,17 +883,18 @@ class SamplingMPC(
 
     def _record(self) -> MPCIntervalRecord:
         rec = self._rec
-        s = len(rec["x"])
+        s = self._n_rec
         n = self._ids.size
+        rows = self._rows[:s]
         return MPCIntervalRecord(
             ids=self._ids,
-            x_ego=np.array(rec["x"]).reshape(s, 2),
-            v_ego=np.array(rec["v"]).reshape(s, 2),
+            x_ego=rows[:, 0:2].copy(),
+            v_ego=rows[:, 2:4].copy(),
             x_pred=self._xp[:s].copy() if n else np.zeros((s, 0, 2)),
             v_pred=self._vp[:s].copy() if n else np.zeros((s, 0, 2)),
             lam_applied=np.array(rec["lam"], dtype=float),
             status=list(rec["status"]),
-            command=np.array(rec["cmd"]).reshape(s, 2),
+            command=rows[:, 4:6].copy(),
             clearance=np.array(rec["clear"], dtype=float),
             n_safe=np.array(rec["safe"], dtype=np.int64),
         )

@@ -57,6 +57,7 @@ __all__ = [
     "evaluate",
     "evaluate_many",
     "evaluate_numpy",
+    "plan_choice",
     "plan_predictions",
     "positions_of",
     "predicted_at",
@@ -348,9 +349,11 @@ def _evaluate_steps(
     cut: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_evaluate_range` of every plan against every agent (no ``aoff``), step by step
-    instead of plan by plan: at each plan step the plans' positions are copied into
-    contiguous rows and the innermost loop runs over the PLANS (hundreds) rather than over
-    the agents (a handful after the cut), so it compiles to vector instructions. Every
+    instead of plan by plan: the cost is summed plan by plan (a plan's steps read in memory
+    order), which also copies every step's positions and safe distances into contiguous
+    rows; then the agents' loop runs step by step with the innermost loop over the PLANS
+    (hundreds) rather than over the agents (a handful after the cut), so it compiles to
+    vector instructions. Every
     number is the same arithmetic in the same order per plan (each plan's cost and
     violation are summed over the steps in step order, the minima over agents and steps
     select with the same comparisons in the same order), so the results are
@@ -364,36 +367,47 @@ def _evaluate_steps(
     w_goal, w_term, w_eff, w_comf = weights[0], weights[1], weights[2], weights[3]
     g0 = goal[0]
     g1 = goal[1]
-    cost = np.zeros(n_plans)
+    cost = np.empty(n_plans)
     best = np.full(n_plans, np.inf)
     viol = np.zeros(n_plans)
-    px = np.empty(n_plans)
-    py = np.empty(n_plans)
-    ax = np.full(n_plans, p0[0])
-    ay = np.full(n_plans, p0[1])
-    ux = np.full(n_plans, last[0])
-    uy = np.full(n_plans, last[1])
-    d2 = np.empty(n_plans)
-    for h in range(horizon):
-        wh = w_term if h == horizon - 1 else w_goal
-        for n in range(n_plans):
+    # row h + 1: every plan's position at the end of step h (row 0: p0, where step 1
+    # starts); row h of rr: every plan's safe distance at step h
+    px = np.empty((horizon + 1, n_plans))
+    py = np.empty((horizon + 1, n_plans))
+    rr = np.empty((horizon, n_plans))
+    # the cost plan by plan (its sums in step order; the plan's rows read in memory order)
+    for n in range(n_plans):
+        c = 0.0
+        ux = last[0]
+        uy = last[1]
+        px[0, n] = p0[0]
+        py[0, n] = p0[1]
+        for h in range(horizon):
+            wh = w_term if h == horizon - 1 else w_goal
             x = pos[n, h, 0]
             y = pos[n, h, 1]
-            px[n] = x
-            py[n] = y
+            px[h + 1, n] = x
+            py[h + 1, n] = y
+            rr[h, n] = radius[n, h]
             gx = x - g0
             gy = y - g1
-            c = cost[n]
             c += wh * (gx * gx + gy * gy)
             vx = cmds[n, h, 0]
             vy = cmds[n, h, 1]
             c += w_eff * (vx * vx + vy * vy)
-            c += w_comf * ((vx - ux[n]) * (vx - ux[n]) + (vy - uy[n]) * (vy - uy[n]))
-            cost[n] = c
-            ux[n] = vx
-            uy[n] = vy
-        if n_agents == 0:
-            continue
+            c += w_comf * ((vx - ux) * (vx - ux) + (vy - uy) * (vy - uy))
+            ux = vx
+            uy = vy
+        cost[n] = c
+    if n_agents == 0:
+        return cost, best, viol
+    d2 = np.empty(n_plans)
+    for h in range(horizon):
+        bxr = px[h + 1]
+        byr = py[h + 1]
+        axr = px[h]
+        ayr = py[h]
+        rh = rr[h]
         for n in range(n_plans):
             d2[n] = np.inf
         for j in range(cnt[h]):
@@ -403,11 +417,11 @@ def _evaluate_steps(
             sjy = ksy[h, j]
             if continuous:
                 for n in range(n_plans):
-                    bx = px[n] - ejx
-                    by = py[n] - ejy
+                    bx = bxr[n] - ejx
+                    by = byr[n] - ejy
                     e = bx * bx + by * by  # at the step's end
-                    rx = ax[n] - sjx
-                    ry = ay[n] - sjy
+                    rx = axr[n] - sjx
+                    ry = ayr[n] - sjy
                     dx = bx - rx
                     dy = by - ry
                     dd = dx * dx + dy * dy
@@ -425,16 +439,14 @@ def _evaluate_steps(
                     d2[n] = es if es < d2[n] else d2[n]
             else:
                 for n in range(n_plans):
-                    bx = px[n] - ejx
-                    by = py[n] - ejy
+                    bx = bxr[n] - ejx
+                    by = byr[n] - ejy
                     es = bx * bx + by * by
                     d2[n] = es if es < d2[n] else d2[n]
         for n in range(n_plans):
-            cl = math.sqrt(d2[n]) - radius[n, h]
+            cl = math.sqrt(d2[n]) - rh[n]
             best[n] = cl if cl < best[n] else best[n]
             viol[n] = viol[n] - cl if cl < 0.0 else viol[n]
-            ax[n] = px[n]
-            ay[n] = py[n]
     return cost, best, viol
 
 
@@ -701,6 +713,81 @@ def positions_of(states: np.ndarray) -> np.ndarray:
             out[i, j, 0] = states[i, j, 0]
             out[i, j, 1] = states[i, j, 1]
     return out
+
+
+@jit
+def plan_choice(
+    states: np.ndarray,
+    cmds: np.ndarray,
+    x: np.ndarray,
+    samples: np.ndarray,
+    dt: float,
+    t_off: float,
+    dt_plan: float,
+    radius: float,
+    goal: np.ndarray,
+    weights: np.ndarray,
+    last: np.ndarray,
+    continuous: bool,
+    d_c: float,
+    edge: bool,
+) -> tuple[int, int, bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One plan's compiled work after the rollout, in one call (``SamplingMPC.plan`` with
+    one safe distance shared by every plan and agent, no peers' lines): the candidates'
+    positions (:func:`positions_of`), the predictions at the plan's steps
+    (:func:`plan_predictions`), the evaluation (:func:`evaluate`'s step-by-step kernel, the
+    exact cut on) and the choice (:func:`choose_safe`), each kernel called on the arguments
+    the Python steps between them formed (the shared radius repeated per plan): the same
+    numbers.
+
+    Parameters
+    ----------
+    states : ndarray of shape (N, H, D)
+        The rolled-out plant states, position first.
+    cmds : ndarray of shape (N, H, 2)
+        The candidates' commands.
+    x : ndarray of shape (>= 2,)
+        The robot's state now (its position first).
+    samples : ndarray of shape (M, F + 1, 2)
+        The interval's forecast samples (M = 0: no agent).
+    dt : float
+        Seconds between samples.
+    t_off : float
+        The plan's start, seconds after the sampling time.
+    dt_plan : float
+        Seconds per plan step.
+    radius : float
+        The safe distance of every plan step (m).
+    goal : ndarray of shape (2,)
+    weights : ndarray of shape (4,)
+        ``(w_goal, w_terminal, w_effort, w_comfort)``.
+    last : ndarray of shape (2,)
+        The command applied last.
+    continuous : bool
+        Check the whole of every step.
+    d_c : float
+        The collision distance (m; the edge rule's).
+    edge : bool
+        Whether the edge rule applies.
+
+    Returns
+    -------
+    i, n_safe, applied
+        :func:`choose_safe`'s.
+    pos, cost, clear, viol, allowed
+        The candidates' positions (N, H, 2), their evaluation and the edge rule's allowed
+        plans (written when it applied).
+    """
+    pos = positions_of(states)
+    horizon = pos.shape[1]
+    pred, y0, ex, ey, sx, sy = plan_predictions(samples, dt, t_off, dt_plan, horizon)
+    r = np.full((pos.shape[0], horizon), radius)
+    cost, clear, viol = _evaluate_steps(
+        pos, cmds, x, ex, ey, sx, sy, r, goal, weights, last, continuous, True
+    )
+    allowed = np.empty(pos.shape[0], dtype=np.bool_)
+    i, n_safe, applied = choose_safe(cost, clear, pos, x, pred, y0, d_c, dt_plan, edge, allowed)
+    return i, n_safe, applied, pos, cost, clear, viol, allowed
 
 
 @jit

@@ -7,7 +7,7 @@ import csv
 import numpy as np
 import pytest
 
-from conformal_control.experiments.bench.report import _pareto, summarise, write_report
+from conformal_control.experiments.bench.report import _pareto, summarise, with_tuned, write_report
 
 
 def rows() -> list[dict]:
@@ -124,3 +124,28 @@ def test_the_tuned_label_comes_from_the_tuned_file(tmp_path, split) -> None:
     with files["leaderboard.csv"].open() as fh:
         roles = {r["method"]: r["role"] for r in csv.DictReader(fh)}
     assert roles["conformal[eps=-0.1]"] == f"tuned on {split}"
+
+
+def test_report_tuned_from_another_file_labels_a_family_added_later(tmp_path) -> None:
+    """``bench report --tuned FILE``: rows run before ``conformal`` was in the run's tuned
+    file are labelled tuned by the values of FILE; a tuned member without rows is named."""
+    import json
+
+    bench = {"suite": "crossings-v2", "tuned": {"split": "dev", "values": {}, "source": "old"}}
+    md = write_report(rows(), tmp_path / "a", bench=bench)["leaderboard.md"].read_text()
+    assert "(tuned on dev)" not in md  # the run's file did not list conformal
+    tuned = tmp_path / "tuned.json"
+    doc = {"suite": "crossings-v2", "split": "dev", "families": {"conformal": {"setting": -0.1}}}
+    tuned.write_text(json.dumps(doc))
+    new, missing = with_tuned(bench, tuned, rows())
+    assert new["tuned"]["values"] == {"conformal": -0.1} and new["tuned"]["replaced"] == "old"
+    assert missing == []
+    md = write_report(rows(), tmp_path / "b", bench=new)["leaderboard.md"].read_text()
+    assert "| `conformal[eps=-0.1]` (tuned on dev) |" in md
+    doc["families"]["conformal"]["setting"] = -0.3  # a member the folder never ran
+    tuned.write_text(json.dumps(doc))
+    assert with_tuned(bench, tuned, rows())[1] == [("conformal", "conformal[eps=-0.3]")]
+    with pytest.raises(ValueError, match="tuned on suite"):
+        with_tuned({**bench, "suite": "fcp-planar"}, tuned, rows())
+    with pytest.raises(ValueError, match="does not name its suite"):
+        with_tuned({}, tuned, rows())

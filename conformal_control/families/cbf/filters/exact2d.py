@@ -390,6 +390,27 @@ class Exact2DSafetyFilter(VelocityFilter, compiled="exact2d"):
             return None
         return self._step_record_rest(code, x0, x1, n0, n1, lam, pv, s, rec, i, off)
 
+    def step_buffer(self) -> np.ndarray:
+        """The compiled step's buffer (parameters, polygon, last decision, work space), as
+        :meth:`step_apf_record_peers` hands it to
+        :func:`~conformal_control.families.cbf.kernels_peers.apf_control_peers`: what a
+        lockstep engine calling that kernel itself passes (then :meth:`add_compiled_steps`)."""
+        return self._buf
+
+    def add_compiled_steps(self, solves: int) -> None:
+        """Count steps decided by a lockstep engine on :meth:`step_buffer`, each of them
+        unconstrained or optimal (``solves``: how many optimal), as
+        :meth:`step_apf_record_peers` counts such a step.
+
+        Parameters
+        ----------
+        solves : int
+            The optimal steps among them (one solve each).
+        """
+        self.n_solves_ += int(solves)
+        self._last = self._lastv
+        self._fell_back = False
+
     def step_apf_record_peers(
         self,
         x0: float,
