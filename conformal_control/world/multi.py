@@ -599,10 +599,6 @@ class MultiRobotWorld:
         its peer view)."""
         return self._sensed[i][1]
 
-    def next_time(self) -> float:
-        """The time (s) the next control instant ends at (what :meth:`apply` sets)."""
-        return self._t + self._dt
-
     @property
     def instants(self) -> int:
         """Control instants run since the start (all robots)."""
