@@ -427,6 +427,8 @@ class ConformalStepper:
         self._keys = np.zeros(0, dtype=np.int64)
         self._lams = np.zeros(0)
         self.intervals_: list[IntervalLog] = []
+        #: The last closed interval's record (what the loss scored; None before the first).
+        self.record_: Any = None
         self._n_steps = 0
         self._open = False
         return self.lam_
@@ -502,6 +504,7 @@ class ConformalStepper:
         if not self._open:
             raise RuntimeError("end_interval() called without begin_interval()")
         self._open = False
+        self.record_ = record = self.family.interval_record()
         if isinstance(self.monitor_, AgentMonitor):
             log, self.lam_ = close_agent_interval(
                 len(self.intervals_),
@@ -510,7 +513,7 @@ class ConformalStepper:
                 self._n_steps,
                 monitor=self.monitor_,
                 loss=self.loss,
-                record=self.family.interval_record(),
+                record=record,
                 truth=truth,
                 floors=self.family.lambda_floors() if self.monitor_.row_floor > 0 else None,
             )
@@ -523,7 +526,7 @@ class ConformalStepper:
                 monitor=self.monitor_,
                 learn=self.learn,
                 loss=self.loss,
-                record=self.family.interval_record(),
+                record=record,
                 truth=truth,
             )
         self.intervals_.append(log)

@@ -423,7 +423,7 @@ ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
     "hard_rows": ("level", "last"),
     "coordination": ("none", "yield"),
     "priority": ("pedestrians", "robots"),
-    "floor_core": ("always", "inside", "calm", "none"),
+    "floor_core": ("always", "inside", "calm", "ahead", "none"),
 }
 
 #: The settings of a run's robots section (:class:`Robots`).
@@ -520,13 +520,14 @@ class Robots:
         robots' collision distance the floor rows aim (the rows kept after the robots'
         barrier rows gave way; default :data:`FLOOR_MARGIN_M`); 0: the collision
         distance itself.
-    floor_core : {"always", "inside", "calm", "none"}
+    floor_core : {"always", "inside", "calm", "ahead", "none"}
         CBF family, ``priority="pedestrians"``: which floor rows keep their cores (half
         the margin beyond the collision distance) before the pedestrians' rows give way:
         ``"always"`` every pair's, ``"inside"`` only the pairs already closer than the
         collision distance, ``"calm"`` only the pairs with no pedestrian inside its
-        collision distance of either robot of the pair, ``"none"`` no pair's (the floor
-        rows give way entirely first).
+        collision distance of either robot of the pair, ``"ahead"`` only the pairs with
+        none inside nor predicted inside within a look-ahead (1 s) and those within the
+        floor distance, ``"none"`` no pair's (the floor rows give way entirely first).
 
     Raises
     ------

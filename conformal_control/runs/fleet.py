@@ -507,11 +507,12 @@ def run_multi(
         - ``floor_margin`` (float):
           CBF family, people first: how far (m) beyond the robots' collision distance
           their floor rows aim (default 0.1 m; 0: the collision distance).
-        - ``floor_core`` ({"always", "inside", "calm", "none"}):
+        - ``floor_core`` ({"always", "inside", "calm", "ahead", "none"}):
           CBF family, people first: which pairs' floor rows keep their cores before the
           pedestrians' rows give way (every pair's, only those already closer than the
           collision distance, only those with no pedestrian inside its collision
-          distance of either robot, or none).
+          distance of either robot, only those with none inside nor predicted inside
+          within 1 s and those within the floor distance, or none).
 
     Returns
     -------
@@ -789,7 +790,7 @@ def set_reciprocity(
     floor_margin : float
         How far (m) beyond the robots' collision distance the floor rows aim (CBF
         family, ``priority="pedestrians"``).
-    floor_core : {"always", "inside", "calm", "none"}
+    floor_core : {"always", "inside", "calm", "ahead", "none"}
         Which pairs' floor rows keep their cores before the pedestrians' rows give way
         (CBF family, ``priority="pedestrians"``).
     """

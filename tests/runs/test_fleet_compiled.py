@@ -108,6 +108,18 @@ CASES = {
             floor_core="calm",
         ),
     ),
+    # the same with floor_core="ahead": the pairs' cores give way while the walls'
+    # pedestrians are still coming (predicted inside within the look-ahead)
+    "squeezed_ahead": lambda crossing: (
+        _walls(1.13),
+        dict(
+            starts=[(0.0, 0.9), (0.0, -0.9)],
+            goals=[[(3.0, 0.9)], [(3.0, -0.9)]],
+            max_frames=120,
+            learn=False,
+            floor_core="ahead",
+        ),
+    ),
     # five robots through the centre of a free scene, swapping ends
     "antipodal": lambda crossing: (
         free_scene(300),

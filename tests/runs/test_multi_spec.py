@@ -49,8 +49,8 @@ from conformal_control.runs.fleet import run_multi
         ({"floor_margin": float("inf")}, "floor_margin must be a finite distance >= 0"),
         ({"floor_margin": "0.1"}, "floor_margin must be a finite distance >= 0"),
         ({"floor_margin": True}, "floor_margin must be a finite distance >= 0"),
-        ({"floor_core": "never"}, "floor_core must be one of always, inside, calm, none"),
-        ({"floor_core": None}, "floor_core must be one of always, inside, calm, none"),
+        ({"floor_core": "never"}, "floor_core must be one of always, inside, calm, ahead, none"),
+        ({"floor_core": None}, "floor_core must be one of always, inside, calm, ahead, none"),
     ],
 )
 def test_robots_settings_are_checked_when_given_in_one_line(setting, words):

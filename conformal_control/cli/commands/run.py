@@ -642,11 +642,13 @@ def _multi_args(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--floor-core",
-        choices=("always", "inside", "calm", "none"),
+        choices=("always", "inside", "calm", "ahead", "none"),
         default=None,
         help="which pairs' floor rows keep their cores (half the floor margin) before the "
         "pedestrians' rows give way: every pair's, only pairs already in contact, only "
-        "pairs with no pedestrian in contact with either robot, or none "
+        "pairs with no pedestrian in contact with either robot, only pairs with none in "
+        "contact nor predicted in contact within 1 s (and pairs within the floor "
+        "distance), or none "
         "(default: see docs/multi-robot.md)",
     )
 

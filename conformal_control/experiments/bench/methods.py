@@ -31,6 +31,7 @@ them with their settings and tuning grids):
 ``cc_mpc_margin``  the same learning its distance from the forecast's clearance error
 ``cc_mpc_margin_agent`` the same with a distance per pedestrian (lambda per pedestrian)
 ``cc_mpc_margin_agent_floor`` the same with a floor on each lambda (at most 0.2 m added)
+``cc_mpc_margin_agent_interval`` each pedestrian's floored distance over one interval's plan steps
 ``oracle_mpc``     the sampling MPC planning with the true future, margin 0
 ``acp_mpc``        the sampling MPC avoiding ACP regions per plan step
 ``ecp_mpc``        the sampling MPC avoiding egocentric conformal regions
@@ -528,6 +529,20 @@ _DECLARED: tuple[Family, ...] = (
         # epsilon: the MPC family's default, 0.1 (cc_mpc_margin_agent's dev-tuned value)
         params={"eta": 0.1, "lambda_min": -0.2, "lambda_max": 1.0, "lambda_per": "agent"},
         roles={"family": "mpc", "loss": "margin_miscoverage_agent"},
+        role_params={"family": MPC_SEARCH},
+    ),
+    Family(
+        "cc_mpc_margin_agent_interval",
+        "cc_mpc_margin_agent's per-pedestrian distances (each its own lambda, floored) over "
+        "the plan steps one interval covers, the fixed d_c + margin beyond "
+        "(interval_margin_mpc; floor chosen on dev under delay-0.5s)",
+        setting="params.lambda_min",
+        label="floor={:g}m",
+        meaning="lambda floor (m): the most safe distance the rule may add to a pedestrian",
+        settings=(-0.3,),
+        tune=(-0.2, -0.3, -0.5, -1.0),
+        params={"eta": 0.1, "lambda_min": -0.3, "lambda_max": 1.0, "lambda_per": "agent"},
+        roles={"family": "interval_margin_mpc", "loss": "margin_miscoverage_agent"},
         role_params={"family": MPC_SEARCH},
     ),
     Family(

@@ -22,11 +22,13 @@ from .interp import forward_fill, interpolate_at_substeps
 from .kernels2d import RECORD_FIELDS
 from .reciprocal import (
     FLOOR_CORE,
+    FLOOR_LOOKAHEAD_S,
     FLOOR_ROW,
     PEDESTRIAN_ROW,
     ROBOT_ROW,
     YIELD_HOLD_S,
     Reciprocity,
+    calm_ahead_pairs,
     calm_pairs,
     check_peer_view,
     floor_rows,
@@ -36,6 +38,7 @@ from .reciprocal import (
     peer_rows,
     priority_relax,
     reference_velocities,
+    relaxed_approach,
     robot_escape,
     sidestep,
 )
@@ -642,18 +645,25 @@ class ConformalCBFController(
             return escape  # the edge rule is off
         view = parked_shares(self._peer_view(state))
         margin = float(self.reciprocity.floor_margin)  # type: ignore[union-attr]
+        # with a pedestrian inside, the edge rule may decide alone (without the floor
+        # rows): the peers inside the floor cores join it, not only those inside d_c
+        within = self._robot_dc + (0.0 if escape is None else FLOOR_CORE * margin)
         peers, U, c, push = robot_escape(
-            state.x[:2], view, self._robot_dc, float(con.escape_gain), margin
+            state.x[:2], view, self._robot_dc, float(con.escape_gain), margin, within
         )
         if not peers.size:
             return escape
         f = self.safety_filter
         if escape is not None and hasattr(f, "min_lambda"):
-            # pedestrians first: the robots join only when some command closes in on none
-            # of the agents inside (else the pedestrians' edge rule decides as without them)
+            # people first, then the robots: when no command closes in on none of the
+            # agents inside, the pedestrians coming at the robot are fled only as fast as
+            # leaves a command toward neither them nor the robots (relaxed_approach)
             star, _ = f.min_lambda(np.r_[escape.U, U], np.r_[escape.c, c])
             if float(star) > 0.0:
-                return escape
+                if not hasattr(f, "speed_set"):
+                    return escape
+                slow = relaxed_approach(f, escape.U, escape.c, U)
+                escape = EscapeRows(escape.rows, escape.U, slow, escape.push)
         k = view.n_peers
         rows = np.r_[n + peers, n + k + peers]
         if escape is None:
@@ -770,6 +780,19 @@ class ConformalCBFController(
                 peds = self._xp[state.step] if self._ids.size else np.zeros((0, 2))
                 d_p = self.constraint.contact_distance()
                 self._cored = calm_pairs(state.x[:2], view.positions, peds, d_p)
+            elif which == "ahead":  # nor any predicted inside within the look-ahead
+                s = state.step
+                peds = self._xp[s] if self._ids.size else np.zeros((0, 2))
+                vel = self._vp[s] if self._ids.size else np.zeros((0, 2))
+                d_p = self.constraint.contact_distance()
+                calm = calm_ahead_pairs(
+                    state.x[:2], view.positions, peds, vel, d_p, FLOOR_LOOKAHEAD_S,
+                    view.own_reference, view.reference,
+                )  # fmt: skip
+                # a pair within the floor distance keeps its core whatever is ahead:
+                # released there, the pedestrians' rows squeeze it into contact
+                near = pair_directions(state.x[:2], view)[1] < self._robot_dc + margin
+                self._cored = calm | near
             else:
                 self._cored = np.full(view.n_peers, which == "always")
         self._rec_px.append(np.array(view.positions, dtype=float))

@@ -97,6 +97,7 @@ __all__ = [
     "COORDINATION",
     "FLOOR_CORE",
     "FLOOR_CORES",
+    "FLOOR_LOOKAHEAD_S",
     "FLOOR_ROW",
     "HARD_ROWS",
     "INFORMATION",
@@ -111,6 +112,7 @@ __all__ = [
     "YIELD_HOLD_S",
     "PeerView",
     "Reciprocity",
+    "calm_ahead_pairs",
     "calm_pairs",
     "check_peer_view",
     "floor_rows",
@@ -122,6 +124,7 @@ __all__ = [
     "peer_rows",
     "priority_relax",
     "reference_velocities",
+    "relaxed_approach",
     "robot_escape",
     "sidestep",
     "tie_direction",
@@ -170,6 +173,11 @@ TIE_DISTANCE = 1e-9
 #: at most. Not all the way to ``d_c``: a robot tracks its command with a lag, so a pair
 #: held exactly at ``d_c`` overshoots into contact (measured in docs/multi-robot.md).
 FLOOR_CORE = 0.5
+
+#: The look-ahead (s) of ``floor_core="ahead"`` (:func:`calm_ahead_pairs`): a pair's
+#: cores give way when a pedestrian is predicted inside its collision distance of either
+#: robot of the pair within this many seconds (measured in docs/multi-robot.md).
+FLOOR_LOOKAHEAD_S = 1.0
 
 #: Bisection steps of :func:`lexicographic_search` at most.
 MAX_BISECTIONS = 60
@@ -228,7 +236,7 @@ class Reciprocity(Plugin):
         (:func:`priority_relax`). 0: the floor rows at ``d_c``, and no band. Not used by the
         MPC family (its lines are at ``d_c + robot_margin``) or with ``priority="robots"``
         (no floor rows).
-    floor_core : {"always", "inside", "calm", "none"}
+    floor_core : {"always", "inside", "calm", "ahead", "none"}
         With ``priority="pedestrians"``: which floor rows keep their cores before the
         pedestrians' rows give way (:func:`priority_relax`'s ``cored``): ``"always"``
         every pair's; ``"inside"`` only the pairs already closer than the robots'
@@ -236,7 +244,11 @@ class Reciprocity(Plugin):
         only the pairs with no pedestrian inside its collision distance of either robot
         of the pair (from the predicted agents' positions of the step, as the edge rule
         reads them: when one is, the pair's floor rows give way as with ``"none"``, so
-        the pedestrians' rows come first; :func:`calm_pairs`); ``"none"`` no pair's.
+        the pedestrians' rows come first; :func:`calm_pairs`); ``"ahead"`` the pairs
+        with no pedestrian inside, nor predicted inside within :data:`FLOOR_LOOKAHEAD_S`
+        seconds (:func:`calm_ahead_pairs`), and every pair already within the floor
+        distance ``d_c + floor_margin`` (released there, the pedestrians' rows would
+        squeeze it into contact); ``"none"`` no pair's.
         Default :data:`~conformal_control.core.spec.FLOOR_CORE_DEFAULT` (the trade-off
         measured in docs/multi-robot.md).
     """
@@ -798,11 +810,17 @@ def pair_directions(x_ego: np.ndarray, view: PeerView) -> tuple[np.ndarray, np.n
 
 
 def robot_escape(
-    x_ego: np.ndarray, view: PeerView, d_c: float, gain: float, margin: float
+    x_ego: np.ndarray,
+    view: PeerView,
+    d_c: float,
+    gain: float,
+    margin: float,
+    within: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The edge rule's terms for the peers already within the robots' collision distance
-    ``d_c``: ``(peers, U, c, push)``, the peers' indices in ``view`` and, for each, the
-    unit vector from it to the robot, ``c = 0`` and the speed to move out at.
+    ``d_c`` (or within ``within``): ``(peers, U, c, push)``, the peers' indices in
+    ``view`` and, for each, the unit vector from it to the robot, ``c = 0`` and the speed
+    to move out at.
 
     A reciprocal robot is held to the edge rule about a robot inside ``d_c`` as about a
     pedestrian inside its collision distance: no command of its own closes in on it
@@ -823,12 +841,68 @@ def robot_escape(
         The edge rule's gain (1/s).
     margin : float
         Beyond ``d_c`` (m) the push aims at.
+    within : float, optional
+        The peers closer than this (m) join (default ``d_c``). The controller passes
+        ``d_c + FLOOR_CORE * margin`` (the floor cores) when a pedestrian is inside its
+        collision distance too: there the edge rule may decide alone, without the floor
+        rows, so a peer inside the cores joins it before contact (with
+        :func:`relaxed_approach` when no command meets every agent's rule).
     """
     u, d = pair_directions(x_ego, view)
-    peers = np.flatnonzero((d < d_c) & (u != 0.0).any(axis=1))
+    reach = float(d_c) if within is None else float(within)
+    peers = np.flatnonzero((d < reach) & (u != 0.0).any(axis=1))
     share = np.asarray(view.shares, dtype=float)[peers]
     push = share * float(gain) * (float(d_c) + float(margin) - d[peers])
     return peers.astype(np.int64), -u[peers], np.zeros(peers.size), push
+
+
+def relaxed_approach(solver: Any, U: np.ndarray, c: np.ndarray, robots: np.ndarray) -> np.ndarray:
+    """The pedestrians' edge-rule terms ``c`` relaxed so that the robot need not close in
+    on the robots ``robots`` either: ``c'``, shape (k,).
+
+    The edge rule asks ``U_j v + c_j >= 0`` of a pedestrian j inside its collision
+    distance (``c_j = -U_j . v_j``: the robot moves away at least as fast as the
+    pedestrian comes at it) and ``U_r v >= 0`` of a robot r inside the robots' (the robot
+    commands nothing toward it). Hemmed in -- a pedestrian walking at the robot from
+    behind, a robot ahead -- no command meets both, and a pedestrians' rule alone drives
+    the robot into the robot ahead (measured in docs/multi-robot.md). Here the
+    pedestrians that come at the robot (``c_j < 0``) get ``c'_j = min(c_j + sigma, 0)``
+    with ``sigma`` the smallest level (>= 0) at which every row can be met, so the robot
+    still never commands toward a pedestrian inside (``U_j v >= 0`` at worst: ``sigma``
+    stops there, where ``v = 0`` meets every row) nor toward a robot inside, and moves
+    away from the pedestrians as fast as that leaves room for. The others keep their
+    ``c_j``. ``c`` itself when every row can be met already.
+
+    Parameters
+    ----------
+    solver : SafetyFilter
+        The filter whose primitives are used (``project``, ``search_margin``,
+        ``speed_set``).
+    U : ndarray of shape (k, 2)
+        Unit vectors from each pedestrian inside to the robot.
+    c : ndarray of shape (k,)
+        Their edge-rule terms ``-U_j . v_j`` (m/s).
+    robots : ndarray of shape (m, 2)
+        Unit vectors from each robot inside to the robot (its rows ``U_r v >= 0``).
+    """
+    U = np.asarray(U, dtype=float).reshape(-1, 2)
+    c = np.asarray(c, dtype=float).reshape(-1)
+    robots = np.asarray(robots, dtype=float).reshape(-1, 2)
+    coming = c < 0.0
+    if not coming.any() or not robots.size:
+        return c
+    A = np.concatenate([U[coming], U, robots])
+    base = np.concatenate([c[coming], np.where(coming, 0.0, c), np.zeros(robots.shape[0])])
+    raised = np.zeros(A.shape[0], dtype=bool)
+    raised[: int(coming.sum())] = True
+    nrm = np.hypot(A[:, 0], A[:, 1])
+    S, s_poly, radius = solver.speed_set()
+    level = _level(solver, A, base, nrm, raised, ~raised, S, s_poly, radius)
+    if level is None or level <= 0.0:  # the held rows cannot be met (no 0 in the speed set)
+        return c
+    level += float(solver.search_margin(level, A, base))
+    out: np.ndarray = np.where(coming, np.minimum(c + level, 0.0), c)
+    return out
 
 
 def calm_pairs(
@@ -861,6 +935,69 @@ def calm_pairs(
         return np.zeros(peers.shape[0], dtype=bool)
     d = np.hypot(peds[None, :, 0] - peers[:, None, 0], peds[None, :, 1] - peers[:, None, 1])
     out: np.ndarray = ~(d < distance).any(axis=1)
+    return out
+
+
+def calm_ahead_pairs(
+    x_ego: np.ndarray,
+    peers: np.ndarray,
+    pedestrians: np.ndarray,
+    velocities: np.ndarray,
+    distance: float,
+    horizon: float,
+    own_velocity: np.ndarray | None = None,
+    peer_velocities: np.ndarray | None = None,
+) -> np.ndarray:
+    """Which of a robot's pairs stay calm for ``horizon`` seconds (``floor_core="ahead"``):
+    no pedestrian inside ``distance`` of the robot nor of the pair's other robot now, nor
+    predicted to come inside within ``horizon``, shape (K,).
+
+    Each pedestrian moves on at its (predicted) velocity and each robot at its reference
+    velocity (:attr:`PeerView.own_reference`, :attr:`PeerView.reference`: the velocities
+    or broadcast plans both robots of a pair read alike; standing still without them); the
+    time to contact is :func:`~conformal_control.families.cbf.constraint.time_to_contact`'s.
+    The pedestrians' rows give way *before* a pedestrian is inside (measured in
+    docs/multi-robot.md), so a rule that waits for contact (:func:`calm_pairs`) releases
+    the cores too late; this one releases them while the pedestrian is still coming.
+
+    Parameters
+    ----------
+    x_ego : ndarray of shape (2,)
+        The robot's position (m).
+    peers : ndarray of shape (K, 2)
+        The other robots' positions (m).
+    pedestrians, velocities : ndarrays of shape (N, 2)
+        The pedestrians' positions (m) and velocities (m/s); NaN rows: absent, never
+        inside.
+    distance : float
+        The pedestrians' collision distance (m).
+    horizon : float
+        The look-ahead (s, >= 0; 0: :func:`calm_pairs`' rule, contact now).
+    own_velocity : ndarray of shape (2,), optional
+        The robot's reference velocity (m/s).
+    peer_velocities : ndarray of shape (K, 2), optional
+        The peers' reference velocities (m/s).
+    """
+    from .constraint import time_to_contact
+
+    peers = np.asarray(peers, dtype=float).reshape(-1, 2)
+    peds = np.asarray(pedestrians, dtype=float).reshape(-1, 2)
+    vel = np.asarray(velocities, dtype=float).reshape(-1, 2)
+    k = peers.shape[0]
+    if not peds.size:
+        return np.ones(k, dtype=bool)
+    live = np.isfinite(peds).all(axis=1) & np.isfinite(vel).all(axis=1)
+    peds, vel = peds[live], vel[live]
+    if not peds.size:
+        return np.ones(k, dtype=bool)
+    h = float(horizon)
+    x = np.asarray(x_ego, dtype=float)[:2]
+    if bool((time_to_contact(x, peds, vel, distance, own_velocity) <= h).any()):
+        return np.zeros(k, dtype=bool)
+    pv = np.zeros((k, 2)) if peer_velocities is None else np.asarray(peer_velocities, float)
+    out = np.ones(k, dtype=bool)
+    for j in range(k):
+        out[j] = not bool((time_to_contact(peers[j], peds, vel, distance, pv[j]) <= h).any())
     return out
 
 

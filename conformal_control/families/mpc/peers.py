@@ -61,6 +61,7 @@ from ..cbf.reciprocal import TIE_DISTANCE, PeerView, Reciprocity, tie_direction
 
 __all__ = [
     "RobotSplit",
+    "between_steps",
     "has_peer_terms",
     "near_steps",
     "peer_clearance",
@@ -258,6 +259,30 @@ def near_steps(dt_plan: float, horizon: int, peer_horizon: float | None) -> int:
     return int(min(max(np.floor(float(peer_horizon) / float(dt_plan) + 1e-9), 1), horizon))
 
 
+def between_steps(positions: np.ndarray, now: np.ndarray) -> np.ndarray:
+    """The candidate plans at their steps and halfway between them (from the position
+    now): shape (N, 2 H, 2), the halfway point before each step first.
+
+    The lines bind there too: two robots whose plans are on their sides of the lines at
+    every plan step may still cross each other's path between two steps (plans ``dt_plan``
+    apart, 0.8 m at 2 m/s), and did -- issue 36's gates 4 random pair came within 0.68 m
+    with both plans meeting every line (docs/multi-robot.md).
+
+    Parameters
+    ----------
+    positions : ndarray of shape (N, H, 2)
+        The plans' positions at plan steps 1..H (m).
+    now : ndarray of shape (2,)
+        The robot's position now (m): the plans' step 0.
+    """
+    n, h = positions.shape[0], positions.shape[1]
+    prev = np.concatenate([np.broadcast_to(now, (n, 1, 2)), positions[:, :-1]], axis=1)
+    out = np.empty((n, 2 * h, 2))
+    out[:, 0::2] = 0.5 * (prev + positions)
+    out[:, 1::2] = positions
+    return out
+
+
 def has_peer_terms(family: Any, state: Any) -> bool:
     """Whether :func:`peer_terms` has lines for this plan: a reciprocal family and a
     control instant that sees at least one peer.
@@ -281,7 +306,8 @@ def peer_terms(
     (None without peers): the buffer is half the robots' collision distance (the family's
     ``d_c`` plus the reciprocity's robot margin) plus half the family's margin, minus half
     of lambda when lambda applies to the robots; only the steps within the reciprocity's
-    ``peer_horizon`` count (:func:`near_steps`).
+    ``peer_horizon`` count (:func:`near_steps`), each with the halfway point before it
+    (:func:`between_steps`).
 
     Parameters
     ----------
@@ -309,8 +335,8 @@ def peer_terms(
     buffer = max(0.5 * d_r + 0.5 * (float(family.margin) - lam_r), 0.0)
     dt_plan = float(family.sampling.dt_plan)
     h = near_steps(dt_plan, positions.shape[1], rec.peer_horizon)
-    near = positions[:, :h]
-    times = float(state.t) + dt_plan * np.arange(1, h + 1)
+    near = between_steps(positions[:, :h], np.asarray(state.x, dtype=float)[:2])
+    times = float(state.t) + 0.5 * dt_plan * np.arange(1, 2 * h + 1)
     own, peers = reference_paths(view, state.x, times, float(state.t))
     normal, offset = peer_lines(view, own, peers, buffer)
     return peer_clearance(near, normal, offset)

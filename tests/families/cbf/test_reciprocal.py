@@ -21,6 +21,7 @@ from conformal_control.families.cbf.reciprocal import (
     grown_constraint,
     pair_shares,
     peer_rows,
+    relaxed_approach,
     sidestep,
 )
 from conformal_control.families.cbf.records import CBFTruth, ControlState
@@ -713,10 +714,10 @@ def test_floor_core_chooses_which_floor_rows_keep_their_cores_before_the_pedestr
 def test_floor_core_is_checked():
     for bad in ("sometimes", None, 1):
         with pytest.raises(
-            ValueError, match="floor_core must be one of always, inside, calm, none"
+            ValueError, match="floor_core must be one of always, inside, calm, ahead, none"
         ):
             Reciprocity(floor_core=bad).validate()  # type: ignore[arg-type]
-    for ok in ("always", "inside", "calm", "none"):
+    for ok in ("always", "inside", "calm", "ahead", "none"):
         Reciprocity(floor_core=ok).validate()
 
 
@@ -852,3 +853,117 @@ def test_a_push_yield_retry_decided_by_the_edge_rule_alone_is_counted_once(monke
     grew = {k: after[k] - before[k] for k in before if after[k] != before[k]}
     assert grew["n_infeasible"] == 1 and grew["n_fallback"] == 1
     assert grew["n_fallback_escape"] == 1 and "n_fallback_lambda_search" not in grew
+
+
+def test_relaxed_approach_flees_a_pedestrian_only_as_fast_as_the_robot_ahead_allows():
+    # a pedestrian inside comes at the robot from behind at 1 m/s (U = +x, c = -1), a
+    # robot inside ahead (its row -v_x >= 0): no command meets both; the pedestrian's term
+    # is relaxed to 0 (the robot commands toward neither), not further
+    f = Exact2DSafetyFilter(v_max=1.5)
+    f.reset()
+    ahead = np.array([[-1.0, 0.0]])
+    got = relaxed_approach(f, np.array([[1.0, 0.0]]), np.array([-1.0]), ahead)
+    assert got.tolist() == [0.0]
+    # a pedestrian coming at it from beside, a robot ahead it cannot pass sideways of:
+    # relaxed to 0 as well
+    got = relaxed_approach(f, np.array([[0.0, 1.0]]), np.array([-1.0]), np.array([[0.0, -1.0]]))
+    assert got.tolist() == [0.0]
+    # every row can be met already (the pedestrian beside, the robot ahead): unchanged,
+    # and a pedestrian walking away keeps its term
+    side = np.array([[0.6, 0.8], [1.0, 0.0]])
+    c = np.array([-0.5, 0.4])
+    assert relaxed_approach(f, side, c, ahead).tolist() == c.tolist()
+    # two pedestrians: the one walking away (U = +y, c = 0.3: v_y >= -0.3) keeps its
+    # term; the one coming at the robot (U = +x at 1.4 m/s) is relaxed just enough: the
+    # robot row -0.6 v_x - 0.8 v_y >= 0 leaves v_x <= 0.4 there, so c' = -0.4 (to the
+    # solver's margin), not 0
+    two = np.array([[1.0, 0.0], [0.0, 1.0]])
+    got = relaxed_approach(f, two, np.array([-1.4, 0.3]), np.array([[-0.6, -0.8]]))
+    assert got[1] == 0.3
+    assert abs(got[0] + 0.4) < 1e-6
+
+
+@pytest.mark.parametrize("peer", [0.75, 0.84])
+def test_a_robot_hemmed_in_by_a_pedestrian_behind_never_closes_in_on_the_robot_ahead(peer):
+    # people first, a pedestrian inside its collision distance walking at the robot from
+    # behind at 1 m/s and a peer ahead, inside the robots' d_c (0.8 m) or within the
+    # floor cores (0.85 m): before, the pedestrians' edge rule alone drove the robot at
+    # the peer (the robots' rows dropped: no command met both), so two robots hemmed in by
+    # a crowd closed into contact (issue 36's students001 w043 swap, deathCircle 2 random).
+    # Now the robot commands toward neither: it does not close in on the peer, nor
+    # command toward the pedestrian
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.1, -0.6, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    c = _controller(False, priority="pedestrians")
+    c.reset()
+    c.begin_interval(q)
+    view = PeerView(q.ids[1:], np.array([[peer, 0.0]]), np.array([0.5]))
+    state = ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view)
+    assert c.escape_rows(state) is not None  # the pedestrian is inside
+    v = c.decide(state, 0.0)
+    assert v[0] <= 1e-9  # not toward the peer (+x) ...
+    assert v[0] >= -1e-9  # ... nor toward the pedestrian (-x)
+
+
+def test_calm_ahead_pairs_look_ahead_for_pedestrians_coming_at_either_robot():
+    from conformal_control.families.cbf.reciprocal import calm_ahead_pairs, calm_pairs
+
+    ego = np.zeros(2)
+    peers = np.array([[2.0, 0.0], [0.0, 3.0]])
+    # a pedestrian 1.5 m beyond the first peer walking at it at 1 m/s: inside its 0.7 m in
+    # 0.8 s -- that pair only, within a look-ahead of 1 s; not within 0.5 s (nor for
+    # calm_pairs, which waits for contact)
+    peds, vel = np.array([[3.5, 0.0]]), np.array([[-1.0, 0.0]])
+    assert calm_ahead_pairs(ego, peers, peds, vel, 0.7, 1.0).tolist() == [False, True]
+    assert calm_ahead_pairs(ego, peers, peds, vel, 0.7, 0.5).tolist() == [True, True]
+    assert calm_pairs(ego, peers, peds, 0.7).tolist() == [True, True]
+    # walking away: calm; the peer moving toward it (its reference velocity): not calm
+    assert calm_ahead_pairs(ego, peers, peds, -vel, 0.7, 1.0).tolist() == [True, True]
+    toward = np.array([[1.0, 0.0], [0.0, 0.0]])
+    still = np.zeros((1, 2))
+    assert calm_ahead_pairs(ego, peers, peds, still, 0.7, 1.0, None, toward).tolist() == [
+        False,
+        True,
+    ]
+    # coming at the robot itself: none of its pairs; the peer computing it from its side
+    # gets the same for their pair
+    at_ego = np.array([[-1.2, 0.0]])
+    got = calm_ahead_pairs(ego, peers, at_ego, -vel, 0.7, 1.0)
+    assert got.tolist() == [False, False]
+    assert calm_ahead_pairs(peers[0], ego[None], at_ego, -vel, 0.7, 1.0).tolist() == [False]
+    # a look-ahead of 0 is calm_pairs' rule; absent (NaN) pedestrians are never inside
+    inside = np.array([[2.5, 0.0]])
+    assert calm_ahead_pairs(ego, peers, inside, still, 0.7, 0.0).tolist() == [False, True]
+    nan = np.full((1, 2), np.nan)
+    assert calm_ahead_pairs(ego, peers, nan, nan, 0.7, 1.0).tolist() == [True, True]
+
+
+@pytest.mark.parametrize(("peer", "released"), [(1.0, True), (0.85, False)])
+def test_ahead_cores_give_way_while_a_pedestrian_is_still_coming(peer, released):
+    # the floor-core case (a pedestrian walking at the robot from behind at 1 m/s, 0.2 s
+    # from its 0.7 m; robots' d_c 0.8, floor distance 0.9): nobody is inside yet, so
+    # "calm" holds the core as "always" does; "ahead" sees the pedestrian coming and, for
+    # a peer 1.0 m away, releases the pair's core as "none" does; a peer already within
+    # the floor distance (0.85 m) keeps its core whatever is ahead
+    rng = np.random.default_rng(0)
+    q = _query(rng, n_ped=1, n_rob=1)
+    ped = np.c_[np.linspace(-1.4, -0.9, 6), np.zeros(6)]
+    q = dataclasses.replace(q, history=np.stack([ped, q.history[1]]))
+    got = {}
+    for core in ("always", "calm", "ahead", "none"):
+        c = _controller(False, priority="pedestrians")
+        c.reciprocity.floor_core = core  # type: ignore[union-attr]
+        c.reset()
+        c.begin_interval(q)
+        view = PeerView(q.ids[1:], np.array([[peer, 0.0]]), np.array([0.5]))
+        v = c.decide(ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view), 0.0)
+        got[core] = (v.tolist(), c._cored.tolist())
+    assert got["calm"] == got["always"]
+    assert got["ahead"][1] == [not released]
+    if released:
+        assert got["always"][0] != got["none"][0]  # the cores matter here
+        assert got["ahead"] == got["none"]
+    else:
+        assert got["ahead"] == got["always"]

@@ -15,6 +15,7 @@ from conformal_control.families.cbf.reference import AttractiveField
 from conformal_control.families.cbf.safety_losses import DistanceShortfallLoss
 from conformal_control.families.mpc.controller import SamplingMPC
 from conformal_control.families.mpc.peers import (
+    between_steps,
     near_steps,
     peer_clearance,
     peer_lines,
@@ -112,6 +113,38 @@ def test_the_lines_bind_only_the_near_horizon():
     assert viol[0] == 0.0
     with pytest.raises(ValueError, match="peer_horizon"):
         Reciprocity("reciprocal", peer_horizon=0.0).validate()
+
+
+def test_the_lines_bind_between_plan_steps_too():
+    # two robots swapping sides in one plan step (issue 36, gates 4 random: the pair came
+    # within 0.68 m with both plans meeting every line): the robot at (0, 0) goes to
+    # (1, 1) in the first step, its peer at (1, 0) to (0, 0.8) -- at every plan step the
+    # robot's plan is 0.11 m clear of the line (buffer 0.4 m), but halfway through the
+    # first step the two references are 0.1 m apart and the plan is 0.35 m over the line
+    class Fam:
+        d_c, margin = 0.8, 0.0
+        sampling = Sampling(n_samples=10, horizon=4, dt_plan=0.4)
+        reciprocity = Reciprocity("reciprocal", peer_horizon=1.2)
+
+    class State:
+        t = 0.0
+        x = np.zeros(4)
+        peers = PeerView(
+            np.array([7]), np.array([[1.0, 0.0]]), np.array([0.5]), "velocity",
+            np.array([[-2.5, 2.0]]), np.array([2.5, 2.5]),
+        )  # fmt: skip
+
+    plan = np.array([[[1.0, 1.0], [2.0, 2.0], [3.0, 3.0], [4.0, 4.0]]])  # its references
+    clear, viol = peer_terms(Fam(), State(), 0.0, plan)
+    np.testing.assert_allclose(clear, [-0.35], atol=1e-12)
+    assert viol[0] > 0.0
+    # at the plan steps alone it was clear (the lines there, as before)
+    own, peers = reference_paths(State.peers, State.x, np.array([0.4, 0.8, 1.2]), 0.0)
+    normal, offset = peer_lines(State.peers, own, peers, 0.4)
+    assert peer_clearance(plan[:, :3], normal, offset)[0][0] > 0.1
+    # the halfway points: from the position now, before each step
+    got = between_steps(plan[:, :2], np.array([0.0, 0.0]))
+    np.testing.assert_allclose(got[0], [[0.5, 0.5], [1.0, 1.0], [1.5, 1.5], [2.0, 2.0]])
 
 
 def test_the_lines_give_way_before_the_pedestrians():
