@@ -411,7 +411,7 @@ FLOOR_MARGIN_M = 0.1
 #: The default choice of the reciprocal CBF robots' floor cores (:class:`Robots`
 #: ``floor_core``; chosen by people first on the multi-robot benchmark,
 #: docs/multi-robot.md).
-FLOOR_CORE_DEFAULT = "ahead"
+FLOOR_CORE_DEFAULT = "always"
 
 #: The choices of the robots section's text settings (:class:`Robots`).
 ROBOT_CHOICES: dict[str, tuple[str, ...]] = {
