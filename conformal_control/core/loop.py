@@ -359,6 +359,12 @@ class ConformalStepper:
         Per agent: the share in [0, 1] of each agent's own feasibility floor (the
         family's ``lambda_floors()``) that may replace the rule's ``lambda_min`` for it
         (:class:`~conformal_control.core.monitor.AgentMonitor`'s ``row_floor``); 0: off.
+    lambda_floor_step : float
+        Per agent: how far an agent's own floor steps down at an update whose lambda_j
+        sat at it while its loss exceeded epsilon (1/s;
+        :class:`~conformal_control.core.monitor.AgentMonitor`'s ``floor_step``); 0: off.
+    lambda_floor_limit : float
+        Per agent: the lowest floor ``lambda_floor_step`` reaches (1/s; -inf: none).
     """
 
     @_policy_is_family
@@ -376,6 +382,8 @@ class ConformalStepper:
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
         lambda_floor_row: float = 0.0,
+        lambda_floor_step: float = 0.0,
+        lambda_floor_limit: float = -math.inf,
     ) -> None:
         self.family = family
         self.loss = loss
@@ -388,6 +396,8 @@ class ConformalStepper:
         self.lambda_per = lambda_per
         self.lambda_prior = lambda_prior
         self.lambda_floor_row = lambda_floor_row
+        self.lambda_floor_step = lambda_floor_step
+        self.lambda_floor_limit = lambda_floor_limit
 
     @property
     def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
@@ -418,7 +428,12 @@ class ConformalStepper:
             bounds=self.loss.bounds,
             learn=self.learn,
             **(
-                {"prior": self.lambda_prior, "row_floor": self.lambda_floor_row}
+                {
+                    "prior": self.lambda_prior,
+                    "row_floor": self.lambda_floor_row,
+                    "floor_step": self.lambda_floor_step,
+                    "floor_limit": self.lambda_floor_limit,
+                }
                 if self._vector
                 else {}
             ),
@@ -427,6 +442,8 @@ class ConformalStepper:
         self._keys = np.zeros(0, dtype=np.int64)
         self._lams = np.zeros(0)
         self.intervals_: list[IntervalLog] = []
+        #: The last closed interval's record (what the loss scored; None before the first).
+        self.record_: Any = None
         self._n_steps = 0
         self._open = False
         return self.lam_
@@ -502,6 +519,7 @@ class ConformalStepper:
         if not self._open:
             raise RuntimeError("end_interval() called without begin_interval()")
         self._open = False
+        self.record_ = record = self.family.interval_record()
         if isinstance(self.monitor_, AgentMonitor):
             log, self.lam_ = close_agent_interval(
                 len(self.intervals_),
@@ -510,7 +528,7 @@ class ConformalStepper:
                 self._n_steps,
                 monitor=self.monitor_,
                 loss=self.loss,
-                record=self.family.interval_record(),
+                record=record,
                 truth=truth,
                 floors=self.family.lambda_floors() if self.monitor_.row_floor > 0 else None,
             )
@@ -523,7 +541,7 @@ class ConformalStepper:
                 monitor=self.monitor_,
                 learn=self.learn,
                 loss=self.loss,
-                record=self.family.interval_record(),
+                record=record,
                 truth=truth,
             )
         self.intervals_.append(log)
@@ -572,6 +590,9 @@ class ConformalLoop(ConformalStepper):
     lambda_floor_row : float
         Per agent: the share of each agent's own feasibility floor that may replace
         ``lambda_min`` for it (see :class:`ConformalStepper`).
+    lambda_floor_step, lambda_floor_limit : float
+        Per agent: each agent's own floor stepping down while it binds and the agent is
+        missed, and its limit (1/s; see :class:`ConformalStepper`).
     """
 
     @_policy_is_family
@@ -590,6 +611,8 @@ class ConformalLoop(ConformalStepper):
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
         lambda_floor_row: float = 0.0,
+        lambda_floor_step: float = 0.0,
+        lambda_floor_limit: float = -math.inf,
     ) -> None:
         super().__init__(
             family,
@@ -603,6 +626,8 @@ class ConformalLoop(ConformalStepper):
             lambda_per=lambda_per,
             lambda_prior=lambda_prior,
             lambda_floor_row=lambda_floor_row,
+            lambda_floor_step=lambda_floor_step,
+            lambda_floor_limit=lambda_floor_limit,
         )
         self.env = env
 

@@ -313,3 +313,28 @@ def test_stepper_by_hand_equals_the_loop():
     assert by_stepper.lambda_final == from_loop.lambda_final
     assert by_stepper.guarantee == from_loop.guarantee
     assert by_stepper.guarantee["theorem2_bound"] is not None  # lambda_safe reached the monitor
+
+
+def test_stepper_keeps_the_record_its_loss_scored():
+    """``record_`` is the record the loss was given at the last end_interval (built once:
+    a caller reads the interval's decisions from it without asking the family again)."""
+    given = []
+
+    class Keeping(ThresholdLoss):
+        def __call__(self, record, truth, lam):
+            given.append(record)
+            return super().__call__(record, truth, lam)
+
+    family = LambdaFamily()
+    calls = []
+    build = family.interval_record
+    family.interval_record = lambda: calls.append(1) or build()  # type: ignore[method-assign]
+    stepper = ConformalStepper(family, Keeping(), FixedEtaRule(**RULE))
+    stepper.start()
+    assert stepper.record_ is None
+    for k, th in enumerate([0.3, None, -0.2]):
+        stepper.begin_interval({"k": k})
+        lams = [stepper.decide(i) for i in range(k + 1)]
+        stepper.end_interval(th)
+        assert stepper.record_ is given[-1] and stepper.record_ == lams
+    assert len(calls) == 3  # one record per interval

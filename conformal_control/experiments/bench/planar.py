@@ -975,18 +975,19 @@ def _scenario(
             shared = yield family, st, stepper.lam
             c1 = time.perf_counter()
             cmd = np.asarray(stepper.decide(st), dtype=float)
-            status = family.interval_record().status[-1]
             spent = before + shared + (time.perf_counter() - c1)
             entry["ctrl_ms"] = (spent - (pred.seconds_ - p0)) * 1e3
             entry["pred_ms"] = (pred.seconds_ - p0) * 1e3
-            entry["status"] = status
             entry["recorded"] = True
             entry["collision"] = d_min < COLLISION_M
-            entry["infeasible"] = status not in ("optimal", "unconstrained")
         nxt = rec.at(i + 1, cols)
         stepper.end_interval(
             CBFTruth(samples=np.stack([current, nxt], axis=1), dt=STEP_S, substeps=1)
         )
+        if entry["recorded"]:  # the decision's status: the record the loss was given
+            status = stepper.record_.status[-1]
+            entry["status"] = status
+            entry["infeasible"] = status not in ("optimal", "unconstrained")
         x = plant.step(x, cmd, STEP_S)
         out.steps.append(entry)
         ts += 1

@@ -449,7 +449,7 @@ def test_acp_region_radii_equal_the_radius_step_by_step(seed: int, horizon: int)
         np.sort(np.round(rng.uniform(0, 3, int(rng.integers(0, 25))), 1)) for _ in range(horizon)
     )
     levels = [-0.5, 0.0, 1e-9, 0.04, 0.1, 0.25, 0.5, 0.9, 1 - 1e-12, 1.0, 2.0]
-    levels += [1 - r / 26 for r in range(27)]
+    levels += [1 - r / 26 for r in range(27)] + [-math.inf]
     for lam in levels:
         got = acp._region_radii(scores, lam)
         assert got.tobytes() == region_radii(scores, lam).tobytes(), lam
