@@ -359,6 +359,12 @@ class ConformalStepper:
         Per agent: the share in [0, 1] of each agent's own feasibility floor (the
         family's ``lambda_floors()``) that may replace the rule's ``lambda_min`` for it
         (:class:`~conformal_control.core.monitor.AgentMonitor`'s ``row_floor``); 0: off.
+    lambda_floor_step : float
+        Per agent: how far an agent's own floor steps down at an update whose lambda_j
+        sat at it while its loss exceeded epsilon (1/s;
+        :class:`~conformal_control.core.monitor.AgentMonitor`'s ``floor_step``); 0: off.
+    lambda_floor_limit : float
+        Per agent: the lowest floor ``lambda_floor_step`` reaches (1/s; -inf: none).
     """
 
     @_policy_is_family
@@ -376,6 +382,8 @@ class ConformalStepper:
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
         lambda_floor_row: float = 0.0,
+        lambda_floor_step: float = 0.0,
+        lambda_floor_limit: float = -math.inf,
     ) -> None:
         self.family = family
         self.loss = loss
@@ -388,6 +396,8 @@ class ConformalStepper:
         self.lambda_per = lambda_per
         self.lambda_prior = lambda_prior
         self.lambda_floor_row = lambda_floor_row
+        self.lambda_floor_step = lambda_floor_step
+        self.lambda_floor_limit = lambda_floor_limit
 
     @property
     def policy(self) -> DecisionFamily[Any, Any, Any, Any]:
@@ -418,7 +428,12 @@ class ConformalStepper:
             bounds=self.loss.bounds,
             learn=self.learn,
             **(
-                {"prior": self.lambda_prior, "row_floor": self.lambda_floor_row}
+                {
+                    "prior": self.lambda_prior,
+                    "row_floor": self.lambda_floor_row,
+                    "floor_step": self.lambda_floor_step,
+                    "floor_limit": self.lambda_floor_limit,
+                }
                 if self._vector
                 else {}
             ),
@@ -575,6 +590,9 @@ class ConformalLoop(ConformalStepper):
     lambda_floor_row : float
         Per agent: the share of each agent's own feasibility floor that may replace
         ``lambda_min`` for it (see :class:`ConformalStepper`).
+    lambda_floor_step, lambda_floor_limit : float
+        Per agent: each agent's own floor stepping down while it binds and the agent is
+        missed, and its limit (1/s; see :class:`ConformalStepper`).
     """
 
     @_policy_is_family
@@ -593,6 +611,8 @@ class ConformalLoop(ConformalStepper):
         lambda_per: str = "run",
         lambda_prior: float = 0.5,
         lambda_floor_row: float = 0.0,
+        lambda_floor_step: float = 0.0,
+        lambda_floor_limit: float = -math.inf,
     ) -> None:
         super().__init__(
             family,
@@ -606,6 +626,8 @@ class ConformalLoop(ConformalStepper):
             lambda_per=lambda_per,
             lambda_prior=lambda_prior,
             lambda_floor_row=lambda_floor_row,
+            lambda_floor_step=lambda_floor_step,
+            lambda_floor_limit=lambda_floor_limit,
         )
         self.env = env
 

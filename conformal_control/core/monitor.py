@@ -436,6 +436,18 @@ class AgentMonitor:
         may go below the run's floor down to where its own row stops being satisfiable,
         and the run's floor binds only where a lower lambda_j would make that row
         infeasible. 0 (the default): the rule's ``lambda_min`` for every agent.
+    floor_step : float
+        Each agent's own floor that steps down while it binds (1/s, >= 0; 0, the default:
+        off). Agent j's floor starts at the rule's ``lambda_min``; at an update whose
+        lambda_j was decided at its floor (every expert of DtACI at it; within a relative
+        1e-9) and whose loss exceeds
+        epsilon -- the floor held lambda_j back and the agent was still missed -- the
+        floor moves ``floor_step`` lower (not below ``floor_limit``) before the rule's
+        update, so lambda_j can follow. A floor never rises again (an agent is seen for
+        a few seconds). Applied before ``row_floor`` (which may lower it further).
+    floor_limit : float
+        The lowest floor ``floor_step`` reaches (1/s; default -inf: no limit); must not
+        exceed the rule's ``lambda_min`` when ``floor_step`` is on.
     """
 
     rule: UpdateRule
@@ -447,6 +459,8 @@ class AgentMonitor:
     learn: bool = True
     min_intervals: int = 10
     row_floor: float = 0.0
+    floor_step: float = 0.0
+    floor_limit: float = -math.inf
     entries: dict[int, GuaranteeMonitor] = field(default_factory=dict)
     #: (interval, key, loss) of every update, in order (the pooled running average);
     #: the interval counts the calls of :meth:`update` from 0.
@@ -461,6 +475,10 @@ class AgentMonitor:
     #: (its own row allowed it), and of those, updates that ended at that lower floor.
     n_floor_lowered: int = 0
     n_floor_bound: int = 0
+    #: With ``floor_step``: each agent's own floor (only agents whose floor moved), and
+    #: the updates at which a floor stepped down.
+    agent_floors: dict[int, float] = field(default_factory=dict)
+    n_floor_stepped: int = 0
 
     def __post_init__(self) -> None:
         q = self.prior
@@ -474,6 +492,16 @@ class AgentMonitor:
             or not 0.0 <= r <= 1.0
         ):
             raise ValueError(f"lambda_floor_row must be a share in [0, 1], got {r!r}")
+        step, limit = self.floor_step, self.floor_limit
+        if (
+            isinstance(step, bool)
+            or not isinstance(step, (int, float))
+            or not math.isfinite(step)
+            or step < 0.0
+        ):
+            raise ValueError(f"lambda_floor_step must be a finite rate >= 0, got {step!r}")
+        if isinstance(limit, bool) or not isinstance(limit, (int, float)) or math.isnan(limit):
+            raise ValueError(f"lambda_floor_limit must be a number or -inf, got {limit!r}")
         if int(self.min_intervals) != self.min_intervals or self.min_intervals < 1:
             raise ValueError(f"min_intervals must be an integer >= 1, got {self.min_intervals!r}")
         if "lambda_init" not in self.rule.get_params():
@@ -487,6 +515,11 @@ class AgentMonitor:
         self.epsilon = float(self.rule.epsilon)
         #: the rule's own floor (each agent's, unless its row allows a lower one)
         self.lambda_min = float(self.rule.lambda_min)
+        if step > 0.0 and limit > self.lambda_min:
+            raise ValueError(
+                f"lambda_floor_limit ({limit!r}) must not exceed lambda_min ({self.lambda_min!r}): "
+                "the floor only steps down from lambda_min"
+            )
         self.kind: GuaranteeKind = self.rule.capabilities.guarantee if self.learn else "none"
         self.eta = self.rule.step if self.learn else None
 
@@ -502,6 +535,8 @@ class AgentMonitor:
         bounds: tuple[float, float] = (-0.5, 0.5),
         learn: bool = True,
         row_floor: float = 0.0,
+        floor_step: float = 0.0,
+        floor_limit: float = -math.inf,
     ) -> AgentMonitor:
         """A per-agent monitor for ``rule`` (which it resets); the arguments of
         :meth:`GuaranteeMonitor.for_rule`, and the ``prior`` of a new agent.
@@ -524,6 +559,11 @@ class AgentMonitor:
             False keeps every entry at its start.
         row_floor : float
             Share of each agent's own feasibility floor that may replace ``lambda_min``.
+        floor_step : float
+            How far an agent's own floor steps down while it binds and the agent is missed
+            (1/s; 0: off).
+        floor_limit : float
+            The lowest such floor (1/s).
         """
         return cls(
             rule,
@@ -534,6 +574,8 @@ class AgentMonitor:
             bounds=bounds,
             learn=learn,
             row_floor=row_floor,
+            floor_step=floor_step,
+            floor_limit=floor_limit,
         )
 
     # -- entries ------------------------------------------------------------------------
@@ -624,8 +666,8 @@ class AgentMonitor:
             if mon is None:
                 raise KeyError(f"agent {key} was scored but has no lambda entry (see values())")
             lowered = math.nan
-            if self.row_floor > 0.0 and mon.rule is not None:
-                floor = self.lambda_min
+            if (self.row_floor > 0.0 or self.floor_step > 0.0) and mon.rule is not None:
+                floor = self._own_floor(int(key), mon.lam, loss)
                 if own is not None and math.isfinite(own[i]) and self.row_floor * own[i] < floor:
                     floor = lowered = float(self.row_floor * own[i])
                     self.n_floor_lowered += 1
@@ -647,6 +689,20 @@ class AgentMonitor:
                 mon.set_lambda_next(mon.lam)
             self.sequence.append((self.n_intervals, int(key), float(loss)))
         self.n_intervals += 1
+
+    def _own_floor(self, key: int, lam: float, loss: float) -> float:
+        """Agent ``key``'s floor for this update: the rule's ``lambda_min``, or with
+        ``floor_step`` its own floor, stepped down first when lambda_j (``lam``, the value
+        the interval was decided with) sat at it -- for a rule mixing experts (DtACI):
+        every expert at it -- and ``loss`` exceeded epsilon."""
+        floor = self.agent_floors.get(key, self.lambda_min)
+        if self.floor_step > 0.0 and self.learn:
+            at_floor = lam <= floor + 1e-9 * max(1.0, abs(floor))
+            if at_floor and loss > self.epsilon and floor > self.floor_limit:
+                floor = max(floor - self.floor_step, self.floor_limit)
+                self.agent_floors[key] = floor
+                self.n_floor_stepped += 1
+        return floor
 
     # -- figures ------------------------------------------------------------------------
     @property

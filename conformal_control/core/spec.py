@@ -192,6 +192,18 @@ class Parameters:
         low=0.0,
         high=1.0,
     )
+    lambda_floor_step: float = _p(
+        0.0,
+        "per agent: how far an agent's own floor steps down (1/time) at an update whose "
+        "lambda sat at it while its loss exceeded epsilon (0: off)",
+        dimension=_RATE,
+        **_NON_NEGATIVE,
+    )
+    lambda_floor_limit: float = _p(
+        -math.inf,
+        "per agent: the lowest floor lambda_floor_step reaches (1/time)",
+        dimension=_RATE,
+    )
     convention: str = _p(
         "surface", "barrier distance: 'surface' (disc gap) or 'centre'", kind="text"
     )

@@ -421,6 +421,20 @@ def resolve_params(scene: Scene, given: dict[str, Any]) -> ResolvedParams:
         raise InputError(
             f"parameter lambda_floor_row={r!r} needs lambda_per='agent' (a floor per agent's row)"
         )
+    step, limit = si["lambda_floor_step"], si["lambda_floor_limit"]
+    if not (isinstance(step, (int, float)) and math.isfinite(step) and step >= 0.0):
+        raise InputError(f"parameter lambda_floor_step must be a finite rate >= 0, got {step!r}")
+    if not isinstance(limit, (int, float)) or math.isnan(limit) or limit == math.inf:
+        raise InputError(f"parameter lambda_floor_limit must be a number or -inf, got {limit!r}")
+    if step and merged["lambda_per"] != "agent":
+        raise InputError(
+            f"parameter lambda_floor_step={step!r} needs lambda_per='agent' (a floor per agent)"
+        )
+    if step and limit > si["lambda_min"]:
+        raise InputError(
+            f"parameter lambda_floor_limit ({limit!r}) must not exceed lambda_min "
+            f"({si['lambda_min']!r}): the floor only steps down from lambda_min"
+        )
     dims = {k: scene.units.unit_of(k) for k in PARAM_DIMENSIONS}
     return ResolvedParams(
         given=dict(given),

@@ -558,7 +558,7 @@ class MultiRobotWorld:
         :meth:`lockstep_reason`). The engine then runs a control instant as
         :meth:`apply` does up to the plan broadcast (plants, goals, per-instant record
         kept by the engine and handed over with :meth:`add_steps`), and calls
-        :meth:`close_instant` for the rest."""
+        :meth:`close_instants` for the rest."""
         r = self._x.shape[0]
         g = max(len(x) for x in self._goals)
         goals = np.zeros((r, g, 2))
@@ -599,23 +599,35 @@ class MultiRobotWorld:
         its peer view)."""
         return self._sensed[i][1]
 
-    def next_time(self) -> float:
-        """The time (s) the next control instant ends at (what :meth:`apply` sets)."""
-        return self._t + self._dt
+    @property
+    def instants(self) -> int:
+        """Control instants run since the start (all robots)."""
+        return self._n_instants
 
-    def close_instant(self, t_goal: np.ndarray | None) -> None:
-        """The end of a control instant a lockstep engine ran (:meth:`lockstep`): the clock,
-        the goal times ``t_goal`` (R,) of the robots that reached their last goal at it
-        (NaN for the others), the broadcast paths, the frame clock and log -- the rest of
-        :meth:`apply`.
+    def close_instants(
+        self, k: int, t: float, t_goal: np.ndarray | None = None, *, tick: bool = True
+    ) -> None:
+        """The end of ``k`` control instants a lockstep engine ran (:meth:`lockstep`): the
+        clock (``t``: the time the last one ended at, s, computed as :meth:`apply` adds
+        the step), the goal times of the robots that reached their last goal (``t_goal``
+        (R,), NaN for the others), the broadcast paths, and with ``tick`` the frame clock
+        and log of the last one -- the rest of :meth:`apply` (the engine stops at an
+        instant whose frame clock does anything: the earlier ones' does nothing).
 
         Parameters
         ----------
+        k : int
+            Instants run.
+        t : float
+            Time at the end of the last one (s).
         t_goal : ndarray of shape (R,), optional
             Goal times (s), NaN where none (None: no robot reached its goal).
+        tick : bool
+            Run the frame clock (False: the last instant was not finished deciding yet,
+            only the ones before it ended).
         """
-        self._t += self._dt
-        self._n_instants += 1
+        self._t = float(t)
+        self._n_instants += int(k)
         if t_goal is not None:
             for i in np.flatnonzero(np.isfinite(t_goal)).tolist():
                 self.robots[i].t_goal_ = float(t_goal[i])
@@ -623,7 +635,8 @@ class MultiRobotWorld:
             done, nxt = self._done, self._next_paths
             self._paths = [None if d else p for d, p in zip(done, nxt, strict=True)]
             self._any_yield = bool(self._yield.any())
-        self._tick()
+        if tick:
+            self._tick()
 
     def add_steps(self, i: int, t: np.ndarray, x: np.ndarray, cmd: np.ndarray) -> None:
         """Robot ``i``'s per-instant record of control instants a lockstep engine ran

@@ -124,7 +124,13 @@ def _entry(data_root, index: int, robots: int):  # type: ignore[no-untyped-def]
 @pytest.mark.data
 @pytest.mark.parametrize(
     "index, learn, floor_core",
-    [(0, True, "always"), (0, False, "inside"), (1, True, "calm"), (1, True, "none")],
+    [
+        (0, True, "always"),
+        (0, False, "inside"),
+        (1, True, "calm"),
+        (1, True, "ahead"),
+        (1, False, "none"),
+    ],
 )
 def test_real_fleets_equal_the_per_fleet_loop(data_root, monkeypatch, index, learn, floor_core):
     """Five robots on a ``multi-crossings-v1`` test entry (reciprocal, plans broadcast),

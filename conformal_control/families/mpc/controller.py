@@ -581,10 +581,10 @@ class SamplingMPC(
     def plan(self, state: ControlState, lam: float) -> Plan:
         """Sample, roll out, check and choose (one planning step; counts included)."""
         if _plans_in_one_call(type(self)):
-            lam = self._per_agent(lam)
+            ref = self._per_agent(lam)
             if self._aoff is None and not has_peer_terms(self, state):
-                return self._plan_compiled(state, lam)
-        todo = self.plan_begin(state, lam)
+                return self._plan_compiled(state, ref)
+        todo = self.plan_begin(state, lam)  # lambda as given: a vector keeps its offsets
         return self.plan_end(todo, *evaluate(*todo.problem, rows=todo.agent_rows()))
 
     def _plan_compiled(self, state: ControlState, lam: float) -> Plan:
@@ -824,11 +824,14 @@ class SamplingMPC(
     # ------------------------------------------------------------------ control instant
     def decide(self, state: ControlState, lam: float) -> np.ndarray:
         self._t_now = float(state.t)
-        lam = self._per_agent(lam)  # an array when lambda is run per agent (lambda_keys)
+        given = lam  # an array when lambda is run per agent (lambda_keys)
+        lam = self._per_agent(lam)
         replan = self.will_plan()
         if replan:
             ready, self._next_plan = self._next_plan, None
-            self._plan = plan = ready if ready is not None else self.plan(state, lam)
+            # the plan gets lambda as given: each agent its own safe distance, as in a
+            # lockstep batch (plan_all -> plan_begin(vector))
+            self._plan = plan = ready if ready is not None else self.plan(state, given)
             self._plan_t = state.t
             self._since = 0
             self._warm, self._warm_t = plan.commands, state.t

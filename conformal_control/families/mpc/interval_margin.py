@@ -15,10 +15,8 @@ every prediction, as ``mpc`` does. A span of the whole horizon is the plain ``mp
 
 **lambda per pedestrian reaches the plan.** With lambda run per pedestrian
 (``lambda_per="agent"``), pedestrian j's safe distance over the span is ``max(d_c + margin
-- lambda_j, 0)``, each its own. (``SamplingMPC.decide`` plans with the smallest
-``lambda_j`` for every pedestrian when it plans itself, and with each its own when a batch
-planned for it: ``plan_begin`` turns the vector into that smallest entry and the offsets,
-and ``decide`` hands the smallest entry on. This family plans with the vector both ways.)
+- lambda_j, 0)``, each its own, whether ``decide`` plans itself or a lockstep batch
+planned for it (as in :class:`~conformal_control.families.mpc.controller.SamplingMPC`).
 
 How a plan is checked: the candidates' cost and their clearance beyond the span come from
 one evaluation of the whole horizon (the safe distances of the steps in the span set so low
@@ -116,7 +114,6 @@ class IntervalMarginMPC(SamplingMPC):
 
     def reset(self) -> None:
         super().reset()
-        self._lam_given: Any = None
         self._k = int(self.sampling.horizon)
         self._near: tuple[Any, ...] | None = None
 
@@ -141,17 +138,7 @@ class IntervalMarginMPC(SamplingMPC):
         self._k = self.span_steps(observation)
         super().begin_interval(observation)
 
-    def decide(self, state: ControlState, lam: Any) -> np.ndarray:
-        self._lam_given = lam  # the vector, when lambda is run per pedestrian
-        try:
-            return super().decide(state, lam)
-        finally:
-            self._lam_given = None
-
     def plan_begin(self, state: ControlState, lam: Any) -> PlanInputs:
-        given = self._lam_given
-        if isinstance(given, np.ndarray) and not isinstance(lam, np.ndarray):
-            lam = given  # decide's own plan: each pedestrian its own distance
         todo = super().plan_begin(state, lam)
         self._near = None
         k, h = self._k, int(self.sampling.horizon)

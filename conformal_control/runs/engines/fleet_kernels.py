@@ -37,7 +37,7 @@ from ...families.cbf.kernels2d import HEADER, OPTIMAL, RECORD_FIELDS, UNCONSTRAI
 from ...families.cbf.kernels_peers import apf_control_peers
 from ...families.cbf.pyhypot import py_hypot
 
-__all__ = ["fleet_apply", "fleet_decide"]
+__all__ = ["fleet_apply", "fleet_decide", "fleet_instants"]
 
 jit = kernel(cache=True, nogil=True)
 
@@ -281,3 +281,91 @@ def fleet_apply(
             plan_v[i, 1] = next_v[i, 1]
             yielding[i] = next_yield[i] and not done[i]
     return reached
+
+
+@jit
+def fleet_instants(
+    start: int,
+    n_left: int,
+    instants: int,
+    substeps: int,
+    clock: np.ndarray,
+    ran: np.ndarray,
+    robots: np.ndarray,
+    on: np.ndarray,
+    x: np.ndarray,
+    done: np.ndarray,
+    parked: np.ndarray,
+    step: np.ndarray,
+    goal: np.ndarray,
+    goals: np.ndarray,
+    n_goals: np.ndarray,
+    radius: float,
+    dt: float,
+    plant: np.ndarray,
+    parked_speed: float,
+    lam: np.ndarray,
+    att: np.ndarray,
+    npred: np.ndarray,
+    nrec: np.ndarray,
+    pvs: tuple[np.ndarray, ...],
+    cols: tuple[np.ndarray, ...],
+    bufs: tuple[np.ndarray, ...],
+    recs: tuple[np.ndarray, ...],
+    turns: np.ndarray,
+    floors: np.ndarray,
+    sensed: np.ndarray,
+    n_sensed: np.ndarray,
+    shares: np.ndarray,
+    info: int,
+    plan_v: np.ndarray,
+    next_v: np.ndarray,
+    yielding: np.ndarray,
+    next_yield: np.ndarray,
+    broadcast: bool,
+    cmds: np.ndarray,
+    made: np.ndarray,
+    solves: np.ndarray,
+    t_dec: np.ndarray,
+    scratch: np.ndarray,
+    tally: np.ndarray,
+    st_t: np.ndarray,
+    st_x: np.ndarray,
+    st_cmd: np.ndarray,
+    n_st: np.ndarray,
+    t_goal: np.ndarray,
+) -> int:
+    """Control instants back to back: :func:`fleet_decide` (from robot position ``start``
+    in the first one), then :func:`fleet_apply`, each instant's end time ``clock[0] + dt``
+    written to ``clock[0]`` and counted in ``ran[0]`` -- until a frame closes (the world's
+    control instants since the start, ``instants + ran[0]``, a multiple of
+    ``substeps``), every robot is at its goal, or ``n_left`` instants have run: returns
+    -1 (the world's clock then ticks). A step handed back returns its position in
+    ``robots`` mid-instant (every instant before it was one at which the world's clock
+    does nothing): the caller decides it and calls again from the next robot. The
+    arguments are :func:`fleet_decide`'s and :func:`fleet_apply`'s (``plan``: ``info ==
+    2``)."""
+    while True:
+        p = fleet_decide(
+            start, robots, on, x, done, step, goal, goals, lam, att, npred, nrec, pvs, cols,
+            bufs, recs, turns, floors, sensed, n_sensed, shares, info, plan_v, next_v,
+            next_yield, broadcast, cmds, made, solves, t_dec, clock[0], scratch, tally,
+        )  # fmt: skip
+        if p >= 0:
+            return p
+        start = 0
+        t = clock[0] + dt
+        fleet_apply(
+            x, done, parked, step, goal, goals, n_goals, radius, t, dt, plant, parked_speed,
+            cmds, st_t, st_x, st_cmd, n_st, t_goal, info == 2, plan_v, next_v, yielding,
+            next_yield,
+        )  # fmt: skip
+        clock[0] = t
+        ran[0] += 1
+        every = True
+        for i in range(done.shape[0]):
+            if not done[i]:
+                every = False
+                break
+        if every or (instants + ran[0]) % substeps == 0 or ran[0] >= n_left:
+            return -1

@@ -137,6 +137,8 @@ def loop_steps(
         lambda_per=si["lambda_per"],
         lambda_prior=si["lambda_prior"],
         lambda_floor_row=si["lambda_floor_row"],
+        lambda_floor_step=si["lambda_floor_step"],
+        lambda_floor_limit=si["lambda_floor_limit"],
     )
     # ConformalLoop.run, one control instant at a time
     env, family, away = loop.env, loop.family, 0.0

@@ -42,6 +42,7 @@ def test_every_method_family_is_available_and_runs_one_scenario(data_root: Path)
     assert seen["inflated"].config["barrier"]["params"]["d_c"] == pytest.approx(1.0 + 0.25)
     assert seen["fallback:relax"].config["fallback"] == "relax"
     assert seen["conformal_agent_shortfall"].config["loss"]["name"] == "cbf_shortfall"
+    assert seen["conformal_agent_floorstep"].config["params"]["given"]["lambda_floor_step"] > 0
     assert seen["nolearn"].metrics["n_updates"] == 0 and seen["conformal"].metrics["n_updates"] > 0
 
 

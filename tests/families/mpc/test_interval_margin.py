@@ -97,25 +97,29 @@ def test_within_the_span_the_learned_distance_binds() -> None:
 
 def test_each_pedestrian_gets_its_own_distance_when_decide_plans() -> None:
     """Two pedestrians, lambda per pedestrian: the one beside the path at lambda 0, a far
-    one at -0.8 m. ``SamplingMPC.decide`` plans with the smallest lambda for both (the plan
-    keeps 1.4 m from the near one); this family plans with each its own (the straight line,
-    1 m from it)."""
+    one at -0.8 m. ``SamplingMPC.decide`` plans with each its own distance (the straight
+    line, 1 m from the near one, is allowed; with the smallest lambda for both it would keep
+    1.4 m), exactly as a lockstep batch (``plan_all``) plans; a span of the whole horizon is
+    the same plan."""
     near, far = (3.0, 1.0), (-20.0, 20.0)
     lam = np.array([0.0, -0.8])
     plain = _family(SamplingMPC)
     _decide(plain, [near, far], lam)
-    assert _nearest(plain, near) >= D_C + 0.8 - 1e-9
+    assert D_C <= _nearest(plain, near) < D_C + 0.8
+    shared = _family(SamplingMPC)  # the smallest lambda for both: the old decide's plan
+    _decide(shared, [near, far], -0.8)
+    assert _nearest(shared, near) >= D_C + 0.8 - 1e-9
     fam = _family(span=8)
     _decide(fam, [near, far], lam)
-    assert D_C <= _nearest(fam, near) < D_C + 0.8
-    # planned in a batch (plan_begin given the vector) the plain family does the same
+    np.testing.assert_array_equal(fam._plan.commands, plain._plan.commands)  # type: ignore[union-attr]
+    # planned in a batch (plan_begin given the vector): the same plan
     batch = _family(SamplingMPC)
     batch.begin_interval(_standing([near, far]))
     x = batch.dynamics.initial_state(np.zeros(2), 0.0)
     st = ControlState(x=x, t=0.0, step=0, goal=np.asarray(GOAL))
     assert plan_all([(batch, st, lam)]) == 1
     batch.decide(st, lam)  # type: ignore[arg-type]
-    np.testing.assert_array_equal(batch._plan.commands, fam._plan.commands)  # type: ignore[union-attr]
+    np.testing.assert_array_equal(batch._plan.commands, plain._plan.commands)  # type: ignore[union-attr]
 
 
 def test_batch_episodes_equal_the_loop() -> None:

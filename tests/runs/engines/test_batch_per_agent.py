@@ -79,6 +79,7 @@ def suite_scenes(data_root):
         "conformal_agent",
         "conformal_agent_dtaci",
         "conformal_agent_shortfall",
+        "conformal_agent_floorstep",
         "conformal_dtaci_floor",
     ],
 )
@@ -165,6 +166,7 @@ def test_the_row_floor_and_the_shortfall_loss_match_run_episode(suite_scenes, co
     for b, s in zip(batched, singles, strict=True):
         mb, ms = b.loop.monitor, s.loop.monitor
         assert (mb.n_floor_lowered, mb.n_floor_bound) == (ms.n_floor_lowered, ms.n_floor_bound)
+        assert (mb.n_floor_stepped, mb.agent_floors) == (ms.n_floor_stepped, ms.agent_floors)
     if "lambda_floor_row" in extra.get("params", {}):
         assert sum(s.loop.monitor.n_floor_lowered for s in singles) > 0
         lows = [float(np.min(iv.lams)) for s in singles for iv in s.loop.intervals if iv.lams.size]
@@ -177,3 +179,28 @@ def test_the_row_floor_and_the_shortfall_loss_match_run_episode(suite_scenes, co
             if iv.agent_losses is not None and np.isfinite(iv.agent_losses).any()
         )
         assert top > 0.5  # a shortfall scored beyond the gap loss's 1/2
+
+
+def test_the_floor_step_matches_run_episode(data_root, compare_batch):
+    """``conformal_agent_floorstep`` under the 0.5 s delay on two dev scenarios where a
+    pedestrian is still missed at the -30/s floor (its floor steps 10/s down, not below
+    -60/s): every metric, every agent's lambda and loss, every agent's floor."""
+    from conformal_control.experiments.bench.methods import expand_methods
+
+    ids = ("ethucy-crowds_zara02-w017", "ethucy-crowds_zara02-w060")
+    scenes = [load_scene(f"scenario:crossings-v2/{i}", str(data_root)) for i in ids]
+    kw = expand_methods(["conformal_agent_floorstep"])[0].run_kwargs()
+    kw["predictor"] = "delayed"
+    kw["predictor_params"] = {"delay_s": 0.5, "predictor": "constant_velocity"}
+    frames = [sc.meta["max_frames"] for sc in scenes]
+    batched, singles = compare_batch(
+        scenes, max_frames=frames, batch_size=2, output="results", **kw
+    )
+    _same_agents(batched, singles)
+    for b, s in zip(batched, singles, strict=True):
+        mb, ms = b.loop.monitor, s.loop.monitor
+        assert (mb.n_floor_stepped, mb.agent_floors) == (ms.n_floor_stepped, ms.agent_floors)
+        assert ms.n_floor_stepped > 0
+        assert all(-60.0 <= f <= -40.0 for f in ms.agent_floors.values())
+    lows = [float(np.min(iv.lams)) for s in singles for iv in s.loop.intervals if iv.lams.size]
+    assert -60.0 <= min(lows) < kw["params"]["lambda_min"]  # below the run's floor

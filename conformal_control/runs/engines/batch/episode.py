@@ -186,6 +186,8 @@ class EpisodeSlots:
                 {
                     "prior": fl.params.si["lambda_prior"],
                     "row_floor": fl.params.si["lambda_floor_row"],
+                    "floor_step": fl.params.si["lambda_floor_step"],
+                    "floor_limit": fl.params.si["lambda_floor_limit"],
                 }
                 if vec
                 else {}

@@ -1,21 +1,23 @@
-"""The per-fleet loop with each control instant in two compiled calls.
+"""The per-fleet loop with the robots' control instants stepped together, compiled.
 
 :func:`~conformal_control.runs.fleet.drive` runs a fleet's robots one Python call chain at
 a time (world ``state``, stepper and controller ``decide``, the filter's compiled step,
 ``broadcast``; then the world's ``apply``). :func:`drive_lockstep` runs the same loop with
-the robots of a control instant stepped together: one call of
+the control instants of a frame in one call of
+:func:`~conformal_control.runs.engines.fleet_kernels.fleet_instants`: at each instant
 :func:`~conformal_control.runs.engines.fleet_kernels.fleet_decide` decides every robot whose
 step the compiled step with robot rows decides alone (unconstrained or optimal), on the
 controllers' own arrays (:meth:`ConformalCBFController.peer_step_form
-<conformal_control.families.cbf.controller.ConformalCBFController.peer_step_form>`); a step
-it hands back (the priority stages of the people-first order, the edge rule near an agent,
-a record to grow, a robot whose interval does not take the compiled step) is decided by
-the robot's own stepper, as the loop decides it, and counted (:attr:`FleetRun.python_steps`);
-then one call of :func:`~conformal_control.runs.engines.fleet_kernels.fleet_apply` moves the
-robots (plants, goals, plan broadcast) and the world closes the instant
-(:meth:`~conformal_control.world.multi.MultiRobotWorld.close_instant`: clock, frame log).
-The sampling times (sensing, predicting, learning) are the robots' own objects', as in the
-loop.
+<conformal_control.families.cbf.controller.ConformalCBFController.peer_step_form>`), and
+:func:`~conformal_control.runs.engines.fleet_kernels.fleet_apply` moves the robots (plants,
+goals, plan broadcast). A step it hands back (the priority stages of the people-first
+order, the edge rule near an agent, a record to grow, a robot whose interval does not take
+the compiled step) stops the call mid-instant: the world's clock is brought up to date and
+the robot's own stepper decides it, as the loop decides it, counted
+(:attr:`FleetRun.python_steps`); the call then goes on from the next robot. At a frame's
+end (or once every robot is at its goal) the world's frame clock and log run
+(:meth:`~conformal_control.world.multi.MultiRobotWorld.close_instants`). The sampling times
+(sensing, predicting, learning) are the robots' own objects', as in the loop.
 
 The results are the loop's, number for number (``tests/runs/test_fleet_lockstep.py``
 compares every field but the timings): the same operations in the same order, each
@@ -35,7 +37,7 @@ import numpy as np
 from ....core.loop import ConformalStepper
 from ....families.cbf.controller import ConformalCBFController, PeerStepForm
 from ....world.multi import PARKED_SPEED, LockstepArrays, MultiRobotWorld
-from ..fleet_kernels import fleet_apply, fleet_decide
+from ..fleet_kernels import fleet_instants
 
 __all__ = ["FleetRun", "drive_lockstep", "lockstep_reason"]
 
@@ -213,8 +215,9 @@ def drive_lockstep(
     t_goal = np.full(n, np.nan)
     scratch = np.zeros((n, 5))
     tally = np.zeros(1, dtype=np.int64)  # decisions of the compiled call
+    clk = np.zeros(1)  # the time the compiled call's instants end at
+    ran = np.zeros(1, dtype=np.int64)  # instants it ran
     rb = _Robots(world, steppers)
-    plan = world.information == "plan"
     while not world.done:
         active = [int(i) for i in world.active()]
         for i in active:
@@ -223,21 +226,32 @@ def drive_lockstep(
             own[i] += clock() - t0
         rb.begin(active)
         order = rb.order
-        for _ in range(world.control_instants()):
+        left = world.control_instants()
+        start = 0
+        while left > 0:
             t0 = clock()
-            t_now = world.t
-            start = 0
-            while True:
-                pv, col, buf, rec = rb.lists
-                p = fleet_decide(
-                    start, order, rb.on, arr.x, arr.done, arr.step, arr.goal, arr.goals,
-                    rb.lam, rb.att, rb.npred, rb.nrec, pv, col, buf, rec, rb.turns,
-                    rb.floors, rb.sensed, rb.n_sensed, arr.shares, arr.information,
-                    arr.plan_v, arr.next_v, arr.next_yielding, broadcast, cmds, rb.made,
-                    rb.solves, rb.t_dec, t_now, scratch, tally,
-                )  # fmt: skip
-                if p < 0:
-                    break
+            clk[0] = world.t
+            ran[0] = 0
+            pv, col, buf, rec = rb.lists
+            p = fleet_instants(
+                start, left, world.instants, world.substeps, clk, ran, order, rb.on, arr.x,
+                arr.done, arr.parked, arr.step, arr.goal, arr.goals, arr.n_goals,
+                arr.goal_radius, arr.dt, arr.plant, PARKED_SPEED, rb.lam, rb.att, rb.npred,
+                rb.nrec, pv, col, buf, rec, rb.turns, rb.floors, rb.sensed, rb.n_sensed,
+                arr.shares, arr.information, arr.plan_v, arr.next_v, arr.yielding,
+                arr.next_yielding, broadcast, cmds, rb.made, rb.solves, rb.t_dec, scratch,
+                tally, st_t, st_x, st_cmd, n_st, t_goal,
+            )  # fmt: skip
+            k = int(ran[0])
+            left -= k
+            reached = bool(np.isfinite(t_goal).any())
+            world.close_instants(k, float(clk[0]), t_goal if reached else None, tick=p < 0)
+            if reached:
+                t_goal[:] = np.nan
+            share = (clock() - t0) / max(len(active), 1)
+            for i in active:
+                own[i] += share
+            if p >= 0:  # a step handed back, mid-instant: the robot's own decide
                 i = int(order[p])
                 t1 = clock()
                 rb.flush(i)
@@ -250,21 +264,9 @@ def drive_lockstep(
                 rb.reload(i)
                 run.python_steps += 1
                 own[i] += clock() - t1
-                t0 += clock() - t1
                 start = p + 1
-            t_new = world.next_time()
-            reached = fleet_apply(
-                arr.x, arr.done, arr.parked, arr.step, arr.goal, arr.goals, arr.n_goals,
-                arr.goal_radius, t_new, arr.dt, arr.plant, PARKED_SPEED, cmds, st_t, st_x,
-                st_cmd, n_st, t_goal, plan, arr.plan_v, arr.next_v, arr.yielding,
-                arr.next_yielding,
-            )  # fmt: skip
-            world.close_instant(t_goal if reached else None)
-            if reached:
-                t_goal[:] = np.nan
-            share = (clock() - t0) / max(len(active), 1)
-            for i in active:
-                own[i] += share
+                continue
+            start = 0
             if world.done:
                 break
         for i in active:
