@@ -514,25 +514,19 @@ def test_robots_squeezed_below_their_floor_keep_their_core_once_the_walls_stand(
     # less than the robots' d_c (0.8 m). While the walls walk in, the pedestrians' edge
     # rule comes first (no command closes in on a pedestrian inside its collision distance
     # while one exists) and the robots retreat into each other; once the walls stand, the
-    # floors have given way to their cores and no further: the pair ends at the core,
-    # touching nobody at 1.13; at 1.05 the walls stand inside the robots' discs, the
-    # pedestrians' edge rule and the pair's (robots inside the cores join it, issue 36's
-    # hemmed-in robots) balance their pushes: the pair sits between d_c and the core. No
-    # robot pair-frame in either (before the hemmed-in fix: 2 at 1.13, closest 0.778 m;
-    # 7 at 1.05, closest 0.608 m -- the pedestrians' rule alone pushed them together)
+    # floors have given way to their cores and no further: the pair sits at the core (on
+    # main before: at 0.9 m, the floor held and the pedestrians' rows gave way), touching
+    # nobody at 1.13; at 1.05 the walls stand inside the robots' discs
     tasks = {"starts": [(0.0, 0.9), (0.0, -0.9)], "goals": [[(3.0, 0.9)], [(3.0, -0.9)]]}
     res = run_multi(_walls(stop), max_frames=120, record_animation=False, learn=False, **tasks)
     m = res.metrics
-    d_c = 2 * res.scene.robot_radius
-    core = d_c + FLOOR_CORE * 0.1
+    core = 2 * res.scene.robot_radius + FLOOR_CORE * 0.1
     x, t = res.track["robots"], res.track["t"]
     d = np.hypot(*(x[:, 0] - x[:, 1]).T)
     stood = t > (2.5 - stop) / 0.3 + 2.0  # two seconds after the walls stopped
     assert stood.sum() > 30
-    assert m.n_collide_robot_pairs == 0
-    assert (d[stood] >= d_c).all() and (d[stood] < core + 0.01).all()
-    if stop > 1.1:  # room for the core: the pair ends there, no pedestrian touched
-        assert abs(d[-1] - core) < 1e-6
+    assert (d[stood] >= core - 1e-6).all() and (d[stood] < core + 0.01).all()
+    if stop > 1.1:  # room for the core: no pedestrian touched
         assert m.n_collide_pedestrian == 0
 
 

@@ -38,7 +38,6 @@ from .reciprocal import (
     peer_rows,
     priority_relax,
     reference_velocities,
-    relaxed_approach,
     robot_escape,
     sidestep,
 )
@@ -660,10 +659,7 @@ class ConformalCBFController(
             # leaves a command toward neither them nor the robots (relaxed_approach)
             star, _ = f.min_lambda(np.r_[escape.U, U], np.r_[escape.c, c])
             if float(star) > 0.0:
-                if not hasattr(f, "speed_set"):
-                    return escape
-                slow = relaxed_approach(f, escape.U, escape.c, U)
-                escape = EscapeRows(escape.rows, escape.U, slow, escape.push)
+                return escape
         k = view.n_peers
         rows = np.r_[n + peers, n + k + peers]
         if escape is None:

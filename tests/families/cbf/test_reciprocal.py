@@ -884,14 +884,14 @@ def test_relaxed_approach_flees_a_pedestrian_only_as_fast_as_the_robot_ahead_all
 
 
 @pytest.mark.parametrize("peer", [0.75, 0.84])
-def test_a_robot_hemmed_in_by_a_pedestrian_behind_never_closes_in_on_the_robot_ahead(peer):
-    # people first, a pedestrian inside its collision distance walking at the robot from
+def test_a_robot_hemmed_in_by_a_pedestrian_behind_flees_the_pedestrian_first(peer):
+    # people first: a pedestrian inside its collision distance walking at the robot from
     # behind at 1 m/s and a peer ahead, inside the robots' d_c (0.8 m) or within the
-    # floor cores (0.85 m): before, the pedestrians' edge rule alone drove the robot at
-    # the peer (the robots' rows dropped: no command met both), so two robots hemmed in by
-    # a crowd closed into contact (issue 36's students001 w043 swap, deathCircle 2 random).
-    # Now the robot commands toward neither: it does not close in on the peer, nor
-    # command toward the pedestrian
+    # floor cores (0.85 m). No command meets both edge rules; the pedestrians' comes
+    # first: the robot moves away from the pedestrian at least as fast as it comes, even
+    # into the peer (the cost, issue 36: students001 w043 swap). A rule that slowed the
+    # retreat for the peer was tried and reverted: in test_edge_rule's random cases it
+    # commanded toward a pedestrian inside at 0.83 m/s
     rng = np.random.default_rng(0)
     q = _query(rng, n_ped=1, n_rob=1)
     ped = np.c_[np.linspace(-1.1, -0.6, 6), np.zeros(6)]
@@ -901,10 +901,10 @@ def test_a_robot_hemmed_in_by_a_pedestrian_behind_never_closes_in_on_the_robot_a
     c.begin_interval(q)
     view = PeerView(q.ids[1:], np.array([[peer, 0.0]]), np.array([0.5]))
     state = ControlState(np.zeros(4), 0.0, 0, np.array([5.0, 0.0]), view)
-    assert c.escape_rows(state) is not None  # the pedestrian is inside
+    escape = c.escape_rows(state)
+    assert escape is not None  # the pedestrian is inside
     v = c.decide(state, 0.0)
-    assert v[0] <= 1e-9  # not toward the peer (+x) ...
-    assert v[0] >= -1e-9  # ... nor toward the pedestrian (-x)
+    assert escape.closing(v).max() <= 1e-7  # not closing in on the pedestrian
 
 
 def test_calm_ahead_pairs_look_ahead_for_pedestrians_coming_at_either_robot():
