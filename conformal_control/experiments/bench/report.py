@@ -395,7 +395,6 @@ def with_tuned(
     ValueError
         ``bench`` does not name its suite, or ``tuned`` is not a tuned file of that suite.
     """
-    from .methods import FAMILIES
     from .suite import load_tuned
 
     out = dict(bench or {})
@@ -411,7 +410,7 @@ def with_tuned(
     families = {str(r.get("family")) for r in rows}
     missing = []
     for fam, name in _tuned_names(out).items():
-        if fam in families and name not in present and fam in FAMILIES:
+        if fam in families and name not in present:  # _tuned_names: registered families
             missing.append((fam, name))
     return out, missing
 
